@@ -1,0 +1,115 @@
+"""Ordered parallel map over joblib backends (loky, threading, dask).
+
+Workers only decide who computes which task; results always come back in task
+order, in chunks, so memory is bounded by the chunk and a result never depends on
+``n_jobs`` or the backend.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Callable, Iterable, Iterator
+
+from mtplan._validate import Problems
+
+__all__ = ["BACKENDS", "check_parallel", "ordered_map", "parallel_session"]
+
+BACKENDS = ("loky", "threading", "multiprocessing", "dask", "sequential")
+
+
+def check_parallel(problems: Problems, n_jobs, backend, scheduler=None) -> None:
+    """Record problems with the ``n_jobs``, ``backend`` and ``scheduler`` parameters."""
+    if problems.number("n_jobs", n_jobs, integer=True, low=-64, high=4096):
+        problems.require(int(n_jobs) != 0, "n_jobs", n_jobs, "a non-zero int (-1 means all cores)")
+    if backend is not None:
+        problems.choice("backend", backend, BACKENDS)
+    if scheduler is not None:
+        problems.require(
+            isinstance(scheduler, str) and bool(scheduler),
+            "scheduler",
+            scheduler,
+            "a Dask scheduler address such as 'tcp://host:8786'",
+        )
+
+
+def effective_jobs(n_jobs: int) -> int:
+    """Number of workers ``n_jobs`` asks for (joblib's convention for negative values)."""
+    if n_jobs < 0:
+        return max((os.cpu_count() or 1) + 1 + n_jobs, 1)
+    return n_jobs
+
+
+@contextlib.contextmanager
+def parallel_session(n_jobs: int = 1, backend: str | None = None, scheduler: str | None = None):
+    """Context in which :func:`ordered_map` runs with `backend`.
+
+    For ``backend="dask"``, connect to `scheduler` when given, reuse a Dask client
+    that already exists, or start a local cluster of ``n_jobs`` single-threaded
+    worker processes for the duration of the context.
+    """
+    if backend != "dask":
+        yield {"n_jobs": n_jobs, "backend": backend}
+        return
+    try:
+        import distributed
+    except ImportError as exc:  # pragma: no cover - depends on the installation
+        raise ImportError(
+            "backend='dask' needs the dask extra: pip install 'mtplan[dask]'"
+        ) from exc
+    import joblib
+
+    owned = []
+    if scheduler:
+        client = distributed.Client(scheduler)
+        owned.append(client)
+    else:
+        try:
+            client = distributed.get_client()
+        except ValueError:
+            cluster = distributed.LocalCluster(
+                n_workers=max(effective_jobs(n_jobs), 1),
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+            )
+            client = distributed.Client(cluster)
+            owned += [client, cluster]
+    try:
+        with joblib.parallel_config(backend="dask"):
+            yield {"n_jobs": -1, "backend": "dask", "client": client}
+    finally:
+        for thing in owned:
+            thing.close()
+
+
+def ordered_map(
+    fn: Callable,
+    tasks: Iterable[tuple],
+    *,
+    n_jobs: int = 1,
+    backend: str | None = None,
+    chunk: int | None = None,
+) -> Iterator:
+    """Yield ``fn(*task)`` for each task, in task order.
+
+    Runs in this process when ``n_jobs == 1`` or ``backend == "sequential"``;
+    otherwise through joblib in chunks of `chunk` tasks (default four per worker).
+    Call it inside :func:`parallel_session` for the dask backend.
+    """
+    jobs = effective_jobs(n_jobs)
+    if backend == "sequential" or (jobs == 1 and backend != "dask"):
+        for task in tasks:
+            yield fn(*task)
+        return
+    import joblib
+
+    kwargs = {} if backend == "dask" else {"n_jobs": jobs, "backend": backend or "loky"}
+    size = chunk or 4 * max(jobs, 2)
+    tasks = iter(tasks)
+    with joblib.Parallel(**kwargs) as parallel:
+        while True:
+            batch = [t for _, t in zip(range(size), tasks, strict=False)]
+            if not batch:
+                return
+            yield from parallel(joblib.delayed(fn)(*t) for t in batch)

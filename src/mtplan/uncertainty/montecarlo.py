@@ -1,0 +1,568 @@
+"""Monte Carlo propagation of distributions after JCGM 101:2008 (GUM Supplement 1).
+
+The engine runs trials in fixed-size blocks. Block ``i`` draws from stream ``i`` of
+the seed's ``SeedSequence`` (see :mod:`mtplan.uncertainty._random`), blocks are
+joined in block order, so the same seed gives bit-identical results for any
+``n_jobs`` and any joblib backend. Memory is bounded by the block size: the first
+``keep`` values of every output are kept exactly; beyond that each output switches
+to a fine histogram (2**18 bins over a range fixed by the kept values, exact values
+kept outside it), whose coverage-interval end points are exact to a
+small fraction of a bin.
+
+Two ways to stop:
+
+- ``trials=M``: exactly M trials.
+- ``digits=d``: the adaptive procedure of JCGM 101 7.9. Blocks of
+  ``max(100/(1-p), 10**4)`` trials run until twice the standard deviation of the
+  block values of the estimate, of the standard uncertainty and of both interval
+  end points is at most the numerical tolerance of u at ``d`` significant digits.
+  The tolerance is taken at ``u - 2 s_u`` (the low end of u's own spread), so that
+  a u sitting just above a power of ten cannot stop the run with a tolerance ten
+  times too coarse (the trap of 7.9.2 when u crosses a power of ten).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mtplan._parallel import check_parallel, effective_jobs, ordered_map, parallel_session
+from mtplan._validate import InvalidInput, Problems
+from mtplan.uncertainty._random import as_seed_sequence, block_sequence, named_generator
+from mtplan.uncertainty.distributions import Distribution
+
+__all__ = ["MCResult", "ModelError", "propagate", "run_blocks", "numerical_tolerance",
+           "coverage_interval"]
+
+INTERVALS = ("symmetric", "shortest")
+_HIST_BINS = 2**18
+
+
+class ModelError(ValueError):
+    """The model returned something the engine cannot use (wrong shape, non-finite values)."""
+
+
+# --------------------------------------------------------------------------- intervals
+def _jcgm_indices(m: int, p: float) -> tuple[int, int]:
+    """(q, r): JCGM 101 7.7 index counts for M values and coverage probability p (1-based r)."""
+    pm = p * m
+    q = int(pm) if float(pm).is_integer() else int(pm + 0.5)
+    q = min(max(q, 1), m - 1) if m > 1 else 0
+    half = (m - q) / 2
+    r = int(half) if float(half).is_integer() else int((m - q + 1) / 2)
+    return q, max(r, 1)
+
+
+def coverage_interval(values: np.ndarray, p: float = 0.95, kind: str = "symmetric"):
+    """Coverage interval of a sample after JCGM 101 7.7.
+
+    Parameters
+    ----------
+    values : array of shape (M,)
+        Model values.
+    p : float
+        Coverage probability.
+    kind : {"symmetric", "shortest"}
+        Probabilistically symmetric (7.7.1) or shortest (7.7.2) interval.
+
+    Returns
+    -------
+    (low, high) : tuple of float
+    """
+    x = np.asarray(values, dtype=float).ravel()
+    m = x.size
+    if m < 2:
+        return (float(x[0]), float(x[0])) if m else (math.nan, math.nan)
+    q, r = _jcgm_indices(m, p)
+    if kind == "symmetric":
+        lo, hi = r - 1, r + q - 1
+        part = np.partition(x, (lo, hi))
+        return float(part[lo]), float(part[hi])
+    s = np.sort(x)
+    widths = s[q:] - s[: m - q]
+    j = int(np.argmin(widths))
+    return float(s[j]), float(s[j + q])
+
+
+class _Store:
+    """Values of one output: exact up to `keep` values, a histogram beyond."""
+
+    def __init__(self, keep: int):
+        self.keep = keep
+        self.chunks: list[np.ndarray] = []
+        self.n = 0
+        self.hist = None
+
+    def add(self, x: np.ndarray) -> None:
+        self.n += x.size
+        if self.hist is None:
+            self.chunks.append(x)
+            if self.n > self.keep:
+                self._to_histogram()
+        else:
+            self._bin(x)
+
+    def _to_histogram(self) -> None:
+        x = np.concatenate(self.chunks)
+        lo, hi = float(x.min()), float(x.max())
+        span = hi - lo or max(abs(lo), 1.0) * 1e-12
+        self.edges = (lo - span, hi + span)
+        self.hist = np.zeros(_HIST_BINS, dtype=np.int64)
+        self.under: list[np.ndarray] = []
+        self.over: list[np.ndarray] = []
+        self.chunks = []
+        self._bin(x)
+
+    def _bin(self, x: np.ndarray) -> None:
+        a, b = self.edges
+        inside = (x >= a) & (x < b)
+        if not inside.all():
+            self.under.append(x[x < a])
+            self.over.append(x[x >= b])
+            x = x[inside]
+        idx = ((x - a) * (_HIST_BINS / (b - a))).astype(np.int64)
+        np.clip(idx, 0, _HIST_BINS - 1, out=idx)
+        self.hist += np.bincount(idx, minlength=_HIST_BINS)
+
+    @property
+    def exact(self) -> bool:
+        return self.hist is None
+
+    def values(self) -> np.ndarray | None:
+        if not self.exact:
+            return None
+        if len(self.chunks) > 1:
+            self.chunks = [np.concatenate(self.chunks)]
+        return self.chunks[0] if self.chunks else np.empty(0)
+
+    def interval(self, p: float, kind: str) -> tuple[float, float]:
+        if self.exact:
+            return coverage_interval(self.values(), p, kind)
+        return self._hist_interval(p, kind)
+
+    def _hist_interval(self, p, kind):
+        # cumulative distribution on a grid: exact tails, histogram bins in between
+        under = np.sort(np.concatenate(self.under)) if self.under else np.empty(0)
+        over = np.sort(np.concatenate(self.over)) if self.over else np.empty(0)
+        a, b = self.edges
+        edges = np.linspace(a, b, _HIST_BINS + 1)
+        xs = np.concatenate([under, edges, over])
+        cum_bins = np.concatenate([[0], np.cumsum(self.hist)]) + under.size
+        cdf = np.concatenate(
+            [np.arange(1, under.size + 1), cum_bins, cum_bins[-1] + np.arange(1, over.size + 1)]
+        ).astype(float)
+        cdf /= self.n
+        # make xs strictly usable for interpolation of the inverse CDF
+        def inv(prob):
+            return np.interp(prob, cdf, xs)
+
+        if kind == "symmetric":
+            return float(inv((1 - p) / 2)), float(inv((1 + p) / 2))
+        starts = np.linspace(0, 1 - p, 4097)
+        lows, highs = inv(starts), inv(starts + p)
+        j = int(np.argmin(highs - lows))
+        return float(lows[j]), float(highs[j])
+
+
+# --------------------------------------------------------------------------- results
+@dataclass
+class MCResult:
+    """Result of a Monte Carlo propagation.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Output names, in the model's order.
+    mean, std, low, high : arrays of shape (n_outputs,)
+        Estimate, standard uncertainty and coverage-interval end points per output.
+    cov : array of shape (n_outputs, n_outputs)
+        Covariance matrix of the outputs.
+    trials : int
+        Number of Monte Carlo trials used.
+    coverage : float
+        Coverage probability of the intervals.
+    interval : str
+        ``"symmetric"`` or ``"shortest"``.
+    seed : int or sequence of int
+        Entropy of the root ``SeedSequence``: pass it back as ``rng`` to repeat the run.
+    block_size, blocks : int
+        Size and number of blocks.
+    digits : int or None
+        Significant digits of the adaptive procedure (None for a fixed trial count).
+    converged : bool
+        Always True for a fixed trial count; for the adaptive procedure, whether the
+        stopping rule was met before ``max_trials``.
+    block_stats : dict or None
+        For the adaptive procedure, arrays of shape (blocks, n_outputs) of the block
+        values of ``mean``, ``std``, ``low`` and ``high``.
+    """
+
+    names: tuple
+    mean: np.ndarray
+    std: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    cov: np.ndarray
+    trials: int
+    coverage: float
+    interval: str
+    seed: object
+    block_size: int
+    blocks: int
+    digits: int | None = None
+    converged: bool = True
+    block_stats: dict | None = None
+    _samples: dict = field(default_factory=dict, repr=False)
+
+    def summary(self):
+        """A pandas DataFrame indexed by output name: mean, std, low, high, trials."""
+        import pandas as pd
+
+        return pd.DataFrame(
+            {
+                "mean": self.mean,
+                "std": self.std,
+                "low": self.low,
+                "high": self.high,
+                "trials": np.full(len(self.names), self.trials, dtype=np.int64),
+            },
+            index=pd.Index(self.names, name="output"),
+        )
+
+    def index(self, name: str) -> int:
+        """Position of output `name`."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise KeyError(f"No output named {name!r}; outputs are {', '.join(self.names)}") from None
+
+    def samples(self, name: str) -> np.ndarray | None:
+        """The kept model values of output `name` (None when only a histogram was kept)."""
+        return self._samples.get(name)
+
+    @property
+    def correlation(self) -> np.ndarray:
+        """Correlation matrix of the outputs."""
+        s = np.sqrt(np.diag(self.cov))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.cov / np.outer(s, s)
+
+
+def numerical_tolerance(u: float, digits: int) -> float:
+    """JCGM 101 7.9.2: half a unit in the last of `digits` significant digits of `u`."""
+    if not (u > 0 and math.isfinite(u)):
+        return 0.0
+    exponent = math.floor(math.log10(u)) - digits + 1
+    # guard against log10 rounding just below a power of ten
+    if u >= 10 ** (exponent + digits):
+        exponent += 1
+    return 0.5 * 10.0**exponent
+
+
+# --------------------------------------------------------------------------- engine
+class _Accumulator:
+    """Merges blocks in order: exact mean and covariance (Chan et al.), value stores."""
+
+    def __init__(self, names, keep):
+        self.names = names
+        k = len(names)
+        self.n = 0
+        self.mean = np.zeros(k)
+        self.comoment = np.zeros((k, k))
+        self.stores = [_Store(keep) for _ in names]
+
+    def add(self, x: np.ndarray) -> None:  # x of shape (m, k)
+        m = x.shape[0]
+        mb = x.mean(axis=0)
+        d = x - mb
+        cb = d.T @ d
+        n = self.n + m
+        delta = mb - self.mean
+        self.mean = self.mean + delta * (m / n)
+        self.comoment = self.comoment + cb + np.outer(delta, delta) * (self.n * m / n)
+        self.n = n
+        for j, store in enumerate(self.stores):
+            store.add(np.ascontiguousarray(x[:, j]))
+
+    def cov(self):
+        return self.comoment / max(self.n - 1, 1)
+
+
+def _block_summary(x: np.ndarray, p: float, kind: str) -> np.ndarray:
+    """(4, k): mean, std, low, high of one block."""
+    k = x.shape[1]
+    out = np.empty((4, k))
+    out[0] = x.mean(axis=0)
+    out[1] = x.std(axis=0, ddof=1)
+    for j in range(k):
+        out[2, j], out[3, j] = coverage_interval(x[:, j], p, kind)
+    return out
+
+
+def _stable(stats: list[np.ndarray], u_all: np.ndarray, digits: int) -> bool:
+    arr = np.stack(stats)  # (h, 4, k)
+    h = arr.shape[0]
+    s = arr.std(axis=0, ddof=1) / math.sqrt(h)  # (4, k): std of the block average
+    for j, u in enumerate(u_all):
+        if u == 0 and not s[:, j].any():
+            continue
+        tol = numerical_tolerance(u - 2 * s[1, j] if u - 2 * s[1, j] > 0 else u / 10, digits)
+        if np.any(2 * s[:, j] > tol):
+            return False
+    return True
+
+
+def run_blocks(
+    block_fn: Callable[[int, int], dict],
+    block_args: tuple,
+    *,
+    trials: int | None,
+    digits: int | None,
+    coverage: float,
+    interval: str,
+    root: np.random.SeedSequence,
+    n_jobs: int = 1,
+    backend: str | None = None,
+    scheduler: str | None = None,
+    block_size: int | None = None,
+    max_trials: int = 10**8,
+    keep: int = 2 * 10**6,
+    progress: bool | None = None,
+    label: str = "Monte Carlo",
+) -> MCResult:
+    """Run ``block_fn(*block_args, root, index, size)`` over blocks and join the results.
+
+    `block_fn` must return a dict of output name -> array of shape (size,), the
+    same names in the same order for every block. This is the one driver behind
+    :func:`propagate` and the procedures' Monte Carlo.
+    """
+    p = coverage
+    if block_size is None:
+        block_size = max(math.ceil(100 / (1 - p)), 10_000)
+    adaptive = digits is not None
+    if adaptive:
+        n_blocks_max = max(math.ceil(max_trials / block_size), 2)
+    else:
+        n_blocks_max = math.ceil(trials / block_size)
+
+    def sizes(i):
+        if adaptive:
+            return block_size
+        return min(block_size, trials - i * block_size)
+
+    bar = _progress(progress, None if adaptive else trials, label)
+    acc = None
+    names = None
+    stats: list[np.ndarray] = []
+    converged = not adaptive
+    jobs = max(effective_jobs(n_jobs), 1)
+    with parallel_session(n_jobs, backend, scheduler) as session:
+        tasks = ((*block_args, root, i, sizes(i)) for i in range(n_blocks_max))
+        chunk = jobs if adaptive else None
+        for i, out in enumerate(
+            ordered_map(block_fn, tasks, n_jobs=session["n_jobs"], backend=backend, chunk=chunk)
+        ):
+            if names is None:
+                names = tuple(out)
+                acc = _Accumulator(names, keep)
+            elif tuple(out) != names:
+                raise ModelError(f"Block {i} returned outputs {tuple(out)}, expected {names}.")
+            x = np.column_stack([out[n] for n in names])
+            bad = ~np.isfinite(x)
+            if bad.any():
+                cols = [names[j] for j in np.flatnonzero(bad.any(axis=0))]
+                raise ModelError(
+                    f"The model returned {int(bad.sum())} non-finite values in block {i} "
+                    f"(outputs: {', '.join(cols)}); every trial must give a finite value."
+                )
+            acc.add(x)
+            if bar is not None:
+                bar.update(x.shape[0])
+            if adaptive:
+                stats.append(_block_summary(x, p, interval))
+                if len(stats) >= 2 and _stable(stats, np.sqrt(np.diag(acc.cov())), digits):
+                    converged = True
+                    break
+    if bar is not None:
+        bar.close()
+
+    cov = acc.cov()
+    lows, highs = zip(*(s.interval(p, interval) for s in acc.stores), strict=True)
+    samples = {n: s.values() for n, s in zip(names, acc.stores, strict=True) if s.exact}
+    arr = np.stack(stats) if stats else None
+    return MCResult(
+        names=names,
+        mean=acc.mean.copy(),
+        std=np.sqrt(np.diag(cov)),
+        low=np.array(lows),
+        high=np.array(highs),
+        cov=cov,
+        trials=acc.n,
+        coverage=p,
+        interval=interval,
+        seed=root.entropy,
+        block_size=block_size,
+        blocks=len(stats) if adaptive else n_blocks_max,
+        digits=digits,
+        converged=converged,
+        block_stats=None
+        if arr is None
+        else {k: arr[:, j] for j, k in enumerate(("mean", "std", "low", "high"))},
+        _samples=samples,
+    )
+
+
+def _progress(progress, total, label):
+    if progress is False:
+        return None
+    try:
+        from tqdm.auto import tqdm
+    except ImportError:  # pragma: no cover
+        return None
+    return tqdm(total=total, desc=label, unit="trial", unit_scale=True, delay=1.0,
+                file=sys.stderr, leave=False, disable=progress is None and not sys.stderr.isatty())
+
+
+def check_run_options(p: Problems, trials, digits, coverage, interval, max_trials=None, block_size=None):
+    """Record problems with the common Monte Carlo options."""
+    if trials is not None and digits is not None:
+        p.add_text("Give either 'trials' or 'digits', not both")
+    if trials is not None:
+        p.number("trials", trials, integer=True, low=2)
+    if digits is not None:
+        p.number("digits", digits, integer=True, low=1, high=6)
+    p.number("coverage", coverage, low=0, high=1, low_open=True, high_open=True)
+    p.choice("interval", interval, INTERVALS)
+    if max_trials is not None:
+        p.number("max_trials", max_trials, integer=True, low=2)
+    if block_size is not None:
+        p.number("block_size", block_size, integer=True, low=2)
+
+
+# --------------------------------------------------------------------------- propagate
+def _as_outputs(out, size: int) -> dict:
+    if isinstance(out, Mapping):
+        items = list(out.items())
+    else:
+        items = [("y", out)]
+    result = {}
+    for name, value in items:
+        a = np.asarray(value, dtype=float)
+        if a.ndim == 0:
+            a = np.broadcast_to(a, (size,))
+        if a.shape[0] != size or a.ndim > 2:
+            raise ModelError(
+                f"The model's output {name!r} has shape {a.shape}; expected ({size},) or "
+                f"({size}, k): one value (or one vector) per trial."
+            )
+        if a.ndim == 2:
+            for j in range(a.shape[1]):
+                result[f"{name}[{j}]"] = a[:, j]
+        else:
+            result[str(name)] = a
+    return result
+
+
+def _propagate_block(model, inputs, root, index, size):
+    seq = block_sequence(root, index)
+    values = {name: dist.draw(named_generator(seq, name), size) for name, dist in inputs.items()}
+    return _as_outputs(model(**values), size)
+
+
+def check_inputs(p: Problems, model, inputs) -> None:
+    """Record problems with a model and its named input distributions."""
+    p.require(callable(model), "model", model, "a callable taking the inputs as keyword arrays")
+    if not isinstance(inputs, Mapping) or not inputs:
+        p.add("inputs", inputs, "a non-empty mapping of names to distributions")
+        return
+    for name, dist in inputs.items():
+        if not isinstance(name, str) or not name.isidentifier():
+            p.add("inputs", name, "keyed by names that are Python identifiers")
+        if not isinstance(dist, Distribution):
+            p.add(f"inputs[{name!r}]", dist, "an mtplan.uncertainty distribution")
+
+
+def propagate(
+    model: Callable,
+    inputs: Mapping[str, Distribution],
+    *,
+    trials: int | None = None,
+    digits: int | None = None,
+    coverage: float = 0.95,
+    interval: str = "symmetric",
+    rng=None,
+    n_jobs: int = 1,
+    backend: str | None = None,
+    scheduler: str | None = None,
+    block_size: int | None = None,
+    max_trials: int = 10**8,
+    progress: bool | None = None,
+) -> MCResult:
+    """Propagate distributions through a vectorised model by Monte Carlo (JCGM 101).
+
+    Parameters
+    ----------
+    model : callable
+        ``model(**inputs)`` takes one array of shape (M,) per input (shape (M, n) for a
+        vector input) and returns an array of shape (M,) or (M, k), or a dict of such
+        arrays keyed by output name.
+    inputs : mapping of str to Distribution
+        The input quantities.
+    trials : int, optional
+        Fixed number of trials (default 10**6 when `digits` is not given).
+    digits : int, optional
+        Run the adaptive procedure of JCGM 101 7.9 to this many significant digits.
+    coverage : float
+        Coverage probability p of the intervals (default 0.95).
+    interval : {"symmetric", "shortest"}
+        Probabilistically symmetric or shortest coverage interval.
+    rng : None, int, SeedSequence or Generator
+        The seed. The same seed gives bit-identical results for any `n_jobs` and backend.
+    n_jobs : int
+        Worker count (joblib's convention; -1 uses every core).
+    backend : {"loky", "threading", "multiprocessing", "dask", "sequential"}, optional
+        joblib backend; "dask" runs on `scheduler` or on a local Dask cluster.
+    scheduler : str, optional
+        Address of a Dask scheduler for ``backend="dask"``.
+    block_size : int, optional
+        Trials per block (default ``max(100/(1-p), 10**4)``, JCGM 101 7.9.2).
+    max_trials : int
+        Upper limit of the adaptive procedure (``converged`` is False if reached).
+    progress : bool, optional
+        Progress bar on stderr (shown after one second; default: when stderr is a terminal).
+
+    Returns
+    -------
+    MCResult
+    """
+    p = Problems("propagate")
+    check_inputs(p, model, inputs)
+    check_run_options(p, trials, digits, coverage, interval, max_trials, block_size)
+    check_parallel(p, n_jobs, backend, scheduler)
+    p.raise_if_any()
+    if trials is None and digits is None:
+        trials = 10**6
+    root = as_seed_sequence(rng)
+    return run_blocks(
+        _propagate_block,
+        (model, dict(inputs)),
+        trials=trials,
+        digits=digits,
+        coverage=coverage,
+        interval=interval,
+        root=root,
+        n_jobs=n_jobs,
+        backend=backend,
+        scheduler=scheduler,
+        block_size=block_size,
+        max_trials=max_trials,
+        progress=progress,
+        label="propagate",
+    )
+
+
+__all__ += ["check_run_options", "check_inputs", "InvalidInput"]
