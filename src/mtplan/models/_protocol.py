@@ -1,0 +1,519 @@
+"""The procedure protocol: what every measurement procedure module provides.
+
+A procedure module (``mtplan/models/<name>.py``) defines a module-level
+``PROCEDURE = Procedure(...)`` built from:
+
+- ``Setup``: a frozen dataclass of :class:`SetupBase` whose fields are declared
+  with :func:`param` (unit in the field name, e.g. ``incline_deg``,
+  ``probe_noise_um``; range in the metadata). Validation runs on construction
+  and lists every problem at once; cross-field rules go in ``_check``.
+- ``Truth``: the true measurands and nuisance geometry, same mechanism.
+- ``measurands(setup) -> tuple[Measurand, ...]``: names (ISO 230), display units.
+- ``sources(setup) -> dict[str, Source]``: the error sources. A source named
+  ``probe_noise`` is sized by the set-up field ``probe_noise_um``; a size of 0
+  switches it off (its distribution's std is 0). Each source is drawn per trial
+  into ``(trials, *shape)`` in internal units (mm, rad).
+- ``forward(setup, truth, errors) -> readings``: the deterministic forward model;
+  ``errors`` maps every source name to an array of shape ``(n, *source.shape)``;
+  ``readings`` is a dict of batch-first arrays (leading axis = trials).
+- ``estimators``: name -> ``estimate(setup, readings) -> dict[measurand, (n,) array]``
+  in internal units (mm, rad). The seed's method is named ``patent`` (or the seed's
+  own name) and is always present.
+- ``true_values(setup, truth) -> dict[measurand, float]`` in internal units.
+- ``duration(setup) -> float``: machine time of the test [s].
+- ``readings_frame(setup, readings) -> DataFrame`` and ``from_frame(setup, df) -> readings``:
+  the tidy CSV format of measured data (batch of one), and back.
+
+``simulate`` = draw the active sources + ``forward``; it and the Monte Carlo engine
+live here, once, so no procedure writes its own random-number handling.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from mtplan._validate import InvalidInput, Problems, is_real
+from mtplan.uncertainty._random import as_seed_sequence, block_sequence, named_generator
+from mtplan.uncertainty.distributions import Constant, Distribution
+
+__all__ = [
+    "UNITS",
+    "Measurand",
+    "Source",
+    "SetupBase",
+    "param",
+    "fields_info",
+    "make",
+    "Procedure",
+]
+
+#: Display units and their factor from the internal unit (mm for lengths, rad for angles).
+UNITS = {
+    "mm": 1.0,
+    "um": 1e3,
+    "nm": 1e6,
+    "rad": 1.0,
+    "mrad": 1e3,
+    "urad": 1e6,
+    "deg": 180 / math.pi,
+    "arcsec": 648000 / math.pi,
+    "1": 1.0,
+    "ppm": 1e6,
+    "s": 1.0,
+}
+UNIT_SUFFIXES = ("mm", "um", "nm", "rad", "mrad", "urad", "deg", "arcsec", "ppm", "s", "c",
+                 "um_per_m", "urad_per_m", "mm_min", "per_s", "um_per_s", "urad_per_s",
+                 "um_per_deg", "urad_per_deg")
+
+
+@dataclass(frozen=True)
+class Measurand:
+    """A quantity a procedure determines.
+
+    Parameters
+    ----------
+    name : str
+        ISO 230 name where one exists (``EX0C``, ``EBX``, ``EC0Y``) or a plain one.
+    unit : str
+        Display unit, a key of :data:`UNITS` (``um``, ``urad``, ...).
+    description : str
+        Plain English.
+    """
+
+    name: str
+    unit: str
+    description: str = ""
+
+    def __post_init__(self):
+        if self.unit not in UNITS:
+            raise ValueError(
+                f"The 'unit' parameter of Measurand {self.name!r} must be one of "
+                f"{', '.join(UNITS)}. Got {self.unit!r} instead."
+            )
+
+    @property
+    def scale(self) -> float:
+        """Factor from the internal unit (mm or rad) to the display unit."""
+        return UNITS[self.unit]
+
+
+@dataclass(frozen=True)
+class Source:
+    """An error source: one distribution drawn per trial into ``shape``.
+
+    Parameters
+    ----------
+    distribution : Distribution
+        Distribution of each element, in internal units (mm, rad, or 1 for scale errors).
+    shape : tuple of int
+        Elements per trial (e.g. ``(positions, points)`` for reading noise, ``()`` for
+        one scale error per test).
+    description : str
+        What the source is, and where its default size comes from.
+    """
+
+    distribution: Distribution
+    shape: tuple = ()
+    description: str = ""
+
+    @property
+    def active(self) -> bool:
+        """A source whose distribution has zero spread is switched off."""
+        return bool(np.any(np.asarray(self.distribution.std) > 0))
+
+    @property
+    def size(self) -> int:
+        return int(np.prod(self.shape, dtype=np.int64)) * int(
+            np.prod(self.distribution.event_shape, dtype=np.int64)
+        )
+
+
+# --------------------------------------------------------------------------- fields
+def param(
+    default,
+    *,
+    doc: str,
+    low: float | None = None,
+    high: float | None = None,
+    low_open: bool = False,
+    high_open: bool = False,
+    choices: tuple | None = None,
+    min_len: int | None = None,
+):
+    """Declare a set-up (or truth) field with its documentation and allowed range.
+
+    The unit is the field name's suffix (``_mm``, ``_um``, ``_deg``, ...). For a
+    tuple field (``tuple[float, ...]``) the range applies to every element and
+    `min_len` to its length.
+    """
+    meta = {
+        "doc": doc,
+        "low": low,
+        "high": high,
+        "low_open": low_open,
+        "high_open": high_open,
+        "choices": choices,
+        "min_len": min_len,
+    }
+    if isinstance(default, list):
+        default = tuple(default)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def _base_type(tp):
+    """(kind, optional) for an annotation: kind in float, int, bool, str, tuple."""
+    optional = False
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        optional = len(args) < len(typing.get_args(tp))
+        tp = args[0] if len(args) == 1 else tp
+        origin = typing.get_origin(tp)
+    if origin is tuple or tp is tuple:
+        args = typing.get_args(tp)
+        return ("tuple", args[0] if args else float), optional
+    return (tp, None), optional
+
+
+def fields_info(cls) -> list[dict]:
+    """Field name, kind, default, unit, doc and range of a Setup or Truth class."""
+    hints = typing.get_type_hints(cls)
+    out = []
+    for f in dataclasses.fields(cls):
+        if f.name.startswith("_"):
+            continue
+        (kind, elem), optional = _base_type(hints[f.name])
+        unit = next((s for s in sorted(UNIT_SUFFIXES, key=len, reverse=True)
+                     if f.name.endswith("_" + s)), "")
+        out.append(
+            {
+                "name": f.name,
+                "kind": kind,
+                "element": elem,
+                "optional": optional,
+                "default": f.default,
+                "unit": unit,
+                **{k: f.metadata.get(k) for k in ("doc", "low", "high", "low_open", "high_open",
+                                                 "choices", "min_len")},
+            }
+        )
+    return out
+
+
+def _describe(info) -> str:
+    kind = info["kind"]
+    name = {float: "a finite number", int: "an int", bool: "true or false", str: "a string"}.get(
+        kind, "a comma-separated list of numbers" if kind == "tuple" else str(kind)
+    )
+    if info["choices"]:
+        return "one of " + ", ".join(repr(c) for c in info["choices"])
+    bounds = []
+    if info["low"] is not None:
+        bounds.append(f"{'>' if info['low_open'] else '>='} {info['low']:g}")
+    if info["high"] is not None:
+        bounds.append(f"{'<' if info['high_open'] else '<='} {info['high']:g}")
+    text = name + (" " + " and ".join(bounds) if bounds else "")
+    if info["optional"]:
+        text += " (or empty for the default)"
+    return text
+
+
+def _check_value(p: Problems, info, value) -> None:
+    if value is None:
+        if not info["optional"]:
+            p.add(info["name"], value, _describe(info))
+        return
+    kind = info["kind"]
+    if info["choices"]:
+        p.choice(info["name"], value, info["choices"])
+        return
+    rng = dict(low=info["low"], high=info["high"], low_open=info["low_open"],
+               high_open=info["high_open"])
+    if kind is bool:
+        p.require(isinstance(value, bool | np.bool_), info["name"], value, "true or false")
+    elif kind is str:
+        p.require(isinstance(value, str), info["name"], value, "a string")
+    elif kind is int:
+        if not p.number(info["name"], value, integer=True, **rng):
+            return
+    elif kind is float:
+        p.number(info["name"], value, **rng)
+    elif kind == "tuple":
+        if not isinstance(value, tuple) or not all(is_real(v) for v in value):
+            p.add(info["name"], value, "a list of numbers")
+            return
+        arr = np.asarray(value, dtype=float)
+        lo, hi = info["low"], info["high"]
+        ok = np.all(np.isfinite(arr))
+        if lo is not None:
+            ok &= np.all(arr > lo) if info["low_open"] else np.all(arr >= lo)
+        if hi is not None:
+            ok &= np.all(arr < hi) if info["high_open"] else np.all(arr <= hi)
+        if info["min_len"] is not None:
+            ok &= len(value) >= info["min_len"]
+        if not ok:
+            allowed = "a list of finite numbers"
+            b = _describe({**info, "kind": float, "optional": False}).replace("a finite number", "")
+            if b.strip():
+                allowed += ", each" + b
+            if info["min_len"]:
+                allowed += f", at least {info['min_len']} of them"
+            p.add(info["name"], value, allowed)
+
+
+class SetupBase:
+    """Mixin for frozen Setup and Truth dataclasses: validation on construction.
+
+    Subclasses set ``_owner`` (the procedure name used in messages) and may override
+    ``_check(self, problems)`` for rules that involve several fields.
+    """
+
+    _owner = "setup"
+
+    def __post_init__(self):
+        p = Problems(self._owner)
+        infos = fields_info(type(self))
+        for info in infos:
+            value = getattr(self, info["name"])
+            if isinstance(value, list):
+                value = tuple(value)
+                object.__setattr__(self, info["name"], value)
+            if info["kind"] is float and is_real(value) and not isinstance(value, float):
+                object.__setattr__(self, info["name"], float(value))
+            if info["kind"] is int and is_real(value) and float(value).is_integer():
+                object.__setattr__(self, info["name"], int(value))
+            _check_value(p, info, getattr(self, info["name"]))
+        if not p:
+            self._check(p)
+        p.raise_if_any()
+
+    def _check(self, problems: Problems) -> None:
+        """Cross-field rules; record problems with ``problems.add`` / ``add_text``."""
+
+    def replace(self, **changes):
+        """A copy with `changes` applied (validated)."""
+        return dataclasses.replace(self, **changes)
+
+    def as_dict(self) -> dict:
+        """Field values as plain Python (tuples as lists), for JSON and tables."""
+        out = {}
+        for f in dataclasses.fields(self):
+            if f.name.startswith("_"):
+                continue
+            v = getattr(self, f.name)
+            out[f.name] = list(v) if isinstance(v, tuple) else v
+        return out
+
+
+def _coerce(info, value):
+    """Parse a command-line string (or TOML value) into the field's kind."""
+    kind = info["kind"]
+    if isinstance(value, str):
+        text = value.strip()
+        if info["optional"] and text.lower() in ("", "none", "default"):
+            return None
+        if kind is bool:
+            low = text.lower()
+            if low in ("1", "true", "yes", "on"):
+                return True
+            if low in ("0", "false", "no", "off"):
+                return False
+            raise ValueError
+        if kind is int:
+            f = float(text)
+            if not f.is_integer():
+                raise ValueError
+            return int(f)
+        if kind is float:
+            return float(text)
+        if kind == "tuple":
+            parts = [s for s in text.replace(";", ",").split(",") if s.strip()]
+            return tuple(float(s) for s in parts)
+        return text
+    if kind == "tuple" and isinstance(value, list | tuple):
+        return tuple(value)
+    if kind == "tuple" and is_real(value):
+        return (value,)
+    return value
+
+
+def make(cls, values: Mapping | None = None, *, base=None, owner: str | None = None):
+    """Build a Setup (or Truth) from `values`, coercing strings, reporting all problems.
+
+    Parameters
+    ----------
+    cls : type
+        The Setup or Truth dataclass.
+    values : mapping of str to value
+        Field overrides (strings from the command line are parsed).
+    base : instance of cls, optional
+        Values not given are taken from it (default: the class defaults).
+
+    Raises
+    ------
+    InvalidInput
+        Listing unknown fields, unparsable values and out-of-range values together.
+    """
+    owner = owner or getattr(cls, "_owner", cls.__name__)
+    p = Problems(owner)
+    infos = {i["name"]: i for i in fields_info(cls)}
+    given = {}
+    for key, value in (values or {}).items():
+        if key not in infos:
+            p.add_text(
+                f"{owner} has no field {key!r}; its fields are: " + ", ".join(infos)
+            )
+            continue
+        try:
+            given[key] = _coerce(infos[key], value)
+        except (ValueError, TypeError):
+            p.add(key, value, _describe(infos[key]))
+    kwargs = dict(base.as_dict() if base is not None else {})
+    kwargs = {k: (tuple(v) if isinstance(v, list) else v) for k, v in kwargs.items()}
+    kwargs.update(given)
+    try:
+        obj = cls(**kwargs)
+    except InvalidInput as exc:
+        p.items.extend(exc.problems)
+        obj = None
+    p.raise_if_any()
+    return obj
+
+
+# --------------------------------------------------------------------------- procedure
+Readings = dict
+
+
+@dataclass(frozen=True)
+class Procedure:
+    """A registered measurement procedure: forward model, estimators and metadata.
+
+    See the module docstring for the meaning of each callable.
+    """
+
+    name: str
+    title: str
+    Setup: type
+    Truth: type
+    measurands: Callable
+    sources: Callable
+    forward: Callable
+    estimators: Mapping[str, Callable]
+    true_values: Callable
+    duration: Callable
+    readings_frame: Callable
+    from_frame: Callable
+    description: str = ""
+    #: estimators that recover the truth exactly from noise-free readings at the
+    #: default set-up (checked by the conformance suite)
+    exact_estimators: tuple = ()
+    #: Monte Carlo block size (trials); smaller for procedures with many readings
+    block_size: int = 10_000
+
+    # ----------------------------------------------------------------- helpers
+    @property
+    def default_estimator(self) -> str:
+        return next(iter(self.estimators))
+
+    def setup(self, values: Mapping | None = None, **kw):
+        """Build this procedure's Setup from defaults and overrides (strings allowed)."""
+        return make(self.Setup, {**(values or {}), **kw}, owner=self.name)
+
+    def truth(self, values: Mapping | None = None, **kw):
+        """Build this procedure's Truth from defaults and overrides."""
+        return make(self.Truth, {**(values or {}), **kw}, owner=f"{self.name} truth")
+
+    def check_setup(self, setup) -> None:
+        if not isinstance(setup, self.Setup):
+            raise InvalidInput(
+                [f"The 'setup' parameter of {self.name} must be a {self.name}.Setup. "
+                 f"Got {type(setup).__name__} instead."]
+            )
+
+    def estimator(self, name: str | None) -> tuple[str, Callable]:
+        """(name, function) of an estimator, the default one when `name` is None."""
+        name = name or self.default_estimator
+        if name not in self.estimators:
+            raise InvalidInput(
+                [f"The 'estimator' parameter of {self.name} must be one of "
+                 f"{', '.join(map(repr, self.estimators))}. Got {name!r} instead."]
+            )
+        return name, self.estimators[name]
+
+    def active_sources(self, setup, only=None) -> dict:
+        """The sources that will be drawn: active ones, restricted to `only` when given."""
+        all_sources = self.sources(setup)
+        if only is not None:
+            only = [only] if isinstance(only, str) else list(only)
+            unknown = [s for s in only if s not in all_sources]
+            if unknown:
+                raise InvalidInput(
+                    [f"The 'sources' parameter of {self.name} must name its error sources "
+                     f"({', '.join(all_sources)}). Got {', '.join(map(repr, unknown))} instead."]
+                )
+            return {k: v for k, v in all_sources.items() if k in only and v.active}
+        return {k: v for k, v in all_sources.items() if v.active}
+
+    def zero_errors(self, setup, n: int) -> dict:
+        """Errors of every source set to zero, shape (n, *shape) each."""
+        return {
+            name: np.zeros((n, *src.shape, *src.distribution.event_shape))
+            for name, src in self.sources(setup).items()
+        }
+
+    def draw_errors(self, setup, n: int, seq: np.random.SeedSequence, only=None) -> dict:
+        """Draw the active sources (each from its own named stream of `seq`)."""
+        errors = self.zero_errors(setup, n)
+        for name, src in self.active_sources(setup, only).items():
+            errors[name] = src.distribution.draw(named_generator(seq, name), (n, *src.shape))
+        return errors
+
+    def simulate(self, setup, truth=None, draws: int = 1, rng=None, *, sources=None) -> Readings:
+        """Simulated raw readings: ``draws`` trials, batch-first.
+
+        Parameters
+        ----------
+        setup : Setup
+        truth : Truth, optional (default values when None)
+        draws : int
+            Number of trials (leading axis of every reading array).
+        rng : None, int, SeedSequence or Generator
+        sources : iterable of str, optional
+            Simulate with only these error sources (default: every active one).
+        """
+        self.check_setup(setup)
+        truth = self.Truth() if truth is None else truth
+        p = Problems(f"{self.name}.simulate")
+        p.number("draws", draws, integer=True, low=1)
+        p.raise_if_any()
+        seq = block_sequence(as_seed_sequence(rng), 0)
+        errors = self.draw_errors(setup, int(draws), seq, sources)
+        return self.forward(setup, truth, errors)
+
+    def estimate(self, setup, readings: Readings, estimator: str | None = None) -> dict:
+        """Measurands from readings, in internal units (mm, rad), batch-first."""
+        self.check_setup(setup)
+        _, fn = self.estimator(estimator)
+        return fn(setup, readings)
+
+    def display_estimate(self, setup, readings: Readings, estimator: str | None = None) -> dict:
+        """Measurands in display units (um, urad), batch-first."""
+        est = self.estimate(setup, readings, estimator)
+        return {m.name: np.asarray(est[m.name], dtype=float) * m.scale
+                for m in self.measurands(setup)}
+
+    def display_truth(self, setup, truth=None) -> dict:
+        """True measurand values in display units."""
+        truth = self.Truth() if truth is None else truth
+        tv = self.true_values(setup, truth)
+        return {m.name: float(tv[m.name]) * m.scale for m in self.measurands(setup)}
+
+
+Constant = Constant  # re-exported for procedure modules: ``Constant(0.0)`` is a source that is off

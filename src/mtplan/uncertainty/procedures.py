@@ -1,0 +1,315 @@
+"""Monte Carlo and GUM evaluation of a measurement procedure's set-up.
+
+This joins a procedure's forward model and estimator: each trial draws the active
+error sources, simulates the raw readings and estimates the measurands, in blocks
+(block ``i`` from stream ``i`` of the seed), so results depend only on the seed.
+Values are reported in each measurand's display unit (um, urad).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from mtplan._validate import Problems
+from mtplan._parallel import check_parallel
+from mtplan.models._protocol import Measurand, Procedure
+from mtplan.uncertainty._random import as_seed_sequence, block_sequence
+from mtplan.uncertainty.gum import GUMResult, _coverage_factor, sensitivities
+from mtplan.uncertainty.montecarlo import MCResult, check_run_options, run_blocks
+
+__all__ = ["ProcedureResult", "simulate_uncertainty", "linearize_procedure", "source_budget"]
+
+
+def _resolve(procedure, setup, truth):
+    from mtplan.models import get
+
+    proc = get(procedure)
+    setup = proc.Setup() if setup is None else setup
+    proc.check_setup(setup)
+    truth = proc.Truth() if truth is None else truth
+    if not isinstance(truth, proc.Truth):
+        Problems(proc.name).add("truth", type(truth).__name__, f"a {proc.name} Truth")
+    return proc, setup, truth
+
+
+def _measure(proc: Procedure, setup, readings, estimator) -> dict:
+    est = proc.estimators[estimator](setup, readings)
+    n = None
+    out = {}
+    for m in proc.measurands(setup):
+        a = np.asarray(est[m.name], dtype=float) * m.scale
+        n = a.shape[0] if n is None else n
+        out[m.name] = a
+    return out
+
+
+def _procedure_block(proc, setup, truth, estimator, only, root, index, size):
+    seq = block_sequence(root, index)
+    errors = proc.draw_errors(setup, size, seq, only)
+    readings = proc.forward(setup, truth, errors)
+    return _measure(proc, setup, readings, estimator)
+
+
+@dataclass
+class ProcedureResult:
+    """Monte Carlo uncertainty of one set-up of one procedure (display units).
+
+    Attributes
+    ----------
+    procedure, estimator : str
+    setup, truth : the procedure's Setup and Truth
+    sources : tuple of str
+        The error sources that were drawn.
+    measurands : tuple of Measurand
+    true : array (n_measurands,)
+        True values [display unit].
+    mc : MCResult
+        The Monte Carlo result (means, standard deviations, intervals, covariance).
+    duration_s : float
+        Machine time of the test [s].
+    """
+
+    procedure: str
+    estimator: str
+    setup: object
+    truth: object
+    sources: tuple
+    measurands: tuple
+    true: np.ndarray
+    mc: MCResult
+    duration_s: float
+
+    @property
+    def bias(self) -> np.ndarray:
+        return self.mc.mean - self.true
+
+    def summary(self):
+        """DataFrame indexed by measurand: unit, true, mean, bias, std, low, high, trials."""
+        import pandas as pd
+
+        return pd.DataFrame(
+            {
+                "unit": [m.unit for m in self.measurands],
+                "true": self.true,
+                "mean": self.mc.mean,
+                "bias": self.bias,
+                "std": self.mc.std,
+                "low": self.mc.low,
+                "high": self.mc.high,
+                "trials": self.mc.trials,
+            },
+            index=pd.Index([m.name for m in self.measurands], name="measurand"),
+        )
+
+    def to_dict(self) -> dict:
+        """The ``--json`` document of ``mtplan simulate`` (see DESIGN.md)."""
+        seed = self.mc.seed
+        return {
+            "procedure": self.procedure,
+            "estimator": self.estimator,
+            "setup": self.setup.as_dict(),
+            "seed": int(seed) if isinstance(seed, int | np.integer) else list(seed),
+            "trials": int(self.mc.trials),
+            "sources": list(self.sources),
+            "converged": bool(self.mc.converged),
+            "duration_s": float(self.duration_s),
+            "measurands": [
+                {
+                    "name": m.name,
+                    "unit": m.unit,
+                    "true": float(self.true[i]),
+                    "mean": float(self.mc.mean[i]),
+                    "bias": float(self.bias[i]),
+                    "std": float(self.mc.std[i]),
+                    "interval": [float(self.mc.low[i]), float(self.mc.high[i])],
+                    "coverage": float(self.mc.coverage),
+                }
+                for i, m in enumerate(self.measurands)
+            ],
+        }
+
+
+def simulate_uncertainty(
+    procedure,
+    setup=None,
+    truth=None,
+    *,
+    estimator: str | None = None,
+    sources=None,
+    trials: int | None = None,
+    digits: int | None = None,
+    coverage: float = 0.95,
+    interval: str = "symmetric",
+    rng=None,
+    n_jobs: int = 1,
+    backend: str | None = None,
+    scheduler: str | None = None,
+    block_size: int | None = None,
+    max_trials: int = 10**7,
+    progress: bool | None = None,
+) -> ProcedureResult:
+    """Monte Carlo uncertainty of a procedure's set-up.
+
+    Parameters
+    ----------
+    procedure : str or Procedure
+    setup : Setup, optional (the procedure's defaults)
+    truth : Truth, optional (the procedure's defaults)
+    estimator : str, optional (the procedure's default estimator)
+    sources : iterable of str, optional
+        Simulate with only these error sources.
+    trials, digits, coverage, interval, rng, n_jobs, backend, scheduler, max_trials, progress
+        As for :func:`mtplan.uncertainty.propagate` (default 10**4 trials).
+    block_size : int, optional
+        Trials per block (default: the procedure's ``block_size``).
+
+    Returns
+    -------
+    ProcedureResult
+    """
+    proc, setup, truth = _resolve(procedure, setup, truth)
+    p = Problems(f"simulate {proc.name}")
+    check_run_options(p, trials, digits, coverage, interval, max_trials, block_size)
+    check_parallel(p, n_jobs, backend, scheduler)
+    p.raise_if_any()
+    est_name, _ = proc.estimator(estimator)
+    active = proc.active_sources(setup, sources)
+    if trials is None and digits is None:
+        trials = 10**4
+    root = as_seed_sequence(rng)
+    measurands = tuple(proc.measurands(setup))
+    if digits is not None and block_size is None:
+        block_size = proc.block_size
+    mc = run_blocks(
+        _procedure_block,
+        (proc, setup, truth, est_name, tuple(active)),
+        trials=trials,
+        digits=digits,
+        coverage=coverage,
+        interval=interval,
+        root=root,
+        n_jobs=n_jobs,
+        backend=backend,
+        scheduler=scheduler,
+        block_size=block_size or min(proc.block_size, max(trials or 0, 2)),
+        max_trials=max_trials,
+        progress=progress,
+        label=proc.name,
+    )
+    tv = proc.display_truth(setup, truth)
+    return ProcedureResult(
+        procedure=proc.name,
+        estimator=est_name,
+        setup=setup,
+        truth=truth,
+        sources=tuple(active),
+        measurands=measurands,
+        true=np.array([tv[m.name] for m in measurands]),
+        mc=mc,
+        duration_s=float(proc.duration(setup)),
+    )
+
+
+def linearize_procedure(
+    procedure,
+    setup=None,
+    truth=None,
+    *,
+    estimator: str | None = None,
+    sources=None,
+    coverage: float = 0.95,
+) -> GUMResult:
+    """GUM law of propagation for a procedure's set-up (display units).
+
+    The inputs are every element of every active error source (grouped by source
+    in the budget); the model is forward model + estimator, linearised at the
+    sources' means (zero error). With an efficient estimator and Gaussian sources
+    this is also the Cramer-Rao (Fisher) prediction of the set-up.
+    """
+    proc, setup, truth = _resolve(procedure, setup, truth)
+    p = Problems(f"linearize {proc.name}")
+    p.number("coverage", coverage, low=0, high=1, low_open=True, high_open=True)
+    p.raise_if_any()
+    est_name, _ = proc.estimator(estimator)
+    active = proc.active_sources(setup, sources)
+    layout = []  # (name, start, size, shape)
+    xs, us, groups, names = [], [], [], []
+    pos = 0
+    for name, src in active.items():
+        shape = (*src.shape, *src.distribution.event_shape)
+        size = int(np.prod(shape, dtype=np.int64))
+        mean = np.broadcast_to(np.asarray(src.distribution.mean, dtype=float),
+                               shape if shape else ()).ravel()
+        std = np.broadcast_to(np.asarray(src.distribution.std, dtype=float),
+                              shape if shape else ()).ravel()
+        if mean.size != size:
+            mean = np.resize(mean, size)
+            std = np.resize(std, size)
+        xs.append(mean)
+        us.append(std)
+        groups += [name] * size
+        names += [name] if size == 1 and not shape else [f"{name}[{j}]" for j in range(size)]
+        layout.append((name, pos, size, shape))
+        pos += size
+    measurands = tuple(proc.measurands(setup))
+    x = np.concatenate(xs) if xs else np.zeros(0)
+    u = np.concatenate(us) if us else np.zeros(0)
+
+    def evaluate(points):
+        m = points.shape[0]
+        errors = proc.zero_errors(setup, m)
+        for name, start, size, shape in layout:
+            errors[name] = points[:, start : start + size].reshape((m, *shape))
+        out = _measure(proc, setup, proc.forward(setup, truth, errors), est_name)
+        return np.column_stack([out[mm.name] for mm in measurands])
+
+    if x.size:
+        f0, jac = sensitivities(evaluate, x, u, max_batch=max(64, 2_000_000 // max(x.size, 1)))
+    else:
+        f0 = evaluate(np.zeros((1, 0)))[0]
+        jac = np.zeros((len(measurands), 0))
+    cov_in = np.diag(u**2)
+    cov = (jac * u**2) @ jac.T
+    dof = np.full(len(measurands), np.inf)
+    return GUMResult(
+        names=tuple(mm.name for mm in measurands),
+        inputs=tuple(names),
+        groups=tuple(groups),
+        value=f0,
+        sensitivity=jac,
+        input_cov=cov_in,
+        cov=cov,
+        dof=dof,
+        k=_coverage_factor(dof, coverage),
+        coverage=coverage,
+    )
+
+
+def source_budget(procedure, setup=None, truth=None, *, estimator=None, trials=10**4, rng=None,
+                  n_jobs=1, backend=None):
+    """Monte Carlo budget: the standard uncertainty due to each error source alone.
+
+    Returns a DataFrame with one row per measurand and source: ``std`` (that source
+    alone) and ``share`` (its variance over the sum of the single-source variances).
+    Sources draw from their own streams, so the runs share random numbers.
+    """
+    import pandas as pd
+
+    proc, setup, truth = _resolve(procedure, setup, truth)
+    rows = []
+    for name in proc.active_sources(setup):
+        r = simulate_uncertainty(proc, setup, truth, estimator=estimator, sources=[name],
+                                 trials=trials, rng=rng, n_jobs=n_jobs, backend=backend,
+                                 progress=False)
+        for i, m in enumerate(r.measurands):
+            rows.append((m.name, m.unit, name, float(r.mc.std[i])))
+    df = pd.DataFrame(rows, columns=["measurand", "unit", "source", "std"])
+    var = df["std"] ** 2
+    df["share"] = var / var.groupby(df["measurand"]).transform("sum").where(lambda s: s > 0, 1.0)
+    return df
+
+
+_ = (dataclasses, Measurand)

@@ -1,0 +1,101 @@
+"""A small test-only procedure: straight-line fit of a probed edge.
+
+It exists to exercise the procedure protocol and engine independently of the real
+procedures (it is not registered). Readings: heights z_i = a + b x_i + noise at
+`n_points` x positions over `length_mm`, with a scale error of the probe.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from mtplan.models import Measurand, Procedure, SetupBase, Source, param
+from mtplan.uncertainty import Normal, Rectangular
+
+
+@dataclass(frozen=True)
+class Setup(SetupBase):
+    _owner = "toy_line"
+    n_points: int = param(11, doc="Points along the edge", low=2)
+    length_mm: float = param(100.0, doc="Length probed", low=0, low_open=True)
+    probe_noise_um: float = param(1.0, doc="Probe noise (std)", low=0)
+    scale_error_ppm: float = param(0.0, doc="Probe scale error (rectangular half-width)", low=0)
+
+    def _check(self, p):
+        if self.n_points < 2:
+            p.add("n_points", self.n_points, "an int >= 2")
+
+
+@dataclass(frozen=True)
+class Truth(SetupBase):
+    _owner = "toy_line truth"
+    offset_mm: float = param(0.012, doc="Height at x = 0")
+    slope_rad: float = param(20e-6, doc="Slope")
+
+
+def measurands(setup):
+    return (Measurand("offset", "um", "height at x = 0"), Measurand("slope", "urad", "slope"))
+
+
+def sources(setup):
+    return {
+        "probe_noise": Source(Normal(0.0, setup.probe_noise_um * 1e-3), (setup.n_points,), "noise"),
+        "scale_error": Source(Rectangular(-setup.scale_error_ppm * 1e-6, setup.scale_error_ppm * 1e-6),
+                              (), "scale"),
+    }
+
+
+def _x(setup):
+    return np.linspace(-setup.length_mm / 2, setup.length_mm / 2, setup.n_points)
+
+
+def forward(setup, truth, errors):
+    x = _x(setup)
+    z = truth.offset_mm + truth.slope_rad * x
+    z = z * (1 + errors["scale_error"][:, None]) + errors["probe_noise"]
+    return {"z_mm": z}
+
+
+def estimate_ls(setup, readings):
+    x = _x(setup)
+    design = np.column_stack([np.ones_like(x), x])
+    coef = np.linalg.pinv(design) @ readings["z_mm"].T  # one product for the batch
+    return {"offset": coef[0], "slope": coef[1]}
+
+
+def true_values(setup, truth):
+    return {"offset": truth.offset_mm, "slope": truth.slope_rad}
+
+
+def duration(setup):
+    return 2.0 * setup.n_points + setup.length_mm / 10
+
+
+def readings_frame(setup, readings):
+    z = np.asarray(readings["z_mm"])[0]
+    return pd.DataFrame({"x_mm": _x(setup), "z_mm": z})
+
+
+def from_frame(setup, df):
+    return {"z_mm": df["z_mm"].to_numpy(dtype=float)[None, :]}
+
+
+PROCEDURE = Procedure(
+    name="toy_line",
+    title="Straight edge (test procedure)",
+    Setup=Setup,
+    Truth=Truth,
+    measurands=measurands,
+    sources=sources,
+    forward=forward,
+    estimators={"least_squares": estimate_ls},
+    true_values=true_values,
+    duration=duration,
+    readings_frame=readings_frame,
+    from_frame=from_frame,
+    exact_estimators=("least_squares",),
+    block_size=2000,
+)
