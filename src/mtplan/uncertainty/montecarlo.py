@@ -341,9 +341,11 @@ def run_blocks(
     :func:`propagate` and the procedures' Monte Carlo.
     """
     p = coverage
-    if block_size is None:
-        block_size = max(math.ceil(100 / (1 - p)), 10_000)
     adaptive = digits is not None
+    if block_size is None:
+        # JCGM 101 7.9.2 for the adaptive procedure; larger blocks for a fixed count
+        # (fewer Python round trips; memory is still bounded by the block)
+        block_size = max(math.ceil(100 / (1 - p)), 10_000 if adaptive else 100_000)
     if adaptive:
         n_blocks_max = max(math.ceil(max_trials / block_size), 2)
     else:
@@ -529,7 +531,8 @@ def propagate(
     scheduler : str, optional
         Address of a Dask scheduler for ``backend="dask"``.
     block_size : int, optional
-        Trials per block (default ``max(100/(1-p), 10**4)``, JCGM 101 7.9.2).
+        Trials per block (default ``max(100/(1-p), 10**4)`` for the adaptive procedure,
+        JCGM 101 7.9.2, and ``10**5`` for a fixed number of trials).
     max_trials : int
         Upper limit of the adaptive procedure (``converged`` is False if reached).
     progress : bool, optional

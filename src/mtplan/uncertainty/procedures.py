@@ -113,9 +113,6 @@ class ProcedureResult:
             "setup": self.setup.as_dict(),
             "seed": int(seed) if isinstance(seed, int | np.integer) else list(seed),
             "trials": int(self.mc.trials),
-            "sources": list(self.sources),
-            "converged": bool(self.mc.converged),
-            "duration_s": float(self.duration_s),
             "measurands": [
                 {
                     "name": m.name,

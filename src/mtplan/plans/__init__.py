@@ -1,0 +1,1 @@
+"""Plans: sweeps over set-ups, targets, Pareto fronts and acceptance planning."""

@@ -1,0 +1,326 @@
+"""Sweeps: Monte Carlo uncertainty over a grid of set-ups, as a tidy table.
+
+One row per set-up, estimator and measurand, with the set-up's fields, its
+duration and the uncertainty columns. Set-ups run in parallel through joblib
+(``backend="dask"`` runs on a Dask cluster through joblib's dask backend).
+
+Every set-up draws from a seed derived from the sweep seed and a hash of the
+set-up's own field values, so a row does not depend on the grid it sits in, on
+``n_jobs`` or on the backend, and all estimators of one set-up share their random
+numbers (a paired comparison).
+
+Given an output file, the sweep appends each finished set-up in one write and
+flush, beside a small ``<out>.sweep.json`` that records what the sweep is. Started
+again with the same arguments it reads what is there, drops a set-up whose rows
+were cut off by a kill, and computes only what is missing: no row is lost or
+duplicated. A Parquet output is written (atomically) when the sweep completes,
+from a CSV journal ``<out>.partial.csv`` kept while it runs.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+import os
+import sys
+import zlib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from mtplan._io import atomic_write
+from mtplan._parallel import check_parallel, ordered_map, parallel_session
+from mtplan._validate import InvalidInput, Problems
+from mtplan.models._protocol import fields_info, make
+from mtplan.uncertainty.montecarlo import check_run_options
+
+__all__ = ["sweep", "setup_seed", "RESULT_COLUMNS"]
+
+RESULT_COLUMNS = ["estimator", "measurand", "unit", "true", "mean", "bias", "std", "low", "high",
+                  "trials", "converged", "duration_s"]
+
+
+def _canonical(setup) -> str:
+    return json.dumps(setup.as_dict(), sort_keys=True, default=str)
+
+
+def setup_id(setup) -> str:
+    """A short stable identifier of a set-up's field values."""
+    return hashlib.sha1(_canonical(setup).encode()).hexdigest()[:12]
+
+
+def setup_seed(seed: int, setup) -> np.random.SeedSequence:
+    """The seed of one set-up in a sweep: the sweep seed and a hash of its fields."""
+    key = zlib.crc32(_canonical(setup).encode())
+    return np.random.SeedSequence(entropy=int(seed), spawn_key=(key,))
+
+
+def _run_setup(proc, setup, truth, estimators, sources, options, seed, point):
+    from mtplan.uncertainty.procedures import simulate_uncertainty
+
+    fields = {k: (",".join(f"{x:g}" for x in v) if isinstance(v, list) else v)
+              for k, v in setup.as_dict().items()}
+    rows = []
+    for est in estimators:
+        r = simulate_uncertainty(proc, setup, truth, estimator=est, sources=sources,
+                                 rng=setup_seed(seed, setup), n_jobs=1, progress=False, **options)
+        for i, m in enumerate(r.measurands):
+            rows.append({
+                "point": point,
+                "setup_id": setup_id(setup),
+                **fields,
+                "estimator": est,
+                "measurand": m.name,
+                "unit": m.unit,
+                "true": float(r.true[i]),
+                "mean": float(r.mc.mean[i]),
+                "bias": float(r.bias[i]),
+                "std": float(r.mc.std[i]),
+                "low": float(r.mc.low[i]),
+                "high": float(r.mc.high[i]),
+                "trials": int(r.mc.trials),
+                "converged": bool(r.mc.converged),
+                "duration_s": float(r.duration_s),
+            })
+    return rows
+
+
+def _grid(proc, base, vary):
+    p = Problems(f"sweep {proc.name}")
+    infos = {i["name"]: i for i in fields_info(proc.Setup)}
+    for key, values in vary.items():
+        if key not in infos:
+            p.add_text(f"{proc.name} has no set-up field {key!r} to vary; its fields are: "
+                       + ", ".join(infos))
+        elif isinstance(values, str) or not isinstance(values, Sequence) or len(values) == 0:
+            p.add(f"vary[{key!r}]", values, "a non-empty list of values")
+    p.raise_if_any()
+    keys = list(vary)
+    setups, problems = [], []
+    for combo in itertools.product(*(vary[k] for k in keys)):
+        values = dict(zip(keys, combo, strict=True))
+        try:
+            setups.append(make(proc.Setup, values, base=base, owner=proc.name))
+        except InvalidInput as exc:
+            shown = ", ".join(f"{k}={v}" for k, v in values.items())
+            problems.append(f"Set-up {shown}: " + " ".join(exc.problems))
+    if problems:
+        raise InvalidInput(problems)
+    return setups
+
+
+def sweep(
+    procedure,
+    base_setup=None,
+    vary: Mapping[str, Sequence] | None = None,
+    *,
+    truth=None,
+    estimators=None,
+    sources=None,
+    trials: int | None = None,
+    digits: int | None = None,
+    coverage: float = 0.95,
+    interval: str = "symmetric",
+    seed: int = 0,
+    n_jobs: int = 1,
+    backend: str | None = None,
+    scheduler: str | None = None,
+    out=None,
+    progress: bool | None = None,
+):
+    """Monte Carlo uncertainty over a grid of set-ups.
+
+    Parameters
+    ----------
+    procedure : str or Procedure
+    base_setup : Setup, optional
+        The set-up the grid varies (default: the procedure's defaults).
+    vary : mapping of field name to list of values
+        The grid is the Cartesian product, in the order given.
+    truth : Truth, optional
+    estimators : str or list of str, optional
+        Estimators to evaluate on every set-up ("all" for every one; default: the
+        procedure's default estimator).
+    sources : list of str, optional
+        Simulate with only these error sources.
+    trials, digits, coverage, interval
+        Monte Carlo options per set-up (default 10**4 trials).
+    seed : int
+        Sweep seed; each set-up's seed derives from it and the set-up's fields.
+    n_jobs, backend, scheduler
+        Parallel execution over set-ups (joblib; "dask" for a Dask cluster).
+    out : str or Path, optional
+        CSV or Parquet file written as the sweep goes; a rerun resumes it.
+    progress : bool, optional
+        Progress bar on stderr (after one second; default: when stderr is a terminal).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per set-up, estimator and measurand: ``point`` (grid index),
+        ``setup_id``, every set-up field, then :data:`RESULT_COLUMNS`.
+    """
+    import pandas as pd
+
+    from mtplan.models import get
+
+    proc = get(procedure)
+    base_setup = proc.Setup() if base_setup is None else base_setup
+    proc.check_setup(base_setup)
+    truth = proc.Truth() if truth is None else truth
+    p = Problems(f"sweep {proc.name}")
+    check_run_options(p, trials, digits, coverage, interval)
+    check_parallel(p, n_jobs, backend, scheduler)
+    p.number("seed", seed, integer=True, low=0)
+    if estimators is None:
+        estimators = [proc.default_estimator]
+    elif estimators == "all":
+        estimators = list(proc.estimators)
+    elif isinstance(estimators, str):
+        estimators = [estimators]
+    for e in estimators:
+        if e not in proc.estimators:
+            p.add("estimators", e, "among " + ", ".join(map(repr, proc.estimators)))
+    fmt = None
+    if out is not None:
+        out = Path(out)
+        fmt = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet"}.get(out.suffix.lower())
+        if fmt is None:
+            p.add("out", str(out), "a file name ending in .csv or .parquet")
+    p.raise_if_any()
+    if sources is not None:
+        proc.active_sources(base_setup, sources)  # validates the names
+    if trials is None and digits is None:
+        trials = 10**4
+    setups = _grid(proc, base_setup, dict(vary or {}))
+    options = {"trials": trials, "digits": digits, "coverage": coverage, "interval": interval}
+    n_rows = len(estimators) * len(proc.measurands(base_setup))
+
+    signature = {
+        "procedure": proc.name,
+        "base_setup": base_setup.as_dict(),
+        "truth": truth.as_dict(),
+        "vary": {k: [v if not isinstance(v, tuple) else list(v) for v in vals]
+                 for k, vals in (vary or {}).items()},
+        "estimators": list(estimators),
+        "sources": None if sources is None else sorted(sources),
+        "options": options,
+        "seed": int(seed),
+    }
+    signature = json.loads(json.dumps(signature, default=str))
+    done = pd.DataFrame()
+    journal = None
+    if out is not None:
+        journal = out if fmt == "csv" else out.with_name(out.name + ".partial.csv")
+        done = _resume(out, journal, fmt, signature)
+    finished = set(done["setup_id"]) if len(done) else set()
+    todo = [(i, s) for i, s in enumerate(setups) if setup_id(s) not in finished]
+
+    bar = _bar(progress, len(setups), len(setups) - len(todo), proc.name)
+    new_frames = []
+    with parallel_session(n_jobs, backend, scheduler) as session:
+        tasks = ((proc, s, truth, tuple(estimators), sources, options, seed, i) for i, s in todo)
+        for rows in ordered_map(_run_setup, tasks, n_jobs=session["n_jobs"], backend=backend,
+                                chunk=None):
+            frame = pd.DataFrame(rows)
+            if journal is not None:
+                _append(journal, frame, n_rows)
+            new_frames.append(frame)
+            if bar is not None:
+                bar.update(1)
+    if bar is not None:
+        bar.close()
+    if journal is not None:
+        # one source of truth for fresh and resumed runs alike: the journal on disk
+        table = _read_journal(journal, rewrite=False) if journal.exists() else done
+    else:
+        table = pd.concat(new_frames, ignore_index=True) if new_frames else pd.DataFrame()
+    if len(table):
+        table = table.sort_values("point", kind="stable").reset_index(drop=True)
+    if out is not None and fmt == "parquet":
+        with atomic_write(out, "wb") as fh:
+            table.to_parquet(fh, index=False)
+        Path(journal).unlink(missing_ok=True)
+    return table
+
+
+def _bar(progress, total, initial, label):
+    if progress is False:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, initial=initial, desc=f"sweep {label}", unit="set-up", delay=1.0,
+                file=sys.stderr, leave=False,
+                disable=progress is None and not sys.stderr.isatty())
+
+
+def _sidecar(out: Path) -> Path:
+    return out.with_name(out.name + ".sweep.json")
+
+
+def _resume(out: Path, journal: Path, fmt: str, signature: dict):
+    import pandas as pd
+
+    side = _sidecar(out)
+    if side.exists():
+        recorded = json.loads(side.read_text())
+        if recorded != signature:
+            raise InvalidInput(
+                [f"The output file {str(out)!r} belongs to a different sweep (its {side.name} "
+                 "differs from these arguments); remove it or choose another 'out' file."]
+            )
+    elif out.exists() or journal.exists():
+        raise InvalidInput(
+            [f"The output file {str(out)!r} exists but was not written by this sweep (no "
+             f"{side.name} beside it); remove it or choose another 'out' file."]
+        )
+    else:
+        with atomic_write(side, "w", encoding="utf-8") as fh:
+            json.dump(signature, fh, indent=1)
+        return pd.DataFrame()
+    if fmt == "parquet" and out.exists() and not journal.exists():
+        return pd.read_parquet(out)
+    if not journal.exists():
+        return pd.DataFrame()
+    return _read_journal(journal)
+
+
+def _read_journal(journal: Path, rewrite: bool = True):
+    import io
+
+    import pandas as pd
+
+    full = journal.read_text(encoding="utf-8")
+    text = full[: full.rfind("\n") + 1]  # drop a line cut off by a kill
+    cut_line = len(text) < len(full)
+    if not text.strip():
+        if rewrite:
+            journal.unlink()
+        return pd.DataFrame()
+    df = pd.read_csv(io.StringIO(text))
+    n_read = len(df)
+    if "rows_in_setup" in df.columns:
+        counts = df.groupby("setup_id")["setup_id"].transform("size")
+        df = df[counts == df["rows_in_setup"]]
+        df = df.drop_duplicates(subset=["setup_id", "estimator", "measurand"], keep="first")
+    if rewrite and (cut_line or len(df) < n_read):
+        # keep only whole set-ups, atomically, so appends continue after them
+        with atomic_write(journal, "w", encoding="utf-8", newline="") as fh:
+            df.to_csv(fh, index=False)
+    return df.drop(columns=["rows_in_setup"], errors="ignore")
+
+
+def _append(journal: Path, frame, n_rows: int) -> None:
+    frame = frame.assign(rows_in_setup=n_rows)
+    header = not journal.exists() or journal.stat().st_size == 0
+    text = frame.to_csv(index=False, header=header)
+    with open(journal, "a", encoding="utf-8", newline="") as fh:
+        fh.write(text)
+        fh.flush()
+        os.fsync(fh.fileno())
+
+
+_ = math

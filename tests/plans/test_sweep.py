@@ -1,0 +1,137 @@
+"""Sweeps: tidy table, invariance to n_jobs and backend, and resuming after a kill."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from mtplan._validate import InvalidInput
+from mtplan.plans.sweep import RESULT_COLUMNS, sweep
+from tests.models import toy_line
+
+P = toy_line.PROCEDURE
+VARY = {"n_points": [3, 5, 9], "probe_noise_um": [0.5, 2.0]}
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_tidy_table_one_row_per_setup_and_measurand():
+    df = sweep(P, vary=VARY, trials=2000, seed=3)
+    assert len(df) == 3 * 2 * 2
+    assert set(RESULT_COLUMNS) <= set(df.columns)
+    assert {"n_points", "probe_noise_um", "length_mm", "setup_id", "point"} <= set(df.columns)
+    assert list(df["point"]) == sorted(df["point"])
+    # uncertainty scales with the noise and falls with the number of points
+    offset = df[df.measurand == "offset"].set_index(["n_points", "probe_noise_um"])["std"]
+    assert offset[(9, 2.0)] > offset[(9, 0.5)] * 3
+    assert offset[(3, 0.5)] > offset[(9, 0.5)]
+    # the theory for a mean of n points: u = sigma / sqrt(n), within Monte Carlo error
+    n, sigma = 9, 2.0
+    rel = 4 / np.sqrt(2 * (2000 - 1))
+    assert abs(offset[(n, sigma)] / (sigma / np.sqrt(n)) - 1) < rel
+
+
+def test_rows_do_not_depend_on_the_grid_or_on_n_jobs():
+    full = sweep(P, vary=VARY, trials=1000, seed=5)
+    part = sweep(P, vary={"n_points": [5], "probe_noise_um": [2.0]}, trials=1000, seed=5)
+    row = full[(full.n_points == 5) & (full.probe_noise_um == 2.0)].reset_index(drop=True)
+    np.testing.assert_array_equal(row["std"], part["std"])
+    par = sweep(P, vary=VARY, trials=1000, seed=5, n_jobs=2, backend="loky")
+    pd.testing.assert_frame_equal(full, par)
+
+
+def test_dask_backend_gives_the_same_table():
+    pytest.importorskip("distributed", reason="the dask extra is part of the test extras")
+    a = sweep(P, vary={"n_points": [3, 5]}, trials=500, seed=2)
+    b = sweep(P, vary={"n_points": [3, 5]}, trials=500, seed=2, n_jobs=2, backend="dask")
+    pd.testing.assert_frame_equal(a, b)
+
+
+def test_estimators_share_random_numbers_and_all_expands():
+    df = sweep(P, vary={"n_points": [4]}, trials=500, seed=1, estimators="all")
+    assert set(df["estimator"]) == set(P.estimators)
+
+
+def test_bad_grid_lists_every_problem():
+    with pytest.raises(InvalidInput) as exc:
+        sweep(P, vary={"n_points": [1, 5], "nope": [1]}, trials=100)
+    assert "nope" in str(exc.value)
+    with pytest.raises(InvalidInput) as exc:
+        sweep(P, vary={"n_points": [1, 0, 5]}, trials=100)
+    assert "n_points=1" in str(exc.value) and "n_points=0" in str(exc.value)
+    with pytest.raises(InvalidInput, match="out"):
+        sweep(P, vary={"n_points": [3]}, trials=100, out="table.txt")
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+def test_rerun_with_a_complete_file_recomputes_nothing(tmp_path, suffix):
+    out = tmp_path / f"s{suffix}"
+    a = sweep(P, vary=VARY, trials=500, seed=4, out=out)
+    mtime = out.stat().st_mtime_ns
+    b = sweep(P, vary=VARY, trials=500, seed=4, out=out)
+    pd.testing.assert_frame_equal(a, b)
+    if suffix == ".csv":
+        assert out.stat().st_mtime_ns == mtime
+    with pytest.raises(InvalidInput, match="different sweep"):
+        sweep(P, vary=VARY, trials=500, seed=5, out=out)
+
+
+def test_a_line_cut_off_mid_write_is_dropped_and_recomputed(tmp_path):
+    out = tmp_path / "s.csv"
+    ref = sweep(P, vary=VARY, trials=500, seed=6, out=tmp_path / "ref.csv")
+    sweep(P, vary={"n_points": [3, 5, 9], "probe_noise_um": [0.5, 2.0]}, trials=500, seed=6, out=out)
+    lines = out.read_text().splitlines(keepends=True)
+    # keep the header, the first set-up whole, half of the second and a cut line
+    out.write_text("".join(lines[:4]) + lines[4][:10])
+    again = sweep(P, vary=VARY, trials=500, seed=6, out=out)
+    pd.testing.assert_frame_equal(again, ref)
+    text = out.read_text()
+    assert text == (tmp_path / "ref.csv").read_text() or len(pd.read_csv(out)) == len(ref)
+
+
+SCRIPT = textwrap.dedent(
+    """
+    import sys
+    sys.path.insert(0, {root!r})
+    from tests.models import toy_line
+    from mtplan.plans.sweep import sweep
+    sweep(toy_line.PROCEDURE, vary={vary!r}, trials={trials}, seed=9, out=sys.argv[1])
+    """
+)
+
+
+def test_killed_sweep_resumes_to_the_same_table(tmp_path):
+    vary = {"n_points": [3, 4, 5, 6, 7, 8], "probe_noise_um": [1.0]}
+    trials = 400_000
+    out = tmp_path / "killed.csv"
+    script = tmp_path / "run.py"
+    script.write_text(SCRIPT.format(root=str(ROOT), vary=vary, trials=trials))
+    proc = subprocess.Popen([sys.executable, str(script), str(out)], cwd=tmp_path)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if out.exists() and out.read_text().count("\n") >= 1 + 2 * 2:  # two set-ups written
+                break
+            if proc.poll() is not None:
+                break
+            time.sleep(0.02)
+        assert proc.poll() is None, "the sweep finished before it could be killed"
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    partial = pd.read_csv(out)
+    assert 0 < partial["setup_id"].nunique() < 6
+    resumed = sweep(P, vary=vary, trials=trials, seed=9, out=out)
+    clean = sweep(P, vary=vary, trials=trials, seed=9, out=tmp_path / "clean.csv")
+    pd.testing.assert_frame_equal(resumed, clean)
+    assert resumed.groupby("setup_id").size().eq(2).all()
