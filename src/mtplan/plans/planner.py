@@ -1,0 +1,413 @@
+"""Choosing a set-up: the cheapest one meeting uncertainty targets, Pareto fronts,
+continuous optimal-design search and identifiability.
+
+Two speeds, as a metrologist would work:
+
+1. *Screen* every candidate set-up with the linearised prediction (the GUM law of
+   propagation through forward model and estimator; for an efficient estimator and
+   Gaussian sources this is the Cramer-Rao bound from the Fisher information).
+2. *Confirm* the shortlist, cheapest first, by Monte Carlo, and report the ratio of
+   the two. A candidate is recommended only once its Monte Carlo uncertainty meets
+   every target: never an unconfirmed winner.
+
+Targets bound the standard uncertainty (``k=1``) or the expanded uncertainty
+``k u`` of named measurands, in their display units (um, urad).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mtplan._validate import InvalidInput, Problems
+from mtplan.models._protocol import fields_info, make
+
+__all__ = ["PlanResult", "plan", "pareto_front", "optimize_design", "readings_jacobian",
+           "parse_target"]
+
+
+def parse_target(text: str) -> tuple[str, float]:
+    """Parse ``NAME<=VALUE`` (or ``NAME=VALUE``) into (name, value)."""
+    for sep in ("<=", "="):
+        name, found, value = text.partition(sep)
+        if found:
+            try:
+                v = float(value)
+            except ValueError:
+                break
+            if name.strip() and math.isfinite(v) and v > 0:
+                return name.strip(), v
+            break
+    raise InvalidInput([f"A target must read NAME<=VALUE with a value > 0 in the measurand's "
+                        f"unit (e.g. EX0C<=2). Got {text!r} instead."])
+
+
+def pareto_front(cost: np.ndarray, value: np.ndarray) -> np.ndarray:
+    """Indices of the non-dominated points (lower cost and lower value both better),
+    sorted by cost."""
+    cost = np.asarray(cost, dtype=float)
+    value = np.asarray(value, dtype=float)
+    order = np.lexsort((value, cost))
+    front, best = [], math.inf
+    for i in order:
+        if value[i] < best:
+            front.append(int(i))
+            best = value[i]
+    return np.array(front, dtype=int)
+
+
+@dataclass
+class PlanResult:
+    """What :func:`plan` found.
+
+    Attributes
+    ----------
+    table : pandas.DataFrame
+        One row per candidate: set-up fields, ``duration_s``, predicted ``u_<name>``
+        (k times the linearised standard uncertainty) per target, ``worst`` (largest
+        ratio of prediction to target) and ``feasible``.
+    best : dict or None
+        The recommended set-up: ``setup`` (fields), ``duration_s``, ``predicted`` and
+        ``confirmed`` uncertainties per target measurand.
+    pareto : list of dict
+        Non-dominated candidates (duration against ``worst``), cheapest first.
+    confirmation : list of dict
+        The Monte Carlo checks made, in order: set-up, predicted and Monte Carlo
+        uncertainty per target, their ratio, and whether the targets were met.
+    targets : dict
+    k : float
+    """
+
+    table: object
+    best: dict | None
+    pareto: list
+    confirmation: list
+    targets: dict
+    k: float
+    runners_up: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {
+            "targets": self.targets,
+            "k": self.k,
+            "best": self.best,
+            "runners_up": self.runners_up,
+            "pareto": self.pareto,
+            "confirmation": self.confirmation,
+        }
+
+
+def _setup_fields(setup) -> dict:
+    return setup.as_dict()
+
+
+def plan(
+    procedure,
+    base_setup=None,
+    vary: Mapping[str, Sequence] | None = None,
+    targets: Mapping[str, float] | None = None,
+    *,
+    k: float = 1.0,
+    truth=None,
+    estimator: str | None = None,
+    sources=None,
+    confirm: int = 5,
+    trials: int = 5000,
+    seed: int = 0,
+    n_jobs: int = 1,
+    backend: str | None = None,
+    criterion=None,
+) -> PlanResult:
+    """The set-up of least duration whose uncertainty meets every target.
+
+    Parameters
+    ----------
+    procedure : str or Procedure
+    base_setup : Setup, optional
+    vary : mapping of field to values
+        Candidate grid (the Cartesian product); empty means the base set-up alone.
+    targets : mapping of measurand name to value
+        Upper bounds for ``k u`` [display unit of each measurand].
+    k : float
+        Coverage factor of the targets (1: standard uncertainty).
+    truth, estimator, sources
+        As for :func:`mtplan.uncertainty.procedures.simulate_uncertainty`.
+    confirm : int
+        Largest number of candidates checked by Monte Carlo before giving up.
+    trials : int
+        Monte Carlo trials of each confirmation.
+    seed : int
+    n_jobs, backend
+        Parallel screening of the candidates.
+    criterion : callable, optional
+        Extra feasibility rule ``criterion(u: dict) -> bool`` on the k-scaled
+        uncertainties (used by the acceptance-driven plan).
+
+    Raises
+    ------
+    InvalidInput
+        For targets naming unknown measurands, and when no candidate can meet a
+        target (the message gives the best reachable value of each).
+    """
+    import pandas as pd
+
+    from mtplan._parallel import check_parallel, ordered_map, parallel_session
+    from mtplan.models import get
+    from mtplan.plans.sweep import _grid
+
+    proc = get(procedure)
+    base_setup = proc.Setup() if base_setup is None else base_setup
+    proc.check_setup(base_setup)
+    truth = proc.Truth() if truth is None else truth
+    targets = dict(targets or {})
+    p = Problems(f"plan {proc.name}")
+    names = [m.name for m in proc.measurands(base_setup)]
+    units = {m.name: m.unit for m in proc.measurands(base_setup)}
+    if not targets and criterion is None:
+        p.add_text("plan needs at least one target NAME<=VALUE")
+    for name, value in targets.items():
+        if name not in names:
+            p.add_text(f"The target {name!r} names no measurand of {proc.name}; its measurands "
+                       f"are: {', '.join(names)}")
+        p.number(f"targets[{name!r}]", value, low=0, low_open=True)
+    p.number("k", k, low=0, low_open=True)
+    p.number("confirm", confirm, integer=True, low=1)
+    p.number("trials", trials, integer=True, low=100)
+    check_parallel(p, n_jobs, backend)
+    p.raise_if_any()
+    proc.estimator(estimator)
+    setups = _grid(proc, base_setup, dict(vary or {})) if vary else [base_setup]
+
+    with parallel_session(n_jobs, backend) as session:
+        tasks = ((proc, s, truth, estimator, sources) for s in setups)
+        preds = list(ordered_map(_predict, tasks, n_jobs=session["n_jobs"], backend=backend))
+    rows = []
+    for i, (s, u) in enumerate(zip(setups, preds, strict=True)):
+        row = {"candidate": i, **_flat(_setup_fields(s)), "duration_s": float(proc.duration(s))}
+        for name in names:
+            row[f"u_{name}"] = k * u[name]
+        ratios = [k * u[n] / v for n, v in targets.items()]
+        row["worst"] = max(ratios) if ratios else 0.0
+        row["feasible"] = bool(all(r <= 1 for r in ratios)) and (
+            criterion is None or bool(criterion({n: k * u[n] for n in names})))
+        rows.append(row)
+    table = pd.DataFrame(rows)
+
+    front = pareto_front(table["duration_s"].to_numpy(), table["worst"].to_numpy())
+    pareto = [_candidate(table.iloc[i], setups[i], names, targets) for i in front]
+
+    feasible = table[table["feasible"]].sort_values(["duration_s", "worst"], kind="stable")
+    if feasible.empty:
+        msgs = []
+        for n, v in targets.items():
+            j = int(table[f"u_{n}"].idxmin())
+            reach = table.loc[j, f"u_{n}"]
+            if reach > v:
+                where = ", ".join(f"{f}={table.loc[j, f]}" for f in (vary or {}))
+                msgs.append(f"The target {n}<={v:g} {units[n]} cannot be met: the best reachable "
+                            f"value is {reach:.3g} {units[n]}" + (f" (at {where})" if where else ""))
+        if not msgs:
+            msgs.append("No candidate meets every target at once (each can be met alone)"
+                        if targets else "No candidate meets the acceptance criterion")
+        raise InvalidInput(msgs)
+
+    from mtplan.uncertainty.procedures import simulate_uncertainty
+
+    confirmation, best = [], None
+    for j in feasible.index[:confirm]:
+        s = setups[j]
+        r = simulate_uncertainty(proc, s, truth, estimator=estimator, sources=sources,
+                                 trials=trials, rng=seed, progress=False)
+        mc_u = {m.name: k * float(r.mc.std[i]) for i, m in enumerate(r.measurands)}
+        met = all(mc_u[n] <= v for n, v in targets.items()) and (
+            criterion is None or bool(criterion(mc_u)))
+        confirmation.append({
+            "candidate": int(j),
+            "setup": _setup_fields(s),
+            "duration_s": float(table.loc[j, "duration_s"]),
+            "predicted": {n: float(table.loc[j, f"u_{n}"]) for n in names},
+            "monte_carlo": mc_u,
+            "ratio": {n: float(mc_u[n] / table.loc[j, f"u_{n}"]) if table.loc[j, f"u_{n}"] > 0
+                      else math.nan for n in names},
+            "trials": int(r.mc.trials),
+            "met": bool(met),
+        })
+        if met:
+            best = {**_candidate(table.loc[j], s, names, targets), "confirmed": mc_u}
+            break
+    if best is None:
+        raise InvalidInput([
+            f"None of the {len(confirmation)} cheapest candidates predicted to meet the targets "
+            "was confirmed by Monte Carlo (the linearised prediction is optimistic here); widen "
+            "the grid or relax the targets"])
+    runners = [_candidate(table.loc[j], setups[j], names, targets)
+               for j in feasible.index if j != best["candidate"]][:3]
+    return PlanResult(table=table, best=best, pareto=pareto, confirmation=confirmation,
+                      targets=targets, k=k, runners_up=runners)
+
+
+def _flat(fields: dict) -> dict:
+    return {k: (",".join(f"{x:g}" for x in v) if isinstance(v, list) else v) for k, v in fields.items()}
+
+
+def _candidate(row, setup, names, targets) -> dict:
+    return {
+        "candidate": int(row["candidate"]),
+        "setup": setup.as_dict(),
+        "duration_s": float(row["duration_s"]),
+        "predicted": {n: float(row[f"u_{n}"]) for n in names},
+        "worst": float(row["worst"]),
+    }
+
+
+def _predict(proc, setup, truth, estimator, sources) -> dict:
+    from mtplan.uncertainty.procedures import linearize_procedure
+
+    g = linearize_procedure(proc, setup, truth, estimator=estimator, sources=sources)
+    return {n: float(u) for n, u in zip(g.names, g.std, strict=True)}
+
+
+# --------------------------------------------------------------------------- design search
+def _criterion_value(g, criterion: str) -> float:
+    cov = g.cov
+    if criterion.startswith("u:"):
+        return float(g.std[g.index(criterion[2:])])
+    scale = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+    if criterion == "D":  # geometric mean of the covariance ellipsoid's axes
+        sign, logdet = np.linalg.slogdet(cov)
+        return float(math.exp(logdet / (2 * cov.shape[0]))) if sign > 0 else math.inf
+    if criterion == "A":
+        return float(math.sqrt(np.trace(cov) / cov.shape[0]))
+    if criterion == "E":
+        return float(math.sqrt(max(np.linalg.eigvalsh(cov).max(), 0.0)))
+    raise InvalidInput([f"The 'criterion' parameter must be 'u:MEASURAND', 'D', 'A' or 'E'. "
+                        f"Got {criterion!r} instead."])
+    _ = scale
+
+
+def optimize_design(
+    procedure,
+    base_setup=None,
+    free: Mapping[str, tuple[float, float]] | None = None,
+    *,
+    criterion: str = "D",
+    truth=None,
+    estimator: str | None = None,
+    maxiter: int = 200,
+):
+    """Search continuous set-up choices for the best linearised criterion.
+
+    Parameters
+    ----------
+    free : mapping of field to (low, high)
+        Float fields, or a tuple field (every element free within the bounds, for
+        example the rotation angles of an axis within its range).
+    criterion : str
+        ``"u:NAME"`` (a measurand's standard uncertainty), ``"D"`` (geometric mean
+        of the covariance's principal standard deviations, i.e. D-optimality),
+        ``"A"`` (root mean variance) or ``"E"`` (largest principal standard deviation),
+        over the measurands in display units.
+
+    Returns
+    -------
+    dict with ``setup`` (the optimum), ``value`` (criterion there), ``start_value``
+    (at the base set-up) and ``evaluations``.
+    """
+    from scipy.optimize import minimize
+
+    from mtplan.models import get
+    from mtplan.uncertainty.procedures import linearize_procedure
+
+    proc = get(procedure)
+    base_setup = proc.Setup() if base_setup is None else base_setup
+    infos = {i["name"]: i for i in fields_info(proc.Setup)}
+    p = Problems(f"optimize_design {proc.name}")
+    if not free:
+        p.add_text("optimize_design needs at least one free field")
+    layout, x0, bounds = [], [], []
+    for name, lim in (free or {}).items():
+        if name not in infos or infos[name]["kind"] not in (float, "tuple"):
+            p.add("free", name, "float or list-of-number set-up fields")
+            continue
+        if not (isinstance(lim, Sequence) and len(lim) == 2 and lim[0] < lim[1]):
+            p.add(f"free[{name!r}]", lim, "a pair (low, high) with low < high")
+            continue
+        value = getattr(base_setup, name)
+        if infos[name]["kind"] == "tuple":
+            if value is None:
+                p.add(f"free[{name!r}]", value, "a list field that is set in the base set-up")
+                continue
+            layout.append((name, len(value)))
+            x0 += list(value)
+            bounds += [tuple(lim)] * len(value)
+        else:
+            layout.append((name, 0))
+            x0.append(value)
+            bounds.append(tuple(lim))
+    p.raise_if_any()
+    _criterion_value_check = criterion
+    evaluations = [0]
+
+    def setup_at(x):
+        vals, pos = {}, 0
+        for name, n in layout:
+            if n:
+                vals[name] = tuple(float(v) for v in x[pos : pos + n])
+                pos += n
+            else:
+                vals[name] = float(x[pos])
+                pos += 1
+        return make(proc.Setup, vals, base=base_setup, owner=proc.name)
+
+    def objective(x):
+        evaluations[0] += 1
+        x = np.clip(x, [b[0] for b in bounds], [b[1] for b in bounds])
+        try:
+            g = linearize_procedure(proc, setup_at(x), truth, estimator=estimator)
+        except InvalidInput:
+            return 1e300
+        return _criterion_value(g, _criterion_value_check)
+
+    start = objective(np.array(x0, dtype=float))
+    res = minimize(objective, np.array(x0, dtype=float), method="Nelder-Mead", bounds=bounds,
+                   options={"maxiter": maxiter, "xatol": 1e-3, "fatol": 1e-6 * max(start, 1e-300)})
+    x = np.clip(res.x, [b[0] for b in bounds], [b[1] for b in bounds])
+    return {"setup": setup_at(x), "value": float(res.fun), "start_value": float(start),
+            "evaluations": evaluations[0]}
+
+
+def readings_jacobian(procedure, setup=None, truth=None, *, fields=None):
+    """Sensitivity of the noise-free readings to the truth fields.
+
+    Returns ``(J, names)``: J of shape (n_readings, n_fields) by central differences
+    (steps of 1e-6 of each field's magnitude, at least 1e-9), for identifiability
+    analysis of what the readings can tell apart.
+    """
+    from mtplan.models import get
+
+    proc = get(procedure)
+    setup = proc.Setup() if setup is None else setup
+    truth = proc.Truth() if truth is None else truth
+    names = fields or [f["name"] for f in fields_info(proc.Truth) if f["kind"] is float]
+    zero = proc.zero_errors(setup, 1)
+
+    def flat(t):
+        r = proc.forward(setup, t, zero)
+        return np.concatenate([np.asarray(v, dtype=float).ravel() for v in r.values()])
+
+    cols = []
+    for name in names:
+        v = getattr(truth, name)
+        h = max(abs(v) * 1e-6, 1e-9)
+        import dataclasses
+
+        up = dataclasses.replace(truth, **{name: v + h})
+        down = dataclasses.replace(truth, **{name: v - h})
+        cols.append((flat(up) - flat(down)) / (2 * h))
+    return np.column_stack(cols), list(names)
+
+
+_ = InvalidInput
