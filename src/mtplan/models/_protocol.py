@@ -416,6 +416,14 @@ class Procedure:
     exact_estimators: tuple = ()
     #: Monte Carlo block size (trials); smaller for procedures with many readings
     block_size: int = 10_000
+    #: optional ``truth_from_estimate(setup, estimate) -> Truth``: the Truth whose
+    #: measurands equal an estimate (internal units; nuisance fields at their
+    #: defaults), for Monte Carlo around a measured result and as a posterior start
+    truth_from_estimate: Callable | None = None
+    #: Truth fields that are free parameters of a posterior (default: every float field)
+    posterior_fields: tuple = ()
+    #: the error source whose spread is the readings' noise in the likelihood
+    noise_source: str | None = None
 
     # ----------------------------------------------------------------- helpers
     @property
