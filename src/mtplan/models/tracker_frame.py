@@ -1,0 +1,704 @@
+"""Zero point and frames of the sub-machines of a gantry machine by laser tracker (seed 002).
+
+Machine and method (CN106078359A, PROCEDURES.md section 5)
+------------------------------------------------------------
+A gantry drilling machine carries ``n_submachines`` five-axis sub-machines, each with
+an AC swivel head. A laser tracker measures in a global frame set up from reference
+marks at the four corners of the bed. With every axis homed, the tracker measures,
+for each sub-machine, points along its X, Y and Z travels (a fitted line gives each
+direction of motion) and points round its C and A axes (a fitted circle gives each
+axis line: the circle's normal through its centre). The common perpendicular of the
+A and C lines meets C in the wrist centre T; the sub-machine's origin is T moved by
+the pivot length L along C toward the tool tip. The direction of the linear axis
+with the longest travel is kept as it is; the other two are corrected by cross
+products to an orthonormal triad; with the origin this is the homogeneous transform
+from the sub-machine frame to the global frame.
+
+Frames, units and conventions
+-----------------------------
+Global frame: origin at the bed centre, X along the bed (the gantry's travel), Y
+across, Z up; the bed marks sit at ``(+-bed_length/2, +-bed_width/2, 0)``. The gantry
+stands at X = 0; sub-machine k's nominal origin (the tool tip with every axis homed)
+is at ``(0, y_k, origin_height)`` with the sub-machines ``submachine_spacing_mm``
+apart along Y, centred on Y = 0; its nominal axes are the global ones. The tracker
+stands at ``(-tracker_distance, 0, tracker_height)``, turned by a yaw and slightly
+out of level (Truth); it reads spherical coordinates in its own frame: distance d,
+azimuth ``atan2(y, x)`` and elevation ``atan2(z, hypot(x, y))``.
+
+The head: C is oriented by the right-hand rule of its positive rotation (nominally
++Z, up); the tool points along -C from the wrist centre. A is nominally along +X.
+The reflector rides on a fixture at the tool tip's height, ``reflector_offset_mm``
+from the C axis along the common-perpendicular direction ``n = C x A / |C x A|``
+(nominally +Y). Linear travels run from ``-travel/2`` to ``+travel/2`` about home
+with ``points_per_axis`` points; arcs are centred on home (a 360 deg arc has no
+repeated end point).
+
+Measurands, for each sub-machine k = 1..N:
+
+- ``origin_x_k``, ``origin_y_k``, ``origin_z_k`` [um]: the frame origin minus its
+  nominal position, in the global frame.
+- ``rot_x_k``, ``rot_y_k``, ``rot_z_k`` [urad]: the orientation of the frame against
+  the nominal (global) axes as fixed-axis X-Y-Z angles, ``R = Rz(rot_z) Ry(rot_y)
+  Rx(rot_x)``, extracted exactly (no small-angle shortcut).
+- ``ac_offset_k`` [um]: the signed length of the common perpendicular of A and C,
+  ``(P_A - T) . n`` with ``n = C x A / |C x A|``: positive when A passes on the +Y
+  side of C (signed, so that it is unbiased near zero, unlike a distance).
+- ``sq_xy_k``, ``sq_yz_k``, ``sq_zx_k`` [urad]: squareness of the measured (not yet
+  corrected) linear-axis directions: ``asin(u_i . u_j)`` = 90 deg minus the angle
+  between the positive directions of travel i and j (positive when they close in).
+
+Decisions where the seed is silent or PROCEDURES.md leaves a choice
+-------------------------------------------------------------------
+- **The frame is defined by the construction.** The seed is a zero-point
+  *definition* and calibration method: the true frame is the seed's construction
+  applied to the true geometry (true axis directions, true A and C lines, the true
+  pivot length). So the true rotation depends on which axis has the longest travel
+  (a set-up choice), and the squareness of the linear axes ends up in the two
+  corrected axes. Ties in travel are broken in the order X, Y, Z. The "other two
+  axes corrected by cross products" is made definite thus: with i the kept
+  (longest) axis and j the next longest, the third axis is the normalised cross
+  product of i and j (in right-handed order) and j is then the cross product of
+  the third and i.
+- **Fits.** Lines: orthogonal-distance (total least squares). Circles: the full 3-D
+  orthogonal-distance circle (README of the shared TraCIM data, section 3), not a
+  plane fit followed by a circle in that plane; on short arcs the two differ. All
+  fits are batch-first (``_fit3d``) and validated against the TraCIM gauss package
+  to 1e-13 mm (``benchmarks/validate_fit3d_tracim.py``). Line directions are
+  oriented by the order of travel (first to last point), circle normals by the
+  right-hand rule of the positive rotation.
+- **Global frame.** The seed sets it up from corner marks *and* faces; only the four
+  corner marks are modelled, and the tracker-to-global transform is the
+  least-squares rigid best fit (Kabsch/Umeyama without scale) of the measured marks
+  to their stated coordinates. The registration's uncertainty therefore comes from
+  the tracker's own errors on the marks and enters every sub-machine alike.
+- **Tracker specification.** Makers state the maximum permissible error (MPE) after
+  ISO 10360-10 in the form a + b L for the distance (ADM) and c + d L transverse
+  to the beam; an MPE is a bound, not a standard deviation. With
+  ``mpe_model="normal_k2"`` (default) an MPE is taken as an expanded uncertainty
+  with k = 2, i.e. a normal error of standard deviation MPE/2; makers state that
+  typical results are half the MPE, which is this reading. ``mpe_model="rectangular"``
+  takes the MPE as the half-width of a rectangular distribution (std MPE/sqrt 3),
+  the cautious reading of a bound without further knowledge. The constant and the
+  length-proportional parts have different causes (ADM zero and noise versus
+  refractive index and scale; encoder and pointing noise versus angular errors
+  that grow into position), so each part is a separate source and their standard
+  deviations add in quadrature, not linearly as in the MPE envelope. The
+  transverse error applies to each of the two directions across the beam
+  (horizontal and vertical) independently, as an angle error ``e / d``. All four
+  are independent from point to point; in reality angular errors of nearby
+  points (a short arc) are partly correlated, which this model does not capture.
+- **Pivot length.** ``pivot_length_mm`` is the stated value the estimator uses; the
+  true pivot length differs by ``Truth.pivot_length_error_um`` (default 0), which
+  shows up as a bias of the origin along C (the readings do not depend on it).
+- Not modelled: straightness errors of the travels, thermal drift during the test,
+  the reflector's centring error, line-of-sight limits of the tracker.
+
+Degenerate set-ups are refused by the Setup and Truth checks: a zero travel (no
+direction), a zero arc (all arc points at one angle: no circle, no axis), fewer
+than 3 points on an arc, and A and C (nearly) parallel (no unique common
+perpendicular, no wrist centre). An estimate from measured data whose fitted A and
+C lines are parallel is refused with the same reason.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from mtplan._validate import InvalidInput, Problems
+from mtplan.models._fit3d import common_perpendicular, fit_circle_3d, fit_line_3d
+from mtplan.models._protocol import Measurand, Procedure, SetupBase, Source, param
+from mtplan.uncertainty.distributions import Normal, Rectangular
+
+__all__ = ["PROCEDURE", "Setup", "Truth"]
+
+NAME = "tracker_frame"
+AXES = ("X", "Y", "Z")
+#: minimum angle between A and C accepted by the Truth check [deg]
+MIN_AC_ANGLE_DEG = 5.0
+#: sine of the angle below which fitted A and C lines are called parallel
+PARALLEL_SIN = 1e-6
+
+
+# --------------------------------------------------------------------------- set-up
+@dataclass(frozen=True)
+class Setup(SetupBase):
+    """Set-up of the tracker measurement of the sub-machine frames (mm, deg, s)."""
+
+    _owner = NAME
+    n_submachines: int = param(2, doc="Sub-machines on the gantry", low=1, high=32)
+    submachine_spacing_mm: float = param(
+        2000.0, doc="Distance between neighbouring sub-machines along Y", low=0, low_open=True)
+    origin_height_mm: float = param(
+        800.0, doc="Height of the nominal origin (tool tip at home) above the bed", low=0)
+    pivot_length_mm: float = param(
+        300.0, doc="Stated pivot length L: wrist centre to tool tip along C", low=0, high=5000)
+    reflector_offset_mm: float = param(
+        150.0, doc="Distance of the reflector from the C axis (at tool-tip height)",
+        low=0, low_open=True, high=2000)
+    travel_x_mm: float = param(1000.0, doc="Travel of X used for the line", low=0, high=20000)
+    travel_y_mm: float = param(600.0, doc="Travel of Y used for the line", low=0, high=20000)
+    travel_z_mm: float = param(400.0, doc="Travel of Z used for the line", low=0, high=20000)
+    points_per_axis: int = param(11, doc="Points along each linear travel", low=2, high=1000)
+    c_arc_deg: float = param(180.0, doc="Arc of C covered by the points", low=0, high=360)
+    a_arc_deg: float = param(60.0, doc="Arc of A covered by the points (often short)",
+                             low=0, high=360)
+    points_per_arc: int = param(7, doc="Points on each of the A and C arcs", low=3, high=1000)
+    tracker_distance_mm: float = param(
+        4000.0, doc="Horizontal distance from the tracker to the gantry (along X)",
+        low=0, low_open=True, high=60000)
+    tracker_height_mm: float = param(1500.0, doc="Height of the tracker head above the bed",
+                                     low=-5000, high=20000)
+    bed_length_mm: float = param(8000.0, doc="Distance of the bed's corner marks along X",
+                                 low=0, low_open=True, high=100000)
+    bed_width_mm: float = param(4000.0, doc="Distance of the bed's corner marks along Y",
+                                low=0, low_open=True, high=100000)
+    distance_fixed_um: float = param(
+        10.0, doc="Tracker distance (ADM) MPE, constant part a", low=0, high=10000)
+    distance_per_length_um_per_m: float = param(
+        0.3, doc="Tracker distance (ADM) MPE, length-proportional part b", low=0, high=1000)
+    transverse_fixed_um: float = param(
+        15.0, doc="Tracker transverse MPE, constant part c", low=0, high=10000)
+    transverse_per_length_um_per_m: float = param(
+        6.0, doc="Tracker transverse MPE, length-proportional part d", low=0, high=1000)
+    mpe_model: str = param(
+        "normal_k2", doc="How an MPE becomes a distribution: normal with std MPE/2 (k = 2) "
+        "or rectangular with half-width MPE", choices=("normal_k2", "rectangular"))
+    machine_repeatability_um: float = param(
+        2.0, doc="Standard deviation of the machine's positioning at each point (each axis)",
+        low=0, high=10000)
+    dwell_s: float = param(3.0, doc="Settling and tracker averaging per point", low=0)
+    linear_feed_mm_min: float = param(3000.0, doc="Feed of the linear moves", low=0, low_open=True)
+    rotary_move_s: float = param(3.0, doc="Time to index a rotary axis to the next arc point",
+                                 low=0)
+    changeover_s: float = param(300.0, doc="Mounting the reflector fixture on a sub-machine",
+                                low=0)
+    mark_s: float = param(60.0, doc="Measuring one bed mark (placing the reflector, reading)",
+                          low=0)
+
+    def _check(self, p: Problems) -> None:
+        for ax in "xyz":
+            field = f"travel_{ax}_mm"
+            if getattr(self, field) <= 0:
+                p.add(field, getattr(self, field),
+                      f"> 0: a zero travel gives no direction of motion for the {ax.upper()} axis")
+        for ax in "ca":
+            field = f"{ax}_arc_deg"
+            if getattr(self, field) <= 0:
+                p.add(field, getattr(self, field),
+                      f"> 0: with an arc of 0 all points of the {ax.upper()} arc lie at one "
+                      "angle, so no circle and no axis line can be fitted")
+
+
+@dataclass(frozen=True)
+class Truth(SetupBase):
+    """True geometry. Tuples are per sub-machine, cycled when shorter than the count."""
+
+    _owner = f"{NAME} truth"
+    wrist_dx_um: tuple[float, ...] = param((40.0, -25.0), doc="Wrist centre T off nominal, X",
+                                           min_len=1)
+    wrist_dy_um: tuple[float, ...] = param((-30.0, 20.0), doc="Wrist centre T off nominal, Y",
+                                           min_len=1)
+    wrist_dz_um: tuple[float, ...] = param((15.0, -10.0), doc="Wrist centre T off nominal, Z",
+                                           min_len=1)
+    frame_rx_urad: tuple[float, ...] = param((20.0, -15.0), doc="Rotation of the sub-machine "
+                                             "(axes and head) about X", min_len=1)
+    frame_ry_urad: tuple[float, ...] = param((-12.0, 25.0), doc="... about Y", min_len=1)
+    frame_rz_urad: tuple[float, ...] = param((35.0, -20.0), doc="... about Z", min_len=1)
+    sq_xy_urad: tuple[float, ...] = param((10.0, -8.0), doc="Squareness X-Y (90 deg minus "
+                                          "the angle between X and Y)", min_len=1)
+    sq_yz_urad: tuple[float, ...] = param((-6.0, 12.0), doc="Squareness Y-Z", min_len=1)
+    sq_zx_urad: tuple[float, ...] = param((8.0, 5.0), doc="Squareness Z-X", min_len=1)
+    c_tilt_x_urad: tuple[float, ...] = param((15.0, -10.0), doc="Tilt of C against Z about X",
+                                             min_len=1)
+    c_tilt_y_urad: tuple[float, ...] = param((-20.0, 12.0), doc="Tilt of C against Z about Y",
+                                             min_len=1)
+    a_tilt_y_urad: tuple[float, ...] = param((25.0, -18.0), doc="Tilt of A about Y", min_len=1)
+    a_tilt_z_urad: tuple[float, ...] = param((-14.0, 30.0), doc="Tilt of A about Z", min_len=1)
+    ac_offset_um: tuple[float, ...] = param((30.0, -45.0), doc="Signed A-C offset (length of "
+                                            "the common perpendicular)", min_len=1)
+    pivot_length_error_um: tuple[float, ...] = param(
+        (0.0,), doc="True pivot length minus the stated one", min_len=1)
+    ac_angle_deg: float = param(90.0, doc="Angle between the A and C axes", low=0, high=180)
+    tracker_yaw_deg: float = param(30.0, doc="Yaw of the tracker's frame", low=-360, high=360)
+    tracker_tilt_x_urad: float = param(50.0, doc="Tracker out of level about X")
+    tracker_tilt_y_urad: float = param(-30.0, doc="Tracker out of level about Y")
+
+    def _check(self, p: Problems) -> None:
+        s = abs(math.sin(math.radians(self.ac_angle_deg)))
+        if s < math.sin(math.radians(MIN_AC_ANGLE_DEG)):
+            p.add("ac_angle_deg", self.ac_angle_deg,
+                  f"between {MIN_AC_ANGLE_DEG:g} and {180 - MIN_AC_ANGLE_DEG:g}: with A and C "
+                  "(nearly) parallel their common perpendicular, and so the wrist centre T, "
+                  "is undefined")
+
+
+# --------------------------------------------------------------------------- geometry
+def _rot(axis: np.ndarray, angle) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) about unit `axis` (3,) by `angle` (...) [rad] (Rodrigues)."""
+    angle = np.asarray(angle, dtype=float)
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    s, c = np.sin(angle)[..., None, None], np.cos(angle)[..., None, None]
+    return np.eye(3) + s * k + (1 - c) * (k @ k)
+
+
+def _rxyz(rx: float, ry: float, rz: float) -> np.ndarray:
+    """``Rz(rz) Ry(ry) Rx(rx)`` (fixed-axis X, then Y, then Z) [rad]."""
+    e = np.eye(3)
+    return _rot(e[2], rz) @ _rot(e[1], ry) @ _rot(e[0], rx)
+
+
+def _angles(r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Inverse of :func:`_rxyz` for matrices (..., 3, 3): (rx, ry, rz) [rad]."""
+    rx = np.arctan2(r[..., 2, 1], r[..., 2, 2])
+    ry = np.arctan2(-r[..., 2, 0], np.hypot(r[..., 2, 1], r[..., 2, 2]))
+    rz = np.arctan2(r[..., 1, 0], r[..., 0, 0])
+    return rx, ry, rz
+
+
+def _cyc(values: tuple, k: int) -> float:
+    return float(values[k % len(values)])
+
+
+def _unit(v):
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _frame_axes(setup: Setup) -> tuple[int, int, int]:
+    """(kept, second, third) axis indices: longest travel kept, then the next longest."""
+    travels = [setup.travel_x_mm, setup.travel_y_mm, setup.travel_z_mm]
+    order = sorted(range(3), key=lambda i: (-travels[i], i))
+    return order[0], order[1], order[2]
+
+
+def _orthonormal(setup: Setup, ux, uy, uz) -> np.ndarray:
+    """The seed's frame: longest-travel axis kept, the others corrected by cross products.
+
+    Returns rotation matrices (..., 3, 3) whose columns are the frame's X, Y, Z axes.
+    """
+    u = [ux, uy, uz]
+    i, j, k = _frame_axes(setup)
+    cyclic = (j - i) % 3 == 1
+    cols = [None, None, None]
+    cols[i] = _unit(u[i])
+    cols[k] = _unit(np.cross(cols[i], u[j]) if cyclic else np.cross(u[j], cols[i]))
+    cols[j] = np.cross(cols[k], cols[i]) if cyclic else np.cross(cols[i], cols[k])
+    return np.stack(cols, axis=-1)
+
+
+def _nominal_origins(setup: Setup) -> np.ndarray:
+    """Nominal origins (N, 3) [mm] of the sub-machine frames."""
+    n = setup.n_submachines
+    y = (np.arange(n) - (n - 1) / 2) * setup.submachine_spacing_mm
+    return np.column_stack([np.zeros(n), y, np.full(n, setup.origin_height_mm)])
+
+
+def _marks(setup: Setup) -> np.ndarray:
+    """Stated global coordinates (4, 3) [mm] of the bed's corner marks."""
+    a, b = setup.bed_length_mm / 2, setup.bed_width_mm / 2
+    return np.array([[-a, -b, 0.0], [a, -b, 0.0], [a, b, 0.0], [-a, b, 0.0]])
+
+
+def _linear_positions(setup: Setup) -> dict[str, np.ndarray]:
+    travel = {"X": setup.travel_x_mm, "Y": setup.travel_y_mm, "Z": setup.travel_z_mm}
+    return {ax: np.linspace(-t / 2, t / 2, setup.points_per_axis) for ax, t in travel.items()}
+
+
+def _arc_angles(arc_deg: float, m: int) -> np.ndarray:
+    """Arc angles [deg] centred on home; a full turn leaves out the repeated end point."""
+    if arc_deg >= 360.0:
+        return np.linspace(-180.0, 180.0, m, endpoint=False)
+    return np.linspace(-arc_deg / 2, arc_deg / 2, m)
+
+
+def _layout(setup: Setup) -> list[tuple[str, int, int, float, float]]:
+    """Every reading in order: (group, submachine, index, position_mm, angle_deg)."""
+    rows = [("mark", 0, i, 0.0, 0.0) for i in range(4)]
+    lin = _linear_positions(setup)
+    c_ang = _arc_angles(setup.c_arc_deg, setup.points_per_arc)
+    a_ang = _arc_angles(setup.a_arc_deg, setup.points_per_arc)
+    for k in range(1, setup.n_submachines + 1):
+        for ax in AXES:
+            rows += [(ax, k, i, float(s), 0.0) for i, s in enumerate(lin[ax])]
+        rows += [("C", k, i, 0.0, float(a)) for i, a in enumerate(c_ang)]
+        rows += [("A", k, i, 0.0, float(a)) for i, a in enumerate(a_ang)]
+    return rows
+
+
+def _slices(setup: Setup) -> dict:
+    """Index ranges of each group of readings: {(group, k): slice} (marks: ('mark', 0))."""
+    out = {("mark", 0): slice(0, 4)}
+    pos = 4
+    P, Q = setup.points_per_axis, setup.points_per_arc
+    for k in range(1, setup.n_submachines + 1):
+        for g, m in (("X", P), ("Y", P), ("Z", P), ("C", Q), ("A", Q)):
+            out[(g, k)] = slice(pos, pos + m)
+            pos += m
+    return out
+
+
+def _n_points(setup: Setup) -> int:
+    return 4 + setup.n_submachines * (3 * setup.points_per_axis + 2 * setup.points_per_arc)
+
+
+@dataclass(frozen=True)
+class _Head:
+    """True geometry of one sub-machine (global frame, mm)."""
+
+    axes: np.ndarray  # (3, 3) rows: unit directions of the X, Y, Z travels
+    c_dir: np.ndarray
+    a_dir: np.ndarray
+    wrist: np.ndarray  # T, the foot of the common perpendicular on C
+    a_point: np.ndarray  # foot on A
+    perp: np.ndarray  # unit C x A
+    offset: float
+    reflector: np.ndarray  # reflector at home
+    origin: np.ndarray  # true origin (tool tip with the true pivot length)
+
+
+def _head(setup: Setup, truth: Truth, k: int) -> _Head:
+    """True geometry of sub-machine k (0-based)."""
+    u = 1e-6
+    rf = _rxyz(_cyc(truth.frame_rx_urad, k) * u, _cyc(truth.frame_ry_urad, k) * u,
+               _cyc(truth.frame_rz_urad, k) * u)
+    sxy, syz, szx = (_cyc(truth.sq_xy_urad, k) * u, _cyc(truth.sq_yz_urad, k) * u,
+                     _cyc(truth.sq_zx_urad, k) * u)
+    ux = np.array([1.0, 0.0, 0.0])
+    uy = np.array([math.sin(sxy), math.cos(sxy), 0.0])
+    alpha = math.sin(szx)
+    beta = (math.sin(syz) - alpha * math.sin(sxy)) / math.cos(sxy)
+    uz = np.array([alpha, beta, math.sqrt(1.0 - alpha**2 - beta**2)])
+    axes = (rf @ np.stack([ux, uy, uz]).T).T
+    e = np.eye(3)
+    c_loc = _rot(e[1], _cyc(truth.c_tilt_y_urad, k) * u) @ _rot(e[0], _cyc(truth.c_tilt_x_urad, k) * u) @ e[2]
+    ac = math.radians(truth.ac_angle_deg)
+    a0 = math.sin(ac) * e[0] + math.cos(ac) * e[2]
+    a_loc = _rot(e[2], _cyc(truth.a_tilt_z_urad, k) * u) @ _rot(e[1], _cyc(truth.a_tilt_y_urad, k) * u) @ a0
+    c_dir, a_dir = rf @ c_loc, rf @ a_loc
+    perp = _unit(np.cross(c_dir, a_dir))
+    nominal = _nominal_origins(setup)[k] + np.array([0.0, 0.0, setup.pivot_length_mm])
+    wrist = nominal + 1e-3 * np.array([_cyc(truth.wrist_dx_um, k), _cyc(truth.wrist_dy_um, k),
+                                       _cyc(truth.wrist_dz_um, k)])
+    offset = _cyc(truth.ac_offset_um, k) * 1e-3
+    a_point = wrist + offset * perp
+    reflector = wrist - setup.pivot_length_mm * c_dir + setup.reflector_offset_mm * perp
+    true_l = setup.pivot_length_mm + _cyc(truth.pivot_length_error_um, k) * 1e-3
+    origin = wrist - true_l * c_dir
+    return _Head(axes, c_dir, a_dir, wrist, a_point, perp, offset, reflector, origin)
+
+
+def _machine_points(setup: Setup, truth: Truth) -> np.ndarray:
+    """True global positions (n_machine_points, 3) [mm] of the reflector, layout order."""
+    lin = _linear_positions(setup)
+    c_ang = np.radians(_arc_angles(setup.c_arc_deg, setup.points_per_arc))
+    a_ang = np.radians(_arc_angles(setup.a_arc_deg, setup.points_per_arc))
+    out = []
+    for k in range(setup.n_submachines):
+        h = _head(setup, truth, k)
+        for i, ax in enumerate(AXES):
+            out.append(h.reflector + lin[ax][:, None] * h.axes[i])
+        out.append(h.wrist + (_rot(h.c_dir, c_ang) @ (h.reflector - h.wrist)))
+        out.append(h.a_point + (_rot(h.a_dir, a_ang) @ (h.reflector - h.a_point)))
+    return np.concatenate(out, axis=0)
+
+
+def _tracker_pose(setup: Setup, truth: Truth) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t): global = R @ tracker + t."""
+    r = _rxyz(truth.tracker_tilt_x_urad * 1e-6, truth.tracker_tilt_y_urad * 1e-6,
+              math.radians(truth.tracker_yaw_deg))
+    t = np.array([-setup.tracker_distance_mm, 0.0, setup.tracker_height_mm])
+    return r, t
+
+
+# --------------------------------------------------------------------------- protocol
+def measurands(setup: Setup) -> tuple[Measurand, ...]:
+    """Ten measurands per sub-machine k = 1..N (see the module docstring)."""
+    out = []
+    for k in range(1, setup.n_submachines + 1):
+        for ax in "xyz":
+            out.append(Measurand(f"origin_{ax}_{k}", "um",
+                                 f"Origin of sub-machine {k} minus nominal, global {ax.upper()}"))
+        for ax in "xyz":
+            out.append(Measurand(f"rot_{ax}_{k}", "urad",
+                                 f"Orientation of sub-machine {k}'s frame about global "
+                                 f"{ax.upper()} (R = Rz Ry Rx)"))
+        out.append(Measurand(f"ac_offset_{k}", "um",
+                             f"Signed A-C offset of sub-machine {k} (common perpendicular)"))
+        for a, b in ("xy", "yz", "zx"):
+            out.append(Measurand(f"sq_{a}{b}_{k}", "urad",
+                                 f"Squareness {a.upper()}-{b.upper()} of sub-machine {k}: "
+                                 f"90 deg minus the angle between the travels"))
+    return tuple(out)
+
+
+def _mpe(setup: Setup, mpe: float) -> Normal | Rectangular:
+    if setup.mpe_model == "rectangular":
+        return Rectangular(-mpe, mpe)
+    return Normal(0.0, mpe / 2.0)
+
+
+def sources(setup: Setup) -> dict[str, Source]:
+    """Error sources (internal units: mm, or mm per mm for the length-proportional parts)."""
+    n = _n_points(setup)
+    m = n - 4
+    spec = ("Default from a current tracker's ISO 10360-10 subsystem MPE (ADM 10 um + 0.3 um/m, "
+            "transverse 15 um + 6 um/m); MPE converted by mpe_model.")
+    return {
+        "distance_fixed": Source(
+            _mpe(setup, setup.distance_fixed_um * 1e-3), (n,),
+            "Tracker distance error, constant part a of the MPE a + b L, per point [mm]. " + spec),
+        "distance_per_length": Source(
+            _mpe(setup, setup.distance_per_length_um_per_m * 1e-6), (n,),
+            "Tracker distance error, part b of the MPE proportional to the distance, per point "
+            "[mm/mm]. " + spec),
+        "transverse_fixed": Source(
+            _mpe(setup, setup.transverse_fixed_um * 1e-3), (n, 2),
+            "Tracker error across the beam (horizontal, vertical), constant part c of the MPE "
+            "c + d L, per point [mm]. " + spec),
+        "transverse_per_length": Source(
+            _mpe(setup, setup.transverse_per_length_um_per_m * 1e-6), (n, 2),
+            "Tracker error across the beam, part d proportional to the distance (an angle "
+            "error), per point [rad]. " + spec),
+        "machine_repeatability": Source(
+            Normal(0.0, setup.machine_repeatability_um * 1e-3), (m, 3),
+            "Scatter of the machine's positioning at each measured point, each global axis "
+            "[mm]. Default 2 um: an ISO 230-2 unidirectional repeatability of about 8 um "
+            "(4 s) for large gantry axes."),
+    }
+
+
+def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
+    """Tracker readings (distance [mm], azimuth [rad], elevation [rad]), shape (n, points)."""
+    marks = _marks(setup)
+    mach = _machine_points(setup, truth)
+    rep = np.asarray(errors["machine_repeatability"])
+    batch = rep.shape[0]
+    pts = np.concatenate([np.broadcast_to(marks, (batch, 4, 3)), mach[None] + rep], axis=1)
+    r, t = _tracker_pose(setup, truth)
+    v = (pts - t) @ r  # tracker-frame coordinates: R^T (p - t), row vectors
+    horiz = np.hypot(v[..., 0], v[..., 1])
+    d = np.linalg.norm(v, axis=-1)
+    az = np.arctan2(v[..., 1], v[..., 0])
+    el = np.arctan2(v[..., 2], horiz)
+    tf = np.asarray(errors["transverse_fixed"])
+    tl = np.asarray(errors["transverse_per_length"])
+    dist = d + errors["distance_fixed"] + errors["distance_per_length"] * d
+    az = az + (tf[..., 0] / d + tl[..., 0]) * d / horiz
+    el = el + tf[..., 1] / d + tl[..., 1]
+    return {"distance_mm": dist, "azimuth_rad": az, "elevation_rad": el}
+
+
+def _cartesian(readings: dict) -> np.ndarray:
+    d = np.asarray(readings["distance_mm"], dtype=float)
+    az = np.asarray(readings["azimuth_rad"], dtype=float)
+    el = np.asarray(readings["elevation_rad"], dtype=float)
+    ce = np.cos(el)
+    return np.stack([d * ce * np.cos(az), d * ce * np.sin(az), d * np.sin(el)], axis=-1)
+
+
+def _register(setup: Setup, tracker_marks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares rigid transform (R (n,3,3), t (n,3)) with global = R v + t (Kabsch)."""
+    stated = _marks(setup)
+    sc = stated.mean(axis=0)
+    mc = tracker_marks.mean(axis=-2)
+    h = np.einsum("nmi,mj->nij", tracker_marks - mc[:, None, :], stated - sc)
+    u, _, vt = np.linalg.svd(h)
+    det = np.linalg.det(vt.transpose(0, 2, 1) @ u.transpose(0, 2, 1))
+    dm = np.broadcast_to(np.eye(3), h.shape).copy()
+    dm[:, 2, 2] = np.sign(det)
+    rot = vt.transpose(0, 2, 1) @ dm @ u.transpose(0, 2, 1)
+    return rot, sc - np.einsum("nij,nj->ni", rot, mc)
+
+
+def _frame_from_points(setup: Setup, sub_points: dict) -> dict[str, np.ndarray]:
+    """The seed's construction from global points of one sub-machine (batch-first)."""
+    dirs = []
+    for ax in AXES:
+        p = sub_points[ax]
+        dirs.append(fit_line_3d(p, orient=p[:, -1] - p[:, 0]).direction)
+    c_fit = fit_circle_3d(sub_points["C"])
+    a_fit = fit_circle_3d(sub_points["A"])
+    a_foot, t_foot, offset, sin_ac = common_perpendicular(a_fit.centre, a_fit.normal,
+                                                          c_fit.centre, c_fit.normal)
+    return {"dirs": dirs, "c": c_fit, "a": a_fit, "a_foot": a_foot, "wrist": t_foot,
+            "offset": offset, "sin_ac": sin_ac}
+
+
+def estimate_patent(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
+    """The seed's method: lines, 3D circles, common perpendicular, cross-product frame.
+
+    Parameters
+    ----------
+    setup : Setup
+    readings : dict
+        ``distance_mm``, ``azimuth_rad``, ``elevation_rad``, each (n, points).
+
+    Returns
+    -------
+    dict of measurand name -> array (n,) in mm and rad.
+    """
+    xyz = _cartesian(readings)
+    rot, t = _register(setup, xyz[:, :4])
+    glob = np.einsum("nij,npj->npi", rot, xyz) + t[:, None, :]
+    sl = _slices(setup)
+    nominal = _nominal_origins(setup)
+    out = {}
+    for k in range(1, setup.n_submachines + 1):
+        pts = {g: glob[:, sl[(g, k)]] for g in ("X", "Y", "Z", "C", "A")}
+        f = _frame_from_points(setup, pts)
+        bad = f["sin_ac"] < PARALLEL_SIN
+        if np.any(bad):
+            raise InvalidInput([
+                f"The fitted A and C axes of sub-machine {k} are parallel (angle "
+                f"{np.min(f['sin_ac']) * 1e6:.3g} urad) in {int(bad.sum())} of {bad.size} "
+                "measurement(s): their common perpendicular, and so the wrist centre, is "
+                "undefined."])
+        c_dir = f["c"].normal
+        origin = f["wrist"] - setup.pivot_length_mm * c_dir - nominal[k - 1]
+        frame = _orthonormal(setup, *f["dirs"])
+        rx, ry, rz = _angles(frame)
+        ux, uy, uz = f["dirs"]
+        dot = lambda a, b: np.einsum("ni,ni->n", a, b)  # noqa: E731
+        out.update({
+            f"origin_x_{k}": origin[:, 0], f"origin_y_{k}": origin[:, 1],
+            f"origin_z_{k}": origin[:, 2],
+            f"rot_x_{k}": rx, f"rot_y_{k}": ry, f"rot_z_{k}": rz,
+            f"ac_offset_{k}": f["offset"],
+            f"sq_xy_{k}": np.arcsin(dot(ux, uy)), f"sq_yz_{k}": np.arcsin(dot(uy, uz)),
+            f"sq_zx_{k}": np.arcsin(dot(uz, ux)),
+        })
+    return out
+
+
+def true_values(setup: Setup, truth: Truth) -> dict[str, float]:
+    """The seed's construction applied to the true geometry [mm, rad]."""
+    nominal = _nominal_origins(setup)
+    out = {}
+    for k in range(setup.n_submachines):
+        h = _head(setup, truth, k)
+        o = h.origin - nominal[k]
+        frame = _orthonormal(setup, *h.axes)
+        rx, ry, rz = _angles(frame)
+        ux, uy, uz = h.axes
+        name = k + 1
+        out.update({
+            f"origin_x_{name}": float(o[0]), f"origin_y_{name}": float(o[1]),
+            f"origin_z_{name}": float(o[2]),
+            f"rot_x_{name}": float(rx), f"rot_y_{name}": float(ry), f"rot_z_{name}": float(rz),
+            f"ac_offset_{name}": h.offset,
+            f"sq_xy_{name}": math.asin(ux @ uy), f"sq_yz_{name}": math.asin(uy @ uz),
+            f"sq_zx_{name}": math.asin(uz @ ux),
+        })
+    return out
+
+
+def duration(setup: Setup) -> float:
+    """Machine time [s]: marks, and per sub-machine the fixture, travels and arcs."""
+    feed = setup.linear_feed_mm_min / 60.0
+    travel = setup.travel_x_mm + setup.travel_y_mm + setup.travel_z_mm
+    per_sub = (setup.changeover_s
+               + 3 * setup.points_per_axis * setup.dwell_s
+               + 2 * travel / feed  # out to the start, along the travel and back home
+               + 2 * setup.points_per_arc * (setup.dwell_s + setup.rotary_move_s))
+    return 4 * setup.mark_s + setup.n_submachines * per_sub
+
+
+READING_COLUMNS = ("distance_mm", "azimuth_rad", "elevation_rad")
+KEY_COLUMNS = ("group", "submachine", "index")
+
+
+def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
+    """Tidy table of one measurement (the first trial): one tracker reading per row.
+
+    Columns: ``point`` (0..), ``group`` (``mark``, ``X``, ``Y``, ``Z``, ``C``, ``A``),
+    ``submachine`` (0 for the bed marks), ``index`` (within the group), the commanded
+    ``position_mm`` (linear travels) and ``angle_deg`` (arcs), and the readings
+    ``distance_mm``, ``azimuth_rad``, ``elevation_rad``.
+    """
+    rows = _layout(setup)
+    df = pd.DataFrame(rows, columns=["group", "submachine", "index", "position_mm", "angle_deg"])
+    df.insert(0, "point", np.arange(len(rows)))
+    for col in READING_COLUMNS:
+        df[col] = np.asarray(readings[col], dtype=float)[0]
+    return df
+
+
+def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
+    """Readings (batch of one) from a table in the format of :func:`readings_frame`.
+
+    Rows are matched to the set-up's layout by (group, submachine, index); their
+    order in the table does not matter. The commanded positions are not used (the
+    estimator orients lines by the order of the points along each travel).
+    """
+    p = Problems(f"{NAME} readings")
+    if not isinstance(df, pd.DataFrame):
+        raise InvalidInput([f"The readings of {NAME} must be a pandas DataFrame. "
+                            f"Got {type(df).__name__} instead."])
+    missing = [c for c in (*KEY_COLUMNS, *READING_COLUMNS) if c not in df.columns]
+    if missing:
+        raise InvalidInput([f"The readings of {NAME} lack the column(s) {', '.join(missing)}; "
+                            f"they need {', '.join((*KEY_COLUMNS, *READING_COLUMNS))}."])
+    layout = _layout(setup)
+    if len(df) != len(layout):
+        p.add_text(f"The readings of {NAME} must have {len(layout)} rows for this set-up "
+                   f"(4 marks + {setup.n_submachines} x (3 x {setup.points_per_axis} + 2 x "
+                   f"{setup.points_per_arc})). Got {len(df)} instead")
+    values = {}
+    for col in READING_COLUMNS:
+        v = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
+        bad = np.flatnonzero(~np.isfinite(v))
+        if bad.size:
+            p.add_text(f"Column {col!r} of the {NAME} readings must hold finite numbers; "
+                       f"row(s) {', '.join(map(str, bad[:5]))} do not")
+        values[col] = v
+    p.raise_if_any()
+    try:
+        keys = list(zip(df["group"].astype(str),
+                        pd.to_numeric(df["submachine"]).astype(int),
+                        pd.to_numeric(df["index"]).astype(int), strict=True))
+    except (ValueError, TypeError):
+        raise InvalidInput([f"Columns 'submachine' and 'index' of the {NAME} readings must "
+                            "hold integers."]) from None
+    where = {}
+    for row, key in enumerate(keys):
+        if key in where:
+            p.add_text(f"Row {row} of the {NAME} readings repeats {key} (first at row "
+                       f"{where[key]})")
+        where[key] = row
+    expected = [r[:3] for r in layout]
+    absent = [key for key in expected if key not in where]
+    if absent:
+        p.add_text(f"The {NAME} readings lack the point(s) (group, submachine, index) "
+                   f"{', '.join(map(str, absent[:5]))}" + (" ..." if len(absent) > 5 else ""))
+    extra = sorted(set(where) - set(expected))
+    if extra:
+        p.add_text(f"The {NAME} readings hold point(s) this set-up does not have: "
+                   f"{', '.join(map(str, extra[:5]))}")
+    p.raise_if_any()
+    order = np.array([where[key] for key in expected])
+    return {col: values[col][order][None, :] for col in READING_COLUMNS}
+
+
+PROCEDURE = Procedure(
+    name=NAME,
+    title="Zero point and frames of gantry sub-machines by laser tracker",
+    Setup=Setup,
+    Truth=Truth,
+    measurands=measurands,
+    sources=sources,
+    forward=forward,
+    estimators={"patent": estimate_patent},
+    true_values=true_values,
+    duration=duration,
+    readings_frame=readings_frame,
+    from_frame=from_frame,
+    description=(
+        "Laser-tracker calibration of the frames of the AC-head sub-machines of a gantry "
+        "(CN106078359A): lines along the travels, 3D circles round A and C, the common "
+        "perpendicular of A and C, origin at the pivot length along C, longest travel kept."),
+    exact_estimators=("patent",),
+    block_size=4000,
+)
