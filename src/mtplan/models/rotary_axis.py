@@ -1,0 +1,1026 @@
+"""Rotary-axis location from an inclined plane (C and A axes; seed 000, PROCEDURES.md 1).
+
+The test
+--------
+A flat inclined plane (incline 10-30 deg) is fastened to the C table of a table-tilting
+five-axis machine. The rotary axis under test (C, or A with C held at zero) is turned to
+``positions`` angles; at each, after the table is still, a point laser distance sensor on
+the Z slide reads a rectangular lattice of heights on the incline. Each lattice gives a
+plane; all planes are copies of one plane rotated about the true axis, so
+
+- they share one point, where the axis pierces the incline (the least-squares solution
+  of ``N P = -D``, ``N`` the stacked unit normals, ``D`` the offsets), and
+- every normal makes the same angle alpha with the axis (``n_i . u = cos(alpha)``: the
+  least-squares solution of ``N v = 1``, normalised, is the axis direction ``u``).
+
+The axis is the line through ``P`` along ``u``. Neither step uses the angles the axis
+was turned to, so the rotary axis's angular positioning error does not enter.
+
+Frame and conventions
+---------------------
+Machine frame X, Y, Z right-handed, Z up; the sensor reads along -Z. Lengths in mm and
+angles in rad internally; results shown in um and urad.
+
+- C axis: nominal axis = the Z line through the origin (the table centre); the table
+  surface is at Z = 0. ``EX0C``, ``EY0C`` are where the axis line crosses the plane
+  Z = ``reference_height_mm``; for the fitted direction scaled to u = (ux, uy, 1),
+  ``EB0C = +ux`` and ``EA0C = -uy`` (ISO 230-7 location errors; a positive EA0C tips
+  the axis towards -Y, a positive EB0C towards +X).
+- A axis: nominal axis = the X line through the origin. ``EY0A``, ``EZ0A`` are where
+  the axis crosses the plane X = ``reference_height_mm``; for u = (1, uy, uz),
+  ``EC0A = +uy`` and ``EB0A = -uz``.
+- The angles are the slope components above (tangents, not arcsines), in the truth as
+  in the estimates, so noise-free recovery is exact.
+- A positive angle turns the table right-handedly about +Z (C) or +X (A). The estimators
+  do not use the sign, only the lattice placement does.
+
+Set-up
+------
+At the zero position the incline passes through (0, 0, ``artifact_height_mm``) (above
+the table centre; for the A axis this is its height above the nominal A axis) and falls
+along the azimuth ``incline_azimuth_deg`` from +X: its upward unit normal is
+``(sin i cos az, sin i sin az, cos i)``. The lattice is ``lattice_nx`` x ``lattice_ny``
+points on a square of side ``lattice_size_mm``, aligned with X and Y (the slides place it)
+and read in serpentine order. Its centre at the zero position is
+(``lattice_offset_x_mm``, ``lattice_offset_y_mm``) relative to the nominal axis, and it
+follows the artifact: at each position its centre is the vertical projection of that
+surface point turned nominally with the table (for the A axis the artifact swings by
+``artifact_height_mm * sin(A)`` in Y, so a fixed lattice would leave the artifact).
+
+Measuring range. The lattice spans heights of ``lattice extent x tan(slope)`` (about
+15 mm for 40 mm at 20 deg, more for the A axis, where the table's tilt adds to the
+incline). With ``z_follows_surface`` (the default) the Z slide is sent to the nominal
+surface height of each point, so the sensor only sees the deviation from the nominal
+surface (tens of um); the reading is Z position + sensor value, and the Z axis's
+positioning error enters in full, while the sensor's scale error acts on tens of um only.
+Without it Z stays at the lattice centre's nominal height, and the set-up is refused
+when a lattice's height span exceeds ``sensor_range_mm``; then the sensor's scale error
+acts on the whole span.
+
+Error sources (each a set-up field; 0 switches it off)
+------------------------------------------------------
+``probe_noise`` (per reading), ``sensor_scale`` (per test), ``xy_positioning`` and
+``z_positioning`` (per reading: repeatability of the slides), ``flatness`` (form of the
+incline, per test), ``thermal_drift`` (linear drift of sensor against table over the
+test's time line from :func:`schedule`), ``radial_motion``, ``axial_motion`` and
+``tilt_motion`` (error motions of the rotary axis, per position), and
+``angular_positioning`` (per position). :func:`sources` says where each default comes from.
+
+Forward model
+-------------
+Exact rigid-body geometry: the artifact plane is turned about the *true* axis by the
+commanded angle plus the angular positioning error (Rodrigues' formula), then moved by
+the error motion (an exact rotation by the tilt vector about the true axis point at the
+reference height, then the radial/axial translation); the vertical sensor ray at the
+actual slide position meets that plane. Two first-order shortcuts, both far below a
+nanometre: the form error (micrometres) is evaluated at the nominal hit point (the true
+one is micrometres away; the form's slope is ~1e-4) and converted to height with the
+nominal normal's Z component.
+
+Estimators
+----------
+``patent`` (default): the seed's three steps. Decisions where the seed is silent or its
+formulas are lost:
+
+1. Each plane is fitted by ordinary least squares of the heights on (x, y): the sensor
+   errs along Z, so this is the plane the seed's "least-squares solution of
+   X A + Y B + Z C + D = 0" means with C = -1. (A total-least-squares plane differs at
+   second order in the noise and costs an eigen-decomposition per plane.) The design
+   matrix is fixed by the set-up: one matrix product fits every plane of every trial.
+2. Each plane is scaled to a unit normal (pointing up) before ``N P = -D``, so the
+   residuals are distances.
+3. ``N v = 1`` with the unit normals, then ``u = v / |v|``, as the seed.
+
+``joint``: the least-squares fit of the whole model to all readings at once. The model
+has the four axis parameters, the pierce point's position along the axis, the cone angle
+alpha and one azimuth per position (the angles are *not* used: they are free, as in the
+patent). Because every position's readings lie exactly on a plane for any parameter
+values, the sum of squares over all readings equals the plane-fit residuals plus the
+plane coefficients' misfit weighted by the lattice's normal matrix ``G^T G``; the fit is
+therefore done on the plane coefficients, exactly, by Gauss-Newton on the whole batch
+(started from ``patent``; the per-position azimuths eliminated by their Schur complement,
+a 6 x 6 system per trial; Jacobian by central differences). It is the maximum-likelihood
+estimate for independent Gaussian reading errors. With 3 positions both estimators are
+the exact solution of the same equations and coincide.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import pandas as pd
+
+from mtplan._validate import InvalidInput, Problems
+from mtplan.models._protocol import Measurand, Procedure, SetupBase, Source, param
+from mtplan.uncertainty.distributions import Normal, Rectangular
+
+__all__ = [
+    "Setup",
+    "Truth",
+    "measurands",
+    "sources",
+    "forward",
+    "estimate_patent",
+    "estimate_joint",
+    "axis_line",
+    "true_values",
+    "schedule",
+    "duration",
+    "readings_frame",
+    "from_frame",
+    "PROCEDURE",
+]
+
+NAME = "rotary_axis"
+_UM = 1e-3  # mm per um
+_URAD = 1e-6  # rad per urad
+_ARCSEC = math.pi / 648000  # rad per arcsec
+_DEFAULT_POSITIONS = {"C": 6, "A": 7}
+_DEFAULT_RANGE = {"C": 360.0, "A": 90.0}
+#: a point laser reading along -Z loses the spot on surfaces steeper than this
+_MAX_SLOPE_DEG = 70.0
+#: smallest |X component| of the incline's normal for the A axis (below: X unobservable)
+_MIN_NORMAL_X = 0.01
+
+
+# --------------------------------------------------------------------------- set-up
+@dataclass(frozen=True)
+class Setup(SetupBase):
+    """Set-up of the inclined-plane rotary-axis test (fields carry their unit)."""
+
+    _owner = NAME
+
+    axis: str = param("C", doc="Rotary axis under test: C (about Z) or A (about X)",
+                      choices=("C", "A"))
+    incline_deg: float = param(20.0, doc="Incline of the artifact plane [deg]; > 0, since a "
+                               "level plane's normals all lie along the axis and locate nothing "
+                               "(the seed uses 10-30)", low=0, high=60, low_open=True)
+    incline_azimuth_deg: float = param(0.0, doc="Direction of the incline's fall line from +X "
+                                       "at the zero position [deg]", low=-360, high=360)
+    positions: int | None = param(None, doc="Number of axis positions, >= 3 (empty: 6 for C, "
+                                  "7 for A)", low=3, high=360)
+    range_deg: float | None = param(None, doc="Angular range [deg]: C positions equally spaced "
+                                    "over it starting at 0 (360: the full turn), A positions "
+                                    "spaced over -range/2..range/2 inclusive (empty: 360 for C, "
+                                    "90 for A)", low=0, high=360, low_open=True)
+    angles_deg: tuple[float, ...] | None = param(None, doc="Explicit axis angles in measuring "
+                                                 "order [deg]; overrides positions and "
+                                                 "range_deg", low=-720, high=720, min_len=3)
+    lattice_nx: int = param(5, doc="Lattice points along X, >= 2 (one column is a line: the "
+                            "plane's tilt across it is undetermined)", low=2, high=101)
+    lattice_ny: int = param(5, doc="Lattice points along Y, >= 2 (one row is a line)",
+                            low=2, high=101)
+    lattice_size_mm: float = param(40.0, doc="Side of the square lattice [mm]", low=0,
+                                   high=1000, low_open=True)
+    lattice_offset_x_mm: float = param(0.0, doc="Lattice centre at the zero position, X from "
+                                       "the nominal axis [mm]", low=-1000, high=1000)
+    lattice_offset_y_mm: float = param(0.0, doc="Lattice centre at the zero position, Y from "
+                                       "the nominal axis [mm]", low=-1000, high=1000)
+    artifact_height_mm: float = param(50.0, doc="Height of the incline above the table centre "
+                                      "at the zero position (for A: above the nominal A axis) "
+                                      "[mm]", low=-1000, high=1000)
+    reference_height_mm: float = param(0.0, doc="C: height Z at which EX0C, EY0C are stated; "
+                                       "A: position X at which EY0A, EZ0A are stated [mm]",
+                                       low=-2000, high=2000)
+    z_follows_surface: bool = param(True, doc="Z slide follows the nominal surface point by "
+                                    "point (reading = Z position + sensor value); otherwise Z "
+                                    "stays at the lattice centre's height for a whole lattice")
+    sensor_range_mm: float = param(10.0, doc="Measuring range of the distance sensor [mm]",
+                                   low=0, high=1000, low_open=True)
+    probe_noise_um: float = param(1.0, doc="Standard deviation of one sensor reading [um]",
+                                  low=0, high=1000)
+    sensor_scale_ppm: float = param(500.0, doc="Half-width of the sensor's scale error "
+                                    "(rectangular) [ppm]", low=0, high=1e5)
+    xy_positioning_um: float = param(1.0, doc="Standard deviation of the X and Y slides' "
+                                     "positioning at each lattice point [um]", low=0, high=1000)
+    z_positioning_um: float = param(1.0, doc="Standard deviation of the Z slide's positioning "
+                                    "at each reading [um]", low=0, high=1000)
+    flatness_um: float = param(2.0, doc="Flatness of the incline over the lattice, peak to "
+                               "valley [um]", low=0, high=1000)
+    thermal_drift_um_per_s: float = param(0.001, doc="Standard deviation of each component "
+                                          "(X, Y, Z) of the sensor-to-table drift rate "
+                                          "[um/s]", low=0, high=10)
+    radial_motion_um: float = param(3.0, doc="Radial error motion of the rotary axis, peak to "
+                                    "valley per direction [um]", low=0, high=1000)
+    axial_motion_um: float = param(2.0, doc="Axial error motion of the rotary axis, peak to "
+                                   "valley [um]", low=0, high=1000)
+    tilt_motion_urad: float = param(10.0, doc="Tilt error motion of the rotary axis, peak to "
+                                    "valley per direction [urad]", low=0, high=1e4)
+    angular_positioning_arcsec: float = param(5.0, doc="Half-width of the rotary axis's "
+                                              "angular positioning error (rectangular) "
+                                              "[arcsec]", low=0, high=3600)
+    dwell_s: float = param(0.5, doc="Settling and reading time per lattice point [s]", low=0,
+                           high=600)
+    feed_mm_min: float = param(2000.0, doc="Feed of the X/Y moves between points [mm/min]",
+                               low=0, high=1e5, low_open=True)
+    index_time_s: float = param(5.0, doc="Time to turn, clamp and settle the rotary axis at "
+                                "each position [s]", low=0, high=3600)
+
+    # ----------------------------------------------------------------- derived
+    @property
+    def n_positions(self) -> int:
+        """Number of axis positions."""
+        return len(self.angles())
+
+    @property
+    def n_points(self) -> int:
+        """Lattice points per position."""
+        return self.lattice_nx * self.lattice_ny
+
+    def angles(self) -> np.ndarray:
+        """Commanded axis angles in measuring order, array (positions,) [deg]."""
+        if self.angles_deg is not None:
+            return np.asarray(self.angles_deg, dtype=float)
+        n = self.positions if self.positions is not None else _DEFAULT_POSITIONS[self.axis]
+        span = self.range_deg if self.range_deg is not None else _DEFAULT_RANGE[self.axis]
+        if self.axis == "A":
+            return np.linspace(-span / 2, span / 2, n)
+        if span >= 360.0:
+            return span * np.arange(n) / n
+        return np.linspace(0.0, span, n)
+
+    def _check(self, p: Problems) -> None:
+        angles = self.angles()
+        if self.angles_deg is not None and self.positions is not None \
+                and self.positions != len(angles):
+            p.add("positions", self.positions,
+                  f"empty or equal to the number of angles_deg ({len(angles)})")
+        distinct = np.unique(np.round(np.mod(angles, 360.0), 9) % 360.0)
+        if distinct.size < 3:
+            p.add("angles_deg" if self.angles_deg is not None else "range_deg",
+                  self.angles_deg if self.angles_deg is not None else self.range_deg,
+                  "a set-up with at least 3 distinct axis positions (fewer planes do not "
+                  f"determine the axis); these angles give {distinct.size}")
+        n0 = _incline_normal(self)
+        if self.axis == "A" and abs(n0[0]) < _MIN_NORMAL_X:
+            p.add_text(
+                f"The 'incline_azimuth_deg' parameter of {NAME} must give the incline's normal "
+                f"an X component of at least {_MIN_NORMAL_X} in magnitude for the A axis, or the "
+                "axis direction along X is unobservable (all normals make the same angle with "
+                f"any direction in the Y-Z plane). sin(incline_deg) * cos(incline_azimuth_deg) "
+                f"= {n0[0]:.3g} with incline_deg={self.incline_deg!r}, "
+                f"incline_azimuth_deg={self.incline_azimuth_deg!r}"
+            )
+        rot = _nominal_rotations(self.axis, np.deg2rad(angles))
+        nz = (rot @ n0)[:, 2]
+        steep = nz < math.cos(math.radians(_MAX_SLOPE_DEG))
+        if np.any(steep):
+            bad = angles[steep]
+            slope = np.degrees(np.arccos(np.clip(nz[steep], -1, 1)))
+            p.add_text(
+                f"The incline cannot be read at the {self.axis} angles {np.round(bad, 6).tolist()} "
+                f"deg of {NAME}: the surface is {np.round(slope, 1).tolist()} deg steep there "
+                f"(a sensor reading along -Z needs less than {_MAX_SLOPE_DEG:g} deg); reduce "
+                "incline_deg, range_deg or the angles"
+            )
+        elif not self.z_follows_surface:
+            _, _, z_cmd = _lattice(self)
+            span = float(np.max(np.ptp(z_cmd, axis=1)))
+            if span > self.sensor_range_mm:
+                p.add(
+                    "sensor_range_mm", self.sensor_range_mm,
+                    f">= the lattice's height span of {span:.4g} mm when z_follows_surface is "
+                    "false (or let Z follow the surface, or shrink lattice_size_mm or "
+                    "incline_deg)",
+                )
+
+
+@dataclass(frozen=True)
+class Truth(SetupBase):
+    """True location errors of the axis under test (only the tested axis's four are used)."""
+
+    _owner = f"{NAME} truth"
+
+    EX0C_um: float = param(12.0, doc="C axis: X position at the reference height [um]")
+    EY0C_um: float = param(-8.0, doc="C axis: Y position at the reference height [um]")
+    EA0C_urad: float = param(25.0, doc="C axis: orientation error about X [urad]")
+    EB0C_urad: float = param(-15.0, doc="C axis: orientation error about Y [urad]")
+    EY0A_um: float = param(10.0, doc="A axis: Y position at the reference X [um]")
+    EZ0A_um: float = param(-5.0, doc="A axis: Z position at the reference X [um]")
+    EB0A_urad: float = param(20.0, doc="A axis: orientation error about Y [urad]")
+    EC0A_urad: float = param(-30.0, doc="A axis: orientation error about Z [urad]")
+
+
+# --------------------------------------------------------------------------- geometry
+class _Frame(NamedTuple):
+    ax: np.ndarray  # nominal axis direction (3,)
+    p1: np.ndarray  # first perpendicular (3,): X for C, Y for A
+    p2: np.ndarray  # second perpendicular (3,): Y for C, Z for A
+
+
+_FRAMES = {
+    "C": _Frame(np.array([0.0, 0, 1]), np.array([1.0, 0, 0]), np.array([0.0, 1, 0])),
+    "A": _Frame(np.array([1.0, 0, 0]), np.array([0.0, 1, 0]), np.array([0.0, 0, 1])),
+}
+_NAMES = {  # (position 1, position 2, angle about p1, angle about p2)
+    "C": ("EX0C", "EY0C", "EA0C", "EB0C"),
+    "A": ("EY0A", "EZ0A", "EB0A", "EC0A"),
+}
+
+
+def _incline_normal(setup: Setup) -> np.ndarray:
+    i, az = math.radians(setup.incline_deg), math.radians(setup.incline_azimuth_deg)
+    return np.array([math.sin(i) * math.cos(az), math.sin(i) * math.sin(az), math.cos(i)])
+
+
+def _nominal_rotations(axis: str, angles: np.ndarray) -> np.ndarray:
+    """Right-handed rotations about the nominal axis, array (positions, 3, 3)."""
+    c, s = np.cos(angles), np.sin(angles)
+    one, zero = np.ones_like(c), np.zeros_like(c)
+    if axis == "C":
+        rows = [[c, -s, zero], [s, c, zero], [zero, zero, one]]
+    else:
+        rows = [[one, zero, zero], [zero, c, -s], [zero, s, c]]
+    return np.moveaxis(np.array(rows), (0, 1), (-2, -1))
+
+
+def _serpentine(nx: int, ny: int, size: float) -> tuple[np.ndarray, np.ndarray]:
+    """Lattice offsets from its centre in measuring order, arrays (nx*ny,) [mm]."""
+    xs = np.linspace(-size / 2, size / 2, nx)
+    ys = np.linspace(-size / 2, size / 2, ny)
+    gx = np.concatenate([xs if r % 2 == 0 else xs[::-1] for r in range(ny)])
+    gy = np.repeat(ys, nx)
+    return gx, gy
+
+
+def _lattice(setup: Setup):
+    """Lattice centres (P, 3) on the nominal surface, points (P, M, 2), heights (P, M) [mm]."""
+    theta = np.deg2rad(setup.angles())
+    rot = _nominal_rotations(setup.axis, theta)
+    n0 = _incline_normal(setup)
+    q0 = np.array([0.0, 0.0, setup.artifact_height_mm])
+    ox, oy = setup.lattice_offset_x_mm, setup.lattice_offset_y_mm
+    c0 = np.array([ox, oy, q0[2] - (n0[0] * ox + n0[1] * oy) / n0[2]])  # surface point
+    centres = rot @ c0
+    normals = rot @ n0  # (P, 3)
+    points = rot @ q0  # a point of each nominal plane (P, 3)
+    gx, gy = _serpentine(setup.lattice_nx, setup.lattice_ny, setup.lattice_size_mm)
+    xy = np.stack([centres[:, None, 0] + gx, centres[:, None, 1] + gy], axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = points[:, None, 2] - (
+            normals[:, None, 0] * (xy[..., 0] - points[:, None, 0])
+            + normals[:, None, 1] * (xy[..., 1] - points[:, None, 1])
+        ) / normals[:, None, 2]
+    return centres, xy, z
+
+
+class _Plan(NamedTuple):
+    """Everything the forward model and estimators need that depends on the set-up only."""
+
+    frame: _Frame
+    theta: np.ndarray  # commanded angles (P,) [rad]
+    n0: np.ndarray  # upward unit normal of the incline at the zero position (3,)
+    q0: np.ndarray  # a point of the incline at the zero position (3,) [mm]
+    centres: np.ndarray  # lattice centres (P, 2) [mm]
+    xy: np.ndarray  # lattice points (P, M, 2) [mm]
+    z_cmd: np.ndarray  # commanded Z: (P, M) following, (P, 1) otherwise [mm]
+    local: np.ndarray  # [1; gx; gy] (3, M): plane in local coordinates -> heights
+    fit: np.ndarray  # its pseudo-inverse, transposed (M, 3): heights -> (h, a, b)
+    gram: np.ndarray  # local^T local summed over points: (3, 3)
+    form: np.ndarray  # height per unit form coefficient, (K, P*M) [1]
+    times: np.ndarray  # time of each reading from the start (P, M) [s]
+    total_time: float  # [s]
+
+
+def _form_basis(setup: Setup, xy: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Height change per unit coefficient of each form term at each reading, (P*M, 5).
+
+    The terms, in coordinates (xi, eta) on the incline (along the fall line and across
+    it, from the lattice centre, divided by half the lattice side): bowl
+    (xi^2 + eta^2)/2, saddle (xi^2 - eta^2)/2, twist xi*eta/2 and two cubic waves
+    xi^3/2, eta^3/2, each of peak-to-valley ~1 over the lattice. The deviation is along
+    the normal; it changes the height read along Z by deviation / n_z.
+    """
+    theta = np.deg2rad(setup.angles())
+    rot = _nominal_rotations(setup.axis, theta)
+    n0 = _incline_normal(setup)
+    az = math.radians(setup.incline_azimuth_deg)
+    fall = np.array([math.cos(az), math.sin(az), 0.0])
+    f1 = fall - (fall @ n0) * n0
+    f1 /= np.linalg.norm(f1)
+    f2 = np.cross(n0, f1)
+    ox, oy = setup.lattice_offset_x_mm, setup.lattice_offset_y_mm
+    c0 = np.array([ox, oy, setup.artifact_height_mm - (n0[0] * ox + n0[1] * oy) / n0[2]])
+    pts = np.concatenate([xy, z[..., None]], axis=-1)  # (P, M, 3) nominal hit points
+    back = np.einsum("pji,pmj->pmi", rot, pts) - c0  # R^T p - c0, in the zero position
+    half = setup.lattice_size_mm / 2
+    xi, eta = back @ f1 / half, back @ f2 / half
+    basis = np.stack([(xi**2 + eta**2) / 2, (xi**2 - eta**2) / 2, xi * eta / 2,
+                      xi**3 / 2, eta**3 / 2], axis=-1)
+    nz = (rot @ n0)[:, 2]
+    return (basis / nz[:, None, None]).reshape(-1, basis.shape[-1])
+
+
+def _times(setup: Setup, xy: np.ndarray) -> tuple[np.ndarray, float]:
+    """Time of each reading (P, M) and of the whole test [s]: index, moves, dwell."""
+    speed = setup.feed_mm_min / 60.0
+    flat = xy.reshape(-1, 2)
+    steps = np.zeros(len(flat))
+    steps[1:] = np.hypot(*(np.diff(flat, axis=0).T)) / speed
+    steps += setup.dwell_s
+    steps = steps.reshape(xy.shape[:2])
+    steps[:, 0] += setup.index_time_s  # turn, clamp and settle before each lattice
+    times = np.cumsum(steps.ravel()).reshape(steps.shape)
+    return times, float(times[-1, -1])
+
+
+@functools.lru_cache(maxsize=64)
+def _plan(setup: Setup) -> _Plan:
+    centres3, xy, z = _lattice(setup)
+    centres = centres3[:, :2]
+    gx, gy = _serpentine(setup.lattice_nx, setup.lattice_ny, setup.lattice_size_mm)
+    local = np.stack([np.ones_like(gx), gx, gy])
+    fit = np.linalg.pinv(local.T).T  # (M, 3): coef = heights @ fit
+    times, total = _times(setup, xy)
+    z_cmd = z if setup.z_follows_surface else centres3[:, 2:]
+    out = _Plan(
+        frame=_FRAMES[setup.axis],
+        theta=np.deg2rad(setup.angles()),
+        n0=_incline_normal(setup),
+        q0=np.array([0.0, 0.0, setup.artifact_height_mm]),
+        centres=centres,
+        xy=xy,
+        z_cmd=np.ascontiguousarray(z_cmd),
+        local=local,
+        fit=np.ascontiguousarray(fit),
+        gram=local @ local.T,
+        form=np.ascontiguousarray(_form_basis(setup, xy, z).T),  # (K, P*M)
+        times=times,
+        total_time=total,
+    )
+    for arr in out:
+        if isinstance(arr, np.ndarray):
+            arr.setflags(write=False)
+    return out
+
+
+def _true_line(setup: Setup, truth: Truth) -> tuple[np.ndarray, np.ndarray]:
+    """Point at the reference (3,) [mm] and unit direction (3,) of the true axis."""
+    f = _FRAMES[setup.axis]
+    tv = true_values(setup, truth)
+    n1, n2, a1, a2 = _NAMES[setup.axis]
+    # slope components along p1 and p2 (see the sign convention in the module docstring)
+    t1, t2 = tv[a2], -tv[a1]
+    point = setup.reference_height_mm * f.ax + tv[n1] * f.p1 + tv[n2] * f.p2
+    w = f.ax + t1 * f.p1 + t2 * f.p2
+    return point, w / np.linalg.norm(w)
+
+
+def _rotate_about(v: np.ndarray, u: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Rotate the fixed vector `v` (3,) about the unit vector `u` (3,) by `angle` (...).
+
+    Rodrigues' formula, exact; returns (..., 3).
+    """
+    c, s = np.cos(angle)[..., None], np.sin(angle)[..., None]
+    return v * c + np.cross(u, v) * s + u * (u @ v) * (1.0 - c)
+
+
+def _rotate_by_vector(v: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Rotate vectors `v` (..., 3) by rotation vectors `w` (..., 3) [rad], exactly.
+
+    Rodrigues' formula with sin(t)/t and (1 - cos t)/t^2 taken from their series below
+    t = 1e-3 (error < 1e-21), so a zero rotation is exact.
+    """
+    t2 = np.einsum("...i,...i->...", w, w)
+    t = np.sqrt(t2)
+    small = t < 1e-3
+    safe = np.where(small, 1.0, t)
+    k1 = np.where(small, 1 - t2 / 6 + t2 * t2 / 120, np.sin(safe) / safe)
+    k2 = np.where(small, 0.5 - t2 / 24 + t2 * t2 / 720, (1 - np.cos(safe)) / (safe * safe))
+    c = np.cos(t)
+    wv = np.einsum("...i,...i->...", w, v)
+    return v * c[..., None] + np.cross(w, v) * k1[..., None] + w * (k2 * wv)[..., None]
+
+
+# --------------------------------------------------------------------------- protocol
+def measurands(setup: Setup) -> tuple[Measurand, ...]:
+    """The four ISO 230-7 location errors of the axis under test."""
+    if setup.axis == "C":
+        return (
+            Measurand("EX0C", "um", "X position of the C axis at the reference height"),
+            Measurand("EY0C", "um", "Y position of the C axis at the reference height"),
+            Measurand("EA0C", "urad", "orientation error of the C axis about X"),
+            Measurand("EB0C", "urad", "orientation error of the C axis about Y"),
+        )
+    return (
+        Measurand("EY0A", "um", "Y position of the A axis at the reference X"),
+        Measurand("EZ0A", "um", "Z position of the A axis at the reference X"),
+        Measurand("EB0A", "urad", "orientation error of the A axis about Y"),
+        Measurand("EC0A", "urad", "orientation error of the A axis about Z"),
+    )
+
+
+def sources(setup: Setup) -> dict[str, Source]:
+    """Every error source of the set-up, in internal units (mm, rad, 1).
+
+    Shapes: P = positions, M = lattice points per position.
+    """
+    P, M = setup.n_positions, setup.n_points
+    um = _UM
+
+    def rect(half):
+        return Rectangular(-half, half)
+
+    return {
+        "probe_noise": Source(
+            Normal(0.0, setup.probe_noise_um * um), (P, M),
+            "Noise of one reading of the point laser sensor (standard deviation). Default 1 um: "
+            "the repeatability of industrial laser triangulation sensors of 10-25 mm range on a "
+            "ground metal surface (makers quote 0.5-2 um)."),
+        "sensor_scale": Source(
+            rect(setup.sensor_scale_ppm * 1e-6), (),
+            "Scale (gain) error of the sensor, one per test, rectangular. Default +-500 ppm: "
+            "the linearity of laser triangulation sensors, typically +-0.03-0.1 % of the range. "
+            "With z_follows_surface it acts on the sensor's small residual only."),
+        "xy_positioning": Source(
+            Normal(0.0, setup.xy_positioning_um * um), (2, P, M),
+            "X and Y positioning error of the slides at each lattice point (standard deviation; "
+            "element [0] X, [1] Y). Default 1 um: ISO 230-2 unidirectional repeatability "
+            "R = 4 s of about 4 um on a precision machining centre. A lateral error d changes "
+            "the height by d tan(slope)."),
+        "z_positioning": Source(
+            Normal(0.0, setup.z_positioning_um * um), (P, M) if setup.z_follows_surface else (P,),
+            "Z positioning error (standard deviation): enters the reading in full, since "
+            "reading = Z position + sensor value; per reading when Z follows the surface, per "
+            "lattice otherwise. Default 1 um, as for X and Y (ISO 230-2 repeatability)."),
+        "flatness": Source(
+            rect(setup.flatness_um * um / 4), (5,),
+            "Form error of the incline, one per test: bowl, saddle, twist and two cubic waves "
+            "over the lattice, coefficients uniform in +-flatness/4, so the form's peak to "
+            "valley is about flatness_um. Default 2 um: DIN 876 grade 00 / ISO 8512 for a "
+            "lapped face of 100-150 mm (2 (1 + L/1000) um)."),
+        "thermal_drift": Source(
+            Normal(0.0, setup.thermal_drift_um_per_s * um), (3,),
+            "Drift rate (X, Y, Z) of the sensor against the table during the test, one per "
+            "test (standard deviation per component), applied over the time line of the test. "
+            "Default 0.001 um/s (3.6 um/h): ISO 230-3 environmental drift of a machining "
+            "centre in a workshop without temperature control of the machine."),
+        "radial_motion": Source(
+            rect(setup.radial_motion_um * um / 2), (P, 2),
+            "Radial error motion of the rotary axis at each position, two directions "
+            "perpendicular to the axis, uniform within +-half the value. Default 3 um: ISO "
+            "230-7 radial error motion of direct-drive rotary tables (makers quote 2-5 um)."),
+        "axial_motion": Source(
+            rect(setup.axial_motion_um * um / 2), (P,),
+            "Axial error motion at each position, uniform within +-half the value. Default 2 "
+            "um: ISO 230-7 axial error motion of direct-drive rotary tables (1-3 um)."),
+        "tilt_motion": Source(
+            rect(setup.tilt_motion_urad * _URAD / 2), (P, 2),
+            "Tilt error motion at each position about the two directions perpendicular to the "
+            "axis (about the axis point at the reference height), uniform within +-half the "
+            "value. Default 10 urad (2 arcsec): wobble specifications of precision rotary "
+            "tables (1-5 arcsec)."),
+        "angular_positioning": Source(
+            rect(setup.angular_positioning_arcsec * _ARCSEC), (P,),
+            "Angular positioning error of the rotary axis at each position, uniform. Default "
+            "+-5 arcsec: ISO 230-2 positioning accuracy of rotary axes with direct angle "
+            "encoders. The estimators do not use the angles, so it should not matter."),
+    }
+
+
+def true_values(setup: Setup, truth: Truth) -> dict[str, float]:
+    """True measurands of the axis under test [mm, rad]."""
+    if setup.axis == "C":
+        return {"EX0C": truth.EX0C_um * _UM, "EY0C": truth.EY0C_um * _UM,
+                "EA0C": truth.EA0C_urad * _URAD, "EB0C": truth.EB0C_urad * _URAD}
+    return {"EY0A": truth.EY0A_um * _UM, "EZ0A": truth.EZ0A_um * _UM,
+            "EB0A": truth.EB0A_urad * _URAD, "EC0A": truth.EC0A_urad * _URAD}
+
+
+def forward(setup: Setup, truth: Truth, errors: dict) -> dict[str, np.ndarray]:
+    """Simulated readings of the lattices: ``{"z_mm": array (n, positions, points)}``.
+
+    Parameters
+    ----------
+    setup : Setup
+    truth : Truth
+    errors : dict of str to array
+        Every source of :func:`sources`, each of shape ``(n, *shape)`` [mm, rad, 1].
+
+    Returns
+    -------
+    dict
+        ``z_mm``: the reading of each lattice point, Z position + sensor value [mm], in
+        measuring order.
+    """
+    g = _plan(setup)
+    f = g.frame
+    noise = errors["probe_noise"]
+    n, P, M = noise.shape
+    a, u = _true_line(setup, truth)
+
+    # rigid motion of the artifact at each position: exact rotation about the true axis,
+    # then the error motion (tilt about the axis point, radial and axial translation)
+    psi = g.theta + errors["angular_positioning"]  # (n, P)
+    normal = _rotate_about(g.n0, u, psi)  # (n, P, 3)
+    arm = _rotate_about(g.q0 - a, u, psi)
+    tilt = errors["tilt_motion"]
+    w = tilt[..., :1] * f.p1 + tilt[..., 1:] * f.p2
+    normal = _rotate_by_vector(normal, w)
+    arm = _rotate_by_vector(arm, w)
+    rad, axial = errors["radial_motion"], errors["axial_motion"]
+    q = a + arm + rad[..., :1] * f.p1 + rad[..., 1:] * f.p2 + axial[..., None] * f.ax
+
+    # the plane z = h + c1 (x - cx) + c2 (y - cy) around each lattice centre
+    c1 = -normal[..., 0] / normal[..., 2]
+    c2 = -normal[..., 1] / normal[..., 2]
+    coef = np.empty((n, P, 3))
+    coef[..., 0] = q[..., 2] + c1 * (g.centres[:, 0] - q[..., 0]) + c2 * (g.centres[:, 1] - q[..., 1])
+    coef[..., 1] = c1
+    coef[..., 2] = c2
+
+    # thermal drift moves the sensor by rate * t: height change c1 dx + c2 dy - dz
+    rate = errors["thermal_drift"]  # (n, 3)
+    if np.any(rate):
+        slope_t = c1 * rate[:, :1] + c2 * rate[:, 1:2] - rate[:, 2:]  # (n, P) [mm/s]
+        coef_t = slope_t
+    else:
+        coef_t = None
+
+    z = (coef.reshape(n * P, 3) @ g.local).reshape(n, P, M)  # true surface under the ray
+    if coef_t is not None:
+        z += coef_t[..., None] * g.times
+    xy_err = errors["xy_positioning"]  # (n, 2, P, M): the ray is where the slides really are
+    if setup.xy_positioning_um:
+        z += c1[..., None] * xy_err[:, 0]
+        z += c2[..., None] * xy_err[:, 1]
+    form = errors["flatness"]  # (n, K)
+    if np.any(form):
+        z += (form @ g.form).reshape(n, P, M)
+    ez = errors["z_positioning"]
+    z -= ez if ez.ndim == 3 else ez[..., None]  # gap = surface - actual Z position
+    kappa = errors["sensor_scale"]  # reading = Z_cmd + (gap - Z_cmd) (1 + kappa)
+    if np.any(kappa):
+        z += kappa[:, None, None] * (z - g.z_cmd)
+    z += noise
+    return {"z_mm": z}
+
+
+# --------------------------------------------------------------------------- estimators
+def _check_readings(setup: Setup, readings) -> np.ndarray:
+    if not isinstance(readings, dict) or "z_mm" not in readings:
+        raise InvalidInput([f"The 'readings' parameter of {NAME} must be a dict with the key "
+                            f"'z_mm'. Got {type(readings).__name__} instead."])
+    z = np.asarray(readings["z_mm"], dtype=float)
+    shape = (setup.n_positions, setup.n_points)
+    if z.ndim != 3 or z.shape[1:] != shape:
+        raise InvalidInput([f"The 'readings' parameter of {NAME} must hold 'z_mm' of shape "
+                            f"(n, {shape[0]}, {shape[1]}) for this set-up. Got {z.shape} instead."])
+    return z
+
+
+def _planes(setup: Setup, z: np.ndarray) -> np.ndarray:
+    """Least-squares plane of every lattice: (n, P, 3) = (height at centre, dz/dx, dz/dy)."""
+    n, P, M = z.shape
+    return (z.reshape(n * P, M) @ _plan(setup).fit).reshape(n, P, 3)
+
+
+def _unit_planes(setup: Setup, coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Upward unit normals (n, P, 3) and offsets D (n, P): n . x + D = 0."""
+    g = _plan(setup)
+    h, a, b = coef[..., 0], coef[..., 1], coef[..., 2]
+    inv = 1.0 / np.sqrt(1.0 + a * a + b * b)
+    normal = np.empty(coef.shape)
+    normal[..., 0] = -a * inv
+    normal[..., 1] = -b * inv
+    normal[..., 2] = inv
+    offset = -(h - a * g.centres[:, 0] - b * g.centres[:, 1]) * inv
+    return normal, offset
+
+
+def _solve3(s: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve symmetric 3 x 3 systems ``s x = rhs`` by the adjugate; s (n,3,3), rhs (n,3,k)."""
+    a, b, c = s[:, 0, 0], s[:, 0, 1], s[:, 0, 2]
+    e, f, i = s[:, 1, 1], s[:, 1, 2], s[:, 2, 2]
+    A = e * i - f * f
+    B = c * f - b * i
+    C = b * f - c * e
+    det = a * A + b * B + c * C
+    adj = np.empty_like(s)
+    adj[:, 0, 0], adj[:, 0, 1], adj[:, 0, 2] = A, B, C
+    adj[:, 1, 0], adj[:, 1, 1], adj[:, 1, 2] = B, a * i - c * c, b * c - a * f
+    adj[:, 2, 0], adj[:, 2, 1], adj[:, 2, 2] = C, b * c - a * f, a * e - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (adj @ rhs) / det[:, None, None]
+
+
+def _patent_line(setup: Setup, coef: np.ndarray):
+    """The seed's steps 4-5 on fitted planes: pierce point (n,3), unit direction (n,3), normals."""
+    normal, offset = _unit_planes(setup, coef)
+    nn = np.einsum("npi,npj->nij", normal, normal)
+    rhs = np.stack([-np.einsum("npi,np->ni", normal, offset), normal.sum(axis=1)], axis=-1)
+    sol = _solve3(nn, rhs)  # (n, 3, 2): point and v
+    point, v = sol[..., 0], sol[..., 1]
+    ax = _plan(setup).frame.ax
+    v = v * np.sign(v @ ax)[:, None]  # the axis points along its nominal direction
+    return point, v / np.linalg.norm(v, axis=-1, keepdims=True), normal
+
+
+def _line_measurands(setup: Setup, point: np.ndarray, direction: np.ndarray) -> dict:
+    """Location errors of the line through `point` along `direction`, (n,) each [mm, rad]."""
+    f = _plan(setup).frame
+    along = direction @ f.ax
+    t1, t2 = (direction @ f.p1) / along, (direction @ f.p2) / along
+    shift = (setup.reference_height_mm - point @ f.ax) / along
+    at_ref = point + shift[:, None] * direction
+    n1, n2, a1, a2 = _NAMES[setup.axis]
+    return {n1: at_ref @ f.p1, n2: at_ref @ f.p2, a1: -t2, a2: t1}
+
+
+def estimate_patent(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
+    """The seed's method: plane per lattice, LS intersection ``N P = -D``, ``N v = 1``.
+
+    Parameters
+    ----------
+    setup : Setup
+    readings : dict
+        ``z_mm``: array (n, positions, points) [mm].
+
+    Returns
+    -------
+    dict of str to array (n,)
+        The measurands of :func:`measurands` [mm, rad].
+    """
+    z = _check_readings(setup, readings)
+    point, direction, _ = _patent_line(setup, _planes(setup, z))
+    return _line_measurands(setup, point, direction)
+
+
+# joint model: parameters (n, 6) = position along p1, p2 of the axis where it crosses the
+# station (a plane normal to the nominal axis, at the patent's pierce point, fixed per
+# trial so position and slope are nearly uncorrelated) [mm], slopes along p1, p2 [1], the
+# pierce point's position along the axis from the station [mm], cone angle alpha [rad];
+# plus one azimuth per position (n, P) [rad]
+_STEPS = np.array([1e-3, 1e-3, 1e-6, 1e-6, 1e-3, 1e-6])
+_PHI_STEP = 1e-6
+
+
+def _joint_model(setup: Setup, par: np.ndarray, phi: np.ndarray, station: np.ndarray) -> np.ndarray:
+    """Plane coefficients (n, P, 3) predicted by the axis model."""
+    g = _plan(setup)
+    f = g.frame
+    w = f.ax + par[:, 2:3] * f.p1 + par[:, 3:4] * f.p2
+    u = w / np.linalg.norm(w, axis=-1, keepdims=True)
+    p = station[:, None] * f.ax + par[:, 0:1] * f.p1 + par[:, 1:2] * f.p2 + par[:, 4:5] * w
+    e1 = f.p1 - (u @ f.p1)[:, None] * u
+    e1 /= np.linalg.norm(e1, axis=-1, keepdims=True)
+    e2 = np.cross(u, e1)
+    ca, sa = np.cos(par[:, 5:6]), np.sin(par[:, 5:6])
+    cp, sp = np.cos(phi)[..., None], np.sin(phi)[..., None]
+    nrm = (ca * u)[:, None, :] + sa[:, None] * (cp * e1[:, None, :] + sp * e2[:, None, :])
+    c1 = -nrm[..., 0] / nrm[..., 2]
+    c2 = -nrm[..., 1] / nrm[..., 2]
+    h = p[:, 2:3] + c1 * (g.centres[:, 0] - p[:, 0:1]) + c2 * (g.centres[:, 1] - p[:, 1:2])
+    return np.stack([h, c1, c2], axis=-1)
+
+
+def _joint_start(setup: Setup, coef: np.ndarray):
+    """Start values from the patent's line: parameters (n, 6), azimuths (n, P), station (n,)."""
+    f = _plan(setup).frame
+    point, u, normal = _patent_line(setup, coef)
+    station = point @ f.ax
+    along = u @ f.ax
+    par = np.zeros((len(u), 6))
+    par[:, 0], par[:, 1] = point @ f.p1, point @ f.p2
+    par[:, 2], par[:, 3] = (u @ f.p1) / along, (u @ f.p2) / along
+    cos_alpha = np.einsum("npi,ni->np", normal, u).mean(axis=1)
+    par[:, 5] = np.arccos(np.clip(cos_alpha, -1.0, 1.0))
+    e1 = f.p1 - (u @ f.p1)[:, None] * u
+    e1 /= np.linalg.norm(e1, axis=-1, keepdims=True)
+    e2 = np.cross(u, e1)
+    phi = np.arctan2(np.einsum("npi,ni->np", normal, e2), np.einsum("npi,ni->np", normal, e1))
+    return par, phi, station
+
+
+def _joint_fit(setup: Setup, coef: np.ndarray, *, max_iter: int = 30, rtol: float = 1e-9):
+    """Gauss-Newton on the batch, the azimuths eliminated by their Schur complement.
+
+    A trial has converged when every step is below `rtol` times the parameter's
+    standard uncertainty for readings of unit variance (1e-9 of it: 1e-6 of the
+    uncertainty at 1 um noise), plus 1e-14 [mm, rad] for round-off.
+
+    Returns
+    -------
+    par : array (n, 6), phi : array (n, P), station : array (n,), converged : bool array (n,)
+    """
+    W = _plan(setup).gram
+    par, phi, station = _joint_start(setup, coef)
+    n, P = phi.shape
+    done = np.zeros(n, dtype=bool)
+    for _ in range(max_iter):
+        todo = np.flatnonzero(~done)
+        if todo.size == 0:
+            break
+        pa, ph, c, st = par[todo], phi[todo], coef[todo], station[todo]
+        r = c - _joint_model(setup, pa, ph, st)  # (k, P, 3)
+        jg = np.empty((len(pa), P, 3, 6))
+        for j, step in enumerate(_STEPS):
+            d = np.zeros(6)
+            d[j] = step
+            jg[..., j] = (_joint_model(setup, pa + d, ph, st)
+                          - _joint_model(setup, pa - d, ph, st)) / (2 * step)
+        jp = (_joint_model(setup, pa, ph + _PHI_STEP, st)
+              - _joint_model(setup, pa, ph - _PHI_STEP, st)) / (2 * _PHI_STEP)  # (k, P, 3)
+        wjg = jg.transpose(0, 1, 3, 2) @ W  # (k, P, 6, 3) = Jg^T W
+        wjp = jp @ W
+        A = np.einsum("kpai,kpib->kab", wjg, jg)
+        B = np.einsum("kpai,kpi->kpa", wjg, jp)
+        C = np.einsum("kpi,kpi->kp", jp, wjp)
+        gg = np.einsum("kpai,kpi->ka", wjg, r)
+        gp = np.einsum("kpi,kpi->kp", wjp, r)
+        S_inv = np.linalg.inv(A - np.einsum("kpa,kpb->kab", B / C[..., None], B))
+        dg = np.einsum("kab,kb->ka", S_inv, gg - np.einsum("kpa,kp->ka", B, gp / C))
+        dp = (gp - np.einsum("kpa,ka->kp", B, dg)) / C
+        par[todo] = pa + dg
+        phi[todo] = ph + dp
+        small = np.all(np.abs(dg) <= rtol * np.sqrt(np.abs(np.diagonal(S_inv, axis1=1, axis2=2)))
+                       + 1e-14, axis=1)
+        small &= np.all(np.abs(dp) <= rtol / np.sqrt(C) + 1e-14, axis=1)
+        done[todo[small]] = True
+    return par, phi, station, done
+
+
+def estimate_joint(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
+    """Joint least squares of the axis model to all readings (maximum likelihood).
+
+    Trials whose Gauss-Newton iteration does not converge are returned as NaN (the
+    Monte Carlo engine refuses them), never as a silent number.
+
+    Parameters
+    ----------
+    setup : Setup
+    readings : dict
+        ``z_mm``: array (n, positions, points) [mm].
+
+    Returns
+    -------
+    dict of str to array (n,)
+        The measurands of :func:`measurands` [mm, rad].
+    """
+    z = _check_readings(setup, readings)
+    par, _, station, ok = _joint_fit(setup, _planes(setup, z))
+    par[~ok] = np.nan
+    lever = setup.reference_height_mm - station  # from the station to the reference
+    n1, n2, a1, a2 = _NAMES[setup.axis]
+    return {n1: par[:, 0] + lever * par[:, 2], n2: par[:, 1] + lever * par[:, 3],
+            a1: -par[:, 3], a2: par[:, 2]}
+
+
+ESTIMATORS = {"patent": estimate_patent, "joint": estimate_joint}
+
+
+def axis_line(setup: Setup, readings: dict, *, estimator: str = "patent"):
+    """The fitted axis as a line: point at the reference (n, 3) [mm], unit direction (n, 3).
+
+    The point is where the axis crosses Z = ``reference_height_mm`` (C) or
+    X = ``reference_height_mm`` (A); the direction points along +Z (C) or +X (A).
+    """
+    if estimator not in ESTIMATORS:
+        raise InvalidInput([f"The 'estimator' parameter of {NAME}.axis_line must be one of "
+                            f"{', '.join(map(repr, ESTIMATORS))}. Got {estimator!r} instead."])
+    m = ESTIMATORS[estimator](setup, readings)
+    f = _plan(setup).frame
+    n1, n2, a1, a2 = _NAMES[setup.axis]
+    point = setup.reference_height_mm * f.ax + m[n1][:, None] * f.p1 + m[n2][:, None] * f.p2
+    w = f.ax + m[a2][:, None] * f.p1 - m[a1][:, None] * f.p2
+    return point, w / np.linalg.norm(w, axis=-1, keepdims=True)
+
+
+# --------------------------------------------------------------------------- time, data
+def schedule(setup: Setup) -> pd.DataFrame:
+    """The test's time line: one row per reading (position, point, x_mm, y_mm, time_s).
+
+    Each position starts with ``index_time_s``; each point costs the X/Y move from the
+    previous one at ``feed_mm_min`` plus ``dwell_s``; the reading is taken at its end.
+    """
+    g = _plan(setup)
+    P, M = setup.n_positions, setup.n_points
+    return pd.DataFrame({
+        "position": np.repeat(np.arange(P), M),
+        "point": np.tile(np.arange(M), P),
+        "x_mm": g.xy[..., 0].ravel(),
+        "y_mm": g.xy[..., 1].ravel(),
+        "time_s": g.times.ravel(),
+    })
+
+
+def duration(setup: Setup) -> float:
+    """Machine time of the test [s]: indexing, X/Y moves and dwell at every point."""
+    return _plan(setup).total_time
+
+
+_COLUMNS = ("position", "angle_deg", "point", "x_mm", "y_mm", "z_mm")
+
+
+def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
+    """The first trial's readings as a tidy table, one reading per row in measuring order.
+
+    Columns: ``position`` (0-based), ``angle_deg`` (commanded), ``point`` (0-based, in
+    measuring order), ``x_mm``, ``y_mm`` (commanded lattice point), ``z_mm`` (Z position +
+    sensor value).
+    """
+    z = _check_readings(setup, readings)[0]
+    g = _plan(setup)
+    P, M = z.shape
+    return pd.DataFrame({
+        "position": np.repeat(np.arange(P), M),
+        "angle_deg": np.repeat(setup.angles(), M),
+        "point": np.tile(np.arange(M), P),
+        "x_mm": g.xy[..., 0].ravel(),
+        "y_mm": g.xy[..., 1].ravel(),
+        "z_mm": z.ravel(),
+    })
+
+
+def from_frame(setup: Setup, df: pd.DataFrame) -> dict[str, np.ndarray]:
+    """Readings (a batch of one) from a table in the format of :func:`readings_frame`.
+
+    Rows may come in any order. The positions, angles and lattice points must be the
+    set-up's (x, y within 1 um, angles within 1e-6 deg).
+
+    Raises
+    ------
+    InvalidInput
+        Naming the missing column, the row with a missing or non-numeric value, a
+        duplicate or missing reading, or a point that is not the set-up's.
+    """
+    p = Problems(f"{NAME} readings")
+    if not isinstance(df, pd.DataFrame):
+        p.add("df", type(df).__name__, "a pandas DataFrame")
+        p.raise_if_any()
+    missing = [c for c in _COLUMNS if c not in df.columns]
+    if missing:
+        p.add_text(f"The readings of {NAME} lack the column(s) {', '.join(missing)}; the "
+                   f"columns are {', '.join(_COLUMNS)}")
+        p.raise_if_any()
+    data = {}
+    for col in _COLUMNS:
+        values = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            p.add_text(f"The column {col!r} of the {NAME} readings must hold finite numbers; "
+                       f"row {int(bad[0])} holds {df[col].iloc[bad[0]]!r}"
+                       + (f" ({bad.size} rows in all)" if bad.size > 1 else ""))
+        data[col] = values
+    p.raise_if_any()
+    P, M = setup.n_positions, setup.n_points
+    if len(df) != P * M:
+        p.add_text(f"The {NAME} readings must have {P * M} rows ({P} positions x {M} points) "
+                   f"for this set-up; got {len(df)}")
+        p.raise_if_any()
+    pos, pt = data["position"], data["point"]
+    for col, v, top in (("position", pos, P), ("point", pt, M)):
+        bad = np.flatnonzero((v != np.round(v)) | (v < 0) | (v >= top))
+        if bad.size:
+            p.add_text(f"The column {col!r} of the {NAME} readings must hold ints 0..{top - 1}; "
+                       f"row {int(bad[0])} holds {v[bad[0]]!r}")
+    p.raise_if_any()
+    flat = pos.astype(int) * M + pt.astype(int)
+    counts = np.bincount(flat, minlength=P * M)
+    if np.any(counts != 1):
+        k = int(np.flatnonzero(counts != 1)[0])
+        what = "is missing" if counts[k] == 0 else f"appears {counts[k]} times"
+        p.add_text(f"The {NAME} reading of position {k // M}, point {k % M} {what}")
+        p.raise_if_any()
+    order = np.argsort(flat, kind="stable")
+    g = _plan(setup)
+    checks = (("angle_deg", np.repeat(setup.angles(), M), 1e-6),
+              ("x_mm", g.xy[..., 0].ravel(), 1e-3), ("y_mm", g.xy[..., 1].ravel(), 1e-3))
+    for col, expected, tol in checks:
+        got = data[col][order]
+        bad = np.flatnonzero(np.abs(got - expected) > tol)
+        if bad.size:
+            row = int(order[bad[0]])
+            p.add_text(f"The column {col!r} of the {NAME} readings must match the set-up "
+                       f"(within {tol:g}); row {row} holds {got[bad[0]]!r} where the set-up "
+                       f"has {expected[bad[0]]!r}")
+    p.raise_if_any()
+    return {"z_mm": data["z_mm"][order].reshape(1, P, M)}
+
+
+PROCEDURE = Procedure(
+    name=NAME,
+    title="Rotary-axis location from an inclined plane (C and A axes)",
+    Setup=Setup,
+    Truth=Truth,
+    measurands=measurands,
+    sources=sources,
+    forward=forward,
+    estimators=ESTIMATORS,
+    true_values=true_values,
+    duration=duration,
+    readings_frame=readings_frame,
+    from_frame=from_frame,
+    description=(
+        "A point laser on the Z slide reads a lattice on an inclined plane at n >= 3 positions "
+        "of the rotary axis; the planes' least-squares intersection is a point on the axis and "
+        "N v = 1 gives its direction (seed 000). Measurands: ISO 230-7 location errors of the "
+        "C axis (EX0C, EY0C, EA0C, EB0C) or the A axis (EY0A, EZ0A, EB0A, EC0A)."
+    ),
+    exact_estimators=("patent", "joint"),
+    block_size=2000,
+)
