@@ -1,0 +1,242 @@
+"""tracker_frame: forward model checked first, then the patent estimator.
+
+Forward model against hand-computed readings and geometry; the true values against
+cases whose frame is known without the construction; noise-free recovery over
+several set-ups; Monte Carlo against the GUM linearisation at small noise with
+tolerances from the Monte Carlo error; degenerate set-ups refused; the readings
+table round trip and its errors.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mtplan._validate import InvalidInput
+from mtplan.models import get
+from mtplan.models import tracker_frame as tf
+from mtplan.uncertainty.procedures import linearize_procedure, simulate_uncertainty
+
+PROC = get("tracker_frame")
+
+ZERO_HEAD = dict(wrist_dx_um=(0.0,), wrist_dy_um=(0.0,), wrist_dz_um=(0.0,),
+                 frame_rx_urad=(0.0,), frame_ry_urad=(0.0,), frame_rz_urad=(0.0,),
+                 sq_xy_urad=(0.0,), sq_yz_urad=(0.0,), sq_zx_urad=(0.0,),
+                 c_tilt_x_urad=(0.0,), c_tilt_y_urad=(0.0,), a_tilt_y_urad=(0.0,),
+                 a_tilt_z_urad=(0.0,), ac_offset_um=(0.0,))
+
+NOISE_FIELDS = ("distance_fixed_um", "distance_per_length_um_per_m", "transverse_fixed_um",
+                "transverse_per_length_um_per_m", "machine_repeatability_um")
+
+
+def _noise_free(setup, truth):
+    return PROC.forward(setup, truth, PROC.zero_errors(setup, 1))
+
+
+# --------------------------------------------------------------------------- forward
+def test_forward_marks_match_hand_computed_spherical_coordinates():
+    setup = PROC.Setup()
+    truth = PROC.Truth(tracker_tilt_x_urad=0.0, tracker_tilt_y_urad=0.0, tracker_yaw_deg=30.0)
+    r = _noise_free(setup, truth)
+    tracker = np.array([-setup.tracker_distance_mm, 0.0, setup.tracker_height_mm])
+    for i, mark in enumerate(tf._marks(setup)):
+        v = mark - tracker
+        assert r["distance_mm"][0, i] == pytest.approx(np.linalg.norm(v), abs=1e-9)
+        az = math.atan2(v[1], v[0]) - math.radians(30.0)
+        assert math.remainder(r["azimuth_rad"][0, i] - az, 2 * math.pi) == pytest.approx(0, abs=1e-14)
+        el = math.atan2(v[2], math.hypot(v[0], v[1]))
+        assert r["elevation_rad"][0, i] == pytest.approx(el, abs=1e-14)
+
+
+def test_forward_geometry_of_the_machine_points():
+    setup = PROC.Setup()
+    truth = PROC.Truth()
+    pts = tf._machine_points(setup, truth)
+    sl = tf._slices(setup)
+    h = tf._head(setup, truth, 0)
+    # linear travel: evenly spaced along the true X direction, total length = travel
+    x = pts[sl[("X", 1)].start - 4: sl[("X", 1)].stop - 4]
+    steps = np.diff(x, axis=0)
+    np.testing.assert_allclose(steps, np.full_like(steps, setup.travel_x_mm / 10) * h.axes[0],
+                               atol=1e-11)
+    # C arc: constant distance r from the true C line, in a plane normal to it
+    c = pts[sl[("C", 1)].start - 4: sl[("C", 1)].stop - 4]
+    q = c - h.wrist
+    along = q @ h.c_dir
+    radial = np.linalg.norm(q - np.outer(along, h.c_dir), axis=1)
+    np.testing.assert_allclose(radial, setup.reflector_offset_mm, atol=1e-11)
+    np.testing.assert_allclose(along, along[0], atol=1e-11)
+    # successive C-arc points are one angular step apart
+    w = q - np.outer(along, h.c_dir)
+    cosang = np.sum(w[1:] * w[:-1], axis=1) / radial[0] ** 2
+    step = setup.c_arc_deg / (setup.points_per_arc - 1)
+    np.testing.assert_allclose(np.degrees(np.arccos(cosang)), step, atol=1e-6)
+    # the wrist centre is the foot of the common perpendicular; the offset is the truth's
+    assert abs((h.a_point - h.wrist) @ h.a_dir) < 1e-15
+    assert (h.a_point - h.wrist) @ h.perp == pytest.approx(truth.ac_offset_um[0] * 1e-3, abs=1e-12)
+
+
+def test_noise_enters_readings_as_specified():
+    # one trial with unit errors in each source, checked against the spherical model
+    setup = PROC.Setup()
+    truth = PROC.Truth()
+    base = _noise_free(setup, truth)
+    errs = PROC.zero_errors(setup, 1)
+    errs["distance_fixed"][:] = 1e-3
+    errs["distance_per_length"][:] = 2e-6
+    errs["transverse_fixed"][..., 1] = 5e-3
+    r = PROC.forward(setup, truth, errs)
+    d0 = base["distance_mm"][0]
+    np.testing.assert_allclose(r["distance_mm"][0] - d0, 1e-3 + 2e-6 * d0, rtol=1e-7)
+    np.testing.assert_allclose(r["elevation_rad"][0] - base["elevation_rad"][0], 5e-3 / d0,
+                               rtol=1e-7)
+    np.testing.assert_array_equal(r["azimuth_rad"], base["azimuth_rad"])
+
+
+def test_mpe_conversion():
+    k2 = PROC.sources(PROC.Setup())
+    rect = PROC.sources(PROC.Setup(mpe_model="rectangular"))
+    assert k2["transverse_fixed"].distribution.std == pytest.approx(15e-3 / 2)
+    assert rect["transverse_fixed"].distribution.std == pytest.approx(15e-3 / math.sqrt(3))
+    assert k2["distance_per_length"].distribution.std == pytest.approx(0.3e-6 / 2)
+
+
+# --------------------------------------------------------------------------- truth
+def test_true_values_in_cases_known_without_the_construction():
+    setup = PROC.Setup()
+    # only a frame rotation: the measured rotation is the truth's, origin = wrist offset
+    truth = PROC.Truth(**{**ZERO_HEAD, "frame_rx_urad": (20.0,), "frame_ry_urad": (-12.0,),
+                          "frame_rz_urad": (35.0,)})
+    tv = PROC.display_truth(setup, truth)
+    assert (tv["rot_x_1"], tv["rot_y_1"], tv["rot_z_1"]) == pytest.approx((20, -12, 35), abs=1e-9)
+    # only offsets and a pivot-length error: the origin moves by them, down along C
+    truth = PROC.Truth(**{**ZERO_HEAD, "wrist_dx_um": (7.0,), "wrist_dy_um": (-3.0,),
+                          "wrist_dz_um": (5.0,), "pivot_length_error_um": (2.0,),
+                          "ac_offset_um": (12.0,)})
+    tv = PROC.display_truth(setup, truth)
+    assert (tv["origin_x_2"], tv["origin_y_2"], tv["origin_z_2"]) == pytest.approx((7, -3, 3),
+                                                                                   abs=1e-9)
+    assert tv["ac_offset_2"] == pytest.approx(12.0, abs=1e-12)
+    # squareness Z-X only: X kept (longest) -> frame unrotated; Z kept -> rot_y = sq_zx
+    truth = PROC.Truth(**{**ZERO_HEAD, "sq_zx_urad": (8.0,)})
+    tv = PROC.display_truth(setup, truth)
+    assert tv["rot_y_1"] == pytest.approx(0.0, abs=1e-9) and tv["sq_zx_1"] == pytest.approx(8.0)
+    tall = setup.replace(travel_z_mm=1500.0)
+    tv = PROC.display_truth(tall, truth)
+    assert tv["rot_y_1"] == pytest.approx(8.0, abs=1e-6) and tv["rot_x_1"] == pytest.approx(0, abs=1e-9)
+
+
+# --------------------------------------------------------------------------- recovery
+@pytest.mark.parametrize("changes,truth_changes", [
+    ({}, {}),
+    ({"travel_y_mm": 1200.0}, {}),
+    ({"travel_z_mm": 1500.0, "travel_x_mm": 300.0}, {}),
+    ({"c_arc_deg": 360.0, "a_arc_deg": 10.0, "points_per_arc": 3}, {}),
+    ({"n_submachines": 3, "mpe_model": "rectangular", "pivot_length_mm": 0.0}, {}),
+    ({"tracker_distance_mm": 15000.0, "points_per_axis": 2}, {"ac_angle_deg": 45.0,
+                                                              "tracker_yaw_deg": -170.0}),
+])
+def test_noise_free_recovery(changes, truth_changes):
+    setup = PROC.Setup(**changes)
+    truth = PROC.Truth(**truth_changes)
+    est = PROC.display_estimate(setup, _noise_free(setup, truth))
+    tv = PROC.display_truth(setup, truth)
+    for name, value in tv.items():
+        np.testing.assert_allclose(est[name], value, rtol=0, atol=1e-6, err_msg=name)
+
+
+# --------------------------------------------------------------------------- Monte Carlo
+def test_monte_carlo_matches_linearisation_at_small_noise():
+    setup = PROC.Setup(**{f: getattr(PROC.Setup(), f) * 0.1 for f in NOISE_FIELDS})
+    n = 2000
+    mc = simulate_uncertainty(PROC, setup, trials=n, rng=20240601, progress=False)
+    gum = linearize_procedure(PROC, setup)
+    rel = 4 / math.sqrt(2 * (n - 1))
+    np.testing.assert_allclose(mc.mc.std, gum.std, rtol=rel)
+    # unbiased to first order: the mean is within 4 standard errors of the truth
+    assert np.all(np.abs(mc.bias) < 4 * gum.std / math.sqrt(n))
+
+
+def test_short_a_arc_drives_origin_and_offset():
+    # The A arc fixes the height of the A line and so of T along C: a longer arc
+    # lowers the uncertainty of origin_z and of the A-C offset (GUM, all sources).
+    u = {}
+    for arc in (20.0, 60.0, 180.0):
+        g = linearize_procedure(PROC, PROC.Setup(a_arc_deg=arc))
+        u[arc] = dict(zip(g.names, g.std, strict=True))
+    assert u[20.0]["origin_z_1"] > u[60.0]["origin_z_1"] > u[180.0]["origin_z_1"]
+    assert u[20.0]["ac_offset_1"] > u[60.0]["ac_offset_1"] > u[180.0]["ac_offset_1"]
+    # the linear axes' squareness does not depend on the arcs
+    assert u[20.0]["sq_xy_1"] == pytest.approx(u[180.0]["sq_xy_1"], rel=1e-6)
+
+
+# --------------------------------------------------------------------------- refusals
+@pytest.mark.parametrize("field,value,why", [
+    ("travel_x_mm", 0.0, "zero travel"),
+    ("travel_z_mm", 0.0, "zero travel"),
+    ("a_arc_deg", 0.0, "one angle"),
+    ("c_arc_deg", 0.0, "one angle"),
+    ("points_per_arc", 2, "points_per_arc"),
+    ("points_per_axis", 1, "points_per_axis"),
+])
+def test_degenerate_setups_refused(field, value, why):
+    with pytest.raises(InvalidInput, match=why) as exc:
+        PROC.setup(**{field: value})
+    assert field in str(exc.value)
+
+
+@pytest.mark.parametrize("angle", [0.0, 2.0, 180.0])
+def test_parallel_a_and_c_refused(angle):
+    with pytest.raises(InvalidInput, match="parallel") as exc:
+        PROC.truth(ac_angle_deg=angle)
+    assert "ac_angle_deg" in str(exc.value)
+
+
+def test_parallel_fitted_axes_refused_by_the_estimator():
+    # measured data whose "A arc" went round C: the fitted A and C lines coincide
+    setup = PROC.Setup()
+    r = _noise_free(setup, PROC.Truth())
+    sl = tf._slices(setup)
+    for key in r:
+        r[key][:, sl[("A", 2)]] = r[key][:, sl[("C", 2)]]
+    with pytest.raises(InvalidInput, match="sub-machine 2 are parallel"):
+        PROC.estimate(setup, r)
+
+
+# --------------------------------------------------------------------------- data
+def test_readings_frame_round_trip_in_any_row_order():
+    setup = PROC.Setup(n_submachines=3)
+    r = PROC.simulate(setup, draws=2, rng=5)
+    df = tf.readings_frame(setup, r)
+    assert len(df) == tf._n_points(setup)
+    assert {"group", "submachine", "index", "position_mm", "angle_deg", "distance_mm",
+            "azimuth_rad", "elevation_rad"} <= set(df.columns)
+    back = tf.from_frame(setup, df.sample(frac=1.0, random_state=1))
+    for key in r:
+        np.testing.assert_array_equal(back[key][0], r[key][0])
+
+
+def test_from_frame_errors_name_the_problem():
+    setup = PROC.Setup()
+    df = tf.readings_frame(setup, _noise_free(setup, PROC.Truth()))
+    with pytest.raises(InvalidInput, match="distance_mm"):
+        tf.from_frame(setup, df.drop(columns="distance_mm"))
+    bad = df.copy()
+    bad.loc[7, "azimuth_rad"] = np.nan
+    with pytest.raises(InvalidInput, match="'azimuth_rad'.*row.*7"):
+        tf.from_frame(setup, bad)
+    with pytest.raises(InvalidInput, match="rows"):
+        tf.from_frame(setup, df.iloc[:-1])
+    dup = df.copy()
+    dup.loc[5, "index"] = 4
+    with pytest.raises(InvalidInput, match="repeats"):
+        tf.from_frame(setup, dup)
+
+
+def test_duration_grows_with_points_and_submachines():
+    base = PROC.duration(PROC.Setup())
+    assert PROC.duration(PROC.Setup(points_per_axis=21)) > base
+    assert PROC.duration(PROC.Setup(points_per_arc=13)) > base
+    assert PROC.duration(PROC.Setup(n_submachines=4)) > base
