@@ -1,0 +1,923 @@
+"""Bore centre by three probed points in equilateral distribution (seed 003).
+
+A large two-axis stage carries a ring workpiece; a touch-trigger probe is lowered
+into its bore of nominal radius ``r = bore_radius_mm`` at an arbitrary start point
+and the centre is found from points probed on the wall. The machine frame has its
+origin at the nominal bore centre; the measurands are the deviations of the bore's
+centre (``centre_x``, ``centre_y``) and radius (``radius``) from nominal, in um.
+
+Path planning (the seed's method, :func:`plan_path`)
+----------------------------------------------------
+1. From the start point probe along -y (p1), then along +y (p2). With the chord
+   half-length ``h = |p2 - p1| / 2``, ``theta1 = angle p1-o-p2 = 2 asin(h / r)``.
+2. At p2 the probe tries a small displacement ``free_test_mm`` in +x and in -x; the
+   free direction (+1, -1, or 0 when neither is free, i.e. the start was on the
+   centre's x) tells on which side of the chord the centre lies. The planner's
+   centre estimate is ``o = ((x1 + x2)/2 + dir sqrt(r^2 - h^2), (y1 + y2)/2)``.
+3. d1, d2, d3 are 120 deg apart with d3 on p1. The travel sense (sigma) is the long
+   way round from p2 to p1 (away from p1); then d3 = p1, d2 = p1 - 120 deg and
+   d1 = p1 - 240 deg along it, so the angle from o-p2 to o-d1 along the travel is
+   ``theta2 = (360 - theta1) - 240 = 120 - theta1`` (the seed's formula is an image
+   lost from the text; this is the value its figure and its two d1 cases imply:
+   theta2 < 0 means d1 lies behind p2 and the travel reverses at d1).
+4. Each leg from point A to point B of the bore is an arc of a helper circle tangent
+   to the radius o-A at A and to the radius o-B at B, so the probe leaves and meets
+   the wall along the radius (little tangential slip). For a leg of central angle
+   theta its centre is the pole ``o + r / cos(theta/2) * u(mid-angle)`` and its
+   radius ``r |tan(theta/2)|`` (r_o1 from theta2, r_o2 = r_o3 = r tan 60 deg).
+   A leg turning ccw about o turns cw about its helper circle. The first rotation
+   about o1 follows the seed's four cases: (1) theta2 >= 0 and free direction
+   positive: ccw; (2) theta2 >= 0, negative: cw; (3) theta2 < 0, positive or 0: cw;
+   (4) theta2 < 0, negative: ccw. At d1 the travel keeps its sense when
+   theta2 >= 0 and reverses when theta2 < 0 (the seed's d1 rule). The planner
+   derives these senses from geometry; the tests check them against the four cases.
+5. Acceptance check: ``dx = |x_p1 - x_d3|``, ``dy = |y_p1 - y_d3|`` (the seed writes
+   ``x_d3`` in dy: a typo); d3 is accepted when both are within
+   ``miss_tolerance_mm`` (:func:`acceptance_check`). The check does not change the
+   estimate, so the Monte Carlo reports it beside, not inside, the measurands.
+
+Generalisation to ``n_points`` and ``spread_deg``: the n points are equally spaced,
+``360/n`` apart when ``spread_deg == 360`` and ``spread/(n-1)`` apart (both ends
+included) otherwise; the last one lands on p1 and the others precede it along the
+travel, so ``theta2 = (360 - theta1) - (n - 1) * step`` (the seed's case is n = 3,
+spread 360). A leg longer than 150 deg (only the first transfer of a short arc of
+points) would need a helper circle through or beyond the centre; it is made as a
+straight move to the planner's centre and out along the radius instead.
+
+Forward model (:func:`forward`, batch-first)
+--------------------------------------------
+- Wall: ``rho(phi) = r + radius_dev + a cos(k phi) + b sin(k phi)`` about the true
+  centre, ``k = lobes`` (>= 2, so the least-squares reference circle of the wall is
+  the true circle and the measurands' true values are unaffected by form).
+- Stage: the machine reads positions ``q_read``; the actual position is
+  ``M q_read`` with ``M = [[1 + ex, s], [0, 1 + ey]]`` (scale errors and
+  squareness, constant during the test), plus a per-reading repeatability. The
+  probe is commanded in read coordinates, so every approach line is mapped through
+  ``M`` exactly before it meets the wall.
+- Start point: truth ``start_x_mm, start_y_mm`` plus a uniform scatter of
+  half-width ``start_scatter_mm`` per axis (the operator lowers the probe by eye).
+- Contacts: the exact intersection of each approach line with the wall (a circle
+  intersection, then Newton on the form error; 4 iterations reach machine precision).
+  The final approach to each d_k is the helper arc's tangent at the target, i.e. the
+  radius through the planned target. Treating the last stretch as straight ignores
+  the arc's sagitta ``delta^2 / (2 r_o)`` over the distance ``delta`` between the
+  planned and the actual wall: below 1e-9 mm for delta < 0.1 mm and r_o > 5 mm
+  (tested against the exact arc-circle intersection).
+- Probe: trigger noise along the approach; pre-travel variation with approach
+  direction beta, three-lobed as for kinematic probes (``A cos 3 beta + B sin 3 beta``);
+  tangential slip along the wall ``c * gamma`` with gamma the signed angle between
+  the approach and the wall normal.
+- p1 and p2 are probed along -y and +y with the same probe model; the planner uses
+  the read values, so their errors move the targets.
+
+Estimators (internal units, mm)
+-------------------------------
+- ``three_point`` (the seed's method, listed first): the a..f formula. With
+  ``n_points > 3`` it uses three of the points, the best-spread triple: indices
+  ``0, n//3, 2n//3`` for a full circle (nearly equilateral), and the two ends and
+  the middle ``0, (n-1)//2, n-1`` for a partial arc. It never refuses (the engine
+  needs every estimator to answer); it just ignores the other points.
+- ``kasa``: algebraic least-squares circle.
+- ``geometric``: orthogonal-distance least-squares circle (Gauss-Newton /
+  Levenberg-Marquardt on the batch, from Kasa).
+
+Known behaviour (tested): with n equally spaced points and radial noise sigma the
+centre's standard uncertainty per axis is ``sigma sqrt(2/n)``; three points bunched
+into a short arc are worse by orders of magnitude. With three points 120 deg apart a
+three-lobed pre-travel pattern (and a three-lobed form error) repeats at every
+point and moves only the radius, never the centre.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from mtplan._validate import InvalidInput, Problems
+from mtplan.models._circle_fit import geometric_fit, kasa_fit, three_point_circle
+from mtplan.models._protocol import Measurand, Procedure, SetupBase, Source, param
+from mtplan.uncertainty import Normal, Rectangular
+
+__all__ = [
+    "Setup",
+    "Truth",
+    "PathPlan",
+    "Segment",
+    "plan_path",
+    "plan_for_bore",
+    "acceptance_check",
+    "fit_points",
+    "PROCEDURE",
+]
+
+_DEG = math.pi / 180.0
+_MAX_ARC = 150.0 * _DEG  # legs longer than this go through the centre (see docstring)
+
+
+# --------------------------------------------------------------------------- set-up
+@dataclass(frozen=True)
+class Setup(SetupBase):
+    """Set-up of the bore-centre measurement (see the module docstring)."""
+
+    _owner = "circle_centre"
+    bore_radius_mm: float = param(250.0, doc="Nominal radius of the bore", low=0, high=10_000,
+                                  low_open=True)
+    n_points: int = param(3, doc="Measuring points d1..dn (3: the seed's rule)", low=3, high=360)
+    spread_deg: float = param(360.0, doc="Arc the points cover; 360 = full circle, equally "
+                              "spaced; less: end points included", low=1, high=360)
+    probe_noise_um: float = param(0.5, doc="Probe trigger noise along the approach (std)", low=0,
+                                  high=1000)
+    pretravel_variation_um: float = param(1.0, doc="RMS amplitude of the three-lobed pre-travel "
+                                          "variation with approach direction", low=0, high=1000)
+    tangential_slip_um_per_deg: float = param(0.2, doc="Mean tangential slip per degree between "
+                                              "approach and wall normal", low=0, high=1000)
+    roundness_um: float = param(5.0, doc="Form error of the bore (RMS peak-to-valley of one "
+                                "lobed harmonic)", low=0, high=10_000)
+    lobes: int = param(2, doc="Lobes of the form error (2 = oval)", low=2, high=100)
+    scale_error_ppm: float = param(5.0, doc="Stage scale error per axis (rectangular half-width)",
+                                   low=0, high=10_000)
+    squareness_urad: float = param(10.0, doc="Stage X-Y squareness error (rectangular "
+                                   "half-width)", low=0, high=100_000)
+    stage_repeatability_um: float = param(0.5, doc="Stage positioning repeatability per axis "
+                                          "and reading (std)", low=0, high=1000)
+    start_scatter_mm: float = param(25.0, doc="Half-width per axis of the uniform scatter of "
+                                    "the start point about the truth's start", low=0,
+                                    high=10_000)
+    free_test_mm: float = param(0.01, doc="Trial displacement at p2 that finds the free "
+                                "direction", low=0, high=100, low_open=True)
+    miss_tolerance_mm: float = param(0.05, doc="Accepted miss between d_n and p1 per axis",
+                                     low=0, high=1000)
+    feed_mm_min: float = param(2000.0, doc="Feed of the transfer moves", low=0, high=1e6,
+                               low_open=True)
+    probe_feed_mm_min: float = param(100.0, doc="Probing feed over the last clearance", low=0,
+                                     high=1e5, low_open=True)
+    clearance_mm: float = param(2.0, doc="Distance probed at the probing feed before each "
+                                "contact", low=0, high=1000)
+    dwell_s: float = param(0.5, doc="Dwell per contact (settling, skip signal, retract)", low=0,
+                           high=3600)
+
+    def _check(self, p: Problems) -> None:
+        if self.start_scatter_mm * math.sqrt(2) > 0.5 * self.bore_radius_mm:
+            p.add("start_scatter_mm", self.start_scatter_mm,
+                  f"<= {0.5 * self.bore_radius_mm / math.sqrt(2):g} (the start must stay within "
+                  f"half the bore radius bore_radius_mm={self.bore_radius_mm:g} of the truth's "
+                  "start, or it may leave the bore)")
+        if self.clearance_mm >= self.bore_radius_mm:
+            p.add("clearance_mm", self.clearance_mm,
+                  f"< bore_radius_mm ({self.bore_radius_mm:g})")
+        if self.free_test_mm >= 0.1 * self.bore_radius_mm:
+            p.add("free_test_mm", self.free_test_mm,
+                  f"< a tenth of bore_radius_mm ({0.1 * self.bore_radius_mm:g})")
+        roundness_mm = self.roundness_um * 1e-3
+        if roundness_mm >= 0.05 * self.bore_radius_mm:
+            p.add("roundness_um", self.roundness_um,
+                  f"< 5 % of the bore radius ({50 * self.bore_radius_mm:g} um)")
+
+
+@dataclass(frozen=True)
+class Truth(SetupBase):
+    """True bore (relative to the nominal centre) and the nominal start point."""
+
+    _owner = "circle_centre truth"
+    centre_x_mm: float = param(0.35, doc="True centre, x, from the nominal centre")
+    centre_y_mm: float = param(-0.2, doc="True centre, y, from the nominal centre")
+    radius_deviation_mm: float = param(0.015, doc="True radius minus the nominal radius")
+    start_x_mm: float = param(0.0, doc="Start point (machine reading), x, before the scatter")
+    start_y_mm: float = param(0.0, doc="Start point (machine reading), y, before the scatter")
+
+
+def measurands(setup: Setup) -> tuple[Measurand, ...]:
+    return (
+        Measurand("centre_x", "um", "x of the bore centre from its nominal position"),
+        Measurand("centre_y", "um", "y of the bore centre from its nominal position"),
+        Measurand("radius", "um", "bore radius minus the nominal radius"),
+    )
+
+
+def true_values(setup: Setup, truth: Truth) -> dict:
+    return {"centre_x": truth.centre_x_mm, "centre_y": truth.centre_y_mm,
+            "radius": truth.radius_deviation_mm}
+
+
+def _n_contacts(setup: Setup) -> int:
+    return setup.n_points + 2  # p1, p2, d1..dn
+
+
+def sources(setup: Setup) -> dict[str, Source]:
+    """Every error source, in internal units (mm, rad, 1)."""
+    k = _n_contacts(setup)
+    slip = setup.tangential_slip_um_per_deg * 1e-3 / _DEG  # mm per rad
+    scale = setup.scale_error_ppm * 1e-6
+    sq = setup.squareness_urad * 1e-6
+    s = setup.start_scatter_mm
+    return {
+        "probe_noise": Source(
+            Normal(0.0, setup.probe_noise_um * 1e-3), (k,),
+            "Trigger noise of the touch probe along the approach, per contact; 0.5 um std is "
+            "typical of a kinematic probe on a CNC skip input (makers quote 0.35-1 um 2 sigma "
+            "unidirectional repeatability)."),
+        "pretravel_variation": Source(
+            Normal(0.0, setup.pretravel_variation_um * 1e-3 / math.sqrt(2)), (2,),
+            "Coefficients (cos 3b, sin 3b) of the three-lobed pre-travel variation with the "
+            "approach direction b, constant during the test (RMS amplitude 1 um: makers quote "
+            "+-0.8 to +-2 um XY pre-travel variation for kinematic probes after calibration)."),
+        "tangential_slip": Source(
+            Rectangular(0.0, 2 * slip), (),
+            "Slip of the stylus along the wall per radian of obliqueness of the approach, "
+            "uniform between 0 and twice the set mean, constant during the test (assumed "
+            "0.2 um/deg: no maker's figure; measure it for the probe in use)."),
+        "roundness": Source(
+            Normal(0.0, setup.roundness_um * 1e-3 / 2 / math.sqrt(2)), (2,),
+            "Coefficients (cos k phi, sin k phi) of the bore's lobed form error, k = lobes; "
+            "random orientation, RMS peak-to-valley = roundness_um (5 um: a large turned ring)."),
+        "scale_error": Source(
+            Rectangular(-scale, scale), (2,),
+            "Residual scale (linear positioning) error of the stage's X and Y axes after "
+            "compensation; +-5 um/m is typical of ISO 230-2 results of a large stage."),
+        "squareness": Source(
+            Rectangular(-sq, sq), (),
+            "X-Y squareness error of the stage (ISO 230-1; +-10 urad typical)."),
+        "stage_repeatability": Source(
+            Normal(0.0, setup.stage_repeatability_um * 1e-3), (k, 2),
+            "Positioning repeatability of the stage, per reading and axis (ISO 230-2 "
+            "unidirectional repeatability of about 1 um = 2 sigma)."),
+        "start_scatter": Source(
+            Rectangular(-s, s), (2,),
+            "Where the operator lowers the probe: uniform within +-25 mm per axis of the "
+            "truth's start point (by eye, near the nominal centre)."),
+    }
+
+
+# --------------------------------------------------------------------------- geometry
+def _wall(setup, truth, errors, n):
+    """True centre (n,2), radius (n,), form coefficients (n,2), lobes."""
+    centre = np.broadcast_to(np.array([truth.centre_x_mm, truth.centre_y_mm]), (n, 2))
+    radius = np.full(n, setup.bore_radius_mm + truth.radius_deviation_mm)
+    form = np.asarray(errors["roundness"], dtype=float).reshape(n, 2)
+    return centre, radius, form, setup.lobes
+
+
+def _contact(origin, direction, centre, radius, form, lobes, iterations: int = 4):
+    """Where lines from `origin` along unit `direction` meet the wall (t > 0).
+
+    Parameters
+    ----------
+    origin, direction : array (n, k, 2)
+        Actual (not read) start points and unit directions of the approach lines.
+    centre : array (n, 2); radius : array (n,); form : array (n, 2); lobes : int
+
+    Returns
+    -------
+    contact : array (n, k, 2)
+    normal : array (n, k, 2)
+        Outward unit normal of the wall at the contact.
+    """
+    c = centre[:, None, :]
+    w = origin - c
+    wu = np.einsum("nki,nki->nk", w, direction)
+    ww = np.einsum("nki,nki->nk", w, w)
+    a, b = form[:, 0:1], form[:, 1:2]
+    r0 = radius[:, None]
+    t = -wu + np.sqrt(np.maximum(wu * wu - (ww - r0 * r0), 0.0))
+    for _ in range(iterations):
+        q = w + t[..., None] * direction
+        dist = np.hypot(q[..., 0], q[..., 1])
+        phi = np.arctan2(q[..., 1], q[..., 0])
+        rho = r0 + a * np.cos(lobes * phi) + b * np.sin(lobes * phi)
+        drho = lobes * (-a * np.sin(lobes * phi) + b * np.cos(lobes * phi))
+        cross = q[..., 0] * direction[..., 1] - q[..., 1] * direction[..., 0]
+        dg = np.einsum("nki,nki->nk", q, direction) / dist - drho * cross / (dist * dist)
+        t = t - (dist - rho) / dg
+    q = w + t[..., None] * direction
+    phi = np.arctan2(q[..., 1], q[..., 0])
+    er = np.stack([np.cos(phi), np.sin(phi)], axis=-1)
+    ephi = np.stack([-np.sin(phi), np.cos(phi)], axis=-1)
+    rho = r0 + a * np.cos(lobes * phi) + b * np.sin(lobes * phi)
+    drho = lobes * (-a * np.sin(lobes * phi) + b * np.cos(lobes * phi))
+    normal = rho[..., None] * er - drho[..., None] * ephi
+    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    return q + c, normal
+
+
+def _inside(point, centre, radius, form, lobes):
+    """Whether actual points (n, 2) lie strictly inside the wall."""
+    q = point - centre
+    phi = np.arctan2(q[:, 1], q[:, 0])
+    rho = radius + form[:, 0] * np.cos(lobes * phi) + form[:, 1] * np.sin(lobes * phi)
+    return np.hypot(q[:, 0], q[:, 1]) < rho
+
+
+def _plan_core(p1, p2, radius, free_dir, n_points, spread_deg):
+    """The seed's planning, batch-first.
+
+    Parameters
+    ----------
+    p1, p2 : array (n, 2)
+        Read coordinates of the -y and +y contacts [mm].
+    radius : float
+        Nominal bore radius [mm].
+    free_dir : array (n,)
+        Free direction of motion in x at p2: +1, -1 or 0.
+
+    Returns
+    -------
+    dict with ``centre`` (n,2), ``theta1``, ``theta2`` (n,) [rad], ``sigma`` (n,)
+    (+1 ccw about o, -1 cw: the travel sense from d1 on), ``alpha_p1``,
+    ``alpha_p2`` (n,) and ``alpha`` (n, n_points) target angles about the planner's
+    centre [rad], and ``step`` [rad].
+    """
+    h = 0.5 * np.hypot(p2[:, 0] - p1[:, 0], p2[:, 1] - p1[:, 1])
+    ratio = np.minimum(h / radius, 1.0)
+    theta1 = 2.0 * np.arcsin(ratio)
+    off = radius * np.sqrt(np.maximum(1.0 - ratio * ratio, 0.0))
+    mid = 0.5 * (p1 + p2)
+    centre = np.stack([mid[:, 0] + free_dir * off, mid[:, 1]], axis=-1)
+    alpha_p1 = np.arctan2(p1[:, 1] - centre[:, 1], p1[:, 0] - centre[:, 0])
+    alpha_p2 = np.arctan2(p2[:, 1] - centre[:, 1], p2[:, 0] - centre[:, 0])
+    # centre to the right (+1) or unknown (0): p1, p2 on the left, long way is clockwise
+    sigma = np.where(free_dir < 0, 1.0, -1.0)
+    if spread_deg >= 360.0:
+        step = 2 * math.pi / n_points
+    else:
+        step = spread_deg * _DEG / (n_points - 1)
+    k = np.arange(1, n_points + 1)
+    alpha = alpha_p1[:, None] - sigma[:, None] * (n_points - k)[None, :] * step
+    theta2 = (2 * math.pi - theta1) - (n_points - 1) * step
+    return {"centre": centre, "theta1": theta1, "theta2": theta2, "sigma": sigma,
+            "alpha_p1": alpha_p1, "alpha_p2": alpha_p2, "alpha": alpha, "step": step}
+
+
+def _free_direction(contact_p2, centre, radius, form, lobes, test_mm, mx):
+    """+1 / -1 / 0: which of the trial moves +-test_mm (read x) from p2 stays inside."""
+    ex = mx / np.linalg.norm(mx, axis=-1, keepdims=True)  # actual direction of read +x
+    plus = _inside(contact_p2 + test_mm * ex, centre, radius, form, lobes)
+    minus = _inside(contact_p2 - test_mm * ex, centre, radius, form, lobes)
+    return np.where(plus & ~minus, 1.0, np.where(minus & ~plus, -1.0, 0.0))
+
+
+def _probe(setup, errors, contact, normal, direction, idx):
+    """Stylus position at trigger (actual frame): contact + pre-travel + noise + slip."""
+    n = contact.shape[0]
+    noise = np.asarray(errors["probe_noise"], dtype=float).reshape(n, -1)[:, idx]
+    pre = np.asarray(errors["pretravel_variation"], dtype=float).reshape(n, 2)
+    beta = np.arctan2(direction[..., 1], direction[..., 0])
+    along = noise + pre[:, 0:1] * np.cos(3 * beta) + pre[:, 1:2] * np.sin(3 * beta)
+    # signed angle from the outward normal to the approach; slip along the tangent
+    gamma = np.arctan2(normal[..., 0] * direction[..., 1] - normal[..., 1] * direction[..., 0],
+                       np.einsum("nki,nki->nk", normal, direction))
+    tangent = np.stack([-normal[..., 1], normal[..., 0]], axis=-1)
+    slip = np.asarray(errors["tangential_slip"], dtype=float).reshape(n, 1) * gamma
+    return contact + along[..., None] * direction + slip[..., None] * tangent
+
+
+def _stage(errors, n):
+    """M (n,2,2): actual = M @ read, and its inverse."""
+    sc = np.asarray(errors["scale_error"], dtype=float).reshape(n, 2)
+    sq = np.asarray(errors["squareness"], dtype=float).reshape(n)
+    m = np.zeros((n, 2, 2))
+    m[:, 0, 0] = 1 + sc[:, 0]
+    m[:, 0, 1] = sq
+    m[:, 1, 1] = 1 + sc[:, 1]
+    minv = np.zeros_like(m)
+    minv[:, 0, 0] = 1 / m[:, 0, 0]
+    minv[:, 1, 1] = 1 / m[:, 1, 1]
+    minv[:, 0, 1] = -m[:, 0, 1] / (m[:, 0, 0] * m[:, 1, 1])
+    return m, minv
+
+
+def _check_start(setup: Setup, truth: Truth) -> None:
+    r_true = setup.bore_radius_mm + truth.radius_deviation_mm
+    reach = math.hypot(truth.start_x_mm - truth.centre_x_mm, truth.start_y_mm - truth.centre_y_mm)
+    reach += setup.start_scatter_mm * math.sqrt(2) + setup.roundness_um * 1e-3 * 4
+    if not reach < r_true - setup.free_test_mm:
+        p = Problems("circle_centre truth")
+        p.add_text(
+            f"The start point (start_x_mm={truth.start_x_mm:g}, start_y_mm={truth.start_y_mm:g}) "
+            f"with its scatter start_scatter_mm={setup.start_scatter_mm:g} reaches "
+            f"{reach:g} mm from the true centre, outside the bore of radius {r_true:g} mm: "
+            "the probe must start inside the bore")
+        p.raise_if_any()
+
+
+def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
+    """Simulated readings, batch-first (see the module docstring).
+
+    Returns
+    -------
+    dict
+        ``x_mm``, ``y_mm``: arrays (n, n_points), the read coordinates of d1..dn;
+        ``p_x_mm``, ``p_y_mm``: arrays (n, 2), the read coordinates of p1 and p2.
+    """
+    _check_start(setup, truth)
+    n = np.asarray(errors["probe_noise"]).shape[0]
+    centre, radius, form, lobes = _wall(setup, truth, errors, n)
+    m, minv = _stage(errors, n)
+    rep = np.asarray(errors["stage_repeatability"], dtype=float).reshape(n, -1, 2)
+
+    def to_actual(q):  # (n, k, 2) read -> actual
+        return np.einsum("nij,nkj->nki", m, q)
+
+    def to_read(q):
+        return np.einsum("nij,nkj->nki", minv, q)
+
+    start = np.array([truth.start_x_mm, truth.start_y_mm]) + np.asarray(
+        errors["start_scatter"], dtype=float).reshape(n, 2)
+    # p1 along -y, p2 along +y (read frame), from the start
+    dirs_read = np.broadcast_to(np.array([[0.0, -1.0], [0.0, 1.0]]), (n, 2, 2))
+    origin = to_actual(np.broadcast_to(start[:, None, :], (n, 2, 2)))
+    dirs = to_actual(dirs_read)
+    dirs = dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
+    cp, nrm = _contact(origin, dirs, centre, radius, form, lobes)
+    stylus = _probe(setup, errors, cp, nrm, dirs, slice(0, 2))
+    p_read = to_read(stylus) + rep[:, 0:2]
+    free = _free_direction(cp[:, 1], centre, radius, form, lobes, setup.free_test_mm, m[:, :, 0])
+    plan = _plan_core(p_read[:, 0], p_read[:, 1], setup.bore_radius_mm, free,
+                      setup.n_points, setup.spread_deg)
+    u_read = np.stack([np.cos(plan["alpha"]), np.sin(plan["alpha"])], axis=-1)
+    o_read = np.broadcast_to(plan["centre"][:, None, :], u_read.shape)
+    origin = to_actual(o_read)
+    dirs = to_actual(u_read)
+    dirs = dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
+    cd, nrm = _contact(origin, dirs, centre, radius, form, lobes)
+    stylus = _probe(setup, errors, cd, nrm, dirs, slice(2, None))
+    d_read = to_read(stylus) + rep[:, 2:]
+    return {"x_mm": d_read[..., 0], "y_mm": d_read[..., 1],
+            "p_x_mm": p_read[..., 0], "p_y_mm": p_read[..., 1]}
+
+
+# --------------------------------------------------------------------------- estimators
+def _xy(readings) -> tuple[np.ndarray, np.ndarray]:
+    return (np.asarray(readings["x_mm"], dtype=float), np.asarray(readings["y_mm"], dtype=float))
+
+
+def _three_indices(n: int, spread_deg: float) -> list[int]:
+    if spread_deg >= 360.0:
+        return [0, n // 3, (2 * n) // 3]
+    return [0, (n - 1) // 2, n - 1]
+
+
+def _result(circle, setup: Setup) -> dict:
+    return {"centre_x": np.asarray(circle.xc), "centre_y": np.asarray(circle.yc),
+            "radius": np.asarray(circle.r) - setup.bore_radius_mm}
+
+
+def estimate_three_point(setup: Setup, readings: dict) -> dict:
+    """The seed's a..f formula on d1, d2, d3 (or the best-spread triple of n points)."""
+    x, y = _xy(readings)
+    idx = _three_indices(x.shape[-1], setup.spread_deg)
+    return _result(three_point_circle(x[..., idx], y[..., idx]), setup)
+
+
+def estimate_kasa(setup: Setup, readings: dict) -> dict:
+    """Algebraic (Kasa) least-squares circle through all measuring points."""
+    x, y = _xy(readings)
+    return _result(kasa_fit(x, y), setup)
+
+
+def estimate_geometric(setup: Setup, readings: dict) -> dict:
+    """Orthogonal-distance least-squares circle through all measuring points."""
+    x, y = _xy(readings)
+    return _result(geometric_fit(x, y), setup)
+
+
+ESTIMATORS = {"three_point": estimate_three_point, "kasa": estimate_kasa,
+              "geometric": estimate_geometric}
+
+
+def fit_points(x_mm, y_mm, estimator: str = "geometric") -> dict:
+    """Centre and radius of measured points, for ``mtplan estimate circle_centre``.
+
+    Parameters
+    ----------
+    x_mm, y_mm : array_like (m,)
+        Coordinates of the points on the bore wall [mm], at least 3 (exactly the three
+        used points for ``three_point``: with more, the best-spread triple of a full
+        circle, indices 0, m//3, 2m//3, is used, as in the simulation).
+    estimator : {'geometric', 'kasa', 'three_point'}
+
+    Returns
+    -------
+    dict
+        ``centre_x_mm``, ``centre_y_mm``, ``radius_mm`` (floats).
+    """
+    p = Problems("fit_points")
+    p.choice("estimator", estimator, tuple(ESTIMATORS))
+    x = np.asarray(x_mm, dtype=float)
+    y = np.asarray(y_mm, dtype=float)
+    if x.ndim != 1 or x.shape != y.shape:
+        p.add("x_mm", x.shape, f"a 1-D array of the same length as y_mm {y.shape}")
+    elif x.size < 3:
+        p.add("x_mm", x.size, "at least 3 points")
+    elif not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        bad = np.flatnonzero(~(np.isfinite(x) & np.isfinite(y)))
+        p.add_text(f"The points of fit_points must be finite numbers; rows {bad.tolist()} are not")
+    p.raise_if_any()
+    if estimator == "three_point":
+        c = three_point_circle(x[None, _three_indices(x.size, 360.0)],
+                               y[None, _three_indices(x.size, 360.0)])
+    elif estimator == "kasa":
+        c = kasa_fit(x[None], y[None])
+    else:
+        c = geometric_fit(x[None], y[None])
+    out = {"centre_x_mm": float(c.xc[0]), "centre_y_mm": float(c.yc[0]),
+           "radius_mm": float(c.r[0])}
+    if not all(math.isfinite(v) for v in out.values()):
+        raise InvalidInput(["The points of fit_points are collinear: no circle passes through "
+                            "them."])
+    return out
+
+
+# --------------------------------------------------------------------------- path plan
+@dataclass(frozen=True)
+class Segment:
+    """One move of the planned path, in read coordinates [mm].
+
+    ``kind`` is ``'line'`` or ``'arc'``; for an arc, ``centre`` and ``radius`` are the
+    helper circle's and ``ccw`` its turning sense about that centre.
+    """
+
+    kind: str
+    start: tuple
+    end: tuple
+    centre: tuple | None = None
+    radius: float | None = None
+    ccw: bool | None = None
+    probing: bool = False
+
+    @property
+    def length(self) -> float:
+        if self.kind == "line":
+            return math.dist(self.start, self.end)
+        a0 = math.atan2(self.start[1] - self.centre[1], self.start[0] - self.centre[0])
+        a1 = math.atan2(self.end[1] - self.centre[1], self.end[0] - self.centre[0])
+        turn = (a1 - a0) % (2 * math.pi) if self.ccw else (a0 - a1) % (2 * math.pi)
+        return self.radius * turn
+
+    def polyline(self, samples: int = 64) -> np.ndarray:
+        """Points along the segment, array (samples, 2), for drawing."""
+        if self.kind == "line":
+            t = np.linspace(0, 1, samples)[:, None]
+            return (1 - t) * np.asarray(self.start) + t * np.asarray(self.end)
+        a0 = math.atan2(self.start[1] - self.centre[1], self.start[0] - self.centre[0])
+        turn = self.length / self.radius if self.radius > 0 else 0.0
+        a = a0 + (1 if self.ccw else -1) * np.linspace(0, turn, samples)
+        return np.column_stack([self.centre[0] + self.radius * np.cos(a),
+                                self.centre[1] + self.radius * np.sin(a)])
+
+
+@dataclass(frozen=True)
+class PathPlan:
+    """The planned probing path of one measurement (read coordinates, mm, degrees).
+
+    Attributes
+    ----------
+    start, p1, p2 : tuple (x, y)
+    centre : tuple (x, y)
+        The planner's centre from p1, p2, the nominal radius and the free direction.
+    bore_radius_mm : float
+    free_direction : int
+        +1, -1 or 0: which way (x) the probe could move at p2.
+    theta1_deg, theta2_deg : float
+        Angle p1-o-p2, and angle from o-p2 to o-d1 along the travel.
+    case : int
+        The seed's case 1..4 of the first rotation.
+    first_rotation, later_rotation : str
+        'ccw' or 'cw' about the helper circles o1 and o2, o3, ...
+    targets : array (n_points, 2)
+        Planned d1..dn on the nominal circle about the planner's centre.
+    target_angles_deg : array (n_points,)
+    helper_circles : tuple of (centre, radius)
+        o1, o2, ... (a radial transfer has none).
+    segments : tuple of Segment
+        start -> p1 -> p2 -> d1 -> ... -> dn.
+    miss_mm : tuple (dx, dy)
+        The seed's |x_p1 - x_dn|, |y_p1 - y_dn| for the planned d_n.
+    """
+
+    start: tuple
+    p1: tuple
+    p2: tuple
+    centre: tuple
+    bore_radius_mm: float
+    free_direction: int
+    theta1_deg: float
+    theta2_deg: float
+    case: int
+    first_rotation: str
+    later_rotation: str
+    targets: np.ndarray
+    target_angles_deg: np.ndarray
+    helper_circles: tuple
+    segments: tuple = field(default=())
+    miss_mm: tuple = (0.0, 0.0)
+
+    @property
+    def length_mm(self) -> float:
+        """Total path length [mm]."""
+        return float(sum(s.length for s in self.segments))
+
+    def polyline(self, samples: int = 64) -> np.ndarray:
+        """The whole path as points, array (m, 2), for drawing."""
+        return np.concatenate([s.polyline(samples) for s in self.segments])
+
+
+def _seed_case(theta2: float, free_dir: int) -> tuple[int, str]:
+    """The seed's four cases of the first rotation about o1."""
+    if theta2 >= 0:
+        return (1, "ccw") if free_dir >= 0 else (2, "cw")
+    return (3, "cw") if free_dir >= 0 else (4, "ccw")
+
+
+def _leg(o, radius, a0, a1) -> tuple[Segment, ...]:
+    """Move along the wall from angle a0 to a1 (signed turn a1 - a0 about o)."""
+    theta = a1 - a0
+    s = (o[0] + radius * math.cos(a0), o[1] + radius * math.sin(a0))
+    e = (o[0] + radius * math.cos(a1), o[1] + radius * math.sin(a1))
+    if abs(theta) > _MAX_ARC:
+        return (Segment("line", s, tuple(o)), Segment("line", tuple(o), e, probing=True))
+    if theta == 0:
+        return (Segment("line", s, e, probing=True),)
+    mid = 0.5 * (a0 + a1)
+    dist = radius / math.cos(theta / 2)
+    c = (o[0] + dist * math.cos(mid), o[1] + dist * math.sin(mid))
+    return (Segment("arc", s, e, c, radius * abs(math.tan(theta / 2)), ccw=theta < 0,
+                    probing=True),)
+
+
+def _check_plan_inputs(p: Problems, name, value, *, length=2):
+    arr = np.asarray(value, dtype=float) if _numeric(value) else None
+    if arr is None or arr.shape != (length,) or not np.all(np.isfinite(arr)):
+        p.add(name, value, f"a pair of finite numbers (x, y) [mm]")
+        return None
+    return arr
+
+
+def _numeric(value) -> bool:
+    try:
+        np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return True
+
+
+def plan_path(p1, p2, bore_radius_mm: float, free_direction: int, *, n_points: int = 3,
+              spread_deg: float = 360.0, start=None) -> PathPlan:
+    """The seed's path from the two y contacts (one measurement).
+
+    Parameters
+    ----------
+    p1, p2 : (x, y) [mm]
+        Read contacts along -y and +y.
+    bore_radius_mm : float
+        Nominal bore radius [mm], > 0.
+    free_direction : {1, -1, 0}
+        Which way in x the probe is free to move at p2 (0: neither).
+    n_points : int, >= 3
+    spread_deg : float in [1, 360]
+    start : (x, y), optional
+        The start point, drawn as the first segment.
+
+    Returns
+    -------
+    PathPlan
+    """
+    p = Problems("plan_path")
+    a1 = _check_plan_inputs(p, "p1", p1)
+    a2 = _check_plan_inputs(p, "p2", p2)
+    p.number("bore_radius_mm", bore_radius_mm, low=0, low_open=True)
+    p.choice("free_direction", free_direction, (1, -1, 0))
+    p.number("n_points", n_points, integer=True, low=3)
+    p.number("spread_deg", spread_deg, low=1, high=360)
+    st = _check_plan_inputs(p, "start", start) if start is not None else None
+    p.raise_if_any()
+    if np.hypot(*(a2 - a1)) > 2 * bore_radius_mm * (1 + 1e-6):
+        p.add_text(f"p1 and p2 of plan_path are {np.hypot(*(a2 - a1)):g} mm apart, more than the "
+                   f"bore's diameter 2 x bore_radius_mm = {2 * bore_radius_mm:g} mm")
+    p.raise_if_any()
+    core = _plan_core(a1[None], a2[None], float(bore_radius_mm),
+                      np.array([float(free_direction)]), int(n_points), float(spread_deg))
+    o = core["centre"][0]
+    r = float(bore_radius_mm)
+    sigma = float(core["sigma"][0])
+    theta2 = float(core["theta2"][0])
+    alpha = core["alpha"][0]
+    targets = np.column_stack([o[0] + r * np.cos(alpha), o[1] + r * np.sin(alpha)])
+    case, first = _seed_case(theta2, int(free_direction))
+    segs = []
+    if st is not None:
+        segs.append(Segment("line", tuple(st), tuple(a1), probing=True))
+    segs.append(Segment("line", tuple(a1), tuple(a2), probing=True))
+    a_p2 = float(core["alpha_p2"][0])
+    first_leg = _leg(o, r, a_p2, a_p2 + sigma * theta2)
+    # the planner's circle passes through p2 only up to its noise: start from p2 itself
+    s0 = first_leg[0]
+    first_leg = (Segment(s0.kind, tuple(a2), s0.end, s0.centre, s0.radius, s0.ccw,
+                         s0.probing),) + first_leg[1:]
+    segs += first_leg
+    helpers = [(s.centre, s.radius) for s in first_leg if s.kind == "arc"]
+    a_prev = a_p2 + sigma * theta2  # d1, unwrapped so that each leg turns the right way
+    step = sigma * float(core["step"])
+    for _ in range(1, int(n_points)):
+        leg = _leg(o, r, a_prev, a_prev + step)
+        segs += leg
+        helpers += [(s.centre, s.radius) for s in leg if s.kind == "arc"]
+        a_prev += step
+    later = "cw" if sigma > 0 else "ccw"
+    miss = acceptance_check(a1, targets[-1], math.inf)
+    return PathPlan(
+        start=tuple(st) if st is not None else tuple(0.5 * (a1 + a2)),
+        p1=tuple(a1), p2=tuple(a2), centre=tuple(o), bore_radius_mm=r,
+        free_direction=int(free_direction),
+        theta1_deg=float(core["theta1"][0]) / _DEG, theta2_deg=theta2 / _DEG,
+        case=case, first_rotation=first, later_rotation=later,
+        targets=targets, target_angles_deg=np.degrees(alpha),
+        helper_circles=tuple(helpers), segments=tuple(segs),
+        miss_mm=(miss["dx_mm"], miss["dy_mm"]),
+    )
+
+
+def plan_for_bore(start, *, bore_radius_mm: float, centre=(0.0, 0.0), n_points: int = 3,
+                  spread_deg: float = 360.0, free_test_mm: float = 0.01) -> PathPlan:
+    """The planned path for a round bore without errors, from a start point.
+
+    Parameters
+    ----------
+    start : (x, y) [mm]
+        Where the probe is lowered; must lie inside the bore.
+    bore_radius_mm : float
+        Radius of the (round) bore [mm], > 0; the planner uses it as nominal.
+    centre : (x, y) [mm]
+        The bore's true centre.
+    n_points, spread_deg : as for :func:`plan_path`
+    free_test_mm : float
+        Trial displacement at p2 [mm].
+
+    Returns
+    -------
+    PathPlan
+    """
+    p = Problems("plan_for_bore")
+    st = _check_plan_inputs(p, "start", start)
+    c = _check_plan_inputs(p, "centre", centre)
+    ok_r = p.number("bore_radius_mm", bore_radius_mm, low=0, low_open=True)
+    p.number("free_test_mm", free_test_mm, low=0, low_open=True)
+    p.raise_if_any()
+    if ok_r and np.hypot(*(st - c)) >= bore_radius_mm:
+        p.add("start", tuple(st), f"a point inside the bore (less than bore_radius_mm="
+              f"{bore_radius_mm:g} mm from its centre {tuple(c)}; it is "
+              f"{np.hypot(*(st - c)):g} mm away)")
+    p.raise_if_any()
+    dx = st[0] - c[0]
+    h = math.sqrt(bore_radius_mm**2 - dx * dx)
+    p1 = (st[0], c[1] - h)
+    p2 = (st[0], c[1] + h)
+    # free when the displaced p2 stays inside: 2 d (x2 - xc) + d^2 < 0 for d = +-test
+    plus = 2 * free_test_mm * dx + free_test_mm**2 < 0
+    minus = -2 * free_test_mm * dx + free_test_mm**2 < 0
+    free = 1 if plus and not minus else (-1 if minus and not plus else 0)
+    return plan_path(p1, p2, bore_radius_mm, free, n_points=n_points, spread_deg=spread_deg,
+                     start=tuple(st))
+
+
+def acceptance_check(p1, d_last, tolerance_mm: float) -> dict:
+    """The seed's acceptance of the last point: ``|x_p1 - x_dn|``, ``|y_p1 - y_dn|``.
+
+    Parameters
+    ----------
+    p1, d_last : array (..., 2) [mm]
+        The first -y contact and the last measuring point (batch-first allowed).
+    tolerance_mm : float
+        Largest accepted miss per axis [mm].
+
+    Returns
+    -------
+    dict
+        ``dx_mm``, ``dy_mm`` (arrays or floats) and ``accepted`` (bool array or bool).
+        The seed's second difference reads ``|y_p1 - x_d3|``, a typo for
+        ``|y_p1 - y_d3|``, which is used here.
+    """
+    a = np.asarray(p1, dtype=float)
+    b = np.asarray(d_last, dtype=float)
+    dx = np.abs(a[..., 0] - b[..., 0])
+    dy = np.abs(a[..., 1] - b[..., 1])
+    acc = (dx <= tolerance_mm) & (dy <= tolerance_mm)
+    if dx.ndim == 0:
+        return {"dx_mm": float(dx), "dy_mm": float(dy), "accepted": bool(acc)}
+    return {"dx_mm": dx, "dy_mm": dy, "accepted": acc}
+
+
+def miss(setup: Setup, readings: dict) -> dict:
+    """The acceptance check of simulated or measured readings (batch-first)."""
+    p1 = np.stack([np.asarray(readings["p_x_mm"])[:, 0], np.asarray(readings["p_y_mm"])[:, 0]],
+                  axis=-1)
+    dn = np.stack([np.asarray(readings["x_mm"])[:, -1], np.asarray(readings["y_mm"])[:, -1]],
+                  axis=-1)
+    return acceptance_check(p1, dn, setup.miss_tolerance_mm)
+
+
+# --------------------------------------------------------------------------- duration, I/O
+def duration(setup: Setup) -> float:
+    """Machine time [s]: path length at the feed, the last clearance of each contact at the
+    probing feed, a dwell per contact. The path is averaged over nine start points
+    (the centre of the scatter square, its corners and edge mid-points) about the
+    nominal centre of a nominal bore.
+    """
+    s = setup.start_scatter_mm
+    r = setup.bore_radius_mm
+    lengths = []
+    for fx in (-1, 0, 1):
+        for fy in (-1, 0, 1):
+            plan = plan_for_bore((fx * s, fy * s), bore_radius_mm=r, n_points=setup.n_points,
+                                 spread_deg=setup.spread_deg, free_test_mm=setup.free_test_mm)
+            lengths.append(plan.length_mm)
+    contacts = _n_contacts(setup)
+    move = float(np.mean(lengths)) - contacts * setup.clearance_mm
+    t = max(move, 0.0) / (setup.feed_mm_min / 60.0)
+    t += contacts * (setup.clearance_mm / (setup.probe_feed_mm_min / 60.0) + setup.dwell_s)
+    return float(t)
+
+
+def _labels(n_points: int) -> list[str]:
+    return ["p1", "p2"] + [f"d{k}" for k in range(1, n_points + 1)]
+
+
+def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
+    """One measurement as a tidy frame: columns ``point`` (p1, p2, d1..dn), ``x_mm``, ``y_mm``."""
+    px = np.asarray(readings["p_x_mm"], dtype=float)[0]
+    py = np.asarray(readings["p_y_mm"], dtype=float)[0]
+    x = np.asarray(readings["x_mm"], dtype=float)[0]
+    y = np.asarray(readings["y_mm"], dtype=float)[0]
+    return pd.DataFrame({"point": _labels(x.size), "x_mm": np.concatenate([px, x]),
+                         "y_mm": np.concatenate([py, y])})
+
+
+def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
+    """Readings (batch of one) from a frame with columns ``point``, ``x_mm``, ``y_mm``.
+
+    ``point`` names p1, p2 and d1..dn (n = ``n_points``) in any order. Without a
+    ``point`` column every row is a measuring point d1..dn in order, and p1, p2 (which
+    only the acceptance check uses) are taken as unknown (NaN).
+    """
+    p = Problems("circle_centre data")
+    for col in ("x_mm", "y_mm"):
+        if col not in df.columns:
+            p.add_text(f"The circle_centre data must have a column {col!r}; its columns are "
+                       f"{', '.join(map(str, df.columns))}")
+    p.raise_if_any()
+    xs = pd.to_numeric(df["x_mm"], errors="coerce").to_numpy(dtype=float)
+    ys = pd.to_numeric(df["y_mm"], errors="coerce").to_numpy(dtype=float)
+    bad = np.flatnonzero(~(np.isfinite(xs) & np.isfinite(ys)))
+    if bad.size:
+        p.add_text(f"The columns 'x_mm' and 'y_mm' of the circle_centre data must hold finite "
+                   f"numbers; rows {bad.tolist()} do not")
+    n = setup.n_points
+    if "point" in df.columns:
+        names = df["point"].astype(str).str.strip().tolist()
+        want = _labels(n)
+        missing = [w for w in want if w not in names]
+        extra = [w for w in names if w not in want]
+        dup = sorted({w for w in names if names.count(w) > 1})
+        if missing or extra or dup:
+            p.add_text(f"The 'point' column of the circle_centre data must name p1, p2 and d1..d{n} "
+                       f"once each (n_points={n}); missing {missing}, unknown {extra}, "
+                       f"repeated {dup}")
+        p.raise_if_any()
+        order = [names.index(w) for w in want]
+        px, py = xs[order[:2]], ys[order[:2]]
+        x, y = xs[order[2:]], ys[order[2:]]
+    else:
+        if len(xs) != n:
+            p.add_text(f"The circle_centre data must have n_points={n} rows of measuring points "
+                       f"(or a 'point' column naming p1, p2, d1..d{n}); it has {len(xs)}")
+        p.raise_if_any()
+        px = py = np.full(2, np.nan)
+        x, y = xs, ys
+    return {"x_mm": x[None, :], "y_mm": y[None, :], "p_x_mm": px[None, :],
+            "p_y_mm": py[None, :]}
+
+
+PROCEDURE = Procedure(
+    name="circle_centre",
+    title="Bore centre by three probed points in equilateral distribution",
+    Setup=Setup,
+    Truth=Truth,
+    measurands=measurands,
+    sources=sources,
+    forward=forward,
+    estimators=ESTIMATORS,
+    true_values=true_values,
+    duration=duration,
+    readings_frame=readings_frame,
+    from_frame=from_frame,
+    description=(
+        "A touch probe, lowered anywhere into a bore of known nominal radius, probes -y and "
+        "+y, plans three points 120 deg apart reached on helper arcs tangent to the radii, "
+        "and computes the centre from them (seed 003). Compares the three-point formula with "
+        "algebraic and geometric least-squares circles through n points over any spread."
+    ),
+    exact_estimators=("three_point", "kasa", "geometric"),
+    block_size=2000,
+)
