@@ -1,0 +1,130 @@
+"""Speed of the tracker_frame procedure, and what drives its uncertainty (not a test).
+
+1. ``simulate_uncertainty`` for the default set-up (20 000 trials, one job): trials
+   per second, and the ratio to drawing the same number of normal variates as all
+   its error sources hold (numpy alone); best of a few repeats.
+2. Where the time goes in one block: drawing the errors, the forward model, and the
+   estimator's stages (spherical to Cartesian and registration, line fits, 3D circle
+   fits, the rest).
+3. With ``--sweep``: one-at-a-time sweeps (Monte Carlo, 4000 trials each) over the
+   tracker distance, the points per axis and per arc, and the A arc, printing the
+   standard uncertainty of sub-machine 1's measurands.
+
+Run: ``.venv/bin/python benchmarks/bench_tracker_frame.py [--trials 20000] [--sweep]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from mtplan.models import get
+from mtplan.models import tracker_frame as tf
+from mtplan.models._fit3d import fit_circle_3d, fit_line_3d
+from mtplan.uncertainty.procedures import simulate_uncertainty
+
+
+def best(fn, repeat=3):
+    times = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return min(times)
+
+
+def speed(trials: int) -> None:
+    proc = get("tracker_frame")
+    setup = proc.Setup()
+    n_var = sum(s.size for s in proc.active_sources(setup).values())
+    t_mc = best(lambda: simulate_uncertainty(proc, setup, trials=trials, rng=1, progress=False))
+    rng = np.random.default_rng(1)
+    t_np = best(lambda: rng.standard_normal((trials, n_var)), repeat=5)
+    print(f"tracker_frame default set-up: {setup.n_submachines} sub-machines, "
+          f"{tf._n_points(setup)} tracker points, {n_var} error variates per trial, "
+          f"block {proc.block_size}")
+    print(f"simulate_uncertainty, {trials} trials: {t_mc:.3f} s = {trials / t_mc:,.0f} trials/s")
+    print(f"numpy alone, {trials} x {n_var} normal variates: {t_np:.3f} s")
+    print(f"ratio: {t_mc / t_np:.1f}")
+
+    n = proc.block_size
+    seq = np.random.SeedSequence(1)
+    t_draw = best(lambda: proc.draw_errors(setup, n, seq))
+    errors = proc.draw_errors(setup, n, seq)
+    truth = proc.Truth()
+    t_fwd = best(lambda: proc.forward(setup, truth, errors))
+    readings = proc.forward(setup, truth, errors)
+    t_est = best(lambda: tf.estimate_patent(setup, readings))
+
+    def stage_reg():
+        xyz = tf._cartesian(readings)
+        rot, t = tf._register(setup, xyz[:, :4])
+        return np.einsum("nij,npj->npi", rot, xyz) + t[:, None, :]
+
+    t_reg = best(stage_reg)
+    glob = stage_reg()
+    sl = tf._slices(setup)
+    k_all = range(1, setup.n_submachines + 1)
+    t_lin = best(lambda: [fit_line_3d(glob[:, sl[(g, k)]]) for k in k_all for g in "XYZ"])
+    t_circ = best(lambda: [fit_circle_3d(glob[:, sl[(g, k)]]) for k in k_all for g in "CA"])
+    iters = max(fit_circle_3d(glob[:, sl[(g, 1)]]).iterations for g in "CA")
+    total = t_draw + t_fwd + t_est
+    print(f"\none block of {n} trials: {total * 1e3:.0f} ms")
+    print(f"  draw errors   {t_draw * 1e3:7.1f} ms  ({t_draw / total:5.1%})")
+    print(f"  forward       {t_fwd * 1e3:7.1f} ms  ({t_fwd / total:5.1%})")
+    print(f"  estimator     {t_est * 1e3:7.1f} ms  ({t_est / total:5.1%}), of which")
+    print(f"    spherical->Cartesian + registration {t_reg * 1e3:6.1f} ms")
+    print(f"    line fits (3 per sub-machine)       {t_lin * 1e3:6.1f} ms")
+    print(f"    3D circle fits (2 per sub-machine)  {t_circ * 1e3:6.1f} ms "
+          f"(up to {iters} Levenberg-Marquardt iterations)")
+    print(f"    rest                                {(t_est - t_reg - t_lin - t_circ) * 1e3:6.1f} ms")
+
+
+SHOW = ("origin_x_1", "origin_y_1", "origin_z_1", "rot_x_1", "rot_y_1", "rot_z_1",
+        "ac_offset_1", "sq_xy_1", "sq_yz_1", "sq_zx_1")
+
+
+def sweeps(trials: int) -> None:
+    proc = get("tracker_frame")
+    grid = {
+        "tracker_distance_mm": [2000.0, 4000.0, 8000.0, 16000.0],
+        "points_per_axis": [3, 6, 11, 21],
+        "points_per_arc": [3, 7, 13, 25],
+        "a_arc_deg": [20.0, 60.0, 120.0, 240.0],
+        "c_arc_deg": [60.0, 180.0, 360.0],
+    }
+    head = " ".join(f"{m.rsplit('_', 1)[0]:>10}" for m in SHOW)
+    for field, values in grid.items():
+        print(f"\nstandard uncertainty of sub-machine 1 [um, urad] ({trials} trials) "
+              f"against {field}")
+        print(f"{field:>22} {head} {'time [s]':>9}")
+        for v in values:
+            setup = proc.setup({field: v})
+            r = simulate_uncertainty(proc, setup, trials=trials, rng=3, progress=False)
+            s = dict(zip([m.name for m in r.measurands], r.mc.std, strict=True))
+            row = " ".join(f"{s[m]:10.1f}" for m in SHOW)
+            print(f"{v:>22g} {row} {r.duration_s:9.0f}")
+    setup = proc.Setup()
+    print("\nshare of each source (Monte Carlo, one source at a time), sub-machine 1:")
+    from mtplan.uncertainty.procedures import source_budget
+
+    b = source_budget(proc, setup, trials=trials, rng=4)
+    b = b[b.measurand.isin(SHOW)].pivot(index="source", columns="measurand", values="std")
+    print(b[list(SHOW)].round(1).to_string())
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trials", type=int, default=20_000)
+    ap.add_argument("--sweep", action="store_true")
+    ap.add_argument("--sweep-trials", type=int, default=4000)
+    args = ap.parse_args(argv)
+    speed(args.trials)
+    if args.sweep:
+        sweeps(args.sweep_trials)
+
+
+if __name__ == "__main__":
+    main()
