@@ -58,11 +58,17 @@ Forward model (:func:`forward`, batch-first)
   half-width ``start_scatter_mm`` per axis (the operator lowers the probe by eye).
 - Contacts: the exact intersection of each approach line with the wall (a circle
   intersection, then Newton on the form error; 4 iterations reach machine precision).
-  The final approach to each d_k is the helper arc's tangent at the target, i.e. the
-  radius through the planned target. Treating the last stretch as straight ignores
-  the arc's sagitta ``delta^2 / (2 r_o)`` over the distance ``delta`` between the
-  planned and the actual wall: below 1e-9 mm for delta < 0.1 mm and r_o > 5 mm
-  (tested against the exact arc-circle intersection).
+  The final approach to each d_k is taken along the helper arc's tangent at the
+  target, i.e. the radius through the planned target. Over the distance ``delta``
+  between the planned and the actual wall the arc leaves that line by its sagitta
+  ``delta^2 / (2 r_o)``: the contact slides along the wall by that much (12 nm for
+  delta = 0.1 mm and r_o = r tan 60 deg, r = 250 mm), which changes the recorded
+  point's distance from the centre only through the wall's slope (< 1e-12 mm here),
+  and the obliqueness by ``delta / r_o`` (4e-4 rad, i.e. < 5 nm of slip at the
+  default). The recorded coordinates are those of a true wall point either way.
+  Tested against the exact arc-circle intersection. For a first leg with a tiny
+  theta2 (r_o1 -> 0) a real controller cannot follow the arc either; it re-probes
+  radially, as modelled.
 - Probe: trigger noise along the approach; pre-travel variation with approach
   direction beta, three-lobed as for kinematic probes (``A cos 3 beta + B sin 3 beta``);
   tangential slip along the wall ``c * gamma`` with gamma the signed angle between
