@@ -20,30 +20,49 @@ def register(sub, common) -> None:
                    help="most candidates checked by Monte Carlo (default 5)")
     p.set_defaults(func=cmd_plan)
 
+    p = sub.add_parser("report", help="HTML and PDF report of a study")
+    p.add_argument("study", metavar="STUDY.toml", help="the study file")
+    p.add_argument("--out", metavar="DIR", required=True, help="output folder")
+    p.add_argument("--jobs", type=int, default=1, metavar="J", help="parallel workers")
+    p.set_defaults(func=cmd_report)
+
     p = sub.add_parser("demo", help="the built-in study, end to end")
-    p.add_argument("--out", metavar="DIR", default="mtplan-demo", help="output folder")
-    p.add_argument("--trials", type=int, default=20000, metavar="N")
+    p.add_argument("--out", metavar="DIR", default="mtplan-report", help="output folder")
+    p.add_argument("--jobs", type=int, default=1, metavar="J", help="parallel workers")
     p.set_defaults(func=cmd_demo)
 
 
-def cmd_demo(args):
-    """Until the demo study exists: Monte Carlo of every procedure's default set-up."""
+def _report(study_path, out, jobs, progress):
     import sys
+    import time
 
-    from mtplan.models import registry
-    from mtplan.uncertainty.procedures import simulate_uncertainty
+    from mtplan.plans.study import load_study, run_study
+    from mtplan.reports import write_report
 
-    procs = registry()
-    if not procs:
-        print("no procedures are registered yet", file=sys.stderr)
-        return 1
-    for name, proc in procs.items():
-        r = simulate_uncertainty(proc, trials=args.trials, rng=0, progress=None)
-        print(f"\n== {name}: {proc.title} ({r.estimator}, {r.mc.trials} trials)")
-        df = r.summary()
-        print(df[["unit", "true", "mean", "bias", "std", "low", "high"]].to_string(
-            float_format=lambda v: f"{v:.4g}"))
+    start = time.perf_counter()
+    study = load_study(study_path)
+    result = run_study(study, progress=progress, n_jobs=jobs)
+    written = write_report(result, out)
+    print(f"report written in {time.perf_counter() - start:.1f} s:", file=sys.stderr)
+    print(written["html"])
+    print(written["pdf"])
     return 0
+
+
+def cmd_report(args):
+    return _report(args.study, args.out, args.jobs, progress=None)
+
+
+def demo_study_path():
+    """The built-in study shipped with mtplan (``examples/demo.toml``)."""
+    from pathlib import Path
+
+    return Path(__file__).resolve().parent / "examples" / "demo.toml"
+
+
+def cmd_demo(args):
+    """Run the default study end to end and say where the report is."""
+    return _report(demo_study_path(), args.out, args.jobs, progress=True)
 
 
 def cmd_plan(args):

@@ -1,0 +1,396 @@
+"""Studies: what a report covers, read from a TOML file and computed in one go.
+
+A study names procedures, their base set-ups, sweeps, planning targets,
+acceptance plans and optionally measured readings. :func:`load_study` validates
+the whole file and lists every problem at once; :func:`run_study` computes every
+result (Monte Carlo, GUM budget, sweeps, plan, acceptance, posterior) into a
+:class:`StudyResult` that the reports render without computing anything.
+
+Example::
+
+    title = "Acceptance of machine 42"
+    seed = 1
+    digits = 2                      # adaptive Monte Carlo of each base set-up
+    [[procedure]]
+    name = "rotary_axis"
+    label = "C axis"
+    setup = { axis = "C", incline_deg = 20 }
+    estimators = ["patent", "joint"]
+      [[procedure.sweep]]
+      vary = { incline_deg = [10, 20, 30] }
+      trials = 2000
+      [procedure.plan]
+      targets = { EX0C = 1.0 }
+      vary = { positions = [3, 6, 12] }
+      [procedure.acceptance]
+      measurand = "EX0C"
+      lower = -10.0
+      upper = 10.0
+      prior = "normal:0,4"
+      rule = "guard:0.5"
+      [procedure.readings]
+      file = "rotary_axis_readings.csv"   # relative to the study file
+      uncertainty = "mc"                   # or "posterior"
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from mtplan._validate import InvalidInput
+
+__all__ = ["Study", "ProcedureStudy", "StudyResult", "load_study", "run_study"]
+
+_TOP_KEYS = {"title", "subtitle", "customer", "machine", "author", "seed", "digits", "trials",
+             "coverage", "procedure"}
+_PROC_KEYS = {"name", "label", "setup", "truth", "estimators", "sweep", "plan", "acceptance",
+              "readings", "trials", "digits", "notes"}
+
+
+@dataclass
+class ProcedureStudy:
+    name: str
+    label: str
+    setup: object
+    truth: object
+    estimators: list
+    sweeps: list = field(default_factory=list)        # dicts: vary, trials, estimators
+    plan: dict | None = None
+    acceptance: dict | None = None
+    readings: dict | None = None
+    trials: int | None = None
+    digits: int | None = None
+    notes: str = ""
+
+
+@dataclass
+class Study:
+    title: str
+    path: Path | None
+    digest: str
+    seed: int
+    digits: int | None
+    trials: int | None
+    coverage: float
+    meta: dict
+    procedures: list
+
+
+def load_study(source) -> Study:
+    """Read and validate a study (a TOML path, or an already parsed dict)."""
+    from mtplan.models import registry
+    from mtplan.models._protocol import fields_info, make
+
+    problems: list[str] = []
+    path = None
+    if isinstance(source, dict):
+        data = source
+        raw = repr(sorted(source.items())).encode()
+    else:
+        path = Path(source)
+        try:
+            raw = path.read_bytes()
+        except FileNotFoundError:
+            raise InvalidInput([f"No such study file {str(path)!r}."]) from None
+        except OSError as exc:
+            raise InvalidInput([f"Cannot read the study file {str(path)!r}: {exc.strerror}."]) from None
+        try:
+            data = tomllib.loads(raw.decode("utf-8"))
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise InvalidInput([f"The study file {str(path)!r} is not valid TOML: {exc}."]) from None
+    for key in sorted(set(data) - _TOP_KEYS):
+        problems.append(f"The study has an unknown key {key!r}; allowed: {', '.join(sorted(_TOP_KEYS))}.")
+    seed = data.get("seed", 0)
+    if not (isinstance(seed, int) and seed >= 0):
+        problems.append(f"The study's 'seed' must be an int >= 0. Got {seed!r} instead.")
+    digits = data.get("digits")
+    trials = data.get("trials")
+    if digits is not None and not (isinstance(digits, int) and 1 <= digits <= 4):
+        problems.append(f"The study's 'digits' must be an int from 1 to 4. Got {digits!r} instead.")
+    if trials is not None and not (isinstance(trials, int) and trials >= 100):
+        problems.append(f"The study's 'trials' must be an int >= 100. Got {trials!r} instead.")
+    coverage = data.get("coverage", 0.95)
+    if not (isinstance(coverage, float) and 0 < coverage < 1):
+        problems.append(f"The study's 'coverage' must be a number in (0, 1). Got {coverage!r} instead.")
+    entries = data.get("procedure", [])
+    if not isinstance(entries, list) or not entries:
+        problems.append("The study needs at least one [[procedure]] table.")
+        entries = []
+    procs = registry()
+    out = []
+    for i, entry in enumerate(entries):
+        where = f"procedure #{i + 1}"
+        if not isinstance(entry, dict):
+            problems.append(f"{where} must be a table.")
+            continue
+        name = entry.get("name")
+        where = f"procedure #{i + 1} ({name})"
+        for key in sorted(set(entry) - _PROC_KEYS):
+            problems.append(f"{where} has an unknown key {key!r}; allowed: {', '.join(sorted(_PROC_KEYS))}.")
+        if name not in procs:
+            problems.append(f"{where}: unknown procedure; the procedures are: {', '.join(procs)}.")
+            continue
+        proc = procs[name]
+        setup = truth = None
+        try:
+            setup = make(proc.Setup, entry.get("setup", {}), owner=f"{where} setup")
+        except InvalidInput as exc:
+            problems += exc.problems
+        try:
+            truth = make(proc.Truth, entry.get("truth", {}), owner=f"{where} truth")
+        except InvalidInput as exc:
+            problems += exc.problems
+        estimators = entry.get("estimators", [proc.default_estimator])
+        if estimators == "all":
+            estimators = list(proc.estimators)
+        if isinstance(estimators, str):
+            estimators = [estimators]
+        for e in estimators:
+            if e not in proc.estimators:
+                problems.append(f"{where}: unknown estimator {e!r}; allowed: {', '.join(proc.estimators)}.")
+        fields = {f["name"] for f in fields_info(proc.Setup)}
+        sweeps = entry.get("sweep", [])
+        sweeps = [sweeps] if isinstance(sweeps, dict) else sweeps
+        for j, sw in enumerate(sweeps):
+            vary = sw.get("vary", {}) if isinstance(sw, dict) else None
+            if not vary or not isinstance(vary, dict):
+                problems.append(f"{where} sweep #{j + 1} needs a non-empty 'vary' table.")
+                continue
+            for f in vary:
+                if f not in fields:
+                    problems.append(f"{where} sweep #{j + 1} varies {f!r}, which is no set-up field.")
+        measurands = set()
+        if setup is not None:
+            measurands = {m.name for m in proc.measurands(setup)}
+        plan = entry.get("plan")
+        if plan is not None:
+            for m in plan.get("targets", {}):
+                if m not in measurands:
+                    problems.append(f"{where} plan targets {m!r}, which is no measurand "
+                                    f"({', '.join(sorted(measurands))}).")
+            if not plan.get("targets"):
+                problems.append(f"{where} plan needs a 'targets' table.")
+        acc = entry.get("acceptance")
+        if acc is not None:
+            if acc.get("measurand") not in measurands:
+                problems.append(f"{where} acceptance names measurand {acc.get('measurand')!r}, "
+                                f"which is no measurand ({', '.join(sorted(measurands))}).")
+            if acc.get("lower") is None and acc.get("upper") is None:
+                problems.append(f"{where} acceptance needs 'lower' and/or 'upper' limits.")
+        readings = entry.get("readings")
+        if readings is not None:
+            f = readings.get("file")
+            rp = Path(f) if f else None
+            if rp is not None and not rp.is_absolute() and path is not None:
+                rp = path.parent / rp
+            if rp is None or not rp.exists():
+                problems.append(f"{where} readings file {f!r} does not exist.")
+            else:
+                readings = {**readings, "file": rp}
+            if readings.get("uncertainty", "mc") not in ("mc", "posterior"):
+                problems.append(f"{where} readings 'uncertainty' must be 'mc' or 'posterior'.")
+        label = str(entry.get("label", proc.title))
+        out.append(ProcedureStudy(name=name, label=label, setup=setup, truth=truth,
+                                  estimators=list(estimators), sweeps=list(sweeps), plan=plan,
+                                  acceptance=acc, readings=readings, trials=entry.get("trials"),
+                                  digits=entry.get("digits"), notes=str(entry.get("notes", ""))))
+    if problems:
+        raise InvalidInput(problems)
+    meta = {k: str(data[k]) for k in ("subtitle", "customer", "machine", "author") if k in data}
+    return Study(title=str(data.get("title", "mtplan study")), path=path,
+                 digest=hashlib.sha256(raw).hexdigest()[:16], seed=seed, digits=digits,
+                 trials=trials, coverage=coverage, meta=meta, procedures=out)
+
+
+@dataclass
+class ProcedureOutcome:
+    """Everything computed for one procedure of a study (display units)."""
+
+    spec: ProcedureStudy
+    title: str
+    results: dict                      # estimator -> ProcedureResult
+    gum: object                        # GUMResult of the default estimator
+    budget: object                     # DataFrame: measurand, source, contribution, share
+    sweeps: list                       # (spec dict, DataFrame)
+    plan: object | None = None         # PlanResult or an error message
+    acceptance: object | None = None   # dict with the acceptance result
+    measured: object | None = None     # result of the readings evaluation
+    identifiability: object | None = None
+    extras: dict = field(default_factory=dict)
+
+
+@dataclass
+class StudyResult:
+    study: Study
+    outcomes: list
+    provenance: dict
+
+
+def _provenance(study: Study) -> dict:
+    import datetime
+    import importlib.metadata as md
+    import platform
+
+    versions = {}
+    for pkg in ("mtplan", "numpy", "scipy", "pandas", "matplotlib", "joblib", "emcee", "jinja2",
+                "reportlab"):
+        try:
+            versions[pkg] = md.version(pkg)
+        except md.PackageNotFoundError:
+            versions[pkg] = "not installed"
+    return {
+        "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "study_file": str(study.path) if study.path else "(in memory)",
+        "study_sha256": study.digest,
+        "seed": study.seed,
+        "python": platform.python_version(),
+        "versions": versions,
+    }
+
+
+def run_study(study: Study, *, progress=None, n_jobs: int = 1) -> StudyResult:
+    """Compute every result a study asks for (the reports only render them)."""
+    from mtplan.models import get
+    from mtplan.plans.sweep import sweep
+    from mtplan.uncertainty.procedures import linearize_procedure, simulate_uncertainty
+
+    outcomes = []
+    steps = _count_steps(study)
+    bar = _bar(progress, steps)
+    for ps in study.procedures:
+        proc = get(ps.name)
+        digits = ps.digits if ps.digits is not None else study.digits
+        trials = ps.trials if ps.trials is not None else study.trials
+        if digits is None and trials is None:
+            trials = 10_000
+        results = {}
+        for est in ps.estimators:
+            results[est] = simulate_uncertainty(
+                proc, ps.setup, ps.truth, estimator=est, trials=None if digits else trials,
+                digits=digits, coverage=study.coverage, rng=study.seed, n_jobs=n_jobs,
+                progress=False, max_trials=2 * 10**6)
+            _tick(bar, f"{ps.name} {est}")
+        gum = linearize_procedure(proc, ps.setup, ps.truth, estimator=ps.estimators[0],
+                                  coverage=study.coverage)
+        budget = gum.budget()
+        _tick(bar, f"{ps.name} budget")
+        sweeps = []
+        for sw in ps.sweeps:
+            table = sweep(proc, ps.setup, sw["vary"], truth=ps.truth,
+                          estimators=sw.get("estimators", ps.estimators),
+                          trials=sw.get("trials", 2000), seed=study.seed, n_jobs=n_jobs,
+                          progress=False)
+            sweeps.append((sw, table))
+            _tick(bar, f"{ps.name} sweep")
+        outcome = ProcedureOutcome(spec=ps, title=proc.title, results=results, gum=gum,
+                                   budget=budget, sweeps=sweeps)
+        if ps.plan is not None:
+            outcome.plan = _run_plan(proc, ps, study)
+            _tick(bar, f"{ps.name} plan")
+        if ps.acceptance is not None:
+            outcome.acceptance = _run_acceptance(ps, results[ps.estimators[0]])
+            _tick(bar, f"{ps.name} acceptance")
+        if ps.readings is not None:
+            outcome.measured = _run_measured(proc, ps, study)
+            _tick(bar, f"{ps.name} readings")
+        outcome.identifiability = _identifiability(proc, ps)
+        outcome.extras = _extras(proc, ps)
+        outcomes.append(outcome)
+    if bar is not None:
+        bar.close()
+    return StudyResult(study=study, outcomes=outcomes, provenance=_provenance(study))
+
+
+def _count_steps(study):
+    n = 0
+    for ps in study.procedures:
+        n += len(ps.estimators) + 1 + len(ps.sweeps)
+        n += sum(x is not None for x in (ps.plan, ps.acceptance, ps.readings))
+    return n
+
+
+def _bar(progress, total):
+    import sys
+
+    if progress is False:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc="study", unit="step", file=sys.stderr, leave=False,
+                disable=progress is None and not sys.stderr.isatty())
+
+
+def _tick(bar, text):
+    if bar is not None:
+        bar.set_postfix_str(text)
+        bar.update(1)
+
+
+def _run_plan(proc, ps, study):
+    from mtplan.plans.planner import plan
+
+    spec = ps.plan
+    try:
+        return plan(proc, ps.setup, spec.get("vary", {}), spec["targets"], k=spec.get("k", 1.0),
+                    truth=ps.truth, estimator=spec.get("estimator", ps.estimators[0]),
+                    trials=spec.get("trials", 4000), seed=study.seed)
+    except InvalidInput as exc:  # an impossible target is a finding, not a crash
+        return " ".join(exc.problems)
+
+
+def _run_acceptance(ps, result):
+    try:
+        from mtplan.plans import acceptance as acc
+    except ImportError:  # pragma: no cover - until the acceptance module lands
+        return None
+    spec = ps.acceptance
+    i = [m.name for m in result.measurands].index(spec["measurand"])
+    u = float(result.mc.std[i])
+    prior = acc.parse_prior(spec["prior"]) if spec.get("prior") else None
+    rule = spec.get("rule", "simple")
+    res = acc.plan_acceptance(spec.get("lower"), spec.get("upper"), u, prior=prior,
+                              rule=acc.parse_rule(rule) if hasattr(acc, "parse_rule") else rule,
+                              measured=spec.get("measured"))
+    return {"measurand": spec["measurand"], "unit": result.measurands[i].unit, "u": u,
+            "lower": spec.get("lower"), "upper": spec.get("upper"), "prior": spec.get("prior"),
+            "rule": rule, **res.to_dict()}
+
+
+def _run_measured(proc, ps, study):
+    try:
+        from mtplan import measured
+    except ImportError:  # pragma: no cover - until the measured-data module lands
+        return None
+    spec = ps.readings
+    readings = measured.read_readings(proc, ps.setup, spec["file"])
+    return measured.estimate_measured(proc, ps.setup, readings,
+                                      uncertainty=spec.get("uncertainty", "mc"),
+                                      rng=study.seed)
+
+
+def _identifiability(proc, ps):
+    try:
+        from mtplan.plans.identifiability import identifiability
+    except ImportError:  # pragma: no cover
+        return None
+    from mtplan.plans.planner import readings_jacobian
+
+    try:
+        J, names = readings_jacobian(proc, ps.setup, ps.truth)
+    except Exception:  # noqa: BLE001 - a procedure without float truth fields
+        return None
+    return identifiability(J, names=names)
+
+
+def _extras(proc, ps):
+    """Procedure-specific material for the report: a module-level ``report_extras(setup,
+    truth) -> dict`` in the procedure's module (data only; the reports draw it)."""
+    import importlib
+
+    module = importlib.import_module(proc.forward.__module__)
+    hook = getattr(module, "report_extras", None)
+    return dict(hook(ps.setup, ps.truth)) if callable(hook) else {}
