@@ -79,7 +79,8 @@ def speed(trials: int) -> None:
     print(f"    line fits (3 per sub-machine)       {t_lin * 1e3:6.1f} ms")
     print(f"    3D circle fits (2 per sub-machine)  {t_circ * 1e3:6.1f} ms "
           f"(up to {iters} Levenberg-Marquardt iterations)")
-    print(f"    rest                                {(t_est - t_reg - t_lin - t_circ) * 1e3:6.1f} ms")
+    rest = t_est - t_reg - t_lin - t_circ
+    print(f"    rest                                {rest * 1e3:6.1f} ms")
 
 
 SHOW = ("origin_x_1", "origin_y_1", "origin_z_1", "rot_x_1", "rot_y_1", "rot_z_1",

@@ -91,9 +91,11 @@ def main(argv=None) -> int:
                 c0, n0, r0 = _kasa_start(pts - pts.mean(0), p[3:6])
                 c0 = c0 + pts.mean(0)
                 note = (f"iter {fit.iterations}; plane-then-Kasa differs by "
-                        f"{np.max(np.abs(c0 - p[:3])):.1e} mm (centre), {abs(r0 - p[6]):.1e} mm (r)")
+                        f"{np.max(np.abs(c0 - p[:3])):.1e} mm (centre), "
+                        f"{abs(r0 - p[6]):.1e} mm (r)")
             worst[kind] = max(worst.get(kind, 0.0), dpos, ddir, 0.0 if np.isnan(drad) else drad)
-            print(f"{bid:4} {kind:8} {len(pts):3d} {dpos:18.2e} {ddir:14.2e} {drad:12.2e}  {note}")
+            print(f"{bid:4} {kind:8} {len(pts):3d} {dpos:18.2e} {ddir:14.2e} {drad:12.2e}  "
+                  f"{note}")
     print()
     for kind, w in worst.items():
         flag = "ok" if w <= args.tol else "EXCEEDS TOLERANCE"

@@ -373,10 +373,12 @@ def _head(setup: Setup, truth: Truth, k: int) -> _Head:
     uz = np.array([alpha, beta, math.sqrt(1.0 - alpha**2 - beta**2)])
     axes = (rf @ np.stack([ux, uy, uz]).T).T
     e = np.eye(3)
-    c_loc = _rot(e[1], _cyc(truth.c_tilt_y_urad, k) * u) @ _rot(e[0], _cyc(truth.c_tilt_x_urad, k) * u) @ e[2]
+    c_loc = (_rot(e[1], _cyc(truth.c_tilt_y_urad, k) * u)
+             @ _rot(e[0], _cyc(truth.c_tilt_x_urad, k) * u) @ e[2])
     ac = math.radians(truth.ac_angle_deg)
     a0 = math.sin(ac) * e[0] + math.cos(ac) * e[2]
-    a_loc = _rot(e[2], _cyc(truth.a_tilt_z_urad, k) * u) @ _rot(e[1], _cyc(truth.a_tilt_y_urad, k) * u) @ a0
+    a_loc = (_rot(e[2], _cyc(truth.a_tilt_z_urad, k) * u)
+             @ _rot(e[1], _cyc(truth.a_tilt_y_urad, k) * u) @ a0)
     c_dir, a_dir = rf @ c_loc, rf @ a_loc
     perp = _unit(np.cross(c_dir, a_dir))
     nominal = _nominal_origins(setup)[k] + np.array([0.0, 0.0, setup.pivot_length_mm])
@@ -595,6 +597,43 @@ def true_values(setup: Setup, truth: Truth) -> dict[str, float]:
     return out
 
 
+def truth_from_estimate(setup: Setup, estimate: dict) -> Truth:
+    """A Truth whose measurands equal `estimate` (first trial; internal units mm, rad).
+
+    The head's tilts are set to zero (A and C then lie along the frame's X and Z
+    axes), the pivot-length error to zero and the tracker at its defaults; the
+    squareness, A-C offset, frame rotation and wrist centre follow from the estimate
+    exactly: the frame is the construction applied to the local axes, rotated.
+    """
+    first = {k: float(np.asarray(v, dtype=float).ravel()[0]) for k, v in estimate.items()}
+    n = setup.n_submachines
+    fields: dict[str, list] = {name: [] for name in (
+        "wrist_dx_um", "wrist_dy_um", "wrist_dz_um", "frame_rx_urad", "frame_ry_urad",
+        "frame_rz_urad", "sq_xy_urad", "sq_yz_urad", "sq_zx_urad", "ac_offset_um")}
+    zero = (0.0,)
+    base = dict(c_tilt_x_urad=zero, c_tilt_y_urad=zero, a_tilt_y_urad=zero, a_tilt_z_urad=zero,
+                pivot_length_error_um=zero, frame_rx_urad=zero, frame_ry_urad=zero,
+                frame_rz_urad=zero, wrist_dx_um=zero, wrist_dy_um=zero, wrist_dz_um=zero)
+    for k in range(1, n + 1):
+        sq = {ab: first[f"sq_{ab}_{k}"] for ab in ("xy", "yz", "zx")}
+        local = Truth(**base, sq_xy_urad=(sq["xy"] * 1e6,), sq_yz_urad=(sq["yz"] * 1e6,),
+                      sq_zx_urad=(sq["zx"] * 1e6,), ac_offset_um=(0.0,))
+        r_loc = _orthonormal(setup, *_head(setup, local, 0).axes)
+        r_est = _rxyz(first[f"rot_x_{k}"], first[f"rot_y_{k}"], first[f"rot_z_{k}"])
+        rx, ry, rz = _angles(r_est @ r_loc.T)
+        c_dir = _rxyz(float(rx), float(ry), float(rz))[:, 2]
+        o = np.array([first[f"origin_{a}_{k}"] for a in "xyz"])
+        wrist = o + setup.pivot_length_mm * (c_dir - np.array([0.0, 0.0, 1.0]))
+        for name, value in (("wrist_dx_um", wrist[0] * 1e3), ("wrist_dy_um", wrist[1] * 1e3),
+                            ("wrist_dz_um", wrist[2] * 1e3), ("frame_rx_urad", rx * 1e6),
+                            ("frame_ry_urad", ry * 1e6), ("frame_rz_urad", rz * 1e6),
+                            ("sq_xy_urad", sq["xy"] * 1e6), ("sq_yz_urad", sq["yz"] * 1e6),
+                            ("sq_zx_urad", sq["zx"] * 1e6),
+                            ("ac_offset_um", first[f"ac_offset_{k}"] * 1e3)):
+            fields[name].append(float(value))
+    return Truth(**{**base, **{k: tuple(v) for k, v in fields.items()}})
+
+
 def duration(setup: Setup) -> float:
     """Machine time [s]: marks, and per sub-machine the fixture, travels and arcs."""
     feed = setup.linear_feed_mm_min / 60.0
@@ -701,4 +740,5 @@ PROCEDURE = Procedure(
         "perpendicular of A and C, origin at the pivot length along C, longest travel kept."),
     exact_estimators=("patent",),
     block_size=4000,
+    truth_from_estimate=truth_from_estimate,
 )
