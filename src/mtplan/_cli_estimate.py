@@ -1,0 +1,88 @@
+"""The ``mtplan estimate`` command: measurands with uncertainty from a readings CSV.
+
+Registered from :func:`mtplan._cli_extra.register` by ``_cli_estimate.register(sub, common)``.
+"""
+
+from __future__ import annotations
+
+
+def register(sub, common) -> None:
+    """Add the ``estimate`` sub-command to the parser's sub-parsers `sub`."""
+    p = sub.add_parser("estimate", help="measurands from measured readings, with uncertainty")
+    p.add_argument("procedure", help="procedure name (see 'mtplan procedures')")
+    p.add_argument("readings", metavar="READINGS.csv",
+                   help="readings in the procedure's format ('mtplan simulate --readings-out')")
+    p.add_argument("--config", metavar="FILE.toml", help="set-up file: [setup] table")
+    p.add_argument("--set", action="append", metavar="FIELD=VALUE",
+                   help="set-up field (repeatable)")
+    p.add_argument("--estimator", metavar="NAME", help="estimator (default: the seed's method)")
+    p.add_argument("--uncertainty", choices=["mc", "posterior"], default=None,
+                   help="mc: Monte Carlo around the estimate (default); posterior: emcee")
+    p.add_argument("--trials", type=int, metavar="N", help="Monte Carlo trials (default 10000)")
+    p.add_argument("--seed", type=int, metavar="S", help="random seed (default 0)")
+    p.add_argument("--coverage", type=float, default=0.95, metavar="P",
+                   help="coverage probability (default 0.95)")
+    p.add_argument("--noise", type=float, metavar="SIGMA",
+                   help="posterior: known noise of the readings in their unit (default: free)")
+    p.add_argument("--max-steps", type=int, default=20000, metavar="N",
+                   help="posterior: step budget per ensemble (default 20000)")
+    p.add_argument("--allow-unconverged", action="store_true",
+                   help="posterior: report an unconverged posterior (flagged) instead of failing")
+    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    p.add_argument("--out", metavar="FILE", help="also write the table to FILE (CSV)")
+    p.set_defaults(func=cmd_estimate, truth=None)
+
+
+def cmd_estimate(args) -> int:
+    """Read the readings, estimate, print; exit status 2 with one line on bad input."""
+    import json
+    import sys
+
+    from mtplan.cli import UsageError, _fmt, _load_config, _print_table, _procedure_and_setup
+    from mtplan.measured import estimate_measured, read_readings
+    from mtplan.uncertainty.posterior import NotConvergedError
+
+    config = _load_config(args.config)
+    proc, setup, _, config = _procedure_and_setup(args, config)
+    readings = read_readings(proc, setup, args.readings)
+    method = args.uncertainty or config.get("uncertainty", "mc")
+    if method not in ("mc", "posterior"):
+        raise UsageError(f"--uncertainty must be mc or posterior, got {method!r}")
+    trials = args.trials if args.trials is not None else config.get("trials", 10_000)
+    seed = args.seed if args.seed is not None else config.get("seed", 0)
+    if args.noise is not None and not args.noise > 0:
+        raise UsageError(f"--noise must be a number > 0, got {args.noise!r}")
+    try:
+        result = estimate_measured(
+            proc, setup, readings, estimator=args.estimator or config.get("estimator"),
+            uncertainty=method, trials=trials, coverage=args.coverage, rng=seed,
+            noise=args.noise, allow_unconverged=args.allow_unconverged,
+            posterior_options={"max_steps": args.max_steps} if method == "posterior" else None)
+    except NotConvergedError as exc:
+        print(f"mtplan: error: {exc}", file=sys.stderr)
+        return 1
+    if args.out:
+        from mtplan.cli import _write_out
+
+        _write_out(args.out, result.summary().to_csv())
+    if args.json:
+        print(json.dumps(result.to_dict(), indent=1))
+        return 0
+    print(f"{proc.name} ({result.estimator}) from {args.readings}: {method} uncertainty, "
+          f"{100 * result.coverage:g} % intervals, seed {result.seed}")
+    rows = []
+    for i, m in enumerate(result.measurands):
+        u = float(result.std[i])
+        rows.append([m.name, m.unit, _fmt(float(result.estimate[i]), u),
+                     _fmt(float(result.value[i]), u), f"{u:.3g}",
+                     f"[{_fmt(float(result.low[i]), u)}, {_fmt(float(result.high[i]), u)}]"])
+    _print_table(["measurand", "unit", "estimate", "value", "u", "interval"], rows)
+    if method == "posterior":
+        post = result.details
+        print(f"posterior: {post.chains.shape[0]} ensembles x {post.n_walkers} walkers x "
+              f"{post.n_steps} steps, max tau {max(post.tau.values()):.1f}, max R-hat "
+              f"{max(post.rhat.values()):.4f}, min ESS {min(post.ess.values()):.0f}, "
+              f"{'converged' if post.converged else 'NOT CONVERGED'}")
+    for note in result.notes:
+        print(f"note: {note}", file=sys.stderr)
+    return 0
