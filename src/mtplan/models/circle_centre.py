@@ -115,6 +115,7 @@ __all__ = [
     "plan_path",
     "plan_for_bore",
     "acceptance_check",
+    "miss",
     "fit_points",
     "PROCEDURE",
 ]
