@@ -251,3 +251,11 @@ def test_truth_from_estimate_reproduces_the_estimate(changes):
     tv = PROC.true_values(setup, PROC.truth_from_estimate(setup, est))
     for m in PROC.measurands(setup):
         assert (tv[m.name] - est[m.name][0]) * m.scale == pytest.approx(0.0, abs=1e-6), m.name
+
+
+def test_an_arc_too_short_for_the_noise_is_refused_not_estimated():
+    # 1 deg of A over 335 mm: a sagitta of 13 um against tens of um of tracker noise
+    setup = PROC.Setup(a_arc_deg=1.0, points_per_arc=25)
+    readings = PROC.simulate(setup, draws=50, rng=4)
+    with pytest.raises(InvalidInput, match="A arc of sub-machine 1 did not converge"):
+        PROC.estimate(setup, readings)

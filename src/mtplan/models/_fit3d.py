@@ -233,7 +233,8 @@ def fit_circle_3d(points, *, orient=None, max_iter: int = 100, xtol: float = 1e-
     max_iter : int
         Largest number of Levenberg-Marquardt iterations.
     xtol : float
-        Convergence when every step is below ``xtol`` relative to the radius.
+        Convergence when every step is below ``xtol`` relative to the radius, or
+        when a step below 1e-8 (relative) lowers the cost by less than 1e-13 of it.
 
     Returns
     -------
@@ -302,12 +303,14 @@ def fit_circle_3d(points, *, orient=None, max_iter: int = 100, xtol: float = 1e-
                 break
             lam = np.where(better, lam, lam * 10.0)
         accept = better & ~converged
+        # stalled: a small step that no longer lowers the cost beyond rounding
+        stalled = accept & (size <= 1e-8) & (cost - cost_new <= 1e-13 * cost)
         centre = np.where(accept[..., None], c_new, centre)
         n = np.where(accept[..., None], n_new, n)
         r = np.where(accept, r_new, r)
         cost = np.where(accept, cost_new, cost)
         lam = np.where(accept, np.maximum(lam / 10.0, 1e-12), lam)
-        converged |= (size <= xtol) | (cost == 0.0) | ~better
+        converged |= (size <= xtol) | (cost == 0.0) | ~better | stalled
         if np.all(converged):
             break
     if orient is not None:

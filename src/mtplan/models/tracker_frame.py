@@ -97,7 +97,10 @@ Degenerate set-ups are refused by the Setup and Truth checks: a zero travel (no
 direction), a zero arc (all arc points at one angle: no circle, no axis), fewer
 than 3 points on an arc, and A and C (nearly) parallel (no unique common
 perpendicular, no wrist centre). An estimate from measured data whose fitted A and
-C lines are parallel is refused with the same reason.
+C lines are parallel is refused with the same reason, and so is one where a 3D circle
+fit does not converge: an arc so short that its points lie on a straight line
+within their noise (at the default noise, arcs of about 1 deg; 5 deg still converges,
+with a standard uncertainty of origin_z above 10 mm) determines no axis.
 """
 
 from __future__ import annotations
@@ -551,6 +554,15 @@ def estimate_patent(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
     for k in range(1, setup.n_submachines + 1):
         pts = {g: glob[:, sl[(g, k)]] for g in ("X", "Y", "Z", "C", "A")}
         f = _frame_from_points(setup, pts)
+        for g, arc in (("C", setup.c_arc_deg), ("A", setup.a_arc_deg)):
+            fail = ~np.asarray(f[g.lower()].converged)
+            if np.any(fail):
+                raise InvalidInput([
+                    f"The 3D circle fit of the {g} arc of sub-machine {k} did not converge in "
+                    f"{int(fail.sum())} of {fail.size} measurement(s): over {arc:g} deg the "
+                    "points lie nearly on a straight line for their noise, so the circle and "
+                    f"the {g} axis are not determined. Use a longer arc ({g.lower()}_arc_deg) "
+                    "or more points."])
         bad = f["sin_ac"] < PARALLEL_SIN
         if np.any(bad):
             raise InvalidInput([
