@@ -928,6 +928,32 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
             "p_y_mm": py[None, :]}
 
 
+def report_extras(setup: Setup, truth: Truth) -> dict:
+    """The planned probing path of the nominal measurement, as data for the report's figure.
+
+    Start point at the truth's start, a round bore at the truth's centre; the figure draws
+    the bore, the helper circles, the path and the points p1, p2, d1..dn.
+    """
+    plan = plan_for_bore((truth.start_x_mm, truth.start_y_mm), bore_radius_mm=setup.bore_radius_mm,
+                         centre=(truth.centre_x_mm, truth.centre_y_mm), n_points=setup.n_points,
+                         spread_deg=setup.spread_deg, free_test_mm=setup.free_test_mm)
+    points = {"start": plan.start, "p1": plan.p1, "p2": plan.p2}
+    points.update({f"d{i + 1}": tuple(map(float, t)) for i, t in enumerate(plan.targets)})
+    circles = [(truth.centre_x_mm, truth.centre_y_mm, setup.bore_radius_mm, "")]
+    circles += [(float(c[0]), float(c[1]), float(r), f"o{i + 1}")
+                for i, (c, r) in enumerate(plan.helper_circles)]
+    return {"path": {
+        "caption": (f"Planned probing path (seed's case {plan.case}, first rotation "
+                    f"{plan.first_rotation}, path length {plan.length_mm:.0f} mm): start, the "
+                    "two y contacts p1 and p2, then the measuring points d1..dn reached on "
+                    "helper arcs tangent to the radii (dashed: bore and helper circles)."),
+        "polylines": [plan.polyline()],
+        "points": points,
+        "circles": circles,
+        "view": (truth.centre_x_mm, truth.centre_y_mm, 1.25 * setup.bore_radius_mm),
+    }}
+
+
 PROCEDURE = Procedure(
     name="circle_centre",
     title="Bore centre by three probed points in equilateral distribution",

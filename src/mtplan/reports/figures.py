@@ -209,6 +209,10 @@ def path_figure(path: dict) -> bytes:
     for name, (x, y) in path.get("points", {}).items():
         ax.plot([x], [y], "o", ms=5, color="k")
         ax.annotate(name, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
+    if "view" in path:  # (cx, cy, half-size): keep the drawing on the part that matters
+        cx, cy, half = path["view"]
+        ax.set_xlim(cx - half, cx + half)
+        ax.set_ylim(cy - half, cy + half)
     ax.set_aspect("equal")
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("y [mm]")
