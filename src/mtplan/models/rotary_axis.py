@@ -471,12 +471,21 @@ def _true_line(setup: Setup, truth: Truth) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _rotate_about(v: np.ndarray, u: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Rotate the fixed vector `v` (3,) about the unit vector `u` (3,) by `angle` (...).
+    """Rotate vectors `v` (..., 3) about the fixed unit vector `u` (3,) by `angle` (...).
 
-    Rodrigues' formula, exact; returns (..., 3).
+    Rodrigues' formula, exact; `angle` broadcasts against ``v.shape[:-1]``.
     """
     c, s = np.cos(angle)[..., None], np.sin(angle)[..., None]
-    return v * c + np.cross(u, v) * s + u * (u @ v) * (1.0 - c)
+    return v * c + _cross(u, v) * s + u * ((v @ u)[..., None] * (1.0 - c))
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product over the last axis (..., 3), without np.cross's axis juggling."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
 
 
 def _rotate_by_vector(v: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -485,15 +494,14 @@ def _rotate_by_vector(v: np.ndarray, w: np.ndarray) -> np.ndarray:
     Rodrigues' formula with sin(t)/t and (1 - cos t)/t^2 taken from their series below
     t = 1e-3 (error < 1e-21), so a zero rotation is exact.
     """
-    t2 = np.einsum("...i,...i->...", w, w)
+    t2 = (w * w).sum(axis=-1)
     t = np.sqrt(t2)
     small = t < 1e-3
     safe = np.where(small, 1.0, t)
     k1 = np.where(small, 1 - t2 / 6 + t2 * t2 / 120, np.sin(safe) / safe)
     k2 = np.where(small, 0.5 - t2 / 24 + t2 * t2 / 720, (1 - np.cos(safe)) / (safe * safe))
-    c = np.cos(t)
-    wv = np.einsum("...i,...i->...", w, v)
-    return v * c[..., None] + np.cross(w, v) * k1[..., None] + w * (k2 * wv)[..., None]
+    wv = (w * v).sum(axis=-1)
+    return v * np.cos(t)[..., None] + _cross(w, v) * k1[..., None] + w * (k2 * wv)[..., None]
 
 
 # --------------------------------------------------------------------------- protocol
@@ -613,50 +621,61 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict[str, np.ndarray]:
     n, P, M = noise.shape
     a, u = _true_line(setup, truth)
 
-    # rigid motion of the artifact at each position: exact rotation about the true axis,
-    # then the error motion (tilt about the axis point, radial and axial translation)
-    psi = g.theta + errors["angular_positioning"]  # (n, P)
-    normal = _rotate_about(g.n0, u, psi)  # (n, P, 3)
-    arm = _rotate_about(g.q0 - a, u, psi)
+    # rigid motion of the artifact at each position: exact rotation about the true axis by
+    # the commanded angle, then by the angular positioning error, then the error motion
+    # (tilt about the axis point, radial and axial translation). The normal and the lever
+    # arm from the axis point to the incline's reference point turn together: (.., 2, 3).
+    vec = _rotate_about(np.stack([g.n0, g.q0 - a]), u, g.theta[:, None])  # (P, 2, 3)
+    dpsi = errors["angular_positioning"]
+    if np.any(dpsi):
+        vec = _rotate_about(vec, u, dpsi[..., None])  # (n, P, 2, 3)
     tilt = errors["tilt_motion"]
-    w = tilt[..., :1] * f.p1 + tilt[..., 1:] * f.p2
-    normal = _rotate_by_vector(normal, w)
-    arm = _rotate_by_vector(arm, w)
+    if np.any(tilt):
+        w = tilt[..., :1] * f.p1 + tilt[..., 1:] * f.p2
+        vec = _rotate_by_vector(vec, w[..., None, :])
+    vec = np.broadcast_to(vec, (n, P, 2, 3))
+    normal = vec[..., 0, :]
+    q = a + vec[..., 1, :]
     rad, axial = errors["radial_motion"], errors["axial_motion"]
-    q = a + arm + rad[..., :1] * f.p1 + rad[..., 1:] * f.p2 + axial[..., None] * f.ax
+    if np.any(rad):
+        q = q + rad[..., :1] * f.p1 + rad[..., 1:] * f.p2
+    if np.any(axial):
+        q = q + axial[..., None] * f.ax
 
-    # the plane z = h + c1 (x - cx) + c2 (y - cy) around each lattice centre
-    c1 = -normal[..., 0] / normal[..., 2]
-    c2 = -normal[..., 1] / normal[..., 2]
+    # the plane z = h + c1 (x - cx) + c2 (y - cy) about each lattice centre
     coef = np.empty((n, P, 3))
+    c1, c2 = coef[..., 1], coef[..., 2]
+    np.divide(normal[..., 0], normal[..., 2], out=c1)
+    np.divide(normal[..., 1], normal[..., 2], out=c2)
+    np.negative(coef[..., 1:], out=coef[..., 1:])
     coef[..., 0] = q[..., 2] + c1 * (g.centres[:, 0] - q[..., 0]) + c2 * (g.centres[:, 1] - q[..., 1])
-    coef[..., 1] = c1
-    coef[..., 2] = c2
-
-    # thermal drift moves the sensor by rate * t: height change c1 dx + c2 dy - dz
+    # thermal drift moves the sensor by rate * t: height change (c1 rx + c2 ry - rz) t
     rate = errors["thermal_drift"]  # (n, 3)
-    if np.any(rate):
-        slope_t = c1 * rate[:, :1] + c2 * rate[:, 1:2] - rate[:, 2:]  # (n, P) [mm/s]
-        coef_t = slope_t
-    else:
-        coef_t = None
+    drift = c1 * rate[:, :1] + c2 * rate[:, 1:2] - rate[:, 2:] if np.any(rate) else None
 
-    z = (coef.reshape(n * P, 3) @ g.local).reshape(n, P, M)  # true surface under the ray
-    if coef_t is not None:
-        z += coef_t[..., None] * g.times
+    # per reading (n, P, M): one matrix product for the planes, then each active source
+    # added in place (a source switched off is all zeros and skipped)
+    z = np.matmul(coef.reshape(n * P, 3), g.local).reshape(n, P, M)
+    z += noise
+    tmp = np.empty_like(z)
+    if drift is not None:
+        z += np.multiply(drift[..., None], g.times, out=tmp)
     xy_err = errors["xy_positioning"]  # (n, 2, P, M): the ray is where the slides really are
-    if setup.xy_positioning_um:
-        z += c1[..., None] * xy_err[:, 0]
-        z += c2[..., None] * xy_err[:, 1]
+    if np.any(xy_err):
+        z += np.multiply(c1[..., None], xy_err[:, 0], out=tmp)
+        z += np.multiply(c2[..., None], xy_err[:, 1], out=tmp)
     form = errors["flatness"]  # (n, K)
     if np.any(form):
-        z += (form @ g.form).reshape(n, P, M)
-    ez = errors["z_positioning"]
-    z -= ez if ez.ndim == 3 else ez[..., None]  # gap = surface - actual Z position
-    kappa = errors["sensor_scale"]  # reading = Z_cmd + (gap - Z_cmd) (1 + kappa)
+        z += np.matmul(form, g.form).reshape(n, P, M)
+    ez = errors["z_positioning"]  # gap = surface - actual Z position
+    if np.any(ez):
+        z -= ez if ez.ndim == 3 else ez[..., None]
+    kappa = errors["sensor_scale"]  # reading = Z_cmd + (gap - Z_cmd) (1 + kappa) + noise
     if np.any(kappa):
-        z += kappa[:, None, None] * (z - g.z_cmd)
-    z += noise
+        np.subtract(z, noise, out=tmp)
+        tmp -= g.z_cmd
+        tmp *= kappa[:, None, None]
+        z += tmp
     return {"z_mm": z}
 
 

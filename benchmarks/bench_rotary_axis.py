@@ -1,0 +1,82 @@
+"""Speed of the rotary_axis procedure's Monte Carlo (not a test; prints figures).
+
+For the default C set-up (6 positions x 25 points = 150 readings per trial):
+
+- trials per second of ``simulate_uncertainty`` (patent and joint estimators), with every
+  default error source and with the probe noise alone;
+- the ratio to drawing, with numpy alone, the same normal variates: one per reading
+  (the readings' noise) and all the variates the active sources draw;
+- where the time goes: drawing the sources, the forward model, each estimator.
+
+Run:  .venv/bin/python benchmarks/bench_rotary_axis.py [--trials 20000] [--repeat 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from mtplan.models import get
+from mtplan.uncertainty._random import as_seed_sequence, block_sequence
+from mtplan.uncertainty.procedures import simulate_uncertainty
+
+
+def best(fn, repeat):
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trials", type=int, default=20_000)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--axis", default="C")
+    args = ap.parse_args()
+    proc = get("rotary_axis")
+    setup = proc.setup(axis=args.axis)
+    n = args.trials
+    P, M = setup.n_positions, setup.n_points
+    active = proc.active_sources(setup)
+    n_all = sum(s.size for s in active.values()) * n
+    rng = np.random.default_rng(0)
+    t_noise = best(lambda: rng.standard_normal((n, P, M)), args.repeat)
+    t_all = best(lambda: rng.standard_normal(n_all), args.repeat)
+    print(f"rotary_axis, axis {args.axis}: {P} positions x {M} points = {P * M} readings/trial, "
+          f"{n} trials, block {proc.block_size}, best of {args.repeat}")
+    print(f"numpy standard_normal, one per reading ({n * P * M:.3g}):   {t_noise * 1e3:8.1f} ms")
+    print(f"numpy standard_normal, all source draws ({n_all:.3g}): {t_all * 1e3:8.1f} ms")
+
+    for only, label in ((None, "all default sources"), (["probe_noise"], "probe noise only")):
+        for est in proc.estimators:
+            t = best(lambda: simulate_uncertainty(proc, setup, estimator=est, sources=only,
+                                                  trials=n, rng=1, progress=False), args.repeat)
+            base = t_noise if only else t_all
+            print(f"simulate_uncertainty {est:7s} {label:20s}: {t * 1e3:8.1f} ms, "
+                  f"{n / t:10.0f} trials/s, {t / t_noise:5.2f}x one-per-reading draw"
+                  + ("" if only else f", {t / base:5.2f}x all-source draw"))
+
+    # where the time goes, per block of the procedure's block size, scaled to n trials
+    b = proc.block_size
+    seq = block_sequence(as_seed_sequence(1), 0)
+    truth = proc.Truth()
+    t_draw = best(lambda: proc.draw_errors(setup, b, seq), args.repeat)
+    errors = proc.draw_errors(setup, b, seq)
+    t_fwd = best(lambda: proc.forward(setup, truth, errors), args.repeat)
+    readings = proc.forward(setup, truth, errors)
+    scale = n / b
+    print(f"per {n} trials (from blocks of {b}): draw sources {t_draw * scale * 1e3:7.1f} ms, "
+          f"forward {t_fwd * scale * 1e3:7.1f} ms", end="")
+    for est, fn in proc.estimators.items():
+        t_est = best(lambda: fn(setup, readings), args.repeat)
+        print(f", {est} {t_est * scale * 1e3:7.1f} ms", end="")
+    print()
+
+
+if __name__ == "__main__":
+    main()
