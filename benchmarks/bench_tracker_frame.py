@@ -26,7 +26,7 @@ from mtplan.models._fit3d import fit_circle_3d, fit_line_3d
 from mtplan.uncertainty.procedures import simulate_uncertainty
 
 
-def best(fn, repeat=3):
+def best(fn, repeat=5):
     times = []
     for _ in range(repeat):
         t = time.perf_counter()
