@@ -18,7 +18,27 @@ def register(sub, common) -> None:
                    help="coverage factor of the targets (default 1: standard uncertainty)")
     p.add_argument("--confirm", type=int, default=5,
                    help="most candidates checked by Monte Carlo (default 5)")
+    p.add_argument("--tolerance", metavar="NAME=LO,HI",
+                   help="tolerance of a measurand (empty LO or HI: one-sided), with --prior and "
+                        "--max-pfa: cheapest set-up keeping the false-accept probability below it")
+    p.add_argument("--prior", metavar="SPEC",
+                   help="population of machines: normal:MEAN,SD, gamma:SHAPE,SCALE or FILE.csv")
+    p.add_argument("--max-pfa", type=float, metavar="P", help="largest global false-accept probability")
+    p.add_argument("--rule", default="simple", metavar="RULE",
+                   help="decision rule for --tolerance (simple, guard:R, target-pfa:P, iso14253, dobbert)")
     p.set_defaults(func=cmd_plan)
+
+    p = sub.add_parser("accept", help="acceptance decision rule and risks (JCGM 106, ISO 14253-1)")
+    p.add_argument("--lower", type=float, metavar="L", help="lower tolerance limit")
+    p.add_argument("--upper", type=float, metavar="U", help="upper tolerance limit")
+    p.add_argument("--u", type=float, required=True, metavar="u", help="standard uncertainty")
+    p.add_argument("--prior", metavar="SPEC",
+                   help="process distribution: normal:MEAN,SD, gamma:SHAPE,SCALE or FILE.csv")
+    p.add_argument("--rule", default="simple", metavar="RULE",
+                   help="simple, guard:R, target-pfa:P, iso14253 or dobbert (default simple)")
+    p.add_argument("--measured", type=float, metavar="Y", help="a measured value: its specific risk")
+    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    p.set_defaults(func=cmd_accept)
 
     p = sub.add_parser("report", help="HTML and PDF report of a study")
     p.add_argument("study", metavar="STUDY.toml", help="the study file")
@@ -74,15 +94,20 @@ def cmd_plan(args):
     proc, setup, truth, config = _procedure_and_setup(args)
     targets = dict(parse_target(t) for t in (args.target or []))
     targets.update({k: float(v) for k, v in config.get("targets", {}).items()})
-    if not targets:
-        raise UsageError("plan needs at least one --target NAME<=VALUE")
+    criterion = None
+    if args.tolerance or args.prior or args.max_pfa is not None:
+        criterion = _pfa_criterion(args, [m.name for m in proc.measurands(setup)])
+    if not targets and criterion is None:
+        raise UsageError("plan needs at least one --target NAME<=VALUE, or --tolerance with "
+                         "--prior and --max-pfa")
     vary = dict(config.get("vary", {}))
     vary.update(_vary(args.vary))
     seed = args.seed if args.seed is not None else config.get("seed", 0)
     result = plan(proc, setup, vary, targets, k=args.k, truth=truth,
                   estimator=args.estimator or config.get("estimator"),
                   sources=_sources(args, config), confirm=args.confirm,
-                  trials=args.trials or 5000, seed=seed, n_jobs=args.jobs, backend=args.backend)
+                  trials=args.trials or 5000, seed=seed, n_jobs=args.jobs, backend=args.backend,
+                  criterion=criterion)
     if args.out:
         from mtplan.cli import _write_out
 
@@ -91,11 +116,16 @@ def cmd_plan(args):
         print(json.dumps(result.to_dict(), indent=1, default=float))
         return 0
     best = result.best
-    print(f"{proc.name}: cheapest set-up meeting " + ", ".join(
-        f"{n} <= {v:g}" for n, v in targets.items()) + (f" (k = {args.k:g})" if args.k != 1 else ""))
+    goals = [f"{n} <= {v:g}" for n, v in targets.items()]
+    if criterion is not None:
+        goals.append(f"false accept <= {args.max_pfa:g} for {args.tolerance}")
+    print(f"{proc.name}: cheapest set-up meeting " + ", ".join(goals)
+          + (f" (k = {args.k:g})" if args.k != 1 else ""))
     for f in vary:
         print(f"  {f} = {best['setup'][f]}")
     print(f"  duration {best['duration_s']:.0f} s")
+    if criterion is not None:
+        print(f"  false accept at the confirmed uncertainty: {criterion.pfa(best['confirmed']):.4g}")
     for n in targets:
         c = result.confirmation[-1]
         print(f"  {n}: predicted {best['predicted'][n]:.3g}, Monte Carlo {best['confirmed'][n]:.3g} "
@@ -104,4 +134,87 @@ def cmd_plan(args):
     for c in result.pareto:
         shown = ", ".join(f"{f}={c['setup'][f]}" for f in vary)
         print(f"  {c['duration_s']:8.0f} s  {c['worst']:.3f}  {shown}")
+    return 0
+
+
+def _tolerance(text):
+    from mtplan.cli import UsageError
+
+    name, sep, rest = (text or "").partition("=")
+    lo, comma, hi = rest.partition(",")
+    try:
+        lo = float(lo) if lo.strip() else None
+        hi = float(hi) if hi.strip() else None
+    except ValueError:
+        lo = hi = None
+        comma = ""
+    if not sep or not comma or not name.strip() or (lo is None and hi is None):
+        raise UsageError(f"--tolerance expects NAME=LO,HI (one of them may be empty), got {text!r}")
+    return name.strip(), lo, hi
+
+
+class _PfaCriterion:
+    """Feasibility of a set-up: global false-accept probability under the limit."""
+
+    def __init__(self, name, lo, hi, prior, rule, max_pfa):
+        self.name, self.lo, self.hi = name, lo, hi
+        self.prior, self.rule, self.max_pfa = prior, rule, max_pfa
+
+    def pfa(self, u: dict) -> float:
+        from mtplan.plans.acceptance import plan_acceptance
+
+        return plan_acceptance(self.lo, self.hi, u[self.name], prior=self.prior,
+                               rule=self.rule).pfa
+
+    def __call__(self, u: dict) -> bool:
+        return u[self.name] > 0 and self.pfa(u) <= self.max_pfa
+
+    def explain(self, us: list, where: list) -> str:
+        pfas = [self.pfa(u) for u in us]
+        j = min(range(len(pfas)), key=pfas.__getitem__)
+        at = ", ".join(f"{k}={v}" for k, v in where[j].items())
+        return (f"No candidate keeps the false-accept probability for {self.name} at or below "
+                f"{self.max_pfa:g}: the lowest reachable is {pfas[j]:.4g}" + (f" (at {at})" if at else ""))
+
+
+def _pfa_criterion(args, measurands):
+    from mtplan.cli import UsageError
+    from mtplan.plans.acceptance import parse_prior, parse_rule
+
+    if not (args.tolerance and args.prior and args.max_pfa is not None):
+        raise UsageError("--tolerance, --prior and --max-pfa go together")
+    name, lo, hi = _tolerance(args.tolerance)
+    if name not in measurands:
+        raise UsageError(f"--tolerance names {name!r}, which is no measurand ({', '.join(measurands)})")
+    if not 0 < args.max_pfa < 1:
+        raise UsageError(f"--max-pfa must lie between 0 and 1, got {args.max_pfa:g}")
+    return _PfaCriterion(name, lo, hi, parse_prior(args.prior), parse_rule(args.rule), args.max_pfa)
+
+
+def cmd_accept(args):
+    import json
+
+    from mtplan.plans.acceptance import plan_acceptance
+
+    r = plan_acceptance(args.lower, args.upper, args.u, prior=args.prior, rule=args.rule,
+                        measured=args.measured)
+    doc = r.to_dict()
+    if args.json:
+        print(json.dumps(doc, indent=1))
+        return 0
+
+    def show(x, pct=False):
+        if x is None:
+            return "-"
+        return f"{100 * x:.4g} %" if pct else f"{x:.6g}"
+
+    lo, hi = doc["acceptance_limits"]
+    print(f"tolerance [{show(args.lower)}, {show(args.upper)}], u = {args.u:g}, rule {args.rule}")
+    print(f"  acceptance limits        [{show(lo)}, {show(hi)}]")
+    print(f"  TUR                      {show(doc['tur'])}    Cm {show(doc['cm'])}")
+    print(f"  false accept (global)    {show(doc['pfa'], True)}")
+    print(f"  false reject (global)    {show(doc['pfr'], True)}")
+    print(f"  conditional false accept {show(doc['conditional_pfa'], True)}")
+    if args.measured is not None:
+        print(f"  measured {args.measured:g}: specific risk {show(doc['specific_risk'], True)}")
     return 0

@@ -209,6 +209,11 @@ def plan(
                 where = ", ".join(f"{f}={table.loc[j, f]}" for f in (vary or {}))
                 msgs.append(f"The target {n}<={v:g} {units[n]} cannot be met: the best reachable "
                             f"value is {reach:.3g} {units[n]}" + (f" (at {where})" if where else ""))
+        if not msgs and criterion is not None and hasattr(criterion, "explain"):
+            us = [{n: float(table.loc[j, f"u_{n}"]) for n in names} for j in table.index]
+            msgs.append(criterion.explain(us, [dict(zip(vary or {}, (table.loc[j, f] for f in
+                                                                     (vary or {})), strict=True))
+                                               for j in table.index]))
         if not msgs:
             msgs.append("No candidate meets every target at once (each can be met alone)"
                         if targets else "No candidate meets the acceptance criterion")
