@@ -114,8 +114,12 @@ def read_readings(procedure, setup, path) -> dict:
     rows = list(csv.reader(text.splitlines()))
     rows = [r for r in rows if any(c.strip() for c in r)]
     header = [c.strip() for c in rows[0]]
-    if len(header) < 2 and "," not in text.splitlines()[0]:
-        _fail(path, f"is not a comma-separated file (header {text.splitlines()[0][:60]!r})")
+    frames = _expected_frames(proc, setup)
+    expected = frames[0]
+    exp_cols = list(expected.columns)
+    if len(header) < 2 and header[0] not in exp_cols:
+        _fail(path, f"is not a comma-separated file with the columns {', '.join(exp_cols)} "
+              f"(header {text.splitlines()[0][:60]!r})")
     seen = set()
     for c in header:
         if c == "":
@@ -129,9 +133,6 @@ def read_readings(procedure, setup, path) -> dict:
         if len(r) != len(header):
             _fail(path, f"row {i} has {len(r)} cells, the header has {len(header)}")
 
-    frames = _expected_frames(proc, setup)
-    expected = frames[0]
-    exp_cols = list(expected.columns)
     missing = [c for c in exp_cols if c not in header]
     extra = [c for c in header if c not in exp_cols]
     if missing or extra:
@@ -178,7 +179,8 @@ def read_readings(procedure, setup, path) -> dict:
             cols = []
             for c in design:
                 col = frame[c].to_numpy()
-                if col.dtype.kind == "f":
+                if col.dtype.kind in "fiu":
+                    col = col.astype(float)
                     scale = max(float(np.max(np.abs(expected[c].to_numpy()))), 1.0)
                     col = np.round(col / (scale * 1e-9)).astype(np.int64)
                 cols.append(col)
@@ -366,6 +368,12 @@ def estimate_measured(
                          "default truth, not at the estimate")
         r = simulate_uncertainty(proc, setup, truth, estimator=est_name, trials=trials,
                                  coverage=coverage, rng=root, progress=False)
+        for i, m in enumerate(measurands):
+            if not r.mc.std[i] > 0:
+                notes.append(f"{m.name}: the {est_name} estimator gives the same value in every "
+                             "trial around the estimate, so its uncertainty here is its "
+                             "resolution, which this Monte Carlo cannot see; use another "
+                             "estimator or --uncertainty posterior")
         err_low = r.mc.low - r.true  # quantiles of the estimation error
         err_high = r.mc.high - r.true
         return MeasuredResult(
