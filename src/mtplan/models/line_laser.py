@@ -92,6 +92,7 @@ be a whole number of points). Rows are compared at the nominal trigger positions
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -582,17 +583,39 @@ def observability(setup) -> dict:
                f"measurable at this set-up" if floor_x >= ALPHA_MAX else "")
             + "; it also absorbs alpha_y (it estimates arccos(cos ax cos ay))"),
     }
-    facet = setup.cell_depth_mm / math.tan(math.radians(setup.facet_angle_deg))
-    need = 3 * max(p, dy)
-    ok = facet >= need
-    why = ("sub-step least-squares registration of the sloped facets, exact rotation fit; "
-           "the raise shifts the pattern by -h*tan(alpha_x) along Y, which gives the sign"
-           if ok else
-           f"the facets ({facet:.3g} mm wide) are narrower than three samples "
-           f"(3 x {max(p, dy):.3g} mm): the registration has no sloped surface to work on; "
-           f"use more points per line, a finer step or shallower facets")
+    ok, why = _registration_check(setup)
     reg = {k: Observability(ok, True, 0.0, 0.0, why) for k in ("alpha_z", "alpha_y", "alpha_x")}
     return {"patent": patent, "registration": reg}
+
+
+@functools.lru_cache(maxsize=64)
+def _registration_check(setup) -> tuple[bool, str]:
+    """Whether the registration works at `setup`: the facets must be resolved (three
+    samples across), and on the noise-free data of the default truth the fit must be
+    well conditioned and recover the angles."""
+    p, dy = _pitch(setup), setup.step_mm
+    facet = setup.cell_depth_mm / math.tan(math.radians(setup.facet_angle_deg))
+    if facet < 3 * max(p, dy):
+        return False, (
+            f"the facets ({facet:.3g} mm wide) are narrower than three samples "
+            f"(3 x {max(p, dy):.3g} mm): the registration has no sloped surface to work on; "
+            f"use more points per line, a finer step or shallower facets")
+    truth = Truth()
+    try:
+        z = forward(setup, truth, PROCEDURE.zero_errors(setup, 1))["z_mm"]
+    except InvalidInput as exc:
+        return False, f"the default truth cannot be scanned at this set-up ({exc})"
+    est = _registration_core(setup, z)
+    err = max(abs(float(est[k][0]) - v) for k, v in true_values(setup, truth).items())
+    if not err < 1e-9:
+        return False, (
+            "too few planar samples on the facets (a narrow scan, few points per line or "
+            "few lines): on noise-free data of the default truth the registration's normal "
+            "equations are singular or it misses the angles; scan more lines or use more "
+            "points per line")
+    return True, ("sub-step least-squares registration of the sloped facets, exact rotation "
+                  "fit; the raise shifts the pattern by -h*tan(alpha_x) along Y, which gives "
+                  "the sign")
 
 
 # --------------------------------------------------------------------------- patent
@@ -842,12 +865,15 @@ def estimate_registration(setup, readings) -> dict:
     InvalidInput
         Where :func:`observability` says the set-up does not allow it.
     """
-    obs = observability(setup)["registration"]
-    blocked = [f"{k}: {v.reason}" for k, v in obs.items() if not v.observable]
-    if blocked:
+    ok, why = _registration_check(setup)
+    if not ok:
         raise InvalidInput([f"line_laser estimator 'registration' cannot determine the "
-                            f"angles at this set-up ({'; '.join(blocked[:1])})"])
-    z = np.asarray(readings["z_mm"], dtype=float)
+                            f"angles at this set-up: {why}"])
+    return _registration_core(setup, np.asarray(readings["z_mm"], dtype=float))
+
+
+def _registration_core(setup, z) -> dict:
+    """The registration estimator without the set-up check; ``z`` (n, 3, lines, points)."""
     n = z.shape[0]
     w, h = _shift(setup), setup.raise_mm
     d1 = _register(setup, z[:, 0], z[:, 1], _coarse(setup, z[:, 0], z[:, 1], w))
