@@ -58,7 +58,8 @@ first order), not at the spindle reference point.
 
 ``joint``: all coefficients and the plates' offsets and in-plane rotations at once,
 least squares with the model's Jacobian (rank-truncated pseudo-inverse, one matrix
-product per batch), then Gauss-Newton (chord) iterations on the exact model.
+product per batch), then Gauss-Newton (chord: the Jacobian at zero error is kept) iterations on the exact
+model until the step is below 1e-5 of a typical error for the whole batch (at most 8).
 ``joint_linear``: the first, linearised, step only.
 
 Identifiability (the point of the study)
@@ -562,7 +563,8 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
 
 
 # --------------------------------------------------------------------------- linear model
-_GN_ITERATIONS = 3
+_GN_ITERATIONS = 8
+_GN_TOL = 1e-5  # step below 1e-5 of a typical error (1 um / 10 urad): 0.01 pm
 _RANK_TOL = 1e-7
 
 
@@ -664,7 +666,10 @@ def _theta_joint(setup: Setup, readings: dict, iterations: int) -> np.ndarray:
     theta = (r - ji["r0"]) @ ji["pinv"].T  # one product for the batch
     for _ in range(iterations):  # chord (simplified Gauss-Newton) on the exact model
         res = r - _predict(ji["geo"], theta).reshape(r.shape)
-        theta += res @ ji["pinv"].T
+        step = res @ ji["pinv"].T
+        theta += step
+        if np.max(np.abs(step) / ji["scale"]) < _GN_TOL:  # whole batch converged
+            break
     return theta
 
 
