@@ -16,9 +16,11 @@ Two ways to stop:
   ``max(100/(1-p), 10**4)`` trials run until twice the standard deviation of the
   block values of the estimate, of the standard uncertainty and of both interval
   end points is at most the numerical tolerance of u at ``d`` significant digits.
-  The tolerance is taken at ``u - 2 s_u`` (the low end of u's own spread), so that
-  a u sitting just above a power of ten cannot stop the run with a tolerance ten
-  times too coarse (the trap of 7.9.2 when u crosses a power of ten).
+  The tolerance is taken at ``u - max(2 s_u, 10**-d u)`` (the low end of u's own
+  spread, never narrower than one unit in u's last requested digit, since s_u from
+  the first few blocks is unreliable), so that a u sitting just above a power of ten
+  cannot stop the run with a tolerance ten times too coarse (the trap of 7.9.2
+  when u crosses a power of ten).
 """
 
 from __future__ import annotations
@@ -310,7 +312,11 @@ def _stable(stats: list[np.ndarray], u_all: np.ndarray, digits: int) -> bool:
     for j, u in enumerate(u_all):
         if u == 0 and not s[:, j].any():
             continue
-        tol = numerical_tolerance(u - 2 * s[1, j] if u - 2 * s[1, j] > 0 else u / 10, digits)
+        # Power-of-ten trap: take the tolerance at the low end of u's plausible range.
+        # 2 s_u alone is not enough: from 2 or 3 blocks s_u can be far too small, so
+        # the range is at least one unit in u's last requested digit (relative 10^-d).
+        u_low = u - max(2 * s[1, j], u * 10.0 ** (-digits))
+        tol = numerical_tolerance(u_low if u_low > 0 else u / 10, digits)
         if np.any(2 * s[:, j] > tol):
             return False
     return True
@@ -362,7 +368,12 @@ def run_blocks(
     stats: list[np.ndarray] = []
     converged = not adaptive
     jobs = max(effective_jobs(n_jobs), 1)
-    with parallel_session(n_jobs, backend, scheduler) as session:
+    from threadpoolctl import threadpool_limits
+
+    # Blocks do many small matrix products: BLAS threads only fight each other (and the
+    # workers) over the cores, so each block runs single-threaded, as joblib's workers do.
+    with threadpool_limits(limits=1, user_api="blas"), \
+            parallel_session(n_jobs, backend, scheduler) as session:
         tasks = ((*block_args, root, i, sizes(i)) for i in range(n_blocks_max))
         chunk = jobs if adaptive else None
         for i, out in enumerate(
@@ -503,6 +514,7 @@ def propagate(
     block_size: int | None = None,
     max_trials: int = 10**8,
     progress: bool | None = None,
+    keep: int = 2 * 10**6,
 ) -> MCResult:
     """Propagate distributions through a vectorised model by Monte Carlo (JCGM 101).
 
@@ -537,6 +549,9 @@ def propagate(
         Upper limit of the adaptive procedure (``converged`` is False if reached).
     progress : bool, optional
         Progress bar on stderr (shown after one second; default: when stderr is a terminal).
+    keep : int
+        Model values kept exactly per output (default 2*10**6); beyond that each output
+        switches to a fine histogram, so memory stays bounded by `keep` and the block size.
 
     Returns
     -------
@@ -546,6 +561,7 @@ def propagate(
     check_inputs(p, model, inputs)
     check_run_options(p, trials, digits, coverage, interval, max_trials, block_size)
     check_parallel(p, n_jobs, backend, scheduler)
+    p.number("keep", keep, integer=True, low=1)
     p.raise_if_any()
     if trials is None and digits is None:
         trials = 10**6
@@ -563,6 +579,7 @@ def propagate(
         scheduler=scheduler,
         block_size=block_size,
         max_trials=max_trials,
+        keep=int(keep),
         progress=progress,
         label="propagate",
     )
