@@ -64,16 +64,16 @@ model until the step is below 1e-5 of a typical error for the whole batch (at mo
 
 Identifiability (the point of the study)
 ----------------------------------------
-From 2D plate readings the model is rank deficient: see :func:`identifiability`.
-At the default set-up the joint Jacobian's null space contains, e.g., the X roll EAX
-with EYX (the lever in z is the same in all XY readings), the Y roll EBY with EXY,
-the Y yaw ECY and the Z roll ECZ (no lever arm at all with the head on the spindle
-axis) and the Z tilts EAZ, EBZ with EYZ, EXZ (one tool length). Decision:
-:func:`measurands` lists only the measurands that the data determine (estimable
-functions of the joint model at the given set-up); the others are never reported as
-numbers, and :func:`identifiability` gives every one of the 21 with its status and the
-errors it is confounded with. The patent estimator reports the same list; where it is
-biased at first order (its ordering assumption) :func:`identifiability` with
+From 2D plate readings the model is rank deficient: see :func:`identifiability` and
+docs/geometry21.md. At the default set-up (errors defined at the reading head) the joint
+Jacobian has rank 42 of 60: the X roll EAX only rotates the YZ pattern (confounded with
+the plate's rotation), and EBY, ECY, EAZ, EBZ, ECZ have no lever arm between the
+functional point and any plate plane (no effect). Decision: :func:`measurands` lists
+only the measurands that the data determine (estimable functions of the joint model at
+the given set-up, 15 at the default); the others are never reported as numbers, and
+:func:`identifiability` gives every one of the 21 with its status and the errors it is
+confounded with. The patent estimator reports the same list; where it is biased at
+first order (e.g. ``reference_tool_mm=0``: EXX - L EBX) :func:`identifiability` with
 ``estimator="patent"`` says so and names the errors that bias it.
 
 Units: mm and rad internally; measurands in um (positioning, straightness) and urad
@@ -131,7 +131,8 @@ _DESCR = {
 _ROT = ("rotation about X", "rotation about Y", "rotation about Z")
 #: plate planes: name, in-plane axes (a, b), the fixed axis
 PLANES = (("XY", 0, 1, 2), ("XZ", 0, 2, 1), ("YZ", 1, 2, 0))
-#: the seed's assignment of step-1 errors (from lines) and step-2 errors (circles) to planes
+#: the seed's assignment of step-1 errors (lines) and step-2 errors (circles) to planes; step 2
+#: is stacked over the three circles instead (module docstring), _STEP2 documents the seed's
 _STEP1 = {"XY": ("EXX", "EYY", "EYX", "EXY", "EC0Y"), "XZ": ("EZZ", "EZX", "EXZ", "EB0Z"),
           "YZ": ("EZY", "EYZ", "EA0Z")}
 _STEP2 = {"XY": ("EAY", "EBY", "ECY", "ECX"), "XZ": ("EBX", "EBZ"), "YZ": ("EAZ", "EAX", "ECZ")}
