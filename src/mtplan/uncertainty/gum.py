@@ -210,14 +210,16 @@ def sensitivities(
     """
     n = x.size
     h = np.where(u > 0, _REL_STEP * u, np.cbrt(np.finfo(float).eps) * np.maximum(np.abs(x), 1.0))
-    steps = np.concatenate([h, -h, 2 * h, -2 * h])
-    cols = np.tile(np.arange(n), 4)
-    points = np.repeat(x[None, :], 4 * n + 1, axis=0)
-    points[1 + np.arange(4 * n), cols] += steps
-    values = np.concatenate(
-        [np.asarray(evaluate(points[s : s + max_batch]), dtype=float)
-         for s in range(0, points.shape[0], max_batch)]
-    )
+    steps = np.concatenate([[0.0], h, -h, 2 * h, -2 * h])
+    cols = np.concatenate([[0], np.tile(np.arange(n), 4)])
+    total = 4 * n + 1
+    chunks = []
+    for s in range(0, total, max_batch):  # build only one chunk of points at a time
+        e = min(s + max_batch, total)
+        points = np.repeat(x[None, :], e - s, axis=0)
+        points[np.arange(e - s), cols[s:e]] += steps[s:e]
+        chunks.append(np.asarray(evaluate(points), dtype=float))
+    values = np.concatenate(chunks)
     f0 = values[0]
     fp, fm, f2p, f2m = (values[1 + j * n : 1 + (j + 1) * n] for j in range(4))
     d1 = (fp - fm) / (2 * h[:, None])
