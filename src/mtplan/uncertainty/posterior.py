@@ -609,6 +609,7 @@ def sample_posterior(
     if not isinstance(base, proc.Truth):
         raise InvalidInput([f"The 'truth' parameter of sample_posterior must be a {proc.name} "
                             f"Truth. Got {type(base).__name__} instead."])
+    fields_given = fields is not None
     fields = _free_float_fields(proc, proc.Truth, fields)
     model = _Model(proc, setup, readings, fields, base, batch=batch)
     notes = []
@@ -674,10 +675,19 @@ def sample_posterior(
     Jw = jac * factor[:, None]  # jacobian of the residuals over their sigma
     col = np.linalg.norm(Jw, axis=0)
     dead = [f for f, c in zip(fields, col, strict=True) if not c > 0]
-    if dead:
+    if dead and (fields_given or len(dead) == len(fields)):
         raise InvalidInput([
             f"The Truth field(s) {', '.join(dead)} of {proc.name} do not affect the readings; "
             "leave them out of 'fields'."])
+    if dead:  # default fields: keep those the readings determine, fix the rest
+        notes.append(f"Truth field(s) {', '.join(dead)} do not affect the readings: held at "
+                     f"{', '.join(f'{f} = {getattr(base, f):g}' for f in dead)}")
+        alive = [i for i, f in enumerate(fields) if f not in dead]
+        fields = tuple(fields[i] for i in alive)
+        theta_ls, Jw, col = theta_ls[alive], Jw[:, alive], col[alive]
+        base = model.builder.make(np.array([getattr(base, f) if f in dead else
+                                            theta_ls[fields.index(f)] for f in model.builder.fields]))
+        model = _Model(proc, setup, readings, fields, base, batch=batch)
     try:
         cov = np.linalg.inv(Jw.T @ Jw)
         se = np.sqrt(np.clip(np.diag(cov), 0, None))
