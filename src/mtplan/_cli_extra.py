@@ -8,6 +8,10 @@ from __future__ import annotations
 
 
 def register(sub, common) -> None:
+    from mtplan import _cli_estimate
+
+    _cli_estimate.register(sub, common)
+
     p = sub.add_parser("plan", help="cheapest set-up meeting targets, Pareto front")
     common(p)
     p.add_argument("--target", action="append", metavar="NAME<=VALUE",

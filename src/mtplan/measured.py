@@ -133,6 +133,13 @@ def read_readings(procedure, setup, path) -> dict:
         if len(r) != len(header):
             _fail(path, f"row {i} has {len(r)} cells, the header has {len(header)}")
 
+    # a procedure may accept a reduced format (circle_centre: bare x_mm, y_mm points);
+    # its from_frame then checks the counts
+    reduced = [c for c in proc.optional_columns if c not in header]
+    if reduced:
+        exp_cols = [c for c in exp_cols if c not in reduced]
+        expected = expected[exp_cols]
+        frames = [f[[c for c in f.columns if c not in reduced]] for f in frames]
     missing = [c for c in exp_cols if c not in header]
     extra = [c for c in header if c not in exp_cols]
     if missing or extra:
@@ -168,12 +175,12 @@ def read_readings(procedure, setup, path) -> dict:
         j = int(np.flatnonzero(dup.to_numpy())[0])
         first = int(np.flatnonzero((df == df.iloc[j]).all(axis=1).to_numpy())[0])
         _fail(path, f"row {j + 2} repeats row {first + 2}")
-    if len(df) != len(expected):
+    if len(df) != len(expected) and not reduced:
         _fail(path, f"has {len(df)} readings but this {proc.name} set-up takes {len(expected)} "
               "(check the set-up: --config/--set)")
 
     # design columns (positions, angles, indices) must be the set-up's, in any row order
-    design = [c for c in _design_columns(frames) if c in df.columns]
+    design = [] if reduced else [c for c in _design_columns(frames) if c in df.columns]
     if design:
         def key(frame):
             cols = []
@@ -215,6 +222,8 @@ def read_readings(procedure, setup, path) -> dict:
         _fail(path, str(exc))
     for k, v in readings.items():
         a = np.asarray(v)
+        if reduced:  # a reduced file leaves the readings it lacks as NaN, on purpose
+            continue
         if a.dtype.kind in "fc" and not np.all(np.isfinite(a)):
             _fail(path, f"reading {k!r} holds NaN or infinite values")
     return readings

@@ -89,3 +89,27 @@ def test_fit_points_for_the_command_line(points, estimator, expected):
     out = fit_points(*points, estimator)
     got = (out["centre_x_mm"], out["centre_y_mm"], out["radius_mm"])
     np.testing.assert_allclose(got, expected, rtol=0, atol=0.5e-6)
+
+
+def test_estimate_command_reproduces_the_published_geometric_fit(tmp_path, capsys):
+    """`mtplan estimate circle_centre POINTS.csv` on bare x_mm, y_mm points (GGS 1994)."""
+    import json
+
+    from mtplan import cli
+
+    df = pd.read_csv(DATA, comment="#")
+    points = tmp_path / "ggs.csv"
+    pd.DataFrame({"x_mm": df["x"], "y_mm": df["y"]}).to_csv(points, index=False)
+    nominal = 4.7  # nominal radius [mm]; the radius measurand is the deviation from it
+    argv = ["estimate", "circle_centre", str(points), "--set", "n_points=6",
+            "--set", f"bore_radius_mm={nominal}", "--set", "start_scatter_mm=0.5",
+            "--trials", "300", "--json"]
+    expected = {"geometric": (4.739782, 2.983533, 4.714226),
+                "kasa": (773 / 163, 5001 / 1304, 4.108761522345449)}
+    for estimator, (xc, yc, r) in expected.items():
+        assert cli.main([*argv, "--estimator", estimator]) == 0
+        doc = json.loads(capsys.readouterr().out)
+        got = {m["name"]: m["estimate"] for m in doc["measurands"]}
+        assert got["centre_x"] / 1e3 == pytest.approx(xc, abs=5e-7)
+        assert got["centre_y"] / 1e3 == pytest.approx(yc, abs=5e-7)
+        assert nominal + got["radius"] / 1e3 == pytest.approx(r, abs=5e-7)

@@ -424,6 +424,8 @@ class Procedure:
     posterior_fields: tuple = ()
     #: the error source whose spread is the readings' noise in the likelihood
     noise_source: str | None = None
+    #: readings columns a measured file may leave out (``from_frame`` copes without them)
+    optional_columns: tuple = ()
 
     # ----------------------------------------------------------------- helpers
     @property

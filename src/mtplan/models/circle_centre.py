@@ -975,4 +975,5 @@ PROCEDURE = Procedure(
     ),
     exact_estimators=("three_point", "kasa", "geometric"),
     block_size=2000,
+    optional_columns=("point",),
 )
