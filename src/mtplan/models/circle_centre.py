@@ -928,6 +928,15 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
             "p_y_mm": py[None, :]}
 
 
+def truth_from_estimate(setup: Setup, estimate: dict) -> Truth:
+    """The Truth whose centre and radius equal `estimate` [mm] (start point at its default)."""
+    def first(v):
+        return float(np.asarray(v).ravel()[0])
+
+    return Truth(centre_x_mm=first(estimate["centre_x"]), centre_y_mm=first(estimate["centre_y"]),
+                 radius_deviation_mm=first(estimate["radius"]))
+
+
 def report_extras(setup: Setup, truth: Truth) -> dict:
     """The planned probing path of the nominal measurement, as data for the report's figure.
 
@@ -976,4 +985,5 @@ PROCEDURE = Procedure(
     exact_estimators=("three_point", "kasa", "geometric"),
     block_size=2000,
     optional_columns=("point",),
+    truth_from_estimate=truth_from_estimate,
 )

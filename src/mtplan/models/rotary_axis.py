@@ -612,6 +612,17 @@ def true_values(setup: Setup, truth: Truth) -> dict[str, float]:
             "EB0A": truth.EB0A_urad * _URAD, "EC0A": truth.EC0A_urad * _URAD}
 
 
+def truth_from_estimate(setup: Setup, estimate: dict) -> Truth:
+    """The Truth whose measurands equal `estimate` [mm, rad] (the other axis at its defaults)."""
+    fields = {"EX0C": "EX0C_um", "EY0C": "EY0C_um", "EY0A": "EY0A_um", "EZ0A": "EZ0A_um",
+              "EA0C": "EA0C_urad", "EB0C": "EB0C_urad", "EB0A": "EB0A_urad", "EC0A": "EC0A_urad"}
+    values = {}
+    for name, value in estimate.items():
+        field = fields[name]
+        values[field] = float(np.asarray(value).ravel()[0]) / (_UM if field.endswith("_um") else _URAD)
+    return Truth(**values)
+
+
 def forward(setup: Setup, truth: Truth, errors: dict) -> dict[str, np.ndarray]:
     """Simulated readings of the lattices: ``{"z_mm": array (n, positions, points)}``.
 
@@ -1067,4 +1078,6 @@ PROCEDURE = Procedure(
     ),
     exact_estimators=("patent", "joint"),
     block_size=2000,
+    truth_from_estimate=truth_from_estimate,
+    noise_source="probe_noise",
 )

@@ -26,7 +26,7 @@ from mtplan._validate import InvalidInput, Problems
 from mtplan.models._protocol import fields_info, make
 
 __all__ = ["PlanResult", "plan", "pareto_front", "optimize_design", "readings_jacobian",
-           "parse_target"]
+           "design_identifiability", "parse_target"]
 
 
 def parse_target(text: str) -> tuple[str, float]:
@@ -120,6 +120,7 @@ def plan(
     n_jobs: int = 1,
     backend: str | None = None,
     criterion=None,
+    identify: bool = True,
 ) -> PlanResult:
     """The set-up of least duration whose uncertainty meets every target.
 
@@ -145,6 +146,9 @@ def plan(
     criterion : callable, optional
         Extra feasibility rule ``criterion(u: dict) -> bool`` on the k-scaled
         uncertainties (used by the acceptance-driven plan).
+    identify : bool
+        Add the identifiability columns (``rank``, ``n_params``, ``condition``,
+        ``O1`` ... ``O5``, see :func:`design_identifiability`) to the table.
 
     Raises
     ------
@@ -191,6 +195,8 @@ def plan(
             row[f"u_{name}"] = k * u[name]
         ratios = [k * u[n] / v for n, v in targets.items()]
         row["worst"] = max(ratios) if ratios else 0.0
+        if identify:
+            row.update(design_identifiability(proc, s, truth))
         row["feasible"] = bool(all(r <= 1 for r in ratios)) and (
             criterion is None or bool(criterion({n: k * u[n] for n in names})))
         rows.append(row)
@@ -384,35 +390,87 @@ def optimize_design(
             "evaluations": evaluations[0]}
 
 
-def readings_jacobian(procedure, setup=None, truth=None, *, fields=None):
-    """Sensitivity of the noise-free readings to the truth fields.
+def readings_jacobian(procedure, setup=None, truth=None, *, wrt: str | None = None):
+    """Sensitivity of the noise-free readings to the measurands (or truth fields).
 
-    Returns ``(J, names)``: J of shape (n_readings, n_fields) by central differences
-    (steps of 1e-6 of each field's magnitude, at least 1e-9), for identifiability
-    analysis of what the readings can tell apart.
+    Parameters
+    ----------
+    wrt : {"measurands", "truth"}, optional
+        ``"measurands"`` (the default when the procedure has ``truth_from_estimate``):
+        columns are the measurands [reading unit per mm or rad]. ``"truth"``: every
+        float Truth field that moves the readings at all (fields without effect, such
+        as the other axis's errors, are left out).
+
+    Returns
+    -------
+    (J, names): J of shape (n_readings, n_params), central differences with steps of
+    1e-6 of each value's magnitude (at least 1e-9).
     """
+    import dataclasses
+
     from mtplan.models import get
 
     proc = get(procedure)
     setup = proc.Setup() if setup is None else setup
     truth = proc.Truth() if truth is None else truth
-    names = fields or [f["name"] for f in fields_info(proc.Truth) if f["kind"] is float]
     zero = proc.zero_errors(setup, 1)
+    if wrt is None:
+        wrt = "measurands" if proc.truth_from_estimate is not None else "truth"
 
     def flat(t):
         r = proc.forward(setup, t, zero)
         return np.concatenate([np.asarray(v, dtype=float).ravel() for v in r.values()])
 
-    cols = []
-    for name in names:
-        v = getattr(truth, name)
-        h = max(abs(v) * 1e-6, 1e-9)
-        import dataclasses
+    cols, names = [], []
+    if wrt == "measurands":
+        base = proc.true_values(setup, truth)
+        for name, v in base.items():
+            h = max(abs(v) * 1e-6, 1e-9)
+            up = proc.truth_from_estimate(setup, {**base, name: v + h})
+            down = proc.truth_from_estimate(setup, {**base, name: v - h})
+            cols.append((flat(up) - flat(down)) / (2 * h))
+            names.append(name)
+    else:
+        for f in fields_info(proc.Truth):
+            if f["kind"] is not float:
+                continue
+            v = getattr(truth, f["name"])
+            h = max(abs(v) * 1e-6, 1e-9)
+            col = (flat(dataclasses.replace(truth, **{f["name"]: v + h}))
+                   - flat(dataclasses.replace(truth, **{f["name"]: v - h}))) / (2 * h)
+            if np.any(col):
+                cols.append(col)
+                names.append(f["name"])
+    return np.column_stack(cols), names
 
-        up = dataclasses.replace(truth, **{name: v + h})
-        down = dataclasses.replace(truth, **{name: v - h})
-        cols.append((flat(up) - flat(down)) / (2 * h))
-    return np.column_stack(cols), list(names)
 
+def design_identifiability(procedure, setup=None, truth=None) -> dict:
+    """Rank, condition number and observability indices O1-O5 of a set-up.
 
-_ = InvalidInput
+    Uses the procedure module's own ``identifiability_report(setup)`` where it has one
+    (geometry21: the joint model of all error coefficients), else the column-scaled
+    sensitivities of :func:`readings_jacobian`.
+
+    Returns
+    -------
+    dict with ``rank``, ``n_params``, ``condition``, ``O1`` ... ``O5``.
+    """
+    import importlib
+
+    from mtplan.models import get
+    from mtplan.plans.identifiability import identifiability, observability_indices
+
+    proc = get(procedure)
+    setup = proc.Setup() if setup is None else setup
+    module = importlib.import_module(proc.forward.__module__)
+    own = getattr(module, "identifiability_report", None)
+    if callable(own):
+        rep = own(setup)
+        sv = np.asarray(rep["singular_values"], dtype=float)
+        return {"rank": int(rep["rank"]), "n_params": int(rep["parameters"]),
+                "condition": float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf,
+                **observability_indices(sv, int(rep["readings"]))}
+    J, names = readings_jacobian(proc, setup, truth)
+    rep = identifiability(J, names=names)
+    return {"rank": int(rep.rank), "n_params": int(rep.n_params),
+            "condition": float(rep.condition_number), **rep.observability}
