@@ -474,22 +474,25 @@ def _plan(setup: Setup) -> _Plan:
 def _true_line(setup: Setup, truth: Truth) -> tuple[np.ndarray, np.ndarray]:
     """Point at the reference (3,) [mm] and unit direction (3,) of the true axis."""
     f = _FRAMES[setup.axis]
-    tv = true_values(setup, truth)
+    # truth fields may be arrays (one truth per batch row, e.g. posterior walkers):
+    # each value becomes shape (m, 1) so that point and direction are (m, 3)
+    tv = {k: (np.reshape(v, (-1, 1)) if np.ndim(v) else v)
+          for k, v in true_values(setup, truth).items()}
     n1, n2, a1, a2 = _NAMES[setup.axis]
     # slope components along p1 and p2 (see the sign convention in the module docstring)
     t1, t2 = tv[a2], -tv[a1]
     point = setup.reference_height_mm * f.ax + tv[n1] * f.p1 + tv[n2] * f.p2
     w = f.ax + t1 * f.p1 + t2 * f.p2
-    return point, w / np.linalg.norm(w)
+    return point, w / np.linalg.norm(w, axis=-1, keepdims=True)
 
 
 def _rotate_about(v: np.ndarray, u: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Rotate vectors `v` (..., 3) about the fixed unit vector `u` (3,) by `angle` (...).
+    """Rotate vectors `v` (..., 3) about the unit vector(s) `u` (..., 3) by `angle` (...).
 
-    Rodrigues' formula, exact; `angle` broadcasts against ``v.shape[:-1]``.
+    Rodrigues' formula, exact; `u` and `angle` broadcast against `v`.
     """
     c, s = np.cos(angle)[..., None], np.sin(angle)[..., None]
-    return v * c + _cross(u, v) * s + u * ((v @ u)[..., None] * (1.0 - c))
+    return v * c + _cross(u, v) * s + u * (np.sum(v * u, axis=-1)[..., None] * (1.0 - c))
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -643,23 +646,27 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict[str, np.ndarray]:
     f = g.frame
     noise = errors["probe_noise"]
     n, P, M = noise.shape
-    a, u = _true_line(setup, truth)
+    a, u = _true_line(setup, truth)  # (3,), or (n, 3) for one truth per trial
+    ub = u[:, None, None, :] if u.ndim == 2 else u
 
     # rigid motion of the artifact at each position: exact rotation about the true axis by
     # the commanded angle, then by the angular positioning error, then the error motion
     # (tilt about the axis point, radial and axial translation). The normal and the lever
     # arm from the axis point to the incline's reference point turn together: (.., 2, 3).
-    vec = _rotate_about(np.stack([g.n0, g.q0 - a]), u, g.theta[:, None])  # (P, 2, 3)
+    lever = np.stack(np.broadcast_arrays(g.n0, g.q0 - a), axis=-2)  # (2, 3) or (n, 2, 3)
+    if lever.ndim == 3:
+        lever = lever[:, None]
+    vec = _rotate_about(lever, ub, g.theta[:, None])  # (P, 2, 3) or (n, P, 2, 3)
     dpsi = errors["angular_positioning"]
     if np.any(dpsi):
-        vec = _rotate_about(vec, u, dpsi[..., None])  # (n, P, 2, 3)
+        vec = _rotate_about(vec, ub, dpsi[..., None])  # (n, P, 2, 3)
     tilt = errors["tilt_motion"]
     if np.any(tilt):
         w = tilt[..., :1] * f.p1 + tilt[..., 1:] * f.p2
         vec = _rotate_by_vector(vec, w[..., None, :])
     vec = np.broadcast_to(vec, (n, P, 2, 3))
     normal = vec[..., 0, :]
-    q = a + vec[..., 1, :]
+    q = (a[:, None, :] if a.ndim == 2 else a) + vec[..., 1, :]
     rad, axial = errors["radial_motion"], errors["axial_motion"]
     if np.any(rad):
         q = q + rad[..., :1] * f.p1 + rad[..., 1:] * f.p2
