@@ -679,7 +679,7 @@ def _leg(o, radius, a0, a1) -> tuple[Segment, ...]:
 def _check_plan_inputs(p: Problems, name, value, *, length=2):
     arr = np.asarray(value, dtype=float) if _numeric(value) else None
     if arr is None or arr.shape != (length,) or not np.all(np.isfinite(arr)):
-        p.add(name, value, f"a pair of finite numbers (x, y) [mm]")
+        p.add(name, value, "a pair of finite numbers (x, y) [mm]")
         return None
     return arr
 

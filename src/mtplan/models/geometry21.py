@@ -314,7 +314,6 @@ def _plane_centre(setup, k):
 
 @functools.lru_cache(maxsize=16)
 def _geometry(setup: Setup) -> _Geometry:
-    rows = []  # plane, test, pass, point, a, b
     half = setup.line_length_mm / 2
     u = np.linspace(-half, half, setup.line_points)
     arc = math.radians(setup.circle_arc_deg)

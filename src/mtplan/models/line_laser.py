@@ -557,7 +557,7 @@ def observability(setup) -> dict:
         ``{estimator: {"alpha_z"|"alpha_y"|"alpha_x": Observability}}``.
     """
     w, h = _shift(setup), setup.raise_mm
-    p, dy = _pitch(setup), setup.step_mm
+    dy = setup.step_mm
     sigma = setup.sensor_noise_um * 1e-3
     n_all = setup.lines * setup.points_per_line
     quantum = math.atan(dy / w)
@@ -875,7 +875,7 @@ def estimate_registration(setup, readings) -> dict:
 def _registration_core(setup, z) -> dict:
     """The registration estimator without the set-up check; ``z`` (n, 3, lines, points)."""
     n = z.shape[0]
-    w, h = _shift(setup), setup.raise_mm
+    w = _shift(setup)
     d1 = _register(setup, z[:, 0], z[:, 1], _coarse(setup, z[:, 0], z[:, 1], w))
     d2 = _register(setup, z[:, 1], z[:, 2], _coarse(setup, z[:, 1], z[:, 2], 0.0))
     with np.errstate(invalid="ignore"):

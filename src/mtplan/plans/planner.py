@@ -286,7 +286,6 @@ def _criterion_value(g, criterion: str) -> float:
     cov = g.cov
     if criterion.startswith("u:"):
         return float(g.std[g.index(criterion[2:])])
-    scale = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
     if criterion == "D":  # geometric mean of the covariance ellipsoid's axes
         sign, logdet = np.linalg.slogdet(cov)
         return float(math.exp(logdet / (2 * cov.shape[0]))) if sign > 0 else math.inf
@@ -296,7 +295,6 @@ def _criterion_value(g, criterion: str) -> float:
         return float(math.sqrt(max(np.linalg.eigvalsh(cov).max(), 0.0)))
     raise InvalidInput([f"The 'criterion' parameter must be 'u:MEASURAND', 'D', 'A' or 'E'. "
                         f"Got {criterion!r} instead."])
-    _ = scale
 
 
 def optimize_design(
@@ -359,7 +357,6 @@ def optimize_design(
             x0.append(value)
             bounds.append(tuple(lim))
     p.raise_if_any()
-    _criterion_value_check = criterion
     evaluations = [0]
 
     def setup_at(x):
@@ -380,7 +377,7 @@ def optimize_design(
             g = linearize_procedure(proc, setup_at(x), truth, estimator=estimator)
         except InvalidInput:
             return 1e300
-        return _criterion_value(g, _criterion_value_check)
+        return _criterion_value(g, criterion)
 
     start = objective(np.array(x0, dtype=float))
     res = minimize(objective, np.array(x0, dtype=float), method="Nelder-Mead", bounds=bounds,

@@ -22,7 +22,6 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
-import math
 import os
 import sys
 import zlib
@@ -322,5 +321,3 @@ def _append(journal: Path, frame, n_rows: int) -> None:
         fh.flush()
         os.fsync(fh.fileno())
 
-
-_ = math

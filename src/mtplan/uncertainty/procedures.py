@@ -8,14 +8,13 @@ Values are reported in each measurand's display unit (um, urad).
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from mtplan._validate import Problems
 from mtplan._parallel import check_parallel
-from mtplan.models._protocol import Measurand, Procedure
+from mtplan.models._protocol import Procedure
 from mtplan.uncertainty._random import as_seed_sequence, block_sequence
 from mtplan.uncertainty.gum import GUMResult, _coverage_factor, sensitivities
 from mtplan.uncertainty.montecarlo import MCResult, check_run_options, run_blocks
@@ -308,5 +307,3 @@ def source_budget(procedure, setup=None, truth=None, *, estimator=None, trials=1
     df["share"] = var / var.groupby(df["measurand"]).transform("sum").where(lambda s: s > 0, 1.0)
     return df
 
-
-_ = (dataclasses, Measurand)
