@@ -46,9 +46,26 @@ from mtplan._validate import InvalidInput
 __all__ = ["Study", "ProcedureStudy", "StudyResult", "load_study", "run_study"]
 
 _TOP_KEYS = {"title", "subtitle", "customer", "machine", "author", "seed", "digits", "trials",
-             "coverage", "procedure"}
+             "max_trials", "coverage", "procedure"}
 _PROC_KEYS = {"name", "label", "setup", "truth", "estimators", "sweep", "plan", "acceptance",
-              "readings", "trials", "digits", "notes"}
+              "readings", "trials", "digits", "max_trials", "budget", "budget_trials", "notes"}
+_SWEEP_KEYS = {"vary", "trials", "estimators"}
+_PLAN_KEYS = {"targets", "vary", "k", "estimator", "trials"}
+_ACCEPT_KEYS = {"measurand", "lower", "upper", "prior", "rule", "measured"}
+_READ_KEYS = {"file", "uncertainty", "estimator", "trials", "options", "allow_unconverged"}
+
+
+def _unknown(problems, where, table, allowed):
+    if isinstance(table, dict):
+        for key in sorted(set(table) - allowed):
+            problems.append(f"{where} has an unknown key {key!r}; allowed: "
+                            f"{', '.join(sorted(allowed))}.")
+
+
+def _count(problems, where, value, low):
+    if value is not None and not (isinstance(value, int) and not isinstance(value, bool)
+                                  and value >= low):
+        problems.append(f"{where} must be an int >= {low}. Got {value!r} instead.")
 
 
 @dataclass
@@ -64,6 +81,9 @@ class ProcedureStudy:
     readings: dict | None = None
     trials: int | None = None
     digits: int | None = None
+    max_trials: int | None = None
+    budget: str = "gum"                # "gum" (law of propagation) or "mc" (one source at a time)
+    budget_trials: int = 2000
     notes: str = ""
 
 
@@ -78,6 +98,7 @@ class Study:
     coverage: float
     meta: dict
     procedures: list
+    max_trials: int = 200_000
 
 
 def load_study(source) -> Study:
@@ -113,6 +134,8 @@ def load_study(source) -> Study:
         problems.append(f"The study's 'digits' must be an int from 1 to 4. Got {digits!r} instead.")
     if trials is not None and not (isinstance(trials, int) and trials >= 100):
         problems.append(f"The study's 'trials' must be an int >= 100. Got {trials!r} instead.")
+    max_trials = data.get("max_trials", 200_000)
+    _count(problems, "The study's 'max_trials'", max_trials, 1000)
     coverage = data.get("coverage", 0.95)
     if not (isinstance(coverage, float) and 0 < coverage < 1):
         problems.append(f"The study's 'coverage' must be a number in (0, 1). Got {coverage!r} instead.")
@@ -135,6 +158,15 @@ def load_study(source) -> Study:
             problems.append(f"{where}: unknown procedure; the procedures are: {', '.join(procs)}.")
             continue
         proc = procs[name]
+        _count(problems, f"{where} 'trials'", entry.get("trials"), 100)
+        _count(problems, f"{where} 'max_trials'", entry.get("max_trials"), 1000)
+        _count(problems, f"{where} 'budget_trials'", entry.get("budget_trials"), 100)
+        pd_ = entry.get("digits")
+        if pd_ is not None and not (isinstance(pd_, int) and 1 <= pd_ <= 4):
+            problems.append(f"{where} 'digits' must be an int from 1 to 4. Got {pd_!r} instead.")
+        if entry.get("budget", "gum") not in ("gum", "mc"):
+            problems.append(f"{where} 'budget' must be 'gum' or 'mc'. Got {entry.get('budget')!r} "
+                            "instead.")
         setup = truth = None
         try:
             setup = make(proc.Setup, entry.get("setup", {}), owner=f"{where} setup")
@@ -149,6 +181,9 @@ def load_study(source) -> Study:
             estimators = list(proc.estimators)
         if isinstance(estimators, str):
             estimators = [estimators]
+        if not isinstance(estimators, list) or not estimators:
+            problems.append(f"{where}: 'estimators' must be 'all', a name or a non-empty list.")
+            estimators = [proc.default_estimator]
         for e in estimators:
             if e not in proc.estimators:
                 problems.append(f"{where}: unknown estimator {e!r}; allowed: {', '.join(proc.estimators)}.")
@@ -156,18 +191,45 @@ def load_study(source) -> Study:
         sweeps = entry.get("sweep", [])
         sweeps = [sweeps] if isinstance(sweeps, dict) else sweeps
         for j, sw in enumerate(sweeps):
+            _unknown(problems, f"{where} sweep #{j + 1}", sw, _SWEEP_KEYS)
+            if isinstance(sw, dict):
+                _count(problems, f"{where} sweep #{j + 1} 'trials'", sw.get("trials"), 2)
+                for e in ([sw["estimators"]] if isinstance(sw.get("estimators"), str)
+                          else sw.get("estimators", [])):
+                    if e not in proc.estimators:
+                        problems.append(f"{where} sweep #{j + 1}: unknown estimator {e!r}; "
+                                        f"allowed: {', '.join(proc.estimators)}.")
             vary = sw.get("vary", {}) if isinstance(sw, dict) else None
             if not vary or not isinstance(vary, dict):
                 problems.append(f"{where} sweep #{j + 1} needs a non-empty 'vary' table.")
                 continue
-            for f in vary:
+            for f, values in vary.items():
                 if f not in fields:
-                    problems.append(f"{where} sweep #{j + 1} varies {f!r}, which is no set-up field.")
+                    problems.append(f"{where} sweep #{j + 1} varies {f!r}, which is no set-up "
+                                    f"field ({', '.join(sorted(fields))}).")
+                elif not isinstance(values, list) or not values:
+                    problems.append(f"{where} sweep #{j + 1}: the values of {f!r} must be a "
+                                    "non-empty list.")
+        if setup is not None:  # every set-up of every grid must be valid, said before computing
+            grids = [(f"sweep #{j + 1}", sw.get("vary")) for j, sw in enumerate(sweeps)
+                     if isinstance(sw, dict)]
+            if isinstance(entry.get("plan"), dict):
+                grids.append(("plan", entry["plan"].get("vary")))
+            for what, vary in grids:
+                problems += _grid_problems(proc, entry.get("setup", {}), vary, fields,
+                                           f"{where} {what}")
         measurands = set()
         if setup is not None:
             measurands = {m.name for m in proc.measurands(setup)}
         plan = entry.get("plan")
+        if plan is not None and not isinstance(plan, dict):
+            problems.append(f"{where} 'plan' must be a table.")
+            plan = None
         if plan is not None:
+            _unknown(problems, f"{where} plan", plan, _PLAN_KEYS)
+            for f in plan.get("vary", {}):
+                if f not in fields:
+                    problems.append(f"{where} plan varies {f!r}, which is no set-up field.")
             for m in plan.get("targets", {}):
                 if m not in measurands:
                     problems.append(f"{where} plan targets {m!r}, which is no measurand "
@@ -175,14 +237,39 @@ def load_study(source) -> Study:
             if not plan.get("targets"):
                 problems.append(f"{where} plan needs a 'targets' table.")
         acc = entry.get("acceptance")
+        if acc is not None and not isinstance(acc, dict):
+            problems.append(f"{where} 'acceptance' must be a table.")
+            acc = None
         if acc is not None:
+            _unknown(problems, f"{where} acceptance", acc, _ACCEPT_KEYS)
+            from mtplan.plans import acceptance as _acc
+
+            for key, parse in (("prior", _acc.parse_prior), ("rule", _acc.parse_rule)):
+                if acc.get(key) is not None:
+                    text = acc[key]
+                    if key == "prior" and isinstance(text, str) and path is not None \
+                            and not text.lower().startswith(("normal:", "gamma:")) \
+                            and not Path(text).is_absolute():
+                        text = str(path.parent / text)
+                        acc = {**acc, "prior": text}
+                    try:
+                        parse(text)
+                    except InvalidInput as exc:
+                        problems += [f"{where} acceptance: {p}" for p in exc.problems]
             if acc.get("measurand") not in measurands:
                 problems.append(f"{where} acceptance names measurand {acc.get('measurand')!r}, "
                                 f"which is no measurand ({', '.join(sorted(measurands))}).")
             if acc.get("lower") is None and acc.get("upper") is None:
                 problems.append(f"{where} acceptance needs 'lower' and/or 'upper' limits.")
         readings = entry.get("readings")
+        if readings is not None and not isinstance(readings, dict):
+            problems.append(f"{where} 'readings' must be a table.")
+            readings = None
         if readings is not None:
+            _unknown(problems, f"{where} readings", readings, _READ_KEYS)
+            if readings.get("estimator", proc.default_estimator) not in proc.estimators:
+                problems.append(f"{where} readings: unknown estimator "
+                                f"{readings.get('estimator')!r}; allowed: {', '.join(proc.estimators)}.")
             f = readings.get("file")
             rp = Path(f) if f else None
             if rp is not None and not rp.is_absolute() and path is not None:
@@ -197,13 +284,39 @@ def load_study(source) -> Study:
         out.append(ProcedureStudy(name=name, label=label, setup=setup, truth=truth,
                                   estimators=list(estimators), sweeps=list(sweeps), plan=plan,
                                   acceptance=acc, readings=readings, trials=entry.get("trials"),
-                                  digits=entry.get("digits"), notes=str(entry.get("notes", ""))))
+                                  digits=entry.get("digits"), max_trials=entry.get("max_trials"),
+                                  budget=entry.get("budget", "gum"),
+                                  budget_trials=entry.get("budget_trials", 2000),
+                                  notes=str(entry.get("notes", ""))))
     if problems:
         raise InvalidInput(problems)
     meta = {k: str(data[k]) for k in ("subtitle", "customer", "machine", "author") if k in data}
     return Study(title=str(data.get("title", "mtplan study")), path=path,
                  digest=hashlib.sha256(raw).hexdigest()[:16], seed=seed, digits=digits,
-                 trials=trials, coverage=coverage, meta=meta, procedures=out)
+                 trials=trials, coverage=coverage, meta=meta, procedures=out,
+                 max_trials=max_trials)
+
+
+def _grid_problems(proc, base, vary, fields, where) -> list[str]:
+    import itertools
+
+    from mtplan.models._protocol import make
+
+    if not isinstance(vary, dict) or not vary:
+        return []
+    vary = {f: v for f, v in vary.items() if f in fields and isinstance(v, list) and v}
+    found = []
+    for combo in itertools.product(*vary.values()):
+        at = dict(zip(vary, combo, strict=True))
+        try:
+            make(proc.Setup, {**base, **at}, owner="")
+        except InvalidInput as exc:
+            shown = ", ".join(f"{k}={v}" for k, v in at.items())
+            found += [f"{where} at {shown}: {p.lstrip(': ')}" for p in exc.problems]
+        if len(found) >= 5:
+            found.append(f"{where}: (further problems in this grid left out)")
+            break
+    return found
 
 
 @dataclass
@@ -263,27 +376,38 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1) -> StudyResult:
     bar = _bar(progress, steps)
     for ps in study.procedures:
         proc = get(ps.name)
-        digits = ps.digits if ps.digits is not None else study.digits
-        trials = ps.trials if ps.trials is not None else study.trials
+        # the procedure's own choice wins over the study's: trials (fixed) or digits (adaptive)
+        if ps.trials is not None or ps.digits is not None:
+            digits, trials = ps.digits, ps.trials
+        else:
+            digits, trials = study.digits, study.trials
         if digits is None and trials is None:
             trials = 10_000
+        max_trials = ps.max_trials or study.max_trials
         results = {}
         for est in ps.estimators:
             results[est] = simulate_uncertainty(
                 proc, ps.setup, ps.truth, estimator=est, trials=None if digits else trials,
                 digits=digits, coverage=study.coverage, rng=study.seed, n_jobs=n_jobs,
-                progress=False, max_trials=2 * 10**6)
+                progress=False, max_trials=max_trials)
             _tick(bar, f"{ps.name} {est}")
-        gum = linearize_procedure(proc, ps.setup, ps.truth, estimator=ps.estimators[0],
-                                  coverage=study.coverage)
-        budget = gum.budget()
+        gum = None
+        if ps.budget == "gum":
+            gum = linearize_procedure(proc, ps.setup, ps.truth, estimator=ps.estimators[0],
+                                      coverage=study.coverage)
+            budget = gum.budget()
+        else:
+            budget = _mc_budget(proc, ps, study, n_jobs)
         _tick(bar, f"{ps.name} budget")
         sweeps = []
         for sw in ps.sweeps:
-            table = sweep(proc, ps.setup, sw["vary"], truth=ps.truth,
-                          estimators=sw.get("estimators", ps.estimators),
-                          trials=sw.get("trials", 2000), seed=study.seed, n_jobs=n_jobs,
-                          progress=False)
+            try:
+                table = sweep(proc, ps.setup, sw["vary"], truth=ps.truth,
+                              estimators=sw.get("estimators", ps.estimators),
+                              trials=sw.get("trials", 2000), seed=study.seed, n_jobs=n_jobs,
+                              progress=False)
+            except InvalidInput as exc:  # a set-up the estimators refuse is a finding
+                table = " ".join(exc.problems)
             sweeps.append((sw, table))
             _tick(bar, f"{ps.name} sweep")
         outcome = ProcedureOutcome(spec=ps, title=proc.title, results=results, gum=gum,
@@ -303,6 +427,37 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1) -> StudyResult:
     if bar is not None:
         bar.close()
     return StudyResult(study=study, outcomes=outcomes, provenance=_provenance(study))
+
+
+def _mc_budget(proc, ps, study, n_jobs):
+    """Budget by Monte Carlo: each active error source alone, ``budget_trials`` trials.
+
+    For estimators that are not smooth in the readings (integer shifts, thresholds) the
+    law of propagation's finite differences mean nothing; switching sources on one at a
+    time shows each one's own effect. ``share`` is its variance over the sum of the
+    single-source variances (interactions, if any, are left out).
+    """
+    import numpy as np
+    import pandas as pd
+
+    from mtplan.uncertainty.procedures import simulate_uncertainty
+
+    rows = []
+    var = {}
+    names = None
+    for src in proc.active_sources(ps.setup):
+        r = simulate_uncertainty(proc, ps.setup, ps.truth, estimator=ps.estimators[0],
+                                 sources=[src], trials=ps.budget_trials, rng=study.seed,
+                                 n_jobs=n_jobs, progress=False)
+        names = [m.name for m in r.measurands]
+        var[src] = np.asarray(r.mc.std, dtype=float) ** 2
+    total = sum(var.values()) if var else None
+    for i, out in enumerate(names or []):
+        for src, v in var.items():
+            share = float(v[i] / total[i]) if total[i] > 0 else 0.0
+            rows.append((out, src, math.nan, math.nan, math.sqrt(v[i]), share))
+    return pd.DataFrame(rows, columns=["output", "input", "u_input", "sensitivity",
+                                       "contribution", "share"])
 
 
 def _count_steps(study):
@@ -368,8 +523,12 @@ def _run_measured(proc, ps, study):
     spec = ps.readings
     readings = measured.read_readings(proc, ps.setup, spec["file"])
     return measured.estimate_measured(proc, ps.setup, readings,
+                                      estimator=spec.get("estimator"),
                                       uncertainty=spec.get("uncertainty", "mc"),
-                                      rng=study.seed)
+                                      trials=spec.get("trials", 10_000), coverage=study.coverage,
+                                      rng=study.seed,
+                                      allow_unconverged=bool(spec.get("allow_unconverged", False)),
+                                      posterior_options=spec.get("options"))
 
 
 def _identifiability(proc, ps):
@@ -393,4 +552,12 @@ def _extras(proc, ps):
 
     module = importlib.import_module(proc.forward.__module__)
     hook = getattr(module, "report_extras", None)
-    return dict(hook(ps.setup, ps.truth)) if callable(hook) else {}
+    extras = dict(hook(ps.setup, ps.truth)) if callable(hook) else {}
+    # what the seed's method cannot see: per-estimator identifiability or observability
+    ident = getattr(module, "identifiability", None)
+    if callable(ident) and "identifiability" not in extras:
+        extras["identifiability"] = {est: ident(ps.setup, est) for est in ps.estimators}
+    obs = getattr(module, "observability", None)
+    if callable(obs) and "observability" not in extras:
+        extras["observability"] = obs(ps.setup)
+    return extras

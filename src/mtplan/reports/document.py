@@ -97,18 +97,31 @@ def _uncertainty_table(outcome) -> Table:
     for est, r in outcome.results.items():
         for i, m in enumerate(r.measurands):
             u = float(r.mc.std[i])
-            u_gum = float(gum.std[gum.index(m.name)]) if est == outcome.spec.estimators[0] else None
+            u_gum = (float(gum.std[gum.index(m.name)])
+                     if gum is not None and est == outcome.spec.estimators[0] else None)
             rows.append([est, m.name, m.unit, fmt(r.true[i], u), fmt(r.mc.mean[i], u),
                          fmt(r.bias[i], u), fmt_u(u), fmt_u(u_gum) if u_gum is not None else "-",
                          f"[{fmt(r.mc.low[i], u)}, {fmt(r.mc.high[i], u)}]"])
     first = next(iter(outcome.results.values()))
     trials = first.mc.trials
-    how = (f"adaptive Monte Carlo to {first.mc.digits} significant digits ({trials} trials)"
-           if first.mc.digits else f"{trials} Monte Carlo trials")
+    if first.mc.digits:
+        counts = sorted({r.mc.trials for r in outcome.results.values()})
+        how = (f"adaptive Monte Carlo to {first.mc.digits} significant digits "
+               f"({', '.join(str(c) for c in counts)} trials)")
+        stopped = [e for e, r in outcome.results.items() if not r.mc.converged]
+        if stopped:
+            how += f"; {', '.join(stopped)} stopped at the trial limit before all digits settled"
+    else:
+        how = f"{trials} Monte Carlo trials"
+    gum_note = ("; u GUM is the linearised prediction (law of propagation) for the first "
+                "estimator" if gum is not None else "")
+    header = ["estimator", "measurand", "unit", "true", "mean", "bias", "u", "u GUM", "interval"]
+    if gum is None:
+        header.remove("u GUM")
+        rows = [r[:7] + r[8:] for r in rows]
     return Table(
-        f"Uncertainty: {how}, {100 * first.mc.coverage:g} % probabilistically symmetric coverage "
-        "intervals; u GUM is the linearised prediction (law of propagation) for the first estimator",
-        ["estimator", "measurand", "unit", "true", "mean", "bias", "u", "u GUM", "interval"], rows)
+        f"Uncertainty: {how}; {100 * first.mc.coverage:g} % probabilistically symmetric coverage "
+        f"intervals; values rounded to two significant digits of u{gum_note}.", header, rows)
 
 
 def _budget_table(outcome) -> Table:
@@ -118,7 +131,10 @@ def _budget_table(outcome) -> Table:
         g = g.sort_values("share", ascending=False)
         top = [f"{r.input} {100 * r.share:.0f} %" for r in g.itertuples() if r.share >= 0.005]
         rows.append([out, "; ".join(top[:4]) or "-"])
-    return Table("Budget: share of each error source in u^2 (GUM, first estimator)",
+    how = ("GUM law of propagation" if outcome.gum is not None else
+           f"Monte Carlo, each source alone, {outcome.spec.budget_trials} trials")
+    return Table(f"Budget: share of each error source in u^2 ({how}; "
+                 f"{outcome.spec.estimators[0]} estimator)",
                  ["measurand", "largest error sources"], rows)
 
 
@@ -143,6 +159,25 @@ def _findings(outcome) -> list[str]:
                              f"{ests[0]} (u {fmt_u(b)} against {fmt_u(a)} {m.unit}).")
             elif a > 0 and b / a > 1.2:
                 notes.append(f"{ests[0]} determines {m.name} {b / a:.1f} times better than {est}.")
+    obs = outcome.extras.get("observability")
+    if obs:
+        for est, angles in obs.items():
+            if est not in results:
+                continue
+            for name, o in angles.items():
+                if not getattr(o, "observable", True):
+                    notes.append(f"{est}: {name} is not observable at this set-up: {o.reason}.")
+                elif getattr(o, "quantum_urad", 0) > 0:
+                    notes.append(f"{est}: {name} is quantised: {o.reason}.")
+                elif not getattr(o, "signed", True):
+                    notes.append(f"{est}: {name} has no sign: {o.reason}.")
+    for est, table in (outcome.extras.get("identifiability") or {}).items():
+        counts = table["status"].value_counts()
+        bad = {k: int(v) for k, v in counts.items() if k != "identified"}
+        if bad:
+            notes.append(f"{est}: of the 21 error functions, {int(counts.get('identified', 0))} "
+                         "are identified; " + ", ".join(f"{v} {k}" for k, v in bad.items())
+                         + " (see the identifiability table).")
     ident = outcome.identifiability
     if ident is not None and ident.rank < ident.n_params:
         notes.append(f"The readings determine only {ident.rank} of {ident.n_params} truth "
@@ -165,6 +200,45 @@ def _identifiability_table(ident) -> Table | None:
     return Table("Identifiability of the truth parameters from the noise-free readings "
                  "(column-scaled sensitivities; observability indices O1-O5)",
                  ["quantity", "value"], rows)
+
+
+def _hook_tables(extras) -> list:
+    """Tables from a procedure's own identifiability/observability functions."""
+    out = []
+    ident = extras.get("identifiability")
+    if ident:
+        ests = list(ident)
+        first = ident[ests[0]]
+        rows = []
+        for name in first.index:
+            row = [name]
+            for est in ests:
+                r = ident[est].loc[name]
+                text = str(r["status"])
+                if r.get("confounded_with"):
+                    text += f" (with {r['confounded_with']})"
+                if r.get("first_order_bias", 0):
+                    text += f"; first-order bias up to {r['first_order_bias']:.2g}"
+                row.append(text)
+            rows.append(row)
+        out.append(Table("Identifiability of each error function, per estimator (identified, "
+                         "unidentifiable: confounded with the functions named; biased: the "
+                         "seed's stepwise estimate moves with the errors named, bias per "
+                         "typical error [um or urad])", ["function"] + ests, rows))
+    obs = extras.get("observability")
+    if obs:
+        rows = []
+        for est, angles in obs.items():
+            for name, o in angles.items():
+                rows.append([est, name, "yes" if o.observable else "no",
+                             "yes" if o.signed else "no",
+                             f"{o.quantum_urad:.3g}" if o.quantum_urad else "-",
+                             f"{o.floor_urad:.3g}" if o.floor_urad else "-", o.reason])
+        out.append(Table("Observability of each angle, per estimator (quantum: resolution of "
+                         "the estimate; floor: smallest magnitude distinguishable from 0) [urad]",
+                         ["estimator", "angle", "observable", "sign", "quantum", "floor",
+                          "why"], rows))
+    return out
 
 
 def build_document(result) -> Document:
@@ -196,13 +270,17 @@ def build_document(result) -> Document:
         units = {m.name: m.unit for m in first.measurands}
         for j, (spec, table) in enumerate(outcome.sweeps, start=1):
             vary = spec["vary"]
+            if isinstance(table, str):
+                sec.blocks.append(f"The sweep over {', '.join(vary)} could not be computed: "
+                                  f"{table}")
+                continue
             sec.blocks.append(Figure(
                 f"Standard uncertainty against {', '.join(vary)} (Monte Carlo, "
                 f"{int(table['trials'].iloc[0])} trials per set-up; bars: Monte Carlo error of u).",
                 figs.sweep_figure(table, vary, list(units), units)))
             csv[f"{ps.name}_{k}_sweep{j}"] = table
         if outcome.plan is not None:
-            sec.blocks += _plan_blocks(outcome.plan)
+            sec.blocks += _plan_blocks(outcome.plan, ps.plan.get("vary", {}))
             if not isinstance(outcome.plan, str):
                 csv[f"{ps.name}_{k}_plan"] = outcome.plan.table
         if outcome.acceptance is not None:
@@ -212,6 +290,7 @@ def build_document(result) -> Document:
         t = _identifiability_table(outcome.identifiability)
         if t is not None:
             sec.blocks.append(t)
+        sec.blocks += _hook_tables(outcome.extras)
         path = outcome.extras.get("path")
         if path is not None:
             sec.blocks.append(Figure(path.get("caption", "Planned path."), figs.path_figure(path)))
@@ -240,16 +319,13 @@ def _summary_frame(outcome):
     return pd.concat(frames, ignore_index=True)
 
 
-def _plan_blocks(plan) -> list:
+def _plan_blocks(plan, vary) -> list:
     if isinstance(plan, str):
         return [Section("Plan", level=2, blocks=[f"No set-up meets the targets: {plan}"])]
     best = plan.best
     rows = [[n, f"<= {v:g}", fmt_u(best["predicted"][n]), fmt_u(best["confirmed"][n])]
             for n, v in plan.targets.items()]
-    varied = [c for c in plan.table.columns if c not in ("candidate", "duration_s", "worst",
-                                                         "feasible") and not c.startswith("u_")]
-    changed = [f"{f} = {best['setup'][f]}" for f in varied
-               if plan.table[f].nunique() > 1]
+    changed = [f"{f} = {best['setup'][f]}" for f in vary if f in best["setup"]]
     blocks = [Section("Plan: the cheapest set-up meeting the targets", level=2, blocks=[
         f"Recommended: {', '.join(changed) or 'the base set-up'}; duration "
         f"{best['duration_s'] / 60:.1f} min (confirmed by Monte Carlo).",
@@ -291,20 +367,42 @@ def _measured_blocks(measured) -> list:
     for m in doc.get("measurands", []):
         u = m.get("std")
         iv = m.get("interval") or [None, None]
-        rows.append([m["name"], m.get("unit", ""), fmt(m.get("value", m.get("mean")), u), fmt_u(u),
+        rows.append([m["name"], m.get("unit", ""), fmt(m.get("estimate"), u),
+                     fmt(m.get("value", m.get("mean")), u), fmt_u(u),
                      f"[{fmt(iv[0], u)}, {fmt(iv[1], u)}]"])
-    blocks = [Section("Measured data", level=2, blocks=[
-        Table(f"Measurands from the readings ({doc.get('uncertainty', '')})",
-              ["measurand", "unit", "value", "u", "interval"], rows)])]
-    post = getattr(measured, "posterior", None)
-    if post is not None:
-        samples = getattr(post, "samples", None)
-        chains = getattr(post, "chains", None)
-        if samples:
-            blocks.append(Figure("Posterior: pairwise samples and marginals (corner plot).",
-                                 figs.corner_figure(samples)))
-        if chains:
-            blocks.append(Figure("Posterior: walker traces.", figs.trace_figure(chains)))
+    how = {"mc": "Monte Carlo of the set-up's error sources about the estimate",
+           "posterior": "Bayesian posterior of the forward model (emcee)"}.get(
+        doc.get("uncertainty", ""), doc.get("uncertainty", ""))
+    source = getattr(measured, "source", "")
+    text = [f"Readings{' from ' + source if source else ''}, {doc.get('estimator', '')} "
+            f"estimator; uncertainty: {how}."]
+    text += [str(n) for n in doc.get("notes", [])]
+    blocks = [Section("Measured data", level=2, blocks=text + [
+        Table("Measurands from the readings (estimate: the estimator's value; value: the "
+              "reported value, the posterior mean for a posterior)",
+              ["measurand", "unit", "estimate", "value", "u", "interval"], rows)])]
+    post = getattr(measured, "details", None)
+    if getattr(measured, "uncertainty", "") == "posterior" and post is not None:
+        names = [m.name for m in post.measurands]
+        samples = {f"{n} [{u}]": post.samples[n] for n, u in
+                   ((m.name, m.unit) for m in post.measurands)}
+        state = ("converged" if post.converged else "NOT CONVERGED: read with care")
+        blocks.append(Table(
+            f"Posterior diagnostics ({state}; {post.chains.shape[0]} ensembles of "
+            f"{post.n_walkers} walkers, {post.n_steps} steps, burn-in {post.discard}, thinned by "
+            f"{post.thin}); tau: integrated autocorrelation time [steps]; R-hat: split over "
+            "ensembles; ESS: effective sample size",
+            ["quantity", "mean", "u", "tau", "R-hat", "ESS"],
+            [[n, fmt(post.mean[n], post.std[n]), fmt_u(post.std[n]),
+              f"{post.tau.get(n, float('nan')):.3g}", f"{post.rhat[n]:.4f}", f"{post.ess[n]:.0f}"]
+             for n in names + list(post.parameters)]))
+        blocks.append(Figure("Posterior of the measurands: pairwise samples and marginal "
+                             "histograms (corner plot); lines: posterior mean.",
+                             figs.corner_figure(samples)))
+        blocks.append(Figure("Walker traces of the free parameters (every walker of the first "
+                             "ensemble; grey: discarded burn-in).",
+                             figs.trace_figure({p: post.trace(p)[0] for p in post.parameters},
+                                               discard=post.discard)))
     return blocks
 
 

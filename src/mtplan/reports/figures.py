@@ -24,6 +24,12 @@ def _figure(w=6.4, h=3.6):
     return fig
 
 
+def _max_n(n):
+    from matplotlib.ticker import MaxNLocator
+
+    return MaxNLocator(n)
+
+
 def _png(fig) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
@@ -96,7 +102,8 @@ def budget_figure(budget) -> bytes:
     """Share of each error source in each measurand's variance (GUM budget)."""
     pivot = budget.pivot_table(index="output", columns="input", values="share", sort=False)
     pivot = pivot.loc[:, pivot.max(axis=0) > 0.001]
-    fig = _figure(6.4, 0.45 * len(pivot) + 1.4)
+    pivot = pivot[pivot.max(axis=0).sort_values(ascending=False).index]
+    fig = _figure(6.4, 0.28 * len(pivot) + 1.2 + 0.2 * math.ceil(len(pivot.columns) / 4))
     ax = fig.add_subplot()
     left = np.zeros(len(pivot))
     for j, src in enumerate(pivot.columns):
@@ -106,8 +113,10 @@ def budget_figure(budget) -> bytes:
     ax.set_yticks(range(len(pivot)), pivot.index, fontsize=8)
     ax.invert_yaxis()
     ax.set_xlim(0, 1)
-    ax.set_xlabel("share of u^2")
-    fig.legend(fontsize=7, loc="outside right upper")
+    ax.set_xlabel("share of u² (fraction of the variance)")
+    ax.grid(alpha=0.3, axis="x")
+    fig.legend(fontsize=7, loc="outside lower center", ncol=min(len(pivot.columns), 4),
+               frameon=False)
     return _png(fig)
 
 
@@ -129,8 +138,11 @@ def histogram_figure(result) -> bytes:
         ax.set_title(f"{m.name} [{m.unit}]", fontsize=8)
         ax.tick_params(labelsize=6)
         ax.set_yticks([])
+        ax.xaxis.set_major_locator(_max_n(4))
     for k in range(len(ms), rows * cols):
         axes[k // cols][k % cols].set_visible(False)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, loc="outside lower center", ncol=2, frameon=False)
     return _png(fig)
 
 
@@ -149,47 +161,63 @@ def estimator_figure(results: dict) -> bytes:
     ax.set_yticks(range(len(names)), [f"{n} [{m.unit}]" for n, m in zip(names, first.measurands,
                                                                         strict=True)], fontsize=8)
     ax.invert_yaxis()
-    ax.set_xlabel("bias, with +-2u bars [measurand unit]")
+    ax.set_xlabel("bias, with ±2u bars [unit of each measurand]")
     ax.grid(alpha=0.3, axis="x")
-    ax.legend(fontsize=7)
+    fig.legend(fontsize=7, loc="outside lower center", ncol=len(results), frameon=False)
     return _png(fig)
 
 
 def corner_figure(samples: dict) -> bytes:
-    """Pairwise scatter and marginal histograms of posterior samples (name -> array)."""
+    """Pairwise scatter and marginal histograms of posterior samples (label -> array)."""
     names = list(samples)[:6]
     n = len(names)
-    fig = _figure(1.6 * n + 0.6, 1.6 * n + 0.6)
+    size = max(1.7 * n + 0.8, 3.6)
+    fig = _figure(size, size)
     axes = fig.subplots(n, n, squeeze=False)
     for i, a in enumerate(names):
+        ya = np.asarray(samples[a])
         for j, b in enumerate(names):
             ax = axes[i][j]
-            ax.tick_params(labelsize=5)
+            ax.tick_params(labelsize=6)
+            xb = np.asarray(samples[b])
             if j > i:
                 ax.set_visible(False)
-            elif i == j:
-                ax.hist(samples[a], bins=40, color=_COLORS[0], alpha=0.8)
+                continue
+            if i == j:
+                ax.hist(ya, bins=40, color=_COLORS[0], alpha=0.8)
+                ax.axvline(ya.mean(), color="k", lw=0.8)
                 ax.set_yticks([])
             else:
-                ax.plot(samples[b][:4000], samples[a][:4000], ",", color=_COLORS[0], alpha=0.4)
+                ax.plot(xb[:4000], ya[:4000], ".", ms=1.5, color=_COLORS[0], alpha=0.3,
+                        rasterized=True)
+                ax.axvline(xb.mean(), color="k", lw=0.6)
+                ax.axhline(ya.mean(), color="k", lw=0.6)
             if i == n - 1:
-                ax.set_xlabel(b, fontsize=6)
+                ax.set_xlabel(b, fontsize=7)
+            else:
+                ax.set_xticklabels([])
             if j == 0 and i > 0:
-                ax.set_ylabel(a, fontsize=6)
+                ax.set_ylabel(a, fontsize=7)
+            elif j > 0:
+                ax.set_yticklabels([])
     return _png(fig)
 
 
-def trace_figure(chains: dict) -> bytes:
+def trace_figure(chains: dict, discard: int = 0) -> bytes:
     """Walker traces per parameter (name -> array of shape (steps, walkers))."""
     names = list(chains)[:6]
-    fig = _figure(6.4, 1.1 * len(names) + 0.6)
+    fig = _figure(6.4, 1.05 * len(names) + 0.7)
     axes = fig.subplots(len(names), 1, squeeze=False, sharex=True)
     for i, name in enumerate(names):
         ax = axes[i][0]
-        ax.plot(np.asarray(chains[name]), lw=0.3, alpha=0.5, color=_COLORS[0])
-        ax.set_ylabel(name, fontsize=6)
-        ax.tick_params(labelsize=5)
-    axes[-1][0].set_xlabel("step")
+        c = np.asarray(chains[name])
+        ax.plot(c, lw=0.4, alpha=0.5, color=_COLORS[0])
+        if discard:
+            ax.axvspan(0, discard, color="#999999", alpha=0.25, lw=0)
+        ax.set_ylabel(name, fontsize=7)
+        ax.tick_params(labelsize=6)
+        ax.grid(alpha=0.3)
+    axes[-1][0].set_xlabel("step of the sampler")
     return _png(fig)
 
 
