@@ -1,0 +1,63 @@
+"""Shared fixtures: one small study computed once per session (seconds, not the demo)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "src" / "mtplan" / "examples"
+
+SMALL = f"""
+title = "Small study <script>alert('title')</script>"
+subtitle = "A & B <b>bold?</b>"
+seed = 3
+trials = 300
+[[procedure]]
+name = "circle_centre"
+label = "Bore <script>alert(1)</script> & co"
+estimators = ["three_point", "kasa"]
+notes = "Notes with <img src=x onerror=alert(2)>"
+  [[procedure.sweep]]
+  vary = {{ n_points = [3, 6] }}
+  trials = 200
+  estimators = ["kasa"]
+  [procedure.plan]
+  targets = {{ centre_x = 5.0 }}
+  vary = {{ n_points = [3, 4, 6] }}
+  estimator = "kasa"
+  trials = 300
+  [procedure.acceptance]
+  measurand = "centre_x"
+  lower = -20.0
+  upper = 20.0
+  prior = "normal:0,8"
+  rule = "guard:0.5"
+  [procedure.readings]
+  file = "{(EXAMPLES / 'circle_centre_readings.csv').as_posix()}"
+  uncertainty = "mc"
+  trials = 300
+"""
+
+
+@pytest.fixture(scope="session")
+def small_study_file(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("study") / "small.toml"
+    path.write_text(SMALL, encoding="utf-8")
+    return path
+
+
+@pytest.fixture(scope="session")
+def small_result(small_study_file):
+    from mtplan.plans.study import load_study, run_study
+
+    return run_study(load_study(small_study_file), progress=False)
+
+
+@pytest.fixture(scope="session")
+def small_report(small_result, tmp_path_factory) -> Path:
+    from mtplan.reports import write_report
+
+    out = tmp_path_factory.mktemp("report")
+    write_report(small_result, out)
+    return out
