@@ -260,7 +260,10 @@ def build_document(result) -> Document:
                                  "black: true value, band: coverage interval.",
                                  figs.histogram_figure(first)))
         if len(outcome.results) > 1:
-            sec.blocks.append(Figure("Bias and +-2u of each estimator (the seed's method first).",
+            sec.blocks.append(Figure("Bias of each estimator with its +-2u bars, in units of the "
+                                     "first estimator's standard uncertainty u1 (the seed's "
+                                     "method first): a bar shorter than the first one's is a "
+                                     "better estimator.",
                                      figs.estimator_figure(outcome.results)))
         sec.blocks.append(_budget_table(outcome))
         sec.blocks.append(Figure("Uncertainty budget by error source.",
@@ -295,7 +298,7 @@ def build_document(result) -> Document:
         if path is not None:
             sec.blocks.append(Figure(path.get("caption", "Planned path."), figs.path_figure(path)))
         sec.blocks.append(Section("What the simulation shows", level=2,
-                                  blocks=[" ".join(_findings(outcome))]))
+                                  blocks=[_findings(outcome)]))
         sections.append(sec)
     prov = result.provenance
     rows = [["date", prov["date"]], ["study file", prov["study_file"]],

@@ -20,7 +20,7 @@ _COLORS = ["#1f5fa8", "#d9622b", "#3a923a", "#b0306d", "#7a5cc2", "#8c6d31", "#2
 def _figure(w=6.4, h=3.6):
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(w, h), dpi=110, layout="constrained")
+    fig = Figure(figsize=(w, h), dpi=140, layout="constrained")
     return fig
 
 
@@ -147,21 +147,22 @@ def histogram_figure(result) -> bytes:
 
 
 def estimator_figure(results: dict) -> bytes:
-    """Bias with +-2u bars per estimator and measurand (the seed's method against others)."""
+    """Bias with +-2u bars per estimator and measurand, in units of the first estimator's u
+    (so measurands in um and urad share one axis)."""
     first = next(iter(results.values()))
     names = [m.name for m in first.measurands]
-    fig = _figure(6.4, 0.35 * len(names) * len(results) + 1.2)
-    ax = fig.add_subplot()
+    u1 = np.where(np.asarray(first.mc.std) > 0, first.mc.std, 1.0)
     k = len(results)
+    fig = _figure(6.4, min(0.16 * len(names) * k + 1.3, 9.0))
+    ax = fig.add_subplot()
     for j, (est, r) in enumerate(results.items()):
         y = np.arange(len(names)) + (j - (k - 1) / 2) * 0.8 / max(k, 1)
-        ax.errorbar(r.bias, y, xerr=2 * r.mc.std, fmt="o", ms=4, capsize=2,
-                    color=_COLORS[j % len(_COLORS)], label=est)
+        ax.errorbar(np.asarray(r.bias) / u1, y, xerr=2 * np.asarray(r.mc.std) / u1, fmt="o",
+                    ms=3, capsize=2, lw=1, color=_COLORS[j % len(_COLORS)], label=est)
     ax.axvline(0, color="k", lw=0.8)
-    ax.set_yticks(range(len(names)), [f"{n} [{m.unit}]" for n, m in zip(names, first.measurands,
-                                                                        strict=True)], fontsize=8)
-    ax.invert_yaxis()
-    ax.set_xlabel("bias, with ±2u bars [unit of each measurand]")
+    ax.set_yticks(range(len(names)), names, fontsize=7 if len(names) > 8 else 8)
+    ax.set_ylim(len(names) - 0.5, -0.5)
+    ax.set_xlabel("bias ± 2u, in units of u of the first estimator")
     ax.grid(alpha=0.3, axis="x")
     fig.legend(fontsize=7, loc="outside lower center", ncol=len(results), frameon=False)
     return _png(fig)

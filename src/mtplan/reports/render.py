@@ -11,6 +11,9 @@ from mtplan.reports.document import Document, Figure, Section, Table, build_docu
 
 __all__ = ["render_html", "render_pdf", "write_report"]
 
+_NUMERIC = __import__("re").compile(r"^[\[(]?[-+]?(\d|\.\d)[\d.,eE+\- ]*[\])%]?( %)?$")
+_DPI = 140  # the figures' dpi (figures._figure)
+
 
 def render_html(doc: Document) -> str:
     """The report as one self-contained HTML page (user text escaped)."""
@@ -33,6 +36,8 @@ def render_pdf(doc: Document) -> bytes:
     from reportlab.lib.units import cm
     from reportlab.platypus import (
         Image,
+        ListFlowable,
+        ListItem,
         KeepTogether,
         PageBreak,
         Paragraph,
@@ -89,15 +94,33 @@ def render_pdf(doc: Document) -> bytes:
                        ParagraphStyle("TOC2", fontSize=9, leading=12, leftIndent=24)]
     story += [Paragraph("Contents", styles["Heading1"]), toc, PageBreak()]
 
+    num_style = ParagraphStyle("Num", parent=small, alignment=2)  # right-aligned
+
+    def is_num(c) -> bool:
+        return isinstance(c, str) and bool(_NUMERIC.match(c))
+
     def table_flowable(t: Table):
-        data = [[Paragraph(escape(str(h)), small) for h in t.header]]
-        data += [[Paragraph(escape(str(c)), small) for c in row] for row in t.rows]
-        tbl = RLTable(data, repeatRows=1, colWidths=None)
+        ncol = len(t.header)
+        numeric = [bool(t.rows) and all(is_num(r[j]) or r[j] in ("-", "") for r in t.rows)
+                   for j in range(ncol)]
+        # column widths from the longest entry (capped), scaled to the frame
+        longest = [max([len(str(t.header[j]))] + [len(str(r[j])) for r in t.rows])
+                   for j in range(ncol)]
+        weights = [min(max(n, 4), 60) for n in longest]
+        total = sum(weights)
+        widths = [width * w / total for w in weights]
+        data = [[Paragraph(f"<b>{escape(str(h))}</b>", num_style if numeric[j] else small)
+                 for j, h in enumerate(t.header)]]
+        data += [[Paragraph(escape(str(c)), num_style if numeric[j] else small)
+                  for j, c in enumerate(row)] for row in t.rows]
+        tbl = RLTable(data, repeatRows=1, colWidths=widths, hAlign="LEFT")
         tbl.setStyle(TableStyle([
             ("GRID", (0, 0), (-1, -1), 0.3, colors.HexColor("#cfd6e3")),
             ("BACKGROUND", (0, 0), (-1, 0), colors.HexColor("#eef2f8")),
+            ("ROWBACKGROUNDS", (0, 1), (-1, -1), [colors.white, colors.HexColor("#f8f9fc")]),
             ("VALIGN", (0, 0), (-1, -1), "TOP"),
             ("LEFTPADDING", (0, 0), (-1, -1), 3), ("RIGHTPADDING", (0, 0), (-1, -1), 3),
+            ("TOPPADDING", (0, 0), (-1, -1), 1.5), ("BOTTOMPADDING", (0, 0), (-1, -1), 1.5),
         ]))
         return [Paragraph(escape(t.caption), caption), Spacer(1, 2), tbl, Spacer(1, 8)]
 
@@ -106,7 +129,8 @@ def render_pdf(doc: Document) -> bytes:
 
         reader = ImageReader(io.BytesIO(f.png))
         w, h = reader.getSize()
-        scale = min(width / w, 16 * cm / h)
+        natural = 72.0 / _DPI  # points per pixel at the figure's own size
+        scale = min(natural * 1.1, width / w, 17 * cm / h)
         img = Image(io.BytesIO(f.png), width=w * scale, height=h * scale)
         return [KeepTogether([img, Paragraph(escape(f.caption), caption), Spacer(1, 10)])]
 
@@ -115,6 +139,10 @@ def render_pdf(doc: Document) -> bytes:
         for b in items:
             if isinstance(b, str):
                 out.append(Paragraph(escape(b), body))
+            elif isinstance(b, list):
+                out.append(ListFlowable([ListItem(Paragraph(escape(str(x)), body), leftIndent=12)
+                                         for x in b], bulletType="bullet", start="\u2022",
+                                        leftIndent=12))
             elif isinstance(b, Table):
                 out += table_flowable(b)
             elif isinstance(b, Figure):
