@@ -929,12 +929,14 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
 
 
 def truth_from_estimate(setup: Setup, estimate: dict) -> Truth:
-    """The Truth whose centre and radius equal `estimate` [mm] (start point at its default)."""
+    """The Truth whose centre and radius equal `estimate` [mm]; the nominal start point is
+    put at that centre (where an operator lowers the probe), so it lies inside the bore."""
     def first(v):
         return float(np.asarray(v).ravel()[0])
 
-    return Truth(centre_x_mm=first(estimate["centre_x"]), centre_y_mm=first(estimate["centre_y"]),
-                 radius_deviation_mm=first(estimate["radius"]))
+    cx, cy = first(estimate["centre_x"]), first(estimate["centre_y"])
+    return Truth(centre_x_mm=cx, centre_y_mm=cy, radius_deviation_mm=first(estimate["radius"]),
+                 start_x_mm=cx, start_y_mm=cy)
 
 
 def report_extras(setup: Setup, truth: Truth) -> dict:
