@@ -30,6 +30,11 @@ def register(sub, common) -> None:
     p.add_argument("--max-pfa", type=float, metavar="P", help="largest global false-accept probability")
     p.add_argument("--rule", default="simple", metavar="RULE",
                    help="decision rule for --tolerance (simple, guard:R, target-pfa:P, iso14253, dobbert)")
+    p.add_argument("--optimize", action="append", metavar="FIELD=LO:HI",
+                   help="search a continuous field (or every element of a list field such as "
+                        "angles_deg) within [LO, HI] for the best --criterion (repeatable)")
+    p.add_argument("--criterion", default="D", metavar="C",
+                   help="design criterion of --optimize: u:MEASURAND, D, A or E (default D)")
     p.set_defaults(func=cmd_plan)
 
     p = sub.add_parser("accept", help="acceptance decision rule and risks (JCGM 106, ISO 14253-1)")
@@ -101,6 +106,8 @@ def cmd_plan(args):
     criterion = None
     if args.tolerance or args.prior or args.max_pfa is not None:
         criterion = _pfa_criterion(args, [m.name for m in proc.measurands(setup)])
+    if args.optimize and not targets and criterion is None:
+        return _design_search(args, proc, setup, truth)
     if not targets and criterion is None:
         raise UsageError("plan needs at least one --target NAME<=VALUE, or --tolerance with "
                          "--prior and --max-pfa")
@@ -221,4 +228,48 @@ def cmd_accept(args):
     print(f"  conditional false accept {show(doc['conditional_pfa'], True)}")
     if args.measured is not None:
         print(f"  measured {args.measured:g}: specific risk {show(doc['specific_risk'], True)}")
+    return 0
+
+
+def _design_search(args, proc, setup, truth):
+    """`mtplan plan PROC --optimize FIELD=LO:HI`: continuous search against the grid's best."""
+    import json
+
+    from mtplan.cli import UsageError, _vary
+    from mtplan.plans.planner import _criterion_value, optimize_design
+    from mtplan.uncertainty.procedures import linearize_procedure
+
+    free = {}
+    for item in args.optimize:
+        name, sep, rng = item.partition("=")
+        lo, colon, hi = rng.partition(":")
+        try:
+            free[name.strip()] = (float(lo), float(hi))
+        except ValueError:
+            colon = ""
+        if not sep or not colon:
+            raise UsageError(f"--optimize expects FIELD=LO:HI, got {item!r}")
+    found = optimize_design(proc, setup, free, criterion=args.criterion, truth=truth,
+                            estimator=args.estimator)
+    doc = {"criterion": args.criterion, "start_value": found["start_value"],
+           "value": found["value"], "evaluations": found["evaluations"],
+           "setup": found["setup"].as_dict()}
+    vary = _vary(args.vary)
+    if vary:  # the best grid point, for comparison
+        from mtplan.plans.sweep import _grid
+
+        values = [(_criterion_value(linearize_procedure(proc, s, truth, estimator=args.estimator),
+                                    args.criterion), s) for s in _grid(proc, setup, vary)]
+        best_value, best = min(values, key=lambda v: v[0])
+        doc["grid_best"] = {"value": best_value, "setup": best.as_dict()}
+    if args.json:
+        print(json.dumps({"design_search": doc}, indent=1))
+        return 0
+    print(f"{proc.name}: continuous search for the best {args.criterion} (linearised)")
+    print(f"  at the base set-up: {doc['start_value']:.4g}")
+    if "grid_best" in doc:
+        shown = ", ".join(f"{f}={doc['grid_best']['setup'][f]}" for f in vary)
+        print(f"  best grid point:    {doc['grid_best']['value']:.4g} ({shown})")
+    shown = ", ".join(f"{f}={doc['setup'][f]}" for f in free)
+    print(f"  search optimum:     {doc['value']:.4g} ({shown}; {doc['evaluations']} evaluations)")
     return 0

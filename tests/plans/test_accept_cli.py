@@ -69,3 +69,19 @@ def test_plan_keeps_false_accept_under_the_limit(capsys):
     code, _, err = run(capsys, "plan", "circle_centre", "--tolerance", "nope=-3,3",
                        "--prior", "normal:0,1.5", "--max-pfa", "0.01")
     assert code == 2 and "nope" in err
+
+
+def test_plan_optimize_searches_the_a_axis_angles(capsys):
+    """Continuous design search: the A-axis angles within +-45 deg for u(EB0A), against a grid."""
+    code, out, err = run(capsys, "plan", "rotary_axis", "--set", "axis=A", "--set",
+                         "angles_deg=-45,-30,-15,0,15,30,45", "--optimize", "angles_deg=-45:45",
+                         "--criterion", "u:EB0A", "--vary",
+                         "angles_deg=-45,-30,-15,0,15,30,45|-45,-40,-35,0,35,40,45", "--json")
+    assert code == 0, err
+    doc = json.loads(out)["design_search"]
+    assert doc["value"] <= doc["grid_best"]["value"] * (1 + 1e-9)
+    assert doc["value"] < 0.9 * doc["start_value"]  # ends-and-middle beats equal spacing
+    angles = sorted(doc["setup"]["angles_deg"])
+    assert angles[0] == pytest.approx(-45, abs=0.5) and angles[-1] == pytest.approx(45, abs=0.5)
+    code, _, err = run(capsys, "plan", "rotary_axis", "--optimize", "incline_deg=10")
+    assert code == 2 and "LO:HI" in err
