@@ -437,27 +437,15 @@ def _mc_budget(proc, ps, study, n_jobs):
     time shows each one's own effect. ``share`` is its variance over the sum of the
     single-source variances (interactions, if any, are left out).
     """
-    import numpy as np
     import pandas as pd
 
-    from mtplan.uncertainty.procedures import simulate_uncertainty
+    from mtplan.uncertainty.procedures import source_budget
 
-    rows = []
-    var = {}
-    names = None
-    for src in proc.active_sources(ps.setup):
-        r = simulate_uncertainty(proc, ps.setup, ps.truth, estimator=ps.estimators[0],
-                                 sources=[src], trials=ps.budget_trials, rng=study.seed,
-                                 n_jobs=n_jobs, progress=False)
-        names = [m.name for m in r.measurands]
-        var[src] = np.asarray(r.mc.std, dtype=float) ** 2
-    total = sum(var.values()) if var else None
-    for i, out in enumerate(names or []):
-        for src, v in var.items():
-            share = float(v[i] / total[i]) if total[i] > 0 else 0.0
-            rows.append((out, src, math.nan, math.nan, math.sqrt(v[i]), share))
-    return pd.DataFrame(rows, columns=["output", "input", "u_input", "sensitivity",
-                                       "contribution", "share"])
+    df = source_budget(proc, ps.setup, ps.truth, estimator=ps.estimators[0],
+                       trials=ps.budget_trials, rng=study.seed, n_jobs=n_jobs)
+    return pd.DataFrame({"output": df["measurand"], "input": df["source"], "u_input": math.nan,
+                         "sensitivity": math.nan, "contribution": df["std"],
+                         "share": df["share"]})
 
 
 def _count_steps(study):

@@ -185,7 +185,22 @@ def _findings(outcome) -> list[str]:
                      "table).")
     if not notes:
         notes.append("No significant bias; the estimators agree within their Monte Carlo error.")
+    notes += _dominant_sources(outcome.budget)
     return notes
+
+
+def _dominant_sources(budget) -> list[str]:
+    """One sentence per error source that dominates (>= 50 %) some measurands' variance."""
+    if budget is None or not len(budget):
+        return []
+    top = budget.sort_values("share", ascending=False).groupby("output", sort=False).head(1)
+    top = top[top["share"] >= 0.5]
+    out = []
+    for source, group in top.groupby("input", sort=False):
+        shown = ", ".join(f"{r.output} {100 * r.share:.0f} %" for r in group.itertuples())
+        out.append(f"{source} is the largest error source of {shown} of u^2: the place to "
+                   "improve the set-up.")
+    return out
 
 
 def _identifiability_table(ident) -> Table | None:

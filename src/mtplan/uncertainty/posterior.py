@@ -86,6 +86,13 @@ class UnconvergedWarning(UserWarning):
 
 
 # --------------------------------------------------------------------------- diagnostics
+def _natural(chains: np.ndarray, nf: int) -> np.ndarray:
+    """Chains in the parameters' own units: the noise is sampled as log sigma."""
+    out = chains.copy()
+    out[..., nf:] = np.exp(out[..., nf:])
+    return out
+
+
 def split_rhat(chains: np.ndarray) -> np.ndarray:
     """Split R-hat (Gelman et al., BDA3 11.4) over independent ensembles.
 
@@ -882,7 +889,7 @@ def sample_posterior(
         ess=ess,
         acceptance=np.array([float(np.mean(s.acceptance_fraction)) for s in samplers]),
         converged=converged,
-        chains=chains,
+        chains=_natural(chains, nf),
         log_prob=logp,
         discard=discard,
         thin=thin,
