@@ -36,6 +36,9 @@ def test_plan_end_to_end(capsys, name):
     doc = json.loads(capsys.readouterr().out)
     best = doc["best"]
     assert best["confirmed"][measurand] <= 1e9 and doc["confirmation"][-1]["met"]
+    ident = best["identifiability"]
+    assert set(ident) == {"rank", "n_params", "condition", "O1", "O2", "O3", "O4", "O5"}
+    assert 0 < ident["rank"] <= ident["n_params"]
     durations = [c["duration_s"] for c in doc["pareto"]]
     assert best["duration_s"] == min(durations)
     # an impossible target names the best reachable value, exit 2, one line

@@ -264,14 +264,21 @@ def _flat(fields: dict) -> dict:
     return {k: (",".join(f"{x:g}" for x in v) if isinstance(v, list) else v) for k, v in fields.items()}
 
 
+_IDENT = ("rank", "n_params", "condition", "O1", "O2", "O3", "O4", "O5")
+
+
 def _candidate(row, setup, names, targets) -> dict:
-    return {
+    out = {
         "candidate": int(row["candidate"]),
         "setup": setup.as_dict(),
         "duration_s": float(row["duration_s"]),
         "predicted": {n: float(row[f"u_{n}"]) for n in names},
         "worst": float(row["worst"]),
     }
+    if "rank" in row:
+        out["identifiability"] = {k: (int(row[k]) if k in ("rank", "n_params") else float(row[k]))
+                                  for k in _IDENT}
+    return out
 
 
 def _predict(proc, setup, truth, estimator, sources) -> dict:
