@@ -69,6 +69,20 @@ class Distribution:
         raise NotImplementedError
 
 
+class _Bounded(Distribution):
+    """Shared checks of distributions on an interval [low, high], symmetric about its middle."""
+
+    def _bounds_problems(self) -> Problems:
+        p = Problems(type(self).__name__)
+        if p.number("low", self.low) & p.number("high", self.high):
+            p.require(self.high >= self.low, "high", self.high, f">= low ({self.low:g})")
+        return p
+
+    @property
+    def mean(self):
+        return (self.low + self.high) / 2
+
+
 @dataclass(frozen=True)
 class Constant(Distribution):
     """A quantity known exactly (no uncertainty)."""
@@ -115,21 +129,15 @@ class Normal(Distribution):
 
 
 @dataclass(frozen=True)
-class Rectangular(Distribution):
+class Rectangular(_Bounded):
     """Uniform on [low, high] (JCGM 101 6.4.2)."""
 
     low: float
     high: float
 
     def __post_init__(self):
-        p = Problems("Rectangular")
-        if p.number("low", self.low) & p.number("high", self.high):
-            p.require(self.high >= self.low, "high", self.high, f">= low ({self.low:g})")
+        p = self._bounds_problems()
         p.raise_if_any()
-
-    @property
-    def mean(self):
-        return (self.low + self.high) / 2
 
     @property
     def std(self):
@@ -184,7 +192,7 @@ class Triangular(Distribution):
 
 
 @dataclass(frozen=True)
-class Trapezoidal(Distribution):
+class Trapezoidal(_Bounded):
     """Symmetric trapezoid on [low, high]; `beta` is the ratio of top to base width (6.4.4)."""
 
     low: float
@@ -192,15 +200,9 @@ class Trapezoidal(Distribution):
     beta: float
 
     def __post_init__(self):
-        p = Problems("Trapezoidal")
-        if p.number("low", self.low) & p.number("high", self.high):
-            p.require(self.high >= self.low, "high", self.high, f">= low ({self.low:g})")
+        p = self._bounds_problems()
         p.number("beta", self.beta, low=0, high=1)
         p.raise_if_any()
-
-    @property
-    def mean(self):
-        return (self.low + self.high) / 2
 
     @property
     def std(self):
@@ -213,7 +215,7 @@ class Trapezoidal(Distribution):
 
 
 @dataclass(frozen=True)
-class CurvilinearTrapezoidal(Distribution):
+class CurvilinearTrapezoidal(_Bounded):
     """Rectangular on [low, high] whose limits are each inexact by +-d (6.4.3)."""
 
     low: float
@@ -221,10 +223,8 @@ class CurvilinearTrapezoidal(Distribution):
     d: float
 
     def __post_init__(self):
-        p = Problems("CurvilinearTrapezoidal")
-        ok = p.number("low", self.low) & p.number("high", self.high)
-        if ok:
-            p.require(self.high >= self.low, "high", self.high, f">= low ({self.low:g})")
+        p = self._bounds_problems()
+        ok = not p
         if p.number("d", self.d, low=0) and ok:
             p.require(
                 self.d <= (self.high - self.low) / 2,
@@ -233,10 +233,6 @@ class CurvilinearTrapezoidal(Distribution):
                 f"<= (high - low)/2 = {(self.high - self.low) / 2:g}",
             )
         p.raise_if_any()
-
-    @property
-    def mean(self):
-        return (self.low + self.high) / 2
 
     @property
     def std(self):
@@ -250,21 +246,15 @@ class CurvilinearTrapezoidal(Distribution):
 
 
 @dataclass(frozen=True)
-class Arcsine(Distribution):
+class Arcsine(_Bounded):
     """Arcsine (U-shaped) on [low, high] (6.4.6): a sinusoid at a uniform phase."""
 
     low: float
     high: float
 
     def __post_init__(self):
-        p = Problems("Arcsine")
-        if p.number("low", self.low) & p.number("high", self.high):
-            p.require(self.high >= self.low, "high", self.high, f">= low ({self.low:g})")
+        p = self._bounds_problems()
         p.raise_if_any()
-
-    @property
-    def mean(self):
-        return (self.low + self.high) / 2
 
     @property
     def std(self):
