@@ -169,6 +169,17 @@ def test_joint_is_never_worse_than_patent_for_reading_noise():
         assert np.all(joint <= pat * (1 + 1e-6)), (kw, pat, joint)
 
 
+def test_gls_recovers_what_the_joint_fit_loses_to_per_position_errors():
+    # with every default source on, the per-position errors (error motions, Z positioning)
+    # dominate and the joint fit's noise-only weighting makes it worse than the seed's
+    # method; weighting by the whole error budget (gls) restores it (linearised, exact)
+    setup = PROC.setup(axis="A", incline_azimuth_deg=60.0)
+    u = {e: linearize_procedure(PROC, setup, estimator=e).std for e in ("patent", "joint", "gls")}
+    assert np.all(u["gls"] <= u["joint"] * (1 + 1e-9))
+    assert u["joint"][1] > 1.1 * u["gls"][1]  # EZ0A: the joint fit loses more than 10 %
+    np.testing.assert_allclose(u["gls"], u["patent"], rtol=0.02)  # the seed's method is efficient
+
+
 def test_lateral_position_worsens_with_a_small_incline():
     # a lateral shift d changes the heights by d tan(incline) only
     std = [linearize_procedure(PROC, PROC.setup(incline_deg=i), sources=["probe_noise"]).std[0]
