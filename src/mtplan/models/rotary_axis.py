@@ -973,7 +973,11 @@ def _gls_weights(setup: Setup) -> np.ndarray:
     P = _plan(setup).theta.size
     cov = ((jac * u**2) @ jac.T).reshape(P, 3, P, 3)
     blocks = np.stack([cov[p, :, p, :] for p in range(P)])  # (P, 3, 3)
-    return np.linalg.inv(blocks)
+    weights = np.linalg.inv(blocks)
+    # a common factor does not move the minimum; scaling to the noise-only weights keeps
+    # the fit's convergence test (relative to unit-variance uncertainties) meaningful
+    gram = _plan(setup).gram
+    return weights * (P * np.trace(gram) / np.trace(weights, axis1=1, axis2=2).sum())
 
 
 def estimate_gls(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
