@@ -135,3 +135,23 @@ def test_killed_sweep_resumes_to_the_same_table(tmp_path):
     clean = sweep(P, vary=vary, trials=trials, seed=9, out=tmp_path / "clean.csv")
     pd.testing.assert_frame_equal(resumed, clean)
     assert resumed.groupby("setup_id").size().eq(2).all()
+
+
+def test_a_setup_an_estimator_cannot_evaluate_is_recorded_not_fatal(tmp_path):
+    import dataclasses
+
+    def fragile(setup, readings):  # gives up (NaN) on the shortest edge, like a fit that
+        est = toy_line.estimate_ls(setup, readings)  # does not converge
+        if setup.n_points == 3:
+            est = {k: v * np.nan for k, v in est.items()}
+        return est
+
+    proc = dataclasses.replace(P, estimators={"least_squares": toy_line.estimate_ls,
+                                              "fragile": fragile})
+    df = sweep(proc, vary={"n_points": [3, 5]}, trials=200, seed=1, estimators="all",
+               out=tmp_path / "s.csv")
+    bad = df[(df.estimator == "fragile") & (df.n_points == 3)]
+    assert len(bad) == 2 and bad["std"].isna().all()
+    assert bad["error"].str.contains("non-finite").all()
+    good = df[~((df.estimator == "fragile") & (df.n_points == 3))]
+    assert good["std"].notna().all() and good["error"].isna().all()

@@ -225,13 +225,20 @@ def plan(
                         if targets else "No candidate meets the acceptance criterion")
         raise InvalidInput(msgs)
 
+    from mtplan.uncertainty.montecarlo import ModelError
     from mtplan.uncertainty.procedures import simulate_uncertainty
 
     confirmation, best = [], None
     for j in feasible.index[:confirm]:
         s = setups[j]
-        r = simulate_uncertainty(proc, s, truth, estimator=estimator, sources=sources,
-                                 trials=trials, rng=seed, progress=False)
+        try:
+            r = simulate_uncertainty(proc, s, truth, estimator=estimator, sources=sources,
+                                     trials=trials, rng=seed, progress=False)
+        except ModelError as exc:  # the estimator fails on some trials: not confirmed
+            confirmation.append({"candidate": int(j), "setup": _setup_fields(s),
+                                 "duration_s": float(table.loc[j, "duration_s"]),
+                                 "met": False, "error": str(exc)})
+            continue
         mc_u = {m.name: k * float(r.mc.std[i]) for i, m in enumerate(r.measurands)}
         met = all(mc_u[n] <= v for n, v in targets.items()) and (
             criterion is None or bool(criterion(mc_u)))

@@ -39,7 +39,7 @@ from mtplan.uncertainty.montecarlo import check_run_options
 __all__ = ["sweep", "setup_seed", "RESULT_COLUMNS"]
 
 RESULT_COLUMNS = ["estimator", "measurand", "unit", "true", "mean", "bias", "std", "low", "high",
-                  "trials", "converged", "duration_s"]
+                  "trials", "converged", "duration_s", "error"]
 
 
 def _canonical(setup) -> str:
@@ -58,15 +58,27 @@ def setup_seed(seed: int, setup) -> np.random.SeedSequence:
 
 
 def _run_setup(proc, setup, truth, estimators, sources, options, seed, point):
+    from mtplan.uncertainty.montecarlo import ModelError
     from mtplan.uncertainty.procedures import simulate_uncertainty
 
     fields = {k: (",".join(f"{x:g}" for x in v) if isinstance(v, list) else v)
               for k, v in setup.as_dict().items()}
+    true = proc.display_truth(setup, truth)
+    duration = float(proc.duration(setup))
     rows = []
     for est in estimators:
-        r = simulate_uncertainty(proc, setup, truth, estimator=est, sources=sources,
-                                 rng=setup_seed(seed, setup), n_jobs=1, progress=False, **options)
-        for i, m in enumerate(r.measurands):
+        try:
+            r = simulate_uncertainty(proc, setup, truth, estimator=est, sources=sources,
+                                     rng=setup_seed(seed, setup), n_jobs=1, progress=False,
+                                     **options)
+        except (ModelError, InvalidInput) as exc:
+            # an estimator that cannot evaluate this set-up is a finding of the sweep,
+            # recorded in its rows, not a reason to lose the other set-ups
+            r, error = None, str(exc)
+        else:
+            error = ""
+        for i, m in enumerate(proc.measurands(setup)):
+            nan = float("nan")
             rows.append({
                 "point": point,
                 "setup_id": setup_id(setup),
@@ -74,15 +86,16 @@ def _run_setup(proc, setup, truth, estimators, sources, options, seed, point):
                 "estimator": est,
                 "measurand": m.name,
                 "unit": m.unit,
-                "true": float(r.true[i]),
-                "mean": float(r.mc.mean[i]),
-                "bias": float(r.bias[i]),
-                "std": float(r.mc.std[i]),
-                "low": float(r.mc.low[i]),
-                "high": float(r.mc.high[i]),
-                "trials": int(r.mc.trials),
-                "converged": bool(r.mc.converged),
-                "duration_s": float(r.duration_s),
+                "true": true[m.name],
+                "mean": float(r.mc.mean[i]) if r else nan,
+                "bias": float(r.bias[i]) if r else nan,
+                "std": float(r.mc.std[i]) if r else nan,
+                "low": float(r.mc.low[i]) if r else nan,
+                "high": float(r.mc.high[i]) if r else nan,
+                "trials": int(r.mc.trials) if r else 0,
+                "converged": bool(r.mc.converged) if r else False,
+                "duration_s": duration,
+                "error": error,
             })
     return rows
 
@@ -160,7 +173,9 @@ def sweep(
     -------
     pandas.DataFrame
         One row per set-up, estimator and measurand: ``point`` (grid index),
-        ``setup_id``, every set-up field, then :data:`RESULT_COLUMNS`.
+        ``setup_id``, every set-up field, then :data:`RESULT_COLUMNS`. A set-up that an
+        estimator cannot evaluate (non-finite estimates) has NaN values and the reason in
+        ``error`` (empty otherwise).
     """
     import pandas as pd
 

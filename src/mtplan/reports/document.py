@@ -292,10 +292,18 @@ def build_document(result) -> Document:
                 sec.blocks.append(f"The sweep over {', '.join(vary)} could not be computed: "
                                   f"{table}")
                 continue
-            sec.blocks.append(Figure(
-                f"Standard uncertainty against {', '.join(vary)} (Monte Carlo, "
-                f"{int(table['trials'].iloc[0])} trials per set-up; bars: Monte Carlo error of u).",
-                figs.sweep_figure(table, vary, list(units), units)))
+            failed = table[table["error"].fillna("").astype(str) != ""] \
+                if "error" in table else table.iloc[:0]
+            ok = table.drop(failed.index)
+            if len(ok):
+                sec.blocks.append(Figure(
+                    f"Standard uncertainty against {', '.join(vary)} (Monte Carlo, "
+                    f"{int(ok['trials'].max())} trials per set-up; bars: Monte Carlo error of u).",
+                    figs.sweep_figure(ok, vary, list(units), units)))
+            for (est, *values), group in failed.groupby(["estimator", *vary], sort=False):
+                shown = ", ".join(f"{f} = {v}" for f, v in zip(vary, values, strict=True))
+                sec.blocks.append(f"{est} cannot evaluate the set-up {shown}: "
+                                  f"{group['error'].iloc[0]}")
             csv[f"{ps.name}_{k}_sweep{j}"] = table
         if outcome.plan is not None:
             sec.blocks += _plan_blocks(outcome.plan, ps.plan.get("vary", {}))
