@@ -398,6 +398,10 @@ def estimate_measured(
                             **(posterior_options or {}))
     names = [m.name for m in measurands]
     notes.extend(post.notes)
+    systematic = [k for k, src in proc.active_sources(setup).items() if k != proc.noise_source]
+    if systematic:
+        notes.append("the posterior's likelihood covers the readings' scatter only; the set-up's "
+                     f"other error sources ({', '.join(systematic)}) are in --uncertainty mc")
     return MeasuredResult(
         procedure=proc.name, estimator=est_name, uncertainty="posterior", setup=setup,
         measurands=measurands, estimate=estimate,
