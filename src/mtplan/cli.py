@@ -305,7 +305,8 @@ def cmd_sweep(args):
 
     with pd.option_context("display.max_rows", 200, "display.width", 160):
         print(wide.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-    failed = table[table["error"].fillna("").astype(str) != ""]
+    errors = table["error"]
+    failed = table[errors.notna() & (errors.astype(str) != "")]
     for (est, point), group in failed.groupby(["estimator", "point"], sort=False):
         shown = ", ".join(f"{f}={group[f].iloc[0]}" for f in vary)
         print(f"note: {est} cannot evaluate {shown}: {group['error'].iloc[0]}", file=sys.stderr)

@@ -937,7 +937,12 @@ def estimate_joint(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
         The measurands of :func:`measurands` [mm, rad].
     """
     z = _check_readings(setup, readings)
-    par, _, station, ok = _joint_fit(setup, _planes(setup, z))
+    return _joint_measurands(setup, *_joint_fit(setup, _planes(setup, z)))
+
+
+def _joint_measurands(setup: Setup, par, phi, station, ok) -> dict[str, np.ndarray]:
+    """Measurands from the joint fit's parameters; trials that did not converge are NaN."""
+    par = par.copy()
     par[~ok] = np.nan
     lever = setup.reference_height_mm - station  # from the station to the reference
     n1, n2, a1, a2 = _NAMES[setup.axis]
@@ -992,12 +997,8 @@ def estimate_gls(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
     (flatness, scale, drift) are left out of the weight (block-diagonal).
     """
     z = _check_readings(setup, readings)
-    par, _, station, ok = _joint_fit(setup, _planes(setup, z), weights=_gls_weights(setup))
-    par[~ok] = np.nan
-    lever = setup.reference_height_mm - station
-    n1, n2, a1, a2 = _NAMES[setup.axis]
-    return {n1: par[:, 0] + lever * par[:, 2], n2: par[:, 1] + lever * par[:, 3],
-            a1: -par[:, 3], a2: par[:, 2]}
+    return _joint_measurands(setup, *_joint_fit(setup, _planes(setup, z),
+                                                weights=_gls_weights(setup)))
 
 
 ESTIMATORS = {"patent": estimate_patent, "joint": estimate_joint, "gls": estimate_gls}

@@ -292,8 +292,9 @@ def build_document(result) -> Document:
                 sec.blocks.append(f"The sweep over {', '.join(vary)} could not be computed: "
                                   f"{table}")
                 continue
-            failed = table[table["error"].fillna("").astype(str) != ""] \
-                if "error" in table else table.iloc[:0]
+            errors = table["error"] if "error" in table else None
+            failed = (table[errors.notna() & (errors.astype(str) != "")]
+                      if errors is not None else table.iloc[:0])
             ok = table.drop(failed.index)
             if len(ok):
                 sec.blocks.append(Figure(
