@@ -297,10 +297,17 @@ def build_document(result) -> Document:
                       if errors is not None else table.iloc[:0])
             ok = table.drop(failed.index)
             if len(ok):
+                shown = list(units)
+                more = ""
+                if len(shown) > 12:  # keep the panels readable; the CSV has them all
+                    shown = shown[:10]
+                    more = (f" The first {len(shown)} of {len(units)} measurands; all are in "
+                            f"results/{ps.name}_{k}_sweep{j}.csv.")
                 sec.blocks.append(Figure(
                     f"Standard uncertainty against {', '.join(vary)} (Monte Carlo, "
-                    f"{int(ok['trials'].max())} trials per set-up; bars: Monte Carlo error of u).",
-                    figs.sweep_figure(ok, vary, list(units), units)))
+                    f"{int(ok['trials'].max())} trials per set-up; bars: Monte Carlo error of u)."
+                    + more,
+                    figs.sweep_figure(ok, vary, shown, units)))
             for (est, *values), group in failed.groupby(["estimator", *vary], sort=False):
                 shown = ", ".join(f"{f} = {v}" for f, v in zip(vary, values, strict=True))
                 sec.blocks.append(f"{est} cannot evaluate the set-up {shown}: "
