@@ -237,3 +237,19 @@ def test_zero_spread_estimate_is_flagged():
     res = estimate_measured(proc, setup, readings, estimator="patent", trials=500, rng=1)
     zero = [m.name for i, m in enumerate(res.measurands) if not res.std[i] > 0]
     assert zero and all(any(n.startswith(z + ":") for n in res.notes) for z in zero)
+
+
+@pytest.mark.parametrize("name, sets", [("rotary_axis", {}), ("line_laser", {"lines": 16})])
+def test_a_reading_outside_the_instrument_range_is_refused(tmp_path, name, sets):
+    proc = registry()[name]
+    setup = proc.setup(**sets)
+    path, _ = _write(tmp_path, proc, setup)
+    import pandas as pd
+
+    df = pd.read_csv(path)
+    df.loc[3, "z_mm"] = 99.0  # far outside the sensor's measuring range
+    df.to_csv(path, index=False)
+    with pytest.raises(InvalidInput) as exc:
+        read_readings(proc, setup, path)
+    msg = str(exc.value)
+    assert "z_mm" in msg and "99" in msg and "measuring range" in msg and "row 5" in msg

@@ -208,6 +208,17 @@ def read_readings(procedure, setup, path) -> dict:
                 shown = ", ".join(f"{c} = {df[c].iloc[bad]}" for c in design)
                 _fail(path, f"row {bad + 2} ({shown}) is not a reading position of this "
                       f"{proc.name} set-up (check the set-up: --config/--set)")
+    if proc.reading_limits is not None and not reduced:
+        for c, (lo, hi, what) in proc.reading_limits(setup).items():
+            v = df[c].to_numpy(dtype=float)
+            lo = np.broadcast_to(np.asarray(lo, dtype=float), v.shape)
+            hi = np.broadcast_to(np.asarray(hi, dtype=float), v.shape)
+            out = np.flatnonzero((v < lo) | (v > hi))
+            if out.size:
+                i = int(out[0])
+                _fail(path, f"the reading in column {c!r} of {proc.name} measurement row {i + 2} "
+                      f"(in measuring order) is {v[i]:.6g}, outside {what} "
+                      f"[{lo[i]:.6g}, {hi[i]:.6g}] there")
     for c in exp_cols:
         if expected[c].dtype.kind in "iu" and df[c].dtype.kind == "f":
             if np.all(df[c] == np.round(df[c])):

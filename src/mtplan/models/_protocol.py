@@ -426,6 +426,10 @@ class Procedure:
     noise_source: str | None = None
     #: readings columns a measured file may leave out (``from_frame`` copes without them)
     optional_columns: tuple = ()
+    #: optional ``reading_limits(setup) -> {column: (low, high, what)}``: the instrument's
+    #: range per row of ``readings_frame`` (arrays or scalars); measured values outside are
+    #: refused, naming the row, the value and ``what`` range it left
+    reading_limits: Callable | None = None
 
     # ----------------------------------------------------------------- helpers
     @property

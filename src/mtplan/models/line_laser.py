@@ -994,6 +994,12 @@ def from_frame(setup, df) -> dict:
     return {"z_mm": z.reshape(1, 3, setup.lines, setup.points_per_line)}
 
 
+def reading_limits(setup: Setup) -> dict:
+    """Heights the sensor can report: its measuring range about the middle (z_l = 0) [mm]."""
+    half = setup.range_mm / 2
+    return {"z_mm": (-half, half, f"the sensor's measuring range (range_mm = {setup.range_mm:g})")}
+
+
 PROCEDURE = Procedure(
     name="line_laser",
     title="Mounting error angles of a line-laser profile sensor",
@@ -1019,4 +1025,5 @@ PROCEDURE = Procedure(
     truth_from_estimate=truth_from_estimate,
     posterior_fields=("alpha_z_mrad", "alpha_y_mrad", "alpha_x_mrad"),
     noise_source="sensor_noise",
+    reading_limits=reading_limits,
 )

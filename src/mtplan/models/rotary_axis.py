@@ -1133,6 +1133,15 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict[str, np.ndarray]:
     return {"z_mm": data["z_mm"][order].reshape(1, P, M)}
 
 
+def reading_limits(setup: Setup) -> dict:
+    """The distance sensor's measuring range around the nominal surface at each point [mm]."""
+    nominal = readings_frame(setup, forward(setup, Truth(), PROCEDURE.zero_errors(setup, 1)))
+    half = setup.sensor_range_mm / 2
+    return {"z_mm": (nominal["z_mm"].to_numpy() - half, nominal["z_mm"].to_numpy() + half,
+                     f"the sensor's measuring range (sensor_range_mm = {setup.sensor_range_mm:g} "
+                     "about the nominal surface)")}
+
+
 PROCEDURE = Procedure(
     name=NAME,
     title="Rotary-axis location from an inclined plane (C and A axes)",
@@ -1156,4 +1165,5 @@ PROCEDURE = Procedure(
     block_size=2000,
     truth_from_estimate=truth_from_estimate,
     noise_source="probe_noise",
+    reading_limits=reading_limits,
 )
