@@ -1016,6 +1016,22 @@ def noise_free_table(setup: Setup | None = None, *, scales=(1.0, 10.0, 100.0),
                                        "error", "relative"])
 
 
+def report_extras(setup: Setup, truth: Truth) -> dict:
+    """Uncertainty bands of the error functions over the tested travel, for the report.
+
+    A planner asks how well EBX is known anywhere on the axis, not how well its a2 is:
+    :func:`error_bands` (first order, all default error sources) for the seed's stepwise
+    method and the joint fit; functions the data do not determine are left out.
+    """
+    bands = {est: error_bands(setup, estimator=est, positions=21) for est in ("patent", "joint")}
+    return {"bands": {
+        "caption": ("Standard uncertainty of each determined error function over the tested "
+                    "travel (first order, every default error source), the seed's stepwise "
+                    "method against the joint fit. Squareness errors are constants (not drawn)."),
+        "tables": bands,
+    }}
+
+
 PROCEDURE = Procedure(
     name="geometry21",
     title="21 geometric errors of a three-axis machine from a 2D grid encoder",

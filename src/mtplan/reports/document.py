@@ -325,6 +325,9 @@ def build_document(result) -> Document:
         if t is not None:
             sec.blocks.append(t)
         sec.blocks += _hook_tables(outcome.extras)
+        bands = outcome.extras.get("bands")
+        if bands is not None:
+            sec.blocks.append(Figure(bands["caption"], figs.bands_figure(bands["tables"])))
         path = outcome.extras.get("path")
         if path is not None:
             sec.blocks.append(Figure(path.get("caption", "Planned path."), figs.path_figure(path)))

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-__all__ = ["sweep_figure", "pareto_figure", "budget_figure", "histogram_figure",
+__all__ = ["bands_figure", "sweep_figure", "pareto_figure", "budget_figure", "histogram_figure",
            "estimator_figure", "corner_figure", "trace_figure", "path_figure"]
 
 _COLORS = ["#1f5fa8", "#d9622b", "#3a923a", "#b0306d", "#7a5cc2", "#8c6d31", "#2a9fa8"]
@@ -246,4 +246,33 @@ def path_figure(path: dict) -> bytes:
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("y [mm]")
     ax.grid(alpha=0.3)
+    return _png(fig)
+
+
+def bands_figure(tables: dict) -> bytes:
+    """u of each error function against position: one row of panels per estimator,
+    translational functions [um] left, angular [urad] right (``tables``: estimator ->
+    DataFrame with function, unit, position_mm, std, status)."""
+    ests = list(tables)
+    fig = _figure(7.2, 2.5 * len(ests) + 0.8)
+    axes = fig.subplots(len(ests), 2, squeeze=False, sharey="col")
+    for r, est in enumerate(ests):
+        t = tables[est]
+        t = t[np.isfinite(t["std"]) & (t["status"] == "identified")]
+        for c, unit in enumerate(("um", "urad")):
+            ax = axes[r][c]
+            sub = t[t["unit"] == unit]
+            for j, (name, g) in enumerate(sub.groupby("function", sort=False)):
+                if g["position_mm"].nunique() < 2:
+                    continue  # a constant (squareness)
+                ax.plot(g["position_mm"], g["std"], lw=1.3, color=_COLORS[j % len(_COLORS)],
+                        ls="-" if j < len(_COLORS) else "--", label=name)
+            ax.set_title(f"{est}: {'positioning and straightness' if unit == 'um' else 'angular'}",
+                         fontsize=8)
+            ax.set_xlabel("position along the axis [mm]", fontsize=7)
+            ax.set_ylabel(f"u [{unit}]", fontsize=7)
+            ax.tick_params(labelsize=6)
+            ax.grid(alpha=0.3)
+            if r == 0:
+                ax.legend(fontsize=6, ncol=3)
     return _png(fig)
