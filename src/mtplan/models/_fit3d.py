@@ -19,6 +19,16 @@ batch. Lengths are in whatever unit the points are in (mm in mtplan).
   residuals. The fit starts from plane-then-Kasa and iterates Levenberg-Marquardt
   on the whole batch with the analytic Jacobian, each batch element with its own
   damping.
+- :func:`fit_circle_3d_angles`: the circle in space through points whose angles on
+  it are known (a rotary axis's commanded positions): the least-squares fit of
+  ``p_i = c + R (cos(theta_i + phi0) e1 + sin(theta_i + phi0) e2)`` over the centre
+  c, the radius R and the orientation (normal ``n = e1 x e2`` and phase phi0). With
+  ``Q = [e1', e2', n]`` (e1' the direction of angle 0) in SO(3) this is
+  ``p_i = c + R Q (cos theta_i, sin theta_i, 0)``: a similarity transform of known
+  planar points, solved in closed form (Umeyama 1991), exactly the least-squares
+  minimum, with no iteration and no start value. The tangential spacing of the
+  points gives R to first order in the arc (for two points, R = chord /
+  (2 sin(dtheta/2))); a circle fit without the angles has only the sagitta.
 - :func:`common_perpendicular`: feet and signed length of the common perpendicular
   of two skew lines.
 
@@ -40,6 +50,8 @@ __all__ = [
     "fit_line_3d",
     "fit_plane",
     "fit_circle_3d",
+    "Circle3DAngles",
+    "fit_circle_3d_angles",
     "circle_residuals",
     "common_perpendicular",
 ]
@@ -316,6 +328,78 @@ def fit_circle_3d(points, *, orient=None, max_iter: int = 100, xtol: float = 1e-
     if orient is not None:
         n = _orient(n, orient)
     return Circle3D(centre + shift, n, r, it, converged)
+
+
+class Circle3DAngles(NamedTuple):
+    """A circle in space fitted with the points' known angles.
+
+    Attributes
+    ----------
+    centre : array (..., 3)
+    normal : array (..., 3)
+        Unit normal, right-handed about increasing angle (the rotation axis).
+    radius : array (...)
+    zero_direction : array (..., 3)
+        Unit vector from the centre toward angle 0 (``e1`` rotated by the phase phi0).
+    """
+
+    centre: np.ndarray
+    normal: np.ndarray
+    radius: np.ndarray
+    zero_direction: np.ndarray
+
+
+def fit_circle_3d_angles(points, angles) -> Circle3DAngles:
+    """Least-squares circle in space through points at known angles.
+
+    Parameters
+    ----------
+    points : array (..., m, 3)
+    angles : array (..., m) or (m,)
+        Angle of each point on the circle [rad] (positive right-handed about the
+        normal), known up to one common phase; at least 3 distinct angles (mod 2 pi).
+
+    Returns
+    -------
+    Circle3DAngles
+        Minimiser of ``sum_i |p_i - c - R (cos(theta_i + phi0) e1 + sin(theta_i + phi0)
+        e2)|**2`` over c, R >= 0 and the orthonormal pair (e1, e2); normal ``e1 x e2``.
+
+    Notes
+    -----
+    With ``u_i = (cos theta_i, sin theta_i, 0)`` the model is the similarity transform
+    ``p_i = c + R Q u_i``, Q in SO(3). Eliminating c (``c = mean p - R Q mean u``) and
+    with ``H = sum (p_i - mean p)(u_i - mean u)^T = U S V^T`` (SVD), the minimiser is
+    ``Q = U D V^T``, ``D = diag(1, 1, sign(det U det V))``, ``R = tr(S D) / sum |u_i -
+    mean u|**2`` (Umeyama 1991, IEEE PAMI 13, 376). Since the u_i are planar, H has
+    rank 2 and D fixes the third column of Q (the normal) to make Q a rotation.
+    """
+    p = _as_points(points, 3, "fit_circle_3d_angles")
+    th = np.asarray(angles, dtype=float)
+    try:
+        th = np.broadcast_to(th, p.shape[:-1])
+    except ValueError:
+        raise ValueError(
+            "The 'angles' parameter of fit_circle_3d_angles must have the shape of the "
+            f"points without their last axis, {p.shape[:-1]}. Got {th.shape} instead."
+        ) from None
+    u = np.stack([np.cos(th), np.sin(th), np.zeros_like(th)], axis=-1)
+    mu_p, mu_u = p.mean(axis=-2), u.mean(axis=-2)
+    pc, uc = p - mu_p[..., None, :], u - mu_u[..., None, :]
+    su = np.einsum("...mi,...mj->...ij", uc[..., :2], uc[..., :2])
+    if np.any(np.linalg.eigvalsh(su)[..., 0] <= 1e-12 * p.shape[-2]):
+        raise ValueError(
+            "The 'angles' parameter of fit_circle_3d_angles must hold at least 3 distinct "
+            "angles (mod 2 pi) per circle: with fewer the points fix no circle."
+        )
+    h = np.einsum("...mi,...mj->...ij", pc, uc)
+    uu, s, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(uu) * np.linalg.det(vt))
+    d = np.where(d == 0, 1.0, d)
+    q = (uu * np.stack([np.ones_like(d), np.ones_like(d), d], axis=-1)[..., None, :]) @ vt
+    radius = (s[..., 0] + s[..., 1] + d * s[..., 2]) / np.sum(uc * uc, axis=(-2, -1))
+    centre = mu_p - radius[..., None] * np.einsum("...ij,...j->...i", q, mu_u)
+    return Circle3DAngles(centre, q[..., :, 2], radius, q[..., :, 0])
 
 
 def common_perpendicular(point_a, dir_a, point_b, dir_b):

@@ -112,7 +112,12 @@ import numpy as np
 import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
-from mtplan.models._fit3d import common_perpendicular, fit_circle_3d, fit_line_3d
+from mtplan.models._fit3d import (
+    common_perpendicular,
+    fit_circle_3d,
+    fit_circle_3d_angles,
+    fit_line_3d,
+)
 from mtplan.models._protocol import Measurand, Procedure, SetupBase, Source, param
 from mtplan.uncertainty.distributions import Normal, Rectangular
 
@@ -173,6 +178,9 @@ class Setup(SetupBase):
     machine_repeatability_um: float = param(
         2.0, doc="Standard deviation of the machine's positioning at each point (each axis)",
         low=0, high=10000)
+    rotary_positioning_arcsec: float = param(
+        5.0, doc="Standard deviation of the A and C axes' angular positioning at each arc "
+        "point (actual minus commanded angle)", low=0, high=36000)
     dwell_s: float = param(3.0, doc="Settling and tracker averaging per point", low=0)
     linear_feed_mm_min: float = param(3000.0, doc="Feed of the linear moves", low=0, low_open=True)
     rotary_move_s: float = param(3.0, doc="Time to index a rotary axis to the next arc point",
@@ -395,19 +403,31 @@ def _head(setup: Setup, truth: Truth, k: int) -> _Head:
     return _Head(axes, c_dir, a_dir, wrist, a_point, perp, offset, reflector, origin)
 
 
-def _machine_points(setup: Setup, truth: Truth) -> np.ndarray:
-    """True global positions (n_machine_points, 3) [mm] of the reflector, layout order."""
+def _machine_points(setup: Setup, truth: Truth, rotary_error=None) -> np.ndarray:
+    """True global positions [mm] of the reflector, layout order.
+
+    Without `rotary_error`: shape (n_machine_points, 3) at the commanded angles. With
+    `rotary_error` (batch, 2 N points_per_arc) [rad], the actual minus commanded angle
+    of every arc point (C then A for each sub-machine): shape (batch, n_machine_points, 3).
+    """
     lin = _linear_positions(setup)
-    c_ang = np.radians(_arc_angles(setup.c_arc_deg, setup.points_per_arc))
-    a_ang = np.radians(_arc_angles(setup.a_arc_deg, setup.points_per_arc))
+    q = setup.points_per_arc
+    c_ang = np.radians(_arc_angles(setup.c_arc_deg, q))
+    a_ang = np.radians(_arc_angles(setup.a_arc_deg, q))
+    err = np.zeros((1, 2 * setup.n_submachines * q)) if rotary_error is None else rotary_error
+    batch = err.shape[0]
     out = []
     for k in range(setup.n_submachines):
         h = _head(setup, truth, k)
+        e_c = err[:, 2 * k * q:(2 * k + 1) * q]
+        e_a = err[:, (2 * k + 1) * q:(2 * k + 2) * q]
         for i, ax in enumerate(AXES):
-            out.append(h.reflector + lin[ax][:, None] * h.axes[i])
-        out.append(h.wrist + (_rot(h.c_dir, c_ang) @ (h.reflector - h.wrist)))
-        out.append(h.a_point + (_rot(h.a_dir, a_ang) @ (h.reflector - h.a_point)))
-    return np.concatenate(out, axis=0)
+            out.append(np.broadcast_to(h.reflector + lin[ax][:, None] * h.axes[i],
+                                       (batch, len(lin[ax]), 3)))
+        out.append(h.wrist + (_rot(h.c_dir, c_ang + e_c) @ (h.reflector - h.wrist)))
+        out.append(h.a_point + (_rot(h.a_dir, a_ang + e_a) @ (h.reflector - h.a_point)))
+    pts = np.concatenate(out, axis=1)
+    return pts[0] if rotary_error is None else pts
 
 
 def _tracker_pose(setup: Setup, truth: Truth) -> tuple[np.ndarray, np.ndarray]:
@@ -449,6 +469,7 @@ def sources(setup: Setup) -> dict[str, Source]:
     """Error sources (internal units: mm, or mm per mm for the length-proportional parts)."""
     n = _n_points(setup)
     m = n - 4
+    q = 2 * setup.n_submachines * setup.points_per_arc
     spec = ("Default from a current tracker's ISO 10360-10 subsystem MPE (ADM 10 um + 0.3 um/m, "
             "transverse 15 um + 6 um/m); MPE converted by mpe_model.")
     return {
@@ -472,16 +493,23 @@ def sources(setup: Setup) -> dict[str, Source]:
             "Scatter of the machine's positioning at each measured point, each global axis "
             "[mm]. Default 2 um: an ISO 230-2 unidirectional repeatability of about 8 um "
             "(4 s) for large gantry axes."),
+        "rotary_positioning": Source(
+            Normal(0.0, setup.rotary_positioning_arcsec * math.pi / 648000), (q,),
+            "Angular positioning error of the A and C axes at each arc point (actual minus "
+            "commanded angle), independent from point to point [rad]: the reflector stands "
+            "at the actual angle, the readings report the commanded one. Default 5 arcsec "
+            "(standard deviation): an ISO 230-2 bidirectional positioning accuracy of about "
+            "20 arcsec (+-2 s) for the rotary axes of the swivel heads of such gantries."),
     }
 
 
 def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     """Tracker readings (distance [mm], azimuth [rad], elevation [rad]), shape (n, points)."""
     marks = _marks(setup)
-    mach = _machine_points(setup, truth)
     rep = np.asarray(errors["machine_repeatability"])
     batch = rep.shape[0]
-    pts = np.concatenate([np.broadcast_to(marks, (batch, 4, 3)), mach[None] + rep], axis=1)
+    mach = _machine_points(setup, truth, np.asarray(errors["rotary_positioning"]))
+    pts = np.concatenate([np.broadcast_to(marks, (batch, 4, 3)), mach + rep], axis=1)
     r, t = _tracker_pose(setup, truth)
     v = (pts - t) @ r  # tracker-frame coordinates: R^T (p - t), row vectors
     horiz = np.hypot(v[..., 0], v[..., 1])
@@ -518,18 +546,65 @@ def _register(setup: Setup, tracker_marks: np.ndarray) -> tuple[np.ndarray, np.n
     return rot, sc - np.einsum("nij,nj->ni", rot, mc)
 
 
-def _frame_from_points(setup: Setup, sub_points: dict) -> dict[str, np.ndarray]:
-    """The seed's construction from global points of one sub-machine (batch-first)."""
-    dirs = []
-    for ax in AXES:
-        p = sub_points[ax]
-        dirs.append(fit_line_3d(p, orient=p[:, -1] - p[:, 0]).direction)
-    c_fit = fit_circle_3d(sub_points["C"])
-    a_fit = fit_circle_3d(sub_points["A"])
-    a_foot, t_foot, offset, sin_ac = common_perpendicular(a_fit.centre, a_fit.normal,
-                                                          c_fit.centre, c_fit.normal)
-    return {"dirs": dirs, "c": c_fit, "a": a_fit, "a_foot": a_foot, "wrist": t_foot,
-            "offset": offset, "sin_ac": sin_ac}
+def _fit_arcs_patent(setup: Setup, pts: dict, k: int) -> dict:
+    """The seed's 3D circles (no angles); refuses arcs whose fit does not converge."""
+    fits = {}
+    for g, arc in (("C", setup.c_arc_deg), ("A", setup.a_arc_deg)):
+        fit = fit_circle_3d(pts[g])
+        fail = ~np.asarray(fit.converged)
+        if np.any(fail):
+            raise InvalidInput([
+                f"The 3D circle fit of the {g} arc of sub-machine {k} did not converge in "
+                f"{int(fail.sum())} of {fail.size} measurement(s): over {arc:g} deg the "
+                "points lie nearly on a straight line for their noise, so the circle and "
+                f"the {g} axis are not determined. Use a longer arc ({g.lower()}_arc_deg) "
+                "or more points."])
+        fits[g] = fit
+    return fits
+
+
+def _fit_arcs_angles(setup: Setup, pts: dict, k: int) -> dict:
+    """Circles fitted with the commanded angles of the arc points (closed form)."""
+    q = setup.points_per_arc
+    return {g: fit_circle_3d_angles(pts[g], np.radians(_arc_angles(arc, q)))
+            for g, arc in (("C", setup.c_arc_deg), ("A", setup.a_arc_deg))}
+
+
+def _estimate(setup: Setup, readings: dict, fit_arcs) -> dict[str, np.ndarray]:
+    """Registration, lines, the arcs by `fit_arcs`, then the seed's construction."""
+    xyz = _cartesian(readings)
+    rot, t = _register(setup, xyz[:, :4])
+    glob = np.einsum("nij,npj->npi", rot, xyz) + t[:, None, :]
+    sl = _slices(setup)
+    nominal = _nominal_origins(setup)
+    dot = lambda a, b: np.einsum("ni,ni->n", a, b)  # noqa: E731
+    out = {}
+    for k in range(1, setup.n_submachines + 1):
+        pts = {g: glob[:, sl[(g, k)]] for g in ("X", "Y", "Z", "C", "A")}
+        ux, uy, uz = (fit_line_3d(pts[ax], orient=pts[ax][:, -1] - pts[ax][:, 0]).direction
+                      for ax in AXES)
+        arcs = fit_arcs(setup, pts, k)
+        c_fit, a_fit = arcs["C"], arcs["A"]
+        _, wrist, offset, sin_ac = common_perpendicular(a_fit.centre, a_fit.normal,
+                                                        c_fit.centre, c_fit.normal)
+        bad = sin_ac < PARALLEL_SIN
+        if np.any(bad):
+            raise InvalidInput([
+                f"The fitted A and C axes of sub-machine {k} are parallel (angle "
+                f"{np.min(sin_ac) * 1e6:.3g} urad) in {int(bad.sum())} of {bad.size} "
+                "measurement(s): their common perpendicular, and so the wrist centre, is "
+                "undefined."])
+        origin = wrist - setup.pivot_length_mm * c_fit.normal - nominal[k - 1]
+        rx, ry, rz = _angles(_orthonormal(setup, ux, uy, uz))
+        out.update({
+            f"origin_x_{k}": origin[:, 0], f"origin_y_{k}": origin[:, 1],
+            f"origin_z_{k}": origin[:, 2],
+            f"rot_x_{k}": rx, f"rot_y_{k}": ry, f"rot_z_{k}": rz,
+            f"ac_offset_{k}": offset,
+            f"sq_xy_{k}": np.arcsin(dot(ux, uy)), f"sq_yz_{k}": np.arcsin(dot(uy, uz)),
+            f"sq_zx_{k}": np.arcsin(dot(uz, ux)),
+        })
+    return out
 
 
 def estimate_patent(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
@@ -545,46 +620,18 @@ def estimate_patent(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
     -------
     dict of measurand name -> array (n,) in mm and rad.
     """
-    xyz = _cartesian(readings)
-    rot, t = _register(setup, xyz[:, :4])
-    glob = np.einsum("nij,npj->npi", rot, xyz) + t[:, None, :]
-    sl = _slices(setup)
-    nominal = _nominal_origins(setup)
-    out = {}
-    for k in range(1, setup.n_submachines + 1):
-        pts = {g: glob[:, sl[(g, k)]] for g in ("X", "Y", "Z", "C", "A")}
-        f = _frame_from_points(setup, pts)
-        for g, arc in (("C", setup.c_arc_deg), ("A", setup.a_arc_deg)):
-            fail = ~np.asarray(f[g.lower()].converged)
-            if np.any(fail):
-                raise InvalidInput([
-                    f"The 3D circle fit of the {g} arc of sub-machine {k} did not converge in "
-                    f"{int(fail.sum())} of {fail.size} measurement(s): over {arc:g} deg the "
-                    "points lie nearly on a straight line for their noise, so the circle and "
-                    f"the {g} axis are not determined. Use a longer arc ({g.lower()}_arc_deg) "
-                    "or more points."])
-        bad = f["sin_ac"] < PARALLEL_SIN
-        if np.any(bad):
-            raise InvalidInput([
-                f"The fitted A and C axes of sub-machine {k} are parallel (angle "
-                f"{np.min(f['sin_ac']) * 1e6:.3g} urad) in {int(bad.sum())} of {bad.size} "
-                "measurement(s): their common perpendicular, and so the wrist centre, is "
-                "undefined."])
-        c_dir = f["c"].normal
-        origin = f["wrist"] - setup.pivot_length_mm * c_dir - nominal[k - 1]
-        frame = _orthonormal(setup, *f["dirs"])
-        rx, ry, rz = _angles(frame)
-        ux, uy, uz = f["dirs"]
-        dot = lambda a, b: np.einsum("ni,ni->n", a, b)  # noqa: E731
-        out.update({
-            f"origin_x_{k}": origin[:, 0], f"origin_y_{k}": origin[:, 1],
-            f"origin_z_{k}": origin[:, 2],
-            f"rot_x_{k}": rx, f"rot_y_{k}": ry, f"rot_z_{k}": rz,
-            f"ac_offset_{k}": f["offset"],
-            f"sq_xy_{k}": np.arcsin(dot(ux, uy)), f"sq_yz_{k}": np.arcsin(dot(uy, uz)),
-            f"sq_zx_{k}": np.arcsin(dot(uz, ux)),
-        })
-    return out
+    return _estimate(setup, readings, _fit_arcs_patent)
+
+
+def estimate_angles(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
+    """As :func:`estimate_patent`, but the A and C circles use the commanded angles.
+
+    Each arc is fitted as ``p_i = c + R (cos(theta_i + phi0) e1 + sin(theta_i + phi0)
+    e2)`` with the commanded angles theta_i of the set-up (the ``angle_deg`` column of
+    the readings table), in closed form (:func:`fit_circle_3d_angles`); the axis line
+    is the normal ``e1 x e2`` through c. Everything after the axis lines is the seed's.
+    """
+    return _estimate(setup, readings, _fit_arcs_angles)
 
 
 def true_values(setup: Setup, truth: Truth) -> dict[str, float]:
@@ -741,7 +788,7 @@ PROCEDURE = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators={"patent": estimate_patent},
+    estimators={"patent": estimate_patent, "angles": estimate_angles},
     true_values=true_values,
     duration=duration,
     readings_frame=readings_frame,
@@ -750,7 +797,7 @@ PROCEDURE = Procedure(
         "Laser-tracker calibration of the frames of the AC-head sub-machines of a gantry "
         "(CN106078359A): lines along the travels, 3D circles round A and C, the common "
         "perpendicular of A and C, origin at the pivot length along C, longest travel kept."),
-    exact_estimators=("patent",),
+    exact_estimators=("patent", "angles"),
     block_size=4000,
     truth_from_estimate=truth_from_estimate,
 )
