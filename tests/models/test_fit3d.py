@@ -4,7 +4,9 @@ Cases are constructed here (the TraCIM comparison is the ad-hoc script
 benchmarks/validate_fit3d_tracim.py, which reads ../shared and is not a test):
 exact points on known lines, planes and circles; noisy circles checked against an
 independent fit (scipy's least_squares with another parametrisation and the
-distance written out directly); and skew lines with a known common perpendicular.
+distance written out directly); the circle with known angles (closed form) against
+an iterative least-squares fit of the same model; and skew lines with a known common
+perpendicular.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from mtplan.models._fit3d import (
     circle_residuals,
     common_perpendicular,
     fit_circle_3d,
+    fit_circle_3d_angles,
     fit_line_3d,
     fit_plane,
 )
@@ -200,3 +203,71 @@ def test_too_few_points_or_bad_shape(fn, m):
         fn(np.zeros((m, 3)))
     with pytest.raises(ValueError, match="shape"):
         fn(np.zeros((5, 2)))
+
+
+# --------------------------------------------------------------------------- known angles
+@pytest.mark.parametrize("arc", [360.0, 60.0, 5.0])
+def test_circle_with_angles_exact_points_and_phase(arc):
+    normal, centre, radius, phase = [0.3, -0.5, 0.8], [10.0, -20.0, 5.0], 335.0, 0.7
+    n, u, _ = _basis(normal)
+    angles = np.linspace(-arc / 2, arc / 2, 7, endpoint=arc < 360)
+    p = _circle_points(centre, normal, radius, angles + np.degrees(phase))
+    fit = fit_circle_3d_angles(np.stack([p, p[::-1]]), np.radians([angles, angles[::-1]]))
+    np.testing.assert_allclose(fit.centre, [centre] * 2, atol=1e-9)
+    np.testing.assert_allclose(fit.normal, [n] * 2, atol=1e-12)  # right-handed about +angle
+    np.testing.assert_allclose(fit.radius, radius, rtol=1e-13)
+    zero = np.cos(phase) * u + np.sin(phase) * np.cross(n, u)
+    np.testing.assert_allclose(fit.zero_direction, [zero] * 2, atol=1e-12)
+    # the angles decide the handedness: the same points with negated angles turn the normal
+    back = fit_circle_3d_angles(p, -np.radians(angles))
+    np.testing.assert_allclose(back.normal, -n, atol=1e-12)
+
+
+def test_circle_with_angles_is_the_least_squares_minimum():
+    # an iterative fit of the same model (rotation vector, centre, radius) from a
+    # perturbed start reaches the closed form's cost and parameters
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(7)
+    th = np.radians(np.linspace(-10.0, 10.0, 7))
+    p = _circle_points([1.0, 2.0, 3.0], [0.2, -0.3, 0.9], 335.0, np.degrees(th) + 17.0)
+    noisy = p + rng.normal(0.0, 0.01, (4, 7, 3))
+    fit = fit_circle_3d_angles(noisy, th)
+    u = np.stack([np.cos(th), np.sin(th), 0 * th], axis=-1)
+    for b in range(4):
+        def res(x, b=b):
+            q = Rotation.from_rotvec(x[3:6]).as_matrix()
+            return (noisy[b] - x[:3] - x[6] * u @ q.T).ravel()
+
+        q0 = np.stack([fit.zero_direction[b], np.cross(fit.normal[b], fit.zero_direction[b]),
+                       fit.normal[b]], axis=-1)
+        x0 = np.r_[fit.centre[b], Rotation.from_matrix(q0).as_rotvec(), fit.radius[b]]
+        start = x0 + np.r_[0.05, -0.05, 0.05, 1e-3, -1e-3, 1e-3, 0.05]
+        ls = least_squares(res, start, xtol=1e-15, ftol=1e-15, gtol=1e-15)
+        cost0 = np.sum(res(x0) ** 2)
+        assert cost0 <= np.sum(ls.fun**2) * (1 + 1e-9)
+        np.testing.assert_allclose(ls.x[[0, 1, 2, 6]], x0[[0, 1, 2, 6]], atol=1e-4)
+
+
+def test_circle_with_angles_radius_from_the_spacing_on_a_short_arc():
+    # two points at a known angle step and one between: the radius follows from the chord,
+    # R = chord / (2 sin(dtheta / 2)), even where the sagitta (R dtheta^2 / 8) is tiny
+    th = np.radians([-1.0, 0.0, 1.0])
+    p = _circle_points([0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 100.0, np.degrees(th))
+    moved = p.copy()
+    moved[1] += 0.01 * (p[1] / 100.0)  # 10 um radial error at the middle point only
+    fit = fit_circle_3d_angles(np.stack([p, moved]), th)
+    chord = np.linalg.norm(p[2] - p[0])
+    assert fit.radius[0] == pytest.approx(chord / (2 * np.sin(np.radians(1.0))), rel=1e-12)
+    # the radial error of one point moves R by less than itself; through the sagitta
+    # (15 um here) alone it would move R by tens of mm
+    assert abs(fit.radius[1] - 100.0) < 0.01
+    assert abs(fit_circle_3d(moved).radius - 100.0) > 10.0
+
+
+def test_circle_with_angles_refuses_too_few_distinct_angles():
+    p = _circle_points([0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 100.0, np.array([0.0, 10.0, 20.0]))
+    with pytest.raises(ValueError, match="3 distinct"):
+        fit_circle_3d_angles(p, np.radians([0.0, 10.0, 370.0]))
+    with pytest.raises(ValueError, match="shape"):
+        fit_circle_3d_angles(p, np.radians([0.0, 10.0]))

@@ -1,10 +1,11 @@
-"""tracker_frame: forward model checked first, then the patent estimator.
+"""tracker_frame: forward model checked first, then the estimators (patent, angles).
 
 Forward model against hand-computed readings and geometry; the true values against
 cases whose frame is known without the construction; noise-free recovery over
 several set-ups; Monte Carlo against the GUM linearisation at small noise with
 tolerances from the Monte Carlo error; degenerate set-ups refused; the readings
-table round trip and its errors.
+table round trip and its errors; the rotary positioning error leaves patent alone;
+angles beats patent on the origin and A-C offset at short A arcs.
 """
 
 from __future__ import annotations
@@ -28,7 +29,9 @@ ZERO_HEAD = dict(wrist_dx_um=(0.0,), wrist_dy_um=(0.0,), wrist_dz_um=(0.0,),
                  a_tilt_z_urad=(0.0,), ac_offset_um=(0.0,))
 
 NOISE_FIELDS = ("distance_fixed_um", "distance_per_length_um_per_m", "transverse_fixed_um",
-                "transverse_per_length_um_per_m", "machine_repeatability_um")
+                "transverse_per_length_um_per_m", "machine_repeatability_um",
+                "rotary_positioning_arcsec")
+ESTIMATORS = list(PROC.estimators)
 
 
 def _noise_free(setup, truth):
@@ -96,6 +99,27 @@ def test_noise_enters_readings_as_specified():
     np.testing.assert_array_equal(r["azimuth_rad"], base["azimuth_rad"])
 
 
+def test_rotary_positioning_error_moves_the_reflector_round_the_axis():
+    # the actual angle is the commanded one plus the error: the A point moves round the
+    # true A line by that angle; the linear points and the marks do not move
+    setup = PROC.Setup()
+    truth = PROC.Truth()
+    q = setup.points_per_arc
+    err = np.zeros((1, 2 * setup.n_submachines * q))
+    err[0, q + 2] = 1e-3  # sub-machine 1, A arc, third point
+    moved = tf._machine_points(setup, truth, err)[0]
+    base = tf._machine_points(setup, truth)
+    changed = np.flatnonzero(np.any(moved != base, axis=1))
+    sl = tf._slices(setup)
+    assert changed.tolist() == [sl[("A", 1)].start + 2 - 4]
+    h = tf._head(setup, truth, 0)
+    a_ang = np.radians(tf._arc_angles(setup.a_arc_deg, q)[2]) + 1e-3
+    expect = h.a_point + tf._rot(h.a_dir, a_ang) @ (h.reflector - h.a_point)
+    np.testing.assert_allclose(moved[changed[0]], expect, atol=1e-12)
+    assert PROC.sources(setup)["rotary_positioning"].distribution.std == pytest.approx(
+        5 * math.pi / 648000)
+
+
 def test_mpe_conversion():
     k2 = PROC.sources(PROC.Setup())
     rect = PROC.sources(PROC.Setup(mpe_model="rectangular"))
@@ -143,18 +167,22 @@ def test_true_values_in_cases_known_without_the_construction():
 def test_noise_free_recovery(changes, truth_changes):
     setup = PROC.Setup(**changes)
     truth = PROC.Truth(**truth_changes)
-    est = PROC.display_estimate(setup, _noise_free(setup, truth))
     tv = PROC.display_truth(setup, truth)
-    for name, value in tv.items():
-        np.testing.assert_allclose(est[name], value, rtol=0, atol=1e-6, err_msg=name)
+    for est_name in ESTIMATORS:
+        est = PROC.display_estimate(setup, _noise_free(setup, truth), est_name)
+        for name, value in tv.items():
+            np.testing.assert_allclose(est[name], value, rtol=0, atol=1e-6,
+                                       err_msg=(est_name, name))
 
 
 # --------------------------------------------------------------------------- Monte Carlo
-def test_monte_carlo_matches_linearisation_at_small_noise():
+@pytest.mark.parametrize("estimator", ESTIMATORS)
+def test_monte_carlo_matches_linearisation_at_small_noise(estimator):
     setup = PROC.Setup(**{f: getattr(PROC.Setup(), f) * 0.1 for f in NOISE_FIELDS})
     n = 2000
-    mc = simulate_uncertainty(PROC, setup, trials=n, rng=20240601, progress=False)
-    gum = linearize_procedure(PROC, setup)
+    mc = simulate_uncertainty(PROC, setup, trials=n, rng=20240601, estimator=estimator,
+                              progress=False)
+    gum = linearize_procedure(PROC, setup, estimator=estimator)
     rel = 4 / math.sqrt(2 * (n - 1))
     np.testing.assert_allclose(mc.mc.std, gum.std, rtol=rel)
     # unbiased to first order: the mean is within 4 standard errors of the truth
@@ -172,6 +200,49 @@ def test_short_a_arc_drives_origin_and_offset():
     assert u[20.0]["ac_offset_1"] > u[60.0]["ac_offset_1"] > u[180.0]["ac_offset_1"]
     # the linear axes' squareness does not depend on the arcs
     assert u[20.0]["sq_xy_1"] == pytest.approx(u[180.0]["sq_xy_1"], rel=1e-6)
+
+
+@pytest.mark.parametrize("arc,factor_z,factor_offset", [(20.0, 10.0, 5.0), (60.0, 3.0, 1.5)])
+def test_angles_beats_patent_on_short_a_arcs(arc, factor_z, factor_offset):
+    # Monte Carlo, all default sources (the rotary positioning error included, which only
+    # angles feels): the std of origin_z and ac_offset of patent over that of angles
+    # exceeds the stated factor by more than 4 standard errors of the ratio (common
+    # random numbers make the ratio's error smaller than 1 / sqrt(n - 1); taken as that).
+    setup = PROC.Setup(a_arc_deg=arc)
+    n = 2000
+    std = {}
+    for est in ("patent", "angles"):
+        r = simulate_uncertainty(PROC, setup, trials=n, rng=77, estimator=est, progress=False)
+        std[est] = dict(zip([m.name for m in r.measurands], r.mc.std, strict=True))
+    margin = 1 + 4 / math.sqrt(n - 1)
+    for name, factor in (("origin_z_1", factor_z), ("ac_offset_1", factor_offset),
+                         ("origin_z_2", factor_z), ("ac_offset_2", factor_offset)):
+        assert std["patent"][name] > factor * margin * std["angles"][name], name
+    # the linear axes and the orientation do not use the arcs: the same for both
+    for name in ("sq_xy_1", "rot_x_1", "rot_z_1"):
+        assert std["patent"][name] == pytest.approx(std["angles"][name], rel=1e-9), name
+
+
+@pytest.mark.parametrize("estimator", ESTIMATORS)
+def test_rotary_positioning_error_leaves_patent_alone(estimator):
+    # the points stay on the true circles, only their angles change: the 3D circle fit
+    # does not see it (even at 1 deg); angles, which trusts the commanded angles, does
+    setup = PROC.Setup()
+    truth = PROC.Truth()
+    errs = PROC.zero_errors(setup, 1)
+    q = errs["rotary_positioning"].shape[1]
+    errs["rotary_positioning"][0] = np.radians(np.linspace(-1.0, 1.0, q))
+    out = PROC.display_estimate(setup, PROC.forward(setup, truth, errs), estimator)
+    exact = PROC.display_truth(setup, truth)
+    worst = max(abs(out[name][0] - value) for name, value in exact.items())
+    res = simulate_uncertainty(PROC, setup, sources=["rotary_positioning"], trials=200, rng=4,
+                               estimator=estimator, progress=False)
+    if estimator == "patent":
+        assert worst < 1e-6
+        assert np.all(res.mc.std < 1e-6)
+    else:
+        assert worst > 100.0  # um or urad: a 1 deg error is far beyond the tracker's
+        assert np.max(res.mc.std) > 1.0
 
 
 # --------------------------------------------------------------------------- refusals
