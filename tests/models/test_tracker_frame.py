@@ -308,6 +308,17 @@ def test_from_frame_errors_name_the_problem():
         tf.from_frame(setup, dup)
 
 
+def test_from_frame_refuses_arc_angles_other_than_the_setups():
+    setup = PROC.Setup()
+    df = tf.readings_frame(setup, _noise_free(setup, PROC.Truth()))
+    bad = df.copy()
+    row = df.index[(df.group == "A") & (df.submachine == 2) & (df["index"] == 1)][0]
+    bad.loc[row, "angle_deg"] += 0.5
+    with pytest.raises(InvalidInput, match="angle_deg.*'A', 2, 1.*a_arc_deg"):
+        tf.from_frame(setup, bad)
+    tf.from_frame(setup, df.drop(columns="angle_deg"))  # no column: the set-up's angles
+
+
 def test_duration_grows_with_points_and_submachines():
     base = PROC.duration(PROC.Setup())
     assert PROC.duration(PROC.Setup(points_per_axis=21)) > base
