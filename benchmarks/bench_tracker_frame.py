@@ -9,8 +9,11 @@
 3. With ``--sweep``: one-at-a-time sweeps (Monte Carlo, 4000 trials each) over the
    tracker distance, the points per axis and per arc, and the A arc, printing the
    standard uncertainty of sub-machine 1's measurands.
+4. With ``--compare``: patent against angles over the A arc (Monte Carlo, the sweep's
+   trials), std of origin_y/origin_z/ac_offset of sub-machine 1 and their ratio.
 
-Run: ``.venv/bin/python benchmarks/bench_tracker_frame.py [--trials 20000] [--sweep]``
+Run: ``.venv/bin/python benchmarks/bench_tracker_frame.py [--trials 20000] [--sweep]
+[--compare]``
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import numpy as np
 
 from mtplan.models import get
 from mtplan.models import tracker_frame as tf
-from mtplan.models._fit3d import fit_circle_3d, fit_line_3d
+from mtplan.models._fit3d import fit_circle_3d, fit_circle_3d_angles, fit_line_3d
 from mtplan.uncertainty.procedures import simulate_uncertainty
 
 
@@ -57,6 +60,7 @@ def speed(trials: int) -> None:
     t_fwd = best(lambda: proc.forward(setup, truth, errors))
     readings = proc.forward(setup, truth, errors)
     t_est = best(lambda: tf.estimate_patent(setup, readings))
+    t_est_ang = best(lambda: tf.estimate_angles(setup, readings))
 
     def stage_reg():
         xyz = tf._cartesian(readings)
@@ -81,6 +85,12 @@ def speed(trials: int) -> None:
           f"(up to {iters} Levenberg-Marquardt iterations)")
     rest = t_est - t_reg - t_lin - t_circ
     print(f"    rest                                {rest * 1e3:6.1f} ms")
+    th = {g: np.radians(tf._arc_angles(arc, setup.points_per_arc))
+          for g, arc in (("C", setup.c_arc_deg), ("A", setup.a_arc_deg))}
+    t_circ_ang = best(lambda: [fit_circle_3d_angles(glob[:, sl[(g, k)]], th[g])
+                               for k in k_all for g in "CA"])
+    print(f"  estimator angles {t_est_ang * 1e3:7.1f} ms, of which circles with angles "
+          f"(closed form) {t_circ_ang * 1e3:6.1f} ms")
 
 
 SHOW = ("origin_x_1", "origin_y_1", "origin_z_1", "rot_x_1", "rot_y_1", "rot_z_1",
@@ -116,15 +126,35 @@ def sweeps(trials: int) -> None:
     print(b[list(SHOW)].round(1).to_string())
 
 
+def compare(trials: int) -> None:
+    proc = get("tracker_frame")
+    show = ("origin_y_1", "origin_z_1", "ac_offset_1")
+    print(f"\npatent against angles over the A arc, std of sub-machine 1 [um] ({trials} trials)")
+    print(f"{'a_arc_deg':>10} " + " ".join(f"{m:>28}" for m in show))
+    for arc in (20.0, 60.0, 120.0, 240.0):
+        setup = proc.setup({"a_arc_deg": arc})
+        s = {}
+        for est in ("patent", "angles"):
+            r = simulate_uncertainty(proc, setup, trials=trials, rng=3, estimator=est,
+                                     progress=False)
+            s[est] = dict(zip([m.name for m in r.measurands], r.mc.std, strict=True))
+        row = " ".join(f"{s['patent'][m]:9.1f} -> {s['angles'][m]:7.1f} "
+                       f"(x{s['patent'][m] / s['angles'][m]:4.1f})" for m in show)
+        print(f"{arc:>10g} {row}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=20_000)
     ap.add_argument("--sweep", action="store_true")
+    ap.add_argument("--compare", action="store_true")
     ap.add_argument("--sweep-trials", type=int, default=4000)
     args = ap.parse_args(argv)
     speed(args.trials)
     if args.sweep:
         sweeps(args.sweep_trials)
+    if args.compare:
+        compare(args.sweep_trials)
 
 
 if __name__ == "__main__":

@@ -74,13 +74,15 @@ a_arc_deg=...), trials=20000, rng=3, estimator=...)``):
 A arc      origin_z_1          ac_offset_1
            patent -> angles    patent -> angles
 =========  ==================  ==================
-20 deg     839 -> 54 (x 16)    422 -> 57 (x 7.4)
+20 deg     839 -> 54 (x 15.7)  422 -> 57 (x 7.4)
 60 deg      96 -> 21 (x 4.6)    58 -> 34 (x 1.7)
 120 deg     28 -> 14.5 (x 1.9)  34 -> 31 (x 1.1)
 =========  ==================  ==================
 
 origin_y_1 drops from 14.2 to 11.5 um, origin_x and the orientations (which come from
-the lines) stay. Of ``angles``' 54 um at 20 deg the rotary positioning error gives 24
+the lines) stay; at 240 deg origin_z_1 is 14.2 -> 12.5 um
+(``benchmarks/bench_tracker_frame.py --compare``). ``angles`` is also about twice as
+fast (closed-form circles instead of Levenberg-Marquardt). Of ``angles``' 54 um at 20 deg the rotary positioning error gives 24
 um; ``angles`` still wins at 20 arcsec (origin_z_1 106 um at 20 deg, 37 um at 60 deg)
 and only about ties with ``patent`` at a 60 deg arc at 60 arcsec (97 um).
 
