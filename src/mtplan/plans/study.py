@@ -41,6 +41,8 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from mtplan._validate import InvalidInput
 
 __all__ = ["Study", "ProcedureStudy", "StudyResult", "load_study", "run_study"]
@@ -520,16 +522,32 @@ def _run_measured(proc, ps, study):
 
 
 def _identifiability(proc, ps):
-    try:
-        from mtplan.plans.identifiability import identifiability
-    except ImportError:  # pragma: no cover
-        return None
+    """Rank, conditioning, O1-O5 and the inseparable combinations of the set-up's parameters.
+
+    A procedure module with its own ``identifiability_report(setup)`` (geometry21: the joint
+    model of every error coefficient) is asked for it; otherwise the readings' sensitivities
+    to the measurands (or truth fields) are analysed.
+    """
+    import importlib
+    from types import SimpleNamespace
+
+    from mtplan.plans.identifiability import identifiability, observability_indices
     from mtplan.plans.planner import readings_jacobian
 
-    try:
-        J, names = readings_jacobian(proc, ps.setup, ps.truth)
-    except Exception:  # noqa: BLE001 - a procedure without float truth fields
-        return None
+    module = importlib.import_module(proc.forward.__module__)
+    own = getattr(module, "identifiability_report", None)
+    if callable(own):
+        rep = own(ps.setup)
+        sv = np.asarray(rep["singular_values"], dtype=float)
+        nulls = [" ".join(f"{w:+.2f} {k}" for k, w in list(d.items())[:6])
+                 + (" ..." if len(d) > 6 else "") for d in rep["null_space"]]
+        return SimpleNamespace(
+            names=[f"{rep['parameters']} coefficients and mounting parameters"],
+            n_params=int(rep["parameters"]), rank=int(rep["rank"]),
+            condition_number=float(rep["condition_number"]),
+            observability=observability_indices(sv, int(rep["readings"])),
+            null_combinations=nulls)
+    J, names = readings_jacobian(proc, ps.setup, ps.truth)
     return identifiability(J, names=names)
 
 
