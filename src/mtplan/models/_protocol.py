@@ -51,6 +51,7 @@ __all__ = [
     "param",
     "fields_info",
     "make",
+    "frame_columns",
     "Procedure",
 ]
 
@@ -385,6 +386,51 @@ def make(cls, values: Mapping | None = None, *, base=None, owner: str | None = N
         obj = None
     p.raise_if_any()
     return obj
+
+
+# --------------------------------------------------------------------------- readings
+def frame_columns(df, columns, owner: str, *, numeric=None, problems: Problems | None = None
+                  ) -> dict:
+    """Check a readings table and return its columns as arrays (the start of ``from_frame``).
+
+    Refuses, with one :class:`InvalidInput` listing every problem, a table that is not a
+    DataFrame, lacks any of `columns`, or has a missing or non-numeric value in one of the
+    `numeric` columns (default: all of them), naming the column and the first bad row.
+    With `problems` given, bad values are added to it (for the caller to raise together
+    with its own findings) instead of being raised here.
+
+    Returns
+    -------
+    dict of column -> array (float for numeric columns, the raw values otherwise)
+    """
+    import pandas as pd
+
+    columns = list(columns)
+    numeric = columns if numeric is None else list(numeric)
+    p = Problems(owner) if problems is None else problems
+    if not isinstance(df, pd.DataFrame):
+        p.add("data", type(df).__name__, "a pandas DataFrame")
+        p.raise_if_any()
+    missing = [c for c in columns if c not in df.columns]
+    if missing:
+        p.add_text(f"The {owner} lack the column(s) {', '.join(missing)}; the columns are "
+                   f"{', '.join(columns)}")
+        p.raise_if_any()
+    out = {}
+    for col in columns:
+        if col not in numeric:
+            out[col] = df[col].to_numpy()
+            continue
+        values = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            p.add_text(f"The column {col!r} of the {owner} must hold finite numbers; row "
+                       f"{int(bad[0])} holds {df[col].iloc[bad[0]]!r}"
+                       + (f" ({bad.size} rows in all)" if bad.size > 1 else ""))
+        out[col] = values
+    if problems is None:
+        p.raise_if_any()
+    return out
 
 
 # --------------------------------------------------------------------------- procedure

@@ -100,7 +100,14 @@ import numpy as np
 import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
-from mtplan.models._protocol import Measurand, Procedure, SetupBase, Source, param
+from mtplan.models._protocol import (
+    Measurand,
+    Procedure,
+    SetupBase,
+    Source,
+    frame_columns,
+    param,
+)
 from mtplan.uncertainty.distributions import Normal
 
 __all__ = [
@@ -938,24 +945,8 @@ def from_frame(setup, df) -> dict:
         Missing columns, non-numeric or missing values, indices out of range or
         repeated, or positions that do not match the set-up's line and step.
     """
+    vals = frame_columns(df, _COLUMNS, "line_laser data")
     p = Problems("line_laser data")
-    if not isinstance(df, pd.DataFrame):
-        p.add("data", type(df).__name__, "a pandas DataFrame")
-        p.raise_if_any()
-    missing = [c for c in _COLUMNS if c not in df.columns]
-    if missing:
-        p.add_text(f"The line_laser data lack the column(s) {', '.join(missing)}; the columns "
-                   f"are {', '.join(_COLUMNS)}")
-        p.raise_if_any()
-    vals = {}
-    for c in _COLUMNS:
-        col = pd.to_numeric(df[c], errors="coerce").to_numpy(dtype=float)
-        bad = np.flatnonzero(~np.isfinite(col))
-        if bad.size:
-            p.add_text(f"Column {c!r} of the line_laser data has a missing or non-numeric value "
-                       f"in row {int(bad[0])}")
-        vals[c] = col
-    p.raise_if_any()
     expected = 3 * setup.lines * setup.points_per_line
     if len(df) != expected:
         p.add_text(f"The line_laser data have {len(df)} rows; the set-up (3 scans x {setup.lines} "

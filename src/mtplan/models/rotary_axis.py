@@ -135,7 +135,14 @@ import numpy as np
 import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
-from mtplan.models._protocol import Measurand, Procedure, SetupBase, Source, param
+from mtplan.models._protocol import (
+    Measurand,
+    Procedure,
+    SetupBase,
+    Source,
+    frame_columns,
+    param,
+)
 from mtplan.uncertainty.distributions import Normal, Rectangular
 
 __all__ = [
@@ -1079,25 +1086,8 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict[str, np.ndarray]:
         Naming the missing column, the row with a missing or non-numeric value, a
         duplicate or missing reading, or a point that is not the set-up's.
     """
+    data = frame_columns(df, _COLUMNS, f"{NAME} readings")
     p = Problems(f"{NAME} readings")
-    if not isinstance(df, pd.DataFrame):
-        p.add("df", type(df).__name__, "a pandas DataFrame")
-        p.raise_if_any()
-    missing = [c for c in _COLUMNS if c not in df.columns]
-    if missing:
-        p.add_text(f"The readings of {NAME} lack the column(s) {', '.join(missing)}; the "
-                   f"columns are {', '.join(_COLUMNS)}")
-        p.raise_if_any()
-    data = {}
-    for col in _COLUMNS:
-        values = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
-        bad = np.flatnonzero(~np.isfinite(values))
-        if bad.size:
-            p.add_text(f"The column {col!r} of the {NAME} readings must hold finite numbers; "
-                       f"row {int(bad[0])} holds {df[col].iloc[bad[0]]!r}"
-                       + (f" ({bad.size} rows in all)" if bad.size > 1 else ""))
-        data[col] = values
-    p.raise_if_any()
     P, M = setup.n_positions, setup.n_points
     if len(df) != P * M:
         p.add_text(f"The {NAME} readings must have {P * M} rows ({P} positions x {M} points) "

@@ -166,7 +166,14 @@ from mtplan.models._fit3d import (
     fit_circle_3d_angles,
     fit_line_3d,
 )
-from mtplan.models._protocol import Measurand, Procedure, SetupBase, Source, param
+from mtplan.models._protocol import (
+    Measurand,
+    Procedure,
+    SetupBase,
+    Source,
+    frame_columns,
+    param,
+)
 from mtplan.uncertainty.distributions import Normal, Rectangular
 
 __all__ = ["PROCEDURE", "Setup", "Truth"]
@@ -782,26 +789,13 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
     set-up; an ``angle_deg`` column, when present, must agree with them (1e-6 deg).
     """
     p = Problems(f"{NAME} readings")
-    if not isinstance(df, pd.DataFrame):
-        raise InvalidInput([f"The readings of {NAME} must be a pandas DataFrame. "
-                            f"Got {type(df).__name__} instead."])
-    missing = [c for c in (*KEY_COLUMNS, *READING_COLUMNS) if c not in df.columns]
-    if missing:
-        raise InvalidInput([f"The readings of {NAME} lack the column(s) {', '.join(missing)}; "
-                            f"they need {', '.join((*KEY_COLUMNS, *READING_COLUMNS))}."])
+    values = frame_columns(df, (*KEY_COLUMNS, *READING_COLUMNS), f"{NAME} readings",
+                           numeric=READING_COLUMNS, problems=p)
     layout = _layout(setup)
     if len(df) != len(layout):
         p.add_text(f"The readings of {NAME} must have {len(layout)} rows for this set-up "
                    f"(4 marks + {setup.n_submachines} x (3 x {setup.points_per_axis} + 2 x "
                    f"{setup.points_per_arc})). Got {len(df)} instead")
-    values = {}
-    for col in READING_COLUMNS:
-        v = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
-        bad = np.flatnonzero(~np.isfinite(v))
-        if bad.size:
-            p.add_text(f"Column {col!r} of the {NAME} readings must hold finite numbers; "
-                       f"row(s) {', '.join(map(str, bad[:5]))} do not")
-        values[col] = v
     p.raise_if_any()
     try:
         keys = list(zip(df["group"].astype(str),
