@@ -11,7 +11,7 @@ import time
 import numpy as np
 
 from mtplan.models import geometry21 as g21
-from mtplan.uncertainty.procedures import simulate_uncertainty
+from mtplan.evaluation.simulation import simulate_uncertainty
 
 P = g21.PROCEDURE
 

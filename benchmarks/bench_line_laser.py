@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from mtplan.models import line_laser as ll
-from mtplan.uncertainty.procedures import simulate_uncertainty
+from mtplan.evaluation.simulation import simulate_uncertainty
 
 
 def main(trials: int = 20_000) -> None:

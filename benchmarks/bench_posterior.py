@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 def main(argv=None):
     from mtplan.models import registry
-    from mtplan.uncertainty.posterior import NotConvergedError, sample_posterior
+    from mtplan.evaluation.posterior import NotConvergedError, sample_posterior
     from tests.models import toy_line
 
     ap = argparse.ArgumentParser()

@@ -20,7 +20,7 @@ import numpy as np
 
 from mtplan.models import get
 from mtplan.uncertainty._random import as_seed_sequence, block_sequence
-from mtplan.uncertainty.procedures import simulate_uncertainty
+from mtplan.evaluation.simulation import simulate_uncertainty
 
 
 def best(fn, repeat):

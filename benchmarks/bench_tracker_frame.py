@@ -26,7 +26,7 @@ import numpy as np
 from mtplan.models import get
 from mtplan.models import tracker_frame as tf
 from mtplan.models._fit3d import fit_circle_3d, fit_circle_3d_angles, fit_line_3d
-from mtplan.uncertainty.procedures import simulate_uncertainty
+from mtplan.evaluation.simulation import simulate_uncertainty
 
 
 def best(fn, repeat=5):
@@ -119,7 +119,7 @@ def sweeps(trials: int) -> None:
             print(f"{v:>22g} {row} {r.duration_s:9.0f}")
     setup = proc.Setup()
     print("\nshare of each source (Monte Carlo, one source at a time), sub-machine 1:")
-    from mtplan.uncertainty.procedures import source_budget
+    from mtplan.evaluation.simulation import source_budget
 
     b = source_budget(proc, setup, trials=trials, rng=4)
     b = b[b.measurand.isin(SHOW)].pivot(index="source", columns="measurand", values="std")

@@ -14,7 +14,7 @@ import pytest
 
 from mtplan._validate import InvalidInput
 from mtplan.models import circle_centre as cc
-from mtplan.uncertainty.procedures import linearize_procedure, simulate_uncertainty
+from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 
 P = cc.PROCEDURE
 N = 4000

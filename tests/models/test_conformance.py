@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from mtplan._validate import InvalidInput
 from mtplan.models import registry
 from mtplan.models._protocol import UNIT_SUFFIXES, UNITS, Procedure, fields_info, make
-from mtplan.uncertainty.procedures import simulate_uncertainty
+from mtplan.evaluation.simulation import simulate_uncertainty
 from tests.models import toy_line
 
 PROCEDURES = {"toy_line": toy_line.PROCEDURE, **registry()}

@@ -9,7 +9,7 @@ import pytest
 from mtplan._validate import InvalidInput
 from mtplan.models import geometry21 as g21
 from mtplan.models._kinematics import rotate, rotate_inverse, rotation_matrix
-from mtplan.uncertainty.procedures import linearize_procedure, simulate_uncertainty
+from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 
 P = g21.PROCEDURE
 SMALL = dict(poly_order=2, line_points=5, line_repeats=1, circle_points=12)

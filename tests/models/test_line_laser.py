@@ -17,7 +17,7 @@ from scipy import stats
 
 from mtplan._validate import InvalidInput
 from mtplan.models import line_laser as ll
-from mtplan.uncertainty.procedures import linearize_procedure, simulate_uncertainty
+from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 
 PROC = ll.PROCEDURE
 SETUP = ll.Setup()

@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 from mtplan._validate import InvalidInput
 from mtplan.models import get
 from mtplan.models import rotary_axis as ra
-from mtplan.uncertainty.procedures import linearize_procedure, simulate_uncertainty
+from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 
 PROC = get("rotary_axis")
 

@@ -18,7 +18,7 @@ import pytest
 from mtplan._validate import InvalidInput
 from mtplan.models import get
 from mtplan.models import tracker_frame as tf
-from mtplan.uncertainty.procedures import linearize_procedure, simulate_uncertainty
+from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 
 PROC = get("tracker_frame")
 

@@ -26,7 +26,7 @@ from mtplan._validate import InvalidInput, Problems
 from mtplan.models._protocol import fields_info, make
 
 __all__ = ["PlanResult", "plan", "pareto_front", "optimize_design", "readings_jacobian",
-           "design_identifiability", "parse_target"]
+           "design_identifiability", "parse_target", "PfaCriterion"]
 
 
 def parse_target(text: str) -> tuple[str, float]:
@@ -135,7 +135,7 @@ def plan(
     k : float
         Coverage factor of the targets (1: standard uncertainty).
     truth, estimator, sources
-        As for :func:`mtplan.uncertainty.procedures.simulate_uncertainty`.
+        As for :func:`mtplan.evaluation.simulation.simulate_uncertainty`.
     confirm : int
         Largest number of candidates checked by Monte Carlo before giving up.
     trials : int
@@ -226,7 +226,7 @@ def plan(
         raise InvalidInput(msgs)
 
     from mtplan.uncertainty.montecarlo import ModelError
-    from mtplan.uncertainty.procedures import simulate_uncertainty
+    from mtplan.evaluation.simulation import simulate_uncertainty
 
     confirmation, best = [], None
     for j in feasible.index[:confirm]:
@@ -267,6 +267,43 @@ def plan(
                       targets=targets, k=k, runners_up=runners)
 
 
+class PfaCriterion:
+    """Feasibility rule of :func:`plan`: the global false-accept probability under a limit.
+
+    Parameters
+    ----------
+    name : str
+        The toleranced measurand.
+    lo, hi : float or None
+        Tolerance limits [display unit]; None for a one-sided tolerance.
+    prior : prior of :mod:`mtplan.plans.acceptance`
+        The population of machines.
+    rule : decision rule of :mod:`mtplan.plans.acceptance`
+    max_pfa : float
+        Largest allowed global false-accept probability.
+    """
+
+    def __init__(self, name, lo, hi, prior, rule, max_pfa):
+        self.name, self.lo, self.hi = name, lo, hi
+        self.prior, self.rule, self.max_pfa = prior, rule, max_pfa
+
+    def pfa(self, u: dict) -> float:
+        from mtplan.plans.acceptance import plan_acceptance
+
+        return plan_acceptance(self.lo, self.hi, u[self.name], prior=self.prior,
+                               rule=self.rule).pfa
+
+    def __call__(self, u: dict) -> bool:
+        return u[self.name] > 0 and self.pfa(u) <= self.max_pfa
+
+    def explain(self, us: list, where: list) -> str:
+        pfas = [self.pfa(u) for u in us]
+        j = min(range(len(pfas)), key=pfas.__getitem__)
+        at = ", ".join(f"{k}={v}" for k, v in where[j].items())
+        return (f"No candidate keeps the false-accept probability for {self.name} at or below "
+                f"{self.max_pfa:g}: the lowest reachable is {pfas[j]:.4g}" + (f" (at {at})" if at else ""))
+
+
 def _flat(fields: dict) -> dict:
     return {k: (",".join(f"{x:g}" for x in v) if isinstance(v, list) else v) for k, v in fields.items()}
 
@@ -289,7 +326,7 @@ def _candidate(row, setup, names, targets) -> dict:
 
 
 def _predict(proc, setup, truth, estimator, sources) -> dict:
-    from mtplan.uncertainty.procedures import linearize_procedure
+    from mtplan.evaluation.simulation import linearize_procedure
 
     g = linearize_procedure(proc, setup, truth, estimator=estimator, sources=sources)
     return {n: float(u) for n, u in zip(g.names, g.std, strict=True)}
@@ -342,7 +379,7 @@ def optimize_design(
     from scipy.optimize import minimize
 
     from mtplan.models import get
-    from mtplan.uncertainty.procedures import linearize_procedure
+    from mtplan.evaluation.simulation import linearize_procedure
 
     proc = get(procedure)
     base_setup = proc.Setup() if base_setup is None else base_setup

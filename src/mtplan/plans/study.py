@@ -371,7 +371,7 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1) -> StudyResult:
     """Compute every result a study asks for (the reports only render them)."""
     from mtplan.models import get
     from mtplan.plans.sweep import sweep
-    from mtplan.uncertainty.procedures import linearize_procedure, simulate_uncertainty
+    from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 
     outcomes = []
     steps = _count_steps(study)
@@ -441,7 +441,7 @@ def _mc_budget(proc, ps, study, n_jobs):
     """
     import pandas as pd
 
-    from mtplan.uncertainty.procedures import source_budget
+    from mtplan.evaluation.simulation import source_budget
 
     df = source_budget(proc, ps.setup, ps.truth, estimator=ps.estimators[0],
                        trials=ps.budget_trials, rng=study.seed, n_jobs=n_jobs)
@@ -507,7 +507,7 @@ def _run_acceptance(ps, result):
 
 def _run_measured(proc, ps, study):
     try:
-        from mtplan import measured
+        from mtplan.evaluation import measured
     except ImportError:  # pragma: no cover - until the measured-data module lands
         return None
     spec = ps.readings

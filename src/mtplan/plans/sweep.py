@@ -59,7 +59,7 @@ def setup_seed(seed: int, setup) -> np.random.SeedSequence:
 
 def _run_setup(proc, setup, truth, estimators, sources, options, seed, point):
     from mtplan.uncertainty.montecarlo import ModelError
-    from mtplan.uncertainty.procedures import simulate_uncertainty
+    from mtplan.evaluation.simulation import simulate_uncertainty
 
     fields = {k: (",".join(f"{x:g}" for x in v) if isinstance(v, list) else v)
               for k, v in setup.as_dict().items()}

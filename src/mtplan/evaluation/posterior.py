@@ -52,7 +52,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
-from mtplan.uncertainty._random import as_seed_sequence, block_sequence
+from mtplan.uncertainty._random import as_seed_sequence
+from mtplan.uncertainty.sampler import (
+    NotConvergedError,
+    UnconvergedWarning,
+    integrated_time,
+    run_ensembles,
+    split_rhat,
+    stderr_progress,
+)
 
 __all__ = [
     "PosteriorResult",
@@ -67,71 +75,11 @@ PRIOR_WIDTH = 1000.0  # default prior std in least-squares standard errors
 NOISE_RANGE = 1000.0  # log-uniform noise prior: this factor either side of the start
 
 
-class NotConvergedError(RuntimeError):
-    """The chains did not converge within the step budget.
-
-    Attributes
-    ----------
-    result : PosteriorResult
-        The partial result (``converged`` False), as emcee's ``AutocorrError`` carries ``tau``.
-    """
-
-    def __init__(self, message: str, result: PosteriorResult):
-        super().__init__(message)
-        self.result = result
-
-
-class UnconvergedWarning(UserWarning):
-    """Warning issued instead of :class:`NotConvergedError` when ``allow_unconverged=True``."""
-
-
-# --------------------------------------------------------------------------- diagnostics
 def _natural(chains: np.ndarray, nf: int) -> np.ndarray:
     """Chains in the parameters' own units: the noise is sampled as log sigma."""
     out = chains.copy()
     out[..., nf:] = np.exp(out[..., nf:])
     return out
-
-
-def split_rhat(chains: np.ndarray) -> np.ndarray:
-    """Split R-hat (Gelman et al., BDA3 11.4) over independent ensembles.
-
-    Parameters
-    ----------
-    chains : array of shape (n_ensembles, n_steps, n_walkers, n_params)
-        Post burn-in samples. Each ensemble's chain (its walkers pooled, since the
-        walkers of one ensemble are not independent) is split in two halves.
-
-    Returns
-    -------
-    array of shape (n_params,)
-    """
-    chains = np.asarray(chains, dtype=float)
-    n_steps = chains.shape[1]
-    half = n_steps // 2
-    if half < 2:
-        return np.full(chains.shape[-1], np.inf)
-    parts = np.concatenate([chains[:, :half], chains[:, n_steps - half :]], axis=0)
-    parts = parts.reshape(parts.shape[0], -1, parts.shape[-1])  # (2 m, n, p)
-    n = parts.shape[1]
-    means = parts.mean(axis=1)
-    within = parts.var(axis=1, ddof=1).mean(axis=0)
-    between_over_n = means.var(axis=0, ddof=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        var_plus = (n - 1) / n * within + between_over_n
-        rhat = np.sqrt(var_plus / within)
-    return np.where(within > 0, rhat, np.where(between_over_n > 0, np.inf, 1.0))
-
-
-def _tau(chain: np.ndarray) -> np.ndarray:
-    """Integrated autocorrelation time [steps] of (n_steps, n_walkers, n_params), no tolerance."""
-    import emcee
-
-    if chain.shape[0] < 2:
-        return np.full(chain.shape[-1], np.inf)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tau = emcee.autocorr.integrated_time(chain, quiet=True, tol=0)
-    return np.where(np.isfinite(tau), tau, np.inf)
 
 
 # --------------------------------------------------------------------------- result
@@ -592,8 +540,6 @@ def sample_posterior(
     -------
     PosteriorResult
     """
-    import emcee
-
     from mtplan.models import get
 
     t_start = time.perf_counter()
@@ -785,63 +731,20 @@ def sample_posterior(
     center = np.concatenate([theta_ls, np.log(sig0)])
     # small ball: 0.1 standard errors (noise: 0.1 / sqrt(2 n) in log sigma)
     ball = np.concatenate([0.1 * se, [0.1 / math.sqrt(2 * model.n[k]) for k in free_noise]])
-    samplers, states = [], []
-    for e in range(int(n_ensembles)):
-        seq = block_sequence(root, e)
-        gen = np.random.Generator(np.random.PCG64(seq.spawn(1)[0]))
-        p0 = center + ball * gen.standard_normal((n_walkers, ndim))
-        for _ in range(100):  # move starting walkers outside the support back in
-            lp0 = log_prob(p0)
-            bad = ~np.isfinite(lp0)
-            if not bad.any():
-                break
-            p0[bad] = center + 0.5 * (p0[bad] - center)
-        else:
-            raise InvalidInput([f"The posterior of {proc.name} is zero around the least-squares "
-                                "start; check the readings and the set-up."])
-        rstate = np.random.RandomState(np.random.MT19937(seq)).get_state()
-        sampler = emcee.EnsembleSampler(n_walkers, ndim, log_prob, vectorize=True, moves=moves)
-        samplers.append(sampler)
-        states.append(emcee.State(p0, log_prob=lp0, random_state=rstate))
-
-    # ---- run until converged
     if progress is None:
         progress = sys.stderr.isatty()
-    steps = 0
-    tau_prev = None
-    converged = False
-    tau_all = np.full((n_ensembles, ndim), np.inf)
-    rhat = np.full(ndim, np.inf)
-    while steps < max_steps:
-        n = min(int(check_every), int(max_steps) - steps)
-        for e, sampler in enumerate(samplers):
-            states[e] = sampler.run_mcmc(states[e], n, progress=False)
-        steps += n
-        tau_all = np.array([_tau(s.get_chain()) for s in samplers])
-        tau_max = tau_all.max(axis=0)
-        t = float(np.max(tau_max))
-        discard = min(int(math.ceil(burn_tau * t)) if math.isfinite(t) else steps // 2, steps - 4)
-        kept = np.stack([s.get_chain()[discard:] for s in samplers])
-        rhat = split_rhat(kept)
-        settled = tau_prev is not None and bool(np.all(np.abs(tau_max - tau_prev) < tau_rtol * tau_max))
-        long_enough = bool(np.all(steps > n_tau * tau_max))
-        if progress:
-            print(f"posterior {proc.name}: {steps} steps, tau max {t:.1f}, R-hat max "
-                  f"{float(np.max(rhat)):.4f}", file=sys.stderr)
-        if long_enough and settled and bool(np.all(rhat < rhat_max)):
-            converged = True
-            break
-        tau_prev = tau_max
+    run = run_ensembles(log_prob, center, ball, root=root, n_walkers=n_walkers,
+                        n_ensembles=int(n_ensembles), max_steps=max_steps,
+                        check_every=check_every, n_tau=n_tau, tau_rtol=tau_rtol,
+                        rhat_max=rhat_max, burn_tau=burn_tau, moves=moves,
+                        progress=stderr_progress(proc.name) if progress else None)
+    steps, converged, rhat = run.steps, run.converged, run.rhat
 
     # ---- kept samples and diagnostics
-    chains = np.stack([s.get_chain() for s in samplers])  # (E, S, W, D)
-    logp = np.stack([s.get_log_prob() for s in samplers])
-    tau_max = tau_all.max(axis=0)
+    chains, logp = run.chains, run.log_prob  # (E, S, W, D), (E, S, W)
+    tau_max = run.tau.max(axis=0)
     t_max = float(np.max(tau_max))
-    t_min = float(np.min(tau_max))
-    discard = int(math.ceil(burn_tau * t_max)) if math.isfinite(t_max) else steps // 2
-    discard = min(discard, steps - 2)
-    thin = max(1, int(0.5 * t_min)) if math.isfinite(t_min) else 1
+    discard, thin = run.burn_and_thin(burn_tau)
     kept = chains[:, discard::thin]  # (E, s, W, D)
     values = kept.copy()
     values[..., nf:] = np.exp(values[..., nf:])
@@ -856,7 +759,7 @@ def sample_posterior(
     all_names = names + [m.name for m in measurands]
     rhat_all = split_rhat(all_chains)
     kept_draws = kept.shape[1] * kept.shape[2]
-    tau_thin = np.array([_tau(all_chains[e]) for e in range(all_chains.shape[0])])  # in kept steps
+    tau_thin = np.array([integrated_time(all_chains[e]) for e in range(all_chains.shape[0])])  # in kept steps
     ess_all = np.sum(kept_draws / np.maximum(tau_thin, 1.0), axis=0)
     tau_steps = {n: float(tau_max[i]) for i, n in enumerate(names)}
     for j, m in enumerate(measurands):
@@ -887,7 +790,7 @@ def sample_posterior(
         tau=tau_steps,
         rhat=rh,
         ess=ess,
-        acceptance=np.array([float(np.mean(s.acceptance_fraction)) for s in samplers]),
+        acceptance=run.acceptance,
         converged=converged,
         chains=_natural(chains, nf),
         log_prob=logp,

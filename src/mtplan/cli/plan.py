@@ -1,19 +1,22 @@
-"""Commands beyond the foundation: registered here so cli.py stays one thin file.
-
-Each later command (plan, accept, estimate, report, demo) adds its parser in
-:func:`register`; its code lives in the library, imported when it runs.
-"""
+"""``mtplan plan``: the cheapest set-up meeting targets, its Pareto front, design search."""
 
 from __future__ import annotations
 
+import json
 
-def register(sub, common) -> None:
-    from mtplan import _cli_estimate
+from mtplan.cli._common import (
+    UsageError,
+    add_common,
+    parse_sources,
+    parse_vary,
+    procedure_and_setup,
+    write_out,
+)
 
-    _cli_estimate.register(sub, common)
 
+def register(sub) -> None:
     p = sub.add_parser("plan", help="cheapest set-up meeting targets, Pareto front")
-    common(p)
+    add_common(p)
     p.add_argument("--target", action="append", metavar="NAME<=VALUE",
                    help="bound on a measurand's uncertainty in its unit (repeatable)")
     p.add_argument("--vary", action="append", metavar="FIELD=V1,V2,...",
@@ -37,70 +40,11 @@ def register(sub, common) -> None:
                    help="design criterion of --optimize: u:MEASURAND, D, A or E (default D)")
     p.set_defaults(func=cmd_plan)
 
-    p = sub.add_parser("accept", help="acceptance decision rule and risks (JCGM 106, ISO 14253-1)")
-    p.add_argument("--lower", type=float, metavar="L", help="lower tolerance limit")
-    p.add_argument("--upper", type=float, metavar="U", help="upper tolerance limit")
-    p.add_argument("--u", type=float, required=True, metavar="u", help="standard uncertainty")
-    p.add_argument("--prior", metavar="SPEC",
-                   help="process distribution: normal:MEAN,SD, gamma:SHAPE,SCALE or FILE.csv")
-    p.add_argument("--rule", default="simple", metavar="RULE",
-                   help="simple, guard:R, target-pfa:P, iso14253 or dobbert (default simple)")
-    p.add_argument("--measured", type=float, metavar="Y", help="a measured value: its specific risk")
-    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
-    p.set_defaults(func=cmd_accept)
-
-    p = sub.add_parser("report", help="HTML and PDF report of a study")
-    p.add_argument("study", metavar="STUDY.toml", help="the study file")
-    p.add_argument("--out", metavar="DIR", required=True, help="output folder")
-    p.add_argument("--jobs", type=int, default=1, metavar="J", help="parallel workers")
-    p.set_defaults(func=cmd_report)
-
-    p = sub.add_parser("demo", help="the built-in study, end to end")
-    p.add_argument("--out", metavar="DIR", default="mtplan-report", help="output folder")
-    p.add_argument("--jobs", type=int, default=1, metavar="J", help="parallel workers")
-    p.set_defaults(func=cmd_demo)
-
-
-def _report(study_path, out, jobs, progress):
-    import sys
-    import time
-
-    from mtplan.plans.study import load_study, run_study
-    from mtplan.reports import write_report
-
-    start = time.perf_counter()
-    study = load_study(study_path)
-    result = run_study(study, progress=progress, n_jobs=jobs)
-    written = write_report(result, out)
-    print(f"report written in {time.perf_counter() - start:.1f} s:", file=sys.stderr)
-    print(written["html"])
-    print(written["pdf"])
-    return 0
-
-
-def cmd_report(args):
-    return _report(args.study, args.out, args.jobs, progress=None)
-
-
-def demo_study_path():
-    """The built-in study shipped with mtplan (``examples/demo.toml``)."""
-    from pathlib import Path
-
-    return Path(__file__).resolve().parent / "examples" / "demo.toml"
-
-
-def cmd_demo(args):
-    """Run the default study end to end and say where the report is."""
-    return _report(demo_study_path(), args.out, args.jobs, progress=True)
-
 
 def cmd_plan(args):
-    import json
-
-    from mtplan.cli import UsageError, _procedure_and_setup, _sources, _vary
     from mtplan.plans.planner import parse_target, plan
 
-    proc, setup, truth, config = _procedure_and_setup(args)
+    proc, setup, truth, config = procedure_and_setup(args)
     targets = dict(parse_target(t) for t in (args.target or []))
     targets.update({k: float(v) for k, v in config.get("targets", {}).items()})
     criterion = None
@@ -112,17 +56,15 @@ def cmd_plan(args):
         raise UsageError("plan needs at least one --target NAME<=VALUE, or --tolerance with "
                          "--prior and --max-pfa")
     vary = dict(config.get("vary", {}))
-    vary.update(_vary(args.vary))
+    vary.update(parse_vary(args.vary))
     seed = args.seed if args.seed is not None else config.get("seed", 0)
     result = plan(proc, setup, vary, targets, k=args.k, truth=truth,
                   estimator=args.estimator or config.get("estimator"),
-                  sources=_sources(args, config), confirm=args.confirm,
+                  sources=parse_sources(args, config), confirm=args.confirm,
                   trials=args.trials or 5000, seed=seed, n_jobs=args.jobs, backend=args.backend,
                   criterion=criterion)
     if args.out:
-        from mtplan.cli import _write_out
-
-        _write_out(args.out, result.table.to_csv(index=False))
+        write_out(args.out, result.table.to_csv(index=False))
     if args.json:
         print(json.dumps(result.to_dict(), indent=1, default=float))
         return 0
@@ -149,7 +91,6 @@ def cmd_plan(args):
 
 
 def _tolerance(text):
-    from mtplan.cli import UsageError
 
     name, sep, rest = (text or "").partition("=")
     lo, comma, hi = rest.partition(",")
@@ -164,33 +105,9 @@ def _tolerance(text):
     return name.strip(), lo, hi
 
 
-class _PfaCriterion:
-    """Feasibility of a set-up: global false-accept probability under the limit."""
-
-    def __init__(self, name, lo, hi, prior, rule, max_pfa):
-        self.name, self.lo, self.hi = name, lo, hi
-        self.prior, self.rule, self.max_pfa = prior, rule, max_pfa
-
-    def pfa(self, u: dict) -> float:
-        from mtplan.plans.acceptance import plan_acceptance
-
-        return plan_acceptance(self.lo, self.hi, u[self.name], prior=self.prior,
-                               rule=self.rule).pfa
-
-    def __call__(self, u: dict) -> bool:
-        return u[self.name] > 0 and self.pfa(u) <= self.max_pfa
-
-    def explain(self, us: list, where: list) -> str:
-        pfas = [self.pfa(u) for u in us]
-        j = min(range(len(pfas)), key=pfas.__getitem__)
-        at = ", ".join(f"{k}={v}" for k, v in where[j].items())
-        return (f"No candidate keeps the false-accept probability for {self.name} at or below "
-                f"{self.max_pfa:g}: the lowest reachable is {pfas[j]:.4g}" + (f" (at {at})" if at else ""))
-
-
 def _pfa_criterion(args, measurands):
-    from mtplan.cli import UsageError
     from mtplan.plans.acceptance import parse_prior, parse_rule
+    from mtplan.plans.planner import PfaCriterion
 
     if not (args.tolerance and args.prior and args.max_pfa is not None):
         raise UsageError("--tolerance, --prior and --max-pfa go together")
@@ -199,45 +116,13 @@ def _pfa_criterion(args, measurands):
         raise UsageError(f"--tolerance names {name!r}, which is no measurand ({', '.join(measurands)})")
     if not 0 < args.max_pfa < 1:
         raise UsageError(f"--max-pfa must lie between 0 and 1, got {args.max_pfa:g}")
-    return _PfaCriterion(name, lo, hi, parse_prior(args.prior), parse_rule(args.rule), args.max_pfa)
-
-
-def cmd_accept(args):
-    import json
-
-    from mtplan.plans.acceptance import plan_acceptance
-
-    r = plan_acceptance(args.lower, args.upper, args.u, prior=args.prior, rule=args.rule,
-                        measured=args.measured)
-    doc = r.to_dict()
-    if args.json:
-        print(json.dumps(doc, indent=1))
-        return 0
-
-    def show(x, pct=False):
-        if x is None:
-            return "-"
-        return f"{100 * x:.4g} %" if pct else f"{x:.6g}"
-
-    lo, hi = doc["acceptance_limits"]
-    print(f"tolerance [{show(args.lower)}, {show(args.upper)}], u = {args.u:g}, rule {args.rule}")
-    print(f"  acceptance limits        [{show(lo)}, {show(hi)}]")
-    print(f"  TUR                      {show(doc['tur'])}    Cm {show(doc['cm'])}")
-    print(f"  false accept (global)    {show(doc['pfa'], True)}")
-    print(f"  false reject (global)    {show(doc['pfr'], True)}")
-    print(f"  conditional false accept {show(doc['conditional_pfa'], True)}")
-    if args.measured is not None:
-        print(f"  measured {args.measured:g}: specific risk {show(doc['specific_risk'], True)}")
-    return 0
+    return PfaCriterion(name, lo, hi, parse_prior(args.prior), parse_rule(args.rule), args.max_pfa)
 
 
 def _design_search(args, proc, setup, truth):
     """`mtplan plan PROC --optimize FIELD=LO:HI`: continuous search against the grid's best."""
-    import json
-
-    from mtplan.cli import UsageError, _vary
     from mtplan.plans.planner import _criterion_value, optimize_design
-    from mtplan.uncertainty.procedures import linearize_procedure
+    from mtplan.evaluation.simulation import linearize_procedure
 
     free = {}
     for item in args.optimize:
@@ -254,7 +139,7 @@ def _design_search(args, proc, setup, truth):
     doc = {"criterion": args.criterion, "start_value": found["start_value"],
            "value": found["value"], "evaluations": found["evaluations"],
            "setup": found["setup"].as_dict()}
-    vary = _vary(args.vary)
+    vary = parse_vary(args.vary)
     if vary:  # the best grid point, for comparison
         from mtplan.plans.sweep import _grid
 

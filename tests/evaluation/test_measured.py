@@ -10,7 +10,7 @@ import pytest
 
 from mtplan import cli
 from mtplan._validate import InvalidInput
-from mtplan.measured import estimate_measured, read_readings
+from mtplan.evaluation.measured import estimate_measured, read_readings
 from mtplan.models import registry
 from tests.models import toy_line
 
@@ -133,18 +133,10 @@ def test_estimate_bad_method():
 # --------------------------------------------------------------------------- command line
 @pytest.fixture
 def toy_cli(monkeypatch):
-    """toy_line registered and the estimate command wired as the lead will wire it."""
-    from mtplan import _cli_estimate, _cli_extra, models
+    """toy_line registered beside the real procedures."""
+    from mtplan import models
 
     monkeypatch.setattr(models, "_REGISTRY", {**registry(), "toy_line": PROC})
-    original = _cli_extra.register
-
-    def register(sub, common):
-        original(sub, common)
-        if "estimate" not in sub.choices:
-            _cli_estimate.register(sub, common)
-
-    monkeypatch.setattr(_cli_extra, "register", register)
 
 
 def run(capsys, *argv):

@@ -1,12 +1,21 @@
-"""The ``mtplan estimate`` command: measurands with uncertainty from a readings CSV.
-
-Registered from :func:`mtplan._cli_extra.register` by ``_cli_estimate.register(sub, common)``.
-"""
+"""``mtplan estimate``: measurands with their uncertainty from a measured readings file."""
 
 from __future__ import annotations
 
+import json
+import sys
 
-def register(sub, common) -> None:
+from mtplan.cli._common import (
+    UsageError,
+    fmt,
+    load_config,
+    print_table,
+    procedure_and_setup,
+    write_out,
+)
+
+
+def register(sub) -> None:
     """Add the ``estimate`` sub-command to the parser's sub-parsers `sub`."""
     p = sub.add_parser("estimate", help="measurands from measured readings, with uncertainty")
     p.add_argument("procedure", help="procedure name (see 'mtplan procedures')")
@@ -35,15 +44,11 @@ def register(sub, common) -> None:
 
 def cmd_estimate(args) -> int:
     """Read the readings, estimate, print; exit status 2 with one line on bad input."""
-    import json
-    import sys
+    from mtplan.evaluation.measured import estimate_measured, read_readings
+    from mtplan.evaluation.posterior import NotConvergedError
 
-    from mtplan.cli import UsageError, _fmt, _load_config, _print_table, _procedure_and_setup
-    from mtplan.measured import estimate_measured, read_readings
-    from mtplan.uncertainty.posterior import NotConvergedError
-
-    config = _load_config(args.config)
-    proc, setup, _, config = _procedure_and_setup(args, config)
+    config = load_config(args.config)
+    proc, setup, _, config = procedure_and_setup(args, config)
     readings = read_readings(proc, setup, args.readings)
     method = args.uncertainty or config.get("uncertainty", "mc")
     if method not in ("mc", "posterior"):
@@ -62,9 +67,7 @@ def cmd_estimate(args) -> int:
         print(f"mtplan: error: {exc}", file=sys.stderr)
         return 1
     if args.out:
-        from mtplan.cli import _write_out
-
-        _write_out(args.out, result.summary().to_csv())
+        write_out(args.out, result.summary().to_csv())
     if args.json:
         print(json.dumps(result.to_dict(), indent=1))
         return 0
@@ -73,10 +76,10 @@ def cmd_estimate(args) -> int:
     rows = []
     for i, m in enumerate(result.measurands):
         u = float(result.std[i])
-        rows.append([m.name, m.unit, _fmt(float(result.estimate[i]), u),
-                     _fmt(float(result.value[i]), u), f"{u:.3g}",
-                     f"[{_fmt(float(result.low[i]), u)}, {_fmt(float(result.high[i]), u)}]"])
-    _print_table(["measurand", "unit", "estimate", "value", "u", "interval"], rows)
+        rows.append([m.name, m.unit, fmt(float(result.estimate[i]), u),
+                     fmt(float(result.value[i]), u), f"{u:.3g}",
+                     f"[{fmt(float(result.low[i]), u)}, {fmt(float(result.high[i]), u)}]"])
+    print_table(["measurand", "unit", "estimate", "value", "u", "interval"], rows)
     if method == "posterior":
         post = result.details
         print(f"posterior: {post.chains.shape[0]} ensembles x {post.n_walkers} walkers x "

@@ -11,7 +11,7 @@ naming the file and the row or column.
 
 :func:`estimate_measured` gives the measurands with their uncertainty, by Monte
 Carlo around the estimate (``"mc"``) or by the posterior of the forward model
-(``"posterior"``, :func:`mtplan.uncertainty.posterior.sample_posterior`).
+(``"posterior"``, :func:`mtplan.evaluation.posterior.sample_posterior`).
 """
 
 from __future__ import annotations
@@ -378,7 +378,7 @@ def estimate_measured(
     seed = root.entropy if isinstance(root.entropy, int) else list(root.entropy)
     notes = []
     if uncertainty == "mc":
-        from mtplan.uncertainty.procedures import simulate_uncertainty
+        from mtplan.evaluation.simulation import simulate_uncertainty
 
         if proc.truth_from_estimate is not None:
             truth = proc.truth_from_estimate(setup, est_internal)
@@ -402,7 +402,7 @@ def estimate_measured(
             std=np.asarray(r.mc.std, dtype=float), low=estimate - err_high,
             high=estimate - err_low, coverage=float(coverage), seed=seed, details=r,
             notes=notes)
-    from mtplan.uncertainty.posterior import sample_posterior
+    from mtplan.evaluation.posterior import sample_posterior
 
     post = sample_posterior(proc, setup, readings, noise=noise, estimator=est_name,
                             coverage=coverage, rng=root, allow_unconverged=allow_unconverged,

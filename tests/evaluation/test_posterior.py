@@ -12,12 +12,11 @@ import pytest
 from scipy import stats
 
 from mtplan._validate import InvalidInput
-from mtplan.uncertainty.posterior import (
+from mtplan.evaluation.posterior import (
     NotConvergedError,
     UnconvergedWarning,
     _TruthBuilder,
     sample_posterior,
-    split_rhat,
 )
 from tests.models import toy_line
 
@@ -186,15 +185,6 @@ def test_truth_builder_validates_like_dataclasses_replace():
         if ok:
             t = builder.make(row)
             assert t == Truth(a_mm=row[0], b_mm=row[1])
-
-
-def test_split_rhat():
-    rng = np.random.default_rng(1)
-    same = rng.normal(size=(4, 500, 8, 2))
-    assert np.all(split_rhat(same) < 1.01)
-    shifted = same.copy()
-    shifted[0] += 1.0
-    assert np.all(split_rhat(shifted) > 1.05)
 
 
 @pytest.mark.slow

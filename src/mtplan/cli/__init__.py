@@ -1,0 +1,76 @@
+"""The ``mtplan`` command: parses, calls the library, prints.
+
+Thin by design: every number comes from the library, which a Python user can
+call directly. One module per command (:data:`COMMANDS`), each with a
+``register(subparsers)`` that adds its parser; what they share is in
+:mod:`mtplan.cli._common`, which imports none of them. A user's mistake (unknown
+field, bad value, missing file) exits with status 2 and one line on stderr, never
+a traceback. Heavy modules are imported inside the commands so that
+``mtplan --help`` starts fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from mtplan.cli._common import EXIT_USAGE, ArgumentParser, UsageError
+
+__all__ = ["main", "build_parser", "COMMANDS"]
+
+#: The command modules, in the order ``mtplan --help`` lists them.
+COMMANDS = ("procedures", "simulate", "linearize", "sweep", "estimate", "plan", "accept",
+            "report")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from mtplan import __version__
+
+    parser = ArgumentParser(
+        prog="mtplan",
+        description="Monte Carlo uncertainty and test-plan designer for machine-tool metrology.",
+        epilog="Lengths in um, angles in urad on output; 'mtplan COMMAND --help' for details.",
+    )
+    parser.add_argument("--version", action="version", version=f"mtplan {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=ArgumentParser)
+
+    for module in COMMANDS:
+        importlib.import_module(f"mtplan.cli.{module}").register(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``mtplan`` console script."""
+    from mtplan._validate import InvalidInput
+
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        if not getattr(args, "command", None):
+            parser.print_help()
+            return 0
+        return int(args.func(args) or 0)
+    except UsageError as exc:
+        print(f"mtplan: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except InvalidInput as exc:
+        print("mtplan: error: " + " ".join(exc.problems), file=sys.stderr)
+        return EXIT_USAGE
+    except FileNotFoundError as exc:
+        print(f"mtplan: error: no such file {exc.filename!r}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("mtplan: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # a model that cannot be evaluated: one line, status 1
+        from mtplan.uncertainty.montecarlo import ModelError
+
+        if isinstance(exc, ModelError):
+            print(f"mtplan: error: {exc}", file=sys.stderr)
+            return 1
+        raise
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

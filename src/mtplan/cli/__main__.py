@@ -1,0 +1,7 @@
+"""``python -m mtplan.cli``: the ``mtplan`` command."""
+
+import sys
+
+from mtplan.cli import main
+
+sys.exit(main())

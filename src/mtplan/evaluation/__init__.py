@@ -1,0 +1,54 @@
+"""Evaluation of a procedure: its set-up's uncertainty and its measured data.
+
+The layer between the procedures (:mod:`mtplan.models`) and the plans: it joins a
+procedure's forward model and estimators with the generic engine
+(:mod:`mtplan.uncertainty`).
+
+- :mod:`~mtplan.evaluation.simulation`: Monte Carlo (:func:`simulate_uncertainty`) and
+  GUM (:func:`linearize_procedure`) of a set-up, budgets by error source
+  (:func:`source_budget`).
+- :mod:`~mtplan.evaluation.measured`: a readings file in (:func:`read_readings`),
+  measurands with their uncertainty out (:func:`estimate_measured`).
+- :mod:`~mtplan.evaluation.posterior`: the emcee posterior of a procedure's
+  measurands given measured readings (:func:`sample_posterior`).
+
+Heavy submodules are imported on first use, so ``import mtplan.evaluation`` is cheap.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+__all__ = [
+    "ProcedureResult",
+    "simulate_uncertainty",
+    "linearize_procedure",
+    "source_budget",
+    "read_readings",
+    "estimate_measured",
+    "MeasuredResult",
+    "sample_posterior",
+    "PosteriorResult",
+]
+
+_WHERE = {
+    "ProcedureResult": "simulation",
+    "simulate_uncertainty": "simulation",
+    "linearize_procedure": "simulation",
+    "source_budget": "simulation",
+    "read_readings": "measured",
+    "estimate_measured": "measured",
+    "MeasuredResult": "measured",
+    "sample_posterior": "posterior",
+    "PosteriorResult": "posterior",
+}
+
+
+def __getattr__(name):
+    if name in _WHERE:
+        return getattr(importlib.import_module(f"mtplan.evaluation.{_WHERE[name]}"), name)
+    raise AttributeError(f"module 'mtplan.evaluation' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted([*globals(), *__all__])

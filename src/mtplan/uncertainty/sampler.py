@@ -1,0 +1,252 @@
+"""Ensemble MCMC with convergence checked, never assumed: the generic sampler.
+
+:func:`run_ensembles` runs several independent emcee ensembles on a vectorised
+log-probability until every ensemble's chain is longer than ``n_tau`` integrated
+autocorrelation times, tau has settled between checks and the split R-hat over
+the ensembles is below ``rhat_max``. It knows nothing of procedures: the
+procedure posterior (:mod:`mtplan.evaluation.posterior`) builds the
+log-probability and the start, and reads the chains.
+
+Randomness: ensemble ``e`` draws its start ball and its moves from child ``e``
+of the root ``SeedSequence`` (emcee gets a seeded ``RandomState`` in its
+``State``, so numpy's global random state is neither read nor changed).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from mtplan._validate import InvalidInput
+from mtplan.uncertainty._random import block_sequence
+
+__all__ = [
+    "NotConvergedError",
+    "UnconvergedWarning",
+    "EnsembleRun",
+    "run_ensembles",
+    "split_rhat",
+    "integrated_time",
+]
+
+
+class NotConvergedError(RuntimeError):
+    """The chains did not converge within the step budget.
+
+    Attributes
+    ----------
+    result : object
+        The partial result (flagged not converged), as emcee's ``AutocorrError`` carries ``tau``.
+    """
+
+    def __init__(self, message: str, result):
+        super().__init__(message)
+        self.result = result
+
+
+class UnconvergedWarning(UserWarning):
+    """Warning issued instead of :class:`NotConvergedError` when the caller allows it."""
+
+
+def split_rhat(chains: np.ndarray) -> np.ndarray:
+    """Split R-hat (Gelman et al., BDA3 11.4) over independent ensembles.
+
+    Parameters
+    ----------
+    chains : array of shape (n_ensembles, n_steps, n_walkers, n_params)
+        Post burn-in samples. Each ensemble's chain (its walkers pooled, since the
+        walkers of one ensemble are not independent) is split in two halves.
+
+    Returns
+    -------
+    array of shape (n_params,)
+    """
+    chains = np.asarray(chains, dtype=float)
+    n_steps = chains.shape[1]
+    half = n_steps // 2
+    if half < 2:
+        return np.full(chains.shape[-1], np.inf)
+    parts = np.concatenate([chains[:, :half], chains[:, n_steps - half :]], axis=0)
+    parts = parts.reshape(parts.shape[0], -1, parts.shape[-1])  # (2 m, n, p)
+    n = parts.shape[1]
+    means = parts.mean(axis=1)
+    within = parts.var(axis=1, ddof=1).mean(axis=0)
+    between_over_n = means.var(axis=0, ddof=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        var_plus = (n - 1) / n * within + between_over_n
+        rhat = np.sqrt(var_plus / within)
+    return np.where(within > 0, rhat, np.where(between_over_n > 0, np.inf, 1.0))
+
+
+def integrated_time(chain: np.ndarray) -> np.ndarray:
+    """Integrated autocorrelation time [steps] of (n_steps, n_walkers, n_params), no tolerance.
+
+    emcee's estimator (Goodman and Weare's windowed sum); ``inf`` where it is undefined.
+    """
+    import emcee
+
+    if chain.shape[0] < 2:
+        return np.full(chain.shape[-1], np.inf)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tau = emcee.autocorr.integrated_time(chain, quiet=True, tol=0)
+    return np.where(np.isfinite(tau), tau, np.inf)
+
+
+@dataclass
+class EnsembleRun:
+    """Chains and diagnostics of :func:`run_ensembles`.
+
+    Attributes
+    ----------
+    chains : array (n_ensembles, n_steps, n_walkers, n_params)
+        Every step of every walker, burn-in included.
+    log_prob : array (n_ensembles, n_steps, n_walkers)
+    tau : array (n_ensembles, n_params)
+        Integrated autocorrelation time of each ensemble [steps].
+    rhat : array (n_params,)
+        Split R-hat of the kept part at the last check.
+    acceptance : array (n_ensembles,)
+        Mean acceptance fraction of each ensemble.
+    converged : bool
+    steps : int
+        Steps per ensemble.
+    stopped : str
+        Why the run stopped: "converged", "max_steps" or "max_seconds".
+    """
+
+    chains: np.ndarray
+    log_prob: np.ndarray
+    tau: np.ndarray
+    rhat: np.ndarray
+    acceptance: np.ndarray
+    converged: bool
+    steps: int
+    stopped: str
+
+    def burn_and_thin(self, burn_tau: float) -> tuple[int, int]:
+        """(discard, thin): `burn_tau` of the largest tau discarded, thinned by half the smallest."""
+        tau_max = self.tau.max(axis=0)
+        t_max, t_min = float(np.max(tau_max)), float(np.min(tau_max))
+        discard = int(math.ceil(burn_tau * t_max)) if math.isfinite(t_max) else self.steps // 2
+        discard = min(discard, self.steps - 2)
+        thin = max(1, int(0.5 * t_min)) if math.isfinite(t_min) else 1
+        return discard, thin
+
+
+def _start_state(log_prob, center, ball, n_walkers, seq):
+    """An emcee State: walkers in the ball, pulled back inside the support, seeded RandomState."""
+    import emcee
+
+    gen = np.random.Generator(np.random.PCG64(seq.spawn(1)[0]))
+    p0 = center + ball * gen.standard_normal((n_walkers, center.size))
+    for _ in range(100):  # move starting walkers outside the support back in
+        lp0 = log_prob(p0)
+        bad = ~np.isfinite(lp0)
+        if not bad.any():
+            break
+        p0[bad] = center + 0.5 * (p0[bad] - center)
+    else:
+        raise InvalidInput(["The posterior is zero around the start; check the readings and "
+                            "the set-up."])
+    rstate = np.random.RandomState(np.random.MT19937(seq)).get_state()
+    return emcee.State(p0, log_prob=lp0, random_state=rstate)
+
+
+def run_ensembles(
+    log_prob: Callable[[np.ndarray], np.ndarray],
+    center: np.ndarray,
+    ball: np.ndarray,
+    *,
+    root: np.random.SeedSequence,
+    n_walkers: int,
+    n_ensembles: int = 4,
+    max_steps: int = 20_000,
+    check_every: int = 100,
+    n_tau: float = 50.0,
+    tau_rtol: float = 0.05,
+    rhat_max: float = 1.01,
+    burn_tau: float = 3.0,
+    max_seconds: float | None = None,
+    moves=None,
+    progress: Callable[[int, float, float], None] | None = None,
+) -> EnsembleRun:
+    """Run independent emcee ensembles until converged, the step budget or the time budget.
+
+    Parameters
+    ----------
+    log_prob : callable
+        Vectorised log-probability: array (n_walkers, n_params) -> (n_walkers,).
+    center, ball : array (n_params,)
+        Walkers start at ``center + ball * N(0, 1)``.
+    root : SeedSequence
+        Ensemble ``e`` uses child ``e`` (:func:`mtplan.uncertainty._random.block_sequence`).
+    n_walkers, n_ensembles, max_steps, check_every : int
+    n_tau, tau_rtol, rhat_max, burn_tau : float
+        Convergence: chain longer than `n_tau` tau, tau's relative change between checks
+        below `tau_rtol`, split R-hat (after `burn_tau` tau of burn-in) below `rhat_max`.
+    max_seconds : float, optional
+        Wall-clock budget; checked between checks.
+    moves : emcee move(s), optional
+    progress : callable(steps, tau_max, rhat_max), optional
+        Called after every check.
+    """
+    import time
+
+    import emcee
+
+    t0 = time.perf_counter()
+    center = np.asarray(center, dtype=float)
+    ndim = center.size
+    samplers, states = [], []
+    for e in range(int(n_ensembles)):
+        samplers.append(emcee.EnsembleSampler(n_walkers, ndim, log_prob, vectorize=True,
+                                              moves=moves))
+        states.append(_start_state(log_prob, center, ball, n_walkers, block_sequence(root, e)))
+    steps, tau_prev, converged, stopped = 0, None, False, "max_steps"
+    tau_all = np.full((n_ensembles, ndim), np.inf)
+    rhat = np.full(ndim, np.inf)
+    while steps < max_steps:
+        n = min(int(check_every), int(max_steps) - steps)
+        for e, sampler in enumerate(samplers):
+            states[e] = sampler.run_mcmc(states[e], n, progress=False)
+        steps += n
+        tau_all = np.array([integrated_time(s.get_chain()) for s in samplers])
+        tau_max = tau_all.max(axis=0)
+        t = float(np.max(tau_max))
+        discard = min(int(math.ceil(burn_tau * t)) if math.isfinite(t) else steps // 2, steps - 4)
+        rhat = split_rhat(np.stack([s.get_chain()[discard:] for s in samplers]))
+        settled = tau_prev is not None and bool(np.all(np.abs(tau_max - tau_prev)
+                                                       < tau_rtol * tau_max))
+        if progress is not None:
+            progress(steps, t, float(np.max(rhat)))
+        if bool(np.all(steps > n_tau * tau_max)) and settled and bool(np.all(rhat < rhat_max)):
+            converged, stopped = True, "converged"
+            break
+        if max_seconds is not None and time.perf_counter() - t0 > max_seconds:
+            stopped = "max_seconds"
+            break
+        tau_prev = tau_max
+    return EnsembleRun(
+        chains=np.stack([s.get_chain() for s in samplers]),
+        log_prob=np.stack([s.get_log_prob() for s in samplers]),
+        tau=tau_all,
+        rhat=rhat,
+        acceptance=np.array([float(np.mean(s.acceptance_fraction)) for s in samplers]),
+        converged=converged,
+        steps=steps,
+        stopped=stopped,
+    )
+
+
+def stderr_progress(label: str) -> Callable[[int, float, float], None]:
+    """A `progress` callback printing one line per check on stderr."""
+
+    def show(steps, tau, rhat):
+        print(f"posterior {label}: {steps} steps, tau max {tau:.1f}, R-hat max {rhat:.4f}",
+              file=sys.stderr)
+
+    return show
