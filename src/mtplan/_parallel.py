@@ -93,8 +93,12 @@ def ordered_map(
 ) -> Iterator:
     """Yield ``fn(*task)`` for each task, in task order.
 
-    Runs in this process when ``n_jobs == 1`` or ``backend == "sequential"``;
-    otherwise through joblib in chunks of `chunk` tasks (default four per worker).
+    Runs in this process when ``n_jobs == 1`` or ``backend == "sequential"``. Otherwise
+    through joblib: with `chunk`, in chunks of that many tasks (a caller that may stop
+    early, such as the adaptive Monte Carlo, wastes at most a chunk); without, as one
+    stream whose results come back in order while the workers stay busy (no barrier
+    between chunks; at most ``2 n_jobs`` tasks are dispatched ahead, so memory stays
+    bounded). The workers are loky's reusable pool: a later call finds them started.
     Call it inside :func:`parallel_session` for the dask backend.
     """
     jobs = effective_jobs(n_jobs)
@@ -105,6 +109,10 @@ def ordered_map(
     import joblib
 
     kwargs = {} if backend == "dask" else {"n_jobs": jobs, "backend": backend or "loky"}
+    if chunk is None and backend != "dask":
+        parallel = joblib.Parallel(return_as="generator", pre_dispatch="2*n_jobs", **kwargs)
+        yield from parallel(joblib.delayed(fn)(*t) for t in tasks)
+        return
     size = chunk or 4 * max(jobs, 2)
     tasks = iter(tasks)
     with joblib.Parallel(**kwargs) as parallel:

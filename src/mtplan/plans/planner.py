@@ -156,9 +156,6 @@ def plan(
         For targets naming unknown measurands, and when no candidate can meet a
         target (the message gives the best reachable value of each).
     """
-    import pandas as pd
-
-    from mtplan._parallel import check_parallel, ordered_map, parallel_session
     from mtplan.models import get
     from mtplan.plans.sweep import _grid
 
@@ -167,9 +164,31 @@ def plan(
     proc.check_setup(base_setup)
     truth = proc.Truth() if truth is None else truth
     targets = dict(targets or {})
+    _check_plan(proc, base_setup, targets, criterion, k, confirm, trials, n_jobs, backend)
+    proc.estimator(estimator)
+    setups = _grid(proc, base_setup, dict(vary or {})) if vary else [base_setup]
+    table = _screen(proc, setups, truth, estimator, sources, targets, k, criterion, identify,
+                    n_jobs, backend)
+    names = [m.name for m in proc.measurands(base_setup)]
+    front = pareto_front(table["duration_s"].to_numpy(), table["worst"].to_numpy())
+    pareto = [_candidate(table.iloc[i], setups[i], names, targets) for i in front]
+    feasible = table[table["feasible"]].sort_values(["duration_s", "worst"], kind="stable")
+    if feasible.empty:
+        raise InvalidInput(_unreachable(proc, base_setup, table, targets, vary, criterion))
+    best, confirmation = _confirm(proc, setups, table, feasible.index[:confirm], truth,
+                                  estimator, sources, targets, k, criterion, trials, seed)
+    runners = [_candidate(table.loc[j], setups[j], names, targets)
+               for j in feasible.index if j != best["candidate"]][:3]
+    return PlanResult(table=table, best=best, pareto=pareto, confirmation=confirmation,
+                      targets=targets, k=k, runners_up=runners)
+
+
+def _check_plan(proc, base_setup, targets, criterion, k, confirm, trials, n_jobs, backend):
+    """Every problem of the plan's arguments at once."""
+    from mtplan._parallel import check_parallel
+
     p = Problems(f"plan {proc.name}")
     names = [m.name for m in proc.measurands(base_setup)]
-    units = {m.name: m.unit for m in proc.measurands(base_setup)}
     if not targets and criterion is None:
         p.add_text("plan needs at least one target NAME<=VALUE")
     for name, value in targets.items():
@@ -182,9 +201,17 @@ def plan(
     p.number("trials", trials, integer=True, low=100)
     check_parallel(p, n_jobs, backend)
     p.raise_if_any()
-    proc.estimator(estimator)
-    setups = _grid(proc, base_setup, dict(vary or {})) if vary else [base_setup]
 
+
+def _screen(proc, setups, truth, estimator, sources, targets, k, criterion, identify, n_jobs,
+            backend):
+    """The candidates' table: linearised (k-scaled) uncertainties, worst target ratio,
+    identifiability and feasibility, one row per set-up."""
+    import pandas as pd
+
+    from mtplan._parallel import ordered_map, parallel_session
+
+    names = [m.name for m in proc.measurands(setups[0])]
     with parallel_session(n_jobs, backend) as session:
         tasks = ((proc, s, truth, estimator, sources) for s in setups)
         preds = list(ordered_map(_predict, tasks, n_jobs=session["n_jobs"], backend=backend))
@@ -200,36 +227,42 @@ def plan(
         row["feasible"] = bool(all(r <= 1 for r in ratios)) and (
             criterion is None or bool(criterion({n: k * u[n] for n in names})))
         rows.append(row)
-    table = pd.DataFrame(rows)
+    return pd.DataFrame(rows)
 
-    front = pareto_front(table["duration_s"].to_numpy(), table["worst"].to_numpy())
-    pareto = [_candidate(table.iloc[i], setups[i], names, targets) for i in front]
 
-    feasible = table[table["feasible"]].sort_values(["duration_s", "worst"], kind="stable")
-    if feasible.empty:
-        msgs = []
-        for n, v in targets.items():
-            j = int(table[f"u_{n}"].idxmin())
-            reach = table.loc[j, f"u_{n}"]
-            if reach > v:
-                where = ", ".join(f"{f}={table.loc[j, f]}" for f in (vary or {}))
-                msgs.append(f"The target {n}<={v:g} {units[n]} cannot be met: the best reachable "
-                            f"value is {reach:.3g} {units[n]}" + (f" (at {where})" if where else ""))
-        if not msgs and criterion is not None and hasattr(criterion, "explain"):
-            us = [{n: float(table.loc[j, f"u_{n}"]) for n in names} for j in table.index]
-            msgs.append(criterion.explain(us, [dict(zip(vary or {}, (table.loc[j, f] for f in
-                                                                     (vary or {})), strict=True))
-                                               for j in table.index]))
-        if not msgs:
-            msgs.append("No candidate meets every target at once (each can be met alone)"
-                        if targets else "No candidate meets the acceptance criterion")
-        raise InvalidInput(msgs)
+def _unreachable(proc, base_setup, table, targets, vary, criterion) -> list[str]:
+    """Why no candidate is feasible: the best reachable value of each target missed."""
+    names = [m.name for m in proc.measurands(base_setup)]
+    units = {m.name: m.unit for m in proc.measurands(base_setup)}
+    msgs = []
+    for n, v in targets.items():
+        j = int(table[f"u_{n}"].idxmin())
+        reach = table.loc[j, f"u_{n}"]
+        if reach > v:
+            where = ", ".join(f"{f}={table.loc[j, f]}" for f in (vary or {}))
+            msgs.append(f"The target {n}<={v:g} {units[n]} cannot be met: the best reachable "
+                        f"value is {reach:.3g} {units[n]}" + (f" (at {where})" if where else ""))
+    if not msgs and criterion is not None and hasattr(criterion, "explain"):
+        us = [{n: float(table.loc[j, f"u_{n}"]) for n in names} for j in table.index]
+        msgs.append(criterion.explain(us, [dict(zip(vary or {}, (table.loc[j, f] for f in
+                                                                 (vary or {})), strict=True))
+                                           for j in table.index]))
+    if not msgs:
+        msgs.append("No candidate meets every target at once (each can be met alone)"
+                    if targets else "No candidate meets the acceptance criterion")
+    return msgs
 
-    from mtplan.uncertainty.montecarlo import ModelError
+
+def _confirm(proc, setups, table, candidates, truth, estimator, sources, targets, k, criterion,
+             trials, seed):
+    """Monte Carlo of the cheapest feasible candidates until one meets every target:
+    (best candidate, the confirmation record of each tried)."""
     from mtplan.evaluation.simulation import simulate_uncertainty
+    from mtplan.uncertainty.montecarlo import ModelError
 
-    confirmation, best = [], None
-    for j in feasible.index[:confirm]:
+    names = [m.name for m in proc.measurands(setups[0])]
+    confirmation = []
+    for j in candidates:
         s = setups[j]
         try:
             r = simulate_uncertainty(proc, s, truth, estimator=estimator, sources=sources,
@@ -254,17 +287,11 @@ def plan(
             "met": bool(met),
         })
         if met:
-            best = {**_candidate(table.loc[j], s, names, targets), "confirmed": mc_u}
-            break
-    if best is None:
-        raise InvalidInput([
-            f"None of the {len(confirmation)} cheapest candidates predicted to meet the targets "
-            "was confirmed by Monte Carlo (the linearised prediction is optimistic here); widen "
-            "the grid or relax the targets"])
-    runners = [_candidate(table.loc[j], setups[j], names, targets)
-               for j in feasible.index if j != best["candidate"]][:3]
-    return PlanResult(table=table, best=best, pareto=pareto, confirmation=confirmation,
-                      targets=targets, k=k, runners_up=runners)
+            return {**_candidate(table.loc[j], s, names, targets), "confirmed": mc_u}, confirmation
+    raise InvalidInput([
+        f"None of the {len(confirmation)} cheapest candidates predicted to meet the targets "
+        "was confirmed by Monte Carlo (the linearised prediction is optimistic here); widen "
+        "the grid or relax the targets"])
 
 
 class PfaCriterion:

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from mtplan._io import atomic_write
-from mtplan._parallel import check_parallel, ordered_map, parallel_session
+from mtplan._parallel import check_parallel, effective_jobs, ordered_map, parallel_session
 from mtplan._validate import InvalidInput, Problems
 from mtplan.models._protocol import fields_info, make
 from mtplan.uncertainty.montecarlo import check_run_options
@@ -185,6 +185,45 @@ def sweep(
     base_setup = proc.Setup() if base_setup is None else base_setup
     proc.check_setup(base_setup)
     truth = proc.Truth() if truth is None else truth
+    estimators, fmt = _check_arguments(proc, base_setup, estimators, sources, trials, digits,
+                                       coverage, interval, seed, n_jobs, backend, scheduler, out)
+    if trials is None and digits is None:
+        trials = 10**4
+    setups = _grid(proc, base_setup, dict(vary or {}))
+    options = {"trials": trials, "digits": digits, "coverage": coverage, "interval": interval}
+    signature = _signature(proc, base_setup, truth, vary, estimators, sources, options, seed)
+    done, journal = pd.DataFrame(), None
+    if out is not None:
+        out = Path(out)
+        journal = out if fmt == "csv" else out.with_name(out.name + ".partial.csv")
+        done = _resume(out, journal, fmt, signature)
+    finished = set(done["setup_id"]) if len(done) else set()
+    todo = [(i, s) for i, s in enumerate(setups) if setup_id(s) not in finished]
+    if effective_jobs(n_jobs) != 1 or backend == "dask":
+        # longest first (the test's duration as the proxy of its cost), so that no worker
+        # is left with a long set-up while the others idle; rows are sorted back by point
+        todo.sort(key=lambda task: -float(proc.duration(task[1])))
+    bar = _bar(progress, len(setups), len(setups) - len(todo), proc.name)
+    tasks = ((proc, s, truth, tuple(estimators), sources, options, seed, i) for i, s in todo)
+    n_rows = len(estimators) * len(proc.measurands(base_setup))
+    new_frames = _run(tasks, journal, n_rows, bar, n_jobs, backend, scheduler)
+    if journal is not None:
+        # one source of truth for fresh and resumed runs alike: the journal on disk
+        table = _read_journal(journal, rewrite=False) if journal.exists() else done
+    else:
+        table = pd.concat(new_frames, ignore_index=True) if new_frames else pd.DataFrame()
+    if len(table):
+        table = table.sort_values("point", kind="stable").reset_index(drop=True)
+    if out is not None and fmt == "parquet":
+        with atomic_write(out, "wb") as fh:
+            table.to_parquet(fh, index=False)
+        Path(journal).unlink(missing_ok=True)
+    return table
+
+
+def _check_arguments(proc, base_setup, estimators, sources, trials, digits, coverage, interval,
+                     seed, n_jobs, backend, scheduler, out) -> tuple[list, str | None]:
+    """Every problem of the sweep's arguments at once; (estimator names, output format)."""
     p = Problems(f"sweep {proc.name}")
     check_run_options(p, trials, digits, coverage, interval)
     check_parallel(p, n_jobs, backend, scheduler)
@@ -200,19 +239,17 @@ def sweep(
             p.add("estimators", e, "among " + ", ".join(map(repr, proc.estimators)))
     fmt = None
     if out is not None:
-        out = Path(out)
-        fmt = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet"}.get(out.suffix.lower())
+        fmt = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet"}.get(Path(out).suffix.lower())
         if fmt is None:
             p.add("out", str(out), "a file name ending in .csv or .parquet")
     p.raise_if_any()
     if sources is not None:
         proc.active_sources(base_setup, sources)  # validates the names
-    if trials is None and digits is None:
-        trials = 10**4
-    setups = _grid(proc, base_setup, dict(vary or {}))
-    options = {"trials": trials, "digits": digits, "coverage": coverage, "interval": interval}
-    n_rows = len(estimators) * len(proc.measurands(base_setup))
+    return list(estimators), fmt
 
+
+def _signature(proc, base_setup, truth, vary, estimators, sources, options, seed) -> dict:
+    """What a sweep is, as plain JSON: a rerun with the same signature resumes it."""
     signature = {
         "procedure": proc.name,
         "base_setup": base_setup.as_dict(),
@@ -224,41 +261,25 @@ def sweep(
         "options": options,
         "seed": int(seed),
     }
-    signature = json.loads(json.dumps(signature, default=str))
-    done = pd.DataFrame()
-    journal = None
-    if out is not None:
-        journal = out if fmt == "csv" else out.with_name(out.name + ".partial.csv")
-        done = _resume(out, journal, fmt, signature)
-    finished = set(done["setup_id"]) if len(done) else set()
-    todo = [(i, s) for i, s in enumerate(setups) if setup_id(s) not in finished]
+    return json.loads(json.dumps(signature, default=str))
 
-    bar = _bar(progress, len(setups), len(setups) - len(todo), proc.name)
-    new_frames = []
+
+def _run(tasks, journal, n_rows, bar, n_jobs, backend, scheduler) -> list:
+    """Evaluate the set-ups; each finished one is appended to the journal at once."""
+    import pandas as pd
+
+    frames = []
     with parallel_session(n_jobs, backend, scheduler) as session:
-        tasks = ((proc, s, truth, tuple(estimators), sources, options, seed, i) for i, s in todo)
-        for rows in ordered_map(_run_setup, tasks, n_jobs=session["n_jobs"], backend=backend,
-                                chunk=None):
+        for rows in ordered_map(_run_setup, tasks, n_jobs=session["n_jobs"], backend=backend):
             frame = pd.DataFrame(rows)
             if journal is not None:
                 _append(journal, frame, n_rows)
-            new_frames.append(frame)
+            frames.append(frame)
             if bar is not None:
                 bar.update(1)
     if bar is not None:
         bar.close()
-    if journal is not None:
-        # one source of truth for fresh and resumed runs alike: the journal on disk
-        table = _read_journal(journal, rewrite=False) if journal.exists() else done
-    else:
-        table = pd.concat(new_frames, ignore_index=True) if new_frames else pd.DataFrame()
-    if len(table):
-        table = table.sort_values("point", kind="stable").reset_index(drop=True)
-    if out is not None and fmt == "parquet":
-        with atomic_write(out, "wb") as fh:
-            table.to_parquet(fh, index=False)
-        Path(journal).unlink(missing_ok=True)
-    return table
+    return frames
 
 
 def _bar(progress, total, initial, label):
