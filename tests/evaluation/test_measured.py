@@ -121,7 +121,7 @@ def test_estimate_recovers_truth_toy_line(tmp_path, method):
     assert doc["uncertainty"] == method and len(doc["measurands"]) == 2
     json.dumps(doc)
     if method == "mc":
-        assert any("truth_from_estimate" in n for n in res.notes)
+        assert any("default truth" in n for n in res.notes)
 
 
 def test_estimate_bad_method():
@@ -155,7 +155,8 @@ def test_cli_estimate_json(tmp_path, capsys, toy_cli, method):
     assert doc["procedure"] == "toy_line" and doc["uncertainty"] == method and doc["seed"] == 5
     assert [m["name"] for m in doc["measurands"]] == ["offset", "slope"]
     for m in doc["measurands"]:
-        assert set(m) == {"name", "unit", "estimate", "value", "std", "interval", "coverage"}
+        assert set(m) == {"name", "unit", "value", "u", "interval", "coverage", "estimate",
+                          "bias_correction", "determinable", "reason"}
     if method == "posterior":
         assert doc["posterior"]["converged"]
 
@@ -219,15 +220,28 @@ def test_round_trip_every_procedure(tmp_path, name):
                                                              truth[m.name], res.std[i])
 
 
-def test_zero_spread_estimate_is_flagged():
-    """A Monte Carlo spread of 0 around the estimate is noted, never reported silently
-    (line_laser's patent alpha_z is quantised to whole rows: constant at its default)."""
+def test_an_estimator_that_cannot_give_a_measurand_says_so():
+    """line_laser's patent alpha_z is quantised to whole rows (a Monte Carlo spread of 0)
+    and its alpha_x does not follow the measurand (sign-blind, second order): both are
+    "not determinable by this estimator" with the reason, never a number with a [0, 0]
+    interval; alpha_y is reported corrected for the estimator's bias, inside its interval."""
     proc = registry()["line_laser"]
     setup = proc.Setup()
     readings = proc.simulate(setup, proc.Truth(), 1, rng=2024)
     res = estimate_measured(proc, setup, readings, estimator="patent", trials=500, rng=1)
-    zero = [m.name for i, m in enumerate(res.measurands) if not res.std[i] > 0]
-    assert zero and all(any(n.startswith(z + ":") for n in res.notes) for z in zero)
+    names = [m.name for m in res.measurands]
+    assert list(res.determinable) == [False, True, False]
+    assert "quantised" in res.reasons["alpha_z"] and "does not follow" in res.reasons["alpha_x"]
+    assert all("not determinable by this estimator" in r for r in res.reasons.values())
+    for name in ("alpha_z", "alpha_x"):
+        i = names.index(name)
+        assert all(np.isnan(a[i]) for a in (res.value, res.std, res.low, res.high))
+    i = names.index("alpha_y")
+    assert res.low[i] < res.value[i] < res.high[i]
+    assert res.value[i] == pytest.approx(res.estimate[i] + res.bias_correction[i])
+    doc = res.to_dict()["measurands"]
+    assert doc[0]["determinable"] is False and doc[0]["value"] is None and doc[0]["reason"]
+    assert doc[1]["reason"] is None and doc[1]["u"] > 0
 
 
 @pytest.mark.parametrize("name, sets", [("rotary_axis", {}), ("line_laser", {"lines": 16})])

@@ -1,5 +1,6 @@
-"""emcee posteriors on the linear-Gaussian toy_line: agreement with least squares,
-coverage, seeding, global-state hygiene and the unconverged path."""
+"""emcee posteriors on the linear-Gaussian toy_line: agreement with least squares (also
+with a systematic source in the likelihood), coverage, seeding, global-state hygiene,
+identifiability refusals, nuisance sources and the unconverged path."""
 
 from __future__ import annotations
 
@@ -12,10 +13,10 @@ import pytest
 from scipy import stats
 
 from mtplan._validate import InvalidInput
+from mtplan.evaluation._posterior_model import TruthBuilder, truth_parameters
 from mtplan.evaluation.posterior import (
     NotConvergedError,
     UnconvergedWarning,
-    _TruthBuilder,
     sample_posterior,
 )
 from tests.models import toy_line
@@ -74,7 +75,9 @@ def test_result_contents(known):
     assert list(frame.columns) == list(df.index) and len(frame) == len(known.samples["offset"])
     # measurand samples are the parameters in display units
     np.testing.assert_allclose(known.samples["offset"], known.samples["offset_mm"] * 1e3)
-    assert all(0.15 < a < 0.8 for a in known.acceptance)
+    assert all(0.15 < a < 1.0 for a in known.acceptance)
+    assert known.budget == {"probe_noise": "covariance, standard deviation given: 0.001",
+                            "scale_error": "off (size 0)"}
     assert known.priors["offset_mm"].startswith("normal")
     doc = known.to_dict()
     assert doc["converged"] and len(doc["parameters"]) == 2
@@ -82,8 +85,8 @@ def test_result_contents(known):
 
 def test_free_noise_posterior_matches_student_t():
     r = _readings(2)
-    post = sample_posterior(PROC, SETUP, r, rng=3)  # noise free, Jeffreys prior
-    assert "sigma_z_mm" in post.parameters and post.converged
+    post = sample_posterior(PROC, SETUP, r, rng=3, noise="free")  # Jeffreys prior
+    assert "sigma_probe_noise" in post.parameters and post.converged
     # exact: (beta - beta_hat)/se_hat ~ t(n - p), se_hat from s^2 = RSS/(n - p)
     x = toy_line._x(SETUP)
     design = np.column_stack([np.ones_like(x), x])
@@ -104,19 +107,19 @@ def test_same_seed_same_posterior_and_global_state_untouched():
     np.random.seed(12345)
     before = np.random.get_state()
     with pytest.warns(UnconvergedWarning):  # a short run on purpose: flagged, not silent
-        a = sample_posterior(PROC, SETUP, r, noise=SIGMA, rng=7, n_ensembles=2, max_steps=400,
+        a = sample_posterior(PROC, SETUP, r, noise=SIGMA, rng=7, n_ensembles=2, max_steps=200,
                              allow_unconverged=True)
     after = np.random.get_state()
     assert before[0] == after[0] and np.array_equal(before[1], after[1]) and before[2:] == after[2:]
     np.random.seed(999)  # a different global state must not change the result
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UnconvergedWarning)
-        b = sample_posterior(PROC, SETUP, r, noise=SIGMA, rng=7, n_ensembles=2, max_steps=400,
+        b = sample_posterior(PROC, SETUP, r, noise=SIGMA, rng=7, n_ensembles=2, max_steps=200,
                              allow_unconverged=True)
     np.testing.assert_array_equal(a.chains, b.chains)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UnconvergedWarning)
-        c = sample_posterior(PROC, SETUP, r, noise=SIGMA, rng=8, n_ensembles=2, max_steps=400,
+        c = sample_posterior(PROC, SETUP, r, noise=SIGMA, rng=8, n_ensembles=2, max_steps=200,
                              allow_unconverged=True)
     assert not np.array_equal(a.chains, c.chains)
 
@@ -160,7 +163,10 @@ def test_user_prior_and_bad_arguments():
     with pytest.raises(InvalidInput, match="noise"):
         sample_posterior(PROC, SETUP, r, noise=-1.0)
     with pytest.raises(InvalidInput, match="noise"):
-        sample_posterior(PROC, SETUP, r, noise="setup")  # toy_line has no noise_source
+        sample_posterior(PROC, SETUP, r, noise={"z_mm": SIGMA})
+    no_noise = dataclasses.replace(PROC, noise_source=None)
+    with pytest.raises(InvalidInput, match="names no noise source"):
+        sample_posterior(no_noise, SETUP, r, noise="free")
 
 
 def test_truth_builder_validates_like_dataclasses_replace():
@@ -170,12 +176,12 @@ def test_truth_builder_validates_like_dataclasses_replace():
         a_mm: float = toy_line.param(1.0, doc="a", low=0, low_open=True)
         b_mm: float = toy_line.param(0.5, doc="b", high=2.0)
 
-    builder = _TruthBuilder(Truth(), ("a_mm", "b_mm"))
+    builder = TruthBuilder(Truth(), truth_parameters(PROC, Truth(), ("a_mm", "b_mm")))
     rng = np.random.default_rng(0)
     theta = rng.uniform(-1, 3, size=(200, 2))
     theta[:5, 0] = 0.0  # on the open bound
     theta[5:10, 1] = 2.0  # on the closed bound
-    for row, ok in zip(theta, builder.valid(theta), strict=True):
+    for row, ok in zip(theta, builder.valid(theta) & builder.cross_valid(theta), strict=True):
         try:
             dataclasses.replace(Truth(), a_mm=row[0], b_mm=row[1])
             expected = True
@@ -216,3 +222,74 @@ def test_credible_intervals_cover_the_truth():
     raw, rbc = float(np.mean(hits)), float(np.mean(rb))
     assert 0.935 <= rbc <= 0.965, (rbc, raw)
     assert abs(raw - 0.95) <= 4 * math.sqrt(0.95 * 0.05 / n), (raw, rbc)
+
+
+# --------------------------------------------------------------------------- the error budget
+def test_a_systematic_source_is_in_the_likelihood():
+    """A 5 % scale error (rectangular) on toy_line: its effect (a + b x) kappa lies in the
+    span of the free offset and slope, so the generalised least-squares covariance is the
+    noise-only one plus s^2 beta beta^T (s the scale's standard deviation, beta = (a, b)):
+    u(offset)^2 = sigma^2 / n + (s a)^2, u(slope)^2 = se^2 + (s b)^2."""
+    setup = SETUP.replace(scale_error_ppm=50_000.0)
+    r = PROC.simulate(setup, PROC.Truth(), 1, rng=21)
+    post = sample_posterior(PROC, setup, r, rng=2)
+    s = 0.05 / math.sqrt(3)
+    est = sample_posterior  # the linearisation point is the least-squares estimate
+    a, b = post.start["offset_mm"] * 1e3, post.start["slope_rad"] * 1e6
+    want = np.hypot(_ls_se(), [s * a, s * b])
+    assert post.budget["scale_error"] == "covariance"
+    for i, name in enumerate(["offset", "slope"]):
+        tol = 4 / math.sqrt(2 * post.ess[name]) + 0.01
+        assert abs(post.std[name] / want[i] - 1) < tol, (name, post.std[name], want[i], est)
+    # without the source the posterior is narrower by exactly that much
+    assert post.std["offset"] > 1.1 * _ls_se()[0]
+
+
+def test_free_noise_without_degrees_of_freedom_is_refused_at_once():
+    setup = SETUP.replace(n_points=3)  # 3 readings, 2 parameters: 1 degree of freedom
+    r = PROC.simulate(setup, PROC.Truth(), 1, rng=1)
+    with pytest.raises(InvalidInput) as exc:
+        sample_posterior(PROC, setup, r, noise="free", rng=0)
+    msg = str(exc.value)
+    assert "1 degree(s) of freedom" in msg and "--noise" in msg and "\n" not in msg
+
+
+def test_a_measurand_that_depends_on_no_sampled_parameter_is_refused():
+    r = _readings(3)
+    with pytest.raises(InvalidInput, match="cannot give slope"):
+        sample_posterior(PROC, SETUP, r, fields=["offset_mm"], rng=0)
+
+
+def _bent():
+    """toy_line with a non-linear source: a bow (x/L)^2 whose amplitude is
+    s (exp(kappa/s) - 1), kappa ~ N(0, s), s = 2 um."""
+    from mtplan.models import Source
+    from mtplan.uncertainty import Normal
+
+    s = 2e-3
+
+    def sources(setup):
+        return {**toy_line.sources(setup), "bow": Source(Normal(0.0, s), (), "bow")}
+
+    def forward(setup, truth, errors):
+        out = toy_line.forward(setup, truth, errors)
+        x = toy_line._x(setup) / (setup.length_mm / 2)
+        amp = s * np.expm1(np.asarray(errors["bow"]) / s)
+        return {"z_mm": out["z_mm"] + amp[:, None] * (x**2 - np.mean(x**2))}
+
+    return dataclasses.replace(PROC, name="toy_bow", sources=sources, forward=forward)
+
+
+def test_a_non_linear_source_is_sampled_as_a_nuisance_parameter():
+    from mtplan.uncertainty._random import as_seed_sequence, block_sequence
+
+    proc = _bent()
+    r = proc.simulate(SETUP, PROC.Truth(), 1, rng=5)
+    drawn = proc.draw_errors(SETUP, 1, block_sequence(as_seed_sequence(5), 0))["bow"][0] * 1e3
+    post = sample_posterior(proc, SETUP, r, rng=1)
+    assert post.budget["bow"] == "nuisance" and "bow" in post.parameters
+    assert post.priors["bow"].startswith("the set-up's: normal")
+    # the bow's amplitude is determined by the readings: its posterior finds the drawn value
+    mc_err = post.std["bow"] / math.sqrt(post.ess["bow"])
+    assert abs(post.mean["bow"] * 1e3 - drawn) < 4 * post.std["bow"] * 1e3 + 5 * mc_err * 1e3
+    assert post.std["bow"] < 0.5 * 2e-3 and post.converged

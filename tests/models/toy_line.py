@@ -54,7 +54,9 @@ def _x(setup):
 
 def forward(setup, truth, errors):
     x = _x(setup)
-    z = truth.offset_mm + truth.slope_rad * x
+    # one truth per batch row: fields may be arrays (n,) (the protocol's convention)
+    offset, slope = (np.reshape(v, (-1, 1)) for v in (truth.offset_mm, truth.slope_rad))
+    z = offset + slope * x
     z = z * (1 + errors["scale_error"][:, None]) + errors["probe_noise"]
     return {"z_mm": z}
 
@@ -98,4 +100,5 @@ PROCEDURE = Procedure(
     from_frame=from_frame,
     exact_estimators=("least_squares",),
     block_size=2000,
+    noise_source="probe_noise",
 )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 
 from mtplan.cli._common import (
@@ -24,17 +25,23 @@ def register(sub) -> None:
     p.add_argument("--config", metavar="FILE.toml", help="set-up file: [setup] table")
     p.add_argument("--set", action="append", metavar="FIELD=VALUE",
                    help="set-up field (repeatable)")
-    p.add_argument("--estimator", metavar="NAME", help="estimator (default: the seed's method)")
+    p.add_argument("--estimator", metavar="NAME",
+                   help="estimator (default: the best one that observes every measurand; the "
+                        "seed's method by its name)")
     p.add_argument("--uncertainty", choices=["mc", "posterior"], default=None,
                    help="mc: Monte Carlo around the estimate (default); posterior: emcee")
     p.add_argument("--trials", type=int, metavar="N", help="Monte Carlo trials (default 10000)")
     p.add_argument("--seed", type=int, metavar="S", help="random seed (default 0)")
     p.add_argument("--coverage", type=float, default=0.95, metavar="P",
                    help="coverage probability (default 0.95)")
-    p.add_argument("--noise", type=float, metavar="SIGMA",
-                   help="posterior: known noise of the readings in their unit (default: free)")
+    p.add_argument("--noise", metavar="SIGMA|free|setup", default="setup",
+                   help="posterior: the noise source's standard deviation in the readings' unit "
+                        "(mm or rad), 'free' (estimated from the readings) or 'setup' (default: "
+                        "the set-up's; every other error source always is)")
     p.add_argument("--max-steps", type=int, default=20000, metavar="N",
                    help="posterior: step budget per ensemble (default 20000)")
+    p.add_argument("--max-seconds", type=float, metavar="S",
+                   help="posterior: time budget of the sampling (default: none)")
     p.add_argument("--allow-unconverged", action="store_true",
                    help="posterior: report an unconverged posterior (flagged) instead of failing")
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
@@ -55,14 +62,16 @@ def cmd_estimate(args) -> int:
         raise UsageError(f"--uncertainty must be mc or posterior, got {method!r}")
     trials = args.trials if args.trials is not None else config.get("trials", 10_000)
     seed = args.seed if args.seed is not None else config.get("seed", 0)
-    if args.noise is not None and not args.noise > 0:
-        raise UsageError(f"--noise must be a number > 0, got {args.noise!r}")
+    noise = _noise(args.noise)
+    if args.max_seconds is not None and not args.max_seconds > 0:
+        raise UsageError(f"--max-seconds must be a number > 0, got {args.max_seconds!r}")
     try:
         result = estimate_measured(
             proc, setup, readings, estimator=args.estimator or config.get("estimator"),
-            uncertainty=method, trials=trials, coverage=args.coverage, rng=seed,
-            noise=args.noise, allow_unconverged=args.allow_unconverged,
-            posterior_options={"max_steps": args.max_steps} if method == "posterior" else None)
+            uncertainty=method, trials=trials, coverage=args.coverage, rng=seed, noise=noise,
+            max_seconds=args.max_seconds, allow_unconverged=args.allow_unconverged,
+            posterior_options={"max_steps": args.max_steps, "progress": None}
+            if method == "posterior" else None)
     except NotConvergedError as exc:
         print(f"mtplan: error: {exc}", file=sys.stderr)
         return 1
@@ -71,21 +80,51 @@ def cmd_estimate(args) -> int:
     if args.json:
         print(json.dumps(result.to_dict(), indent=1))
         return 0
-    print(f"{proc.name} ({result.estimator}) from {args.readings}: {method} uncertainty, "
+    _print_result(result, args.readings)
+    return 0
+
+
+def _noise(text):
+    """--noise: 'setup', 'free' or a standard deviation > 0."""
+    if text in ("setup", "free"):
+        return text
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not value > 0 or not math.isfinite(value):
+        raise UsageError(f"--noise must be a number > 0, 'free' or 'setup', got {text!r}")
+    return value
+
+
+def _print_result(result, source) -> None:
+    """One row per measurand: value, u, interval; the estimate and its correction as provenance."""
+    method = result.uncertainty
+    print(f"{result.procedure} ({result.estimator}) from {source}: {method} uncertainty, "
           f"{100 * result.coverage:g} % intervals, seed {result.seed}")
     rows = []
     for i, m in enumerate(result.measurands):
         u = float(result.std[i])
-        rows.append([m.name, m.unit, fmt(float(result.estimate[i]), u),
-                     fmt(float(result.value[i]), u), f"{u:.3g}",
-                     f"[{fmt(float(result.low[i]), u)}, {fmt(float(result.high[i]), u)}]"])
-    print_table(["measurand", "unit", "estimate", "value", "u", "interval"], rows)
+        est = float(result.estimate[i])
+        if not result.determinable[i]:
+            rows.append([m.name, m.unit, "not determinable", "-", "-",
+                         fmt(est, abs(est) * 1e-3 or 1.0) if math.isfinite(est) else "-", "-"])
+            continue
+        rows.append([m.name, m.unit, fmt(float(result.value[i]), u), f"{u:.2g}",
+                     f"[{fmt(float(result.low[i]), u)}, {fmt(float(result.high[i]), u)}]",
+                     fmt(est, u), fmt(float(result.bias_correction[i]), u)])
+    print_table(["measurand", "unit", "value", "u", "interval", "estimate", "correction"], rows)
+    for name, why in result.reasons.items():
+        print(f"{name}: {why}")
     if method == "posterior":
         post = result.details
         print(f"posterior: {post.chains.shape[0]} ensembles x {post.n_walkers} walkers x "
               f"{post.n_steps} steps, max tau {max(post.tau.values()):.1f}, max R-hat "
               f"{max(post.rhat.values()):.4f}, min ESS {min(post.ess.values()):.0f}, "
-              f"{'converged' if post.converged else 'NOT CONVERGED'}")
+              f"{'converged' if post.converged else 'NOT CONVERGED'}, {post.wall_s:.1f} s")
+        kinds = {}
+        for src, how in post.budget.items():
+            kinds.setdefault(how.split(":")[0].split(" (")[0], []).append(src)
+        print("error sources: " + "; ".join(f"{k}: {', '.join(v)}" for k, v in kinds.items()))
     for note in result.notes:
         print(f"note: {note}", file=sys.stderr)
-    return 0

@@ -10,8 +10,12 @@ rows and the set-up's positions) and leaves the procedure-specific ones to
 naming the file and the row or column.
 
 :func:`estimate_measured` gives the measurands with their uncertainty, by Monte
-Carlo around the estimate (``"mc"``) or by the posterior of the forward model
-(``"posterior"``, :func:`mtplan.evaluation.posterior.sample_posterior`).
+Carlo around the estimate (``"mc"``: the estimate corrected for the estimator's bias
+there, the interval around that value) or by the posterior of the forward model
+over the whole error budget (``"posterior"``,
+:func:`mtplan.evaluation.posterior.sample_posterior`): one result per measurand, or
+"not determinable by this estimator" with the reason, never a number with an
+interval of zero width.
 """
 
 from __future__ import annotations
@@ -25,9 +29,14 @@ import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
 
-__all__ = ["read_readings", "estimate_measured", "MeasuredResult", "UNCERTAINTY_METHODS"]
+__all__ = ["read_readings", "estimate_measured", "best_estimator", "MeasuredResult",
+           "UNCERTAINTY_METHODS"]
 
 UNCERTAINTY_METHODS = ("mc", "posterior")
+#: Monte Carlo trials per candidate when the best estimator of a set-up is chosen
+PILOT_TRIALS = 400
+#: an estimator "follows" a measurand when its noise-free response to it is 1 within this
+SLOPE_TOL = 0.5
 
 
 def _fail(path, text):
@@ -243,7 +252,7 @@ def read_readings(procedure, setup, path) -> dict:
 # --------------------------------------------------------------------------- estimate
 @dataclass
 class MeasuredResult:
-    """Measurands estimated from measured readings, with their uncertainty (display units).
+    """Measurands estimated from measured readings, one result per measurand (display units).
 
     Attributes
     ----------
@@ -252,14 +261,23 @@ class MeasuredResult:
     setup : the procedure's Setup
     measurands : tuple of Measurand
     estimate : array (n_measurands,)
-        The estimator's value from the readings.
+        The estimator's value from the readings (provenance).
+    bias_correction : array (n_measurands,)
+        Added to the estimate to give the value: minus the estimator's bias at the
+        estimate (``mc``; 0 for ``posterior``).
     value : array (n_measurands,)
-        The reported value: the estimate (``mc``) or the posterior mean (``posterior``).
+        The result: the bias-corrected estimate (``mc``) or the posterior mean.
     std : array (n_measurands,)
-        Standard uncertainty.
+        Standard uncertainty of the value (also :attr:`u`).
     low, high : array (n_measurands,)
-        Coverage interval (``mc``: the estimate minus the Monte Carlo quantiles of the
-        estimation error; ``posterior``: equal-tailed credible interval).
+        Coverage interval of the value (``mc``: the estimate minus the Monte Carlo
+        quantiles of the estimation error; ``posterior``: equal-tailed credible
+        interval).
+    determinable : array of bool (n_measurands,)
+        False where this estimator cannot give the measurand (its value, u and
+        interval are NaN and :attr:`reasons` says why).
+    reasons : dict of str to str
+        Why each measurand that is not determinable is not.
     coverage : float
     seed : int or list
     details : ProcedureResult or PosteriorResult
@@ -279,19 +297,42 @@ class MeasuredResult:
     coverage: float
     seed: object
     details: object
+    bias_correction: np.ndarray = None
+    determinable: np.ndarray = None
+    reasons: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
 
+    def __post_init__(self):
+        n = len(self.measurands)
+        if self.bias_correction is None:
+            self.bias_correction = np.zeros(n)
+        if self.determinable is None:
+            self.determinable = np.ones(n, dtype=bool)
+
+    @property
+    def u(self) -> np.ndarray:
+        """Standard uncertainty of each value (the same array as :attr:`std`)."""
+        return self.std
+
     def summary(self):
-        """DataFrame indexed by measurand: unit, estimate, value, std, low, high."""
+        """DataFrame indexed by measurand: unit, value, u, low, high, estimate,
+        bias_correction, determinable, reason."""
         import pandas as pd
 
+        names = [m.name for m in self.measurands]
         return pd.DataFrame(
-            {"unit": [m.unit for m in self.measurands], "estimate": self.estimate,
-             "value": self.value, "std": self.std, "low": self.low, "high": self.high},
-            index=pd.Index([m.name for m in self.measurands], name="measurand"))
+            {"unit": [m.unit for m in self.measurands], "value": self.value, "u": self.std,
+             "low": self.low, "high": self.high, "estimate": self.estimate,
+             "bias_correction": self.bias_correction, "determinable": self.determinable,
+             "reason": [self.reasons.get(n, "") for n in names]},
+            index=pd.Index(names, name="measurand"))
 
     def to_dict(self) -> dict:
-        """The ``--json`` document of ``mtplan estimate``."""
+        """The ``--json`` document of ``mtplan estimate``: one object per measurand."""
+
+        def num(x):
+            return float(x) if math.isfinite(float(x)) else None
+
         doc = {
             "procedure": self.procedure,
             "estimator": self.estimator,
@@ -299,10 +340,12 @@ class MeasuredResult:
             "setup": self.setup.as_dict(),
             "seed": self.seed,
             "measurands": [
-                {"name": m.name, "unit": m.unit, "estimate": float(self.estimate[i]),
-                 "value": float(self.value[i]), "std": float(self.std[i]),
-                 "interval": [float(self.low[i]), float(self.high[i])],
-                 "coverage": float(self.coverage)}
+                {"name": m.name, "unit": m.unit, "value": num(self.value[i]),
+                 "u": num(self.std[i]), "interval": [num(self.low[i]), num(self.high[i])],
+                 "coverage": float(self.coverage), "estimate": num(self.estimate[i]),
+                 "bias_correction": num(self.bias_correction[i]),
+                 "determinable": bool(self.determinable[i]),
+                 "reason": self.reasons.get(m.name)}
                 for i, m in enumerate(self.measurands)
             ],
             "notes": list(self.notes),
@@ -312,6 +355,136 @@ class MeasuredResult:
         else:
             doc["trials"] = int(self.details.mc.trials)
         return doc
+
+
+_BEST: dict = {}
+
+
+def _best_estimator_cached(proc, setup) -> tuple[str, str]:
+    """(best estimator, how much worse the others are), computed once per set-up."""
+    key = (proc.name, tuple(proc.exact_estimators), setup)
+    if key not in _BEST:
+        if len(_BEST) > 64:
+            _BEST.clear()
+        _BEST[key] = _choose_estimator(proc, setup)
+    return _BEST[key]
+
+
+def _choose_estimator(proc, setup) -> tuple[str, str]:
+    from mtplan.evaluation.simulation import simulate_uncertainty
+
+    candidates = list(proc.exact_estimators) or [proc.default_estimator]
+    if len(candidates) == 1:
+        return candidates[0], ""
+    scores = {}
+    for est in candidates:
+        try:
+            r = simulate_uncertainty(proc, setup, estimator=est, trials=PILOT_TRIALS, rng=0,
+                                     progress=False)
+        except (InvalidInput, ValueError, ArithmeticError):
+            continue
+        std = np.asarray(r.mc.std, dtype=float)
+        if np.all(np.isfinite(std) & (std > 0)):
+            scores[est] = float(np.mean(np.log(std)))
+    if not scores:
+        return proc.default_estimator, ""
+    best = min(scores, key=scores.get)
+    ratio = {e: math.exp(s - scores[best]) for e, s in scores.items() if e != best}
+    return best, ", ".join(f"{e} x{r:.2f}" for e, r in ratio.items())
+
+
+def best_estimator(procedure, setup) -> str:
+    """The estimator ``estimate`` uses by default: the best one that observes every measurand.
+
+    Among the procedure's exact estimators (those that recover every measurand from
+    noise-free readings), the one with the smallest geometric mean of the Monte
+    Carlo standard uncertainties at this set-up and the default truth
+    (``PILOT_TRIALS`` trials, common random numbers); the procedure's default
+    estimator when it has none.
+    """
+    from mtplan.models import get
+
+    proc = get(procedure)
+    proc.check_setup(setup)
+    return _best_estimator_cached(proc, setup)[0]
+
+
+def _observes(proc, setup, est_name, est_internal, step):
+    """d(estimate)/d(measurand) from noise-free readings at the estimate +- `step` [display].
+
+    None when the procedure cannot build a truth from an estimate."""
+    if proc.truth_from_estimate is None:
+        return None
+    measurands = proc.measurands(setup)
+    slopes = np.full(len(measurands), np.nan)
+    zero = proc.zero_errors(setup, 1)
+    for i, m in enumerate(measurands):
+        vals = []
+        for sign in (1.0, -1.0):
+            est = dict(est_internal)
+            est[m.name] = est[m.name] + sign * step[i] / m.scale
+            try:
+                r = proc.forward(setup, proc.truth_from_estimate(setup, est), zero)
+                vals.append(float(np.asarray(proc.estimate(setup, r, est_name)[m.name]
+                                             ).reshape(-1)[0]) * m.scale)
+            except (InvalidInput, ValueError, ArithmeticError):
+                vals.append(np.nan)
+        slopes[i] = (vals[0] - vals[1]) / (2 * step[i])
+    return slopes
+
+
+def _mc_result(proc, setup, est_name, est_internal, estimate, *, trials, coverage, root,
+               seed, notes):
+    """Monte Carlo around the estimate: bias-corrected value, its interval, determinability."""
+    from mtplan.evaluation.simulation import simulate_uncertainty
+
+    measurands = tuple(proc.measurands(setup))
+    finite = np.isfinite(estimate)
+    if proc.truth_from_estimate is not None and finite.all():
+        truth = proc.truth_from_estimate(setup, est_internal)
+    else:
+        truth = proc.Truth()
+        notes.append(f"the Monte Carlo ran at the default truth of {proc.name}, not at the "
+                     "estimate" + ("" if proc.truth_from_estimate is None else
+                                   " (the estimate is not finite)"))
+    r = simulate_uncertainty(proc, setup, truth, estimator=est_name, trials=trials,
+                             coverage=coverage, rng=root, progress=False)
+    std = np.asarray(r.mc.std, dtype=float)
+    bias = np.asarray(r.mc.mean - r.true, dtype=float)
+    low, high = estimate - (r.mc.high - r.true), estimate - (r.mc.low - r.true)
+    value = estimate - bias
+    reasons = {}
+    slopes = None
+    if finite.all():
+        step = np.where(std > 0, 2.0 * std, 1e-6 * np.maximum(np.abs(estimate), 1.0))
+        slopes = _observes(proc, setup, est_name, est_internal, step)
+    for i, m in enumerate(measurands):
+        why = None
+        if not finite[i]:
+            why = "the estimator gives no finite value from these readings"
+        elif not (std[i] > 0 and high[i] > low[i]):
+            why = (f"the {est_name} estimator gives the same value in every Monte Carlo trial "
+                   "around the estimate (it is quantised or does not see this measurand), so its "
+                   "uncertainty is its resolution, which the Monte Carlo cannot give")
+        elif slopes is not None and not abs(slopes[i] - 1.0) <= SLOPE_TOL:
+            why = (f"the {est_name} estimator does not follow this measurand: a change of it by "
+                   f"{2 * std[i]:.3g} {m.unit} changes the noise-free estimate by "
+                   f"{slopes[i]:.2f} times that (1 expected), so no bias correction applies")
+        elif not low[i] <= value[i] <= high[i]:
+            why = ("the estimator's bias lies outside its own coverage interval (a skewed error "
+                   "distribution), so no corrected value can be stated with it")
+        if why is not None:
+            reasons[m.name] = why + "; not determinable by this estimator: use another estimator "\
+                "or --uncertainty posterior"
+    bad = np.array([m.name in reasons for m in measurands])
+    for a in (value, std, low, high):
+        a[bad] = np.nan
+    return MeasuredResult(
+        procedure=proc.name, estimator=est_name, uncertainty="mc", setup=setup,
+        measurands=measurands, estimate=estimate, value=value, std=std, low=low, high=high,
+        coverage=float(coverage), seed=seed, details=r, bias_correction=np.where(bad, np.nan,
+                                                                                  -bias),
+        determinable=~bad, reasons=reasons, notes=notes)
 
 
 def estimate_measured(
@@ -324,11 +497,12 @@ def estimate_measured(
     trials: int = 10_000,
     coverage: float = 0.95,
     rng=None,
-    noise=None,
+    noise="setup",
+    max_seconds: float | None = None,
     allow_unconverged: bool = False,
     posterior_options: dict | None = None,
 ) -> MeasuredResult:
-    """The measurands of one measurement, with their uncertainty.
+    """The measurands of one measurement, with their uncertainty: the values GUM would report.
 
     Parameters
     ----------
@@ -337,17 +511,22 @@ def estimate_measured(
     readings : dict of str to array
         A batch of one (:func:`read_readings`).
     estimator : str, optional
-        Default: the procedure's default estimator.
+        Default: :func:`best_estimator`, the best estimator that observes every
+        measurand; the seed's estimator stays available by its name.
     uncertainty : {"mc", "posterior"}
-        ``"mc"``: Monte Carlo of the set-up's error sources around the estimate (the
-        truth is ``procedure.truth_from_estimate(setup, estimate)`` when the procedure
-        has that hook, else its default truth, noted in the result). ``"posterior"``:
-        emcee posterior of the forward model (:func:`sample_posterior`).
+        ``"mc"``: Monte Carlo of the set-up's error sources around the estimate (at
+        ``procedure.truth_from_estimate(setup, estimate)`` when the procedure has that
+        hook, else its default truth, noted); the value is the estimate corrected for
+        the estimator's bias there, with the interval around it. A measurand the
+        estimator cannot give (no Monte Carlo spread, or a noise-free estimate that
+        does not follow the measurand) is "not determinable", with the reason.
+        ``"posterior"``: emcee posterior of the forward model over the whole error
+        budget (:func:`mtplan.evaluation.posterior.sample_posterior`).
     trials : int
         Monte Carlo trials (``"mc"``).
     coverage : float
     rng : None, int, SeedSequence or Generator
-    noise, allow_unconverged, posterior_options
+    noise, max_seconds, allow_unconverged, posterior_options
         Passed to :func:`sample_posterior` (``"posterior"``).
 
     Returns
@@ -364,55 +543,35 @@ def estimate_measured(
     p.number("trials", trials, integer=True, low=2)
     p.number("coverage", coverage, low=0, high=1, low_open=True, high_open=True)
     p.raise_if_any()
-    est_name, _ = proc.estimator(estimator)
+    notes = []
+    if estimator is None:
+        est_name, others = _best_estimator_cached(proc, setup)
+        if others:
+            notes.append(f"estimator {est_name}: the best of {proc.name}'s at this set-up "
+                         f"(geometric mean of u relative to it: {others})")
+    else:
+        est_name, _ = proc.estimator(estimator)
     measurands = tuple(proc.measurands(setup))
     est_internal = proc.estimate(setup, readings, est_name)
     est_internal = {m.name: float(np.asarray(est_internal[m.name]).reshape(-1)[0])
                     for m in measurands}
     estimate = np.array([est_internal[m.name] * m.scale for m in measurands])
-    if not np.all(np.isfinite(estimate)):
-        bad = [m.name for m, v in zip(measurands, estimate, strict=True) if not math.isfinite(v)]
-        raise InvalidInput([f"The {est_name} estimator of {proc.name} gives no finite value of "
-                            f"{', '.join(bad)} from these readings."])
     root = as_seed_sequence(rng)
     seed = root.entropy if isinstance(root.entropy, int) else list(root.entropy)
-    notes = []
     if uncertainty == "mc":
-        from mtplan.evaluation.simulation import simulate_uncertainty
-
-        if proc.truth_from_estimate is not None:
-            truth = proc.truth_from_estimate(setup, est_internal)
-        else:
-            truth = proc.Truth()
-            notes.append(f"{proc.name} has no truth_from_estimate: the Monte Carlo ran at the "
-                         "default truth, not at the estimate")
-        r = simulate_uncertainty(proc, setup, truth, estimator=est_name, trials=trials,
-                                 coverage=coverage, rng=root, progress=False)
-        for i, m in enumerate(measurands):
-            if not r.mc.std[i] > 0:
-                notes.append(f"{m.name}: the {est_name} estimator gives the same value in every "
-                             "trial around the estimate, so its uncertainty here is its "
-                             "resolution, which this Monte Carlo cannot see; use another "
-                             "estimator or --uncertainty posterior")
-        err_low = r.mc.low - r.true  # quantiles of the estimation error
-        err_high = r.mc.high - r.true
-        return MeasuredResult(
-            procedure=proc.name, estimator=est_name, uncertainty="mc", setup=setup,
-            measurands=measurands, estimate=estimate, value=estimate.copy(),
-            std=np.asarray(r.mc.std, dtype=float), low=estimate - err_high,
-            high=estimate - err_low, coverage=float(coverage), seed=seed, details=r,
-            notes=notes)
+        return _mc_result(proc, setup, est_name, est_internal, estimate, trials=trials,
+                          coverage=coverage, root=root, seed=seed, notes=notes)
     from mtplan.evaluation.posterior import sample_posterior
 
+    start_ok = np.all(np.isfinite(estimate))
     post = sample_posterior(proc, setup, readings, noise=noise, estimator=est_name,
                             coverage=coverage, rng=root, allow_unconverged=allow_unconverged,
-                            **(posterior_options or {}))
+                            max_seconds=max_seconds, **(posterior_options or {}))
+    if not start_ok:
+        notes.append(f"the {est_name} estimate is not finite; the posterior started from the "
+                     "default truth")
     names = [m.name for m in measurands]
     notes.extend(post.notes)
-    systematic = [k for k, src in proc.active_sources(setup).items() if k != proc.noise_source]
-    if systematic:
-        notes.append("the posterior's likelihood covers the readings' scatter only; the set-up's "
-                     f"other error sources ({', '.join(systematic)}) are in --uncertainty mc")
     return MeasuredResult(
         procedure=proc.name, estimator=est_name, uncertainty="posterior", setup=setup,
         measurands=measurands, estimate=estimate,

@@ -1,49 +1,48 @@
 """Posterior of a procedure's measurands from measured readings, sampled with emcee.
 
-The likelihood is Gaussian on the readings' residuals from the forward model::
+The likelihood covers the whole error budget of the set-up
+(:mod:`mtplan.evaluation._budget`): the readings are Gaussian about the forward
+model's prediction with every error source at its mean (plus the second-order
+shift of the mean), with the covariance of every linear source's effect (noise
+plus systematic sources through the forward model's sensitivity to each element,
+low rank plus diagonal); strongly non-linear sources are sampled as nuisance
+parameters with the set-up's distributions as priors. Which source went where is
+in :attr:`PosteriorResult.budget`; docs/posterior.md says it per procedure.
 
-    r = readings - forward(setup, truth(theta), errors = 0)
-    log L = sum over reading arrays k of  -1/2 sum (r_k / sigma_k)**2 - n_k log sigma_k - n_k/2 log 2 pi
+The free parameters ``theta`` are Truth fields and elements of tuple fields
+(``procedure.posterior_fields``, else all of them); the measurands follow from
+``procedure.true_values(setup, truth(theta))``. The noise source's standard
+deviation is the set-up's (default), a given number, or free (log-uniform prior).
 
-The free parameters ``theta`` are Truth fields (``procedure.posterior_fields``, or
-every float field of the Truth); the measurands follow from
-``procedure.true_values(setup, truth(theta))``. The readings' noise ``sigma_k`` is
-known (a number, or the spread of ``procedure.noise_source`` in the set-up) or a
-free parameter per reading array with a log-uniform (Jeffreys) prior.
+Before sampling, the readings are checked to determine what is sampled: a free
+parameter the readings do not determine (no effect, or only together with
+others) is held at its least-squares value and named in the notes; a measurand
+that depends on no sampled parameter, and a free noise with fewer than 3
+residual degrees of freedom, are refused with what to give instead.
 
-Default priors are weak and stated in :attr:`PosteriorResult.priors`: for each Truth
-field a normal centred at the least-squares estimate with a standard deviation
-1000 times its least-squares standard error (it moves the posterior standard
-deviation by less than 1e-6 relative in the linear-Gaussian case), cut to the
-field's allowed range; for each free noise a log-uniform prior over a factor 1000
-either side of the residuals' RMS at the least-squares fit.
+Default priors are weak and stated in :attr:`PosteriorResult.priors`: for each
+free field a normal centred at the least-squares estimate with a standard
+deviation 1000 times its standard error (a change of the posterior standard
+deviation below 1e-6 relative in the linear case), cut to the field's range; for
+a free noise a log-uniform prior over a factor 1000 either side of its maximum-
+likelihood value.
 
-The sampler is emcee's affine-invariant ensemble sampler, done properly:
-
-- seeded: every ensemble gets its own ``SeedSequence`` child and an emcee ``State``
-  carrying a seeded ``RandomState`` (emcee would otherwise copy numpy's global
-  state); numpy's global random state is neither read for the draws nor changed;
-- the log-probability is vectorised (``vectorize=True``): one call evaluates all
-  the walkers of a half-ensemble; forward models are batch-first over trials with
-  one truth, so each walker's truth is run as a batch of one;
-- walkers (at least 2 x ndim, default max(16, 4 ndim)) start in a small ball (0.1
-  least-squares standard errors) around the least-squares estimate;
-- several independent ensembles run until every ensemble's chain is longer than
-  ``n_tau`` (50) integrated autocorrelation times, tau has settled (relative change
-  below ``tau_rtol`` between checks) and the split R-hat over ensembles is below
-  ``rhat_max``; burn-in of ``burn_tau`` (3) tau is discarded and the rest thinned
-  by tau/2;
-- when the step budget runs out first, :class:`NotConvergedError` carries the
-  partial result (``allow_unconverged=True`` downgrades it to a warning and flags
-  the result), never a silent number.
+The sampler (:func:`mtplan.uncertainty.sampler.run_ensembles`): several
+independent ensembles, seeded (numpy's global state untouched), every half-step
+of all walkers one vectorised call (one forward-model call with array-valued truth
+fields where the model allows), walkers started from the Laplace approximation
+(the least-squares estimate and its covariance), moved by an independence
+proposal from that approximation (Metropolis-Hastings, so exact) mixed with
+emcee's stretch move; run until every chain is longer than ``n_tau`` integrated
+autocorrelation times, tau has settled and the split R-hat is below
+``rhat_max``; ``burn_tau`` tau discarded, thinned by tau/2. When the step or time
+budget runs out first, :class:`NotConvergedError` carries the partial result
+(``allow_unconverged=True`` downgrades it to a flagged warning).
 """
 
 from __future__ import annotations
 
-import copy
-import dataclasses
 import math
-import sys
 import time
 import warnings
 from collections.abc import Mapping
@@ -52,14 +51,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
+from mtplan.evaluation._budget import Budget, error_budget
+from mtplan.evaluation._posterior_model import DOMAIN_ERRORS, Forward, TruthBuilder, \
+    truth_parameters
 from mtplan.uncertainty._random import as_seed_sequence
 from mtplan.uncertainty.sampler import (
     NotConvergedError,
     UnconvergedWarning,
     integrated_time,
+    mixed_moves,
     run_ensembles,
     split_rhat,
-    stderr_progress,
 )
 
 __all__ = [
@@ -68,18 +70,14 @@ __all__ = [
     "UnconvergedWarning",
     "sample_posterior",
     "split_rhat",
+    "NOISE_MODES",
 ]
 
-_LOG_2PI = math.log(2 * math.pi)
 PRIOR_WIDTH = 1000.0  # default prior std in least-squares standard errors
 NOISE_RANGE = 1000.0  # log-uniform noise prior: this factor either side of the start
-
-
-def _natural(chains: np.ndarray, nf: int) -> np.ndarray:
-    """Chains in the parameters' own units: the noise is sampled as log sigma."""
-    out = chains.copy()
-    out[..., nf:] = np.exp(out[..., nf:])
-    return out
+NOISE_MODES = ("setup", "free")
+MIN_NOISE_DOF = 3  # a free noise needs this many residual degrees of freedom (finite variance)
+_RANK_TOL = 1e-6  # a parameter whose whitened column lies this close to the others' span is held
 
 
 # --------------------------------------------------------------------------- result
@@ -93,8 +91,9 @@ class PosteriorResult:
     setup : the procedure's Setup
     measurands : tuple of Measurand
     parameters : tuple of str
-        Free parameters: Truth fields (in the unit their name states) and, when the
-        noise is free, ``sigma_<reading>`` (in the reading's unit).
+        Sampled parameters: Truth fields or elements (in the unit their name states),
+        nuisance error-source elements (``source`` or ``source[i]``, internal units)
+        and, when the noise is free, ``sigma_<noise source>`` (its unit).
     samples : dict of str to array (n_samples,)
         Kept samples (burn-in discarded, thinned, ensembles pooled) of every
         measurand [display unit] and parameter.
@@ -109,21 +108,25 @@ class PosteriorResult:
     ess : dict of str to float
         Effective sample size (kept draws over tau, summed over ensembles).
     acceptance : array (n_ensembles,)
-        Mean acceptance fraction of each ensemble.
     converged : bool
     chains : array (n_ensembles, n_steps, n_walkers, n_params)
         Every step of every walker, burn-in included (trace plots).
     log_prob : array (n_ensembles, n_steps, n_walkers)
     discard, thin : int
-        Burn-in steps discarded and thinning applied to obtain `samples`.
     start : dict of str to float
         The least-squares estimate the walkers started around.
     priors : dict of str to str
         The prior of every parameter, in words.
-    noise : dict of str to float or None
-        Known noise per reading array [its unit], None where free.
+    noise : dict
+        ``source`` (the noise source or None), ``mode`` ("setup", "given", "free") and
+        ``sigma`` (its standard deviation [its unit]; the start value when free).
+    budget : dict of str to str
+        What became of every error source of the set-up (covariance, nuisance, ...).
+    held : dict of str to float
+        Free fields the readings do not determine, held at these values.
+    units : dict of str to str
+        Unit of every measurand and parameter.
     seed : int or list
-        Entropy of the root seed (the run is repeatable from it).
     wall_s : float
     notes : list of str
     """
@@ -150,6 +153,9 @@ class PosteriorResult:
     start: dict
     priors: dict
     noise: dict
+    budget: dict
+    held: dict
+    units: dict
     seed: object
     n_walkers: int
     n_steps: int
@@ -161,36 +167,15 @@ class PosteriorResult:
         """Measurand names, then parameter names."""
         return [m.name for m in self.measurands] + list(self.parameters)
 
-    def units(self) -> dict:
-        """Unit of every measurand and parameter."""
-        from mtplan.models._protocol import UNIT_SUFFIXES
-
-        out = {m.name: m.unit for m in self.measurands}
-        for p in self.parameters:
-            out[p] = next((s for s in sorted(UNIT_SUFFIXES, key=len, reverse=True)
-                           if p.endswith("_" + s)), "")
-        return out
-
     def summary(self):
         """DataFrame indexed by name: kind, unit, mean, std, low, high, tau, rhat, ess."""
         import pandas as pd
 
-        units = self.units()
         kinds = {m.name: "measurand" for m in self.measurands}
-        rows = []
-        for name in self.names:
-            rows.append({
-                "name": name,
-                "kind": kinds.get(name, "parameter"),
-                "unit": units[name],
-                "mean": self.mean[name],
-                "std": self.std[name],
-                "low": self.low[name],
-                "high": self.high[name],
-                "tau": self.tau.get(name, math.nan),
-                "rhat": self.rhat[name],
-                "ess": self.ess[name],
-            })
+        rows = [{"name": n, "kind": kinds.get(n, "parameter"), "unit": self.units[n],
+                 "mean": self.mean[n], "std": self.std[n], "low": self.low[n],
+                 "high": self.high[n], "tau": self.tau.get(n, math.nan), "rhat": self.rhat[n],
+                 "ess": self.ess[n]} for n in self.names]
         return pd.DataFrame(rows).set_index("name")
 
     def frame(self):
@@ -204,7 +189,7 @@ class PosteriorResult:
         return self.chains[..., list(self.parameters).index(name)]
 
     def to_dict(self) -> dict:
-        """Plain-Python summary (no samples) for JSON."""
+        """Plain-Python summary (no samples) for JSON: one row per parameter."""
         return {
             "converged": bool(self.converged),
             "n_ensembles": int(self.chains.shape[0]),
@@ -216,11 +201,13 @@ class PosteriorResult:
             "acceptance": [float(a) for a in self.acceptance],
             "coverage": float(self.coverage),
             "priors": dict(self.priors),
-            "noise": {k: (None if v is None else float(v)) for k, v in self.noise.items()},
+            "noise": {k: (float(v) if isinstance(v, float) else v) for k, v in self.noise.items()},
+            "budget": dict(self.budget),
+            "held": {k: float(v) for k, v in self.held.items()},
             "seed": self.seed,
             "wall_s": float(self.wall_s),
             "parameters": [
-                {"name": p, "unit": self.units()[p], "start": float(self.start[p]),
+                {"name": p, "unit": self.units[p], "start": float(self.start[p]),
                  "mean": float(self.mean[p]), "std": float(self.std[p]),
                  "interval": [float(self.low[p]), float(self.high[p])],
                  "tau": float(self.tau[p]), "rhat": float(self.rhat[p]), "ess": float(self.ess[p])}
@@ -230,231 +217,473 @@ class PosteriorResult:
         }
 
 
-# --------------------------------------------------------------------------- truth builder
-class _TruthBuilder:
-    """Truth objects for parameter vectors, with the Truth's own validation.
-
-    A field's range check (finite, low/high) is done vectorised for all walkers;
-    when the Truth class has cross-field rules (``_check``) the object is built with
-    ``dataclasses.replace`` (full validation), otherwise the checked values are
-    set on a copy of the base, which is the same validation without re-reading the
-    class's type hints for every walker (50 us -> 2 us).
-    """
-
-    def __init__(self, base, fields):
-        from mtplan.models._protocol import SetupBase, fields_info
-
-        self.base = base
-        self.fields = tuple(fields)
-        infos = {i["name"]: i for i in fields_info(type(base))}
-        self.low = np.array([-np.inf if infos[f]["low"] is None else infos[f]["low"]
-                             for f in self.fields], dtype=float)
-        self.high = np.array([np.inf if infos[f]["high"] is None else infos[f]["high"]
-                              for f in self.fields], dtype=float)
-        self.low_open = np.array([bool(infos[f]["low_open"]) for f in self.fields])
-        self.high_open = np.array([bool(infos[f]["high_open"]) for f in self.fields])
-        self.full = getattr(type(base), "_check", None) is not SetupBase._check
-
-    def valid(self, theta: np.ndarray) -> np.ndarray:
-        """Mask of rows of `theta` (n, n_fields) inside every field's range."""
-        ok = np.all(np.isfinite(theta), axis=1)
-        ok &= np.all(np.where(self.low_open, theta > self.low, theta >= self.low), axis=1)
-        ok &= np.all(np.where(self.high_open, theta < self.high, theta <= self.high), axis=1)
-        return ok
-
-    def make(self, row):
-        """The Truth for one row (no range check: call `valid` first); None if invalid."""
-        if self.full:
-            try:
-                return dataclasses.replace(self.base, **{f: float(v) for f, v in
-                                                         zip(self.fields, row, strict=True)})
-            except (InvalidInput, ValueError, TypeError):
-                return None
-        t = copy.copy(self.base)
-        for f, v in zip(self.fields, row, strict=True):
-            object.__setattr__(t, f, float(v))
-        return t
-
-    def make_checked(self, row):
-        row = np.asarray(row, dtype=float)
-        return self.make(row) if self.valid(row[None, :])[0] else None
+# --------------------------------------------------------------------------- set-up and checks
+def _check_arguments(proc, setup, readings, noise, opts: dict):
+    """Validate every argument at once; return the noise mode ("setup", "known", "free")
+    and the given noise [its unit] or None."""
+    proc.check_setup(setup)
+    p = Problems(f"sample_posterior {proc.name}")
+    p.number("n_ensembles", opts["n_ensembles"], integer=True, low=2)
+    p.number("max_steps", opts["max_steps"], integer=True, low=2)
+    p.number("check_every", opts["check_every"], integer=True, low=2)
+    p.number("n_tau", opts["n_tau"], low=1)
+    p.number("tau_rtol", opts["tau_rtol"], low=0, low_open=True)
+    p.number("rhat_max", opts["rhat_max"], low=1, low_open=True)
+    p.number("burn_tau", opts["burn_tau"], low=0)
+    p.number("coverage", opts["coverage"], low=0, high=1, low_open=True, high_open=True)
+    if opts["max_seconds"] is not None:
+        p.number("max_seconds", opts["max_seconds"], low=0, low_open=True)
+    if not isinstance(readings, Mapping) or not readings:
+        p.add("readings", readings, "a dict of reading arrays (procedure.from_frame)")
+    allowed = ("None, 'setup' (every source at the set-up's size), 'free' (the noise source's "
+               "size free) or a number > 0 (the noise source's standard deviation)")
+    mode, sigma = "setup", None
+    if noise is None or (isinstance(noise, str) and noise == "setup"):
+        pass
+    elif isinstance(noise, str) and noise == "free":
+        mode = "free"
+    elif isinstance(noise, bool) or isinstance(noise, str) or isinstance(noise, Mapping):
+        p.add("noise", noise, allowed)
+    elif p.number("noise", noise, low=0, low_open=True):
+        mode, sigma = "known", float(noise)
+    if mode != "setup" and proc.noise_source is None:
+        p.add_text(f"The 'noise' parameter of sample_posterior must be 'setup' for {proc.name}: "
+                   f"it names no noise source whose size could be given or left free (got "
+                   f"{noise!r}); its readings' noise is the set-up's error sources")
+    p.raise_if_any()
+    return mode, sigma
 
 
-# --------------------------------------------------------------------------- model
-class _Model:
-    """Residuals, log-likelihood and log-prior of one procedure's readings."""
-
-    def __init__(self, proc, setup, readings, fields, base_truth, batch=True):
-        self.proc, self.setup = proc, setup
-        self.builder = _TruthBuilder(base_truth, fields)
-        self.zero = proc.zero_errors(setup, 1)
-        self.keys = []
-        self.data = {}
-        for k, v in readings.items():
-            a = np.asarray(v)
-            if a.dtype.kind not in "fiu":
-                continue
-            self.keys.append(k)
-            self.data[k] = a.astype(float).reshape(-1)
-        self.n = {k: self.data[k].size for k in self.keys}
-        self.rank = max(np.ndim(readings[k]) for k in self.keys) - 1
-        self.batched = None if batch else False  # None: not yet known
-        self._zero_cache = {}
-
-    def predict(self, truth) -> dict | None:
-        try:
-            with np.errstate(all="ignore"):
-                out = self.proc.forward(self.setup, truth, self.zero)
-        except (ValueError, ArithmeticError, InvalidInput):
-            return None
-        return {k: np.asarray(out[k], dtype=float).reshape(-1) for k in self.keys}
-
-    def residuals(self, truth) -> dict | None:
-        pred = self.predict(truth)
-        if pred is None:
-            return None
-        res = {}
-        for k in self.keys:
-            if pred[k].shape != self.data[k].shape:
-                raise InvalidInput([
-                    f"The readings {k!r} of {self.proc.name} hold {self.data[k].size} values but "
-                    f"the set-up's forward model gives {pred[k].size}."
-                ])
-            r = self.data[k] - pred[k]
-            if not np.all(np.isfinite(r)):
-                return None
-            res[k] = r
-        return res
-
-    # ----------------------------------------------------------- many truths at once
-    def _batched_truth(self, theta):
-        """A Truth whose free fields are arrays (m, 1, ...) broadcasting over the readings."""
-        t = copy.copy(self.builder.base)
-        for i, f in enumerate(self.builder.fields):
-            object.__setattr__(t, f, theta[:, i].reshape((-1,) + (1,) * self.rank))
-        return t
-
-    def _forward_batch(self, theta):
-        m = theta.shape[0]
-        zero = self._zero_cache.get(m)
-        if zero is None:
-            zero = self._zero_cache[m] = self.proc.zero_errors(self.setup, m)
-        with np.errstate(all="ignore"):
-            out = self.proc.forward(self.setup, self._batched_truth(theta), zero)
-        res = {}
-        for k in self.keys:
-            a = np.asarray(out[k], dtype=float)
-            if a.shape[0] != m:
-                raise ValueError("not batched")
-            res[k] = self.data[k] - a.reshape(m, -1)
-        return res
-
-    def residuals_many(self, theta) -> tuple[dict, np.ndarray]:
-        """Residuals of every row of `theta` (m, n_fields) already in range: (dict of (m, n_k), ok).
-
-        The forward model is called once with array-valued truth fields when it
-        broadcasts them (checked against the per-walker loop on the first call,
-        exactly), else once per row with a batch of one.
-        """
-        m = theta.shape[0]
-        if self.builder.full:
-            ok = np.array([self.builder.make(row) is not None for row in theta], dtype=bool)
-        else:
-            ok = np.ones(m, dtype=bool)
-        if self.batched is not False and m >= 2:
-            try:
-                res = self._forward_batch(theta)
-            except Exception:  # noqa: BLE001 - any failure means: the model does not batch truths
-                res = None
-                self.batched = False
-            if res is not None and self.batched is None:
-                loop, ok_loop = self._loop(theta, ok)
-                same = all(
-                    np.allclose(res[k][ok_loop], loop[k][ok_loop], rtol=1e-9,
-                                atol=1e-12 * (np.max(np.abs(self.data[k])) + 1e-300))
-                    for k in self.keys)
-                self.batched = bool(same)
-                if not same:
-                    return loop, ok_loop
-            if self.batched:
-                for k in self.keys:
-                    ok &= np.all(np.isfinite(res[k]), axis=1)
-                return res, ok
-        return self._loop(theta, ok)
-
-    def _loop(self, theta, ok):
-        m = theta.shape[0]
-        res = {k: np.zeros((m, self.n[k])) for k in self.keys}
-        ok = ok.copy()
-        for j in np.flatnonzero(ok):
-            t = self.builder.make(theta[j])
-            r = None if t is None else self.residuals(t)
-            if r is None:
-                ok[j] = False
-                continue
-            for k in self.keys:
-                res[k][j] = r[k]
-        return res, ok
+def _initial_theta(proc, setup, readings, builder, start, estimator, notes) -> np.ndarray:
+    """Where the least squares start: `start`, else the estimate's truth, else the base truth."""
+    if start is not None:
+        unknown = [k for k in start if k not in builder.names]
+        if unknown:
+            raise InvalidInput([f"The 'start' parameter of sample_posterior names {unknown}; the "
+                                f"free parameters are {builder.names}."])
+        return np.array([float(start.get(p.name, v)) for p, v in
+                         zip(builder.params, builder.values, strict=True)])
+    if proc.truth_from_estimate is None:
+        return builder.values.copy()
+    try:
+        est = proc.estimate(setup, readings, estimator)
+        est = {k: float(np.asarray(v).reshape(-1)[0]) for k, v in est.items()}
+        t0 = proc.truth_from_estimate(setup, est)
+        return np.array([builder.value_of(t0, p) for p in builder.params])
+    except DOMAIN_ERRORS as exc:
+        notes.append(f"start: the estimator failed ({exc}); started from the default truth")
+        return builder.values.copy()
 
 
-def _free_float_fields(proc, truth_cls, fields):
-    from mtplan.models._protocol import fields_info
+# --------------------------------------------------------------------------- start: least squares
+@dataclass
+class _Fit:
+    """The least-squares (generalised, over the whole error budget) estimate."""
 
-    infos = {i["name"]: i for i in fields_info(truth_cls)}
-    floats = [n for n, i in infos.items() if i["kind"] is float and not i["optional"]]
-    if fields is None:
-        fields = tuple(proc.posterior_fields) or tuple(floats)
-    else:
-        fields = (fields,) if isinstance(fields, str) else tuple(fields)
-    bad = [f for f in fields if f not in floats]
-    if bad or not fields:
-        raise InvalidInput([
-            f"The 'fields' parameter of sample_posterior must name float Truth fields of "
-            f"{proc.name} ({', '.join(floats)}). Got {list(bad) or 'none'} instead."
-        ])
-    return fields
+    budget: Budget
+    theta: np.ndarray  # every free parameter
+    nuis: np.ndarray  # nuisance source elements
+    sigma: float | None  # the noise source's standard deviation (None: the set-up's)
+    correction: np.ndarray
 
 
-def _least_squares_start(model: _Model, theta0, weights):
-    """Weighted least squares over the free fields, from `theta0`; (theta, jac, rms per key)."""
+def _nuisance_priors(budget: Budget):
+    """Per nuisance element: (mean, std, low, high) of the set-up's distribution."""
+    rows = []
+    for _, src in budget.nuisance:
+        d = src.distribution
+        size = int(np.prod((*src.shape, *d.event_shape), dtype=np.int64))
+        lo, hi = getattr(d, "low", -np.inf), getattr(d, "high", np.inf)
+        rows += [(float(d.mean), float(np.max(d.std)), float(lo), float(hi))] * size
+    return np.array(rows, dtype=float).reshape(-1, 4)
+
+
+def _least_squares(fwd, fit: _Fit) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least squares of (theta, nuisance) with the budget's covariance at fit.sigma."""
     from scipy.optimize import least_squares
 
-    b = model.builder
-    lo = np.where(np.isfinite(b.low), b.low + np.where(b.low_open, 1e-12 * np.maximum(abs(b.low), 1e-300), 0), -np.inf)
-    hi = np.where(np.isfinite(b.high), b.high - np.where(b.high_open, 1e-12 * np.maximum(abs(b.high), 1e-300), 0), np.inf)
-    theta0 = np.clip(np.asarray(theta0, dtype=float), lo, hi)
-    big = None
+    b, gauss = fwd.builder, fit.budget.gaussian(fit.sigma)
+    pri = _nuisance_priors(fit.budget)
+    p, q = fit.theta.size, pri.shape[0]
+    with np.errstate(invalid="ignore"):  # infinite bounds stay infinite
+        nudge_lo = np.where(b.low_open & np.isfinite(b.low), 1e-12 * np.maximum(abs(b.low), 1e-300), 0)
+        nudge_hi = np.where(b.high_open & np.isfinite(b.high), 1e-12 * np.maximum(abs(b.high), 1e-300),
+                            0)
+    lo = np.concatenate([b.low + nudge_lo, pri[:, 2]])
+    hi = np.concatenate([b.high - nudge_hi, pri[:, 3]])
+    steps = np.concatenate([[par.step for par in b.params], 1e-3 * pri[:, 1]])
+    x0 = np.clip(np.concatenate([fit.theta, fit.nuis]), lo, hi)
+    x0 = np.where((x0 == lo) | (x0 == hi), x0 + 1e-9 * (hi - lo) * np.where(x0 == lo, 1, -1), x0)
+    x0 = np.where(np.isfinite(x0), x0, np.concatenate([fit.theta, fit.nuis]))
 
-    def fun(theta):
-        nonlocal big
-        truth = b.make_checked(theta)
-        res = None if truth is None else model.residuals(truth)
-        if res is None:
-            return np.full(sum(model.n.values()), 1e6 if big is None else big)
-        out = np.concatenate([res[k] * weights[k] for k in model.keys])
-        if big is None:
-            big = 1e3 * float(np.max(np.abs(out)) + 1.0)
+    def fun(x):
+        pred, ok = fwd.predict(x[None, :p], x[None, p:] if q else None)
+        if not ok[0]:
+            return np.full(fwd.n + q, 1e8)
+        w = gauss.whiten(fwd.y - pred[0] - fit.correction)[0]
+        return np.concatenate([w, (x[p:] - pri[:, 0]) / pri[:, 1]])
+
+    def jac(x):
+        j = -gauss.whiten(fwd.jacobian(x[:p], x[p:] if q else None, steps).T).T
+        return np.vstack([j, np.hstack([np.zeros((q, p)), np.diag(1.0 / pri[:, 1])])])
+
+    sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale="jac", method="trf",
+                        xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=50 * (p + q + 1))
+    if b.make(sol.x[:p]) is None or not fwd.predict(sol.x[None, :p],
+                                                    sol.x[None, p:] if q else None)[1][0]:
+        raise InvalidInput([f"The least-squares fit of {fwd.proc.name} to the readings did not "
+                            "reach a valid truth; give a start."])
+    return sol.x[:p], sol.x[p:]
+
+
+def _noise_ml(fwd, fit: _Fit) -> float:
+    """Maximum-likelihood standard deviation of a free noise at the fitted parameters."""
+    from scipy.optimize import minimize_scalar
+
+    gauss = fit.budget.gaussian()
+    pred, _ = fwd.predict(fit.theta[None], fit.nuis[None] if fit.nuis.size else None)
+    r = fwd.y - pred[0] - fit.correction
+    s0 = math.sqrt(max(float(np.mean(r**2)), 1e-300))
+    res = minimize_scalar(lambda ls: -gauss.loglike(r, np.array([ls]))[0],
+                          bounds=(math.log(s0) - 15, math.log(s0) + 5), method="bounded",
+                          options={"xatol": 1e-6})
+    return float(math.exp(res.x))
+
+
+def _start(fwd, theta0, mode, sigma, notes) -> _Fit:
+    """Budget at the start, generalised least squares, the budget again where it moved."""
+    setup_sd = None
+    if fwd.proc.noise_source is not None:
+        setup_sd = float(np.max(np.asarray(fwd.sources[fwd.proc.noise_source].distribution.std)))
+    names = fwd.builder.names
+    fit = None
+    for _ in range(2):
+        truth = fwd.builder.make(theta0)
+        if truth is None:
+            raise InvalidInput([f"The start of the least squares of {fwd.proc.name} is not a "
+                                "valid truth; give a start."])
+        J, G = fwd.jacobian(theta0), fwd.measurand_gradient(theta0)
+        budget = error_budget(fwd, truth, mode, sigma, J, G, names)
+        sig = {"known": sigma, "free": setup_sd or 1e-3}.get(mode)
+        nuis0 = _nuisance_priors(budget)[:, 0]
+        fit = _Fit(budget, theta0.copy(), nuis0, sig, budget.correction)
+        fit.theta, fit.nuis = _least_squares(fwd, fit)
+        if mode == "free":
+            fit.sigma = _noise_ml(fwd, fit)
+            fit.theta, fit.nuis = _least_squares(fwd, fit)
+        gw = fit.budget.gaussian(fit.sigma).whiten(J.T).T
+        se = np.sqrt(np.clip(np.diag(np.linalg.pinv(gw.T @ gw)), 1e-300, None))
+        if np.all(np.abs(fit.theta - theta0) < se):
+            break
+        theta0 = fit.theta
+    notes.extend(fit.budget.notes)
+    return fit
+
+
+# --------------------------------------------------------------------------- what is sampled
+@dataclass
+class _Space:
+    """The sampled coordinates and their Laplace approximation (mean and covariance)."""
+
+    kept: list  # indices of the free parameters that are sampled
+    held: dict  # name -> value of free parameters held at the least-squares estimate
+    names: list  # sampled coordinates: kept parameters, nuisance elements, sigma
+    units: dict
+    center: np.ndarray  # (log sigma for a free noise)
+    cov: np.ndarray
+    free_noise: bool
+
+
+def _internal_unit(setup, source: str) -> str:
+    """Internal unit of a source's elements, from its set-up field's unit suffix."""
+    from mtplan.models._protocol import fields_info
+
+    unit = next((i["unit"] for i in fields_info(type(setup)) if i["name"].startswith(source + "_")),
+                "")
+    return {"um": "mm", "nm": "mm", "mm": "mm", "urad": "rad", "mrad": "rad", "arcsec": "rad",
+            "deg": "rad", "ppm": "1"}.get(unit.split("_")[0], "")
+
+
+def _rank_order(Jw, relevant, p, q):
+    """Greedy rank: nuisance elements first, then parameters the measurands depend on.
+
+    Returns (kept parameter indices, {index: reason} of held ones)."""
+    order = list(range(p, p + q)) + [j for j in range(p) if relevant[j]] + \
+        [j for j in range(p) if not relevant[j]]
+    basis = np.zeros((Jw.shape[0], 0))
+    kept, held = [], {}
+    for j in order:
+        c = Jw[:, j]
+        nc = float(np.linalg.norm(c))
+        if not nc > 0:
+            held[j] = "does not affect the readings"
+            continue
+        r = c / nc - basis @ (basis.T @ (c / nc))
+        r -= basis @ (basis.T @ r)
+        nr = float(np.linalg.norm(r))
+        if nr < _RANK_TOL:
+            held[j] = "is determined by the readings only together with other parameters"
+            continue
+        basis = np.hstack([basis, (r / nr)[:, None]])
+        if j < p:
+            kept.append(j)
+    return sorted(kept), held
+
+
+def _identify(fwd, fit: _Fit, notes) -> _Space:
+    """Hold what the readings do not determine, refuse what cannot be reported."""
+    proc, b = fwd.proc, fwd.builder
+    pri = _nuisance_priors(fit.budget)
+    p, q = fit.theta.size, pri.shape[0]
+    steps = np.concatenate([[par.step for par in b.params], 1e-3 * pri[:, 1]])
+    J = fwd.jacobian(fit.theta, fit.nuis if q else None, steps)
+    Jw = fit.budget.gaussian(fit.sigma).whiten(J.T).T
+    Jw = np.vstack([Jw, np.hstack([np.zeros((q, p)), np.diag(1.0 / pri[:, 1])])])
+    G = fwd.measurand_gradient(fit.theta)
+    kept, held = _rank_order(Jw, np.any(G != 0, axis=0), p, q)
+    dead = [m.name for i, m in enumerate(fwd.measurands) if not np.any(G[i, kept] != 0)]
+    if dead:
+        raise InvalidInput([
+            f"The posterior of {proc.name} cannot give {', '.join(dead)}: "
+            f"{'they depend' if len(dead) > 1 else 'it depends'} on none of the parameters the "
+            f"readings determine (sampled: {', '.join(b.names[j] for j in kept) or 'none'}), so "
+            "its uncertainty would be 0; free the Truth fields it depends on"])
+    for why in sorted(set(held.values())):
+        group = [j for j, w in held.items() if w == why]
+        cond = [m.name for i, m in enumerate(fwd.measurands) if np.any(G[i, group] != 0)]
+        notes.append(f"{', '.join(b.names[j] for j in group)} {why}: held at "
+                     f"{', '.join(f'{fit.theta[j]:.6g}' for j in group)}"
+                     + (f" ({', '.join(cond)} conditional on it)" if cond else ""))
+    cols = kept + list(range(p, p + q))
+    cov = np.linalg.pinv(Jw[:, cols].T @ Jw[:, cols])
+    names = [b.names[j] for j in kept]
+    units = {b.names[j]: b.params[j].unit for j in kept}
+    for name, src in fit.budget.nuisance:
+        size = int(np.prod((*src.shape, *src.distribution.event_shape), dtype=np.int64))
+        el = [name] if size == 1 else [f"{name}[{i}]" for i in range(size)]
+        names += el
+        units.update(dict.fromkeys(el, _internal_unit(fwd.setup, name)))
+    center = np.concatenate([fit.theta[kept], fit.nuis])
+    free = fit.budget.Dn is not None
+    if free:
+        _check_noise_dof(fwd, fit, len(cols))
+        ns = proc.noise_source
+        names.append(f"sigma_{ns}")
+        units[f"sigma_{ns}"] = _internal_unit(fwd.setup, ns)
+        info = fit.budget.gaussian().fisher_log_sigma(fit.sigma)
+        cov = np.block([[cov, np.zeros((cov.shape[0], 1))],
+                        [np.zeros((1, cov.shape[0])), np.array([[1.0 / info]])]])
+        center = np.append(center, math.log(fit.sigma))
+    held_values = {b.names[j]: float(fit.theta[j]) for j in held}
+    return _Space(kept, held_values, names, units, center, cov, free)
+
+
+def _check_noise_dof(fwd, fit: _Fit, n_sampled: int) -> None:
+    proc = fwd.proc
+    rank = fit.budget.gaussian().rank
+    dof = rank - n_sampled
+    if dof >= MIN_NOISE_DOF:
+        return
+    from mtplan.models._protocol import fields_info
+
+    ns = proc.noise_source
+    fld = next((i["name"] for i in fields_info(type(fwd.setup)) if i["name"].startswith(ns + "_")),
+               ns)
+    raise InvalidInput([
+        f"The noise of {proc.name} cannot be left free: {rank} reading(s) with noise and "
+        f"{n_sampled} sampled parameter(s) leave {dof} degree(s) of freedom, and a free noise "
+        f"needs at least {MIN_NOISE_DOF} (fewer give it no finite posterior variance); give "
+        f"the noise (--noise SIGMA, the standard deviation of {ns} in "
+        f"{_internal_unit(fwd.setup, ns)}) or keep the set-up's ({fld} = "
+        f"{getattr(fwd.setup, fld, '?')})"])
+
+
+# --------------------------------------------------------------------------- likelihood
+class _LogPosterior:
+    """Vectorised log-posterior of the sampled coordinates (n_walkers, ndim) -> (n_walkers,)."""
+
+    def __init__(self, fwd, fit: _Fit, space: _Space, priors: Mapping):
+        self.fwd, self.fit, self.space = fwd, fit, space
+        self.gauss = fit.budget.gaussian()
+        self.pk, self.q = len(space.kept), _nuisance_priors(fit.budget).shape[0]
+        self.nuis = _nuisance_priors(fit.budget)
+        se = np.sqrt(np.clip(np.diag(space.cov)[:self.pk], 1e-300, None))
+        self.mu, self.sd = space.center[:self.pk], PRIOR_WIDTH * se
+        self.user = [(space.names.index(k), v) for k, v in priors.items()]
+        self.default = np.array([n not in priors for n in space.names[:self.pk]], dtype=bool)
+        self.nuis_default = np.array([n not in priors for n in
+                                      space.names[self.pk:self.pk + self.q]], dtype=bool)
+        if space.free_noise:
+            ls = space.center[-1]
+            self.log_sigma = (ls - math.log(NOISE_RANGE), ls + math.log(NOISE_RANGE))
+            self.sigma_default = space.names[-1] not in priors
+
+    def theta(self, coords: np.ndarray) -> np.ndarray:
+        """Every free parameter for sampled rows: the held ones at their values."""
+        th = np.repeat(self.fit.theta[None, :], coords.shape[0], axis=0)
+        th[:, self.space.kept] = coords[:, :self.pk]
+        return th
+
+    def prior_text(self) -> dict:
+        out = {}
+        for i, name in enumerate(self.space.names[:self.pk]):
+            out[name] = (f"normal(mean {self.mu[i]:.6g}, std {self.sd[i]:.3g}) = least-squares "
+                         f"estimate +- {PRIOR_WIDTH:g} standard errors, within the field's range")
+        for name, (mean, sd, lo, hi) in zip(self.space.names[self.pk:self.pk + self.q], self.nuis,
+                                            strict=True):
+            out[name] = (f"the set-up's: uniform on [{lo:.4g}, {hi:.4g}]" if np.isfinite(lo)
+                         else f"the set-up's: normal(mean {mean:.4g}, std {sd:.4g})")
+        if self.space.free_noise:
+            lo, hi = (math.exp(v) for v in self.log_sigma)
+            out[self.space.names[-1]] = (f"log-uniform on [{lo:.3g}, {hi:.3g}] (Jeffreys; "
+                                         f"maximum-likelihood value x/÷ {NOISE_RANGE:g})")
+        for i, dist in self.user:
+            out[self.space.names[i]] = f"user: {dist!r}"
         return out
 
-    sol = least_squares(fun, theta0, bounds=(lo, hi), x_scale="jac", method="trf",
-                        xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200 * (theta0.size + 1))
-    truth = b.make_checked(sol.x)
-    res = model.residuals(truth) if truth is not None else None
-    if res is None:
-        raise InvalidInput([f"The least-squares fit of {model.proc.name} to the readings did not "
-                            "reach a valid truth; give a start."])
-    rms = {k: float(np.sqrt(np.mean(res[k] ** 2))) for k in model.keys}
-    return sol.x, sol.jac, rms
+    def __call__(self, coords: np.ndarray) -> np.ndarray:
+        coords = np.atleast_2d(coords)
+        m, pk, q = coords.shape[0], self.pk, self.q
+        out = np.full(m, -np.inf)
+        th = self.theta(coords)
+        nu = coords[:, pk:pk + q]
+        ok = self.fwd.builder.valid(th) & np.all(np.isfinite(coords), axis=1)
+        lp = -0.5 * np.sum(np.where(self.default, ((coords[:, :pk] - self.mu) / self.sd) ** 2, 0.0),
+                           axis=1)
+        if q:
+            mean, sd, lo, hi = self.nuis.T
+            normal = ~np.isfinite(lo)
+            lp -= 0.5 * np.sum(np.where(self.nuis_default & normal, ((nu - mean) / sd) ** 2, 0.0),
+                               axis=1)
+            ok &= np.all(~self.nuis_default | normal | ((nu >= lo) & (nu <= hi)), axis=1)
+        log_sigma = None
+        if self.space.free_noise:
+            log_sigma = coords[:, -1]
+            if self.sigma_default:
+                ok &= (log_sigma >= self.log_sigma[0]) & (log_sigma <= self.log_sigma[1])
+        for i, dist in self.user:
+            x = np.exp(coords[:, i]) if self.space.free_noise and i == coords.shape[1] - 1 \
+                else coords[:, i]
+            with np.errstate(all="ignore"):
+                lp = lp + np.asarray(dist.logpdf(x), dtype=float)
+                if self.space.free_noise and i == coords.shape[1] - 1:
+                    lp = lp + coords[:, i]  # Jacobian of sigma = exp(log sigma)
+        idx = np.flatnonzero(ok & np.isfinite(lp))
+        if idx.size == 0:
+            return out
+        pred, good = self.fwd.predict(th[idx], nu[idx] if q else None)
+        ll = self.gauss.loglike(self.fwd.y - pred - self.fit.correction,
+                                None if log_sigma is None else log_sigma[idx])
+        good &= np.isfinite(ll)
+        out[idx[good]] = lp[idx[good]] + ll[good]
+        return out
 
 
-def _setup_noise(proc, setup):
-    if not proc.noise_source:
-        return None
-    src = proc.sources(setup).get(proc.noise_source)
-    if src is None:
-        return None
-    std = np.asarray(src.distribution.std, dtype=float)
-    return float(np.max(std)) if std.size else None
+# --------------------------------------------------------------------------- the run
+def _run(logpost: _LogPosterior, space: _Space, root, opts: dict, label: str):
+    """Walkers from the Laplace approximation; independence + stretch moves; run_ensembles."""
+    ndim = len(space.names)
+    n_walkers = opts["n_walkers"]
+    if n_walkers is None:
+        n_walkers = max(16, 2 * ndim + 2)
+        n_walkers += n_walkers % 2
+    p = Problems("sample_posterior")
+    if p.number("n_walkers", n_walkers, integer=True, low=2 * ndim) and int(n_walkers) % 2:
+        p.add("n_walkers", n_walkers, f"an even int >= {2 * ndim}")
+    p.raise_if_any()
+    cov = 0.5 * (space.cov + space.cov.T)
+    try:
+        factor = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        cov = cov + np.diag(1e-12 * np.diag(cov).max() + 1e-300 * np.ones(ndim))
+        factor = np.linalg.cholesky(cov)
+    moves = opts["moves"] if opts["moves"] is not None else mixed_moves(space.center, cov)
+    run = run_ensembles(logpost, space.center, factor, root=root, n_walkers=int(n_walkers),
+                        n_ensembles=int(opts["n_ensembles"]), max_steps=int(opts["max_steps"]),
+                        check_every=int(opts["check_every"]), n_tau=opts["n_tau"],
+                        tau_rtol=opts["tau_rtol"], rhat_max=opts["rhat_max"],
+                        burn_tau=opts["burn_tau"], max_seconds=opts["max_seconds"], moves=moves,
+                        progress=opts["progress"], label=label)
+    return run, int(n_walkers)
+
+
+# --------------------------------------------------------------------------- diagnostics
+def _natural(chains: np.ndarray, space: _Space) -> np.ndarray:
+    """Chains in the parameters' own units: a free noise is sampled as log sigma."""
+    out = chains.copy()
+    if space.free_noise:
+        out[..., -1] = np.exp(out[..., -1])
+    return out
+
+
+def _diagnostics(fwd, logpost: _LogPosterior, space: _Space, run, burn_tau, coverage) -> dict:
+    """Kept samples of parameters and measurands, their statistics, tau, R-hat and ESS."""
+    discard, thin = run.burn_and_thin(burn_tau)
+    kept = run.chains[:, discard::thin]  # (E, s, W, D)
+    values = _natural(kept, space)
+    rows = logpost.theta(kept.reshape(-1, kept.shape[-1]))
+    mvals = fwd.measurand_values(rows)
+    mchains = mvals.reshape(*kept.shape[:3], len(fwd.measurands))
+    all_chains = np.concatenate([values, mchains], axis=-1)
+    all_names = list(space.names) + [m.name for m in fwd.measurands]
+    rhat_all = split_rhat(all_chains)
+    draws = kept.shape[1] * kept.shape[2]
+    tau_kept = np.array([integrated_time(all_chains[e]) for e in range(all_chains.shape[0])])
+    ess_all = np.sum(draws / np.maximum(tau_kept, 1.0), axis=0)
+    tau_max = run.tau.max(axis=0)
+    tau = {n: float(tau_max[i]) for i, n in enumerate(space.names)}
+    for j, m in enumerate(fwd.measurands):
+        tau[m.name] = float(np.max(tau_kept[:, len(space.names) + j]) * thin)
+    a = (1 - coverage) / 2
+    out = {"samples": {}, "mean": {}, "std": {}, "low": {}, "high": {}, "rhat": {}, "ess": {},
+           "tau": tau, "discard": discard, "thin": thin}
+    for i, name in enumerate(all_names):
+        x = all_chains[..., i].reshape(-1)
+        out["samples"][name] = x
+        out["mean"][name] = float(np.mean(x))
+        out["std"][name] = float(np.std(x, ddof=1)) if x.size > 1 else math.nan
+        out["low"][name], out["high"][name] = (float(v) for v in np.quantile(x, [a, 1 - a]))
+        out["rhat"][name] = float(rhat_all[i])
+        out["ess"][name] = float(ess_all[i])
+    return out
+
+
+# --------------------------------------------------------------------------- result
+def _result(fwd, fit: _Fit, space: _Space, logpost, run, diag, *, mode, root, n_walkers,
+            coverage, t_start, notes) -> PosteriorResult:
+    proc = fwd.proc
+    units = {m.name: m.unit for m in fwd.measurands} | space.units
+    start = dict(zip(space.names, _natural(space.center[None], space)[0].tolist(), strict=True))
+    ns = proc.noise_source
+    sigma = fit.sigma if fit.sigma is not None else (
+        float(np.max(np.asarray(fwd.sources[ns].distribution.std))) if ns else None)
+    seed = root.entropy if isinstance(root.entropy, int) else list(root.entropy)
+    return PosteriorResult(
+        procedure=proc.name, setup=fwd.setup, measurands=fwd.measurands,
+        parameters=tuple(space.names), samples=diag["samples"], mean=diag["mean"],
+        std=diag["std"], low=diag["low"], high=diag["high"], coverage=float(coverage),
+        tau=diag["tau"], rhat=diag["rhat"], ess=diag["ess"], acceptance=run.acceptance,
+        converged=run.converged, chains=_natural(run.chains, space), log_prob=run.log_prob,
+        discard=diag["discard"], thin=diag["thin"], start=start, priors=logpost.prior_text(),
+        noise={"source": ns, "mode": {"known": "given"}.get(mode, mode), "sigma": sigma},
+        budget=dict(fit.budget.how), held=dict(space.held), units=units, seed=seed,
+        n_walkers=n_walkers, n_steps=run.steps, wall_s=time.perf_counter() - t_start,
+        notes=notes)
+
+
+def _check_priors(priors, names) -> dict:
+    priors = dict(priors or {})
+    p = Problems("sample_posterior")
+    unknown = [k for k in priors if k not in names]
+    if unknown:
+        p.add_text(f"The 'priors' parameter of sample_posterior names {unknown}; the sampled "
+                   f"parameters are {names}.")
+    for k, v in priors.items():
+        if not hasattr(v, "logpdf"):
+            p.add_text(f"The prior of {k!r} must have a logpdf method (a scipy.stats "
+                       f"distribution). Got {type(v).__name__} instead.")
+    p.raise_if_any()
+    return priors
 
 
 # --------------------------------------------------------------------------- main entry
@@ -464,7 +693,7 @@ def sample_posterior(
     readings,
     *,
     fields=None,
-    noise=None,
+    noise="setup",
     priors: Mapping | None = None,
     start=None,
     truth=None,
@@ -478,6 +707,7 @@ def sample_posterior(
     rhat_max: float = 1.01,
     burn_tau: float = 3.0,
     coverage: float = 0.95,
+    max_seconds: float | None = None,
     allow_unconverged: bool = False,
     moves=None,
     batch: bool = True,
@@ -490,326 +720,93 @@ def sample_posterior(
     ----------
     procedure : str or Procedure
     setup : Setup
-        The set-up the readings were taken with.
+        The set-up the readings were taken with; its error sources (sizes and
+        distributions) are the likelihood's error budget.
     readings : dict of str to array
         A batch of one (leading axis 1), as ``procedure.from_frame`` returns.
     fields : iterable of str, optional
-        Free Truth fields (default ``procedure.posterior_fields``, else every float field).
-    noise : None, "setup", float or mapping of str to float, optional
-        The readings' noise standard deviation [the readings' unit, mm or rad]. None
-        (default): one free noise parameter per reading array, log-uniform prior.
-        ``"setup"``: the spread of ``procedure.noise_source`` in `setup`. A number: known,
-        for every reading array; a mapping: per reading array (None = free).
+        Free Truth fields or tuple elements (``"wrist_dx_um[1]"``); default
+        ``procedure.posterior_fields``, else all of them.
+    noise : "setup", "free" or float
+        The noise source's standard deviation: the set-up's (default; None means the
+        same), free (log-uniform prior; refused with fewer than 3 residual degrees of
+        freedom), or this number [the source's unit, mm or rad].
     priors : mapping of str to object with ``logpdf``, optional
-        Replaces the default (weak) prior of the named parameters, e.g.
-        ``{"offset_mm": scipy.stats.norm(0, 0.1)}``; a ``sigma_<reading>`` prior is on sigma.
+        Replaces the default prior of the named sampled parameters, e.g.
+        ``{"offset_mm": scipy.stats.norm(0, 0.1)}``; a ``sigma_<source>`` prior is on sigma.
     start : mapping of str to float, optional
-        Start of the least-squares fit (default: ``truth_from_estimate`` of the
-        procedure's estimate when the hook exists, else `truth`).
+        Start of the least squares (default: ``truth_from_estimate`` of the estimate
+        when the procedure has that hook, else `truth`).
     truth : Truth, optional
         Values of the fields that are not free (default: the Truth's defaults).
     estimator : str, optional
         Estimator used for the start (default: the procedure's default).
     n_walkers : int, optional
-        Walkers per ensemble, even and >= 2 x ndim (default max(16, 4 ndim)).
-    n_ensembles : int
-        Independent ensembles (>= 2 for R-hat).
-    max_steps : int
-        Step budget per ensemble.
-    check_every : int
-        Steps between convergence checks.
+        Walkers per ensemble, even and >= 2 x ndim (default max(16, 2 ndim + 2)).
+    n_ensembles, max_steps, check_every : int
+        Independent ensembles (>= 2 for R-hat), step budget per ensemble, steps
+        between convergence checks.
     n_tau, tau_rtol, rhat_max, burn_tau : float
-        Convergence: chain longer than `n_tau` tau, tau's relative change between checks
-        below `tau_rtol`, split R-hat below `rhat_max`; `burn_tau` tau discarded.
+        Convergence: chain longer than `n_tau` tau, tau's relative change between
+        checks below `tau_rtol`, split R-hat below `rhat_max`; `burn_tau` tau discarded.
     coverage : float
         Probability of the equal-tailed credible intervals.
+    max_seconds : float, optional
+        Wall-clock budget of the sampling; stops unconverged when it runs out.
     allow_unconverged : bool
         Warn (:class:`UnconvergedWarning`) instead of raising :class:`NotConvergedError`.
     moves : emcee move(s), optional
-        Default: emcee's stretch move. (A differential-evolution mixture has a third of
-        its autocorrelation time on toy_line but, with the noise free, under-sampled the
-        Student-t tails by 10 % even on long chains, so it is not the default.)
+        Default: the independence move from the Laplace approximation (80 %) mixed with
+        the stretch move (:func:`mtplan.uncertainty.sampler.mixed_moves`).
     batch : bool
         Evaluate all walkers with one forward call (array-valued truth fields) when the
-        model broadcasts them (verified exactly against the per-walker loop); False: loop.
+        model takes them (verified against the per-walker loop); False: loop.
     rng : None, int, SeedSequence or Generator
     progress : bool, optional
-        Print a line per check on stderr (default: when stderr is a terminal).
+        A progress bar on stderr (default: when stderr is a terminal).
 
     Returns
     -------
     PosteriorResult
     """
+    import sys
+
     from mtplan.models import get
 
     t_start = time.perf_counter()
     proc = get(procedure)
-    proc.check_setup(setup)
-    p = Problems(f"sample_posterior {proc.name}")
-    p.number("n_ensembles", n_ensembles, integer=True, low=2)
-    p.number("max_steps", max_steps, integer=True, low=2)
-    p.number("check_every", check_every, integer=True, low=2)
-    p.number("n_tau", n_tau, low=1)
-    p.number("tau_rtol", tau_rtol, low=0, low_open=True)
-    p.number("rhat_max", rhat_max, low=1, low_open=True)
-    p.number("burn_tau", burn_tau, low=0)
-    p.number("coverage", coverage, low=0, high=1, low_open=True, high_open=True)
-    if not isinstance(readings, Mapping) or not readings:
-        p.add("readings", readings, "a dict of reading arrays (procedure.from_frame)")
-    p.raise_if_any()
-    root = as_seed_sequence(rng)
+    opts = dict(n_walkers=n_walkers, n_ensembles=n_ensembles, max_steps=max_steps,
+                check_every=check_every, n_tau=n_tau, tau_rtol=tau_rtol, rhat_max=rhat_max,
+                burn_tau=burn_tau, coverage=coverage, max_seconds=max_seconds, moves=moves,
+                progress=sys.stderr.isatty() if progress is None else bool(progress))
+    mode, sigma = _check_arguments(proc, setup, readings, noise, opts)
     base = proc.Truth() if truth is None else truth
     if not isinstance(base, proc.Truth):
         raise InvalidInput([f"The 'truth' parameter of sample_posterior must be a {proc.name} "
                             f"Truth. Got {type(base).__name__} instead."])
-    fields_given = fields is not None
-    fields = _free_float_fields(proc, proc.Truth, fields)
-    model = _Model(proc, setup, readings, fields, base, batch=batch)
-    notes = []
-
-    # ---- known and free noise
-    keys = model.keys
-    setup_sigma = _setup_noise(proc, setup)
-    if noise is None:
-        known = {k: None for k in keys}
-    elif isinstance(noise, str):
-        if noise != "setup" or setup_sigma is None or setup_sigma <= 0:
-            raise InvalidInput([
-                f"The 'noise' parameter of sample_posterior must be None, a number > 0, a mapping "
-                f"or 'setup' (for a procedure whose noise source is set and active). Got {noise!r} "
-                f"instead."])
-        known = {k: setup_sigma for k in keys}
-    elif isinstance(noise, Mapping):
-        unknown = [k for k in noise if k not in keys]
-        if unknown:
-            raise InvalidInput([f"The 'noise' parameter of sample_posterior names readings "
-                                f"{unknown}; the readings are {keys}."])
-        known = {k: noise.get(k) for k in keys}
-    else:
-        known = {k: noise for k in keys}
-    for k, v in known.items():
-        if v is not None:
-            p.number(f"noise[{k}]", v, low=0, low_open=True)
-    p.raise_if_any()
-    known = {k: (None if v is None else float(v)) for k, v in known.items()}
-
-    # ---- least-squares start
-    if start is not None:
-        theta0 = np.array([float(start.get(f, getattr(base, f))) for f in fields])
-    else:
-        t0 = base
-        if proc.truth_from_estimate is not None:
-            try:
-                est = proc.estimate(setup, readings, estimator)
-                est = {k: float(np.asarray(v).reshape(-1)[0]) for k, v in est.items()}
-                t0 = proc.truth_from_estimate(setup, est)
-            except (InvalidInput, ValueError, ArithmeticError) as exc:
-                notes.append(f"start: the estimator failed ({exc}); started from the default truth")
-                t0 = base
-        theta0 = np.array([float(getattr(t0, f)) for f in fields])
-    weights = {k: 1.0 / (known[k] or setup_sigma or 1.0) for k in keys}
-    theta_ls, jac, rms = _least_squares_start(model, theta0, weights)
-    if len(keys) > 1 and any(known[k] is None for k in keys):
-        weights = {k: 1.0 / (known[k] or rms[k] or 1.0) for k in keys}
-        theta_ls, jac, rms = _least_squares_start(model, theta_ls, weights)
-    free_noise = []
-    for k in keys:
-        if known[k] is None:
-            scale = np.max(np.abs(model.data[k])) or 1.0
-            if rms[k] <= 1e-12 * scale:
-                notes.append(f"reading {k!r} is reproduced exactly by the model; left out of the "
-                             "likelihood")
-                continue
-            free_noise.append(k)
-    like_keys = [k for k in keys if known[k] is not None or k in free_noise]
-    # least-squares covariance of the fields (weights = known sigma or the RMS)
-    factor = np.concatenate([np.full(model.n[k], 1.0 / (weights[k] * (known[k] or rms[k] or 1.0)))
-                             for k in keys])
-    Jw = jac * factor[:, None]  # jacobian of the residuals over their sigma
-    col = np.linalg.norm(Jw, axis=0)
-    dead = [f for f, c in zip(fields, col, strict=True) if not c > 0]
-    if dead and (fields_given or len(dead) == len(fields)):
-        raise InvalidInput([
-            f"The Truth field(s) {', '.join(dead)} of {proc.name} do not affect the readings; "
-            "leave them out of 'fields'."])
-    if dead:  # default fields: keep those the readings determine, fix the rest
-        notes.append(f"Truth field(s) {', '.join(dead)} do not affect the readings: held at "
-                     f"{', '.join(f'{f} = {getattr(base, f):g}' for f in dead)}")
-        alive = [i for i, f in enumerate(fields) if f not in dead]
-        fields = tuple(fields[i] for i in alive)
-        theta_ls, Jw, col = theta_ls[alive], Jw[:, alive], col[alive]
-        base = model.builder.make(np.array([getattr(base, f) if f in dead else
-                                            theta_ls[fields.index(f)] for f in model.builder.fields]))
-        model = _Model(proc, setup, readings, fields, base, batch=batch)
-    try:
-        cov = np.linalg.inv(Jw.T @ Jw)
-        se = np.sqrt(np.clip(np.diag(cov), 0, None))
-    except np.linalg.LinAlgError:
-        se = 1.0 / col
-    if not np.all(np.isfinite(se) & (se > 0)):
-        se = 1.0 / col
-        notes.append("the least-squares covariance is singular: some fields are not separately "
-                     "determined by the readings")
-
-    # ---- parameters and priors
-    names = list(fields) + [f"sigma_{k}" for k in free_noise]
-    ndim = len(names)
-    priors = dict(priors or {})
-    unknown = [k for k in priors if k not in names]
-    if unknown:
-        raise InvalidInput([f"The 'priors' parameter of sample_posterior names {unknown}; the "
-                            f"parameters are {names}."])
-    for k, v in priors.items():
-        if not hasattr(v, "logpdf"):
-            raise InvalidInput([f"The prior of {k!r} must have a logpdf method (a scipy.stats "
-                                f"distribution). Got {type(v).__name__} instead."])
-    prior_text = {}
-    prior_mu = theta_ls.copy()
-    prior_sd = PRIOR_WIDTH * se
-    for i, f in enumerate(fields):
-        if f in priors:
-            prior_text[f] = f"user: {priors[f]!r}"
-        else:
-            prior_text[f] = (f"normal(mean {prior_mu[i]:.6g}, std {prior_sd[i]:.3g}) = least-squares "
-                             f"estimate +- {PRIOR_WIDTH:g} standard errors, within the field's range")
-    sig0 = np.array([rms[k] for k in free_noise])
-    for k, s in zip(free_noise, sig0, strict=True):
-        name = f"sigma_{k}"
-        prior_text[name] = (f"user: {priors[name]!r}" if name in priors else
-                            f"log-uniform on [{s / NOISE_RANGE:.3g}, {s * NOISE_RANGE:.3g}] "
-                            f"(Jeffreys; residual RMS {s:.3g} x/÷ {NOISE_RANGE:g})")
-    user_prior = [(i, priors[n]) for i, n in enumerate(names) if n in priors]
-    nf = len(fields)
-    default_field = np.array([f not in priors for f in fields])
-    log_sig_lo = np.log(sig0 / NOISE_RANGE) if free_noise else np.zeros(0)
-    log_sig_hi = np.log(sig0 * NOISE_RANGE) if free_noise else np.zeros(0)
-    default_sig = np.array([f"sigma_{k}" not in priors for k in free_noise], dtype=bool)
-    known_keys = [k for k in like_keys if known[k] is not None]
-
-    def log_prob(coords: np.ndarray) -> np.ndarray:
-        """Vectorised log-posterior: coords (n_walkers, ndim) -> (n_walkers,)."""
-        coords = np.atleast_2d(coords)
-        out = np.full(coords.shape[0], -np.inf)
-        th = coords[:, :nf]
-        ls = coords[:, nf:]  # log sigma
-        ok = model.builder.valid(th) & np.all(np.isfinite(ls), axis=1)
-        if free_noise:
-            ok &= np.all(~default_sig | ((ls >= log_sig_lo) & (ls <= log_sig_hi)), axis=1)
-        lp = -0.5 * np.sum(np.where(default_field, ((th - prior_mu) / prior_sd) ** 2, 0.0), axis=1)
-        for i, dist in user_prior:
-            x = coords[:, i] if i < nf else np.exp(coords[:, i])
-            with np.errstate(all="ignore"):
-                lp = lp + np.asarray(dist.logpdf(x), dtype=float)
-                if i >= nf:
-                    lp = lp + coords[:, i]  # Jacobian of sigma = exp(log sigma)
-        ok &= np.isfinite(lp)
-        idx = np.flatnonzero(ok)
-        if idx.size == 0:
-            return out
-        res, good = model.residuals_many(th[idx])
-        ll = np.zeros(idx.size)
-        for k in known_keys:
-            ll -= 0.5 * np.einsum("ij,ij->i", res[k], res[k]) / known[k] ** 2 + model.n[k] * (
-                math.log(known[k]) + 0.5 * _LOG_2PI)
-        for q, k in enumerate(free_noise):
-            lsq = ls[idx, q]
-            ll -= 0.5 * np.einsum("ij,ij->i", res[k], res[k]) * np.exp(-2 * lsq) + model.n[k] * (
-                lsq + 0.5 * _LOG_2PI)
-        out[idx[good]] = lp[idx[good]] + ll[good]
-        return out
-
-    # ---- walkers
-    if n_walkers is None:
-        n_walkers = max(16, 4 * ndim)
-        n_walkers += n_walkers % 2
-    p.number("n_walkers", n_walkers, integer=True, low=2 * ndim)
-    p.raise_if_any()
-    if int(n_walkers) % 2:
-        raise InvalidInput([f"The 'n_walkers' parameter of sample_posterior must be an even int >= "
-                            f"{2 * ndim}. Got {n_walkers!r} instead."])
-    n_walkers = int(n_walkers)
-    center = np.concatenate([theta_ls, np.log(sig0)])
-    # small ball: 0.1 standard errors (noise: 0.1 / sqrt(2 n) in log sigma)
-    ball = np.concatenate([0.1 * se, [0.1 / math.sqrt(2 * model.n[k]) for k in free_noise]])
-    if progress is None:
-        progress = sys.stderr.isatty()
-    run = run_ensembles(log_prob, center, ball, root=root, n_walkers=n_walkers,
-                        n_ensembles=int(n_ensembles), max_steps=max_steps,
-                        check_every=check_every, n_tau=n_tau, tau_rtol=tau_rtol,
-                        rhat_max=rhat_max, burn_tau=burn_tau, moves=moves,
-                        progress=stderr_progress(proc.name) if progress else None)
-    steps, converged, rhat = run.steps, run.converged, run.rhat
-
-    # ---- kept samples and diagnostics
-    chains, logp = run.chains, run.log_prob  # (E, S, W, D), (E, S, W)
-    tau_max = run.tau.max(axis=0)
-    t_max = float(np.max(tau_max))
-    discard, thin = run.burn_and_thin(burn_tau)
-    kept = chains[:, discard::thin]  # (E, s, W, D)
-    values = kept.copy()
-    values[..., nf:] = np.exp(values[..., nf:])
-    measurands = tuple(proc.measurands(setup))
-    flat = values.reshape(-1, ndim)
-    mvals = np.empty((flat.shape[0], len(measurands)))
-    for i, row in enumerate(flat):
-        tv = proc.true_values(setup, model.builder.make(row[:nf]))
-        mvals[i] = [float(tv[m.name]) * m.scale for m in measurands]
-    mchains = mvals.reshape(*kept.shape[:3], len(measurands))
-    all_chains = np.concatenate([values, mchains], axis=-1)
-    all_names = names + [m.name for m in measurands]
-    rhat_all = split_rhat(all_chains)
-    kept_draws = kept.shape[1] * kept.shape[2]
-    tau_thin = np.array([integrated_time(all_chains[e]) for e in range(all_chains.shape[0])])  # in kept steps
-    ess_all = np.sum(kept_draws / np.maximum(tau_thin, 1.0), axis=0)
-    tau_steps = {n: float(tau_max[i]) for i, n in enumerate(names)}
-    for j, m in enumerate(measurands):
-        tau_steps[m.name] = float(np.max(tau_thin[:, ndim + j]) * thin)
-    samples, mean, std, low, high, rh, ess = {}, {}, {}, {}, {}, {}, {}
-    a = (1 - coverage) / 2
-    for i, name in enumerate(all_names):
-        x = all_chains[..., i].reshape(-1)
-        samples[name] = x
-        mean[name] = float(np.mean(x))
-        std[name] = float(np.std(x, ddof=1)) if x.size > 1 else math.nan
-        low[name], high[name] = (float(v) for v in np.quantile(x, [a, 1 - a]))
-        rh[name] = float(rhat_all[i])
-        ess[name] = float(ess_all[i])
-    start_d = {n: float(v) for n, v in zip(names, np.concatenate([theta_ls, sig0]), strict=True)}
-    seed = root.entropy if isinstance(root.entropy, int) else list(root.entropy)
-    result = PosteriorResult(
-        procedure=proc.name,
-        setup=setup,
-        measurands=measurands,
-        parameters=tuple(names),
-        samples=samples,
-        mean=mean,
-        std=std,
-        low=low,
-        high=high,
-        coverage=float(coverage),
-        tau=tau_steps,
-        rhat=rh,
-        ess=ess,
-        acceptance=run.acceptance,
-        converged=converged,
-        chains=_natural(chains, nf),
-        log_prob=logp,
-        discard=discard,
-        thin=thin,
-        start=start_d,
-        priors=prior_text,
-        noise={k: known[k] for k in keys},
-        seed=seed,
-        n_walkers=n_walkers,
-        n_steps=steps,
-        wall_s=time.perf_counter() - t_start,
-        notes=notes,
-    )
-    if not converged:
-        msg = (f"The posterior of {proc.name} did not converge in {steps} steps per ensemble "
-               f"(needs > {n_tau:g} tau with tau settled and R-hat < {rhat_max:g}; tau max "
-               f"{t_max:.1f} steps, R-hat max {float(np.max(rhat)):.4f}); raise max_steps or pass "
-               "allow_unconverged=True for the flagged partial result.")
+    root = as_seed_sequence(rng)
+    notes: list[str] = []
+    builder = TruthBuilder(base, truth_parameters(proc, base, fields))
+    fwd = Forward(proc, setup, readings, builder, batch=batch)
+    if not fwd.mask.all():
+        notes.append(f"{int((~fwd.mask).sum())} reading(s) missing from the file (NaN) are left "
+                     "out of the likelihood")
+    theta0 = _initial_theta(proc, setup, readings, builder, start, estimator, notes)
+    fit = _start(fwd, theta0, mode, sigma, notes)
+    space = _identify(fwd, fit, notes)
+    logpost = _LogPosterior(fwd, fit, space, _check_priors(priors, space.names))
+    run, n_walkers = _run(logpost, space, root, opts, proc.name)
+    diag = _diagnostics(fwd, logpost, space, run, burn_tau, coverage)
+    result = _result(fwd, fit, space, logpost, run, diag, mode=mode, root=root,
+                     n_walkers=n_walkers, coverage=coverage, t_start=t_start, notes=notes)
+    if not run.converged:
+        why = ("its time budget of " f"{max_seconds:g} s" if run.stopped == "max_seconds"
+               else f"{run.steps} steps per ensemble")
+        msg = (f"The posterior of {proc.name} did not converge in {why} (needs > {n_tau:g} tau "
+               f"with tau settled and R-hat < {rhat_max:g}; tau max "
+               f"{float(np.max(run.tau.max(axis=0))):.1f} steps, R-hat max "
+               f"{float(np.max(run.rhat)):.4f}); raise max_steps (--max-steps) or the time "
+               "budget, or pass allow_unconverged=True for the flagged partial result.")
         result.notes.append("NOT CONVERGED: " + msg)
         if not allow_unconverged:
             raise NotConvergedError(msg, result)

@@ -10,6 +10,15 @@ log-probability and the start, and reads the chains.
 Randomness: ensemble ``e`` draws its start ball and its moves from child ``e``
 of the root ``SeedSequence`` (emcee gets a seeded ``RandomState`` in its
 ``State``, so numpy's global random state is neither read nor changed).
+
+Moves: :func:`independence_move` proposes every walker afresh from a fixed normal
+approximation of the target (for a posterior, its Laplace approximation) and
+accepts by the Metropolis-Hastings rule with the proposal's density ratio, so
+the chain's target stays exact whatever the approximation; where the
+approximation is good, the autocorrelation time is a step or two in any
+dimension, where the stretch move's grows with the dimension. :func:`mixed_moves`
+mixes it with emcee's stretch move, which keeps the ensemble exploring where the
+approximation is poor (heavy tails, bounded supports, curved ridges).
 """
 
 from __future__ import annotations
@@ -29,6 +38,8 @@ __all__ = [
     "UnconvergedWarning",
     "EnsembleRun",
     "run_ensembles",
+    "independence_move",
+    "mixed_moves",
     "split_rhat",
     "integrated_time",
 ]
@@ -137,12 +148,24 @@ class EnsembleRun:
         return discard, thin
 
 
-def _start_state(log_prob, center, ball, n_walkers, seq):
+def _ball_factor(ball, ndim: int) -> np.ndarray:
+    """The start ball as a matrix A (ndim, ndim): walkers at ``center + A z``, z ~ N(0, I)."""
+    ball = np.asarray(ball, dtype=float)
+    if ball.ndim == 1 and ball.size == ndim:
+        return np.diag(ball)
+    if ball.shape == (ndim, ndim):
+        return ball
+    raise InvalidInput([f"The 'ball' parameter of run_ensembles must be an array ({ndim},) of "
+                        f"standard deviations or a ({ndim}, {ndim}) factor. Got shape "
+                        f"{ball.shape} instead."])
+
+
+def _start_state(log_prob, center, factor, n_walkers, seq):
     """An emcee State: walkers in the ball, pulled back inside the support, seeded RandomState."""
     import emcee
 
     gen = np.random.Generator(np.random.PCG64(seq.spawn(1)[0]))
-    p0 = center + ball * gen.standard_normal((n_walkers, center.size))
+    p0 = center + gen.standard_normal((n_walkers, center.size)) @ factor.T
     for _ in range(100):  # move starting walkers outside the support back in
         lp0 = log_prob(p0)
         bad = ~np.isfinite(lp0)
@@ -154,6 +177,47 @@ def _start_state(log_prob, center, ball, n_walkers, seq):
                             "the set-up."])
     rstate = np.random.RandomState(np.random.MT19937(seq)).get_state()
     return emcee.State(p0, log_prob=lp0, random_state=rstate)
+
+
+def independence_move(center, cov, *, inflate: float = 1.1):
+    """An emcee move proposing every walker from ``N(center, inflate^2 cov)``.
+
+    Metropolis-Hastings with an independence proposal: the acceptance uses the
+    proposal's density at the old and the new point, so the target is sampled
+    exactly; the proposal only decides how fast. Inflating it a little keeps its
+    tails above a near-normal target's.
+
+    Parameters
+    ----------
+    center : array (n_params,)
+    cov : array (n_params, n_params)
+        Positive definite (a Laplace approximation of the target).
+    inflate : float
+        Scale factor on the proposal's standard deviations.
+    """
+    import emcee
+
+    center = np.asarray(center, dtype=float)
+    chol = np.linalg.cholesky(np.asarray(cov, dtype=float)) * float(inflate)
+    inv = np.linalg.inv(chol)
+
+    def log_q(x):
+        z = (x - center) @ inv.T
+        return -0.5 * np.einsum("ij,ij->i", z, z)
+
+    def propose(coords, random):
+        new = center + random.standard_normal(coords.shape) @ chol.T
+        return new, log_q(coords) - log_q(new)
+
+    return emcee.moves.MHMove(propose, ndim=center.size)
+
+
+def mixed_moves(center, cov, *, weight: float = 0.8, inflate: float = 1.1):
+    """[(independence move, weight), (stretch move, 1 - weight)] for ``run_ensembles``."""
+    import emcee
+
+    return [(independence_move(center, cov, inflate=inflate), float(weight)),
+            (emcee.moves.StretchMove(), 1.0 - float(weight))]
 
 
 def run_ensembles(
@@ -172,7 +236,8 @@ def run_ensembles(
     burn_tau: float = 3.0,
     max_seconds: float | None = None,
     moves=None,
-    progress: Callable[[int, float, float], None] | None = None,
+    progress: bool | Callable[[int, float, float], None] | None = None,
+    label: str = "sampler",
 ) -> EnsembleRun:
     """Run independent emcee ensembles until converged, the step budget or the time budget.
 
@@ -180,8 +245,10 @@ def run_ensembles(
     ----------
     log_prob : callable
         Vectorised log-probability: array (n_walkers, n_params) -> (n_walkers,).
-    center, ball : array (n_params,)
-        Walkers start at ``center + ball * N(0, 1)``.
+    center : array (n_params,)
+    ball : array (n_params,) or (n_params, n_params)
+        Walkers start at ``center + ball * N(0, 1)`` (standard deviations), or
+        ``center + ball @ N(0, I)`` (a factor of the start covariance).
     root : SeedSequence
         Ensemble ``e`` uses child ``e`` (:func:`mtplan.uncertainty._random.block_sequence`).
     n_walkers, n_ensembles, max_steps, check_every : int
@@ -189,10 +256,14 @@ def run_ensembles(
         Convergence: chain longer than `n_tau` tau, tau's relative change between checks
         below `tau_rtol`, split R-hat (after `burn_tau` tau of burn-in) below `rhat_max`.
     max_seconds : float, optional
-        Wall-clock budget; checked between checks.
+        Wall-clock budget; checked after every ensemble's share of a check interval.
     moves : emcee move(s), optional
-    progress : callable(steps, tau_max, rhat_max), optional
-        Called after every check.
+        Default: emcee's stretch move (see :func:`mixed_moves`).
+    progress : bool or callable(steps, tau_max, rhat_max), optional
+        True: a tqdm bar on stderr (labelled `label`); a callable is called after
+        every check.
+    label : str
+        Name shown by the progress bar.
     """
     import time
 
@@ -201,15 +272,18 @@ def run_ensembles(
     t0 = time.perf_counter()
     center = np.asarray(center, dtype=float)
     ndim = center.size
+    factor = _ball_factor(ball, ndim)
     samplers, states = [], []
     for e in range(int(n_ensembles)):
         samplers.append(emcee.EnsembleSampler(n_walkers, ndim, log_prob, vectorize=True,
                                               moves=moves))
-        states.append(_start_state(log_prob, center, ball, n_walkers, block_sequence(root, e)))
+        states.append(_start_state(log_prob, center, factor, n_walkers, block_sequence(root, e)))
+    bar = _bar(progress, label, int(max_steps))
     steps, tau_prev, converged, stopped = 0, None, False, "max_steps"
     tau_all = np.full((n_ensembles, ndim), np.inf)
     rhat = np.full(ndim, np.inf)
-    while steps < max_steps:
+    out_of_time = False
+    while steps < max_steps and not out_of_time:
         n = min(int(check_every), int(max_steps) - steps)
         for e, sampler in enumerate(samplers):
             states[e] = sampler.run_mcmc(states[e], n, progress=False)
@@ -221,15 +295,17 @@ def run_ensembles(
         rhat = split_rhat(np.stack([s.get_chain()[discard:] for s in samplers]))
         settled = tau_prev is not None and bool(np.all(np.abs(tau_max - tau_prev)
                                                        < tau_rtol * tau_max))
-        if progress is not None:
-            progress(steps, t, float(np.max(rhat)))
+        if bar is not None:
+            bar(steps, t, float(np.max(rhat)))
         if bool(np.all(steps > n_tau * tau_max)) and settled and bool(np.all(rhat < rhat_max)):
             converged, stopped = True, "converged"
             break
-        if max_seconds is not None and time.perf_counter() - t0 > max_seconds:
+        out_of_time = max_seconds is not None and time.perf_counter() - t0 > max_seconds
+        if out_of_time:
             stopped = "max_seconds"
-            break
         tau_prev = tau_max
+    if bar is not None and hasattr(bar, "close"):
+        bar.close()
     return EnsembleRun(
         chains=np.stack([s.get_chain() for s in samplers]),
         log_prob=np.stack([s.get_log_prob() for s in samplers]),
@@ -240,6 +316,31 @@ def run_ensembles(
         steps=steps,
         stopped=stopped,
     )
+
+
+class _TqdmProgress:
+    """A tqdm bar over the step budget, with tau and R-hat after every check (stderr)."""
+
+    def __init__(self, label: str, total: int):
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=total, desc=f"posterior {label}", unit="step", file=sys.stderr,
+                        leave=False, dynamic_ncols=True)
+        self.done = 0
+
+    def __call__(self, steps, tau, rhat):
+        self.bar.update(steps - self.done)
+        self.done = steps
+        self.bar.set_postfix_str(f"tau max {tau:.1f}, R-hat max {rhat:.4f}")
+
+    def close(self):
+        self.bar.close()
+
+
+def _bar(progress, label: str, total: int):
+    if progress is True:
+        return _TqdmProgress(label, total)
+    return progress or None
 
 
 def stderr_progress(label: str) -> Callable[[int, float, float], None]:
