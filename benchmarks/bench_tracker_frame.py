@@ -32,6 +32,8 @@ from mtplan.models import tracker_frame as tf
 from mtplan.models._fit3d import fit_circle_3d, fit_circle_3d_angles, fit_line_3d
 from mtplan.evaluation.simulation import simulate_uncertainty
 
+from _budget import budget_table, mc_std  # benchmarks/ is the script's folder
+
 
 def best(fn, repeat=5):
     times = []
@@ -137,12 +139,6 @@ OLD_SOURCES = ("distance_fixed", "distance_per_length", "transverse_fixed",
 OLD_SETUP = {"transverse_per_length_um_per_m": 6.0}
 
 
-def _std(proc, setup, trials, estimator, sources=None):
-    r = simulate_uncertainty(proc, setup, trials=trials, rng=3, estimator=estimator,
-                             sources=sources, progress=False)
-    return dict(zip([m.name for m in r.measurands], r.mc.std, strict=True))
-
-
 def compare(trials: int) -> None:
     """patent against angles over the A arc, the old error model against the new."""
     proc = get("tracker_frame")
@@ -155,7 +151,7 @@ def compare(trials: int) -> None:
             old = model == "old"
             setup = proc.setup({"a_arc_deg": arc, **(OLD_SETUP if old else {})})
             src = OLD_SOURCES if old else None
-            s = {est: _std(proc, setup, trials, est, src) for est in ("patent", "angles")}
+            s = {est: mc_std(proc, setup, trials, est, src) for est in ("patent", "angles")}
             row = " ".join(f"{s['patent'][m]:8.1f} -> {s['angles'][m]:6.1f} "
                            f"(x{s['patent'][m] / s['angles'][m]:4.1f})" for m in show)
             print(f"{arc:>10g} {model:>5} {row}")
@@ -163,24 +159,14 @@ def compare(trials: int) -> None:
 
 def budget(trials: int, estimator: str = "patent") -> None:
     """Markdown table: u of each measurand before and after the new sources, shares in u^2."""
-    from mtplan.evaluation.simulation import linearize_procedure
-
     proc = get("tracker_frame")
-    setup = proc.Setup()
-    before = _std(proc, proc.setup(OLD_SETUP), trials, estimator, OLD_SOURCES)
-    after = _std(proc, setup, trials, estimator)
-    gum = linearize_procedure(proc, setup, estimator=estimator)
-    groups, var = gum.group_variance()
-    share = var / var.sum(axis=1, keepdims=True)
     print(f"\n{estimator}, default set-up; u by Monte Carlo ({trials} trials, rng 3), "
           "shares of u^2 by the GUM budget (linearize) [%]")
+    groups = proc.sources(proc.Setup())
     short = {g: g.replace("_per_length", "/L").replace("_fixed", " c").replace("distance", "dist")
              for g in groups}
-    print("| measurand | u before | u after | " + " | ".join(short[g] for g in groups) + " |")
-    print("|---|---:|---:|" + "---:|" * len(groups))
-    for i, m in enumerate(proc.measurands(setup)):
-        cells = " | ".join(f"{100 * share[i, j]:.0f}" for j in range(len(groups)))
-        print(f"| {m.name} [{m.unit}] | {before[m.name]:.3g} | {after[m.name]:.3g} | {cells} |")
+    print(budget_table(proc, proc.Setup(), (proc.setup(OLD_SETUP), OLD_SOURCES), trials,
+                       estimator, short))
 
 
 def main(argv=None):

@@ -25,6 +25,9 @@ TRACKER_ORIGINS = {f"origin_{a}_{k}" for a in "yz" for k in (1, 2)}
 TRACKER_DIRECTIONS = {f"{q}_{k}" for q in ("rot_x", "rot_y", "rot_z", "sq_xy", "sq_yz", "sq_zx")
                       for k in (1, 2)}
 ALL = None  # every measurand
+RA_POSE = {"pose_dx", "pose_dy", "pose_dz"}
+RA_POSITIONS = {"EX0C", "EY0C", "EY0A", "EZ0A", "ac_offset"} | RA_POSE
+RA_DIRECTIONS = {"EA0C", "EB0C", "EB0A", "EC0A", "ac_squareness"} | RA_POSE
 
 CASES = [
     # tracker_frame, issue 17: the tracker's angle error split into a per-test systematic
@@ -39,6 +42,13 @@ CASES = [
     ("tracker_frame", {}, "thermal_drift", ALL),
     # the travels' deviations tilt the fitted lines only; the arcs give the origin
     ("tracker_frame", {}, "straightness", TRACKER_DIRECTIONS),
+    # rotary_axis, the combined C+A test: translations of the axis at each position move
+    # the axes' positions, the offset of C from A and the pose, never a direction; tilts
+    # the reverse; the angles are not used at all
+    ("rotary_axis", {"axis": "CA"}, "radial_motion", RA_POSITIONS),
+    ("rotary_axis", {"axis": "CA"}, "axial_motion", RA_POSITIONS),
+    ("rotary_axis", {"axis": "CA"}, "tilt_motion", RA_DIRECTIONS),
+    ("rotary_axis", {"axis": "CA"}, "angular_positioning", set()),
 ]
 
 
