@@ -5,9 +5,10 @@ command line as a user would: ``mtplan procedures PROC --json`` must list the so
 ``mtplan simulate PROC --sources NAME --json`` (every other source off, so the readings
 are noise-free but for it) must give a spread to exactly the expected measurands.
 
-A measurand that does not depend on the source keeps the truth to round-off (its std
-is below 1e-6 um or urad in practice); one that does moves by 0.1 um or urad or more
-at the default sizes. The limits below sit two decades from either side.
+A measurand that does not depend on the source keeps the truth to round-off or to
+second order (its std is below 1e-4 um or urad here: air_refraction's 1 ppm scale on
+origin_x at x ~ 0); one that does moves by 0.1 um or urad or more at the default
+sizes. The limit below sits a decade or more from either side.
 """
 
 from __future__ import annotations

@@ -1381,7 +1381,8 @@ PROCEDURE = Procedure(
         "A point laser on the Z slide reads a lattice on an inclined plane at n >= 3 positions "
         "of the rotary axis; the planes' least-squares intersection is a point on the axis and "
         "N v = 1 gives its direction (seed 000). Measurands: ISO 230-7 location errors of the "
-        "C axis (EX0C, EY0C, EA0C, EB0C) or the A axis (EY0A, EZ0A, EB0A, EC0A)."
+        "C axis (EX0C, EY0C, EA0C, EB0C) or the A axis (EY0A, EZ0A, EB0A, EC0A); with axis "
+        "CA both, the offset and squareness of C to A and the error of a machining pose."
     ),
     exact_estimators=("patent", "joint", "gls"),
     block_size=2000,
