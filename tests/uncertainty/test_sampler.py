@@ -56,3 +56,30 @@ def test_stops_at_the_step_and_time_budgets():
     assert short.steps == 200 and not short.converged and short.stopped == "max_steps"
     timed = _run(max_steps=10**6, check_every=50, max_seconds=0.0)
     assert timed.steps == 50 and timed.stopped == "max_seconds"
+
+
+def test_integrated_time_is_emcees_estimator():
+    import emcee
+
+    from mtplan.uncertainty.sampler import integrated_time
+
+    rng = np.random.default_rng(1)
+    x = 0.1 * np.cumsum(rng.normal(size=(700, 16, 3)), axis=0) + rng.normal(size=(700, 16, 3))
+    np.testing.assert_allclose(integrated_time(x),
+                               emcee.autocorr.integrated_time(x, quiet=True, tol=0), rtol=1e-12)
+    x[:, :, 1] = 3.0  # a constant chain has no autocorrelation time
+    assert np.isinf(integrated_time(x)[1])
+
+
+def test_the_independence_move_samples_the_target_exactly():
+    """A deliberately wrong Laplace approximation (shifted, too narrow) still samples the
+    Gaussian: the Metropolis-Hastings ratio carries the proposal's density."""
+    from mtplan.uncertainty.sampler import independence_move
+
+    move = independence_move(MEAN + 0.3 * STD, np.diag((0.8 * STD) ** 2), inflate=1.0)
+    run = _run(moves=move, max_steps=3000)
+    discard, thin = run.burn_and_thin(3.0)
+    x = run.chains[:, discard::thin].reshape(-1, 2)
+    n_eff = x.shape[0] / 2
+    assert np.all(np.abs(x.mean(axis=0) - MEAN) < 4 * STD / math.sqrt(n_eff))
+    assert np.all(np.abs(x.std(axis=0) / STD - 1) < 4 / math.sqrt(2 * (n_eff - 1)))

@@ -103,8 +103,12 @@ def _effect(fwd, truth, name: str, std, f0: np.ndarray) -> _Effect:
     shape = (*src.shape, *src.distribution.event_shape)
     n_el = int(np.prod(shape, dtype=np.int64))
     std = np.asarray(std, dtype=float)
-    sd = (np.full(n_el, float(std.reshape(-1)[0])) if std.size == 1
-          else np.broadcast_to(std.reshape(-1) if std.size == n_el else std, shape).reshape(-1))
+    if std.size == 1:
+        sd = np.full(n_el, float(std.reshape(-1)[0]))
+    elif std.size == n_el:
+        sd = std.reshape(-1)
+    else:
+        sd = np.broadcast_to(std, shape).reshape(-1)
     n = fwd.n
     chunk = int(max(8, min(n_el, 4_000_000 // max(n, n_el, 1))))
     row, s1, c1 = np.full(n_el, -1), np.zeros(n_el), np.zeros(n_el)

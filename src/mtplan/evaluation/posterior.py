@@ -298,42 +298,50 @@ def _nuisance_priors(budget: Budget):
     return np.array(rows, dtype=float).reshape(-1, 4)
 
 
-def _least_squares(fwd, fit: _Fit) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted least squares of (theta, nuisance) with the budget's covariance at fit.sigma."""
+def _least_squares(fwd, fit: _Fit, free: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least squares of (theta[free], nuisance) with the budget's covariance at
+    fit.sigma; the parameters that do not affect the readings stay where they are."""
     from scipy.optimize import least_squares
 
     b, gauss = fwd.builder, fit.budget.gaussian(fit.sigma)
     pri = _nuisance_priors(fit.budget)
-    p, q = fit.theta.size, pri.shape[0]
+    idx = np.flatnonzero(free)
+    p, q = idx.size, pri.shape[0]
     with np.errstate(invalid="ignore"):  # infinite bounds stay infinite
-        nudge_lo = np.where(b.low_open & np.isfinite(b.low), 1e-12 * np.maximum(abs(b.low), 1e-300), 0)
-        nudge_hi = np.where(b.high_open & np.isfinite(b.high), 1e-12 * np.maximum(abs(b.high), 1e-300),
-                            0)
-    lo = np.concatenate([b.low + nudge_lo, pri[:, 2]])
-    hi = np.concatenate([b.high - nudge_hi, pri[:, 3]])
+        lo_t = b.low + np.where(b.low_open & np.isfinite(b.low), 1e-12 * np.abs(b.low) + 1e-300, 0)
+        hi_t = b.high - np.where(b.high_open & np.isfinite(b.high), 1e-12 * np.abs(b.high) + 1e-300,
+                                 0)
+    lo, hi = np.concatenate([lo_t[idx], pri[:, 2]]), np.concatenate([hi_t[idx], pri[:, 3]])
     steps = np.concatenate([[par.step for par in b.params], 1e-3 * pri[:, 1]])
-    x0 = np.clip(np.concatenate([fit.theta, fit.nuis]), lo, hi)
+    start = np.concatenate([fit.theta[idx], fit.nuis])
+    x0 = np.clip(start, lo, hi)
     x0 = np.where((x0 == lo) | (x0 == hi), x0 + 1e-9 * (hi - lo) * np.where(x0 == lo, 1, -1), x0)
-    x0 = np.where(np.isfinite(x0), x0, np.concatenate([fit.theta, fit.nuis]))
+    x0 = np.where(np.isfinite(x0), x0, start)
+
+    def theta(x):
+        th = fit.theta.copy()
+        th[idx] = x[:p]
+        return th
 
     def fun(x):
-        pred, ok = fwd.predict(x[None, :p], x[None, p:] if q else None)
+        pred, ok = fwd.predict(theta(x)[None], x[None, p:] if q else None)
         if not ok[0]:
             return np.full(fwd.n + q, 1e8)
         w = gauss.whiten(fwd.y - pred[0] - fit.correction)[0]
         return np.concatenate([w, (x[p:] - pri[:, 0]) / pri[:, 1]])
 
     def jac(x):
-        j = -gauss.whiten(fwd.jacobian(x[:p], x[p:] if q else None, steps).T).T
+        j = fwd.jacobian(theta(x), x[p:] if q else None, steps)
+        j = -gauss.whiten(j[:, np.concatenate([idx, fit.theta.size + np.arange(q)])].T).T
         return np.vstack([j, np.hstack([np.zeros((q, p)), np.diag(1.0 / pri[:, 1])])])
 
     sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale="jac", method="trf",
                         xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=50 * (p + q + 1))
-    if b.make(sol.x[:p]) is None or not fwd.predict(sol.x[None, :p],
-                                                    sol.x[None, p:] if q else None)[1][0]:
+    th = theta(sol.x)
+    if b.make(th) is None or not fwd.predict(th[None], sol.x[None, p:] if q else None)[1][0]:
         raise InvalidInput([f"The least-squares fit of {fwd.proc.name} to the readings did not "
                             "reach a valid truth; give a start."])
-    return sol.x[:p], sol.x[p:]
+    return th, sol.x[p:]
 
 
 def _noise_ml(fwd, fit: _Fit) -> float:
@@ -367,10 +375,11 @@ def _start(fwd, theta0, mode, sigma, notes) -> _Fit:
         sig = {"known": sigma, "free": setup_sd or 1e-3}.get(mode)
         nuis0 = _nuisance_priors(budget)[:, 0]
         fit = _Fit(budget, theta0.copy(), nuis0, sig, budget.correction)
-        fit.theta, fit.nuis = _least_squares(fwd, fit)
+        free = np.any(J != 0, axis=0)  # the others cannot move and are held (see _identify)
+        fit.theta, fit.nuis = _least_squares(fwd, fit, free)
         if mode == "free":
             fit.sigma = _noise_ml(fwd, fit)
-            fit.theta, fit.nuis = _least_squares(fwd, fit)
+            fit.theta, fit.nuis = _least_squares(fwd, fit, free)
         gw = fit.budget.gaussian(fit.sigma).whiten(J.T).T
         se = np.sqrt(np.clip(np.diag(np.linalg.pinv(gw.T @ gw)), 1e-300, None))
         if np.all(np.abs(fit.theta - theta0) < se):
@@ -475,6 +484,7 @@ def _identify(fwd, fit: _Fit, notes) -> _Space:
                         [np.zeros((1, cov.shape[0])), np.array([[1.0 / info]])]])
         center = np.append(center, math.log(fit.sigma))
     held_values = {b.names[j]: float(fit.theta[j]) for j in held}
+    b.varying = kept  # the held ones are constant from here on
     return _Space(kept, held_values, names, units, center, cov, free)
 
 
@@ -773,6 +783,8 @@ def sample_posterior(
 
     from mtplan.models import get
 
+    from threadpoolctl import threadpool_limits
+
     t_start = time.perf_counter()
     proc = get(procedure)
     opts = dict(n_walkers=n_walkers, n_ensembles=n_ensembles, max_steps=max_steps,
@@ -791,12 +803,14 @@ def sample_posterior(
     if not fwd.mask.all():
         notes.append(f"{int((~fwd.mask).sum())} reading(s) missing from the file (NaN) are left "
                      "out of the likelihood")
-    theta0 = _initial_theta(proc, setup, readings, builder, start, estimator, notes)
-    fit = _start(fwd, theta0, mode, sigma, notes)
-    space = _identify(fwd, fit, notes)
-    logpost = _LogPosterior(fwd, fit, space, _check_priors(priors, space.names))
-    run, n_walkers = _run(logpost, space, root, opts, proc.name)
-    diag = _diagnostics(fwd, logpost, space, run, burn_tau, coverage)
+    # one BLAS thread: the matrices are small and many, and threads only wait for each other
+    with threadpool_limits(limits=1, user_api="blas"):
+        theta0 = _initial_theta(proc, setup, readings, builder, start, estimator, notes)
+        fit = _start(fwd, theta0, mode, sigma, notes)
+        space = _identify(fwd, fit, notes)
+        logpost = _LogPosterior(fwd, fit, space, _check_priors(priors, space.names))
+        run, n_walkers = _run(logpost, space, root, opts, proc.name)
+        diag = _diagnostics(fwd, logpost, space, run, burn_tau, coverage)
     result = _result(fwd, fit, space, logpost, run, diag, mode=mode, root=root,
                      n_walkers=n_walkers, coverage=coverage, t_start=t_start, notes=notes)
     if not run.converged:

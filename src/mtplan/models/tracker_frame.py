@@ -336,11 +336,20 @@ class Truth(SetupBase):
 
 # --------------------------------------------------------------------------- geometry
 def _rot(axis: np.ndarray, angle) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) about unit `axis` (3,) by `angle` (...) [rad] (Rodrigues)."""
+    """Rotation matrices (..., 3, 3) about unit `axis` (..., 3) by `angle` (...) [rad]
+    (Rodrigues; axis and angle broadcast)."""
     angle = np.asarray(angle, dtype=float)
-    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    x, y, z = (np.asarray(axis, dtype=float)[..., i] for i in range(3))
+    o = np.zeros_like(x)
+    k = np.stack([np.stack([o, -z, y], -1), np.stack([z, o, -x], -1), np.stack([-y, x, o], -1)],
+                 -2)
     s, c = np.sin(angle)[..., None, None], np.cos(angle)[..., None, None]
     return np.eye(3) + s * k + (1 - c) * (k @ k)
+
+
+def _mv(r: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Matrices (..., 3, 3) times vectors (..., 3), broadcast."""
+    return np.einsum("...ij,...j->...i", r, v)
 
 
 def _rxyz(rx: float, ry: float, rz: float) -> np.ndarray:
@@ -357,8 +366,10 @@ def _angles(r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return rx, ry, rz
 
 
-def _cyc(values: tuple, k: int) -> float:
-    return float(values[k % len(values)])
+def _cyc(values: tuple, k: int) -> np.ndarray:
+    """Element k (cycled) of a per-sub-machine tuple: a float, or an array (m,) when the
+    truth is one per batch row (a posterior's walkers)."""
+    return np.asarray(values[k % len(values)], dtype=float)
 
 
 def _unit(v):
@@ -458,35 +469,37 @@ class _Head:
 
 
 def _head(setup: Setup, truth: Truth, k: int) -> _Head:
-    """True geometry of sub-machine k (0-based)."""
+    """True geometry of sub-machine k (0-based): vectors (3,), or (m, 3) for a truth whose
+    fields are arrays (m,) (one truth per batch row)."""
     u = 1e-6
     rf = _rxyz(_cyc(truth.frame_rx_urad, k) * u, _cyc(truth.frame_ry_urad, k) * u,
                _cyc(truth.frame_rz_urad, k) * u)
     sxy, syz, szx = (_cyc(truth.sq_xy_urad, k) * u, _cyc(truth.sq_yz_urad, k) * u,
                      _cyc(truth.sq_zx_urad, k) * u)
-    ux = np.array([1.0, 0.0, 0.0])
-    uy = np.array([math.sin(sxy), math.cos(sxy), 0.0])
-    alpha = math.sin(szx)
-    beta = (math.sin(syz) - alpha * math.sin(sxy)) / math.cos(sxy)
-    uz = np.array([alpha, beta, math.sqrt(1.0 - alpha**2 - beta**2)])
-    axes = (rf @ np.stack([ux, uy, uz]).T).T
+    z0 = np.zeros(np.broadcast_shapes(np.shape(sxy), np.shape(syz), np.shape(szx)))
+    ux = np.stack([z0 + 1.0, z0, z0], axis=-1)
+    uy = np.stack([np.sin(sxy) + z0, np.cos(sxy) + z0, z0], axis=-1)
+    alpha = np.sin(szx) + z0
+    beta = (np.sin(syz) - alpha * np.sin(sxy)) / np.cos(sxy)
+    uz = np.stack([alpha, beta, np.sqrt(1.0 - alpha**2 - beta**2)], axis=-1)
+    axes = np.stack([ux, uy, uz], axis=-2) @ np.swapaxes(rf, -1, -2)  # rows: rf @ u_i
     e = np.eye(3)
-    c_loc = (_rot(e[1], _cyc(truth.c_tilt_y_urad, k) * u)
-             @ _rot(e[0], _cyc(truth.c_tilt_x_urad, k) * u) @ e[2])
-    ac = math.radians(truth.ac_angle_deg)
-    a0 = math.sin(ac) * e[0] + math.cos(ac) * e[2]
-    a_loc = (_rot(e[2], _cyc(truth.a_tilt_z_urad, k) * u)
-             @ _rot(e[1], _cyc(truth.a_tilt_y_urad, k) * u) @ a0)
-    c_dir, a_dir = rf @ c_loc, rf @ a_loc
+    c_loc = _mv(_rot(e[1], _cyc(truth.c_tilt_y_urad, k) * u)
+                @ _rot(e[0], _cyc(truth.c_tilt_x_urad, k) * u), e[2])
+    ac = np.radians(np.asarray(truth.ac_angle_deg, dtype=float))[..., None]
+    a0 = np.sin(ac) * e[0] + np.cos(ac) * e[2]
+    a_loc = _mv(_rot(e[2], _cyc(truth.a_tilt_z_urad, k) * u)
+                @ _rot(e[1], _cyc(truth.a_tilt_y_urad, k) * u), a0)
+    c_dir, a_dir = _mv(rf, c_loc), _mv(rf, a_loc)
     perp = _unit(np.cross(c_dir, a_dir))
     nominal = _nominal_origins(setup)[k] + np.array([0.0, 0.0, setup.pivot_length_mm])
-    wrist = nominal + 1e-3 * np.array([_cyc(truth.wrist_dx_um, k), _cyc(truth.wrist_dy_um, k),
-                                       _cyc(truth.wrist_dz_um, k)])
+    wrist = nominal + 1e-3 * np.stack(np.broadcast_arrays(
+        _cyc(truth.wrist_dx_um, k), _cyc(truth.wrist_dy_um, k), _cyc(truth.wrist_dz_um, k)), -1)
     offset = _cyc(truth.ac_offset_um, k) * 1e-3
-    a_point = wrist + offset * perp
+    a_point = wrist + offset[..., None] * perp
     reflector = wrist - setup.pivot_length_mm * c_dir + setup.reflector_offset_mm * perp
     true_l = setup.pivot_length_mm + _cyc(truth.pivot_length_error_um, k) * 1e-3
-    origin = wrist - true_l * c_dir
+    origin = wrist - true_l[..., None] * c_dir
     return _Head(axes, c_dir, a_dir, wrist, a_point, perp, offset, reflector, origin)
 
 
@@ -509,10 +522,13 @@ def _machine_points(setup: Setup, truth: Truth, rotary_error=None) -> np.ndarray
         e_c = err[:, 2 * k * q:(2 * k + 1) * q]
         e_a = err[:, (2 * k + 1) * q:(2 * k + 2) * q]
         for i, ax in enumerate(AXES):
-            out.append(np.broadcast_to(h.reflector + lin[ax][:, None] * h.axes[i],
+            out.append(np.broadcast_to(h.reflector[..., None, :]
+                                       + lin[ax][:, None] * h.axes[..., i, None, :],
                                        (batch, len(lin[ax]), 3)))
-        out.append(h.wrist + (_rot(h.c_dir, c_ang + e_c) @ (h.reflector - h.wrist)))
-        out.append(h.a_point + (_rot(h.a_dir, a_ang + e_a) @ (h.reflector - h.a_point)))
+        for point, axis, ang, e_k in ((h.wrist, h.c_dir, c_ang, e_c),
+                                      (h.a_point, h.a_dir, a_ang, e_a)):
+            arm = (h.reflector - point)[..., None, :]
+            out.append(point[..., None, :] + _mv(_rot(axis[..., None, :], ang + e_k), arm))
     pts = np.concatenate(out, axis=1)
     return pts[0] if rotary_error is None else pts
 
@@ -540,12 +556,12 @@ def _straightness(setup: Setup, truth: Truth, coef: np.ndarray) -> np.ndarray:
     for k in range(setup.n_submachines):
         axes = _head(setup, truth, k).axes
         for i, ax in enumerate(AXES):
-            u = axes[i]
-            v1 = _unit(e[(i + 1) % 3] - (e[(i + 1) % 3] @ u) * u)
-            across = np.stack([v1, np.cross(u, v1)])  # (2, 3)
+            u = axes[..., i, :]
+            v1 = _unit(e[(i + 1) % 3] - np.sum(e[(i + 1) % 3] * u, axis=-1)[..., None] * u)
+            across = np.broadcast_to(np.stack([v1, np.cross(u, v1)], axis=-2), (n, 2, 3))
             t = lin[ax]
             shape = _legendre(t / t[-1])  # (3, P); travels are > 0
-            dev = np.einsum("ndt,tp,dj->npj", coef[:, k, i], shape, across)
+            dev = np.einsum("ndt,tp,ndj->npj", coef[:, k, i], shape, across)
             s = sl[(ax, k + 1)]
             out[:, s.start - 4:s.stop - 4] = dev
     return out
@@ -553,8 +569,8 @@ def _straightness(setup: Setup, truth: Truth, coef: np.ndarray) -> np.ndarray:
 
 def _tracker_pose(setup: Setup, truth: Truth) -> tuple[np.ndarray, np.ndarray]:
     """(R, t): global = R @ tracker + t."""
-    r = _rxyz(truth.tracker_tilt_x_urad * 1e-6, truth.tracker_tilt_y_urad * 1e-6,
-              math.radians(truth.tracker_yaw_deg))
+    r = _rxyz(np.asarray(truth.tracker_tilt_x_urad) * 1e-6,
+              np.asarray(truth.tracker_tilt_y_urad) * 1e-6, np.radians(truth.tracker_yaw_deg))
     t = np.array([-setup.tracker_distance_mm, 0.0, setup.tracker_height_mm])
     return r, t
 
@@ -837,19 +853,20 @@ def true_values(setup: Setup, truth: Truth) -> dict[str, float]:
     for k in range(setup.n_submachines):
         h = _head(setup, truth, k)
         o = h.origin - nominal[k]
-        frame = _orthonormal(setup, *h.axes)
-        rx, ry, rz = _angles(frame)
-        ux, uy, uz = h.axes
+        ux, uy, uz = (h.axes[..., i, :] for i in range(3))
+        rx, ry, rz = _angles(_orthonormal(setup, ux, uy, uz))
         name = k + 1
         out.update({
-            f"origin_x_{name}": float(o[0]), f"origin_y_{name}": float(o[1]),
-            f"origin_z_{name}": float(o[2]),
-            f"rot_x_{name}": float(rx), f"rot_y_{name}": float(ry), f"rot_z_{name}": float(rz),
+            f"origin_x_{name}": o[..., 0], f"origin_y_{name}": o[..., 1],
+            f"origin_z_{name}": o[..., 2],
+            f"rot_x_{name}": rx, f"rot_y_{name}": ry, f"rot_z_{name}": rz,
             f"ac_offset_{name}": h.offset,
-            f"sq_xy_{name}": math.asin(ux @ uy), f"sq_yz_{name}": math.asin(uy @ uz),
-            f"sq_zx_{name}": math.asin(uz @ ux),
+            f"sq_xy_{name}": np.arcsin(np.sum(ux * uy, axis=-1)),
+            f"sq_yz_{name}": np.arcsin(np.sum(uy * uz, axis=-1)),
+            f"sq_zx_{name}": np.arcsin(np.sum(uz * ux, axis=-1)),
         })
-    return out
+    # floats for one truth; arrays (m,) for one truth per batch row
+    return {k: (float(v) if np.ndim(v) == 0 else v) for k, v in out.items()}
 
 
 def truth_from_estimate(setup: Setup, estimate: dict) -> Truth:
