@@ -110,9 +110,10 @@ def _print_result(result, source) -> None:
             rows.append([m.name, m.unit, "not determinable", "-", "-",
                          fmt(est, abs(est) * 1e-3 or 1.0) if math.isfinite(est) else "-", "-"])
             continue
+        corr = fmt(float(result.bias_correction[i]), u) if method == "mc" else "-"
         rows.append([m.name, m.unit, fmt(float(result.value[i]), u), f"{u:.2g}",
                      f"[{fmt(float(result.low[i]), u)}, {fmt(float(result.high[i]), u)}]",
-                     fmt(est, u), fmt(float(result.bias_correction[i]), u)])
+                     fmt(est, u), corr])
     print_table(["measurand", "unit", "value", "u", "interval", "estimate", "correction"], rows)
     for name, why in result.reasons.items():
         print(f"{name}: {why}")

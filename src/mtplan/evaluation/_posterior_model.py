@@ -138,6 +138,11 @@ class TruthBuilder:
     def names(self) -> list[str]:
         return [p.name for p in self.params]
 
+    def steps(self, theta) -> np.ndarray:
+        """Finite-difference steps: 1e-7 mm or rad, at least 1e-6 of the value."""
+        unit = np.array([p.step for p in self.params])
+        return np.maximum(unit, 1e-6 * np.abs(np.asarray(theta, dtype=float)))
+
     def valid(self, theta: np.ndarray) -> np.ndarray:
         """Mask of rows of `theta` (n, n_params) inside every field's range."""
         theta = np.atleast_2d(theta)
@@ -337,8 +342,8 @@ class Forward:
         theta = np.asarray(theta, dtype=float)
         q = 0 if nuis is None else len(nuis)
         p = theta.size
-        h = np.concatenate([[par.step for par in self.builder.params],
-                            np.zeros(q)]) if steps is None else np.asarray(steps, dtype=float)
+        h = np.concatenate([self.builder.steps(theta), np.zeros(q)]) if steps is None \
+            else np.asarray(steps, dtype=float)
         x = np.concatenate([theta, np.zeros(q) if nuis is None else nuis])
         pts = np.repeat(x[None], 2 * (p + q), axis=0)
         i = np.arange(p + q)
@@ -386,7 +391,7 @@ class Forward:
         """Central-difference gradient (n_measurands, n_params) of the measurands [display]."""
         theta = np.asarray(theta, dtype=float)
         p = theta.size
-        h = np.array([par.step for par in self.builder.params])
+        h = self.builder.steps(theta)
         pts = np.repeat(theta[None], 2 * p, axis=0)
         i = np.arange(p)
         pts[i, i] += h

@@ -77,7 +77,10 @@ PRIOR_WIDTH = 1000.0  # default prior std in least-squares standard errors
 NOISE_RANGE = 1000.0  # log-uniform noise prior: this factor either side of the start
 NOISE_MODES = ("setup", "free")
 MIN_NOISE_DOF = 3  # a free noise needs this many residual degrees of freedom (finite variance)
-_RANK_TOL = 1e-6  # a parameter whose whitened column lies this close to the others' span is held
+_RANK_TOL = 1e-4  # a parameter whose whitened column lies this close to the others' span (the
+# finite differences of an exact model are good to about 1e-6) is held: the readings determine
+# it only together with others; a held direction that moves a measurand refuses that measurand,
+# so holding never understates u. Weakly but truly determined parameters stay sampled.
 
 
 # --------------------------------------------------------------------------- result
@@ -312,7 +315,7 @@ def _least_squares(fwd, fit: _Fit, free: np.ndarray) -> tuple[np.ndarray, np.nda
         hi_t = b.high - np.where(b.high_open & np.isfinite(b.high), 1e-12 * np.abs(b.high) + 1e-300,
                                  0)
     lo, hi = np.concatenate([lo_t[idx], pri[:, 2]]), np.concatenate([hi_t[idx], pri[:, 3]])
-    steps = np.concatenate([[par.step for par in b.params], 1e-3 * pri[:, 1]])
+    steps = np.concatenate([b.steps(fit.theta), 1e-3 * pri[:, 1]])
     start = np.concatenate([fit.theta[idx], fit.nuis])
     x0 = np.clip(start, lo, hi)
     x0 = np.where((x0 == lo) | (x0 == hi), x0 + 1e-9 * (hi - lo) * np.where(x0 == lo, 1, -1), x0)
@@ -413,10 +416,17 @@ def _internal_unit(setup, source: str) -> str:
             "deg": "rad", "ppm": "1"}.get(unit.split("_")[0], "")
 
 
+_DEAD = "does not affect the readings"
+_TOGETHER = "is determined by the readings only together with other parameters"
+
+
 def _rank_order(Jw, relevant, p, q):
     """Greedy rank: nuisance elements first, then parameters the measurands depend on.
 
-    Returns (kept parameter indices, {index: reason} of held ones)."""
+    Returns the kept parameter indices, {index: reason} of the held ones, and for each
+    one held for lying in the others' span its direction of no change of the readings
+    (an array (p,): 1 at its own index, minus the regression on the kept ones).
+    """
     order = list(range(p, p + q)) + [j for j in range(p) if relevant[j]] + \
         [j for j in range(p) if not relevant[j]]
     basis = np.zeros((Jw.shape[0], 0))
@@ -425,44 +435,68 @@ def _rank_order(Jw, relevant, p, q):
         c = Jw[:, j]
         nc = float(np.linalg.norm(c))
         if not nc > 0:
-            held[j] = "does not affect the readings"
+            held[j] = _DEAD
             continue
         r = c / nc - basis @ (basis.T @ (c / nc))
         r -= basis @ (basis.T @ r)
         nr = float(np.linalg.norm(r))
         if nr < _RANK_TOL:
-            held[j] = "is determined by the readings only together with other parameters"
+            held[j] = _TOGETHER
             continue
         basis = np.hstack([basis, (r / nr)[:, None]])
         if j < p:
             kept.append(j)
-    return sorted(kept), held
+    kept = sorted(kept)
+    cols = kept + list(range(p, p + q))
+    null = {}
+    for j in (j for j, why in held.items() if why == _TOGETHER):
+        beta, *_ = np.linalg.lstsq(Jw[:, cols], Jw[:, j], rcond=None)
+        v = np.zeros(p)
+        v[j], v[kept] = 1.0, -beta[:len(kept)]
+        null[j] = v
+    return kept, held, null
+
+
+def _held_notes(fwd, fit: _Fit, kept, held, null, G, notes) -> None:
+    """Refuse measurands that the readings do not determine; note what was held."""
+    b, names = fwd.builder, [m.name for m in fwd.measurands]
+    dead = [n for i, n in enumerate(names) if not np.any(G[i, kept] != 0)]
+    for j, v in null.items():  # a held direction that moves a measurand: not determined
+        scale = np.abs(G) @ np.abs(v)
+        dead += [n for i, n in enumerate(names)
+                 if abs(G[i] @ v) > 1e-2 * scale[i] and n not in dead]
+    if dead:
+        raise InvalidInput([
+            f"The posterior of {fwd.proc.name} cannot give {', '.join(dead)}: the readings do "
+            f"not determine {'them' if len(dead) > 1 else 'it'} (sampled: "
+            f"{', '.join(b.names[j] for j in kept) or 'none'}; held: "
+            f"{', '.join(b.names[j] for j in held) or 'none'}), so its uncertainty would be "
+            "0 or unbounded; free the Truth fields it depends on or add readings"])
+    for why in (_DEAD, _TOGETHER):
+        group = [j for j, w in held.items() if w == why]
+        if not group:
+            continue
+        cond = [n for i, n in enumerate(names) if why == _DEAD and np.any(G[i, group] != 0)]
+        verb = why if len(group) == 1 else why.replace("does not", "do not").replace(
+            "is determined", "are determined")
+        notes.append(f"{', '.join(b.names[j] for j in group)} {verb}: held at "
+                     f"{', '.join(f'{fit.theta[j]:.6g}' for j in group)}"
+                     + (f" ({', '.join(cond)} conditional on it)" if cond else ""))
 
 
 def _identify(fwd, fit: _Fit, notes) -> _Space:
-    """Hold what the readings do not determine, refuse what cannot be reported."""
+    """Hold what the readings do not determine, refuse what cannot be reported, and the
+    Laplace approximation of what is sampled."""
     proc, b = fwd.proc, fwd.builder
     pri = _nuisance_priors(fit.budget)
     p, q = fit.theta.size, pri.shape[0]
-    steps = np.concatenate([[par.step for par in b.params], 1e-3 * pri[:, 1]])
+    steps = np.concatenate([b.steps(fit.theta), 1e-3 * pri[:, 1]])
     J = fwd.jacobian(fit.theta, fit.nuis if q else None, steps)
     Jw = fit.budget.gaussian(fit.sigma).whiten(J.T).T
     Jw = np.vstack([Jw, np.hstack([np.zeros((q, p)), np.diag(1.0 / pri[:, 1])])])
     G = fwd.measurand_gradient(fit.theta)
-    kept, held = _rank_order(Jw, np.any(G != 0, axis=0), p, q)
-    dead = [m.name for i, m in enumerate(fwd.measurands) if not np.any(G[i, kept] != 0)]
-    if dead:
-        raise InvalidInput([
-            f"The posterior of {proc.name} cannot give {', '.join(dead)}: "
-            f"{'they depend' if len(dead) > 1 else 'it depends'} on none of the parameters the "
-            f"readings determine (sampled: {', '.join(b.names[j] for j in kept) or 'none'}), so "
-            "its uncertainty would be 0; free the Truth fields it depends on"])
-    for why in sorted(set(held.values())):
-        group = [j for j, w in held.items() if w == why]
-        cond = [m.name for i, m in enumerate(fwd.measurands) if np.any(G[i, group] != 0)]
-        notes.append(f"{', '.join(b.names[j] for j in group)} {why}: held at "
-                     f"{', '.join(f'{fit.theta[j]:.6g}' for j in group)}"
-                     + (f" ({', '.join(cond)} conditional on it)" if cond else ""))
+    kept, held, null = _rank_order(Jw, np.any(G != 0, axis=0), p, q)
+    _held_notes(fwd, fit, kept, held, null, G, notes)
     cols = kept + list(range(p, p + q))
     cov = np.linalg.pinv(Jw[:, cols].T @ Jw[:, cols])
     names = [b.names[j] for j in kept]
@@ -681,6 +715,23 @@ def _result(fwd, fit: _Fit, space: _Space, logpost, run, diag, *, mode, root, n_
         notes=notes)
 
 
+def _check_converged(result: PosteriorResult, run, opts: dict, allow: bool) -> None:
+    """Raise NotConvergedError carrying the result (or warn, when allowed) if not converged."""
+    if run.converged:
+        return
+    why = (f"its time budget of {opts['max_seconds']:g} s" if run.stopped == "max_seconds"
+           else f"{run.steps} steps per ensemble")
+    msg = (f"The posterior of {result.procedure} did not converge in {why} (needs > "
+           f"{opts['n_tau']:g} tau with tau settled and R-hat < {opts['rhat_max']:g}; tau max "
+           f"{float(np.max(run.tau.max(axis=0))):.1f} steps, R-hat max "
+           f"{float(np.max(run.rhat)):.4f}); raise max_steps (--max-steps) or the time budget, "
+           "or pass allow_unconverged=True for the flagged partial result.")
+    result.notes.append("NOT CONVERGED: " + msg)
+    if not allow:
+        raise NotConvergedError(msg, result)
+    warnings.warn(msg, UnconvergedWarning, stacklevel=3)
+
+
 def _check_priors(priors, names) -> dict:
     priors = dict(priors or {})
     p = Problems("sample_posterior")
@@ -813,16 +864,5 @@ def sample_posterior(
         diag = _diagnostics(fwd, logpost, space, run, burn_tau, coverage)
     result = _result(fwd, fit, space, logpost, run, diag, mode=mode, root=root,
                      n_walkers=n_walkers, coverage=coverage, t_start=t_start, notes=notes)
-    if not run.converged:
-        why = ("its time budget of " f"{max_seconds:g} s" if run.stopped == "max_seconds"
-               else f"{run.steps} steps per ensemble")
-        msg = (f"The posterior of {proc.name} did not converge in {why} (needs > {n_tau:g} tau "
-               f"with tau settled and R-hat < {rhat_max:g}; tau max "
-               f"{float(np.max(run.tau.max(axis=0))):.1f} steps, R-hat max "
-               f"{float(np.max(run.rhat)):.4f}); raise max_steps (--max-steps) or the time "
-               "budget, or pass allow_unconverged=True for the flagged partial result.")
-        result.notes.append("NOT CONVERGED: " + msg)
-        if not allow_unconverged:
-            raise NotConvergedError(msg, result)
-        warnings.warn(msg, UnconvergedWarning, stacklevel=2)
+    _check_converged(result, run, opts, allow_unconverged)
     return result
