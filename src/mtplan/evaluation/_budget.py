@@ -51,6 +51,7 @@ MAX_NUISANCE = 16  # at most this many source elements are sampled as nuisance p
 _ABSORBED = 1e-5  # relative residual below which a source is reproduced by free parameters
 _SUPPORT = 1e-9  # relative size below which an element's effect on a reading is zero
 _ODD_CHECK = 64  # sources with at most this many elements are also checked at +-2 sigma
+_NEGLIGIBLE = 1e-6  # an element whose effect is below this in the readings' scatter has none
 
 
 @dataclass
@@ -293,11 +294,20 @@ class Budget:
         return self._cache[key]
 
 
+def _negligible(eff: _Effect, ref, n: int) -> bool:
+    """Every element's effect is below ``_NEGLIGIBLE`` of the readings' scatter (round-off)."""
+    return bool(np.sqrt(eff.diag(n)).max(initial=0.0) <= _NEGLIGIBLE * ref.min()
+                and np.all(np.linalg.norm(eff.S / ref[:, None], axis=0) <= _NEGLIGIBLE))
+
+
 def _absorbed(eff: _Effect, tangent: _Effect | None, ref, J, nuisance_params, names) -> str | None:
     """The free nuisance parameters that reproduce the source's effect, or None."""
     if not nuisance_params or np.any(eff.row >= 0) or not eff.multi.size:
         return None
     cols = (tangent if tangent is not None else eff).S / ref[:, None]
+    cols = cols[:, np.linalg.norm(cols, axis=0) > _NEGLIGIBLE]
+    if not cols.shape[1]:
+        return None
     jn = J[:, nuisance_params] / ref[:, None]
     beta, *_ = np.linalg.lstsq(jn, cols, rcond=None)
     resid = np.linalg.norm(cols - jn @ beta, axis=0) / np.maximum(np.linalg.norm(cols, axis=0),
@@ -349,7 +359,7 @@ def error_budget(fwd, truth, noise: str, sigma, J, G, names) -> Budget:
     budget = Budget(how, np.zeros(n), np.zeros((n, 0)), None, None, np.zeros(n), [], {})
     n_nuis = 0
     for name, eff in effects.items():
-        if not eff.any:
+        if not eff.any or _negligible(eff, ref, n):
             how[name] = "no effect on the readings"
             continue
         nl = eff.nonlinearity(ref)

@@ -457,14 +457,20 @@ def _rank_order(Jw, relevant, p, q):
     return kept, held, null
 
 
-def _held_notes(fwd, fit: _Fit, kept, held, null, G, notes) -> None:
-    """Refuse measurands that the readings do not determine; note what was held."""
+def _held_notes(fwd, fit: _Fit, kept, held, null, G, Jw, cov, notes) -> None:
+    """Refuse measurands that the readings do not determine; note what was held.
+
+    A measurand is not determined when it depends on no sampled parameter, or when
+    sampling a held direction under its default prior (``PRIOR_WIDTH`` standard errors
+    of the held field alone) would change it by more than a tenth of its uncertainty.
+    """
     b, names = fwd.builder, [m.name for m in fwd.measurands]
-    dead = [n for i, n in enumerate(names) if not np.any(G[i, kept] != 0)]
-    for j, v in null.items():  # a held direction that moves a measurand: not determined
-        scale = np.abs(G) @ np.abs(v)
-        dead += [n for i, n in enumerate(names)
-                 if abs(G[i] @ v) > 1e-2 * scale[i] and n not in dead]
+    gk = G[:, kept]
+    u = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", gk, cov[:len(kept), :len(kept)], gk), 0))
+    dead = [n for i, n in enumerate(names) if not np.any(gk[i] != 0)]
+    for j, v in null.items():
+        moved = np.abs(G @ v) * PRIOR_WIDTH / np.linalg.norm(Jw[:, j])
+        dead += [n for i, n in enumerate(names) if moved[i] > 0.1 * u[i] and n not in dead]
     if dead:
         raise InvalidInput([
             f"The posterior of {fwd.proc.name} cannot give {', '.join(dead)}: the readings do "
@@ -496,9 +502,9 @@ def _identify(fwd, fit: _Fit, notes) -> _Space:
     Jw = np.vstack([Jw, np.hstack([np.zeros((q, p)), np.diag(1.0 / pri[:, 1])])])
     G = fwd.measurand_gradient(fit.theta)
     kept, held, null = _rank_order(Jw, np.any(G != 0, axis=0), p, q)
-    _held_notes(fwd, fit, kept, held, null, G, notes)
     cols = kept + list(range(p, p + q))
     cov = np.linalg.pinv(Jw[:, cols].T @ Jw[:, cols])
+    _held_notes(fwd, fit, kept, held, null, G, Jw, cov, notes)
     names = [b.names[j] for j in kept]
     units = {b.names[j]: b.params[j].unit for j in kept}
     for name, src in fit.budget.nuisance:

@@ -261,8 +261,10 @@ def sources(setup: Setup) -> dict[str, Source]:
 # --------------------------------------------------------------------------- geometry
 def _wall(setup, truth, errors, n):
     """True centre (n,2), radius (n,), form coefficients (n,2), lobes."""
-    centre = np.broadcast_to(np.array([truth.centre_x_mm, truth.centre_y_mm]), (n, 2))
-    radius = np.full(n, setup.bore_radius_mm + truth.radius_deviation_mm)
+    # truth fields may be arrays (n,): one truth per batch row (a posterior's walkers)
+    centre = np.broadcast_to(_xy_of(truth.centre_x_mm, truth.centre_y_mm), (n, 2))
+    radius = np.broadcast_to(setup.bore_radius_mm + np.asarray(truth.radius_deviation_mm),
+                             (n,)).copy()
     form = np.asarray(errors["roundness"], dtype=float).reshape(n, 2)
     return centre, radius, form, setup.lobes
 
@@ -412,17 +414,31 @@ def _stage(errors, n):
     return m, minv
 
 
+def _xy_of(x, y) -> np.ndarray:
+    """Points (2,) or, for arrays (n,) of one truth per batch row, (n, 2)."""
+    return np.stack(np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float)),
+                    axis=-1)
+
+
 def _check_start(setup: Setup, truth: Truth) -> None:
-    r_true = setup.bore_radius_mm + truth.radius_deviation_mm
-    reach = math.hypot(truth.start_x_mm - truth.centre_x_mm, truth.start_y_mm - truth.centre_y_mm)
-    reach += setup.start_scatter_mm * math.sqrt(2) + setup.roundness_um * 1e-3 * 4
-    if not reach < r_true - setup.free_test_mm:
+    r_true = setup.bore_radius_mm + np.asarray(truth.radius_deviation_mm)
+    reach = np.hypot(np.asarray(truth.start_x_mm) - truth.centre_x_mm,
+                     np.asarray(truth.start_y_mm) - truth.centre_y_mm)
+    reach = reach + setup.start_scatter_mm * math.sqrt(2) + setup.roundness_um * 1e-3 * 4
+    bad = ~(reach < r_true - setup.free_test_mm)
+    if np.any(bad):
+        i = int(np.flatnonzero(np.ravel(bad))[0])
+
+        def first(v):
+            return float(np.ravel(v)[i % np.size(v)])
+
         p = Problems("circle_centre truth")
         p.add_text(
-            f"The start point (start_x_mm={truth.start_x_mm:g}, start_y_mm={truth.start_y_mm:g}) "
-            f"with its scatter start_scatter_mm={setup.start_scatter_mm:g} reaches "
-            f"{reach:g} mm from the true centre, outside the bore of radius {r_true:g} mm: "
-            "the probe must start inside the bore")
+            f"The start point (start_x_mm={first(truth.start_x_mm):g}, start_y_mm="
+            f"{first(truth.start_y_mm):g}) with its scatter start_scatter_mm="
+            f"{setup.start_scatter_mm:g} reaches {first(reach):g} mm from the true centre, "
+            f"outside the bore of radius {first(r_true):g} mm: the probe must start inside the "
+            "bore")
         p.raise_if_any()
 
 
@@ -452,7 +468,7 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     def to_read(q):
         return apply(minv, q)
 
-    start = np.array([truth.start_x_mm, truth.start_y_mm]) + np.asarray(
+    start = _xy_of(truth.start_x_mm, truth.start_y_mm) + np.asarray(
         errors["start_scatter"], dtype=float).reshape(n, 2)
     # p1 along -y, p2 along +y (read frame), from the start
     dirs_read = np.broadcast_to(np.array([[0.0, -1.0], [0.0, 1.0]]), (n, 2, 2))
@@ -988,4 +1004,5 @@ PROCEDURE = Procedure(
     block_size=2000,
     optional_columns=("point",),
     truth_from_estimate=truth_from_estimate,
+    noise_source="probe_noise",
 )
