@@ -163,8 +163,8 @@ def test_linearity_alone_gives_u_alpha_y_of_the_linearity_over_w():
     linearity curve e adds mean(e(x_l + w) - e(x_l)) (w = 40 point spacings: no
     interpolation), linear in its coefficients c_k (std L/sqrt 3 each):
     u(alpha_y) = (L / sqrt 3) |g| / w, g_k the mean difference of basis k. Over the
-    mirror-symmetric common part only the odd degree (3) survives: u = 0.33 L/w,
-    33 urad for 1 um, of the order of L/w = 100 urad. alpha_z (integer rows) and
+    mirror-symmetric common part only the odd degree (3) survives: u = 0.27 L/w,
+    27 urad for 1 um, of the order of L/w = 100 urad. alpha_z (integer rows) and
     alpha_x (same x_l in scans 2 and 3) do not move."""
     n = 300
     big_l, w, pts = SETUP.linearity_um * 1e-3, _W, SETUP.points_per_line
