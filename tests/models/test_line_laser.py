@@ -303,6 +303,11 @@ def test_observability_flags():
     assert obs["patent"]["alpha_z"].quantum_urad == pytest.approx(math.atan(dy / w) * 1e6)
     assert obs["patent"]["alpha_x"].signed is False
     assert "|alpha_x|" in obs["patent"]["alpha_x"].reason
+    # the default scan: a whole cell pitch along Y, w a whole number of point spacings
+    assert "whole number" not in obs["patent"]["alpha_y"].reason
+    assert "pitch" not in obs["patent"]["alpha_y"].reason
+    former = ll.observability(SETUP.replace(lines=40, shift_fraction=0.6))["patent"]["alpha_y"]
+    assert "38.4 point spacings" in former.reason and "less than one cell pitch" in former.reason
     assert all(o.observable and o.signed for o in obs["registration"].values())
     # a finer raise error makes the patent's alpha_x usable (floor below 10 mrad)
     fine = SETUP.replace(raise_error_um=0.01, sensor_noise_um=0.1)

@@ -1,6 +1,7 @@
-"""Error sources added for issue 17 (line_laser, circle_centre): listed by
-``mtplan procedures PROC --json``, and each, switched on alone (``--sources NAME``, every
-other source zero), changes the measurands it should and no others.
+"""Error sources added for issue 17 (line_laser, circle_centre; with line_laser's older
+ones, whose rows docs/line_laser.md also shows): listed by ``mtplan procedures PROC
+--json``, and each, switched on alone (``--sources NAME``, every other source zero),
+changes the measurands it should and no others.
 
 "Changes" means that the Monte Carlo standard deviation of the estimate exceeds
 ``MOVES`` = 1e-3 in the measurand's display unit (1 nm, 1 nrad). Floating-point
@@ -45,6 +46,15 @@ TABLE = [
     ("line_laser", "registration", "squareness_xy", {Z, Y, X}),  # g on alpha_z, g * alpha
     ("line_laser", "registration", "squareness_zy", {Y, X}),     # e on alpha_x, e * alpha
     ("line_laser", "registration", "drift", {Z, Y, X}),
+    # the sources line_laser had before, for the table in docs/line_laser.md
+    ("line_laser", "patent", "sensor_noise", {Y, X}),
+    ("line_laser", "patent", "shift_error", {Y, X}),
+    ("line_laser", "patent", "raise_error", {X}),
+    ("line_laser", "patent", "trigger_y", {Y, X}),
+    ("line_laser", "registration", "sensor_noise", {Z, Y, X}),
+    ("line_laser", "registration", "shift_error", set()),  # w and h from the data
+    ("line_laser", "registration", "raise_error", set()),
+    ("line_laser", "registration", "trigger_y", {Z, Y, X}),
     # a circle stays a circle about its centre: the radius only
     ("circle_centre", "three_point", "tip_radius", CENTRE_RADIUS),
     ("circle_centre", "three_point", "bore_temperature", CENTRE_RADIUS),
@@ -73,5 +83,5 @@ def test_procedures_json_lists_the_new_sources(procedure, capsys):
     assert cli.main(["procedures", procedure, "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     listed = doc[0]["sources"]
-    for _, _, source, _ in (row for row in TABLE if row[0] == procedure):
+    for _, _, source, _ in (row for row in TABLE if row[0] == procedure):  # old and new
         assert listed.get(source), f"{procedure} does not list {source}"

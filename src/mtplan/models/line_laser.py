@@ -770,7 +770,11 @@ def observability(setup) -> dict:
             + ("" if abs(w / _pitch(setup) - round(w / _pitch(setup))) < 1e-9 else
                f"; w = {w / _pitch(setup):.4g} point spacings is not a whole number, so the "
                f"alignment interpolates across the facets' kinks (a bias of some 10 urad: "
-               f"choose shift_fraction so that w is a whole number of spacings)")),
+               f"choose shift_fraction so that w is a whole number of spacings)")
+            + ("" if setup.lines * dy >= setup.cell_size_mm * (1 - 1e-9) else
+               f"; the scan ({setup.lines} x {dy:g} mm) covers less than one cell pitch "
+               f"({setup.cell_size_mm:g} mm) along Y, so which facets it holds, and the bias, "
+               f"depend on where the artifact lies (tens of urad)")),
         "alpha_x": Observability(
             floor_x < ALPHA_MAX, False, 0.0, floor_x * 1e6,
             f"arccos(h/h') is even in alpha_x (returns |alpha_x|) and flat at small angles: "
