@@ -50,9 +50,10 @@ Forward model
     and 1 are left out: an offset cancels in every difference, and a tilt of the
     calibration along the line is, to the data, the same thing as ``alpha_y`` (it is
     part of the sensor's data frame that the method determines). Scans 1 and 2 see the
-    same artifact point at ``x_l`` and ``x_l - w``, so ``e(x_l) - e(x_l - w)`` enters
-    ``alpha_y`` with lever ``1/w``; scans 2 and 3 see it at the same ``x_l``, where it
-    cancels;
+    same artifact point at ``x_l + w`` and ``x_l``, so ``e(x_l + w) - e(x_l)`` enters
+    ``alpha_y`` with lever ``1/w`` (averaged over the mirror-symmetric common part, only
+    the odd degree survives in the patent's mean: u(alpha_y) = 0.27 linearity_um / w at
+    the default); scans 2 and 3 see it at the same ``x_l``, where it cancels;
   - the *Z scale* (gain) error of the height reading, ``z = (1 + s) t``, about the
     middle of the range: it scales every height difference, hence ``h'`` by ``s h``;
   - the machine's positioning error of the X shift ``w`` (scans 2 and 3 share it:
@@ -766,7 +767,7 @@ def observability(setup) -> dict:
             True, True, 0.0, 0.0,
             "mean height difference of the common part; biased by the sub-step "
             "misregistration left by the integer row shift, and by the sensor's linearity "
-            "error through e(x_l) - e(x_l - w)"
+            "error through e(x_l + w) - e(x_l)"
             + ("" if abs(w / _pitch(setup) - round(w / _pitch(setup))) < 1e-9 else
                f"; w = {w / _pitch(setup):.4g} point spacings is not a whole number, so the "
                f"alignment interpolates across the facets' kinks (a bias of some 10 urad: "
