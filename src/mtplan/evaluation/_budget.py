@@ -51,7 +51,8 @@ MAX_NUISANCE = 16  # at most this many source elements are sampled as nuisance p
 _ABSORBED = 1e-5  # relative residual below which a source is reproduced by free parameters
 _SUPPORT = 1e-9  # relative size below which an element's effect on a reading is zero
 _ODD_CHECK = 64  # sources with at most this many elements are also checked at +-2 sigma
-_NEGLIGIBLE = 1e-6  # an element whose effect is below this in the readings' scatter has none
+_NEGLIGIBLE = 1e-6  # an element whose effect is below this in the readings' scatter (or 1e-8
+# of its source's largest) is round-off, no effect
 
 
 @dataclass
@@ -305,7 +306,8 @@ def _absorbed(eff: _Effect, tangent: _Effect | None, ref, J, nuisance_params, na
     if not nuisance_params or np.any(eff.row >= 0) or not eff.multi.size:
         return None
     cols = (tangent if tangent is not None else eff).S / ref[:, None]
-    cols = cols[:, np.linalg.norm(cols, axis=0) > _NEGLIGIBLE]
+    norms = np.linalg.norm(cols, axis=0)
+    cols = cols[:, norms > max(_NEGLIGIBLE, 1e-8 * norms.max(initial=0.0))]
     if not cols.shape[1]:
         return None
     jn = J[:, nuisance_params] / ref[:, None]
