@@ -107,19 +107,19 @@ def test_same_seed_same_posterior_and_global_state_untouched():
     np.random.seed(12345)
     before = np.random.get_state()
     with pytest.warns(UnconvergedWarning):  # a short run on purpose: flagged, not silent
-        a = sample_posterior(PROC, SETUP, r, noise=SIGMA, rng=7, n_ensembles=2, max_steps=200,
+        a = sample_posterior(PROC, SETUP, r, noise=SIGMA, rng=7, n_ensembles=2, max_steps=50,
                              allow_unconverged=True)
     after = np.random.get_state()
     assert before[0] == after[0] and np.array_equal(before[1], after[1]) and before[2:] == after[2:]
     np.random.seed(999)  # a different global state must not change the result
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UnconvergedWarning)
-        b = sample_posterior(PROC, SETUP, r, noise=SIGMA, rng=7, n_ensembles=2, max_steps=200,
+        b = sample_posterior(PROC, SETUP, r, noise=SIGMA, rng=7, n_ensembles=2, max_steps=50,
                              allow_unconverged=True)
     np.testing.assert_array_equal(a.chains, b.chains)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UnconvergedWarning)
-        c = sample_posterior(PROC, SETUP, r, noise=SIGMA, rng=8, n_ensembles=2, max_steps=200,
+        c = sample_posterior(PROC, SETUP, r, noise=SIGMA, rng=8, n_ensembles=2, max_steps=50,
                              allow_unconverged=True)
     assert not np.array_equal(a.chains, c.chains)
 

@@ -51,6 +51,7 @@ MAX_NUISANCE = 16  # at most this many source elements are sampled as nuisance p
 _ABSORBED = 1e-5  # relative residual below which a source is reproduced by free parameters
 _SUPPORT = 1e-9  # relative size below which an element's effect on a reading is zero
 _ODD_CHECK = 64  # sources with at most this many elements are also checked at +-2 sigma
+_PROBE = 32  # sources with at least this many elements are first tried by NaN probes
 _NEGLIGIBLE = 1e-6  # an element whose effect is below this in the readings' scatter (or 1e-8
 # of its source's largest) is round-off, no effect
 
@@ -99,8 +100,67 @@ class _Effect:
         return float(max(single.max(initial=0.0), multi.max(initial=0.0)))
 
 
+def _probed(fwd, truth, name: str, sd: np.ndarray, f0: np.ndarray, shape) -> _Effect | None:
+    """The effects of a source whose readings each depend on one element at most, found
+    in 2 log2(E) + 3 forward rows instead of 2 E; None where that does not hold.
+
+    Row pair b sets the elements whose index has bit b set (then those with it clear)
+    to NaN: the readings that turn NaN spell out, bit by bit, the element each depends
+    on (a reading NaN in both rows of a pair depends on several). Then all elements at
+    +sigma, all at -sigma, and a random mixture: when each reading depends on its one
+    element alone, the mixture's readings are exactly the +sigma or -sigma ones, which
+    is checked (a model that does not pass NaN on fails the check too).
+    """
+    n_el, n = sd.size, fwd.n
+    bits = max(1, (n_el - 1).bit_length())
+    idx = np.arange(n_el)
+    sign = np.where(np.random.default_rng(0).random(n_el) < 0.5, -1.0, 1.0)
+    errors = fwd.errors(2 * bits + 3, copy_of=(name,))
+    a = errors[name].reshape(2 * bits + 3, -1)
+    for b in range(bits):
+        on = ((idx >> b) & 1).astype(bool)
+        a[2 * b, on] = np.nan
+        a[2 * b + 1, ~on] = np.nan
+    a[2 * bits] += sd
+    a[2 * bits + 1] -= sd
+    a[2 * bits + 2] += sign * sd
+    errors[name] = a.reshape(2 * bits + 3, *shape)
+    try:
+        with np.errstate(all="ignore"):
+            pred = fwd.at(truth, errors)
+    except Exception:  # noqa: BLE001 - a model that refuses NaN: element by element
+        return None
+    on, off = np.isnan(pred[0:2 * bits:2]), np.isnan(pred[1:2 * bits:2])
+    dep = on.any(axis=0) | off.any(axis=0)
+    plus, minus, mixed = pred[2 * bits:]
+    if np.any(on & off) or not np.all((on ^ off)[:, dep]) \
+            or not np.all(np.isfinite(pred[2 * bits:])):
+        return None
+    elem = (on.astype(np.int64) << np.arange(bits)[:, None]).sum(axis=0)
+    if np.any(elem[dep] >= n_el):
+        return None
+    expect = np.where(dep, np.where(sign[np.minimum(elem, n_el - 1)] > 0, plus, minus), f0)
+    scale = np.abs(f0) + np.abs(plus - minus) + 1e-300
+    if not (np.all(np.abs(mixed - expect) <= 1e-12 * scale)
+            and np.all(plus[~dep] == f0[~dep]) and np.all(minus[~dep] == f0[~dep])):
+        return None
+    sec, cur = 0.5 * (plus - minus), 0.5 * (plus + minus) - f0
+    reads = np.flatnonzero(dep)
+    count = np.bincount(elem[reads], minlength=n_el)
+    row, s1, c1 = np.full(n_el, -1), np.zeros(n_el), np.zeros(n_el)
+    single = reads[count[elem[reads]] == 1]
+    row[elem[single]], s1[elem[single]], c1[elem[single]] = single, sec[single], cur[single]
+    multi = np.flatnonzero(count > 1)
+    S, C = np.zeros((n, multi.size)), np.zeros((n, multi.size))
+    col = {e: k for k, e in enumerate(multi)}
+    for i in reads[count[elem[reads]] > 1]:
+        S[i, col[elem[i]]], C[i, col[elem[i]]] = sec[i], cur[i]
+    return _Effect(sd, row, s1, c1, multi, S, C)
+
+
 def _effect(fwd, truth, name: str, std, f0: np.ndarray) -> _Effect:
-    """Evaluate one source's elements at their mean +- `std`, in chunks of rows."""
+    """Evaluate one source's elements at their mean +- `std`: by NaN probes when every
+    reading depends on one element at most (:func:`_probed`), else in chunks of rows."""
     src = fwd.sources[name]
     shape = (*src.shape, *src.distribution.event_shape)
     n_el = int(np.prod(shape, dtype=np.int64))
@@ -111,6 +171,10 @@ def _effect(fwd, truth, name: str, std, f0: np.ndarray) -> _Effect:
         sd = std.reshape(-1)
     else:
         sd = np.broadcast_to(std, shape).reshape(-1)
+    if n_el >= _PROBE:
+        eff = _probed(fwd, truth, name, sd, f0, shape)
+        if eff is not None:
+            return eff
     n = fwd.n
     chunk = int(max(8, min(n_el, 4_000_000 // max(n, n_el, 1))))
     row, s1, c1 = np.full(n_el, -1), np.zeros(n_el), np.zeros(n_el)

@@ -238,6 +238,7 @@ class Forward:
         self.sizes = [p.size for p in parts]
         full = np.concatenate(parts)
         self.mask = np.isfinite(full)
+        self.all_used = bool(self.mask.all())
         self.y = full[self.mask]
         self.sources = proc.sources(setup)
         self.mean = {k: np.broadcast_to(np.asarray(s.distribution.mean, dtype=float),
@@ -287,7 +288,8 @@ class Forward:
                     f"The readings {k!r} of {self.proc.name} hold {size} values but the "
                     f"set-up's forward model gives {a.size // max(m, 1)}."])
             parts.append(a.reshape(m, size))
-        return np.concatenate(parts, axis=1)[:, self.mask]
+        flat = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
+        return flat if self.all_used else flat[:, self.mask]
 
     def at(self, truth, errors) -> np.ndarray:
         """Readings (B, n) for one Truth and error rows (B, ...) (the model's own batch)."""
@@ -350,6 +352,9 @@ class Forward:
         h = np.concatenate([self.builder.steps(theta), np.zeros(q)]) if steps is None \
             else np.asarray(steps, dtype=float)
         x = np.concatenate([theta, np.zeros(q) if nuis is None else nuis])
+        lo = np.concatenate([self.builder.low, np.full(q, -np.inf)]) + 1.01 * h
+        hi = np.concatenate([self.builder.high, np.full(q, np.inf)]) - 1.01 * h
+        x = np.where(lo <= hi, np.clip(x, lo, hi), x)  # at a bound: the pair moves inside
         pts = np.repeat(x[None], 2 * (p + q), axis=0)
         i = np.arange(p + q)
         pts[i, i] += h

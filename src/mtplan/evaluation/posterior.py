@@ -228,7 +228,8 @@ def _check_arguments(proc, setup, readings, noise, opts: dict):
     p = Problems(f"sample_posterior {proc.name}")
     p.number("n_ensembles", opts["n_ensembles"], integer=True, low=2)
     p.number("max_steps", opts["max_steps"], integer=True, low=2)
-    p.number("check_every", opts["check_every"], integer=True, low=2)
+    if opts["check_every"] is not None:
+        p.number("check_every", opts["check_every"], integer=True, low=2)
     p.number("n_tau", opts["n_tau"], low=1)
     p.number("tau_rtol", opts["tau_rtol"], low=0, low_open=True)
     p.number("rhat_max", opts["rhat_max"], low=1, low_open=True)
@@ -268,6 +269,8 @@ def _initial_theta(proc, setup, readings, builder, start, estimator, notes) -> n
                          zip(builder.params, builder.values, strict=True)])
     if proc.truth_from_estimate is None:
         return builder.values.copy()
+    if estimator is None and proc.exact_estimators:  # one that sees every measurand
+        estimator = proc.exact_estimators[0]
     try:
         est = proc.estimate(setup, readings, estimator)
         est = {k: float(np.asarray(v).reshape(-1)[0]) for k, v in est.items()}
@@ -650,7 +653,7 @@ def _run(logpost: _LogPosterior, space: _Space, root, opts: dict, label: str):
     moves = opts["moves"] if opts["moves"] is not None else mixed_moves(space.center, cov)
     run = run_ensembles(logpost, space.center, factor, root=root, n_walkers=int(n_walkers),
                         n_ensembles=int(opts["n_ensembles"]), max_steps=int(opts["max_steps"]),
-                        check_every=int(opts["check_every"]), n_tau=opts["n_tau"],
+                        check_every=opts["check_every"], n_tau=opts["n_tau"],
                         tau_rtol=opts["tau_rtol"], rhat_max=opts["rhat_max"],
                         burn_tau=opts["burn_tau"], max_seconds=opts["max_seconds"], moves=moves,
                         progress=opts["progress"], label=label)
@@ -768,7 +771,7 @@ def sample_posterior(
     n_walkers: int | None = None,
     n_ensembles: int = 4,
     max_steps: int = 20_000,
-    check_every: int = 100,
+    check_every: int | None = None,
     n_tau: float = 50.0,
     tau_rtol: float = 0.05,
     rhat_max: float = 1.01,
@@ -807,12 +810,13 @@ def sample_posterior(
     truth : Truth, optional
         Values of the fields that are not free (default: the Truth's defaults).
     estimator : str, optional
-        Estimator used for the start (default: the procedure's default).
+        Estimator used for the start (default: the procedure's first exact estimator).
     n_walkers : int, optional
         Walkers per ensemble, even and >= 2 x ndim (default max(16, 2 ndim + 2)).
-    n_ensembles, max_steps, check_every : int
-        Independent ensembles (>= 2 for R-hat), step budget per ensemble, steps
-        between convergence checks.
+    n_ensembles, max_steps : int
+        Independent ensembles (>= 2 for R-hat), step budget per ensemble.
+    check_every : int, optional
+        Steps between convergence checks (default: 25, then a tenth of the chain).
     n_tau, tau_rtol, rhat_max, burn_tau : float
         Convergence: chain longer than `n_tau` tau, tau's relative change between
         checks below `tau_rtol`, split R-hat below `rhat_max`; `burn_tau` tau discarded.

@@ -337,19 +337,28 @@ class Truth(SetupBase):
 
 
 # --------------------------------------------------------------------------- geometry
+def _rmat(rows):
+    """Rotation matrices (..., 3, 3) from nested rows of scalars or arrays (...)."""
+    return np.moveaxis(np.array([np.broadcast_arrays(*r) for r in rows], dtype=float), (0, 1),
+                       (-2, -1))
+
+
 def _rx(a):
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(c), np.zeros_like(c)
+    return _rmat([[o, z, z], [z, c, -s], [z, s, c]])
 
 
 def _ry(a):
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0, s], [0, 1.0, 0], [-s, 0, c]])
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(c), np.zeros_like(c)
+    return _rmat([[c, z, s], [z, o, z], [-s, z, c]])
 
 
 def _rz(a):
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(c), np.zeros_like(c)
+    return _rmat([[c, -s, z], [s, c, z], [z, z, o]])
 
 
 def sensor_rotation(alpha_z: float, alpha_y: float, alpha_x: float) -> np.ndarray:
@@ -584,21 +593,37 @@ def _newton(setup, ox, oy, oz, d, t, idx):
         if idx.size == 0:
             break
         tt = t[idx]
-        z, gx, gy = height_map(setup, ox[idx] + tt * d[0], oy[idx] + tt * d[1])
-        step = (oz[idx] + tt * d[2] - z) / (d[2] - gx * d[0] - gy * d[1])
+        dx, dy, dz = (dk[idx] if np.ndim(dk) else dk for dk in d)  # one direction or one per ray
+        z, gx, gy = height_map(setup, ox[idx] + tt * dx, oy[idx] + tt * dy)
+        step = (oz[idx] + tt * dz - z) / (dz - gx * dx - gy * dy)
         t[idx] = tt - step
         idx = idx[np.abs(step) > 1e-15 * (1.0 + np.abs(tt))]
     return t
 
 
 def _frames(setup, truth):
-    """Laser-line and measuring directions and artifact pose: (ex, d, q, c0)."""
-    r = sensor_rotation(truth.alpha_z_mrad * 1e-3, truth.alpha_y_mrad * 1e-3,
-                        truth.alpha_x_mrad * 1e-3)
-    q = _rz(truth.artifact_rz_mrad * 1e-3) @ _ry(truth.artifact_tilt_y_mrad * 1e-3) @ _rx(
-        truth.artifact_tilt_x_mrad * 1e-3)
-    c0 = np.array([truth.artifact_x_mm, truth.artifact_y_mm, 0.0])
-    return q.T @ r[:, 0], q.T @ r[:, 2], q, c0
+    """Laser-line and measuring directions and artifact pose: (ex, d, q, c0).
+
+    Shapes (3,), (3,), (3, 3), (3,); with a leading axis (m,) for a truth whose fields
+    are arrays (m,) (one truth per batch row, a posterior's walkers).
+    """
+    r = sensor_rotation(np.asarray(truth.alpha_z_mrad) * 1e-3,
+                        np.asarray(truth.alpha_y_mrad) * 1e-3,
+                        np.asarray(truth.alpha_x_mrad) * 1e-3)
+    q = _rz(np.asarray(truth.artifact_rz_mrad) * 1e-3) @ _ry(
+        np.asarray(truth.artifact_tilt_y_mrad) * 1e-3) @ _rx(
+        np.asarray(truth.artifact_tilt_x_mrad) * 1e-3)
+    x, y = np.broadcast_arrays(np.asarray(truth.artifact_x_mm, dtype=float),
+                               np.asarray(truth.artifact_y_mm, dtype=float))
+    c0 = np.stack([x, y, np.zeros_like(x)], axis=-1)
+    qt = np.swapaxes(q, -1, -2)
+    return (np.einsum("...ij,...j->...i", qt, r[..., :, 0]),
+            np.einsum("...ij,...j->...i", qt, r[..., :, 2]), q, c0)
+
+
+def _batched(truth) -> bool:
+    """Whether the truth holds one set of values per batch row (array fields)."""
+    return bool(np.ndim(truth.alpha_z_mrad) or np.ndim(truth.artifact_x_mm))
 
 
 def _origins(setup, truth, disp):
@@ -615,12 +640,27 @@ def _origins(setup, truth, disp):
     pos[:, :, :, 2] = _standoff(setup)
     pos[:, 2, :, 2] += setup.raise_mm
     pos += disp[:, :, None, :]
+    # one pose per row (a batched truth): (m, 3) and (m, 3, 3), the scan axes added
+    c0 = c0[:, None, None, :] if c0.ndim == 2 else c0
+    q = q[:, None] if q.ndim == 3 else q
+    ex = ex[:, None, None, None, :] if ex.ndim == 2 else ex
     base = (pos - c0) @ q  # rows: q.T @ (p - c0)
     u = _grid_u(setup)
-    return tuple((base[..., k : k + 1] + u * ex[k]).reshape(m, -1) for k in range(3))
+    return tuple((base[..., k : k + 1] + u * ex[..., k]).reshape(m, -1) for k in range(3))
 
 
 _NOMINAL: dict = {}
+
+
+def _row(truth, i: int):
+    """A scalar Truth near row i of a batched one: its values rounded to 0.01 of their unit
+    (mrad, mm), so that nearby batches share the cached error-free trace; which rays stay on
+    their plane is checked ray by ray (:func:`_trace`), so the rounding costs no accuracy."""
+    import dataclasses
+
+    return dataclasses.replace(truth, **{
+        f.name: round(float(np.ravel(getattr(truth, f.name))[i]), 2)
+        for f in dataclasses.fields(truth) if np.ndim(getattr(truth, f.name))})
 
 
 def _nominal(setup, truth):
@@ -649,12 +689,23 @@ def _trace(setup, truth, disp):
     others (near kinks) are solved by :func:`_newton`.
     """
     _, d, _, _ = _frames(setup, truth)
-    t0, x0, y0, z0, gx0, gy0, margin = _nominal(setup, truth)
     ox, oy, oz = _origins(setup, truth, disp)
     m = disp.shape[0]
+    if _batched(truth):  # one truth per row: planes of the first row's error-free hits
+        first = _row(truth, 0)
+        d = tuple(np.broadcast_to(d[..., k:k + 1] if d.ndim == 2 else d[k], ox.shape)
+                  for k in range(3))
+    else:
+        first = truth
+    t0, x0, y0, z0, gx0, gy0, margin = _nominal(setup, first)
     t = (z0 + gx0 * (ox - x0) + gy0 * (oy - y0) - oz) / (d[2] - gx0 * d[0] - gy0 * d[1])
-    move = 2.0 * np.abs(disp).sum(axis=2).max(axis=1) + 1e-9
-    near = np.flatnonzero(margin[None, :] <= move[:, None])
+    if _batched(truth):  # on the same plane while the hit stays within its margin
+        moved = np.hypot(ox + t * d[0] - x0, oy + t * d[1] - y0)
+        near = np.flatnonzero(2.0 * moved.ravel() + 1e-9 >= np.tile(margin, m))
+        d = tuple(dk.ravel() for dk in d)
+    else:
+        move = 2.0 * np.abs(disp).sum(axis=2).max(axis=1) + 1e-9
+        near = np.flatnonzero(margin[None, :] <= move[:, None])
     if near.size:
         t = t.ravel()
         t = _newton(setup, ox.ravel(), oy.ravel(), oz.ravel(), d, t, near)
@@ -688,7 +739,7 @@ def forward(setup, truth, errors) -> dict:
     """
     disp = _displacements(setup, errors)
     n = disp.shape[0]
-    if np.all(disp == disp[:1]):  # geometry identical in every trial: trace once
+    if np.all(disp == disp[:1]) and not _batched(truth):  # identical trials: trace once
         t = np.broadcast_to(_trace(setup, truth, disp[:1]),
                             (n, 3, setup.lines, setup.points_per_line))
     else:

@@ -240,7 +240,7 @@ def run_ensembles(
     n_walkers: int,
     n_ensembles: int = 4,
     max_steps: int = 20_000,
-    check_every: int = 100,
+    check_every: int | None = None,
     n_tau: float = 50.0,
     tau_rtol: float = 0.05,
     rhat_max: float = 1.01,
@@ -262,7 +262,10 @@ def run_ensembles(
         ``center + ball @ N(0, I)`` (a factor of the start covariance).
     root : SeedSequence
         Ensemble ``e`` uses child ``e`` (:func:`mtplan.uncertainty._random.block_sequence`).
-    n_walkers, n_ensembles, max_steps, check_every : int
+    n_walkers, n_ensembles, max_steps : int
+    check_every : int, optional
+        Steps between convergence checks; default: 25, then a tenth of the chain so far
+        (checks soon for fast-mixing chains, rarely for long ones).
     n_tau, tau_rtol, rhat_max, burn_tau : float
         Convergence: chain longer than `n_tau` tau, tau's relative change between checks
         below `tau_rtol`, split R-hat (after `burn_tau` tau of burn-in) below `rhat_max`.
@@ -295,7 +298,8 @@ def run_ensembles(
     rhat = np.full(ndim, np.inf)
     out_of_time = False
     while steps < max_steps and not out_of_time:
-        n = min(int(check_every), int(max_steps) - steps)
+        every = check_every if check_every is not None else max(25, steps // 10)
+        n = min(int(every), int(max_steps) - steps)
         for e, sampler in enumerate(samplers):
             states[e] = sampler.run_mcmc(states[e], n, progress=False)
         steps += n
