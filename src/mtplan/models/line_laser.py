@@ -582,7 +582,7 @@ def _displacements(setup, errors) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- forward
-def _newton(setup, ox, oy, oz, d, t, idx):
+def _newton(setup, ox, oy, oz, d, t, idx, rays=None):
     """Solve ``oz + t d_z = height(ox + t d_x, oy + t d_y)`` in place for ``t[idx]``.
 
     Newton's method on the piecewise-planar height map: inside one plane a step is
@@ -593,7 +593,8 @@ def _newton(setup, ox, oy, oz, d, t, idx):
         if idx.size == 0:
             break
         tt = t[idx]
-        dx, dy, dz = (dk[idx] if np.ndim(dk) else dk for dk in d)  # one direction or one per ray
+        # one direction (3,), or one per batch row (m, 3) for rows of `rays` rays each
+        dx, dy, dz = (d[idx // rays].T if rays else d)
         z, gx, gy = height_map(setup, ox[idx] + tt * dx, oy[idx] + tt * dy)
         step = (oz[idx] + tt * dz - z) / (dz - gx * dx - gy * dy)
         t[idx] = tt - step
@@ -691,24 +692,22 @@ def _trace(setup, truth, disp):
     _, d, _, _ = _frames(setup, truth)
     ox, oy, oz = _origins(setup, truth, disp)
     m = disp.shape[0]
-    if _batched(truth):  # one truth per row: planes of the first row's error-free hits
-        first = _row(truth, 0)
-        d = tuple(np.broadcast_to(d[..., k:k + 1] if d.ndim == 2 else d[k], ox.shape)
-                  for k in range(3))
-    else:
-        first = truth
-    t0, x0, y0, z0, gx0, gy0, margin = _nominal(setup, first)
-    t = (z0 + gx0 * (ox - x0) + gy0 * (oy - y0) - oz) / (d[2] - gx0 * d[0] - gy0 * d[1])
-    if _batched(truth):  # on the same plane while the hit stays within its margin
-        moved = np.hypot(ox + t * d[0] - x0, oy + t * d[1] - y0)
-        near = np.flatnonzero(2.0 * moved.ravel() + 1e-9 >= np.tile(margin, m))
-        d = tuple(dk.ravel() for dk in d)
+    batched = _batched(truth)
+    # one truth per row: the planes of a nearby truth's error-free hits, checked ray by ray
+    t0, x0, y0, z0, gx0, gy0, margin = _nominal(setup, _row(truth, 0) if batched else truth)
+    rays = ox.shape[1] if batched else None
+    d = np.broadcast_to(d, (m, 3)) if batched else d
+    dk = d.T[..., None] if batched else d  # components, (3, m, 1) or (3,)
+    t = (z0 + gx0 * (ox - x0) + gy0 * (oy - y0) - oz) / (dk[2] - gx0 * dk[0] - gy0 * dk[1])
+    if batched:  # on the same plane while the hit stays within its margin
+        moved = np.hypot(ox + t * dk[0] - x0, oy + t * dk[1] - y0)
+        near = np.flatnonzero((2.0 * moved + 1e-9 >= margin).ravel())
     else:
         move = 2.0 * np.abs(disp).sum(axis=2).max(axis=1) + 1e-9
         near = np.flatnonzero(margin[None, :] <= move[:, None])
     if near.size:
         t = t.ravel()
-        t = _newton(setup, ox.ravel(), oy.ravel(), oz.ravel(), d, t, near)
+        t = _newton(setup, ox.ravel(), oy.ravel(), oz.ravel(), d, t, near, rays)
     t = t.reshape(m, 3, setup.lines, setup.points_per_line)
     if np.any(np.abs(t) > setup.range_mm / 2):
         raise InvalidInput([
@@ -1266,7 +1265,6 @@ PROCEDURE = Procedure(
     exact_estimators=("registration",),
     block_size=128,
     truth_from_estimate=truth_from_estimate,
-    posterior_fields=("alpha_z_mrad", "alpha_y_mrad", "alpha_x_mrad"),
     noise_source="sensor_noise",
     reading_limits=reading_limits,
 )
