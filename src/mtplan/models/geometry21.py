@@ -155,6 +155,8 @@ __all__ = [
     "coefficient_covariance",
     "error_bands",
     "error_functions",
+    "budget",
+    "first_order_std",
     "noise_free_table",
 ]
 
@@ -1196,7 +1198,11 @@ def _patent_design(setup: Setup) -> dict:
         circ = np.flatnonzero((geo.plane == k) & (geo.test == 2))
         er = geo.local[circ] / setup.circle_radius_mm  # (Mc, 2) radial unit vectors
         jrad = np.einsum("mc,mcp->mp", er, j3[circ])  # first-order radial model (Mc, P)
-        xlines = np.flatnonzero((geo.plane == k) & (geo.test < 2) & (geo.head > 0))
+        # the extra heads' lines; with extra heads, the first head's lines again: step 1's
+        # rotation of the plate took up the rotations it cannot tell from it (the X roll at
+        # the YZ plate's x), which step 2 re-estimates from every head
+        more = np.any((geo.plane == k) & (geo.head > 0))
+        xlines = np.flatnonzero((geo.plane == k) & (geo.test < 2) & ((geo.head > 0) | more))
         jlin = j3[xlines].reshape(-1, geo.n_par)  # extra heads' lines, both components
         keep = np.isin(c1, cols(_STEP1[pl]))
         planes.append(dict(rows=rows, c1=c1, a1=a1, keep=keep, circ=circ, xlines=xlines,
@@ -1205,8 +1211,9 @@ def _patent_design(setup: Setup) -> dict:
                            nuis=geo.n_coef + 3 * k + np.arange(3)))
     # step 2: the three circles stacked with the extra heads' lines: the angular errors
     # and the extra heads' settings (see the module docstring)
-    c2 = np.concatenate([cols([n for n in NAMES if _KIND[n] == "ang"]),
-                         np.arange(geo.n_coef + 9, geo.n_par)])
+    turns = [geo.n_coef + 3 * k + 2 for k in range(3) if np.any((geo.plane == k) & (geo.head > 0))]
+    c2 = np.concatenate([cols([n for n in NAMES if _KIND[n] == "ang"]), turns,
+                         np.arange(geo.n_coef + 9, geo.n_par)]).astype(int)
     q2 = np.concatenate([pl["q2"][:, c2] for pl in planes])
     a2, rank2, _, _ = _tpinv(q2, s[c2])
     return {"geo": geo, "planes": planes, "c1_all": c1_all, "c2": c2, "a2": a2, "rank2": rank2,
@@ -1244,7 +1251,7 @@ def _theta_patent(setup: Setup, readings: dict) -> np.ndarray:
                               np.stack([xu, xv], axis=-1).reshape(n, -1)
                               - geo.local[pl["xlines"]].ravel()], axis=1)
         es.append(dev - theta[:, pd_["c1_all"]] @ pl["q1"].T)
-    theta[:, pd_["c2"]] = np.concatenate(es, axis=1) @ pd_["a2"].T
+    theta[:, pd_["c2"]] += np.concatenate(es, axis=1) @ pd_["a2"].T  # rotations: corrections
     return theta
 
 
@@ -1506,9 +1513,24 @@ def coefficient_covariance(setup: Setup | None = None, *, estimator: str = "join
     return _param_names(geo)[: geo.n_coef], cov
 
 
+def _measurand_variances(setup: Setup, estimator: str, truth: Truth | None, only) -> dict:
+    """source -> {measurand: first-order variance [display unit^2]} of the listed ones."""
+    ji = _joint_ident(setup)
+    ms = measurands(setup)
+    g = np.array([ji["g"][NAMES.index(m.name)] * m.scale for m in ms]).reshape(len(ms), -1)
+    return {name: dict(zip((m.name for m in ms), np.sum((g @ f) ** 2, axis=1)))
+            for name, f in _source_factors(setup, estimator, truth, only).items()}
+
+
 def budget(setup: Setup | None = None, *, estimator: str = "joint",
            truth: Truth | None = None) -> pd.DataFrame:
     """First-order uncertainty budget of the listed measurands, by error source.
+
+    The same first-order propagation as
+    :func:`mtplan.evaluation.simulation.linearize_procedure` (forward model and estimator
+    linearised about the sources' means), through the estimator's linear map instead of
+    differentiating the whole chain per input: seconds instead of minutes for the
+    set-ups with head positions.
 
     Returns
     -------
@@ -1518,16 +1540,24 @@ def budget(setup: Setup | None = None, *, estimator: str = "joint",
     """
     setup = Setup() if setup is None else setup
     _check_estimator(estimator)
-    ji = _joint_ident(setup)
-    factors = _source_factors(setup, estimator, truth, None)
+    var = _measurand_variances(setup, estimator, truth, None)
     rows = []
     for m in measurands(setup):
-        g = ji["g"][NAMES.index(m.name)]
-        var = {name: float(np.sum((g @ f) ** 2)) * m.scale**2 for name, f in factors.items()}
-        total = sum(var.values())
+        total = sum(v[m.name] for v in var.values())
         for name, v in var.items():
-            rows.append((m.name, m.unit, name, math.sqrt(v), v / total if total > 0 else 0.0))
+            rows.append((m.name, m.unit, name, math.sqrt(v[m.name]),
+                         v[m.name] / total if total > 0 else 0.0))
     return pd.DataFrame(rows, columns=["measurand", "unit", "source", "std", "share"])
+
+
+def first_order_std(setup: Setup, truth: Truth | None = None, *, estimator: str = "joint",
+                    sources=None) -> dict:
+    """First-order standard uncertainty of each listed measurand [display unit] (see
+    :func:`budget`); the planner's screening uses it in place of the generic
+    linearisation."""
+    _check_estimator(estimator)
+    var = _measurand_variances(setup, estimator, truth, sources)
+    return {m.name: math.sqrt(sum(v[m.name] for v in var.values())) for m in measurands(setup)}
 
 
 def _travel(geo: _Geometry, axis: int) -> tuple[float, float]:
