@@ -35,9 +35,9 @@ spindle reference during that plane's tests with the first head; the seed's YZ p
 at x = 120 mm), and reads the head's position in the plate's plane. In each plane:
 back-and-forth lines along both axes through the plate centre (``line_length_mm``,
 ``line_repeats``, ``line_points`` per pass) and a circle of radius ``circle_radius_mm``
-about the centre, counter-clockwise then clockwise (``circle_points`` per pass,
-``circle_arc_deg``; the seed's example program uses 45 deg arcs, the brief a full
-circle, which is the default).
+about the centre, counter-clockwise then clockwise back along the same arc
+(``circle_points`` per pass, ``circle_arc_deg``; the seed's example program uses 45 deg
+arcs, the brief a full circle, which is the default).
 
 *Several head positions.* The first head sits at (``head_lateral_mm``, 0,
 -``head_offset_mm``) in every plane (the seed's single head). Each plane may repeat its
@@ -455,8 +455,8 @@ def _passes(setup):
                 vel = (sign, z) if t == 0 else (z, sign)
                 out.append((t, 2 * rep + d, uu if t == 0 else z, uu if t == 1 else z,
                             np.abs(uu - uu[0]), setup.line_length_mm, vel, z, 0.0))
-    for d, s in enumerate((1.0, -1.0)):  # CCW, then CW
-        phi = s * th
+    for d, s in enumerate((1.0, -1.0)):  # CCW, then CW back along the same arc (the seed)
+        phi = th if s > 0 else arc - th
         va, vb = -s * np.sin(phi), s * np.cos(phi)
         vel = tuple(np.where(np.abs(v) > 1e-12, np.sign(v), 0.0) for v in (va, vb))
         out.append((2, d, R * np.cos(phi), R * np.sin(phi), R + R * th, 2 * R + R * arc, vel,
@@ -1198,9 +1198,8 @@ def _patent_design(setup: Setup) -> dict:
         circ = np.flatnonzero((geo.plane == k) & (geo.test == 2))
         er = geo.local[circ] / setup.circle_radius_mm  # (Mc, 2) radial unit vectors
         jrad = np.einsum("mc,mcp->mp", er, j3[circ])  # first-order radial model (Mc, P)
-        # the extra heads' lines; with extra heads, the first head's lines again: step 1's
-        # rotation of the plate took up the rotations it cannot tell from it (the X roll at
-        # the YZ plate's x), which step 2 re-estimates from every head
+        # the extra heads' lines; with extra heads, the first head's lines again, for the
+        # plate's mounting that step 2 re-estimates from every head (below)
         more = np.any((geo.plane == k) & (geo.head > 0))
         xlines = np.flatnonzero((geo.plane == k) & (geo.test < 2) & ((geo.head > 0) | more))
         jlin = j3[xlines].reshape(-1, geo.n_par)  # extra heads' lines, both components
@@ -1211,8 +1210,12 @@ def _patent_design(setup: Setup) -> dict:
                            nuis=geo.n_coef + 3 * k + np.arange(3)))
     # step 2: the three circles stacked with the extra heads' lines: the angular errors
     # and the extra heads' settings (see the module docstring)
-    turns = [geo.n_coef + 3 * k + 2 for k in range(3) if np.any((geo.plane == k) & (geo.head > 0))]
-    c2 = np.concatenate([cols([n for n in NAMES if _KIND[n] == "ang"]), turns,
+    # where extra heads read a plate, step 2 corrects that plate's mounting too: step 1 took
+    # into it what it could not tell from it (the X roll and the other axes' errors at
+    # the plate's fixed coordinate), which step 2 subtracts again with the step-1 errors
+    mounts = [geo.n_coef + 3 * k + j for k in range(3) if np.any((geo.plane == k) & (geo.head > 0))
+              for j in range(3)]
+    c2 = np.concatenate([cols([n for n in NAMES if _KIND[n] == "ang"]), mounts,
                          np.arange(geo.n_coef + 9, geo.n_par)]).astype(int)
     q2 = np.concatenate([pl["q2"][:, c2] for pl in planes])
     a2, rank2, _, _ = _tpinv(q2, s[c2])
