@@ -1431,59 +1431,64 @@ def coefficients(setup: Setup, readings: dict, *, estimator: str = "joint") -> d
 
 
 @functools.lru_cache(maxsize=16)
-def _linear_map(setup: Setup, estimator: str) -> np.ndarray:
-    """A (n_par, 2M): first-order map from readings to estimated parameters."""
+def _linear_map(setup: Setup, estimator: str, truth: Truth) -> np.ndarray:
+    """A (n_par, 2M): first-order map from the readings to the estimated parameters, for
+    the white sources (reading noise, repeatability): the joint fits' pseudo-inverse (their
+    derivative to within ~1e-4 relative at realistic errors), the patent's by central
+    differences at the truth's noise-free readings."""
     ji = _joint_ident(setup)
     if estimator != "patent":
         return ji["pinv"]
     geo = ji["geo"]
-    nr = ji["r0"].size
+    r_t = forward(setup, truth, PROCEDURE.zero_errors(setup, 1))["plate_mm"].reshape(-1)
+    nr = r_t.size
     eps = 1e-6
     out = np.empty((geo.n_par, nr))
     for start in range(0, nr, 512):
         cols = np.arange(start, min(nr, start + 512))
         pert = np.zeros((cols.size, nr))
         pert[np.arange(cols.size), cols] = eps
-        r = np.concatenate([ji["r0"] + pert, ji["r0"] - pert]).reshape(2 * cols.size, -1, 2)
+        r = np.concatenate([r_t + pert, r_t - pert]).reshape(2 * cols.size, -1, 2)
         th = _theta_patent(setup, {"plate_mm": r})
         out[:, cols] = ((th[: cols.size] - th[cols.size:]) / (2 * eps)).T
     return out
 
 
 @functools.lru_cache(maxsize=16)
-def _source_columns(setup: Setup, truth: Truth, names: tuple) -> np.ndarray:
-    """Readings' first-order response to one standard deviation of each element of the
-    named (not white) sources, about the sources' means: array (2M, K)."""
+def _source_response(setup: Setup, truth: Truth, estimator: str, names: tuple) -> np.ndarray:
+    """The estimated parameters' first-order response to one standard deviation of each
+    element of the named (not white) sources, through forward model and estimator (as the
+    GUM linearisation does, about the sources' means; central differences with a step of
+    1 % of the standard deviation, the whole set one batch): array (n_par, K)."""
     srcs = sources(setup)
     elems = [(name, idx) for name in names for idx in np.ndindex(*srcs[name].shape)]
     k = len(elems)
     if not k:
-        return np.zeros((2 * _geometry(setup).plane.size, 0))
+        return np.zeros((_geometry(setup).n_par, 0))
     errors = PROCEDURE.zero_errors(setup, 2 * k)
     for name in names:
         errors[name][...] = srcs[name].distribution.mean
     for j, (name, idx) in enumerate(elems):
-        h = float(srcs[name].distribution.std)
+        h = 0.01 * float(srcs[name].distribution.std)
         errors[name][(2 * j, *idx)] += h
         errors[name][(2 * j + 1, *idx)] -= h
-    f = forward(setup, truth, errors)["plate_mm"].reshape(2 * k, -1)
-    return ((f[0::2] - f[1::2]) / 2).T
+    th = _estimate_theta(setup, forward(setup, truth, errors), estimator)
+    return ((th[0::2] - th[1::2]) / 0.02).T
 
 
 def _source_factors(setup: Setup, estimator: str, truth: Truth | None, only) -> dict:
     """Per active source: the first-order factor F with cov(theta) = F F^T (n_par, .)."""
     truth = Truth() if truth is None else truth
     active = PROCEDURE.active_sources(setup, only)
-    a = _linear_map(setup, estimator)
-    out = {}
-    cols = _source_columns(setup, truth, tuple(n for n in active if n not in _WHITE))
-    pos = 0
+    others = tuple(n for n in active if n not in _WHITE)
+    resp = _source_response(setup, truth, estimator, others)
+    out, pos = {}, 0
     for name, src in active.items():
         if name in _WHITE:
-            out[name] = a * float(src.distribution.std)
+            out[name] = _linear_map(setup, estimator, truth) * float(src.distribution.std)
         else:
             size = int(np.prod(src.shape, dtype=np.int64))
-            out[name] = a @ cols[:, pos: pos + size]
+            out[name] = resp[:, pos: pos + size]
             pos += size
     return out
 
@@ -1564,15 +1569,10 @@ def first_order_std(setup: Setup, truth: Truth | None = None, *, estimator: str 
 
 
 def _travel(geo: _Geometry, axis: int) -> tuple[float, float]:
-    """Range of an axis's commanded position over the tests in which it moves [mm]."""
-    moves = np.zeros(geo.plane.size, dtype=bool)
-    for k, (_, a, b, _c) in enumerate(PLANES):
-        sel = geo.plane == k
-        if axis == a:
-            moves |= sel & (geo.test != 1)
-        if axis == b:
-            moves |= sel & (geo.test != 0)
-    x = geo.cmd[moves, axis]
+    """Range of an axis's commanded position over every reading [mm]: where the plates read
+    its errors (the lines and circles, and the fixed coordinates of the plates and heads:
+    the YZ plate reads X's errors at its x, 120 mm in the seed)."""
+    x = geo.cmd[:, axis]
     return float(x.min()), float(x.max())
 
 
@@ -1598,7 +1598,8 @@ def error_functions(setup: Setup | None = None, readings: dict | None = None, *,
         Positions per function, evenly over its travel.
     travel : (low, high), optional
         Range of positions [mm] for every axis; default, each axis's range of commanded
-        positions over the tests in which it moves (heads' offsets included).
+        positions over every reading (the tests' travel, the plates' fixed coordinates and
+        the heads' offsets: where the plates read the errors).
     sources : iterable of str, optional
         Only these error sources in the band (default every active one).
 
