@@ -955,9 +955,15 @@ def _tpinv(a: np.ndarray, scale: np.ndarray, free: np.ndarray | None = None):
     Returns (pinv (cols, rows) in the original parameter units, rank, singular values, Vt).
     """
     a_s = a * scale
-    u, sv, vt = np.linalg.svd(a_s, full_matrices=False)
-    rank = int(np.sum(sv > _RANK_TOL * sv[0])) if sv.size and sv[0] > 0 else 0
-    pinv = (vt[:rank].T / sv[:rank]) @ u[:, :rank].T
+    if a_s.shape[0] > a_s.shape[1]:  # tall: the SVD of the QR's R (same S and V), then
+        # pinv = V S^-2 V^T A^T, never the (readings x parameters) U
+        _, sv, vt = np.linalg.svd(np.linalg.qr(a_s, mode="r"))
+        rank = int(np.sum(sv > _RANK_TOL * sv[0])) if sv.size and sv[0] > 0 else 0
+        pinv = ((vt[:rank].T / sv[:rank] ** 2) @ vt[:rank]) @ a_s.T
+    else:
+        u, sv, vt = np.linalg.svd(a_s, full_matrices=False)
+        rank = int(np.sum(sv > _RANK_TOL * sv[0])) if sv.size and sv[0] > 0 else 0
+        pinv = (vt[:rank].T / sv[:rank]) @ u[:, :rank].T
     if free is not None and rank < a.shape[1]:
         pinv = _null_convention(pinv, vt[rank:].T, free)
     return scale[:, None] * pinv, rank, sv, vt
@@ -999,7 +1005,7 @@ def _jacobian(geo: _Geometry, theta0: np.ndarray, s: np.ndarray):
     return vals[-1], jac
 
 
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=8)
 def _joint_ident(setup: Setup) -> dict:
     """Jacobian of the readings at zero error, its SVD, pseudo-inverse and estimability."""
     geo = _geometry(setup)
@@ -1036,7 +1042,7 @@ def _grid_step(geo: _Geometry) -> np.ndarray:
     return _GRID_STEP * _scales(geo)[: geo.n_coef]
 
 
-@functools.lru_cache(maxsize=32)
+@functools.lru_cache(maxsize=8)
 def _linearisation(setup: Setup, key: tuple) -> dict:
     """The Jacobian ``jac`` (2M, P), its pseudo-inverse ``pinv`` and the pieces of
     :class:`_Unmounted` at the coefficients of the grid point `key` (ints, one per
@@ -1175,7 +1181,7 @@ def _theta_joint(setup: Setup, readings: dict, iterations: int) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- patent
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=8)
 def _patent_design(setup: Setup) -> dict:
     ji = _joint_ident(setup)
     geo, jac, s = ji["geo"], ji["jac"], ji["scale"]
@@ -1302,7 +1308,7 @@ def _check_estimator(estimator: str) -> None:
                             f"{', '.join(map(repr, ESTIMATORS))}. Got {estimator!r} instead."])
 
 
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=8)
 def _first_order_response(setup: Setup, estimator: str) -> np.ndarray:
     """B (n_par, n_par): estimated parameters' first-order response to the true ones."""
     ji = _joint_ident(setup)
@@ -1430,7 +1436,7 @@ def coefficients(setup: Setup, readings: dict, *, estimator: str = "joint") -> d
     return {name: (pw, theta[:, sl]) for name, (pw, sl) in geo.layout.items()}
 
 
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=4)
 def _linear_map(setup: Setup, estimator: str, truth: Truth) -> np.ndarray:
     """A (n_par, 2M): first-order map from the readings to the estimated parameters, for
     the white sources (reading noise, repeatability): the joint fits' pseudo-inverse (their
@@ -1454,7 +1460,7 @@ def _linear_map(setup: Setup, estimator: str, truth: Truth) -> np.ndarray:
     return out
 
 
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=8)
 def _source_response(setup: Setup, truth: Truth, estimator: str, names: tuple) -> np.ndarray:
     """The estimated parameters' first-order response to one standard deviation of each
     element of the named (not white) sources, through forward model and estimator (as the

@@ -285,8 +285,10 @@ def identifiability(
         col = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
     rtol = float(max(n_obs, n_par) * np.finfo(float).eps) if tol is None else float(tol)
     js = a * col
-    # the full V^T only where a short matrix needs it (never the n_obs x n_obs U)
-    _, s, vt = np.linalg.svd(js, full_matrices=n_obs < n_par)
+    if n_obs > n_par:  # tall: the SVD of the QR's R has the same S and V, and no U to form
+        _, s, vt = np.linalg.svd(np.linalg.qr(js, mode="r"))
+    else:  # the full V^T, which a short matrix needs for its null space
+        _, s, vt = np.linalg.svd(js, full_matrices=True)
     s1 = float(s[0]) if s.size else 0.0
     rank = int(np.sum(s > rtol * s1)) if s1 > 0 else 0
     null_scaled = vt[rank:].T  # (n_par, n_par - rank), orthonormal in scaled parameters

@@ -172,13 +172,13 @@ def plan(
     truth = proc.Truth() if truth is None else truth
     targets = dict(targets or {})
     setups = _grid(proc, base_setup, dict(vary or {})) if vary else [base_setup]
-    units = _possible_measurands(proc, setups)
+    units, listed = _possible_measurands(proc, setups)
     names = list(units)
     required = _required(proc, names, determine)
     _check_plan(proc, names, targets, criterion, k, confirm, trials, n_jobs, backend, required)
     proc.estimator(estimator)
     table = _screen(proc, setups, truth, estimator, sources, targets, k, criterion, identify,
-                    n_jobs, backend, names, required)
+                    n_jobs, backend, names, required, listed)
     front = pareto_front(table["duration_s"].to_numpy(), table["worst"].to_numpy())
     pareto = [_candidate(table.iloc[i], setups[i], names, targets) for i in front]
     feasible = table[table["feasible"]].sort_values(["duration_s", "worst"], kind="stable")
@@ -192,10 +192,11 @@ def plan(
                       targets=targets, k=k, runners_up=runners)
 
 
-def _possible_measurands(proc, setups) -> dict:
+def _possible_measurands(proc, setups) -> tuple[dict, list]:
     """Every measurand a candidate may report, name -> unit: those listed at any candidate
     and, where the procedure's identifiability report names them (geometry21: the 21 error
-    functions), those the procedure could report at some set-up; in the procedure's order."""
+    functions), those the procedure could report at some set-up; in the procedure's order.
+    Also each candidate's own list."""
     import importlib
 
     names = {}
@@ -203,9 +204,12 @@ def _possible_measurands(proc, setups) -> dict:
     own = getattr(module, "identifiability_report", None)
     if callable(own):
         names.update(dict.fromkeys(own(setups[0]).get("functions", {}), ""))
+    listed = []
     for s in setups:
-        names.update({m.name: m.unit for m in proc.measurands(s)})
-    return names
+        ms = proc.measurands(s)
+        names.update({m.name: m.unit for m in ms})
+        listed.append([m.name for m in ms])
+    return names, listed
 
 
 def _required(proc, names, determine) -> tuple:
@@ -244,7 +248,7 @@ def _check_plan(proc, names, targets, criterion, k, confirm, trials, n_jobs, bac
 
 
 def _screen(proc, setups, truth, estimator, sources, targets, k, criterion, identify, n_jobs,
-            backend, names=None, required=()):
+            backend, names=None, required=(), listed=None):
     """The candidates' table: linearised (k-scaled) uncertainties (NaN for measurands a
     candidate does not determine), worst target ratio, identifiability and feasibility,
     one row per set-up. A candidate that misses a required measurand is not linearised."""
@@ -253,15 +257,16 @@ def _screen(proc, setups, truth, estimator, sources, targets, k, criterion, iden
     from mtplan._parallel import ordered_map, parallel_session
 
     names = [m.name for m in proc.measurands(setups[0])] if names is None else names
-    listed = [[m.name for m in proc.measurands(s)] for s in setups]
+    if listed is None:
+        listed = [[m.name for m in proc.measurands(s)] for s in setups]
     missing = [[n for n in required if n not in ls] for ls in listed]
-    with parallel_session(n_jobs, backend) as session:
-        tasks = ((proc, s, truth, estimator, sources) for s, miss in zip(setups, missing)
-                 if not miss)
-        done = iter(ordered_map(_predict, tasks, n_jobs=session["n_jobs"], backend=backend))
-        preds = [{} if miss else next(done) for miss in missing]
+    with parallel_session(n_jobs, backend) as session:  # one task per candidate, so that a
+        # procedure's per-set-up precomputation serves both
+        tasks = ((proc, s, truth, estimator, sources, not miss, identify)
+                 for s, miss in zip(setups, missing))
+        done = list(ordered_map(_assess, tasks, n_jobs=session["n_jobs"], backend=backend))
     rows = []
-    for i, (s, u) in enumerate(zip(setups, preds, strict=True)):
+    for i, (s, (u, ident)) in enumerate(zip(setups, done, strict=True)):
         row = {"candidate": i, **_flat(_setup_fields(s)), "duration_s": float(proc.duration(s))}
         for name in names:
             row[f"u_{name}"] = k * u[name] if name in u else math.nan
@@ -269,8 +274,7 @@ def _screen(proc, setups, truth, estimator, sources, targets, k, criterion, iden
         if missing[i]:
             ratios.append(math.inf)
         row["worst"] = max(ratios) if ratios else 0.0
-        if identify:
-            row.update(design_identifiability(proc, s, truth))
+        row.update(ident)
         if required:
             row["determined"] = len(listed[i])
             row["undetermined"] = ",".join(missing[i])
@@ -415,6 +419,13 @@ def _candidate(row, setup, names, targets) -> dict:
         out["identifiability"] = {k: (int(row[k]) if k in ("rank", "n_params") else float(row[k]))
                                   for k in _IDENT}
     return out
+
+
+def _assess(proc, setup, truth, estimator, sources, predict, identify) -> tuple[dict, dict]:
+    """One candidate's linearised uncertainties (when `predict`) and identifiability
+    (when `identify`)."""
+    u = _predict(proc, setup, truth, estimator, sources) if predict else {}
+    return u, design_identifiability(proc, setup, truth) if identify else {}
 
 
 def _predict(proc, setup, truth, estimator, sources) -> dict:
