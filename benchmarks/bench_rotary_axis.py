@@ -8,7 +8,13 @@ For the default C set-up (6 positions x 25 points = 150 readings per trial):
   (the readings' noise) and all the variates the active sources draw;
 - where the time goes: drawing the sources, the forward model, each estimator.
 
+With ``--budget`` (instead of the timings): the tables of docs/rotary_axis.md, for the
+C, A and combined CA tests at their defaults, u of each measurand before issue 17 (the
+A positions in ascending order) and now (the seed's order), the share of each source
+in u^2, and the measuring order against the thermal drift alone.
+
 Run:  .venv/bin/python benchmarks/bench_rotary_axis.py [--trials 20000] [--repeat 5]
+      [--axis C|A|CA] [--budget]
 """
 
 from __future__ import annotations
@@ -20,7 +26,9 @@ import numpy as np
 
 from mtplan.models import get
 from mtplan.uncertainty._random import as_seed_sequence, block_sequence
-from mtplan.evaluation.simulation import simulate_uncertainty
+from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
+
+from _budget import budget_table  # benchmarks/ is the script's folder
 
 
 def best(fn, repeat):
@@ -37,8 +45,12 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=20_000)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--axis", default="C")
+    ap.add_argument("--budget", action="store_true")
     args = ap.parse_args()
     proc = get("rotary_axis")
+    if args.budget:
+        budget(proc, args.trials)
+        return
     setup = proc.setup(axis=args.axis)
     n = args.trials
     P, M = setup.n_positions, setup.n_points
@@ -76,6 +88,22 @@ def main() -> None:
         t_est = best(lambda: fn(setup, readings), args.repeat)
         print(f", {est} {t_est * scale * 1e3:7.1f} ms", end="")
     print()
+
+
+def budget(proc, trials: int) -> None:
+    """The docs' tables: u before/after and shares per source; order against drift."""
+    for axis in ("C", "A", "CA"):
+        setup = proc.setup(axis=axis)
+        before = None if axis == "CA" else (setup.replace(a_order="ascending"), None)
+        print(f"\naxis {axis}, patent, default set-up; u by Monte Carlo ({trials} trials, "
+              "rng 3), shares of u^2 by the GUM budget (linearize) [%]")
+        print(budget_table(proc, setup, before, trials))
+    print("\nA axis, thermal drift alone, u by the GUM (linearize) [um, urad]")
+    for order in ("ascending", "seed"):
+        setup = proc.setup(axis="A", a_order=order)
+        g = linearize_procedure(proc, setup, sources=["thermal_drift"])
+        print(f"  {order:9s} {setup.angles().tolist()}: "
+              + ", ".join(f"{n} {u:.3f}" for n, u in zip(g.names, g.std, strict=True)))
 
 
 if __name__ == "__main__":

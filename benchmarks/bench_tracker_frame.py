@@ -10,10 +10,14 @@
    tracker distance, the points per axis and per arc, and the A arc, printing the
    standard uncertainty of sub-machine 1's measurands.
 4. With ``--compare``: patent against angles over the A arc (Monte Carlo, the sweep's
-   trials), std of origin_y/origin_z/ac_offset of sub-machine 1 and their ratio.
+   trials), std of origin_y/origin_z/ac_offset of sub-machine 1 and their ratio, under
+   the error model before issue 17 (every transverse d L error per point) and the
+   current one (part of it systematic per test, plus SMR, air, drift, straightness).
+5. With ``--budget``: the markdown table of docs/tracker_frame.md, u of every measurand
+   before and after the new sources and the share of each source in u^2.
 
 Run: ``.venv/bin/python benchmarks/bench_tracker_frame.py [--trials 20000] [--sweep]
-[--compare]``
+[--compare] [--budget] [--sweep-trials N] [--no-speed]``
 """
 
 from __future__ import annotations
@@ -27,6 +31,8 @@ from mtplan.models import get
 from mtplan.models import tracker_frame as tf
 from mtplan.models._fit3d import fit_circle_3d, fit_circle_3d_angles, fit_line_3d
 from mtplan.evaluation.simulation import simulate_uncertainty
+
+from _budget import budget_table, mc_std  # benchmarks/ is the script's folder
 
 
 def best(fn, repeat=5):
@@ -126,21 +132,41 @@ def sweeps(trials: int) -> None:
     print(b[list(SHOW)].round(1).to_string())
 
 
+#: the error model before issue 17: every transverse d L error per point (6 um/m), no
+#: SMR, air, drift or straightness sources (the same random streams as the new model's)
+OLD_SOURCES = ("distance_fixed", "distance_per_length", "transverse_fixed",
+               "transverse_per_length", "machine_repeatability", "rotary_positioning")
+OLD_SETUP = {"transverse_per_length_um_per_m": 6.0}
+
+
 def compare(trials: int) -> None:
+    """patent against angles over the A arc, the old error model against the new."""
     proc = get("tracker_frame")
     show = ("origin_y_1", "origin_z_1", "ac_offset_1")
-    print(f"\npatent against angles over the A arc, std of sub-machine 1 [um] ({trials} trials)")
-    print(f"{'a_arc_deg':>10} " + " ".join(f"{m:>28}" for m in show))
+    print(f"\npatent -> angles over the A arc, std of sub-machine 1 [um] ({trials} trials, "
+          "rng 3); old: d L per point, new: the default sources")
+    print(f"{'a_arc_deg':>10} {'model':>5} " + " ".join(f"{m:>26}" for m in show))
     for arc in (20.0, 60.0, 120.0, 240.0):
-        setup = proc.setup({"a_arc_deg": arc})
-        s = {}
-        for est in ("patent", "angles"):
-            r = simulate_uncertainty(proc, setup, trials=trials, rng=3, estimator=est,
-                                     progress=False)
-            s[est] = dict(zip([m.name for m in r.measurands], r.mc.std, strict=True))
-        row = " ".join(f"{s['patent'][m]:9.1f} -> {s['angles'][m]:7.1f} "
-                       f"(x{s['patent'][m] / s['angles'][m]:4.1f})" for m in show)
-        print(f"{arc:>10g} {row}")
+        for model in ("old", "new"):
+            old = model == "old"
+            setup = proc.setup({"a_arc_deg": arc, **(OLD_SETUP if old else {})})
+            src = OLD_SOURCES if old else None
+            s = {est: mc_std(proc, setup, trials, est, src) for est in ("patent", "angles")}
+            row = " ".join(f"{s['patent'][m]:8.1f} -> {s['angles'][m]:6.1f} "
+                           f"(x{s['patent'][m] / s['angles'][m]:4.1f})" for m in show)
+            print(f"{arc:>10g} {model:>5} {row}")
+
+
+def budget(trials: int, estimator: str = "patent") -> None:
+    """Markdown table: u of each measurand before and after the new sources, shares in u^2."""
+    proc = get("tracker_frame")
+    print(f"\n{estimator}, default set-up; u by Monte Carlo ({trials} trials, rng 3), "
+          "shares of u^2 by the GUM budget (linearize) [%]")
+    groups = proc.sources(proc.Setup())
+    short = {g: g.replace("_per_length", "/L").replace("_fixed", " c").replace("distance", "dist")
+             for g in groups}
+    print(budget_table(proc, proc.Setup(), (proc.setup(OLD_SETUP), OLD_SOURCES), trials,
+                       estimator, short))
 
 
 def main(argv=None):
@@ -148,13 +174,18 @@ def main(argv=None):
     ap.add_argument("--trials", type=int, default=20_000)
     ap.add_argument("--sweep", action="store_true")
     ap.add_argument("--compare", action="store_true")
+    ap.add_argument("--budget", action="store_true")
     ap.add_argument("--sweep-trials", type=int, default=4000)
+    ap.add_argument("--no-speed", action="store_true")
     args = ap.parse_args(argv)
-    speed(args.trials)
+    if not args.no_speed:
+        speed(args.trials)
     if args.sweep:
         sweeps(args.sweep_trials)
     if args.compare:
         compare(args.sweep_trials)
+    if args.budget:
+        budget(args.sweep_trials)
 
 
 if __name__ == "__main__":

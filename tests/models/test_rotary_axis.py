@@ -34,6 +34,10 @@ CASES = {
     "A azimuth 150, ref -80": dict(axis="A", incline_azimuth_deg=150.0, reference_height_mm=-80.0),
     "A seed order, h 0": dict(axis="A", angles_deg=(0, 15, 30, 45, -15, -30, -45),
                               artifact_height_mm=0.0),
+    "CA default": dict(axis="CA"),
+    "CA 4 C angles, 5 A ascending, ref 30": dict(axis="CA", c_angles_deg=(0, 90, 180, 270),
+                                                 positions=5, a_order="ascending",
+                                                 reference_height_mm=30.0),
 }
 BIG_TRUTH = dict(EX0C_um=-400.0, EY0C_um=250.0, EA0C_urad=900.0, EB0C_urad=-700.0,
                  EY0A_um=300.0, EZ0A_um=-450.0, EB0A_urad=-800.0, EC0A_urad=600.0)
@@ -139,7 +143,7 @@ def test_estimators_coincide_with_three_positions():
 
 # --------------------------------------------------------------------------- statistics
 @pytest.mark.parametrize("estimator", ["patent", "joint"])
-@pytest.mark.parametrize("axis", ["C", "A"])
+@pytest.mark.parametrize("axis", ["C", "A", "CA"])
 def test_monte_carlo_agrees_with_linearisation(axis, estimator):
     # every source at its default size: micrometres are small for this geometry
     setup = PROC.setup(axis=axis)
@@ -214,6 +218,98 @@ def test_axial_motion_appears_as_lateral_error_through_the_incline():
     np.testing.assert_allclose(std[15.0] / std[30.0], ratio, rtol=0.02)
 
 
+# --------------------------------------------------------------------------- A order, CA
+@pytest.mark.parametrize("values, angles", [
+    (dict(axis="A"), [0, 15, 30, 45, -15, -30, -45]),  # the seed's example (S203)
+    (dict(axis="A", a_order="ascending"), [-45, -30, -15, 0, 15, 30, 45]),
+    (dict(axis="A", positions=4, range_deg=60.0), [10, 30, -10, -30]),
+    (dict(axis="CA"), [0, 60, 120, 180, 240, 300, 0, 15, 30, 45, -15, -30, -45]),
+    (dict(axis="CA", c_angles_deg=(0, 120, 240), angles_deg=(5, -5, 25)), [0, 120, 240, 5, -5, 25]),
+])
+def test_measuring_order(values, angles):
+    np.testing.assert_allclose(PROC.setup(**values).angles(), angles, atol=1e-12)
+
+
+def test_drift_runs_over_the_whole_time_line():
+    # a vertical drift alone lowers every reading by rate x its time on the schedule;
+    # in a CA test the A part comes after the C part on the same time line
+    for axis in ("A", "CA"):
+        setup = PROC.setup(axis=axis)
+        rate = 1e-5  # mm/s
+        moved = _noise_free(setup, thermal_drift=[0.0, 0.0, rate])["z_mm"][0]
+        base = _noise_free(setup)["z_mm"][0]
+        t = ra.schedule(setup)["time_s"].to_numpy().reshape(base.shape)
+        np.testing.assert_allclose(moved - base, -rate * t, rtol=0, atol=1e-13)
+    assert PROC.duration(PROC.setup(axis="CA")) > (PROC.duration(PROC.setup(axis="C"))
+                                                   + PROC.duration(PROC.setup(axis="A")))
+
+
+def test_combined_test_is_the_c_test_then_the_a_test():
+    # with every source but the drift (which depends on the time line), the CA readings
+    # are the C test's and the A test's with the errors of their positions; so are the
+    # eight location errors estimated from them
+    setup = PROC.setup(axis="CA", thermal_drift_um_per_s=0.0)
+    n, nc = 20, len(setup.axis_angles("C"))
+    errors = PROC.draw_errors(setup, n, np.random.SeedSequence(8))
+    z = PROC.forward(setup, PROC.Truth(), errors)["z_mm"]
+    for axis, sl in (("C", slice(0, nc)), ("A", slice(nc, None))):
+        single = PROC.setup(axis=axis, thermal_drift_um_per_s=0.0)
+        part = {k: (v[(slice(None),) * ra._POSITION_AXIS[k] + (sl,)]
+                    if k in ra._POSITION_AXIS else v) for k, v in errors.items()}
+        z_single = PROC.forward(single, PROC.Truth(), part)["z_mm"]
+        np.testing.assert_array_equal(z[:, sl], z_single)
+        for est in PROC.estimators:
+            both = PROC.estimate(setup, {"z_mm": z}, est)
+            alone = PROC.estimate(single, {"z_mm": z_single}, est)
+            for name in alone:
+                np.testing.assert_allclose(both[name], alone[name], rtol=0, atol=1e-12)
+
+
+def test_combined_measurands_by_an_independent_route():
+    # the pose by scipy rotations about the true lines; the offset and squareness from
+    # their definitions; to first order they are EY0C - EY0A and EB0C - EB0A
+    setup = PROC.setup(axis="CA", pose_a_deg=-30.0, pose_c_deg=200.0,
+                       pose_point_mm=(-80.0, 120.0, 60.0))
+    truth = PROC.truth(**BIG_TRUTH)
+    tv = PROC.true_values(setup, truth)
+    pc, uc = ra._true_line(ra._part(setup, "C"), truth)
+    pa, ua = ra._true_line(ra._part(setup, "A"), truth)
+    p = np.array(setup.pose_point_mm)
+    q = pc + Rotation.from_rotvec(uc * math.radians(200.0)).apply(p - pc)
+    actual = pa + Rotation.from_rotvec(ua * math.radians(-30.0)).apply(q - pa)
+    nominal = Rotation.from_euler("XZ", [-30.0, 200.0], degrees=True).apply(p)  # Rx Rz p
+    err = actual - nominal
+    for i, name in enumerate(("pose_dx", "pose_dy", "pose_dz")):
+        assert tv[name] == pytest.approx(err[i], abs=1e-12)
+    normal = np.cross(uc, ua) / np.linalg.norm(np.cross(uc, ua))  # +Y for C ~ Z, A ~ X
+    assert tv["ac_offset"] == pytest.approx((pc - pa) @ normal, abs=1e-12)
+    assert tv["ac_squareness"] == pytest.approx(math.asin(ua @ uc), abs=1e-15)
+    # second order: the truth's positions (up to 0.45 mm) times its angles (up to 0.9 mrad),
+    # or two angles, each product counted twice
+    pos = max(abs(v) for k, v in BIG_TRUTH.items() if k.endswith("_um")) * 1e-3
+    ang = max(abs(v) for k, v in BIG_TRUTH.items() if k.endswith("_urad")) * 1e-6
+    assert tv["ac_offset"] == pytest.approx((BIG_TRUTH["EY0C_um"] - BIG_TRUTH["EY0A_um"]) * 1e-3,
+                                            abs=2 * pos * ang)
+    assert tv["ac_squareness"] == pytest.approx(
+        (BIG_TRUTH["EB0C_urad"] - BIG_TRUTH["EB0A_urad"]) * 1e-6, abs=2 * ang**2)
+    # a perfect machine has no pose error
+    zero = PROC.truth(**{k: 0.0 for k in BIG_TRUTH})
+    assert all(abs(v) < 1e-13 for v in PROC.true_values(setup, zero).values())
+
+
+def test_axis_line_of_each_part_of_a_combined_test():
+    setup = PROC.setup(axis="CA")
+    truth = PROC.Truth()
+    readings = _noise_free(setup, truth)
+    for axis in ("C", "A"):
+        point, direction = ra.axis_line(setup, readings, axis=axis)
+        p_true, u_true = ra._true_line(ra._part(setup, axis), truth)
+        np.testing.assert_allclose(point[0], p_true, atol=1e-9)
+        np.testing.assert_allclose(direction[0], u_true, atol=1e-12)
+    with pytest.raises(InvalidInput, match="'axis'"):
+        ra.axis_line(PROC.Setup(), readings, axis="A")
+
+
 # --------------------------------------------------------------------------- refusals
 @pytest.mark.parametrize(
     "values, field",
@@ -228,6 +324,10 @@ def test_axial_motion_appears_as_lateral_error_through_the_incline():
         (dict(axis="A", range_deg=150.0), "steep"),
         (dict(z_follows_surface=False, sensor_range_mm=5.0), "sensor_range_mm"),
         (dict(axis="B"), "axis"),
+        (dict(c_angles_deg=(0.0, 90.0, 180.0)), "c_angles_deg"),
+        (dict(axis="CA", c_angles_deg=(0.0, 360.0, 720.0)), "c_angles_deg"),
+        (dict(axis="CA", incline_azimuth_deg=90.0), "incline_azimuth_deg"),
+        (dict(axis="CA", pose_point_mm=(1.0, 2.0)), "pose_point_mm"),
     ],
 )
 def test_degenerate_setups_are_refused_with_a_reason(values, field):
@@ -272,6 +372,18 @@ def test_from_frame_names_what_is_wrong(edit, message):
     setup, df = _frame()
     with pytest.raises(InvalidInput, match=message):
         PROC.from_frame(setup, edit(df))
+
+
+def test_combined_readings_carry_the_axis_and_round_trip():
+    setup = PROC.setup(axis="CA")
+    df = PROC.readings_frame(setup, PROC.simulate(setup, draws=1, rng=2))
+    nc, M = len(setup.axis_angles("C")), setup.n_points
+    assert df["axis"].tolist() == ["C"] * nc * M + ["A"] * (setup.n_positions - nc) * M
+    back = PROC.from_frame(setup, df.sample(frac=1.0, random_state=3))
+    np.testing.assert_array_equal(back["z_mm"][0].ravel(), df["z_mm"].to_numpy())
+    PROC.from_frame(setup, df.drop(columns="axis"))  # the axis column is a check only
+    with pytest.raises(InvalidInput, match="'axis'.*row 0 holds 'A'"):
+        PROC.from_frame(setup, df.assign(axis=df["axis"].where(df.index != 0, "A")))
 
 
 def test_schedule_and_duration():

@@ -18,6 +18,7 @@ import pytest
 from mtplan._validate import InvalidInput
 from mtplan.models import get
 from mtplan.models import tracker_frame as tf
+from mtplan.models._fit3d import circle_residuals, fit_circle_3d
 from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 
 PROC = get("tracker_frame")
@@ -30,7 +31,8 @@ ZERO_HEAD = dict(wrist_dx_um=(0.0,), wrist_dy_um=(0.0,), wrist_dz_um=(0.0,),
 
 NOISE_FIELDS = ("distance_fixed_um", "distance_per_length_um_per_m", "transverse_fixed_um",
                 "transverse_per_length_um_per_m", "machine_repeatability_um",
-                "rotary_positioning_arcsec")
+                "rotary_positioning_arcsec", "angular_systematic_um_per_m", "smr_centring_um",
+                "air_refraction_ppm", "thermal_drift_um_per_s", "straightness_um")
 ESTIMATORS = list(PROC.estimators)
 
 
@@ -118,6 +120,47 @@ def test_rotary_positioning_error_moves_the_reflector_round_the_axis():
     np.testing.assert_allclose(moved[changed[0]], expect, atol=1e-12)
     assert PROC.sources(setup)["rotary_positioning"].distribution.std == pytest.approx(
         5 * math.pi / 648000)
+
+
+def test_new_sources_enter_readings_as_specified():
+    # SMR centring: along the beam a distance, across it a transverse length; air: a
+    # scale of every distance; drift: every point moves by rate x its time
+    setup = PROC.Setup()
+    truth = PROC.Truth()
+    base = _noise_free(setup, truth)
+    d0, el0 = base["distance_mm"][0], base["elevation_rad"][0]
+    errs = PROC.zero_errors(setup, 1)
+    errs["smr_centring"][..., 0] = 2e-3
+    errs["smr_centring"][..., 2] = 3e-3
+    errs["air_refraction"][:] = 1e-6
+    r = PROC.forward(setup, truth, errs)
+    np.testing.assert_allclose(r["distance_mm"][0] - d0, 1e-6 * d0 + 2e-3, rtol=1e-6)
+    np.testing.assert_allclose(r["elevation_rad"][0] - el0, 3e-3 / d0, rtol=1e-7)
+    errs = PROC.zero_errors(setup, 1)
+    errs["thermal_drift"][0] = (0.0, 0.0, 1e-5)  # 10 nm/s up
+    times, total = tf._times(setup)
+    assert total == PROC.duration(setup) and np.all(np.diff(times) > 0)
+    moved = tf._cartesian(PROC.forward(setup, truth, errs)) - tf._cartesian(base)
+    r_tr, _ = tf._tracker_pose(setup, truth)
+    np.testing.assert_allclose(moved[0] @ r_tr.T, np.outer(1e-5 * times, [0, 0, 1]), atol=1e-9)
+
+
+def test_straightness_is_orthogonal_to_the_reference_line():
+    # each term is orthogonal to a straight line over the continuous travel: with its
+    # two end points only, the cubic term tilts the fitted direction by P3(1) c /
+    # (travel / 2); sampled densely, the tilt falls toward zero (as 1 / points)
+    truth = PROC.Truth()
+    slope = {}
+    for points in (2, 1000):
+        setup = PROC.Setup(points_per_axis=points, n_submachines=1)
+        coef = np.zeros((1, 1, 3, 2, 3))
+        coef[0, 0, 0, 0, 1] = 1e-3  # X travel, first direction across, P3, 1 um
+        start = tf._slices(setup)[("X", 1)].start - 4
+        dev = tf._straightness(setup, truth, coef)[0, start:start + points]
+        pos = tf._linear_positions(setup)["X"]
+        slope[points] = np.linalg.norm(np.polyfit(pos, dev, 1)[0])
+    assert slope[2] == pytest.approx(1e-3 / 500.0, rel=1e-9)
+    assert slope[1000] < 1e-2 * slope[2]
 
 
 def test_mpe_conversion():
@@ -243,6 +286,56 @@ def test_rotary_positioning_error_leaves_patent_alone(estimator):
     else:
         assert worst > 100.0  # um or urad: a 1 deg error is far beyond the tracker's
         assert np.max(res.mc.std) > 1.0
+
+
+def _registered_points(setup, readings):
+    """Machine points (n, points - 4, 3) in the global frame, as the estimators see them."""
+    xyz = tf._cartesian(readings)
+    rot, t = tf._register(setup, xyz[:, :4])
+    return (np.einsum("nij,npj->npi", rot, xyz) + t[:, None, :])[:, 4:]
+
+
+def test_systematic_angle_error_moves_the_frame_consistently_within_a_trial():
+    # A per-test angle error displaces all points of a sub-machine together (they lie
+    # within a few degrees as the tracker sees them): the arcs stay circles, the fits'
+    # residuals stay small, and the origin moves with the common displacement. The
+    # same error drawn per point scatters the arc points: residuals of the displacement's
+    # size and, through the sagitta of a 20 deg arc, an origin error many times larger.
+    # The limits are a factor of 3 or more from the values at this seed and set-up.
+    setup = PROC.Setup(a_arc_deg=20.0, transverse_per_length_um_per_m=5.0)
+    truth = PROC.Truth()
+    true_pts = tf._machine_points(setup, truth)
+    tv = PROC.true_values(setup, truth)
+    sl = {g: slice(tf._slices(setup)[(g, 1)].start - 4, tf._slices(setup)[(g, 1)].stop - 4)
+          for g in "CA"}
+    n = 300
+    out = {}
+    for source in ("angular_systematic", "transverse_per_length"):
+        readings = PROC.simulate(setup, truth, draws=n, rng=11, sources=[source])
+        pts = _registered_points(setup, readings)
+        est = PROC.estimate(setup, readings)
+        origin = np.stack([est[f"origin_{a}_1"] - tv[f"origin_{a}_1"] for a in "xyz"], -1)
+        common, spread, resid = [], [], []
+        for g in "CA":
+            disp = pts[:, sl[g]] - true_pts[sl[g]]  # (n, m, 3)
+            mean = disp.mean(axis=1)
+            common.append(mean)
+            spread.append(np.sqrt(np.mean(np.sum((disp - mean[:, None]) ** 2, -1))))
+            fit = fit_circle_3d(pts[:, sl[g]])
+            h, d = circle_residuals(pts[:, sl[g]], fit.centre, fit.normal, fit.radius)
+            resid.append(np.sqrt(np.mean(h**2 + d**2)))
+        rms = lambda v: float(np.sqrt(np.mean(np.sum(v**2, axis=-1))))  # noqa: E731
+        out[source] = dict(common=max(rms(c) for c in common), spread=max(spread),
+                           resid=max(resid), origin=rms(origin),
+                           follow=rms(origin[:, :2] - (common[0] + common[1])[:, :2] / 2))
+    sys, pp = out["angular_systematic"], out["transverse_per_length"]
+    assert sys["common"] > 2e-3  # micrometres: the error does displace the points
+    assert sys["spread"] < 0.1 * sys["common"]  # ... all of them together
+    assert sys["resid"] < 0.05 * sys["origin"]  # the circles stay circles
+    assert sys["follow"] < 0.1 * sys["origin"]  # the origin moves with them across
+    assert sys["origin"] < 3 * sys["common"]  # ... and the short arc does not amplify it
+    assert pp["resid"] > 0.3 * pp["spread"]  # per point: the fit sees the scatter
+    assert pp["origin"] > 30 * sys["origin"]  # and the 20 deg arc amplifies it
 
 
 # --------------------------------------------------------------------------- refusals

@@ -16,6 +16,36 @@ plane; all planes are copies of one plane rotated about the true axis, so
 The axis is the line through ``P`` along ``u``. Neither step uses the angles the axis
 was turned to, so the rotary axis's angular positioning error does not enter.
 
+Measuring order. C positions are taken in ascending order from 0 (the seed's six over
+the full turn); A positions, by default, in the seed's order (S203: 0, 15, 30, 45, -15,
+-30, -45; ``a_order="seed"``: from 0 up, then from the first negative down), or
+ascending with ``a_order="ascending"``. The order matters through the thermal drift,
+which runs over the test's time line (:func:`schedule`).
+
+Both axes (``axis="CA"``). The seed measures C (A held at 0) and then A (C held at 0)
+and ends by computing the machining pose from both axis lines. A CA test is that
+sequence on one time line: the C positions (``c_angles_deg``, default the six), then
+the A positions (``positions``, ``range_deg``, ``angles_deg`` and ``a_order`` describe
+the A part); the readings table says which axis turned at each position (``axis``
+column). The per-test errors (sensor scale, flatness, the drift's rate) are shared by
+both parts, since it is one artifact, one sensor and one test. Each part is estimated
+as a single-axis test; the eight location errors are followed by the derived
+measurands:
+
+- ``ac_offset``: the offset of C from A, the signed length of their common
+  perpendicular, positive when C passes on the +Y side of A (about EY0C - EY0A);
+- ``ac_squareness``: 90 deg minus the angle between A and C, ``asin(u_A . u_C)``
+  (about EB0C - EB0A);
+- ``pose_dx``, ``pose_dy``, ``pose_dz``: the error of a workpiece point
+  (``pose_point_mm``, on the table at A = C = 0) at the pose ``pose_a_deg``,
+  ``pose_c_deg``: the point turned about the measured C line (C rides on A, and its line
+  was measured at A = 0), then about the measured A line, minus the same on the nominal
+  lines (Z and X through the origin). This is what the seed's last step, "calculate the
+  machining attitude from the axes of A and C", needs from the test: the machine's
+  actual kinematics in place of the nominal one. The axes' zero-angle errors (EA0A,
+  EC0C) are not measured by the test (the estimators do not use the angles) and are
+  taken as zero.
+
 Frame and conventions
 ---------------------
 Machine frame X, Y, Z right-handed, Z up; the sensor reads along -Z. Lengths in mm and
@@ -65,6 +95,11 @@ incline, per test), ``thermal_drift`` (linear drift of sensor against table over
 test's time line from :func:`schedule`), ``radial_motion``, ``axial_motion`` and
 ``tilt_motion`` (error motions of the rotary axis, per position), and
 ``angular_positioning`` (per position). :func:`sources` says where each default comes from.
+A drift that is linear in time is the first-order model of ISO 230-3; it is the only
+error whose effect depends on the measuring order. At the default rate the order hardly
+matters (A axis, drift alone: u(EZ0A) 0.218 um ascending, 0.202 um in the seed's order;
+the other three unchanged), so no further drift source (a random walk, a warm-up curve)
+was added; docs/rotary_axis.md holds the budget tables.
 
 Forward model
 -------------
@@ -135,6 +170,7 @@ import numpy as np
 import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
+from mtplan.models._fit3d import common_perpendicular
 from mtplan.models._protocol import (
     Measurand,
     Procedure,
@@ -182,22 +218,43 @@ class Setup(SetupBase):
 
     _owner = NAME
 
-    axis: str = param("C", doc="Rotary axis under test: C (about Z) or A (about X)",
-                      choices=("C", "A"))
+    axis: str = param("C", doc="Rotary axis under test: C (about Z), A (about X), or CA: "
+                      "both, C first at A = 0, then A with C at 0 (the seed's S102, S103), "
+                      "with the location of C against A and the machining-pose error",
+                      choices=("C", "A", "CA"))
     incline_deg: float = param(20.0, doc="Incline of the artifact plane [deg]; > 0, since a "
                                "level plane's normals all lie along the axis and locate nothing "
                                "(the seed uses 10-30)", low=0, high=60, low_open=True)
     incline_azimuth_deg: float = param(0.0, doc="Direction of the incline's fall line from +X "
                                        "at the zero position [deg]", low=-360, high=360)
     positions: int | None = param(None, doc="Number of axis positions, >= 3 (empty: 6 for C, "
-                                  "7 for A)", low=3, high=360)
+                                  "7 for A); for CA, of the A part", low=3, high=360)
     range_deg: float | None = param(None, doc="Angular range [deg]: C positions equally spaced "
                                     "over it starting at 0 (360: the full turn), A positions "
-                                    "spaced over -range/2..range/2 inclusive (empty: 360 for C, "
-                                    "90 for A)", low=0, high=360, low_open=True)
+                                    "spaced over -range/2..range/2 inclusive in a_order (empty: "
+                                    "360 for C, 90 for A); for CA, of the A part", low=0,
+                                    high=360, low_open=True)
     angles_deg: tuple[float, ...] | None = param(None, doc="Explicit axis angles in measuring "
                                                  "order [deg]; overrides positions and "
-                                                 "range_deg", low=-720, high=720, min_len=3)
+                                                 "range_deg; for CA, of the A part", low=-720,
+                                                 high=720, min_len=3)
+    a_order: str = param("seed", doc="Measuring order of the A positions from positions and "
+                         "range_deg: 'seed' (0 and up to +range/2, then from the first "
+                         "negative down to -range/2: 0, 15, 30, 45, -15, -30, -45 as in the "
+                         "seed's example) or 'ascending' (-range/2 up to +range/2)",
+                         choices=("seed", "ascending"))
+    c_angles_deg: tuple[float, ...] | None = param(None, doc="C angles of the combined test "
+                                                   "(axis CA) in measuring order [deg] "
+                                                   "(empty: 6 over the full turn, as the "
+                                                   "seed's example)", low=-720, high=720,
+                                                   min_len=3)
+    pose_a_deg: float = param(45.0, doc="CA: A angle of the machining pose whose error is "
+                              "reported (pose_dx, pose_dy, pose_dz) [deg]", low=-360, high=360)
+    pose_c_deg: float = param(90.0, doc="CA: C angle of that pose [deg]", low=-360, high=360)
+    pose_point_mm: tuple[float, ...] = param((100.0, 50.0, 100.0), doc="CA: the workpiece "
+                                             "point (X, Y, Z on the table at A = C = 0) whose "
+                                             "position error at the pose is reported [mm]",
+                                             low=-5000, high=5000, min_len=3)
     lattice_nx: int = param(5, doc="Lattice points along X, >= 2 (one column is a line: the "
                             "plane's tilt across it is undetermined)", low=2, high=101)
     lattice_ny: int = param(5, doc="Lattice points along Y, >= 2 (one row is a line)",
@@ -251,7 +308,7 @@ class Setup(SetupBase):
     # ----------------------------------------------------------------- derived
     @property
     def n_positions(self) -> int:
-        """Number of axis positions."""
+        """Number of axis positions (of both axes for CA)."""
         return len(self.angles())
 
     @property
@@ -259,32 +316,46 @@ class Setup(SetupBase):
         """Lattice points per position."""
         return self.lattice_nx * self.lattice_ny
 
-    def angles(self) -> np.ndarray:
-        """Commanded axis angles in measuring order, array (positions,) [deg]."""
+    @property
+    def axes(self) -> tuple[str, ...]:
+        """The axes measured, in measuring order: ('C',), ('A',) or ('C', 'A')."""
+        return ("C", "A") if self.axis == "CA" else (self.axis,)
+
+    def axis_angles(self, axis: str) -> np.ndarray:
+        """Commanded angles of `axis` ('C' or 'A') in measuring order, array [deg]."""
+        if self.axis == "CA" and axis == "C":
+            if self.c_angles_deg is not None:
+                return np.asarray(self.c_angles_deg, dtype=float)
+            return 360.0 * np.arange(6) / 6
         if self.angles_deg is not None:
             return np.asarray(self.angles_deg, dtype=float)
-        n = self.positions if self.positions is not None else _DEFAULT_POSITIONS[self.axis]
-        span = self.range_deg if self.range_deg is not None else _DEFAULT_RANGE[self.axis]
-        if self.axis == "A":
-            return np.linspace(-span / 2, span / 2, n)
+        n = self.positions if self.positions is not None else _DEFAULT_POSITIONS[axis]
+        span = self.range_deg if self.range_deg is not None else _DEFAULT_RANGE[axis]
+        if axis == "A":
+            grid = np.linspace(-span / 2, span / 2, n)
+            if self.a_order == "seed":
+                grid = np.concatenate([grid[grid >= 0], grid[grid < 0][::-1]])
+            return grid
         if span >= 360.0:
             return span * np.arange(n) / n
         return np.linspace(0.0, span, n)
 
+    def angles(self) -> np.ndarray:
+        """Commanded angles of every position in measuring order (C, then A for CA) [deg]."""
+        return np.concatenate([self.axis_angles(a) for a in self.axes])
+
     def _check(self, p: Problems) -> None:
-        angles = self.angles()
         if self.angles_deg is not None and self.positions is not None \
-                and self.positions != len(angles):
+                and self.positions != len(self.angles_deg):
             p.add("positions", self.positions,
-                  f"empty or equal to the number of angles_deg ({len(angles)})")
-        distinct = np.unique(np.round(np.mod(angles, 360.0), 9) % 360.0)
-        if distinct.size < 3:
-            p.add("angles_deg" if self.angles_deg is not None else "range_deg",
-                  self.angles_deg if self.angles_deg is not None else self.range_deg,
-                  "a set-up with at least 3 distinct axis positions (fewer planes do not "
-                  f"determine the axis); these angles give {distinct.size}")
+                  f"empty or equal to the number of angles_deg ({len(self.angles_deg)})")
+        if self.c_angles_deg is not None and self.axis != "CA":
+            p.add("c_angles_deg", self.c_angles_deg,
+                  "empty unless axis is 'CA' (it sets the C part of the combined test)")
+        if len(self.pose_point_mm) != 3:
+            p.add("pose_point_mm", self.pose_point_mm, "three numbers: X, Y, Z")
         n0 = _incline_normal(self)
-        if self.axis == "A" and abs(n0[0]) < _MIN_NORMAL_X:
+        if "A" in self.axes and abs(n0[0]) < _MIN_NORMAL_X:
             p.add_text(
                 f"The 'incline_azimuth_deg' parameter of {NAME} must give the incline's normal "
                 f"an X component of at least {_MIN_NORMAL_X} in magnitude for the A axis, or the "
@@ -293,20 +364,37 @@ class Setup(SetupBase):
                 f"= {n0[0]:.3g} with incline_deg={self.incline_deg!r}, "
                 f"incline_azimuth_deg={self.incline_azimuth_deg!r}"
             )
-        rot = _nominal_rotations(self.axis, np.deg2rad(angles))
+        for axis in self.axes:
+            self._check_axis(p, axis, n0)
+
+    def _check_axis(self, p: Problems, axis: str, n0: np.ndarray) -> None:
+        """Distinct positions, a readable surface and the sensor's range for one axis."""
+        angles = self.axis_angles(axis)
+        if self.axis == "CA" and axis == "C":
+            field, value = "c_angles_deg", self.c_angles_deg
+        elif self.angles_deg is not None:
+            field, value = "angles_deg", self.angles_deg
+        else:
+            field, value = "range_deg", self.range_deg
+        distinct = np.unique(np.round(np.mod(angles, 360.0), 9) % 360.0)
+        if distinct.size < 3:
+            p.add(field, value,
+                  f"a set-up with at least 3 distinct {axis} positions (fewer planes do not "
+                  f"determine the axis); these angles give {distinct.size}")
+        rot = _nominal_rotations(axis, np.deg2rad(angles))
         nz = (rot @ n0)[:, 2]
         steep = nz < math.cos(math.radians(_MAX_SLOPE_DEG))
         if np.any(steep):
             bad = angles[steep]
             slope = np.degrees(np.arccos(np.clip(nz[steep], -1, 1)))
             p.add_text(
-                f"The incline cannot be read at the {self.axis} angles {np.round(bad, 6).tolist()} "
+                f"The incline cannot be read at the {axis} angles {np.round(bad, 6).tolist()} "
                 f"deg of {NAME}: the surface is {np.round(slope, 1).tolist()} deg steep there "
                 f"(a sensor reading along -Z needs less than {_MAX_SLOPE_DEG:g} deg); reduce "
-                "incline_deg, range_deg or the angles"
+                f"incline_deg or the angles ({field})"
             )
         elif not self.z_follows_surface:
-            _, _, z_cmd = _lattice(self)
+            _, _, z_cmd = _lattice(self, axis, angles)
             span = float(np.max(np.ptp(z_cmd, axis=1)))
             if span > self.sensor_range_mm:
                 p.add(
@@ -375,10 +463,13 @@ def _serpentine(nx: int, ny: int, size: float) -> tuple[np.ndarray, np.ndarray]:
     return gx, gy
 
 
-def _lattice(setup: Setup):
-    """Lattice centres (P, 3) on the nominal surface, points (P, M, 2), heights (P, M) [mm]."""
-    theta = np.deg2rad(setup.angles())
-    rot = _nominal_rotations(setup.axis, theta)
+def _lattice(setup: Setup, axis: str, angles: np.ndarray):
+    """Lattice centres (P, 3) on the nominal surface, points (P, M, 2), heights (P, M) [mm].
+
+    For the positions `angles` [deg] of `axis` ('C' or 'A').
+    """
+    theta = np.deg2rad(angles)
+    rot = _nominal_rotations(axis, theta)
     n0 = _incline_normal(setup)
     q0 = np.array([0.0, 0.0, setup.artifact_height_mm])
     ox, oy = setup.lattice_offset_x_mm, setup.lattice_offset_y_mm
@@ -414,7 +505,8 @@ class _Plan(NamedTuple):
     total_time: float  # [s]
 
 
-def _form_basis(setup: Setup, xy: np.ndarray, z: np.ndarray) -> np.ndarray:
+def _form_basis(setup: Setup, axis: str, angles: np.ndarray, xy: np.ndarray,
+                z: np.ndarray) -> np.ndarray:
     """Height change per unit coefficient of each form term at each reading, (P*M, 5).
 
     The terms, in coordinates (xi, eta) on the incline (along the fall line and across
@@ -423,8 +515,8 @@ def _form_basis(setup: Setup, xy: np.ndarray, z: np.ndarray) -> np.ndarray:
     xi^3/2, eta^3/2, each of peak-to-valley ~1 over the lattice. The deviation is along
     the normal; it changes the height read along Z by deviation / n_z.
     """
-    theta = np.deg2rad(setup.angles())
-    rot = _nominal_rotations(setup.axis, theta)
+    theta = np.deg2rad(angles)
+    rot = _nominal_rotations(axis, theta)
     n0 = _incline_normal(setup)
     az = math.radians(setup.incline_azimuth_deg)
     fall = np.array([math.cos(az), math.sin(az), 0.0])
@@ -458,25 +550,29 @@ def _times(setup: Setup, xy: np.ndarray) -> tuple[np.ndarray, float]:
 
 @functools.lru_cache(maxsize=64)
 def _plan(setup: Setup) -> _Plan:
-    centres3, xy, z = _lattice(setup)
-    centres = centres3[:, :2]
+    parts = []  # per axis measured: centres (P, 3), points, heights, form (P*M, K)
+    for axis in setup.axes:
+        angles = setup.axis_angles(axis)
+        centres3, xy, z = _lattice(setup, axis, angles)
+        parts.append((centres3, xy, z, _form_basis(setup, axis, angles, xy, z)))
+    centres3, xy, z, form = (np.concatenate(arrays) for arrays in zip(*parts, strict=True))
     gx, gy = _serpentine(setup.lattice_nx, setup.lattice_ny, setup.lattice_size_mm)
     local = np.stack([np.ones_like(gx), gx, gy])
     fit = np.linalg.pinv(local.T).T  # (M, 3): coef = heights @ fit
-    times, total = _times(setup, xy)
+    times, total = _times(setup, xy)  # one time line through every axis's positions
     z_cmd = z if setup.z_follows_surface else centres3[:, 2:]
     out = _Plan(
-        frame=_FRAMES[setup.axis],
+        frame=_FRAMES.get(setup.axis),  # None for CA: each part has its own
         theta=np.deg2rad(setup.angles()),
         n0=_incline_normal(setup),
         q0=np.array([0.0, 0.0, setup.artifact_height_mm]),
-        centres=centres,
+        centres=centres3[:, :2],
         xy=xy,
         z_cmd=np.ascontiguousarray(z_cmd),
         local=local,
         fit=np.ascontiguousarray(fit),
         gram=local @ local.T,
-        form=np.ascontiguousarray(_form_basis(setup, xy, z).T),  # (K, P*M)
+        form=np.ascontiguousarray(form.T),  # (K, P*M)
         times=times,
         total_time=total,
     )
@@ -536,21 +632,36 @@ def _rotate_by_vector(v: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- protocol
-def measurands(setup: Setup) -> tuple[Measurand, ...]:
-    """The four ISO 230-7 location errors of the axis under test."""
-    if setup.axis == "C":
-        return (
-            Measurand("EX0C", "um", "X position of the C axis at the reference height"),
-            Measurand("EY0C", "um", "Y position of the C axis at the reference height"),
-            Measurand("EA0C", "urad", "orientation error of the C axis about X"),
-            Measurand("EB0C", "urad", "orientation error of the C axis about Y"),
-        )
-    return (
+_MEASURANDS = {
+    "C": (
+        Measurand("EX0C", "um", "X position of the C axis at the reference height"),
+        Measurand("EY0C", "um", "Y position of the C axis at the reference height"),
+        Measurand("EA0C", "urad", "orientation error of the C axis about X"),
+        Measurand("EB0C", "urad", "orientation error of the C axis about Y"),
+    ),
+    "A": (
         Measurand("EY0A", "um", "Y position of the A axis at the reference X"),
         Measurand("EZ0A", "um", "Z position of the A axis at the reference X"),
         Measurand("EB0A", "urad", "orientation error of the A axis about Y"),
         Measurand("EC0A", "urad", "orientation error of the A axis about Z"),
-    )
+    ),
+    "CA": (
+        Measurand("ac_offset", "um", "offset of the C axis from the A axis: signed length of "
+                  "their common perpendicular, positive when C passes on the +Y side of A"),
+        Measurand("ac_squareness", "urad", "squareness of C to A: 90 deg minus the angle "
+                  "between them, asin(u_A . u_C) (about EB0C - EB0A)"),
+        Measurand("pose_dx", "um", "X error of the workpiece point pose_point_mm at the pose "
+                  "A = pose_a_deg, C = pose_c_deg, from the location errors of both axes"),
+        Measurand("pose_dy", "um", "Y error of that point at that pose"),
+        Measurand("pose_dz", "um", "Z error of that point at that pose"),
+    ),
+}
+
+
+def measurands(setup: Setup) -> tuple[Measurand, ...]:
+    """The ISO 230-7 location errors of each axis measured; for CA also the derived ones."""
+    out = tuple(m for axis in setup.axes for m in _MEASURANDS[axis])
+    return out + (_MEASURANDS["CA"] if setup.axis == "CA" else ())
 
 
 def sources(setup: Setup) -> dict[str, Source]:
@@ -622,23 +733,105 @@ def sources(setup: Setup) -> dict[str, Source]:
 
 
 def true_values(setup: Setup, truth: Truth) -> dict[str, float]:
-    """True measurands of the axis under test [mm, rad]."""
-    if setup.axis == "C":
-        return {"EX0C": truth.EX0C_um * _UM, "EY0C": truth.EY0C_um * _UM,
-                "EA0C": truth.EA0C_urad * _URAD, "EB0C": truth.EB0C_urad * _URAD}
-    return {"EY0A": truth.EY0A_um * _UM, "EZ0A": truth.EZ0A_um * _UM,
-            "EB0A": truth.EB0A_urad * _URAD, "EC0A": truth.EC0A_urad * _URAD}
+    """True measurands of the axes under test [mm, rad] (for CA with the derived ones)."""
+    out = {}
+    if "C" in setup.axes:
+        out.update({"EX0C": truth.EX0C_um * _UM, "EY0C": truth.EY0C_um * _UM,
+                    "EA0C": truth.EA0C_urad * _URAD, "EB0C": truth.EB0C_urad * _URAD})
+    if "A" in setup.axes:
+        out.update({"EY0A": truth.EY0A_um * _UM, "EZ0A": truth.EZ0A_um * _UM,
+                    "EB0A": truth.EB0A_urad * _URAD, "EC0A": truth.EC0A_urad * _URAD})
+    if setup.axis == "CA":
+        derived = _combined(setup, {k: np.array([v]) for k, v in out.items()})
+        out.update({k: float(v[0]) for k, v in derived.items()})
+    return out
 
 
 def truth_from_estimate(setup: Setup, estimate: dict) -> Truth:
-    """The Truth whose measurands equal `estimate` [mm, rad] (the other axis at its defaults)."""
+    """The Truth whose measurands equal `estimate` [mm, rad] (the other axis at its defaults).
+
+    For CA the derived measurands follow from the eight location errors and are not
+    Truth fields.
+    """
     fields = {"EX0C": "EX0C_um", "EY0C": "EY0C_um", "EY0A": "EY0A_um", "EZ0A": "EZ0A_um",
               "EA0C": "EA0C_urad", "EB0C": "EB0C_urad", "EB0A": "EB0A_urad", "EC0A": "EC0A_urad"}
     values = {}
     for name, value in estimate.items():
+        if name not in fields:
+            continue
         field = fields[name]
         values[field] = float(np.asarray(value).ravel()[0]) / (_UM if field.endswith("_um") else _URAD)
     return Truth(**values)
+
+
+# --------------------------------------------------------------------------- both axes (CA)
+#: axis of each per-position source's errors (after the batch axis) that runs over positions
+_POSITION_AXIS = {"probe_noise": 1, "xy_positioning": 2, "z_positioning": 1,
+                  "radial_motion": 1, "axial_motion": 1, "tilt_motion": 1,
+                  "angular_positioning": 1}
+
+
+@functools.lru_cache(maxsize=64)
+def _part(setup: Setup, axis: str) -> Setup:
+    """The single-axis set-up of one part of a CA test (its angles, everything else shared)."""
+    return Setup(**{**setup.as_dict(), "axis": axis,
+                    "angles_deg": tuple(setup.axis_angles(axis).tolist()),
+                    "positions": None, "range_deg": None, "c_angles_deg": None})
+
+
+def _parts(setup: Setup) -> list[tuple[Setup, slice]]:
+    """(single-axis set-up, its positions' slice of the whole test) for each axis measured."""
+    if setup.axis != "CA":
+        return [(setup, slice(0, setup.n_positions))]
+    out, start = [], 0
+    for axis in setup.axes:
+        n = len(setup.axis_angles(axis))
+        out.append((_part(setup, axis), slice(start, start + n)))
+        start += n
+    return out
+
+
+def _measurand_line(axis: str, reference: float, m: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Point at the reference (n, 3) [mm] and unit direction (n, 3) from location errors."""
+    f = _FRAMES[axis]
+    n1, n2, a1, a2 = _NAMES[axis]
+    point = reference * f.ax + m[n1][:, None] * f.p1 + m[n2][:, None] * f.p2
+    w = f.ax + m[a2][:, None] * f.p1 - m[a1][:, None] * f.p2
+    return point, w / np.linalg.norm(w, axis=-1, keepdims=True)
+
+
+def _combined(setup: Setup, m: dict) -> dict[str, np.ndarray]:
+    """The derived measurands of CA from the eight location errors (arrays (n,)) [mm, rad].
+
+    The kinematics of a table-tilting machine whose C table rides on A: a workpiece
+    point p (table coordinates at A = C = 0) is turned about the C line (as measured at
+    A = 0) by the pose's C angle, then about the A line by its A angle; the nominal
+    lines are the Z and X axes through the origin. The pose error is the actual point
+    minus the nominal one.
+    """
+    pc, uc = _measurand_line("C", setup.reference_height_mm, m)
+    pa, ua = _measurand_line("A", setup.reference_height_mm, m)
+    _, _, dist, _ = common_perpendicular(pc, uc, pa, ua)  # (foot_C - foot_A) . (A x C) / |.|
+    n = len(pc)
+    a, c = math.radians(setup.pose_a_deg), math.radians(setup.pose_c_deg)
+    p = np.asarray(setup.pose_point_mm, dtype=float)
+    q = pc + _rotate_about(p - pc, uc, np.full(n, c))
+    actual = pa + _rotate_about(q - pa, ua, np.full(n, a))
+    nominal = (_nominal_rotations("A", np.array(a)) @ _nominal_rotations("C", np.array(c))) @ p
+    err = actual - nominal
+    return {"ac_offset": -dist, "ac_squareness": np.arcsin(np.sum(ua * uc, axis=-1)),
+            "pose_dx": err[:, 0], "pose_dy": err[:, 1], "pose_dz": err[:, 2]}
+
+
+def _each_axis(setup: Setup, readings: dict, estimate_axis) -> dict[str, np.ndarray]:
+    """Run a single-axis estimator on each axis's positions; add CA's derived measurands."""
+    z = _check_readings(setup, readings)
+    out = {}
+    for part, sl in _parts(setup):
+        out.update(estimate_axis(part, z[:, sl]))
+    if setup.axis == "CA":
+        out.update(_combined(setup, out))
+    return out
 
 
 def forward(setup: Setup, truth: Truth, errors: dict) -> dict[str, np.ndarray]:
@@ -655,8 +848,21 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict[str, np.ndarray]:
     -------
     dict
         ``z_mm``: the reading of each lattice point, Z position + sensor value [mm], in
-        measuring order.
+        measuring order (for CA: the C positions, then the A positions). The per-test
+        errors (scale, flatness, drift) are shared by both axes of a CA test; the drift
+        runs on over the whole test's time line.
     """
+    times = _plan(setup).times
+    z = []
+    for part, sl in _parts(setup):
+        errs = {k: (v[(slice(None),) * _POSITION_AXIS[k] + (sl,)] if k in _POSITION_AXIS
+                    else v) for k, v in errors.items()}
+        z.append(_forward_axis(part, truth, errs, times[sl]))
+    return {"z_mm": z[0] if len(z) == 1 else np.concatenate(z, axis=1)}
+
+
+def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -> np.ndarray:
+    """Readings (n, P, M) of one axis's positions; `times` (P, M) [s] for the drift."""
     g = _plan(setup)
     f = g.frame
     noise = errors["probe_noise"]
@@ -705,7 +911,7 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict[str, np.ndarray]:
     z += noise
     tmp = np.empty_like(z)
     if drift is not None:
-        z += np.multiply(drift[..., None], g.times, out=tmp)
+        z += np.multiply(drift[..., None], times, out=tmp)
     xy_err = errors["xy_positioning"]  # (n, 2, P, M): the ray is where the slides really are
     if np.any(xy_err):
         z += np.multiply(c1[..., None], xy_err[:, 0], out=tmp)
@@ -722,7 +928,7 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict[str, np.ndarray]:
         tmp -= g.z_cmd
         tmp *= kappa[:, None, None]
         z += tmp
-    return {"z_mm": z}
+    return z
 
 
 # --------------------------------------------------------------------------- estimators
@@ -822,7 +1028,10 @@ def estimate_patent(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
     dict of str to array (n,)
         The measurands of :func:`measurands` [mm, rad].
     """
-    z = _check_readings(setup, readings)
+    return _each_axis(setup, readings, _patent_axis)
+
+
+def _patent_axis(setup: Setup, z: np.ndarray) -> dict[str, np.ndarray]:
     point, direction, _ = _patent_line(setup, _planes(setup, z))
     return _line_measurands(setup, point, direction)
 
@@ -943,7 +1152,10 @@ def estimate_joint(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
     dict of str to array (n,)
         The measurands of :func:`measurands` [mm, rad].
     """
-    z = _check_readings(setup, readings)
+    return _each_axis(setup, readings, _joint_axis)
+
+
+def _joint_axis(setup: Setup, z: np.ndarray) -> dict[str, np.ndarray]:
     return _joint_measurands(setup, *_joint_fit(setup, _planes(setup, z)))
 
 
@@ -1003,7 +1215,10 @@ def estimate_gls(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
     errors dominate; the weighting restores the balance. Correlations between positions
     (flatness, scale, drift) are left out of the weight (block-diagonal).
     """
-    z = _check_readings(setup, readings)
+    return _each_axis(setup, readings, _gls_axis)
+
+
+def _gls_axis(setup: Setup, z: np.ndarray) -> dict[str, np.ndarray]:
     return _joint_measurands(setup, *_joint_fit(setup, _planes(setup, z),
                                                 weights=_gls_weights(setup)))
 
@@ -1011,26 +1226,25 @@ def estimate_gls(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
 ESTIMATORS = {"patent": estimate_patent, "joint": estimate_joint, "gls": estimate_gls}
 
 
-def axis_line(setup: Setup, readings: dict, *, estimator: str = "patent"):
+def axis_line(setup: Setup, readings: dict, *, estimator: str = "patent", axis: str | None = None):
     """The fitted axis as a line: point at the reference (n, 3) [mm], unit direction (n, 3).
 
     The point is where the axis crosses Z = ``reference_height_mm`` (C) or
     X = ``reference_height_mm`` (A); the direction points along +Z (C) or +X (A).
+    `axis` ('C' or 'A') picks one of a CA test's two lines (default: the axis tested).
     """
-    if estimator not in ESTIMATORS:
-        raise InvalidInput([f"The 'estimator' parameter of {NAME}.axis_line must be one of "
-                            f"{', '.join(map(repr, ESTIMATORS))}. Got {estimator!r} instead."])
+    p = Problems(f"{NAME}.axis_line")
+    p.choice("estimator", estimator, ESTIMATORS)
+    axis = setup.axis if axis is None else axis
+    p.choice("axis", axis, setup.axes)
+    p.raise_if_any()
     m = ESTIMATORS[estimator](setup, readings)
-    f = _plan(setup).frame
-    n1, n2, a1, a2 = _NAMES[setup.axis]
-    point = setup.reference_height_mm * f.ax + m[n1][:, None] * f.p1 + m[n2][:, None] * f.p2
-    w = f.ax + m[a2][:, None] * f.p1 - m[a1][:, None] * f.p2
-    return point, w / np.linalg.norm(w, axis=-1, keepdims=True)
+    return _measurand_line(axis, setup.reference_height_mm, m)
 
 
 # --------------------------------------------------------------------------- time, data
 def schedule(setup: Setup) -> pd.DataFrame:
-    """The test's time line: one row per reading (position, point, x_mm, y_mm, time_s).
+    """The test's time line: one row per reading (axis, position, point, x_mm, y_mm, time_s).
 
     Each position starts with ``index_time_s``; each point costs the X/Y move from the
     previous one at ``feed_mm_min`` plus ``dwell_s``; the reading is taken at its end.
@@ -1038,6 +1252,7 @@ def schedule(setup: Setup) -> pd.DataFrame:
     g = _plan(setup)
     P, M = setup.n_positions, setup.n_points
     return pd.DataFrame({
+        "axis": np.repeat(_position_axes(setup), M),
         "position": np.repeat(np.arange(P), M),
         "point": np.tile(np.arange(M), P),
         "x_mm": g.xy[..., 0].ravel(),
@@ -1054,17 +1269,24 @@ def duration(setup: Setup) -> float:
 _COLUMNS = ("position", "angle_deg", "point", "x_mm", "y_mm", "z_mm")
 
 
+def _position_axes(setup: Setup) -> np.ndarray:
+    """The axis ('C' or 'A') turned at each position, array (positions,) of str."""
+    return np.concatenate([np.full(len(setup.axis_angles(a)), a) for a in setup.axes])
+
+
 def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
     """The first trial's readings as a tidy table, one reading per row in measuring order.
 
-    Columns: ``position`` (0-based), ``angle_deg`` (commanded), ``point`` (0-based, in
-    measuring order), ``x_mm``, ``y_mm`` (commanded lattice point), ``z_mm`` (Z position +
-    sensor value).
+    Columns: ``axis`` (the axis turned: C or A; both in a CA test), ``position``
+    (0-based over the whole test), ``angle_deg`` (commanded angle of that axis),
+    ``point`` (0-based, in measuring order), ``x_mm``, ``y_mm`` (commanded lattice
+    point), ``z_mm`` (Z position + sensor value).
     """
     z = _check_readings(setup, readings)[0]
     g = _plan(setup)
     P, M = z.shape
     return pd.DataFrame({
+        "axis": np.repeat(_position_axes(setup), M),
         "position": np.repeat(np.arange(P), M),
         "angle_deg": np.repeat(setup.angles(), M),
         "point": np.tile(np.arange(M), P),
@@ -1078,7 +1300,8 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict[str, np.ndarray]:
     """Readings (a batch of one) from a table in the format of :func:`readings_frame`.
 
     Rows may come in any order. The positions, angles and lattice points must be the
-    set-up's (x, y within 1 um, angles within 1e-6 deg).
+    set-up's (x, y within 1 um, angles within 1e-6 deg), and so must the ``axis``
+    column where the table has one.
 
     Raises
     ------
@@ -1119,6 +1342,15 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict[str, np.ndarray]:
             p.add_text(f"The column {col!r} of the {NAME} readings must match the set-up "
                        f"(within {tol:g}); row {row} holds {got[bad[0]]!r} where the set-up "
                        f"has {expected[bad[0]]!r}")
+    if "axis" in df.columns:
+        got = df["axis"].astype(str).str.strip().str.upper().to_numpy()[order]
+        expected = np.repeat(_position_axes(setup), M)
+        bad = np.flatnonzero(got != expected)
+        if bad.size:
+            row = int(order[bad[0]])
+            p.add_text(f"The column 'axis' of the {NAME} readings must match the set-up "
+                       f"(axis={setup.axis!r}); row {row} holds {got[bad[0]]!r} where the "
+                       f"set-up turns {expected[bad[0]]!r}")
     p.raise_if_any()
     return {"z_mm": data["z_mm"][order].reshape(1, P, M)}
 
@@ -1149,7 +1381,8 @@ PROCEDURE = Procedure(
         "A point laser on the Z slide reads a lattice on an inclined plane at n >= 3 positions "
         "of the rotary axis; the planes' least-squares intersection is a point on the axis and "
         "N v = 1 gives its direction (seed 000). Measurands: ISO 230-7 location errors of the "
-        "C axis (EX0C, EY0C, EA0C, EB0C) or the A axis (EY0A, EZ0A, EB0A, EC0A)."
+        "C axis (EX0C, EY0C, EA0C, EB0C) or the A axis (EY0A, EZ0A, EB0A, EC0A); with axis "
+        "CA both, the offset and squareness of C to A and the error of a machining pose."
     ),
     exact_estimators=("patent", "joint", "gls"),
     block_size=2000,

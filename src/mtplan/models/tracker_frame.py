@@ -66,25 +66,13 @@ Estimators
   origin. The price: ``angles`` trusts the encoders, so the rotary axes' positioning
   error enters it (and only it). Everything after the axis lines is shared.
 
-What the Monte Carlo shows (20 000 trials, every default source, rotary positioning
-5 arcsec; std of sub-machine 1 in um; ``simulate_uncertainty(PROC, PROC.Setup(
-a_arc_deg=...), trials=20000, rng=3, estimator=...)``):
-
-=========  ==================  ==================
-A arc      origin_z_1          ac_offset_1
-           patent -> angles    patent -> angles
-=========  ==================  ==================
-20 deg     839 -> 54 (x 15.7)  422 -> 57 (x 7.4)
-60 deg      96 -> 21 (x 4.6)    58 -> 34 (x 1.7)
-120 deg     28 -> 14.5 (x 1.9)  34 -> 31 (x 1.1)
-=========  ==================  ==================
-
-origin_y_1 drops from 14.2 to 11.5 um, origin_x and the orientations (which come from
-the lines) stay; at 240 deg origin_z_1 is 14.2 -> 12.5 um
-(``benchmarks/bench_tracker_frame.py --compare``). ``angles`` is also about twice as
-fast (closed-form circles instead of Levenberg-Marquardt). Of ``angles``' 54 um at 20 deg the rotary positioning error gives 24
-um; ``angles`` still wins at 20 arcsec (origin_z_1 106 um at 20 deg, 37 um at 60 deg)
-and only about ties with ``patent`` at a 60 deg arc at 60 arcsec (97 um).
+What the Monte Carlo shows (docs/tracker_frame.md holds the tables and the commands):
+on short A arcs ``angles`` determines origin_z and the A-C offset several times better
+than ``patent`` (20 deg: origin_z_1 about 14 times), because its circles get the
+radius from the spacing of the points, not only from the sagitta. The tracker's
+per-test systematic angle error moves every point of a sub-machine together, so it
+shifts the frame by a few micrometres whatever the arc; the short-A-arc penalty comes
+from the per-point errors only.
 
 Decisions where the seed is silent or PROCEDURES.md leaves a choice
 -------------------------------------------------------------------
@@ -117,15 +105,34 @@ Decisions where the seed is silent or PROCEDURES.md leaves a choice
   with k = 2, i.e. a normal error of standard deviation MPE/2; makers state that
   typical results are half the MPE, which is this reading. ``mpe_model="rectangular"``
   takes the MPE as the half-width of a rectangular distribution (std MPE/sqrt 3),
-  the cautious reading of a bound without further knowledge. The constant and the
-  length-proportional parts have different causes (ADM zero and noise versus
-  refractive index and scale; encoder and pointing noise versus angular errors
-  that grow into position), so each part is a separate source and their standard
-  deviations add in quadrature, not linearly as in the MPE envelope. The
-  transverse error applies to each of the two directions across the beam
-  (horizontal and vertical) independently, as an angle error ``e / d``. All four
-  are independent from point to point; in reality angular errors of nearby
-  points (a short arc) are partly correlated, which this model does not capture.
+  the cautious reading of a bound without further knowledge. The defaults are the
+  Leica AT960's (ADM 10 um + 0.3 um/m; transverse 15 um + 6 um/m). The constant
+  and the length-proportional parts have different causes (ADM zero and noise
+  versus refractive index and scale; encoder and pointing noise versus angular
+  errors that grow into position), so each part is a separate source and their
+  standard deviations add in quadrature, not linearly as in the MPE envelope.
+- **Angle errors: per test and per point.** The transverse d L part comes from the
+  angle encoders and the instrument's geometry (ASME B89.4.19 / ISO 10360-10 test
+  the geometric misalignments that the NIST model of Muralikrishnan et al. 2009
+  lists: beam offsets and tilt, trunnion tilt, encoder eccentricity, vertical
+  index). Those are constant over a test, so they displace nearby points (a short
+  arc, one sub-machine) together; only the angular repeatability is independent
+  from point to point. d is split accordingly: ``angular_systematic`` (5 um/m, nine
+  per-test coefficients of low-order functions of azimuth and elevation, see
+  :func:`_systematic_angles`) and ``transverse_per_length`` (3 um/m per point);
+  5.8 um/m in quadrature is the data sheet's 6. The split is a modelling choice,
+  not a maker's figure: makers state the MPE only. The transverse constant part c
+  stays per point, in both directions across the beam (horizontal, vertical), as
+  an angle error ``e / d``.
+- **Reflector, air, drift, travels.** The SMR's centring error appears in a new
+  direction at each point (it is turned toward the tracker in its nest); the air's
+  refractive index scales every distance by one factor per test; the tracker drifts
+  against the machine linearly in time over the test's time line (:func:`_times`,
+  the marks first, so later sub-machines drift further from the registration);
+  each linear travel deviates from its reference straight line by smooth Legendre
+  terms, which tilt the fitted direction only through the sampling at
+  ``points_per_axis`` points (the true direction is that of the least-squares line
+  of the continuous travel).
 - **Rotary positioning.** The A and C axes stop at the commanded angle plus an
   error (source ``rotary_positioning``, standard deviation 5 arcsec by default, an
   ISO 230-2 bidirectional accuracy of positioning of about 20 arcsec, some 4 s, for
@@ -137,8 +144,9 @@ Decisions where the seed is silent or PROCEDURES.md leaves a choice
 - **Pivot length.** ``pivot_length_mm`` is the stated value the estimator uses; the
   true pivot length differs by ``Truth.pivot_length_error_um`` (default 0), which
   shows up as a bias of the origin along C (the readings do not depend on it).
-- Not modelled: straightness errors of the travels, thermal drift during the test,
-  the reflector's centring error, line-of-sight limits of the tracker.
+- Not modelled: line-of-sight limits of the tracker, a drift of the tracker's
+  orientation (only its position drifts), the systematic (repeatable) part of the
+  rotary axes' positioning error, re-measuring the marks at the end of the test.
 
 Degenerate set-ups are refused by the Setup and Truth checks: a zero travel (no
 direction), a zero arc (all arc points at one angle: no circle, no axis), fewer
@@ -226,7 +234,31 @@ class Setup(SetupBase):
     transverse_fixed_um: float = param(
         15.0, doc="Tracker transverse MPE, constant part c", low=0, high=10000)
     transverse_per_length_um_per_m: float = param(
-        6.0, doc="Tracker transverse MPE, length-proportional part d", low=0, high=1000)
+        3.0, doc="Tracker transverse MPE, length-proportional part d: its per-point (random) "
+        "share, the angular repeatability (see angular_systematic_um_per_m)", low=0, high=1000)
+    angular_systematic_um_per_m: float = param(
+        5.0, doc="Tracker transverse MPE, length-proportional part d: its per-test systematic "
+        "share (angle encoders' harmonics, collimation, trunnion tilt, vertical index: "
+        "constant over the test). With the per-point 3 um/m it makes 5.8 um/m in "
+        "quadrature, the Leica AT960's d = 6 um/m", low=0, high=1000)
+    smr_centring_um: float = param(
+        2.5, doc="Centring tolerance of the SMR (optical centre to sphere centre), as an MPE "
+        "per direction: +-2.5 um for a precision-grade 1.5 in SMR (standard grades +-12.7 "
+        "um); beyond the MPE's own reflector", low=0, high=1000)
+    air_refraction_ppm: float = param(
+        1.0, doc="Standard deviation of the distance scale error from the air's refractive "
+        "index over the beam, one per test: weather station +-0.3 K and +-1 hPa (0.3 ppm "
+        "each) and about 1 K between the station and the beam path in a hall (0.9 ppm)",
+        low=0, high=1000)
+    thermal_drift_um_per_s: float = param(
+        0.003, doc="Standard deviation of each component (X, Y, Z) of the drift rate of the "
+        "tracker against the machine over the test (tripod, floor, bed): 0.003 um/s = 11 "
+        "um/h; a 1.5 m steel tripod grows 17 um per K", low=0, high=100)
+    straightness_um: float = param(
+        10.0, doc="Straightness tolerance of each linear travel measured, each direction "
+        "across it (ISO 230-1, deviation from the least-squares reference line): 10 um, "
+        "the order of the acceptance tolerances of large machining centres over 1 m",
+        low=0, high=10000)
     mpe_model: str = param(
         "normal_k2", doc="How an MPE becomes a distribution: normal with std MPE/2 (k = 2) "
         "or rectangular with half-width MPE", choices=("normal_k2", "rectangular"))
@@ -485,6 +517,40 @@ def _machine_points(setup: Setup, truth: Truth, rotary_error=None) -> np.ndarray
     return pts[0] if rotary_error is None else pts
 
 
+def _legendre(xi: np.ndarray) -> np.ndarray:
+    """P2, P3, P4 at `xi` in [-1, 1]: array (3, len(xi)); each within [-1, 1]."""
+    x2 = xi * xi
+    return np.stack([(3 * x2 - 1) / 2, xi * (5 * x2 - 3) / 2, (35 * x2 * x2 - 30 * x2 + 3) / 8])
+
+
+def _straightness(setup: Setup, truth: Truth, coef: np.ndarray) -> np.ndarray:
+    """Straightness deviations of the linear-travel points (n, n_machine_points, 3) [mm].
+
+    `coef` (n, N, 3, 2, 3): per sub-machine, axis and direction across the travel,
+    the coefficients of P2, P3, P4 of the scaled position. The directions across
+    the travel u are the next two nominal axes made orthogonal to u.
+    """
+    n = coef.shape[0]
+    out = np.zeros((n, _n_points(setup) - 4, 3))
+    if not np.any(coef):
+        return out
+    lin = _linear_positions(setup)
+    sl = _slices(setup)
+    e = np.eye(3)
+    for k in range(setup.n_submachines):
+        axes = _head(setup, truth, k).axes
+        for i, ax in enumerate(AXES):
+            u = axes[i]
+            v1 = _unit(e[(i + 1) % 3] - (e[(i + 1) % 3] @ u) * u)
+            across = np.stack([v1, np.cross(u, v1)])  # (2, 3)
+            t = lin[ax]
+            shape = _legendre(t / t[-1])  # (3, P); travels are > 0
+            dev = np.einsum("ndt,tp,dj->npj", coef[:, k, i], shape, across)
+            s = sl[(ax, k + 1)]
+            out[:, s.start - 4:s.stop - 4] = dev
+    return out
+
+
 def _tracker_pose(setup: Setup, truth: Truth) -> tuple[np.ndarray, np.ndarray]:
     """(R, t): global = R @ tracker + t."""
     r = _rxyz(truth.tracker_tilt_x_urad * 1e-6, truth.tracker_tilt_y_urad * 1e-6,
@@ -541,8 +607,50 @@ def sources(setup: Setup) -> dict[str, Source]:
             "c + d L, per point [mm]. " + spec),
         "transverse_per_length": Source(
             _mpe(setup, setup.transverse_per_length_um_per_m * 1e-6), (n, 2),
-            "Tracker error across the beam, part d proportional to the distance (an angle "
-            "error), per point [rad]. " + spec),
+            "Tracker error across the beam proportional to the distance (an angle error), "
+            "its per-point share (angular repeatability: pointing, encoder interpolation, "
+            "air turbulence), independent from point to point [rad]. Default 3 um/m, with "
+            "angular_systematic's 5 um/m the AT960's d = 6 um/m in quadrature; "
+            "converted by mpe_model."),
+        "angular_systematic": Source(
+            _mpe(setup, setup.angular_systematic_um_per_m * 1e-6), (len(_SYSTEMATIC_WEIGHTS),),
+            "Tracker angle error constant over the test (ASME B89.4.19 / ISO 10360-10 "
+            "geometric model after Muralikrishnan et al., J. Res. NIST 114 (2009)): first and "
+            "second harmonics of the horizontal encoder, collimation (beam tilt), trunnion "
+            "tilt, vertical index and vertical encoder eccentricity, one coefficient each "
+            "per test [rad], weighted so that the transverse error has this standard "
+            "deviation in each direction across the beam (at level sight). A constant "
+            "azimuth offset is left out: the registration on the marks absorbs it. Nearby "
+            "points (a short arc) are displaced together. Default 5 um/m of the AT960's "
+            "d = 6 um/m; converted by mpe_model."),
+        "smr_centring": Source(
+            _mpe(setup, setup.smr_centring_um * 1e-3), (n, 3),
+            "Offset of the SMR's optical centre from its sphere's centre, along the beam and "
+            "across it (horizontal, vertical), per point [mm]: the SMR is turned in its nest "
+            "toward the tracker at each point (and reseated on every mark), so its centring "
+            "error shows in a new direction each time. Default +-2.5 um, a precision-grade "
+            "1.5 in SMR; converted by mpe_model."),
+        "air_refraction": Source(
+            Normal(0.0, setup.air_refraction_ppm * 1e-6), (),
+            "Scale error of every distance from the air's refractive index, one per test "
+            "[1]: -0.93 ppm/K, +0.27 ppm/hPa (Edlen); default 1 ppm from the weather "
+            "station's +-0.3 K, +-1 hPa and about 1 K between the station and the beam path."),
+        "thermal_drift": Source(
+            Normal(0.0, setup.thermal_drift_um_per_s * 1e-3), (3,),
+            "Drift rate (global X, Y, Z) of the tracker against the machine during the test, "
+            "one per test [mm/s]: every point moves by rate x its time from the start "
+            "(_times: marks first, then each sub-machine). Default 0.003 um/s (11 um/h): a "
+            "1.5 m steel tripod grows 17 um per K, a hall changes 0.5-1 K/h."),
+        "straightness": Source(
+            Rectangular(-setup.straightness_um * 1e-3 / 4, setup.straightness_um * 1e-3 / 4),
+            (setup.n_submachines, 3, 2, 3),
+            "Straightness deviation of each linear travel (sub-machine, axis X/Y/Z, two "
+            "directions across it), one per test [mm]: coefficients of the Legendre "
+            "polynomials P2, P3, P4 of the position scaled to -1..1 (orthogonal to the "
+            "reference straight line, whose direction is the measurand), each uniform in "
+            "+-straightness/4, so the deviation stays within about the tolerance. Only the "
+            "sampling of the travel at points_per_axis points lets it tilt the fitted line "
+            "(P3 at the ends). Default 10 um."),
         "machine_repeatability": Source(
             Normal(0.0, setup.machine_repeatability_um * 1e-3), (m, 3),
             "Scatter of the machine's positioning at each measured point, each global axis "
@@ -558,13 +666,39 @@ def sources(setup: Setup) -> dict[str, Source]:
     }
 
 
+#: weights of the per-test angle-error terms (horizontal: encoder 1st and 2nd harmonic,
+#: collimation, trunnion tilt; vertical: index, encoder eccentricity) so that the
+#: transverse error has the source's standard deviation in each direction at level sight
+_SYSTEMATIC_WEIGHTS = np.array([3**-0.5] * 5 + [1.0] + [2**-0.5] * 3)
+
+
+def _systematic_angles(coef: np.ndarray, az: np.ndarray, el: np.ndarray):
+    """Azimuth and elevation errors (n, points) [rad] of the per-test terms `coef` (n, 9).
+
+    Horizontal: ``c0 cos az + c1 sin az + c2 cos 2az + c3 sin 2az`` (encoder
+    harmonics), ``c4 / cos el`` (collimation: the beam off square to the trunnion
+    axis), ``c5 tan el`` (trunnion axis out of square to the standing axis).
+    Vertical: ``c6 + c7 cos el + c8 sin el`` (index offset, encoder eccentricity).
+    """
+    c = (coef * _SYSTEMATIC_WEIGHTS)[:, :, None]
+    cos_el = np.cos(el)
+    daz = (c[:, 0] * np.cos(az) + c[:, 1] * np.sin(az) + c[:, 2] * np.cos(2 * az)
+           + c[:, 3] * np.sin(2 * az) + c[:, 4] / cos_el + c[:, 5] * np.tan(el))
+    d_el = c[:, 6] + c[:, 7] * cos_el + c[:, 8] * np.sin(el)
+    return daz, d_el
+
+
 def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     """Tracker readings (distance [mm], azimuth [rad], elevation [rad]), shape (n, points)."""
     marks = _marks(setup)
     rep = np.asarray(errors["machine_repeatability"])
     batch = rep.shape[0]
     mach = _machine_points(setup, truth, np.asarray(errors["rotary_positioning"]))
-    pts = np.concatenate([np.broadcast_to(marks, (batch, 4, 3)), mach + rep], axis=1)
+    mach = mach + rep + _straightness(setup, truth, np.asarray(errors["straightness"]))
+    pts = np.concatenate([np.broadcast_to(marks, (batch, 4, 3)), mach], axis=1)
+    rate = np.asarray(errors["thermal_drift"])
+    if np.any(rate):
+        pts = pts + rate[:, None, :] * _times(setup)[0][:, None]
     r, t = _tracker_pose(setup, truth)
     v = (pts - t) @ r  # tracker-frame coordinates: R^T (p - t), row vectors
     horiz = np.hypot(v[..., 0], v[..., 1])
@@ -573,10 +707,17 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     el = np.arctan2(v[..., 2], horiz)
     tf = np.asarray(errors["transverse_fixed"])
     tl = np.asarray(errors["transverse_per_length"])
-    dist = d + errors["distance_fixed"] + errors["distance_per_length"] * d
-    az = az + (tf[..., 0] / d + tl[..., 0]) * d / horiz
-    el = el + tf[..., 1] / d + tl[..., 1]
-    return {"distance_mm": dist, "azimuth_rad": az, "elevation_rad": el}
+    smr = np.asarray(errors["smr_centring"])
+    scale = 1.0 + np.asarray(errors["air_refraction"])[..., None]
+    dist = (d + errors["distance_fixed"] + errors["distance_per_length"] * d) * scale
+    dist = dist + smr[..., 0]
+    daz = (tf[..., 0] / d + tl[..., 0] + smr[..., 1] / d) * d / horiz
+    d_el = tf[..., 1] / d + tl[..., 1] + smr[..., 2] / d
+    sys = np.asarray(errors["angular_systematic"])
+    if np.any(sys):
+        s_az, s_el = _systematic_angles(sys, az, el)
+        daz, d_el = daz + s_az, d_el + s_el
+    return {"distance_mm": dist, "azimuth_rad": az + daz, "elevation_rad": el + d_el}
 
 
 def _cartesian(readings: dict) -> np.ndarray:
@@ -748,15 +889,33 @@ def truth_from_estimate(setup: Setup, estimate: dict) -> Truth:
     return Truth(**{**base, **{k: tuple(v) for k, v in fields.items()}})
 
 
+def _times(setup: Setup) -> tuple[np.ndarray, float]:
+    """Time of each reading from the start (n_points,) in layout order, and the total [s].
+
+    The marks first (``mark_s`` each); then per sub-machine the fixture
+    (``changeover_s``); each linear travel out from home to its start, along it point
+    by point (``dwell_s`` at each) and back home at ``linear_feed_mm_min``; each arc
+    point ``rotary_move_s`` + ``dwell_s``. A reading is taken at the end of its dwell.
+    """
+    feed = setup.linear_feed_mm_min / 60.0
+    P, Q = setup.points_per_axis, setup.points_per_arc
+    travels = (setup.travel_x_mm, setup.travel_y_mm, setup.travel_z_mm)
+    marks = setup.mark_s * np.arange(1, 5)
+    # one sub-machine, from its start: three travels, then the C and A arcs
+    lin = [(np.arange(P) * (t / (P - 1)) + t / 2) / feed + setup.dwell_s * np.arange(1, P + 1)
+           for t in travels]
+    starts = np.cumsum([0.0] + [2 * t / feed + P * setup.dwell_s for t in travels])
+    arc = (setup.rotary_move_s + setup.dwell_s) * np.arange(1, 2 * Q + 1)
+    one = np.concatenate([*(s + t for s, t in zip(starts, lin, strict=False)), starts[3] + arc])
+    per_sub = setup.changeover_s + starts[3] + arc[-1]
+    subs = marks[-1] + setup.changeover_s + per_sub * np.arange(setup.n_submachines)
+    times = np.concatenate([marks, (subs[:, None] + one).ravel()])
+    return times, float(marks[-1] + setup.n_submachines * per_sub)
+
+
 def duration(setup: Setup) -> float:
     """Machine time [s]: marks, and per sub-machine the fixture, travels and arcs."""
-    feed = setup.linear_feed_mm_min / 60.0
-    travel = setup.travel_x_mm + setup.travel_y_mm + setup.travel_z_mm
-    per_sub = (setup.changeover_s
-               + 3 * setup.points_per_axis * setup.dwell_s
-               + 2 * travel / feed  # out to the start, along the travel and back home
-               + 2 * setup.points_per_arc * (setup.dwell_s + setup.rotary_move_s))
-    return 4 * setup.mark_s + setup.n_submachines * per_sub
+    return _times(setup)[1]
 
 
 READING_COLUMNS = ("distance_mm", "azimuth_rad", "elevation_rad")
