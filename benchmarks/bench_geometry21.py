@@ -1,6 +1,8 @@
 """Speed of the geometry21 procedure (not a test): trials per second and where the time goes.
 
-Run: ``.venv/bin/python benchmarks/bench_geometry21.py [trials]``
+Run: ``.venv/bin/python benchmarks/bench_geometry21.py [trials]``; with ``--budget``
+instead, the docs' table of EBX, ECX and EAY before and after the error sources of a real
+test (``.venv/bin/python benchmarks/bench_geometry21.py --budget [trials]``).
 
 Times every estimator's Monte Carlo at the default set-up (every error source on), the
 former ``joint`` (chord Gauss-Newton with the exact model evaluated for every trial in
@@ -81,5 +83,34 @@ def main(trials: int = 2048) -> None:
           f"{len(P.measurands(all21))} measurands): joint {rate:.0f} trials/s ({dt:.2f} s)")
 
 
+#: the error sources before issue 16 (a plate test without the machine's own behaviour)
+BEFORE = ("encoder_noise", "grid_error", "plate_offset", "plate_tilt")
+
+
+def budget(trials: int = 4000) -> None:
+    """Markdown: u of EBX, ECX, EAY at the default set-up with the sources before issue 16
+    and with every source (Monte Carlo, seed 1), and each source's share of u^2 (first order,
+    :func:`mtplan.models.geometry21.budget`, equal to ``mtplan linearize``'s)."""
+    setup = g21.Setup()
+    names = ("EBX", "ECX", "EAY")
+    print("| estimator | measurand | u before [urad] | u after [urad] | largest sources "
+          "(share of u^2) |")
+    print("|---|---|---:|---:|---|")
+    for est in ("patent", "joint"):
+        runs = [simulate_uncertainty(P, setup, estimator=est, sources=src, trials=trials, rng=1,
+                                     progress=False) for src in (BEFORE, None)]
+        shares = g21.budget(setup, estimator=est)
+        for n in names:
+            u = [r.mc.std[[m.name for m in r.measurands].index(n)] for r in runs]
+            top = shares[shares.measurand == n].sort_values("share", ascending=False).head(3)
+            text = ", ".join(f"{r.source} {100 * r.share:.0f} %" for r in top.itertuples())
+            print(f"| {est} | {n} | {u[0]:.2f} | {u[1]:.2f} | {text} |")
+
+
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 2048)
+    args = [a for a in sys.argv[1:] if a != "--budget"]
+    n = int(args[0]) if args else None
+    if "--budget" in sys.argv[1:]:
+        budget(n or 4000)
+    else:
+        main(n or 2048)
