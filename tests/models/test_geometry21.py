@@ -34,22 +34,29 @@ def test_zero_errors_give_nominal_readings():
     np.testing.assert_allclose(r, g21._geometry(setup).local, atol=1e-12)
 
 
-@pytest.mark.parametrize("name, plane, comp, lever", [
-    ("ECX", 0, 0, lambda c: -c[:, 1]),   # yaw of X, lever y, seen along x in XY
-    ("EBX", 1, 0, lambda c: c[:, 2]),    # pitch of X, lever z, seen along x in XZ
-    ("EAY", 2, 0, lambda c: -c[:, 2]),   # pitch of Y, lever z, seen along y in YZ
+#: the seed's set-up (one head) and one extra YZ head with another tool length and an arm
+ONE_HEAD, YZ_HEAD = {}, dict(SMALL, yz_extra_heads_mm=(200, 60, 0))
+
+
+@pytest.mark.parametrize("setup, name, plane, comp, lever", [
+    (ONE_HEAD, "ECX", 0, 0, lambda h, c: -c[:, 1]),  # yaw of X, lever y, seen along x in XY
+    (ONE_HEAD, "EBX", 1, 0, lambda h, c: c[:, 2]),   # pitch of X, lever z, seen along x in XZ
+    (ONE_HEAD, "EAY", 2, 0, lambda h, c: -c[:, 2]),  # pitch of Y, lever z, seen along y in YZ
+    # Z's angular errors act on h - f: EAZ on the tool length change, seen along y at YZ
+    (YZ_HEAD, "EAZ", 2, 0, lambda h, c: -h[:, 2] - 100.0),
+    (YZ_HEAD, "ECZ", 2, 0, lambda h, c: h[:, 0]),    # ECZ on a lateral X arm, along y at YZ
+    # EBY (Y's rotation about y) on a lateral X arm: dz = -EBY x_h, seen along z at YZ
+    (YZ_HEAD, "EBY", 2, 1, lambda h, c: -h[:, 0]),
 ])
-def test_jacobian_is_the_first_order_lever_arm(name, plane, comp, lever):
+def test_jacobian_is_the_first_order_lever_arm(setup, name, plane, comp, lever):
     """The numerical first-order expansion (used for Q) equals eps x lever arm."""
-    setup = g21.Setup()
-    ji = g21._joint_ident(setup)
+    ji = g21._joint_ident(g21.Setup(**setup))
     geo = ji["geo"]
     col = geo.layout[name][1].start  # power 1
     sel = geo.plane == plane
     j = ji["jac"].reshape(-1, 2, geo.n_par)[sel, comp, col]
-    axis = g21._AXIS[name]
     c = geo.cmd[sel]
-    np.testing.assert_allclose(j, lever(c) * c[:, axis], atol=1e-6)
+    np.testing.assert_allclose(j, lever(geo.hvec[sel], c) * c[:, g21._AXIS[name]], atol=1e-6)
 
 
 # ----------------------------------------------------------------- identifiability
@@ -231,25 +238,6 @@ def _in_plane(geo):
         sel = geo.plane == k
         out[sel, a], out[sel, b] = geo.local[sel, 0], geo.local[sel, 1]
     return out
-
-
-@pytest.mark.parametrize("name, plane, comp, lever", [
-    # Z's angular errors act on h - f: EAZ on the tool length change, seen along y at YZ
-    ("EAZ", 2, 0, lambda h, c: -h[:, 2] - 100.0),
-    # ECZ on a lateral X arm, seen along y at YZ
-    ("ECZ", 2, 0, lambda h, c: h[:, 0]),
-    # EBY (Y's rotation about y) on a lateral X arm: dz = -EBY x_h, seen along z at YZ
-    ("EBY", 2, 1, lambda h, c: -h[:, 0]),
-])
-def test_jacobian_levers_of_extra_heads(name, plane, comp, lever):
-    setup = g21.Setup(**SMALL, yz_extra_heads_mm=(200, 60, 0))
-    ji = g21._joint_ident(setup)
-    geo = ji["geo"]
-    col = geo.layout[name][1].start  # power 1
-    sel = geo.plane == plane
-    j = ji["jac"].reshape(-1, 2, geo.n_par)[sel, comp, col]
-    c = geo.cmd[sel]
-    np.testing.assert_allclose(j, lever(geo.hvec[sel], c) * c[:, g21._AXIS[name]], atol=1e-6)
 
 
 def test_all21_set_up_determines_every_error_for_every_estimator():

@@ -1427,8 +1427,9 @@ def coefficients(setup: Setup, readings: dict, *, estimator: str = "joint") -> d
     Returns
     -------
     dict of name -> (powers, array (n, K)) [mm/mm^k or rad/mm^k]; unidentifiable
-    functions are present with their minimum-norm value and must be read with
-    :func:`identifiability` (their values are not determined by the data).
+    functions are present with the value the estimator's null-space convention gives them
+    (the joint fits: the error coefficients' smallest norm, the mounting taking what it can)
+    and must be read with :func:`identifiability` (the data do not determine them).
     """
     _check_estimator(estimator)
     theta = _estimate_theta(setup, readings, estimator)
