@@ -636,13 +636,11 @@ class _LogPosterior:
 def _run(logpost: _LogPosterior, space: _Space, root, opts: dict, label: str):
     """Walkers from the Laplace approximation; independence + stretch moves; run_ensembles."""
     ndim = len(space.names)
-    n_walkers = opts["n_walkers"]
-    if n_walkers is None:
-        n_walkers = max(16, 2 * ndim + 2)
-        n_walkers += n_walkers % 2
+    n_walkers = 16 if opts["n_walkers"] is None else opts["n_walkers"]
+    least = 2 * ndim if opts["moves"] is not None else 4  # the stretch move needs 2 ndim
     p = Problems("sample_posterior")
-    if p.number("n_walkers", n_walkers, integer=True, low=2 * ndim) and int(n_walkers) % 2:
-        p.add("n_walkers", n_walkers, f"an even int >= {2 * ndim}")
+    if p.number("n_walkers", n_walkers, integer=True, low=least) and int(n_walkers) % 2:
+        p.add("n_walkers", n_walkers, f"an even int >= {least}")
     p.raise_if_any()
     cov = 0.5 * (space.cov + space.cov.T)
     try:
@@ -812,7 +810,7 @@ def sample_posterior(
     estimator : str, optional
         Estimator used for the start (default: the procedure's first exact estimator).
     n_walkers : int, optional
-        Walkers per ensemble, even and >= 2 x ndim (default max(16, 2 ndim + 2)).
+        Walkers per ensemble, even (default 16; with your own `moves`, >= 2 x ndim).
     n_ensembles, max_steps : int
         Independent ensembles (>= 2 for R-hat), step budget per ensemble.
     check_every : int, optional
@@ -827,8 +825,9 @@ def sample_posterior(
     allow_unconverged : bool
         Warn (:class:`UnconvergedWarning`) instead of raising :class:`NotConvergedError`.
     moves : emcee move(s), optional
-        Default: the independence move from the Laplace approximation (80 %) mixed with
-        the stretch move (:func:`mtplan.uncertainty.sampler.mixed_moves`).
+        Default: the independence move from the Laplace approximation (80 %) mixed with a
+        random-walk Metropolis move scaled by it
+        (:func:`mtplan.uncertainty.sampler.mixed_moves`).
     batch : bool
         Evaluate all walkers with one forward call (array-valued truth fields) when the
         model takes them (verified against the per-walker loop); False: loop.

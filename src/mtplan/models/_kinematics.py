@@ -28,6 +28,13 @@ import numpy as np
 __all__ = ["rotate", "rotate_inverse", "rotation_matrix", "chain", "polyval"]
 
 
+def _cos_sin(angle):
+    """(cos, sin) of an array of angles; exactly (1, 0) without the work when all are 0."""
+    if not np.any(angle):
+        return 1.0, 0.0
+    return np.cos(angle), np.sin(angle)
+
+
 def rotate(a, b, c, v):
     """Apply R = Rx(a) Ry(b) Rz(c) to vectors `v`, exactly.
 
@@ -42,9 +49,7 @@ def rotate(a, b, c, v):
     -------
     array of shape (..., 3)
     """
-    ca, sa = np.cos(a), np.sin(a)
-    cb, sb = np.cos(b), np.sin(b)
-    cc, sc = np.cos(c), np.sin(c)
+    (ca, sa), (cb, sb), (cc, sc) = _cos_sin(a), _cos_sin(b), _cos_sin(c)
     vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
     # Rz
     x1 = cc * vx - sc * vy

@@ -131,6 +131,7 @@ line travel, u = +``line_length_mm``/2.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -385,21 +386,40 @@ class Truth(SetupBase):
     angular_scale: float = param(1.0, doc="Extra factor on angular and squareness errors", low=0)
 
 
+def _rows(truth: Truth) -> int | None:
+    """None for one truth; m for a truth whose fields are arrays (m,) (one per batch row)."""
+    values = []
+    for f in dataclasses.fields(truth):
+        v = getattr(truth, f.name)
+        values += list(v) if isinstance(v, tuple) else [v]
+    if not any(np.ndim(v) for v in values):
+        return None
+    return max(int(np.size(v)) for v in values)
+
+
 def _truth_coefficients(truth: Truth) -> dict:
-    """name -> (powers, internal coefficients) of the true functions (any length)."""
+    """name -> (powers, internal coefficients) of the true functions (any length): arrays
+    (L,), or (m, L) for a truth whose fields are arrays (m,) (one per batch row)."""
+    m = _rows(truth)
     out = {}
     for name in NAMES:
         kind = _KIND[name]
         unit = 1e-6 if kind in ("ang", "sq") else 1e-3
-        scale = truth.error_scale * (truth.angular_scale if kind in ("ang", "sq") else 1.0)
+        scale = np.asarray(truth.error_scale) * (np.asarray(truth.angular_scale)
+                                                 if kind in ("ang", "sq") else 1.0)
         if kind == "sq":
-            out[name] = ((0,), np.array([getattr(truth, name + "_urad") * unit * scale]))
+            c = np.asarray(getattr(truth, name + "_urad"), dtype=float) * unit * scale
+            out[name] = ((0,), c.reshape(1) if m is None else np.broadcast_to(c, (m,))[:, None])
             continue
         vals = getattr(truth, name + ("_urad" if kind == "ang" else "_um"))
         first = 2 if kind == "str" else 1
         powers = tuple(range(first, first + len(vals)))
-        coef = np.array([v * unit * scale / 100.0**k for v, k in zip(vals, powers)])
-        out[name] = (powers, coef)
+        coef = [np.asarray(v, dtype=float) * unit * scale / 100.0**k for v, k in zip(vals, powers)]
+        if m is None:
+            out[name] = (powers, np.array(coef, dtype=float).reshape(len(powers)))
+        else:
+            out[name] = (powers, np.stack([np.broadcast_to(c, (m,)) for c in coef], axis=-1)
+                         if coef else np.zeros((m, 0)))
     return out
 
 
@@ -757,12 +777,17 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     :func:`readings_frame`.
     """
     geo = _geometry(setup)
-    base = _forward_matrix(setup, truth)  # (16, 3M): the truth's positions, then patterns
     n = errors["encoder_noise"].shape[0]
     feat = _features(errors)
-    if feat is None:
-        loc = base[:1].reshape(1, -1, 3)
+    if _rows(truth) is not None:  # one truth per batch row (a posterior's walkers)
+        loc = _truth_positions(geo, _truth_coefficients(truth)).reshape(n, -1)
+        if feat is not None:
+            loc = loc + feat @ geo.pattern.reshape(15, -1)
+        loc = loc.reshape(n, -1, 3)
+    elif feat is None:
+        loc = _forward_matrix(setup, truth)[:1].reshape(1, -1, 3)
     else:  # drift, reversal and servo: one product for the batch
+        base = _forward_matrix(setup, truth)  # (16, 3M): the truth's positions, then patterns
         loc = (np.column_stack([np.ones(n), feat]) @ base).reshape(n, -1, 3)
     r = _mount(geo, loc, errors["plate_offset"], errors["head_setting"], errors["plate_tilt"])
     g = errors["grid_error"]  # (n, 3, 2, K)
@@ -782,8 +807,13 @@ def _forward_matrix(setup: Setup, truth: Truth) -> np.ndarray:
     plate-frame position."""
     geo = _geometry(setup)
     coefs = {k: (pw, c[None, :]) for k, (pw, c) in _truth_coefficients(truth).items()}
-    p = chain(_values(geo, coefs), *geo.cmd.T, geo.hvec, geo.ref)
-    return np.concatenate([_local3(geo, p).reshape(1, -1), geo.pattern.reshape(15, -1)])
+    return np.concatenate([_truth_positions(geo, coefs).reshape(1, -1),
+                           geo.pattern.reshape(15, -1)])
+
+
+def _truth_positions(geo: _Geometry, coefs: dict) -> np.ndarray:
+    """Head positions (n, M, 3) in the plates' frames for coefficients (n, L) per function."""
+    return _local3(geo, chain(_values(geo, coefs), *geo.cmd.T, geo.hvec, geo.ref))
 
 
 def true_values(setup: Setup, truth: Truth) -> dict:
@@ -791,8 +821,9 @@ def true_values(setup: Setup, truth: Truth) -> dict:
     u = setup.line_length_mm / 2
     coefs = _truth_coefficients(truth)
     listed = {m.name for m in measurands(setup)}
-    return {name: float(np.sum(c * u ** np.array(pw)) if _KIND[name] != "sq" else c[0])
-            for name, (pw, c) in coefs.items() if name in listed}
+    out = {name: (np.sum(c * u ** np.array(pw), axis=-1) if _KIND[name] != "sq" else c[..., 0])
+           for name, (pw, c) in coefs.items() if name in listed}
+    return {k: float(v) if np.ndim(v) == 0 else v for k, v in out.items()}  # arrays: batch rows
 
 
 def duration(setup: Setup) -> float:

@@ -17,8 +17,9 @@ accepts by the Metropolis-Hastings rule with the proposal's density ratio, so
 the chain's target stays exact whatever the approximation; where the
 approximation is good, the autocorrelation time is a step or two in any
 dimension, where the stretch move's grows with the dimension. :func:`mixed_moves`
-mixes it with emcee's stretch move, which keeps the ensemble exploring where the
-approximation is poor (heavy tails, bounded supports, curved ridges).
+mixes it with a random-walk Metropolis move scaled by the same approximation, which
+keeps every chain moving where the approximation is poor (heavy tails, bounded
+supports, curved ridges).
 """
 
 from __future__ import annotations
@@ -223,12 +224,21 @@ def independence_move(center, cov, *, inflate: float = 1.1):
     return emcee.moves.MHMove(propose, ndim=center.size)
 
 
-def mixed_moves(center, cov, *, weight: float = 0.8, inflate: float = 1.1):
-    """[(independence move, weight), (stretch move, 1 - weight)] for ``run_ensembles``."""
+def mixed_moves(center, cov, *, weight: float = 0.8, inflate: float = 1.0):
+    """[(independence move, weight), (random-walk Metropolis, 1 - weight)] for ``run_ensembles``.
+
+    The random walk (emcee's ``GaussianMove``) steps by ``N(0, 2.38^2 cov / n_params)``,
+    the classic scale for a near-normal target; it keeps every chain moving where the
+    independence proposal is poor (heavy tails, bounded supports, curved ridges). Both
+    moves act on each walker alone, so any number of walkers works (the stretch move
+    needs at least twice the dimension).
+    """
     import emcee
 
+    cov = np.asarray(cov, dtype=float)
+    step = cov * (2.38**2 / cov.shape[0])
     return [(independence_move(center, cov, inflate=inflate), float(weight)),
-            (emcee.moves.StretchMove(), 1.0 - float(weight))]
+            (emcee.moves.GaussianMove(step), 1.0 - float(weight))]
 
 
 def run_ensembles(
@@ -301,7 +311,8 @@ def run_ensembles(
         every = check_every if check_every is not None else max(25, steps // 10)
         n = min(int(every), int(max_steps) - steps)
         for e, sampler in enumerate(samplers):
-            states[e] = sampler.run_mcmc(states[e], n, progress=False)
+            states[e] = sampler.run_mcmc(states[e], n, progress=False,
+                                         skip_initial_state_check=n_walkers <= ndim + 1)
         steps += n
         tau_all = np.array([integrated_time(s.get_chain()) for s in samplers])
         tau_max = tau_all.max(axis=0)
