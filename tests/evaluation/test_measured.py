@@ -4,10 +4,12 @@ and the simulate -> CSV -> estimate round trip for every procedure."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+import mtplan
 from mtplan import cli
 from mtplan._validate import InvalidInput
 from mtplan.evaluation.measured import estimate_measured, read_readings
@@ -258,3 +260,27 @@ def test_a_reading_outside_the_instrument_range_is_refused(tmp_path, name, sets)
         read_readings(proc, setup, path)
     msg = str(exc.value)
     assert "z_mm" in msg and "99" in msg and "measuring range" in msg and "row 5" in msg
+
+
+def test_cli_a_free_noise_without_degrees_of_freedom_is_refused_at_once(capsys):
+    """circle_centre's five contacts and four sampled parameters leave one degree of
+    freedom for a free noise: refused with one line that says what to give."""
+    path = Path(mtplan.__file__).parent / "examples" / "circle_centre_readings.csv"
+    code, out, err = run(capsys, "estimate", "circle_centre", path, "--uncertainty",
+                         "posterior", "--noise", "free")
+    lines = err.strip().splitlines()
+    assert code == 2 and out == "" and len(lines) == 1
+    assert "degree(s) of freedom" in lines[0] and "--noise SIGMA" in lines[0]
+    code, _, err = run(capsys, "estimate", "circle_centre", path, "--noise", "loud")
+    assert code == 2 and "--noise" in err
+
+
+def test_cli_posterior_table_and_time_budget(tmp_path, capsys, toy_cli):
+    path, _ = _write(tmp_path, seed=3)
+    code, out, err = run(capsys, "estimate", "toy_line", path, "--uncertainty", "posterior",
+                         "--noise", "0.001")
+    assert code == 0, err
+    assert "covariance: probe_noise" in out and "off: scale_error" in out and "converged" in out
+    code, out, err = run(capsys, "estimate", "toy_line", path, "--uncertainty", "posterior",
+                         "--max-seconds", "1e-9")
+    assert code == 1 and "time budget" in err

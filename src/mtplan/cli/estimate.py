@@ -125,7 +125,7 @@ def _print_result(result, source) -> None:
               f"{'converged' if post.converged else 'NOT CONVERGED'}, {post.wall_s:.1f} s")
         kinds = {}
         for src, how in post.budget.items():
-            kinds.setdefault(how.split(":")[0].split(" (")[0], []).append(src)
+            kinds.setdefault(how.split(",")[0].split(":")[0].split(" (")[0], []).append(src)
         print("error sources: " + "; ".join(f"{k}: {', '.join(v)}" for k, v in kinds.items()))
     for note in result.notes:
         print(f"note: {note}", file=sys.stderr)

@@ -404,7 +404,7 @@ def _measured_blocks(measured) -> list:
     doc = measured.to_dict() if hasattr(measured, "to_dict") else dict(measured)
     rows = []
     for m in doc.get("measurands", []):
-        u = m.get("std")
+        u = m.get("u", m.get("std"))  # MeasuredResult.to_dict: "u" (issue 13)
         iv = m.get("interval") or [None, None]
         rows.append([m["name"], m.get("unit", ""), fmt(m.get("estimate"), u),
                      fmt(m.get("value", m.get("mean")), u), fmt_u(u),
