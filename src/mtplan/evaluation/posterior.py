@@ -381,12 +381,14 @@ def _start(fwd, theta0, mode, sigma, notes) -> _Fit:
         sig = {"known": sigma, "free": setup_sd or 1e-3}.get(mode)
         nuis0 = _nuisance_priors(budget)[:, 0]
         fit = _Fit(budget, theta0.copy(), nuis0, sig, budget.correction)
-        free = np.any(J != 0, axis=0)  # the others cannot move and are held (see _identify)
+        # what the readings do not determine stays where it starts (and is held, _identify)
+        gw = fit.budget.gaussian(fit.sigma).whiten(J.T).T
+        free = np.zeros(J.shape[1], dtype=bool)
+        free[_rank_order(gw, np.any(G != 0, axis=0), J.shape[1], 0)[0]] = True
         fit.theta, fit.nuis = _least_squares(fwd, fit, free)
         if mode == "free":
             fit.sigma = _noise_ml(fwd, fit)
             fit.theta, fit.nuis = _least_squares(fwd, fit, free)
-        gw = fit.budget.gaussian(fit.sigma).whiten(J.T).T
         se = np.sqrt(np.clip(np.diag(np.linalg.pinv(gw.T @ gw)), 1e-300, None))
         if np.all(np.abs(fit.theta - theta0) < se):
             break
