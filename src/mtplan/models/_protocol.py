@@ -476,6 +476,10 @@ class Procedure:
     #: range per row of ``readings_frame`` (arrays or scalars); measured values outside are
     #: refused, naming the row, the value and ``what`` range it left
     reading_limits: Callable | None = None
+    #: the set-up fields an engineer chooses when planning the test (counts, geometry and
+    #: order of the test, dwell, feed): the levers advice may name; every other field is
+    #: a property of the machine, the workpiece or the instrument, named as what dominates
+    levers: tuple = ()
 
     # ----------------------------------------------------------------- helpers
     @property

@@ -988,4 +988,6 @@ PROCEDURE = Procedure(
     block_size=2000,
     optional_columns=("point",),
     truth_from_estimate=truth_from_estimate,
+    levers=tuple("n_points spread_deg free_test_mm miss_tolerance_mm feed_mm_min "
+                 "probe_feed_mm_min clearance_mm dwell_s".split()),
 )

@@ -1048,4 +1048,7 @@ PROCEDURE = Procedure(
     description=__doc__.split("\n\n")[0] if __doc__ else "",
     exact_estimators=("joint",),
     block_size=128,
+    levers=tuple("poly_order line_length_mm line_repeats line_points circle_radius_mm "
+                 "circle_points circle_arc_deg head_offset_mm head_lateral_mm "
+                 "xy_plane_z_mm xz_plane_y_mm yz_plane_x_mm feed_mm_min".split()),
 )

@@ -1017,4 +1017,6 @@ PROCEDURE = Procedure(
     posterior_fields=("alpha_z_mrad", "alpha_y_mrad", "alpha_x_mrad"),
     noise_source="sensor_noise",
     reading_limits=reading_limits,
+    levers=tuple("points_per_line step_mm lines shift_fraction raise_mm max_shift_rows "
+                 "scan_feed_mm_min rapid_mm_min settle_s".split()),
 )

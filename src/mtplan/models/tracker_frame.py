@@ -1018,4 +1018,7 @@ PROCEDURE = Procedure(
     exact_estimators=("patent", "angles"),
     block_size=4000,
     truth_from_estimate=truth_from_estimate,
+    levers=tuple("reflector_offset_mm travel_x_mm travel_y_mm travel_z_mm "
+                 "points_per_axis c_arc_deg a_arc_deg points_per_arc tracker_distance_mm "
+                 "tracker_height_mm dwell_s linear_feed_mm_min".split()),
 )
