@@ -227,15 +227,16 @@ def estimator_comparison(results: dict, *, ratio: float = 1.2) -> dict:
 
     Returns ``{"bias": [(estimator, measurand, bias, u)], "better": [(better, worse,
     [(measurand, factor)])]}``: a bias counts when it exceeds four Monte Carlo standard
-    errors and a tenth of u; an estimator is better for a measurand when the other's u
-    is ``ratio`` times larger.
+    errors and a tenth of u (any bias when u = 0); an estimator is better for a measurand
+    when the other's u is ``ratio`` times larger.
     """
     ests = list(results)
     biases, better = [], []
     for est, r in results.items():
         for i, m in enumerate(r.measurands):
             s, b = float(r.mc.std[i]), float(r.bias[i])
-            if s > 0 and abs(b) > 4 * s / math.sqrt(r.mc.trials) and abs(b) > 0.1 * s:
+            # with s = 0 (every trial the same value: a quantised estimate) any bias counts
+            if abs(b) > 4 * s / math.sqrt(r.mc.trials) and abs(b) > 0.1 * s:
                 biases.append((est, m.name, b, s))
     first = results[ests[0]]
     for est in ests[1:]:

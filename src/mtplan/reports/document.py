@@ -503,7 +503,8 @@ def _estimator_findings(o) -> list[str]:
     biases = [b for b in comp.get("bias", []) if b[0] == o.recommended]
     for est, name, b, s in biases[:3]:
         u = unit(next(m.unit for m in o.results[est].measurands if m.name == name))
-        notes.append(f"{est}: {name} is biased by {fmt(b, s)} {u} ({abs(b) / s:.1f} u).")
+        size = f"{abs(b) / s:.1f} u" if s > 0 else "every trial gave the same value"
+        notes.append(f"{est}: {name} is biased by {fmt(b, s)} {u} ({size}).")
     if len(biases) > 3:
         notes.append(f"{est}: {len(biases) - 3} more biased measurands (appendix).")
     return notes
