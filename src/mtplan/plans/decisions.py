@@ -140,7 +140,8 @@ class LeverEffect:
     estimator: str
     sweep: int                    # index of the sweep in the procedure's list
     base_value: object
-    u_base: float
+    u_base: float                 # nan when the study's value is not in the sweep
+    ref_value: object             # the value compared with: the study's, else the worst
     best_value: object
     u_best: float
     duration_base_s: float
@@ -402,7 +403,7 @@ def lever_effects(levers, setup, sweeps, names, estimator) -> list:
             effect = LeverEffect(field=f, measurand=name, unit=str(g["unit"].iloc[0]),
                                  estimator=est, sweep=j, base_value=base.get(f),
                                  u_base=float(at["std"].iloc[0]) if len(at) else math.nan,
-                                 best_value=b[f], u_best=float(b["std"]),
+                                 ref_value=ref[f], best_value=b[f], u_best=float(b["std"]),
                                  duration_base_s=float(ref["duration_s"]),
                                  duration_best_s=float(b["duration_s"]), gain=gain,
                                  significant=bool(significant))

@@ -8,7 +8,7 @@ identifiability and observability, and the provenance. Formatting only.
 from __future__ import annotations
 
 from mtplan.reports import figures as figs
-from mtplan.reports.document import Figure, Section, Table
+from mtplan.reports.model import Figure, Section, Table
 from mtplan.reports.labels import field_label, field_value, fmt, fmt_u, unit
 
 __all__ = ["procedure_section", "provenance_section"]

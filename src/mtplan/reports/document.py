@@ -19,9 +19,6 @@ study's decisions (:mod:`mtplan.plans.decisions`), rounded to their uncertainty.
 
 from __future__ import annotations
 
-import re
-from dataclasses import dataclass, field
-
 from mtplan.reports import figures as figs
 from mtplan.reports.labels import (
     duration_text,
@@ -34,64 +31,9 @@ from mtplan.reports.labels import (
     tolerance_text,
     unit,
 )
+from mtplan.reports.model import Document, Figure, Section, Table
 
 __all__ = ["Document", "Section", "Table", "Figure", "build_document", "fmt", "fmt_u"]
-
-_NUMERIC = re.compile(r"^[\[(]?[-+±≤≥]? ?(\d|\.\d)[\d.,eE+\-− ]*[\])%]?( %)?$")
-_EMPTY = {"-", "", "n/d"}
-
-
-@dataclass
-class Table:
-    caption: str
-    header: list
-    rows: list
-
-    @property
-    def numeric(self) -> list:
-        """Per column: every cell a number (or empty): the renderers right-align it."""
-        out = []
-        for j in range(len(self.header)):
-            cells = [str(r[j]) for r in self.rows]
-            out.append(any(c not in _EMPTY for c in cells)
-                       and all(c in _EMPTY or _NUMERIC.match(c) for c in cells))
-        return out
-
-
-@dataclass
-class Figure:
-    caption: str
-    png: bytes
-
-
-@dataclass
-class Section:
-    title: str
-    blocks: list = field(default_factory=list)
-    level: int = 1
-    anchor: str = ""
-    appendix: bool = False
-
-
-@dataclass
-class Document:
-    title: str
-    subtitle: str
-    meta: dict                 # header label -> value, in the cover's order
-    provenance: dict
-    sections: list
-    csv: dict = field(default_factory=dict)  # name -> DataFrame for results/*.csv
-    signoff: list = field(default_factory=list)    # (role, name)
-    standards: list = field(default_factory=list)  # (test, standards applied)
-
-    @property
-    def body(self) -> list:
-        return [s for s in self.sections if not s.appendix]
-
-    @property
-    def appendix(self) -> list:
-        return [s for s in self.sections if s.appendix]
-
 
 _HEADER_LABELS = {"document": "document number", "revision": "revision",
                   "customer": "customer", "machine_maker": "machine maker",
@@ -117,7 +59,8 @@ def _cover(result) -> tuple[dict, list, list]:
             applied.append("JCGM 100:2008 (GUM)")
         if o.verdicts:
             applied += ["ISO 14253-1:2017", "JCGM 106:2012"]
-        standards.append((o.spec.label, ", ".join(applied)))
+        # a standard's name is not broken over two lines (no-break spaces)
+        standards.append((o.spec.label, ", ".join(a.replace(" ", "\u00a0") for a in applied)))
     return meta, signoff, standards
 
 
@@ -425,8 +368,9 @@ def _test_figure(o) -> Figure | None:
         + (f", the dashed line the {' or '.join(what)}" if what else "")
         + "; u = 0 (an estimator constant over every trial, below its resolution) is not "
         "drawn. Other levers and all measurands: appendix.",
-        figs.lever_figure(ok, effect.field, o.key[:3], units, estimator=effect.estimator,
-                          base=effect.base_value, targets=targets, xlabel=label))
+        figs.lever_figure(ok, effect.field, o.key[:4], units, estimator=effect.estimator,
+                          recommended=o.recommended, base=effect.base_value, targets=targets,
+                          xlabel=label))
 
 
 # ----------------------------------------------------------------------- findings
@@ -447,11 +391,17 @@ def _findings(o) -> list[str]:
     for e in significant[:2]:
         label = field_label(e.field, docs.get(e.field, "")).split(" [")[0]
         u = unit(e.unit)
-        notes.append(f"Lever: {label} {_value(e.best_value)} instead of {_value(e.base_value)} "
-                     f"lowers u({e.measurand}) from {fmt_u(e.u_base)} to {fmt_u(e.u_best)} {u} "
-                     f"({e.gain:.1f} times); the test takes "
-                     f"{duration_text(e.duration_best_s)} instead of "
-                     f"{duration_text(e.duration_base_s)}.")
+        if e.u_base == e.u_base:  # the study's value was swept
+            notes.append(f"Lever: {label} {_value(e.best_value)} instead of "
+                         f"{_value(e.base_value)} lowers u({e.measurand}) from "
+                         f"{fmt_u(e.u_base)} to {fmt_u(e.u_best)} {u} ({e.gain:.1f} times); the "
+                         f"test takes {duration_text(e.duration_best_s)} instead of "
+                         f"{duration_text(e.duration_base_s)}.")
+        else:
+            notes.append(f"Lever: {label} {_value(e.best_value)} gives u({e.measurand}) = "
+                         f"{fmt_u(e.u_best)} {u}, {e.gain:.1f} times less than "
+                         f"{_value(e.ref_value)} (the study's {_value(e.base_value)} was not "
+                         "swept).")
     if o.levers and not significant:
         swept = ", ".join(field_label(e.field, docs.get(e.field, "")).split(" [")[0]
                           for e in o.levers)

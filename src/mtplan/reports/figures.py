@@ -31,7 +31,7 @@ def _panels(rows, cols, w, h, *, legend_rows=1, dpi=140):
     for the many-panel sweeps, with room for a legend below."""
     fig = _figure(w, h, layout=None, dpi=dpi)
     left, right, top, bottom = 0.62, 0.12, 0.3, 0.55 + 0.2 * legend_rows  # margins [in]
-    gap_x, gap_y = 0.7, 0.62  # between panels [in]: y labels; x label and the next title
+    gap_x, gap_y = 0.7, 0.75  # between panels [in]: y labels; x label and the next title
     ax_w = (w - left - right - (cols - 1) * gap_x) / cols
     ax_h = (h - top - bottom - (rows - 1) * gap_y) / rows
     fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h,
@@ -86,14 +86,18 @@ def sweep_figure(table, vary: dict, measurands: list, units: dict, *, xlabel: st
     its own marker and a small sideways offset. ``base``: the study's value of the
     field, marked by a dotted line.
     """
+    import textwrap
+
     fields = list(vary)
     x = fields[0]
     others = fields[1:]
     n = len(measurands)
-    cols = min(n, 3)
+    cols = 3 if n in (3, 5, 6, 9) else min(n, 4)
     rows = math.ceil(n / cols)
     group_keys = others + (["estimator"] if table["estimator"].nunique() > 1 else [])
-    fig, axes = _panels(rows, cols, 2.35 * cols + 0.3, 1.95 * rows + 0.75, dpi=120)
+    width = min(2.35 * cols + 0.3, 7.4)
+    fig, axes = _panels(rows, cols, width, 2.0 * rows + 0.75, dpi=120)
+    xlabel = "\n".join(textwrap.wrap(xlabel or x, int(16 * (width - 0.3) / cols)))
     xs = table[x].astype(float)
     span = float(xs.max() - xs.min()) or 1.0
     for k, name in enumerate(measurands):
@@ -110,7 +114,7 @@ def sweep_figure(table, vary: dict, measurands: list, units: dict, *, xlabel: st
         if base is not None:
             ax.axvline(float(base), color="#555555", lw=0.8, ls=":")
         ax.set_title(name, fontsize=9)
-        ax.set_xlabel(xlabel or x, fontsize=7.5)
+        ax.set_xlabel(xlabel, fontsize=7.5)
         ax.set_ylabel(f"u [{unit(units[name])}]", fontsize=8)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
@@ -130,18 +134,23 @@ def sweep_figure(table, vary: dict, measurands: list, units: dict, *, xlabel: st
 
 
 def lever_figure(table, field: str, measurands: list, units: dict, *, estimator: str,
-                 base, targets: dict, xlabel: str) -> bytes:
-    """The customer's sweep: u against one lever for the measurands that matter, the
-    recommended estimator drawn strong, the other estimators hollow and offset, the
+                 recommended: str, base, targets: dict, xlabel: str) -> bytes:
+    """The customer's sweep: u against one lever for the measurands that matter,
+    ``estimator`` drawn strong (the recommended one where the sweep ran it), the other
+    estimators hollow and offset, the
     study's set-up starred and the target u (``targets``: measurand -> (u, what)) as a
     dashed line. The y axis starts at zero and ends above the recommended estimator and
     the target; an estimator beyond it is marked "off scale" in the legend."""
     from matplotlib.lines import Line2D
 
+    import textwrap
+
     n = len(measurands)
     cols = min(n, 4)
     rows = math.ceil(n / cols)
-    fig = _figure(7.0 if cols > 2 else 2.8 * cols + 1.0, 1.9 * rows + 0.6)
+    width = 7.0 if cols > 2 else 2.8 * cols + 1.0
+    fig = _figure(width, 1.9 * rows + 0.6)
+    xlabel = "\n".join(textwrap.wrap(xlabel, int(16 * width / cols)))
     axes = fig.subplots(rows, cols, squeeze=False)
     ests = [estimator] + [e for e in table["estimator"].unique() if e != estimator]
     xs = table[field].astype(float)
@@ -176,7 +185,7 @@ def lever_figure(table, field: str, measurands: list, units: dict, *, estimator:
     for k in range(n, rows * cols):
         axes[k // cols][k % cols].set_visible(False)
     handles, labels = axes[0][0].get_legend_handles_labels()
-    labels = [f"{x} (recommended)" if x == estimator else
+    labels = [f"{x} (recommended)" if x == recommended else
               f"{x} (off scale)" if x in off_scale else x for x in labels]
     handles.append(Line2D([], [], marker="*", ms=10, ls="", color="#222222"))
     labels.append("study set-up")

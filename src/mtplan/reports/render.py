@@ -13,7 +13,8 @@ from pathlib import Path
 from xml.sax.saxutils import escape
 
 from mtplan._io import atomic_write
-from mtplan.reports.document import Document, Figure, Section, Table, build_document
+from mtplan.reports.document import build_document
+from mtplan.reports.model import Document, Figure, Section, Table
 
 __all__ = ["render_html", "render_pdf", "write_report", "column_widths", "VERDICT_CLASS"]
 
@@ -162,7 +163,7 @@ def _cell(text, style):
 def _table_flowables(t: Table, width: float, st: dict, row_height: float | None = None) -> list:
     from reportlab.lib import colors
     from reportlab.lib.styles import ParagraphStyle
-    from reportlab.platypus import Paragraph, Spacer
+    from reportlab.platypus import KeepTogether, Paragraph, Spacer
     from reportlab.platypus import Table as RLTable
     from reportlab.platypus import TableStyle
 
@@ -186,7 +187,10 @@ def _table_flowables(t: Table, width: float, st: dict, row_height: float | None 
         ("LEFTPADDING", (0, 0), (-1, -1), _PAD), ("RIGHTPADDING", (0, 0), (-1, -1), _PAD),
         ("TOPPADDING", (0, 0), (-1, -1), 1.5), ("BOTTOMPADDING", (0, 0), (-1, -1), 1.5),
     ]))
-    return [Paragraph(escape(t.caption), st["caption"]), tbl, Spacer(1, 8)]
+    head = [Paragraph(escape(t.caption), st["caption"]), tbl]
+    if len(t.rows) <= 8:  # a short table is not split from its caption or over two pages
+        return [KeepTogether(head), Spacer(1, 8)]
+    return head + [Spacer(1, 8)]
 
 
 def _figure_flowables(f: Figure, width: float, st: dict) -> list:
