@@ -54,6 +54,15 @@ CASES = [
     ("rotary_axis", {"axis": "CA"}, "axial_motion", RA_POSITIONS),
     ("rotary_axis", {"axis": "CA"}, "tilt_motion", RA_DIRECTIONS),
     ("rotary_axis", {"axis": "CA"}, "angular_positioning", set()),
+    # geometry21, issue 16 (joint, the seed's set-up): the lines run back and forth and the
+    # circles both ways, so reversal cancels; a scale growing over the test's time moves the
+    # positioning errors only; the head's drift the translational errors and squareness,
+    # never the angular errors the circles give
+    ("geometry21", {"estimator": "joint"}, "repeatability", ALL),
+    ("geometry21", {"estimator": "joint"}, "reversal", set()),
+    ("geometry21", {"estimator": "joint"}, "thermal_growth", {"EXX", "EYY", "EZZ"}),
+    ("geometry21", {"estimator": "joint"}, "thermal_drift",
+     {"EXX", "EYY", "EZZ", "EYX", "EZX", "EXY", "EZY", "EXZ", "EYZ", "EC0Y", "EB0Z", "EA0Z"}),
     # line_laser, issue 17 (docs/line_laser.md). The patent reads alpha_z in whole rows
     # (5 mrad steps): it never moves; the linearity curve is the same at the same x_l of
     # scans 2 and 3 and cancels in h'; only scan 3 feels the Z-Y squareness

@@ -145,7 +145,7 @@ def _bvn_cdf(h, k, r, q):
     out[kinf] = special.ndtr(h[kinf])
     if np.any(fin):
         hf, kf, rf, qf = h[fin], k[fin], r[fin], q[fin]
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # tiny h: a = +-inf
             ah = np.where(hf != 0, (kf - rf * hf) / (hf * qf), np.copysign(np.inf, kf))
             ak = np.where(kf != 0, (hf - rf * kf) / (kf * qf), np.copysign(np.inf, hf))
         # T(0, a) with a = 0/0 (h = k = 0) is handled by the closed form below.
