@@ -184,3 +184,25 @@ def test_no_header_word_broken_in_the_pdf(tmp_path):
     for word in _LONG:
         assert word in tokens, (word, [t for t in tokens if t[:4] == word[:4]])
     assert_fonts_embedded(pdf)
+
+
+def test_not_determinable_is_said_with_its_reason(small_result):
+    """A measurand the readings cannot determine shows "not determinable" and why, never a
+    number (the summary, the decisions and the HTML)."""
+    import copy
+
+    from mtplan.reports.document import build_document
+    from mtplan.reports.render import render_html
+
+    result = copy.deepcopy(small_result)
+    o = result.outcomes[0]
+    why = "every trial gives the same value: quantised estimate"
+    for item in (o.verdicts[1], o.summary[1]):
+        item.verdict, item.reason, item.measured = "not determinable", why, None
+    doc = build_document(result)
+    summary = doc.sections[0]
+    row = next(r for r in summary.blocks[0].rows if r[1].startswith("centre_y"))
+    assert row[-2:] == ["n/d", "not determinable"]
+    assert any(why in b for b in summary.blocks if isinstance(b, str))
+    page = render_html(doc)
+    assert '<span class="v-nd">not determinable</span>' in page and why in page
