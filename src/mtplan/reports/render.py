@@ -223,8 +223,8 @@ def _block_flowables(items, width: float, st: dict) -> list:
             out += _figure_flowables(b, width, st)
         elif isinstance(b, Section):  # the heading stays with what follows it
             inner = _block_flowables(b.blocks, width, st)
-            out.append(KeepTogether([Paragraph(escape(b.title), st["h2"])] + inner[:1]))
-            out += inner[1:]
+            out.append(KeepTogether([Paragraph(escape(b.title), st["h2"])] + inner[:2]))
+            out += inner[2:]
     return out
 
 
