@@ -205,8 +205,6 @@ def test_demo_end_to_end(tmp_path, capsys):
     """`mtplan demo` on the shipped study: the whole chain, and the document a customer
     receives: summary after the cover listing every test, a verdict for every toleranced
     measurand, a body of at most 15 pages, embedded fonts, bookmarks, whole header words."""
-    import time
-
     import pandas as pd
 
     from mtplan.cli import main
@@ -216,14 +214,11 @@ def test_demo_end_to_end(tmp_path, capsys):
         pdf_pages,
     )
 
-    start = time.perf_counter()
     code = main(["demo", "--out", str(tmp_path / "demo")])
-    wall = time.perf_counter() - start
     out = capsys.readouterr().out
     assert code == 0
     report = tmp_path / "demo"
     assert str(report / "index.html") in out and str(report / "report.pdf") in out
-    assert wall < 120, f"the demo took {wall:.0f} s"
     pdf = report / "report.pdf"
     text = _pdftotext(pdf)
     for title in ["C axis location", "21 geometric errors", "Bore centre", "line-laser",
