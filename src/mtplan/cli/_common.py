@@ -106,6 +106,11 @@ def check_config(data, path) -> None:
         ok = isinstance(value, kind) and not (kind is int and isinstance(value, bool))
         if ok and key == "sources" and isinstance(value, list):
             ok = all(isinstance(v, str) for v in value)
+        if ok and kind is dict and key in ("setup", "truth"):
+            empty = [k for k, v in value.items() if isinstance(v, str) and not v.strip()]
+            if empty:
+                problems.append(f"[{key}] gives {', '.join(empty)} no value (state one, or "
+                                "'default')")
         if not ok:
             shown = repr(value) if not isinstance(value, dict) else "a table"
             want = {str: "a string", int: "an integer", dict: "a table [" + key + "]"}.get(
