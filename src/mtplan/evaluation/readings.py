@@ -5,7 +5,8 @@ The readings format of each procedure is what ``procedure.readings_frame`` write
 names, one reading per row. Reading one goes in steps, each a function below:
 
 1. the file (:func:`_read_rows`): exists, is a readable UTF-8 CSV, not empty, a
-   header with named, distinct columns, rows as long as the header;
+   header with named, distinct columns, rows as long as the header (blank lines and
+   lines starting with ``#`` are skipped);
 2. the columns (:func:`_match_columns`): the procedure's columns; a column a
    procedure may leave out (circle_centre's ``point``: a bare point file) may be
    absent, and a length column named without its unit (``x`` for ``x_mm``) is read in
@@ -70,6 +71,8 @@ def _read_rows(path) -> tuple[list[str], list[tuple[int, list[str]]]]:
     rows = []
     try:
         for cells in reader:
+            if cells and cells[0].lstrip().startswith("#"):
+                continue  # a comment line
             if any(c.strip() for c in cells):
                 rows.append((reader.line_num, cells))
     except csv.Error as exc:

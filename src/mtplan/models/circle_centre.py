@@ -1005,9 +1005,11 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
         return out  # from_frame names what is wrong
     c = geometric_fit(x[None], y[None])
     r = float(c.r[0])
-    if not (math.isfinite(r) and r > 0):
-        raise InvalidInput(["The measuring points lie on a straight line: no circle passes "
-                            "through them."])
+    span = max(float(np.ptp(x)), float(np.ptp(y)))
+    if not (math.isfinite(r) and 0 < r < 1e4 * span):
+        raise InvalidInput(["The measuring points lie on a straight line (their circle's "
+                            "radius is over 10^4 times their extent): no bore passes through "
+                            "them."])
     resid = np.hypot(x - float(c.xc[0]), y - float(c.yc[0])) - r
     s = math.sqrt(float(resid @ resid) / (n - 3)) if n > 3 else 0.0
     tol = 0.05 * r + 3 * s
