@@ -1003,8 +1003,11 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     out = {"n_points": Implied(n, why=f"the file's {n} measuring points")}
     if n < 3 or not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
         return out  # from_frame names what is wrong
-    c = geometric_fit(x[None], y[None])
-    r = float(c.r[0])
+    try:
+        c = geometric_fit(x[None], y[None])
+        r = float(c.r[0])
+    except np.linalg.LinAlgError:  # collinear points: Kasa's start is singular
+        r = math.inf
     span = max(float(np.ptp(x)), float(np.ptp(y)))
     if not (math.isfinite(r) and 0 < r < 1e4 * span):
         raise InvalidInput(["The measuring points lie on a straight line (their circle's "

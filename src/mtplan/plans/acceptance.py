@@ -145,7 +145,8 @@ def _bvn_cdf(h, k, r, q):
     out[kinf] = special.ndtr(h[kinf])
     if np.any(fin):
         hf, kf, rf, qf = h[fin], k[fin], r[fin], q[fin]
-        with np.errstate(divide="ignore", invalid="ignore"):
+        # a = inf where h = 0 (and where h is so small that the division overflows: the same)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             ah = np.where(hf != 0, (kf - rf * hf) / (hf * qf), np.copysign(np.inf, kf))
             ak = np.where(kf != 0, (hf - rf * kf) / (kf * qf), np.copysign(np.inf, hf))
         # T(0, a) with a = 0/0 (h = k = 0) is handled by the closed form below.
@@ -296,8 +297,9 @@ class _MixturePrior(_Prior):
         if s == 0:
             inside = (m >= lo) & (m <= hi)
             return float(w[inside].sum()), float(w[~inside].sum())
-        pm = (m * u * u + y * s * s) / (sy * sy)
-        ps = s * u / sy
+        ru, rs = u / sy, s / sy  # ratios <= 1: no overflow for a huge u or s
+        pm = m * ru * ru + y * rs * rs
+        ps = s * ru
         zl, zh = (lo - pm) / ps, (hi - pm) / ps
         inside = float(np.sum(w * _std_interval(zl, zh)))
         outside = float(np.sum(w * (special.ndtr(zl) + special.ndtr(-zh))))
