@@ -13,6 +13,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import warnings
 from pathlib import Path
 
 import pytest
@@ -153,12 +154,16 @@ def _check(argv, files=None):
             (tmp / name).write_bytes(content if isinstance(content, bytes) else content.encode())
         argv = [str(a).replace("{tmp}", str(tmp)) for a in argv]
         out, err = io.StringIO(), io.StringIO()
-        with redirect_stdout(out), redirect_stderr(err):
+        with redirect_stdout(out), redirect_stderr(err), warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            warnings.filterwarnings("error", category=RuntimeWarning, module="mtplan")
             try:
                 code = cli.main(argv)
             except SystemExit as exc:  # --help / --version only
                 code = exc.code
         err = err.getvalue()
+        # a warning is one more line on stderr: a refusal must come alone
+        assert code != 2 or not w, (argv, [str(x.message) for x in w])
         if os.environ.get("MTPLAN_FUZZ_LOG"):
             with open(os.environ["MTPLAN_FUZZ_LOG"], "a") as log:
                 log.write(f"{argv[0]} {code} {err.strip()[:400]!r}\n")
