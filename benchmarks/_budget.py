@@ -4,11 +4,16 @@ model, and the share of each source in u^2 (a helper of the bench_* scripts, not
 u comes from the Monte Carlo (``simulate_uncertainty``), the shares from the GUM budget
 (``linearize_procedure``, the same as ``mtplan linearize PROC --json``): with independent
 sources each share is that source's variance over the sum, exact for a linear model.
+For an estimator far from linear (line_laser's patent: whole rows, an arccos) the shares
+can come from the Monte Carlo instead (``shares="mc"``: ``source_budget``, each source
+alone), which is also cheaper where the readings are many.
 """
 
 from __future__ import annotations
 
-from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
+import numpy as np
+
+from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty, source_budget
 
 
 def mc_std(proc, setup, trials, estimator=None, sources=None, rng=3) -> dict:
@@ -18,18 +23,26 @@ def mc_std(proc, setup, trials, estimator=None, sources=None, rng=3) -> dict:
     return dict(zip([m.name for m in r.measurands], r.mc.std, strict=True))
 
 
-def budget_table(proc, setup, before, trials, estimator=None, short=None) -> str:
+def budget_table(proc, setup, before, trials, estimator=None, short=None, shares="gum") -> str:
     """Markdown: measurand, u before, u after, share of each source in u^2 [%].
 
     `before` is ``(setup, sources)`` of the old error model (None: no such column), or a
-    dict of u per measurand; `short` renames source columns.
+    dict of u per measurand; `short` renames source columns; `shares` is ``"gum"`` or
+    ``"mc"`` (each source alone through the Monte Carlo, `trials` trials).
     """
     if isinstance(before, tuple):
         before = mc_std(proc, before[0], trials, estimator, before[1])
     after = mc_std(proc, setup, trials, estimator)
-    gum = linearize_procedure(proc, setup, estimator=estimator)
-    groups, var = gum.group_variance()
-    share = var / var.sum(axis=1, keepdims=True)
+    if shares == "mc":
+        b = source_budget(proc, setup, estimator=estimator, trials=trials, rng=3)
+        groups = list(dict.fromkeys(b["source"]))
+        var = (b.pivot(index="measurand", columns="source", values="std")
+               .loc[[m.name for m in proc.measurands(setup)], groups].to_numpy() ** 2)
+    else:
+        gum = linearize_procedure(proc, setup, estimator=estimator)
+        groups, var = gum.group_variance()
+    total = var.sum(axis=1, keepdims=True)
+    share = np.divide(var, total, out=np.zeros_like(var), where=total > 0)
     short = short or {}
     lines = ["| measurand | u before | u after | "
              + " | ".join(short.get(g, g) for g in groups) + " |",

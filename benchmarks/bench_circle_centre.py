@@ -7,11 +7,17 @@
    planning, probing d1..dn) and each estimator, on one block of 20 000 trials.
 3. The same for 12 points.
 
-Run: ``.venv/bin/python benchmarks/bench_circle_centre.py``
+With ``--budget`` (instead of the timings): the tables of docs/circle_centre.md, u of each
+measurand before and after the sources issue 17 added (tip radius, bore temperature) and
+the share of each source in u^2 (GUM budget), and u of the centre against the number of
+points (three_point for 3, geometric for more).
+
+Run: ``.venv/bin/python benchmarks/bench_circle_centre.py [--budget [--trials N]]``
 """
 
 from __future__ import annotations
 
+import argparse
 import time
 
 import numpy as np
@@ -19,6 +25,8 @@ import numpy as np
 from mtplan.models import get
 from mtplan.uncertainty._random import as_seed_sequence, block_sequence
 from mtplan.evaluation.simulation import simulate_uncertainty
+
+from _budget import budget_table, mc_std  # benchmarks/ is the script's folder
 
 TRIALS = 20_000
 
@@ -58,6 +66,32 @@ def run(n_points: int) -> None:
     print()
 
 
+def budget(trials: int) -> None:
+    """The docs' tables (see the module docstring)."""
+    proc = get("circle_centre")
+    setup = proc.Setup()
+    old = [s for s in proc.active_sources(setup) if s not in ("tip_radius", "bore_temperature")]
+    print(f"three_point, default set-up; u by Monte Carlo ({trials} trials, rng 3), shares of "
+          "u^2 by the GUM budget (linearize) [%]")
+    print(budget_table(proc, setup, (setup, old), trials, "three_point"))
+    print(f"\nu against the number of points, all sources ({trials} trials, rng 3) [um]")
+    print("| points | estimator | u(centre_x) | u(centre_y) | u(radius) | duration s |")
+    print("|---:|---|---:|---:|---:|---:|")
+    for n in (3, 4, 5, 6, 8):
+        s = proc.setup(n_points=n)
+        est = "three_point" if n == 3 else "geometric"
+        u = mc_std(proc, s, trials, est)
+        print(f"| {n} | {est} | {u['centre_x']:.2f} | {u['centre_y']:.2f} | "
+              f"{u['radius']:.2f} | {proc.duration(s):.0f} |")
+
+
 if __name__ == "__main__":
-    run(3)
-    run(12)
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--budget", action="store_true")
+    ap.add_argument("--trials", type=int, default=20_000)
+    args = ap.parse_args()
+    if args.budget:
+        budget(args.trials)
+    else:
+        run(3)
+        run(12)

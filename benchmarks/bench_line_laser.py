@@ -1,22 +1,34 @@
 """Speed of the line_laser procedure's Monte Carlo (not a test; prints figures).
 
-Usage: ``python benchmarks/bench_line_laser.py [trials]`` (default 20 000).
+Usage: ``python benchmarks/bench_line_laser.py [trials] [--budget [--budget-trials N]]``
+(default 20 000 trials).
 
 Prints trials per second of :func:`simulate_uncertainty` at the default set-up for
 each estimator, the ratio to drawing the same number of normal variates (all the
 readings' noise) with numpy alone, and where the time goes (drawing the errors,
 forward model, estimator) for one block.
+
+With ``--budget`` (instead of the timings): the tables of docs/line_laser.md, per
+estimator: u of each measurand with the error sources before issue 17 at the former
+default scan (40 lines, beta 0.6) and at the default set-up, with all sources, and the
+share of each source in u^2 from the Monte Carlo, each source alone (the patent's whole
+rows and arccos are far from linear; about 5 min at 2000 trials).
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 import time
 
 import numpy as np
 
 from mtplan.models import line_laser as ll
 from mtplan.evaluation.simulation import simulate_uncertainty
+
+from _budget import budget_table, mc_std  # benchmarks/ is the script's folder
+
+#: the sources issue 17 added
+NEW = ("linearity", "z_scale", "squareness_xy", "squareness_zy", "drift")
 
 
 def main(trials: int = 20_000) -> None:
@@ -50,5 +62,27 @@ def main(trials: int = 20_000) -> None:
           + ", ".join(f"{k} {1e3 * v / n:.3f} ms/trial" for k, v in times.items()))
 
 
+def budget(trials: int) -> None:
+    """The docs' tables (see the module docstring)."""
+    proc, setup = ll.PROCEDURE, ll.Setup()
+    old = [s for s in proc.active_sources(setup) if s not in NEW]
+    former = setup.replace(lines=40, shift_fraction=0.6)
+    for est in proc.estimators:
+        u_former = mc_std(proc, former, trials, est, old)
+        print(f"\n{est}: u at the former default scan, former sources: "
+              + ", ".join(f"{k} {v:.3g}" for k, v in u_former.items()))
+        print(f"{est}, default set-up; u by Monte Carlo ({trials} trials, rng 3), shares of "
+              "u^2 by the Monte Carlo, each source alone [%]")
+        print(budget_table(proc, setup, (setup, old), trials, est, shares="mc"))
+
+
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 20_000)
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("trials", type=int, nargs="?", default=20_000)
+    ap.add_argument("--budget", action="store_true")
+    ap.add_argument("--budget-trials", type=int, default=2000)
+    args = ap.parse_args()
+    if args.budget:
+        budget(args.budget_trials)
+    else:
+        main(args.trials)

@@ -278,6 +278,68 @@ def test_which_systematic_errors_reach_the_centre(n, source, centre_moves):
         assert moved < 0.01
 
 
+@pytest.mark.parametrize("n, lobes, aliased", [
+    (3, 2, True),    # an oval: 2 = -1 (mod 3)
+    (3, 4, True),    # 4 = +1 (mod 3)
+    (3, 3, False),   # repeats at every point: radius only
+    (4, 2, False),
+    (4, 3, True),    # 3 = -1 (mod 4)
+    (5, 4, True),
+    (5, 2, False),
+])
+def test_form_error_aliases_into_the_centre_by_its_full_amplitude(n, lobes, aliased):
+    """n equally spaced points see a k-lobed form A cos(k phi - psi) as an eccentricity
+    of size A when k = +-1 (mod n), whatever its orientation psi; otherwise not at all
+    (to first order). Three points (the seed's rule) thus put the whole amplitude of an
+    oval bore into the centre."""
+    setup = P.setup(n_points=n, lobes=lobes)
+    truth = cc.Truth()
+    m, amp = 16, 5e-3  # orientations, amplitude A [mm]
+    psi = np.linspace(0.0, 2 * math.pi, m, endpoint=False)
+    errors = P.zero_errors(setup, m)
+    errors["roundness"] = amp * np.stack([np.cos(psi), np.sin(psi)], axis=-1)
+    est = P.estimate(setup, P.forward(setup, truth, errors),
+                     "three_point" if n == 3 else "geometric")
+    shift = np.hypot(est["centre_x"] - truth.centre_x_mm, est["centre_y"] - truth.centre_y_mm)
+    if aliased:
+        np.testing.assert_allclose(shift / amp, 1.0, atol=1e-2)
+    else:
+        assert np.all(shift / amp < 1e-2)
+
+
+def test_bore_temperature_moves_the_radius_by_r_alpha_dt_and_not_the_centre():
+    """A bore at 20 degC + dT is a circle of radius r (1 + alpha dT) about the same
+    centre; three points on it give exactly that circle."""
+    setup = P.Setup()
+    truth = cc.Truth()
+    strain = np.array([-2.3e-5, 0.0, 1.7e-5])  # alpha dT for dT = -2, 0, 1.5 K (steel)
+    errors = P.zero_errors(setup, 3)
+    errors["bore_temperature"] = strain
+    for name in P.estimators:
+        est = P.estimate(setup, P.forward(setup, truth, errors), name)
+        r20 = setup.bore_radius_mm + truth.radius_deviation_mm
+        np.testing.assert_allclose(est["radius"] - truth.radius_deviation_mm, r20 * strain,
+                                   rtol=0, atol=1e-11)
+        np.testing.assert_allclose(est["centre_x"], truth.centre_x_mm, rtol=0, atol=1e-11)
+        np.testing.assert_allclose(est["centre_y"], truth.centre_y_mm, rtol=0, atol=1e-11)
+    src = P.sources(setup)["bore_temperature"]
+    assert src.distribution.std == pytest.approx(11.5e-6 * 2.0 / math.sqrt(3))
+
+
+def test_tip_radius_error_moves_the_radius_and_not_the_centre():
+    """Every point lies delta beyond the wall along an approach that is radial from the
+    planner's centre: the radius grows by delta, the centre moves by about delta (e/r)^2."""
+    setup = P.Setup()
+    truth = cc.Truth()
+    delta = np.array([-1e-3, 5e-4])
+    errors = P.zero_errors(setup, 2)
+    errors["tip_radius"] = delta
+    est = P.estimate(setup, P.forward(setup, truth, errors), "three_point")
+    np.testing.assert_allclose(est["radius"] - truth.radius_deviation_mm, delta, rtol=1e-5)
+    np.testing.assert_allclose(est["centre_x"], truth.centre_x_mm, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(est["centre_y"], truth.centre_y_mm, rtol=0, atol=1e-9)
+
+
 def test_monte_carlo_agrees_with_the_linearised_prediction():
     setup = P.Setup()
     trials = 20000

@@ -34,22 +34,29 @@ def test_zero_errors_give_nominal_readings():
     np.testing.assert_allclose(r, g21._geometry(setup).local, atol=1e-12)
 
 
-@pytest.mark.parametrize("name, plane, comp, lever", [
-    ("ECX", 0, 0, lambda c: -c[:, 1]),   # yaw of X, lever y, seen along x in XY
-    ("EBX", 1, 0, lambda c: c[:, 2]),    # pitch of X, lever z, seen along x in XZ
-    ("EAY", 2, 0, lambda c: -c[:, 2]),   # pitch of Y, lever z, seen along y in YZ
+#: the seed's set-up (one head) and one extra YZ head with another tool length and an arm
+ONE_HEAD, YZ_HEAD = {}, dict(SMALL, yz_extra_heads_mm=(200, 60, 0))
+
+
+@pytest.mark.parametrize("setup, name, plane, comp, lever", [
+    (ONE_HEAD, "ECX", 0, 0, lambda h, c: -c[:, 1]),  # yaw of X, lever y, seen along x in XY
+    (ONE_HEAD, "EBX", 1, 0, lambda h, c: c[:, 2]),   # pitch of X, lever z, seen along x in XZ
+    (ONE_HEAD, "EAY", 2, 0, lambda h, c: -c[:, 2]),  # pitch of Y, lever z, seen along y in YZ
+    # Z's angular errors act on h - f: EAZ on the tool length change, seen along y at YZ
+    (YZ_HEAD, "EAZ", 2, 0, lambda h, c: -h[:, 2] - 100.0),
+    (YZ_HEAD, "ECZ", 2, 0, lambda h, c: h[:, 0]),    # ECZ on a lateral X arm, along y at YZ
+    # EBY (Y's rotation about y) on a lateral X arm: dz = -EBY x_h, seen along z at YZ
+    (YZ_HEAD, "EBY", 2, 1, lambda h, c: -h[:, 0]),
 ])
-def test_jacobian_is_the_first_order_lever_arm(name, plane, comp, lever):
+def test_jacobian_is_the_first_order_lever_arm(setup, name, plane, comp, lever):
     """The numerical first-order expansion (used for Q) equals eps x lever arm."""
-    setup = g21.Setup()
-    ji = g21._joint_ident(setup)
+    ji = g21._joint_ident(g21.Setup(**setup))
     geo = ji["geo"]
     col = geo.layout[name][1].start  # power 1
     sel = geo.plane == plane
     j = ji["jac"].reshape(-1, 2, geo.n_par)[sel, comp, col]
-    axis = g21._AXIS[name]
     c = geo.cmd[sel]
-    np.testing.assert_allclose(j, lever(c) * c[:, axis], atol=1e-6)
+    np.testing.assert_allclose(j, lever(geo.hvec[sel], c) * c[:, g21._AXIS[name]], atol=1e-6)
 
 
 # ----------------------------------------------------------------- identifiability
@@ -188,3 +195,271 @@ def test_coefficients_and_covariance_shapes():
     assert coefs["EBX"][1].shape == (3, 2) and coefs["EBX"][0] == (1, 2)
     names, cov = g21.coefficient_covariance(setup)
     assert cov.shape == (len(names), len(names)) and "EBX[2]" in names
+
+
+# ----------------------------------------------------------------- head positions (issue 16)
+#: the cheapest head positions that determine all 21 at the small set-up (order 2: EAX needs
+#: three machine x at the YZ plate)
+ALL21_SMALL = dict(SMALL, xz_extra_heads_mm=(100, 0, 60), yz_extra_heads_mm=(100, 60, 0, 100, 120, 0))
+
+
+def _all21_truth(order=2):
+    """Realistic values of all 21 errors, as polynomials of the model's order."""
+    t = g21.Truth(**g21.HIDDEN_ANGULAR)
+    cut = {}
+    for name in g21.NAMES:
+        if g21._KIND[name] != "sq":
+            field = f"{name}_{'urad' if g21._KIND[name] == 'ang' else 'um'}"
+            keep = order if g21._KIND[name] != "str" else order - 1
+            cut[field] = getattr(t, field)[:keep]
+    return t.replace(**cut)
+
+
+def test_extra_heads_follow_the_plate_path():
+    setup = g21.Setup(**ALL21_SMALL)
+    geo = g21._geometry(setup)
+    zero = P.zero_errors(setup, 1)
+    flat = g21.Truth(**{f"{k}_{'urad' if g21._KIND[k] == 'ang' else 'um'}": ()
+                        for k in g21.NAMES if g21._KIND[k] != "sq"},
+                     EC0Y_urad=0, EB0Z_urad=0, EA0Z_urad=0)
+    r = P.forward(setup, flat, zero)["plate_mm"][0]
+    np.testing.assert_allclose(r, geo.local, atol=1e-12)  # every head reads the same path
+    h0 = np.array([setup.head_lateral_mm, 0, -setup.head_offset_mm])
+    # the machine moves by the change of head offset: position + head = plate point
+    np.testing.assert_allclose(geo.cmd + geo.hvec, geo.cmd[geo.head == 0][0] * 0 +
+                               geo.centre[geo.plane] + h0 + _in_plane(geo), atol=1e-12)
+    assert sorted(set(zip(geo.plane[geo.head > 0], geo.head[geo.head > 0]))) == [(1, 1), (2, 1),
+                                                                                   (2, 2)]
+
+
+def _in_plane(geo):
+    out = np.zeros((geo.plane.size, 3))
+    for k, (_, a, b, _c) in enumerate(g21.PLANES):
+        sel = geo.plane == k
+        out[sel, a], out[sel, b] = geo.local[sel, 0], geo.local[sel, 1]
+    return out
+
+
+def test_all21_set_up_determines_every_error_for_every_estimator():
+    setup = g21.Setup(**ALL21_SMALL)
+    assert [m.name for m in P.measurands(setup)] == list(g21.NAMES)
+    for est in ("joint", "patent"):
+        assert (g21.identifiability(setup, est)["status"] == "identified").all(), est
+    # noise-free, realistic values of all 21: joint exact, the first-order ones to 2nd order
+    truth = _all21_truth()
+    readings = P.forward(setup, truth, P.zero_errors(setup, 1))
+    tv = P.display_truth(setup, truth)
+    for est, tol in (("joint", 1e-6), ("joint_linear", 0.01), ("patent", 0.01)):
+        out = P.display_estimate(setup, readings, est)
+        assert max(abs(out[k][0] - tv[k]) for k in tv) < tol, est
+
+
+def test_yz_arms_alone_leave_a_rotation_of_three_errors():
+    """Arms along the YZ plate's normal only: EAX, EBY and ECZ share one null direction
+    (their linear terms together turn the YZ pattern in proportion to the arm)."""
+    setup = g21.Setup(**SMALL, yz_extra_heads_mm=(100, 60, 0, 100, 120, 0))
+    tab = g21.identifiability(setup)
+    assert {n for n in g21.NAMES if not tab.loc[n, "listed"]} == {"EAX", "EBY", "EAZ", "ECZ"}
+    assert tab.loc["EAZ", "status"] == "no effect"  # no tool-length change at YZ
+
+
+def test_generic_identifiability_agrees_with_the_measurands():
+    from mtplan.plans.identifiability import identifiability as generic
+
+    for kw in ({}, {"reference_tool_mm": 0.0}, {"yz_extra_heads_mm": (100, 60, 0, 100, 120, 0)},
+               ALL21_SMALL):
+        setup = g21.Setup(**{**SMALL, **kw})
+        rep = g21.identifiability_report(setup)
+        gen = generic(rep["jacobian"], scale=rep["scale"], names=rep["names"],
+                      tol=rep["rank_tol"], functions=rep["functions"])
+        assert gen.rank == rep["rank"]
+        assert [n for n, v in gen.determined.items() if v] == [m.name for m in P.measurands(setup)]
+
+
+def test_patent_bias_is_reported_not_hidden():
+    """A head position the stepwise method cannot use without bias is flagged: a lateral
+    first head puts the Z and Y yaws into the step-1 positioning errors."""
+    setup = g21.Setup(**SMALL, head_lateral_mm=30.0, yz_extra_heads_mm=(100, 60, 0))
+    pat = g21.identifiability(setup, "patent")
+    biased = pat[pat["status"] == "biased"]
+    assert len(biased) and (biased["first_order_bias"] > 0).all()
+    assert (g21.identifiability(setup, "joint")["status"] != "biased").all()
+
+
+def test_duration_adds_head_changes_and_their_program():
+    base = g21.Setup(**SMALL)
+    more = g21.Setup(**SMALL, yz_extra_heads_mm=(100, 60, 0, 200, 0, 0), extra_head_tests="lines")
+    v = base.feed_mm_min / 60
+    lines = 2 * base.line_repeats * 2 * base.line_length_mm
+    assert P.duration(more) == pytest.approx(P.duration(base) + 2 * (base.head_change_s + lines / v))
+    t = g21._geometry(more).time_s
+    assert np.all(np.diff(t) >= 0) and t[-1] <= P.duration(more)
+
+
+def test_setup_refuses_bad_head_lists():
+    with pytest.raises(InvalidInput, match="yz_extra_heads_mm.*multiple of 3"):
+        g21.Setup(yz_extra_heads_mm=(100, 60))
+    with pytest.raises(InvalidInput, match="xy_extra_heads_mm"):
+        g21.Setup(xy_extra_heads_mm=(-5, 0, 0))
+
+
+# ----------------------------------------------------------------- error sources (issue 16)
+def _one(setup, **sources):
+    errors = P.zero_errors(setup, 1)
+    for k, v in sources.items():
+        errors[k][0] = v
+    return P.forward(setup, P.Truth(), errors)["plate_mm"][0] - \
+        P.forward(setup, P.Truth(), P.zero_errors(setup, 1))["plate_mm"][0]
+
+
+def test_reversal_shifts_each_direction_by_half_the_value():
+    setup = g21.Setup(**SMALL)
+    geo = g21._geometry(setup)
+    d = _one(setup, reversal=[2e-3, 0, 0])  # B_x = 2 um
+    xline = (geo.plane == 0) & (geo.test == 0)
+    fwd, bwd = xline & (geo.pass_ % 2 == 0), xline & (geo.pass_ % 2 == 1)
+    np.testing.assert_allclose(d[fwd, 0], -1e-3, atol=1e-12)  # lags moving +x
+    np.testing.assert_allclose(d[bwd, 0], 1e-3, atol=1e-12)
+    np.testing.assert_allclose(d[(geo.plane == 0) & (geo.test == 1)], 0, atol=1e-12)  # x at rest
+
+
+def test_servo_lag_shrinks_and_distorts_the_circle():
+    setup = g21.Setup(**SMALL)
+    geo = g21._geometry(setup)
+    circ = (geo.plane == 0) & (geo.test == 2)
+    er = geo.local[circ] / setup.circle_radius_mm
+    v, R, T = setup.feed_mm_min / 60, setup.circle_radius_mm, 0.03
+    for tx, ty in ((T, T), (T, 1.1 * T)):
+        d = _one(setup, servo_lag=[tx, ty, 0])
+        dr = np.einsum("mc,mc->m", d[circ], er)
+        phi = np.arctan2(er[:, 1], er[:, 0])
+        s = np.where(geo.pass_[circ] == 0, 1.0, -1.0)
+        want = -v**2 / (2 * R) * (tx**2 * np.cos(phi) ** 2 + ty**2 * np.sin(phi) ** 2) \
+            - s * v / 2 * (ty - tx) * np.sin(2 * phi)
+        np.testing.assert_allclose(dr, want, rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(d[(geo.plane == 0) & (geo.test < 2)], 0, atol=1e-12)  # lines
+
+
+def test_thermal_drift_and_growth_follow_the_schedule():
+    setup = g21.Setup(**SMALL)
+    geo = g21._geometry(setup)
+    hours = geo.time_s / 3600
+    d = _one(setup, thermal_drift=[3e-3, 0, 0])  # 3 um/h along x
+    xy = geo.plane == 0
+    np.testing.assert_allclose(d[xy, 0], 3e-3 * hours[xy], rtol=1e-6)
+    d = _one(setup, thermal_growth=[5e-6, 0, 0])  # 5 ppm/h of x
+    np.testing.assert_allclose(d[xy, 0], 5e-6 * hours[xy] * geo.cmd[xy, 0], atol=1e-15)
+
+
+def test_new_sources_are_on_and_head_setting_only_with_extra_heads():
+    active = P.active_sources(g21.Setup())
+    assert {"repeatability", "reversal", "servo_lag", "thermal_growth", "thermal_drift"} <= set(active)
+    assert "head_setting" not in active
+    assert "head_setting" in P.active_sources(g21.Setup(yz_extra_heads_mm=(100, 60, 0)))
+
+
+# ----------------------------------------------------------------- estimators (issue 16)
+def test_shared_linearisation_matches_the_trial_by_trial_solution(monkeypatch):
+    """joint's one linearisation per batch against the same iteration with the exact model
+    per trial: within 1 % of the batch's spread (or 1e-3 of a typical error)."""
+    setup = g21.Setup()
+    readings = P.simulate(setup, draws=64, rng=4)
+    shared = g21._theta_joint(setup, readings, 8)
+    monkeypatch.setattr(g21, "_SHARED_MIN", 10**9)
+    exact = g21._theta_joint(setup, readings, 8)
+    s = g21._scales(g21._geometry(setup))
+    allowed = np.maximum(g21._SHARED_TOL * s, g21._SHARED_SPREAD * exact.std(axis=0))
+    assert np.all(np.abs(shared - exact) <= allowed)
+    # the former estimator (chord iterations in the readings' frame) differs by less than
+    # 2 % of the spread: another weighting of the same least squares
+    former = g21._theta_joint_per_trial(setup, readings)
+    m = [g21.NAMES.index(n) for n in (mm.name for mm in P.measurands(setup))]
+    g = g21._joint_ident(setup)["g"][m]
+    dev = np.abs((shared - former) @ g.T) / (former @ g.T).std(axis=0)
+    assert dev.max() < 0.02
+
+
+def test_shared_linearisation_falls_back_when_the_check_fails(monkeypatch):
+    setup = g21.Setup(**SMALL)
+    readings = P.simulate(setup, draws=16, rng=5)
+    monkeypatch.setattr(g21, "_SHARED_MIN", 10**9)
+    exact = g21._theta_joint(setup, readings, 8)
+    monkeypatch.setattr(g21, "_SHARED_MIN", 8)
+    monkeypatch.setattr(g21, "_SHARED_TOL", -1.0)  # no neglected term is small enough
+    monkeypatch.setattr(g21, "_SHARED_SPREAD", -1.0)
+    s = g21._scales(g21._geometry(setup))
+    np.testing.assert_allclose(g21._theta_joint(setup, readings, 8) / s, exact / s, rtol=0,
+                               atol=1e-5)
+
+
+# ----------------------------------------------------------------- functions and budgets
+def test_error_functions_over_the_travel():
+    setup = g21.Setup(**ALL21_SMALL)
+    truth = _all21_truth()
+    readings = P.forward(setup, truth, P.zero_errors(setup, 1))
+    tab = g21.error_functions(setup, readings, truth=truth, estimator="joint", positions=5)
+    assert set(tab["function"]) == set(g21.NAMES) and (tab["status"] == "identified").all()
+    np.testing.assert_allclose(tab["estimate"], tab["true"], atol=1e-6)
+    assert np.isfinite(tab["std"]).all()
+    # X's travel covers the YZ heads' machine x (120 - arm) and the lines' +-50
+    ex = tab[tab["function"] == "EAX"]["position_mm"]
+    assert ex.min() == pytest.approx(-50) and ex.max() == pytest.approx(120)
+    # where the data do not determine a function: inf band, no estimate
+    dflt = g21.error_functions(g21.Setup(**SMALL), P.simulate(g21.Setup(**SMALL), draws=1, rng=0),
+                               positions=3)
+    eax = dflt[(dflt["function"] == "EAX") & (dflt["position_mm"] != 0)]
+    assert np.isinf(eax["std"]).all() and eax["estimate"].isna().all()
+
+
+def test_first_order_budget_agrees_with_the_generic_linearisation():
+    setup = g21.Setup(**SMALL, yz_extra_heads_mm=(100, 60, 0))
+    for est in ("joint", "patent"):
+        fast = g21.budget(setup, estimator=est)
+        gum = linearize_procedure(P, setup, estimator=est).budget()
+        gum = gum.set_index(["output", "input"])["contribution"]
+        for row in fast.itertuples():
+            want = gum.get((row.measurand, row.source), 0.0)
+            # (plate tilts act at second order: a few 1e-5 either way)
+            assert row.std == pytest.approx(want, rel=1e-3, abs=1e-3), (est, row.measurand,
+                                                                        row.source)
+
+
+# ----------------------------------------------------------------- readings and the plan
+def test_readings_with_heads_round_trip_and_old_tables_still_read():
+    setup = g21.Setup(**ALL21_SMALL)
+    frame = P.readings_frame(setup, P.simulate(setup, draws=1, rng=2))
+    assert "head" in frame and frame["head"].max() == 2
+    with pytest.raises(InvalidInput, match="'head' column"):
+        P.from_frame(setup, frame.drop(columns="head"))
+    one = g21.Setup(**SMALL)
+    old = P.readings_frame(one, P.simulate(one, draws=1, rng=2)).drop(columns="head")
+    np.testing.assert_array_equal(P.from_frame(one, old)["plate_mm"][0], old[["u_mm", "v_mm"]])
+
+
+def test_the_shipped_readings_are_read():
+    from pathlib import Path
+
+    from mtplan.evaluation.measured import read_readings
+
+    root = Path(__file__).resolve().parents[2]
+    for path in (root / "examples" / "geometry21_readings.csv",
+                 root / "src" / "mtplan" / "examples" / "geometry21_readings.csv"):
+        r = read_readings(P, g21.Setup(), path)
+        assert r["plate_mm"].shape == (1, g21._geometry(g21.Setup()).plane.size, 2)
+
+
+def test_plan_finds_the_head_positions_that_determine_all_21():
+    from mtplan.plans.planner import plan
+
+    vary = {"yz_extra_heads_mm": [(100, 60, 0), (100, 60, 0, 100, 120, 0)],
+            "xz_extra_heads_mm": [(), (100, 0, 60)]}
+    res = plan(P, g21.Setup(**SMALL), vary, {"EBX": 1e3}, estimator="joint", determine="all",
+               trials=300, confirm=1, identify=False)
+    best = res.best["setup"]
+    assert tuple(best["yz_extra_heads_mm"]) == (100, 60, 0, 100, 120, 0)
+    assert tuple(best["xz_extra_heads_mm"]) == (100, 0, 60)
+    assert set(res.best["predicted"]) == set(g21.NAMES)
+    assert (res.table["determined"] < 21).sum() == 3 and res.table["u_EAX"].isna().sum() == 3
+    with pytest.raises(InvalidInput, match="No candidate determines"):
+        plan(P, g21.Setup(**SMALL), {"yz_extra_heads_mm": [(100, 60, 0)]}, determine="all",
+             trials=300, confirm=1, identify=False)

@@ -419,3 +419,11 @@ def test_prior_sampling_is_seeded():
         assert a.shape == (50_000,)
     x = GammaPrior(4, 0.25).sample(100_000, 1)
     assert x.mean() == pytest.approx(1.0, abs=4 * 0.5 / math.sqrt(1e5))
+
+
+def test_a_subnormal_prior_mean_is_the_limit_of_zero():
+    # found by hypothesis: Owen's a = (k - r h) / (h q) overflowed for h ~ 1e-311
+    near = global_risks(0.0, 0.5, 0.01, NormalPrior(2.2e-311, 1), acceptance=(0.0, 0.5))
+    zero = global_risks(0.0, 0.5, 0.01, NormalPrior(0.0, 1), acceptance=(0.0, 0.5))
+    assert near.pfa == pytest.approx(zero.pfa, rel=1e-9)
+    assert near.pfr == pytest.approx(zero.pfr, rel=1e-9)

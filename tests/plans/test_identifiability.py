@@ -166,3 +166,33 @@ def test_information_matrix_and_criteria_agree_with_indices():
     np.testing.assert_allclose(information_matrix(j, sigma=[1, 2, 1, 1, 1]), j.T @ np.diag([1, 0.25, 1, 1, 1]) @ j)
     with pytest.raises(InvalidInput, match="'sigma'"):
         information_matrix(j, sigma=[1.0, 0.0, 1.0, 1.0, 1.0])
+
+
+def test_functions_the_observations_determine():
+    """p2 acts like p0 + p1 (null direction (1, 1, -1)): a function is determined exactly
+    when it is orthogonal to it, whatever the columns' scale."""
+    a = np.random.default_rng(2).normal(size=(10, 2))
+    j = np.column_stack([a, a[:, 0] + a[:, 1]])
+    funcs = {"p0 + p2": [1, 0, 1], "p0": [1, 0, 0], "p0 - p1": [1, -1, 0], "zero": [0, 0, 0]}
+    expect = {"p0 + p2": True, "p0": False, "p0 - p1": True, "zero": True}
+    for scale in (None, [1.0, 1e3, 1e-2]):
+        r = identifiability(j, scale=scale, functions=funcs)
+        assert r.rank == 2 and r.determined == expect
+    d = r.to_dict()
+    assert d["determined"] == ["p0 + p2", "p0 - p1", "zero"] and d["undetermined"] == ["p0"]
+    json.dumps(d, allow_nan=False)
+    assert identifiability(j).determined == {}
+
+
+def test_functions_must_have_one_weight_per_parameter():
+    with pytest.raises(InvalidInput, match=r"functions\['f'\]"):
+        identifiability([[1.0, 2.0]], functions={"f": [1.0, 2.0, 3.0]})
+
+
+def test_tall_matrix_null_space_and_singular_values():
+    """A tall matrix goes through its QR's R: same singular values and null space."""
+    j = with_singular_values([5.0, 2.0, 0.0], 400, seed=4)
+    r = identifiability(j, scale=np.ones(3))
+    np.testing.assert_allclose(r.singular_values, np.linalg.svd(j, compute_uv=False), atol=1e-12)
+    assert r.rank == 2
+    np.testing.assert_allclose(j @ r.null_space, 0, atol=1e-12)

@@ -20,6 +20,9 @@ def register(sub) -> None:
     add_common(p)
     p.add_argument("--target", action="append", metavar="NAME<=VALUE",
                    help="bound on a measurand's uncertainty in its unit (repeatable)")
+    p.add_argument("--determine", metavar="all|NAME,...",
+                   help="measurands the set-up must determine at all (all: every one the "
+                        "procedure can report, e.g. geometry21's 21 errors)")
     p.add_argument("--vary", action="append", metavar="FIELD=V1,V2,...",
                    help="candidate values of a set-up field (repeatable)")
     p.add_argument("--k", type=float, default=1.0,
@@ -54,17 +57,21 @@ def cmd_plan(args):
         criterion = _pfa_criterion(args, [m.name for m in proc.measurands(setup)])
     if args.optimize and not targets and criterion is None:
         return _design_search(args, proc, setup, truth)
-    if not targets and criterion is None:
-        raise UsageError("plan needs at least one --target NAME<=VALUE, or --tolerance with "
-                         "--prior and --max-pfa")
+    determine = args.determine if args.determine is not None else config.get("determine")
+    if isinstance(determine, str) and determine.strip().lower() != "all":
+        determine = [d.strip() for d in determine.split(",") if d.strip()]
+    if not targets and criterion is None and not determine:
+        raise UsageError("plan needs at least one --target NAME<=VALUE, --determine, or "
+                         "--tolerance with --prior and --max-pfa")
     vary = dict(config.get("vary", {}))
     vary.update(parse_vary(args.vary))
     seed = args.seed if args.seed is not None else config.get("seed", 0)
     result = plan(proc, setup, vary, targets, k=args.k, truth=truth,
                   estimator=args.estimator or config.get("estimator"),
                   sources=parse_sources(args, config), confirm=args.confirm,
-                  trials=5000 if args.trials is None else args.trials, seed=seed, n_jobs=args.jobs, backend=args.backend,
-                  criterion=criterion)
+                  trials=5000 if args.trials is None else args.trials, seed=seed,
+                  n_jobs=args.jobs, backend=args.backend, criterion=criterion,
+                  determine=determine or None)
     if args.out:
         write_out(args.out, result.table.to_csv(index=False))
     if args.json:
@@ -74,11 +81,16 @@ def cmd_plan(args):
     goals = [f"{n} <= {v:g}" for n, v in targets.items()]
     if criterion is not None:
         goals.append(f"false accept <= {args.max_pfa:g} for {args.tolerance}")
+    if determine:
+        goals.insert(0, "every measurand determined" if isinstance(determine, str)
+                     else f"{', '.join(determine)} determined")
     print(f"{proc.name}: cheapest set-up meeting " + ", ".join(goals)
           + (f" (k = {args.k:g})" if args.k != 1 else ""))
     for f in vary:
         print(f"  {f} = {best['setup'][f]}")
     print(f"  duration {best['duration_s']:.0f} s")
+    if determine:
+        print(f"  determines {len(best['predicted'])} measurands: {', '.join(best['predicted'])}")
     if criterion is not None:
         print(f"  false accept at the confirmed uncertainty: {criterion.pfa(best['confirmed']):.4g}")
     for n in targets:

@@ -115,8 +115,9 @@ def chain(values: dict, x: np.ndarray, y: np.ndarray, z: np.ndarray, head: np.nd
         the squareness errors EC0Y, EB0Z, EA0Z have shape (n, 1).
     x, y, z : arrays of shape (m,)
         Commanded axis positions [mm].
-    head : array of shape (3,)
-        Head offset from the spindle reference point [mm].
+    head : array of shape (3,) or (m, 3)
+        Head offset from the spindle reference point [mm], one for all points or one per
+        point (tests repeated with several head positions).
     ref : array of shape (3,), optional
         Offset of the functional point at which the errors are defined (the angular
         error motions rotate about it); default the spindle reference point (0, 0, 0).
@@ -135,7 +136,7 @@ def chain(values: dict, x: np.ndarray, y: np.ndarray, z: np.ndarray, head: np.nd
     bz, az = v["EB0Z"], v["EA0Z"]
     d_z = np.stack([np.sin(bz) * np.cos(az), -np.sin(az), np.cos(bz) * np.cos(az)], axis=-1)
     ref = np.zeros(3) if ref is None else np.asarray(ref, dtype=float)
-    hv = np.broadcast_to(np.asarray(head, dtype=float) - ref, (n, m, 3))
+    hv = np.broadcast_to(np.asarray(head, dtype=float) - ref, (n, m, 3))  # (3,) or (m, 3)
     # Z (vectors relative to the functional point; rotations about it)
     p = rotate(v["EAZ"], v["EBZ"], v["ECZ"], hv)
     p = p + z[None, :, None] * d_z + np.stack([v["EXZ"], v["EYZ"], v["EZZ"]], axis=-1)

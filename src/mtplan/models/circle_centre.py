@@ -71,8 +71,18 @@ Forward model (:func:`forward`, batch-first)
   radially, as modelled.
 - Probe: trigger noise along the approach; pre-travel variation with approach
   direction beta, three-lobed as for kinematic probes (``A cos 3 beta + B sin 3 beta``);
-  tangential slip along the wall ``c * gamma`` with gamma the signed angle between
-  the approach and the wall normal.
+  the error of the calibrated effective tip radius (one per test: the controller
+  compensates the stylus centre by the calibrated radius along the approach, so every
+  point lies that much beyond the wall; it moves the radius, and the centre only by
+  about ``delta (e/r)^2`` for a planner's centre off by e); tangential slip along the
+  wall ``c * gamma`` with gamma the signed angle between the approach and the wall
+  normal.
+- Temperature: the bore is at ``20 degC + dT``; its radius is the 20 degC radius times
+  ``1 + alpha dT`` (``alpha = expansion_ppm_per_k``, 11.5e-6/K for steel), growing
+  about its centre, and the estimates are not corrected to 20 degC (ISO 1). At the
+  default (+-2 K, rectangular) that is 250 mm x 11.5e-6/K x 1.15 K = 3.3 um of
+  standard uncertainty in the radius and nothing in the centre: the wall stays a
+  circle about the same centre, and three points on a circle give its centre exactly.
 - p1 and p2 are probed along -y and +y with the same probe model; the planner uses
   the read values, so their errors move the targets.
 
@@ -91,7 +101,16 @@ Known behaviour (tested): with n equally spaced points and radial noise sigma th
 centre's standard uncertainty per axis is ``sigma sqrt(2/n)``; three points bunched
 into a short arc are worse by orders of magnitude. With three points 120 deg apart a
 three-lobed pre-travel pattern (and a three-lobed form error) repeats at every
-point and moves only the radius, never the centre.
+point and moves only the radius, never the centre. A **two-lobed** form error (an oval
+bore, the default ``lobes``) is aliased into the centre: with points at
+``phi_j = phi_0 + 120 j`` deg, ``cos 2 phi_j = cos(2 phi_0 - 120 j)`` is a one-lobed
+(eccentricity) pattern over the three points, so an oval of amplitude ``A`` (peak to
+valley ``2A``) moves the three-point centre by ``A`` (to first order), in the
+direction ``3 phi_0 - psi`` (``psi`` the oval's orientation). In general n equally
+spaced points alias a k-lobed form into the centre when ``k = +-1 (mod n)``. At the
+default (RMS peak to valley 5 um, random orientation) that is ``5/(2 sqrt 2)`` =
+1.8 um per axis, four times the 0.41 um of the probe noise; least-squares circles
+through n >= 4 equally spaced points do not alias an oval (docs/circle_centre.md).
 """
 
 from __future__ import annotations
@@ -151,6 +170,16 @@ class Setup(SetupBase):
                                    "half-width)", low=0, high=100_000)
     stage_repeatability_um: float = param(0.5, doc="Stage positioning repeatability per axis "
                                           "and reading (std)", low=0, high=1000)
+    tip_radius_um: float = param(0.5, doc="Standard deviation of the error of the probe's "
+                                 "calibrated effective tip radius, one per test (the radius is "
+                                 "calibrated on a setting ring whose diameter is known to about "
+                                 "1 um, ISO 1938-1 / DIN 2250-1 setting rings)", low=0, high=1000)
+    bore_temperature_c: float = param(2.0, doc="Half-width of the (rectangular) deviation of "
+                                      "the bore's temperature from 20 degC, the reference "
+                                      "temperature of ISO 1; the estimates are not corrected "
+                                      "for it (a workshop held at 20 +- 2 degC)", low=0, high=50)
+    expansion_ppm_per_k: float = param(11.5, doc="Linear thermal expansion coefficient of the "
+                                       "workpiece [1e-6/K]; 11.5: steel", low=0, high=100)
     start_scatter_mm: float = param(25.0, doc="Half-width per axis of the uniform scatter of "
                                     "the start point about the truth's start", low=0,
                                     high=10_000)
@@ -221,6 +250,7 @@ def sources(setup: Setup) -> dict[str, Source]:
     scale = setup.scale_error_ppm * 1e-6
     sq = setup.squareness_urad * 1e-6
     s = setup.start_scatter_mm
+    strain = setup.expansion_ppm_per_k * 1e-6 * setup.bore_temperature_c
     return {
         "probe_noise": Source(
             Normal(0.0, setup.probe_noise_um * 1e-3), (k,),
@@ -256,14 +286,31 @@ def sources(setup: Setup) -> dict[str, Source]:
             Rectangular(-s, s), (2,),
             "Where the operator lowers the probe: uniform within +-25 mm per axis of the "
             "truth's start point (by eye, near the nominal centre)."),
+        "tip_radius": Source(
+            Normal(0.0, setup.tip_radius_um * 1e-3), (),
+            "Error of the calibrated effective tip radius, one per test: every recorded point "
+            "lies that far beyond the wall along its approach. 0.5 um std: the radius is "
+            "calibrated on a setting ring (ISO 1938-1) known to about 1 um in diameter."),
+        "bore_temperature": Source(
+            Rectangular(-strain, strain), (),
+            "Thermal strain of the bore, expansion_ppm_per_k x (temperature - 20 degC), the "
+            "temperature uniform within +-bore_temperature_c (default +-2 K: a workshop held at "
+            "20 +- 2 degC; 11.5e-6/K: steel); the bore grows about its centre and the estimates "
+            "are not corrected to 20 degC (ISO 1)."),
     }
 
 
 # --------------------------------------------------------------------------- geometry
 def _wall(setup, truth, errors, n):
-    """True centre (n,2), radius (n,), form coefficients (n,2), lobes."""
+    """True centre (n,2), radius (n,), form coefficients (n,2), lobes.
+
+    The radius is the one at the test's temperature: the 20 degC radius times
+    ``1 + strain`` (the bore grows about its centre; its form error is left at its
+    20 degC size, a change of 1e-5 of a few micrometres).
+    """
     centre = np.broadcast_to(np.array([truth.centre_x_mm, truth.centre_y_mm]), (n, 2))
-    radius = np.full(n, setup.bore_radius_mm + truth.radius_deviation_mm)
+    strain = np.asarray(errors["bore_temperature"], dtype=float).reshape(n)
+    radius = (setup.bore_radius_mm + truth.radius_deviation_mm) * (1.0 + strain)
     form = np.asarray(errors["roundness"], dtype=float).reshape(n, 2)
     return centre, radius, form, setup.lobes
 
@@ -381,16 +428,20 @@ def _free_direction(contact_p2, centre, radius, form, lobes, test_mm, mx):
 
 
 def _probe(setup, errors, contact, normal, direction, idx):
-    """Stylus position at trigger (actual frame): contact + pre-travel + noise + slip."""
+    """Stylus position at trigger (actual frame): contact + (pre-travel + noise + tip-radius
+    error) along the approach + slip along the wall."""
     n = contact.shape[0]
     noise = np.asarray(errors["probe_noise"], dtype=float).reshape(n, -1)[:, idx]
     pre = np.asarray(errors["pretravel_variation"], dtype=float).reshape(n, 2)
+    tip = np.asarray(errors["tip_radius"], dtype=float).reshape(n, 1)
     ux, uy = direction[..., 0], direction[..., 1]
     nx, ny = normal[..., 0], normal[..., 1]
     # cos 3b, sin 3b of the approach angle b from the unit vector (triple-angle formulas)
     c3 = ux * (4 * ux * ux - 3)
     s3 = uy * (3 - 4 * uy * uy)
-    along = noise + pre[:, 0:1] * c3 + pre[:, 1:2] * s3
+    # the controller compensates the stylus centre by the calibrated tip radius along
+    # the approach: a radius calibrated too large by `tip` records the point beyond the wall
+    along = noise + pre[:, 0:1] * c3 + pre[:, 1:2] * s3 + tip
     # signed angle from the outward normal to the approach; slip along the tangent (-ny, nx)
     slip_c = np.asarray(errors["tangential_slip"], dtype=float).reshape(n, 1)
     slip = slip_c * np.arctan2(nx * uy - ny * ux, nx * ux + ny * uy) if np.any(slip_c) else 0.0

@@ -4,14 +4,15 @@ Machine and model
 -----------------
 A vertical three-axis machine with a cross table (X on top of Y) and a head moving in
 Z. The rigid-body model (:mod:`mtplan.models._kinematics`) chains exact homogeneous
-transforms ``p = T_X(x) T_Y(y) T_Z(z) h`` with the 21 error functions in ISO 230-1
-names, all taken in the sense *tool (reading head) relative to workpiece (plate)*:
+transforms ``p = f + T_X(x) T_Y(y) T_Z(z) (h - f)`` with the 21 error functions in ISO
+230-1 names, all taken in the sense *tool (reading head) relative to workpiece (plate)*:
 positioning EXX, EYY, EZZ; straightness EYX, EZX, EXY, EZY, EXZ, EYZ; angular EAX, EBX,
 ECX, EAY, EBY, ECY, EAZ, EBZ, ECZ; squareness EC0Y, EB0Z, EA0Z. Rotations are exact,
 ``R = Rx(EA) Ry(EB) Rz(EC)``; axis directions ``d_Y = Rz(EC0Y) e_y``,
-``d_Z = Ry(EB0Z) Rx(EA0Z) e_z``. The order of the chain gives the Abbe lever arms of a
-cross-table machine: X's angular errors act on (0, y, z) + h, Y's on (0, 0, z) + h, Z's
-on the head offset h = (``head_lateral_mm``, 0, -``head_offset_mm``).
+``d_Z = Ry(EB0Z) Rx(EA0Z) e_z``. The errors are defined at the functional point
+``f = (0, 0, -reference_tool_mm)``; the order of the chain gives the Abbe lever arms of a
+cross-table machine: X's angular errors act on (0, y, z) + h - f, Y's on (0, 0, z) + h - f,
+Z's on h - f, with h the reading head's offset from the spindle reference point.
 
 Each error function is a polynomial in its axis's machine coordinate without constant
 term (zero at the plate centre, the machine's reference point):
@@ -21,60 +22,107 @@ brief's "every function a polynomial without constant term"): ISO 230-1 defines
 straightness relative to the axis's reference straight line, whose direction *is* the
 squareness; a linear straightness term would be the same parameter as the squareness
 (or the plate's rotation) and the model would be rank deficient by definition. The seed
-does the same (straightness = record minus its trend line).
+does the same (straightness = record minus its trend line). The error functions are
+functions of position: :func:`error_functions` gives each one's estimate, truth and
+first-order band over its travel; a measurand is the value at one stated position.
 
 Instrument and tests
 --------------------
 A 2D grid plate (HEIDENHAIN KGM 182 in the seed, measuring range 140 mm diameter) is
 fixed on the table in the XY, XZ and YZ planes in turn (plane offsets
-``xy_plane_z_mm``, ``xz_plane_y_mm``, ``yz_plane_x_mm``; the seed's YZ plane is at
-x = 120 mm), and reads the head's position in the plate's plane. In each plane:
+``xy_plane_z_mm``, ``xz_plane_y_mm``, ``yz_plane_x_mm``: the machine coordinate of the
+spindle reference during that plane's tests with the first head; the seed's YZ plane is
+at x = 120 mm), and reads the head's position in the plate's plane. In each plane:
 back-and-forth lines along both axes through the plate centre (``line_length_mm``,
 ``line_repeats``, ``line_points`` per pass) and a circle of radius ``circle_radius_mm``
-about the centre, counter-clockwise then clockwise (``circle_points`` per pass,
-``circle_arc_deg``; the seed's example program uses 45 deg arcs, the brief a full
-circle, which is the default). Error sources: reading noise, the plate's own grid
-error (a smooth random field per plane, cubic in the plate coordinates), and the
-plate's mounting in each set-up (in-plane offset, in-plane rotation and two tilts).
+about the centre, counter-clockwise then clockwise back along the same arc
+(``circle_points`` per pass, ``circle_arc_deg``; the seed's example program uses 45 deg
+arcs, the brief a full circle, which is the default).
+
+*Several head positions.* The first head sits at (``head_lateral_mm``, 0,
+-``head_offset_mm``) in every plane (the seed's single head). Each plane may repeat its
+tests with extra head positions (``xy_extra_heads_mm``, ``xz_extra_heads_mm``,
+``yz_extra_heads_mm``: triples of tool length, lateral X and lateral Y offset from the
+spindle axis; for the vertical plates an angle bracket puts the head sideways, its arm
+along the plate's normal). The plate stays mounted and the CNC's tool offset makes the
+head follow the same path on the plate, so the commanded machine positions move by the
+change of head offset, ``h0 - h``. Consequences for what the data can see: Z's angular
+errors see the new lever ``h - f`` directly (tool length: EAZ at the YZ plate, EBZ at
+the XZ plate; lateral offsets: ECZ); X's and Y's angular errors see only the head's
+lateral offset (their lever in the plate's directions is fixed by where the plate is:
+EBY and ECY need a lateral X offset); and an arm along the YZ plate's normal moves the
+machine in x while the plate stays, so the X roll EAX turns the YZ pattern by EAX(x)
+at each machine x against the plate's one rotation: ``poly_order`` + 1 distinct x
+(3 extra arms at the default order) determine EAX. ``extra_head_tests`` says whether an
+extra head repeats the circle too or the lines only. Each extra head's in-plane position
+after the change is not known to a micrometre (``head_setting_um``); every estimator
+estimates it, as it does the plates' mounting. The plate reads in its own grid's frame,
+so the head's rotation does not matter.
+
+Error sources
+-------------
+Reading noise, the plate's own grid error (a smooth random field per plane, cubic in
+the plate coordinates), the plate's mounting in each set-up (in-plane offset, in-plane
+rotation and two tilts), the extra heads' setting, and those of a real 1-2 h test:
+machine repeatability per reading point, reversal (lost motion) between directions of
+travel of each axis, the servo contouring error of the circles (first-order position
+loops, radius- and feed-dependent), and thermal drift over the test's duration (a
+growth of each axis's scale and a drift of the head relative to the plate, both
+linear in time). Every reading has a time in the test's schedule (:func:`duration`
+sums it): plate changes, head changes, then the moves at ``feed_mm_min``. See
+:func:`sources` for each default and where it comes from.
 
 Estimators
 ----------
-``patent`` (the seed's stepwise method): step 1 fits each plane's two line records
-(trend line + polynomial; the seed's "record minus trend line" as one least-squares
-fit) for 3 positioning, 6 straightness and 3 squareness errors; step 2 subtracts the
-step-1 errors' first-order radial effect from each circle's radial deviation
-``|r| - R`` (after removing the plate offset found in step 1) and solves ``E = Q P`` by
-least squares for the seed's angular errors of that plane (XY: EAY, EBY, ECY, ECX; XZ:
-EBX, EBZ; YZ: EAZ, EAX, ECZ). Q is the radial projection of the forward model's
-first-order expansion (its Jacobian at zero error), not the seed's damaged formulas.
-Where the derivation differs from the seed: the seed's lever arms include each axis's
-own coordinate (terms ``x^2 sin(theta)``), which ISO 230-1 absorbs in the straightness;
-the X roll column of the seed's Q_YOZ is ``x^n (z cos + y sin)`` whereas a rotation about
-x seen at fixed x = 120 mm is a rigid rotation of the YZ pattern, whose radial
-component about the centre vanishes, and its three columns (n = 1, 2, 3) are
-proportional: Q_YOZ is rank deficient. The seed also ignores the tool-length lever
-arm in step 1, so its positioning errors are those at the reading head (EXX - L EBX at
-first order), not at the spindle reference point.
+``patent`` (the seed's stepwise method): step 1 fits each plane's two line records read
+with the first head (trend line + polynomial; the seed's "record minus trend line" as
+one least-squares fit) for 3 positioning, 6 straightness and 3 squareness errors and the
+plate's offset and rotation; step 2 brings every other reading back to the nominal plate
+frame (step-1 mounting removed exactly), subtracts the step-1 errors' first-order effect
+and solves ``E = Q P`` by least squares for the angular coefficients (and the extra
+heads' settings) from **all three circles stacked**, each circle's radial deviation
+``|r| - R``, together with the 2D line records of the extra heads. The seed assigns the
+angular errors to planes (XY: EAY, EBY, ECY, ECX; XZ: EBX, EBZ; YZ: EAZ, EAX, ECZ),
+which the lever arms do not support (the XY circle has no lever for EAY, the YZ circle
+sees EAY through z): stacking is what makes step 2 work; the seed's single head has no
+line records beyond step 1, so with it step 2 is the seed's circles alone. Q is the
+forward model's first-order expansion (its Jacobian at zero error), not the seed's
+damaged formulas. Where the derivation differs from the seed: the seed's lever arms
+include each axis's own coordinate (terms ``x^2 sin(theta)``), which ISO 230-1 absorbs
+in the straightness; the X roll column of the seed's Q_YOZ is ``x^n (z cos + y sin)``
+whereas a rotation about x seen at fixed x = 120 mm is a rigid rotation of the YZ
+pattern, whose radial component about the centre vanishes, and its three columns (n = 1,
+2, 3) are proportional: Q_YOZ is rank deficient. The seed also ignores the tool-length
+lever arm in step 1, so its positioning errors are those at the reading head (EXX - L EBX
+at first order), not at the spindle reference point.
 
-``joint``: all coefficients and the plates' offsets and in-plane rotations at once,
-least squares with the model's Jacobian (rank-truncated pseudo-inverse, one matrix
-product per batch), then Gauss-Newton (chord: the Jacobian at zero error is kept) iterations on the exact
-model until the step is below 1e-5 of a typical error for the whole batch (at most 8).
+``joint``: all coefficients and the nuisance mounting parameters at once, least squares
+with the model's Jacobian (rank-truncated pseudo-inverse, one matrix product per batch),
+then Gauss-Newton on the exact model with **one linearisation for the whole batch**: the
+trials of a Monte Carlo block differ by the noise only, so the exact model is evaluated
+at the batch's (componentwise) median estimate and every trial is moved by the same
+correction of the model's non-linear part (chord iterations, the Jacobian at a coarse
+grid point near the median, shared by every block near it). The neglected term is
+second order in a trial's distance from the median; it is checked on the trials
+farthest from it (their exact residual's correction must be below 1e-3 of a typical
+error, 1 nm / 0.01 urad) and the batch falls back to per-trial chord iterations on the
+exact model where it is not. A batch of one (a measurement) is plain chord Gauss-Newton.
 ``joint_linear``: the first, linearised, step only.
 
 Identifiability (the point of the study)
 ----------------------------------------
 From 2D plate readings the model is rank deficient: see :func:`identifiability` and
-docs/geometry21.md. At the default set-up (errors defined at the reading head) the joint
-Jacobian has rank 42 of 60: the X roll EAX only rotates the YZ pattern (confounded with
-the plate's rotation), and EBY, ECY, EAZ, EBZ, ECZ have no lever arm between the
-functional point and any plate plane (no effect). Decision: :func:`measurands` lists
-only the measurands that the data determine (estimable functions of the joint model at
-the given set-up, 15 at the default); the others are never reported as numbers, and
-:func:`identifiability` gives every one of the 21 with its status and the errors it is
-confounded with. The patent estimator reports the same list; where it is biased at
-first order (e.g. ``reference_tool_mm=0``: EXX - L EBX) :func:`identifiability` with
-``estimator="patent"`` says so and names the errors that bias it.
+docs/geometry21.md. At the default set-up (the seed's one head, errors defined at the
+reading head) the joint Jacobian has rank 42 of 60: the X roll EAX only rotates the YZ
+pattern (confounded with the plate's rotation), and EBY, ECY, EAZ, EBZ, ECZ have no
+lever arm between the functional point and any plate plane (no effect). Decision:
+:func:`measurands` lists only the measurands that the data determine (estimable functions
+of the joint model at the given set-up: 15 at the default, all 21 with the head
+positions of ``examples/geometry21_all21.toml``); the others are never reported as
+numbers, and :func:`identifiability` gives every one of the 21 with its status and the
+errors it is confounded with. The patent estimator reports the same list; where it is
+biased at first order (e.g. ``reference_tool_mm=0``: EXX - L EBX) :func:`identifiability`
+with ``estimator="patent"`` says so and names the errors that bias it.
 
 Units: mm and rad internally; measurands in um (positioning, straightness) and urad
 (angular, squareness), each the value of the function at the positive end of the
@@ -93,7 +141,7 @@ import pandas as pd
 from mtplan._validate import InvalidInput, Problems
 from mtplan.models._kinematics import chain, polyval, rotate_inverse
 from mtplan.models._protocol import Measurand, Procedure, SetupBase, Source, param
-from mtplan.uncertainty.distributions import Normal
+from mtplan.uncertainty.distributions import Normal, Rectangular
 
 __all__ = [
     "Setup",
@@ -106,6 +154,9 @@ __all__ = [
     "coefficients",
     "coefficient_covariance",
     "error_bands",
+    "error_functions",
+    "budget",
+    "first_order_std",
     "noise_free_table",
 ]
 
@@ -131,8 +182,8 @@ _DESCR = {
 _ROT = ("rotation about X", "rotation about Y", "rotation about Z")
 #: plate planes: name, in-plane axes (a, b), the fixed axis
 PLANES = (("XY", 0, 1, 2), ("XZ", 0, 2, 1), ("YZ", 1, 2, 0))
-#: the seed's assignment of step-1 errors (lines) and step-2 errors (circles) to planes; step 2
-#: is stacked over the three circles instead (module docstring), _STEP2 documents the seed's
+#: the seed's assignment of step-1 errors (lines) to planes; _STEP2 documents the seed's
+#: assignment of the angular errors to the circles (step 2 stacks them, module docstring)
 _STEP1 = {"XY": ("EXX", "EYY", "EYX", "EXY", "EC0Y"), "XZ": ("EZZ", "EZX", "EXZ", "EB0Z"),
           "YZ": ("EZY", "EYZ", "EA0Z")}
 _STEP2 = {"XY": ("EAY", "EBY", "ECY", "ECX"), "XZ": ("EBX", "EBZ"), "YZ": ("EAZ", "EAX", "ECZ")}
@@ -140,6 +191,10 @@ _STEP2 = {"XY": ("EAY", "EBY", "ECY", "ECX"), "XZ": ("EBX", "EBZ"), "YZ": ("EAZ"
 PLATE_RADIUS_MM = 70.0
 _TEST_NAMES = ("line_a", "line_b", "circle")
 _GRID_POWERS = tuple((i, j) for d in (1, 2, 3) for i in range(d + 1) for j in (d - i,))
+#: relative spread of the axes' following times about servo_lag_ms (gain mismatch)
+SERVO_MISMATCH = 0.1
+#: error sources that add white noise to each reading component (first order: sigma^2 I)
+_WHITE = ("encoder_noise", "repeatability")
 
 
 def _powers(name: str, order: int) -> tuple[int, ...]:
@@ -150,6 +205,13 @@ def _powers(name: str, order: int) -> tuple[int, ...]:
 
 
 # --------------------------------------------------------------------------- set-up
+def _heads_field(plane: str, doc_extra: str):
+    return param((), doc=f"Extra head positions of the {plane} plate's tests: triples of tool "
+                 "length, lateral X and lateral Y offset from the spindle axis [mm] (e.g. "
+                 f"200,0,0,100,60,0); each repeats the plane's tests there. {doc_extra}",
+                 low=-1000, high=1000)
+
+
 @dataclass(frozen=True)
 class Setup(SetupBase):
     """Set-up of the 2D grid-encoder test of the 21 geometric errors."""
@@ -168,12 +230,20 @@ class Setup(SetupBase):
     circle_arc_deg: float = param(360.0, doc="Arc of each circle pass (the seed's program: 45)",
                                   low=0, high=360, low_open=True)
     head_offset_mm: float = param(100.0, doc="Reading head below the spindle reference point "
-                                  "(tool length L)", low=0, high=1000)
+                                  "(tool length L) of the first head position", low=0, high=1000)
     reference_tool_mm: float = param(100.0, doc="Tool offset of the functional point at which "
                                      "the errors are defined (ISO 230-1); default the head's",
                                      low=0, high=1000)
-    head_lateral_mm: float = param(0.0, doc="Reading head offset from the spindle axis along X",
-                                   low=-200, high=200)
+    head_lateral_mm: float = param(0.0, doc="First head position's offset from the spindle axis "
+                                   "along X", low=-200, high=200)
+    xy_extra_heads_mm: tuple[float, ...] = _heads_field("XY", "A lateral X offset shows ECY.")
+    xz_extra_heads_mm: tuple[float, ...] = _heads_field(
+        "XZ", "Another tool length shows EBZ; a lateral Y arm (the plate's normal) ECZ and EAZ.")
+    yz_extra_heads_mm: tuple[float, ...] = _heads_field(
+        "YZ", "A lateral X arm (the plate's normal) shows EBY, ECY, EBZ, ECZ and, at "
+        "poly_order + 1 distinct arms, EAX; another tool length shows EAZ.")
+    extra_head_tests: str = param("all", doc="Tests repeated at the extra head positions: "
+                                  "'all' (lines and circle) or 'lines'", choices=("all", "lines"))
     xy_plane_z_mm: float = param(0.0, doc="Z of the XY plate set-up", low=-1000, high=1000)
     xz_plane_y_mm: float = param(0.0, doc="Y of the XZ plate set-up", low=-1000, high=1000)
     yz_plane_x_mm: float = param(120.0, doc="X of the YZ plate set-up (the seed: 120 mm)",
@@ -186,10 +256,27 @@ class Setup(SetupBase):
                                    low=0, high=10)
     plate_tilt_urad: float = param(100.0, doc="Plate mounting rotation and tilts (std)",
                                    low=0, high=20000)
+    head_setting_um: float = param(10.0, doc="In-plane position error of an extra head after "
+                                   "the change (std, each component; estimated as a nuisance)",
+                                   low=0, high=1000)
+    repeatability_um: float = param(0.3, doc="Machine repeatability at each reading point (std, "
+                                    "each in-plane component; ISO 230-2 R = 4 s)", low=0, high=100)
+    reversal_um: float = param(2.0, doc="Reversal value of each axis (mean; drawn uniform on "
+                               "[0, 2x]; ISO 230-2 B, 1-3 um with linear scales)", low=0, high=100)
+    servo_lag_ms: float = param(2.0, doc="Following time 1/Kv of each axis's position loop "
+                                "(mean; 10 % spread per axis for the gain mismatch)", low=0,
+                                high=200)
+    thermal_growth_ppm_per_h: float = param(2.0, doc="Growth of each axis's scale during the test "
+                                            "(std of the rate; ISO 230-3 drift)", low=0, high=100)
+    thermal_drift_um_per_h: float = param(2.0, doc="Drift of the head relative to the plate "
+                                          "during the test (std of the rate, each component)",
+                                          low=0, high=1000)
     feed_mm_min: float = param(500.0, doc="Feed of the test moves (the seed: 500 mm/min)",
                                low=0, high=100000, low_open=True)
     setup_change_s: float = param(1200.0, doc="Time to mount and align the plate in one plane",
                                   low=0, high=36000)
+    head_change_s: float = param(300.0, doc="Time to change the reading head (tool length or "
+                                 "bracket) and set it, per extra head position", low=0, high=36000)
 
     def _check(self, p: Problems) -> None:
         if self.line_points < self.poly_order + 2:
@@ -200,6 +287,33 @@ class Setup(SetupBase):
             p.add("circle_points", self.circle_points,
                   f"an int >= 2 * poly_order + 4 = {2 * self.poly_order + 4} (the circle's "
                   "least-squares fit needs more readings than unknowns)")
+        for pl in ("xy", "xz", "yz"):
+            name = f"{pl}_extra_heads_mm"
+            v = np.asarray(getattr(self, name), dtype=float)
+            if v.size % 3:
+                p.add(name, getattr(self, name), "a list of triples (tool length, lateral X, "
+                      "lateral Y) [mm]: its length must be a multiple of 3")
+                continue
+            t = v.reshape(-1, 3)
+            if np.any(t[:, 0] < 0) or np.any(np.abs(t[:, 1:]) > 200):
+                p.add(name, getattr(self, name), "triples with tool length in [0, 1000] and "
+                      "lateral offsets in [-200, 200] mm")
+
+
+def extra_heads(setup: Setup) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The head offsets h = (lateral X, lateral Y, -tool length) of each plane [mm].
+
+    Returns
+    -------
+    tuple of three arrays of shape (1 + n_extra, 3), XY, XZ, YZ: the first head, then
+    that plane's extra heads.
+    """
+    h0 = np.array([setup.head_lateral_mm, 0.0, -setup.head_offset_mm])
+    out = []
+    for pl in ("xy", "xz", "yz"):
+        t = np.asarray(getattr(setup, f"{pl}_extra_heads_mm"), dtype=float).reshape(-1, 3)
+        out.append(np.vstack([h0, np.column_stack([t[:, 1], t[:, 2], -t[:, 0]])]))
+    return tuple(out)
 
 
 _DEFAULT_TRUTH = {
@@ -235,12 +349,14 @@ class Truth(SetupBase):
     100 mm, squareness 10-20 urad. ``error_scale`` multiplies every error and
     ``angular_scale`` the angular and squareness errors only (large-error studies).
 
-    The six angular errors that the default test cannot see at first order (EAX: only a
-    rotation of the YZ pattern, taken up by the plate's rotation; EBY, ECY, EAZ, EBZ,
-    ECZ: no lever arm between the functional point and the plates' planes) are zero by
-    default: with realistic values (:data:`HIDDEN_ANGULAR`) their second-order effect
-    on the readings (at most ~1e-8 mm) makes every estimator inexact by up to
-    ~1e-4 urad / 2e-6 um, and the conformance check of noise-free recovery is at 1e-6.
+    The six angular errors that the default (the seed's one-head) test cannot see at first
+    order (EAX: only a rotation of the YZ pattern, taken up by the plate's rotation; EBY,
+    ECY, EAZ, EBZ, ECZ: no lever arm between the functional point and the plates' planes)
+    are zero by default: with realistic values (:data:`HIDDEN_ANGULAR`) their second-order
+    effect on the readings (at most ~1e-8 mm) makes every estimator inexact by up to
+    ~1e-4 urad / 2e-6 um at that set-up, and the conformance check of noise-free recovery
+    is at 1e-6. A set-up with head positions that determine all 21
+    (``examples/geometry21_all21.toml``) is simulated with them set.
     """
 
     _owner = "geometry21 truth"
@@ -291,19 +407,28 @@ def _truth_coefficients(truth: Truth) -> dict:
 @dataclass(frozen=True)
 class _Geometry:
     plane: np.ndarray      # (M,) plane index
+    head: np.ndarray       # (M,) head index within its plane (0: the first head)
+    xhead: np.ndarray      # (M,) global index of an extra head, -1 for the first head
     test: np.ndarray       # (M,) 0 line along a, 1 line along b, 2 circle
     pass_: np.ndarray      # (M,)
     point: np.ndarray      # (M,)
     cmd: np.ndarray        # (M, 3) commanded x, y, z [mm]
     local: np.ndarray      # (M, 2) nominal in-plane position relative to the centre [mm]
+    hvec: np.ndarray       # (M, 3) head offset of each reading [mm]
+    time_s: np.ndarray     # (M,) time of each reading from the test's start [s]
     basis: np.ndarray      # (3, 3, 3) plate axes (columns u, v, n) per plane
-    centre: np.ndarray     # (3, 3) commanded centre of each plane's tests [mm]
-    head: np.ndarray       # (3,)
+    centre: np.ndarray     # (3, 3) commanded centre of each plane's tests, first head [mm]
+    origin: np.ndarray     # (3, 3) the plates' nominal origins (centre + first head) [mm]
     ref: np.ndarray        # (3,) functional point
+    pattern: np.ndarray    # (15, M, 3) plate-frame effect of the drift/reversal/servo features
+    powers: np.ndarray     # (3, poly_order + 1, M) powers of each axis's commanded position
     layout: dict           # function -> (powers, slice into coefficients)
     n_coef: int
-    n_par: int             # coefficients + 3 nuisance per plane
+    n_extra: int           # extra head positions, all planes
+    xslices: tuple         # (plane, slice of its readings) of each extra head position
+    n_par: int             # coefficients + 3 per plane + 2 per extra head
     u_end: float
+    duration_s: float
 
 
 def _plane_centre(setup, k):
@@ -312,36 +437,79 @@ def _plane_centre(setup, k):
     return c
 
 
-@functools.lru_cache(maxsize=16)
-def _geometry(setup: Setup) -> _Geometry:
+def _passes(setup):
+    """The passes of one plane's program: (test, pass, local a, local b, path length to
+    each point [mm], pass length [mm], velocity sign (a, b) per point, circle angle, sense)."""
     half = setup.line_length_mm / 2
     u = np.linspace(-half, half, setup.line_points)
+    R = setup.circle_radius_mm
     arc = math.radians(setup.circle_arc_deg)
     full = setup.circle_arc_deg >= 360.0
     th = np.linspace(0.0, arc, setup.circle_points, endpoint=not full)
-    plane, test, pss, pt, la, lb = [], [], [], [], [], []
+    out = []
+    for t in (0, 1):
+        for rep in range(setup.line_repeats):
+            for d, uu in enumerate((u, u[::-1])):
+                z = np.zeros(uu.size)
+                sign = np.full(uu.size, 1.0 if d == 0 else -1.0)
+                vel = (sign, z) if t == 0 else (z, sign)
+                out.append((t, 2 * rep + d, uu if t == 0 else z, uu if t == 1 else z,
+                            np.abs(uu - uu[0]), setup.line_length_mm, vel, z, 0.0))
+    for d, s in enumerate((1.0, -1.0)):  # CCW, then CW back along the same arc (the seed)
+        phi = th if s > 0 else arc - th
+        va, vb = -s * np.sin(phi), s * np.cos(phi)
+        vel = tuple(np.where(np.abs(v) > 1e-12, np.sign(v), 0.0) for v in (va, vb))
+        out.append((2, d, R * np.cos(phi), R * np.sin(phi), R + R * th, 2 * R + R * arc, vel,
+                    phi, s))
+    return out
+
+
+@functools.lru_cache(maxsize=16)
+def _geometry(setup: Setup) -> _Geometry:
+    heads = extra_heads(setup)
+    passes = _passes(setup)
+    v = setup.feed_mm_min / 60.0  # [mm/s]
+    cols = {k: [] for k in ("plane", "head", "xhead", "test", "pass", "point", "la", "lb", "time",
+                            "va", "vb", "phi", "sense", "h")}
+    clock, xh = 0.0, 0
     for k in range(3):
-        for t in (0, 1):
-            for rep in range(setup.line_repeats):
-                for d, uu in enumerate((u, u[::-1])):
-                    n = uu.size
-                    plane.append(np.full(n, k)); test.append(np.full(n, t))
-                    pss.append(np.full(n, 2 * rep + d)); pt.append(np.arange(n))
-                    la.append(uu if t == 0 else np.zeros(n)); lb.append(uu if t == 1 else np.zeros(n))
-        for d, tt in enumerate((th, -th)):
-            n = tt.size
-            plane.append(np.full(n, k)); test.append(np.full(n, 2))
-            pss.append(np.full(n, d)); pt.append(np.arange(n))
-            la.append(setup.circle_radius_mm * np.cos(tt)); lb.append(setup.circle_radius_mm * np.sin(tt))
-    plane = np.concatenate(plane); test = np.concatenate(test)
-    local = np.column_stack([np.concatenate(la), np.concatenate(lb)])
+        clock += setup.setup_change_s
+        for j, h in enumerate(heads[k]):
+            if j:
+                clock += setup.head_change_s
+            for test, pss, la, lb, dist, length, vel, phi, sense in passes:
+                if j and test == 2 and setup.extra_head_tests == "lines":
+                    continue
+                n = la.size
+                for key, val in (("plane", k), ("head", j), ("xhead", xh if j else -1),
+                                 ("test", test), ("pass", pss), ("sense", sense)):
+                    cols[key].append(np.full(n, val))
+                cols["point"].append(np.arange(n))
+                cols["la"].append(la)
+                cols["lb"].append(lb)
+                cols["time"].append(clock + dist / v)
+                cols["va"].append(vel[0])
+                cols["vb"].append(vel[1])
+                cols["phi"].append(phi)
+                cols["h"].append(np.broadcast_to(h, (n, 3)))
+                clock += length / v
+            xh += 1 if j else 0
+    c = {key: np.concatenate(val) for key, val in cols.items()}
+    plane = c["plane"].astype(int)
+    local = np.column_stack([c["la"], c["lb"]])
     cmd = np.zeros((plane.size, 3))
+    vdir = np.zeros((plane.size, 3))
+    hvec = np.asarray(c["h"], dtype=float)
     basis = np.zeros((3, 3, 3))
-    for k, (_, a, b, c) in enumerate(PLANES):
+    centre = np.stack([_plane_centre(setup, k) for k in range(3)])
+    for k, (_, a, b, _c) in enumerate(PLANES):
         sel = plane == k
-        cmd[sel] = _plane_centre(setup, k)
+        # the head follows the plate's path: the machine moves by the head's change of offset
+        cmd[sel] = centre[k] + heads[k][0] - hvec[sel]
         cmd[sel, a] += local[sel, 0]
         cmd[sel, b] += local[sel, 1]
+        vdir[sel, a] = c["va"][sel]
+        vdir[sel, b] = c["vb"][sel]
         ea, eb = np.eye(3)[a], np.eye(3)[b]
         basis[k] = np.column_stack([ea, eb, np.cross(ea, eb)])
     layout, pos = {}, 0
@@ -349,12 +517,71 @@ def _geometry(setup: Setup) -> _Geometry:
         pw = _powers(name, setup.poly_order)
         layout[name] = (pw, slice(pos, pos + len(pw)))
         pos += len(pw)
-    return _Geometry(plane=plane, test=test, pass_=np.concatenate(pss), point=np.concatenate(pt),
-                     cmd=cmd, local=local, basis=basis,
-                     centre=np.stack([_plane_centre(setup, k) for k in range(3)]),
-                     head=np.array([setup.head_lateral_mm, 0.0, -setup.head_offset_mm]),
-                     ref=np.array([0.0, 0.0, -setup.reference_tool_mm]),
-                     layout=layout, n_coef=pos, n_par=pos + 9, u_end=half)
+    n_extra = int(c["xhead"].max()) + 1 if c["xhead"].size else 0
+    xslices = []
+    for e in range(n_extra):
+        idx = np.flatnonzero(c["xhead"] == e)
+        xslices.append((int(plane[idx[0]]), slice(int(idx[0]), int(idx[-1]) + 1)))
+    geo = dict(plane=plane, head=c["head"].astype(int), xhead=c["xhead"].astype(int),
+               test=c["test"].astype(int), pass_=c["pass"].astype(int),
+               point=c["point"].astype(int), cmd=cmd, local=local, hvec=hvec,
+               time_s=c["time"], basis=basis, centre=centre,
+               origin=centre + np.stack([h[0] for h in heads]),
+               ref=np.array([0.0, 0.0, -setup.reference_tool_mm]), layout=layout, n_coef=pos,
+               n_extra=n_extra, xslices=tuple(xslices), n_par=pos + 9 + 2 * n_extra, u_end=setup.line_length_mm / 2,
+               duration_s=float(clock))
+    pat = _feature_patterns(setup, plane, cmd, local, vdir, c["time"], c["phi"], c["sense"],
+                            c["test"])
+    geo["pattern"] = _to_plate_frame(plane, basis, pat)
+    geo["powers"] = cmd.T[:, None, :] ** np.arange(setup.poly_order + 1)[None, :, None]
+    return _Geometry(**geo)
+
+
+def _feature_patterns(setup, plane, cmd, local, vdir, time_s, phi, sense, test):
+    """Machine-frame displacement of each reading per unit of the 15 drift/reversal/servo
+    features (g_x, g_y, g_z [1/h], d_x, d_y, d_z [mm/h], B_x, B_y, B_z [mm],
+    T_x, T_y, T_z [s], T_x^2, T_y^2, T_z^2 [s^2]), shape (15, M, 3).
+
+    Thermal growth of axis U: ``g_U (t / 1 h) u_U`` along U; drift: ``d (t / 1 h)``;
+    reversal (lost motion) of axis U: ``-B_U / 2 * sign(velocity_U)`` (an axis at rest
+    or at a turning point of a circle: 0, the mean of its two states); servo contouring
+    error of a circle in the plane of axes (a, b), radial, from first-order position loops
+    with following times T (steady state, to second order in omega T, omega = s v / R,
+    s = +1 counter-clockwise):
+    ``dR = -v^2 / (2 R) (T_a^2 cos^2 phi + T_b^2 sin^2 phi) - s v / 2 (T_b - T_a) sin 2 phi``:
+    a radius reduction growing with v^2 / R and the 45-deg ellipse of a gain mismatch
+    growing with v. Lines (one axis at constant speed) have no contouring error.
+    """
+    m = plane.size
+    pat = np.zeros((15, m, 3))
+    hours = time_s / 3600.0
+    eye = np.eye(3)
+    for u in range(3):
+        pat[u] = (hours * cmd[:, u])[:, None] * eye[u]
+        pat[3 + u] = hours[:, None] * eye[u]
+        pat[6 + u] = (-0.5 * vdir[:, u])[:, None] * eye[u]
+    v = setup.feed_mm_min / 60.0
+    R = setup.circle_radius_mm
+    circ = test == 2
+    for k, (_, a, b, _c) in enumerate(PLANES):
+        sel = circ & (plane == k)
+        p, s = phi[sel], sense[sel]
+        er = np.cos(p)[:, None] * eye[a] + np.sin(p)[:, None] * eye[b]  # radial, machine frame
+        quad = -v * v / (2 * R)
+        pat[12 + a][sel] += (quad * np.cos(p) ** 2)[:, None] * er
+        pat[12 + b][sel] += (quad * np.sin(p) ** 2)[:, None] * er
+        pat[9 + a][sel] += (s * v / 2 * np.sin(2 * p))[:, None] * er
+        pat[9 + b][sel] += (-s * v / 2 * np.sin(2 * p))[:, None] * er
+    return pat
+
+
+def _to_plate_frame(plane, basis, vec):
+    """Machine-frame vectors (..., M, 3) in the plate coordinates of each reading's plane."""
+    out = np.empty_like(vec)
+    for k in range(3):
+        sel = plane == k
+        out[..., sel, :] = vec[..., sel, :] @ basis[k]
+    return out
 
 
 def _values(geo: _Geometry, coefs: dict) -> dict:
@@ -364,44 +591,56 @@ def _values(geo: _Geometry, coefs: dict) -> dict:
         powers, coef = coefs[name]
         if _KIND[name] == "sq":
             out[name] = coef[:, :1] * np.ones((1, 1))
+        elif powers and max(powers) < geo.powers.shape[1]:
+            out[name] = coef @ geo.powers[_AXIS[name], list(powers)]
         else:
             out[name] = polyval(coef, powers, geo.cmd[:, _AXIS[name]])
     return out
 
 
 def _plane_slices(geo: _Geometry) -> list[slice]:
-    idx = np.flatnonzero(np.diff(geo.plane)) + 1
-    bounds = [0, *idx.tolist(), geo.plane.size]
+    bounds = [0, *np.searchsorted(geo.plane, [1, 2]).tolist(), geo.plane.size]
     return [slice(bounds[k], bounds[k + 1]) for k in range(3)]
 
 
-def _plate_readings(geo: _Geometry, p: np.ndarray, offset: np.ndarray, rot: np.ndarray):
-    """Readings of the plates: in-plane position of the head in each plate's frame.
+def _local3(geo: _Geometry, p: np.ndarray) -> np.ndarray:
+    """Head positions (n, M, 3) [machine frame] in each plate's nominal frame (n, M, 3)."""
+    return _to_plate_frame(geo.plane, geo.basis, p - geo.origin[geo.plane])
+
+
+def _rotation_rows(rot: np.ndarray) -> np.ndarray:
+    """First two rows of ``Rinv = (Rx(a) Ry(b) Rz(c))^-1`` per trial: (n, 2, 3) for rot (n, 3)."""
+    cols = rotate_inverse(rot[:, None, 0], rot[:, None, 1], rot[:, None, 2], np.eye(3)[None])
+    return np.swapaxes(cols, 1, 2)[:, :2, :]
+
+
+def _mount(geo: _Geometry, loc: np.ndarray, offset: np.ndarray, head: np.ndarray,
+           rot: np.ndarray) -> np.ndarray:
+    """Plate readings from plate-frame positions, exactly: ``Rinv(rot) (loc - (shift, 0))``
+    with the shift the plate's offset less an extra head's setting error, (n, M, 2).
 
     Parameters
     ----------
-    p : array (n or 1, M, 3)
-        Head position in the workpiece frame [mm].
+    loc : array (n or 1, M, 3)
+        Head position in the plate's nominal frame [mm].
     offset : array (n, 3, 2)
-        In-plane offset of each plate from its nominal origin [mm].
+        In-plane offset of each plate [mm].
+    head : array (n, n_extra, 2)
+        In-plane setting error of each extra head position [mm].
     rot : array (n, 3, 3)
         Rotation of each plate [rad]: tilt about its u axis, tilt about its v axis,
         rotation about its normal (applied as Rx Ry Rz in plate coordinates).
-
-    Returns
-    -------
-    array (n, M, 2) [mm]
     """
-    n = max(p.shape[0], offset.shape[0])
-    out = np.empty((n, p.shape[1], 2))
+    n = max(loc.shape[0], rot.shape[0])
+    out = np.empty((n, loc.shape[1], 2))
+    rows = []
     for k, sl in enumerate(_plane_slices(geo)):
-        d = p[:, sl, :] - (geo.centre[k] + geo.head)
-        loc = d @ geo.basis[k]  # (., Mk, 3) plate coordinates
-        o = np.zeros((offset.shape[0], 1, 3))
-        o[:, 0, :2] = offset[:, k, :]
-        loc = loc - o
-        r = rot[:, k, :]
-        out[:, sl, :] = rotate_inverse(r[:, None, 0], r[:, None, 1], r[:, None, 2], loc)[..., :2]
+        m = _rotation_rows(rot[:, k])  # (n, 2, 3)
+        rows.append(m)
+        np.matmul(loc[:, sl, :], np.swapaxes(m, 1, 2), out=out[:, sl, :])
+        out[:, sl, :] -= (m[:, :, :2] @ offset[:, k, :, None])[:, None, :, 0]
+    for e, (k, sl) in enumerate(geo.xslices):
+        out[:, sl, :] += (rows[k][:, :, :2] @ head[:, e, :, None])[:, None, :, 0]
     return out
 
 
@@ -422,7 +661,7 @@ def measurands(setup: Setup) -> tuple[Measurand, ...]:
         unit = "urad" if kind in ("ang", "sq") else "um"
         text = _DESCR[kind].format(ax="XYZ"[axis], comp="XYZ"[comp], rot=_ROT[comp])
         if kind != "sq":
-            text += f", at u = +{setup.line_length_mm / 2:g} mm"
+            text += f", at {'xyz'[axis]} = +{setup.line_length_mm / 2:g} mm"
         out.append(Measurand(name, unit, text))
     return tuple(out)
 
@@ -432,6 +671,7 @@ def sources(setup: Setup) -> dict:
     geo = _geometry(setup)
     m = geo.plane.size
     k = len(_GRID_POWERS)
+    lag = setup.servo_lag_ms * 1e-3
     return {
         "encoder_noise": Source(
             Normal(0.0, setup.encoder_noise_um * 1e-3), (m, 2),
@@ -455,7 +695,56 @@ def sources(setup: Setup) -> dict:
             "Plate mounting: tilt about the plate's two axes and rotation about its normal "
             "in each set-up (100 urad = 0.1 mm/m alignment, assumed). The rotation is a "
             "nuisance the estimators remove; the tilts act at second order (cosine error)."),
+        "head_setting": Source(
+            Normal(0.0, setup.head_setting_um * 1e-3 if geo.n_extra else 0.0), (geo.n_extra, 2),
+            "In-plane position of each extra head position after the change (tool length "
+            "from a presetter, lateral offset of the bracket): 10 um each component, assumed "
+            "(presetters read tool length to 2-5 um; a bracket's offset is known to ~10 um). "
+            "A nuisance the estimators remove; off without extra heads."),
+        "repeatability": Source(
+            Normal(0.0, setup.repeatability_um * 1e-3), (m, 2),
+            "The machine's non-repeatable path deviation at each reading point, each "
+            "in-plane component, independent between points and passes. Default 0.3 um: "
+            "ISO 230-2 unidirectional repeatability R = 4 s of about 1.2 um, typical of a "
+            "machining centre with linear scales (data sheets: R 1-3 um)."),
+        "reversal": Source(
+            Rectangular(0.0, 2e-3 * setup.reversal_um), (3,),
+            "Reversal value (lost motion) B of each axis, drawn uniform on [0, 2 reversal_um] "
+            "(mean reversal_um, never negative): moving in +U the axis lags by B/2, moving in "
+            "-U it leads by B/2, so the back-and-forth lines and the quadrants of the "
+            "circles see it. Default 2 um: ISO 230-2 reversal value of a machining centre "
+            "with linear scales (data sheets 1-3 um; with rotary encoders 3-10 um)."),
+        "servo_lag": Source(
+            Normal(lag, SERVO_MISMATCH * lag), (3,),
+            "Following time T = 1/Kv of each axis's position loop, drawn with 10 % spread "
+            "about servo_lag_ms (the mismatch of tuned gains): the contouring error of the "
+            "circles, a radius reduction v^2 T^2 / (2 R) and a 45-deg ellipse of amplitude "
+            "v (T_b - T_a) / 2 that changes sign with the direction (ISO 230-4 Annex). "
+            "Default 2 ms: the effective following time with velocity feed-forward, assumed "
+            "(without it Kv = 1-3 (m/min)/mm, T = 20-60 ms); at 500 mm/min the ellipse is "
+            "about 1 um."),
+        "thermal_growth": Source(
+            Normal(0.0, setup.thermal_growth_ppm_per_h * 1e-6), (3,),
+            "Rate of change of each axis's scale during the test (thermal expansion of the "
+            "scale or ball screw), linear in the test's time: the positioning error grows "
+            "by g t u. Default 2 ppm/h: a workshop's temperature change of ~0.2 K/h on "
+            "steel/cast iron (11.5 ppm/K), the order of ISO 230-3 environmental drift "
+            "tests of machining centres."),
+        "thermal_drift": Source(
+            Normal(0.0, setup.thermal_drift_um_per_h * 1e-3), (3,),
+            "Rate of the head's drift relative to the plate during the test (spindle and "
+            "column growth), each component, linear in the test's time. Default 2 um/h: the "
+            "order of ISO 230-3 drift of a warmed-up machining centre at rest (2-10 um over "
+            "several hours, most in Z)."),
     }
+
+
+def _features(errors: dict) -> np.ndarray | None:
+    """The 15 per-trial features of :func:`_feature_patterns`, or None when all are zero."""
+    t = errors["servo_lag"]
+    f = np.concatenate([errors["thermal_growth"], errors["thermal_drift"], errors["reversal"],
+                        t, t * t], axis=1)
+    return f if np.any(f) else None
 
 
 def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
@@ -468,23 +757,33 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     :func:`readings_frame`.
     """
     geo = _geometry(setup)
-    p = _true_positions(setup, truth)  # (1, M, 3)
+    base = _forward_matrix(setup, truth)  # (16, 3M): the truth's positions, then patterns
     n = errors["encoder_noise"].shape[0]
-    r = _plate_readings(geo, p, errors["plate_offset"], errors["plate_tilt"])
+    feat = _features(errors)
+    if feat is None:
+        loc = base[:1].reshape(1, -1, 3)
+    else:  # drift, reversal and servo: one product for the batch
+        loc = (np.column_stack([np.ones(n), feat]) @ base).reshape(n, -1, 3)
+    r = _mount(geo, loc, errors["plate_offset"], errors["head_setting"], errors["plate_tilt"])
     g = errors["grid_error"]  # (n, 3, 2, K)
     if np.any(g):
         basis = _grid_basis(geo)
         for k, sl in enumerate(_plane_slices(geo)):
-            r[:, sl, :] += np.einsum("nck,mk->nmc", g[:, k], basis[sl])
+            r[:, sl, :] += np.swapaxes(g[:, k] @ basis[sl].T, 1, 2)
     r += errors["encoder_noise"]
-    return {"plate_mm": r.reshape(n, -1, 2)}
+    r += errors["repeatability"]
+    return {"plate_mm": r}
 
 
 @functools.lru_cache(maxsize=8)
-def _true_positions(setup: Setup, truth: Truth) -> np.ndarray:
+def _forward_matrix(setup: Setup, truth: Truth) -> np.ndarray:
+    """The truth's head positions in the plates' frames and the 15 feature patterns of
+    :func:`_feature_patterns`, stacked (16, 3M): ``[1, features] @ it`` is every reading's
+    plate-frame position."""
     geo = _geometry(setup)
     coefs = {k: (pw, c[None, :]) for k, (pw, c) in _truth_coefficients(truth).items()}
-    return chain(_values(geo, coefs), *geo.cmd.T, geo.head, geo.ref)
+    p = chain(_values(geo, coefs), *geo.cmd.T, geo.hvec, geo.ref)
+    return np.concatenate([_local3(geo, p).reshape(1, -1), geo.pattern.reshape(15, -1)])
 
 
 def true_values(setup: Setup, truth: Truth) -> dict:
@@ -497,26 +796,27 @@ def true_values(setup: Setup, truth: Truth) -> dict:
 
 
 def duration(setup: Setup) -> float:
-    """Machine time: three plate set-ups, the line passes and the circle passes [s]."""
-    lines = 2 * setup.line_repeats * 2 * setup.line_length_mm
-    circles = 2 * (2 * setup.circle_radius_mm
-                   + setup.circle_radius_mm * math.radians(setup.circle_arc_deg))
-    return 3 * setup.setup_change_s + 3 * (lines + circles) / (setup.feed_mm_min / 60.0)
+    """Machine time [s]: three plate set-ups, the head changes, the line and circle passes
+    of every head position at ``feed_mm_min`` (the schedule that times each reading)."""
+    return _geometry(setup).duration_s
 
 
 def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
     """One measurement (the first trial) as a tidy table, one reading point per row.
 
-    Columns: ``plane`` (XY, XZ, YZ), ``test`` (line_a, line_b: along the plane's first
-    or second axis; circle), ``pass`` (line: 2*repeat + direction; circle: 0 CCW, 1 CW),
-    ``point``, the commanded ``x_mm``, ``y_mm``, ``z_mm``, and the plate readings
-    ``u_mm``, ``v_mm`` (head position along the plate's first and second axis,
-    relative to the plate's nominal origin).
+    Columns: ``plane`` (XY, XZ, YZ), ``head`` (0: the first head position, 1, 2, ...: the
+    plane's extra head positions in the order of the set-up's list), ``test`` (line_a,
+    line_b: along the plane's first or second axis; circle), ``pass`` (line: 2*repeat +
+    direction; circle: 0 CCW, 1 CW), ``point``, the commanded ``x_mm``, ``y_mm``,
+    ``z_mm``, and the plate readings ``u_mm``, ``v_mm`` (head position along the plate's
+    first and second axis, relative to the plate's nominal origin). Tables without the
+    ``head`` column (written before head positions existed) are read as all head 0.
     """
     geo = _geometry(setup)
     r = np.asarray(readings["plate_mm"])[0]
     return pd.DataFrame({
         "plane": np.array([p[0] for p in PLANES])[geo.plane],
+        "head": geo.head,
         "test": np.array(_TEST_NAMES)[geo.test],
         "pass": geo.pass_,
         "point": geo.point,
@@ -532,20 +832,29 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
     missing = [c for c in need if c not in df.columns]
     if missing:
         raise InvalidInput([f"The geometry21 readings table lacks the column(s) "
-                            f"{', '.join(missing)}; it needs {', '.join(need)}."])
+                            f"{', '.join(missing)}; it needs {', '.join(need)} (and head)."])
     if len(df) != geo.plane.size:
         raise InvalidInput([f"The geometry21 readings table must have {geo.plane.size} rows "
                             f"for this set-up. Got {len(df)} instead."])
     problems = []
+    if "head" not in df.columns and geo.n_extra:
+        problems.append("The geometry21 readings table needs a 'head' column: this set-up "
+                        f"has {geo.n_extra} extra head position(s).")
     for col in need[4:]:
         vals = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
         bad = np.flatnonzero(~np.isfinite(vals))
         if bad.size:
             problems.append(f"The '{col}' column of the geometry21 readings must be finite "
                             f"numbers. Got {df[col].iloc[bad[0]]!r} in row {int(bad[0])} instead.")
-    for col, expect in (("plane", np.array([p[0] for p in PLANES])[geo.plane]),
-                        ("test", np.array(_TEST_NAMES)[geo.test])):
-        bad = np.flatnonzero(df[col].astype(str).to_numpy() != expect)
+    order = [("plane", np.array([p[0] for p in PLANES])[geo.plane]),
+             ("test", np.array(_TEST_NAMES)[geo.test])]
+    if "head" in df.columns:
+        order.append(("head", geo.head.astype(str)))
+    for col, expect in order:
+        got = df[col].astype(str).to_numpy()
+        if col == "head":
+            got = np.array([g[:-2] if g.endswith(".0") else g for g in got])
+        bad = np.flatnonzero(got != expect)
         if bad.size:
             problems.append(f"The '{col}' column of the geometry21 readings must follow the "
                             f"set-up's order; row {int(bad[0])} has {df[col].iloc[bad[0]]!r}, "
@@ -566,29 +875,46 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
 _GN_ITERATIONS = 8
 _GN_TOL = 1e-5  # step below 1e-5 of a typical error (1 um / 10 urad): 0.01 pm
 _RANK_TOL = 1e-7
+#: the shared linearisation's neglected term may move a trial by 1e-3 of a typical error,
+#: or by 1 % of the batch's spread of that parameter (its Monte Carlo uncertainty), at most
+_SHARED_TOL = 1e-3
+_SHARED_SPREAD = 0.01
+#: smaller batches (a measurement is a batch of one) are solved trial by trial
+_SHARED_MIN = 8
+#: grid of the shared linearisation point of the coefficients [typical errors]
+_GRID_STEP = 10.0
 
 
 def _scales(geo: _Geometry) -> np.ndarray:
-    """Typical size of each parameter: 1 um or 10 urad at the end of the travel."""
+    """Typical size of each parameter: 1 um or 10 urad at the end of the travel;
+    1 um and 10 urad for the plates' offsets and rotations, 1 um for the heads' settings."""
     s = np.empty(geo.n_par)
     t = geo.u_end
     for name in NAMES:
         powers, sl = geo.layout[name]
         typ = 1e-5 if _KIND[name] in ("ang", "sq") else 1e-3
         s[sl] = [typ / t**k for k in powers]
-    s[geo.n_coef:] = np.tile([1e-3, 1e-3, 1e-5], 3)
+    s[geo.n_coef: geo.n_coef + 9] = np.tile([1e-3, 1e-3, 1e-5], 3)
+    s[geo.n_coef + 9:] = 1e-3
     return s
+
+
+def _nuisance(geo: _Geometry, theta: np.ndarray):
+    """(plate offsets (n, 3, 2), plate rotations (n, 3), head settings (n, n_extra, 2))."""
+    n = theta.shape[0]
+    plate = theta[:, geo.n_coef: geo.n_coef + 9].reshape(n, 3, 3)
+    return plate[:, :, :2], plate[:, :, 2], theta[:, geo.n_coef + 9:].reshape(n, -1, 2)
 
 
 def _predict(geo: _Geometry, theta: np.ndarray) -> np.ndarray:
     """Noise-free readings (n, M, 2) for parameters theta (n, n_par), exact model."""
     n = theta.shape[0]
     coefs = {name: (pw, theta[:, sl]) for name, (pw, sl) in geo.layout.items()}
-    p = chain(_values(geo, coefs), *geo.cmd.T, geo.head, geo.ref)
-    nuis = theta[:, geo.n_coef:].reshape(n, 3, 3)
+    p = chain(_values(geo, coefs), *geo.cmd.T, geo.hvec, geo.ref)
+    offset, turn, head = _nuisance(geo, theta)
     rot = np.zeros((n, 3, 3))
-    rot[:, :, 2] = nuis[:, :, 2]
-    return _plate_readings(geo, p, nuis[:, :, :2], rot)
+    rot[:, :, 2] = turn
+    return _mount(geo, _local3(geo, p), offset, head, rot)
 
 
 def _measurand_map(geo: _Geometry) -> np.ndarray:
@@ -608,34 +934,84 @@ def _param_names(geo: _Geometry) -> list[str]:
     for k, (pl, *_rest) in enumerate(PLANES):
         for j, what in enumerate(("offset_u", "offset_v", "rotation")):
             names[geo.n_coef + 3 * k + j] = f"{pl}.{what}"
+    for e in range(geo.n_extra):
+        sel = np.flatnonzero(geo.xhead == e)[0]
+        pl, j = PLANES[geo.plane[sel]][0], geo.head[sel]
+        names[geo.n_coef + 9 + 2 * e] = f"{pl}.head{j}.offset_u"
+        names[geo.n_coef + 10 + 2 * e] = f"{pl}.head{j}.offset_v"
     return names
 
 
-def _tpinv(a: np.ndarray, scale: np.ndarray):
+def _tpinv(a: np.ndarray, scale: np.ndarray, free: np.ndarray | None = None):
     """Rank-truncated pseudo-inverse of a @ diag(1/scale) in scaled columns.
+
+    The data do not determine the null-space part of the solution; by default it is the
+    minimum-norm one (scaled units). With `free` (a boolean mask of nuisance parameters)
+    the null-space part is chosen to minimise the other parameters' norm instead: what
+    the mounting can absorb goes there (the X roll EAX, seen only as a rotation of the YZ
+    pattern, stays zero and the YZ plate's rotation takes it), which keeps unseen errors
+    from growing to the size of the mounting errors in the exact, non-linear model.
 
     Returns (pinv (cols, rows) in the original parameter units, rank, singular values, Vt).
     """
     a_s = a * scale
-    u, sv, vt = np.linalg.svd(a_s, full_matrices=False)
-    rank = int(np.sum(sv > _RANK_TOL * sv[0])) if sv.size and sv[0] > 0 else 0
-    pinv = (vt[:rank].T / sv[:rank]) @ u[:, :rank].T
+    if a_s.shape[0] > a_s.shape[1]:  # tall: the SVD of the QR's R (same S and V), then
+        # pinv = V S^-2 V^T A^T, never the (readings x parameters) U
+        _, sv, vt = np.linalg.svd(np.linalg.qr(a_s, mode="r"))
+        rank = int(np.sum(sv > _RANK_TOL * sv[0])) if sv.size and sv[0] > 0 else 0
+        pinv = ((vt[:rank].T / sv[:rank] ** 2) @ vt[:rank]) @ a_s.T
+    else:
+        u, sv, vt = np.linalg.svd(a_s, full_matrices=False)
+        rank = int(np.sum(sv > _RANK_TOL * sv[0])) if sv.size and sv[0] > 0 else 0
+        pinv = (vt[:rank].T / sv[:rank]) @ u[:, :rank].T
+    if free is not None and rank < a.shape[1]:
+        pinv = _null_convention(pinv, vt[rank:].T, free)
     return scale[:, None] * pinv, rank, sv, vt
 
 
-@functools.lru_cache(maxsize=16)
+def _null_convention(pinv_s: np.ndarray, null: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """Shift a scaled solution map's null-space part so that it minimises the norm of the
+    parameters other than the `free` ones (see :func:`_tpinv`); null (P, k) scaled."""
+    w = np.where(free, 1e-6, 1.0)[:, None]
+    return pinv_s - null @ np.linalg.solve(null.T @ (w * null), null.T @ (w * pinv_s))
+
+
+def _restricted_pinv(jac: np.ndarray, ji: dict) -> np.ndarray:
+    """Pseudo-inverse of a Jacobian away from zero error on the parameter directions the
+    data determine at zero error (the rank and null space of ``ji``): second-order effects
+    of the unseen errors never become (ill-determined) information."""
+    s, vt, rank = ji["scale"], ji["vt"], ji["rank"]
+    basis = vt[:rank].T  # (P, r) scaled
+    pinv = basis @ np.linalg.pinv((jac * s) @ basis)
+    if rank < jac.shape[1]:
+        pinv = _null_convention(pinv, vt[rank:].T, _free(ji["geo"]))
+    return s[:, None] * pinv
+
+
+def _free(geo: _Geometry) -> np.ndarray:
+    """Mask of the nuisance (mounting) parameters."""
+    return np.arange(geo.n_par) >= geo.n_coef
+
+
+def _jacobian(geo: _Geometry, theta0: np.ndarray, s: np.ndarray):
+    """(f(theta0) (2M,), J (2M, P)) by central differences of the exact model, steps 0.1 s."""
+    h = 0.1 * s
+    pts = np.repeat(theta0[None, :], 2 * geo.n_par + 1, axis=0)
+    idx = np.arange(geo.n_par)
+    pts[idx, idx] += h
+    pts[geo.n_par + idx, idx] -= h
+    vals = _predict(geo, pts).reshape(pts.shape[0], -1)
+    jac = ((vals[: geo.n_par] - vals[geo.n_par: 2 * geo.n_par]) / (2 * h[:, None])).T
+    return vals[-1], jac
+
+
+@functools.lru_cache(maxsize=8)
 def _joint_ident(setup: Setup) -> dict:
     """Jacobian of the readings at zero error, its SVD, pseudo-inverse and estimability."""
     geo = _geometry(setup)
     s = _scales(geo)
-    h = 0.1 * s
-    pts = np.zeros((2 * geo.n_par, geo.n_par))
-    idx = np.arange(geo.n_par)
-    pts[idx, idx] = h
-    pts[geo.n_par + idx, idx] = -h
-    vals = _predict(geo, pts).reshape(2 * geo.n_par, -1)
-    jac = ((vals[: geo.n_par] - vals[geo.n_par:]) / (2 * h[:, None])).T  # (2M, P)
-    pinv, rank, sv, vt = _tpinv(jac, s)
+    r0, jac = _jacobian(geo, np.zeros(geo.n_par), s)
+    pinv, rank, sv, vt = _tpinv(jac, s, _free(geo))
     null = vt[rank:]  # scaled null space (k, P)
     g = _measurand_map(geo)
     gs = g * s
@@ -646,8 +1022,9 @@ def _joint_ident(setup: Setup) -> dict:
                  for name, (_, sl) in geo.layout.items()}
     return {
         "geo": geo, "jac": jac, "scale": s, "pinv": pinv, "rank": rank, "sv": sv, "null": null,
+        "vt": vt,
         "g": g, "estimable": {n: bool(r < 1e-6) for n, r in zip(NAMES, resid)},
-        "no_effect": no_effect, "r0": _predict(geo, np.zeros((1, geo.n_par))).reshape(-1),
+        "no_effect": no_effect, "r0": r0,
     }
 
 
@@ -660,21 +1037,151 @@ def _readings_matrix(setup: Setup, readings: dict) -> np.ndarray:
     return r.reshape(r.shape[0], -1)
 
 
-def _theta_joint(setup: Setup, readings: dict, iterations: int) -> np.ndarray:
+def _grid_step(geo: _Geometry) -> np.ndarray:
+    """Grid of the shared linearisation points of the coefficients [their units]."""
+    return _GRID_STEP * _scales(geo)[: geo.n_coef]
+
+
+@functools.lru_cache(maxsize=8)
+def _linearisation(setup: Setup, key: tuple) -> dict:
+    """The Jacobian ``jac`` (2M, P), its pseudo-inverse ``pinv`` and the pieces of
+    :class:`_Unmounted` at the coefficients of the grid point `key` (ints, one per
+    coefficient) with no mounting error.
+
+    A pure function of the set-up and the grid point, so that a batch's result never
+    depends on which batches ran before (the cache only saves time).
+    """
     ji = _joint_ident(setup)
+    geo, s = ji["geo"], ji["scale"]
+    if any(key):
+        c = np.asarray(key, dtype=float) * _grid_step(geo)
+        _, jac = _jacobian(geo, np.concatenate([c, np.zeros(geo.n_par - geo.n_coef)]), s)
+        pinv = _restricted_pinv(jac, ji)
+    else:
+        jac, pinv = ji["jac"], ji["pinv"]
+    npar = geo.n_par
+    p3 = pinv.reshape(npar, -1, 2)
+    split, plate = [], np.empty((npar, 3, 2))
+    for k, sl in enumerate(_plane_slices(geo)):
+        pk = p3[:, sl, :]
+        quarter = np.stack([pk[..., 1], -pk[..., 0]], axis=-1)  # P G: G (u, v) = (-v, u)
+        split.append(np.ascontiguousarray(np.concatenate([pk, quarter]).reshape(2 * npar, -1)))
+        plate[:, k] = pk.sum(axis=1)
+    head = np.stack([p3[:, sl, :].sum(axis=1) for _, sl in geo.xslices], axis=1) \
+        if geo.n_extra else np.zeros((npar, 0, 2))
+    return {"jac": jac, "pinv": pinv, "split": split, "plate": plate.reshape(npar, -1),
+            "head": head.reshape(npar, -1), "coef_response": pinv @ jac[:, : geo.n_coef]}
+
+
+def _plate_model(geo: _Geometry, coef: np.ndarray) -> np.ndarray:
+    """Exact readings (n, 2M) of coefficients (n, n_coef) with the plates and heads as set."""
+    theta = np.zeros((coef.shape[0], geo.n_par))
+    theta[:, : geo.n_coef] = coef
+    return _predict(geo, theta).reshape(coef.shape[0], -1)
+
+
+class _Unmounted:
+    """``pinv @ (R(rotation) r + shift)``: the readings brought back to the nominal plate
+    frame with each trial's own mounting estimate and projected on the parameters, for any
+    mounting. The rotation is per plane, so ``P R(phi) r = cos(phi) P r + sin(phi) P G r``
+    (G the quarter turn): one product for the batch per plane serves every iteration."""
+
+    def __init__(self, geo: _Geometry, r: np.ndarray, lin: dict):
+        n, npar = r.shape[0], lin["pinv"].shape[0]
+        self.geo, self.lin = geo, lin
+        self.y = np.empty((n, 3, npar))
+        self.z = np.empty((n, 3, npar))
+        for k, sl in enumerate(_plane_slices(geo)):
+            yz = r[:, 2 * sl.start: 2 * sl.stop] @ lin["split"][k].T
+            self.y[:, k], self.z[:, k] = yz[:, :npar], yz[:, npar:]
+
+    def __call__(self, theta: np.ndarray) -> np.ndarray:
+        offset, turn, head = _nuisance(self.geo, theta)
+        n = theta.shape[0]
+        out = np.einsum("nk,nkp->np", np.cos(turn), self.y)
+        out += np.einsum("nk,nkp->np", np.sin(turn), self.z)
+        out += offset.reshape(n, -1) @ self.lin["plate"].T
+        out -= head.reshape(n, -1) @ self.lin["head"].T
+        return out
+
+
+def _theta_joint_per_trial(setup: Setup, readings: dict) -> np.ndarray:
+    """The former joint estimate (chord Gauss-Newton with the exact model evaluated for every
+    trial in every iteration), kept as the reference of :func:`_theta_joint`'s speed-up."""
+    ji = _joint_ident(setup)
+    geo, pinv, s = ji["geo"], ji["pinv"], ji["scale"]
     r = _readings_matrix(setup, readings)
-    theta = (r - ji["r0"]) @ ji["pinv"].T  # one product for the batch
-    for _ in range(iterations):  # chord (simplified Gauss-Newton) on the exact model
-        res = r - _predict(ji["geo"], theta).reshape(r.shape)
-        step = res @ ji["pinv"].T
-        theta += step
-        if np.max(np.abs(step) / ji["scale"]) < _GN_TOL:  # whole batch converged
+    theta = (r - ji["r0"]) @ pinv.T
+    for _ in range(_GN_ITERATIONS):
+        step = (r - _predict(geo, theta).reshape(r.shape)) @ pinv.T
+        theta = theta + step
+        if np.max(np.abs(step) / s) < _GN_TOL:  # whole batch converged
             break
     return theta
 
 
+def _theta_joint(setup: Setup, readings: dict, iterations: int) -> np.ndarray:
+    """Joint least squares; Gauss-Newton with one linearisation for the batch.
+
+    The model is ``r = R(-rotation) (L(c) - shift)`` per plate: a rigid plate transform,
+    which each trial undoes exactly with its own estimate (:class:`_Unmounted`), after the
+    machine's error model L of the coefficients c, whose non-linearity is weak and is
+    shared: L is evaluated exactly at the batch's median coefficients c_m and expanded to
+    first order about it (``L(c) = L(c_m) + J_c (c - c_m)``). Chord iterations (the
+    Jacobian at the grid point next to c_m towards zero, see :func:`_linearisation`) until every
+    trial's step is below 1e-5 of a typical error; then the neglected second-order term
+    is evaluated exactly for the trials farthest from c_m, and if its correction exceeds
+    both 1e-3 of a typical error and 1 % of the batch's spread of that parameter (or the
+    iterations did not converge), the batch is solved again with L evaluated exactly for
+    every trial, as are batches of fewer than 8 trials.
+    """
+    ji = _joint_ident(setup)
+    geo, s = ji["geo"], ji["scale"]
+    nc = geo.n_coef
+    r = _readings_matrix(setup, readings)
+    lin = _linearisation(setup, (0,) * nc)
+    unmounted = _Unmounted(geo, r, lin)
+    # the linear estimate, (r - r0) @ pinv.T, from the same products
+    theta = unmounted.y.sum(axis=1) - ji["pinv"] @ ji["r0"]
+    if iterations == 0:
+        return theta
+    key = tuple(int(k) for k in np.trunc(np.median(theta[:, :nc], axis=0) / _grid_step(geo)))
+    if any(key):
+        lin = _linearisation(setup, key)
+        unmounted = _Unmounted(geo, r, lin)
+    jac, pinv, b = lin["jac"], lin["pinv"], lin["coef_response"]
+
+    def solve(theta, shared):
+        for _ in range(iterations):
+            if shared:  # the exact model once, at the median; first order about it
+                c_m = np.median(theta[:, :nc], axis=0)
+                model = _plate_model(geo, c_m[None, :])
+                step = unmounted(theta) - model @ pinv.T - (theta[:, :nc] - c_m) @ b.T
+            else:
+                step = unmounted(theta) - _plate_model(geo, theta[:, :nc]) @ pinv.T
+            theta = theta + step
+            if np.max(np.abs(step) / s) < _GN_TOL:
+                return theta, (c_m, model) if shared else None
+        return theta, None
+
+    if r.shape[0] < _SHARED_MIN:
+        return solve(theta, False)[0]
+    out, at = solve(theta, True)
+    if at is not None:  # the term left out, exactly, where it is largest
+        c_m, model = at
+        dev = np.abs(out[:, :nc] - c_m) / s[:nc]
+        far = np.unique([*np.argsort(dev.max(axis=1))[-3:],
+                         int(np.argmax(np.linalg.norm(dev, axis=1)))])
+        lin = model + (out[far, :nc] - c_m) @ jac[:, :nc].T
+        left = (_plate_model(geo, out[far, :nc]) - lin) @ pinv.T
+        allowed = np.maximum(_SHARED_TOL * s, _SHARED_SPREAD * np.std(out, axis=0))
+        if np.all(np.abs(left) <= allowed):
+            return out
+    return solve(out, False)[0]
+
+
 # --------------------------------------------------------------------------- patent
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=8)
 def _patent_design(setup: Setup) -> dict:
     ji = _joint_ident(setup)
     geo, jac, s = ji["geo"], ji["jac"], ji["scale"]
@@ -684,25 +1191,38 @@ def _patent_design(setup: Setup) -> dict:
     def cols(names):
         return np.concatenate([np.arange(geo.n_par)[geo.layout[n][1]] for n in names])
 
-    step1_all = [n for pl in _STEP1.values() for n in pl]
-    c1_all = cols(step1_all)
+    c1_all = cols([n for pl in _STEP1.values() for n in pl])
     planes = []
     for k, (pl, a, b, _c) in enumerate(PLANES):
         A, B = "XYZ"[a], "XYZ"[b]
         sq = {"XY": "EC0Y", "XZ": "EB0Z", "YZ": "EA0Z"}[pl]
         fit = [f"E{A}{A}", f"E{B}{B}", f"E{B}{A}", f"E{A}{B}", sq]
         c1 = np.concatenate([cols(fit), geo.n_coef + 3 * k + np.arange(3)])
-        lines = np.flatnonzero((geo.plane == k) & (geo.test < 2))
+        lines = np.flatnonzero((geo.plane == k) & (geo.test < 2) & (geo.head == 0))
         rows = (2 * lines[:, None] + np.arange(2)).ravel()
         a1, rank1, _, _ = _tpinv(jac[np.ix_(rows, c1)], s[c1])
         circ = np.flatnonzero((geo.plane == k) & (geo.test == 2))
         er = geo.local[circ] / setup.circle_radius_mm  # (Mc, 2) radial unit vectors
         jrad = np.einsum("mc,mcp->mp", er, j3[circ])  # first-order radial model (Mc, P)
+        # the extra heads' lines; with extra heads, the first head's lines again, for the
+        # plate's mounting that step 2 re-estimates from every head (below)
+        more = np.any((geo.plane == k) & (geo.head > 0))
+        xlines = np.flatnonzero((geo.plane == k) & (geo.test < 2) & ((geo.head > 0) | more))
+        jlin = j3[xlines].reshape(-1, geo.n_par)  # extra heads' lines, both components
         keep = np.isin(c1, cols(_STEP1[pl]))
-        planes.append(dict(rows=rows, c1=c1, a1=a1, keep=keep, circ=circ, q1=jrad[:, c1_all],
-                           q2=jrad, rank1=rank1, nuis=geo.n_coef + 3 * k + np.arange(3)))
-    # step 2: the three circles stacked, all nine angular errors (see the module docstring)
-    c2 = cols([n for n in NAMES if _KIND[n] == "ang"])
+        planes.append(dict(rows=rows, c1=c1, a1=a1, keep=keep, circ=circ, xlines=xlines,
+                           q1=np.concatenate([jrad, jlin])[:, c1_all],
+                           q2=np.concatenate([jrad, jlin]), rank1=rank1,
+                           nuis=geo.n_coef + 3 * k + np.arange(3)))
+    # step 2: the three circles stacked with the extra heads' lines: the angular errors
+    # and the extra heads' settings (see the module docstring)
+    # where extra heads read a plate, step 2 corrects that plate's mounting too: step 1 took
+    # into it what it could not tell from it (the X roll and the other axes' errors at
+    # the plate's fixed coordinate), which step 2 subtracts again with the step-1 errors
+    mounts = [geo.n_coef + 3 * k + j for k in range(3) if np.any((geo.plane == k) & (geo.head > 0))
+              for j in range(3)]
+    c2 = np.concatenate([cols([n for n in NAMES if _KIND[n] == "ang"]), mounts,
+                         np.arange(geo.n_coef + 9, geo.n_par)]).astype(int)
     q2 = np.concatenate([pl["q2"][:, c2] for pl in planes])
     a2, rank2, _, _ = _tpinv(q2, s[c2])
     return {"geo": geo, "planes": planes, "c1_all": c1_all, "c2": c2, "a2": a2, "rank2": rank2,
@@ -716,23 +1236,31 @@ def _theta_patent(setup: Setup, readings: dict) -> np.ndarray:
     dr = r - pd_["r0"]
     n = r.shape[0]
     theta = np.zeros((n, geo.n_par))
-    # step 1: the line records of each plane -> 12 errors (seed's assignment) + mounting
+    # step 1: the first head's line records of each plane -> 12 errors (seed's assignment)
+    # + mounting
     for pl in pd_["planes"]:
         est = dr[:, pl["rows"]] @ pl["a1"].T  # one product for the batch
         theta[:, pl["c1"][pl["keep"]]] = est[:, pl["keep"]]
         theta[:, pl["nuis"]] = est[:, -3:]
-    # step 2: radial deviations of the circles, step-1 errors subtracted -> angular errors
+    # step 2: every other reading back in the nominal plate frame (step-1 mounting removed
+    # exactly), less the step-1 errors' first-order effect -> angular errors, head settings
     r3 = r.reshape(n, -1, 2)
     es = []
     for pl in pd_["planes"]:
-        rc = r3[:, pl["circ"], :]
         o_u, o_v, phi = (theta[:, pl["nuis"][j]][:, None] for j in range(3))
         c, sn = np.cos(phi), np.sin(phi)
-        lu = c * rc[..., 0] - sn * rc[..., 1] + o_u  # back to the nominal plate frame
-        lv = sn * rc[..., 0] + c * rc[..., 1] + o_v
-        d_r = np.hypot(lu, lv) - setup.circle_radius_mm
-        es.append(d_r - theta[:, pd_["c1_all"]] @ pl["q1"].T)
-    theta[:, pd_["c2"]] = np.concatenate(es, axis=1) @ pd_["a2"].T
+        parts = []
+        for idx in (pl["circ"], pl["xlines"]):
+            rc = r3[:, idx, :]
+            lu = c * rc[..., 0] - sn * rc[..., 1] + o_u
+            lv = sn * rc[..., 0] + c * rc[..., 1] + o_v
+            parts.append((lu, lv))
+        (cu, cv), (xu, xv) = parts
+        dev = np.concatenate([np.hypot(cu, cv) - setup.circle_radius_mm,
+                              np.stack([xu, xv], axis=-1).reshape(n, -1)
+                              - geo.local[pl["xlines"]].ravel()], axis=1)
+        es.append(dev - theta[:, pd_["c1_all"]] @ pl["q1"].T)
+    theta[:, pd_["c2"]] += np.concatenate(es, axis=1) @ pd_["a2"].T  # rotations: corrections
     return theta
 
 
@@ -780,7 +1308,7 @@ def _check_estimator(estimator: str) -> None:
                             f"{', '.join(map(repr, ESTIMATORS))}. Got {estimator!r} instead."])
 
 
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=8)
 def _first_order_response(setup: Setup, estimator: str) -> np.ndarray:
     """B (n_par, n_par): estimated parameters' first-order response to the true ones."""
     ji = _joint_ident(setup)
@@ -795,7 +1323,7 @@ def _first_order_response(setup: Setup, estimator: str) -> np.ndarray:
 
 
 def identifiability(setup: Setup | None = None, estimator: str = "joint") -> pd.DataFrame:
-    """Per-measurand status of all 21 error functions for one estimator.
+    """Per-measurand status of all 21 error functions for one estimator, at any set-up.
 
     Parameters
     ----------
@@ -806,9 +1334,9 @@ def identifiability(setup: Setup | None = None, estimator: str = "joint") -> pd.
     -------
     DataFrame indexed by the 21 ISO names with columns ``status`` ('identified',
     'unidentifiable', 'no effect' for the data; for the patent estimator also
-    'biased'), ``listed`` (whether it is a measurand at this set-up),
-    ``confounded_with`` (for unidentifiable ones: the functions sharing the null space;
-    for biased ones: the true errors that bias the estimate at first order), and
+    'biased'), ``listed`` (whether it is a measurand at this set-up, i.e. determined by
+    the data), ``confounded_with`` (for unidentifiable ones: the functions sharing the null
+    space; for biased ones: the true errors that bias the estimate at first order), and
     ``first_order_bias`` (for the patent estimator: the largest first-order bias from
     a typical error of each confounding function [um or urad]).
     """
@@ -829,7 +1357,7 @@ def identifiability(setup: Setup | None = None, estimator: str = "joint") -> pd.
         if ji["no_effect"][name] and not ji["estimable"][name]:
             row["status"] = "no effect"
         elif not ji["estimable"][name]:
-            row["status"] = row["status"] if row["status"] == "no effect" else "unidentifiable"
+            row["status"] = "unidentifiable"
             sl = geo.layout[name][1]
             w = np.abs(null[:, sl]).max(axis=1) if null.size else np.zeros(0)
             vecs = null[w > 1e-6]
@@ -855,15 +1383,19 @@ def identifiability_report(setup: Setup | None = None) -> dict:
 
     The Jacobian's columns are scaled by each parameter's typical size (1 um or
     10 urad at the end of the travel; 1 um and 10 urad for the plates' offsets and
-    rotations), so the condition number compares effects of typical errors.
+    rotations, 1 um for the extra heads' settings), so the condition number compares
+    effects of typical errors.
 
     Returns
     -------
-    dict with ``rank``, ``parameters`` (number of coefficients + 9 mounting
-    parameters), ``readings``, ``condition_number`` (of the identified part),
-    ``singular_values``, ``null_space`` (a list of dicts: parameter name -> weight in
-    scaled units, weights above 1e-3, one per null direction) and ``measurands``
-    (the :func:`identifiability` table of the joint estimator).
+    dict with ``rank``, ``parameters`` (number of coefficients + mounting parameters),
+    ``readings``, ``condition_number`` (of the identified part), ``singular_values``,
+    ``null_space`` (a list of dicts: parameter name -> weight in scaled units, weights
+    above 1e-3, one per null direction), ``measurands`` (the :func:`identifiability`
+    table of the joint estimator), and what a generic analysis needs
+    (:func:`mtplan.plans.identifiability.identifiability`): ``jacobian`` (readings x
+    parameters [mm per parameter unit]), ``scale``, ``names``, ``functions`` (each of the
+    21 measurands as a linear function of the parameters, name -> row) and ``rank_tol``.
     """
     setup = Setup() if setup is None else setup
     ji = _joint_ident(setup)
@@ -881,6 +1413,11 @@ def identifiability_report(setup: Setup | None = None) -> dict:
         "singular_values": sv,
         "null_space": null,
         "measurands": identifiability(setup, "joint"),
+        "jacobian": ji["jac"],
+        "scale": ji["scale"],
+        "names": names,
+        "functions": dict(zip(NAMES, ji["g"])),
+        "rank_tol": _RANK_TOL,
     }
 
 
@@ -890,8 +1427,9 @@ def coefficients(setup: Setup, readings: dict, *, estimator: str = "joint") -> d
     Returns
     -------
     dict of name -> (powers, array (n, K)) [mm/mm^k or rad/mm^k]; unidentifiable
-    functions are present with their minimum-norm value and must be read with
-    :func:`identifiability` (their values are not determined by the data).
+    functions are present with the value the estimator's null-space convention gives them
+    (the joint fits: the error coefficients' smallest norm, the mounting taking what it can)
+    and must be read with :func:`identifiability` (the data do not determine them).
     """
     _check_estimator(estimator)
     theta = _estimate_theta(setup, readings, estimator)
@@ -899,31 +1437,81 @@ def coefficients(setup: Setup, readings: dict, *, estimator: str = "joint") -> d
     return {name: (pw, theta[:, sl]) for name, (pw, sl) in geo.layout.items()}
 
 
-@functools.lru_cache(maxsize=16)
-def _linear_map(setup: Setup, estimator: str) -> np.ndarray:
-    """A (n_par, 2M): first-order map from readings to estimated parameters."""
+@functools.lru_cache(maxsize=4)
+def _linear_map(setup: Setup, estimator: str, truth: Truth) -> np.ndarray:
+    """A (n_par, 2M): first-order map from the readings to the estimated parameters, for
+    the white sources (reading noise, repeatability): the joint fits' pseudo-inverse (their
+    derivative to within ~1e-4 relative at realistic errors), the patent's by central
+    differences at the truth's noise-free readings."""
     ji = _joint_ident(setup)
     if estimator != "patent":
         return ji["pinv"]
     geo = ji["geo"]
-    nr = ji["r0"].size
+    r_t = forward(setup, truth, PROCEDURE.zero_errors(setup, 1))["plate_mm"].reshape(-1)
+    nr = r_t.size
     eps = 1e-6
     out = np.empty((geo.n_par, nr))
     for start in range(0, nr, 512):
         cols = np.arange(start, min(nr, start + 512))
         pert = np.zeros((cols.size, nr))
         pert[np.arange(cols.size), cols] = eps
-        r = np.concatenate([ji["r0"] + pert, ji["r0"] - pert]).reshape(2 * cols.size, -1, 2)
+        r = np.concatenate([r_t + pert, r_t - pert]).reshape(2 * cols.size, -1, 2)
         th = _theta_patent(setup, {"plate_mm": r})
         out[:, cols] = ((th[: cols.size] - th[cols.size:]) / (2 * eps)).T
     return out
 
 
-def coefficient_covariance(setup: Setup | None = None, *, estimator: str = "joint"):
-    """First-order covariance of the estimated coefficients from noise and grid error.
+@functools.lru_cache(maxsize=8)
+def _source_response(setup: Setup, truth: Truth, estimator: str, names: tuple) -> np.ndarray:
+    """The estimated parameters' first-order response to one standard deviation of each
+    element of the named (not white) sources, through forward model and estimator (as the
+    GUM linearisation does, about the sources' means; central differences with a step of
+    1 % of the standard deviation, the whole set one batch): array (n_par, K)."""
+    srcs = sources(setup)
+    elems = [(name, idx) for name in names for idx in np.ndindex(*srcs[name].shape)]
+    k = len(elems)
+    if not k:
+        return np.zeros((_geometry(setup).n_par, 0))
+    errors = PROCEDURE.zero_errors(setup, 2 * k)
+    for name in names:
+        errors[name][...] = srcs[name].distribution.mean
+    for j, (name, idx) in enumerate(elems):
+        h = 0.01 * float(srcs[name].distribution.std)
+        errors[name][(2 * j, *idx)] += h
+        errors[name][(2 * j + 1, *idx)] -= h
+    th = _estimate_theta(setup, forward(setup, truth, errors), estimator)
+    return ((th[0::2] - th[1::2]) / 0.02).T
 
-    The mounting offsets and rotation are estimated nuisance parameters (no first-order
-    effect); the plate tilts act at second order and are left out.
+
+def _source_factors(setup: Setup, estimator: str, truth: Truth | None, only) -> dict:
+    """Per active source: the first-order factor F with cov(theta) = F F^T (n_par, .)."""
+    truth = Truth() if truth is None else truth
+    active = PROCEDURE.active_sources(setup, only)
+    others = tuple(n for n in active if n not in _WHITE)
+    resp = _source_response(setup, truth, estimator, others)
+    out, pos = {}, 0
+    for name, src in active.items():
+        if name in _WHITE:
+            out[name] = _linear_map(setup, estimator, truth) * float(src.distribution.std)
+        else:
+            size = int(np.prod(src.shape, dtype=np.int64))
+            out[name] = resp[:, pos: pos + size]
+            pos += size
+    return out
+
+
+def coefficient_covariance(setup: Setup | None = None, *, estimator: str = "joint",
+                           truth: Truth | None = None, sources=None):
+    """First-order covariance of the estimated coefficients from every active error source.
+
+    Linearised about the sources' means (the reversal and servo sources have a non-zero
+    mean), with the estimator's first-order map from readings to parameters; the plate
+    tilts act at second order and contribute nothing here.
+
+    Parameters
+    ----------
+    sources : iterable of str, optional
+        Only these error sources (default: every active one).
 
     Returns
     -------
@@ -933,50 +1521,126 @@ def coefficient_covariance(setup: Setup | None = None, *, estimator: str = "join
     setup = Setup() if setup is None else setup
     _check_estimator(estimator)
     geo = _geometry(setup)
-    a = _linear_map(setup, estimator)[: geo.n_coef]
-    cov = (setup.encoder_noise_um * 1e-3) ** 2 * (a @ a.T)
-    if setup.grid_error_um > 0:
-        basis = _grid_basis(geo)
-        k = basis.shape[1]
-        gmat = np.zeros((geo.plane.size, 2, 3, 2, k))
-        for p, sl in enumerate(_plane_slices(geo)):
-            for c in range(2):
-                gmat[sl, c, p, c, :] = basis[sl]
-        ag = a @ gmat.reshape(2 * geo.plane.size, -1)
-        cov = cov + (setup.grid_error_um * 1e-3) ** 2 / k * (ag @ ag.T)
+    cov = np.zeros((geo.n_coef, geo.n_coef))
+    for f in _source_factors(setup, estimator, truth, sources).values():
+        fc = f[: geo.n_coef]
+        cov += fc @ fc.T
     return _param_names(geo)[: geo.n_coef], cov
 
 
-def error_bands(setup: Setup | None = None, *, estimator: str = "joint",
-                positions: int = 11) -> pd.DataFrame:
-    """Standard uncertainty of each error function over the tested travel.
+def _measurand_variances(setup: Setup, estimator: str, truth: Truth | None, only) -> dict:
+    """source -> {measurand: first-order variance [display unit^2]} of the listed ones."""
+    ji = _joint_ident(setup)
+    ms = measurands(setup)
+    g = np.array([ji["g"][NAMES.index(m.name)] * m.scale for m in ms]).reshape(len(ms), -1)
+    return {name: dict(zip((m.name for m in ms), np.sum((g @ f) ** 2, axis=1)))
+            for name, f in _source_factors(setup, estimator, truth, only).items()}
+
+
+def budget(setup: Setup | None = None, *, estimator: str = "joint",
+           truth: Truth | None = None) -> pd.DataFrame:
+    """First-order uncertainty budget of the listed measurands, by error source.
+
+    The same first-order propagation as
+    :func:`mtplan.evaluation.simulation.linearize_procedure` (forward model and estimator
+    linearised about the sources' means), through the estimator's linear map instead of
+    differentiating the whole chain per input: seconds instead of minutes for the
+    set-ups with head positions.
+
+    Returns
+    -------
+    DataFrame with columns ``measurand``, ``unit``, ``source``, ``std`` (the standard
+    uncertainty due to that source alone, display unit) and ``share`` (its fraction of
+    the measurand's variance; the sources are independent, so the shares add to 1).
+    """
+    setup = Setup() if setup is None else setup
+    _check_estimator(estimator)
+    var = _measurand_variances(setup, estimator, truth, None)
+    rows = []
+    for m in measurands(setup):
+        total = sum(v[m.name] for v in var.values())
+        for name, v in var.items():
+            rows.append((m.name, m.unit, name, math.sqrt(v[m.name]),
+                         v[m.name] / total if total > 0 else 0.0))
+    return pd.DataFrame(rows, columns=["measurand", "unit", "source", "std", "share"])
+
+
+def first_order_std(setup: Setup, truth: Truth | None = None, *, estimator: str = "joint",
+                    sources=None) -> dict:
+    """First-order standard uncertainty of each listed measurand [display unit] (see
+    :func:`budget`); the planner's screening uses it in place of the generic
+    linearisation."""
+    _check_estimator(estimator)
+    var = _measurand_variances(setup, estimator, truth, sources)
+    return {m.name: math.sqrt(sum(v[m.name] for v in var.values())) for m in measurands(setup)}
+
+
+def _travel(geo: _Geometry, axis: int) -> tuple[float, float]:
+    """Range of an axis's commanded position over every reading [mm]: where the plates read
+    its errors (the lines and circles, and the fixed coordinates of the plates and heads:
+    the YZ plate reads X's errors at its x, 120 mm in the seed)."""
+    x = geo.cmd[:, axis]
+    return float(x.min()), float(x.max())
+
+
+def error_functions(setup: Setup | None = None, readings: dict | None = None, *,
+                    truth: Truth | None = None, estimator: str = "joint", positions: int = 21,
+                    travel: tuple[float, float] | None = None, sources=None) -> pd.DataFrame:
+    """The 21 error functions over their travel: estimate, truth and first-order band.
+
+    Each error function is a function of its axis's position; a measurand is its value at
+    one stated position. This gives every function along the tested travel of its axis,
+    for a report to draw each determined error with its band.
 
     Parameters
     ----------
     setup : Setup, optional
+    readings : dict, optional
+        Readings (the first trial is used) whose estimate is shown.
+    truth : Truth, optional
+        The true functions (simulations); also the point the sources' first-order effect
+        is taken at (default the default Truth).
     estimator : str
     positions : int
-        Number of positions over [-line_length/2, +line_length/2].
+        Positions per function, evenly over its travel.
+    travel : (low, high), optional
+        Range of positions [mm] for every axis; default, each axis's range of commanded
+        positions over every reading (the tests' travel, the plates' fixed coordinates and
+        the heads' offsets: where the plates read the errors).
+    sources : iterable of str, optional
+        Only these error sources in the band (default every active one).
 
     Returns
     -------
-    DataFrame with columns ``function``, ``unit``, ``position_mm``, ``std`` (first-order
-    standard uncertainty of the function's value there, display unit) and ``status``
-    (from :func:`identifiability`). Where the data do not determine the value, ``std``
-    is ``inf`` (never NaN) and ``status`` says why. Squareness rows have position 0.
+    DataFrame with one row per function and position: ``function``, ``unit``, ``kind``
+    (pos, str, ang, sq), ``axis`` (X, Y, Z), ``position_mm``, ``estimate`` (NaN without
+    readings or where the data do not determine the value), ``true`` (NaN without truth),
+    ``std`` (first-order standard uncertainty from every active source, display unit;
+    ``inf`` where the data do not determine the value, never NaN) and ``status`` (from
+    :func:`identifiability`). Squareness errors are constants: one row at position 0.
     """
     setup = Setup() if setup is None else setup
+    _check_estimator(estimator)
+    p = Problems("error_functions")
+    p.number("positions", positions, low=2, integer=True)
+    if travel is not None and not (len(travel) == 2 and travel[0] < travel[1]):
+        p.add("travel", travel, "a pair (low, high) with low < high [mm]")
+    p.raise_if_any()
     ji = _joint_ident(setup)
     geo, s, null = ji["geo"], ji["scale"], ji["null"]
-    _, cov = coefficient_covariance(setup, estimator=estimator)
+    _, cov = coefficient_covariance(setup, estimator=estimator, truth=truth, sources=sources)
     status = identifiability(setup, estimator)["status"]
-    u = np.linspace(-geo.u_end, geo.u_end, int(positions))
+    theta = None if readings is None else _estimate_theta(setup, readings, estimator)[0]
+    tcoef = None if truth is None else _truth_coefficients(truth)
     rows = []
     for name in NAMES:
         powers, sl = geo.layout[name]
         scale = 1e6 if _KIND[name] in ("ang", "sq") else 1e3
-        unit = "urad" if scale == 1e6 else "um"
-        pts = np.array([0.0]) if _KIND[name] == "sq" else u
+        if _KIND[name] == "sq":
+            pts = np.array([0.0])
+        else:
+            lo, hi = travel if travel is not None else _travel(geo, _AXIS[name])
+            pts = np.linspace(lo, hi, int(positions))
         for x in pts:
             b = np.zeros(geo.n_par)
             b[sl] = [x**k for k in powers]
@@ -984,9 +1648,35 @@ def error_bands(setup: Setup | None = None, *, estimator: str = "joint",
             nb = np.linalg.norm(bs)
             ok = nb == 0 or not null.size or np.linalg.norm(null @ bs) <= 1e-6 * nb
             var = float(b[: geo.n_coef] @ cov @ b[: geo.n_coef])
-            rows.append((name, unit, float(x), math.sqrt(max(var, 0.0)) * scale if ok else math.inf,
+            est = float(b @ theta) * scale if theta is not None and ok else math.nan
+            if tcoef is None:
+                true = math.nan
+            else:
+                tp, tc = tcoef[name]
+                true = float(np.sum(tc * x ** np.array(tp))) * scale
+            rows.append((name, "urad" if scale == 1e6 else "um", _KIND[name], "XYZ"[_AXIS[name]],
+                         float(x), est, true, math.sqrt(max(var, 0.0)) * scale if ok else math.inf,
                          status[name]))
-    return pd.DataFrame(rows, columns=["function", "unit", "position_mm", "std", "status"])
+    return pd.DataFrame(rows, columns=["function", "unit", "kind", "axis", "position_mm",
+                                       "estimate", "true", "std", "status"])
+
+
+def error_bands(setup: Setup | None = None, *, estimator: str = "joint",
+                positions: int = 11) -> pd.DataFrame:
+    """Standard uncertainty of each error function over [-line_length/2, +line_length/2].
+
+    Returns
+    -------
+    DataFrame with columns ``function``, ``unit``, ``position_mm``, ``std`` (first-order
+    standard uncertainty of the function's value there from every active error source,
+    display unit) and ``status`` (from :func:`identifiability`). Where the data do not
+    determine the value, ``std`` is ``inf`` (never NaN) and ``status`` says why.
+    Squareness rows have position 0. See :func:`error_functions` for estimates and truth.
+    """
+    setup = Setup() if setup is None else setup
+    half = setup.line_length_mm / 2
+    table = error_functions(setup, estimator=estimator, positions=positions, travel=(-half, half))
+    return table[["function", "unit", "position_mm", "std", "status"]]
 
 
 def noise_free_table(setup: Setup | None = None, *, scales=(1.0, 10.0, 100.0),
@@ -1020,8 +1710,10 @@ def report_extras(setup: Setup, truth: Truth) -> dict:
     """Uncertainty bands of the error functions over the tested travel, for the report.
 
     A planner asks how well EBX is known anywhere on the axis, not how well its a2 is:
-    :func:`error_bands` (first order, all default error sources) for the seed's stepwise
+    :func:`error_bands` (first order, all active error sources) for the seed's stepwise
     method and the joint fit; functions the data do not determine are left out.
+    :func:`error_functions` has the same with the estimate and truth over each axis's
+    whole tested travel.
     """
     bands = {est: error_bands(setup, estimator=est, positions=21) for est in ("patent", "joint")}
     return {"bands": {
@@ -1110,5 +1802,6 @@ PROCEDURE = Procedure(
     description=__doc__.split("\n\n")[0] if __doc__ else "",
     exact_estimators=("joint",),
     block_size=128,
+    optional_columns=("head",),
     setup_from_frame=setup_from_frame,
 )

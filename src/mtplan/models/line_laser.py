@@ -6,8 +6,11 @@ moves it along Y and triggers a profile every ``step_mm`` (dy). Its mounting is 
 by small rotations ``alpha_z`` about Z, then ``alpha_y`` about Y, then ``alpha_x``
 about X (rotations about the fixed machine axes, applied in that order, so the
 sensor's frame is ``R = Rx(alpha_x) Ry(alpha_y) Rz(alpha_z)``; its laser line runs
-along ``R e_x`` and it measures along ``R e_z``). The method scans a standard
-artifact with a periodic pattern three times (the seed's claim 3):
+along ``R e_x`` and it measures along ``R e_z``). The machine frame is the scan's:
+Y along the Y motion (which builds the data's third coordinate), X in the plane of the
+X and Y motions, Z normal to both; the X and Z motions deviate from those axes by the
+machine's squareness errors. The method scans a standard artifact with a periodic
+pattern three times (the seed's claim 3):
 
 1. along Y;
 2. shifted by ``w = shift_fraction * line_width_mm`` in +X, same Y path;
@@ -35,10 +38,37 @@ Forward model
   of the measuring range ``range_mm``; the stand-off is set before scanning so that
   all three scans fit in the range (the seed's claim 5), and set-ups where they
   cannot are refused.
-- **Error sources**: sensor noise on every height; the machine's positioning error of
-  the X shift ``w`` (scans 2 and 3 share it: scan 3 does not move in X) and of the
-  raise ``h``; the Y position of each scan's trigger train (one offset per scan:
-  the encoder/scale triggers restart for each scan).
+- **Error sources** (each sized by its set-up field; the field's doc names the data
+  sheet or standard its default comes from):
+
+  - sensor noise on every height;
+  - the sensor's *linearity*: a height error ``e(x_l)`` along the line, the same in
+    all three scans (a calibration error of the sensor), modelled as
+    ``e = sum_k c_k sqrt(2k+1) P_k(2 x_l / w0)`` over the Legendre degrees k = 2, 3, 4,
+    the ``c_k`` normal with standard deviation ``linearity_um / sqrt(3)`` and drawn once
+    per test, so the expected RMS of ``e`` along the line is ``linearity_um``. Degrees 0
+    and 1 are left out: an offset cancels in every difference, and a tilt of the
+    calibration along the line is, to the data, the same thing as ``alpha_y`` (it is
+    part of the sensor's data frame that the method determines). Scans 1 and 2 see the
+    same artifact point at ``x_l + w`` and ``x_l``, so ``e(x_l + w) - e(x_l)`` enters
+    ``alpha_y`` with lever ``1/w`` (averaged over the mirror-symmetric common part, only
+    the odd degree survives in the patent's mean: u(alpha_y) = 0.27 linearity_um / w at
+    the default); scans 2 and 3 see it at the same ``x_l``, where it cancels;
+  - the *Z scale* (gain) error of the height reading, ``z = (1 + s) t``, about the
+    middle of the range: it scales every height difference, hence ``h'`` by ``s h``;
+  - the machine's positioning error of the X shift ``w`` (scans 2 and 3 share it:
+    scan 3 does not move in X) and of the raise ``h``;
+  - the *squareness* of the X motion to Y (the shift runs along
+    ``(cos g, sin g, 0)``: scan 2 moves by ``w g`` along Y, which is ``alpha_z`` to
+    the data) and of the Z motion to Y (the raise runs along ``(0, sin e, cos e)``:
+    scan 3 moves by ``h e`` along Y, which is ``alpha_x`` to the registration);
+  - the Y position of each scan's trigger train (one offset per scan: the
+    encoder/scale triggers restart for each scan);
+  - *drift*: a thermal drift velocity of the sensor relative to the artifact, constant
+    during the test, which displaces scan k by ``v (t_k - t_1)`` (start times from the
+    duration model, :func:`duration`). The drift within a scan is the same in all
+    three scans and left out. At the default timing (scans 1.5 s apart) a drift of
+    10 um/h moves the scans by nanometres; it matters when the scans are minutes apart.
 
 Estimators
 ----------
@@ -57,12 +87,31 @@ Estimators
   module's conventions.
 - ``h'`` is the mean height difference of scans 2 and 3 at the same points,
   ``alpha_x = arccos(h/h')``. **Sign-blind**: the estimator returns ``|alpha_x|``
-  (0 when ``h' <= h``, where the arccos has no real value). Exactly,
-  ``h' = h / (cos alpha_x cos alpha_y)`` on the flat parts, so the formula really
-  estimates ``arccos(cos alpha_x cos alpha_y) ~ sqrt(alpha_x^2 + alpha_y^2)``; and
-  ``h' - h ~ h alpha_x^2/2`` is a few nanometres at 1 mrad, far below the machine's
-  positioning error of ``h``: at realistic set-ups alpha_x is not measurable this
-  way. :func:`observability` says so, with the numbers.
+  (0 when ``h' <= h``, where the arccos has no real value). What ``h'`` is, exactly:
+  on a plane with unit normal ``n``, raising the sensor by ``h`` along ``a`` (the Z
+  motion) changes the reading by ``h (n . a) / (n . d)`` (``d`` the measuring
+  direction), and ``h'`` is the mean of that over the points, weighted by how many
+  fall on each plane (plus the few rays whose hit crosses a kink between the scans).
+  On the land and floors of a *level* artifact that is ``h / (cos alpha_x cos
+  alpha_y)``, the seed's relation, whose arccos is ``arccos(cos alpha_x cos alpha_y)
+  ~ sqrt(alpha_x^2 + alpha_y^2)``: even there it absorbs ``alpha_y``, and with the
+  artifact's tilt it gives the angle between ``d`` and the plate's normal (1.90 mrad
+  at the default truth, against 2.24 mrad for a level plate). On a facet inclined
+  by ``phi`` the change differs from ``h`` by about ``h tan(phi) (d_h . e_f)``
+  (``d_h`` the horizontal part of ``d``, ``e_f`` the facet's downhill direction):
+  -2.1 to +2.1 um per facet at the default truth, several hundred times the
+  ``h alpha^2 / 2`` = 5 nm that carry the angles; the six facet orientations cancel
+  only as far as the scan covers them in equal shares. So, noise-free, ``h' - h`` is
+  +57 nm at the default set-up (flat parts +1.7 nm of it, facets +55.8 nm) and the
+  estimate 7.58 mrad; at the former default (40 lines, beta = 0.6) it was -14 nm
+  (flat +1.6, facets -15.7) and the estimate 0. **The patent's alpha_x estimates
+  neither alpha_x nor arccos(cos alpha_x cos alpha_y)**, but the balance of the
+  facets in the scanned window; and any ``h'`` error of a nanometre moves it by
+  ``1/(h alpha)`` ~ 70 urad. Restricting the mean to the flat parts would give the
+  tilt-corrected angle between ``d`` and the plate's normal, still sign-blind and
+  still drowned by the machine's positioning error of ``h`` (:func:`observability`
+  says so, with the numbers). The Z scale error adds ``s h`` to ``h'``: 100 ppm
+  alone reads as 14 mrad.
 
 ``registration`` (improved, self-referencing like the seed, no artifact dimensions
 used): each scan is a sampled surface ``z_l = F_k(x_l, y)`` in the sensor's data
@@ -88,6 +137,15 @@ Decisions where the seed is silent or loose: the seed's ``cos(alpha_x) = h/h'`` 
 along ``x_l`` by ``w``; we interpolate linearly along the line for that (``w`` need not
 be a whole number of points). Rows are compared at the nominal trigger positions
 (the data know no better).
+
+Default scan: 80 profiles 0.05 mm apart cover one pitch of the cells along Y (4 mm),
+so every facet orientation is in the window wherever the artifact lies; 40 profiles
+covered half a pitch, and the patent's noise-free alpha_y error then ranged from -68
+to +17 urad with the artifact's (unknown) Y position, against -18 to -15 urad with
+80. The remaining -17 urad came from the linear interpolation along the line across
+the facets' kinks (w = 9.6 mm = 38.4 point spacings at beta = 0.6); the default
+beta = 0.625 makes w = 10 mm a whole number of spacings, and the error is below
+1 urad for every position. :func:`observability` flags a ``w`` that is not.
 """
 
 from __future__ import annotations
@@ -108,7 +166,7 @@ from mtplan.models._protocol import (
     frame_columns,
     param,
 )
-from mtplan.uncertainty.distributions import Normal
+from mtplan.uncertainty.distributions import Normal, Rectangular
 
 __all__ = [
     "Setup",
@@ -129,6 +187,8 @@ TILT_MAX = 5e-3
 #: smallest mask tolerance of the registration [mm]: far above rounding, far below noise
 _TOL_FLOOR = 5e-5
 _SQ3 = math.sqrt(3.0)
+#: Legendre degrees of the linearity curve along the line (0 and 1 belong to the data frame)
+_LIN_DEGREES = np.arange(2, 5)
 
 
 # --------------------------------------------------------------------------- set-up
@@ -147,14 +207,29 @@ class Setup(SetupBase):
         8.0, doc="Measuring range of the sensor in height (e.g. +-4 mm)", low=0, low_open=True)
     sensor_noise_um: float = param(
         1.0, doc="Standard deviation of one height reading (single profile, matte metal)", low=0)
+    linearity_um: float = param(
+        1.0, doc="RMS along the laser line of the sensor's height error after its best straight "
+                 "line is removed (calibration linearity): a smooth curve, Legendre degrees 2-4 "
+                 "with random amplitudes per test, the same in all three scans. Default 1 um: "
+                 "Keyence LJ-X8000 heads quote a Z linearity of +-0.03 % of F.S. (+-2.4 um over "
+                 "this 8 mm range), Micro-Epsilon scanCONTROL 30xx about +-0.1 % of FSO", low=0)
+    z_scale_ppm: float = param(
+        100.0, doc="Standard deviation of the scale (gain) error of the sensor's height reading. "
+                   "Default 100 ppm: the Z gain as calibrated by the maker; Keyence LJ-X8000 "
+                   "heads quote a temperature characteristic of 0.01 % of F.S. per K, so 1 K "
+                   "from the calibration temperature gives this much", low=0)
     # scans
     step_mm: float = param(
         0.05, doc="Scan step dy between profiles (encoder-pulse trigger interval)",
         low=0, low_open=True)
-    lines: int = param(40, doc="Profiles per scan", low=5)
+    lines: int = param(
+        80, doc="Profiles per scan; the default 80 x 0.05 mm covers one pitch of the cells along "
+                "Y, so every facet is seen whatever the artifact's position", low=5)
     shift_fraction: float = param(
-        0.6, doc="beta: the X shift of scan 2 is w = beta * w0 (seed: 0.5 to 0.75); "
-                 "beta >= 1 leaves no common part", low=0, high=1, low_open=True, high_open=True)
+        0.625, doc="beta: the X shift of scan 2 is w = beta * w0 (seed: 0.5 to 0.75); beta >= 1 "
+                   "leaves no common part. The default makes w (10 mm) a whole number of point "
+                   "spacings, so the patent aligns the scans without interpolating",
+        low=0, high=1, low_open=True, high_open=True)
     raise_mm: float = param(2.0, doc="Raise h of scan 3 in +Z (within the range)",
                             low=0, low_open=True)
     max_shift_rows: int = param(5, doc="n_max: row shifts searched by the patent's overlap",
@@ -176,6 +251,21 @@ class Setup(SetupBase):
         1.0, doc="Standard deviation of the machine's positioning of the raise h", low=0)
     trigger_y_um: float = param(
         0.3, doc="Standard deviation of each scan's Y trigger position", low=0)
+    squareness_xy_urad: float = param(
+        20.0, doc="Half-width (rectangular) of the squareness error of the X motion to the Y "
+                  "(scan) motion, positive toward +Y. ISO 230-1 defines it; acceptance "
+                  "tolerances of machining centres (ISO 10791-2) are about 0.02 mm over 500 mm "
+                  "(40 urad), a machine in order measures well inside that", low=0)
+    squareness_zy_urad: float = param(
+        20.0, doc="Half-width (rectangular) of the squareness error of the Z motion to the Y "
+                  "(scan) motion, positive toward +Y (ISO 230-1; default as squareness_xy_urad)",
+        low=0)
+    drift_um_per_s: float = param(
+        0.003, doc="Standard deviation, per axis, of the thermal drift rate of the sensor "
+                   "relative to the artifact, constant during the test; the scans' start times "
+                   "follow the duration model. Default 0.003 um/s (about 10 um/h): ISO 230-3 "
+                   "thermal tests of machining centres show drifts of 5-30 um per hour while "
+                   "warming up, and profile sensors need a 20 min run-in", low=0)
     # time
     scan_feed_mm_min: float = param(600.0, doc="Scanning feed along Y", low=0, low_open=True)
     frame_rate_per_s: float = param(1000.0, doc="Largest profile rate of the sensor",
@@ -394,7 +484,92 @@ def sources(setup) -> dict:
             Normal(0.0, setup.trigger_y_um * 1e-3), (3,),
             "Y position of each scan's trigger train; default 0.3 um: interpolation error "
             "of the linear scale plus trigger latency at the scanning feed."),
+        "linearity": Source(
+            Normal(0.0, setup.linearity_um * 1e-3 / math.sqrt(_LIN_DEGREES.size)),
+            (_LIN_DEGREES.size,),
+            "Coefficients of the sensor's height error along the line on the orthonormal "
+            "Legendre polynomials of degrees 2, 3, 4 (sqrt(2k+1) P_k of 2 x_l / w0), one set "
+            "per test, equal shares, so the expected RMS along the line is linearity_um; "
+            "degrees 0 and 1 (offset, tilt) are part of the sensor's data frame, not errors. "
+            "Default 1 um: Keyence LJ-X8000 +-0.03 % of F.S., Micro-Epsilon scanCONTROL "
+            "about +-0.1 % of FSO."),
+        "z_scale": Source(
+            Normal(0.0, setup.z_scale_ppm * 1e-6), (),
+            "Scale (gain) error of the height reading about the middle of the range, one per "
+            "test; default 100 ppm (Keyence LJ-X8000: 0.01 % of F.S. per K)."),
+        "squareness_xy": Source(
+            Rectangular(-setup.squareness_xy_urad * 1e-6, setup.squareness_xy_urad * 1e-6), (),
+            "Squareness of the X motion (the shift w) to the Y scan motion, toward +Y; "
+            "rectangular +-20 urad (ISO 230-1; ISO 10791-2 tolerances are 0.02 mm/500 mm)."),
+        "squareness_zy": Source(
+            Rectangular(-setup.squareness_zy_urad * 1e-6, setup.squareness_zy_urad * 1e-6), (),
+            "Squareness of the Z motion (the raise h) to the Y scan motion, toward +Y; "
+            "rectangular +-20 urad (ISO 230-1)."),
+        "drift": Source(
+            Normal(0.0, setup.drift_um_per_s * 1e-3), (3,),
+            "Thermal drift velocity (X, Y, Z) of the sensor relative to the artifact, one per "
+            "test; scan k is displaced by it times its start time after scan 1. Default "
+            "0.003 um/s, about 10 um/h (ISO 230-3 warm-up drifts of 5-30 um/h)."),
     }
+
+
+def _linearity_basis(setup) -> np.ndarray:
+    """Orthonormal Legendre polynomials along the line, shape (degrees, points_per_line).
+
+    ``sqrt(2k + 1) P_k(xi)`` with ``xi = 2 x_l / w0`` in [-1, 1], k in ``_LIN_DEGREES``:
+    each has unit mean square over the line, so coefficients of standard deviation
+    ``L / sqrt(degrees)`` give an error curve of expected RMS ``L``.
+    """
+    xi = 2.0 * _grid_u(setup) / setup.line_width_mm
+    return np.stack([math.sqrt(2 * k + 1) * np.polynomial.legendre.Legendre.basis(k)(xi)
+                     for k in _LIN_DEGREES])
+
+
+def _scan_times(setup) -> np.ndarray:
+    """Start time of scans 1, 2, 3 and the end of the test [s], shape (4,).
+
+    Each scan is preceded by a dwell ``settle_s``; between scans the machine returns
+    along Y at rapid feed and makes the X shift (before scan 2) or the raise (before
+    scan 3). The last entry is :func:`duration`.
+    """
+    length = (setup.lines - 1) * setup.step_mm
+    scan = length / min(setup.scan_feed_mm_min / 60, setup.step_mm * setup.frame_rate_per_s)
+    rapid = setup.rapid_mm_min / 60
+    t1 = setup.settle_s
+    t2 = t1 + scan + (length + _shift(setup)) / rapid + setup.settle_s
+    t3 = t2 + scan + (length + setup.raise_mm) / rapid + setup.settle_s
+    return np.array([t1, t2, t3, t3 + scan])
+
+
+def _displacements(setup, errors) -> np.ndarray:
+    """Actual minus nominal position of the sensor in each scan, (n, 3, 3) [mm].
+
+    Axis 1 is the scan, axis 2 the machine coordinate. The frame is the scan's: Y along
+    the Y motion, X in the plane of the X and Y motions, Z normal to both. The X shift
+    ``w + e_w`` runs along ``(cos g, sin g, 0)`` (g the X-Y squareness) and the raise
+    ``h + e_h`` along ``(0, sin e, cos e)`` (e the Z-Y squareness), both exactly; each scan's
+    trigger train is offset along Y; the drift velocity moves scan k by ``v (t_k - t_1)``.
+    All zero when every source is zero (exactly: ``(w + 0) cos 0 - w == 0``).
+    """
+    e_w = np.asarray(errors["shift_error"], dtype=float).reshape(-1)
+    n = e_w.shape[0]
+    e_h = np.asarray(errors["raise_error"], dtype=float).reshape(n)
+    e_y = np.asarray(errors["trigger_y"], dtype=float).reshape(n, 3)
+    g = np.asarray(errors["squareness_xy"], dtype=float).reshape(n)
+    e = np.asarray(errors["squareness_zy"], dtype=float).reshape(n)
+    v = np.asarray(errors["drift"], dtype=float).reshape(n, 3)
+    w, h = _shift(setup), setup.raise_mm
+    disp = np.zeros((n, 3, 3))
+    sx = w + e_w
+    disp[:, 1:, 0] = (sx * np.cos(g) - w)[:, None]
+    disp[:, 1:, 1] = (sx * np.sin(g))[:, None]
+    rz = h + e_h
+    disp[:, 2, 1] += rz * np.sin(e)
+    disp[:, 2, 2] = rz * np.cos(e) - h
+    disp[:, :, 1] += e_y
+    times = _scan_times(setup)[:3]
+    disp += v[:, None, :] * (times - times[0])[None, :, None]
+    return disp
 
 
 # --------------------------------------------------------------------------- forward
@@ -426,15 +601,20 @@ def _frames(setup, truth):
     return q.T @ r[:, 0], q.T @ r[:, 2], q, c0
 
 
-def _origins(setup, truth, e_w, e_h, e_y):
-    """Ray origins in the artifact frame, three arrays (m, 3, lines, points) flattened."""
+def _origins(setup, truth, disp):
+    """Ray origins in the artifact frame, three arrays (m, 3, lines, points) flattened.
+
+    ``disp`` (m, 3, 3): each scan's displacement from its nominal position [mm]
+    (:func:`_displacements`).
+    """
     ex, _, q, c0 = _frames(setup, truth)
-    m = e_w.shape[0]
+    m = disp.shape[0]
     pos = np.zeros((m, 3, setup.lines, 3))
-    pos[:, 1:, :, 0] = (_shift(setup) + e_w)[:, None, None]
-    pos[:, :, :, 1] = _grid_y(setup)[None, None, :] + e_y[:, :, None]
+    pos[:, 1:, :, 0] = _shift(setup)
+    pos[:, :, :, 1] = _grid_y(setup)[None, None, :]
     pos[:, :, :, 2] = _standoff(setup)
-    pos[:, 2, :, 2] += setup.raise_mm + e_h[:, None]
+    pos[:, 2, :, 2] += setup.raise_mm
+    pos += disp[:, :, None, :]
     base = (pos - c0) @ q  # rows: q.T @ (p - c0)
     u = _grid_u(setup)
     return tuple((base[..., k : k + 1] + u * ex[k]).reshape(m, -1) for k in range(3))
@@ -448,8 +628,7 @@ def _nominal(setup, truth):
     key = (setup, truth)
     if key not in _NOMINAL:
         _, d, _, _ = _frames(setup, truth)
-        zero = np.zeros(1)
-        ox, oy, oz = (a[0] for a in _origins(setup, truth, zero, zero, np.zeros((1, 3))))
+        ox, oy, oz = (a[0] for a in _origins(setup, truth, np.zeros((1, 3, 3))))
         t = -oz / d[2]  # hit of the land plane
         t = _newton(setup, ox, oy, oz, d, t, np.arange(t.size))
         x, y = ox + t * d[0], oy + t * d[1]
@@ -460,20 +639,21 @@ def _nominal(setup, truth):
     return _NOMINAL[key]
 
 
-def _trace(setup, truth, e_w, e_h, e_y):
+def _trace(setup, truth, disp):
     """Exact heights t [mm] of the rays, shape (m, 3, lines, points), for m error rows.
 
-    The errors move the sensor by micrometres. A ray whose error-free hit lies
-    farther from any kink than that move (bounded generously) stays on the same
-    plane, and its hit is the exact ray-plane intersection; the others (near kinks)
-    are solved by :func:`_newton`.
+    ``disp`` (m, 3, 3): each scan's displacement of the sensor [mm]. The errors move
+    the sensor by micrometres. A ray whose error-free hit lies farther from any kink
+    than that move (bounded generously: twice the sum of the components' magnitudes)
+    stays on the same plane, and its hit is the exact ray-plane intersection; the
+    others (near kinks) are solved by :func:`_newton`.
     """
     _, d, _, _ = _frames(setup, truth)
     t0, x0, y0, z0, gx0, gy0, margin = _nominal(setup, truth)
-    ox, oy, oz = _origins(setup, truth, e_w, e_h, e_y)
-    m = e_w.shape[0]
+    ox, oy, oz = _origins(setup, truth, disp)
+    m = disp.shape[0]
     t = (z0 + gx0 * (ox - x0) + gy0 * (oy - y0) - oz) / (d[2] - gx0 * d[0] - gy0 * d[1])
-    move = 2.0 * (np.abs(e_w) + np.abs(e_h) + np.abs(e_y).max(axis=1)) + 1e-9
+    move = 2.0 * np.abs(disp).sum(axis=2).max(axis=1) + 1e-9
     near = np.flatnonzero(margin[None, :] <= move[:, None])
     if near.size:
         t = t.ravel()
@@ -491,25 +671,32 @@ def _trace(setup, truth, e_w, e_h, e_y):
 def forward(setup, truth, errors) -> dict:
     """Simulated profiles: ``{"z_mm": array (n, 3, lines, points_per_line)}``.
 
+    The reported height is ``(1 + z_scale) t + e(x_l) + noise``: ``t`` the exact ray
+    parameter of the displaced sensor (:func:`_displacements`, :func:`_trace`), ``e``
+    the linearity curve along the line (:func:`_linearity_basis`), the same in the
+    three scans.
+
     Parameters
     ----------
     setup : Setup
     truth : Truth
     errors : dict
         ``sensor_noise`` (n, 3, lines, points) [mm], ``shift_error`` (n,) [mm],
-        ``raise_error`` (n,) [mm], ``trigger_y`` (n, 3) [mm].
+        ``raise_error`` (n,) [mm], ``trigger_y`` (n, 3) [mm], ``linearity`` (n, 3) [mm],
+        ``z_scale`` (n,) [1], ``squareness_xy`` and ``squareness_zy`` (n,) [rad],
+        ``drift`` (n, 3) [mm/s].
     """
-    e_w = np.asarray(errors["shift_error"], dtype=float).reshape(-1)
-    e_h = np.asarray(errors["raise_error"], dtype=float).reshape(-1)
-    e_y = np.asarray(errors["trigger_y"], dtype=float).reshape(-1, 3)
-    n = e_w.shape[0]
-    same = (np.all(e_w == e_w[0]) and np.all(e_h == e_h[0]) and np.all(e_y == e_y[:1]))
-    if same:  # geometry identical in every trial: trace once
-        t = np.broadcast_to(_trace(setup, truth, e_w[:1], e_h[:1], e_y[:1]),
+    disp = _displacements(setup, errors)
+    n = disp.shape[0]
+    if np.all(disp == disp[:1]):  # geometry identical in every trial: trace once
+        t = np.broadcast_to(_trace(setup, truth, disp[:1]),
                             (n, 3, setup.lines, setup.points_per_line))
     else:
-        t = _trace(setup, truth, e_w, e_h, e_y)
-    return {"z_mm": t + np.asarray(errors["sensor_noise"], dtype=float)}
+        t = _trace(setup, truth, disp)
+    scale = np.asarray(errors["z_scale"], dtype=float).reshape(n)
+    lin = np.asarray(errors["linearity"], dtype=float).reshape(n, -1) @ _linearity_basis(setup)
+    z = (1.0 + scale)[:, None, None, None] * t + lin[:, None, None, :]
+    return {"z_mm": z + np.asarray(errors["sensor_noise"], dtype=float)}
 
 
 def true_values(setup, truth) -> dict:
@@ -579,7 +766,16 @@ def observability(setup) -> dict:
         "alpha_y": Observability(
             True, True, 0.0, 0.0,
             "mean height difference of the common part; biased by the sub-step "
-            "misregistration left by the integer row shift"),
+            "misregistration left by the integer row shift, and by the sensor's linearity "
+            "error through e(x_l + w) - e(x_l)"
+            + ("" if abs(w / _pitch(setup) - round(w / _pitch(setup))) < 1e-9 else
+               f"; w = {w / _pitch(setup):.4g} point spacings is not a whole number, so the "
+               f"alignment interpolates across the facets' kinks (a bias of some 10 urad: "
+               f"choose shift_fraction so that w is a whole number of spacings)")
+            + ("" if setup.lines * dy >= setup.cell_size_mm * (1 - 1e-9) else
+               f"; the scan ({setup.lines} x {dy:g} mm) covers less than one cell pitch "
+               f"({setup.cell_size_mm:g} mm) along Y, so which facets it holds, and the bias, "
+               f"depend on where the artifact lies (tens of urad)")),
         "alpha_x": Observability(
             floor_x < ALPHA_MAX, False, 0.0, floor_x * 1e6,
             f"arccos(h/h') is even in alpha_x (returns |alpha_x|) and flat at small angles: "
@@ -588,7 +784,11 @@ def observability(setup) -> dict:
             f"|alpha_x| below about {floor_x * 1e3:.3g} mrad is indistinguishable from 0"
             + (f", more than the {ALPHA_MAX * 1e3:g} mrad this procedure is for: not "
                f"measurable at this set-up" if floor_x >= ALPHA_MAX else "")
-            + "; it also absorbs alpha_y (it estimates arccos(cos ax cos ay))"),
+            + "; even noise-free it does not estimate alpha_x (nor arccos(cos ax cos ay), "
+              "which holds on the flat parts of a level artifact only): h' is weighted by "
+              "the facets in the window, which change the height by up to h tan(facet) times "
+              "the measuring direction's tilt, +-2 um at 2 mrad, and cancel only as far as "
+              "the scan covers them in equal shares"),
     }
     ok, why = _registration_check(setup)
     reg = {k: Observability(ok, True, 0.0, 0.0, why) for k in ("alpha_z", "alpha_y", "alpha_x")}
@@ -716,17 +916,23 @@ def _robust_sigma(x, axis):
     return 1.4826 * np.median(np.abs(x), axis=axis)
 
 
-def _tolerance(z, tol_scale=6.0):
+def _tolerance(setup, z, tol_scale=6.0):
     """Tolerance on second differences [mm], per trial, shape (n, 1, 1).
 
     ``tol_scale`` standard deviations of a second difference of the noise (estimated
     robustly from the second differences along Y, where few straddle a kink), but at
-    least ``_TOL_FLOOR`` (so noise-free data are segmented exactly and a perturbation
-    far below the noise changes no mask).
+    least a floor: a tenth of the smallest second difference a kink leaves
+    (``0.25 tan(facet) min(pitch, dy)``, :func:`_planar_cells`; 0.58 um at the default),
+    and never below ``_TOL_FLOOR``. So noise-free data are segmented exactly, a smooth
+    calibration curve along the line (second differences of 0.08 um for a 1 um linearity
+    error) is not taken for a kink, and a perturbation far below the noise changes no mask.
     """
+    kink = 0.25 * math.tan(math.radians(setup.facet_angle_deg)) * min(_pitch(setup),
+                                                                      setup.step_mm)
+    floor = max(_TOL_FLOOR, 0.1 * kink)
     d2y = z[:, :-2, :] - 2 * z[:, 1:-1, :] + z[:, 2:, :]
     sig = _robust_sigma(d2y.reshape(d2y.shape[0], -1), axis=1)  # = sqrt(6) sigma
-    return np.maximum(tol_scale * sig, _TOL_FLOOR)[:, None, None]
+    return np.maximum(tol_scale * sig, floor)[:, None, None]
 
 
 def _planar_nodes(z, tol, ky=1):
@@ -780,8 +986,8 @@ def _register(setup, a, b, start, *, iterations=12):
     n, lines, pts = a.shape
     p, dy = _pitch(setup), setup.step_mm
     ky = int(max(1, min(round(p / dy / 2), (lines - 1) // 4)))
-    cells = _planar_cells(a, _tolerance(a), ky).reshape(n, -1)
-    okb = _planar_nodes(b, _tolerance(b), ky).reshape(n, -1)
+    cells = _planar_cells(a, _tolerance(setup, a), ky).reshape(n, -1)
+    okb = _planar_nodes(b, _tolerance(setup, b), ky).reshape(n, -1)
     gub = np.zeros_like(b)
     gyb = np.zeros_like(b)
     gub[:, :, 1:-1] = (b[:, :, 2:] - b[:, :, :-2]) / (2 * p)
@@ -905,12 +1111,7 @@ def _registration_core(setup, z) -> dict:
 def duration(setup) -> float:
     """Machine time of the three scans [s]: scans at the feed the frame rate allows,
     the moves between them at rapid feed, a dwell before each scan."""
-    length = (setup.lines - 1) * setup.step_mm
-    feed = min(setup.scan_feed_mm_min / 60, setup.step_mm * setup.frame_rate_per_s)
-    rapid = setup.rapid_mm_min / 60
-    scans = 3 * (length / feed + setup.settle_s)
-    moves = (2 * length + _shift(setup) + setup.raise_mm) / rapid
-    return float(scans + moves)
+    return float(_scan_times(setup)[-1])
 
 
 _COLUMNS = ("scan", "line", "point", "x_mm", "y_mm", "z_mm")

@@ -152,6 +152,9 @@ class IdentifiabilityReport:
         O1-O5 (keys ``'O1'`` ... ``'O5'``) on the scaled matrix.
     n_poses : int
         Poses used for O1.
+    determined : dict of str to bool
+        For each linear function of the parameters given (``functions``), whether the
+        observations determine it (estimable: orthogonal to the null space).
     """
 
     names: list[str]
@@ -166,6 +169,7 @@ class IdentifiabilityReport:
     null_combinations: list[str]
     observability: dict[str, float]
     n_poses: int = field(default=0)
+    determined: dict = field(default_factory=dict)
 
     @property
     def identifiable(self) -> bool:
@@ -185,6 +189,8 @@ class IdentifiabilityReport:
             "null_combinations": list(self.null_combinations),
             "observability": dict(self.observability),
             "tol": self.tol,
+            "determined": [k for k, v in self.determined.items() if v],
+            "undetermined": [k for k, v in self.determined.items() if not v],
         }
 
 
@@ -212,6 +218,7 @@ def identifiability(
     names=None,
     tol: float | None = None,
     n_poses: int | None = None,
+    functions=None,
 ) -> IdentifiabilityReport:
     """Rank, conditioning, null space and observability indices of a sensitivity matrix.
 
@@ -229,6 +236,13 @@ def identifiability(
         Relative rank tolerance in [0, 1); default ``max(n_obs, n_params) * eps``.
     n_poses : int, optional
         Number of poses for O1; default ``n_obs``.
+    functions : mapping of str to array_like of shape (n_params,), optional
+        Linear functions of the parameters, ``f . p`` (for example a measurand that the
+        parameters are coefficients of: geometry21's error functions at one position).
+        The report's ``determined`` says which the observations determine: those
+        orthogonal to the null space (relative tolerance 1e-6 on the scaled parameters);
+        a function that is not determined has no value the data could give, however
+        many readings are taken.
 
     Returns
     -------
@@ -255,13 +269,26 @@ def identifiability(
         p.number("tol", tol, low=0, high=1, high_open=True)
     if n_poses is not None:
         p.number("n_poses", n_poses, low=1, integer=True)
+    rows = {}
+    for fname, f in dict(functions or {}).items():
+        try:
+            row = np.asarray(f, dtype=float).ravel()
+        except (TypeError, ValueError):
+            row = None
+        if row is None or row.shape != (n_par,) or not np.all(np.isfinite(row)):
+            p.add(f"functions[{fname!r}]", f, f"{n_par} finite numbers (one per column of J)")
+        else:
+            rows[str(fname)] = row
     p.raise_if_any()
     if col is None:
         norms = np.linalg.norm(a, axis=0)
         col = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
     rtol = float(max(n_obs, n_par) * np.finfo(float).eps) if tol is None else float(tol)
     js = a * col
-    _, s, vt = np.linalg.svd(js, full_matrices=True)
+    if n_obs > n_par:  # tall: the SVD of the QR's R has the same S and V, and no U to form
+        _, s, vt = np.linalg.svd(np.linalg.qr(js, mode="r"))
+    else:  # the full V^T, which a short matrix needs for its null space
+        _, s, vt = np.linalg.svd(js, full_matrices=True)
     s1 = float(s[0]) if s.size else 0.0
     rank = int(np.sum(s > rtol * s1)) if s1 > 0 else 0
     null_scaled = vt[rank:].T  # (n_par, n_par - rank), orthonormal in scaled parameters
@@ -278,6 +305,11 @@ def identifiability(
     cond = s1 / smin if smin > rtol * s1 and smin > 0 else math.inf
     m = n_obs if n_poses is None else int(n_poses)
     obs = observability_indices(np.where(s_all > rtol * s1, s_all, 0.0), m)
+    determined = {}
+    for fname, row in rows.items():
+        fs = row * col  # in the scaled parameters q (p = col q): f . p = (f col) . q
+        nf = np.linalg.norm(fs)
+        determined[fname] = bool(nf == 0 or np.linalg.norm(null_scaled.T @ fs) <= 1e-6 * nf)
     return IdentifiabilityReport(
         names=names,
         n_obs=n_obs,
@@ -291,6 +323,7 @@ def identifiability(
         null_combinations=combos,
         observability=obs,
         n_poses=m,
+        determined=determined,
     )
 
 

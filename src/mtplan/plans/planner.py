@@ -121,6 +121,7 @@ def plan(
     backend: str | None = None,
     criterion=None,
     identify: bool = True,
+    determine=None,
 ) -> PlanResult:
     """The set-up of least duration whose uncertainty meets every target.
 
@@ -149,6 +150,12 @@ def plan(
     identify : bool
         Add the identifiability columns (``rank``, ``n_params``, ``condition``,
         ``O1`` ... ``O5``, see :func:`design_identifiability`) to the table.
+    determine : "all" or iterable of str, optional
+        Measurands the set-up must determine at all (procedures whose measurands depend
+        on the set-up, such as geometry21's error functions): a candidate is feasible
+        only if it lists every one; ``"all"`` means every measurand the procedure can
+        report (geometry21: the 21 errors). Targets may name measurands that only some
+        candidates determine.
 
     Raises
     ------
@@ -164,17 +171,19 @@ def plan(
     proc.check_setup(base_setup)
     truth = proc.Truth() if truth is None else truth
     targets = dict(targets or {})
-    _check_plan(proc, base_setup, targets, criterion, k, confirm, trials, n_jobs, backend)
-    proc.estimator(estimator)
     setups = _grid(proc, base_setup, dict(vary or {})) if vary else [base_setup]
+    units, listed = _possible_measurands(proc, setups)
+    names = list(units)
+    required = _required(proc, names, determine)
+    _check_plan(proc, names, targets, criterion, k, confirm, trials, n_jobs, backend, required)
+    proc.estimator(estimator)
     table = _screen(proc, setups, truth, estimator, sources, targets, k, criterion, identify,
-                    n_jobs, backend)
-    names = [m.name for m in proc.measurands(base_setup)]
+                    n_jobs, backend, names, required, listed)
     front = pareto_front(table["duration_s"].to_numpy(), table["worst"].to_numpy())
     pareto = [_candidate(table.iloc[i], setups[i], names, targets) for i in front]
     feasible = table[table["feasible"]].sort_values(["duration_s", "worst"], kind="stable")
     if feasible.empty:
-        raise InvalidInput(_unreachable(proc, base_setup, table, targets, vary, criterion))
+        raise InvalidInput(_unreachable(units, table, targets, vary, criterion, required))
     best, confirmation = _confirm(proc, setups, table, feasible.index[:confirm], truth,
                                   estimator, sources, targets, k, criterion, trials, seed)
     runners = [_candidate(table.loc[j], setups[j], names, targets)
@@ -183,13 +192,48 @@ def plan(
                       targets=targets, k=k, runners_up=runners)
 
 
-def _check_plan(proc, base_setup, targets, criterion, k, confirm, trials, n_jobs, backend):
+def _possible_measurands(proc, setups) -> tuple[dict, list]:
+    """Every measurand a candidate may report, name -> unit: those listed at any candidate
+    and, where the procedure's identifiability report names them (geometry21: the 21 error
+    functions), those the procedure could report at some set-up; in the procedure's order.
+    Also each candidate's own list."""
+    import importlib
+
+    names = {}
+    module = importlib.import_module(proc.forward.__module__)
+    own = getattr(module, "identifiability_report", None)
+    if callable(own):
+        names.update(dict.fromkeys(own(setups[0]).get("functions", {}), ""))
+    listed = []
+    for s in setups:
+        ms = proc.measurands(s)
+        names.update({m.name: m.unit for m in ms})
+        listed.append([m.name for m in ms])
+    return names, listed
+
+
+def _required(proc, names, determine) -> tuple:
+    """The measurands a candidate must determine (``determine``: None, "all" or names)."""
+    if determine is None:
+        return ()
+    if isinstance(determine, str) and determine.strip().lower() == "all":
+        return tuple(names)
+    wanted = [determine] if isinstance(determine, str) else list(determine)
+    unknown = [n for n in wanted if n not in names]
+    if unknown:
+        raise InvalidInput([f"The 'determine' parameter of plan {proc.name} must name its "
+                            f"measurands ({', '.join(names)}) or be 'all'. Got "
+                            f"{', '.join(map(repr, unknown))} instead."])
+    return tuple(wanted)
+
+
+def _check_plan(proc, names, targets, criterion, k, confirm, trials, n_jobs, backend,
+                required=()):
     """Every problem of the plan's arguments at once."""
     from mtplan._parallel import check_parallel
 
     p = Problems(f"plan {proc.name}")
-    names = [m.name for m in proc.measurands(base_setup)]
-    if not targets and criterion is None:
+    if not targets and criterion is None and not required:
         p.add_text("plan needs at least one target NAME<=VALUE")
     for name, value in targets.items():
         if name not in names:
@@ -204,38 +248,62 @@ def _check_plan(proc, base_setup, targets, criterion, k, confirm, trials, n_jobs
 
 
 def _screen(proc, setups, truth, estimator, sources, targets, k, criterion, identify, n_jobs,
-            backend):
-    """The candidates' table: linearised (k-scaled) uncertainties, worst target ratio,
-    identifiability and feasibility, one row per set-up."""
+            backend, names=None, required=(), listed=None):
+    """The candidates' table: linearised (k-scaled) uncertainties (NaN for measurands a
+    candidate does not determine), worst target ratio, identifiability and feasibility,
+    one row per set-up. A candidate that misses a required measurand is not linearised."""
     import pandas as pd
 
     from mtplan._parallel import ordered_map, parallel_session
 
-    names = [m.name for m in proc.measurands(setups[0])]
-    with parallel_session(n_jobs, backend) as session:
-        tasks = ((proc, s, truth, estimator, sources) for s in setups)
-        preds = list(ordered_map(_predict, tasks, n_jobs=session["n_jobs"], backend=backend))
+    names = [m.name for m in proc.measurands(setups[0])] if names is None else names
+    if listed is None:
+        listed = [[m.name for m in proc.measurands(s)] for s in setups]
+    missing = [[n for n in required if n not in ls] for ls in listed]
+    with parallel_session(n_jobs, backend) as session:  # one task per candidate, so that a
+        # procedure's per-set-up precomputation serves both
+        tasks = ((proc, s, truth, estimator, sources, not miss, identify)
+                 for s, miss in zip(setups, missing))
+        done = list(ordered_map(_assess, tasks, n_jobs=session["n_jobs"], backend=backend))
     rows = []
-    for i, (s, u) in enumerate(zip(setups, preds, strict=True)):
+    for i, (s, (u, ident)) in enumerate(zip(setups, done, strict=True)):
         row = {"candidate": i, **_flat(_setup_fields(s)), "duration_s": float(proc.duration(s))}
         for name in names:
-            row[f"u_{name}"] = k * u[name]
-        ratios = [k * u[n] / v for n, v in targets.items()]
+            row[f"u_{name}"] = k * u[name] if name in u else math.nan
+        ratios = [k * u[n] / v if n in u else math.inf for n, v in targets.items()]
+        if missing[i]:
+            ratios.append(math.inf)
         row["worst"] = max(ratios) if ratios else 0.0
-        if identify:
-            row.update(design_identifiability(proc, s, truth))
+        row.update(ident)
+        if required:
+            row["determined"] = len(listed[i])
+            row["undetermined"] = ",".join(missing[i])
         row["feasible"] = bool(all(r <= 1 for r in ratios)) and (
-            criterion is None or bool(criterion({n: k * u[n] for n in names})))
+            criterion is None or bool(criterion({n: k * u[n] for n in u})))
         rows.append(row)
     return pd.DataFrame(rows)
 
 
-def _unreachable(proc, base_setup, table, targets, vary, criterion) -> list[str]:
-    """Why no candidate is feasible: the best reachable value of each target missed."""
-    names = [m.name for m in proc.measurands(base_setup)]
-    units = {m.name: m.unit for m in proc.measurands(base_setup)}
+def _unreachable(units, table, targets, vary, criterion, required=()) -> list[str]:
+    """Why no candidate is feasible: the measurands no candidate determines, the best
+    reachable value of each target missed."""
+    names = list(units)
     msgs = []
+    if required:
+        full = table[table["undetermined"] == ""]
+        if full.empty:
+            j = int(table["determined"].idxmax())
+            where = ", ".join(f"{f}={table.loc[j, f]}" for f in (vary or {}))
+            msgs.append(f"No candidate determines every measurand asked for: the best "
+                        f"determines {table.loc[j, 'determined']} and leaves "
+                        f"{table.loc[j, 'undetermined']} undetermined"
+                        + (f" (at {where})" if where else ""))
+            return msgs
+        table = full
     for n, v in targets.items():
+        if table[f"u_{n}"].isna().all():
+            msgs.append(f"The target {n}<={v:g} cannot be met: no candidate determines {n}")
+            continue
         j = int(table[f"u_{n}"].idxmin())
         reach = table.loc[j, f"u_{n}"]
         if reach > v:
@@ -243,7 +311,8 @@ def _unreachable(proc, base_setup, table, targets, vary, criterion) -> list[str]
             msgs.append(f"The target {n}<={v:g} {units[n]} cannot be met: the best reachable "
                         f"value is {reach:.3g} {units[n]}" + (f" (at {where})" if where else ""))
     if not msgs and criterion is not None and hasattr(criterion, "explain"):
-        us = [{n: float(table.loc[j, f"u_{n}"]) for n in names} for j in table.index]
+        us = [{n: float(table.loc[j, f"u_{n}"]) for n in names
+               if math.isfinite(table.loc[j, f"u_{n}"])} for j in table.index]
         msgs.append(criterion.explain(us, [dict(zip(vary or {}, (table.loc[j, f] for f in
                                                                  (vary or {})), strict=True))
                                            for j in table.index]))
@@ -260,10 +329,10 @@ def _confirm(proc, setups, table, candidates, truth, estimator, sources, targets
     from mtplan.evaluation.simulation import simulate_uncertainty
     from mtplan.uncertainty.montecarlo import ModelError
 
-    names = [m.name for m in proc.measurands(setups[0])]
     confirmation = []
     for j in candidates:
         s = setups[j]
+        names = [m.name for m in proc.measurands(s)]
         try:
             r = simulate_uncertainty(proc, s, truth, estimator=estimator, sources=sources,
                                      trials=trials, rng=seed, progress=False)
@@ -343,7 +412,7 @@ def _candidate(row, setup, names, targets) -> dict:
         "candidate": int(row["candidate"]),
         "setup": setup.as_dict(),
         "duration_s": float(row["duration_s"]),
-        "predicted": {n: float(row[f"u_{n}"]) for n in names},
+        "predicted": {n: float(row[f"u_{n}"]) for n in names if math.isfinite(row[f"u_{n}"])},
         "worst": float(row["worst"]),
     }
     if "rank" in row:
@@ -352,9 +421,26 @@ def _candidate(row, setup, names, targets) -> dict:
     return out
 
 
+def _assess(proc, setup, truth, estimator, sources, predict, identify) -> tuple[dict, dict]:
+    """One candidate's linearised uncertainties (when `predict`) and identifiability
+    (when `identify`)."""
+    u = _predict(proc, setup, truth, estimator, sources) if predict else {}
+    return u, design_identifiability(proc, setup, truth) if identify else {}
+
+
 def _predict(proc, setup, truth, estimator, sources) -> dict:
+    """Linearised standard uncertainty of each measurand: the procedure module's own
+    ``first_order_std(setup, truth, estimator=, sources=)`` where it has one (geometry21:
+    the same first-order propagation through its estimators' linear maps, much faster
+    than differentiating the chain per input), else the generic GUM propagation."""
+    import importlib
+
     from mtplan.evaluation.simulation import linearize_procedure
 
+    own = getattr(importlib.import_module(proc.forward.__module__), "first_order_std", None)
+    if callable(own):
+        name, _ = proc.estimator(estimator)
+        return {n: float(u) for n, u in own(setup, truth, estimator=name, sources=sources).items()}
     g = linearize_procedure(proc, setup, truth, estimator=estimator, sources=sources)
     return {n: float(u) for n, u in zip(g.names, g.std, strict=True)}
 
@@ -528,7 +614,10 @@ def design_identifiability(procedure, setup=None, truth=None) -> dict:
 
     Returns
     -------
-    dict with ``rank``, ``n_params``, ``condition``, ``O1`` ... ``O5``.
+    dict with ``rank``, ``n_params``, ``condition`` (of the identified part where the
+    module's report says so), ``O1`` ... ``O5``; and ``determined`` (how many measurands
+    the readings determine) where the module's report gives its Jacobian and the
+    measurands as functions of its parameters.
     """
     import importlib
 
@@ -541,6 +630,14 @@ def design_identifiability(procedure, setup=None, truth=None) -> dict:
     own = getattr(module, "identifiability_report", None)
     if callable(own):
         rep = own(setup)
+        if "jacobian" in rep:  # the model's own Jacobian: the generic analysis, with the
+            # measurands as functions of its parameters (geometry21's 21 error functions)
+            gen = identifiability(rep["jacobian"], scale=rep["scale"], names=rep["names"],
+                                  tol=rep["rank_tol"], n_poses=int(rep["readings"]),
+                                  functions=rep["functions"])
+            return {"rank": int(gen.rank), "n_params": int(gen.n_params),
+                    "condition": float(rep["condition_number"]), **gen.observability,
+                    "determined": int(sum(gen.determined.values()))}
         sv = np.asarray(rep["singular_values"], dtype=float)
         return {"rank": int(rep["rank"]), "n_params": int(rep["parameters"]),
                 "condition": float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf,

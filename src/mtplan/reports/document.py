@@ -148,8 +148,10 @@ def _findings(outcome) -> list[str]:
         r = first
         se = r.mc.std[i] / math.sqrt(r.mc.trials)
         if abs(r.bias[i]) > 4 * se and abs(r.bias[i]) > 0.1 * r.mc.std[i]:
+            size = (f"{abs(r.bias[i]) / r.mc.std[i]:.1f} u" if r.mc.std[i] > 0 else
+                    "every trial gave the same value")  # e.g. a quantised estimate
             notes.append(f"{ests[0]}: {m.name} is biased by {fmt(r.bias[i], r.mc.std[i])} {m.unit} "
-                         f"({abs(r.bias[i]) / r.mc.std[i]:.1f} u), beyond its Monte Carlo error.")
+                         f"({size}), beyond its Monte Carlo error.")
     for est in ests[1:]:
         r = results[est]
         for i, m in enumerate(r.measurands):
