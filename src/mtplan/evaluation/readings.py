@@ -383,16 +383,15 @@ def _show(value) -> str:
     return str(value)
 
 
-def _complete_setup(proc, values, implied, path):
+def _complete_setup(proc, given, implied, path):
     """(setup, from_file, defaults, notes): stated values, completed by the file's.
 
     A stated value that contradicts the file beyond its tolerance is refused, all of them
     in one sentence. A default that the file contradicts is replaced by the file's value
     (for a bound: by the bound); a default the file agrees with is kept.
     """
-    from mtplan.models._protocol import fields_info, make, parse_fields
+    from mtplan.models._protocol import fields_info, make
 
-    given = parse_fields(proc.Setup, values, owner=proc.name)
     defaults = {i["name"]: i["default"] for i in fields_info(proc.Setup)}
     chosen, taken, confirmed, conflicts, notes = {}, [], [], [], []
     for name, imp in implied.items():
@@ -464,8 +463,10 @@ def read_measurement(procedure, path, values=None) -> Measurement:
         implies).
     """
     from mtplan.models import get
+    from mtplan.models._protocol import parse_fields
 
     proc = get(procedure)
+    given = parse_fields(proc.Setup, values, owner=proc.name)  # each value alone, first
     nominal = proc.Setup()
     df, cols = _table(proc, nominal, path)
     implied = {}
@@ -474,7 +475,7 @@ def read_measurement(procedure, path, values=None) -> Measurement:
             implied = proc.setup_from_frame(df)
         except InvalidInput as exc:
             _fail(path, " ".join(exc.problems))
-    setup, from_file, kept, notes = _complete_setup(proc, values or {}, implied, path)
+    setup, from_file, kept, notes = _complete_setup(proc, given, implied, path)
     readings = _finish(proc, setup, path, df, cols)
     return Measurement(setup=setup, readings=readings, from_file=from_file, defaults=kept,
                        notes=cols.notes + notes)

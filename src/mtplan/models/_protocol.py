@@ -353,15 +353,15 @@ def _coerce(info, value):
 def parse_fields(cls, values: Mapping | None, *, owner: str | None = None) -> dict:
     """Field values of a Setup (or Truth) class parsed into their kinds, not yet combined.
 
-    Strings from the command line are parsed (``"6"`` -> 6, ``"0,90,180"`` -> a tuple);
-    ranges and cross-field rules are left to the class, so that values that only make
-    sense together with others (a set-up completed from a readings file) can be read
-    first.
+    Strings from the command line are parsed (``"6"`` -> 6, ``"0,90,180"`` -> a tuple)
+    and each value is checked against its own field's range; rules between fields are
+    left to the class, so that values that only make sense together with others (a
+    set-up completed from a readings file) can be read first.
 
     Raises
     ------
     InvalidInput
-        Listing unknown fields and unparsable values together.
+        Listing unknown fields, unparsable and out-of-range values together.
     """
     owner = owner or getattr(cls, "_owner", cls.__name__)
     p = Problems(owner)
@@ -377,6 +377,8 @@ def parse_fields(cls, values: Mapping | None, *, owner: str | None = None) -> di
             given[key] = _coerce(infos[key], value)
         except (ValueError, TypeError):
             p.add(key, value, _describe(infos[key]))
+            continue
+        _check_value(p, infos[key], given[key])
     p.raise_if_any()
     return given
 
@@ -403,8 +405,7 @@ def make(cls, values: Mapping | None = None, *, base=None, owner: str | None = N
     try:
         given = parse_fields(cls, values, owner=owner)
     except InvalidInput as exc:
-        p.items.extend(exc.problems)
-        given = {}
+        raise InvalidInput(exc.problems) from None
     kwargs = dict(base.as_dict() if base is not None else {})
     kwargs = {k: (tuple(v) if isinstance(v, list) else v) for k, v in kwargs.items()}
     kwargs.update(given)
