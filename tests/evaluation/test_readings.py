@@ -96,6 +96,23 @@ def test_bare_points_of_a_small_bore_scale_the_setup_to_it(tmp_path):
     assert any("start_scatter_mm" in n and "default 25" in n for n in m.notes)
 
 
+@pytest.mark.parametrize("labelled", [False, True])
+def test_a_bore_smaller_than_the_default_truth_is_read(tmp_path, capsys, labelled):
+    """The default truth's centre (0.35, -0.2) mm lies outside a 0.5 mm bore: the file is
+    still checked and estimated (against a nominal truth, then around the estimate)."""
+    phi = np.radians([0, 120, 240])
+    x, y = 0.5 * np.cos(phi), 0.5 * np.sin(phi)
+    frame = pd.DataFrame({"x_mm": x, "y_mm": y})
+    if labelled:
+        frame = pd.DataFrame({"point": ["p1", "p2", "d1", "d2", "d3"],
+                              "x_mm": [0.0, 0.0, *x], "y_mm": [-0.5, 0.5, *y]})
+    path = tmp_path / "tiny.csv"
+    frame.to_csv(path, index=False)
+    code, out, err = run(capsys, "estimate", "circle_centre", path, "--json", "--trials", 200)
+    assert code == 0, err
+    assert json.loads(out)["setup"]["bore_radius_mm"] == pytest.approx(0.5)
+
+
 @pytest.mark.parametrize("content, needle", [
     ("x_mm,y_mm\n1,2\n3,4\n", "n_points"),  # two points: no circle
     ("x_mm,y_mm\n0,0\n1,1\n2,2\n", "straight line"),
