@@ -41,6 +41,8 @@ from mtplan._validate import InvalidInput
 __all__ = ["read_readings", "read_measurement", "Measurement"]
 
 _NAN_WORDS = ("", "nan", "na", "n/a", "null", "none")
+#: no reading of a machine tool reaches this in any column's unit (mm, deg, rad, index): 1000 km
+_LARGEST = 1e9
 
 
 def _fail(path, text):
@@ -166,6 +168,9 @@ def _parse_cells(path, header, rows, cols: _Columns, expected):
                       f"{cell[:40]!r}")
             if not math.isfinite(v):
                 _fail(path, f"row {lines[i]}, column {cols.source[c]!r} is not finite: {cell!r}")
+            if abs(v) > _LARGEST:
+                _fail(path, f"row {lines[i]}, column {cols.source[c]!r} is {v:.6g}, beyond any "
+                      f"machine (|value| <= {_LARGEST:g})")
             values[i] = v
         data[c] = values
     df = pd.DataFrame(data, columns=cols.names)
