@@ -116,7 +116,7 @@ def test_a_bore_smaller_than_the_default_truth_is_read(tmp_path, capsys, labelle
 @pytest.mark.parametrize("content, needle", [
     ("x_mm,y_mm\n1,2\n3,4\n", "n_points"),  # two points: no circle
     ("x_mm,y_mm\n0,0\n1,1\n2,2\n", "straight line"),
-    ("x_mm,y_mm\n1.5e154,0\n0,1\n-1,0\n", "row 2, column 'x_mm' is 1.5e+154, beyond any"),
+    ("x_mm,y_mm\n1.5e154,0\n0,1\n-1,0\n", "row 2, column 'x_mm' is 1.5e.154, beyond any"),
 ])
 def test_bare_points_that_make_no_circle_are_refused(tmp_path, content, needle):
     path = tmp_path / "p.csv"
