@@ -7,10 +7,12 @@ import sys
 
 from mtplan.cli._common import (
     UsageError,
+    check_outputs,
     fmt,
     load_config,
     print_table,
-    procedure_and_setup,
+    procedure_of,
+    setup_values,
     write_out,
 )
 
@@ -23,7 +25,8 @@ def register(sub) -> None:
                    help="readings in the procedure's format ('mtplan simulate --readings-out')")
     p.add_argument("--config", metavar="FILE.toml", help="set-up file: [setup] table")
     p.add_argument("--set", action="append", metavar="FIELD=VALUE",
-                   help="set-up field (repeatable)")
+                   help="set-up field (repeatable); fields the readings determine (counts, "
+                        "positions, angles, radius) need not be given, and must agree")
     p.add_argument("--estimator", metavar="NAME", help="estimator (default: the seed's method)")
     p.add_argument("--uncertainty", choices=["mc", "posterior"], default=None,
                    help="mc: Monte Carlo around the estimate (default); posterior: emcee")
@@ -44,12 +47,17 @@ def register(sub) -> None:
 
 def cmd_estimate(args) -> int:
     """Read the readings, estimate, print; exit status 2 with one line on bad input."""
-    from mtplan.evaluation.measured import estimate_measured, read_readings
+    from mtplan.evaluation.measured import estimate_measured, read_measurement
     from mtplan.evaluation.posterior import NotConvergedError
 
+    check_outputs(out=args.out)
     config = load_config(args.config)
-    proc, setup, _, config = procedure_and_setup(args, config)
-    readings = read_readings(proc, setup, args.readings)
+    proc = procedure_of(args, config)
+    if config.get("truth"):
+        raise UsageError(f"--config {args.config}: [truth] is for simulations; estimate takes "
+                         "the truth from the readings")
+    measurement = read_measurement(proc, args.readings, setup_values(args, config))
+    setup, readings = measurement.setup, measurement.readings
     method = args.uncertainty or config.get("uncertainty", "mc")
     if method not in ("mc", "posterior"):
         raise UsageError(f"--uncertainty must be mc or posterior, got {method!r}")
@@ -66,10 +74,15 @@ def cmd_estimate(args) -> int:
     except NotConvergedError as exc:
         print(f"mtplan: error: {exc}", file=sys.stderr)
         return 1
+    result.notes[:0] = measurement.notes
     if args.out:
         write_out(args.out, result.summary().to_csv())
     if args.json:
-        print(json.dumps(result.to_dict(), indent=1))
+        doc = result.to_dict()
+        doc["setup_from_file"] = {k: list(v) if isinstance(v, tuple) else v
+                                  for k, v in measurement.from_file.items()}
+        doc["setup_defaults"] = list(measurement.defaults)
+        print(json.dumps(doc, indent=1))
         return 0
     print(f"{proc.name} ({result.estimator}) from {args.readings}: {method} uncertainty, "
           f"{100 * result.coverage:g} % intervals, seed {result.seed}")

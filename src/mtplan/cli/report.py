@@ -21,9 +21,14 @@ def register(sub) -> None:
 
 
 def _report(study_path, out, jobs, progress, command):
+    from mtplan._io import output_problem
+    from mtplan.cli._common import UsageError
     from mtplan.plans.study import load_study, run_study
     from mtplan.reports import write_report
 
+    problem = output_problem(out, folder=True)
+    if problem:
+        raise UsageError(f"--out: {problem}")
     start = time.perf_counter()
     study = load_study(study_path)
     result = run_study(study, progress=progress, n_jobs=jobs, command=command)

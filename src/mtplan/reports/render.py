@@ -12,7 +12,8 @@ import io
 from pathlib import Path
 from xml.sax.saxutils import escape
 
-from mtplan._io import atomic_write
+from mtplan._io import atomic_write, output_problem
+from mtplan._validate import InvalidInput
 from mtplan.reports.document import build_document
 from mtplan.reports.model import Document, Figure, Section, Table
 
@@ -341,8 +342,12 @@ def write_report(result, out_dir) -> dict:
     Every file is written to a temporary name and renamed into place, so an
     interrupted report leaves no half-written file. Returns the paths written.
     """
-    doc = build_document(result)
     out = Path(out_dir)
+    for path in (out, out / "results"):
+        problem = output_problem(path, folder=True)
+        if problem:
+            raise InvalidInput([f"The report folder cannot be written: {problem}."])
+    doc = build_document(result)
     html = render_html(doc)
     pdf = render_pdf(doc)
     written = {}
