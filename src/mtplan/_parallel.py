@@ -11,7 +11,7 @@ import contextlib
 import os
 from collections.abc import Callable, Iterable, Iterator
 
-from mtplan._validate import Problems
+from mtplan._validate import InvalidInput, Problems
 
 __all__ = ["BACKENDS", "check_parallel", "ordered_map", "parallel_session"]
 
@@ -25,12 +25,41 @@ def check_parallel(problems: Problems, n_jobs, backend, scheduler=None) -> None:
     if backend is not None:
         problems.choice("backend", backend, BACKENDS)
     if scheduler is not None:
-        problems.require(
-            isinstance(scheduler, str) and bool(scheduler),
+        if problems.require(
+            isinstance(scheduler, str) and bool(scheduler.strip()),
             "scheduler",
             scheduler,
             "a Dask scheduler address such as 'tcp://host:8786'",
-        )
+        ):
+            problems.require(backend == "dask", "scheduler", scheduler,
+                             "given only with backend='dask' (it is the Dask cluster to run on)")
+
+
+#: how long a Dask scheduler may take to answer before it counts as unreachable [s]
+CONNECT_TIMEOUT_S = 5.0
+
+
+def _reach(address: str) -> None:
+    """Refuse, within CONNECT_TIMEOUT_S, a scheduler address that is malformed or does not
+    answer on its TCP port (before a Dask client is made, which would wait far longer)."""
+    import socket
+
+    from distributed.comm import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(address)
+        host, port = parse_host_port(location) if scheme in ("tcp", "tls") else (None, None)
+    except (ValueError, TypeError) as exc:
+        raise InvalidInput([f"The 'scheduler' parameter must be a Dask scheduler address such "
+                            f"as 'tcp://host:8786'. Got {address!r} instead ({exc})."]) from None
+    if host is None:
+        return
+    try:
+        socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S).close()
+    except OSError as exc:
+        reason = "no answer" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc))
+        raise InvalidInput([f"The Dask scheduler {address!r} cannot be reached ({reason} within "
+                            f"{CONNECT_TIMEOUT_S:g} s)."]) from None
 
 
 def effective_jobs(n_jobs: int) -> int:
@@ -61,7 +90,13 @@ def parallel_session(n_jobs: int = 1, backend: str | None = None, scheduler: str
 
     owned = []
     if scheduler:
-        client = distributed.Client(scheduler)
+        _reach(scheduler)
+        try:
+            client = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+        except Exception as exc:  # noqa: BLE001 - whatever answers there is no scheduler
+            raise InvalidInput([f"The Dask scheduler {scheduler!r} cannot be used (what answers "
+                                f"there is not a Dask scheduler: {type(exc).__name__})."]) \
+                from None
         owned.append(client)
     else:
         try:

@@ -13,9 +13,19 @@ title = "Small study <script>alert('title')</script>"
 subtitle = "A & B <b>bold?</b>"
 seed = 3
 trials = 300
+[header]
+document = "DOC-<b>1</b>"
+revision = "B"
+customer = "Customer & <i>Co</i>"
+machine_serial = "SN-42"
+date = 2024-01-02
+ambient_temperature_c = 20.5
+prepared_by = "P. Preparer"
+checked_by = "C. Checker"
 [[procedure]]
 name = "circle_centre"
 label = "Bore <script>alert(1)</script> & co"
+standards = ["ISO 1101:2017"]
 estimators = ["three_point", "kasa"]
 notes = "Notes with <img src=x onerror=alert(2)>"
   [[procedure.sweep]]
@@ -27,12 +37,17 @@ notes = "Notes with <img src=x onerror=alert(2)>"
   vary = {{ n_points = [3, 4, 6] }}
   estimator = "kasa"
   trials = 300
-  [procedure.acceptance]
+  [[procedure.acceptance]]          # the readings' centre_x (about 350 um) lies far outside
   measurand = "centre_x"
   lower = -20.0
   upper = 20.0
   prior = "normal:0,8"
   rule = "guard:0.5"
+  [[procedure.acceptance]]          # centre_y (about -200 um) lies well inside
+  measurand = "centre_y"
+  lower = -400.0
+  upper = 400.0
+  rule = "iso14253"
   [procedure.readings]
   file = "{(EXAMPLES / 'circle_centre_readings.csv').as_posix()}"
   uncertainty = "mc"
@@ -51,7 +66,8 @@ def small_study_file(tmp_path_factory) -> Path:
 def small_result(small_study_file):
     from mtplan.plans.study import load_study, run_study
 
-    return run_study(load_study(small_study_file), progress=False)
+    return run_study(load_study(small_study_file), progress=False,
+                     command="mtplan report small.toml --out report")
 
 
 @pytest.fixture(scope="session")

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-SECTION_TITLES = ["Contents", "Provenance", "What the simulation shows", "Measured data",
+SECTION_TITLES = ["Summary", "Contents", "Conformity decisions", "Methods, estimators and terms",
+                  "Provenance", "What the simulation shows", "Measured data",
                   "Plan: the cheapest set-up meeting the targets"]
 
 
@@ -201,22 +202,43 @@ def test_html_in_browser(small_report, tmp_path):
 
 # ------------------------------------------------------------------ the demo, end to end
 def test_demo_end_to_end(tmp_path, capsys):
-    """`mtplan demo` on the shipped study: the smoke test of the whole chain."""
-    import time
+    """`mtplan demo` on the shipped study: the whole chain, and the document a customer
+    receives: summary after the cover listing every test, a verdict for every toleranced
+    measurand, a body of at most 15 pages, embedded fonts, bookmarks, whole header words."""
+    import pandas as pd
 
     from mtplan.cli import main
+    from tests.reports.test_document import (
+        assert_fonts_embedded,
+        assert_has_outline,
+        pdf_pages,
+    )
 
-    start = time.perf_counter()
     code = main(["demo", "--out", str(tmp_path / "demo")])
-    wall = time.perf_counter() - start
     out = capsys.readouterr().out
     assert code == 0
     report = tmp_path / "demo"
     assert str(report / "index.html") in out and str(report / "report.pdf") in out
-    assert wall < 120, f"the demo took {wall:.0f} s"
-    text = _pdftotext(report / "report.pdf")
+    pdf = report / "report.pdf"
+    text = _pdftotext(pdf)
     for title in ["C axis location", "21 geometric errors", "Bore centre", "line-laser",
-                  "laser tracker", "Provenance", "Measured data", "Acceptance plan"]:
+                  "laser tracker", "Provenance", "Measured data", "Conformity decisions"]:
         assert title in text, title
-    _pages_non_blank(report / "report.pdf", tmp_path)
+    pages = pdf_pages(pdf)
+    assert pages[1].lstrip().startswith("Summary"), pages[1][:200]
+    verdicts = pd.read_csv(report / "results" / "verdicts.csv")
+    summary = pd.read_csv(report / "results" / "summary.csv")
+    procedures = ["rotary_axis", "geometry21", "circle_centre", "line_laser", "tracker_frame"]
+    assert set(verdicts["procedure"]) == set(procedures)  # >= 1 toleranced measurand each
+    assert set(summary["procedure"]) == set(procedures)
+    decided = {"conforms", "does not conform", "inside the guard band: no decision",
+               "not determinable"}
+    assert set(verdicts["verdict"]) <= decided
+    for name in summary["measurand"]:  # every test's rows on the summary page
+        assert name in pages[1], name
+    appendix = next(i for i, p in enumerate(pages) if re.search(r"^\s*A1\. ", p, re.M))
+    assert appendix <= 15, f"the customer body has {appendix} pages"
+    assert_fonts_embedded(pdf)
+    assert_has_outline(pdf, ["Summary", "Conformity decisions", "Provenance"])
+    _pages_non_blank(pdf, tmp_path)
     check_in_browser(report, tmp_path)

@@ -77,3 +77,52 @@ def test_cli_reports_bad_study_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "nope" in err and "Traceback" not in err
     assert not (tmp_path / "out").exists()
+
+
+def test_header_and_acceptance_problems_at_once():
+    data = {
+        "header": {"customer": "C", "ambient_temperature_c": 95, "colour": "red",
+                   "operator": ["a", "b"]},
+        "procedure": [{"name": "circle_centre", "standards": "ISO 1101",
+                       "acceptance": [
+                           {"measurand": "centre_x", "lower": 5, "upper": -5},
+                           {"measurand": "centre_x", "lower": -5, "upper": 5},
+                           {"measurand": "centre_y", "upper": 5, "measured": "high"}]}],
+    }
+    text = "\n".join(problems_of(data))
+    for needle in ("'colour'", "ambient_temperature_c", "'operator' must be text",
+                   "'standards' must be a list", "'upper' must be > 'lower'",
+                   "repeats measurand 'centre_x'", "'measured' must be a number"):
+        assert needle in text, needle
+
+
+def test_header_read_with_the_older_top_level_keys(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text('customer = "Old"\nmachine = "Mill"\nauthor = "Me"\n'
+                    '[header]\ndate = 2024-05-06\nambient_temperature_c = 19\n'
+                    '[[procedure]]\nname = "circle_centre"\n'
+                    'standards = ["ISO 1101:2017"]\n'
+                    '[procedure.acceptance]\nmeasurand = "centre_x"\nupper = 10.0\n',
+                    encoding="utf-8")
+    study = load_study(path)
+    assert study.header == {"customer": "Old", "machine_type": "Mill", "date": "2024-05-06",
+                            "ambient_temperature_c": 19.0, "prepared_by": "Me"}
+    ps = study.procedures[0]
+    assert ps.standards == ["ISO 1101:2017"]
+    assert ps.acceptance == [{"measurand": "centre_x", "upper": 10.0}]
+    assert len(study.digest) == 64
+
+
+def test_every_lever_is_a_setup_field_and_no_error_source():
+    """Levers are what an engineer chooses; a field that sizes an error source is a
+    property of the machine, the workpiece or the instrument."""
+    from mtplan.models import registry
+    from mtplan.models._protocol import fields_info
+
+    for name, proc in registry().items():
+        fields = {f["name"] for f in fields_info(proc.Setup)}
+        assert proc.levers, name
+        assert set(proc.levers) <= fields, (name, set(proc.levers) - fields)
+        sources = proc.sources(proc.Setup())
+        sized = {f for f in fields for s in sources if f.startswith(f"{s}_")}
+        assert not sized & set(proc.levers), (name, sized & set(proc.levers))

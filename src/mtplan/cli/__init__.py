@@ -40,6 +40,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line(text: str) -> str:
+    """A message on one line: control characters a user typed (or a file held) escaped."""
+    return "".join(c if c.isprintable() or c == " " else repr(c)[1:-1] for c in str(text))
+
+
+def _error(text: str) -> None:
+    print("mtplan: error: " + _one_line(text), file=sys.stderr)
+
+
 def main(argv=None) -> int:
     """Entry point of the ``mtplan`` console script."""
     from mtplan._validate import InvalidInput
@@ -52,13 +61,13 @@ def main(argv=None) -> int:
             return 0
         return int(args.func(args) or 0)
     except UsageError as exc:
-        print(f"mtplan: error: {exc}", file=sys.stderr)
+        _error(str(exc))
         return EXIT_USAGE
     except InvalidInput as exc:
-        print("mtplan: error: " + " ".join(exc.problems), file=sys.stderr)
+        _error(" ".join(exc.problems))
         return EXIT_USAGE
     except FileNotFoundError as exc:
-        print(f"mtplan: error: no such file {exc.filename!r}", file=sys.stderr)
+        _error(f"no such file {exc.filename!r}")
         return EXIT_USAGE
     except KeyboardInterrupt:
         print("mtplan: interrupted", file=sys.stderr)
@@ -67,7 +76,7 @@ def main(argv=None) -> int:
         from mtplan.uncertainty.montecarlo import ModelError
 
         if isinstance(exc, ModelError):
-            print(f"mtplan: error: {exc}", file=sys.stderr)
+            _error(str(exc))
             return 1
         raise
 

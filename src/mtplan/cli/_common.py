@@ -21,6 +21,11 @@ __all__ = [
     "parse_pairs",
     "print_table",
     "procedure_and_setup",
+    "procedure_of",
+    "setup_values",
+    "check_config",
+    "check_outputs",
+    "CONFIG_KEYS",
     "run_options",
     "parse_sources",
     "parse_vary",
@@ -36,53 +41,117 @@ class UsageError(Exception):
 
 # --------------------------------------------------------------------------- options
 def parse_pairs(items, option):
+    """``FIELD=VALUE`` options -> {field: value}; an empty field or value is refused."""
     out = {}
     for item in items or []:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
             raise UsageError(f"{option} expects FIELD=VALUE, got {item!r}")
+        if not value.strip():
+            raise UsageError(f"{option} {item} gives {key.strip()} no value; state one "
+                             "('default' for a field whose default depends on others)")
         out[key.strip()] = value.strip()
     return out
 
 
+#: What a ``--config`` file may hold: top-level keys, their kind and what they are.
+CONFIG_KEYS = {
+    "procedure": (str, "the procedure the file is for"),
+    "seed": (int, "random seed"),
+    "trials": (int, "Monte Carlo trials"),
+    "digits": (int, "adaptive Monte Carlo digits"),
+    "estimator": (str, "estimator name"),
+    "sources": ((str, list), "error sources to simulate"),
+    "uncertainty": (str, "estimate: mc or posterior"),
+    "setup": (dict, "set-up fields"),
+    "truth": (dict, "true values for the simulation"),
+    "vary": (dict, "sweep and plan: field = [values]"),
+    "targets": (dict, "plan: measurand = bound"),
+}
+
+
 def load_config(path):
+    """A ``--config`` TOML file as a dict, every key and kind checked; {} without a file."""
     import tomllib
 
     if path is None:
         return {}
     try:
         with open(path, "rb") as fh:
-            data = tomllib.load(fh)
+            raw = fh.read()
     except FileNotFoundError:
         raise UsageError(f"--config: no such file {path!r}") from None
+    except IsADirectoryError:
+        raise UsageError(f"--config: {path!r} is a folder, not a TOML file") from None
     except OSError as exc:
         raise UsageError(f"--config: cannot read {path!r}: {exc.strerror}") from None
+    try:
+        data = tomllib.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise UsageError(f"--config: {path} is not a TOML file (not UTF-8 text)") from None
     except tomllib.TOMLDecodeError as exc:
         raise UsageError(f"--config: {path} is not valid TOML: {exc}") from None
+    check_config(data, path)
     return data
 
 
-def procedure_and_setup(args, config=None):
-    from mtplan.models import get
-    from mtplan.models._protocol import make
+def check_config(data, path) -> None:
+    """Refuse unknown keys and keys of the wrong kind, naming the file and the known keys."""
+    problems = []
+    for key, value in data.items():
+        if key not in CONFIG_KEYS:
+            problems.append(f"unknown key {key!r}")
+            continue
+        kind, what = CONFIG_KEYS[key]
+        ok = isinstance(value, kind) and not (kind is int and isinstance(value, bool))
+        if ok and key == "sources" and isinstance(value, list):
+            ok = all(isinstance(v, str) for v in value)
+        if ok and kind is dict and key in ("setup", "truth"):
+            empty = [k for k, v in value.items() if isinstance(v, str) and not v.strip()]
+            if empty:
+                problems.append(f"[{key}] gives {', '.join(empty)} no value (state one, or "
+                                "'default')")
+        if not ok:
+            shown = repr(value) if not isinstance(value, dict) else "a table"
+            want = {str: "a string", int: "an integer", dict: "a table [" + key + "]"}.get(
+                kind, "a string or a list of strings")
+            problems.append(f"{key} ({what}) must be {want}, got {shown[:40]}")
+    if problems:
+        known = ", ".join(k if CONFIG_KEYS[k][0] is not dict else f"[{k}]" for k in CONFIG_KEYS)
+        raise UsageError(f"--config {path}: " + "; ".join(problems) + f" (known: {known})")
 
-    config = load_config(args.config) if config is None else config
+
+def setup_values(args, config) -> dict:
+    """The set-up fields stated by ``--config`` [setup] and ``--set`` (which wins)."""
+    values = dict(config.get("setup", {}))
+    values.update(parse_pairs(args.set, "--set"))
+    return values
+
+
+def procedure_of(args, config):
+    """The procedure named on the command line, checked against the config file's."""
+    from mtplan.models import get
+
     if config.get("procedure") not in (None, args.procedure):
         raise UsageError(
             f"--config {args.config} is for procedure {config['procedure']!r}, "
             f"not {args.procedure!r}"
         )
-    proc = get(args.procedure)
-    setup_values = dict(config.get("setup", {}))
-    setup_values.update(parse_pairs(args.set, "--set"))
+    return get(args.procedure)
+
+
+def procedure_and_setup(args, config=None):
+    from mtplan._validate import InvalidInput
+    from mtplan.models._protocol import make
+
+    config = load_config(args.config) if config is None else config
+    proc = procedure_of(args, config)
     truth_values = dict(config.get("truth", {}))
     truth_values.update(parse_pairs(getattr(args, "truth", None), "--truth"))
     problems = []
     setup = truth = None
-    from mtplan._validate import InvalidInput
-
     try:
-        setup = make(proc.Setup, setup_values, owner=proc.name)
+        setup = make(proc.Setup, setup_values(args, config), owner=proc.name)
     except InvalidInput as exc:
         problems += exc.problems
     try:
@@ -94,13 +163,30 @@ def procedure_and_setup(args, config=None):
     return proc, setup, truth, config
 
 
+def check_outputs(**paths) -> None:
+    """Refuse output files that cannot be written, before any work: ``option=path`` pairs."""
+    from mtplan._io import output_problem
+
+    for option, path in paths.items():
+        if path is None:
+            continue
+        problem = output_problem(path)
+        if problem:
+            raise UsageError(f"--{option.replace('_', '-')}: {problem}")
+
+
 def parse_sources(args, config):
+    """``--sources`` (or the config's ``sources``) as a list; None: every source."""
     text = args.sources if args.sources is not None else config.get("sources")
     if text is None:
         return None
-    if isinstance(text, list):
-        return [str(s) for s in text]
-    return [s.strip() for s in str(text).split(",") if s.strip()]
+    names = ([str(s).strip() for s in text] if isinstance(text, list)
+             else [s.strip() for s in str(text).split(",")])
+    names = [s for s in names if s]
+    if not names:
+        raise UsageError("--sources names no error source; name at least one (a source is its "
+                         "set-up field without the unit: 'mtplan procedures PROC' lists them)")
+    return names
 
 
 def run_options(args, config):

@@ -8,10 +8,12 @@ import sys
 
 from mtplan.cli._common import (
     UsageError,
+    check_outputs,
     fmt,
     load_config,
     print_table,
-    procedure_and_setup,
+    procedure_of,
+    setup_values,
     write_out,
 )
 
@@ -24,7 +26,8 @@ def register(sub) -> None:
                    help="readings in the procedure's format ('mtplan simulate --readings-out')")
     p.add_argument("--config", metavar="FILE.toml", help="set-up file: [setup] table")
     p.add_argument("--set", action="append", metavar="FIELD=VALUE",
-                   help="set-up field (repeatable)")
+                   help="set-up field (repeatable); fields the readings determine (counts, "
+                        "positions, angles, radius) need not be given, and must agree")
     p.add_argument("--estimator", metavar="NAME",
                    help="estimator (default: the best one that observes every measurand; the "
                         "seed's method by its name)")
@@ -51,20 +54,25 @@ def register(sub) -> None:
 
 def cmd_estimate(args) -> int:
     """Read the readings, estimate, print; exit status 2 with one line on bad input."""
-    from mtplan.evaluation.measured import estimate_measured, read_readings
+    from mtplan.evaluation.measured import estimate_measured, read_measurement
     from mtplan.evaluation.posterior import NotConvergedError
 
+    check_outputs(out=args.out)
+    noise = _noise(args.noise)
+    if args.max_seconds is not None and not args.max_seconds > 0:
+        raise UsageError(f"--max-seconds must be a number > 0, got {args.max_seconds!r}")
     config = load_config(args.config)
-    proc, setup, _, config = procedure_and_setup(args, config)
-    readings = read_readings(proc, setup, args.readings)
+    proc = procedure_of(args, config)
+    if config.get("truth"):
+        raise UsageError(f"--config {args.config}: [truth] is for simulations; estimate takes "
+                         "the truth from the readings")
+    measurement = read_measurement(proc, args.readings, setup_values(args, config))
+    setup, readings = measurement.setup, measurement.readings
     method = args.uncertainty or config.get("uncertainty", "mc")
     if method not in ("mc", "posterior"):
         raise UsageError(f"--uncertainty must be mc or posterior, got {method!r}")
     trials = args.trials if args.trials is not None else config.get("trials", 10_000)
     seed = args.seed if args.seed is not None else config.get("seed", 0)
-    noise = _noise(args.noise)
-    if args.max_seconds is not None and not args.max_seconds > 0:
-        raise UsageError(f"--max-seconds must be a number > 0, got {args.max_seconds!r}")
     try:
         result = estimate_measured(
             proc, setup, readings, estimator=args.estimator or config.get("estimator"),
@@ -75,10 +83,15 @@ def cmd_estimate(args) -> int:
     except NotConvergedError as exc:
         print(f"mtplan: error: {exc}", file=sys.stderr)
         return 1
+    result.notes[:0] = measurement.notes
     if args.out:
         write_out(args.out, result.summary().to_csv())
     if args.json:
-        print(json.dumps(result.to_dict(), indent=1))
+        doc = result.to_dict()
+        doc["setup_from_file"] = {k: list(v) if isinstance(v, tuple) else v
+                                  for k, v in measurement.from_file.items()}
+        doc["setup_defaults"] = list(measurement.defaults)
+        print(json.dumps(doc, indent=1))
         return 0
     _print_result(result, args.readings)
     return 0

@@ -7,6 +7,7 @@ import math
 
 from mtplan.cli._common import (
     add_common,
+    check_outputs,
     fmt,
     print_table,
     procedure_and_setup,
@@ -24,6 +25,7 @@ def register(sub) -> None:
 def cmd_linearize(args):
     from mtplan.evaluation.simulation import linearize_procedure
 
+    check_outputs(out=args.out)
     proc, setup, truth, config = procedure_and_setup(args)
     estimator = args.estimator or config.get("estimator")
     g = linearize_procedure(proc, setup, truth, estimator=estimator,

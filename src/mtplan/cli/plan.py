@@ -7,6 +7,7 @@ import json
 from mtplan.cli._common import (
     UsageError,
     add_common,
+    check_outputs,
     parse_sources,
     parse_vary,
     procedure_and_setup,
@@ -47,6 +48,7 @@ def register(sub) -> None:
 def cmd_plan(args):
     from mtplan.plans.planner import parse_target, plan
 
+    check_outputs(out=args.out)
     proc, setup, truth, config = procedure_and_setup(args)
     targets = dict(parse_target(t) for t in (args.target or []))
     targets.update({k: float(v) for k, v in config.get("targets", {}).items()})
@@ -67,8 +69,9 @@ def cmd_plan(args):
     result = plan(proc, setup, vary, targets, k=args.k, truth=truth,
                   estimator=args.estimator or config.get("estimator"),
                   sources=parse_sources(args, config), confirm=args.confirm,
-                  trials=args.trials or 5000, seed=seed, n_jobs=args.jobs, backend=args.backend,
-                  criterion=criterion, determine=determine or None)
+                  trials=5000 if args.trials is None else args.trials, seed=seed,
+                  n_jobs=args.jobs, backend=args.backend, criterion=criterion,
+                  determine=determine or None)
     if args.out:
         write_out(args.out, result.table.to_csv(index=False))
     if args.json:

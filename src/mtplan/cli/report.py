@@ -20,13 +20,18 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_demo)
 
 
-def _report(study_path, out, jobs, progress):
+def _report(study_path, out, jobs, progress, command):
+    from mtplan._io import output_problem
+    from mtplan.cli._common import UsageError
     from mtplan.plans.study import load_study, run_study
     from mtplan.reports import write_report
 
+    problem = output_problem(out, folder=True)
+    if problem:
+        raise UsageError(f"--out: {problem}")
     start = time.perf_counter()
     study = load_study(study_path)
-    result = run_study(study, progress=progress, n_jobs=jobs)
+    result = run_study(study, progress=progress, n_jobs=jobs, command=command)
     written = write_report(result, out)
     print(f"report written in {time.perf_counter() - start:.1f} s:", file=sys.stderr)
     print(written["html"])
@@ -34,8 +39,16 @@ def _report(study_path, out, jobs, progress):
     return 0
 
 
+def _command(*words) -> str:
+    """The command line as a shell would take it again (for the provenance)."""
+    import shlex
+
+    return shlex.join(["mtplan", *(str(w) for w in words)])
+
+
 def cmd_report(args):
-    return _report(args.study, args.out, args.jobs, progress=None)
+    command = _command("report", args.study, "--out", args.out, "--jobs", args.jobs)
+    return _report(args.study, args.out, args.jobs, progress=None, command=command)
 
 
 def demo_study_path():
@@ -45,4 +58,5 @@ def demo_study_path():
 
 def cmd_demo(args):
     """Run the default study end to end and say where the report is."""
-    return _report(demo_study_path(), args.out, args.jobs, progress=True)
+    command = _command("demo", "--out", args.out, "--jobs", args.jobs)
+    return _report(demo_study_path(), args.out, args.jobs, progress=True, command=command)

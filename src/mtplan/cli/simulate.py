@@ -8,6 +8,7 @@ import sys
 from mtplan.cli._common import (
     UsageError,
     add_common,
+    check_outputs,
     fmt,
     print_table,
     procedure_and_setup,
@@ -28,24 +29,31 @@ def register(sub) -> None:
 def cmd_simulate(args):
     from mtplan.evaluation.simulation import simulate_uncertainty
 
+    check_outputs(out=args.out, readings_out=args.readings_out)
+    if args.out and args.readings_out and _same_file(args.out, args.readings_out):
+        raise UsageError(f"--out and --readings-out name the same file {args.out!r}")
     proc, setup, truth, config = procedure_and_setup(args)
     opts = run_options(args, config)
     estimator = args.estimator or config.get("estimator")
-    result = simulate_uncertainty(proc, setup, truth, estimator=estimator,
-                                  sources=parse_sources(args, config), progress=None, **opts)
+    sources = parse_sources(args, config)
+    result = simulate_uncertainty(proc, setup, truth, estimator=estimator, sources=sources,
+                                  progress=None, **opts)
     doc = result.to_dict()
+    frame = None
     if args.readings_out:
+        readings = proc.simulate(setup, truth, 1, rng=opts["rng"], sources=sources)
+        frame = proc.readings_frame(setup, readings)
+    if args.out:  # first: a failure here leaves no readings file behind
+        write_out(args.out, result.summary().to_csv())
+    if frame is not None:
         from mtplan._io import atomic_write
 
-        readings = proc.simulate(setup, truth, 1, rng=opts["rng"], sources=parse_sources(args, config))
-        frame = proc.readings_frame(setup, readings)
         try:
             with atomic_write(args.readings_out, "w", encoding="utf-8", newline="") as fh:
                 frame.to_csv(fh, index=False)
         except OSError as exc:
-            raise UsageError(f"--readings-out: cannot write {args.readings_out!r}: {exc.strerror}") from None
-    if args.out:
-        write_out(args.out, result.summary().to_csv())
+            raise UsageError(f"--readings-out: cannot write {args.readings_out!r}: "
+                             f"{exc.strerror}") from None
     if args.json:
         print(json.dumps(doc, indent=1))
         return 0
@@ -64,3 +72,9 @@ def cmd_simulate(args):
     print_table(["measurand", "unit", "true", "mean", "bias", "u", "interval"], rows)
     print(f"duration of the test: {result.duration_s:.0f} s")
     return 0
+
+
+def _same_file(a, b) -> bool:
+    from pathlib import Path
+
+    return Path(a).resolve() == Path(b).resolve()

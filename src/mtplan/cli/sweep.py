@@ -52,6 +52,8 @@ def cmd_sweep(args):
     for (est, point), group in failed.groupby(["estimator", "point"], sort=False):
         shown = ", ".join(f"{f}={group[f].iloc[0]}" for f in vary)
         print(f"note: {est} cannot evaluate {shown}: {group['error'].iloc[0]}", file=sys.stderr)
+    for note in table.attrs.get("notes", []):
+        print(f"note: {note}", file=sys.stderr)
     if args.out:
         print(f"wrote {args.out}", file=sys.stderr)
     return 0

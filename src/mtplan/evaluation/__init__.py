@@ -7,8 +7,10 @@ procedure's forward model and estimators with the generic engine
 - :mod:`~mtplan.evaluation.simulation`: Monte Carlo (:func:`simulate_uncertainty`) and
   GUM (:func:`linearize_procedure`) of a set-up, budgets by error source
   (:func:`source_budget`).
-- :mod:`~mtplan.evaluation.measured`: a readings file in (:func:`read_readings`),
-  measurands with their uncertainty out (:func:`estimate_measured`).
+- :mod:`~mtplan.evaluation.readings`: a readings file read and checked
+  (:func:`read_readings`), or read with the set-up it implies (:func:`read_measurement`).
+- :mod:`~mtplan.evaluation.measured`: measurands with their uncertainty from measured
+  readings (:func:`estimate_measured`).
 - :mod:`~mtplan.evaluation.posterior`: the emcee posterior of a procedure's
   measurands given measured readings (:func:`sample_posterior`).
 
@@ -25,6 +27,8 @@ __all__ = [
     "linearize_procedure",
     "source_budget",
     "read_readings",
+    "read_measurement",
+    "Measurement",
     "estimate_measured",
     "MeasuredResult",
     "sample_posterior",
@@ -36,7 +40,9 @@ _WHERE = {
     "simulate_uncertainty": "simulation",
     "linearize_procedure": "simulation",
     "source_budget": "simulation",
-    "read_readings": "measured",
+    "read_readings": "readings",
+    "read_measurement": "readings",
+    "Measurement": "readings",
     "estimate_measured": "measured",
     "MeasuredResult": "measured",
     "sample_posterior": "posterior",

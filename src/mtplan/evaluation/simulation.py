@@ -8,18 +8,20 @@ Values are reported in each measurand's display unit (um, urad).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
 
-from mtplan._validate import Problems
+from mtplan._validate import InvalidInput, Problems
 from mtplan._parallel import check_parallel
 from mtplan.models._protocol import Procedure
 from mtplan.uncertainty._random import as_seed_sequence, block_sequence
 from mtplan.uncertainty.gum import GUMResult, _coverage_factor, sensitivities
 from mtplan.uncertainty.montecarlo import MCResult, check_run_options, run_blocks
 
-__all__ = ["ProcedureResult", "simulate_uncertainty", "linearize_procedure", "source_budget"]
+__all__ = ["ProcedureResult", "simulate_uncertainty", "linearize_procedure", "source_budget",
+           "check_memory"]
 
 
 def _resolve(procedure, setup, truth):
@@ -128,6 +130,77 @@ class ProcedureResult:
         }
 
 
+def _available_memory() -> int | None:
+    """Memory the system can give this process now [bytes], None where unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _peak_per_trial(proc, setup, truth, estimator, active) -> float:
+    """Measured memory of one more trial in a block [bytes] (tracemalloc over 1 and 3)."""
+    import tracemalloc
+
+    root = as_seed_sequence(0)
+    _procedure_block(proc, setup, truth, estimator, active, root, 0, 1)  # warm the caches
+    peaks = []
+    for size in (1, 3):
+        tracemalloc.start()
+        try:
+            _procedure_block(proc, setup, truth, estimator, active, root, 0, size)
+            peaks.append(tracemalloc.get_traced_memory()[1])
+        finally:
+            tracemalloc.stop()
+    return max((peaks[1] - peaks[0]) / 2, peaks[0] / 3, 1.0)
+
+
+def check_memory(proc, setup, truth, estimator, active, *, block_size: int, n_jobs: int = 1,
+                 trials: int | None = None) -> None:
+    """Refuse a Monte Carlo run predicted to need more memory than the system has.
+
+    The need is the blocks in flight (``block_size`` trials per worker) plus the kept
+    values of the outputs (at most 2 x 10**6 per measurand). A set-up whose error arrays
+    alone exceed the memory is refused from their size; one within a tenth of it by a
+    generous bound passes; in between, one small block is measured (tracemalloc).
+
+    Raises
+    ------
+    InvalidInput
+        With the estimate, the memory available and what to change.
+    """
+    from mtplan._parallel import effective_jobs
+
+    available = _available_memory()
+    if not available:
+        return
+    jobs = max(effective_jobs(n_jobs), 1)
+    n_out = len(proc.measurands(setup))
+    kept = 16.0 * n_out * min(trials or 2 * 10**6, 2 * 10**6)
+    floats = sum(src.size for src in proc.sources(setup).values())
+    floor = 8.0 * floats  # the error arrays of one trial, at the least
+    per_trial = None
+    if (floor * block_size * jobs + kept) <= available and \
+            (24 * floor * block_size * jobs + kept) > 0.1 * available:
+        per_trial = _peak_per_trial(proc, setup, truth, estimator, active)
+    need = (per_trial or floor) * block_size * jobs + kept
+    if need > 0.8 * available:
+        measured = "measured" if per_trial else "at least, from the size of its error arrays"
+        raise InvalidInput([
+            f"This {proc.name} Monte Carlo run would need about {need / 1e9:.3g} GB of memory "
+            f"({(per_trial or floor) / 1e6:.3g} MB per trial, {measured}, x {block_size} trials "
+            f"per block x {jobs} worker(s), plus {kept / 1e9:.2g} GB of kept values); "
+            f"{available / 1e9:.3g} GB are available. Make the set-up smaller (fewer points, "
+            "lines or positions) or use fewer jobs."])
+
+
 def simulate_uncertainty(
     procedure,
     setup=None,
@@ -179,6 +252,9 @@ def simulate_uncertainty(
     measurands = tuple(proc.measurands(setup))
     if digits is not None and block_size is None:
         block_size = proc.block_size
+    block_size = block_size or min(proc.block_size, max(trials or 0, 2))
+    check_memory(proc, setup, truth, est_name, tuple(active), block_size=block_size,
+                 n_jobs=n_jobs, trials=trials if digits is None else max_trials)
     mc = run_blocks(
         _procedure_block,
         (proc, setup, truth, est_name, tuple(active)),
@@ -190,7 +266,7 @@ def simulate_uncertainty(
         n_jobs=n_jobs,
         backend=backend,
         scheduler=scheduler,
-        block_size=block_size or min(proc.block_size, max(trials or 0, 2)),
+        block_size=block_size,
         max_trials=max_trials,
         progress=progress,
         label=proc.name,

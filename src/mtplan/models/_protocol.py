@@ -23,6 +23,9 @@ A procedure module (``mtplan/models/<name>.py``) defines a module-level
 - ``duration(setup) -> float``: machine time of the test [s].
 - ``readings_frame(setup, readings) -> DataFrame`` and ``from_frame(setup, df) -> readings``:
   the tidy CSV format of measured data (batch of one), and back.
+- optional ``setup_from_frame(df) -> dict[field, Implied]``: the set-up fields a measured
+  readings table determines (counts, positions, angles, lattice, radius), each with the
+  tolerance within which a value the user states agrees with the file (:class:`Implied`).
 
 ``simulate`` = draw the active sources + ``forward``; it and the Monte Carlo engine
 live here, once, so no procedure writes its own random-number handling.
@@ -52,6 +55,8 @@ __all__ = [
     "fields_info",
     "make",
     "frame_columns",
+    "parse_fields",
+    "Implied",
     "Procedure",
 ]
 
@@ -345,6 +350,39 @@ def _coerce(info, value):
     return value
 
 
+def parse_fields(cls, values: Mapping | None, *, owner: str | None = None) -> dict:
+    """Field values of a Setup (or Truth) class parsed into their kinds, not yet combined.
+
+    Strings from the command line are parsed (``"6"`` -> 6, ``"0,90,180"`` -> a tuple)
+    and each value is checked against its own field's range; rules between fields are
+    left to the class, so that values that only make sense together with others (a
+    set-up completed from a readings file) can be read first.
+
+    Raises
+    ------
+    InvalidInput
+        Listing unknown fields, unparsable and out-of-range values together.
+    """
+    owner = owner or getattr(cls, "_owner", cls.__name__)
+    p = Problems(owner)
+    infos = {i["name"]: i for i in fields_info(cls)}
+    given = {}
+    for key, value in (values or {}).items():
+        if key not in infos:
+            p.add_text(
+                f"{owner} has no field {key!r}; its fields are: " + ", ".join(infos)
+            )
+            continue
+        try:
+            given[key] = _coerce(infos[key], value)
+        except (ValueError, TypeError):
+            p.add(key, value, _describe(infos[key]))
+            continue
+        _check_value(p, infos[key], given[key])
+    p.raise_if_any()
+    return given
+
+
 def make(cls, values: Mapping | None = None, *, base=None, owner: str | None = None):
     """Build a Setup (or Truth) from `values`, coercing strings, reporting all problems.
 
@@ -364,18 +402,10 @@ def make(cls, values: Mapping | None = None, *, base=None, owner: str | None = N
     """
     owner = owner or getattr(cls, "_owner", cls.__name__)
     p = Problems(owner)
-    infos = {i["name"]: i for i in fields_info(cls)}
-    given = {}
-    for key, value in (values or {}).items():
-        if key not in infos:
-            p.add_text(
-                f"{owner} has no field {key!r}; its fields are: " + ", ".join(infos)
-            )
-            continue
-        try:
-            given[key] = _coerce(infos[key], value)
-        except (ValueError, TypeError):
-            p.add(key, value, _describe(infos[key]))
+    try:
+        given = parse_fields(cls, values, owner=owner)
+    except InvalidInput as exc:
+        raise InvalidInput(exc.problems) from None
     kwargs = dict(base.as_dict() if base is not None else {})
     kwargs = {k: (tuple(v) if isinstance(v, list) else v) for k, v in kwargs.items()}
     kwargs.update(given)
@@ -386,6 +416,57 @@ def make(cls, values: Mapping | None = None, *, base=None, owner: str | None = N
         obj = None
     p.raise_if_any()
     return obj
+
+
+@dataclass(frozen=True)
+class Implied:
+    """A set-up field's value as a measured readings table determines it.
+
+    Parameters
+    ----------
+    value : object
+        The value in the field's kind and unit (a tuple for list fields; None: the file
+        leaves the field empty, e.g. no range when the angles are not a regular grid).
+    tolerance : float
+        A value the user states agrees with the file when within this of `value` (in
+        the field's unit; per element for list fields). 0: exactly.
+    bound : {"equal", "max", "min"}
+        ``"equal"``: the file determines the field (a default is replaced by `value`);
+        ``"max"`` / ``"min"``: the file allows at most / at least `value` (a default
+        beyond it is replaced by `value`, one within it is kept).
+    why : str
+        How the file determines it, for the note (``"the 6 points' geometric circle"``).
+    soft : bool
+        The file suggests rather than determines the value (the scatter of the readings
+        bounds a noise from below): a stated value beyond it is kept, with a note.
+    unless_given : tuple of str
+        Other fields that, when the user states any of them, leave this field alone (a
+        noise budget the user has set up).
+    """
+
+    value: object
+    tolerance: float = 0.0
+    bound: str = "equal"
+    why: str = ""
+    soft: bool = False
+    unless_given: tuple = ()
+
+    def agrees(self, given) -> bool:
+        """Whether a stated value agrees with the file within the tolerance."""
+        v, tol = self.value, self.tolerance
+        if v is None or given is None:
+            return v is None and given is None
+        if isinstance(v, str) or isinstance(v, bool) or isinstance(given, str | bool):
+            return v == given
+        a = np.atleast_1d(np.asarray(given, dtype=float))
+        b = np.atleast_1d(np.asarray(v, dtype=float))
+        if a.shape != b.shape:
+            return False
+        if self.bound == "max":
+            return bool(np.all(a <= b + tol))
+        if self.bound == "min":
+            return bool(np.all(a >= b - tol))
+        return bool(np.all(np.abs(a - b) <= tol))
 
 
 # --------------------------------------------------------------------------- readings
@@ -476,6 +557,14 @@ class Procedure:
     #: range per row of ``readings_frame`` (arrays or scalars); measured values outside are
     #: refused, naming the row, the value and ``what`` range it left
     reading_limits: Callable | None = None
+    #: the set-up fields an engineer chooses when planning the test (counts, geometry and
+    #: order of the test, dwell, feed): the levers advice may name; every other field is
+    #: a property of the machine, the workpiece or the instrument, named as what dominates
+    levers: tuple = ()
+    #: optional ``setup_from_frame(df) -> {field: Implied}``: the set-up fields a measured
+    #: readings table determines (``df`` as read from the file: numeric columns as floats,
+    #: rows in the file's order, optional columns possibly absent)
+    setup_from_frame: Callable | None = None
 
     # ----------------------------------------------------------------- helpers
     @property
@@ -512,6 +601,12 @@ class Procedure:
         all_sources = self.sources(setup)
         if only is not None:
             only = [only] if isinstance(only, str) else list(only)
+            if not only:
+                raise InvalidInput(
+                    [f"The 'sources' parameter of {self.name} must name at least one of its "
+                     f"error sources ({', '.join(all_sources)}), or be None for all of them. "
+                     "Got an empty list instead."]
+                )
             unknown = [s for s in only if s not in all_sources]
             if unknown:
                 raise InvalidInput(

@@ -115,6 +115,7 @@ through n >= 4 equally spaced points do not alias an oval (docs/circle_centre.md
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -1031,6 +1032,84 @@ def report_extras(setup: Setup, truth: Truth) -> dict:
     }}
 
 
+# --------------------------------------------------------------------------- set-up from a file
+#: the random sources besides the probe's noise; a user who states any of them has set up
+#: the noise budget, and the points' scatter no longer raises the probe noise's default
+_SCATTER_FIELDS = ("probe_noise_um", "pretravel_variation_um", "roundness_um",
+                   "stage_repeatability_um")
+
+
+def setup_from_frame(df: pd.DataFrame) -> dict:
+    """The set-up fields a measured table of bore points determines (see ``Implied``).
+
+    From the measuring points (the ``d`` rows, or every row of a bare point file): their
+    number (``n_points``); the nominal radius as the radius of their geometric
+    (ISO 12181) circle, agreeing within 5 % of it plus three times the points' scatter
+    about it (the ``radius`` measurand is then relative to it: state the drawing's
+    radius to measure the deviation from that); the arc they cover (``spread_deg``, 360
+    when no gap between neighbours exceeds 1.25 times the even spacing), within 10 %
+    plus 2 deg. The bore bounds the fields the set-up requires to fit in it (start
+    scatter, clearance, trial displacement, form error; taken at the low end of the
+    radius's tolerance). With more than three points, their scatter about the circle
+    ``s = sqrt(SSR / (n - 3))`` bounds the probe's noise from below, softly: a default
+    whose random sources are too small to give that scatter at 99.9 % confidence is
+    raised so that they give ``s``.
+    """
+    from scipy.stats import chi2
+
+    from mtplan.models._protocol import Implied
+
+    x = pd.to_numeric(df["x_mm"], errors="coerce").to_numpy(dtype=float)
+    y = pd.to_numeric(df["y_mm"], errors="coerce").to_numpy(dtype=float)
+    if "point" in df.columns:
+        labels = df["point"].astype(str).str.strip()
+        keep = labels.str.fullmatch(r"d[1-9][0-9]*").to_numpy()
+        x, y = x[keep], y[keep]
+    n = x.size
+    out = {"n_points": Implied(n, why=f"the file's {n} measuring points")}
+    if n < 3 or not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        return out  # from_frame names what is wrong
+    try:
+        c = geometric_fit(x[None], y[None])
+        r = float(c.r[0])
+    except np.linalg.LinAlgError:  # collinear points: Kasa's start is singular
+        r = math.inf
+    span = max(float(np.ptp(x)), float(np.ptp(y)))
+    if not (math.isfinite(r) and 0 < r < 1e4 * span):
+        raise InvalidInput(["The measuring points lie on a straight line (their circle's "
+                            "radius is over 10^4 times their extent): no bore passes through "
+                            "them."])
+    resid = np.hypot(x - float(c.xc[0]), y - float(c.yc[0])) - r
+    s = math.sqrt(float(resid @ resid) / (n - 3)) if n > 3 else 0.0
+    tol = 0.05 * r + 3 * s
+    out["bore_radius_mm"] = Implied(r, tol, why=f"the geometric circle through the {n} points")
+    phi = np.sort(np.mod(np.degrees(np.arctan2(y - float(c.yc[0]), x - float(c.xc[0]))), 360))
+    gap = float(np.max(np.diff(np.concatenate([phi, phi[:1] + 360]))))
+    spread = 360.0 if gap <= 1.25 * 360.0 / n else 360.0 - gap
+    out["spread_deg"] = Implied(spread, 0.1 * spread + 2.0, why="the arc the points cover")
+    r_low = max(r - tol, 0.5 * r)
+    bounds = (("start_scatter_mm", 0.999 * 0.5 * r_low / math.sqrt(2), "the start within half "
+               "the bore radius"), ("clearance_mm", 0.5 * r_low, "within the bore"),
+              ("free_test_mm", 0.05 * r_low, "a small part of the bore radius"),
+              ("roundness_um", 25.0 * r_low, "a small part of the bore radius"))
+    for name, value, why in bounds:
+        out[name] = Implied(value, bound="max", why=f"{why}, r >= {r_low:.4g} mm")
+    if n > 3:
+        d = Setup()
+        other = ((d.stage_repeatability_um * 1e-3) ** 2 + (d.pretravel_variation_um * 1e-3) ** 2 / 2
+                 + (d.roundness_um * 1e-3 / (2 * math.sqrt(2))) ** 2)
+        s_low = s * math.sqrt((n - 3) / chi2.ppf(0.999, n - 3))
+        need = math.sqrt(max(s * s - other, 0.0)) * 1e3
+        need_low = math.sqrt(max(s_low * s_low - other, 0.0)) * 1e3
+        high = next(f.metadata["high"] for f in dataclasses.fields(Setup)
+                    if f.name == "probe_noise_um")
+        out["probe_noise_um"] = Implied(
+            min(need, high), need - need_low, bound="min", soft=True,
+            unless_given=_SCATTER_FIELDS,
+            why=f"the points scatter by {s * 1e3:.3g} um rms about their circle")
+    return out
+
+
 PROCEDURE = Procedure(
     name="circle_centre",
     title="Bore centre by three probed points in equilateral distribution",
@@ -1055,4 +1134,7 @@ PROCEDURE = Procedure(
     optional_columns=("point",),
     truth_from_estimate=truth_from_estimate,
     noise_source="probe_noise",
+    levers=tuple("n_points spread_deg free_test_mm miss_tolerance_mm feed_mm_min "
+                 "probe_feed_mm_min clearance_mm dwell_s".split()),
+    setup_from_frame=setup_from_frame,
 )

@@ -1242,6 +1242,39 @@ def reading_limits(setup: Setup) -> dict:
     return {"z_mm": (-half, half, f"the sensor's measuring range (range_mm = {setup.range_mm:g})")}
 
 
+def setup_from_frame(df: pd.DataFrame) -> dict:
+    """The set-up fields a measured table of scans determines (see ``Implied``).
+
+    The number of profiles per scan (``lines``, the distinct ``line`` indices) and of
+    points per profile (``points_per_line``), the line's width (the span of ``x_mm``)
+    and the scan step (the spacing of the trigger positions ``y_mm``, which must be even),
+    each within 1e-6 mm. Where the table is not regular enough to tell, the field is left
+    out and the design check names the offending row.
+    """
+    from mtplan.models._protocol import Implied
+
+    tol = 1e-6
+    line = pd.to_numeric(df["line"], errors="coerce").to_numpy(dtype=float)
+    point = pd.to_numeric(df["point"], errors="coerce").to_numpy(dtype=float)
+    x = pd.to_numeric(df["x_mm"], errors="coerce").to_numpy(dtype=float)
+    y = pd.to_numeric(df["y_mm"], errors="coerce").to_numpy(dtype=float)
+    if not all(np.all(np.isfinite(a)) for a in (line, point, x, y)):
+        return {}
+    lines, points = np.unique(line).size, np.unique(point).size
+    out = {"lines": Implied(lines, why=f"the file's {lines} profiles per scan"),
+           "points_per_line": Implied(points, why=f"the file's {points} points per profile")}
+    xs = np.unique(np.round(x / tol)) * tol
+    if xs.size == points:
+        out["line_width_mm"] = Implied(float(f"{xs[-1] - xs[0]:.12g}"), tol,
+                                       why="the span of x_mm")
+    ys = np.unique(np.round(y / tol)) * tol
+    steps = np.diff(ys)
+    if ys.size == lines and lines > 1 and np.ptp(steps) <= 2 * tol:
+        step = float(f"{(ys[-1] - ys[0]) / (lines - 1):.12g}")  # as written, not as summed
+        out["step_mm"] = Implied(step, tol, why="the spacing of y_mm")
+    return out
+
+
 PROCEDURE = Procedure(
     name="line_laser",
     title="Mounting error angles of a line-laser profile sensor",
@@ -1267,4 +1300,7 @@ PROCEDURE = Procedure(
     truth_from_estimate=truth_from_estimate,
     noise_source="sensor_noise",
     reading_limits=reading_limits,
+    levers=tuple("points_per_line step_mm lines shift_fraction raise_mm max_shift_rows "
+                 "scan_feed_mm_min rapid_mm_min settle_s".split()),
+    setup_from_frame=setup_from_frame,
 )

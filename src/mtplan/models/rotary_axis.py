@@ -1364,6 +1364,120 @@ def reading_limits(setup: Setup) -> dict:
                      "about the nominal surface)")}
 
 
+# --------------------------------------------------------------------------- set-up from a file
+_ANGLE_TOL_DEG = 1e-6  # as from_frame: commanded angles agree to 1e-6 deg
+_LATTICE_TOL_MM = 1e-6
+
+
+def _angle_fields(axis: str, angles: np.ndarray) -> dict:
+    """positions, range_deg and a_order that give `angles` of `axis`, where some do."""
+    from mtplan.models._protocol import Implied
+
+    n = angles.size
+    if axis == "C":
+        candidates = [(360.0, "seed"), (float(angles[-1]), "seed")]
+    else:
+        candidates = [(float(angles.max() - angles.min()), o) for o in ("seed", "ascending")]
+    for span, order in candidates:
+        try:
+            grid = Setup(axis=axis, positions=n, range_deg=span, a_order=order).axis_angles(axis)
+        except (InvalidInput, ValueError):
+            continue
+        if grid.shape == angles.shape and np.allclose(grid, angles, rtol=0, atol=_ANGLE_TOL_DEG):
+            out = {"range_deg": Implied(span, _ANGLE_TOL_DEG, why=f"the file's {n} {axis} angles")}
+            if axis == "A":
+                out["a_order"] = Implied(order, why="the order of the file's A angles")
+            return out
+    return {"range_deg": Implied(None, why=f"the file's {axis} angles are not an evenly "
+                                 "spaced range: they are angles_deg")}
+
+
+def _lattice_fields(x: np.ndarray, y: np.ndarray, axis: str, angle_deg: float) -> dict:
+    """Lattice counts, side and offset from the commanded points of one position."""
+    from mtplan.models._protocol import Implied
+
+    xs = np.unique(np.round(x / _LATTICE_TOL_MM)) * _LATTICE_TOL_MM
+    ys = np.unique(np.round(y / _LATTICE_TOL_MM)) * _LATTICE_TOL_MM
+    nx, ny = xs.size, ys.size
+    if nx < 2 or ny < 2 or nx * ny != x.size:
+        return {}
+    why = "the commanded points of the file's first position"
+    out = {"lattice_nx": Implied(nx, why=why), "lattice_ny": Implied(ny, why=why)}
+    size = float(xs[-1] - xs[0])
+    if abs(size - float(ys[-1] - ys[0])) > 2 * _LATTICE_TOL_MM:
+        return out  # not a square lattice: the design check names the rows
+    out["lattice_size_mm"] = Implied(size, _LATTICE_TOL_MM, why=why)
+    cx, cy = float(xs[0] + xs[-1]) / 2, float(ys[0] + ys[-1]) / 2
+    t = math.radians(angle_deg)
+    if axis == "C":  # the lattice turns with the table about Z
+        ox, oy = math.cos(t) * cx + math.sin(t) * cy, -math.sin(t) * cx + math.cos(t) * cy
+    elif abs(angle_deg) <= _ANGLE_TOL_DEG:  # A: X stays; Y only at the zero position
+        ox, oy = cx, cy
+    else:
+        ox, oy = cx, None
+    out["lattice_offset_x_mm"] = Implied(ox, _LATTICE_TOL_MM, why=why)
+    if oy is not None:
+        out["lattice_offset_y_mm"] = Implied(oy, _LATTICE_TOL_MM, why=why)
+    return out
+
+
+def setup_from_frame(df: pd.DataFrame) -> dict:
+    """The set-up fields a measured readings table determines (see ``Implied``).
+
+    The axis (the ``axis`` column: C, A, or both for CA); per axis part the commanded
+    angles in measuring order (``angles_deg``, for CA ``c_angles_deg`` and the A part's
+    ``angles_deg``), their number (``positions``) and, where they are an evenly spaced
+    range, ``range_deg`` and ``a_order`` (so that stated ones are checked); the lattice
+    (``lattice_nx``, ``lattice_ny``, ``lattice_size_mm`` and its offset at the zero
+    position) from the commanded points of the first position (of the first position at
+    A = 0 for the Y offset of an A test). Angles agree within 1e-6 deg, lattice
+    coordinates within 1e-6 mm. Where the table is not regular enough to tell, the
+    field is left out and the design check names the offending row.
+    """
+    from mtplan.models._protocol import Implied
+
+    axes = df["axis"].astype(str).str.strip().str.upper().to_numpy()
+    position = pd.to_numeric(df["position"], errors="coerce").to_numpy(dtype=float)
+    angle = pd.to_numeric(df["angle_deg"], errors="coerce").to_numpy(dtype=float)
+    kinds = set(axes)
+    axis = {frozenset("C"): "C", frozenset("A"): "A", frozenset("CA"): "CA"}.get(frozenset(kinds))
+    if axis is None or not np.all(np.isfinite(position)) or not np.all(np.isfinite(angle)):
+        return {}
+    out = {"axis": Implied(axis, why="the file's axis column")}
+    order = np.unique(position)
+    per_position = {}
+    for p in order:
+        rows = position == p
+        if np.ptp(angle[rows]) > _ANGLE_TOL_DEG or len(set(axes[rows])) != 1:
+            return out  # one position, one angle of one axis: else from_frame names it
+        per_position[p] = (axes[rows][0], float(angle[rows][0]))
+    parts = {a: np.array([ang for ax, ang in per_position.values() if ax == a])
+             for a in ("C", "A")}
+    main = "A" if axis == "CA" else axis
+    angles = parts[main]
+    if angles.size < 3:
+        return out
+    why = f"the file's {angles.size} {main} positions"
+    out["angles_deg"] = Implied(tuple(float(a) for a in angles), _ANGLE_TOL_DEG, why=why)
+    out["positions"] = Implied(int(angles.size), why=why)
+    out.update(_angle_fields(main, angles))
+    if axis == "CA":
+        c = parts["C"]
+        out["c_angles_deg"] = Implied(tuple(float(a) for a in c), _ANGLE_TOL_DEG,
+                                      why=f"the file's {c.size} C positions")
+    first_axis = "C" if axis == "CA" else axis
+    lattice_at = next(p for p in order if per_position[p][0] == first_axis)
+    if axis == "A":  # the Y offset shows only at A = 0
+        lattice_at = next((p for p in order if abs(per_position[p][1]) <= _ANGLE_TOL_DEG),
+                          lattice_at)
+    rows = position == lattice_at
+    x = pd.to_numeric(df["x_mm"], errors="coerce").to_numpy(dtype=float)[rows]
+    y = pd.to_numeric(df["y_mm"], errors="coerce").to_numpy(dtype=float)[rows]
+    if np.all(np.isfinite(x)) and np.all(np.isfinite(y)):
+        out.update(_lattice_fields(x, y, first_axis, per_position[lattice_at][1]))
+    return out
+
+
 PROCEDURE = Procedure(
     name=NAME,
     title="Rotary-axis location from an inclined plane (C and A axes)",
@@ -1389,4 +1503,9 @@ PROCEDURE = Procedure(
     truth_from_estimate=truth_from_estimate,
     noise_source="probe_noise",
     reading_limits=reading_limits,
+    levers=tuple("incline_deg incline_azimuth_deg positions range_deg angles_deg a_order "
+                 "c_angles_deg lattice_nx lattice_ny lattice_size_mm lattice_offset_x_mm "
+                 "lattice_offset_y_mm artifact_height_mm z_follows_surface dwell_s "
+                 "feed_mm_min".split()),
+    setup_from_frame=setup_from_frame,
 )

@@ -1015,6 +1015,45 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
     return {col: values[col][order][None, :] for col in READING_COLUMNS}
 
 
+def setup_from_frame(df: pd.DataFrame) -> dict:
+    """The set-up fields a measured tracker table determines (see ``Implied``).
+
+    The number of sub-machines (the largest ``submachine``), of points per linear travel
+    (the X rows of the first sub-machine) and per arc (its C rows), the travels (the
+    span of ``position_mm`` of its X, Y and Z rows, within 1e-6 mm) and the arcs of C
+    and A (from ``angle_deg``: the span, or 360 when the points are evenly spaced over a
+    full turn without its repeated end, within 1e-6 deg). Where the table is not regular
+    enough to tell, the field is left out and the design check names the offending row.
+    """
+    from mtplan.models._protocol import Implied
+
+    group = df["group"].astype(str).str.strip().to_numpy()
+    sub = pd.to_numeric(df["submachine"], errors="coerce").to_numpy(dtype=float)
+    pos = pd.to_numeric(df["position_mm"], errors="coerce").to_numpy(dtype=float)
+    ang = pd.to_numeric(df["angle_deg"], errors="coerce").to_numpy(dtype=float)
+    if not all(np.all(np.isfinite(a)) for a in (sub, pos, ang)) or not np.any(sub >= 1):
+        return {}
+    n_sub = int(sub.max())
+    out = {"n_submachines": Implied(n_sub, why=f"the file's sub-machines 1..{n_sub}")}
+    first = sub == 1
+    for g, field, what in (("X", "points_per_axis", "X"), ("C", "points_per_arc", "C")):
+        m = int(np.sum(first & (group == g)))
+        if m:
+            out[field] = Implied(m, why=f"the {what} rows of sub-machine 1")
+    for g in AXES:
+        p = pos[first & (group == g)]
+        if p.size >= 2:
+            out[f"travel_{g.lower()}_mm"] = Implied(float(np.ptp(p)), 1e-6,
+                                                  why=f"the {g} positions of sub-machine 1")
+    for g in ("C", "A"):
+        a = np.sort(ang[first & (group == g)])
+        if a.size >= 2:
+            full = np.allclose(_arc_angles(360.0, a.size), a, rtol=0, atol=1e-6)
+            out[f"{g.lower()}_arc_deg"] = Implied(360.0 if full else float(np.ptp(a)), 1e-6,
+                                                  why=f"the {g} angles of sub-machine 1")
+    return out
+
+
 PROCEDURE = Procedure(
     name=NAME,
     title="Zero point and frames of gantry sub-machines by laser tracker",
@@ -1035,4 +1074,8 @@ PROCEDURE = Procedure(
     exact_estimators=("patent", "angles"),
     block_size=4000,
     truth_from_estimate=truth_from_estimate,
+    levers=tuple("reflector_offset_mm travel_x_mm travel_y_mm travel_z_mm "
+                 "points_per_axis c_arc_deg a_arc_deg points_per_arc tracker_distance_mm "
+                 "tracker_height_mm dwell_s linear_feed_mm_min".split()),
+    setup_from_frame=setup_from_frame,
 )

@@ -296,8 +296,9 @@ class _MixturePrior(_Prior):
         if s == 0:
             inside = (m >= lo) & (m <= hi)
             return float(w[inside].sum()), float(w[~inside].sum())
-        pm = (m * u * u + y * s * s) / (sy * sy)
-        ps = s * u / sy
+        ru, rs = u / sy, s / sy  # ratios <= 1: no overflow for a huge u or s
+        pm = m * ru * ru + y * rs * rs
+        ps = s * ru
         zl, zh = (lo - pm) / ps, (hi - pm) / ps
         inside = float(np.sum(w * _std_interval(zl, zh)))
         outside = float(np.sum(w * (special.ndtr(zl) + special.ndtr(-zh))))
@@ -603,40 +604,50 @@ def parse_prior(text: str) -> NormalPrior | GammaPrior | EmpiricalPrior:
 
 
 def _prior_from_csv(path: Path) -> EmpiricalPrior:
+    """Values of a prior CSV; a cell that is not a finite number is refused, naming its row
+    (as a spreadsheet shows it); empty cells are dropped."""
+    import math
+
     import pandas as pd
 
-    try:
-        df = pd.read_csv(path)
+    try:  # every cell as text: NaN, inf and words are refused below, not read as missing
+        df = pd.read_csv(path, dtype=str, keep_default_na=False, header=None,
+                         skip_blank_lines=False)
     except Exception as exc:  # noqa: BLE001 - any reader failure is bad user input
         raise InvalidInput([f"Cannot read prior CSV file '{path}': {exc}".replace("\n", " ")])
-    cols = {str(c).strip().lower(): c for c in df.columns}
-    if "value" in cols:
-        col = df[cols["value"]]
-    elif df.shape[1] == 1:
-        col = df.iloc[:, 0]
-        try:  # a header that is a number: the file has no header
-            first = float(str(df.columns[0]))
-            col = pd.concat([pd.Series([first]), col], ignore_index=True)
+    header = [str(c).strip().lower() for c in df.iloc[0]] if len(df) else []
+
+    def number(text):
+        try:
+            return float(text)
         except ValueError:
-            pass
+            return None
+
+    has_header = bool(header) and any(number(h) is None and h for h in header)
+    if "value" in header:
+        j = header.index("value")
+    elif df.shape[1] == 1:
+        j = 0
     else:
         raise InvalidInput(
             [
                 f"The prior CSV file '{path}' must have one numeric column or a column named "
-                f"'value'. Got columns {list(map(str, df.columns))} instead."
+                f"'value'. Got columns {header} instead."
             ]
         )
-    values = pd.to_numeric(col, errors="coerce")
-    bad = values.isna() & col.notna()
-    if bad.any():
-        raise InvalidInput(
-            [
-                f"The prior CSV file '{path}' holds non-numeric values, e.g. "
-                f"{col[bad].iloc[0]!r} in row {int(bad.idxmax()) + 1}."
-            ]
-        )
+    values = []
+    for row, cell in enumerate(df.iloc[:, j].str.strip(), start=1):
+        if (row == 1 and has_header) or cell == "":
+            continue
+        v = number(cell)
+        if v is None or not math.isfinite(v):
+            raise InvalidInput(
+                [f"The prior CSV file '{path}' must hold finite numbers; row {row} holds "
+                 f"{cell[:40]!r}."]
+            )
+        values.append(v)
     try:
-        return EmpiricalPrior(values.dropna().to_numpy())
+        return EmpiricalPrior(np.asarray(values, dtype=float))
     except InvalidInput as exc:
         raise InvalidInput([f"Bad prior CSV file '{path}': " + " ".join(exc.problems)]) from None
 

@@ -1,40 +1,59 @@
 """Studies: what a report covers, read from a TOML file and computed in one go.
 
 A study names procedures, their base set-ups, sweeps, planning targets,
-acceptance plans and optionally measured readings. :func:`load_study` validates
-the whole file and lists every problem at once; :func:`run_study` computes every
-result (Monte Carlo, GUM budget, sweeps, plan, acceptance, posterior) into a
-:class:`StudyResult` that the reports render without computing anything.
+tolerances with their acceptance rules and optionally measured readings, and
+carries the header of the document a customer receives. :func:`load_study`
+validates the whole file and lists every problem at once; :func:`run_study`
+computes every result (Monte Carlo, GUM budget, sweeps, plan, measured data,
+verdicts, advice) into a :class:`StudyResult` that the reports render without
+computing anything.
 
 Example::
 
     title = "Acceptance of machine 42"
     seed = 1
     digits = 2                      # adaptive Monte Carlo of each base set-up
+    [header]
+    document = "MT-2024-017"
+    revision = "A"
+    customer = "Example GmbH"
+    machine_maker = "Maker"
+    machine_type = "5-axis machining centre"
+    machine_serial = "SN 4711"
+    location = "Hall 3"
+    operator = "A. Person"
+    date = 2024-11-20
+    ambient_temperature_c = 20.4
+    prepared_by = "A. Person"
+    checked_by = "B. Person"
+    approved_by = "C. Person"
     [[procedure]]
     name = "rotary_axis"
     label = "C axis"
     setup = { axis = "C", incline_deg = 20 }
     estimators = ["patent", "joint"]
+    standards = ["ISO 230-7:2015", "ISO 230-1:2012"]
       [[procedure.sweep]]
       vary = { incline_deg = [10, 20, 30] }
       trials = 2000
       [procedure.plan]
       targets = { EX0C = 1.0 }
       vary = { positions = [3, 6, 12] }
-      [procedure.acceptance]
+      [[procedure.acceptance]]          # one table per toleranced measurand
       measurand = "EX0C"
       lower = -10.0
       upper = 10.0
       prior = "normal:0,4"
-      rule = "guard:0.5"
+      rule = "iso14253"
       [procedure.readings]
       file = "rotary_axis_readings.csv"   # relative to the study file
       uncertainty = "mc"                   # or "posterior"
+      estimator = "joint"                  # default: the recommended estimator
 """
 
 from __future__ import annotations
 
+import datetime
 import hashlib
 import math
 import tomllib
@@ -45,12 +64,17 @@ import numpy as np
 
 from mtplan._validate import InvalidInput
 
-__all__ = ["Study", "ProcedureStudy", "StudyResult", "load_study", "run_study"]
+__all__ = ["Study", "ProcedureStudy", "StudyResult", "HEADER_KEYS", "load_study", "run_study"]
 
-_TOP_KEYS = {"title", "subtitle", "customer", "machine", "author", "seed", "digits", "trials",
-             "max_trials", "coverage", "procedure"}
+#: the document header's keys, in the order the cover shows them
+HEADER_KEYS = ("document", "revision", "customer", "machine_maker", "machine_type",
+               "machine_serial", "location", "operator", "date", "ambient_temperature_c",
+               "prepared_by", "checked_by", "approved_by")
+_TOP_KEYS = {"title", "subtitle", "customer", "machine", "author", "header", "seed", "digits",
+             "trials", "max_trials", "coverage", "procedure"}
 _PROC_KEYS = {"name", "label", "setup", "truth", "estimators", "sweep", "plan", "acceptance",
-              "readings", "trials", "digits", "max_trials", "budget", "budget_trials", "notes"}
+              "readings", "trials", "digits", "max_trials", "budget", "budget_trials", "notes",
+              "standards"}
 _SWEEP_KEYS = {"vary", "trials", "estimators"}
 _PLAN_KEYS = {"targets", "vary", "k", "estimator", "trials"}
 _ACCEPT_KEYS = {"measurand", "lower", "upper", "prior", "rule", "measured"}
@@ -70,6 +94,11 @@ def _count(problems, where, value, low):
         problems.append(f"{where} must be an int >= {low}. Got {value!r} instead.")
 
 
+def _digits(problems, where, value):
+    if value is not None and not (isinstance(value, int) and 1 <= value <= 4):
+        problems.append(f"{where} must be an int from 1 to 4. Got {value!r} instead.")
+
+
 @dataclass
 class ProcedureStudy:
     name: str
@@ -79,7 +108,7 @@ class ProcedureStudy:
     estimators: list
     sweeps: list = field(default_factory=list)        # dicts: vary, trials, estimators
     plan: dict | None = None
-    acceptance: dict | None = None
+    acceptance: list = field(default_factory=list)    # dicts: one per toleranced measurand
     readings: dict | None = None
     trials: int | None = None
     digits: int | None = None
@@ -87,13 +116,14 @@ class ProcedureStudy:
     budget: str = "gum"                # "gum" (law of propagation) or "mc" (one source at a time)
     budget_trials: int = 2000
     notes: str = ""
+    standards: list = field(default_factory=list)     # standards the test follows
 
 
 @dataclass
 class Study:
     title: str
     path: Path | None
-    digest: str
+    digest: str                        # SHA-256 of the study file (64 hex)
     seed: int
     digits: int | None
     trials: int | None
@@ -101,202 +131,295 @@ class Study:
     meta: dict
     procedures: list
     max_trials: int = 200_000
+    header: dict = field(default_factory=dict)        # HEADER_KEYS -> value (those given)
 
 
 def load_study(source) -> Study:
-    """Read and validate a study (a TOML path, or an already parsed dict)."""
-    from mtplan.models import registry
-    from mtplan.models._protocol import fields_info, make
+    """Read and validate a study (a TOML path, or an already parsed dict).
 
+    Raises
+    ------
+    InvalidInput
+        Every problem of the file at once, each naming its place.
+    """
+    from mtplan.models import registry
+
+    data, raw, path = _read(source)
     problems: list[str] = []
-    path = None
-    if isinstance(source, dict):
-        data = source
-        raw = repr(sorted(source.items())).encode()
-    else:
-        path = Path(source)
-        try:
-            raw = path.read_bytes()
-        except FileNotFoundError:
-            raise InvalidInput([f"No such study file {str(path)!r}."]) from None
-        except OSError as exc:
-            raise InvalidInput([f"Cannot read the study file {str(path)!r}: {exc.strerror}."]) from None
-        try:
-            data = tomllib.loads(raw.decode("utf-8"))
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise InvalidInput([f"The study file {str(path)!r} is not valid TOML: {exc}."]) from None
     for key in sorted(set(data) - _TOP_KEYS):
-        problems.append(f"The study has an unknown key {key!r}; allowed: {', '.join(sorted(_TOP_KEYS))}.")
+        problems.append(f"The study has an unknown key {key!r}; allowed: "
+                        f"{', '.join(sorted(_TOP_KEYS))}.")
+    top = _top_level(data, problems)
+    header = _header(data, problems)
+    entries = data.get("procedure", [])
+    if not isinstance(entries, list) or not entries:
+        problems.append("The study needs at least one [[procedure]] table.")
+        entries = []
+    procs = registry()
+    out = [_procedure(i, entry, procs, path, problems) for i, entry in enumerate(entries)]
+    if problems:
+        raise InvalidInput(problems)
+    meta = {k: str(data[k]) for k in ("subtitle", "customer", "machine", "author") if k in data}
+    return Study(title=str(data.get("title", "mtplan study")), path=path,
+                 digest=hashlib.sha256(raw).hexdigest(), meta=meta, procedures=out,
+                 header=header, **top)
+
+
+def _read(source):
+    """(parsed dict, raw bytes for the digest, path or None) of a study source."""
+    if isinstance(source, dict):
+        return source, repr(sorted(source.items())).encode(), None
+    path = Path(source)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise InvalidInput([f"No such study file {str(path)!r}."]) from None
+    except OSError as exc:
+        raise InvalidInput([f"Cannot read the study file {str(path)!r}: {exc.strerror}."]) from None
+    try:
+        data = tomllib.loads(raw.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InvalidInput([f"The study file {str(path)!r} is not valid TOML: {exc}."]) from None
+    return data, raw, path
+
+
+def _top_level(data, problems) -> dict:
+    """The study-wide numbers: seed, digits, trials, max_trials, coverage."""
     seed = data.get("seed", 0)
     if not (isinstance(seed, int) and seed >= 0):
         problems.append(f"The study's 'seed' must be an int >= 0. Got {seed!r} instead.")
-    digits = data.get("digits")
+    _digits(problems, "The study's 'digits'", data.get("digits"))
     trials = data.get("trials")
-    if digits is not None and not (isinstance(digits, int) and 1 <= digits <= 4):
-        problems.append(f"The study's 'digits' must be an int from 1 to 4. Got {digits!r} instead.")
     if trials is not None and not (isinstance(trials, int) and trials >= 100):
         problems.append(f"The study's 'trials' must be an int >= 100. Got {trials!r} instead.")
     max_trials = data.get("max_trials", 200_000)
     _count(problems, "The study's 'max_trials'", max_trials, 1000)
     coverage = data.get("coverage", 0.95)
     if not (isinstance(coverage, float) and 0 < coverage < 1):
-        problems.append(f"The study's 'coverage' must be a number in (0, 1). Got {coverage!r} instead.")
-    entries = data.get("procedure", [])
-    if not isinstance(entries, list) or not entries:
-        problems.append("The study needs at least one [[procedure]] table.")
-        entries = []
-    procs = registry()
-    out = []
-    for i, entry in enumerate(entries):
-        where = f"procedure #{i + 1}"
-        if not isinstance(entry, dict):
-            problems.append(f"{where} must be a table.")
-            continue
-        name = entry.get("name")
-        where = f"procedure #{i + 1} ({name})"
-        for key in sorted(set(entry) - _PROC_KEYS):
-            problems.append(f"{where} has an unknown key {key!r}; allowed: {', '.join(sorted(_PROC_KEYS))}.")
-        if name not in procs:
-            problems.append(f"{where}: unknown procedure; the procedures are: {', '.join(procs)}.")
-            continue
-        proc = procs[name]
-        _count(problems, f"{where} 'trials'", entry.get("trials"), 100)
-        _count(problems, f"{where} 'max_trials'", entry.get("max_trials"), 1000)
-        _count(problems, f"{where} 'budget_trials'", entry.get("budget_trials"), 100)
-        pd_ = entry.get("digits")
-        if pd_ is not None and not (isinstance(pd_, int) and 1 <= pd_ <= 4):
-            problems.append(f"{where} 'digits' must be an int from 1 to 4. Got {pd_!r} instead.")
-        if entry.get("budget", "gum") not in ("gum", "mc"):
-            problems.append(f"{where} 'budget' must be 'gum' or 'mc'. Got {entry.get('budget')!r} "
-                            "instead.")
-        setup = truth = None
-        try:
-            setup = make(proc.Setup, entry.get("setup", {}), owner=f"{where} setup")
-        except InvalidInput as exc:
-            problems += exc.problems
-        try:
-            truth = make(proc.Truth, entry.get("truth", {}), owner=f"{where} truth")
-        except InvalidInput as exc:
-            problems += exc.problems
-        estimators = entry.get("estimators", [proc.default_estimator])
-        if estimators == "all":
-            estimators = list(proc.estimators)
-        if isinstance(estimators, str):
-            estimators = [estimators]
-        if not isinstance(estimators, list) or not estimators:
-            problems.append(f"{where}: 'estimators' must be 'all', a name or a non-empty list.")
-            estimators = [proc.default_estimator]
-        for e in estimators:
-            if e not in proc.estimators:
-                problems.append(f"{where}: unknown estimator {e!r}; allowed: {', '.join(proc.estimators)}.")
-        fields = {f["name"] for f in fields_info(proc.Setup)}
-        sweeps = entry.get("sweep", [])
-        sweeps = [sweeps] if isinstance(sweeps, dict) else sweeps
-        for j, sw in enumerate(sweeps):
-            _unknown(problems, f"{where} sweep #{j + 1}", sw, _SWEEP_KEYS)
-            if isinstance(sw, dict):
-                _count(problems, f"{where} sweep #{j + 1} 'trials'", sw.get("trials"), 2)
-                for e in ([sw["estimators"]] if isinstance(sw.get("estimators"), str)
-                          else sw.get("estimators", [])):
-                    if e not in proc.estimators:
-                        problems.append(f"{where} sweep #{j + 1}: unknown estimator {e!r}; "
-                                        f"allowed: {', '.join(proc.estimators)}.")
-            vary = sw.get("vary", {}) if isinstance(sw, dict) else None
-            if not vary or not isinstance(vary, dict):
-                problems.append(f"{where} sweep #{j + 1} needs a non-empty 'vary' table.")
-                continue
-            for f, values in vary.items():
-                if f not in fields:
-                    problems.append(f"{where} sweep #{j + 1} varies {f!r}, which is no set-up "
-                                    f"field ({', '.join(sorted(fields))}).")
-                elif not isinstance(values, list) or not values:
-                    problems.append(f"{where} sweep #{j + 1}: the values of {f!r} must be a "
-                                    "non-empty list.")
-        if setup is not None:  # every set-up of every grid must be valid, said before computing
-            grids = [(f"sweep #{j + 1}", sw.get("vary")) for j, sw in enumerate(sweeps)
-                     if isinstance(sw, dict)]
-            if isinstance(entry.get("plan"), dict):
-                grids.append(("plan", entry["plan"].get("vary")))
-            for what, vary in grids:
-                problems += _grid_problems(proc, entry.get("setup", {}), vary, fields,
-                                           f"{where} {what}")
-        measurands = set()
-        if setup is not None:
-            measurands = {m.name for m in proc.measurands(setup)}
-        plan = entry.get("plan")
-        if plan is not None and not isinstance(plan, dict):
-            problems.append(f"{where} 'plan' must be a table.")
-            plan = None
-        if plan is not None:
-            _unknown(problems, f"{where} plan", plan, _PLAN_KEYS)
-            for f in plan.get("vary", {}):
-                if f not in fields:
-                    problems.append(f"{where} plan varies {f!r}, which is no set-up field.")
-            for m in plan.get("targets", {}):
-                if m not in measurands:
-                    problems.append(f"{where} plan targets {m!r}, which is no measurand "
-                                    f"({', '.join(sorted(measurands))}).")
-            if not plan.get("targets"):
-                problems.append(f"{where} plan needs a 'targets' table.")
-        acc = entry.get("acceptance")
-        if acc is not None and not isinstance(acc, dict):
-            problems.append(f"{where} 'acceptance' must be a table.")
-            acc = None
-        if acc is not None:
-            _unknown(problems, f"{where} acceptance", acc, _ACCEPT_KEYS)
-            from mtplan.plans import acceptance as _acc
+        problems.append(f"The study's 'coverage' must be a number in (0, 1). Got {coverage!r} "
+                        "instead.")
+    return {"seed": seed, "digits": data.get("digits"), "trials": trials,
+            "max_trials": max_trials, "coverage": coverage}
 
-            for key, parse in (("prior", _acc.parse_prior), ("rule", _acc.parse_rule)):
-                if acc.get(key) is not None:
-                    text = acc[key]
-                    if key == "prior" and isinstance(text, str) and path is not None \
-                            and not text.lower().startswith(("normal:", "gamma:")) \
-                            and not Path(text).is_absolute():
-                        text = str(path.parent / text)
-                        acc = {**acc, "prior": text}
-                    try:
-                        parse(text)
-                    except InvalidInput as exc:
-                        problems += [f"{where} acceptance: {p}" for p in exc.problems]
-            if acc.get("measurand") not in measurands:
-                problems.append(f"{where} acceptance names measurand {acc.get('measurand')!r}, "
-                                f"which is no measurand ({', '.join(sorted(measurands))}).")
-            if acc.get("lower") is None and acc.get("upper") is None:
-                problems.append(f"{where} acceptance needs 'lower' and/or 'upper' limits.")
-        readings = entry.get("readings")
-        if readings is not None and not isinstance(readings, dict):
-            problems.append(f"{where} 'readings' must be a table.")
-            readings = None
-        if readings is not None:
-            _unknown(problems, f"{where} readings", readings, _READ_KEYS)
-            if readings.get("estimator", proc.default_estimator) not in proc.estimators:
-                problems.append(f"{where} readings: unknown estimator "
-                                f"{readings.get('estimator')!r}; allowed: {', '.join(proc.estimators)}.")
-            f = readings.get("file")
-            rp = Path(f) if f else None
-            if rp is not None and not rp.is_absolute() and path is not None:
-                rp = path.parent / rp
-            if rp is None or not rp.exists():
-                problems.append(f"{where} readings file {f!r} does not exist.")
-            else:
-                readings = {**readings, "file": rp}
-            if readings.get("uncertainty", "mc") not in ("mc", "posterior"):
-                problems.append(f"{where} readings 'uncertainty' must be 'mc' or 'posterior'.")
-        label = str(entry.get("label", proc.title))
-        out.append(ProcedureStudy(name=name, label=label, setup=setup, truth=truth,
-                                  estimators=list(estimators), sweeps=list(sweeps), plan=plan,
-                                  acceptance=acc, readings=readings, trials=entry.get("trials"),
-                                  digits=entry.get("digits"), max_trials=entry.get("max_trials"),
-                                  budget=entry.get("budget", "gum"),
-                                  budget_trials=entry.get("budget_trials", 2000),
-                                  notes=str(entry.get("notes", ""))))
-    if problems:
-        raise InvalidInput(problems)
-    meta = {k: str(data[k]) for k in ("subtitle", "customer", "machine", "author") if k in data}
-    return Study(title=str(data.get("title", "mtplan study")), path=path,
-                 digest=hashlib.sha256(raw).hexdigest()[:16], seed=seed, digits=digits,
-                 trials=trials, coverage=coverage, meta=meta, procedures=out,
-                 max_trials=max_trials)
+
+def _header(data, problems) -> dict:
+    """The document header: ``[header]``, with the older top-level ``customer``,
+    ``machine`` and ``author`` as fall-backs."""
+    table = data.get("header", {})
+    if not isinstance(table, dict):
+        problems.append("The study's 'header' must be a table.")
+        table = {}
+    _unknown(problems, "The study's header", table, set(HEADER_KEYS))
+    legacy = {"customer": data.get("customer"), "machine_type": data.get("machine"),
+              "prepared_by": data.get("author")}
+    out = {}
+    for key in HEADER_KEYS:
+        value = table.get(key, legacy.get(key))
+        if value is None:
+            continue
+        if key == "ambient_temperature_c":
+            if not (isinstance(value, int | float) and not isinstance(value, bool)
+                    and -30 <= value <= 60):
+                problems.append("The study's header 'ambient_temperature_c' must be a number "
+                                f"from -30 to 60 [degC]. Got {value!r} instead.")
+                continue
+            out[key] = float(value)
+        elif key == "date" and isinstance(value, datetime.date | datetime.datetime):
+            out[key] = value.isoformat()
+        elif isinstance(value, str | int) and not isinstance(value, bool):
+            out[key] = str(value)
+        else:
+            problems.append(f"The study's header {key!r} must be text. Got {value!r} instead.")
+    return out
+
+
+def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
+    """One ``[[procedure]]`` table, validated; None when it cannot be read at all."""
+    from mtplan.models._protocol import fields_info, make
+
+    where = f"procedure #{i + 1}"
+    if not isinstance(entry, dict):
+        problems.append(f"{where} must be a table.")
+        return None
+    name = entry.get("name")
+    where = f"procedure #{i + 1} ({name})"
+    _unknown(problems, where, entry, _PROC_KEYS)
+    if name not in procs:
+        problems.append(f"{where}: unknown procedure; the procedures are: {', '.join(procs)}.")
+        return None
+    proc = procs[name]
+    _count(problems, f"{where} 'trials'", entry.get("trials"), 100)
+    _count(problems, f"{where} 'max_trials'", entry.get("max_trials"), 1000)
+    _count(problems, f"{where} 'budget_trials'", entry.get("budget_trials"), 100)
+    _digits(problems, f"{where} 'digits'", entry.get("digits"))
+    if entry.get("budget", "gum") not in ("gum", "mc"):
+        problems.append(f"{where} 'budget' must be 'gum' or 'mc'. Got {entry.get('budget')!r} "
+                        "instead.")
+    setup = truth = None
+    try:
+        setup = make(proc.Setup, entry.get("setup", {}), owner=f"{where} setup")
+    except InvalidInput as exc:
+        problems += exc.problems
+    try:
+        truth = make(proc.Truth, entry.get("truth", {}), owner=f"{where} truth")
+    except InvalidInput as exc:
+        problems += exc.problems
+    estimators = _estimators(proc, entry.get("estimators", [proc.default_estimator]), where,
+                             problems)
+    fields = {f["name"] for f in fields_info(proc.Setup)}
+    measurands = {m.name for m in proc.measurands(setup)} if setup is not None else set()
+    sweeps = _sweeps(proc, entry.get("sweep", []), fields, where, problems)
+    plan = _plan(entry.get("plan"), fields, measurands, where, problems)
+    if setup is not None:  # every set-up of every grid must be valid, said before computing
+        grids = [(f"sweep #{j + 1}", sw.get("vary")) for j, sw in enumerate(sweeps)
+                 if isinstance(sw, dict)]
+        if plan is not None:
+            grids.append(("plan", plan.get("vary")))
+        for what, vary in grids:
+            problems += _grid_problems(proc, entry.get("setup", {}), vary, fields,
+                                       f"{where} {what}")
+    acceptance = _acceptance(entry.get("acceptance"), measurands, path, where, problems)
+    readings = _readings(proc, entry.get("readings"), path, where, problems)
+    standards = entry.get("standards", [])
+    if not (isinstance(standards, list) and all(isinstance(x, str) for x in standards)):
+        problems.append(f"{where} 'standards' must be a list of texts. Got {standards!r} "
+                        "instead.")
+        standards = []
+    return ProcedureStudy(name=name, label=str(entry.get("label", proc.title)), setup=setup,
+                          truth=truth, estimators=estimators, sweeps=list(sweeps), plan=plan,
+                          acceptance=acceptance, readings=readings,
+                          trials=entry.get("trials"), digits=entry.get("digits"),
+                          max_trials=entry.get("max_trials"), budget=entry.get("budget", "gum"),
+                          budget_trials=entry.get("budget_trials", 2000),
+                          notes=str(entry.get("notes", "")), standards=list(standards))
+
+
+def _estimators(proc, estimators, where, problems) -> list:
+    if estimators == "all":
+        estimators = list(proc.estimators)
+    if isinstance(estimators, str):
+        estimators = [estimators]
+    if not isinstance(estimators, list) or not estimators:
+        problems.append(f"{where}: 'estimators' must be 'all', a name or a non-empty list.")
+        return [proc.default_estimator]
+    for e in estimators:
+        if e not in proc.estimators:
+            problems.append(f"{where}: unknown estimator {e!r}; allowed: "
+                            f"{', '.join(proc.estimators)}.")
+    return list(estimators)
+
+
+def _sweeps(proc, sweeps, fields, where, problems) -> list:
+    sweeps = [sweeps] if isinstance(sweeps, dict) else sweeps
+    for j, sw in enumerate(sweeps):
+        at = f"{where} sweep #{j + 1}"
+        _unknown(problems, at, sw, _SWEEP_KEYS)
+        if isinstance(sw, dict):
+            _count(problems, f"{at} 'trials'", sw.get("trials"), 2)
+            for e in ([sw["estimators"]] if isinstance(sw.get("estimators"), str)
+                      else sw.get("estimators", [])):
+                if e not in proc.estimators:
+                    problems.append(f"{at}: unknown estimator {e!r}; allowed: "
+                                    f"{', '.join(proc.estimators)}.")
+        vary = sw.get("vary", {}) if isinstance(sw, dict) else None
+        if not vary or not isinstance(vary, dict):
+            problems.append(f"{at} needs a non-empty 'vary' table.")
+            continue
+        for f, values in vary.items():
+            if f not in fields:
+                problems.append(f"{at} varies {f!r}, which is no set-up field "
+                                f"({', '.join(sorted(fields))}).")
+            elif not isinstance(values, list) or not values:
+                problems.append(f"{at}: the values of {f!r} must be a non-empty list.")
+    return sweeps
+
+
+def _plan(plan, fields, measurands, where, problems) -> dict | None:
+    if plan is None:
+        return None
+    if not isinstance(plan, dict):
+        problems.append(f"{where} 'plan' must be a table.")
+        return None
+    _unknown(problems, f"{where} plan", plan, _PLAN_KEYS)
+    for f in plan.get("vary", {}):
+        if f not in fields:
+            problems.append(f"{where} plan varies {f!r}, which is no set-up field.")
+    for m in plan.get("targets", {}):
+        if m not in measurands:
+            problems.append(f"{where} plan targets {m!r}, which is no measurand "
+                            f"({', '.join(sorted(measurands))}).")
+    if not plan.get("targets"):
+        problems.append(f"{where} plan needs a 'targets' table.")
+    return plan
+
+
+def _acceptance(tables, measurands, path, where, problems) -> list:
+    """``[procedure.acceptance]`` (one table) or ``[[procedure.acceptance]]`` (one per
+    toleranced measurand), each checked; prior files relative to the study file."""
+    from mtplan.plans import acceptance as _acc
+
+    if tables is None:
+        return []
+    tables = [tables] if isinstance(tables, dict) else tables
+    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+        problems.append(f"{where} 'acceptance' must be a table or a list of tables.")
+        return []
+    out, seen = [], set()
+    for j, acc in enumerate(tables):
+        at = f"{where} acceptance" + (f" #{j + 1}" if len(tables) > 1 else "")
+        _unknown(problems, at, acc, _ACCEPT_KEYS)
+        prior = acc.get("prior")
+        if isinstance(prior, str) and path is not None and not Path(prior).is_absolute() \
+                and not prior.lower().startswith(("normal:", "gamma:")):
+            acc = {**acc, "prior": str(path.parent / prior)}
+        for key, parse in (("prior", _acc.parse_prior), ("rule", _acc.parse_rule)):
+            if acc.get(key) is not None:
+                try:
+                    parse(acc[key])
+                except InvalidInput as exc:
+                    problems += [f"{at}: {p}" for p in exc.problems]
+        name = acc.get("measurand")
+        if name not in measurands:
+            problems.append(f"{at} names measurand {name!r}, which is no measurand "
+                            f"({', '.join(sorted(measurands))}).")
+        elif name in seen:
+            problems.append(f"{at} repeats measurand {name!r}; one tolerance per measurand.")
+        seen.add(name)
+        for key in ("lower", "upper", "measured"):
+            v = acc.get(key)
+            if v is not None and not (isinstance(v, int | float) and not isinstance(v, bool)
+                                      and math.isfinite(v)):
+                problems.append(f"{at} '{key}' must be a number. Got {v!r} instead.")
+        lo, hi = acc.get("lower"), acc.get("upper")
+        if lo is None and hi is None:
+            problems.append(f"{at} needs 'lower' and/or 'upper' limits.")
+        elif isinstance(lo, int | float) and isinstance(hi, int | float) and not hi > lo:
+            problems.append(f"{at} 'upper' must be > 'lower' = {lo!r}. Got {hi!r} instead.")
+        out.append(acc)
+    return out
+
+
+def _readings(proc, readings, path, where, problems) -> dict | None:
+    if readings is None:
+        return None
+    if not isinstance(readings, dict):
+        problems.append(f"{where} 'readings' must be a table.")
+        return None
+    _unknown(problems, f"{where} readings", readings, _READ_KEYS)
+    if readings.get("estimator") is not None and readings["estimator"] not in proc.estimators:
+        problems.append(f"{where} readings: unknown estimator {readings.get('estimator')!r}; "
+                        f"allowed: {', '.join(proc.estimators)}.")
+    f = readings.get("file")
+    rp = Path(f) if f else None
+    if rp is not None and not rp.is_absolute() and path is not None:
+        rp = path.parent / rp
+    if rp is None or not rp.exists():
+        problems.append(f"{where} readings file {f!r} does not exist.")
+    else:
+        readings = {**readings, "file": rp}
+    if readings.get("uncertainty", "mc") not in ("mc", "posterior"):
+        problems.append(f"{where} readings 'uncertainty' must be 'mc' or 'posterior'.")
+    return readings
 
 
 def _grid_problems(proc, base, vary, fields, where) -> list[str]:
@@ -323,19 +446,37 @@ def _grid_problems(proc, base, vary, fields, where) -> list[str]:
 
 @dataclass
 class ProcedureOutcome:
-    """Everything computed for one procedure of a study (display units)."""
+    """Everything computed for one procedure of a study (display units).
+
+    ``recommended`` is the estimator the study recommends (:func:`decisions.
+    recommend_estimator`) over the measurands in ``key`` (toleranced and targeted ones);
+    ``verdicts`` holds a :class:`~mtplan.plans.decisions.Verdict` per toleranced measurand,
+    ``summary`` the procedure's rows of the summary page, ``levers`` the swept levers
+    ranked by their effect, ``dominant`` the error sources that dominate, ``targets`` the
+    target u per measurand for the figures, ``setup_shown`` the set-up fields a reader needs.
+    """
 
     spec: ProcedureStudy
     title: str
     results: dict                      # estimator -> ProcedureResult
-    gum: object                        # GUMResult of the default estimator
+    gum: object                        # GUMResult of the recommended estimator, or None
     budget: object                     # DataFrame: measurand, source, contribution, share
     sweeps: list                       # (spec dict, DataFrame)
     plan: object | None = None         # PlanResult or an error message
-    acceptance: object | None = None   # dict with the acceptance result
     measured: object | None = None     # result of the readings evaluation
     identifiability: object | None = None
     extras: dict = field(default_factory=dict)
+    recommended: str = ""
+    key: list = field(default_factory=list)
+    verdicts: list = field(default_factory=list)
+    summary: list = field(default_factory=list)
+    levers: list = field(default_factory=list)
+    dominant: list = field(default_factory=list)
+    comparison: dict = field(default_factory=dict)
+    targets: dict = field(default_factory=dict)
+    setup_shown: dict = field(default_factory=dict)
+    duration_s: float = math.nan
+    budget_estimator: str = ""
 
 
 @dataclass
@@ -344,9 +485,41 @@ class StudyResult:
     outcomes: list
     provenance: dict
 
+    @property
+    def verdicts(self) -> list:
+        """Every toleranced measurand's verdict, in study order."""
+        return [v for o in self.outcomes for v in o.verdicts]
 
-def _provenance(study: Study) -> dict:
-    import datetime
+
+def _git_commit() -> str | None:
+    """The git commit of the mtplan source when it runs from a checkout, else None."""
+    import subprocess
+
+    package = Path(__file__).resolve().parent.parent
+    try:
+        top = subprocess.run(["git", "-C", str(package), "rev-parse", "--show-toplevel"],
+                             capture_output=True, text=True, timeout=10, check=True)
+        if Path(top.stdout.strip()).resolve() / "src" / "mtplan" != package:
+            return None
+        head = subprocess.run(["git", "-C", str(package), "rev-parse", "HEAD"],
+                              capture_output=True, text=True, timeout=10, check=True)
+        dirty = subprocess.run(["git", "-C", str(package), "status", "--porcelain",
+                                "--untracked-files=no", "--", str(package)],
+                               capture_output=True, text=True, timeout=10, check=True)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return head.stdout.strip() + (" with uncommitted changes" if dirty.stdout.strip() else "")
+
+
+def _sha256(path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def _provenance(study: Study, command: str | None) -> dict:
     import importlib.metadata as md
     import platform
 
@@ -357,81 +530,142 @@ def _provenance(study: Study) -> dict:
             versions[pkg] = md.version(pkg)
         except md.PackageNotFoundError:
             versions[pkg] = "not installed"
+    readings = [(ps.label, str(ps.readings["file"]), _sha256(ps.readings["file"]))
+                for ps in study.procedures if ps.readings is not None]
     return {
         "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "command": command or "(called from Python)",
+        "git_commit": _git_commit(),
         "study_file": str(study.path) if study.path else "(in memory)",
         "study_sha256": study.digest,
+        "readings": readings,
         "seed": study.seed,
         "python": platform.python_version(),
         "versions": versions,
     }
 
 
-def run_study(study: Study, *, progress=None, n_jobs: int = 1) -> StudyResult:
-    """Compute every result a study asks for (the reports only render them)."""
-    from mtplan.models import get
-    from mtplan.plans.sweep import sweep
-    from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
+def run_study(study: Study, *, progress=None, n_jobs: int = 1,
+              command: str | None = None) -> StudyResult:
+    """Compute every result a study asks for (the reports only render them).
 
+    Parameters
+    ----------
+    study : Study
+    progress : bool or None
+        A progress bar on stderr: True, False, or None (only on a terminal).
+    n_jobs : int
+        Parallel workers for the Monte Carlo and the sweeps.
+    command : str, optional
+        The command line that asked for the study, for the provenance.
+    """
     outcomes = []
-    steps = _count_steps(study)
-    bar = _bar(progress, steps)
-    for ps in study.procedures:
-        proc = get(ps.name)
-        # the procedure's own choice wins over the study's: trials (fixed) or digits (adaptive)
-        if ps.trials is not None or ps.digits is not None:
-            digits, trials = ps.digits, ps.trials
-        else:
-            digits, trials = study.digits, study.trials
-        if digits is None and trials is None:
-            trials = 10_000
-        max_trials = ps.max_trials or study.max_trials
-        results = {}
-        for est in ps.estimators:
-            results[est] = simulate_uncertainty(
-                proc, ps.setup, ps.truth, estimator=est, trials=None if digits else trials,
-                digits=digits, coverage=study.coverage, rng=study.seed, n_jobs=n_jobs,
-                progress=False, max_trials=max_trials)
-            _tick(bar, f"{ps.name} {est}")
-        gum = None
-        if ps.budget == "gum":
-            gum = linearize_procedure(proc, ps.setup, ps.truth, estimator=ps.estimators[0],
-                                      coverage=study.coverage)
-            budget = gum.budget()
-        else:
-            budget = _mc_budget(proc, ps, study, n_jobs)
-        _tick(bar, f"{ps.name} budget")
-        sweeps = []
-        for sw in ps.sweeps:
-            try:
-                table = sweep(proc, ps.setup, sw["vary"], truth=ps.truth,
-                              estimators=sw.get("estimators", ps.estimators),
-                              trials=sw.get("trials", 2000), seed=study.seed, n_jobs=n_jobs,
-                              progress=False)
-            except InvalidInput as exc:  # a set-up the estimators refuse is a finding
-                table = " ".join(exc.problems)
-            sweeps.append((sw, table))
-            _tick(bar, f"{ps.name} sweep")
-        outcome = ProcedureOutcome(spec=ps, title=proc.title, results=results, gum=gum,
-                                   budget=budget, sweeps=sweeps)
-        if ps.plan is not None:
-            outcome.plan = _run_plan(proc, ps, study)
-            _tick(bar, f"{ps.name} plan")
-        if ps.acceptance is not None:
-            outcome.acceptance = _run_acceptance(ps, results[ps.estimators[0]])
-            _tick(bar, f"{ps.name} acceptance")
-        if ps.readings is not None:
-            outcome.measured = _run_measured(proc, ps, study)
-            _tick(bar, f"{ps.name} readings")
-        outcome.identifiability = _identifiability(proc, ps)
-        outcome.extras = _extras(proc, ps)
-        outcomes.append(outcome)
+    bar = _bar(progress, _count_steps(study))
+    for k, ps in enumerate(study.procedures, start=1):
+        outcomes.append(_run_procedure(k, ps, study, bar, n_jobs))
     if bar is not None:
         bar.close()
-    return StudyResult(study=study, outcomes=outcomes, provenance=_provenance(study))
+    return StudyResult(study=study, outcomes=outcomes,
+                       provenance=_provenance(study, command))
 
 
-def _mc_budget(proc, ps, study, n_jobs):
+def _run_procedure(k, ps, study, bar, n_jobs) -> ProcedureOutcome:
+    """Monte Carlo, budget, sweeps, plan, readings and the decisions of one procedure."""
+    from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
+    from mtplan.models import get
+    from mtplan.plans import decisions
+    from mtplan.uncertainty.montecarlo import ModelError
+
+    proc = get(ps.name)
+    # the procedure's own choice wins over the study's: trials (fixed) or digits (adaptive)
+    if ps.trials is not None or ps.digits is not None:
+        digits, trials = ps.digits, ps.trials
+    else:
+        digits, trials = study.digits, study.trials
+    if digits is None and trials is None:
+        trials = 10_000
+    results = {}
+    for est in ps.estimators:
+        results[est] = simulate_uncertainty(
+            proc, ps.setup, ps.truth, estimator=est, trials=None if digits else trials,
+            digits=digits, coverage=study.coverage, rng=study.seed, n_jobs=n_jobs,
+            progress=False, max_trials=ps.max_trials or study.max_trials)
+        _tick(bar, f"{ps.name} {est}")
+    first = results[ps.estimators[0]]
+    targeted = list((ps.plan or {}).get("targets", {}))
+    key = decisions.key_measurands(first.measurands, [a["measurand"] for a in ps.acceptance],
+                                   targeted)
+    recommended = decisions.recommend_estimator(results, key)
+    gum, budget_estimator = None, recommended
+    if ps.budget == "gum":
+        gum = linearize_procedure(proc, ps.setup, ps.truth, estimator=recommended,
+                                  coverage=study.coverage)
+        budget = gum.budget()
+    else:
+        try:
+            budget = _mc_budget(proc, ps, study, n_jobs, recommended)
+        except ModelError:  # one source alone can leave an estimator without a solution
+            budget_estimator = ps.estimators[0]
+            budget = _mc_budget(proc, ps, study, n_jobs, budget_estimator)
+    _tick(bar, f"{ps.name} budget")
+    outcome = ProcedureOutcome(spec=ps, title=proc.title, results=results, gum=gum,
+                               budget=budget, sweeps=_run_sweeps(proc, ps, study, bar, n_jobs),
+                               recommended=recommended, key=key,
+                               budget_estimator=budget_estimator)
+    if ps.plan is not None:
+        outcome.plan = _run_plan(proc, ps, study)
+        _tick(bar, f"{ps.name} plan")
+    if ps.readings is not None:
+        outcome.measured = _run_measured(proc, ps, study, recommended)
+        _tick(bar, f"{ps.name} readings")
+    decider = results.get(getattr(outcome.measured, "estimator", None), results[recommended])
+    outcome.verdicts = decisions.conformity(ps.name, ps.label, ps.acceptance, decider,
+                                            outcome.measured)
+    _advise(outcome, proc, k)
+    outcome.identifiability = _identifiability(proc, ps)
+    outcome.extras = _extras(proc, ps)
+    return outcome
+
+
+def _run_sweeps(proc, ps, study, bar, n_jobs) -> list:
+    from mtplan.plans.sweep import sweep
+
+    sweeps = []
+    for sw in ps.sweeps:
+        try:
+            table = sweep(proc, ps.setup, sw["vary"], truth=ps.truth,
+                          estimators=sw.get("estimators", ps.estimators),
+                          trials=sw.get("trials", 2000), seed=study.seed, n_jobs=n_jobs,
+                          progress=False)
+        except InvalidInput as exc:  # a set-up the estimators refuse is a finding
+            table = " ".join(exc.problems)
+        sweeps.append((sw, table))
+        _tick(bar, f"{ps.name} sweep")
+    return sweeps
+
+
+def _advise(outcome, proc, k) -> None:
+    """The summary rows, the levers ranked, the dominant sources and the targets."""
+    from mtplan.models._protocol import fields_info
+    from mtplan.plans import decisions
+
+    ps = outcome.spec
+    result = outcome.results[outcome.recommended]
+    varied = {f for sw in ps.sweeps for f in sw["vary"]} | set((ps.plan or {}).get("vary", {}))
+    outcome.setup_shown = decisions.shown_setup(ps.setup, proc.Setup(), proc.levers, varied)
+    outcome.duration_s = float(proc.duration(ps.setup))
+    outcome.summary = decisions.summary_rows(k, ps.name, ps.label, result, outcome.key,
+                                             outcome.verdicts, outcome.measured,
+                                             outcome.setup_shown, outcome.duration_s)
+    outcome.levers = decisions.lever_effects(proc.levers, ps.setup, outcome.sweeps, outcome.key,
+                                             outcome.recommended)
+    outcome.dominant = decisions.dominant_sources(
+        outcome.budget, proc.levers, [f["name"] for f in fields_info(proc.Setup)])
+    outcome.comparison = decisions.estimator_comparison(outcome.results)
+    outcome.targets = decisions.u_targets(ps.plan, outcome.verdicts)
+
+
+def _mc_budget(proc, ps, study, n_jobs, estimator):
     """Budget by Monte Carlo: each active error source alone, ``budget_trials`` trials.
 
     For estimators that are not smooth in the readings (integer shifts, thresholds) the
@@ -443,7 +677,7 @@ def _mc_budget(proc, ps, study, n_jobs):
 
     from mtplan.evaluation.simulation import source_budget
 
-    df = source_budget(proc, ps.setup, ps.truth, estimator=ps.estimators[0],
+    df = source_budget(proc, ps.setup, ps.truth, estimator=estimator,
                        trials=ps.budget_trials, rng=study.seed, n_jobs=n_jobs)
     return pd.DataFrame({"output": df["measurand"], "input": df["source"], "u_input": math.nan,
                          "sensitivity": math.nan, "contribution": df["std"],
@@ -454,7 +688,7 @@ def _count_steps(study):
     n = 0
     for ps in study.procedures:
         n += len(ps.estimators) + 1 + len(ps.sweeps)
-        n += sum(x is not None for x in (ps.plan, ps.acceptance, ps.readings))
+        n += sum(x is not None for x in (ps.plan, ps.readings))
     return n
 
 
@@ -487,33 +721,14 @@ def _run_plan(proc, ps, study):
         return " ".join(exc.problems)
 
 
-def _run_acceptance(ps, result):
-    try:
-        from mtplan.plans import acceptance as acc
-    except ImportError:  # pragma: no cover - until the acceptance module lands
-        return None
-    spec = ps.acceptance
-    i = [m.name for m in result.measurands].index(spec["measurand"])
-    u = float(result.mc.std[i])
-    prior = acc.parse_prior(spec["prior"]) if spec.get("prior") else None
-    rule = spec.get("rule", "simple")
-    res = acc.plan_acceptance(spec.get("lower"), spec.get("upper"), u, prior=prior,
-                              rule=acc.parse_rule(rule) if hasattr(acc, "parse_rule") else rule,
-                              measured=spec.get("measured"))
-    return {"measurand": spec["measurand"], "unit": result.measurands[i].unit, "u": u,
-            "lower": spec.get("lower"), "upper": spec.get("upper"), "prior": spec.get("prior"),
-            "rule": rule, **res.to_dict()}
+def _run_measured(proc, ps, study, recommended):
+    """The readings evaluated, by default with the estimator the study recommends."""
+    from mtplan.evaluation import measured
 
-
-def _run_measured(proc, ps, study):
-    try:
-        from mtplan.evaluation import measured
-    except ImportError:  # pragma: no cover - until the measured-data module lands
-        return None
     spec = ps.readings
     readings = measured.read_readings(proc, ps.setup, spec["file"])
     return measured.estimate_measured(proc, ps.setup, readings,
-                                      estimator=spec.get("estimator"),
+                                      estimator=spec.get("estimator") or recommended,
                                       uncertainty=spec.get("uncertainty", "mc"),
                                       trials=spec.get("trials", 10_000), coverage=study.coverage,
                                       rng=study.seed,

@@ -13,7 +13,8 @@ Given an output file, the sweep appends each finished set-up in one write and
 flush, beside a small ``<out>.sweep.json`` that records what the sweep is. Started
 again with the same arguments it reads what is there, drops a set-up whose rows
 were cut off by a kill, and computes only what is missing: no row is lost or
-duplicated. A Parquet output is written (atomically) when the sweep completes,
+duplicated. A removed output starts a new sweep (its left-over side file is replaced,
+noted in ``table.attrs["notes"]``). A Parquet output is written (atomically) when the sweep completes,
 from a CSV journal ``<out>.partial.csv`` kept while it runs.
 """
 
@@ -30,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mtplan._io import atomic_write
+from mtplan._io import atomic_write, output_problem
 from mtplan._parallel import check_parallel, effective_jobs, ordered_map, parallel_session
 from mtplan._validate import InvalidInput, Problems
 from mtplan.models._protocol import fields_info, make
@@ -191,22 +192,24 @@ def sweep(
         trials = 10**4
     setups = _grid(proc, base_setup, dict(vary or {}))
     options = {"trials": trials, "digits": digits, "coverage": coverage, "interval": interval}
+    _check_memory(proc, setups, truth, estimators, sources, options, n_jobs)
     signature = _signature(proc, base_setup, truth, vary, estimators, sources, options, seed)
-    done, journal = pd.DataFrame(), None
-    if out is not None:
-        out = Path(out)
-        journal = out if fmt == "csv" else out.with_name(out.name + ".partial.csv")
-        done = _resume(out, journal, fmt, signature)
-    finished = set(done["setup_id"]) if len(done) else set()
-    todo = [(i, s) for i, s in enumerate(setups) if setup_id(s) not in finished]
-    if effective_jobs(n_jobs) != 1 or backend == "dask":
-        # longest first (the test's duration as the proxy of its cost), so that no worker
-        # is left with a long set-up while the others idle; rows are sorted back by point
-        todo.sort(key=lambda task: -float(proc.duration(task[1])))
-    bar = _bar(progress, len(setups), len(setups) - len(todo), proc.name)
-    tasks = ((proc, s, truth, tuple(estimators), sources, options, seed, i) for i, s in todo)
-    n_rows = len(estimators) * len(proc.measurands(base_setup))
-    new_frames = _run(tasks, journal, n_rows, bar, n_jobs, backend, scheduler)
+    done, journal, notes = pd.DataFrame(), None, []
+    with parallel_session(n_jobs, backend, scheduler) as session:  # a bad scheduler: no file
+        if out is not None:
+            out = Path(out)
+            journal = out if fmt == "csv" else out.with_name(out.name + ".partial.csv")
+            done = _resume(out, journal, fmt, signature, notes)
+        finished = set(done["setup_id"]) if len(done) else set()
+        todo = [(i, s) for i, s in enumerate(setups) if setup_id(s) not in finished]
+        if effective_jobs(n_jobs) != 1 or backend == "dask":
+            # longest first (the test's duration as the proxy of its cost), so that no worker
+            # is left with a long set-up while the others idle; rows are sorted back by point
+            todo.sort(key=lambda task: -float(proc.duration(task[1])))
+        bar = _bar(progress, len(setups), len(setups) - len(todo), proc.name)
+        tasks = ((proc, s, truth, tuple(estimators), sources, options, seed, i) for i, s in todo)
+        n_rows = len(estimators) * len(proc.measurands(base_setup))
+        new_frames = _run(tasks, journal, n_rows, bar, session["n_jobs"], backend)
     if journal is not None:
         # one source of truth for fresh and resumed runs alike: the journal on disk
         table = _read_journal(journal, rewrite=False) if journal.exists() else done
@@ -218,6 +221,7 @@ def sweep(
         with atomic_write(out, "wb") as fh:
             table.to_parquet(fh, index=False)
         Path(journal).unlink(missing_ok=True)
+    table.attrs["notes"] = notes
     return table
 
 
@@ -240,8 +244,11 @@ def _check_arguments(proc, base_setup, estimators, sources, trials, digits, cove
     fmt = None
     if out is not None:
         fmt = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet"}.get(Path(out).suffix.lower())
+        problem = output_problem(out)
         if fmt is None:
             p.add("out", str(out), "a file name ending in .csv or .parquet")
+        elif problem:
+            p.add("out", str(out), f"a file that can be written ({problem})")
     p.raise_if_any()
     if sources is not None:
         proc.active_sources(base_setup, sources)  # validates the names
@@ -264,22 +271,34 @@ def _signature(proc, base_setup, truth, vary, estimators, sources, options, seed
     return json.loads(json.dumps(signature, default=str))
 
 
-def _run(tasks, journal, n_rows, bar, n_jobs, backend, scheduler) -> list:
-    """Evaluate the set-ups; each finished one is appended to the journal at once."""
+def _run(tasks, journal, n_rows, bar, n_jobs, backend) -> list:
+    """Evaluate the set-ups (inside a parallel session); each finished one is appended to
+    the journal at once."""
     import pandas as pd
 
     frames = []
-    with parallel_session(n_jobs, backend, scheduler) as session:
-        for rows in ordered_map(_run_setup, tasks, n_jobs=session["n_jobs"], backend=backend):
-            frame = pd.DataFrame(rows)
-            if journal is not None:
-                _append(journal, frame, n_rows)
-            frames.append(frame)
-            if bar is not None:
-                bar.update(1)
+    for rows in ordered_map(_run_setup, tasks, n_jobs=n_jobs, backend=backend):
+        frame = pd.DataFrame(rows)
+        if journal is not None:
+            _append(journal, frame, n_rows)
+        frames.append(frame)
+        if bar is not None:
+            bar.update(1)
     if bar is not None:
         bar.close()
     return frames
+
+
+def _check_memory(proc, setups, truth, estimators, sources, options, n_jobs) -> None:
+    """Refuse, before any set-up runs, a grid whose largest set-up would exceed memory."""
+    from mtplan.evaluation.simulation import check_memory
+
+    largest = max(setups, key=lambda s: sum(src.size for src in proc.sources(s).values()))
+    block = min(proc.block_size, max(options["trials"] or 0, 2)) if options["digits"] is None \
+        else proc.block_size
+    check_memory(proc, largest, truth, estimators[0],
+                 tuple(proc.active_sources(largest, sources)), block_size=block, n_jobs=n_jobs,
+                 trials=options["trials"])
 
 
 def _bar(progress, total, initial, label):
@@ -296,23 +315,36 @@ def _sidecar(out: Path) -> Path:
     return out.with_name(out.name + ".sweep.json")
 
 
-def _resume(out: Path, journal: Path, fmt: str, signature: dict):
+def _resume(out: Path, journal: Path, fmt: str, signature: dict, notes: list):
+    """The rows of an earlier run of this sweep; a new sweep writes its side file.
+
+    A side file whose output is gone (removed to start again) is replaced, with a note; an
+    output without a side file, or with one of another sweep, is refused.
+    """
     import pandas as pd
 
     side = _sidecar(out)
-    if side.exists():
-        recorded = json.loads(side.read_text())
+    outputs = out.exists() or journal.exists()
+    if side.exists() and outputs:
+        try:
+            recorded = json.loads(side.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            recorded = None
         if recorded != signature:
+            what = "is unreadable" if recorded is None else "differs from these arguments"
             raise InvalidInput(
                 [f"The output file {str(out)!r} belongs to a different sweep (its {side.name} "
-                 "differs from these arguments); remove it or choose another 'out' file."]
+                 f"{what}); remove it or choose another 'out' file."]
             )
-    elif out.exists() or journal.exists():
+    elif outputs:
         raise InvalidInput(
             [f"The output file {str(out)!r} exists but was not written by this sweep (no "
              f"{side.name} beside it); remove it or choose another 'out' file."]
         )
     else:
+        if side.exists():
+            notes.append(f"{side.name} was left from a sweep whose output {out.name} is gone: "
+                         "replaced, this is a new sweep")
         with atomic_write(side, "w", encoding="utf-8") as fh:
             json.dump(signature, fh, indent=1)
         return pd.DataFrame()

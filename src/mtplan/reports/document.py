@@ -1,448 +1,487 @@
-"""The report as a document model: sections of paragraphs, tables and figures.
+"""The report as a document model: a cover, a summary, a customer body and an appendix.
 
 :func:`build_document` turns a :class:`~mtplan.plans.study.StudyResult` into a
 :class:`Document`; the HTML and PDF renderers draw the same document, so the two
-carry the same content. Nothing here computes an uncertainty: values come from
-the result objects, rounded to their uncertainty (two significant digits of u).
+carry the same content in the same order:
+
+1. the cover: title, the study's header (customer, machine, place, date, ambient
+   temperature, document number), the standards applied per test and the sign-off;
+2. the summary: one row per test and measurand that matters, with the verdict;
+3. the conformity decisions: one sentence per toleranced measurand and a figure;
+4. methods, estimators and terms, each explained once;
+5. one page per test: its results table, one figure and what the simulation shows;
+6. the appendix (:mod:`mtplan.reports.appendix`): set-ups, all tables and sweeps,
+   budgets, identifiability, posterior diagnostics, provenance.
+
+Nothing here computes a result: numbers come from the result objects and the
+study's decisions (:mod:`mtplan.plans.decisions`), rounded to their uncertainty.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
-
-import numpy as np
-
 from mtplan.reports import figures as figs
+from mtplan.reports.labels import (
+    duration_text,
+    field_label,
+    field_value,
+    fmt,
+    fmt_u,
+    percent,
+    prior_text,
+    tolerance_text,
+    unit,
+)
+from mtplan.reports.model import Document, Figure, Section, Table
 
-__all__ = ["Document", "Section", "Table", "Figure", "build_document", "fmt"]
+__all__ = ["Document", "Section", "Table", "Figure", "build_document", "fmt", "fmt_u"]
 
-
-def fmt(value, u=None) -> str:
-    """`value` rounded to the resolution its uncertainty `u` supports."""
-    if value is None:
-        return "-"
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        return str(value)
-    if not math.isfinite(value):
-        return str(value)
-    if u is None or not (math.isfinite(u) and u > 0):
-        return f"{value:.4g}"
-    decimals = max(0, 1 - math.floor(math.log10(u)))
-    return f"{value:.{min(decimals, 9)}f}"
-
-
-def fmt_u(u) -> str:
-    """An uncertainty to two significant digits."""
-    if u is None or not math.isfinite(u):
-        return "-"
-    if u == 0:
-        return "0"
-    decimals = max(0, 1 - math.floor(math.log10(abs(u))))
-    return f"{u:.{min(decimals, 9)}f}"
+_HEADER_LABELS = {"document": "document number", "revision": "revision",
+                  "customer": "customer", "machine_maker": "machine maker",
+                  "machine_type": "machine type", "machine_serial": "serial number",
+                  "location": "location", "operator": "operator", "date": "date of the test",
+                  "ambient_temperature_c": "ambient temperature"}
+_SIGNOFF = (("prepared_by", "prepared"), ("checked_by", "checked"), ("approved_by", "approved"))
 
 
-@dataclass
-class Table:
-    caption: str
-    header: list
-    rows: list
+def _cover(result) -> tuple[dict, list, list]:
+    """(header label -> value, sign-off rows, standards per test) of the cover."""
+    study = result.study
+    meta = {}
+    for key, label in _HEADER_LABELS.items():
+        if key in study.header:
+            value = study.header[key]
+            meta[label] = f"{value:.1f} °C" if key == "ambient_temperature_c" else str(value)
+    signoff = [(role, study.header.get(key, "")) for key, role in _SIGNOFF]
+    standards = []
+    for o in result.outcomes:
+        applied = list(o.spec.standards) + ["JCGM 101:2008 (Monte Carlo)"]
+        if o.gum is not None:
+            applied.append("JCGM 100:2008 (GUM)")
+        if o.verdicts:
+            applied += ["ISO 14253-1:2017", "JCGM 106:2012"]
+        # a standard's name is not broken over two lines (no-break spaces)
+        standards.append((o.spec.label, ", ".join(a.replace(" ", "\u00a0") for a in applied)))
+    return meta, signoff, standards
 
 
-@dataclass
-class Figure:
-    caption: str
-    png: bytes
+def build_document(result) -> Document:
+    """The report of a computed study."""
+    from mtplan.reports import appendix
+
+    study = result.study
+    sections = [_summary_section(result), _conformity_section(result),
+                _methods_section(result)]
+    sections += [_test_section(k, o) for k, o in enumerate(result.outcomes, start=1)]
+    csv = {}
+    for k, o in enumerate(result.outcomes, start=1):
+        sec, frames = appendix.procedure_section(k, o)
+        sections.append(sec)
+        csv.update(frames)
+    sections.append(appendix.provenance_section(result.provenance))
+    csv.update(_verdict_frames(result))
+    meta, signoff, standards = _cover(result)
+    return Document(title=study.title, subtitle=study.meta.get("subtitle", ""), meta=meta,
+                    provenance=result.provenance, sections=sections, csv=csv,
+                    signoff=signoff, standards=standards)
 
 
-@dataclass
-class Section:
-    title: str
-    blocks: list = field(default_factory=list)
-    level: int = 1
-    anchor: str = ""
+def _verdict_frames(result) -> dict:
+    import dataclasses
+
+    import pandas as pd
+
+    rows = [dataclasses.asdict(r) for o in result.outcomes for r in o.summary]
+    for r in rows:
+        r["setup"] = "; ".join(f"{k}={v}" for k, v in r["setup"].items())
+    columns = ["procedure", "test", "measurand", "unit", "estimator", "lower", "upper", "u",
+               "k", "U", "rule", "guard_band", "acceptance_lower", "acceptance_upper", "tur",
+               "pfa", "pfr", "measured", "measured_u", "measured_low", "measured_high",
+               "measured_source", "p_conform", "verdict", "reason"]
+    verdicts = pd.DataFrame([v.row() for v in result.verdicts], columns=columns)
+    return {"verdicts": verdicts, "summary": pd.DataFrame(rows)}
 
 
-@dataclass
-class Document:
-    title: str
-    subtitle: str
-    meta: dict
-    provenance: dict
-    sections: list
-    csv: dict = field(default_factory=dict)  # name -> DataFrame for results/*.csv
+# ----------------------------------------------------------------------- summary
+def _setup_text(row) -> str:
+    shown = [field_value(f, v) for f, v in row.setup.items()]
+    return "; ".join(shown[:4] + (["..."] if len(shown) > 4 else [])) or "default set-up"
 
 
-def _setup_table(ps) -> Table:
+def _summary_section(result) -> Section:
+    """One row per test and measurand that matters: set-up, estimator, U, duration,
+    tolerance, TUR, measured value and verdict."""
+    rows, notes = [], []
+    for o in result.outcomes:
+        for j, r in enumerate(o.summary):
+            first = j == 0
+            measured = "-" if r.measured is None else fmt(r.measured, r.measured_u)
+            if r.verdict == "not determinable":
+                measured = "n/d"
+                notes.append(f"{r.label}, {r.measurand}: not determinable: {r.reason}.")
+            rows.append([f"{r.section}. {r.label}" if first else "",
+                         f"{r.measurand} [{unit(r.unit)}]",
+                         f"{_setup_text(r)}; {r.estimator}" if first else "",
+                         fmt_u(r.U), duration_text(r.duration_s) if first else "",
+                         tolerance_text(r.lower, r.upper),
+                         "-" if r.tur is None else f"{r.tur:.1f}", measured,
+                         r.verdict or "no tolerance"])
+    caption = ("Results of every test: the study's set-up (levers as tested) and the "
+               "recommended estimator; U: expanded uncertainty, k = 2, of the set-up's whole "
+               "error budget (Monte Carlo, JCGM 101); TUR: test uncertainty ratio, tolerance "
+               "width over 2U; measured: the value from the readings.")
+    blocks = [Table(caption, ["test", "measurand", "set-up and estimator", "U (k = 2)",
+                              "duration", "tolerance", "TUR", "measured", "verdict"], rows),
+              "Verdicts after ISO 14253-1 with the guard band w of each acceptance rule: a "
+              "measured value conforms inside the tolerance reduced by w, does not conform "
+              "outside the tolerance widened by w, and between the two no decision can be made "
+              "(inside the guard band). Section 'Conformity decisions' states each rule and its "
+              "risks; the test pages show the details."]
+    blocks += notes
+    return Section("Summary", blocks=blocks, anchor="summary")
+
+
+# ----------------------------------------------------------------------- conformity
+def _rule_text(v) -> str:
+    u = unit(v.unit)
+    w = fmt(v.guard_band, v.U / 10)
+    kind, _, value = v.rule.partition(":")
+    if kind == "simple" or not v.guard_band:
+        return "simple acceptance (no guard band, JCGM 106)"
+    if kind == "iso14253":
+        return f"the guard band w = U = {w} {u} (k = 2, ISO 14253-1)"
+    if kind == "guard":
+        return f"the guard band w = {float(value):g} U = {w} {u} (k = 2, JCGM 106)"
+    if kind == "target-pfa":
+        return (f"the guard band w = {w} {u} that keeps the global false accept at "
+                f"{percent(float(value))} (JCGM 106)")
+    return f"Dobbert's managed guard band w = {w} {u}"
+
+
+def _limits_text(v) -> tuple[str, str]:
+    """(accept-if, reject-if) phrases of a verdict's limits."""
+    u, w = unit(v.unit), v.guard_band
+    res = v.U / 10
+    a_lo, a_hi = v.acceptance_limits
+    if v.lower is not None and v.upper is not None:
+        if abs(a_lo + a_hi) < 1e-9 * max(abs(a_hi), 1):
+            return (f"within ±{fmt(a_hi, res)} {u}",
+                    f"beyond ±{fmt(v.upper + w, res)} {u}" if w else "")
+        return (f"within [{fmt(a_lo, res)}, {fmt(a_hi, res)}] {u}",
+                f"outside [{fmt(v.lower - w, res)}, {fmt(v.upper + w, res)}] {u}" if w else "")
+    if v.upper is not None:
+        return f"at most {fmt(a_hi, res)} {u}", f"above {fmt(v.upper + w, res)} {u}" if w else ""
+    return f"at least {fmt(a_lo, res)} {u}", f"below {fmt(v.lower - w, res)} {u}" if w else ""
+
+
+def decision_sentence(v) -> str:
+    """The acceptance rule of one toleranced measurand, applied to its measured value."""
+    u = unit(v.unit)
+    text = f"{v.measurand}: "
+    if v.acceptance_limits == (None, None) and v.verdict == "not determinable":
+        return text + f"no acceptance plan: {v.reason}."
+    accept, reject = _limits_text(v)
+    text += (f"accept if the measured value lies {accept} (tolerance "
+             f"{tolerance_text(v.lower, v.upper, v.unit)} reduced by {_rule_text(v)})")
+    text += f", reject if {reject}." if reject else "."
+    if v.pfa is not None:
+        text += (f" Global false accept {percent(v.pfa)}, false reject {percent(v.pfr)} for "
+                 f"items distributed {prior_text(v.prior, v.unit)}.")
+    if v.tur is not None:
+        text += f" TUR {v.tur:.1f}."
+    if v.measured is None:
+        return text + f" {v.verdict.upper()}" + (f": {v.reason}." if v.reason else ".")
+    res = v.measured_u
+    text += (f" Measured {fmt(v.measured, res)} {u} [{fmt(v.measured_low, res)}, "
+             f"{fmt(v.measured_high, res)}] ({v.measured_source}): {v.verdict.upper()}")
+    if v.p_conform is not None:
+        text += f"; probability that it conforms {percent(v.p_conform)}"
+    text += "."
+    if v.reason:
+        text += f" Note: {v.reason}."
+    return text
+
+
+def _conformity_section(result) -> Section:
+    verdicts = result.verdicts
+    sec = Section("Conformity decisions", anchor="conformity")
+    if not verdicts:
+        sec.blocks.append("The study states no tolerances: no conformity decision is made.")
+        return sec
+    sec.blocks.append("Each toleranced measurand with its decision rule (set before measuring, "
+                      "from the uncertainty U of the planned set-up, k = 2), its global risks "
+                      "for the stated population of items, and the rule applied to the measured "
+                      "value with its 95 % interval.")
+    for k, o in enumerate(result.outcomes, start=1):
+        if o.verdicts:
+            sec.blocks.append(f"{k}. {o.spec.label} ({o.verdicts[0].estimator} estimator):")
+            sec.blocks.append([decision_sentence(v) for v in o.verdicts])
+    sec.blocks.append(Figure("Measured values (dot, 95 % interval) against the tolerance "
+                             "(black lines), the guard bands (amber: no decision), the zones "
+                             "of conformity (green) and non-conformity (red), and the "
+                             "population of items (grey curve: the prior of the risks).",
+                             figs.acceptance_figure(verdicts)))
+    return sec
+
+
+# ----------------------------------------------------------------------- methods
+_TERMS = [
+    ["u", "standard uncertainty: the standard deviation of the estimate over the Monte Carlo "
+          "trials of every error source (JCGM 101)"],
+    ["U, k", "expanded uncertainty U = k u with coverage factor k = 2 (about 95 %)"],
+    ["interval", "95 % coverage interval: probabilistically symmetric for the simulation, "
+                 "the estimate less the simulated error quantiles for measured data"],
+    ["bias", "mean estimate minus the true value of the simulation"],
+    ["TUR", "test uncertainty ratio: tolerance width / (2U)"],
+    ["guard band w", "distance between a tolerance limit and its acceptance limit"],
+    ["false accept / reject", "global probabilities (JCGM 106 9.5) that an item of the stated "
+                              "population is accepted although it does not conform, or "
+                              "rejected although it conforms"],
+    ["probability that it conforms", "specific to the measured value (JCGM 106 7.4)"],
+    ["lever", "a set-up field the engineer chooses (counts, geometry, order, dwell); the "
+              "other fields are properties of the machine, workpiece or instrument"],
+]
+
+
+def _methods_section(result) -> Section:
+    from mtplan.models import get
+    from mtplan.reports.labels import estimator_text
+
+    rows = []
+    for o in result.outcomes:
+        proc = get(o.spec.name)
+        for j, est in enumerate(o.spec.estimators):
+            rows.append([o.spec.label if j == 0 else "", est,
+                         estimator_text(proc.estimators[est]),
+                         "recommended" if est == o.recommended else ""])
+    return Section("Methods, estimators and terms", anchor="methods", blocks=[
+        "Every test is simulated with its error sources (Monte Carlo, JCGM 101) to give the "
+        "uncertainty of its set-up; the estimators of a test are compared on the same "
+        "simulated readings. The recommended estimator has the smallest root-mean-square "
+        "error (uncertainty and bias) on the measurands that matter; the seed's method "
+        "(patent, three_point) is kept unless another is better beyond the Monte Carlo error.",
+        Table("Estimators", ["test", "estimator", "method", "use"], rows),
+        Table("Terms", ["term", "meaning"], _TERMS)])
+
+
+# ----------------------------------------------------------------------- one test
+def _results_table(o) -> Table:
+    r = o.results[o.recommended]
+    verdicts = {v.measurand: v for v in o.verdicts}
+    m_res = o.measured
+    header = ["measurand", "meaning", "U (k = 2)"]
+    if m_res is not None:
+        header += ["measured", "95 % interval"]
+    if verdicts:
+        header += ["tolerance", "verdict"]
+    rows = []
+    measured_index = ({m.name: i for i, m in enumerate(m_res.measurands)}
+                      if m_res is not None else {})
+    determinable = getattr(m_res, "determinable", None)
+    for i, m in enumerate(r.measurands):
+        big_u = 2 * float(r.mc.std[i])
+        row = [f"{m.name} [{unit(m.unit)}]", m.description,
+               fmt_u(big_u) if big_u > 0 else "n/d"]
+        if m_res is not None:
+            j = measured_index[m.name]
+            ok = determinable is None or bool(determinable[j])
+            uj = float(m_res.std[j]) if ok else None
+            row += ([fmt(m_res.value[j], uj),
+                     f"[{fmt(m_res.low[j], uj)}, {fmt(m_res.high[j], uj)}]"] if ok
+                    else ["n/d", "-"])
+        if verdicts:
+            v = verdicts.get(m.name)
+            row += ([tolerance_text(v.lower, v.upper), v.verdict] if v else ["-", ""])
+        rows.append(row)
+    how = (f"{r.mc.trials} Monte Carlo trials" if not r.mc.digits else
+           f"adaptive Monte Carlo, {r.mc.trials} trials")
+    return Table(f"Results with the {o.recommended} estimator: U of the study's set-up "
+                 f"({how}, every error source)"
+                 + ("; measured: from the readings" if m_res is not None else "") + ".",
+                 header, rows)
+
+
+def _setup_sentence(o) -> str:
     from mtplan.models import get
     from mtplan.models._protocol import fields_info
 
-    proc = get(ps.name)
+    proc = get(o.spec.name)
     docs = {f["name"]: f["doc"] for f in fields_info(proc.Setup)}
-    defaults = proc.Setup().as_dict()
-    rows = []
-    for k, v in ps.setup.as_dict().items():
-        shown = "axis default" if v is None else (", ".join(f"{x:g}" for x in v)
-                                                  if isinstance(v, list) else str(v))
-        mark = "" if v == defaults.get(k) else " *"
-        rows.append([k, shown + mark, docs.get(k, "")])
-    return Table("Set-up (* differs from the default)", ["field", "value", "meaning"], rows)
+    shown = ", ".join(f"{field_label(f, docs.get(f, '')).split(' [')[0]} {_value(v)}"
+                      f"{' ' + unit(_suffix(f)) if _suffix(f) else ''}"
+                      for f, v in o.setup_shown.items())
+    return shown or "the default set-up"
 
 
-def _uncertainty_table(outcome) -> Table:
-    rows = []
-    gum = outcome.gum
-    for est, r in outcome.results.items():
-        for i, m in enumerate(r.measurands):
-            u = float(r.mc.std[i])
-            u_gum = (float(gum.std[gum.index(m.name)])
-                     if gum is not None and est == outcome.spec.estimators[0] else None)
-            rows.append([est, m.name, m.unit, fmt(r.true[i], u), fmt(r.mc.mean[i], u),
-                         fmt(r.bias[i], u), fmt_u(u), fmt_u(u_gum) if u_gum is not None else "-",
-                         f"[{fmt(r.mc.low[i], u)}, {fmt(r.mc.high[i], u)}]"])
-    first = next(iter(outcome.results.values()))
-    trials = first.mc.trials
-    if first.mc.digits:
-        counts = sorted({r.mc.trials for r in outcome.results.values()})
-        how = (f"adaptive Monte Carlo to {first.mc.digits} significant digits "
-               f"({', '.join(str(c) for c in counts)} trials)")
-        stopped = [e for e, r in outcome.results.items() if not r.mc.converged]
-        if stopped:
-            how += f"; {', '.join(stopped)} stopped at the trial limit before all digits settled"
-    else:
-        how = f"{trials} Monte Carlo trials"
-    gum_note = ("; u GUM is the linearised prediction (law of propagation) for the first "
-                "estimator" if gum is not None else "")
-    header = ["estimator", "measurand", "unit", "true", "mean", "bias", "u", "u GUM", "interval"]
-    if gum is None:
-        header.remove("u GUM")
-        rows = [r[:7] + r[8:] for r in rows]
-    return Table(
-        f"Uncertainty: {how}; {100 * first.mc.coverage:g} % probabilistically symmetric coverage "
-        f"intervals; values rounded to two significant digits of u{gum_note}.", header, rows)
+def _value(v) -> str:
+    if isinstance(v, float):
+        return f"{v:g}"
+    if isinstance(v, list | tuple):
+        return ", ".join(_value(x) for x in v)
+    return str(v)
 
 
-def _budget_table(outcome) -> Table:
-    b = outcome.budget
-    rows = []
-    for out, g in b.groupby("output", sort=False):
-        g = g.sort_values("share", ascending=False)
-        top = [f"{r.input} {100 * r.share:.0f} %" for r in g.itertuples() if r.share >= 0.005]
-        rows.append([out, "; ".join(top[:4]) or "-"])
-    how = ("GUM law of propagation" if outcome.gum is not None else
-           f"Monte Carlo, each source alone, {outcome.spec.budget_trials} trials")
-    return Table(f"Budget: share of each error source in u^2 ({how}; "
-                 f"{outcome.spec.estimators[0]} estimator)",
-                 ["measurand", "largest error sources"], rows)
+def _suffix(name) -> str:
+    from mtplan.reports.labels import split_field
+
+    return split_field(name)[1]
 
 
-def _findings(outcome) -> list[str]:
-    """What the simulation shows that the seed's method hides: bias, spread, observability."""
+def _test_section(k, o) -> Section:
+    ps = o.spec
+    standards = ", ".join(ps.standards) or "no test standard named"
+    sec = Section(f"{k}. {ps.label}", anchor=f"p{k}")
+    sec.blocks.append(f"{o.title}. Standards: {standards}. Set-up: {_setup_sentence(o)}; "
+                      f"machine time {duration_text(o.duration_s)}. Estimator: "
+                      f"{o.recommended} (recommended of {', '.join(ps.estimators)}).")
+    if ps.notes:
+        sec.blocks.append(ps.notes)
+    sec.blocks.append(_results_table(o))
+    figure = _test_figure(o)
+    if figure is not None:
+        sec.blocks.append(figure)
+    sec.blocks.append(Section("What the simulation shows", level=2, blocks=[_findings(o)]))
+    return sec
+
+
+def _test_figure(o) -> Figure | None:
+    """The sweep of the lever that matters most, with the target u and the study's
+    set-up marked; without one, the measured values against their tolerances."""
+    from mtplan.models import get
+    from mtplan.models._protocol import fields_info
+
+    effect = o.levers[0] if o.levers else None
+    if effect is None:
+        if not o.verdicts:
+            return None
+        return Figure("Measured values against their tolerances (see 'Conformity decisions').",
+                      figs.acceptance_figure(o.verdicts))
+    spec, table = o.sweeps[effect.sweep]
+    docs = {f["name"]: f["doc"] for f in fields_info(get(o.spec.name).Setup)}
+    ok = table[table["error"].astype(str) == ""] if "error" in table else table
+    units = {m.name: m.unit for m in o.results[o.recommended].measurands}
+    label = field_label(effect.field, docs.get(effect.field, ""))
+    targets = {n: t for n, t in o.targets.items() if n in o.key}
+    what = sorted({t[1] for t in targets.values()})
+    return Figure(
+        f"Standard uncertainty against {label} ({int(ok['trials'].max())} Monte Carlo trials "
+        "per set-up; bars: Monte Carlo error of u); the star is the study's set-up"
+        + (f", the dashed line the {' or '.join(what)}" if what else "")
+        + "; u = 0 (an estimator constant over every trial, below its resolution) is not "
+        "drawn. Other levers and all measurands: appendix.",
+        figs.lever_figure(ok, effect.field, o.key[:4], units, estimator=effect.estimator,
+                          recommended=o.recommended, base=effect.base_value, targets=targets,
+                          xlabel=label))
+
+
+# ----------------------------------------------------------------------- findings
+def _source_words(name: str) -> str:
+    """An error source's name as the start of a sentence: ``axial_motion`` -> Axial motion."""
+    words = name.replace("_", " ")
+    return words[:1].upper() + words[1:]
+
+
+def _findings(o) -> list[str]:
+    """What the simulation shows, in sentences an engineer can act on."""
+    from mtplan.models import get
+    from mtplan.models._protocol import fields_info
+
+    docs = {f["name"]: f["doc"] for f in fields_info(get(o.spec.name).Setup)}
     notes = []
-    results = outcome.results
-    ests = list(results)
-    first = results[ests[0]]
-    for i, m in enumerate(first.measurands):
-        r = first
-        se = r.mc.std[i] / math.sqrt(r.mc.trials)
-        if abs(r.bias[i]) > 4 * se and abs(r.bias[i]) > 0.1 * r.mc.std[i]:
-            size = (f"{abs(r.bias[i]) / r.mc.std[i]:.1f} u" if r.mc.std[i] > 0 else
-                    "every trial gave the same value")  # e.g. a quantised estimate
-            notes.append(f"{ests[0]}: {m.name} is biased by {fmt(r.bias[i], r.mc.std[i])} {m.unit} "
-                         f"({size}), beyond its Monte Carlo error.")
-    for est in ests[1:]:
-        r = results[est]
-        for i, m in enumerate(r.measurands):
-            a, b = first.mc.std[i], r.mc.std[i]
-            if b > 0 and a / b > 1.2:
-                notes.append(f"{est} determines {m.name} {a / b:.1f} times better than "
-                             f"{ests[0]} (u {fmt_u(b)} against {fmt_u(a)} {m.unit}).")
-            elif a > 0 and b / a > 1.2:
-                notes.append(f"{ests[0]} determines {m.name} {b / a:.1f} times better than {est}.")
-    obs = outcome.extras.get("observability")
-    if obs:
-        for est, angles in obs.items():
-            if est not in results:
-                continue
-            for name, o in angles.items():
-                if not getattr(o, "observable", True):
-                    notes.append(f"{est}: {name} is not observable at this set-up: {o.reason}.")
-                elif getattr(o, "quantum_urad", 0) > 0:
-                    notes.append(f"{est}: {name} is quantised: {o.reason}.")
-                elif not getattr(o, "signed", True):
-                    notes.append(f"{est}: {name} has no sign: {o.reason}.")
-    for est, table in (outcome.extras.get("identifiability") or {}).items():
+    significant = [e for e in o.levers if e.significant and e.gain > 1.05]
+    for e in significant[:2]:
+        label = field_label(e.field, docs.get(e.field, "")).split(" [")[0]
+        u = unit(e.unit)
+        if e.u_base == e.u_base:  # the study's value was swept
+            notes.append(f"Lever: {label} {_value(e.best_value)} instead of "
+                         f"{_value(e.base_value)} lowers u({e.measurand}) from "
+                         f"{fmt_u(e.u_base)} to {fmt_u(e.u_best)} {u} ({e.gain:.1f} times); the "
+                         f"test takes {duration_text(e.duration_best_s)} instead of "
+                         f"{duration_text(e.duration_base_s)}.")
+        else:
+            notes.append(f"Lever: {label} {_value(e.best_value)} gives u({e.measurand}) = "
+                         f"{fmt_u(e.u_best)} {u}, {e.gain:.1f} times less than "
+                         f"{_value(e.ref_value)} (the study's {_value(e.base_value)} was not "
+                         "swept).")
+    if o.levers and not significant:
+        swept = ", ".join(field_label(e.field, docs.get(e.field, "")).split(" [")[0]
+                          for e in o.levers)
+        notes.append(f"No swept lever ({swept}) lowers the uncertainty of "
+                     f"{', '.join(o.key)} beyond the Monte Carlo error.")
+    for d in o.dominant[:2]:
+        shown = ", ".join(f"{n} {100 * s:.0f} %" for n, s in d["measurands"][:4])
+        more = (f" and {len(d['measurands']) - 4} more measurands"
+                if len(d["measurands"]) > 4 else "")
+        if d["lever"]:
+            notes.append(f"{_source_words(d['source'])} carries {shown}{more} of u²: the "
+                         "place to improve the set-up.")
+        else:
+            notes.append(f"{_source_words(d['source'])} dominates ({shown}{more} of u²): a "
+                         "property of the machine, workpiece or instrument, not a lever of "
+                         "the set-up.")
+    notes += _plan_finding(o)
+    notes += _estimator_findings(o)
+    notes += _hook_findings(o)
+    return notes or ["No significant bias; the estimators agree within their Monte Carlo "
+                     "error."]
+
+
+def _plan_finding(o) -> list[str]:
+    plan = o.plan
+    if plan is None:
+        return []
+    if isinstance(plan, str):
+        return [f"No set-up of the plan's grid meets the targets: {plan}"]
+    best = plan.best
+    changed = ", ".join(field_value(f, best["setup"][f]) for f in o.spec.plan.get("vary", {})
+                        if f in best["setup"])
+    targets = ", ".join(f"u({n}) ≤ {t:g}" for n, t in plan.targets.items())
+    return [f"Plan: {changed} meets the targets ({targets}, k = {plan.k:g}) in "
+            f"{duration_text(best['duration_s'])} of machine time (confirmed by Monte "
+            "Carlo; appendix)."]
+
+
+def _estimator_findings(o) -> list[str]:
+    notes = []
+    comp = o.comparison
+    n_all = len(next(iter(o.results.values())).measurands)
+    for better, worse, factors in comp.get("better", []):
+        if o.recommended not in (better, worse):
+            continue
+        name, top = max(factors, key=lambda t: t[1])
+        notes.append(f"{better} determines {len(factors)} of {n_all} measurands better than "
+                     f"{worse} (up to {top:.1f} times, {name}).")
+    biases = [b for b in comp.get("bias", []) if b[0] == o.recommended]
+    for est, name, b, s in biases[:3]:
+        u = unit(next(m.unit for m in o.results[est].measurands if m.name == name))
+        size = f"{abs(b) / s:.1f} u" if s > 0 else "every trial gave the same value"
+        notes.append(f"{est}: {name} is biased by {fmt(b, s)} {u} ({size}).")
+    if len(biases) > 3:
+        notes.append(f"{est}: {len(biases) - 3} more biased measurands (appendix).")
+    return notes
+
+
+def _hook_findings(o) -> list[str]:
+    """Observability and identifiability from the procedure's own analysis."""
+    notes = []
+    for est, angles in (o.extras.get("observability") or {}).items():
+        if est != o.recommended:
+            continue
+        for name, ob in angles.items():
+            if not getattr(ob, "observable", True):
+                notes.append(f"{est}: {name} is not observable at this set-up: {ob.reason}.")
+            elif getattr(ob, "quantum_urad", 0) > 0:
+                notes.append(f"{est}: {name} is quantised: {ob.reason}.")
+    for est, table in (o.extras.get("identifiability") or {}).items():
+        if est != o.recommended:
+            continue
         counts = table["status"].value_counts()
         bad = {k: int(v) for k, v in counts.items() if k != "identified"}
         if bad:
             notes.append(f"{est}: of the 21 error functions, {int(counts.get('identified', 0))} "
                          "are identified; " + ", ".join(f"{v} {k}" for k, v in bad.items())
-                         + " (see the identifiability table).")
-    ident = outcome.identifiability
+                         + " (appendix).")
+    ident = o.identifiability
     if ident is not None and ident.rank < ident.n_params:
-        notes.append(f"The readings determine only {ident.rank} of {ident.n_params} truth "
-                     "parameters: some combinations are unobservable (see the identifiability "
-                     "table).")
-    if not notes:
-        notes.append("No significant bias; the estimators agree within their Monte Carlo error.")
-    notes += _dominant_sources(outcome.budget)
+        notes.append(f"The readings determine only {ident.rank} of {ident.n_params} "
+                     "parameters: some combinations cannot be separated (appendix).")
     return notes
-
-
-def _dominant_sources(budget) -> list[str]:
-    """One sentence per error source that dominates (>= 50 %) some measurands' variance."""
-    if budget is None or not len(budget):
-        return []
-    top = budget.sort_values("share", ascending=False).groupby("output", sort=False).head(1)
-    top = top[top["share"] >= 0.5]
-    out = []
-    for source, group in top.groupby("input", sort=False):
-        shown = ", ".join(f"{r.output} {100 * r.share:.0f} %" for r in group.itertuples())
-        out.append(f"{source} is the largest error source of {shown} of u^2: the place to "
-                   "improve the set-up.")
-    return out
-
-
-def _identifiability_table(ident) -> Table | None:
-    if ident is None:
-        return None
-    rows = [["parameters", f"{ident.n_params} ({', '.join(ident.names)})"],
-            ["numerical rank", str(ident.rank)],
-            ["condition number (scaled)", f"{ident.condition_number:.3g}"]]
-    rows += [[key, f"{val:.4g}"] for key, val in ident.observability.items()]
-    if ident.null_combinations:
-        rows.append(["cannot be separated", "; ".join(ident.null_combinations)[:400]])
-    return Table("Identifiability of the truth parameters from the noise-free readings "
-                 "(column-scaled sensitivities; observability indices O1-O5)",
-                 ["quantity", "value"], rows)
-
-
-def _hook_tables(extras) -> list:
-    """Tables from a procedure's own identifiability/observability functions."""
-    out = []
-    ident = extras.get("identifiability")
-    if ident:
-        ests = list(ident)
-        first = ident[ests[0]]
-        rows = []
-        for name in first.index:
-            row = [name]
-            for est in ests:
-                r = ident[est].loc[name]
-                text = str(r["status"])
-                if r.get("confounded_with"):
-                    text += f" (with {r['confounded_with']})"
-                if r.get("first_order_bias", 0):
-                    text += f"; first-order bias up to {r['first_order_bias']:.2g}"
-                row.append(text)
-            rows.append(row)
-        out.append(Table("Identifiability of each error function, per estimator (identified, "
-                         "unidentifiable: confounded with the functions named; biased: the "
-                         "seed's stepwise estimate moves with the errors named, bias per "
-                         "typical error [um or urad])", ["function"] + ests, rows))
-    obs = extras.get("observability")
-    if obs:
-        rows = []
-        for est, angles in obs.items():
-            for name, o in angles.items():
-                rows.append([est, name, "yes" if o.observable else "no",
-                             "yes" if o.signed else "no",
-                             f"{o.quantum_urad:.3g}" if o.quantum_urad else "-",
-                             f"{o.floor_urad:.3g}" if o.floor_urad else "-", o.reason])
-        out.append(Table("Observability of each angle, per estimator (quantum: resolution of "
-                         "the estimate; floor: smallest magnitude distinguishable from 0) [urad]",
-                         ["estimator", "angle", "observable", "sign", "quantum", "floor",
-                          "why"], rows))
-    return out
-
-
-def build_document(result) -> Document:
-    """The report of a computed study."""
-    study = result.study
-    sections = []
-    csv = {}
-    for k, outcome in enumerate(result.outcomes, start=1):
-        ps = outcome.spec
-        sec = Section(f"{k}. {ps.label}", anchor=f"p{k}")
-        sec.blocks.append(f"Procedure: {outcome.title} ({ps.name}). Estimators: "
-                          f"{', '.join(ps.estimators)}.")
-        if ps.notes:
-            sec.blocks.append(ps.notes)
-        sec.blocks.append(_setup_table(ps))
-        sec.blocks.append(_uncertainty_table(outcome))
-        first = next(iter(outcome.results.values()))
-        sec.blocks.append(Figure(f"Monte Carlo distributions of the measurands ({ps.estimators[0]}); "
-                                 "black: true value, band: coverage interval.",
-                                 figs.histogram_figure(first)))
-        if len(outcome.results) > 1:
-            sec.blocks.append(Figure("Bias of each estimator with its +-2u bars, in units of the "
-                                     "first estimator's standard uncertainty u1 (the seed's "
-                                     "method first): a bar shorter than the first one's is a "
-                                     "better estimator.",
-                                     figs.estimator_figure(outcome.results)))
-        sec.blocks.append(_budget_table(outcome))
-        sec.blocks.append(Figure("Uncertainty budget by error source.",
-                                 figs.budget_figure(outcome.budget)))
-        csv[f"{ps.name}_{k}_uncertainty"] = _summary_frame(outcome)
-        csv[f"{ps.name}_{k}_budget"] = outcome.budget
-        units = {m.name: m.unit for m in first.measurands}
-        for j, (spec, table) in enumerate(outcome.sweeps, start=1):
-            vary = spec["vary"]
-            if isinstance(table, str):
-                sec.blocks.append(f"The sweep over {', '.join(vary)} could not be computed: "
-                                  f"{table}")
-                continue
-            errors = table["error"] if "error" in table else None
-            failed = (table[errors.notna() & (errors.astype(str) != "")]
-                      if errors is not None else table.iloc[:0])
-            ok = table.drop(failed.index)
-            if len(ok):
-                shown = list(units)
-                more = ""
-                if len(shown) > 12:  # keep the panels readable; the CSV has them all
-                    shown = shown[:10]
-                    more = (f" The first {len(shown)} of {len(units)} measurands; all are in "
-                            f"results/{ps.name}_{k}_sweep{j}.csv.")
-                sec.blocks.append(Figure(
-                    f"Standard uncertainty against {', '.join(vary)} (Monte Carlo, "
-                    f"{int(ok['trials'].max())} trials per set-up; bars: Monte Carlo error of u)."
-                    + more,
-                    figs.sweep_figure(ok, vary, shown, units)))
-            for (est, *values), group in failed.groupby(["estimator", *vary], sort=False):
-                shown = ", ".join(f"{f} = {v}" for f, v in zip(vary, values, strict=True))
-                sec.blocks.append(f"{est} cannot evaluate the set-up {shown}: "
-                                  f"{group['error'].iloc[0]}")
-            csv[f"{ps.name}_{k}_sweep{j}"] = table
-        if outcome.plan is not None:
-            sec.blocks += _plan_blocks(outcome.plan, ps.plan.get("vary", {}))
-            if not isinstance(outcome.plan, str):
-                csv[f"{ps.name}_{k}_plan"] = outcome.plan.table
-        if outcome.acceptance is not None:
-            sec.blocks.append(_acceptance_table(outcome.acceptance))
-        if outcome.measured is not None:
-            sec.blocks += _measured_blocks(outcome.measured)
-        t = _identifiability_table(outcome.identifiability)
-        if t is not None:
-            sec.blocks.append(t)
-        sec.blocks += _hook_tables(outcome.extras)
-        bands = outcome.extras.get("bands")
-        if bands is not None:
-            sec.blocks.append(Figure(bands["caption"], figs.bands_figure(bands["tables"])))
-        path = outcome.extras.get("path")
-        if path is not None:
-            sec.blocks.append(Figure(path.get("caption", "Planned path."), figs.path_figure(path)))
-        sec.blocks.append(Section("What the simulation shows", level=2,
-                                  blocks=[_findings(outcome)]))
-        sections.append(sec)
-    prov = result.provenance
-    rows = [["date", prov["date"]], ["study file", prov["study_file"]],
-            ["study SHA-256 (16 hex)", prov["study_sha256"]], ["seed", str(prov["seed"])],
-            ["Python", prov["python"]]]
-    rows += [[k, v] for k, v in prov["versions"].items()]
-    sections.append(Section("Provenance", anchor="provenance",
-                            blocks=[Table("Software, seeds and study", ["item", "value"], rows)]))
-    return Document(title=study.title, subtitle=study.meta.get("subtitle", ""), meta=study.meta,
-                    provenance=prov, sections=sections, csv=csv)
-
-
-def _summary_frame(outcome):
-    import pandas as pd
-
-    frames = []
-    for est, r in outcome.results.items():
-        df = r.summary().reset_index()
-        df.insert(0, "estimator", est)
-        frames.append(df)
-    return pd.concat(frames, ignore_index=True)
-
-
-def _plan_blocks(plan, vary) -> list:
-    if isinstance(plan, str):
-        return [Section("Plan", level=2, blocks=[f"No set-up meets the targets: {plan}"])]
-    best = plan.best
-    rows = [[n, f"<= {v:g}", fmt_u(best["predicted"][n]), fmt_u(best["confirmed"][n])]
-            for n, v in plan.targets.items()]
-    changed = [f"{f} = {best['setup'][f]}" for f in vary if f in best["setup"]]
-    blocks = [Section("Plan: the cheapest set-up meeting the targets", level=2, blocks=[
-        f"Recommended: {', '.join(changed) or 'the base set-up'}; duration "
-        f"{best['duration_s'] / 60:.1f} min (confirmed by Monte Carlo).",
-        Table(f"Targets (k = {plan.k:g}) against the linearised prediction and the Monte Carlo "
-              "confirmation", ["measurand", "target", "predicted", "Monte Carlo"], rows)])]
-    from mtplan.plans.planner import pareto_front
-
-    front = list(pareto_front(plan.table["duration_s"].to_numpy(), plan.table["worst"].to_numpy()))
-    blocks.append(Figure("Pareto front: duration against the worst ratio of predicted uncertainty "
-                         "to target; the star is the recommended set-up.",
-                         figs.pareto_figure(plan.table, front, best["candidate"])))
-    return blocks
-
-
-def _acceptance_table(acc: dict) -> Table:
-    limits = acc.get("acceptance_limits")
-    shown = ", ".join("-" if x is None else f"{x:.4g}" for x in limits) if limits else "-"
-
-    def p(x):
-        return "-" if x is None else f"{100 * float(x):.3g} %"
-
-    rows = [["measurand", f"{acc['measurand']} [{acc['unit']}]"],
-            ["tolerance", f"[{acc.get('lower', '-')}, {acc.get('upper', '-')}]"],
-            ["standard uncertainty u", fmt_u(acc["u"])],
-            ["process (prior)", str(acc.get("prior") or "-")],
-            ["decision rule", str(acc["rule"])],
-            ["acceptance limits", shown],
-            ["probability of false accept", p(acc.get("pfa"))],
-            ["probability of false reject", p(acc.get("pfr"))],
-            ["conditional false accept", p(acc.get("conditional_pfa"))],
-            ["TUR", "-" if acc.get("tur") is None else f"{acc['tur']:.3g}"],
-            ["Cm", "-" if acc.get("cm") is None else f"{acc['cm']:.3g}"]]
-    return Table("Acceptance plan (JCGM 106 / ISO 14253-1)", ["quantity", "value"], rows)
-
-
-def _measured_blocks(measured) -> list:
-    doc = measured.to_dict() if hasattr(measured, "to_dict") else dict(measured)
-    rows = []
-    for m in doc.get("measurands", []):
-        u = m.get("u", m.get("std"))  # MeasuredResult.to_dict: "u" (issue 13)
-        iv = m.get("interval") or [None, None]
-        rows.append([m["name"], m.get("unit", ""), fmt(m.get("estimate"), u),
-                     fmt(m.get("value", m.get("mean")), u), fmt_u(u),
-                     f"[{fmt(iv[0], u)}, {fmt(iv[1], u)}]"])
-    how = {"mc": "Monte Carlo of the set-up's error sources about the estimate",
-           "posterior": "Bayesian posterior of the forward model (emcee)"}.get(
-        doc.get("uncertainty", ""), doc.get("uncertainty", ""))
-    source = getattr(measured, "source", "")
-    text = [f"Readings{' from ' + source if source else ''}, {doc.get('estimator', '')} "
-            f"estimator; uncertainty: {how}."]
-    text += [str(n) for n in doc.get("notes", [])]
-    blocks = [Section("Measured data", level=2, blocks=text + [
-        Table("Measurands from the readings (estimate: the estimator's value; value: the "
-              "reported value, the posterior mean for a posterior)",
-              ["measurand", "unit", "estimate", "value", "u", "interval"], rows)])]
-    post = getattr(measured, "details", None)
-    if getattr(measured, "uncertainty", "") == "posterior" and post is not None:
-        names = [m.name for m in post.measurands]
-        samples = {f"{n} [{u}]": post.samples[n] for n, u in
-                   ((m.name, m.unit) for m in post.measurands)}
-        state = ("converged" if post.converged else "NOT CONVERGED: read with care")
-        blocks.append(Table(
-            f"Posterior diagnostics ({state}; {post.chains.shape[0]} ensembles of "
-            f"{post.n_walkers} walkers, {post.n_steps} steps, burn-in {post.discard}, thinned by "
-            f"{post.thin}); tau: integrated autocorrelation time [steps]; R-hat: split over "
-            "ensembles; ESS: effective sample size",
-            ["quantity", "mean", "u", "tau", "R-hat", "ESS"],
-            [[n, fmt(post.mean[n], post.std[n]), fmt_u(post.std[n]),
-              f"{post.tau.get(n, float('nan')):.3g}", f"{post.rhat[n]:.4f}", f"{post.ess[n]:.0f}"]
-             for n in names + list(post.parameters)]))
-        blocks.append(Figure("Posterior of the measurands: pairwise samples and marginal "
-                             "histograms (corner plot); lines: posterior mean.",
-                             figs.corner_figure(samples)))
-        blocks.append(Figure("Walker traces of the free parameters (every walker of the first "
-                             "ensemble; grey: discarded burn-in).",
-                             figs.trace_figure({p: post.trace(p)[0] for p in post.parameters},
-                                               discard=post.discard)))
-    return blocks
-
-
-_ = np

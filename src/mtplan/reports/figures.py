@@ -11,17 +11,32 @@ import math
 
 import numpy as np
 
-__all__ = ["bands_figure", "sweep_figure", "pareto_figure", "budget_figure", "histogram_figure",
-           "estimator_figure", "corner_figure", "trace_figure", "path_figure"]
+from mtplan.reports.labels import unit
+
+__all__ = ["bands_figure", "sweep_figure", "lever_figure", "acceptance_figure", "pareto_figure",
+           "budget_figure", "histogram_figure", "estimator_figure", "corner_figure",
+           "trace_figure", "path_figure"]
 
 _COLORS = ["#1f5fa8", "#d9622b", "#3a923a", "#b0306d", "#7a5cc2", "#8c6d31", "#2a9fa8"]
 
 
-def _figure(w=6.4, h=3.6):
+def _figure(w=6.4, h=3.6, *, layout="constrained", dpi=140):
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(w, h), dpi=140, layout="constrained")
-    return fig
+    return Figure(figsize=(w, h), dpi=dpi, layout=layout)
+
+
+def _panels(rows, cols, w, h, *, legend_rows=1, dpi=140):
+    """A grid of panels with fixed margins [in]: much faster than a constrained layout
+    for the many-panel sweeps, with room for a legend below."""
+    fig = _figure(w, h, layout=None, dpi=dpi)
+    left, right, top, bottom = 0.62, 0.12, 0.3, 0.55 + 0.2 * legend_rows  # margins [in]
+    gap_x, gap_y = 0.7, 0.75  # between panels [in]: y labels; x label and the next title
+    ax_w = (w - left - right - (cols - 1) * gap_x) / cols
+    ax_h = (h - top - bottom - (rows - 1) * gap_y) / rows
+    fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h,
+                        wspace=gap_x / ax_w, hspace=gap_y / ax_h)
+    return fig, fig.subplots(rows, cols, squeeze=False)
 
 
 def _max_n(n):
@@ -36,45 +51,214 @@ def _png(fig) -> bytes:
     return buf.getvalue()
 
 
-def sweep_figure(table, vary: dict, measurands: list, units: dict) -> bytes:
+_MARKERS = ["o", "s", "^", "D", "v", "P", "X"]
+_STYLES = ["-", "--", "-.", ":"]
+
+
+def _series(ax, x, y, err, j, n, label, *, span, strong=False):
+    """One curve of a sweep: offset sideways by its index (so that identical curves
+    stay visible), its own marker and line style, Monte Carlo error bars."""
+    dx = (j - (n - 1) / 2) * 0.015 * span if n > 1 else 0.0
+    y = np.where(np.asarray(y, dtype=float) > 0, y, np.nan)  # u = 0: below the resolution
+    ax.errorbar(np.asarray(x, dtype=float) + dx, y, yerr=err, marker=_MARKERS[j % 7],
+                ms=4.5 if strong else 4, lw=1.8 if strong else 1.0, capsize=2,
+                ls=_STYLES[j % 4] if not strong else "-", color=_COLORS[j % len(_COLORS)],
+                label=label, mfc="white" if j else None, zorder=2 if strong else 3 + j)
+
+
+def _y_from_zero(ax, values):
+    """Linear axes start at zero, so that Monte Carlo noise does not look like a trend;
+    a series over more than a factor 30 gets a log axis instead."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if v.size and np.all(v > 0) and v.max() / v.min() > 30:
+        ax.set_yscale("log")
+    else:
+        ax.set_ylim(bottom=0, top=max(ax.get_ylim()[1], 1e-12))
+
+
+def sweep_figure(table, vary: dict, measurands: list, units: dict, *, xlabel: str = "",
+                 base=None) -> bytes:
     """Standard uncertainty against the first swept field, one panel per measurand.
 
     Error bars are the Monte Carlo standard error of a standard deviation,
-    u / sqrt(2 (N - 1)). Other swept fields and estimators make the series.
+    u / sqrt(2 (N - 1)). Other swept fields and estimators make the series, each with
+    its own marker and a small sideways offset. ``base``: the study's value of the
+    field, marked by a dotted line.
     """
+    import textwrap
+
     fields = list(vary)
     x = fields[0]
     others = fields[1:]
     n = len(measurands)
-    cols = min(n, 3)
+    cols = 3 if n in (3, 5, 6, 9) else min(n, 4)
     rows = math.ceil(n / cols)
-    fig = _figure(3.0 * cols + 0.6, 2.4 * rows + 0.6)
-    axes = fig.subplots(rows, cols, squeeze=False)
     group_keys = others + (["estimator"] if table["estimator"].nunique() > 1 else [])
+    width = min(2.35 * cols + 0.3, 7.4)
+    fig, axes = _panels(rows, cols, width, 2.0 * rows + 0.75, dpi=120)
+    xlabel = "\n".join(textwrap.wrap(xlabel or x, int(16 * (width - 0.3) / cols)))
+    xs = table[x].astype(float)
+    span = float(xs.max() - xs.min()) or 1.0
     for k, name in enumerate(measurands):
         ax = axes[k // cols][k % cols]
         sub = table[table["measurand"] == name]
-        groups = [((), sub)] if not group_keys else list(sub.groupby(group_keys, sort=True))
+        groups = [((), sub)] if not group_keys else list(sub.groupby(group_keys, sort=False))
         for j, (key, g) in enumerate(groups[:7]):
             g = g.sort_values(x)
-            err = g["std"] / np.sqrt(2 * (g["trials"] - 1))
             key = key if isinstance(key, tuple) else (key,)
-            label = ", ".join(f"{f}={v}" for f, v in zip(group_keys, key, strict=False)) or None
-            ax.errorbar(g[x], g["std"], yerr=err, marker="o", ms=3, lw=1.2, capsize=2,
-                        color=_COLORS[j % len(_COLORS)], label=label)
+            label = ", ".join(str(v) if f == "estimator" else f"{f} = {v}"
+                              for f, v in zip(group_keys, key, strict=False)) or None
+            _series(ax, g[x], g["std"], g["std"] / np.sqrt(2 * (g["trials"] - 1)), j,
+                    min(len(groups), 7), label, span=span)
+        if base is not None:
+            ax.axvline(float(base), color="#555555", lw=0.8, ls=":")
         ax.set_title(name, fontsize=9)
-        ax.set_xlabel(x, fontsize=8)
-        ax.set_ylabel(f"u [{units[name]}]", fontsize=8)
+        ax.set_xlabel(xlabel, fontsize=7.5)
+        ax.set_ylabel(f"u [{unit(units[name])}]", fontsize=8)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
-        if np.all(sub["std"] > 0) and sub["std"].max() / max(sub["std"].min(), 1e-300) > 30:
-            ax.set_yscale("log")
+        _y_from_zero(ax, sub["std"])
     for k in range(n, rows * cols):
         axes[k // cols][k % cols].set_visible(False)
     handles, labels = axes[0][0].get_legend_handles_labels()
+    if base is not None:
+        from matplotlib.lines import Line2D
+
+        handles.append(Line2D([], [], color="#555555", lw=0.8, ls=":"))
+        labels.append("study set-up")
     if labels:
-        fig.legend(handles, labels, fontsize=7, loc="outside lower center",
-                   ncol=min(len(labels), 4))
+        fig.legend(handles, labels, fontsize=7, loc="lower center", ncol=min(len(labels), 4),
+                   frameon=False)
+    return _png(fig)
+
+
+def lever_figure(table, field: str, measurands: list, units: dict, *, estimator: str,
+                 recommended: str, base, targets: dict, xlabel: str) -> bytes:
+    """The customer's sweep: u against one lever for the measurands that matter,
+    ``estimator`` drawn strong (the recommended one where the sweep ran it), the other
+    estimators hollow and offset, the
+    study's set-up starred and the target u (``targets``: measurand -> (u, what)) as a
+    dashed line. The y axis starts at zero and ends above the recommended estimator and
+    the target; an estimator beyond it is marked "off scale" in the legend."""
+    from matplotlib.lines import Line2D
+
+    import textwrap
+
+    n = len(measurands)
+    cols = min(n, 4)
+    rows = math.ceil(n / cols)
+    width = 7.0 if cols > 2 else 2.8 * cols + 1.0
+    fig = _figure(width, 1.9 * rows + 0.6)
+    xlabel = "\n".join(textwrap.wrap(xlabel, int(16 * width / cols)))
+    axes = fig.subplots(rows, cols, squeeze=False)
+    ests = [estimator] + [e for e in table["estimator"].unique() if e != estimator]
+    xs = table[field].astype(float)
+    span = float(xs.max() - xs.min()) or 1.0
+    off_scale = set()
+    for k, name in enumerate(measurands):
+        ax = axes[k // cols][k % cols]
+        sub = table[table["measurand"] == name]
+        mine = sub[sub["estimator"] == estimator]
+        top = 1.25 * max([float(mine["std"].max()) if len(mine) else 0.0]
+                         + ([targets[name][0]] if name in targets else []))
+        for j, est in enumerate(ests):
+            g = sub[sub["estimator"] == est].sort_values(field)
+            if not len(g):
+                continue
+            if est != estimator and float(g["std"].max()) > top:
+                off_scale.add(est)
+            _series(ax, g[field], g["std"], g["std"] / np.sqrt(2 * (g["trials"] - 1)), j,
+                    len(ests), est, span=2.0 * span, strong=est == estimator)
+            at = g[np.isclose(g[field].astype(float), float(base))]
+            if est == estimator and len(at):
+                ax.plot([float(base)], [float(at["std"].iloc[0])], "*", ms=12, color="#222222",
+                        zorder=6)
+        if name in targets:
+            ax.axhline(targets[name][0], color="#b3261e", lw=1.0, ls="--")
+        ax.set_title(name, fontsize=9)
+        ax.set_xlabel(xlabel, fontsize=7.5)
+        ax.set_ylabel(f"u [{unit(units[name])}]", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+        ax.set_ylim(0, top if top > 0 else 1.0)
+    for k in range(n, rows * cols):
+        axes[k // cols][k % cols].set_visible(False)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    labels = [f"{x} (recommended)" if x == recommended else
+              f"{x} (off scale)" if x in off_scale else x for x in labels]
+    handles.append(Line2D([], [], marker="*", ms=10, ls="", color="#222222"))
+    labels.append("study set-up")
+    shown = {what for name, (_, what) in targets.items() if name in measurands}
+    if shown:
+        handles.append(Line2D([], [], color="#b3261e", lw=1.0, ls="--"))
+        labels.append(" / ".join(sorted(shown)))
+    fig.legend(handles, labels, fontsize=7, loc="outside lower center",
+               ncol=min(len(labels), 4), frameon=False)
+    return _png(fig)
+
+
+def acceptance_figure(verdicts: list) -> bytes:
+    """One panel per toleranced measurand: the tolerance (black lines), the conformance
+    zone (green), the guard bands (amber), the non-conformance zone (red), the population
+    of items (prior, grey curve) and the measured value with its coverage interval."""
+    n = len(verdicts)
+    cols = min(n, 3)
+    rows = math.ceil(n / cols)
+    fig = _figure(2.45 * cols + 0.2, 1.3 * rows + 0.55)
+    axes = fig.subplots(rows, cols, squeeze=False)
+    zone = {"conforms": "#2e7d32", "does not conform": "#b3261e"}
+    for k, v in enumerate(verdicts):
+        ax = axes[k // cols][k % cols]
+        lo = v.lower if v.lower is not None else None
+        hi = v.upper if v.upper is not None else None
+        w = v.guard_band if math.isfinite(v.guard_band) else 0.0
+        points = [x for x in (lo, hi, v.measured_low, v.measured_high, v.measured)
+                  if x is not None and math.isfinite(x)]
+        width = (hi - lo) if lo is not None and hi is not None else max(abs(p) for p in points)
+        left = min(points + [(lo if lo is not None else min(points)) - w]) - 0.25 * width
+        right = max(points + [(hi if hi is not None else max(points)) + w]) + 0.25 * width
+        a_lo = lo + w if lo is not None else left
+        a_hi = hi - w if hi is not None else right
+        if lo is not None:
+            ax.axvspan(left, lo - w, color="#b3261e", alpha=0.14, lw=0)
+        if hi is not None:
+            ax.axvspan(hi + w, right, color="#b3261e", alpha=0.14, lw=0)
+        for t in (lo, hi):
+            if t is not None:
+                ax.axvspan(t - w, t + w, color="#f0a500", alpha=0.35, lw=0)
+                ax.axvline(t, color="k", lw=1.1)
+        if a_hi > a_lo:
+            ax.axvspan(a_lo, a_hi, color="#2e7d32", alpha=0.16, lw=0)
+        if v.prior is not None:
+            grid = np.linspace(left, right, 400)
+            pdf = np.asarray(v.prior.pdf(grid), dtype=float)
+            if np.all(np.isfinite(pdf)) and pdf.max() > 0:
+                ax.plot(grid, 0.9 * pdf / pdf.max(), color="#555555", lw=1.0)
+        if v.measured is not None:
+            color = zone.get(v.verdict, "#8a5a00")
+            err = [[v.measured - v.measured_low], [v.measured_high - v.measured]]
+            ax.errorbar([v.measured], [0.45], xerr=err, fmt="o", ms=6, color=color, capsize=4,
+                        lw=1.6, zorder=5)
+        ax.set_xlim(left, right)
+        ax.set_ylim(0, 1.0)
+        ax.set_yticks([])
+        ax.tick_params(labelsize=7)
+        ax.set_title(f"{v.measurand}: {v.verdict}", fontsize=7.5, loc="left")
+        ax.set_xlabel(f"{v.measurand} [{unit(v.unit)}]", fontsize=7)
+        ax.xaxis.set_major_locator(_max_n(5))
+    for k in range(n, rows * cols):
+        axes[k // cols][k % cols].set_visible(False)
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles = [Patch(color="#2e7d32", alpha=0.3), Patch(color="#f0a500", alpha=0.5),
+               Patch(color="#b3261e", alpha=0.2), Line2D([], [], color="k", lw=1.1),
+               Line2D([], [], color="#555555", lw=1.0),
+               Line2D([], [], marker="o", color="#444444", lw=1.6)]
+    labels = ["conforms", "guard band: no decision", "does not conform", "tolerance",
+              "population (prior)", "measured, 95 % interval"]
+    fig.legend(handles, labels, fontsize=7, loc="outside lower center", ncol=3, frameon=False)
     return _png(fig)
 
 
@@ -120,29 +304,31 @@ def budget_figure(budget) -> bytes:
     return _png(fig)
 
 
-def histogram_figure(result) -> bytes:
-    """Monte Carlo distribution of each measurand, with true value and interval."""
-    ms = result.measurands
-    cols = min(len(ms), 4)
-    rows = math.ceil(len(ms) / cols)
-    fig = _figure(2.4 * cols + 0.4, 2.0 * rows + 0.4)
-    axes = fig.subplots(rows, cols, squeeze=False)
-    for i, m in enumerate(ms):
-        ax = axes[i // cols][i % cols]
+def histogram_figure(result, names: list | None = None) -> bytes:
+    """Monte Carlo distribution of the measurands ``names`` (default: all), with true
+    value and coverage interval."""
+    index = {m.name: i for i, m in enumerate(result.measurands)}
+    chosen = [index[n] for n in (names or list(index))]
+    cols = min(len(chosen), 4)
+    rows = math.ceil(len(chosen) / cols)
+    fig, axes = _panels(rows, cols, 1.75 * cols + 0.5, 1.45 * rows + 0.65, dpi=120)
+    for k, i in enumerate(chosen):
+        m = result.measurands[i]
+        ax = axes[k // cols][k % cols]
         values = result.mc.samples(m.name)
         if values is not None:
-            ax.hist(values, bins=60, color=_COLORS[0], alpha=0.75)
+            ax.hist(values, bins=50, color=_COLORS[0], alpha=0.75)
         ax.axvline(result.true[i], color="k", lw=1, label="true")
         ax.axvspan(result.mc.low[i], result.mc.high[i], color=_COLORS[1], alpha=0.15,
                    label="coverage interval")
-        ax.set_title(f"{m.name} [{m.unit}]", fontsize=8)
+        ax.set_title(f"{m.name} [{unit(m.unit)}]", fontsize=8)
         ax.tick_params(labelsize=6)
         ax.set_yticks([])
         ax.xaxis.set_major_locator(_max_n(4))
-    for k in range(len(ms), rows * cols):
+    for k in range(len(chosen), rows * cols):
         axes[k // cols][k % cols].set_visible(False)
     handles, labels = axes[0][0].get_legend_handles_labels()
-    fig.legend(handles, labels, fontsize=7, loc="outside lower center", ncol=2, frameon=False)
+    fig.legend(handles, labels, fontsize=7, loc="lower center", ncol=2, frameon=False)
     return _png(fig)
 
 
@@ -259,18 +445,18 @@ def bands_figure(tables: dict) -> bytes:
     for r, est in enumerate(ests):
         t = tables[est]
         t = t[np.isfinite(t["std"]) & (t["status"] == "identified")]
-        for c, unit in enumerate(("um", "urad")):
+        for c, kind in enumerate(("um", "urad")):
             ax = axes[r][c]
-            sub = t[t["unit"] == unit]
+            sub = t[t["unit"] == kind]
             for j, (name, g) in enumerate(sub.groupby("function", sort=False)):
                 if g["position_mm"].nunique() < 2:
                     continue  # a constant (squareness)
                 ax.plot(g["position_mm"], g["std"], lw=1.3, color=_COLORS[j % len(_COLORS)],
                         ls="-" if j < len(_COLORS) else "--", label=name)
-            ax.set_title(f"{est}: {'positioning and straightness' if unit == 'um' else 'angular'}",
+            ax.set_title(f"{est}: {'positioning and straightness' if kind == 'um' else 'angular'}",
                          fontsize=8)
             ax.set_xlabel("position along the axis [mm]", fontsize=7)
-            ax.set_ylabel(f"u [{unit}]", fontsize=7)
+            ax.set_ylabel(f"u [{unit(kind)}]", fontsize=7)
             ax.tick_params(labelsize=6)
             ax.grid(alpha=0.3)
             if r == 0:

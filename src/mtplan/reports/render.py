@@ -1,18 +1,33 @@
-"""Renderers of the document model: HTML (jinja2) and PDF (reportlab platypus)."""
+"""Renderers of the document model: HTML (jinja2) and PDF (reportlab platypus).
+
+The PDF embeds its fonts (the DejaVu TrueType family that matplotlib ships), has a
+bookmark per section, never breaks a word inside a table header (columns are at
+least as wide as their header's longest word) and right-aligns numeric columns.
+"""
 
 from __future__ import annotations
 
 import base64
 import io
 from pathlib import Path
+from xml.sax.saxutils import escape
 
-from mtplan._io import atomic_write
-from mtplan.reports.document import Document, Figure, Section, Table, build_document
+from mtplan._io import atomic_write, output_problem
+from mtplan._validate import InvalidInput
+from mtplan.reports.document import build_document
+from mtplan.reports.model import Document, Figure, Section, Table
 
-__all__ = ["render_html", "render_pdf", "write_report"]
+__all__ = ["render_html", "render_pdf", "write_report", "column_widths", "VERDICT_CLASS"]
 
-_NUMERIC = __import__("re").compile(r"^[\[(]?[-+]?(\d|\.\d)[\d.,eE+\- ]*[\])%]?( %)?$")
 _DPI = 140  # the figures' dpi (figures._figure)
+_FONT = "DejaVuSans"
+_SIZE = 7.5  # table text [pt]
+_PAD = 3.0   # table cell padding, each side [pt]
+#: verdict -> the class (HTML) and colour (PDF) it is shown in
+VERDICT_CLASS = {"conforms": "ok", "does not conform": "bad",
+                 "inside the guard band: no decision": "warn", "not determinable": "nd",
+                 "not measured": "nd"}
+_VERDICT_COLOUR = {"ok": "#1b5e20", "bad": "#b3261e", "warn": "#8a5a00", "nd": "#555555"}
 
 
 def render_html(doc: Document) -> str:
@@ -25,143 +40,299 @@ def render_html(doc: Document) -> str:
         undefined=jinja2.StrictUndefined,
     )
     env.filters["b64"] = lambda data: base64.b64encode(data).decode("ascii")
+    env.globals["verdict_class"] = VERDICT_CLASS
     return env.get_template("report.html.j2").render(doc=doc)
 
 
-def render_pdf(doc: Document) -> bytes:
-    """The report as a PDF: title page, contents, sections, tables, captioned figures."""
+# ----------------------------------------------------------------------- PDF: fonts, styles
+def _register_fonts() -> str:
+    """Register the DejaVu Sans family with reportlab once; returns its name."""
+    from reportlab.lib.fonts import addMapping
+    from reportlab.pdfbase import pdfmetrics
+    from reportlab.pdfbase.ttfonts import TTFont
+
+    if _FONT in pdfmetrics.getRegisteredFontNames():
+        return _FONT
+    import matplotlib
+
+    folder = Path(matplotlib.get_data_path()) / "fonts" / "ttf"
+    faces = {"": "DejaVuSans.ttf", "-Bold": "DejaVuSans-Bold.ttf",
+             "-Oblique": "DejaVuSans-Oblique.ttf", "-BoldOblique": "DejaVuSans-BoldOblique.ttf"}
+    for suffix, file in faces.items():
+        pdfmetrics.registerFont(TTFont(_FONT + suffix, str(folder / file)))
+    for bold, italic, suffix in ((0, 0, ""), (1, 0, "-Bold"), (0, 1, "-Oblique"),
+                                 (1, 1, "-BoldOblique")):
+        addMapping(_FONT, bold, italic, _FONT + suffix)
+    return _FONT
+
+
+def _styles() -> dict:
     from reportlab.lib import colors
-    from reportlab.lib.pagesizes import A4
-    from reportlab.lib.styles import ParagraphStyle, getSampleStyleSheet
-    from reportlab.lib.units import cm
-    from reportlab.platypus import (
-        Image,
-        ListFlowable,
-        ListItem,
-        KeepTogether,
-        PageBreak,
-        Paragraph,
-        SimpleDocTemplate,
-        Spacer,
-    )
+    from reportlab.lib.styles import ParagraphStyle
+
+    f = _register_fonts()
+    blue, grey = colors.HexColor("#1f5fa8"), colors.HexColor("#444444")
+    body = ParagraphStyle("Body", fontName=f, fontSize=9.5, leading=12.5, spaceAfter=5)
+    small = ParagraphStyle("Small", parent=body, fontSize=_SIZE, leading=9.2, spaceAfter=0)
+    return {
+        "title": ParagraphStyle("Title", fontName=f + "-Bold", fontSize=22, leading=28,
+                                textColor=blue, spaceAfter=8),
+        "subtitle": ParagraphStyle("Subtitle", parent=body, fontSize=11.5, leading=15,
+                                   textColor=grey, spaceAfter=14),
+        "h1": ParagraphStyle("H1", fontName=f + "-Bold", fontSize=15, leading=19,
+                             textColor=blue, spaceBefore=2, spaceAfter=8, keepWithNext=1),
+        "h2": ParagraphStyle("H2", fontName=f + "-Bold", fontSize=11.5, leading=15,
+                             textColor=colors.HexColor("#333333"), spaceBefore=8,
+                             spaceAfter=4, keepWithNext=1),
+        "toc_head": ParagraphStyle("TOCHead", fontName=f + "-Bold", fontSize=15, leading=19,
+                                   textColor=blue, spaceAfter=8),
+        "body": body,
+        "item": ParagraphStyle("Item", parent=body, fontSize=8.8, leading=11.2, spaceAfter=2),
+        "small": small,
+        "head": ParagraphStyle("Head", parent=small, fontName=f + "-Bold", splitLongWords=0),
+        "num": ParagraphStyle("Num", parent=small, alignment=2),
+        "head_num": ParagraphStyle("HeadNum", parent=small, fontName=f + "-Bold",
+                                   splitLongWords=0, alignment=2),
+        "caption": ParagraphStyle("Caption", parent=body, fontName=f + "-Oblique",
+                                  fontSize=8, leading=10, textColor=grey, spaceAfter=2),
+        "toc": [ParagraphStyle("TOC1", fontName=f, fontSize=10, leading=14, leftIndent=10),
+                ParagraphStyle("TOC2", fontName=f, fontSize=8.5, leading=11, leftIndent=26)],
+    }
+
+
+# ----------------------------------------------------------------------- PDF: tables
+def column_widths(t: Table, width: float, size: float = _SIZE) -> list:
+    """Column widths [pt] for a table ``width`` wide at font ``size`` [pt]: never narrower
+    than the header's longest word (so no header word is broken) nor than the longest word
+    of the cells (up to 80 pt, or 70 % of the width in a two-column table: paths and
+    digests stay whole there), nor, for numeric columns, than their widest number; the
+    rest of the width shared by how much text each column holds. The widths may add up to
+    more than ``width`` when the words do not fit (see :func:`_table_size`)."""
+    least, want = _column_needs(t, size, 0.7 * width if len(t.header) <= 2 else 80.0)
+    spare = width - sum(least)
+    if spare <= 0:
+        return least
+    extra = [w - lo for w, lo in zip(want, least, strict=True)]
+    if sum(extra) <= spare:  # everything fits on one line: share the rest by text
+        return [w + (width - sum(want)) * w / sum(want) for w in want]
+    return [lo + spare * e / sum(extra) for lo, e in zip(least, extra, strict=True)]
+
+
+def _column_needs(t: Table, size: float, cap: float) -> tuple[list, list]:
+    """(least, wanted) width of each column [pt]."""
+    from reportlab.pdfbase.pdfmetrics import stringWidth
+
+    f = _register_fonts()
+    pad = 2 * _PAD + 1
+    least, want = [], []
+    for j, (head, numeric) in enumerate(zip(t.header, t.numeric, strict=True)):
+        words = str(head).split() or [""]
+        w_head = max(stringWidth(w, f + "-Bold", size) for w in words)
+        if len(str(head)) <= 10:  # short headers stay on one line
+            w_head = stringWidth(str(head), f + "-Bold", size)
+        cells = [str(r[j]) for r in t.rows]
+        w_cells = [stringWidth(c, f, size) for c in cells] or [0.0]
+        w_word = max([min(stringWidth(w, f + "-Bold", size), cap)
+                      for c in cells for w in c.split()] or [0.0])
+        low = max(w_head, w_word) + pad
+        if numeric:
+            low = max(low, max(w_cells) + pad)
+        least.append(low)
+        want.append(max(low, min(max(w_cells), 330.0) + pad))
+    return least, want
+
+
+def _table_size(t: Table, width: float) -> float:
+    """The table's font size [pt]: 7.5, or smaller (down to 5.5) until its words fit."""
+    cap = 0.7 * width if len(t.header) <= 2 else 80.0
+    for size in (_SIZE, 7.0, 6.5, 6.0, 5.5):
+        if sum(_column_needs(t, size, cap)[0]) <= width:
+            return size
+    return 5.5
+
+
+def _cell(text, style):
+    from reportlab.platypus import Paragraph
+
+    cls = VERDICT_CLASS.get(str(text))
+    shown = escape(str(text))
+    if cls:
+        shown = f'<font color="{_VERDICT_COLOUR[cls]}"><b>{shown}</b></font>'
+    return Paragraph(shown, style)
+
+
+def _table_flowables(t: Table, width: float, st: dict, row_height: float | None = None) -> list:
+    from reportlab.lib import colors
+    from reportlab.lib.styles import ParagraphStyle
+    from reportlab.platypus import KeepTogether, Paragraph, Spacer
     from reportlab.platypus import Table as RLTable
     from reportlab.platypus import TableStyle
-    from reportlab.platypus.tableofcontents import TableOfContents
-    from xml.sax.saxutils import escape
 
-    styles = getSampleStyleSheet()
-    h1 = ParagraphStyle("H1", parent=styles["Heading1"], textColor=colors.HexColor("#1f5fa8"))
-    h2 = ParagraphStyle("H2", parent=styles["Heading2"], textColor=colors.HexColor("#333333"))
-    body = styles["BodyText"]
-    small = ParagraphStyle("Small", parent=body, fontSize=7.5, leading=9)
-    caption = ParagraphStyle("Caption", parent=body, fontSize=8, leading=10,
-                             textColor=colors.HexColor("#444444"), fontName="Helvetica-Oblique")
+    numeric = t.numeric
+    size = _table_size(t, width)
+    sized = {k: ParagraphStyle(f"{st[k].name}{size}", parent=st[k], fontSize=size,
+                               leading=size * 1.23) for k in ("head", "head_num", "num", "small")}
+    data = [[Paragraph(f"{escape(str(h))}", sized["head_num"] if numeric[j] else sized["head"])
+             for j, h in enumerate(t.header)]]
+    data += [[_cell(c, sized["num"] if numeric[j] else sized["small"]) for j, c in enumerate(row)]
+             for row in t.rows]
+    heights = None if row_height is None else [None] + [row_height] * len(t.rows)
+    tbl = RLTable(data, repeatRows=1, colWidths=column_widths(t, width, size), hAlign="LEFT",
+                  rowHeights=heights)
+    tbl.setStyle(TableStyle([
+        ("FONT", (0, 0), (-1, -1), _FONT, size),
+        ("GRID", (0, 0), (-1, -1), 0.3, colors.HexColor("#cfd6e3")),
+        ("BACKGROUND", (0, 0), (-1, 0), colors.HexColor("#eef2f8")),
+        ("ROWBACKGROUNDS", (0, 1), (-1, -1), [colors.white, colors.HexColor("#f8f9fc")]),
+        ("VALIGN", (0, 0), (-1, -1), "TOP"),
+        ("LEFTPADDING", (0, 0), (-1, -1), _PAD), ("RIGHTPADDING", (0, 0), (-1, -1), _PAD),
+        ("TOPPADDING", (0, 0), (-1, -1), 1.5), ("BOTTOMPADDING", (0, 0), (-1, -1), 1.5),
+    ]))
+    head = [Paragraph(escape(t.caption), st["caption"]), tbl]
+    if len(t.rows) <= 8:  # a short table is not split from its caption or over two pages
+        return [KeepTogether(head), Spacer(1, 8)]
+    return head + [Spacer(1, 8)]
+
+
+def _figure_flowables(f: Figure, width: float, st: dict) -> list:
+    from reportlab.lib.units import cm
+    from reportlab.lib.utils import ImageReader
+    from reportlab.platypus import Image, KeepTogether, Paragraph, Spacer
+
+    w, h = ImageReader(io.BytesIO(f.png)).getSize()
+    natural = 72.0 / _DPI  # points per pixel at the figure's own size
+    scale = min(natural * 1.05, width / w, 16.5 * cm / h)
+    img = Image(io.BytesIO(f.png), width=w * scale, height=h * scale)
+    return [KeepTogether([img, Paragraph(escape(f.caption), st["caption"]), Spacer(1, 8)])]
+
+
+def _block_flowables(items, width: float, st: dict) -> list:
+    from reportlab.platypus import KeepTogether, ListFlowable, ListItem, Paragraph
+
+    out = []
+    for b in items:
+        if isinstance(b, str):
+            out.append(Paragraph(escape(b), st["body"]))
+        elif isinstance(b, list):
+            out.append(ListFlowable([ListItem(Paragraph(escape(str(x)), st["item"]),
+                                              leftIndent=12) for x in b],
+                                    bulletType="bullet", start="\u2022", leftIndent=12,
+                                    bulletFontName=_FONT))
+        elif isinstance(b, Table):
+            out += _table_flowables(b, width, st)
+        elif isinstance(b, Figure):
+            out += _figure_flowables(b, width, st)
+        elif isinstance(b, Section):  # the heading stays with what follows it
+            inner = _block_flowables(b.blocks, width, st)
+            out.append(KeepTogether([Paragraph(escape(b.title), st["h2"])] + inner[:2]))
+            out += inner[2:]
+    return out
+
+
+# ----------------------------------------------------------------------- PDF: pages
+def _cover_flowables(doc: Document, width: float, st: dict) -> list:
+    """Title, the header table, the standards per test and the sign-off block."""
+    from reportlab.lib.units import cm
+    from reportlab.platypus import Paragraph, Spacer
+
+    out = [Spacer(1, 1.5 * cm), Paragraph(escape(doc.title), st["title"])]
+    if doc.subtitle:
+        out.append(Paragraph(escape(doc.subtitle), st["subtitle"]))
+    rows = [[k, v] for k, v in doc.meta.items()]
+    rows.append(["report date", doc.provenance["date"]])
+    out += _table_flowables(Table("Test report", ["item", "value"], rows), width, st)
+    if doc.standards:
+        out += _table_flowables(Table("Standards applied", ["test", "standards"],
+                                      [list(r) for r in doc.standards]), width, st)
+    sign = [[role, name or "", "", ""] for role, name in doc.signoff]
+    out += _table_flowables(Table("Sign-off", ["", "name", "date", "signature"], sign),
+                            width, st, row_height=0.9 * cm)
+    out.append(Paragraph(
+        f"Uncertainty evaluated after JCGM 101 (GUM Supplement 1) with mtplan "
+        f"{escape(doc.provenance['versions'].get('mtplan', ''))}; every number is traceable "
+        "to the study file, the readings files and the seed named in the provenance.",
+        st["caption"]))
+    return out
+
+
+def _doc_template(buf, doc: Document):
+    from reportlab.lib.pagesizes import A4
+    from reportlab.lib.units import cm
+    from reportlab.platypus import Paragraph, SimpleDocTemplate
 
     class _Doc(SimpleDocTemplate):
         def afterFlowable(self, flowable):
-            if isinstance(flowable, Paragraph) and flowable.style.name in ("H1", "H2"):
-                level = 0 if flowable.style.name == "H1" else 1
-                text = flowable.getPlainText()
-                key = f"h{id(flowable)}"
-                self.canv.bookmarkPage(key)
+            if not isinstance(flowable, Paragraph):
+                return
+            name = flowable.style.name
+            if name not in ("H1", "H2", "TOCHead", "Title"):
+                return
+            level = 1 if name == "H2" else 0
+            text = flowable.getPlainText()
+            key = f"h{id(flowable)}"
+            self.canv.bookmarkPage(key)
+            self.canv.addOutlineEntry(text, key, level=level, closed=level > 0)
+            if name in ("H1", "H2"):
                 self.notify("TOCEntry", (level, escape(text), self.page, key))
 
-    def page_footer(canvas, _doc):
+    return _Doc(buf, pagesize=A4, leftMargin=2 * cm, rightMargin=2 * cm, topMargin=1.8 * cm,
+                bottomMargin=2 * cm, title=doc.title, author="mtplan",
+                subject=doc.subtitle, creator="mtplan", initialFontName=_FONT,
+                pageCompression=1)
+
+
+def _footer(doc: Document):
+    from reportlab.lib import colors
+    from reportlab.lib.pagesizes import A4
+    from reportlab.lib.units import cm
+
+    number = " ".join(x for x in (doc.meta.get("document number", ""),
+                                  f"rev. {doc.meta['revision']}" if "revision" in doc.meta
+                                  else "") if x)
+
+    def draw(canvas, page_doc):
         canvas.saveState()
-        canvas.setFont("Helvetica", 7)
+        canvas.setFont(_FONT, 7)
         canvas.setFillColor(colors.HexColor("#666666"))
-        canvas.drawString(2 * cm, 1.2 * cm, f"{doc.title} - mtplan "
-                          f"{doc.provenance['versions'].get('mtplan', '')} - study "
-                          f"{doc.provenance['study_sha256']}")
-        canvas.drawRightString(A4[0] - 2 * cm, 1.2 * cm, f"page {_doc.page}")
+        left = " - ".join(x for x in (number, doc.title) if x)
+        canvas.drawString(2 * cm, 1.2 * cm, left[:110])
+        canvas.drawRightString(A4[0] - 2 * cm, 1.2 * cm, f"page {page_doc.page}")
         canvas.restoreState()
 
+    return draw
+
+
+def render_pdf(doc: Document) -> bytes:
+    """The report as a PDF: cover, summary, contents, body, appendix."""
+    from reportlab.lib.pagesizes import A4
+    from reportlab.lib.units import cm
+    from reportlab.platypus import PageBreak, Paragraph, TableStyle
+    from reportlab.platypus.tableofcontents import TableOfContents
+
+    st = _styles()
     width = A4[0] - 4 * cm
-    story = [Spacer(1, 6 * cm),
-             Paragraph(escape(doc.title), ParagraphStyle("T", parent=styles["Title"], fontSize=24,
-                                                         leading=30)),
-             Spacer(1, 0.5 * cm)]
-    if doc.subtitle:
-        story.append(Paragraph(escape(doc.subtitle), styles["Heading3"]))
-    for k, v in doc.meta.items():
-        if k != "subtitle":
-            story.append(Paragraph(f"{escape(k)}: {escape(v)}", body))
-    story += [Spacer(1, 1 * cm), Paragraph(f"{escape(doc.provenance['date'])}", body),
-              Paragraph("Uncertainty evaluated after JCGM 101 (GUM Supplement 1) with mtplan.",
-                        body), PageBreak()]
+    story = _cover_flowables(doc, width, st) + [PageBreak()]
     toc = TableOfContents()
-    toc.levelStyles = [ParagraphStyle("TOC1", fontSize=10, leading=14, leftIndent=10),
-                       ParagraphStyle("TOC2", fontSize=9, leading=12, leftIndent=24)]
-    story += [Paragraph("Contents", styles["Heading1"]), toc, PageBreak()]
-
-    num_style = ParagraphStyle("Num", parent=small, alignment=2)  # right-aligned
-
-    def is_num(c) -> bool:
-        return isinstance(c, str) and bool(_NUMERIC.match(c))
-
-    def table_flowable(t: Table):
-        ncol = len(t.header)
-        numeric = [bool(t.rows) and all(is_num(r[j]) or r[j] in ("-", "") for r in t.rows)
-                   for j in range(ncol)]
-        # column widths from the longest entry (capped), scaled to the frame
-        longest = [max([len(str(t.header[j]))] + [len(str(r[j])) for r in t.rows])
-                   for j in range(ncol)]
-        weights = [min(max(n, 4), 60) for n in longest]
-        total = sum(weights)
-        widths = [width * w / total for w in weights]
-        data = [[Paragraph(f"<b>{escape(str(h))}</b>", num_style if numeric[j] else small)
-                 for j, h in enumerate(t.header)]]
-        data += [[Paragraph(escape(str(c)), num_style if numeric[j] else small)
-                  for j, c in enumerate(row)] for row in t.rows]
-        tbl = RLTable(data, repeatRows=1, colWidths=widths, hAlign="LEFT")
-        tbl.setStyle(TableStyle([
-            ("GRID", (0, 0), (-1, -1), 0.3, colors.HexColor("#cfd6e3")),
-            ("BACKGROUND", (0, 0), (-1, 0), colors.HexColor("#eef2f8")),
-            ("ROWBACKGROUNDS", (0, 1), (-1, -1), [colors.white, colors.HexColor("#f8f9fc")]),
-            ("VALIGN", (0, 0), (-1, -1), "TOP"),
-            ("LEFTPADDING", (0, 0), (-1, -1), 3), ("RIGHTPADDING", (0, 0), (-1, -1), 3),
-            ("TOPPADDING", (0, 0), (-1, -1), 1.5), ("BOTTOMPADDING", (0, 0), (-1, -1), 1.5),
-        ]))
-        return [Paragraph(escape(t.caption), caption), Spacer(1, 2), tbl, Spacer(1, 8)]
-
-    def figure_flowable(f: Figure):
-        from reportlab.lib.utils import ImageReader
-
-        reader = ImageReader(io.BytesIO(f.png))
-        w, h = reader.getSize()
-        natural = 72.0 / _DPI  # points per pixel at the figure's own size
-        scale = min(natural * 1.1, width / w, 17 * cm / h)
-        img = Image(io.BytesIO(f.png), width=w * scale, height=h * scale)
-        return [KeepTogether([img, Paragraph(escape(f.caption), caption), Spacer(1, 10)])]
-
-    def blocks(items):
-        out = []
-        for b in items:
-            if isinstance(b, str):
-                out.append(Paragraph(escape(b), body))
-            elif isinstance(b, list):
-                out.append(ListFlowable([ListItem(Paragraph(escape(str(x)), body), leftIndent=12)
-                                         for x in b], bulletType="bullet", start="\u2022",
-                                        leftIndent=12))
-            elif isinstance(b, Table):
-                out += table_flowable(b)
-            elif isinstance(b, Figure):
-                out += figure_flowable(b)
-            elif isinstance(b, Section):
-                out.append(Paragraph(escape(b.title), h2))
-                out += blocks(b.blocks)
-        return out
-
-    for i, sec in enumerate(doc.sections):
-        if i:
+    toc.levelStyles = st["toc"]
+    toc.tableStyle = TableStyle([("FONT", (0, 0), (-1, -1), _FONT, 9),
+                                 ("VALIGN", (0, 0), (-1, -1), "TOP"),
+                                 ("RIGHTPADDING", (0, 0), (-1, -1), 0),
+                                 ("LEFTPADDING", (0, 0), (-1, -1), 0)])
+    body, appendix = doc.body, doc.appendix
+    for i, sec in enumerate(body):
+        story += [Paragraph(escape(sec.title), st["h1"])]
+        story += _block_flowables(sec.blocks, width, st) + [PageBreak()]
+        if i == 0:  # the summary first, then the contents
+            story += [Paragraph("Contents", st["toc_head"]), toc, PageBreak()]
+    for i, sec in enumerate(appendix):
+        story += [Paragraph(escape(sec.title), st["h1"])]
+        story += _block_flowables(sec.blocks, width, st)
+        if i < len(appendix) - 1:
             story.append(PageBreak())
-        story.append(Paragraph(escape(sec.title), h1))
-        story += blocks(sec.blocks)
-
     buf = io.BytesIO()
-    pdf = _Doc(buf, pagesize=A4, leftMargin=2 * cm, rightMargin=2 * cm, topMargin=2 * cm,
-               bottomMargin=2 * cm, title=doc.title, author="mtplan")
-    pdf.multiBuild(story, onLaterPages=page_footer)
+    pdf = _doc_template(buf, doc)
+    footer = _footer(doc)
+    pdf.multiBuild(story, onFirstPage=footer, onLaterPages=footer)
     return buf.getvalue()
 
 
@@ -171,8 +342,12 @@ def write_report(result, out_dir) -> dict:
     Every file is written to a temporary name and renamed into place, so an
     interrupted report leaves no half-written file. Returns the paths written.
     """
-    doc = build_document(result)
     out = Path(out_dir)
+    for path in (out, out / "results"):
+        problem = output_problem(path, folder=True)
+        if problem:
+            raise InvalidInput([f"The report folder cannot be written: {problem}."])
+    doc = build_document(result)
     html = render_html(doc)
     pdf = render_pdf(doc)
     written = {}

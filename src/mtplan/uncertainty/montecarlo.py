@@ -41,6 +41,9 @@ __all__ = ["MCResult", "ModelError", "propagate", "run_blocks", "numerical_toler
            "coverage_interval"]
 
 INTERVALS = ("symmetric", "shortest")
+#: the most trials one run may ask for: 10**9 trials of a procedure take hours to days;
+#: ``digits`` stops as soon as the result is stable
+MAX_TRIALS = 10**9
 _HIST_BINS = 2**18
 
 
@@ -445,7 +448,7 @@ def check_run_options(p: Problems, trials, digits, coverage, interval, max_trial
     if trials is not None and digits is not None:
         p.add_text("Give either 'trials' or 'digits', not both")
     if trials is not None:
-        p.number("trials", trials, integer=True, low=2)
+        p.number("trials", trials, integer=True, low=2, high=MAX_TRIALS)
     if digits is not None:
         p.number("digits", digits, integer=True, low=1, high=6)
     p.number("coverage", coverage, low=0, high=1, low_open=True, high_open=True)

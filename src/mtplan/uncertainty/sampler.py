@@ -187,6 +187,13 @@ def _start_state(log_prob, center, factor, n_walkers, seq):
     else:
         raise InvalidInput(["The posterior is zero around the start; check the readings and "
                             "the set-up."])
+    from emcee.ensemble import walkers_independent
+
+    if not walkers_independent(p0):  # emcee would refuse them with a traceback
+        raise InvalidInput(["The posterior's walkers cannot spread around the start (pulled "
+                            "back into the support they collapse onto fewer dimensions than "
+                            "the parameters: the readings fit exactly or a parameter sits at "
+                            "the edge of its support); use the Monte Carlo uncertainty."])
     rstate = np.random.RandomState(np.random.MT19937(seq)).get_state()
     return emcee.State(p0, log_prob=lp0, random_state=rstate)
 

@@ -1,0 +1,493 @@
+"""What a study concludes, as numbers the reports only phrase and draw.
+
+- :func:`recommend_estimator`: the estimator with the smallest root-mean-square error
+  (standard uncertainty and bias together) over the measurands that matter, the one
+  listed first (the seed's method) unless another is better beyond the Monte Carlo error.
+- :func:`conformity`: the verdict of every toleranced measurand, its acceptance plan
+  (guard band, global risks, TUR; JCGM 106, ISO 14253-1) applied to the measured value.
+- :func:`lever_effects`: the set-up's own levers (``Procedure.levers``) ranked by how much
+  their swept values lower the uncertainty: the advice an engineer can act on.
+- :func:`dominant_sources`: the error sources that dominate a measurand's variance, each
+  marked as a lever or as a property of the machine, workpiece or instrument.
+- :func:`summary_rows`: one row per procedure and measurand that matters, for the one-page
+  summary and ``results/verdicts.csv``.
+
+Verdicts follow ISO 14253-1's zones with the rule's guard band ``w`` on both sides of each
+tolerance limit: the measured value *conforms* inside the tolerance reduced by ``w``, *does
+not conform* outside the tolerance widened by ``w``, and between the two no decision can be
+made ("inside the guard band"). With ``w = 0`` (simple acceptance) every value is decided.
+The acceptance limits are those of the plan (set before measuring, from the planned set-up's
+uncertainty); the measured value's own interval is reported beside them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from mtplan._validate import InvalidInput
+
+__all__ = ["K", "VERDICTS", "Verdict", "LeverEffect", "SummaryRow", "recommend_estimator",
+           "key_measurands", "conformity", "decide", "lever_effects", "dominant_sources",
+           "estimator_comparison", "u_targets", "shown_setup", "summary_rows"]
+
+#: coverage factor of the expanded uncertainty U = k u (ISO 14253-1, JCGM 106)
+K = 2.0
+CONFORMS = "conforms"
+DOES_NOT_CONFORM = "does not conform"
+NO_DECISION = "inside the guard band: no decision"
+NOT_DETERMINABLE = "not determinable"
+NOT_MEASURED = "not measured"
+VERDICTS = (CONFORMS, DOES_NOT_CONFORM, NO_DECISION, NOT_DETERMINABLE, NOT_MEASURED)
+
+
+@dataclass
+class Verdict:
+    """The conformity decision for one toleranced measurand (display units).
+
+    Attributes
+    ----------
+    procedure, label, measurand, unit, description, estimator : str
+    lower, upper : float or None
+        Tolerance limits [unit]; None for an absent limit.
+    u : float
+        Standard uncertainty of the planned set-up with ``estimator`` [unit].
+    k : float
+        Coverage factor of ``U = k u``.
+    rule : str
+        Decision rule (``simple``, ``guard:R``, ``iso14253``, ``target-pfa:P``, ``dobbert``).
+    guard_band : float
+        ``w`` [unit]; nan when the plan could not be made.
+    acceptance_limits : (float or None, float or None)
+        ``(T_L + w, T_U - w)`` [unit].
+    prior : prior object or None
+        Process distribution of the true value (``plans.acceptance`` priors).
+    pfa, pfr, conditional_pfa, tur : float or None
+        Global false accept and false reject, ``pfa / P(accept)``, test uncertainty ratio.
+    measured, measured_u, measured_low, measured_high : float or None
+        Measured value, its standard uncertainty and coverage interval [unit].
+    measured_source : str
+        Where the measured value comes from ("" when none).
+    p_conform : float or None
+        Probability that the true value lies within the tolerance given the measured value.
+    verdict : str
+        One of :data:`VERDICTS`.
+    reason : str
+        Why a verdict is "not determinable", or a caution about the decision.
+    """
+
+    procedure: str
+    label: str
+    measurand: str
+    unit: str
+    description: str
+    estimator: str
+    lower: float | None
+    upper: float | None
+    u: float
+    rule: str
+    k: float = K
+    guard_band: float = math.nan
+    acceptance_limits: tuple = (None, None)
+    prior: object = None
+    prior_text: str | None = None
+    pfa: float | None = None
+    pfr: float | None = None
+    conditional_pfa: float | None = None
+    tur: float | None = None
+    measured: float | None = None
+    measured_u: float | None = None
+    measured_low: float | None = None
+    measured_high: float | None = None
+    measured_source: str = ""
+    p_conform: float | None = None
+    verdict: str = NOT_MEASURED
+    reason: str = ""
+
+    @property
+    def U(self) -> float:  # noqa: N802 - the symbol of ISO 14253-1
+        """Expanded uncertainty of the planned set-up, ``k u`` [unit]."""
+        return self.k * self.u
+
+    def row(self) -> dict:
+        """One row of ``results/verdicts.csv``."""
+        a_lo, a_hi = self.acceptance_limits
+        return {"procedure": self.procedure, "test": self.label, "measurand": self.measurand,
+                "unit": self.unit, "estimator": self.estimator, "lower": self.lower,
+                "upper": self.upper, "u": self.u, "k": self.k, "U": self.U, "rule": self.rule,
+                "guard_band": self.guard_band, "acceptance_lower": a_lo,
+                "acceptance_upper": a_hi, "tur": self.tur, "pfa": self.pfa, "pfr": self.pfr,
+                "measured": self.measured, "measured_u": self.measured_u,
+                "measured_low": self.measured_low, "measured_high": self.measured_high,
+                "measured_source": self.measured_source, "p_conform": self.p_conform,
+                "verdict": self.verdict, "reason": self.reason}
+
+
+@dataclass
+class LeverEffect:
+    """What one swept lever does to the uncertainty of one measurand (display units).
+
+    ``gain`` is u at the study's value over the smallest u in the sweep (>= 1), or the
+    largest over the smallest when the study's value is not in the sweep; ``significant``
+    says whether it exceeds three Monte Carlo standard errors of the ratio.
+    """
+
+    field: str
+    measurand: str
+    unit: str
+    estimator: str
+    sweep: int                    # index of the sweep in the procedure's list
+    base_value: object
+    u_base: float                 # nan when the study's value is not in the sweep
+    ref_value: object             # the value compared with: the study's, else the worst
+    best_value: object
+    u_best: float
+    duration_base_s: float
+    duration_best_s: float
+    gain: float
+    significant: bool
+
+
+@dataclass
+class SummaryRow:
+    """One row of the summary page: a measurand that matters, with its verdict."""
+
+    section: int
+    procedure: str
+    label: str
+    measurand: str
+    unit: str
+    description: str
+    estimator: str
+    setup: dict
+    u: float
+    k: float
+    U: float  # noqa: N815
+    duration_s: float
+    lower: float | None = None
+    upper: float | None = None
+    tur: float | None = None
+    measured: float | None = None
+    measured_u: float | None = None
+    measured_low: float | None = None
+    measured_high: float | None = None
+    verdict: str = ""
+    reason: str = ""
+
+
+# ----------------------------------------------------------------------- estimators
+def _rmse(result, names) -> dict:
+    """Root-mean-square error sqrt(u^2 + bias^2) per measurand; inf where u == 0 (an
+    estimator that gives one value in every trial has an uncertainty the Monte Carlo
+    cannot see)."""
+    index = {m.name: i for i, m in enumerate(result.measurands)}
+    out = {}
+    for n in names:
+        if n not in index:
+            continue
+        s, b = float(result.mc.std[index[n]]), float(result.bias[index[n]])
+        out[n] = math.hypot(s, b) if s > 0 and math.isfinite(s) else math.inf
+    return out
+
+
+def recommend_estimator(results: dict, names: list) -> str:
+    """The estimator to recommend for the measurands ``names``.
+
+    Each estimator's score is its mean ratio of root-mean-square error to the best
+    estimator's, over ``names``. The first estimator listed wins unless another scores
+    lower by more than three Monte Carlo standard errors of a standard deviation.
+    """
+    ests = list(results)
+    if len(ests) == 1:
+        return ests[0]
+    errors = {e: _rmse(r, names) for e, r in results.items()}
+    best = {n: min(errors[e].get(n, math.inf) for e in ests) for n in names}
+    usable = [n for n in names if 0 < best[n] < math.inf]
+    if not usable:
+        return ests[0]
+    score = {e: float(np.mean([errors[e].get(n, math.inf) / best[n] for n in usable]))
+             for e in ests}
+    trials = min(int(r.mc.trials) for r in results.values())
+    tol = 3.0 / math.sqrt(2.0 * max(trials - 1, 1))
+    top = min(score.values())
+    return next(e for e in ests if score[e] <= top * (1 + tol))
+
+
+def key_measurands(measurands, toleranced, targeted, limit: int = 4) -> list:
+    """The measurands a summary shows: toleranced and targeted ones in the procedure's
+    order, else the first ``limit``."""
+    names = [m.name for m in measurands]
+    chosen = [n for n in names if n in set(toleranced) | set(targeted)]
+    return chosen or names[:limit]
+
+
+def estimator_comparison(results: dict, *, ratio: float = 1.2) -> dict:
+    """Significant biases and uncertainty ratios between estimators.
+
+    Returns ``{"bias": [(estimator, measurand, bias, u)], "better": [(better, worse,
+    [(measurand, factor)])]}``: a bias counts when it exceeds four Monte Carlo standard
+    errors and a tenth of u (any bias when u = 0); an estimator is better for a measurand
+    when the other's u is ``ratio`` times larger.
+    """
+    ests = list(results)
+    biases, better = [], []
+    for est, r in results.items():
+        for i, m in enumerate(r.measurands):
+            s, b = float(r.mc.std[i]), float(r.bias[i])
+            # with s = 0 (every trial the same value: a quantised estimate) any bias counts
+            if abs(b) > 4 * s / math.sqrt(r.mc.trials) and abs(b) > 0.1 * s:
+                biases.append((est, m.name, b, s))
+    first = results[ests[0]]
+    for est in ests[1:]:
+        r = results[est]
+        for a_name, a, b_name, b in ((est, r, ests[0], first), (ests[0], first, est, r)):
+            factors = [(m.name, float(b.mc.std[i] / a.mc.std[i]))
+                       for i, m in enumerate(a.measurands)
+                       if a.mc.std[i] > 0 and b.mc.std[i] / a.mc.std[i] > ratio]
+            if factors:
+                better.append((a_name, b_name, factors))
+    return {"bias": biases, "better": better}
+
+
+# ----------------------------------------------------------------------- conformity
+def decide(value: float, lower, upper, guard: float) -> str:
+    """The ISO 14253-1 zone of a measured value (see the module notes)."""
+    lo = -math.inf if lower is None else float(lower)
+    hi = math.inf if upper is None else float(upper)
+    if lo + guard <= value <= hi - guard:
+        return CONFORMS
+    if value < lo - guard or value > hi + guard:
+        return DOES_NOT_CONFORM
+    return NO_DECISION
+
+
+def _measured_value(spec, name, measured, u):
+    """(value, u, low, high, source, verdict-or-None, reason) of one measurand."""
+    if spec.get("measured") is not None:
+        y = float(spec["measured"])
+        return y, u, y - K * u, y + K * u, "stated in the study", None, ""
+    if measured is None:
+        return None, None, None, None, "", NOT_MEASURED, "no readings and no measured value"
+    names = [m.name for m in measured.measurands]
+    j = names.index(name)
+    determinable = np.asarray(getattr(measured, "determinable", None)
+                              if getattr(measured, "determinable", None) is not None
+                              else np.ones(len(names), dtype=bool))
+    value = float(measured.value[j])
+    how = "posterior" if measured.uncertainty == "posterior" else "Monte Carlo"
+    source = f"readings, {measured.estimator} estimator, {how}"
+    if not bool(determinable[j]) or not math.isfinite(value):
+        reason = (getattr(measured, "reasons", None) or {}).get(
+            name, "the estimator gives no finite value from these readings")
+        return None, None, None, None, source, NOT_DETERMINABLE, reason
+    return (value, float(measured.std[j]), float(measured.low[j]), float(measured.high[j]),
+            source, None, "")
+
+
+def conformity(procedure: str, label: str, specs: list, result, measured=None) -> list:
+    """The verdict of every toleranced measurand of one procedure.
+
+    Parameters
+    ----------
+    procedure, label : str
+        The procedure's name and the study's label for the test.
+    specs : list of dict
+        Acceptance tables of the study: ``measurand``, ``lower``, ``upper``, ``prior``,
+        ``rule``, optionally ``measured`` (a value stated instead of readings).
+    result : ProcedureResult
+        Monte Carlo of the planned set-up with the estimator that decides.
+    measured : MeasuredResult, optional
+        The readings' evaluation.
+
+    Returns
+    -------
+    list of Verdict
+    """
+    from mtplan.plans import acceptance as acc
+
+    out = []
+    for spec in specs:
+        name = spec["measurand"]
+        i = [m.name for m in result.measurands].index(name)
+        m = result.measurands[i]
+        u = float(result.mc.std[i])
+        prior = acc.parse_prior(spec["prior"]) if spec.get("prior") else None
+        rule = spec.get("rule", "simple")
+        y, uy, low, high, source, verdict, reason = _measured_value(spec, name, measured, u)
+        v = Verdict(procedure=procedure, label=label, measurand=name, unit=m.unit,
+                    description=m.description, estimator=result.estimator,
+                    lower=spec.get("lower"), upper=spec.get("upper"), u=u, rule=str(rule),
+                    prior=prior, prior_text=spec.get("prior"), measured=y, measured_u=uy,
+                    measured_low=low, measured_high=high, measured_source=source,
+                    reason=reason)
+        if not (u > 0 and math.isfinite(u)):
+            v.verdict = NOT_DETERMINABLE
+            v.reason = (f"the {result.estimator} estimator gives the same value in every "
+                        "Monte Carlo trial: its uncertainty is its resolution, which the "
+                        "simulation cannot see")
+            out.append(v)
+            continue
+        try:
+            plan = acc.plan_acceptance(v.lower, v.upper, u, prior=prior,
+                                       rule=acc.parse_rule(rule), measured=y)
+        except InvalidInput as exc:  # a guard band wider than the tolerance: a finding
+            v.verdict = NOT_DETERMINABLE
+            v.reason = " ".join(exc.problems)
+            out.append(v)
+            continue
+        v.guard_band, v.acceptance_limits = plan.guard_band, tuple(plan.acceptance_limits)
+        v.pfa, v.pfr, v.conditional_pfa = plan.pfa, plan.pfr, plan.conditional_pfa
+        v.tur, v.p_conform = plan.tur, plan.p_conform
+        if verdict is not None:
+            v.verdict = verdict
+        else:
+            v.verdict = decide(y, v.lower, v.upper, v.guard_band)
+            if uy is not None and uy > 1.1 * u:
+                v.reason = (f"the measurement's u ({uy:.3g} {m.unit}) exceeds the planned "
+                            f"u ({u:.3g} {m.unit}) that set the guard band")
+        out.append(v)
+    return out
+
+
+# ----------------------------------------------------------------------- levers
+def _same(a, b) -> bool:
+    try:
+        return bool(np.isclose(float(a), float(b), rtol=1e-9, atol=1e-12))
+    except (TypeError, ValueError):
+        return str(a) == str(b)
+
+
+def lever_effects(levers, setup, sweeps, names, estimator) -> list:
+    """The swept levers ranked by their largest effect on the measurands ``names``.
+
+    Parameters
+    ----------
+    levers : tuple of str
+        The procedure's levers (``Procedure.levers``).
+    setup : Setup
+        The study's set-up (its values are the "base" of each sweep).
+    sweeps : list of (dict, DataFrame or str)
+        The study's sweeps and their tables (a string: a sweep that could not run).
+    names : list of str
+        The measurands that matter.
+    estimator : str
+        Preferred estimator (the sweep's first one when it did not run this one).
+
+    Returns
+    -------
+    list of LeverEffect
+        One per lever (its largest effect over ``names``), largest gain first.
+    """
+    base = setup.as_dict()
+    found = {}
+    for j, (spec, table) in enumerate(sweeps):
+        vary = list(spec["vary"])
+        if isinstance(table, str) or len(vary) != 1 or vary[0] not in levers:
+            continue
+        f = vary[0]
+        ok = table[table["error"].astype(str) == ""] if "error" in table else table
+        est = estimator if estimator in set(ok["estimator"]) else ok["estimator"].iloc[0]
+        for name in names:
+            g = ok[(ok["estimator"] == est) & (ok["measurand"] == name)]
+            g = g[np.isfinite(g["std"]) & (g["std"] > 0)]
+            if len(g) < 2:
+                continue
+            at = g[[_same(v, base.get(f)) for v in g[f]]]
+            b = g.loc[g["std"].idxmin()]
+            ref = at.iloc[0] if len(at) else g.loc[g["std"].idxmax()]
+            gain = float(ref["std"] / b["std"])
+            n = float(g["trials"].min())
+            significant = gain > 1 + 3 * math.sqrt(2) / math.sqrt(2 * (n - 1))
+            effect = LeverEffect(field=f, measurand=name, unit=str(g["unit"].iloc[0]),
+                                 estimator=est, sweep=j, base_value=base.get(f),
+                                 u_base=float(at["std"].iloc[0]) if len(at) else math.nan,
+                                 ref_value=ref[f], best_value=b[f], u_best=float(b["std"]),
+                                 duration_base_s=float(ref["duration_s"]),
+                                 duration_best_s=float(b["duration_s"]), gain=gain,
+                                 significant=bool(significant))
+            if f not in found or gain > found[f].gain:
+                found[f] = effect
+    return sorted(found.values(), key=lambda e: -e.gain)
+
+
+def dominant_sources(budget, levers, fields, *, share: float = 0.5) -> list:
+    """Error sources that carry at least ``share`` of some measurand's variance.
+
+    Returns a list of dicts: ``source``, ``field`` (the set-up field that sizes it),
+    ``lever`` (whether that field is one of the set-up's levers) and ``measurands``
+    (list of (name, share)), largest share first.
+    """
+    if budget is None or not len(budget):
+        return []
+    top = budget.sort_values("share", ascending=False).groupby("output", sort=False).head(1)
+    top = top[top["share"] >= share]
+    out = []
+    for source, group in top.groupby("input", sort=False):
+        f = next((x for x in fields if x.startswith(f"{source}_")), None)
+        out.append({"source": source, "field": f, "lever": f in levers,
+                    "measurands": [(r.output, float(r.share)) for r in group.itertuples()]})
+    return sorted(out, key=lambda d: -max(s for _, s in d["measurands"]))
+
+
+# ----------------------------------------------------------------------- summary
+def u_targets(plan_spec, verdicts) -> dict:
+    """Target standard uncertainty per measurand for the sweep figures: a plan target
+    (``target / k``) or, for a two-sided tolerance, the u that gives TUR = 4.
+
+    Returns ``{measurand: (u, what)}`` [display unit].
+    """
+    out = {}
+    for v in verdicts:
+        if v.lower is not None and v.upper is not None:
+            out[v.measurand] = ((v.upper - v.lower) / 16.0, "u for TUR = 4")
+    if plan_spec:
+        k = float(plan_spec.get("k", 1.0))
+        for name, target in plan_spec.get("targets", {}).items():
+            out[name] = (float(target) / k, "plan target")
+    return out
+
+
+def shown_setup(setup, defaults, levers, varied) -> dict:
+    """The set-up fields a reader needs: levers that were swept or planned, and levers
+    that differ from the defaults (study order)."""
+    values = setup.as_dict()
+    base = defaults.as_dict()
+    return {f: v for f, v in values.items()
+            if f in levers and (f in varied or v != base.get(f)) and v is not None}
+
+
+def summary_rows(section, procedure, label, result, names, verdicts, measured, setup,
+                 duration_s) -> list:
+    """Summary rows of one procedure: ``names`` with the recommended estimator's ``result``."""
+    by_name = {v.measurand: v for v in verdicts}
+    index = {m.name: i for i, m in enumerate(result.measurands)}
+    rows = []
+    for name in names:
+        i = index[name]
+        m = result.measurands[i]
+        u = float(result.mc.std[i])
+        row = SummaryRow(section=section, procedure=procedure, label=label, measurand=name,
+                         unit=m.unit, description=m.description, estimator=result.estimator,
+                         setup=setup, u=u if u > 0 else math.nan, k=K,
+                         U=K * u if u > 0 else math.nan, duration_s=float(duration_s))
+        v = by_name.get(name)
+        if v is not None:
+            row.lower, row.upper, row.tur = v.lower, v.upper, v.tur
+            row.measured, row.measured_u = v.measured, v.measured_u
+            row.measured_low, row.measured_high = v.measured_low, v.measured_high
+            row.verdict, row.reason = v.verdict, v.reason
+            if v.estimator != result.estimator:  # the readings' estimator decides
+                row.estimator, row.u, row.U = v.estimator, v.u, v.U
+        elif measured is not None:
+            y, uy, low, high, _, verdict, reason = _measured_value({}, name, measured, u)
+            row.measured, row.measured_u, row.measured_low, row.measured_high = y, uy, low, high
+            row.verdict = verdict or ""
+            row.reason = reason
+        if not u > 0 and not row.reason:
+            row.reason = (f"the {result.estimator} estimator gives the same value in every "
+                          "trial: below its resolution")
+        rows.append(row)
+    return rows
+

@@ -1,0 +1,67 @@
+"""The document model: sections of paragraphs, lists, tables and figures.
+
+:mod:`mtplan.reports.document` builds it from a computed study; the renderers
+(:mod:`mtplan.reports.render`) draw it as HTML and PDF.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+__all__ = ["Document", "Section", "Table", "Figure"]
+
+_NUMERIC = re.compile(r"^[\[(]?[-+±≤≥]? ?(\d|\.\d)[\d.,eE+\-− ]*[\])%]?( %)?$")
+_EMPTY = {"-", "", "n/d"}
+
+
+@dataclass
+class Table:
+    caption: str
+    header: list
+    rows: list
+
+    @property
+    def numeric(self) -> list:
+        """Per column: every cell a number (or empty): the renderers right-align it."""
+        out = []
+        for j in range(len(self.header)):
+            cells = [str(r[j]) for r in self.rows]
+            out.append(any(c not in _EMPTY for c in cells)
+                       and all(c in _EMPTY or _NUMERIC.match(c) for c in cells))
+        return out
+
+
+@dataclass
+class Figure:
+    caption: str
+    png: bytes
+
+
+@dataclass
+class Section:
+    title: str
+    blocks: list = field(default_factory=list)
+    level: int = 1
+    anchor: str = ""
+    appendix: bool = False
+
+
+@dataclass
+class Document:
+    title: str
+    subtitle: str
+    meta: dict                 # header label -> value, in the cover's order
+    provenance: dict
+    sections: list
+    csv: dict = field(default_factory=dict)  # name -> DataFrame for results/*.csv
+    signoff: list = field(default_factory=list)    # (role, name)
+    standards: list = field(default_factory=list)  # (test, standards applied)
+
+    @property
+    def body(self) -> list:
+        return [s for s in self.sections if not s.appendix]
+
+    @property
+    def appendix(self) -> list:
+        return [s for s in self.sections if s.appendix]

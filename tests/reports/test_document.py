@@ -1,0 +1,208 @@
+"""The document a customer receives: cover with the study's header, the summary first,
+verdicts in the summary, in verdicts.csv and in the HTML, embedded fonts, bookmarks,
+table headers whose words are whole, and a provenance that names the command, the
+commit and every readings file's SHA-256."""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+
+def _need(binary):
+    if shutil.which(binary) is None:
+        pytest.skip(f"{binary} is not installed (Debian: apt-get install poppler-utils)")
+
+
+def pdf_pages(pdf: Path, *, raw: bool = False) -> list[str]:
+    """The text of each page (pdftotext)."""
+    _need("pdftotext")
+    mode = "-raw" if raw else "-layout"
+    text = subprocess.run(["pdftotext", mode, str(pdf), "-"], check=True, capture_output=True,
+                          text=True).stdout
+    return text.split("\f")
+
+
+def assert_fonts_embedded(pdf: Path) -> None:
+    _need("pdffonts")
+    out = subprocess.run(["pdffonts", str(pdf)], check=True, capture_output=True,
+                         text=True).stdout.splitlines()
+    rows = out[2:]
+    assert rows, "no fonts listed"
+    for row in rows:
+        # name type encoding emb sub uni object ID: emb is the fourth field from the end
+        assert row.split()[-5] == "yes", f"font not embedded: {row}"
+
+
+def assert_has_outline(pdf: Path, titles: list[str]) -> None:
+    _need("pdftohtml")
+    xml = subprocess.run(["pdftohtml", "-xml", "-i", "-stdout", "-q", str(pdf)], check=True,
+                         capture_output=True, text=True).stdout
+    assert "<outline>" in xml, "the PDF has no outline (bookmarks)"
+    items = re.findall(r"<item[^>]*>(.*?)</item>", xml)
+    for title in titles:
+        assert any(title in item for item in items), (title, items[:20])
+
+
+def _header_words(doc) -> set[str]:
+    from mtplan.reports.document import Section, Table
+
+    words = set()
+
+    def walk(blocks):
+        for b in blocks:
+            if isinstance(b, Table):
+                words.update(w.strip("()[],") for h in b.header for w in str(h).split())
+            elif isinstance(b, Section):
+                walk(b.blocks)
+
+    for s in doc.sections:
+        walk(s.blocks)
+    return {w for w in words if len(w) >= 4}
+
+
+# ------------------------------------------------------------------ the small study
+def test_summary_follows_the_cover_and_says_does_not_conform(small_report):
+    pages = pdf_pages(small_report / "report.pdf")
+    assert pages[1].lstrip().startswith("Summary")
+    assert "does not conform" in pages[1] and "conforms" in pages[1]
+    assert "centre_x" in pages[1] and "centre_y" in pages[1]
+
+
+def test_verdicts_csv(small_report):
+    v = pd.read_csv(small_report / "results" / "verdicts.csv").set_index("measurand")
+    assert v.loc["centre_x", "verdict"] == "does not conform"  # about 350 um, tolerance +-20
+    assert v.loc["centre_y", "verdict"] == "conforms"          # about -200 um, tolerance +-400
+    assert v.loc["centre_x", "measured"] > v.loc["centre_x", "upper"] + v.loc["centre_x",
+                                                                              "guard_band"]
+    assert v.loc["centre_x", "acceptance_upper"] == pytest.approx(
+        20 - v.loc["centre_x", "guard_band"])
+    assert v.loc["centre_y", "guard_band"] == pytest.approx(v.loc["centre_y", "U"])  # iso14253
+    summary = pd.read_csv(small_report / "results" / "summary.csv")
+    assert set(summary["measurand"]) == {"centre_x", "centre_y"}
+
+
+def test_verdict_in_html(small_report):
+    page = (small_report / "index.html").read_text(encoding="utf-8")
+    assert '<span class="v-bad">does not conform</span>' in page
+    assert '<span class="v-ok">conforms</span>' in page
+    assert page.index('id="summary"') < page.index('id="conformity"')
+
+
+def test_cover_shows_the_header_and_sign_off(small_report):
+    cover = pdf_pages(small_report / "report.pdf")[0]
+    for text in ("DOC-<b>1</b>", "Customer & <i>Co</i>", "SN-42", "2024-01-02", "20.5 °C",
+                 "P. Preparer", "C. Checker", "ISO 1101:2017", "14253-1:2017",
+                 "JCGM 101:2008", "signature"):
+        assert text in cover, text
+    page = (small_report / "index.html").read_text(encoding="utf-8")
+    assert "Customer &amp; &lt;i&gt;Co&lt;/i&gt;" in page and "P. Preparer" in page
+
+
+def test_decision_sentence_names_rule_limits_and_risks(small_report):
+    text = " ".join(pdf_pages(small_report / "report.pdf", raw=True))
+    text = " ".join(text.split())
+    assert "centre_x: accept if the measured value lies within ±" in text
+    assert "reduced by the guard band w = 0.5 U" in text
+    assert "DOES NOT CONFORM" in text and "centre_y" in text
+    assert "Global false accept" in text  # centre_x has a prior
+
+
+def test_fonts_embedded_and_outline(small_report):
+    pdf = small_report / "report.pdf"
+    assert_fonts_embedded(pdf)
+    assert_has_outline(pdf, ["Summary", "Contents", "Conformity decisions",
+                             "What the simulation shows", "Provenance"])
+
+
+def test_header_words_whole_in_small_report(small_result, small_report):
+    from mtplan.reports.document import build_document
+
+    tokens = set(" ".join(pdf_pages(small_report / "report.pdf", raw=True)).split())
+    tokens |= {t.strip("()[],") for t in tokens}
+    missing = sorted(w for w in _header_words(build_document(small_result)) if w not in tokens)
+    assert not missing, missing
+
+
+def test_provenance_names_command_commit_and_readings_digest(small_result, small_report):
+    prov = small_result.provenance
+    assert prov["command"] == "mtplan report small.toml --out report"
+    (label, path, digest), = prov["readings"]
+    assert digest == hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    repo = Path(__file__).resolve().parents[2]
+    if (repo / ".git").exists() and shutil.which("git"):
+        assert re.fullmatch(r"[0-9a-f]{40}( with uncommitted changes)?", prov["git_commit"])
+    text = " ".join(" ".join(pdf_pages(small_report / "report.pdf", raw=True)).split())
+    assert digest in text and "mtplan report small.toml --out report" in text
+
+
+# ------------------------------------------------------------------ table headers
+_LONG = ["Identifiability", "Observability", "Conformance", "Misalignment", "Repeatability",
+         "Uncertainty", "Straightness", "Perpendicularity"]
+
+
+def _narrow_table():
+    from mtplan.reports.document import Table
+
+    rows = [[f"{i}.{j}" for j in range(len(_LONG))] for i in range(3)]
+    rows[0][3] = "a rather long text that has to wrap over several lines in its column"
+    return Table("Eight columns with long header words", [f"{w} index" for w in _LONG], rows)
+
+
+def test_column_widths_hold_the_longest_header_word():
+    from reportlab.pdfbase.pdfmetrics import stringWidth
+
+    from mtplan.reports.render import _FONT, _table_size, column_widths
+
+    t = _narrow_table()
+    size = _table_size(t, 482.0)
+    assert size < 7.5  # eight long words need a smaller font to fit
+    widths = column_widths(t, 482.0, size)
+    assert sum(widths) == pytest.approx(482.0)
+    for w, head in zip(widths, t.header, strict=True):
+        longest = max(stringWidth(x, _FONT + "-Bold", size) for x in head.split())
+        assert w >= longest + 6
+
+
+def test_no_header_word_broken_in_the_pdf(tmp_path):
+    """A table with eight long header words, rendered and read back: every word whole."""
+    from mtplan.reports.document import Document, Section
+    from mtplan.reports.render import render_pdf
+
+    prov = {"date": "today", "study_sha256": "0" * 64, "versions": {"mtplan": "x"}}
+    doc = Document(title="Headers", subtitle="", meta={}, provenance=prov,
+                   sections=[Section("Summary", blocks=[_narrow_table()], anchor="s")])
+    pdf = tmp_path / "headers.pdf"
+    pdf.write_bytes(render_pdf(doc))
+    tokens = " ".join(pdf_pages(pdf, raw=True)).split()
+    for word in _LONG:
+        assert word in tokens, (word, [t for t in tokens if t[:4] == word[:4]])
+    assert_fonts_embedded(pdf)
+
+
+def test_not_determinable_is_said_with_its_reason(small_result):
+    """A measurand the readings cannot determine shows "not determinable" and why, never a
+    number (the summary, the decisions and the HTML)."""
+    import copy
+
+    from mtplan.reports.document import build_document
+    from mtplan.reports.render import render_html
+
+    result = copy.deepcopy(small_result)
+    o = result.outcomes[0]
+    why = "every trial gives the same value: quantised estimate"
+    for item in (o.verdicts[1], o.summary[1]):
+        item.verdict, item.reason, item.measured = "not determinable", why, None
+    doc = build_document(result)
+    summary = doc.sections[0]
+    row = next(r for r in summary.blocks[0].rows if r[1].startswith("centre_y"))
+    assert row[-2:] == ["n/d", "not determinable"]
+    assert any(why in b for b in summary.blocks if isinstance(b, str))
+    page = render_html(doc)
+    assert '<span class="v-nd">not determinable</span>' in page and why in page
