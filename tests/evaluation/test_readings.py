@@ -56,7 +56,7 @@ def test_ggs_points_with_no_setup_give_the_published_circle(capsys):
     assert 0.3e3 < doc["setup"]["probe_noise_um"] < 1e3
     for d in doc["measurands"]:
         lo, hi = d["interval"]
-        assert math.isfinite(d["std"]) and d["std"] > 0
+        assert math.isfinite(d["u"]) and d["u"] > 0
         assert lo <= d["estimate"] <= hi
         assert 200 < (hi - lo) / 2 < 2 * GGS_RADIUS * 1e3, d  # um: about the scatter
     assert any("bore_radius_mm = 4.714226" in n for n in doc["notes"])

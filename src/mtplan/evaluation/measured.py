@@ -194,7 +194,8 @@ def best_estimator(procedure, setup) -> str:
 
 
 def _observes(proc, setup, est_name, est_internal, step):
-    """d(estimate)/d(measurand) from noise-free readings at the estimate +- `step` [display].
+    """d(estimate)/d(measurand) from noise-free readings at the estimate +- `step` [display]
+    (a tenth and a hundredth of it where that leaves the truth's domain).
 
     None when the procedure cannot build a truth from an estimate."""
     if proc.truth_from_estimate is None:
@@ -202,19 +203,37 @@ def _observes(proc, setup, est_name, est_internal, step):
     measurands = proc.measurands(setup)
     slopes = np.full(len(measurands), np.nan)
     zero = proc.zero_errors(setup, 1)
+
+    def estimate_at(m, delta):
+        est = dict(est_internal)
+        est[m.name] = est[m.name] + delta / m.scale
+        try:
+            r = proc.forward(setup, proc.truth_from_estimate(setup, est), zero)
+            return float(np.asarray(proc.estimate(setup, r, est_name)[m.name]).reshape(-1)[0])
+        except (InvalidInput, ValueError, ArithmeticError):
+            return np.nan
+
     for i, m in enumerate(measurands):
-        vals = []
-        for sign in (1.0, -1.0):
-            est = dict(est_internal)
-            est[m.name] = est[m.name] + sign * step[i] / m.scale
-            try:
-                r = proc.forward(setup, proc.truth_from_estimate(setup, est), zero)
-                vals.append(float(np.asarray(proc.estimate(setup, r, est_name)[m.name]
-                                             ).reshape(-1)[0]) * m.scale)
-            except (InvalidInput, ValueError, ArithmeticError):
-                vals.append(np.nan)
-        slopes[i] = (vals[0] - vals[1]) / (2 * step[i])
+        for h in (step[i], 0.1 * step[i], 0.01 * step[i]):
+            slopes[i] = (estimate_at(m, h) - estimate_at(m, -h)) * m.scale / (2 * h)
+            if np.isfinite(slopes[i]):
+                break
     return slopes
+
+
+def _corrected(r, estimate, names, notes):
+    """(value, bias correction, low, high): the estimate less the Monte Carlo's mean error, with
+    the interval of the error quantiles; where the mean error lies outside them (heavy tails:
+    rare wild trials dominate the mean), less the middle of the interval instead, noted."""
+    err_mean = np.asarray(r.mc.mean - r.true, dtype=float)
+    err_low, err_high = np.asarray(r.mc.low - r.true), np.asarray(r.mc.high - r.true)
+    wild = ~((err_low <= err_mean) & (err_mean <= err_high))
+    bias = np.where(wild, 0.5 * (err_low + err_high), err_mean)
+    if np.any(wild & np.isfinite(err_mean)):
+        notes.append(f"{', '.join(np.asarray(names)[wild])}: the Monte Carlo's errors are "
+                     "heavy-tailed (their mean lies outside the interval); the estimate is "
+                     "corrected by the middle of the interval instead")
+    return estimate - bias, -bias, estimate - err_high, estimate - err_low
 
 
 def _mc_result(proc, setup, est_name, est_internal, estimate, *, trials, coverage, root,
@@ -234,14 +253,13 @@ def _mc_result(proc, setup, est_name, est_internal, estimate, *, trials, coverag
     r = simulate_uncertainty(proc, setup, truth, estimator=est_name, trials=trials,
                              coverage=coverage, rng=root, progress=False)
     std = np.asarray(r.mc.std, dtype=float)
-    bias = np.asarray(r.mc.mean - r.true, dtype=float)
-    low, high = estimate - (r.mc.high - r.true), estimate - (r.mc.low - r.true)
-    value = estimate - bias
-    reasons = {}
+    value, correction, low, high = _corrected(r, estimate, [m.name for m in measurands], notes)
     slopes = None
-    if finite.all():
-        step = np.where(std > 0, 2.0 * std, 1e-6 * np.maximum(np.abs(estimate), 1.0))
+    if finite.all():  # over two robust standard deviations (the interval's half width / 2)
+        spread = np.where(high > low, 0.5 * (high - low) / 1.96, 0.0)
+        step = np.where(spread > 0, 2.0 * spread, 1e-6 * np.maximum(np.abs(estimate), 1.0))
         slopes = _observes(proc, setup, est_name, est_internal, step)
+    reasons = {}
     for i, m in enumerate(measurands):
         why = None
         if not finite[i]:
@@ -252,22 +270,18 @@ def _mc_result(proc, setup, est_name, est_internal, estimate, *, trials, coverag
                    "uncertainty is its resolution, which the Monte Carlo cannot give")
         elif slopes is not None and not abs(slopes[i] - 1.0) <= SLOPE_TOL:
             why = (f"the {est_name} estimator does not follow this measurand: a change of it by "
-                   f"{2 * std[i]:.3g} {m.unit} changes the noise-free estimate by "
+                   f"{step[i]:.3g} {m.unit} changes the noise-free estimate by "
                    f"{slopes[i]:.2f} times that (1 expected), so no bias correction applies")
-        elif not low[i] <= value[i] <= high[i]:
-            why = ("the estimator's bias lies outside its own coverage interval (a skewed error "
-                   "distribution), so no corrected value can be stated with it")
         if why is not None:
             reasons[m.name] = why + "; not determinable by this estimator: use another estimator "\
                 "or --uncertainty posterior"
     bad = np.array([m.name in reasons for m in measurands])
-    for a in (value, std, low, high):
-        a[bad] = np.nan
+    for arr in (value, std, low, high, correction):
+        arr[bad] = np.nan
     return MeasuredResult(
         procedure=proc.name, estimator=est_name, uncertainty="mc", setup=setup,
         measurands=measurands, estimate=estimate, value=value, std=std, low=low, high=high,
-        coverage=float(coverage), seed=seed, details=r, bias_correction=np.where(bad, np.nan,
-                                                                                  -bias),
+        coverage=float(coverage), seed=seed, details=r, bias_correction=correction,
         determinable=~bad, reasons=reasons, notes=notes)
 
 

@@ -189,7 +189,12 @@ def _start_state(log_prob, center, factor, n_walkers, seq):
                             "the set-up."])
     from emcee.ensemble import walkers_independent
 
-    if not walkers_independent(p0):  # emcee would refuse them with a traceback
+    # walkers in general position: independent when they outnumber the dimensions (emcee
+    # would refuse them with a traceback), else spanning as many dimensions as they can
+    spread = (walkers_independent(p0) if n_walkers > center.size + 1 else
+              np.linalg.matrix_rank(p0 - p0.mean(axis=0), tol=1e-12 * float(np.abs(factor).max()))
+              == n_walkers - 1)
+    if not spread:
         raise InvalidInput(["The posterior's walkers cannot spread around the start (pulled "
                             "back into the support they collapse onto fewer dimensions than "
                             "the parameters: the readings fit exactly or a parameter sits at "
