@@ -284,3 +284,28 @@ def test_cli_posterior_table_and_time_budget(tmp_path, capsys, toy_cli):
     code, out, err = run(capsys, "estimate", "toy_line", path, "--uncertainty", "posterior",
                          "--max-seconds", "1e-9")
     assert code == 1 and "time budget" in err
+
+
+def test_bias_is_corrected_where_the_monte_carlo_pins_it_down():
+    """A bias beyond three of its Monte Carlo standard errors is corrected; a smaller one is
+    noise and left alone; with heavy tails (the mean outside the interval, or a standard
+    deviation far beyond the interval's spread) none is, and u comes from the interval."""
+    from types import SimpleNamespace
+
+    from mtplan.evaluation.measured import _corrected
+
+    # errors: significant bias, insignificant bias, heavy tails (std >> interval), and two
+    # heavy-tailed ones whose interval does not hold the estimate: the mean inside it, outside
+    mc = SimpleNamespace(trials=10_000, std=np.array([1.0, 1.0, 500.0, 50.0, 50.0]),
+                         mean=np.array([0.5, 0.01, 40.0, 3.0, 40.0]),
+                         low=np.array([-1.46, -1.95, -2.0, 2.5, 2.5]),
+                         high=np.array([2.46, 1.97, 2.0, 8.0, 8.0]))
+    r = SimpleNamespace(mc=mc, true=np.zeros(5))
+    notes = []
+    value, corr, u, low, high = _corrected(r, np.full(5, 10.0), list("abcde"), notes, 0.95)
+    assert corr[0] == pytest.approx(-0.5) and corr[1] == 0 and corr[2] == 0
+    assert u[:2].tolist() == [1.0, 1.0] and u[2] == pytest.approx(4.0 / (2 * 1.959964))
+    assert "heavy-tailed" in notes[0] and "c (std 500" in notes[0]
+    # no correction would leave the value outside its own interval [2, 7.5]
+    assert value[3] == pytest.approx(10.0 - 3.0) and value[4] == pytest.approx(10.0 - 5.25)
+    assert np.all(low <= value) and np.all(value <= high)

@@ -221,19 +221,45 @@ def _observes(proc, setup, est_name, est_internal, step):
     return slopes
 
 
-def _corrected(r, estimate, names, notes):
-    """(value, bias correction, low, high): the estimate less the Monte Carlo's mean error, with
-    the interval of the error quantiles; where the mean error lies outside them (heavy tails:
-    rare wild trials dominate the mean), less the middle of the interval instead, noted."""
+def _corrected(r, estimate, names, notes, coverage):
+    """(value, bias correction, u, low, high) from the Monte Carlo around the estimate.
+
+    The interval is the estimate less the quantiles of the estimation error. The bias of
+    the estimator at the estimate (the mean error) is corrected where it is significant,
+    beyond three of its Monte Carlo standard errors; a smaller one is noise, not a
+    recognised systematic effect, and is left alone (GUM 3.2.4). Where the errors are
+    heavy-tailed (their mean outside the interval, or their standard deviation over three
+    times the spread the interval implies: rare wild trials dominate the moments), the
+    Monte Carlo cannot pin a bias down, so none is corrected (unless the estimate lies
+    outside its own interval: then the interval's middle is the value), and the interval's
+    half-width over the coverage factor of a normal distribution stands for the standard
+    deviation, said in a note: the interval is then the result, the moments are not.
+    """
+    from scipy import stats
+
+    names = np.asarray(names)
+    n = max(int(r.mc.trials), 2)
+    std = np.asarray(r.mc.std, dtype=float)
     err_mean = np.asarray(r.mc.mean - r.true, dtype=float)
     err_low, err_high = np.asarray(r.mc.low - r.true), np.asarray(r.mc.high - r.true)
-    wild = ~((err_low <= err_mean) & (err_mean <= err_high))
-    bias = np.where(wild, 0.5 * (err_low + err_high), err_mean)
-    if np.any(wild & np.isfinite(err_mean)):
-        notes.append(f"{', '.join(np.asarray(names)[wild])}: the Monte Carlo's errors are "
-                     "heavy-tailed (their mean lies outside the interval); the estimate is "
-                     "corrected by the middle of the interval instead")
-    return estimate - bias, -bias, estimate - err_high, estimate - err_low
+    k = stats.norm.ppf(0.5 + coverage / 2)
+    robust = (err_high - err_low) / (2 * k)
+    inside = (err_low <= err_mean) & (err_mean <= err_high)
+    heavy = ~inside | (std > 3 * robust)
+    u = np.where(heavy, robust, std)
+    bias = np.where(~heavy & (np.abs(err_mean) > 3 * std / math.sqrt(n)), err_mean, 0.0)
+    # no correction must leave the value outside its own interval
+    middle = 0.5 * (err_low + err_high)
+    bias = np.where((err_low <= bias) & (bias <= err_high), bias,
+                    np.where(inside, err_mean, middle))
+    wild = heavy & np.isfinite(std)
+    if np.any(wild):
+        shown = ", ".join(f"{m} (std {s:.3g}, from the interval {v:.3g})"
+                          for m, s, v in zip(names[wild], std[wild], robust[wild], strict=True))
+        notes.append(f"heavy-tailed Monte Carlo errors of {shown}: rare wild trials dominate "
+                     "the mean and the standard deviation, so no bias correction is made and the "
+                     f"interval's half-width / {k:.2f} stands for u; the interval is the result")
+    return estimate - bias, 0.0 - bias, u, estimate - err_high, estimate - err_low
 
 
 def _mc_result(proc, setup, est_name, est_internal, estimate, *, trials, coverage, root,
@@ -252,8 +278,8 @@ def _mc_result(proc, setup, est_name, est_internal, estimate, *, trials, coverag
                                    " (the estimate is not finite)"))
     r = simulate_uncertainty(proc, setup, truth, estimator=est_name, trials=trials,
                              coverage=coverage, rng=root, progress=False)
-    std = np.asarray(r.mc.std, dtype=float)
-    value, correction, low, high = _corrected(r, estimate, [m.name for m in measurands], notes)
+    value, correction, std, low, high = _corrected(r, estimate, [m.name for m in measurands],
+                                                   notes, coverage)
     slopes = None
     if finite.all():  # over two robust standard deviations (the interval's half width / 2)
         spread = np.where(high > low, 0.5 * (high - low) / 1.96, 0.0)
