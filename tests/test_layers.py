@@ -116,3 +116,24 @@ def test_no_import_cycle():
         if v not in index:
             visit(v)
     assert not cycles, f"import cycles: {cycles}"
+
+
+def _long_functions(limit: int) -> list[str]:
+    """Functions whose code (signature and body, docstring left out) is over `limit` lines."""
+    out = []
+    for path in SRC.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                continue
+            lines = node.end_lineno - node.lineno + 1
+            first = node.body[0]
+            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) \
+                    and isinstance(first.value.value, str):
+                lines -= first.end_lineno - first.lineno + 1
+            if lines > limit:
+                out.append(f"{_module_name(path)}.{node.name} ({lines} lines)")
+    return out
+
+
+def test_no_function_too_long_to_hold_in_ones_head():
+    assert not _long_functions(120), _long_functions(120)

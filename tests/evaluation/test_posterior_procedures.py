@@ -31,8 +31,8 @@ HEAVY = {"line_laser", "geometry21", "tracker_frame"}
 #: There the posterior is narrower than `mc` by design (and calibrated: see
 #: benchmarks/coverage_posterior.py and docs/posterior.md).
 INFORMED = {
-    **{("rotary_axis", m): "the commanded angles (5 arcsec) and the artifact's nominal incline "
-       "and height; the plane fits leave them free" for m in ("EX0C", "EA0C", "EB0C")},
+    **{("rotary_axis", m): "the commanded angles (known to 5 arcsec): the axis direction from "
+       "the plane normals' cone uses none of them" for m in ("EA0C", "EB0C")},
     **{("circle_centre", m): "the first two contacts p1, p2 (on the wall, along y); the "
        "estimators fit d1..d3 only" for m in ("centre_y", "radius")},
     **{("line_laser", m): "the artifact's pattern (cell size, depth, facet angle); the "

@@ -286,6 +286,14 @@ class Setup(SetupBase):
                                     "at each reading [um]", low=0, high=1000)
     flatness_um: float = param(2.0, doc="Flatness of the incline over the lattice, peak to "
                                "valley [um]", low=0, high=1000)
+    artifact_tilt_urad: float = param(2000.0, doc="Half-width (rectangular) of each of the two "
+                                      "tilts of the artifact's real plane from its nominal "
+                                      "incline and azimuth [urad]: the plane is clamped by eye, "
+                                      "not calibrated; the seed's method does not need it",
+                                      low=0, high=1e5)
+    artifact_height_um: float = param(100.0, doc="Half-width (rectangular) of the artifact's "
+                                      "real height from the nominal artifact_height_mm [um] "
+                                      "(fixture drawing and clamping)", low=0, high=1e5)
     thermal_drift_um_per_s: float = param(0.001, doc="Standard deviation of each component "
                                           "(X, Y, Z) of the sensor-to-table drift rate "
                                           "[um/s]", low=0, high=10)
@@ -703,6 +711,17 @@ def sources(setup: Setup) -> dict[str, Source]:
             "over the lattice, coefficients uniform in +-flatness/4, so the form's peak to "
             "valley is about flatness_um. Default 2 um: DIN 876 grade 00 / ISO 8512 for a "
             "lapped face of 100-150 mm (2 (1 + L/1000) um)."),
+        "artifact_tilt": Source(
+            rect(setup.artifact_tilt_urad * 1e-6), (2,),
+            "Tilts of the artifact's real plane from the nominal one, one pair per test: [0] "
+            "about the line across the fall line (the incline angle), [1] about the fall line. "
+            "Default +-2 mrad (0.1 deg): an inclined plane clamped on the table by eye; the "
+            "seed's method (and joint, gls) fit each lattice's plane and never use the nominal "
+            "incline, a posterior must not take it as exact."),
+        "artifact_height": Source(
+            rect(setup.artifact_height_um * um), (),
+            "Real height of the incline's reference point above its nominal, one per test. "
+            "Default +-100 um: the fixture's drawing tolerance and its clamping."),
         "thermal_drift": Source(
             Normal(0.0, setup.thermal_drift_um_per_s * um), (3,),
             "Drift rate (X, Y, Z) of the sensor against the table during the test, one per "
@@ -861,6 +880,24 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict[str, np.ndarray]:
     return {"z_mm": z[0] if len(z) == 1 else np.concatenate(z, axis=1)}
 
 
+def _artifact_pose(g: _Plan, tilt, height) -> tuple[np.ndarray, np.ndarray]:
+    """The artifact's real upward normal and reference point at the zero position: the
+    nominal ones (3,), or (n, 3) turned by the per-test tilts (n, 2) [rad] about the line
+    across the fall line and about the fall line, and raised by `height` (n,) [mm]."""
+    n0, q0 = g.n0, g.q0
+    if tilt is not None and np.any(tilt):
+        fall = np.array([-n0[0], -n0[1], 0.0])  # downhill in the table plane
+        fall = fall - (fall @ n0) * n0
+        norm = np.linalg.norm(fall)
+        f1 = fall / norm if norm > 1e-12 else np.array([1.0, 0.0, 0.0]) - n0[0] * n0
+        f1 = f1 / np.linalg.norm(f1)
+        f2 = np.cross(n0, f1)
+        n0 = _rotate_by_vector(n0, tilt[:, :1] * f2 + tilt[:, 1:] * f1)
+    if height is not None and np.any(height):
+        q0 = q0 + height[:, None] * np.array([0.0, 0.0, 1.0])
+    return n0, q0
+
+
 def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -> np.ndarray:
     """Readings (n, P, M) of one axis's positions; `times` (P, M) [s] for the drift."""
     g = _plan(setup)
@@ -874,7 +911,8 @@ def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -
     # the commanded angle, then by the angular positioning error, then the error motion
     # (tilt about the axis point, radial and axial translation). The normal and the lever
     # arm from the axis point to the incline's reference point turn together: (.., 2, 3).
-    lever = np.stack(np.broadcast_arrays(g.n0, g.q0 - a), axis=-2)  # (2, 3) or (n, 2, 3)
+    n0, q0 = _artifact_pose(g, errors.get("artifact_tilt"), errors.get("artifact_height"))
+    lever = np.stack(np.broadcast_arrays(n0, q0 - a), axis=-2)  # (2, 3) or (n, 2, 3)
     if lever.ndim == 3:
         lever = lever[:, None]
     vec = _rotate_about(lever, ub, g.theta[:, None])  # (P, 2, 3) or (n, P, 2, 3)
