@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+import warnings
 
 from mtplan.cli._common import (
     UsageError,
@@ -55,7 +56,7 @@ def register(sub) -> None:
 def cmd_estimate(args) -> int:
     """Read the readings, estimate, print; exit status 2 with one line on bad input."""
     from mtplan.evaluation.measured import estimate_measured, read_measurement
-    from mtplan.evaluation.posterior import NotConvergedError
+    from mtplan.evaluation.posterior import NotConvergedError, UnconvergedWarning
 
     check_outputs(out=args.out)
     noise = _noise(args.noise)
@@ -74,12 +75,16 @@ def cmd_estimate(args) -> int:
     trials = args.trials if args.trials is not None else config.get("trials", 10_000)
     seed = args.seed if args.seed is not None else config.get("seed", 0)
     try:
-        result = estimate_measured(
-            proc, setup, readings, estimator=args.estimator or config.get("estimator"),
-            uncertainty=method, trials=trials, coverage=args.coverage, rng=seed, noise=noise,
-            max_seconds=args.max_seconds, allow_unconverged=args.allow_unconverged,
-            posterior_options={"max_steps": args.max_steps, "progress": None}
-            if method == "posterior" else None)
+        with warnings.catch_warnings():
+            # --allow-unconverged: the result says NOT CONVERGED itself, no Python warning
+            warnings.simplefilter("ignore", UnconvergedWarning)
+            result = estimate_measured(
+                proc, setup, readings, estimator=args.estimator or config.get("estimator"),
+                uncertainty=method, trials=trials, coverage=args.coverage, rng=seed,
+                noise=noise, max_seconds=args.max_seconds,
+                allow_unconverged=args.allow_unconverged,
+                posterior_options={"max_steps": args.max_steps, "progress": None}
+                if method == "posterior" else None)
     except NotConvergedError as exc:
         print(f"mtplan: error: {exc}", file=sys.stderr)
         return 1
