@@ -71,6 +71,8 @@ def cmd_simulate(args):
                      f"[{fmt(m['interval'][0], u)}, {fmt(m['interval'][1], u)}]"])
     print_table(["measurand", "unit", "true", "mean", "bias", "u", "interval"], rows)
     print(f"duration of the test: {result.duration_s:.0f} s")
+    for note in result.findings():
+        print(f"note: {note}", file=sys.stderr)
     return 0
 
 

@@ -105,6 +105,23 @@ class ProcedureResult:
             index=pd.Index([m.name for m in self.measurands], name="measurand"),
         )
 
+    def findings(self) -> list[str]:
+        """What a reader of the table must not miss: an interval of zero width (the estimator
+        is quantised or blind to the measurand: its uncertainty is its resolution, which the
+        Monte Carlo cannot give) and a bias larger than twice the uncertainty."""
+        out = []
+        for i, m in enumerate(self.measurands):
+            u, bias = float(self.mc.std[i]), float(self.bias[i])
+            if not self.mc.high[i] > self.mc.low[i]:
+                out.append(f"{m.name}: the {self.estimator} estimator gives the same value in "
+                           f"(almost) every trial, an interval of zero width: it is quantised "
+                           f"or blind to {m.name} here, so this u is not its uncertainty")
+            elif u > 0 and abs(bias) > 2 * u:
+                out.append(f"{m.name}: the {self.estimator} estimator's bias ({bias:.3g} "
+                           f"{m.unit}) is {abs(bias) / u:.1f} times its u: the estimate is off, "
+                           "not merely uncertain")
+        return out
+
     def to_dict(self) -> dict:
         """The ``--json`` document of ``mtplan simulate`` (see DESIGN.md)."""
         seed = self.mc.seed
@@ -114,6 +131,7 @@ class ProcedureResult:
             "setup": self.setup.as_dict(),
             "seed": int(seed) if isinstance(seed, int | np.integer) else list(seed),
             "trials": int(self.mc.trials),
+            "findings": self.findings(),
             "measurands": [
                 {
                     "name": m.name,
