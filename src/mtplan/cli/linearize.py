@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 
 from mtplan.cli._common import (
     add_common,
@@ -65,4 +66,10 @@ def cmd_linearize(args):
         rows.append([m["name"], m["unit"], fmt(m["value"], u), f"{u:.3g}",
                      f"[{fmt(m['interval'][0], u)}, {fmt(m['interval'][1], u)}]", top])
     print_table(["measurand", "unit", "value", "u", "interval", "largest sources"], rows)
+    for m in doc["measurands"]:
+        if not m["std"] > 0:
+            print(f"note: {m['name']}: u = 0: the {doc['estimator']} estimator does not move "
+                  "with any error source at first order (it is quantised or blind to this "
+                  "measurand), so the law of propagation cannot give its uncertainty",
+                  file=sys.stderr)
     return 0
