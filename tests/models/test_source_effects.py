@@ -56,7 +56,7 @@ CASES = [
     ("rotary_axis", {"axis": "CA"}, "angular_positioning", set()),
     # the artifact's real pose: every estimator fits each lattice's plane, none uses it
     ("rotary_axis", {"axis": "CA"}, "artifact_tilt", set()),
-    ("rotary_axis", {"axis": "CA"}, "artifact_height", set()),
+    ("rotary_axis", {"axis": "CA"}, "artifact_height_error", set()),
     # geometry21, issue 16 (joint, the seed's set-up): the lines run back and forth and the
     # circles both ways, so reversal cancels; a scale growing over the test's time moves the
     # positioning errors only; the head's drift the translational errors and squareness,

@@ -131,7 +131,6 @@ class ProcedureResult:
             "setup": self.setup.as_dict(),
             "seed": int(seed) if isinstance(seed, int | np.integer) else list(seed),
             "trials": int(self.mc.trials),
-            "findings": self.findings(),
             "measurands": [
                 {
                     "name": m.name,

@@ -291,9 +291,10 @@ class Setup(SetupBase):
                                       "incline and azimuth [urad]: the plane is clamped by eye, "
                                       "not calibrated; the seed's method does not need it",
                                       low=0, high=1e5)
-    artifact_height_um: float = param(100.0, doc="Half-width (rectangular) of the artifact's "
-                                      "real height from the nominal artifact_height_mm [um] "
-                                      "(fixture drawing and clamping)", low=0, high=1e5)
+    artifact_height_error_um: float = param(100.0, doc="Half-width (rectangular) of the "
+                                            "artifact's real height from the nominal "
+                                            "artifact_height_mm [um] (fixture drawing and "
+                                            "clamping)", low=0, high=1e5)
     thermal_drift_um_per_s: float = param(0.001, doc="Standard deviation of each component "
                                           "(X, Y, Z) of the sensor-to-table drift rate "
                                           "[um/s]", low=0, high=10)
@@ -718,8 +719,8 @@ def sources(setup: Setup) -> dict[str, Source]:
             "Default +-2 mrad (0.1 deg): an inclined plane clamped on the table by eye; the "
             "seed's method (and joint, gls) fit each lattice's plane and never use the nominal "
             "incline, a posterior must not take it as exact."),
-        "artifact_height": Source(
-            rect(setup.artifact_height_um * um), (),
+        "artifact_height_error": Source(
+            rect(setup.artifact_height_error_um * um), (),
             "Real height of the incline's reference point above its nominal, one per test. "
             "Default +-100 um: the fixture's drawing tolerance and its clamping."),
         "thermal_drift": Source(
@@ -911,7 +912,7 @@ def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -
     # the commanded angle, then by the angular positioning error, then the error motion
     # (tilt about the axis point, radial and axial translation). The normal and the lever
     # arm from the axis point to the incline's reference point turn together: (.., 2, 3).
-    n0, q0 = _artifact_pose(g, errors.get("artifact_tilt"), errors.get("artifact_height"))
+    n0, q0 = _artifact_pose(g, errors.get("artifact_tilt"), errors.get("artifact_height_error"))
     lever = np.stack(np.broadcast_arrays(n0, q0 - a), axis=-2)  # (2, 3) or (n, 2, 3)
     if lever.ndim == 3:
         lever = lever[:, None]
