@@ -271,3 +271,19 @@ def test_circle_with_angles_refuses_too_few_distinct_angles():
         fit_circle_3d_angles(p, np.radians([0.0, 10.0, 370.0]))
     with pytest.raises(ValueError, match="shape"):
         fit_circle_3d_angles(p, np.radians([0.0, 10.0]))
+
+
+def test_circle_with_angles_weights_equal_repeated_points():
+    # a point of weight 3 counts as the same point taken three times
+    rng = np.random.default_rng(5)
+    angles = np.radians(np.linspace(-30, 30, 6))
+    p = _circle_points([1.0, 2.0, 3.0], [0.1, 0.2, 1.0], 300.0, np.degrees(angles))
+    p = p + rng.normal(0, 0.01, p.shape)
+    w = np.array([1.0, 3.0, 1.0, 2.0, 1.0, 1.0])
+    rep = np.repeat(np.arange(6), w.astype(int))
+    a = fit_circle_3d_angles(p, angles, w)
+    b = fit_circle_3d_angles(p[rep], angles[rep])
+    for x, y in ((a.centre, b.centre), (a.normal, b.normal), (a.radius, b.radius)):
+        np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-9)
+    with pytest.raises(ValueError, match="'weights'"):
+        fit_circle_3d_angles(p, angles, -w)

@@ -47,6 +47,9 @@ CASES = [
     ("tracker_frame", {}, "thermal_drift", ALL),
     # the travels' deviations tilt the fitted lines only; the arcs give the origin
     ("tracker_frame", {}, "straightness", TRACKER_DIRECTIONS),
+    # the reflector off its stated place on the fixture: every estimator fits the circles'
+    # radii and phases, none uses the offset
+    ("tracker_frame", {}, "reflector_fixture", set()),
     # rotary_axis, the combined C+A test: translations of the axis at each position move
     # the axes' positions, the offset of C from A and the pose, never a direction; tilts
     # the reverse; the angles are not used at all

@@ -434,3 +434,48 @@ def test_an_arc_too_short_for_the_noise_is_refused_not_estimated():
     readings = PROC.simulate(setup, draws=50, rng=4)
     with pytest.raises(InvalidInput, match="A arc of sub-machine 1 did not converge"):
         PROC.estimate(setup, readings)
+
+
+def test_reflector_fixture_moves_the_reflector_in_the_heads_directions():
+    # across C away from it, along C, round C: each moves every point of that sub-machine
+    # (lines and arcs alike) as the reflector itself, the arcs turning it round their axes
+    setup = PROC.Setup()
+    truth = PROC.Truth()
+    q = setup.points_per_arc
+    zero = np.zeros((1, 2 * setup.n_submachines * q))
+    fixture = np.zeros((1, setup.n_submachines, 3))
+    fixture[0, 0] = (0.05, -0.02, 0.03)
+    moved = tf._machine_points(setup, truth, zero, fixture)[0]
+    h = tf._head(setup, truth, 0)
+    shift = 0.05 * h.perp - 0.02 * h.c_dir + 0.03 * np.cross(h.perp, h.c_dir)
+    moved_head = tf._Head(**{**h.__dict__, "reflector": h.reflector + shift})
+    sl = tf._slices(setup)
+    lin = tf._linear_positions(setup)["Y"]
+    s = sl[("Y", 1)]
+    np.testing.assert_allclose(moved[s.start - 4:s.stop - 4],
+                               moved_head.reflector + lin[:, None] * h.axes[1], atol=1e-12)
+    a_ang = np.radians(tf._arc_angles(setup.a_arc_deg, q))
+    s = sl[("A", 1)]
+    expect = h.a_point + tf._mv(tf._rot(h.a_dir, a_ang), moved_head.reflector - h.a_point)
+    np.testing.assert_allclose(moved[s.start - 4:s.stop - 4], expect, atol=1e-12)
+    base = tf._machine_points(setup, truth)
+    s = sl[("X", 2)]
+    np.testing.assert_array_equal(moved[s.start - 4:], base[s.start - 4:])  # sub-machine 2
+    src = PROC.sources(setup)["reflector_fixture"]
+    assert src.shape == (setup.n_submachines, 3)
+    assert src.distribution.std == pytest.approx(0.05 / math.sqrt(3))
+
+
+@pytest.mark.parametrize("estimator", ESTIMATORS)
+def test_tracker_position_is_found_by_the_registration(estimator):
+    # a tracker placed 3 cm off its stated place reads other numbers, but the
+    # registration on the marks finds it: the estimate does not move
+    setup = PROC.Setup()
+    truth = PROC.Truth()
+    moved = tf.Truth(**{**truth.__dict__, "tracker_dx_um": 3e4, "tracker_dy_um": -2e4,
+                        "tracker_dz_um": 1e4})
+    base, r = _noise_free(setup, truth), _noise_free(setup, moved)
+    assert np.max(np.abs(r["distance_mm"] - base["distance_mm"])) > 1.0
+    a = PROC.display_estimate(setup, base, estimator)
+    b = PROC.display_estimate(setup, r, estimator)
+    assert max(abs(a[k][0] - b[k][0]) for k in a) < 1e-6

@@ -349,7 +349,7 @@ class Circle3DAngles(NamedTuple):
     zero_direction: np.ndarray
 
 
-def fit_circle_3d_angles(points, angles) -> Circle3DAngles:
+def fit_circle_3d_angles(points, angles, weights=None) -> Circle3DAngles:
     """Least-squares circle in space through points at known angles.
 
     Parameters
@@ -358,12 +358,15 @@ def fit_circle_3d_angles(points, angles) -> Circle3DAngles:
     angles : array (..., m) or (m,)
         Angle of each point on the circle [rad] (positive right-handed about the
         normal), known up to one common phase; at least 3 distinct angles (mod 2 pi).
+    weights : array (m,), optional
+        Weight of each point's squared residual (> 0; default all 1): a point that
+        stands for the mean of w equally scattered readings has weight w.
 
     Returns
     -------
     Circle3DAngles
-        Minimiser of ``sum_i |p_i - c - R (cos(theta_i + phi0) e1 + sin(theta_i + phi0)
-        e2)|**2`` over c, R >= 0 and the orthonormal pair (e1, e2); normal ``e1 x e2``.
+        Minimiser of ``sum_i w_i |p_i - c - R (cos(theta_i + phi0) e1 + sin(theta_i +
+        phi0) e2)|**2`` over c, R >= 0 and the orthonormal pair (e1, e2); normal ``e1 x e2``.
 
     Notes
     -----
@@ -383,11 +386,18 @@ def fit_circle_3d_angles(points, angles) -> Circle3DAngles:
             "The 'angles' parameter of fit_circle_3d_angles must have the shape of the "
             f"points without their last axis, {p.shape[:-1]}. Got {th.shape} instead."
         ) from None
+    m = p.shape[-2]
+    w = np.ones(m) if weights is None else np.asarray(weights, dtype=float)
+    if w.shape != (m,) or not np.all(w > 0):
+        raise ValueError("The 'weights' parameter of fit_circle_3d_angles must hold one "
+                         f"positive number per point ({m}). Got {w!r} instead.")
+    w = w / w.mean()
     u = np.stack([np.cos(th), np.sin(th), np.zeros_like(th)], axis=-1)
-    mu_p, mu_u = p.mean(axis=-2), u.mean(axis=-2)
-    pc, uc = p - mu_p[..., None, :], u - mu_u[..., None, :]
-    su = np.einsum("...mi,...mj->...ij", uc[..., :2], uc[..., :2])
-    if np.any(np.linalg.eigvalsh(su)[..., 0] <= 1e-12 * p.shape[-2]):
+    mu_p = np.einsum("m,...mi->...i", w, p) / m
+    mu_u = np.einsum("m,...mi->...i", w, u) / m
+    pc, uc = p - mu_p[..., None, :], (u - mu_u[..., None, :]) * w[:, None]
+    su = np.einsum("...mi,...mj->...ij", uc[..., :2], u[..., :2] - mu_u[..., None, :2])
+    if np.any(np.linalg.eigvalsh(su)[..., 0] <= 1e-12 * m):
         raise ValueError(
             "The 'angles' parameter of fit_circle_3d_angles must hold at least 3 distinct "
             "angles (mod 2 pi) per circle: with fewer the points fix no circle."
@@ -397,7 +407,7 @@ def fit_circle_3d_angles(points, angles) -> Circle3DAngles:
     d = np.sign(np.linalg.det(uu) * np.linalg.det(vt))
     d = np.where(d == 0, 1.0, d)
     q = (uu * np.stack([np.ones_like(d), np.ones_like(d), d], axis=-1)[..., None, :]) @ vt
-    radius = (s[..., 0] + s[..., 1] + d * s[..., 2]) / np.sum(uc * uc, axis=(-2, -1))
+    radius = (s[..., 0] + s[..., 1] + d * s[..., 2]) / np.trace(su, axis1=-2, axis2=-1)
     centre = mu_p - radius[..., None] * np.einsum("...ij,...j->...i", q, mu_u)
     return Circle3DAngles(centre, q[..., :, 2], radius, q[..., :, 0])
 

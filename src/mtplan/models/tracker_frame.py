@@ -161,6 +161,7 @@ always returns, with an uncertainty that grows as the arc shrinks.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -265,6 +266,13 @@ class Setup(SetupBase):
     machine_repeatability_um: float = param(
         2.0, doc="Standard deviation of the machine's positioning at each point (each axis)",
         low=0, high=10000)
+    reflector_fixture_um: float = param(
+        50.0, doc="Half-width (rectangular) of the reflector's position on its fixture about "
+        "the stated one (reflector_offset_mm from C at the tool tip), each direction: across "
+        "C away from it, along C, and round it; one per mounting. Default 50 um for an "
+        "uncalibrated fixture: the arm machined to +-50 um over 150 mm, the nest's height "
+        "against the tool tip to +-50 um, the spindle's orientation stop (+-0.02 deg, 52 um "
+        "at 150 mm). 0 takes the fixture as calibrated", low=0, high=10000)
     rotary_positioning_arcsec: float = param(
         5.0, doc="Standard deviation of the A and C axes' angular positioning at each arc "
         "point (actual minus commanded angle)", low=0, high=36000)
@@ -324,6 +332,12 @@ class Truth(SetupBase):
     tracker_yaw_deg: float = param(30.0, doc="Yaw of the tracker's frame", low=-360, high=360)
     tracker_tilt_x_urad: float = param(50.0, doc="Tracker out of level about X")
     tracker_tilt_y_urad: float = param(-30.0, doc="Tracker out of level about Y")
+    tracker_dx_um: float = param(
+        0.0, doc="Tracker's position off the set-up's (-tracker_distance, 0, tracker_height), "
+        "X: a tripod is placed to centimetres, not micrometres; the registration on the "
+        "marks finds where it stands, as it finds the yaw", low=-1e6, high=1e6)
+    tracker_dy_um: float = param(0.0, doc="... Y", low=-1e6, high=1e6)
+    tracker_dz_um: float = param(0.0, doc="... Z", low=-1e6, high=1e6)
 
     def _check(self, p: Problems) -> None:
         s = abs(math.sin(math.radians(self.ac_angle_deg)))
@@ -503,12 +517,23 @@ def _head(setup: Setup, truth: Truth, k: int) -> _Head:
     return _Head(axes, c_dir, a_dir, wrist, a_point, perp, offset, reflector, origin)
 
 
-def _machine_points(setup: Setup, truth: Truth, rotary_error=None) -> np.ndarray:
+def _fixture_displacement(head: _Head, fixture: np.ndarray) -> np.ndarray:
+    """Global displacement (n, 3) [mm] of the reflector for its fixture errors (n, 3) [mm]:
+    across C away from it (``perp``), along C, and round C (``perp x C``)."""
+    round_c = np.cross(head.perp, head.c_dir)
+    return (fixture[:, 0, None] * head.perp + fixture[:, 1, None] * head.c_dir
+            + fixture[:, 2, None] * round_c)
+
+
+def _machine_points(setup: Setup, truth: Truth, rotary_error=None,
+                    fixture=None) -> np.ndarray:
     """True global positions [mm] of the reflector, layout order.
 
     Without `rotary_error`: shape (n_machine_points, 3) at the commanded angles. With
     `rotary_error` (batch, 2 N points_per_arc) [rad], the actual minus commanded angle
     of every arc point (C then A for each sub-machine): shape (batch, n_machine_points, 3).
+    `fixture` (batch, N, 3) [mm]: the reflector's position on its fixture off the stated
+    one, per sub-machine (see :func:`_fixture_displacement`); it needs `rotary_error`.
     """
     lin = _linear_positions(setup)
     q = setup.points_per_arc
@@ -519,6 +544,9 @@ def _machine_points(setup: Setup, truth: Truth, rotary_error=None) -> np.ndarray
     out = []
     for k in range(setup.n_submachines):
         h = _head(setup, truth, k)
+        if fixture is not None and np.any(fixture[:, k]):
+            h = dataclasses.replace(h, reflector=h.reflector
+                                    + _fixture_displacement(h, fixture[:, k]))
         e_c = err[:, 2 * k * q:(2 * k + 1) * q]
         e_a = err[:, (2 * k + 1) * q:(2 * k + 2) * q]
         for i, ax in enumerate(AXES):
@@ -568,10 +596,13 @@ def _straightness(setup: Setup, truth: Truth, coef: np.ndarray) -> np.ndarray:
 
 
 def _tracker_pose(setup: Setup, truth: Truth) -> tuple[np.ndarray, np.ndarray]:
-    """(R, t): global = R @ tracker + t."""
+    """(R (..., 3, 3), t (..., 3)): global = R @ tracker + t (arrays (m, ...) for a truth
+    whose fields are arrays (m,))."""
     r = _rxyz(np.asarray(truth.tracker_tilt_x_urad) * 1e-6,
               np.asarray(truth.tracker_tilt_y_urad) * 1e-6, np.radians(truth.tracker_yaw_deg))
-    t = np.array([-setup.tracker_distance_mm, 0.0, setup.tracker_height_mm])
+    d = np.stack(np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (
+        truth.tracker_dx_um, truth.tracker_dy_um, truth.tracker_dz_um))), -1)
+    t = np.array([-setup.tracker_distance_mm, 0.0, setup.tracker_height_mm]) + 1e-3 * d
     return r, t
 
 
@@ -672,6 +703,17 @@ def sources(setup: Setup) -> dict[str, Source]:
             "Scatter of the machine's positioning at each measured point, each global axis "
             "[mm]. Default 2 um: an ISO 230-2 unidirectional repeatability of about 8 um "
             "(4 s) for large gantry axes."),
+        "reflector_fixture": Source(
+            Rectangular(-setup.reflector_fixture_um * 1e-3, setup.reflector_fixture_um * 1e-3),
+            (setup.n_submachines, 3),
+            "Position of the reflector on its fixture off the stated one (reflector_offset_mm "
+            "from the C axis, at the tool tip), one per sub-machine (the fixture is mounted "
+            "on each), in the head's directions: across C away from it, along C, round C "
+            "[mm]. The circle fits leave the radius free, so the estimators are blind to it; "
+            "a model that took the offset as exact would know the radii of the C and A "
+            "circles and so where their axes lie across a short arc. Default +-50 um "
+            "(rectangular) for an uncalibrated fixture: arm machined to +-50 um, the nest's "
+            "height to +-50 um, the spindle's orientation stop +-0.02 deg at 150 mm."),
         "rotary_positioning": Source(
             Normal(0.0, setup.rotary_positioning_arcsec * math.pi / 648000), (q,),
             "Angular positioning error of the A and C axes at each arc point (actual minus "
@@ -709,14 +751,15 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     marks = _marks(setup)
     rep = np.asarray(errors["machine_repeatability"])
     batch = rep.shape[0]
-    mach = _machine_points(setup, truth, np.asarray(errors["rotary_positioning"]))
+    mach = _machine_points(setup, truth, np.asarray(errors["rotary_positioning"]),
+                           np.asarray(errors["reflector_fixture"]))
     mach = mach + rep + _straightness(setup, truth, np.asarray(errors["straightness"]))
     pts = np.concatenate([np.broadcast_to(marks, (batch, 4, 3)), mach], axis=1)
     rate = np.asarray(errors["thermal_drift"])
     if np.any(rate):
         pts = pts + rate[:, None, :] * _times(setup)[0][:, None]
     r, t = _tracker_pose(setup, truth)
-    v = (pts - t) @ r  # tracker-frame coordinates: R^T (p - t), row vectors
+    v = (pts - t[..., None, :]) @ r  # tracker-frame coordinates: R^T (p - t), row vectors
     horiz = np.hypot(v[..., 0], v[..., 1])
     d = np.linalg.norm(v, axis=-1)
     az = np.arctan2(v[..., 1], v[..., 0])
@@ -782,6 +825,22 @@ def _fit_arcs_angles(setup: Setup, pts: dict, k: int) -> dict:
             for g, arc in (("C", setup.c_arc_deg), ("A", setup.a_arc_deg))}
 
 
+def _fit_arcs_home(setup: Setup, pts: dict, k: int) -> dict:
+    """Circles with the commanded angles through the arc points and the home position.
+
+    The linear travels run symmetrically about home, so the mean of their points is the
+    reflector at home, the point at angle 0 of both arcs: it joins each arc's fit with
+    the weight of the number of linear points it averages.
+    """
+    q = setup.points_per_arc
+    home = np.concatenate([pts[ax] for ax in AXES], axis=1)
+    weights = np.r_[np.ones(q), home.shape[1]]
+    home = home.mean(axis=1, keepdims=True)
+    return {g: fit_circle_3d_angles(np.concatenate([pts[g], home], axis=1),
+                                    np.r_[np.radians(_arc_angles(arc, q)), 0.0], weights)
+            for g, arc in (("C", setup.c_arc_deg), ("A", setup.a_arc_deg))}
+
+
 def _estimate(setup: Setup, readings: dict, fit_arcs) -> dict[str, np.ndarray]:
     """Registration, lines, the arcs by `fit_arcs`, then the seed's construction."""
     xyz = _cartesian(readings)
@@ -844,6 +903,17 @@ def estimate_angles(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
     is the normal ``e1 x e2`` through c. Everything after the axis lines is the seed's.
     """
     return _estimate(setup, readings, _fit_arcs_angles)
+
+
+def estimate_home(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
+    """As :func:`estimate_angles`, with the home position in both circle fits.
+
+    The reflector at home is on every group of points: the middle of each linear
+    travel and angle 0 of each arc. The mean of the linear points (symmetric about
+    home) estimates it from 3 ``points_per_axis`` readings; it joins each arc's fit as
+    a point at angle 0 of that weight (:func:`_fit_arcs_home`).
+    """
+    return _estimate(setup, readings, _fit_arcs_home)
 
 
 def true_values(setup: Setup, truth: Truth) -> dict[str, float]:
@@ -1062,7 +1132,7 @@ PROCEDURE = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators={"patent": estimate_patent, "angles": estimate_angles},
+    estimators={"patent": estimate_patent, "angles": estimate_angles, "home": estimate_home},
     true_values=true_values,
     duration=duration,
     readings_frame=readings_frame,
@@ -1071,7 +1141,7 @@ PROCEDURE = Procedure(
         "Laser-tracker calibration of the frames of the AC-head sub-machines of a gantry "
         "(CN106078359A): lines along the travels, 3D circles round A and C, the common "
         "perpendicular of A and C, origin at the pivot length along C, longest travel kept."),
-    exact_estimators=("patent", "angles"),
+    exact_estimators=("patent", "angles", "home"),
     block_size=4000,
     truth_from_estimate=truth_from_estimate,
     levers=tuple("reflector_offset_mm travel_x_mm travel_y_mm travel_z_mm "
