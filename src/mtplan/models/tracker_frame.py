@@ -49,7 +49,7 @@ Measurands, for each sub-machine k = 1..N:
 
 Estimators
 ----------
-- ``patent`` (default): the seed's method as above; the A and C circles are full 3D
+- ``patent``: the seed's method as above; the A and C circles are full 3D
   orthogonal-distance circles through the points, which do not use the angles at
   which the points were taken.
 - ``angles``: the same construction, but each circle is fitted with the commanded
@@ -65,6 +65,14 @@ Estimators
   reflector hangs below the A axis), so the height of the A line, of T and of the
   origin. The price: ``angles`` trusts the encoders, so the rotary axes' positioning
   error enters it (and only it). Everything after the axis lines is shared.
+- ``home``: ``angles`` with one more point in each circle fit, the reflector at home
+  (angle 0 of both arcs, the middle of every linear travel), estimated by the mean of
+  the ``3 points_per_axis`` linear points (symmetric about home) and weighted by their
+  number. The same reflector at the same home is on every group of points of a
+  sub-machine; the separate fits leave that out, the forward model (and so the
+  posterior) does not. It is the default by the smallest-geometric-mean rule: on the
+  example readings it narrows u(ac_offset_1) from 23.7 to 18.4 um and u(origin_y_1)
+  from 8.2 to 7.7 um (4000 trials).
 
 What the Monte Carlo shows (docs/tracker_frame.md holds the tables and the commands):
 on short A arcs ``angles`` determines origin_z and the A-C offset several times better
@@ -141,9 +149,31 @@ Decisions where the seed is silent or PROCEDURES.md leaves a choice
   systematic (cyclic, repeatable) part of a real axis's positioning error is
   correlated from point to point, which this model does not capture. ``patent``
   does not see this error at all (its points stay on the true circles).
+- **Reflector fixture.** ``reflector_offset_mm`` is the fixture's stated (drawing)
+  offset. An uncalibrated fixture clamped in a spindle puts its nest within tens of
+  micrometres of that: the arm is machined to a tolerance, the nest's height against
+  the tool tip likewise, and the arm's direction round C is set by the spindle's
+  orientation stop (+-0.02 deg is 52 um at 150 mm). Source ``reflector_fixture``
+  (default +-50 um, rectangular, each of the three directions, one per mounting)
+  carries it. The estimators are blind to it (their circles' radii and phases are
+  free); without it a posterior would know the radii of the C and A circles to
+  the micrometre, and with them where a short A arc's axis lies (u(origin_z_1) 8.0 um
+  against 15.5 um from ``angles``). Set it to 0 for a calibrated fixture.
+- **Tracker position.** The tracker stands near ``(-tracker_distance, 0,
+  tracker_height)``; the Truth fields ``tracker_dx_um``, ``tracker_dy_um``,
+  ``tracker_dz_um`` (default 0) say where exactly. The registration on the marks
+  finds it together with the yaw, so every estimator is blind to it; a posterior
+  that took the set-up's position as exact would skip the registration's translation
+  error (about 4 um in each direction from four marks, the rest of the gap in
+  origin_x and origin_y).
 - **Pivot length.** ``pivot_length_mm`` is the stated value the estimator uses; the
   true pivot length differs by ``Truth.pivot_length_error_um`` (default 0), which
-  shows up as a bias of the origin along C (the readings do not depend on it).
+  shows up as a bias of the origin along C (the readings do not depend on it). It is
+  not a source: it comes from the head's own calibration (tool setter, RTCP cycle),
+  it is not in the readings of this test (the reflector's height against the tool tip
+  is the fixture's), so every estimator and the posterior add it alike, 1:1 along C;
+  the origins are stated conditional on the stated L, and u(L) adds in quadrature to
+  origin along C.
 - Not modelled: line-of-sight limits of the tracker, a drift of the tracker's
   orientation (only its position drifts), the systematic (repeatable) part of the
   rotary axes' positioning error, re-measuring the marks at the end of the test.
