@@ -177,6 +177,7 @@ __all__ = [
     "height_map",
     "estimate_patent",
     "estimate_registration",
+    "estimate_pattern",
     "PROCEDURE",
 ]
 
@@ -1157,6 +1158,223 @@ def _registration_core(setup, z) -> dict:
     return {"alpha_z": az, "alpha_y": ay, "alpha_x": ax}
 
 
+# --------------------------------------------------------------------------- pattern
+#: Truth fields the pattern fit estimates: the three angles and the artifact's pose
+_FIT_FIELDS = ("alpha_z_mrad", "alpha_y_mrad", "alpha_x_mrad", "artifact_x_mm", "artifact_y_mm",
+               "artifact_rz_mrad", "artifact_tilt_x_mrad", "artifact_tilt_y_mrad")
+#: finite-difference steps of the fit's Jacobian [mrad or mm]: 10 urad, 1 um
+_FIT_STEPS = np.array([1e-2, 1e-2, 1e-2, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2])
+#: RMS residual [mm] above which a fit sits in the wrong lattice cell (the pattern's
+#: heights are then off by a good part of the 0.4 mm depth; errors give micrometres)
+_FIT_RMS_MAX = 0.02
+
+
+@functools.lru_cache(maxsize=1)
+def _fit_limits() -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper limits (8,) of the fitted Truth fields (a step stops there)."""
+    from mtplan.models._protocol import fields_info
+
+    info = {i["name"]: i for i in fields_info(Truth)}
+    return (np.array([info[f]["low"] for f in _FIT_FIELDS], dtype=float),
+            np.array([info[f]["high"] for f in _FIT_FIELDS], dtype=float))
+
+
+def _truth_rows(theta: np.ndarray) -> Truth:
+    """A Truth whose fitted fields are arrays (n,) from ``theta`` (n, 8) (no validation:
+    the forward model refuses what it cannot trace)."""
+    import copy
+
+    t = copy.copy(Truth())
+    for k, name in enumerate(_FIT_FIELDS):
+        object.__setattr__(t, name, np.ascontiguousarray(theta[:, k]))
+    return t
+
+
+def _predict(setup, theta: np.ndarray) -> np.ndarray:
+    """Error-free readings (n, 3 * lines * points) [mm] for parameter rows (n, 8)."""
+    n = theta.shape[0]
+    z = forward(setup, _truth_rows(theta), PROCEDURE.zero_errors(setup, n))["z_mm"]
+    return np.asarray(z).reshape(n, -1)
+
+
+@functools.lru_cache(maxsize=16)
+def _pattern_gain(setup, ref: tuple) -> np.ndarray:
+    """Gain K (8, readings) of the generalised least squares at the parameters ``ref``.
+
+    ``K = (J^T C^-1 J)^-1 J^T C^-1`` with ``J`` the readings' Jacobian (central
+    differences, :data:`_FIT_STEPS`, one-sided at the Truth's limits) and ``C = sigma^2 I + U U^T`` their covariance
+    under every active error source of the set-up: ``sigma`` the sensor noise, each
+    column of ``U`` the secant effect (half the change between -1 and +1 standard
+    deviation) of one element of another source, at the same parameters. Solved by
+    Woodbury (``C`` is never formed: 15 600 readings, about 15 columns).
+    """
+    theta = np.asarray(ref, dtype=float)[None, :]
+    low, high = _fit_limits()
+    up = np.minimum(theta + np.diag(_FIT_STEPS), high)  # one-sided at a Truth limit
+    down = np.maximum(theta - np.diag(_FIT_STEPS), low)
+    jac = (_predict(setup, up) - _predict(setup, down)).T / np.diag(up - down)
+    truth = _truth_rows(np.repeat(theta, 2, axis=0))
+    cols = []
+    for name, src in sources(setup).items():
+        if name == PROCEDURE.noise_source or not src.active:
+            continue
+        sd = float(np.max(src.distribution.std))
+        for k in range(src.size):
+            errors = PROCEDURE.zero_errors(setup, 2)
+            errors[name].reshape(2, -1)[:, k] = (sd, -sd)
+            z = forward(setup, truth, errors)["z_mm"].reshape(2, -1)
+            cols.append((z[0] - z[1]) / 2)
+    sigma = setup.sensor_noise_um * 1e-3
+    # without reading noise the weight is that of a noise far below any source's effect
+    scale = max(sigma, 1e-6 * max([float(np.abs(c).max()) for c in cols] + [1e-3]))
+    u = np.stack(cols, axis=1) / scale if cols else np.zeros((jac.shape[0], 0))
+
+    def cinv(a):  # scale^2 C^-1 a
+        return a - u @ np.linalg.solve(np.eye(u.shape[1]) + u.T @ u, u.T @ a)
+
+    wj = cinv(jac)
+    return np.linalg.solve(jac.T @ wj, wj.T)
+
+
+def _reference(theta: np.ndarray) -> tuple:
+    """Rounded parameters (to 1 urad, 1 um) at which a gain is computed and cached."""
+    return tuple(float(v) for v in np.round(np.asarray(theta, dtype=float), 3))
+
+
+def _pattern_iterate(setup, y, theta, *, iterations=40, relinearise=(12,)):
+    """Gauss-Newton with one gain shared by all rows, re-taken at the rows' median
+    after the iterations in `relinearise`; returns (theta, rms residual [mm])."""
+    theta = theta.copy()
+    gain = _pattern_gain(setup, _reference(np.median(theta, axis=0)))
+    ok = np.ones(theta.shape[0], dtype=bool)
+    r = None
+    for it in range(iterations):
+        try:
+            r = y - _predict(setup, theta)
+        except InvalidInput:  # a row left the sensor's range: stop those rows
+            r = np.full_like(y, np.nan)
+        ok = np.all(np.isfinite(r), axis=1)
+        if not ok.any():
+            break
+        step = np.zeros_like(theta)
+        step[ok] = r[ok] @ gain.T
+        theta[ok] = np.clip(theta[ok] + step[ok], *_fit_limits())
+        if np.all(np.abs(step[ok]) <= 1e-10):  # [mrad, mm]: 0.1 prad, 0.1 pm
+            r = y - _predict(setup, theta)
+            break
+        if it in relinearise:
+            gain = _pattern_gain(setup, _reference(np.median(theta[ok], axis=0)))
+    rms = np.sqrt(np.mean(r**2, axis=1)) if r is not None else np.full(theta.shape[0], np.inf)
+    return theta, np.where(ok, rms, np.inf)
+
+
+def _pose_search(setup, z1, angles) -> np.ndarray:
+    """Start parameters (8,) for one trial's scans ``z1`` (3, lines, points): the
+    lattice offset and rotation that best match scan 1, by the least-squares misfit
+    after removing the mean height, over a grid: 0.1 mm over one cell of the lattice
+    and 20 mrad over the Truth's +-100 mrad of rotation (every fourth profile, vertical
+    rays, the angle ``angles[0]`` [mrad] about Z applied to the line, no tilt)."""
+    s = setup.cell_size_mm
+    gx, gy, grz = np.meshgrid(np.arange(0, s * _SQ3 / 2, 0.1), np.arange(0, s, 0.1),
+                              np.arange(-100.0, 100.1, 20.0), indexing="ij")
+    gx, gy, grz = gx.ravel(), gy.ravel(), grz.ravel() * 1e-3
+    az = angles[0] * 1e-3
+    u, yl = _grid_u(setup)[None, :], _grid_y(setup)[::4, None]
+    px = (u * math.cos(az) + 0 * yl).ravel()
+    py = (u * math.sin(az) + yl).ravel()
+    data = z1[0, ::4].ravel()
+    data = data - data.mean()
+    best, best_cost = 0, np.inf
+    for start in range(0, gx.size, 256):  # memory bounded: 256 candidates at a time
+        sl = slice(start, start + 256)
+        c, si = np.cos(grz[sl])[:, None], np.sin(grz[sl])[:, None]
+        dx, dy = px[None, :] - gx[sl, None], py[None, :] - gy[sl, None]
+        h = height_map(setup, c * dx + si * dy, -si * dx + c * dy)[0]
+        h = h - h.mean(axis=1, keepdims=True)  # a reading is the height plus the stand-off
+        cost = ((h - data) ** 2).sum(axis=1)
+        k = int(np.argmin(cost))
+        if cost[k] < best_cost:
+            best, best_cost = start + k, cost[k]
+    return np.array([*angles, gx[best], gy[best], grz[best] * 1e3, 0.0, 0.0])
+
+
+def _pattern_first(setup, z1):
+    """The fit of one trial's scans ``z1`` (3, lines, points): parameters (8,) or None.
+
+    Starts from the registration's angles and the default truth's pose; where that
+    lands in the wrong cell of the lattice, from :func:`_pose_search`. The pose names a
+    cell centre, and the artifact's tilts pivot about it, so the cells' centres are not
+    quite equivalent (the plate's height at the pivot is the set-up's): after a pose
+    search the fit is repeated from the six neighbouring cells and the best kept.
+    """
+    y1 = z1.reshape(1, -1)
+    reg = _registration_core(setup, z1[None])
+    angles = [float(reg[k][0]) * 1e3 for k in ("alpha_z", "alpha_y", "alpha_x")]
+    if not np.all(np.isfinite(angles)):
+        return None
+    start = np.array([*angles, *[getattr(Truth(), f) for f in _FIT_FIELDS[3:]]])
+    th, rms = _pattern_iterate(setup, y1, start[None, :])
+    if rms[0] <= _FIT_RMS_MAX:
+        return th[0]
+    th, rms = _pattern_iterate(setup, y1, _pose_search(setup, z1, angles)[None, :])
+    if not rms[0] <= _FIT_RMS_MAX:
+        return None
+    s = setup.cell_size_mm
+    cells = np.array([[0, s], [0, -s], [s * _SQ3 / 2, s / 2], [-s * _SQ3 / 2, -s / 2],
+                      [s * _SQ3 / 2, -s / 2], [-s * _SQ3 / 2, s / 2]])
+    rz = th[0, 5] * 1e-3
+    moved = cells @ np.array([[math.cos(rz), math.sin(rz)], [-math.sin(rz), math.cos(rz)]])
+    starts = np.repeat(th, len(cells), axis=0)
+    starts[:, 3:5] += moved
+    others, rms_o = _pattern_iterate(setup, np.repeat(y1, len(cells), axis=0), starts)
+    k = int(np.argmin(rms_o))
+    return others[k] if rms_o[k] < rms[0] else th[0]
+
+
+def estimate_pattern(setup, readings) -> dict:
+    """Generalised least squares of the forward model: angles and artifact pose.
+
+    Uses what the registration leaves out: the artifact's pattern as the set-up states
+    it (the hexagonal pockets' pitch, land, depth and facet angle) and the model of every
+    error source. The readings of all three scans are fitted at once over the three
+    angles and the artifact's pose (lattice offset, rotation about Z, two tilts), weighted
+    by the inverse of their covariance under every active error source of the set-up
+    (:func:`_pattern_gain`), by Gauss-Newton with one gain shared by the whole batch
+    (taken at the first trial's fit, :func:`_pattern_first`, and again at the batch's
+    median should it need more than 12 iterations). Trials whose fit misses the pattern
+    (an RMS residual above 20 um: the wrong cell of the lattice) are NaN.
+
+    Arguments, result (angles with sign [rad]) and refusal as
+    :func:`estimate_registration`, from which it starts.
+    """
+    ok, why = _registration_check(setup)
+    if not ok:
+        raise InvalidInput([f"line_laser estimator 'pattern' cannot determine the angles at "
+                            f"this set-up (it starts from the registration): {why}"])
+    z = np.asarray(readings["z_mm"], dtype=float)
+    n = z.shape[0]
+    y = z.reshape(n, -1)
+    theta = np.full((n, len(_FIT_FIELDS)), np.nan)
+    good = np.zeros(n, dtype=bool)
+    todo = np.flatnonzero(np.all(np.isfinite(y), axis=1))
+    for _ in range(3):  # a first trial that cannot be fitted is left out, the next tried
+        if todo.size == 0:
+            break
+        first = todo[0]
+        th = _pattern_first(setup, z[first])
+        if th is None:
+            todo = todo[1:]
+            continue
+        th_all, rms_all = _pattern_iterate(setup, y[todo], np.repeat(th[None, :], todo.size, 0))
+        fit = rms_all <= _FIT_RMS_MAX
+        theta[todo[fit]] = th_all[fit]
+        good[todo[fit]] = True
+        break
+    theta[~good] = np.nan
+    return {"alpha_z": theta[:, 0] * 1e-3, "alpha_y": theta[:, 1] * 1e-3,
+            "alpha_x": theta[:, 2] * 1e-3}
+
+
 # --------------------------------------------------------------------------- time, frames
 def duration(setup) -> float:
     """Machine time of the three scans [s]: scans at the feed the frame rate allows,
@@ -1283,7 +1501,8 @@ PROCEDURE = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators={"patent": estimate_patent, "registration": estimate_registration},
+    estimators={"patent": estimate_patent, "registration": estimate_registration,
+                "pattern": estimate_pattern},
     true_values=true_values,
     duration=duration,
     readings_frame=readings_frame,
@@ -1295,7 +1514,7 @@ PROCEDURE = Procedure(
         "of alpha_x; the registration estimator fits sub-step translations between the scans "
         "and the rotation exactly."
     ),
-    exact_estimators=("registration",),
+    exact_estimators=("registration", "pattern"),
     block_size=128,
     truth_from_estimate=truth_from_estimate,
     noise_source="sensor_noise",
