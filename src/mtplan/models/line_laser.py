@@ -69,6 +69,17 @@ Forward model
     duration model, :func:`duration`). The drift within a scan is the same in all
     three scans and left out. At the default timing (scans 1.5 s apart) a drift of
     10 um/h moves the scans by nanometres; it matters when the scans are minutes apart.
+  - the *position of each facet* of the artifact's pockets (``facet_position_um``), along
+    its in-plane normal, independent from facet to facet: the artifact is machined, and
+    its pattern is known to the machining's few micrometres, not exactly. The
+    registration compares the scans of one and the same artifact and does not see it;
+    the ``pattern`` estimator and the posterior, which use the stated pattern, do. Of the
+    artifact's geometry this is what matters: the pattern's *shape* (where its facets
+    lie relative to each other) carries the single-scan information on ``alpha_z``
+    (the line's skew to the Y motion shears the sampled lattice). Errors common to the
+    whole pattern (pitch, depth, facet angle, land width: tens of micrometres or a
+    fraction of a degree) move the angles by nothing the linearised information can
+    see (docs/line_laser.md has the figures).
 
 Estimators
 ----------
@@ -131,6 +142,24 @@ is what gives ``alpha_x`` its sign: it shifts the pattern along Y by ``-h tan(al
 (first order), where the patent only looks at the height change (second order).
 It needs the facets to be resolved by the sampling (three samples across a facet);
 where they are not, it refuses with the reason (see :func:`observability`).
+
+``pattern`` (uses the artifact's stated pattern and the error model): the generalised least
+squares of the whole forward model over the three angles and the artifact's pose (lattice
+offset, rotation about Z, two tilts), every reading of the three scans at once, weighted by
+the inverse of the readings' covariance under every active error source
+(``C = sigma^2 I + U U^T``, one column of ``U`` per element of a source other than the
+noise: its effect at one standard deviation). Gauss-Newton with one gain shared by the
+whole batch (a linear stage: one matrix product per step), started from the registration's
+angles and the default truth's pose, or a grid search of the lattice offset and rotation
+where that misses. What it uses that the registration does not: a height error that is
+fixed along the line (the sensor's *linearity*) is not a rotation of the line on a known
+pattern, so it separates from ``alpha_y`` (the registration reads its mean over the cells,
+40 of its 41 urad; the pattern fit 2.7 urad); the pattern's shape gives ``alpha_z`` from
+each scan alone, as far as the facets' positions are known (``facet_position``: 25 urad
+with an exact pattern, 40 with facets known to 2 um, against the registration's 47);
+``alpha_x`` gains from the parallax of the pockets' floors (rays tilted by ``alpha_x`` meet
+the floor displaced along Y by the depth times the angle). It is the estimator whose
+Monte Carlo agrees with the posterior, which uses the same information.
 
 Decisions where the seed is silent or loose: the seed's ``cos(alpha_x) = h/h'`` ignores
 ``alpha_y``; we implement it as written and show the contamination. The seed aligns
@@ -245,6 +274,15 @@ class Setup(SetupBase):
     facet_angle_deg: float = param(
         25.0, doc="Inclination of the pocket walls to the plate (draft of the facets)",
         low=0, high=80, low_open=True)
+    facet_position_um: float = param(
+        2.0, doc="Standard deviation of the position of each facet of the pockets, along its "
+                 "in-plane normal, independent from facet to facet: how well the artifact's "
+                 "pattern is known. Default 2 um: an uncalibrated plate milled on a machining "
+                 "centre (ISO 230-2 positioning and contouring deviations and tool deflection "
+                 "of a few um; the drawing tolerance, tens of um, bounds it but is not its "
+                 "size); a CMM calibration of every facet gives about 1 um. Only the "
+                 "'pattern' estimator (and the posterior) use the pattern; the registration "
+                 "compares the scans and does not see it", low=0)
     # machine errors
     shift_error_um: float = param(
         1.0, doc="Standard deviation of the machine's positioning of the X shift w", low=0)
@@ -404,7 +442,49 @@ def _shift(setup) -> float:
     return setup.shift_fraction * setup.line_width_mm
 
 
-def height_map(setup, x, y, *, margin: bool = False):
+#: outward in-plane normals of the six facets of a pocket (index k of an element)
+_FACET_NORMALS = np.array([[_SQ3 / 2, 0.5], [0.0, 1.0], [-_SQ3 / 2, 0.5], [-_SQ3 / 2, -0.5],
+                           [0.0, -1.0], [_SQ3 / 2, -0.5]])
+
+
+def _facet_layout(setup) -> tuple[int, int]:
+    """Period (columns, rows) of the facets' position errors on the pocket lattice, in
+    half lattice spacings (sx/2 = cell_size * sqrt(3)/2 along X, cell_size/2 along Y):
+    wider than the scanned window (w0 + w by the scan's length) plus one pitch: the
+    pockets the scans touch have their centres within the window widened by a pocket's
+    circumradius (under half a pitch) on each side, so no two of them share an error
+    (up to the Truth's +-100 mrad of rotation: the window then leans by at most
+    0.1 (w0 + w) along Y)."""
+    s = setup.cell_size_mm
+    across = setup.line_width_mm + _shift(setup)
+    along = (setup.lines - 1) * setup.step_mm + 0.1 * across
+    return 2 * math.ceil((across + s) / (s * _SQ3)), 2 * math.ceil((along + s) / s)
+
+
+def facet_count(setup) -> int:
+    """Number of facet position errors (six per pocket of :func:`_facet_layout`)."""
+    cols, rows = _facet_layout(setup)
+    return 3 * cols * rows
+
+
+def _lattice_local(setup, x, y):
+    """Offset (dx, dy) [mm] of points from the nearest pocket centre, and that pocket's
+    index in the period of the facet errors (:func:`_facet_layout`)."""
+    s = setup.cell_size_mm
+    sx, sy = s * _SQ3, s
+    # nearest centre of the hexagonal lattice = nearest of its two rectangular sub-lattices
+    i1, j1 = np.round(x / sx), np.round(y / sy)
+    i2, j2 = np.round(x / sx - 0.5), np.round(y / sy - 0.5)
+    dx1, dy1 = x - i1 * sx, y - j1 * sy
+    dx2, dy2 = x - (i2 + 0.5) * sx, y - (j2 + 0.5) * sy
+    first = dx1 * dx1 + dy1 * dy1 <= dx2 * dx2 + dy2 * dy2
+    cols, rows = _facet_layout(setup)
+    ci = np.where(first, 2 * i1, 2 * i2 + 1).astype(np.int64) % cols
+    cj = np.where(first, 2 * j1, 2 * j2 + 1).astype(np.int64) % rows
+    return np.where(first, dx1, dx2), np.where(first, dy1, dy2), ci * (rows // 2) + cj // 2
+
+
+def height_map(setup, x, y, *, margin: bool = False, offsets=None, rows=None):
     """Height of the artifact and its slope, in the artifact's own frame.
 
     Parameters
@@ -414,6 +494,10 @@ def height_map(setup, x, y, *, margin: bool = False):
         Coordinates on the artifact [mm].
     margin : bool
         Also return the distance to the nearest edge of the plane the point lies on.
+    offsets : array (m, facet_count(setup)), optional
+        Position errors of the facets [mm], outward along their in-plane normal
+        (source ``facet_position``), one row per error row; ``rows`` (same shape as
+        ``x``) says which row each point uses.
 
     Returns
     -------
@@ -424,39 +508,50 @@ def height_map(setup, x, y, *, margin: bool = False):
         height map (edge of its facet, of the floor or of the land).
     """
     s = setup.cell_size_mm
-    sx, sy = s * _SQ3, s
-    # nearest centre of the hexagonal lattice = nearest of its two rectangular sub-lattices
-    dx1 = x - np.round(x / sx) * sx
-    dy1 = y - np.round(y / sy) * sy
-    dx2 = x - (np.round(x / sx - 0.5) + 0.5) * sx
-    dy2 = y - (np.round(y / sy - 0.5) + 0.5) * sy
-    first = dx1 * dx1 + dy1 * dy1 <= dx2 * dx2 + dy2 * dy2
-    dx = np.where(first, dx1, dx2)
-    dy = np.where(first, dy1, dy2)
-    # hexagonal norm over the neighbour directions 30, 90, 150 deg:
-    # max(|dy|, |c30 dx + dy/2|, |-c30 dx + dy/2|) = max(|dy|, c30 |dx| + |dy|/2)
-    c30 = _SQ3 / 2
-    adx, ady = np.abs(dx), np.abs(dy)
-    slant = c30 * adx + 0.5 * ady
-    vertical = ady >= slant  # the facet whose normal is along Y
-    rho = np.maximum(ady, slant)
+    dx, dy, pocket = _lattice_local(setup, x, y)
     tan_phi = math.tan(math.radians(setup.facet_angle_deg))
     opening = (s - setup.wall_mm) / 2
     depth = setup.cell_depth_mm
+    if offsets is None:
+        # hexagonal norm over the neighbour directions 30, 90, 150 deg:
+        # max(|dy|, |c30 dx + dy/2|, |-c30 dx + dy/2|) = max(|dy|, c30 |dx| + |dy|/2)
+        c30 = _SQ3 / 2
+        adx, ady = np.abs(dx), np.abs(dy)
+        slant = c30 * adx + 0.5 * ady
+        vertical = ady >= slant  # the facet whose normal is along Y
+        rho = np.maximum(ady, slant)
+        sdy = np.sign(dy)
+        nx = np.where(vertical, 0.0, c30 * np.sign(dx))
+        ny = np.where(vertical, sdy, 0.5 * sdy)
+        corner = np.abs(0.5 * ady - c30 * adx)
+        corner = np.where(vertical, corner, np.minimum(corner, ady))
+    else:
+        # each facet moved outward by its error: rho = max_k (n_k . d - offset_k)
+        off = np.asarray(offsets)[np.asarray(rows)[..., None], 6 * pocket[..., None] + np.arange(6)]
+        proj = dx[..., None] * _FACET_NORMALS[:, 0] + dy[..., None] * _FACET_NORMALS[:, 1] - off
+        top = np.argmax(proj, axis=-1)
+        two = np.sort(proj, axis=-1)[..., -2:]
+        rho, corner = two[..., 1], two[..., 1] - two[..., 0]  # neighbours: |n_i - n_j| = 1
+        nx, ny = _FACET_NORMALS[top, 0], _FACET_NORMALS[top, 1]
     z = np.clip((rho - opening) * tan_phi, -depth, 0.0)
     on_facet = (z < 0) & (z > -depth)
     g = tan_phi * on_facet
-    sdy = np.sign(dy)
-    gx = np.where(vertical, 0.0, c30 * np.sign(dx)) * g
-    gy = np.where(vertical, sdy, 0.5 * sdy) * g
+    gx, gy = nx * g, ny * g
     if not margin:
         return z, gx, gy
     floor = opening - depth / tan_phi
-    corner = np.abs(0.5 * ady - c30 * adx)
-    corner = np.where(vertical, corner, np.minimum(corner, ady))
     edge = np.minimum(np.abs(rho - opening), np.abs(rho - floor))
     out = np.where(on_facet, np.minimum(edge, corner), edge)
     return z, gx, gy, out
+
+
+def _facet_element(setup, x, y, z) -> np.ndarray:
+    """Index of the facet error a point on a facet depends on; -1 on land and floor."""
+    dx, dy, pocket = _lattice_local(setup, x, y)
+    k = np.argmax(dx[..., None] * _FACET_NORMALS[:, 0] + dy[..., None] * _FACET_NORMALS[:, 1],
+                  axis=-1)
+    elem = 6 * pocket + k
+    return np.where((z < 0) & (z > -setup.cell_depth_mm), elem, -1)
 
 
 def _standoff(setup) -> float:
@@ -515,6 +610,13 @@ def sources(setup) -> dict:
             Rectangular(-setup.squareness_zy_urad * 1e-6, setup.squareness_zy_urad * 1e-6), (),
             "Squareness of the Z motion (the raise h) to the Y scan motion, toward +Y; "
             "rectangular +-20 urad (ISO 230-1)."),
+        "facet_position": Source(
+            Normal(0.0, setup.facet_position_um * 1e-3), (facet_count(setup),),
+            "Position error of each facet of the artifact's pockets, along its in-plane "
+            "normal (outward positive), independent from facet to facet; the errors repeat "
+            "with a period wider than the scanned window (:func:`_facet_layout`). Default "
+            "2 um: an uncalibrated pocket milled on a machining centre (ISO 230-2 "
+            "positioning, contouring and tool deflection of a few micrometres)."),
         "drift": Source(
             Normal(0.0, setup.drift_um_per_s * 1e-3), (3,),
             "Thermal drift velocity (X, Y, Z) of the sensor relative to the artifact, one per "
@@ -583,20 +685,23 @@ def _displacements(setup, errors) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- forward
-def _newton(setup, ox, oy, oz, d, t, idx, rays=None):
+def _newton(setup, ox, oy, oz, d, t, idx, rays=None, offsets=None):
     """Solve ``oz + t d_z = height(ox + t d_x, oy + t d_y)`` in place for ``t[idx]``.
 
     Newton's method on the piecewise-planar height map: inside one plane a step is
     exact; across a kink each step contracts the error by ``tan(facet) |d_xy|``
-    (about 1e-2), so it ends at machine precision in a few steps.
+    (about 1e-2), so it ends at machine precision in a few steps. ``offsets`` (m,
+    facets): the facets' position errors of each row of ``rays`` rays (:func:`height_map`).
     """
     for _ in range(60):
         if idx.size == 0:
             break
         tt = t[idx]
         # one direction (3,), or one per batch row (m, 3) for rows of `rays` rays each
-        dx, dy, dz = (d[idx // rays].T if rays else d)
-        z, gx, gy = height_map(setup, ox[idx] + tt * dx, oy[idx] + tt * dy)
+        dx, dy, dz = (d[idx // rays].T if rays and np.ndim(d) == 2 else d)
+        rows = None if offsets is None else idx // rays
+        z, gx, gy = height_map(setup, ox[idx] + tt * dx, oy[idx] + tt * dy, offsets=offsets,
+                               rows=rows)
         step = (oz[idx] + tt * dz - z) / (dz - gx * dx - gy * dy)
         t[idx] = tt - step
         idx = idx[np.abs(step) > 1e-15 * (1.0 + np.abs(tt))]
@@ -677,38 +782,58 @@ def _nominal(setup, truth):
         z, gx, gy, margin = height_map(setup, x, y, margin=True)
         if len(_NOMINAL) > 16:
             _NOMINAL.clear()
+            _FACET_OF.clear()
         _NOMINAL[key] = (t, x, y, z, gx, gy, margin)
+        _FACET_OF[key] = _facet_element(setup, x, y, z)
     return _NOMINAL[key]
 
 
-def _trace(setup, truth, disp):
+_FACET_OF: dict = {}
+
+
+def _trace(setup, truth, disp, offsets=None):
     """Exact heights t [mm] of the rays, shape (m, 3, lines, points), for m error rows.
 
-    ``disp`` (m, 3, 3): each scan's displacement of the sensor [mm]. The errors move
-    the sensor by micrometres. A ray whose error-free hit lies farther from any kink
-    than that move (bounded generously: twice the sum of the components' magnitudes)
-    stays on the same plane, and its hit is the exact ray-plane intersection; the
-    others (near kinks) are solved by :func:`_newton`.
+    ``disp`` (m, 3, 3): each scan's displacement of the sensor [mm]; ``offsets`` (m,
+    facets): the facets' position errors [mm] (:func:`height_map`), None for none. The
+    errors move the sensor and the facets by micrometres. A ray whose error-free hit
+    lies farther from any kink than that move (bounded generously: twice the sum of the
+    components' magnitudes, plus twice the largest facet error) stays on the same
+    plane, and its hit is the exact ray-plane intersection (on a facet, the plane moved
+    by its error: the height changes by ``-offset tan(facet)``); the others (near
+    kinks) are solved by :func:`_newton`.
     """
     _, d, _, _ = _frames(setup, truth)
     ox, oy, oz = _origins(setup, truth, disp)
     m = disp.shape[0]
     batched = _batched(truth)
     # one truth per row: the planes of a nearby truth's error-free hits, checked ray by ray
-    t0, x0, y0, z0, gx0, gy0, margin = _nominal(setup, _row(truth, 0) if batched else truth)
-    rays = ox.shape[1] if batched else None
+    key = _row(truth, 0) if batched else truth
+    t0, x0, y0, z0, gx0, gy0, margin = _nominal(setup, key)
+    rays = ox.shape[1]
+    extra = 0.0
+    if offsets is not None and np.any(offsets != 0):
+        offsets = np.asarray(offsets, dtype=float).reshape(m, -1)
+        elem = _FACET_OF[(setup, key)]
+        on = elem >= 0
+        shift = np.zeros((m, rays))
+        shift[:, on] = -offsets[:, elem[on]] * math.tan(math.radians(setup.facet_angle_deg))
+        z0 = z0 + shift
+        extra = 2.0 * np.abs(offsets).max(axis=1)[:, None]  # (m, 1)
+    else:
+        offsets = None
     d = np.broadcast_to(d, (m, 3)) if batched else d
     dk = d.T[..., None] if batched else d  # components, (3, m, 1) or (3,)
     t = (z0 + gx0 * (ox - x0) + gy0 * (oy - y0) - oz) / (dk[2] - gx0 * dk[0] - gy0 * dk[1])
     if batched:  # on the same plane while the hit stays within its margin
         moved = np.hypot(ox + t * dk[0] - x0, oy + t * dk[1] - y0)
-        near = np.flatnonzero((2.0 * moved + 1e-9 >= margin).ravel())
+        near = np.flatnonzero((2.0 * moved + extra + 1e-9 >= margin).ravel())
     else:
         move = 2.0 * np.abs(disp).sum(axis=2).max(axis=1) + 1e-9
-        near = np.flatnonzero(margin[None, :] <= move[:, None])
+        near = np.flatnonzero((margin[None, :] <= move[:, None] + extra).ravel())
     if near.size:
         t = t.ravel()
-        t = _newton(setup, ox.ravel(), oy.ravel(), oz.ravel(), d, t, near, rays)
+        t = _newton(setup, ox.ravel(), oy.ravel(), oz.ravel(), d, t, near, rays, offsets)
     t = t.reshape(m, 3, setup.lines, setup.points_per_line)
     if np.any(np.abs(t) > setup.range_mm / 2):
         raise InvalidInput([
@@ -735,15 +860,17 @@ def forward(setup, truth, errors) -> dict:
         ``sensor_noise`` (n, 3, lines, points) [mm], ``shift_error`` (n,) [mm],
         ``raise_error`` (n,) [mm], ``trigger_y`` (n, 3) [mm], ``linearity`` (n, 3) [mm],
         ``z_scale`` (n,) [1], ``squareness_xy`` and ``squareness_zy`` (n,) [rad],
-        ``drift`` (n, 3) [mm/s].
+        ``drift`` (n, 3) [mm/s], ``facet_position`` (n, facets) [mm].
     """
     disp = _displacements(setup, errors)
     n = disp.shape[0]
-    if np.all(disp == disp[:1]) and not _batched(truth):  # identical trials: trace once
-        t = np.broadcast_to(_trace(setup, truth, disp[:1]),
+    facets = np.asarray(errors["facet_position"], dtype=float).reshape(n, -1)
+    if np.all(disp == disp[:1]) and np.all(facets == facets[:1]) and not _batched(truth):
+        # identical trials: trace once
+        t = np.broadcast_to(_trace(setup, truth, disp[:1], facets[:1]),
                             (n, 3, setup.lines, setup.points_per_line))
     else:
-        t = _trace(setup, truth, disp)
+        t = _trace(setup, truth, disp, facets)
     scale = np.asarray(errors["z_scale"], dtype=float).reshape(n)
     lin = np.asarray(errors["linearity"], dtype=float).reshape(n, -1) @ _linearity_basis(setup)
     z = (1.0 + scale)[:, None, None, None] * t + lin[:, None, None, :]
