@@ -33,8 +33,6 @@ HEAVY = {"line_laser", "geometry21", "tracker_frame"}
 INFORMED = {
     **{("rotary_axis", m): "the commanded angles (known to 5 arcsec): the axis direction from "
        "the plane normals' cone uses none of them" for m in ("EA0C", "EB0C")},
-    **{("circle_centre", m): "the first two contacts p1, p2 (on the wall, along y); the "
-       "estimators fit d1..d3 only" for m in ("centre_y", "radius")},
     **{("tracker_frame", f"{m}_{k}"): "the reflector offset and pivot length of the set-up; the "
        "circle fits leave the radius free" for m in ("origin_x", "origin_y", "origin_z",
                                                       "ac_offset") for k in (1, 2)},

@@ -392,3 +392,48 @@ def test_fit_points_refuses_bad_points():
         cc.fit_points([0, 1, 2], [0, 1, 2], "three_point")
     out = cc.fit_points([0, 2, 0], [0, 0, 2], "three_point")
     assert out == pytest.approx({"centre_x_mm": 1, "centre_y_mm": 1, "radius_mm": math.sqrt(2)})
+
+
+# --------------------------------------------------------------------------- gls
+def test_gls_weights_are_the_forward_models_radial_covariance():
+    """The analytic radial covariance of the contacts (the weights of ``gls``) against a
+    Monte Carlo of the forward model with every default source on (start fixed), each
+    element within 5 of its standard errors ``sqrt((s_ii s_jj + s_ij^2) / N)``."""
+    n_trials = 20_000
+    setup = P.setup(start_scatter_mm=0.0)
+    truth = P.truth(start_x_mm=-60.0, start_y_mm=30.0)
+    readings = P.simulate(setup, truth, draws=n_trials, rng=11)
+    pts, approach, has_p = cc._contacts(readings)
+    assert has_p.all()
+    centre = np.array([truth.centre_x_mm, truth.centre_y_mm])
+    r = setup.bore_radius_mm + truth.radius_deviation_mm
+    diff = pts - centre
+    e = np.linalg.norm(diff, axis=-1) - r
+    u = diff / np.linalg.norm(diff, axis=-1, keepdims=True)
+    empirical = np.cov(e, rowvar=False)
+    # the contacts' directions barely move from trial to trial: the mean covariance
+    analytic = cc._radial_covariance(setup, u, approach, np.full(n_trials, r)).mean(axis=0)
+    sd = np.sqrt(np.diag(analytic))
+    se = np.sqrt((np.outer(sd, sd) ** 2 + analytic**2) / n_trials)
+    assert np.all(np.abs(empirical - analytic) <= 5 * se), (empirical - analytic) / se
+
+
+def test_gls_without_p1_p2_fits_the_measuring_points_alone():
+    setup = P.setup(n_points=6, start_scatter_mm=0)
+    truth = P.truth(centre_x_mm=0.3, centre_y_mm=-0.2, radius_deviation_mm=0.01)
+    readings = dict(P.forward(setup, truth, P.zero_errors(setup, 1)))
+    readings["p_x_mm"] = np.full((1, 2), np.nan)
+    readings["p_y_mm"] = np.full((1, 2), np.nan)
+    out = cc.estimate_gls(setup, readings)
+    for k, v in {"centre_x": 0.3, "centre_y": -0.2, "radius": 0.01}.items():
+        assert out[k][0] == pytest.approx(v, abs=1e-9), k
+
+
+def test_gls_uses_p1_p2_and_beats_the_unweighted_fits():
+    """p1 and p2 carry centre_y; the weights take the shared errors (form, pre-travel lobes,
+    scale) into account: gls is the best of the exact estimators at the default set-up."""
+    setup = P.setup()
+    std = {e: _std(setup, e, None, trials=2000) for e in ("kasa", "gls")}
+    rel = 4 / math.sqrt(2 * 1999)
+    assert std["gls"]["centre_y"] < 0.6 * std["kasa"]["centre_y"] * (1 + rel)
+    assert std["gls"]["radius"] < std["kasa"]["radius"] * (1 + rel)

@@ -46,7 +46,7 @@ __all__ = ["Budget", "Gaussian", "error_budget", "DENSE_MAX", "NONLINEAR", "MAX_
 
 _LOG_2PI = math.log(2 * math.pi)
 DENSE_MAX = 2000  # readings: dense covariance up to this count
-NONLINEAR = 0.5  # curvature norm [readings' independent scatter] above which a source is sampled
+NONLINEAR = 0.1  # curvature norm [readings' independent scatter] above which a source is sampled
 MAX_NUISANCE = 16  # at most this many source elements are sampled as nuisance parameters
 _ABSORBED = 1e-5  # relative residual below which a source is reproduced by free parameters
 _SUPPORT = 1e-9  # relative size below which an element's effect on a reading is zero

@@ -144,8 +144,9 @@ class MeasuredResult:
 _BEST: dict = {}
 
 
-def _best_estimator_cached(proc, setup) -> tuple[str, str]:
-    """(best estimator, how much worse the others are), computed once per set-up."""
+def _best_estimator_cached(proc, setup) -> tuple[tuple[str, float], ...]:
+    """The exact estimators, best first, each with its geometric mean of u relative to the
+    best's; computed once per set-up."""
     key = (proc.name, tuple(proc.exact_estimators), setup)
     if key not in _BEST:
         if len(_BEST) > 64:
@@ -154,12 +155,12 @@ def _best_estimator_cached(proc, setup) -> tuple[str, str]:
     return _BEST[key]
 
 
-def _choose_estimator(proc, setup) -> tuple[str, str]:
+def _choose_estimator(proc, setup) -> tuple[tuple[str, float], ...]:
     from mtplan.evaluation.simulation import simulate_uncertainty
 
     candidates = list(proc.exact_estimators) or [proc.default_estimator]
     if len(candidates) == 1:
-        return candidates[0], ""
+        return ((candidates[0], 1.0),)
     scores = {}
     for est in candidates:
         try:
@@ -171,10 +172,9 @@ def _choose_estimator(proc, setup) -> tuple[str, str]:
         if np.all(np.isfinite(std) & (std > 0)):
             scores[est] = float(np.mean(np.log(std)))
     if not scores:
-        return proc.default_estimator, ""
-    best = min(scores, key=scores.get)
-    ratio = {e: math.exp(s - scores[best]) for e, s in scores.items() if e != best}
-    return best, ", ".join(f"{e} x{r:.2f}" for e, r in ratio.items())
+        return ((proc.default_estimator, 1.0),)
+    ranked = sorted(scores, key=scores.get)
+    return tuple((e, math.exp(scores[e] - scores[ranked[0]])) for e in ranked)
 
 
 def best_estimator(procedure, setup) -> str:
@@ -190,7 +190,35 @@ def best_estimator(procedure, setup) -> str:
 
     proc = get(procedure)
     proc.check_setup(setup)
-    return _best_estimator_cached(proc, setup)[0]
+    return _best_estimator_cached(proc, setup)[0][0]
+
+
+def _default_estimate(proc, setup, readings, measurands, notes):
+    """The best estimator whose estimate from these readings is finite, and that estimate.
+
+    An estimator that needs readings the file does not hold (circle_centre's
+    ``all_contacts`` on a bare point file) gives NaN; the next best is used, noted."""
+    ranked = _best_estimator_cached(proc, setup)
+    skipped = []
+    for name, _ in ranked:
+        est = proc.estimate(setup, readings, name)
+        if all(np.all(np.isfinite(np.asarray(est[m.name], dtype=float))) for m in measurands):
+            break
+        skipped.append(name)
+    else:
+        name, _ = ranked[0]
+        est, skipped = proc.estimate(setup, readings, name), []
+    others = [(e, r / dict(ranked)[name]) for e, r in ranked if e != name and e not in skipped]
+    text = f"estimator {name}: the best of {proc.name}'s at this set-up"
+    if others:
+        text += (" (geometric mean of u relative to it: "
+                 + ", ".join(f"{e} x{r:.2f}" for e, r in others) + ")")
+    if skipped:
+        text += (f"; {', '.join(skipped)} (better) give no finite estimate from these readings "
+                 "(they use readings the file does not hold)")
+    if len(ranked) > 1:
+        notes.append(text)
+    return name, est
 
 
 def _observes(proc, setup, est_name, est_internal, step):
@@ -368,15 +396,12 @@ def estimate_measured(
     p.number("coverage", coverage, low=0, high=1, low_open=True, high_open=True)
     p.raise_if_any()
     notes = []
+    measurands = tuple(proc.measurands(setup))
     if estimator is None:
-        est_name, others = _best_estimator_cached(proc, setup)
-        if others:
-            notes.append(f"estimator {est_name}: the best of {proc.name}'s at this set-up "
-                         f"(geometric mean of u relative to it: {others})")
+        est_name, est_internal = _default_estimate(proc, setup, readings, measurands, notes)
     else:
         est_name, _ = proc.estimator(estimator)
-    measurands = tuple(proc.measurands(setup))
-    est_internal = proc.estimate(setup, readings, est_name)
+        est_internal = proc.estimate(setup, readings, est_name)
     est_internal = {m.name: float(np.asarray(est_internal[m.name]).reshape(-1)[0])
                     for m in measurands}
     estimate = np.array([est_internal[m.name] * m.scale for m in measurands])

@@ -579,8 +579,100 @@ def estimate_geometric(setup: Setup, readings: dict) -> dict:
     return _result(geometric_fit(x, y), setup)
 
 
+def _contacts(readings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every contact (..., m, 2) with its approach direction (..., m, 2) (NaN: radial): p1
+    (along -y) and p2 (along +y) where the readings hold them, then d1..dn; and a mask (...)
+    of the rows that hold p1, p2."""
+    x, y = _xy(readings)
+    d = np.stack([x, y], axis=-1)
+    p = np.stack(np.broadcast_arrays(np.asarray(readings["p_x_mm"], dtype=float),
+                                     np.asarray(readings["p_y_mm"], dtype=float)), axis=-1)
+    p = np.broadcast_to(p, d.shape[:-2] + (2, 2))
+    has_p = np.all(np.isfinite(p), axis=(-2, -1))
+    pts = np.concatenate([p, d], axis=-2)
+    approach = np.full(pts.shape, np.nan)
+    approach[..., 0, :] = (0.0, -1.0)
+    approach[..., 1, :] = (0.0, 1.0)
+    return pts, approach, has_p
+
+
+def _radial_covariance(setup: Setup, u, approach, radius) -> np.ndarray:
+    """Covariance (..., m, m) of the contacts' radial errors under the set-up's error budget.
+
+    The linearised physics of :func:`forward` along each contact's outward unit radial
+    `u` (..., m, 2), for a contact approached along `approach` (the radial where NaN):
+    probe noise and tip-radius error along the approach, the pre-travel's three lobes of the
+    approach direction, the stage's repeatability (isotropic), scale and squareness errors
+    (read = M^-1 actual), the bore's lobed form and its thermal growth. Tangential slip
+    moves contacts along the wall and start scatter moves the path: neither changes a
+    contact's distance from the centre to first order.
+    """
+    src = sources(setup)
+    sd = {k: np.asarray(v.distribution.std, dtype=float).reshape(-1)[0] for k, v in src.items()}
+    a = np.where(np.isnan(approach), u, approach)
+    cos_au = np.sum(a * u, axis=-1)
+    c3, s3 = a[..., 0] * (4 * a[..., 0] ** 2 - 3), a[..., 1] * (3 - 4 * a[..., 1] ** 2)
+    phi = np.arctan2(u[..., 1], u[..., 0])
+    k = setup.lobes
+    x, y = radius[..., None] * u[..., 0], radius[..., None] * u[..., 1]
+    cols = [sd["pretravel_variation"] * c3 * cos_au, sd["pretravel_variation"] * s3 * cos_au,
+            sd["tip_radius"] * cos_au,
+            sd["roundness"] * np.cos(k * phi), sd["roundness"] * np.sin(k * phi),
+            sd["scale_error"] * x * u[..., 0], sd["scale_error"] * y * u[..., 1],
+            sd["squareness"] * y * u[..., 0],
+            sd["bore_temperature"] * radius[..., None] * np.ones_like(phi)]
+    v = np.stack(cols, axis=-1)
+    diag = (sd["probe_noise"] * cos_au) ** 2 + sd["stage_repeatability"] ** 2
+    cov = v @ np.swapaxes(v, -1, -2)
+    idx = np.arange(u.shape[-2])
+    cov[..., idx, idx] += diag
+    return cov
+
+
+def estimate_gls(setup: Setup, readings: dict, iterations: int = 4) -> dict:
+    """Circle through every contact, weighted by the set-up's error budget (generalised
+    least squares of the radial residuals).
+
+    Uses the path planner's p1 and p2 too where the readings hold them (a bare point file
+    has d1..dn only): they are wall points, probed along -y and +y, and their chord's
+    midpoint lies on the bore's centre line; the seed uses them only to plan the path.
+    The residuals ``e_i = |p_i - c| - r`` are weighted by the inverse of their covariance
+    under every error source of the set-up (:func:`_radial_covariance`, per trial, since
+    the contacts' angles follow the start point): the bore's lobed form, the pre-travel
+    lobes, the stage's scale and squareness act on several contacts at once, so an
+    unweighted fit is not the best one. Gauss-Newton on the whole batch from the
+    orthogonal-distance fit; the weights are taken at each iterate.
+    """
+    pts, approach, has_p = _contacts(readings)
+    if not np.all(has_p):  # rows without p1, p2: their measuring points alone
+        pts = np.where(has_p[..., None, None], pts, np.concatenate(
+            [pts[..., 2:3, :], pts[..., 2:3, :], pts[..., 2:, :]], axis=-2))
+        approach = np.where(has_p[..., None, None], approach, np.nan)
+    circle = geometric_fit(pts[..., 0], pts[..., 1])
+    c = np.stack([circle.xc, circle.yc], axis=-1)
+    r = np.asarray(circle.r, dtype=float)
+    # a row without p1, p2 repeats d1 in their place: weight them out (no information)
+    dup = np.broadcast_to(~has_p[..., None], r.shape + (2,))
+    for _ in range(iterations):
+        diff = pts - c[..., None, :]
+        dist = np.linalg.norm(diff, axis=-1)
+        u = diff / dist[..., None]
+        e = dist - r[..., None]
+        cov = _radial_covariance(setup, u, approach, r)
+        big = 1e6 * np.max(np.diagonal(cov, axis1=-2, axis2=-1), axis=-1)
+        cov[..., 0, 0] += np.where(dup[..., 0], big, 0.0)
+        cov[..., 1, 1] += np.where(dup[..., 1], big, 0.0)
+        jac = np.concatenate([-u, -np.ones(e.shape + (1,))], axis=-1)  # d e / d(xc, yc, r)
+        w_j = np.linalg.solve(cov, jac)
+        w_e = np.linalg.solve(cov, e[..., None])
+        step = np.linalg.solve(np.swapaxes(jac, -1, -2) @ w_j, -np.swapaxes(jac, -1, -2) @ w_e)
+        c = c + step[..., :2, 0]
+        r = r + step[..., 2, 0]
+    return {"centre_x": c[..., 0], "centre_y": c[..., 1], "radius": r - setup.bore_radius_mm}
+
+
 ESTIMATORS = {"three_point": estimate_three_point, "kasa": estimate_kasa,
-              "geometric": estimate_geometric}
+              "geometric": estimate_geometric, "gls": estimate_gls}
 
 
 def fit_points(x_mm, y_mm, estimator: str = "geometric") -> dict:
@@ -600,7 +692,7 @@ def fit_points(x_mm, y_mm, estimator: str = "geometric") -> dict:
         ``centre_x_mm``, ``centre_y_mm``, ``radius_mm`` (floats).
     """
     p = Problems("fit_points")
-    p.choice("estimator", estimator, tuple(ESTIMATORS))
+    p.choice("estimator", estimator, ("geometric", "kasa", "three_point"))
     x = np.asarray(x_mm, dtype=float)
     y = np.asarray(y_mm, dtype=float)
     if x.ndim != 1 or x.shape != y.shape:
@@ -1129,7 +1221,7 @@ PROCEDURE = Procedure(
         "and computes the centre from them (seed 003). Compares the three-point formula with "
         "algebraic and geometric least-squares circles through n points over any spread."
     ),
-    exact_estimators=("three_point", "kasa", "geometric"),
+    exact_estimators=("three_point", "kasa", "geometric", "gls"),
     block_size=2000,
     optional_columns=("point",),
     truth_from_estimate=truth_from_estimate,
