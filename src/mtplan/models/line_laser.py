@@ -204,6 +204,7 @@ __all__ = [
     "observability",
     "sensor_rotation",
     "height_map",
+    "facet_count",
     "estimate_patent",
     "estimate_registration",
     "estimate_pattern",
@@ -970,7 +971,13 @@ def observability(setup) -> dict:
     }
     ok, why = _registration_check(setup)
     reg = {k: Observability(ok, True, 0.0, 0.0, why) for k in ("alpha_z", "alpha_y", "alpha_x")}
-    return {"patent": patent, "registration": reg}
+    why_pattern = (why if not ok else
+                   "generalised least squares of the forward model on the stated pattern, "
+                   "weighted by the error budget (started from the registration); as good as "
+                   "the pattern is known (facet_position_um)")
+    pattern = {k: Observability(ok, True, 0.0, 0.0, why_pattern)
+               for k in ("alpha_z", "alpha_y", "alpha_x")}
+    return {"patent": patent, "registration": reg, "pattern": pattern}
 
 
 @functools.lru_cache(maxsize=64)
