@@ -154,9 +154,9 @@ angles and the default truth's pose, or a grid search of the lattice offset and 
 where that misses. What it uses that the registration does not: a height error that is
 fixed along the line (the sensor's *linearity*) is not a rotation of the line on a known
 pattern, so it separates from ``alpha_y`` (the registration reads its mean over the cells,
-40 of its 41 urad; the pattern fit 2.7 urad); the pattern's shape gives ``alpha_z`` from
+40 of its 41 urad; the pattern fit 2.8 urad); the pattern's shape gives ``alpha_z`` from
 each scan alone, as far as the facets' positions are known (``facet_position``: 25 urad
-with an exact pattern, 40 with facets known to 2 um, against the registration's 47);
+with an exact pattern, 39 with facets known to 2 um, against the registration's 48);
 ``alpha_x`` gains from the parallax of the pockets' floors (rays tilted by ``alpha_x`` meet
 the floor displaced along Y by the depth times the angle). It is the estimator whose
 Monte Carlo agrees with the posterior, which uses the same information.
@@ -1372,11 +1372,13 @@ def _pattern_gain(setup, ref: tuple) -> np.ndarray:
     return np.linalg.solve(jac.T @ wj, wj.T)
 
 
-#: grid of the parameters at which gains are taken [mrad, mm]: 0.5 mrad, 20 um. The fit's
-#: fixed point does not depend on where its gain was taken; a gain taken half a step away
-#: contracts the error by about 0.15 per iteration instead of 0.1, and a few gains then
-#: serve every block of a Monte Carlo (the first trials' fits scatter by up to 0.5 mrad)
-_GAIN_GRID = np.array([0.5, 0.5, 0.5, 0.02, 0.02, 0.5, 0.5, 0.5])
+#: grid of the parameters at which gains are taken [mrad, mm]. Noise-free, the fit's fixed
+#: point does not depend on where its gain was taken; with noise the gain's Jacobian is the
+#: fit's weighting, best taken where the kinks of the pattern lie: the lattice offset to
+#: 2 um, the line's and the artifact's rotation about Z to 0.1 mrad (under 1 um at the
+#: line's ends); the angles about X and Y and the tilts (smooth height changes) to 0.5 mrad.
+#: A Monte Carlo's blocks then share a few gains (their first trials scatter by tens of urad)
+_GAIN_GRID = np.array([0.1, 0.5, 0.5, 0.002, 0.002, 0.1, 0.5, 0.5])
 
 
 def _reference(theta: np.ndarray) -> tuple:
