@@ -33,8 +33,6 @@ HEAVY = {"line_laser", "geometry21", "tracker_frame"}
 INFORMED = {
     **{("rotary_axis", m): "the commanded angles (known to 5 arcsec): the axis direction from "
        "the plane normals' cone uses none of them" for m in ("EA0C", "EB0C")},
-    **{("line_laser", m): "the artifact's pattern (cell size, depth, facet angle); the "
-       "registration is self-referencing" for m in ("alpha_z", "alpha_y", "alpha_x")},
 }
 
 
