@@ -925,7 +925,7 @@ def estimate_patent(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
 
 
 def estimate_angles(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
-    """As :func:`estimate_patent`, but the A and C circles use the commanded angles.
+    """The seed's method, but the A and C circles are fitted with the commanded angles.
 
     Each arc is fitted as ``p_i = c + R (cos(theta_i + phi0) e1 + sin(theta_i + phi0)
     e2)`` with the commanded angles theta_i of the set-up (the ``angle_deg`` column of
@@ -936,7 +936,8 @@ def estimate_angles(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
 
 
 def estimate_home(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
-    """As :func:`estimate_angles`, with the home position in both circle fits.
+    """The seed's method with circles fitted at the commanded angles and through the home
+    position, which every group of points shares.
 
     The reflector at home is on every group of points: the middle of each linear
     travel and angle 0 of each arc. The mean of the linear points (symmetric about
