@@ -31,8 +31,6 @@ HEAVY = {"line_laser", "geometry21", "tracker_frame"}
 #: There the posterior is narrower than `mc` by design (and calibrated: see
 #: benchmarks/coverage_posterior.py and docs/posterior.md).
 INFORMED = {
-    **{("rotary_axis", m): "the commanded angles (known to 5 arcsec): the axis direction from "
-       "the plane normals' cone uses none of them" for m in ("EA0C", "EB0C")},
     **{("line_laser", m): "the artifact's pattern (cell size, depth, facet angle); the "
        "registration is self-referencing" for m in ("alpha_z", "alpha_y", "alpha_x")},
     **{("tracker_frame", f"{m}_{k}"): "the reflector offset and pivot length of the set-up; the "

@@ -190,6 +190,7 @@ __all__ = [
     "estimate_patent",
     "estimate_joint",
     "estimate_gls",
+    "estimate_angles",
     "axis_line",
     "true_values",
     "schedule",
@@ -1215,7 +1216,10 @@ def _gls_weights(setup: Setup) -> np.ndarray:
     at the default truth; exact, since both stages are linear in the errors)."""
     from mtplan.uncertainty.gum import sensitivities
 
-    active = {k: v for k, v in sources(setup).items() if v.active}
+    # the per-position sources only: a per-test error (flatness, scale, drift, the
+    # artifact's pose) is shared by every position, which a block-diagonal weight cannot
+    # say (the artifact's pose is taken up exactly by the fit's free cone and pierce point)
+    active = {k: v for k, v in sources(setup).items() if v.active and k in _POSITION_AXIS}
     layout, us, pos = [], [], 0
     for name, src in active.items():
         size = int(np.prod(src.shape, dtype=np.int64))
@@ -1247,12 +1251,13 @@ def estimate_gls(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
     """The joint fit weighted by the set-up's whole error budget (generalised least squares).
 
     Like :func:`estimate_joint`, but each position's plane coefficients are weighted by the
-    inverse of their covariance under every active error source (error motions, Z
-    positioning, drift, flatness and scale as well as the reading noise), computed once per
+    inverse of their covariance under every active per-position error source (reading
+    noise, X/Y/Z positioning, error motions, angular positioning), computed once per
     set-up by the law of propagation. The joint fit's own weighting assumes independent
     reading noise only, which makes it worse than the seed's method when the per-position
     errors dominate; the weighting restores the balance. Correlations between positions
-    (flatness, scale, drift) are left out of the weight (block-diagonal).
+    (flatness, scale, drift, the artifact's pose) are left out of the weight
+    (block-diagonal).
     """
     return _each_axis(setup, readings, _gls_axis)
 
@@ -1262,7 +1267,77 @@ def _gls_axis(setup: Setup, z: np.ndarray) -> dict[str, np.ndarray]:
                                                 weights=_gls_weights(setup)))
 
 
-ESTIMATORS = {"patent": estimate_patent, "joint": estimate_joint, "gls": estimate_gls}
+# the tied fit: the joint model's six parameters and the common zero phi0 of the azimuths
+# (n, 7); position p's azimuth is phi0 + its commanded angle
+_ANGLES_STEPS = np.append(_STEPS, _PHI_STEP)
+
+
+def _angles_model(setup: Setup, par: np.ndarray, station: np.ndarray) -> np.ndarray:
+    """Plane coefficients (n, P, 3) with each azimuth at phi0 + the commanded angle."""
+    return _joint_model(setup, par[:, :6], par[:, 6:7] + _plan(setup).theta, station)
+
+
+def _angles_fit(setup: Setup, coef: np.ndarray, weights: np.ndarray, *, max_iter: int = 30,
+                rtol: float = 1e-9):
+    """Gauss-Newton on the batch for the seven parameters of the tied fit (7 x 7 per trial).
+
+    Started from the patent's line, with phi0 the circular mean of the planes' azimuths
+    less their commanded angles; converged as :func:`_joint_fit`.
+
+    Returns
+    -------
+    par : array (n, 7), station : array (n,), converged : bool array (n,)
+    """
+    theta = _plan(setup).theta
+    par6, phi, station = _joint_start(setup, coef)
+    d = phi - theta
+    par = np.column_stack([par6, np.arctan2(np.sin(d).mean(axis=1), np.cos(d).mean(axis=1))])
+    done = np.zeros(len(par), dtype=bool)
+    for _ in range(max_iter):
+        todo = np.flatnonzero(~done)
+        if todo.size == 0:
+            break
+        pa, st = par[todo], station[todo]
+        r = coef[todo] - _angles_model(setup, pa, st)  # (k, P, 3)
+        jac = np.empty((*r.shape, _ANGLES_STEPS.size))
+        for j, step in enumerate(_ANGLES_STEPS):
+            d = np.zeros(_ANGLES_STEPS.size)
+            d[j] = step
+            jac[..., j] = (_angles_model(setup, pa + d, st)
+                           - _angles_model(setup, pa - d, st)) / (2 * step)
+        wj = np.einsum("kpia,pij->kpaj", jac, weights)  # J^T W per position
+        a_inv = np.linalg.inv(np.einsum("kpai,kpib->kab", wj, jac))
+        step = np.einsum("kab,kb->ka", a_inv, np.einsum("kpai,kpi->ka", wj, r))
+        par[todo] = pa + step
+        small = np.all(np.abs(step) <= rtol * np.sqrt(np.abs(np.diagonal(a_inv, axis1=1, axis2=2)))
+                       + 1e-14, axis=1)
+        done[todo[small]] = True
+    return par, station, done
+
+
+def estimate_angles(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
+    """The weighted joint fit with the planes' azimuths tied to the commanded angles.
+
+    Like :func:`estimate_gls`, but the azimuth of position p's plane normal about the
+    axis is ``phi0 + theta_p``: ``theta_p`` the commanded angle (the rotary encoder's),
+    ``phi0`` one free common zero. The angular positioning error moves each azimuth off
+    ``phi0 + theta_p``; it enters the weight (each position's plane-coefficient
+    covariance, with the other per-position sources). Seven parameters per axis in
+    place of 6 + positions: the direction of the axis is better determined, as long as
+    the encoder is as good as ``angular_positioning_arcsec`` says (see the module
+    docstring for the figures and the price). Arguments and result as
+    :func:`estimate_joint` (NaN where the iteration did not converge).
+    """
+    return _each_axis(setup, readings, _angles_axis)
+
+
+def _angles_axis(setup: Setup, z: np.ndarray) -> dict[str, np.ndarray]:
+    par, station, ok = _angles_fit(setup, _planes(setup, z), _gls_weights(setup))
+    return _joint_measurands(setup, par[:, :6], None, station, ok)
+
+
+ESTIMATORS = {"patent": estimate_patent, "joint": estimate_joint, "gls": estimate_gls,
+              "angles": estimate_angles}
 
 
 def axis_line(setup: Setup, readings: dict, *, estimator: str = "patent", axis: str | None = None):
@@ -1537,7 +1612,7 @@ PROCEDURE = Procedure(
         "C axis (EX0C, EY0C, EA0C, EB0C) or the A axis (EY0A, EZ0A, EB0A, EC0A); with axis "
         "CA both, the offset and squareness of C to A and the error of a machining pose."
     ),
-    exact_estimators=("patent", "joint", "gls"),
+    exact_estimators=("patent", "joint", "gls", "angles"),
     block_size=2000,
     truth_from_estimate=truth_from_estimate,
     noise_source="probe_noise",
