@@ -1,6 +1,7 @@
 """Speed of the line_laser procedure's Monte Carlo (not a test; prints figures).
 
-Usage: ``python benchmarks/bench_line_laser.py [trials] [--budget [--budget-trials N]]``
+Usage: ``python benchmarks/bench_line_laser.py [trials] [--budget [--budget-trials N]
+[--estimators NAME ...]]``
 (default 20 000 trials).
 
 Prints trials per second of :func:`simulate_uncertainty` at the default set-up for
@@ -12,7 +13,8 @@ With ``--budget`` (instead of the timings): the tables of docs/line_laser.md, pe
 estimator: u of each measurand with the error sources before issue 17 at the former
 default scan (40 lines, beta 0.6) and at the default set-up, with all sources, and the
 share of each source in u^2 from the Monte Carlo, each source alone (the patent's whole
-rows and arccos are far from linear; about 5 min at 2000 trials).
+rows and arccos are far from linear; about 5 min at 2000 trials). For ``pattern`` u
+before is with the pattern taken as exact (``facet_position_um = 0``, issue 13).
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ from _budget import budget_table, mc_std  # benchmarks/ is the script's folder
 
 #: the sources issue 17 added
 NEW = ("linearity", "z_scale", "squareness_xy", "squareness_zy", "drift")
+#: the source issue 13 added (the pattern estimator's view of the artifact)
+ISSUE13 = ("facet_position",)
 
 
 def main(trials: int = 20_000) -> None:
@@ -62,12 +66,20 @@ def main(trials: int = 20_000) -> None:
           + ", ".join(f"{k} {1e3 * v / n:.3f} ms/trial" for k, v in times.items()))
 
 
-def budget(trials: int) -> None:
+def budget(trials: int, estimators=None) -> None:
     """The docs' tables (see the module docstring)."""
     proc, setup = ll.PROCEDURE, ll.Setup()
-    old = [s for s in proc.active_sources(setup) if s not in NEW]
+    old = [s for s in proc.active_sources(setup) if s not in NEW + ISSUE13]
     former = setup.replace(lines=40, shift_fraction=0.6)
-    for est in proc.estimators:
+    for est in estimators or proc.estimators:
+        if est == "pattern":  # issue 13: u before: the pattern taken as exact
+            exact = setup.replace(facet_position_um=0.0)
+            print(f"\n{est}, default set-up; u before: facet_position_um = 0 (the pattern "
+                  f"exact, in the data and the fit's weight); u by Monte Carlo ({trials} "
+                  "trials, rng 3), shares of u^2 by the Monte Carlo, each source alone [%]")
+            print(budget_table(proc, setup, (exact, list(proc.active_sources(exact))), trials,
+                               est, shares="mc"))
+            continue
         u_former = mc_std(proc, former, trials, est, old)
         print(f"\n{est}: u at the former default scan, former sources: "
               + ", ".join(f"{k} {v:.3g}" for k, v in u_former.items()))
@@ -81,8 +93,9 @@ if __name__ == "__main__":
     ap.add_argument("trials", type=int, nargs="?", default=20_000)
     ap.add_argument("--budget", action="store_true")
     ap.add_argument("--budget-trials", type=int, default=2000)
+    ap.add_argument("--estimators", nargs="*", help="budget only these (default: all)")
     args = ap.parse_args()
     if args.budget:
-        budget(args.budget_trials)
+        budget(args.budget_trials, args.estimators)
     else:
         main(args.trials)

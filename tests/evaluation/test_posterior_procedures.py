@@ -31,8 +31,6 @@ HEAVY = {"line_laser", "geometry21", "tracker_frame"}
 #: There the posterior is narrower than `mc` by design (and calibrated: see
 #: benchmarks/coverage_posterior.py and docs/posterior.md).
 INFORMED = {
-    **{("line_laser", m): "the artifact's pattern (cell size, depth, facet angle); the "
-       "registration is self-referencing" for m in ("alpha_z", "alpha_y", "alpha_x")},
     **{("tracker_frame", f"{m}_{k}"): "the reflector offset and pivot length of the set-up; the "
        "circle fits leave the radius free" for m in ("origin_x", "origin_y", "origin_z",
                                                       "ac_offset") for k in (1, 2)},

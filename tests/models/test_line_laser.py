@@ -1,8 +1,8 @@
 """Tests of the line-laser mounting-angle procedure (seed 004).
 
 Forward model first (exact ray-surface intersection, flat-surface height relation),
-then the estimators: exact noise-free recovery of the registration estimator with
-sign, the patent estimator's quantisation and sign loss against their analytic size,
+then the estimators: exact noise-free recovery of the registration and pattern
+estimators with sign, the patent estimator's quantisation and sign loss against their analytic size,
 refusals, observability flags, Monte Carlo against GUM, the data format.
 """
 
@@ -34,18 +34,38 @@ def test_trace_is_the_exact_first_intersection():
     m = 20
     errors = PROC.zero_errors(SETUP, m)
     for name, size in (("shift_error", 5e-3), ("raise_error", 5e-3), ("trigger_y", 5e-3),
-                       ("squareness_xy", 1e-3), ("squareness_zy", 1e-3), ("drift", 2e-3)):
+                       ("squareness_xy", 1e-3), ("squareness_zy", 1e-3), ("drift", 2e-3),
+                       ("facet_position", 5e-3)):
         errors[name] = rng.normal(0, size, errors[name].shape)
     disp = ll._displacements(SETUP, errors)
-    t = ll._trace(SETUP, truth, disp).ravel()
+    facets = errors["facet_position"]
+    t = ll._trace(SETUP, truth, disp, facets).ravel()
     _, d, _, _ = ll._frames(SETUP, truth)
     ox, oy, oz = (a.ravel() for a in ll._origins(SETUP, truth, disp))
-    # the hit lies on the surface ...
-    z, _, _ = ll.height_map(SETUP, ox + t * d[0], oy + t * d[1])
+    rays = ox.size // m
+    rows = np.arange(ox.size) // rays
+    # the hit lies on the surface with its facets moved ...
+    z, _, _ = ll.height_map(SETUP, ox + t * d[0], oy + t * d[1], offsets=facets, rows=rows)
     np.testing.assert_allclose(oz + t * d[2], z, rtol=0, atol=1e-12)
     # ... and equals a full Newton solve from the land plane for every ray
-    full = ll._newton(SETUP, ox, oy, oz, d, -oz / d[2], np.arange(ox.size))
+    full = ll._newton(SETUP, ox, oy, oz, d, -oz / d[2], np.arange(ox.size), rays, facets)
     np.testing.assert_allclose(t, full, rtol=0, atol=1e-12)
+    # the facets did move the heights: by up to tan(25 deg) x 5 um x a few sigma
+    plain = ll._trace(SETUP, truth, disp).ravel()
+    assert 5e-3 < np.abs(t - plain).max() < 0.1
+
+
+def test_facet_errors_repeat_only_beyond_the_scanned_window():
+    """No two pockets the scans touch share a facet error (the errors' period is wider
+    than the window), even at the Truth's largest rotation."""
+    for rz in (8.0, 100.0, -100.0):
+        truth = ll.Truth(artifact_rz_mrad=rz)
+        _, x, y, _, _, _, _ = ll._nominal(SETUP, truth)
+        dx, dy, _ = ll._lattice_local(SETUP, x, y)
+        centres = np.unique(np.round(np.stack([x - dx, y - dy], axis=1), 6), axis=0)
+        ids = ll._lattice_local(SETUP, centres[:, 0], centres[:, 1])[2]
+        assert np.unique(ids).size == len(centres), rz
+    assert ll.facet_count(SETUP) == 6 * np.prod(ll._facet_layout(SETUP)) // 2
 
 
 def test_land_heights_follow_the_exact_raise_relation():
@@ -197,10 +217,13 @@ TRUTHS = [
 ]
 
 
+@pytest.mark.parametrize("estimator", ["registration", "pattern"])
 @pytest.mark.parametrize("values", TRUTHS)
-def test_registration_recovers_all_angles_with_sign(values):
+def test_exact_estimators_recover_all_angles_with_sign(values, estimator):
+    """Both exact estimators, any pose of the artifact (the pattern fit finds a pose far
+    from the default truth's by its grid search of the lattice offset)."""
     truth = ll.Truth(**values)
-    out = PROC.display_estimate(SETUP, _noise_free(SETUP, truth), "registration")
+    out = PROC.display_estimate(SETUP, _noise_free(SETUP, truth), estimator)
     for name, value in PROC.display_truth(SETUP, truth).items():
         np.testing.assert_allclose(out[name], value, rtol=0, atol=1e-6, err_msg=name)
 
@@ -309,6 +332,7 @@ def test_observability_flags():
     former = ll.observability(SETUP.replace(lines=40, shift_fraction=0.6))["patent"]["alpha_y"]
     assert "38.4 point spacings" in former.reason and "less than one cell pitch" in former.reason
     assert all(o.observable and o.signed for o in obs["registration"].values())
+    assert all(o.observable and o.signed for o in obs["pattern"].values())
     # a finer raise error makes the patent's alpha_x usable (floor below 10 mrad)
     fine = SETUP.replace(raise_error_um=0.01, sensor_noise_um=0.1)
     assert ll.observability(fine)["patent"]["alpha_x"].observable
@@ -319,6 +343,10 @@ def test_observability_flags():
     readings = _noise_free(coarse, ll.Truth())
     with pytest.raises(InvalidInput, match="registration"):
         PROC.estimate(coarse, readings, "registration")
+    # the pattern fit starts from the registration: refused with it
+    assert not any(o.observable for o in ll.observability(coarse)["pattern"].values())
+    with pytest.raises(InvalidInput, match="'pattern'"):
+        PROC.estimate(coarse, readings, "pattern")
     assert np.all(np.isfinite(PROC.estimate(coarse, readings, "patent")["alpha_z"]))
     # resolved facets but too short a scan: found on the noise-free data, refused
     short = ll.Setup(line_width_mm=12.0, points_per_line=41, lines=16, cell_depth_mm=0.6,
@@ -374,6 +402,23 @@ def test_registration_beats_the_patent_on_alpha_z_and_alpha_x():
     assert rms_r[0] < rms_p[0] and rms_r[2] < rms_p[2]
     assert rms_p[1] < rms_r[1]
     assert np.all(np.abs(reg.bias) < 4 * reg.mc.std / math.sqrt(n))
+
+
+def test_pattern_separates_the_linearity_from_alpha_y():
+    """The sensor's linearity curve moves the registration's alpha_y by about 0.4 um / w
+    (the mean of e(x_l + w) - e(x_l) over its cells, 40 urad), but not the pattern
+    fit's: on the known pattern a height error fixed along the line is not a rotation of
+    the line, and the fit's weight (the readings' covariance, which holds the three
+    Legendre shapes) projects it out (0.001 urad RMS here, noise-free apart from the
+    linearity)."""
+    n = 48
+    readings = PROC.simulate(SETUP, draws=n, rng=4, sources=["linearity"])
+    truth = PROC.display_truth(SETUP)["alpha_y"]
+    reg = PROC.display_estimate(SETUP, readings, "registration")["alpha_y"] - truth
+    pat = PROC.display_estimate(SETUP, readings, "pattern")["alpha_y"] - truth
+    # chi-square bounds on n draws (4 sigma): the registration's u is 40 urad
+    assert np.sqrt(np.mean(reg**2)) > 40 * (1 - 4 / math.sqrt(2 * n))
+    assert np.sqrt(np.mean(pat**2)) < 1.0
 
 
 def _patent_alpha_y_error(setup, artifact_y_mm):

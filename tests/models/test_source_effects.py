@@ -90,6 +90,12 @@ CASES = [
     ("line_laser", {"estimator": "registration"}, "shift_error", set()),
     ("line_laser", {"estimator": "registration"}, "raise_error", set()),
     ("line_laser", {"estimator": "registration"}, "trigger_y", ALL),
+    # the artifact's facets: the registration compares the scans (the same artifact) and
+    # does not see them; the patent's means weight the facets by the points on them; the
+    # pattern fit uses their stated positions
+    ("line_laser", {}, "facet_position", {"alpha_y", "alpha_x"}),
+    ("line_laser", {"estimator": "registration"}, "facet_position", set()),
+    ("line_laser", {"estimator": "pattern"}, "facet_position", ALL),
     # circle_centre, issue 17: a circle stays a circle about its centre (the tip radius
     # moves it by delta (e/r)^2, below 1e-6 um)
     ("circle_centre", {}, "tip_radius", {"radius"}),

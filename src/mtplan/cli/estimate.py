@@ -84,7 +84,7 @@ def cmd_estimate(args) -> int:
                 noise=noise, max_seconds=args.max_seconds,
                 allow_unconverged=args.allow_unconverged,
                 posterior_options={"max_steps": args.max_steps, "progress": None}
-                if method == "posterior" else None)
+                if method == "posterior" else None, progress=None)
     except NotConvergedError as exc:
         print(f"mtplan: error: {exc}", file=sys.stderr)
         return 1

@@ -291,7 +291,7 @@ def _corrected(r, estimate, names, notes, coverage):
 
 
 def _mc_result(proc, setup, est_name, est_internal, estimate, *, trials, coverage, root,
-               seed, notes):
+               seed, notes, progress=False):
     """Monte Carlo around the estimate: bias-corrected value, its interval, determinability."""
     from mtplan.evaluation.simulation import simulate_uncertainty
 
@@ -305,7 +305,7 @@ def _mc_result(proc, setup, est_name, est_internal, estimate, *, trials, coverag
                      "estimate" + ("" if proc.truth_from_estimate is None else
                                    " (the estimate is not finite)"))
     r = simulate_uncertainty(proc, setup, truth, estimator=est_name, trials=trials,
-                             coverage=coverage, rng=root, progress=False)
+                             coverage=coverage, rng=root, progress=progress)
     value, correction, std, low, high = _corrected(r, estimate, [m.name for m in measurands],
                                                    notes, coverage)
     slopes = None
@@ -353,6 +353,7 @@ def estimate_measured(
     max_seconds: float | None = None,
     allow_unconverged: bool = False,
     posterior_options: dict | None = None,
+    progress: bool | None = False,
 ) -> MeasuredResult:
     """The measurands of one measurement, with their uncertainty: the values GUM would report.
 
@@ -380,6 +381,9 @@ def estimate_measured(
     rng : None, int, SeedSequence or Generator
     noise, max_seconds, allow_unconverged, posterior_options
         Passed to :func:`sample_posterior` (``"posterior"``).
+    progress : bool or None
+        A progress bar of the ``"mc"`` Monte Carlo on stderr (None: when stderr is a
+        terminal).
 
     Returns
     -------
@@ -409,7 +413,8 @@ def estimate_measured(
     seed = root.entropy if isinstance(root.entropy, int) else list(root.entropy)
     if uncertainty == "mc":
         return _mc_result(proc, setup, est_name, est_internal, estimate, trials=trials,
-                          coverage=coverage, root=root, seed=seed, notes=notes)
+                          coverage=coverage, root=root, seed=seed, notes=notes,
+                          progress=progress)
     from mtplan.evaluation.posterior import sample_posterior
 
     start_ok = np.all(np.isfinite(estimate))

@@ -69,6 +69,17 @@ Forward model
     duration model, :func:`duration`). The drift within a scan is the same in all
     three scans and left out. At the default timing (scans 1.5 s apart) a drift of
     10 um/h moves the scans by nanometres; it matters when the scans are minutes apart.
+  - the *position of each facet* of the artifact's pockets (``facet_position_um``), along
+    its in-plane normal, independent from facet to facet: the artifact is machined, and
+    its pattern is known to the machining's few micrometres, not exactly. The
+    registration compares the scans of one and the same artifact and does not see it;
+    the ``pattern`` estimator and the posterior, which use the stated pattern, do. Of the
+    artifact's geometry this is what matters: the pattern's *shape* (where its facets
+    lie relative to each other) carries the single-scan information on ``alpha_z``
+    (the line's skew to the Y motion shears the sampled lattice). Errors common to the
+    whole pattern (pitch, depth, facet angle, land width: tens of micrometres or a
+    fraction of a degree) move the angles by nothing the linearised information can
+    see (docs/line_laser.md has the figures).
 
 Estimators
 ----------
@@ -132,6 +143,24 @@ is what gives ``alpha_x`` its sign: it shifts the pattern along Y by ``-h tan(al
 It needs the facets to be resolved by the sampling (three samples across a facet);
 where they are not, it refuses with the reason (see :func:`observability`).
 
+``pattern`` (uses the artifact's stated pattern and the error model): the generalised least
+squares of the whole forward model over the three angles and the artifact's pose (lattice
+offset, rotation about Z, two tilts), every reading of the three scans at once, weighted by
+the inverse of the readings' covariance under every active error source
+(``C = sigma^2 I + U U^T``, one column of ``U`` per element of a source other than the
+noise: its effect at one standard deviation). Gauss-Newton with one gain shared by the
+whole batch (a linear stage: one matrix product per step), started from the registration's
+angles and the default truth's pose, or a grid search of the lattice offset and rotation
+where that misses. What it uses that the registration does not: a height error that is
+fixed along the line (the sensor's *linearity*) is not a rotation of the line on a known
+pattern, so it separates from ``alpha_y`` (the registration reads its mean over the cells,
+40 of its 41 urad; the pattern fit 2.8 urad); the pattern's shape gives ``alpha_z`` from
+each scan alone, as far as the facets' positions are known (``facet_position``: 25 urad
+with an exact pattern, 39 with facets known to 2 um, against the registration's 48);
+``alpha_x`` gains from the parallax of the pockets' floors (rays tilted by ``alpha_x`` meet
+the floor displaced along Y by the depth times the angle). It is the estimator whose
+Monte Carlo agrees with the posterior, which uses the same information.
+
 Decisions where the seed is silent or loose: the seed's ``cos(alpha_x) = h/h'`` ignores
 ``alpha_y``; we implement it as written and show the contamination. The seed aligns
 along ``x_l`` by ``w``; we interpolate linearly along the line for that (``w`` need not
@@ -175,8 +204,10 @@ __all__ = [
     "observability",
     "sensor_rotation",
     "height_map",
+    "facet_count",
     "estimate_patent",
     "estimate_registration",
+    "estimate_pattern",
     "PROCEDURE",
 ]
 
@@ -244,6 +275,15 @@ class Setup(SetupBase):
     facet_angle_deg: float = param(
         25.0, doc="Inclination of the pocket walls to the plate (draft of the facets)",
         low=0, high=80, low_open=True)
+    facet_position_um: float = param(
+        2.0, doc="Standard deviation of the position of each facet of the pockets, along its "
+                 "in-plane normal, independent from facet to facet: how well the artifact's "
+                 "pattern is known. Default 2 um: an uncalibrated plate milled on a machining "
+                 "centre (ISO 230-2 positioning and contouring deviations and tool deflection "
+                 "of a few um; the drawing tolerance, tens of um, bounds it but is not its "
+                 "size); a CMM calibration of every facet gives about 1 um. Only the "
+                 "'pattern' estimator (and the posterior) use the pattern; the registration "
+                 "compares the scans and does not see it", low=0)
     # machine errors
     shift_error_um: float = param(
         1.0, doc="Standard deviation of the machine's positioning of the X shift w", low=0)
@@ -403,7 +443,49 @@ def _shift(setup) -> float:
     return setup.shift_fraction * setup.line_width_mm
 
 
-def height_map(setup, x, y, *, margin: bool = False):
+#: outward in-plane normals of the six facets of a pocket (index k of an element)
+_FACET_NORMALS = np.array([[_SQ3 / 2, 0.5], [0.0, 1.0], [-_SQ3 / 2, 0.5], [-_SQ3 / 2, -0.5],
+                           [0.0, -1.0], [_SQ3 / 2, -0.5]])
+
+
+def _facet_layout(setup) -> tuple[int, int]:
+    """Period (columns, rows) of the facets' position errors on the pocket lattice, in
+    half lattice spacings (sx/2 = cell_size * sqrt(3)/2 along X, cell_size/2 along Y):
+    wider than the scanned window (w0 + w by the scan's length) plus one pitch: the
+    pockets the scans touch have their centres within the window widened by a pocket's
+    circumradius (under half a pitch) on each side, so no two of them share an error
+    (up to the Truth's +-100 mrad of rotation: the window then leans by at most
+    0.1 (w0 + w) along Y)."""
+    s = setup.cell_size_mm
+    across = setup.line_width_mm + _shift(setup)
+    along = (setup.lines - 1) * setup.step_mm + 0.1 * across
+    return 2 * math.ceil((across + s) / (s * _SQ3)), 2 * math.ceil((along + s) / s)
+
+
+def facet_count(setup) -> int:
+    """Number of facet position errors (six per pocket of :func:`_facet_layout`)."""
+    cols, rows = _facet_layout(setup)
+    return 3 * cols * rows
+
+
+def _lattice_local(setup, x, y):
+    """Offset (dx, dy) [mm] of points from the nearest pocket centre, and that pocket's
+    index in the period of the facet errors (:func:`_facet_layout`)."""
+    s = setup.cell_size_mm
+    sx, sy = s * _SQ3, s
+    # nearest centre of the hexagonal lattice = nearest of its two rectangular sub-lattices
+    i1, j1 = np.round(x / sx), np.round(y / sy)
+    i2, j2 = np.round(x / sx - 0.5), np.round(y / sy - 0.5)
+    dx1, dy1 = x - i1 * sx, y - j1 * sy
+    dx2, dy2 = x - (i2 + 0.5) * sx, y - (j2 + 0.5) * sy
+    first = dx1 * dx1 + dy1 * dy1 <= dx2 * dx2 + dy2 * dy2
+    cols, rows = _facet_layout(setup)
+    ci = np.where(first, 2 * i1, 2 * i2 + 1).astype(np.int64) % cols
+    cj = np.where(first, 2 * j1, 2 * j2 + 1).astype(np.int64) % rows
+    return np.where(first, dx1, dx2), np.where(first, dy1, dy2), ci * (rows // 2) + cj // 2
+
+
+def height_map(setup, x, y, *, margin: bool = False, offsets=None, rows=None):
     """Height of the artifact and its slope, in the artifact's own frame.
 
     Parameters
@@ -413,6 +495,10 @@ def height_map(setup, x, y, *, margin: bool = False):
         Coordinates on the artifact [mm].
     margin : bool
         Also return the distance to the nearest edge of the plane the point lies on.
+    offsets : array (m, facet_count(setup)), optional
+        Position errors of the facets [mm], outward along their in-plane normal
+        (source ``facet_position``), one row per error row; ``rows`` (same shape as
+        ``x``) says which row each point uses.
 
     Returns
     -------
@@ -423,39 +509,50 @@ def height_map(setup, x, y, *, margin: bool = False):
         height map (edge of its facet, of the floor or of the land).
     """
     s = setup.cell_size_mm
-    sx, sy = s * _SQ3, s
-    # nearest centre of the hexagonal lattice = nearest of its two rectangular sub-lattices
-    dx1 = x - np.round(x / sx) * sx
-    dy1 = y - np.round(y / sy) * sy
-    dx2 = x - (np.round(x / sx - 0.5) + 0.5) * sx
-    dy2 = y - (np.round(y / sy - 0.5) + 0.5) * sy
-    first = dx1 * dx1 + dy1 * dy1 <= dx2 * dx2 + dy2 * dy2
-    dx = np.where(first, dx1, dx2)
-    dy = np.where(first, dy1, dy2)
-    # hexagonal norm over the neighbour directions 30, 90, 150 deg:
-    # max(|dy|, |c30 dx + dy/2|, |-c30 dx + dy/2|) = max(|dy|, c30 |dx| + |dy|/2)
-    c30 = _SQ3 / 2
-    adx, ady = np.abs(dx), np.abs(dy)
-    slant = c30 * adx + 0.5 * ady
-    vertical = ady >= slant  # the facet whose normal is along Y
-    rho = np.maximum(ady, slant)
+    dx, dy, pocket = _lattice_local(setup, x, y)
     tan_phi = math.tan(math.radians(setup.facet_angle_deg))
     opening = (s - setup.wall_mm) / 2
     depth = setup.cell_depth_mm
+    if offsets is None:
+        # hexagonal norm over the neighbour directions 30, 90, 150 deg:
+        # max(|dy|, |c30 dx + dy/2|, |-c30 dx + dy/2|) = max(|dy|, c30 |dx| + |dy|/2)
+        c30 = _SQ3 / 2
+        adx, ady = np.abs(dx), np.abs(dy)
+        slant = c30 * adx + 0.5 * ady
+        vertical = ady >= slant  # the facet whose normal is along Y
+        rho = np.maximum(ady, slant)
+        sdy = np.sign(dy)
+        nx = np.where(vertical, 0.0, c30 * np.sign(dx))
+        ny = np.where(vertical, sdy, 0.5 * sdy)
+        corner = np.abs(0.5 * ady - c30 * adx)
+        corner = np.where(vertical, corner, np.minimum(corner, ady))
+    else:
+        # each facet moved outward by its error: rho = max_k (n_k . d - offset_k)
+        off = np.asarray(offsets)[np.asarray(rows)[..., None], 6 * pocket[..., None] + np.arange(6)]
+        proj = dx[..., None] * _FACET_NORMALS[:, 0] + dy[..., None] * _FACET_NORMALS[:, 1] - off
+        top = np.argmax(proj, axis=-1)
+        two = np.sort(proj, axis=-1)[..., -2:]
+        rho, corner = two[..., 1], two[..., 1] - two[..., 0]  # neighbours: |n_i - n_j| = 1
+        nx, ny = _FACET_NORMALS[top, 0], _FACET_NORMALS[top, 1]
     z = np.clip((rho - opening) * tan_phi, -depth, 0.0)
     on_facet = (z < 0) & (z > -depth)
     g = tan_phi * on_facet
-    sdy = np.sign(dy)
-    gx = np.where(vertical, 0.0, c30 * np.sign(dx)) * g
-    gy = np.where(vertical, sdy, 0.5 * sdy) * g
+    gx, gy = nx * g, ny * g
     if not margin:
         return z, gx, gy
     floor = opening - depth / tan_phi
-    corner = np.abs(0.5 * ady - c30 * adx)
-    corner = np.where(vertical, corner, np.minimum(corner, ady))
     edge = np.minimum(np.abs(rho - opening), np.abs(rho - floor))
     out = np.where(on_facet, np.minimum(edge, corner), edge)
     return z, gx, gy, out
+
+
+def _facet_element(setup, x, y, z) -> np.ndarray:
+    """Index of the facet error a point on a facet depends on; -1 on land and floor."""
+    dx, dy, pocket = _lattice_local(setup, x, y)
+    k = np.argmax(dx[..., None] * _FACET_NORMALS[:, 0] + dy[..., None] * _FACET_NORMALS[:, 1],
+                  axis=-1)
+    elem = 6 * pocket + k
+    return np.where((z < 0) & (z > -setup.cell_depth_mm), elem, -1)
 
 
 def _standoff(setup) -> float:
@@ -514,6 +611,13 @@ def sources(setup) -> dict:
             Rectangular(-setup.squareness_zy_urad * 1e-6, setup.squareness_zy_urad * 1e-6), (),
             "Squareness of the Z motion (the raise h) to the Y scan motion, toward +Y; "
             "rectangular +-20 urad (ISO 230-1)."),
+        "facet_position": Source(
+            Normal(0.0, setup.facet_position_um * 1e-3), (facet_count(setup),),
+            "Position error of each facet of the artifact's pockets, along its in-plane "
+            "normal (outward positive), independent from facet to facet; the errors repeat "
+            "with a period wider than the scanned window (:func:`_facet_layout`). Default "
+            "2 um: an uncalibrated pocket milled on a machining centre (ISO 230-2 "
+            "positioning, contouring and tool deflection of a few micrometres)."),
         "drift": Source(
             Normal(0.0, setup.drift_um_per_s * 1e-3), (3,),
             "Thermal drift velocity (X, Y, Z) of the sensor relative to the artifact, one per "
@@ -582,20 +686,23 @@ def _displacements(setup, errors) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- forward
-def _newton(setup, ox, oy, oz, d, t, idx, rays=None):
+def _newton(setup, ox, oy, oz, d, t, idx, rays=None, offsets=None):
     """Solve ``oz + t d_z = height(ox + t d_x, oy + t d_y)`` in place for ``t[idx]``.
 
     Newton's method on the piecewise-planar height map: inside one plane a step is
     exact; across a kink each step contracts the error by ``tan(facet) |d_xy|``
-    (about 1e-2), so it ends at machine precision in a few steps.
+    (about 1e-2), so it ends at machine precision in a few steps. ``offsets`` (m,
+    facets): the facets' position errors of each row of ``rays`` rays (:func:`height_map`).
     """
     for _ in range(60):
         if idx.size == 0:
             break
         tt = t[idx]
         # one direction (3,), or one per batch row (m, 3) for rows of `rays` rays each
-        dx, dy, dz = (d[idx // rays].T if rays else d)
-        z, gx, gy = height_map(setup, ox[idx] + tt * dx, oy[idx] + tt * dy)
+        dx, dy, dz = (d[idx // rays].T if rays and np.ndim(d) == 2 else d)
+        rows = None if offsets is None else idx // rays
+        z, gx, gy = height_map(setup, ox[idx] + tt * dx, oy[idx] + tt * dy, offsets=offsets,
+                               rows=rows)
         step = (oz[idx] + tt * dz - z) / (dz - gx * dx - gy * dy)
         t[idx] = tt - step
         idx = idx[np.abs(step) > 1e-15 * (1.0 + np.abs(tt))]
@@ -676,38 +783,58 @@ def _nominal(setup, truth):
         z, gx, gy, margin = height_map(setup, x, y, margin=True)
         if len(_NOMINAL) > 16:
             _NOMINAL.clear()
+            _FACET_OF.clear()
         _NOMINAL[key] = (t, x, y, z, gx, gy, margin)
+        _FACET_OF[key] = _facet_element(setup, x, y, z)
     return _NOMINAL[key]
 
 
-def _trace(setup, truth, disp):
+_FACET_OF: dict = {}
+
+
+def _trace(setup, truth, disp, offsets=None):
     """Exact heights t [mm] of the rays, shape (m, 3, lines, points), for m error rows.
 
-    ``disp`` (m, 3, 3): each scan's displacement of the sensor [mm]. The errors move
-    the sensor by micrometres. A ray whose error-free hit lies farther from any kink
-    than that move (bounded generously: twice the sum of the components' magnitudes)
-    stays on the same plane, and its hit is the exact ray-plane intersection; the
-    others (near kinks) are solved by :func:`_newton`.
+    ``disp`` (m, 3, 3): each scan's displacement of the sensor [mm]; ``offsets`` (m,
+    facets): the facets' position errors [mm] (:func:`height_map`), None for none. The
+    errors move the sensor and the facets by micrometres. A ray whose error-free hit
+    lies farther from any kink than that move (bounded generously: twice the sum of the
+    components' magnitudes, plus twice the largest facet error) stays on the same
+    plane, and its hit is the exact ray-plane intersection (on a facet, the plane moved
+    by its error: the height changes by ``-offset tan(facet)``); the others (near
+    kinks) are solved by :func:`_newton`.
     """
     _, d, _, _ = _frames(setup, truth)
     ox, oy, oz = _origins(setup, truth, disp)
     m = disp.shape[0]
     batched = _batched(truth)
     # one truth per row: the planes of a nearby truth's error-free hits, checked ray by ray
-    t0, x0, y0, z0, gx0, gy0, margin = _nominal(setup, _row(truth, 0) if batched else truth)
-    rays = ox.shape[1] if batched else None
+    key = _row(truth, 0) if batched else truth
+    t0, x0, y0, z0, gx0, gy0, margin = _nominal(setup, key)
+    rays = ox.shape[1]
+    extra = 0.0
+    if offsets is not None and np.any(offsets != 0):
+        offsets = np.asarray(offsets, dtype=float).reshape(m, -1)
+        elem = _FACET_OF[(setup, key)]
+        on = elem >= 0
+        shift = np.zeros((m, rays))
+        shift[:, on] = -offsets[:, elem[on]] * math.tan(math.radians(setup.facet_angle_deg))
+        z0 = z0 + shift
+        extra = 2.0 * np.abs(offsets).max(axis=1)[:, None]  # (m, 1)
+    else:
+        offsets = None
     d = np.broadcast_to(d, (m, 3)) if batched else d
     dk = d.T[..., None] if batched else d  # components, (3, m, 1) or (3,)
     t = (z0 + gx0 * (ox - x0) + gy0 * (oy - y0) - oz) / (dk[2] - gx0 * dk[0] - gy0 * dk[1])
     if batched:  # on the same plane while the hit stays within its margin
         moved = np.hypot(ox + t * dk[0] - x0, oy + t * dk[1] - y0)
-        near = np.flatnonzero((2.0 * moved + 1e-9 >= margin).ravel())
+        near = np.flatnonzero((2.0 * moved + extra + 1e-9 >= margin).ravel())
     else:
         move = 2.0 * np.abs(disp).sum(axis=2).max(axis=1) + 1e-9
-        near = np.flatnonzero(margin[None, :] <= move[:, None])
+        near = np.flatnonzero((margin[None, :] <= move[:, None] + extra).ravel())
     if near.size:
         t = t.ravel()
-        t = _newton(setup, ox.ravel(), oy.ravel(), oz.ravel(), d, t, near, rays)
+        t = _newton(setup, ox.ravel(), oy.ravel(), oz.ravel(), d, t, near, rays, offsets)
     t = t.reshape(m, 3, setup.lines, setup.points_per_line)
     if np.any(np.abs(t) > setup.range_mm / 2):
         raise InvalidInput([
@@ -734,15 +861,17 @@ def forward(setup, truth, errors) -> dict:
         ``sensor_noise`` (n, 3, lines, points) [mm], ``shift_error`` (n,) [mm],
         ``raise_error`` (n,) [mm], ``trigger_y`` (n, 3) [mm], ``linearity`` (n, 3) [mm],
         ``z_scale`` (n,) [1], ``squareness_xy`` and ``squareness_zy`` (n,) [rad],
-        ``drift`` (n, 3) [mm/s].
+        ``drift`` (n, 3) [mm/s], ``facet_position`` (n, facets) [mm].
     """
     disp = _displacements(setup, errors)
     n = disp.shape[0]
-    if np.all(disp == disp[:1]) and not _batched(truth):  # identical trials: trace once
-        t = np.broadcast_to(_trace(setup, truth, disp[:1]),
+    facets = np.asarray(errors["facet_position"], dtype=float).reshape(n, -1)
+    if np.all(disp == disp[:1]) and np.all(facets == facets[:1]) and not _batched(truth):
+        # identical trials: trace once
+        t = np.broadcast_to(_trace(setup, truth, disp[:1], facets[:1]),
                             (n, 3, setup.lines, setup.points_per_line))
     else:
-        t = _trace(setup, truth, disp)
+        t = _trace(setup, truth, disp, facets)
     scale = np.asarray(errors["z_scale"], dtype=float).reshape(n)
     lin = np.asarray(errors["linearity"], dtype=float).reshape(n, -1) @ _linearity_basis(setup)
     z = (1.0 + scale)[:, None, None, None] * t + lin[:, None, None, :]
@@ -842,7 +971,13 @@ def observability(setup) -> dict:
     }
     ok, why = _registration_check(setup)
     reg = {k: Observability(ok, True, 0.0, 0.0, why) for k in ("alpha_z", "alpha_y", "alpha_x")}
-    return {"patent": patent, "registration": reg}
+    why_pattern = (why if not ok else
+                   "generalised least squares of the forward model on the stated pattern, "
+                   "weighted by the error budget (started from the registration); as good as "
+                   "the pattern is known (facet_position_um)")
+    pattern = {k: Observability(ok, True, 0.0, 0.0, why_pattern)
+               for k in ("alpha_z", "alpha_y", "alpha_x")}
+    return {"patent": patent, "registration": reg, "pattern": pattern}
 
 
 @functools.lru_cache(maxsize=64)
@@ -1157,6 +1292,236 @@ def _registration_core(setup, z) -> dict:
     return {"alpha_z": az, "alpha_y": ay, "alpha_x": ax}
 
 
+# --------------------------------------------------------------------------- pattern
+#: Truth fields the pattern fit estimates: the three angles and the artifact's pose
+_FIT_FIELDS = ("alpha_z_mrad", "alpha_y_mrad", "alpha_x_mrad", "artifact_x_mm", "artifact_y_mm",
+               "artifact_rz_mrad", "artifact_tilt_x_mrad", "artifact_tilt_y_mrad")
+#: finite-difference steps of the fit's Jacobian [mrad or mm]: 10 urad, 1 um
+_FIT_STEPS = np.array([1e-2, 1e-2, 1e-2, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2])
+#: RMS residual [mm] above which a fit sits in the wrong lattice cell (the pattern's
+#: heights are then off by a good part of the 0.4 mm depth; errors give micrometres)
+_FIT_RMS_MAX = 0.02
+
+
+@functools.lru_cache(maxsize=1)
+def _fit_limits() -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper limits (8,) of the fitted Truth fields (a step stops there)."""
+    from mtplan.models._protocol import fields_info
+
+    info = {i["name"]: i for i in fields_info(Truth)}
+    return (np.array([info[f]["low"] for f in _FIT_FIELDS], dtype=float),
+            np.array([info[f]["high"] for f in _FIT_FIELDS], dtype=float))
+
+
+def _truth_rows(theta: np.ndarray) -> Truth:
+    """A Truth whose fitted fields are arrays (n,) from ``theta`` (n, 8) (no validation:
+    the forward model refuses what it cannot trace)."""
+    import copy
+
+    t = copy.copy(Truth())
+    for k, name in enumerate(_FIT_FIELDS):
+        object.__setattr__(t, name, np.ascontiguousarray(theta[:, k]))
+    return t
+
+
+def _predict(setup, theta: np.ndarray) -> np.ndarray:
+    """Error-free readings (n, 3 * lines * points) [mm] for parameter rows (n, 8)."""
+    n = theta.shape[0]
+    z = forward(setup, _truth_rows(theta), PROCEDURE.zero_errors(setup, n))["z_mm"]
+    return np.asarray(z).reshape(n, -1)
+
+
+@functools.lru_cache(maxsize=16)
+def _pattern_gain(setup, ref: tuple) -> np.ndarray:
+    """Gain K (8, readings) of the generalised least squares at the parameters ``ref``.
+
+    ``K = (J^T C^-1 J)^-1 J^T C^-1`` with ``J`` the readings' Jacobian (central
+    differences, :data:`_FIT_STEPS`, one-sided at the Truth's limits) and ``C = sigma^2 I + U U^T`` their covariance
+    under every active error source of the set-up: ``sigma`` the sensor noise, each
+    column of ``U`` the secant effect (half the change between -1 and +1 standard
+    deviation) of one element of another source, at the same parameters. Solved by
+    Woodbury (``C`` is never formed: 15 600 readings, about 15 columns).
+    """
+    theta = np.asarray(ref, dtype=float)[None, :]
+    low, high = _fit_limits()
+    up = np.minimum(theta + np.diag(_FIT_STEPS), high)  # one-sided at a Truth limit
+    down = np.maximum(theta - np.diag(_FIT_STEPS), low)
+    jac = (_predict(setup, up) - _predict(setup, down)).T / np.diag(up - down)
+    # every element of every other source at +1 and -1 sd: one forward call, 2 rows each
+    elements = [(name, k, float(np.max(src.distribution.std)))
+                for name, src in sources(setup).items()
+                if name != PROCEDURE.noise_source and src.active for k in range(src.size)]
+    m = 2 * len(elements)
+    cols = np.zeros((jac.shape[0], 0))
+    if m:
+        errors = PROCEDURE.zero_errors(setup, m)
+        for i, (name, k, sd) in enumerate(elements):
+            errors[name].reshape(m, -1)[2 * i : 2 * i + 2, k] = (sd, -sd)
+        z = forward(setup, _truth_rows(np.repeat(theta, m, axis=0)), errors)["z_mm"]
+        z = np.asarray(z).reshape(len(elements), 2, -1)
+        cols = ((z[:, 0] - z[:, 1]) / 2).T
+    sigma = setup.sensor_noise_um * 1e-3
+    # without reading noise the weight is that of a noise far below any source's effect
+    scale = max(sigma, 1e-6 * max(float(np.abs(cols).max(initial=0.0)), 1e-3))
+    u = cols / scale
+
+    def cinv(a):  # scale^2 C^-1 a
+        return a - u @ np.linalg.solve(np.eye(u.shape[1]) + u.T @ u, u.T @ a)
+
+    wj = cinv(jac)
+    return np.linalg.solve(jac.T @ wj, wj.T)
+
+
+#: grid of the parameters at which gains are taken [mrad, mm]. Noise-free, the fit's fixed
+#: point does not depend on where its gain was taken; with noise the gain's Jacobian is the
+#: fit's weighting, best taken where the kinks of the pattern lie: the lattice offset to
+#: 2 um, the line's and the artifact's rotation about Z to 0.1 mrad (under 1 um at the
+#: line's ends); the angles about X and Y and the tilts (smooth height changes) to 0.5 mrad.
+#: A Monte Carlo's blocks then share a few gains (their first trials scatter by tens of urad)
+_GAIN_GRID = np.array([0.1, 0.5, 0.5, 0.002, 0.002, 0.1, 0.5, 0.5])
+
+
+def _reference(theta: np.ndarray) -> tuple:
+    """Parameters rounded to :data:`_GAIN_GRID`, at which a gain is computed and cached."""
+    g = np.round(np.asarray(theta, dtype=float) / _GAIN_GRID) * _GAIN_GRID
+    return tuple(float(f"{v:.10g}") for v in g)
+
+
+def _pattern_iterate(setup, y, theta, *, iterations=40, relinearise=(12,)):
+    """Gauss-Newton with one gain shared by all rows, re-taken at the rows' median
+    after the iterations in `relinearise`; returns (theta, rms residual [mm])."""
+    theta = theta.copy()
+    gain = _pattern_gain(setup, _reference(np.median(theta, axis=0)))
+    ok = np.ones(theta.shape[0], dtype=bool)
+    r = None
+    for it in range(iterations):
+        try:
+            r = y - _predict(setup, theta)
+        except InvalidInput:  # a row left the sensor's range: stop those rows
+            r = np.full_like(y, np.nan)
+        ok = np.all(np.isfinite(r), axis=1)
+        if not ok.any():
+            break
+        step = np.zeros_like(theta)
+        step[ok] = r[ok] @ gain.T
+        theta[ok] = np.clip(theta[ok] + step[ok], *_fit_limits())
+        if np.all(np.abs(step[ok]) <= 1e-9):  # [mrad, mm]: 1e-6 urad, 1 pm
+            r = y - _predict(setup, theta)
+            break
+        if it in relinearise:
+            gain = _pattern_gain(setup, _reference(np.median(theta[ok], axis=0)))
+    rms = np.sqrt(np.mean(r**2, axis=1)) if r is not None else np.full(theta.shape[0], np.inf)
+    return theta, np.where(ok, rms, np.inf)
+
+
+def _pose_search(setup, z1, angles) -> np.ndarray:
+    """Start parameters (8,) for one trial's scans ``z1`` (3, lines, points): the
+    lattice offset and rotation that best match scan 1, by the least-squares misfit
+    after removing the mean height, over a grid: 0.1 mm over one cell of the lattice
+    and 20 mrad over the Truth's +-100 mrad of rotation (every fourth profile, vertical
+    rays, the angle ``angles[0]`` [mrad] about Z applied to the line, no tilt)."""
+    s = setup.cell_size_mm
+    gx, gy, grz = np.meshgrid(np.arange(0, s * _SQ3 / 2, 0.1), np.arange(0, s, 0.1),
+                              np.arange(-100.0, 100.1, 20.0), indexing="ij")
+    gx, gy, grz = gx.ravel(), gy.ravel(), grz.ravel() * 1e-3
+    az = angles[0] * 1e-3
+    u, yl = _grid_u(setup)[None, :], _grid_y(setup)[::4, None]
+    px = (u * math.cos(az) + 0 * yl).ravel()
+    py = (u * math.sin(az) + yl).ravel()
+    data = z1[0, ::4].ravel()
+    data = data - data.mean()
+    best, best_cost = 0, np.inf
+    for start in range(0, gx.size, 256):  # memory bounded: 256 candidates at a time
+        sl = slice(start, start + 256)
+        c, si = np.cos(grz[sl])[:, None], np.sin(grz[sl])[:, None]
+        dx, dy = px[None, :] - gx[sl, None], py[None, :] - gy[sl, None]
+        h = height_map(setup, c * dx + si * dy, -si * dx + c * dy)[0]
+        h = h - h.mean(axis=1, keepdims=True)  # a reading is the height plus the stand-off
+        cost = ((h - data) ** 2).sum(axis=1)
+        k = int(np.argmin(cost))
+        if cost[k] < best_cost:
+            best, best_cost = start + k, cost[k]
+    return np.array([*angles, gx[best], gy[best], grz[best] * 1e3, 0.0, 0.0])
+
+
+def _pattern_first(setup, z1):
+    """The fit of one trial's scans ``z1`` (3, lines, points): parameters (8,) or None.
+
+    Starts from the registration's angles and the default truth's pose; where that
+    lands in the wrong cell of the lattice, from :func:`_pose_search`. The pose names a
+    cell centre, and the artifact's tilts pivot about it, so the cells' centres are not
+    quite equivalent (the plate's height at the pivot is the set-up's): after a pose
+    search the fit is repeated from the six neighbouring cells and the best kept.
+    """
+    y1 = z1.reshape(1, -1)
+    reg = _registration_core(setup, z1[None])
+    angles = [float(reg[k][0]) * 1e3 for k in ("alpha_z", "alpha_y", "alpha_x")]
+    if not np.all(np.isfinite(angles)):
+        return None
+    start = np.array([*angles, *[getattr(Truth(), f) for f in _FIT_FIELDS[3:]]])
+    th, rms = _pattern_iterate(setup, y1, start[None, :])
+    if rms[0] <= _FIT_RMS_MAX:
+        return th[0]
+    th, rms = _pattern_iterate(setup, y1, _pose_search(setup, z1, angles)[None, :])
+    if not rms[0] <= _FIT_RMS_MAX:
+        return None
+    s = setup.cell_size_mm
+    cells = np.array([[0, s], [0, -s], [s * _SQ3 / 2, s / 2], [-s * _SQ3 / 2, -s / 2],
+                      [s * _SQ3 / 2, -s / 2], [-s * _SQ3 / 2, s / 2]])
+    rz = th[0, 5] * 1e-3
+    moved = cells @ np.array([[math.cos(rz), math.sin(rz)], [-math.sin(rz), math.cos(rz)]])
+    starts = np.repeat(th, len(cells), axis=0)
+    starts[:, 3:5] += moved
+    others, rms_o = _pattern_iterate(setup, np.repeat(y1, len(cells), axis=0), starts)
+    k = int(np.argmin(rms_o))
+    return others[k] if rms_o[k] < rms[0] else th[0]
+
+
+def estimate_pattern(setup, readings) -> dict:
+    """Generalised least squares of the forward model: angles and artifact pose.
+
+    Uses what the registration leaves out: the artifact's pattern as the set-up states
+    it (the hexagonal pockets' pitch, land, depth and facet angle) and the model of every
+    error source. The readings of all three scans are fitted at once over the three
+    angles and the artifact's pose (lattice offset, rotation about Z, two tilts), weighted
+    by the inverse of their covariance under every active error source of the set-up
+    (:func:`_pattern_gain`), by Gauss-Newton with one gain shared by the whole batch
+    (taken at the first trial's fit, :func:`_pattern_first`, rounded to
+    :data:`_GAIN_GRID`, and again at the batch's median should it need more than 12
+    iterations). Trials whose fit misses the pattern
+    (an RMS residual above 20 um: the wrong cell of the lattice) are NaN.
+
+    Arguments, result (angles with sign [rad]) and refusal as
+    :func:`estimate_registration`, from which it starts.
+    """
+    ok, why = _registration_check(setup)
+    if not ok:
+        raise InvalidInput([f"line_laser estimator 'pattern' cannot determine the angles at "
+                            f"this set-up (it starts from the registration): {why}"])
+    z = np.asarray(readings["z_mm"], dtype=float)
+    n = z.shape[0]
+    y = z.reshape(n, -1)
+    theta = np.full((n, len(_FIT_FIELDS)), np.nan)
+    good = np.zeros(n, dtype=bool)
+    todo = np.flatnonzero(np.all(np.isfinite(y), axis=1))
+    for _ in range(3):  # a first trial that cannot be fitted is left out, the next tried
+        if todo.size == 0:
+            break
+        first = todo[0]
+        th = _pattern_first(setup, z[first])
+        if th is None:
+            todo = todo[1:]
+            continue
+        th_all, rms_all = _pattern_iterate(setup, y[todo], np.repeat(th[None, :], todo.size, 0))
+        fit = rms_all <= _FIT_RMS_MAX
+        theta[todo[fit]] = th_all[fit]
+        good[todo[fit]] = True
+        break
+    theta[~good] = np.nan
+    return {"alpha_z": theta[:, 0] * 1e-3, "alpha_y": theta[:, 1] * 1e-3,
+            "alpha_x": theta[:, 2] * 1e-3}
+
+
 # --------------------------------------------------------------------------- time, frames
 def duration(setup) -> float:
     """Machine time of the three scans [s]: scans at the feed the frame rate allows,
@@ -1283,7 +1648,8 @@ PROCEDURE = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators={"patent": estimate_patent, "registration": estimate_registration},
+    estimators={"patent": estimate_patent, "registration": estimate_registration,
+                "pattern": estimate_pattern},
     true_values=true_values,
     duration=duration,
     readings_frame=readings_frame,
@@ -1295,7 +1661,7 @@ PROCEDURE = Procedure(
         "of alpha_x; the registration estimator fits sub-step translations between the scans "
         "and the rotation exactly."
     ),
-    exact_estimators=("registration",),
+    exact_estimators=("registration", "pattern"),
     block_size=128,
     truth_from_estimate=truth_from_estimate,
     noise_source="sensor_noise",
