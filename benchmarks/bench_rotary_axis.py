@@ -13,8 +13,14 @@ C, A and combined CA tests at their defaults, u of each measurand before issue 1
 A positions in ascending order) and now (the seed's order), the share of each source
 in u^2, and the measuring order against the thermal drift alone.
 
+With ``--angles``: the tables of the ``angles`` estimator in docs/rotary_axis.md: u
+with ``gls`` (before) and ``angles`` (after) and the shares under ``angles``, for C, A
+and CA; u of both against the stated angular positioning error; and the price of
+trusting the encoder: the spread of both when the axis really positions to +-30 arcsec
+and the set-up (the weight, the Monte Carlo) says +-5.
+
 Run:  .venv/bin/python benchmarks/bench_rotary_axis.py [--trials 20000] [--repeat 5]
-      [--axis C|A|CA] [--budget]
+      [--axis C|A|CA] [--budget | --angles]
 """
 
 from __future__ import annotations
@@ -28,7 +34,7 @@ from mtplan.models import get
 from mtplan.uncertainty._random import as_seed_sequence, block_sequence
 from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 
-from _budget import budget_table  # benchmarks/ is the script's folder
+from _budget import budget_table, mc_std  # benchmarks/ is the script's folder
 
 
 def best(fn, repeat):
@@ -46,10 +52,14 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--axis", default="C")
     ap.add_argument("--budget", action="store_true")
+    ap.add_argument("--angles", action="store_true")
     args = ap.parse_args()
     proc = get("rotary_axis")
     if args.budget:
         budget(proc, args.trials)
+        return
+    if args.angles:
+        angles(proc, args.trials)
         return
     setup = proc.setup(axis=args.axis)
     n = args.trials
@@ -104,6 +114,29 @@ def budget(proc, trials: int) -> None:
         g = linearize_procedure(proc, setup, sources=["thermal_drift"])
         print(f"  {order:9s} {setup.angles().tolist()}: "
               + ", ".join(f"{n} {u:.3f}" for n, u in zip(g.names, g.std, strict=True)))
+
+
+def angles(proc, trials: int) -> None:
+    """The docs' tables of the angles estimator: gain, its dependence on the encoder, price."""
+    for axis in ("C", "A", "CA"):
+        setup = proc.setup(axis=axis)
+        print(f"\naxis {axis}: u before = gls, after = angles (Monte Carlo, {trials} trials, "
+              "rng 3), shares of u^2 under angles (GUM) [%]")
+        print(budget_table(proc, setup, mc_std(proc, setup, trials, "gls"), trials, "angles"))
+    for axis in ("C", "A"):
+        print(f"\naxis {axis}: u against angular_positioning_arcsec (gls | angles)")
+        for arcsec in (0.0, 5.0, 20.0, 60.0):
+            setup = proc.setup(axis=axis, angular_positioning_arcsec=arcsec)
+            u = {e: mc_std(proc, setup, trials, e) for e in ("gls", "angles")}
+            print(f"  {arcsec:4g}: " + ", ".join(f"{m} {u['gls'][m]:.3g} | {u['angles'][m]:.3g}"
+                                                  for m in u["gls"]))
+        stated = proc.setup(axis=axis)
+        real = stated.replace(angular_positioning_arcsec=30.0)
+        readings = proc.simulate(real, proc.Truth(), trials, rng=3)
+        for est in ("gls", "angles"):
+            out = proc.display_estimate(stated, readings, est)
+            print(f"  axis really +-30 arcsec, set-up +-5, {est}: "
+                  + ", ".join(f"{m} {np.std(v):.3g}" for m, v in out.items()))
 
 
 if __name__ == "__main__":

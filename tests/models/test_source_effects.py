@@ -57,6 +57,7 @@ CASES = [
     ("rotary_axis", {"axis": "CA"}, "axial_motion", RA_POSITIONS),
     ("rotary_axis", {"axis": "CA"}, "tilt_motion", RA_DIRECTIONS),
     ("rotary_axis", {"axis": "CA"}, "angular_positioning", set()),
+    ("rotary_axis", {"axis": "CA", "estimator": "angles"}, "angular_positioning", ALL),
     # the artifact's real pose: every estimator fits each lattice's plane, none uses it
     ("rotary_axis", {"axis": "CA"}, "artifact_tilt", set()),
     ("rotary_axis", {"axis": "CA"}, "artifact_height_error", set()),
