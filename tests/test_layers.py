@@ -137,3 +137,15 @@ def _long_functions(limit: int) -> list[str]:
 
 def test_no_function_too_long_to_hold_in_ones_head():
     assert not _long_functions(120), _long_functions(120)
+
+
+def test_no_merge_conflict_markers_in_the_sources_and_documents():
+    """A merge must not leave its conflict markers in a file users read or run."""
+    root = SRC.parent
+    files = [*root.glob("*.md"), *(root / "docs").glob("*.md"), *SRC.rglob("*.py"),
+             *(root / "tests").rglob("*.py"), *(root / "benchmarks").glob("*.py"),
+             *SRC.rglob("*.toml")]
+    marked = [str(f.relative_to(root)) for f in files
+              if any(line.startswith(("<<<<<<< ", ">>>>>>> ")) or line == "======="
+                     for line in f.read_text(encoding="utf-8").splitlines())]
+    assert not marked
