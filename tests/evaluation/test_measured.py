@@ -322,3 +322,21 @@ def test_simulate_says_when_an_interval_has_zero_width_or_the_bias_dominates():
     assert any(f.startswith("alpha_z:") and "zero width" in f for f in found)
     assert not any(f.startswith("alpha_y:") for f in found)
     assert simulate_uncertainty("rotary_axis", trials=300, rng=1).findings() == []
+
+
+def test_derived_measurands_of_a_ca_test_are_determinable():
+    """rotary_axis's axis="CA" derives ac_offset, ac_squareness and the pose error from the
+    two axis lines; no truth moves them alone, so the 'follows the measurand' check takes
+    them as following their sources (it had called them not determinable)."""
+    from mtplan.models import registry
+
+    proc = registry()["rotary_axis"]
+    setup = proc.Setup(axis="CA")
+    readings = proc.simulate(setup, draws=1, rng=5)
+    res = estimate_measured(proc, setup, readings, trials=400, rng=0)
+    assert res.determinable.all(), res.reasons
+    names = [m.name for m in res.measurands]
+    for name in ("ac_offset", "ac_squareness", "pose_dx", "pose_dy", "pose_dz"):
+        i = names.index(name)
+        assert res.low[i] < res.value[i] < res.high[i] and res.std[i] > 0
+    assert any("derived from the other measurands" in n for n in res.notes)

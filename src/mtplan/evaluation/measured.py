@@ -223,30 +223,43 @@ def _default_estimate(proc, setup, readings, measurands, notes):
 
 def _observes(proc, setup, est_name, est_internal, step):
     """d(estimate)/d(measurand) from noise-free readings at the estimate +- `step` [display]
-    (a tenth and a hundredth of it where that leaves the truth's domain).
+    (a tenth and a hundredth of it where that leaves the truth's domain), the change of the
+    measurand taken from the truth built from the moved estimate.
 
-    None when the procedure cannot build a truth from an estimate."""
+    None when the procedure cannot build a truth from an estimate. A measurand that no truth
+    moves alone (derived from the others, as rotary_axis's ac_offset from the two axis
+    lines) gets slope 1 and is listed in the second return value: it follows the estimate
+    as the measurands it derives from do."""
     if proc.truth_from_estimate is None:
-        return None
+        return None, []
     measurands = proc.measurands(setup)
     slopes = np.full(len(measurands), np.nan)
+    derived = []
     zero = proc.zero_errors(setup, 1)
 
     def estimate_at(m, delta):
         est = dict(est_internal)
         est[m.name] = est[m.name] + delta / m.scale
         try:
-            r = proc.forward(setup, proc.truth_from_estimate(setup, est), zero)
-            return float(np.asarray(proc.estimate(setup, r, est_name)[m.name]).reshape(-1)[0])
+            truth = proc.truth_from_estimate(setup, est)
+            true = float(np.asarray(proc.true_values(setup, truth)[m.name]).reshape(-1)[0])
+            r = proc.forward(setup, truth, zero)
+            return (float(np.asarray(proc.estimate(setup, r, est_name)[m.name]).reshape(-1)[0]),
+                    true)
         except (InvalidInput, ValueError, ArithmeticError):
-            return np.nan
+            return np.nan, np.nan
 
     for i, m in enumerate(measurands):
         for h in (step[i], 0.1 * step[i], 0.01 * step[i]):
-            slopes[i] = (estimate_at(m, h) - estimate_at(m, -h)) * m.scale / (2 * h)
+            (e_hi, t_hi), (e_lo, t_lo) = estimate_at(m, h), estimate_at(m, -h)
+            if np.isfinite(t_hi) and np.isfinite(t_lo) and abs(t_hi - t_lo) * m.scale < 1e-3 * h:
+                slopes[i] = 1.0
+                derived.append(m.name)
+                break
+            slopes[i] = (e_hi - e_lo) / (t_hi - t_lo)
             if np.isfinite(slopes[i]):
                 break
-    return slopes
+    return slopes, derived
 
 
 def _corrected(r, estimate, names, notes, coverage):
@@ -312,7 +325,10 @@ def _mc_result(proc, setup, est_name, est_internal, estimate, *, trials, coverag
     if finite.all():  # over two robust standard deviations (the interval's half width / 2)
         spread = np.where(high > low, 0.5 * (high - low) / 1.96, 0.0)
         step = np.where(spread > 0, 2.0 * spread, 1e-6 * np.maximum(np.abs(estimate), 1.0))
-        slopes = _observes(proc, setup, est_name, est_internal, step)
+        slopes, derived = _observes(proc, setup, est_name, est_internal, step)
+        if derived:
+            notes.append(f"{', '.join(derived)}: derived from the other measurands (no truth "
+                         "moves them alone), so the estimator follows them as it follows those")
     reasons = {}
     for i, m in enumerate(measurands):
         why = None
