@@ -161,16 +161,23 @@ def _choose_estimator(proc, setup) -> tuple[tuple[str, float], ...]:
     candidates = list(proc.exact_estimators) or [proc.default_estimator]
     if len(candidates) == 1:
         return ((candidates[0], 1.0),)
-    scores = {}
-    for est in candidates:
+
+    def score(est, trials):
         try:
-            r = simulate_uncertainty(proc, setup, estimator=est, trials=PILOT_TRIALS, rng=0,
+            r = simulate_uncertainty(proc, setup, estimator=est, trials=trials, rng=0,
                                      progress=False)
         except (InvalidInput, ValueError, ArithmeticError):
-            continue
+            return None
         std = np.asarray(r.mc.std, dtype=float)
-        if np.all(np.isfinite(std) & (std > 0)):
-            scores[est] = float(np.mean(np.log(std)))
+        return float(np.mean(np.log(std))) if np.all(np.isfinite(std) & (std > 0)) else None
+
+    # a quarter of the pilot first; the estimators within 20 % of the best get the whole
+    # pilot (a clear winner, like line_laser's pattern at 2.9 times, costs a quarter)
+    scores = {e: v for e in candidates if (v := score(e, PILOT_TRIALS // 4)) is not None}
+    if scores:
+        close = [e for e, v in scores.items() if v - min(scores.values()) < math.log(1.2)]
+        if len(close) > 1:
+            scores.update({e: v for e in close if (v := score(e, PILOT_TRIALS)) is not None})
     if not scores:
         return ((proc.default_estimator, 1.0),)
     ranked = sorted(scores, key=scores.get)
@@ -183,7 +190,8 @@ def best_estimator(procedure, setup) -> str:
     Among the procedure's exact estimators (those that recover every measurand from
     noise-free readings), the one with the smallest geometric mean of the Monte
     Carlo standard uncertainties at this set-up and the default truth
-    (``PILOT_TRIALS`` trials, common random numbers); the procedure's default
+    (``PILOT_TRIALS`` trials, common random numbers; a quarter of them where one is more
+    than 20 % better than the rest); the procedure's default
     estimator when it has none.
     """
     from mtplan.models import get
