@@ -192,6 +192,7 @@ always returns, with an uncertainty that grows as the arc shrinks.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 
@@ -1007,6 +1008,151 @@ def truth_from_estimate(setup: Setup, estimate: dict) -> Truth:
     return Truth(**{**base, **{k: tuple(v) for k, v in fields.items()}})
 
 
+# --------------------------------------------------------------------------- gls
+#: Truth fields of each sub-machine that the ``gls`` fit estimates (tuples, one per head)
+_GLS_HEAD = ("wrist_dx_um", "wrist_dy_um", "wrist_dz_um", "frame_rx_urad", "frame_ry_urad",
+             "frame_rz_urad", "sq_xy_urad", "sq_yz_urad", "sq_zx_urad", "c_tilt_x_urad",
+             "c_tilt_y_urad", "a_tilt_y_urad", "a_tilt_z_urad", "ac_offset_um")
+#: the tracker's pose fields it estimates
+_GLS_TRACKER = ("tracker_dx_um", "tracker_dy_um", "tracker_dz_um", "tracker_tilt_x_urad",
+                "tracker_tilt_y_urad", "tracker_yaw_deg")
+#: central-difference steps [um, urad, deg]: 0.1 um, 0.1 urad, 0.1 urad of yaw
+_GLS_STEP = {"deg": math.degrees(1e-7), "um": 0.1, "urad": 0.1}
+
+
+def _gls_names(setup: Setup) -> list[tuple[str, int | None]]:
+    """The fitted parameters in order: (field, sub-machine index or None)."""
+    return ([(f, k) for k in range(setup.n_submachines) for f in _GLS_HEAD]
+            + [(f, None) for f in _GLS_TRACKER])
+
+
+def _gls_truth(setup: Setup, base: Truth, theta: np.ndarray) -> Truth:
+    """``base`` with the fitted fields set from parameter rows ``theta`` (m, p) (arrays (m,),
+    one truth per row; no validation)."""
+    t = dataclasses.replace(base)
+    n = setup.n_submachines
+    heads: dict[str, list] = {f: [None] * n for f in _GLS_HEAD}
+    for j, (f, k) in enumerate(_gls_names(setup)):
+        if k is None:
+            object.__setattr__(t, f, np.ascontiguousarray(theta[:, j]))
+        else:
+            heads[f][k] = np.ascontiguousarray(theta[:, j])
+    for f, v in heads.items():
+        object.__setattr__(t, f, tuple(v))
+    return t
+
+
+def _gls_vector(readings: dict) -> np.ndarray:
+    """Readings as rows (n, 3 points): distance [mm], azimuth, elevation [rad]."""
+    return np.concatenate([np.asarray(readings[k], dtype=float)
+                           for k in ("distance_mm", "azimuth_rad", "elevation_rad")], axis=-1)
+
+
+def _gls_predict(setup: Setup, base: Truth, theta: np.ndarray) -> np.ndarray:
+    """Error-free readings (m, 3 points) for parameter rows ``theta`` (m, p)."""
+    errors = PROCEDURE.zero_errors(setup, theta.shape[0])
+    return _gls_vector(forward(setup, _gls_truth(setup, base, theta), errors))
+
+
+def _gls_residual(setup: Setup, y: np.ndarray, pred: np.ndarray) -> np.ndarray:
+    r = y - pred
+    p = _n_points(setup)
+    r[:, p:] = (r[:, p:] + np.pi) % (2 * np.pi) - np.pi  # angles: wrap
+    return r
+
+
+@functools.lru_cache(maxsize=16)
+def _gls_gain(setup: Setup, base: Truth, ref: tuple) -> np.ndarray:
+    """Gain K (p, 3 points) of the generalised least squares at the parameters ``ref``.
+
+    ``K = (J^T C^-1 J)^-1 J^T C^-1`` with ``J`` the readings' Jacobian (central
+    differences) and ``C = U U^T`` their covariance under every active error source of
+    the set-up: each column of ``U`` the secant effect (half the change between -1 and
+    +1 standard deviation) of one element of a source, at the same parameters (as
+    ``line_laser._pattern_gain``). The readings are few (3 per point), so ``C`` is
+    formed and factorised, scaled to unit diagonal.
+    """
+    theta = np.asarray(ref, dtype=float)[None, :]
+    names = _gls_names(setup)
+    steps = np.array([_GLS_STEP[f.rsplit("_", 1)[1]] for f, _ in names])
+    pm = np.concatenate([theta + np.diag(steps), theta - np.diag(steps)])
+    y = _gls_predict(setup, base, pm)
+    jac = ((y[: len(steps)] - y[len(steps):]) / (2 * steps)[:, None]).T
+    elements = [(name, k, float(np.max(src.distribution.std)))
+                for name, src in sources(setup).items() if src.active
+                for k in range(src.size)]
+    if not elements:
+        raise InvalidInput(["tracker_frame estimator 'gls' needs at least one active error "
+                            "source to weight the readings"])
+    m = 2 * len(elements)
+    errors = PROCEDURE.zero_errors(setup, m)
+    for i, (name, k, sd) in enumerate(elements):
+        errors[name].reshape(m, -1)[2 * i: 2 * i + 2, k] = (sd, -sd)
+    z = _gls_vector(forward(setup, _gls_truth(setup, base, np.repeat(theta, m, axis=0)),
+                            errors))
+    z = z.reshape(len(elements), 2, -1)
+    u = ((z[:, 0] - z[:, 1]) / 2).T
+    cov = u @ u.T
+    s = np.sqrt(np.diag(cov))
+    cov = cov / np.outer(s, s) + 1e-12 * np.eye(len(s))
+    js = jac / s[:, None]
+    chol = np.linalg.cholesky(cov)
+    wj = np.linalg.solve(chol.T, np.linalg.solve(chol, js))
+    return np.linalg.solve(js.T @ wj, wj.T) / s[None, :]
+
+
+def _gls_start(setup: Setup, readings: dict) -> tuple[Truth, np.ndarray]:
+    """The start of the fit: the ``home`` estimate of the first trial as a Truth (head
+    tilts zero), the tracker's pose from the registration on the marks; (truth, theta (p,))."""
+    home = estimate_home(setup, {k: np.asarray(v)[:1] for k, v in readings.items()})
+    base = truth_from_estimate(setup, home)
+    rot, t = _register(setup, _cartesian({k: np.asarray(v)[:1] for k, v in
+                                          readings.items()})[:, :4])
+    tx, ty, yaw = _angles(rot[0])
+    d = (t[0] - np.array([-setup.tracker_distance_mm, 0.0, setup.tracker_height_mm])) * 1e3
+    base = dataclasses.replace(base, tracker_dx_um=float(d[0]), tracker_dy_um=float(d[1]),
+                               tracker_dz_um=float(d[2]), tracker_tilt_x_urad=float(tx) * 1e6,
+                               tracker_tilt_y_urad=float(ty) * 1e6,
+                               tracker_yaw_deg=float(np.degrees(yaw)))
+    theta = np.array([float(_cyc(getattr(base, f), k)) if k is not None
+                      else float(getattr(base, f)) for f, k in _gls_names(setup)])
+    return base, theta
+
+
+def _gls_key(setup: Setup, theta: np.ndarray) -> tuple:
+    """Parameters rounded to 0.1 um, 0.1 urad and 1e-5 deg: where the gain is taken (its
+    cache key; a Monte Carlo's blocks share it)."""
+    grid = np.array([1e-5 if f.endswith("_deg") else 0.1 for f, _ in _gls_names(setup)])
+    return tuple(float(f"{v:.10g}") for v in np.round(np.asarray(theta) / grid) * grid)
+
+
+def estimate_gls(setup: Setup, readings: dict, *, iterations: int = 30) -> dict[str, np.ndarray]:
+    """Generalised least-squares fit of the whole forward model to all readings.
+
+    The parameters are the head's geometry of every sub-machine (:data:`_GLS_HEAD`) and
+    the tracker's pose; the pivot-length error and the A-C angle are held. The weights
+    are the inverse covariance of the readings under every active error source
+    (:func:`_gls_gain`). Gauss-Newton with one gain for the whole batch, taken at the
+    start (:func:`_gls_start`) and re-taken once at the batch's median; the measurands
+    are the construction applied to the fitted geometry (:func:`true_values`).
+    """
+    y = _gls_vector(readings)
+    start_truth, start = _gls_start(setup, readings)
+    # the gain depends on the held fields only (the fitted ones come from theta)
+    base = Truth(pivot_length_error_um=start_truth.pivot_length_error_um,
+                 ac_angle_deg=start_truth.ac_angle_deg)
+    theta = np.repeat(start[None, :], y.shape[0], axis=0)
+    gain = _gls_gain(setup, base, _gls_key(setup, start))
+    for it in range(iterations):
+        step = _gls_residual(setup, y, _gls_predict(setup, base, theta)) @ gain.T
+        theta = theta + step
+        if np.all(np.abs(step) <= 1e-7):  # [um, urad]
+            break
+        if it == 2:
+            gain = _gls_gain(setup, base, _gls_key(setup, np.median(theta, axis=0)))
+    return true_values(setup, _gls_truth(setup, base, theta))
+
+
 def _times(setup: Setup) -> tuple[np.ndarray, float]:
     """Time of each reading from the start (n_points,) in layout order, and the total [s].
 
@@ -1163,7 +1309,8 @@ PROCEDURE = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators={"patent": estimate_patent, "angles": estimate_angles, "home": estimate_home},
+    estimators={"patent": estimate_patent, "angles": estimate_angles, "home": estimate_home,
+                "gls": estimate_gls},
     true_values=true_values,
     duration=duration,
     readings_frame=readings_frame,
@@ -1172,7 +1319,7 @@ PROCEDURE = Procedure(
         "Laser-tracker calibration of the frames of the AC-head sub-machines of a gantry "
         "(CN106078359A): lines along the travels, 3D circles round A and C, the common "
         "perpendicular of A and C, origin at the pivot length along C, longest travel kept."),
-    exact_estimators=("patent", "angles", "home"),
+    exact_estimators=("patent", "angles", "home", "gls"),
     block_size=4000,
     truth_from_estimate=truth_from_estimate,
     levers=tuple("reflector_offset_mm travel_x_mm travel_y_mm travel_z_mm "
