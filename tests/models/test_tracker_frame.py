@@ -479,3 +479,27 @@ def test_tracker_position_is_found_by_the_registration(estimator):
     a = PROC.display_estimate(setup, base, estimator)
     b = PROC.display_estimate(setup, r, estimator)
     assert max(abs(a[k][0] - b[k][0]) for k in a) < 1e-6
+
+
+# --------------------------------------------------------------------------- gls
+def test_gls_without_any_source_recovers_the_truth():
+    off = {f: 0.0 for f in NOISE_FIELDS} | {"reflector_fixture_um": 0.0}
+    setup = PROC.Setup(**off)
+    truth = PROC.Truth(tracker_yaw_deg=-40.0, tracker_dx_um=20000.0, c_tilt_x_urad=(300.0,))
+    est = PROC.display_estimate(setup, _noise_free(setup, truth), "gls")
+    for name, value in PROC.display_truth(setup, truth).items():
+        np.testing.assert_allclose(est[name], value, rtol=0, atol=1e-6, err_msg=name)
+
+
+def test_gls_is_efficient_home_scatters_about_it():
+    """An efficient estimator is uncorrelated with its difference to any other unbiased
+    one (Hausman): corr(gls, home - gls) ~ 0 within 4 / sqrt(n); and gls is narrower."""
+    n = 400
+    setup = PROC.Setup()
+    r = PROC.simulate(setup, PROC.Truth(), draws=n, rng=np.random.default_rng(31))
+    gls, home = PROC.estimators["gls"](setup, r), PROC.estimators["home"](setup, r)
+    for k in range(1, setup.n_submachines + 1):
+        for name in (f"origin_{a}_{k}" for a in "xyz"):
+            corr = np.corrcoef(gls[name], home[name] - gls[name])[0, 1]
+            assert abs(corr) < 4 / math.sqrt(n), (name, corr)
+            assert np.std(gls[name]) < np.std(home[name]), name

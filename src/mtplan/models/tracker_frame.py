@@ -1066,10 +1066,10 @@ def _gls_gain(setup: Setup, base: Truth, ref: tuple) -> np.ndarray:
     """Gain K (p, 3 points) of the generalised least squares at the parameters ``ref``.
 
     ``K = (J^T C^-1 J)^-1 J^T C^-1`` with ``J`` the readings' Jacobian (central
-    differences) and ``C = U U^T`` their covariance under every active error source of
-    the set-up: each column of ``U`` the secant effect (half the change between -1 and
-    +1 standard deviation) of one element of a source, at the same parameters (as
-    ``line_laser._pattern_gain``). The readings are few (3 per point), so ``C`` is
+    differences) and ``C = U U^T`` (plus a floor of 1 nm and 0.1 nrad) their covariance
+    under every active error source of the set-up: each column of ``U`` the secant
+    effect (half the change between -1 and +1 standard deviation) of one element of a
+    source, at the same parameters (as ``line_laser._pattern_gain``). The readings are few (3 per point), so ``C`` is
     formed and factorised, scaled to unit diagonal.
     """
     theta = np.asarray(ref, dtype=float)[None, :]
@@ -1081,20 +1081,23 @@ def _gls_gain(setup: Setup, base: Truth, ref: tuple) -> np.ndarray:
     elements = [(name, k, float(np.max(src.distribution.std)))
                 for name, src in sources(setup).items() if src.active
                 for k in range(src.size)]
-    if not elements:
-        raise InvalidInput(["tracker_frame estimator 'gls' needs at least one active error "
-                            "source to weight the readings"])
-    m = 2 * len(elements)
-    errors = PROCEDURE.zero_errors(setup, m)
-    for i, (name, k, sd) in enumerate(elements):
-        errors[name].reshape(m, -1)[2 * i: 2 * i + 2, k] = (sd, -sd)
-    z = _gls_vector(forward(setup, _gls_truth(setup, base, np.repeat(theta, m, axis=0)),
-                            errors))
-    z = z.reshape(len(elements), 2, -1)
-    u = ((z[:, 0] - z[:, 1]) / 2).T
-    cov = u @ u.T
+    # a floor far below any source's effect (1 nm, 0.1 nrad), so that readings no source
+    # moves (or a set-up without sources) keep a weight and C stays regular
+    p = _n_points(setup)
+    floor = np.repeat([1e-6, 1e-10, 1e-10], p)
+    cov = np.diag(floor**2)
+    if elements:
+        m = 2 * len(elements)
+        errors = PROCEDURE.zero_errors(setup, m)
+        for i, (name, k, sd) in enumerate(elements):
+            errors[name].reshape(m, -1)[2 * i: 2 * i + 2, k] = (sd, -sd)
+        z = _gls_vector(forward(setup, _gls_truth(setup, base, np.repeat(theta, m, axis=0)),
+                                errors))
+        z = z.reshape(len(elements), 2, -1)
+        u = ((z[:, 0] - z[:, 1]) / 2).T
+        cov = cov + u @ u.T
     s = np.sqrt(np.diag(cov))
-    cov = cov / np.outer(s, s) + 1e-12 * np.eye(len(s))
+    cov = cov / np.outer(s, s)
     js = jac / s[:, None]
     chol = np.linalg.cholesky(cov)
     wj = np.linalg.solve(chol.T, np.linalg.solve(chol, js))
