@@ -6,8 +6,8 @@ them, for every procedure: the posterior converges, every measurand's posterior 
 with u = 0), and the posterior agrees with the `mc` evaluation of the best estimator:
 u within 0.85-1.15 of the `mc` u (every procedure's default estimator uses what the
 posterior uses: circle_centre's gls the contacts p1 and p2, rotary_axis's angles the
-commanded angles, line_laser's pattern the artifact's pattern, tracker_frame's home the
-shared home point; what the set-up knows only to a tolerance is an error source); its mean
+commanded angles, line_laser's pattern the artifact's pattern, tracker_frame's gls the
+whole forward model; what the set-up knows only to a tolerance is an error source); its mean
 differs from the bias-corrected `mc` value by at most 0.5 u plus four times the
 estimator's extra scatter sqrt(u_mc^2 - u_post^2). The `mc` path: no value outside its
 own interval, no interval of zero width.
