@@ -48,7 +48,6 @@ def test_usage_errors_are_one_line_with_status_2(capsys, argv, needle):
     assert "Traceback" not in err
 
 
-@pytest.mark.skipif(not PROCS, reason="no procedure registered")
 @pytest.mark.parametrize("proc", PROCS)
 def test_simulate_json_contract(capsys, proc):
     code, out, err = run(capsys, "simulate", proc, "--json", "--trials", "200", "--seed", "3")
@@ -61,7 +60,6 @@ def test_simulate_json_contract(capsys, proc):
         assert len(m["interval"]) == 2 and m["coverage"] == 0.95
 
 
-@pytest.mark.skipif(not PROCS, reason="no procedure registered")
 @pytest.mark.parametrize("proc", PROCS)
 def test_bad_set_values_are_listed_together(capsys, proc):
     code, _, err = run(capsys, "simulate", proc, "--set", "no_such_field=1",
@@ -71,13 +69,11 @@ def test_bad_set_values_are_listed_together(capsys, proc):
     assert len(err.strip().splitlines()) == 1
 
 
-@pytest.mark.skipif(not PROCS, reason="no procedure registered")
 def test_missing_config_file(capsys):
     code, _, err = run(capsys, "simulate", PROCS[0], "--config", "/no/such/file.toml")
     assert code == 2 and "/no/such/file.toml" in err
 
 
-@pytest.mark.skipif(not PROCS, reason="no procedure registered")
 def test_config_file_and_set_override(capsys, tmp_path):
     proc = registry()[PROCS[0]]
     noise_field = next(f for f in proc.Setup().as_dict() if f.endswith("noise_um"))
@@ -97,7 +93,6 @@ def test_config_file_and_set_override(capsys, tmp_path):
     assert code == 2 and "TOML" in err
 
 
-@pytest.mark.skipif(not PROCS, reason="no procedure registered")
 def test_linearize_and_sweep_commands(capsys, tmp_path):
     proc = PROCS[0]
     code, out, err = run(capsys, "linearize", proc, "--json")

@@ -18,12 +18,11 @@ from pathlib import Path
 
 import pytest
 
-hypothesis = pytest.importorskip("hypothesis", reason="hypothesis is part of the test extras")
-from hypothesis import HealthCheck, given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
-from mtplan import cli  # noqa: E402
-from mtplan.models import registry  # noqa: E402
+from mtplan import cli
+from mtplan.models import registry
 from mtplan.models._protocol import fields_info  # noqa: E402
 
 PROCS = sorted(registry())

@@ -2,9 +2,24 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import pytest
+
+def need(*binaries: str) -> str:
+    """The first of `binaries` on the PATH; skip the test where none is.
+
+    Only the tests that look at the report through an outside viewer (poppler's pdftotext,
+    pdftoppm, pdffonts, pdftohtml; headless Chromium) skip, with the reason and the package
+    to install; CI installs both (.ci/run). What the issues ask of the PDF itself (embedded
+    fonts, bookmarks) is also checked without them (test_document.py)."""
+    for binary in binaries:
+        if shutil.which(binary):
+            return shutil.which(binary)
+    pytest.skip(f"{' or '.join(binaries)} is not installed (Debian: apt-get install "
+                "poppler-utils chromium): this check looks at the report through it")
+
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "src" / "mtplan" / "examples"
 

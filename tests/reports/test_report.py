@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import html.parser
 import re
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+
+from tests.reports.conftest import need
 
 SECTION_TITLES = ["Summary", "Contents", "Conformity decisions", "Methods, estimators and terms",
                   "Provenance", "What the simulation shows", "Measured data",
@@ -98,19 +99,14 @@ def test_failed_write_keeps_old_report(small_result, tmp_path, monkeypatch):
 
 
 # ------------------------------------------------------------------ the PDF, looked at
-def _need(binary):
-    if shutil.which(binary) is None:
-        pytest.skip(f"{binary} is not installed (Debian: apt-get install poppler-utils chromium)")
-
-
 def _pdftotext(pdf: Path) -> str:
-    _need("pdftotext")
+    need("pdftotext")
     return subprocess.run(["pdftotext", "-layout", str(pdf), "-"], check=True,
                           capture_output=True, text=True).stdout
 
 
 def _pages_non_blank(pdf: Path, tmp_path: Path) -> int:
-    _need("pdftoppm")
+    need("pdftoppm")
     import numpy as np
     from matplotlib.image import imread
 
@@ -136,10 +132,7 @@ def test_pdf_pages_non_blank_and_titles(small_report, tmp_path):
 
 # ------------------------------------------------------------------ the HTML, in a browser
 def _chromium() -> str:
-    for name in ("chromium", "chromium-browser"):
-        if shutil.which(name):
-            return shutil.which(name)
-    pytest.skip("chromium is not installed (Debian: apt-get install chromium)")
+    return need("chromium", "chromium-browser")
 
 
 def _chrome(args, tmp_path, timeout=120):
