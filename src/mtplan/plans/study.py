@@ -88,6 +88,18 @@ def _unknown(problems, where, table, allowed):
                             f"{', '.join(sorted(allowed))}.")
 
 
+def _subtable(problems, where, name, value, allowed) -> dict | None:
+    """An optional sub-table ``name`` of a procedure: None when absent; a problem when it
+    is not a table; its unknown keys listed."""
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        problems.append(f"{where} {name!r} must be a table.")
+        return None
+    _unknown(problems, f"{where} {name}", value, allowed)
+    return value
+
+
 def _count(problems, where, value, low):
     if value is not None and not (isinstance(value, int) and not isinstance(value, bool)
                                   and value >= low):
@@ -335,12 +347,8 @@ def _sweeps(proc, sweeps, fields, where, problems) -> list:
 
 
 def _plan(plan, fields, measurands, where, problems) -> dict | None:
-    if plan is None:
+    if _subtable(problems, where, "plan", plan, _PLAN_KEYS) is None:
         return None
-    if not isinstance(plan, dict):
-        problems.append(f"{where} 'plan' must be a table.")
-        return None
-    _unknown(problems, f"{where} plan", plan, _PLAN_KEYS)
     for f in plan.get("vary", {}):
         if f not in fields:
             problems.append(f"{where} plan varies {f!r}, which is no set-up field.")
@@ -400,12 +408,8 @@ def _acceptance(tables, measurands, path, where, problems) -> list:
 
 
 def _readings(proc, readings, path, where, problems) -> dict | None:
-    if readings is None:
+    if _subtable(problems, where, "readings", readings, _READ_KEYS) is None:
         return None
-    if not isinstance(readings, dict):
-        problems.append(f"{where} 'readings' must be a table.")
-        return None
-    _unknown(problems, f"{where} readings", readings, _READ_KEYS)
     if readings.get("estimator") is not None and readings["estimator"] not in proc.estimators:
         problems.append(f"{where} readings: unknown estimator {readings.get('estimator')!r}; "
                         f"allowed: {', '.join(proc.estimators)}.")
