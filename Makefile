@@ -1,6 +1,6 @@
 # Two commands do all the set-up on a fresh machine with Python and make:
 #   make demo   virtual environment, install, run the built-in study
-#   make test   virtual environment, install with the test extras, run the whole suite
+#   make test   virtual environment, install with the test extras, run the whole suite on both cores
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
@@ -23,7 +23,7 @@ demo: $(VENV)/.installed
 	$(VENV)/bin/mtplan demo
 
 test: $(VENV)/.installed-test
-	$(PY) -m pytest
+	$(PY) -m pytest -n 2 --dist loadfile
 
 bench: $(VENV)/.installed
 	$(PY) benchmarks/bench_propagate.py
