@@ -1,9 +1,11 @@
 """The package's layer rule, read from the source: dependencies point down only, no cycles.
 
 Layers, lowest first: the shared utilities (``mtplan``, ``mtplan._validate``, ``_io``,
-``_parallel``), ``uncertainty`` (the generic engine), ``models`` (the procedures),
-``evaluation`` (a procedure's set-up uncertainty and measured data), ``plans``,
-``reports``, ``cli``. Every ``import`` counts, also those inside functions.
+``_parallel``), ``uncertainty`` (the generic engine), ``fitting`` (the readings'
+covariance, the generalised least-squares fitter and the fit check every procedure
+shares), ``models`` (the procedures), ``evaluation`` (a procedure's set-up uncertainty
+and measured data), ``plans``, ``reports``, ``cli``. Every ``import`` counts, also those
+inside functions.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from pathlib import Path
 import pytest
 
 SRC = Path(__file__).resolve().parent.parent / "src"
-LAYERS = ("base", "uncertainty", "models", "evaluation", "plans", "reports", "cli")
+LAYERS = ("base", "uncertainty", "fitting", "models", "evaluation", "plans", "reports", "cli")
 
 
 def _module_name(path: Path) -> str:
@@ -62,7 +64,7 @@ GRAPH = _graph()
 
 def test_the_graph_sees_the_package():
     assert {"mtplan.cli", "mtplan.cli._common", "mtplan.evaluation.simulation",
-            "mtplan.uncertainty.sampler", "mtplan.models._protocol"} <= set(GRAPH)
+            "mtplan.uncertainty.sampler", "mtplan.models._protocol", "mtplan.fitting.gls"} <= set(GRAPH)
     assert "mtplan.models._protocol" in GRAPH["mtplan.evaluation.simulation"]
 
 
@@ -76,8 +78,8 @@ def test_dependencies_point_down(module):
 def test_the_engine_knows_nothing_of_procedures():
     for module, targets in GRAPH.items():
         if _layer(module) == "uncertainty":
-            bad = [t for t in targets if _layer(t) in ("models", "evaluation", "plans",
-                                                       "reports", "cli")]
+            bad = [t for t in targets if _layer(t) in ("fitting", "models", "evaluation",
+                                                       "plans", "reports", "cli")]
             assert not bad, f"{module} imports {bad}"
 
 
@@ -137,6 +139,22 @@ def _long_functions(limit: int) -> list[str]:
 
 def test_no_function_too_long_to_hold_in_ones_head():
     assert not _long_functions(120), _long_functions(120)
+
+
+def test_the_fitting_machinery_knows_no_procedure():
+    for module, targets in GRAPH.items():
+        if _layer(module) == "fitting":
+            bad = [t for t in targets if _layer(t) not in ("base", "uncertainty", "fitting")]
+            assert not bad, f"{module} imports {bad}"
+
+
+MAX_MODULE_LINES = 1500
+
+
+def test_no_module_too_long_to_find_ones_way_in():
+    long = {_module_name(p): n for p in SRC.rglob("*.py")
+            if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_MODULE_LINES}
+    assert not long, f"modules over {MAX_MODULE_LINES} lines: {long}"
 
 
 def test_no_merge_conflict_markers_in_the_sources_and_documents():

@@ -1,7 +1,7 @@
 """Posterior of a procedure's measurands from measured readings, sampled with emcee.
 
 The likelihood covers the whole error budget of the set-up
-(:mod:`mtplan.evaluation._budget`): the readings are Gaussian about the forward
+(:mod:`mtplan.fitting.budget`): the readings are Gaussian about the forward
 model's prediction with every error source at its mean (plus the second-order
 shift of the mean), with the covariance of every linear source's effect (noise
 plus systematic sources through the forward model's sensitivity to each element,
@@ -51,7 +51,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
-from mtplan.evaluation._budget import Budget, error_budget
+from mtplan.fitting import Budget, error_budget
 from mtplan.evaluation._posterior_model import DOMAIN_ERRORS, Forward, TruthBuilder, \
     truth_parameters
 from mtplan.uncertainty._random import as_seed_sequence

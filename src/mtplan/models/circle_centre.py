@@ -123,6 +123,7 @@ import numpy as np
 import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
+from mtplan.fitting import gls_step
 from mtplan.models._circle_fit import geometric_fit, kasa_fit, three_point_circle
 from mtplan.models._protocol import Measurand, Procedure, SetupBase, Source, param
 from mtplan.uncertainty import Normal, Rectangular
@@ -641,7 +642,8 @@ def estimate_gls(setup: Setup, readings: dict, iterations: int = 4) -> dict:
     the contacts' angles follow the start point): the bore's lobed form, the pre-travel
     lobes, the stage's scale and squareness act on several contacts at once, so an
     unweighted fit is not the best one. Gauss-Newton on the whole batch from the
-    orthogonal-distance fit; the weights are taken at each iterate.
+    orthogonal-distance fit (:func:`mtplan.fitting.gls_step`); the weights are taken at
+    each iterate.
     """
     pts, approach, has_p = _contacts(readings)
     if not np.all(has_p):  # rows without p1, p2: their measuring points alone
@@ -663,11 +665,9 @@ def estimate_gls(setup: Setup, readings: dict, iterations: int = 4) -> dict:
         cov[..., 0, 0] += np.where(dup[..., 0], big, 0.0)
         cov[..., 1, 1] += np.where(dup[..., 1], big, 0.0)
         jac = np.concatenate([-u, -np.ones(e.shape + (1,))], axis=-1)  # d e / d(xc, yc, r)
-        w_j = np.linalg.solve(cov, jac)
-        w_e = np.linalg.solve(cov, e[..., None])
-        step = np.linalg.solve(np.swapaxes(jac, -1, -2) @ w_j, -np.swapaxes(jac, -1, -2) @ w_e)
-        c = c + step[..., :2, 0]
-        r = r + step[..., 2, 0]
+        step, _ = gls_step(jac, -e, cov)
+        c = c + step[..., :2]
+        r = r + step[..., 2]
     return {"centre_x": c[..., 0], "centre_y": c[..., 1], "radius": r - setup.bore_radius_mm}
 
 

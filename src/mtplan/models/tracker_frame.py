@@ -212,6 +212,13 @@ import numpy as np
 import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
+from mtplan.fitting import (
+    SourceModel,
+    central_jacobian,
+    gauss_newton,
+    gls_gain,
+    readings_covariance,
+)
 from mtplan.models._fit3d import (
     common_perpendicular,
     fit_circle_3d,
@@ -1077,43 +1084,25 @@ def _gls_residual(setup: Setup, y: np.ndarray, pred: np.ndarray) -> np.ndarray:
 def _gls_gain(setup: Setup, base: Truth, ref: tuple) -> np.ndarray:
     """Gain K (p, 3 points) of the generalised least squares at the parameters ``ref``.
 
-    ``K = (J^T C^-1 J)^-1 J^T C^-1`` with ``J`` the readings' Jacobian (central
-    differences) and ``C = U U^T`` (plus a floor of 1 nm and 0.1 nrad) their covariance
-    under every active error source of the set-up: each column of ``U`` the secant
-    effect (half the change between -1 and +1 standard deviation) of one element of a
-    source, at the same parameters (as ``line_laser._pattern_gain``). The readings are few (3 per point), so ``C`` is
-    formed and factorised, scaled to unit diagonal.
+    ``K = (J^T C^-1 J)^-1 J^T C^-1`` (:func:`mtplan.fitting.gls_gain`) with ``J`` the
+    readings' Jacobian (central differences) and ``C`` (plus a floor of 1 nm and
+    0.1 nrad) their covariance under every active error source of the set-up, by the
+    secant effect of each element of a source at the same parameters
+    (:func:`mtplan.fitting.readings_covariance`). The readings are few (3 per point), so
+    ``C`` is formed and factorised, scaled to unit diagonal.
     """
     theta = np.asarray(ref, dtype=float)[None, :]
-    names = _gls_names(setup)
-    steps = np.array([_GLS_STEP[f.rsplit("_", 1)[1]] for f, _ in names])
-    pm = np.concatenate([theta + np.diag(steps), theta - np.diag(steps)])
-    y = _gls_predict(setup, base, pm)
-    jac = ((y[: len(steps)] - y[len(steps):]) / (2 * steps)[:, None]).T
-    elements = [(name, k, float(np.max(src.distribution.std)))
-                for name, src in sources(setup).items() if src.active
-                for k in range(src.size)]
+    steps = np.array([_GLS_STEP[f.rsplit("_", 1)[1]] for f, _ in _gls_names(setup)])
+    jac = central_jacobian(lambda rows: _gls_predict(setup, base, rows), theta[0], steps)
+    model = SourceModel(
+        PROCEDURE.name, sources(setup),
+        lambda errors: _gls_vector(forward(setup, _gls_truth(setup, base, np.repeat(
+            theta, next(iter(errors.values())).shape[0], axis=0)), errors)),
+        lambda m: PROCEDURE.zero_errors(setup, m))
     # a floor far below any source's effect (1 nm, 0.1 nrad), so that readings no source
     # moves (or a set-up without sources) keep a weight and C stays regular
-    p = _n_points(setup)
-    floor = np.repeat([1e-6, 1e-10, 1e-10], p)
-    cov = np.diag(floor**2)
-    if elements:
-        m = 2 * len(elements)
-        errors = PROCEDURE.zero_errors(setup, m)
-        for i, (name, k, sd) in enumerate(elements):
-            errors[name].reshape(m, -1)[2 * i: 2 * i + 2, k] = (sd, -sd)
-        z = _gls_vector(forward(setup, _gls_truth(setup, base, np.repeat(theta, m, axis=0)),
-                                errors))
-        z = z.reshape(len(elements), 2, -1)
-        u = ((z[:, 0] - z[:, 1]) / 2).T
-        cov = cov + u @ u.T
-    s = np.sqrt(np.diag(cov))
-    cov = cov / np.outer(s, s)
-    js = jac / s[:, None]
-    chol = np.linalg.cholesky(cov)
-    wj = np.linalg.solve(chol.T, np.linalg.solve(chol, js))
-    return np.linalg.solve(js.T @ wj, wj.T) / s[None, :]
+    floor = np.repeat([1e-6, 1e-10, 1e-10], _n_points(setup))
+    return gls_gain(jac, readings_covariance(model, floor=floor))
 
 
 def _gls_start(setup: Setup, readings: dict) -> tuple[Truth, np.ndarray]:
@@ -1149,8 +1138,9 @@ def estimate_gls(setup: Setup, readings: dict, *, iterations: int = 30) -> dict[
     The parameters are the head's geometry of every sub-machine (:data:`_GLS_HEAD`) and
     the tracker's pose; the pivot-length error and the A-C angle are held. The weights
     are the inverse covariance of the readings under every active error source
-    (:func:`_gls_gain`). Gauss-Newton with one gain for the whole batch, taken at the
-    start (:func:`_gls_start`) and re-taken once at the batch's median; the measurands
+    (:func:`_gls_gain`). Gauss-Newton with one gain for the whole batch
+    (:func:`mtplan.fitting.gauss_newton`), taken at the start (:func:`_gls_start`) and
+    re-taken once at the batch's median; the measurands
     are the construction applied to the fitted geometry (:func:`true_values`).
     """
     y = _gls_vector(readings)
@@ -1158,15 +1148,13 @@ def estimate_gls(setup: Setup, readings: dict, *, iterations: int = 30) -> dict[
     # the gain depends on the held fields only (the fitted ones come from theta)
     base = Truth(pivot_length_error_um=start_truth.pivot_length_error_um,
                  ac_angle_deg=start_truth.ac_angle_deg)
-    theta = np.repeat(start[None, :], y.shape[0], axis=0)
-    gain = _gls_gain(setup, base, _gls_key(setup, start))
-    for it in range(iterations):
-        step = _gls_residual(setup, y, _gls_predict(setup, base, theta)) @ gain.T
-        theta = theta + step
-        if np.all(np.abs(step) <= 1e-7):  # [um, urad]
-            break
-        if it == 2:
-            gain = _gls_gain(setup, base, _gls_key(setup, np.median(theta, axis=0)))
+    fit = gauss_newton(lambda th: _gls_residual(setup, y, _gls_predict(setup, base, th)),
+                       np.repeat(start[None, :], y.shape[0], axis=0),
+                       _gls_gain(setup, base, _gls_key(setup, start)),
+                       iterations=iterations, tol=1e-7,  # [um, urad]
+                       regain_after=(2,), regain=lambda th: _gls_gain(
+                           setup, base, _gls_key(setup, np.median(th, axis=0))))
+    theta = np.where(fit.ok[:, None], fit.theta, np.nan)
     return true_values(setup, _gls_truth(setup, base, theta))
 
 

@@ -140,6 +140,8 @@ import numpy as np
 import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
+from mtplan.fitting import central_jacobian
+from mtplan.fitting.linear import restricted_pinv, truncated_pinv
 from mtplan.models._kinematics import chain, polyval, rotate_inverse
 from mtplan.models._protocol import Measurand, Procedure, SetupBase, Source, param
 from mtplan.uncertainty.distributions import Normal, Rectangular
@@ -974,49 +976,11 @@ def _param_names(geo: _Geometry) -> list[str]:
 
 
 def _tpinv(a: np.ndarray, scale: np.ndarray, free: np.ndarray | None = None):
-    """Rank-truncated pseudo-inverse of a @ diag(1/scale) in scaled columns.
-
-    The data do not determine the null-space part of the solution; by default it is the
-    minimum-norm one (scaled units). With `free` (a boolean mask of nuisance parameters)
-    the null-space part is chosen to minimise the other parameters' norm instead: what
-    the mounting can absorb goes there (the X roll EAX, seen only as a rotation of the YZ
-    pattern, stays zero and the YZ plate's rotation takes it), which keeps unseen errors
-    from growing to the size of the mounting errors in the exact, non-linear model.
-
-    Returns (pinv (cols, rows) in the original parameter units, rank, singular values, Vt).
-    """
-    a_s = a * scale
-    if a_s.shape[0] > a_s.shape[1]:  # tall: the SVD of the QR's R (same S and V), then
-        # pinv = V S^-2 V^T A^T, never the (readings x parameters) U
-        _, sv, vt = np.linalg.svd(np.linalg.qr(a_s, mode="r"))
-        rank = int(np.sum(sv > _RANK_TOL * sv[0])) if sv.size and sv[0] > 0 else 0
-        pinv = ((vt[:rank].T / sv[:rank] ** 2) @ vt[:rank]) @ a_s.T
-    else:
-        u, sv, vt = np.linalg.svd(a_s, full_matrices=False)
-        rank = int(np.sum(sv > _RANK_TOL * sv[0])) if sv.size and sv[0] > 0 else 0
-        pinv = (vt[:rank].T / sv[:rank]) @ u[:, :rank].T
-    if free is not None and rank < a.shape[1]:
-        pinv = _null_convention(pinv, vt[rank:].T, free)
-    return scale[:, None] * pinv, rank, sv, vt
-
-
-def _null_convention(pinv_s: np.ndarray, null: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """Shift a scaled solution map's null-space part so that it minimises the norm of the
-    parameters other than the `free` ones (see :func:`_tpinv`); null (P, k) scaled."""
-    w = np.where(free, 1e-6, 1.0)[:, None]
-    return pinv_s - null @ np.linalg.solve(null.T @ (w * null), null.T @ (w * pinv_s))
-
-
-def _restricted_pinv(jac: np.ndarray, ji: dict) -> np.ndarray:
-    """Pseudo-inverse of a Jacobian away from zero error on the parameter directions the
-    data determine at zero error (the rank and null space of ``ji``): second-order effects
-    of the unseen errors never become (ill-determined) information."""
-    s, vt, rank = ji["scale"], ji["vt"], ji["rank"]
-    basis = vt[:rank].T  # (P, r) scaled
-    pinv = basis @ np.linalg.pinv((jac * s) @ basis)
-    if rank < jac.shape[1]:
-        pinv = _null_convention(pinv, vt[rank:].T, _free(ji["geo"]))
-    return s[:, None] * pinv
+    """:func:`mtplan.fitting.linear.truncated_pinv` at this module's rank tolerance: the
+    mounting (`free`) takes what it can absorb, which keeps unseen errors (the X roll EAX,
+    seen only as a rotation of the YZ pattern) from growing to the size of the mounting
+    errors in the exact, non-linear model."""
+    return truncated_pinv(a, scale, free, rank_tol=_RANK_TOL)
 
 
 def _free(geo: _Geometry) -> np.ndarray:
@@ -1026,14 +990,10 @@ def _free(geo: _Geometry) -> np.ndarray:
 
 def _jacobian(geo: _Geometry, theta0: np.ndarray, s: np.ndarray):
     """(f(theta0) (2M,), J (2M, P)) by central differences of the exact model, steps 0.1 s."""
-    h = 0.1 * s
-    pts = np.repeat(theta0[None, :], 2 * geo.n_par + 1, axis=0)
-    idx = np.arange(geo.n_par)
-    pts[idx, idx] += h
-    pts[geo.n_par + idx, idx] -= h
-    vals = _predict(geo, pts).reshape(pts.shape[0], -1)
-    jac = ((vals[: geo.n_par] - vals[geo.n_par: 2 * geo.n_par]) / (2 * h[:, None])).T
-    return vals[-1], jac
+    def predict(rows):
+        return _predict(geo, rows).reshape(rows.shape[0], -1)
+
+    return predict(theta0[None, :])[0], central_jacobian(predict, theta0, 0.1 * s)
 
 
 @functools.lru_cache(maxsize=8)
@@ -1087,7 +1047,7 @@ def _linearisation(setup: Setup, key: tuple) -> dict:
     if any(key):
         c = np.asarray(key, dtype=float) * _grid_step(geo)
         _, jac = _jacobian(geo, np.concatenate([c, np.zeros(geo.n_par - geo.n_coef)]), s)
-        pinv = _restricted_pinv(jac, ji)
+        pinv = restricted_pinv(jac, s, ji["vt"], ji["rank"], _free(geo))
     else:
         jac, pinv = ji["jac"], ji["pinv"]
     npar = geo.n_par
@@ -1339,119 +1299,6 @@ def _check_estimator(estimator: str) -> None:
                             f"{', '.join(map(repr, ESTIMATORS))}. Got {estimator!r} instead."])
 
 
-@functools.lru_cache(maxsize=8)
-def _first_order_response(setup: Setup, estimator: str) -> np.ndarray:
-    """B (n_par, n_par): estimated parameters' first-order response to the true ones."""
-    ji = _joint_ident(setup)
-    geo, jac, s = ji["geo"], ji["jac"], ji["scale"]
-    if estimator != "patent":
-        return ji["pinv"] @ jac
-    eps = 1e-3 * s
-    pert = (jac * eps).T  # (P, 2M)
-    r = np.concatenate([ji["r0"] + pert, ji["r0"] - pert]).reshape(2 * geo.n_par, -1, 2)
-    th = _theta_patent(setup, {"plate_mm": r})
-    return ((th[: geo.n_par] - th[geo.n_par:]) / (2 * eps[:, None])).T
-
-
-def identifiability(setup: Setup | None = None, estimator: str = "joint") -> pd.DataFrame:
-    """Per-measurand status of all 21 error functions for one estimator, at any set-up.
-
-    Parameters
-    ----------
-    setup : Setup, optional (defaults)
-    estimator : {'joint', 'joint_linear', 'patent'}
-
-    Returns
-    -------
-    DataFrame indexed by the 21 ISO names with columns ``status`` ('identified',
-    'unidentifiable', 'no effect' for the data; for the patent estimator also
-    'biased'), ``listed`` (whether it is a measurand at this set-up, i.e. determined by
-    the data), ``confounded_with`` (for unidentifiable ones: the functions sharing the null
-    space; for biased ones: the true errors that bias the estimate at first order), and
-    ``first_order_bias`` (for the patent estimator: the largest first-order bias from
-    a typical error of each confounding function [um or urad]).
-    """
-    setup = Setup() if setup is None else setup
-    _check_estimator(estimator)
-    ji = _joint_ident(setup)
-    geo, s, null, g = ji["geo"], ji["scale"], ji["null"], ji["g"]
-    owner = np.empty(geo.n_par, dtype=object)
-    for name, (_, sl) in geo.layout.items():
-        owner[sl] = name
-    owner[geo.n_coef:] = "mounting"
-    rows = []
-    bmat = _first_order_response(setup, estimator) if estimator == "patent" else None
-    for i, name in enumerate(NAMES):
-        unit = 1e6 if _KIND[name] in ("ang", "sq") else 1e3
-        row = {"status": "identified", "listed": ji["estimable"][name], "confounded_with": "",
-               "first_order_bias": 0.0}
-        if ji["no_effect"][name] and not ji["estimable"][name]:
-            row["status"] = "no effect"
-        elif not ji["estimable"][name]:
-            row["status"] = "unidentifiable"
-            sl = geo.layout[name][1]
-            w = np.abs(null[:, sl]).max(axis=1) if null.size else np.zeros(0)
-            vecs = null[w > 1e-6]
-            partners = sorted({owner[j] for v in vecs for j in np.flatnonzero(np.abs(v) > 1e-3)}
-                              - {name}, key=lambda n: (n == "mounting", NAMES.index(n)
-                                                       if n in NAMES else 99))
-            row["confounded_with"] = ", ".join(partners)
-        elif bmat is not None:
-            dev = (g[i] @ bmat - g[i]) * s * unit  # display units per typical error
-            worst = {}
-            for j in np.flatnonzero(np.abs(dev) > 1e-6 * max(1.0, np.abs(g[i] * s * unit).max())):
-                worst[owner[j]] = max(worst.get(owner[j], 0.0), abs(dev[j]))
-            if worst:
-                row["status"] = "biased"
-                row["confounded_with"] = ", ".join(sorted(worst, key=lambda n: -worst[n]))
-                row["first_order_bias"] = float(max(worst.values()))
-        rows.append(row)
-    return pd.DataFrame(rows, index=pd.Index(NAMES, name="function"))
-
-
-def identifiability_report(setup: Setup | None = None) -> dict:
-    """Rank, condition number and null space of the joint model's scaled Jacobian.
-
-    The Jacobian's columns are scaled by each parameter's typical size (1 um or
-    10 urad at the end of the travel; 1 um and 10 urad for the plates' offsets and
-    rotations, 1 um for the extra heads' settings), so the condition number compares
-    effects of typical errors.
-
-    Returns
-    -------
-    dict with ``rank``, ``parameters`` (number of coefficients + mounting parameters),
-    ``readings``, ``condition_number`` (of the identified part), ``singular_values``,
-    ``null_space`` (a list of dicts: parameter name -> weight in scaled units, weights
-    above 1e-3, one per null direction), ``measurands`` (the :func:`identifiability`
-    table of the joint estimator), and what a generic analysis needs
-    (:func:`mtplan.plans.identifiability.identifiability`): ``jacobian`` (readings x
-    parameters [mm per parameter unit]), ``scale``, ``names``, ``functions`` (each of the
-    21 measurands as a linear function of the parameters, name -> row) and ``rank_tol``.
-    """
-    setup = Setup() if setup is None else setup
-    ji = _joint_ident(setup)
-    names = _param_names(ji["geo"])
-    sv = ji["sv"]
-    null = []
-    for v in ji["null"]:
-        v = v / np.abs(v).max()
-        null.append({names[j]: float(v[j]) for j in np.flatnonzero(np.abs(v) > 1e-3)})
-    return {
-        "rank": ji["rank"],
-        "parameters": ji["geo"].n_par,
-        "readings": int(ji["jac"].shape[0]),
-        "condition_number": float(sv[0] / sv[ji["rank"] - 1]),
-        "singular_values": sv,
-        "null_space": null,
-        "measurands": identifiability(setup, "joint"),
-        "jacobian": ji["jac"],
-        "scale": ji["scale"],
-        "names": names,
-        "functions": dict(zip(NAMES, ji["g"])),
-        "rank_tol": _RANK_TOL,
-    }
-
-
 def coefficients(setup: Setup, readings: dict, *, estimator: str = "joint") -> dict:
     """Estimated coefficients of every error function.
 
@@ -1468,291 +1315,19 @@ def coefficients(setup: Setup, readings: dict, *, estimator: str = "joint") -> d
     return {name: (pw, theta[:, sl]) for name, (pw, sl) in geo.layout.items()}
 
 
-@functools.lru_cache(maxsize=4)
-def _linear_map(setup: Setup, estimator: str, truth: Truth) -> np.ndarray:
-    """A (n_par, 2M): first-order map from the readings to the estimated parameters, for
-    the white sources (reading noise, repeatability): the joint fits' pseudo-inverse (their
-    derivative to within ~1e-4 relative at realistic errors), the patent's by central
-    differences at the truth's noise-free readings."""
-    ji = _joint_ident(setup)
-    if estimator != "patent":
-        return ji["pinv"]
-    geo = ji["geo"]
-    r_t = forward(setup, truth, PROCEDURE.zero_errors(setup, 1))["plate_mm"].reshape(-1)
-    nr = r_t.size
-    eps = 1e-6
-    out = np.empty((geo.n_par, nr))
-    for start in range(0, nr, 512):
-        cols = np.arange(start, min(nr, start + 512))
-        pert = np.zeros((cols.size, nr))
-        pert[np.arange(cols.size), cols] = eps
-        r = np.concatenate([r_t + pert, r_t - pert]).reshape(2 * cols.size, -1, 2)
-        th = _theta_patent(setup, {"plate_mm": r})
-        out[:, cols] = ((th[: cols.size] - th[cols.size:]) / (2 * eps)).T
-    return out
-
-
-@functools.lru_cache(maxsize=8)
-def _source_response(setup: Setup, truth: Truth, estimator: str, names: tuple) -> np.ndarray:
-    """The estimated parameters' first-order response to one standard deviation of each
-    element of the named (not white) sources, through forward model and estimator (as the
-    GUM linearisation does, about the sources' means; central differences with a step of
-    1 % of the standard deviation, the whole set one batch): array (n_par, K)."""
-    srcs = sources(setup)
-    elems = [(name, idx) for name in names for idx in np.ndindex(*srcs[name].shape)]
-    k = len(elems)
-    if not k:
-        return np.zeros((_geometry(setup).n_par, 0))
-    errors = PROCEDURE.zero_errors(setup, 2 * k)
-    for name in names:
-        errors[name][...] = srcs[name].distribution.mean
-    for j, (name, idx) in enumerate(elems):
-        h = 0.01 * float(srcs[name].distribution.std)
-        errors[name][(2 * j, *idx)] += h
-        errors[name][(2 * j + 1, *idx)] -= h
-    th = _estimate_theta(setup, forward(setup, truth, errors), estimator)
-    return ((th[0::2] - th[1::2]) / 0.02).T
-
-
-def _source_factors(setup: Setup, estimator: str, truth: Truth | None, only) -> dict:
-    """Per active source: the first-order factor F with cov(theta) = F F^T (n_par, .)."""
-    truth = Truth() if truth is None else truth
-    active = PROCEDURE.active_sources(setup, only)
-    others = tuple(n for n in active if n not in _WHITE)
-    resp = _source_response(setup, truth, estimator, others)
-    out, pos = {}, 0
-    for name, src in active.items():
-        if name in _WHITE:
-            out[name] = _linear_map(setup, estimator, truth) * float(src.distribution.std)
-        else:
-            size = int(np.prod(src.shape, dtype=np.int64))
-            out[name] = resp[:, pos: pos + size]
-            pos += size
-    return out
-
-
-def coefficient_covariance(setup: Setup | None = None, *, estimator: str = "joint",
-                           truth: Truth | None = None, sources=None):
-    """First-order covariance of the estimated coefficients from every active error source.
-
-    Linearised about the sources' means (the reversal and servo sources have a non-zero
-    mean), with the estimator's first-order map from readings to parameters; the plate
-    tilts act at second order and contribute nothing here.
-
-    Parameters
-    ----------
-    sources : iterable of str, optional
-        Only these error sources (default: every active one).
-
-    Returns
-    -------
-    names : list of str, e.g. ``'EBX[2]'`` (function and power)
-    cov : array (n_coef, n_coef) [internal units squared]
-    """
-    setup = Setup() if setup is None else setup
-    _check_estimator(estimator)
-    geo = _geometry(setup)
-    cov = np.zeros((geo.n_coef, geo.n_coef))
-    for f in _source_factors(setup, estimator, truth, sources).values():
-        fc = f[: geo.n_coef]
-        cov += fc @ fc.T
-    return _param_names(geo)[: geo.n_coef], cov
-
-
-def _measurand_variances(setup: Setup, estimator: str, truth: Truth | None, only) -> dict:
-    """source -> {measurand: first-order variance [display unit^2]} of the listed ones."""
-    ji = _joint_ident(setup)
-    ms = measurands(setup)
-    g = np.array([ji["g"][NAMES.index(m.name)] * m.scale for m in ms]).reshape(len(ms), -1)
-    return {name: dict(zip((m.name for m in ms), np.sum((g @ f) ** 2, axis=1)))
-            for name, f in _source_factors(setup, estimator, truth, only).items()}
-
-
-def budget(setup: Setup | None = None, *, estimator: str = "joint",
-           truth: Truth | None = None) -> pd.DataFrame:
-    """First-order uncertainty budget of the listed measurands, by error source.
-
-    The same first-order propagation as
-    :func:`mtplan.evaluation.simulation.linearize_procedure` (forward model and estimator
-    linearised about the sources' means), through the estimator's linear map instead of
-    differentiating the whole chain per input: seconds instead of minutes for the
-    set-ups with head positions.
-
-    Returns
-    -------
-    DataFrame with columns ``measurand``, ``unit``, ``source``, ``std`` (the standard
-    uncertainty due to that source alone, display unit) and ``share`` (its fraction of
-    the measurand's variance; the sources are independent, so the shares add to 1).
-    """
-    setup = Setup() if setup is None else setup
-    _check_estimator(estimator)
-    var = _measurand_variances(setup, estimator, truth, None)
-    rows = []
-    for m in measurands(setup):
-        total = sum(v[m.name] for v in var.values())
-        for name, v in var.items():
-            rows.append((m.name, m.unit, name, math.sqrt(v[m.name]),
-                         v[m.name] / total if total > 0 else 0.0))
-    return pd.DataFrame(rows, columns=["measurand", "unit", "source", "std", "share"])
-
-
-def first_order_std(setup: Setup, truth: Truth | None = None, *, estimator: str = "joint",
-                    sources=None) -> dict:
-    """First-order standard uncertainty of each listed measurand [display unit] (see
-    :func:`budget`); the planner's screening uses it in place of the generic
-    linearisation."""
-    _check_estimator(estimator)
-    var = _measurand_variances(setup, estimator, truth, sources)
-    return {m.name: math.sqrt(sum(v[m.name] for v in var.values())) for m in measurands(setup)}
-
-
-def _travel(geo: _Geometry, axis: int) -> tuple[float, float]:
-    """Range of an axis's commanded position over every reading [mm]: where the plates read
-    its errors (the lines and circles, and the fixed coordinates of the plates and heads:
-    the YZ plate reads X's errors at its x, 120 mm in the seed)."""
-    x = geo.cmd[:, axis]
-    return float(x.min()), float(x.max())
-
-
-def error_functions(setup: Setup | None = None, readings: dict | None = None, *,
-                    truth: Truth | None = None, estimator: str = "joint", positions: int = 21,
-                    travel: tuple[float, float] | None = None, sources=None) -> pd.DataFrame:
-    """The 21 error functions over their travel: estimate, truth and first-order band.
-
-    Each error function is a function of its axis's position; a measurand is its value at
-    one stated position. This gives every function along the tested travel of its axis,
-    for a report to draw each determined error with its band.
-
-    Parameters
-    ----------
-    setup : Setup, optional
-    readings : dict, optional
-        Readings (the first trial is used) whose estimate is shown.
-    truth : Truth, optional
-        The true functions (simulations); also the point the sources' first-order effect
-        is taken at (default the default Truth).
-    estimator : str
-    positions : int
-        Positions per function, evenly over its travel.
-    travel : (low, high), optional
-        Range of positions [mm] for every axis; default, each axis's range of commanded
-        positions over every reading (the tests' travel, the plates' fixed coordinates and
-        the heads' offsets: where the plates read the errors).
-    sources : iterable of str, optional
-        Only these error sources in the band (default every active one).
-
-    Returns
-    -------
-    DataFrame with one row per function and position: ``function``, ``unit``, ``kind``
-    (pos, str, ang, sq), ``axis`` (X, Y, Z), ``position_mm``, ``estimate`` (NaN without
-    readings or where the data do not determine the value), ``true`` (NaN without truth),
-    ``std`` (first-order standard uncertainty from every active source, display unit;
-    ``inf`` where the data do not determine the value, never NaN) and ``status`` (from
-    :func:`identifiability`). Squareness errors are constants: one row at position 0.
-    """
-    setup = Setup() if setup is None else setup
-    _check_estimator(estimator)
-    p = Problems("error_functions")
-    p.number("positions", positions, low=2, integer=True)
-    if travel is not None and not (len(travel) == 2 and travel[0] < travel[1]):
-        p.add("travel", travel, "a pair (low, high) with low < high [mm]")
-    p.raise_if_any()
-    ji = _joint_ident(setup)
-    geo, s, null = ji["geo"], ji["scale"], ji["null"]
-    _, cov = coefficient_covariance(setup, estimator=estimator, truth=truth, sources=sources)
-    status = identifiability(setup, estimator)["status"]
-    theta = None if readings is None else _estimate_theta(setup, readings, estimator)[0]
-    tcoef = None if truth is None else _truth_coefficients(truth)
-    rows = []
-    for name in NAMES:
-        powers, sl = geo.layout[name]
-        scale = 1e6 if _KIND[name] in ("ang", "sq") else 1e3
-        if _KIND[name] == "sq":
-            pts = np.array([0.0])
-        else:
-            lo, hi = travel if travel is not None else _travel(geo, _AXIS[name])
-            pts = np.linspace(lo, hi, int(positions))
-        for x in pts:
-            b = np.zeros(geo.n_par)
-            b[sl] = [x**k for k in powers]
-            bs = b * s
-            nb = np.linalg.norm(bs)
-            ok = nb == 0 or not null.size or np.linalg.norm(null @ bs) <= 1e-6 * nb
-            var = float(b[: geo.n_coef] @ cov @ b[: geo.n_coef])
-            est = float(b @ theta) * scale if theta is not None and ok else math.nan
-            if tcoef is None:
-                true = math.nan
-            else:
-                tp, tc = tcoef[name]
-                true = float(np.sum(tc * x ** np.array(tp))) * scale
-            rows.append((name, "urad" if scale == 1e6 else "um", _KIND[name], "XYZ"[_AXIS[name]],
-                         float(x), est, true, math.sqrt(max(var, 0.0)) * scale if ok else math.inf,
-                         status[name]))
-    return pd.DataFrame(rows, columns=["function", "unit", "kind", "axis", "position_mm",
-                                       "estimate", "true", "std", "status"])
-
-
-def error_bands(setup: Setup | None = None, *, estimator: str = "joint",
-                positions: int = 11) -> pd.DataFrame:
-    """Standard uncertainty of each error function over [-line_length/2, +line_length/2].
-
-    Returns
-    -------
-    DataFrame with columns ``function``, ``unit``, ``position_mm``, ``std`` (first-order
-    standard uncertainty of the function's value there from every active error source,
-    display unit) and ``status`` (from :func:`identifiability`). Where the data do not
-    determine the value, ``std`` is ``inf`` (never NaN) and ``status`` says why.
-    Squareness rows have position 0. See :func:`error_functions` for estimates and truth.
-    """
-    setup = Setup() if setup is None else setup
-    half = setup.line_length_mm / 2
-    table = error_functions(setup, estimator=estimator, positions=positions, travel=(-half, half))
-    return table[["function", "unit", "position_mm", "std", "status"]]
-
-
-def noise_free_table(setup: Setup | None = None, *, scales=(1.0, 10.0, 100.0),
-                     estimators=("patent", "joint", "joint_linear"), truth: Truth | None = None,
-                     ) -> pd.DataFrame:
-    """Error of each estimator from noise-free readings, angular errors scaled.
-
-    Returns a DataFrame with columns ``measurand``, ``unit``, ``estimator``,
-    ``angular_scale``, ``true``, ``error`` (estimate - truth, display unit) and
-    ``relative`` (error / true).
-    """
-    setup = Setup() if setup is None else setup
-    base = Truth() if truth is None else truth
-    proc = PROCEDURE
-    rows = []
-    for sc in scales:
-        tr = base.replace(angular_scale=float(sc) * base.angular_scale)
-        readings = forward(setup, tr, proc.zero_errors(setup, 1))
-        tv = proc.display_truth(setup, tr)
-        for est in estimators:
-            out = proc.display_estimate(setup, readings, est)
-            for m in proc.measurands(setup):
-                err = float(out[m.name][0] - tv[m.name])
-                rows.append((m.name, m.unit, est, float(sc), tv[m.name], err,
-                             err / tv[m.name] if tv[m.name] else math.inf))
-    return pd.DataFrame(rows, columns=["measurand", "unit", "estimator", "angular_scale", "true",
-                                       "error", "relative"])
-
-
-def report_extras(setup: Setup, truth: Truth) -> dict:
-    """Uncertainty bands of the error functions over the tested travel, for the report.
-
-    A planner asks how well EBX is known anywhere on the axis, not how well its a2 is:
-    :func:`error_bands` (first order, all active error sources) for the seed's stepwise
-    method and the joint fit; functions the data do not determine are left out.
-    :func:`error_functions` has the same with the estimate and truth over each axis's
-    whole tested travel.
-    """
-    bands = {est: error_bands(setup, estimator=est, positions=21) for est in ("patent", "joint")}
-    return {"bands": {
-        "caption": ("Standard uncertainty of each determined error function over the tested "
-                    "travel (first order, every default error source), the seed's stepwise "
-                    "method against the joint fit. Squareness errors are constants (not drawn)."),
-        "tables": bands,
-    }}
+# the first-order uncertainty, identifiability and report extras (on the shared fitting
+# machinery); below the estimators they use, re-exported here
+from mtplan.models.geometry21._first_order import (  # noqa: E402
+    budget,
+    coefficient_covariance,
+    error_bands,
+    error_functions,
+    first_order_std,
+    identifiability,
+    identifiability_report,
+    noise_free_table,
+    report_extras,
+)
 
 
 def setup_from_frame(df: pd.DataFrame) -> dict:

@@ -1,0 +1,50 @@
+"""The fitting machinery every procedure shares: the readings' covariance, GLS, fit checks.
+
+Below the procedures (:mod:`mtplan.models`), above the generic engine
+(:mod:`mtplan.uncertainty`); it knows no procedure, only the shape of one (a forward
+model from parameters and error sources to readings).
+
+- :mod:`~mtplan.fitting.budget`: the readings' covariance under a set-up's whole error
+  budget, as a posterior's likelihood uses it (:func:`error_budget`, :class:`Budget`,
+  :class:`Gaussian`).
+- :mod:`~mtplan.fitting.gls`: the same covariance for a fit (:func:`readings_covariance`,
+  :func:`source_effects`, :class:`SourceModel`), the generalised least-squares
+  Gauss-Newton fitter over it (:func:`central_jacobian`, :func:`gls_gain`,
+  :func:`gauss_newton`, :func:`gls_step`) and the residuals whitened by it
+  (:func:`whitened_residuals`).
+- :mod:`~mtplan.fitting.linear`: rank-truncated pseudo-inverses with a convention for
+  the null space, and first-order propagation of error sources through an estimator.
+"""
+
+from mtplan.fitting.budget import DENSE_MAX, MAX_NUISANCE, NONLINEAR, Budget, Gaussian, error_budget
+from mtplan.fitting.gls import (
+    GaussNewtonResult,
+    SourceModel,
+    WhitenedResiduals,
+    central_jacobian,
+    gauss_newton,
+    gls_gain,
+    gls_step,
+    readings_covariance,
+    source_effects,
+    whitened_residuals,
+)
+
+__all__ = [
+    "Budget",
+    "Gaussian",
+    "error_budget",
+    "DENSE_MAX",
+    "NONLINEAR",
+    "MAX_NUISANCE",
+    "SourceModel",
+    "source_effects",
+    "readings_covariance",
+    "central_jacobian",
+    "gls_gain",
+    "gauss_newton",
+    "GaussNewtonResult",
+    "gls_step",
+    "whitened_residuals",
+    "WhitenedResiduals",
+]

@@ -1,0 +1,501 @@
+"""The readings' error budget in a posterior's likelihood: every active error source.
+
+For every element of every active error source the forward model is evaluated at
+the least-squares estimate with that element at its mean plus and minus one standard
+deviation (all other sources at their means). Half the difference is the element's
+*secant* effect on the readings (a standard deviation's worth, so its outer product
+is the element's contribution to the readings' covariance, exact for an effect
+linear over +-1 sigma and the best linear one otherwise); the half sum minus the
+prediction is its *curvature* (the second-order term, whose sum over the elements is
+the shift of the readings' mean, added to the prediction). Then, per source:
+
+- **covariance** (linear sources): marginalised analytically. The readings'
+  covariance is ``C = D + U U^T``: ``D`` collects the elements that touch one reading
+  each (reading noise, per-reading positioning), ``U`` those that touch several (a
+  scale error, a drift, a form error, an error motion per position). Up to
+  ``DENSE_MAX`` readings ``C`` is formed and factored (Cholesky); above, it stays
+  diagonal plus low rank and is solved by Woodbury (a thin SVD of ``D^-1/2 U``), so
+  thousands of readings cost ``n k`` per walker, not ``n^2``.
+- **nuisance** (non-linear sources, at most ``MAX_NUISANCE`` elements in all): the
+  elements are sampled with the set-up's distribution as their prior and run
+  through the forward model exactly. A source is non-linear when the curvature of
+  one of its elements, or (sources of few elements) the change of its secant
+  between +-1 and +-2 standard deviations, in units of the readings' independent
+  scatter (the diagonal ``D``; the whole variance where ``D`` is 0), has a norm
+  above ``NONLINEAR``.
+- **absorbed**: a source whose effect the free parameters on which no measurand
+  depends reproduce exactly (circle_centre's start scatter is a move of the start
+  point, which is free) is left out: in the linear case the measurands' posterior
+  is exactly the same with or without it.
+
+The noise source (``procedure.noise_source``) may instead have a given standard
+deviation or a free one (Jeffreys prior): then ``C(sigma) = sigma^2 C_n + C_0`` is
+diagonalised once (generalised eigenproblem, or a thin SVD above ``DENSE_MAX``
+readings), so that every walker's ``sigma`` costs ``n`` more operations.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from mtplan._validate import InvalidInput
+
+__all__ = ["Budget", "Gaussian", "error_budget", "DENSE_MAX", "NONLINEAR", "MAX_NUISANCE"]
+
+_LOG_2PI = math.log(2 * math.pi)
+DENSE_MAX = 2000  # readings: dense covariance up to this count
+NONLINEAR = 0.1  # curvature norm [readings' independent scatter] above which a source is sampled
+MAX_NUISANCE = 16  # at most this many source elements are sampled as nuisance parameters
+_ABSORBED = 1e-5  # relative residual below which a source is reproduced by free parameters
+_SUPPORT = 1e-9  # relative size below which an element's effect on a reading is zero
+_ODD_CHECK = 64  # sources with at most this many elements are also checked at +-2 sigma
+_PROBE = 32  # sources with at least this many elements are first tried by NaN probes
+_NEGLIGIBLE = 1e-6  # an element whose effect is below this in the readings' scatter (or 1e-8
+# of its source's largest) is round-off, no effect
+
+
+@dataclass
+class _Effect:
+    """Secant and curvature of every element of one source (sparse where they touch one reading)."""
+
+    std: np.ndarray  # (E,)
+    row: np.ndarray  # (E,) the reading an element touches alone, -1 when several or none
+    s1: np.ndarray  # (E,) its secant there
+    c1: np.ndarray  # (E,) its curvature there
+    multi: np.ndarray  # (k,) elements touching several readings
+    S: np.ndarray  # (n, k) their secants
+    C: np.ndarray  # (n, k) their curvatures
+
+    @property
+    def any(self) -> bool:
+        return bool(np.any(self.row >= 0) or self.multi.size)
+
+    def diag(self, n: int) -> np.ndarray:
+        d = np.zeros(n)
+        one = self.row >= 0
+        np.add.at(d, self.row[one], self.s1[one] ** 2)
+        return d
+
+    def curvature(self, n: int) -> np.ndarray:
+        c = np.zeros(n)
+        one = self.row >= 0
+        np.add.at(c, self.row[one], self.c1[one])
+        return c + self.C.sum(axis=1)
+
+    def dense(self, n: int) -> np.ndarray:
+        """Secants of every element as a dense array (n, E)."""
+        out = np.zeros((n, self.std.size))
+        one = np.flatnonzero(self.row >= 0)
+        out[self.row[one], one] = self.s1[one]
+        out[:, self.multi] = self.S
+        return out
+
+    def nonlinearity(self, ref: np.ndarray) -> float:
+        """Largest norm of an element's curvature in units of `ref` (a std per reading)."""
+        one = self.row >= 0
+        single = np.abs(self.c1[one]) / ref[self.row[one]] if one.any() else np.zeros(0)
+        multi = np.sqrt(np.sum((self.C / ref[:, None]) ** 2, axis=0))
+        return float(max(single.max(initial=0.0), multi.max(initial=0.0)))
+
+
+def _probed(fwd, truth, name: str, sd: np.ndarray, f0: np.ndarray, shape) -> _Effect | None:
+    """The effects of a source whose readings each depend on one element at most, found
+    in 2 log2(E) + 3 forward rows instead of 2 E; None where that does not hold.
+
+    Row pair b sets the elements whose index has bit b set (then those with it clear)
+    to NaN: the readings that turn NaN spell out, bit by bit, the element each depends
+    on (a reading NaN in both rows of a pair depends on several). Then all elements at
+    +sigma, all at -sigma, and a random mixture: when each reading depends on its one
+    element alone, the mixture's readings are exactly the +sigma or -sigma ones, which
+    is checked (a model that does not pass NaN on fails the check too).
+    """
+    n_el, n = sd.size, fwd.n
+    bits = max(1, (n_el - 1).bit_length())
+    idx = np.arange(n_el)
+    sign = np.where(np.random.default_rng(0).random(n_el) < 0.5, -1.0, 1.0)
+    errors = fwd.errors(2 * bits + 3, copy_of=(name,))
+    a = errors[name].reshape(2 * bits + 3, -1)
+    for b in range(bits):
+        on = ((idx >> b) & 1).astype(bool)
+        a[2 * b, on] = np.nan
+        a[2 * b + 1, ~on] = np.nan
+    a[2 * bits] += sd
+    a[2 * bits + 1] -= sd
+    a[2 * bits + 2] += sign * sd
+    errors[name] = a.reshape(2 * bits + 3, *shape)
+    try:
+        with np.errstate(all="ignore"):
+            pred = fwd.at(truth, errors)
+    except Exception:  # noqa: BLE001 - a model that refuses NaN: element by element
+        return None
+    on, off = np.isnan(pred[0:2 * bits:2]), np.isnan(pred[1:2 * bits:2])
+    dep = on.any(axis=0) | off.any(axis=0)
+    plus, minus, mixed = pred[2 * bits:]
+    if np.any(on & off) or not np.all((on ^ off)[:, dep]) \
+            or not np.all(np.isfinite(pred[2 * bits:])):
+        return None
+    elem = (on.astype(np.int64) << np.arange(bits)[:, None]).sum(axis=0)
+    if np.any(elem[dep] >= n_el):
+        return None
+    expect = np.where(dep, np.where(sign[np.minimum(elem, n_el - 1)] > 0, plus, minus), f0)
+    scale = np.abs(f0) + np.abs(plus - minus) + 1e-300
+    if not (np.all(np.abs(mixed - expect) <= 1e-12 * scale)
+            and np.all(plus[~dep] == f0[~dep]) and np.all(minus[~dep] == f0[~dep])):
+        return None
+    sec, cur = 0.5 * (plus - minus), 0.5 * (plus + minus) - f0
+    reads = np.flatnonzero(dep)
+    count = np.bincount(elem[reads], minlength=n_el)
+    row, s1, c1 = np.full(n_el, -1), np.zeros(n_el), np.zeros(n_el)
+    single = reads[count[elem[reads]] == 1]
+    row[elem[single]], s1[elem[single]], c1[elem[single]] = single, sec[single], cur[single]
+    multi = np.flatnonzero(count > 1)
+    S, C = np.zeros((n, multi.size)), np.zeros((n, multi.size))
+    col = {e: k for k, e in enumerate(multi)}
+    for i in reads[count[elem[reads]] > 1]:
+        S[i, col[elem[i]]], C[i, col[elem[i]]] = sec[i], cur[i]
+    return _Effect(sd, row, s1, c1, multi, S, C)
+
+
+def _name(fwd) -> str:
+    """The procedure's name for messages (a posterior's Forward, or a :class:`SourceModel`)."""
+    proc = getattr(fwd, "proc", None)
+    return getattr(proc, "name", None) or getattr(fwd, "name", "the procedure")
+
+
+def _effect(fwd, truth, name: str, std, f0: np.ndarray) -> _Effect:
+    """Evaluate one source's elements at their mean +- `std`: by NaN probes when every
+    reading depends on one element at most (:func:`_probed`), else in chunks of rows."""
+    src = fwd.sources[name]
+    shape = (*src.shape, *src.distribution.event_shape)
+    n_el = int(np.prod(shape, dtype=np.int64))
+    std = np.asarray(std, dtype=float)
+    if std.size == 1:
+        sd = np.full(n_el, float(std.reshape(-1)[0]))
+    elif std.size == n_el:
+        sd = std.reshape(-1)
+    else:
+        sd = np.broadcast_to(std, shape).reshape(-1)
+    if n_el >= _PROBE:
+        eff = _probed(fwd, truth, name, sd, f0, shape)
+        if eff is not None:
+            return eff
+    n = fwd.n
+    chunk = int(max(8, min(n_el, 4_000_000 // max(n, n_el, 1))))
+    row, s1, c1 = np.full(n_el, -1), np.zeros(n_el), np.zeros(n_el)
+    multi, S, C = [], [], []
+    for start in range(0, n_el, chunk):
+        idx = np.arange(start, min(n_el, start + chunk))
+        b = idx.size
+        errors = fwd.errors(2 * b, copy_of=(name,))
+        a = errors[name].reshape(2 * b, -1)
+        a[np.arange(b), idx] += sd[idx]
+        a[b + np.arange(b), idx] -= sd[idx]
+        errors[name] = a.reshape(2 * b, *shape)
+        pred = fwd.at(truth, errors)
+        if not np.all(np.isfinite(pred)):
+            raise InvalidInput([f"The forward model of {_name(fwd)} gives no finite readings "
+                                f"with the source {name!r} one standard deviation off its mean."])
+        sec = 0.5 * (pred[:b] - pred[b:])
+        cur = 0.5 * (pred[:b] + pred[b:]) - f0
+        big = np.maximum(np.abs(sec).max(axis=1), np.abs(cur).max(axis=1))
+        nz = (np.abs(sec) > _SUPPORT * big[:, None]) | (np.abs(cur) > _SUPPORT * big[:, None])
+        count = nz.sum(axis=1)
+        one = count == 1
+        r = np.argmax(nz, axis=1)
+        row[idx[one]] = r[one]
+        s1[idx[one]] = sec[one, r[one]]
+        c1[idx[one]] = cur[one, r[one]]
+        many = count > 1
+        multi.append(idx[many])
+        S.append(sec[many].T)
+        C.append(cur[many].T)
+    return _Effect(sd, row, s1, c1, np.concatenate(multi), np.hstack(S) if S else np.zeros((n, 0)),
+                   np.hstack(C) if C else np.zeros((n, 0)))
+
+
+# --------------------------------------------------------------------------- the Gaussian
+class Gaussian:
+    """Log-likelihood of residuals under ``C = D + U U^T`` (known) or ``sigma^2 C_n + C_0``."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self.free = False
+
+    @classmethod
+    def known(cls, D, U) -> Gaussian:
+        g = cls(D.size)
+        if g.n <= DENSE_MAX:
+            return cls.dense(np.diag(D) + U @ U.T)
+        if not np.all(D > 0):
+            raise InvalidInput([f"With {g.n} readings the posterior needs every reading to have "
+                                "its own noise (an error source of the set-up that touches it "
+                                "alone); some have none."])
+        g.rs = 1.0 / np.sqrt(D)
+        q, s, _ = np.linalg.svd(U * g.rs[:, None], full_matrices=False)
+        keep = s > 1e-12 * (s[0] if s.size else 1.0)
+        g.q, g.shrink = q[:, keep], 1.0 - 1.0 / np.sqrt(1.0 + s[keep] ** 2)
+        g.logdet = float(np.sum(np.log(D)) + np.sum(np.log1p(s[keep] ** 2)))
+        g.mode = "woodbury"
+        return g
+
+    @classmethod
+    def dense(cls, cov) -> Gaussian:
+        """A known covariance (n, n), formed: Cholesky of it scaled to unit diagonal
+        (readings in mm and rad differ by 1e4 and more)."""
+        g = cls(cov.shape[0])
+        s = np.sqrt(np.diag(cov))
+        # numpy's LAPACK throughout: scipy's costs milliseconds per call in thread start-up
+        # on small systems of a loaded machine
+        try:
+            if not np.all(s > 0):
+                raise np.linalg.LinAlgError
+            chol = np.linalg.cholesky(cov / np.outer(s, s))
+        except np.linalg.LinAlgError:
+            raise InvalidInput(["The readings' covariance from the set-up's error sources is "
+                                "singular; switch on a noise source of the readings."]) from None
+        g.logdet = 2.0 * float(np.sum(np.log(np.diag(chol))) + np.sum(np.log(s)))
+        # W = L^-1 S^-1: |W r|^2 = r^T C^-1 r
+        g.white = np.linalg.solve(chol, np.eye(g.n)) / s[None, :]
+        g.mode = "dense"
+        return g
+
+    @classmethod
+    def free_noise(cls, D0, U0, Dn, Un) -> Gaussian:
+        """``sigma^2 (diag Dn + Un Un^T) + diag D0 + U0 U0^T``, diagonalised once."""
+        g = cls(D0.size)
+        g.free, g.n_perp = True, 0
+        diag_noise = Un.shape[1] == 0 and np.all(Dn > 0)
+        if g.n <= DENSE_MAX and diag_noise:
+            rs = 1.0 / np.sqrt(Dn)
+            lam, vec = np.linalg.eigh(np.diag(D0 / Dn) + (U0 * rs[:, None]) @ (U0 * rs[:, None]).T)
+            g.T, g.a, g.b = vec.T * rs[None, :], np.ones(g.n), np.clip(lam, 0.0, None)
+            g.const, g.rank = float(np.sum(np.log(Dn))), g.n
+        elif g.n <= DENSE_MAX:
+            try:
+                l0 = np.linalg.cholesky(np.diag(D0) + U0 @ U0.T)
+            except np.linalg.LinAlgError:
+                raise InvalidInput(["The noise cannot be left free here: the other error sources "
+                                    "do not touch every reading; give the noise."]) from None
+            inv = np.linalg.solve(l0, np.eye(g.n))
+            cn = np.diag(Dn) + Un @ Un.T
+            lam, vec = np.linalg.eigh(inv @ cn @ inv.T)
+            lam = np.clip(lam, 0.0, None)
+            g.T, g.a, g.b = vec.T @ inv, lam, np.ones(g.n)
+            g.const = 2.0 * float(np.sum(np.log(np.diag(l0))))
+            g.rank = int(np.sum(lam > 1e-9 * max(float(lam.max()), 1e-300)))
+        elif diag_noise and not np.any(D0):
+            rs = 1.0 / np.sqrt(Dn)
+            q, s, _ = np.linalg.svd(U0 * rs[:, None], full_matrices=False)
+            g.rs, g.T, g.a, g.b = rs, q.T * rs[None, :], np.ones(s.size), s**2
+            g.n_perp, g.const, g.rank = g.n - s.size, float(np.sum(np.log(Dn))), g.n
+        else:
+            raise InvalidInput([f"With {g.n} readings a free noise needs every other error source "
+                                "to act on several readings at once; give the noise."])
+        return g
+
+    def whiten(self, R: np.ndarray) -> np.ndarray:
+        """Whitened residuals (m, n) of a known covariance: ``|w|^2 = r^T C^-1 r``."""
+        R = np.atleast_2d(R)
+        if self.mode == "dense":
+            return R @ self.white.T
+        w = R * self.rs
+        return w - ((w @ self.q) * self.shrink) @ self.q.T
+
+    def inverse_times(self, R: np.ndarray) -> np.ndarray:
+        """Rows ``R C^-1`` (m, n) of rows R (m, n) (a known covariance): ``W^T W`` applied,
+        W the whitening of :meth:`whiten`."""
+        w = self.whiten(R)
+        if self.mode == "dense":
+            return w @ self.white
+        return (w - ((w @ self.q) * self.shrink) @ self.q.T) * self.rs
+
+    def loglike(self, R: np.ndarray, log_sigma=None) -> np.ndarray:
+        """Gaussian log-likelihood of residual rows R (m, n); `log_sigma` (m,) when free."""
+        R = np.atleast_2d(R)
+        if not self.free:
+            w = self.whiten(R)
+            return -0.5 * (np.einsum("ij,ij->i", w, w) + self.logdet + self.n * _LOG_2PI)
+        s2 = np.exp(2.0 * np.asarray(log_sigma, dtype=float))
+        z = R @ self.T.T
+        den = self.a[None, :] * s2[:, None] + self.b[None, :]
+        quad = np.sum(z * z / den, axis=1)
+        logdet = self.const + np.sum(np.log(den), axis=1)
+        if self.n_perp:
+            w = R * self.rs
+            quad += (np.einsum("ij,ij->i", w, w) - np.einsum("ij,ij->i", z, z)) / s2
+            logdet += self.n_perp * np.log(s2)
+        return -0.5 * (quad + logdet + self.n * _LOG_2PI)
+
+    def fisher_log_sigma(self, sigma: float) -> float:
+        """Fisher information of log sigma at `sigma` (free noise)."""
+        s2 = sigma * sigma
+        frac = self.a * s2 / (self.a * s2 + self.b)
+        return float(2.0 * np.sum(frac**2) + 2.0 * self.n_perp)
+
+
+# --------------------------------------------------------------------------- the budget
+@dataclass
+class Budget:
+    """What became of every error source, and the covariance parts of the linear ones.
+
+    Attributes
+    ----------
+    how : dict of str to str
+        Per source of the set-up: "covariance", "nuisance", "absorbed by ...",
+        "no effect on the readings", "off" (size 0), or "free noise"/"given noise".
+    D0, U0 : arrays (n,), (n, k)
+        Linear sources (the noise too, unless free).
+    Dn, Un : arrays (n,), (n, k_n), or None
+        The noise source per unit of its standard deviation, when it is free.
+    correction : array (n,)
+        Second-order shift of the readings' mean from the linear sources.
+    nuisance : list of (name, Source)
+        Sources sampled as parameters (all their elements).
+    nonlinearity : dict of str to float
+    notes : list of str
+    """
+
+    how: dict
+    D0: np.ndarray
+    U0: np.ndarray
+    Dn: np.ndarray | None
+    Un: np.ndarray | None
+    correction: np.ndarray
+    nuisance: list
+    nonlinearity: dict
+    notes: list = field(default_factory=list)
+    _cache: dict = field(default_factory=dict, repr=False)
+
+    def gaussian(self, sigma=None) -> Gaussian:
+        """The readings' Gaussian: known, or with the free noise at `sigma` (for fits)."""
+        key = None if self.Dn is None else sigma
+        if key not in self._cache:
+            if self.Dn is None:
+                g = Gaussian.known(self.D0, self.U0)
+            elif sigma is None:
+                g = Gaussian.free_noise(self.D0, self.U0, self.Dn, self.Un)
+            else:
+                g = Gaussian.known(self.D0 + sigma**2 * self.Dn,
+                                   np.hstack([self.U0, sigma * self.Un]))
+            self._cache = {**self._cache, key: g}
+        return self._cache[key]
+
+
+def _negligible(eff: _Effect, ref, n: int) -> bool:
+    """Every element's effect is below ``_NEGLIGIBLE`` of the readings' scatter (round-off)."""
+    return bool(np.sqrt(eff.diag(n)).max(initial=0.0) <= _NEGLIGIBLE * ref.min()
+                and np.all(np.linalg.norm(eff.S / ref[:, None], axis=0) <= _NEGLIGIBLE))
+
+
+def _absorbed(eff: _Effect, tangent: _Effect | None, ref, J, nuisance_params, names) -> str | None:
+    """The free nuisance parameters that reproduce the source's effect, or None."""
+    if not nuisance_params or np.any(eff.row >= 0) or not eff.multi.size:
+        return None
+    cols = (tangent if tangent is not None else eff).S / ref[:, None]
+    norms = np.linalg.norm(cols, axis=0)
+    cols = cols[:, norms > max(_NEGLIGIBLE, 1e-8 * norms.max(initial=0.0))]
+    if not cols.shape[1]:
+        return None
+    jn = J[:, nuisance_params] / ref[:, None]
+    beta, *_ = np.linalg.lstsq(jn, cols, rcond=None)
+    resid = np.linalg.norm(cols - jn @ beta, axis=0) / np.maximum(np.linalg.norm(cols, axis=0),
+                                                                   1e-300)
+    if np.all(resid < _ABSORBED):
+        used = np.flatnonzero(np.any(np.abs(beta) > 1e-9 * np.abs(beta).max(), axis=1))
+        return ", ".join(names[nuisance_params[i]] for i in used)
+    return None
+
+
+def error_budget(fwd, truth, noise: str, sigma, J, G, names) -> Budget:
+    """Classify the active sources and build the readings' covariance at `truth`.
+
+    Parameters
+    ----------
+    fwd : Forward
+    truth : Truth
+        The linearisation point (the least-squares estimate).
+    noise : {"setup", "known", "free"}
+    sigma : float or None
+        The noise source's standard deviation for "known" [its unit].
+    J : array (n, n_params)
+        The readings' Jacobian over the free parameters at `truth`.
+    G : array (n_measurands, n_params)
+        The measurands' gradient over the free parameters.
+    names : list of str
+        The free parameters' names.
+    """
+    proc, n = fwd.proc, fwd.n
+    fwd.slots = []
+    f0 = fwd.at(truth, fwd.errors(1))[0]
+    active = proc.active_sources(fwd.setup)
+    how = {k: "off (size 0)" for k in fwd.sources if k not in active}
+    ns = proc.noise_source
+    std = {k: np.asarray(s.distribution.std, dtype=float) for k, s in active.items()}
+    if noise in ("known", "free"):
+        setup_sd = float(np.max(np.asarray(fwd.sources[ns].distribution.std)))
+        std[ns] = np.asarray(setup_sd if setup_sd > 0 else 1e-3)
+    effects = {k: _effect(fwd, truth, k, sd, f0) for k, sd in std.items()}
+    var = sum((e.diag(n) + np.sum(e.S**2, axis=1) for e in effects.values()), np.zeros(n))
+    diag = sum((e.diag(n) for e in effects.values()), np.zeros(n))
+    ref = np.sqrt(np.where(diag > 0, diag, var))
+    if np.any(ref <= 0):
+        labels = sorted(set(np.asarray(fwd.labels(), dtype=object)[ref <= 0]))
+        raise InvalidInput([f"The readings {', '.join(labels)} of {proc.name} are touched by no "
+                            "active error source of the set-up, so the likelihood cannot weigh "
+                            "them; switch on their noise source."])
+    nuis_params = [j for j in range(J.shape[1]) if not np.any(np.abs(G[:, j]) > 0)]
+    budget = Budget(how, np.zeros(n), np.zeros((n, 0)), None, None, np.zeros(n), [], {})
+    n_nuis = 0
+    for name, eff in effects.items():
+        if not eff.any or _negligible(eff, ref, n):
+            how[name] = "no effect on the readings"
+            continue
+        nl = eff.nonlinearity(ref)
+        if eff.std.size <= _ODD_CHECK:  # odd non-linearity: the secant over +-2 sigma differs
+            wide = _effect(fwd, truth, name, 2.0 * eff.std, f0).dense(n) / 2.0
+            odd = np.sqrt(np.sum(((wide - eff.dense(n)) / ref[:, None]) ** 2, axis=0))
+            nl = max(nl, float(odd.max(initial=0.0)))
+        budget.nonlinearity[name] = nl
+        if name == ns and noise in ("known", "free"):
+            _add_noise(budget, name, eff, noise, sigma, n)
+            continue
+        tangent = _effect(fwd, truth, name, eff.std * 1e-4, f0) if nl > NONLINEAR else None
+        if tangent is not None:
+            tangent.S = tangent.S * 1e4
+        by = _absorbed(eff, tangent, ref, J, nuis_params, names)
+        if by is not None:
+            how[name] = f"absorbed by {by}"
+            continue
+        if nl > NONLINEAR and n_nuis + eff.std.size <= MAX_NUISANCE:
+            how[name] = "nuisance"
+            n_nuis += eff.std.size
+            budget.nuisance.append((name, fwd.sources[name]))
+            continue
+        if nl > NONLINEAR:
+            budget.notes.append(
+                f"the error source {name} is non-linear (second-order effect {nl:.2g} times the "
+                f"readings' scatter at one standard deviation) but has {eff.std.size} elements, "
+                "too many to sample: linearised")
+        how[name] = "covariance"
+        budget.D0 = budget.D0 + eff.diag(n)
+        budget.U0 = np.hstack([budget.U0, eff.S])
+        budget.correction = budget.correction + eff.curvature(n)
+    fwd.slots = [(name, np.arange(int(np.prod((*s.shape, *s.distribution.event_shape),
+                                                dtype=np.int64))))
+                 for name, s in budget.nuisance]
+    return budget
+
+
+def _add_noise(budget: Budget, name: str, eff: _Effect, noise: str, sigma, n: int) -> None:
+    """The noise source, per unit of its standard deviation: free, or at the given `sigma`."""
+    ref = float(np.max(eff.std))
+    d, u = eff.diag(n) / ref**2, eff.S / ref
+    if noise == "free":
+        budget.Dn, budget.Un = d, u
+        budget.how[name] = "free noise (Jeffreys prior)"
+        return
+    budget.how[name] = f"covariance, standard deviation given: {sigma:.4g}"
+    budget.D0 = budget.D0 + sigma**2 * d
+    budget.U0 = np.hstack([budget.U0, sigma * u])

@@ -1,0 +1,249 @@
+"""Linear least squares of rank-deficient models, and first-order propagation through a fit.
+
+A model whose readings do not determine every parameter (a plate that can take up an
+axis's roll, a function with no lever arm) has a Jacobian of lower rank than its
+parameters. Here:
+
+- :func:`truncated_pinv`: its rank-truncated pseudo-inverse in scaled columns, with a
+  convention for the undetermined part (:func:`null_convention`: what nuisance
+  parameters can absorb goes there) and :func:`restricted_pinv` (away from the
+  linearisation point, on the directions determined there only).
+- :func:`function_status`: which linear functions of the parameters the readings
+  determine, which parameters share the null space with them, and (for an estimator
+  that is not the least-squares one) which true parameters bias them at first order.
+- :func:`response` and :func:`source_response`: an estimator's first-order response
+  to its readings or to each element of the error sources, by central differences over
+  one batch; :func:`source_variances` turns them into each source's share of the
+  variance of linear functions of the estimate (a first-order uncertainty budget).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+
+import numpy as np
+
+__all__ = ["truncated_pinv", "null_convention", "restricted_pinv", "function_status",
+           "null_space_table", "response", "source_response", "source_variances"]
+
+
+# --------------------------------------------------------------------------- pseudo-inverse
+def truncated_pinv(a: np.ndarray, scale: np.ndarray, free: np.ndarray | None = None, *,
+                   rank_tol: float = 1e-7):
+    """Rank-truncated pseudo-inverse of ``a @ diag(1/scale)`` in scaled columns.
+
+    The data do not determine the null-space part of the solution; by default it is the
+    minimum-norm one (scaled units). With `free` (a boolean mask of nuisance parameters)
+    the null-space part is chosen to minimise the other parameters' norm instead
+    (:func:`null_convention`): what the nuisance parameters can absorb goes there.
+
+    Parameters
+    ----------
+    a : array (n, p)
+        The Jacobian [reading unit per parameter unit].
+    scale : array (p,)
+        Typical size of each parameter; singular values are those of ``a * scale``.
+    free : bool array (p,), optional
+    rank_tol : float
+        Singular values below ``rank_tol`` times the largest count as zero.
+
+    Returns
+    -------
+    pinv : array (p, n), in the parameters' units
+    rank : int
+    sv : array (min(n, p),)
+        Singular values of the scaled Jacobian.
+    vt : array (p, p) or (min(n, p), p)
+        Its right singular vectors (rows; those past `rank` span the null space).
+    """
+    a_s = a * scale
+    if a_s.shape[0] > a_s.shape[1]:  # tall: the SVD of the QR's R (same S and V), then
+        # pinv = V S^-2 V^T A^T, never the (readings x parameters) U
+        _, sv, vt = np.linalg.svd(np.linalg.qr(a_s, mode="r"))
+        rank = int(np.sum(sv > rank_tol * sv[0])) if sv.size and sv[0] > 0 else 0
+        pinv = ((vt[:rank].T / sv[:rank] ** 2) @ vt[:rank]) @ a_s.T
+    else:
+        u, sv, vt = np.linalg.svd(a_s, full_matrices=False)
+        rank = int(np.sum(sv > rank_tol * sv[0])) if sv.size and sv[0] > 0 else 0
+        pinv = (vt[:rank].T / sv[:rank]) @ u[:, :rank].T
+    if free is not None and rank < a.shape[1]:
+        pinv = null_convention(pinv, vt[rank:].T, free)
+    return scale[:, None] * pinv, rank, sv, vt
+
+
+def null_convention(pinv_s: np.ndarray, null: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """Shift a scaled solution map's null-space part so that it minimises the norm of the
+    parameters other than the `free` ones; null (p, k) scaled."""
+    w = np.where(free, 1e-6, 1.0)[:, None]
+    return pinv_s - null @ np.linalg.solve(null.T @ (w * null), null.T @ (w * pinv_s))
+
+
+def restricted_pinv(jac: np.ndarray, scale: np.ndarray, vt: np.ndarray, rank: int,
+                    free: np.ndarray | None = None) -> np.ndarray:
+    """Pseudo-inverse of a Jacobian away from the linearisation point, on the parameter
+    directions the data determine there (the first `rank` rows of `vt`, scaled): second-
+    order effects of undetermined parameters never become (ill-determined) information."""
+    basis = vt[:rank].T  # (p, r) scaled
+    pinv = basis @ np.linalg.pinv((jac * scale) @ basis)
+    if free is not None and rank < jac.shape[1]:
+        pinv = null_convention(pinv, vt[rank:].T, free)
+    return scale[:, None] * pinv
+
+
+# --------------------------------------------------------------------------- identifiability
+def function_status(g: np.ndarray, scale: np.ndarray, null: np.ndarray, owner: Sequence[str],
+                    *, no_effect: np.ndarray, unit: np.ndarray, bias_map: np.ndarray | None = None,
+                    order: Callable | None = None) -> list[dict]:
+    """Whether the readings determine each linear function ``g[i] @ theta``.
+
+    Parameters
+    ----------
+    g : array (m, p)
+        The functions (measurands) as rows over the parameters.
+    scale : array (p,)
+        Typical size of each parameter (the null space is in scaled units).
+    null : array (k, p)
+        Scaled null space of the Jacobian (rows).
+    owner : sequence of str (p,)
+        Which function (or nuisance group) each parameter belongs to.
+    no_effect : bool array (m,)
+        Functions whose parameters do not move the readings at all.
+    unit : array (m,)
+        Display factor of each function (1e6 for urad from rad, ...).
+    bias_map : array (p, p), optional
+        An estimator's first-order response of the estimated to the true parameters;
+        functions it does not reproduce are "biased".
+    order : callable, optional
+        Sort key of the owners named as partners.
+
+    Returns
+    -------
+    list of dict, one per function: ``status`` ("identified", "unidentifiable",
+    "no effect", "biased"), ``listed`` (determined by the readings),
+    ``confounded_with`` (partners in the null space, or the true parameters' owners
+    that bias the estimate) and ``first_order_bias`` (the largest bias from one typical
+    error of a partner, display unit).
+    """
+    gs = g * scale
+    resid = (np.linalg.norm(gs @ null.T, axis=1) / np.linalg.norm(gs, axis=1) if null.size
+             else np.zeros(len(g)))
+    owner = np.asarray(owner, dtype=object)
+    rows = []
+    for i in range(len(g)):
+        estimable = bool(resid[i] < 1e-6)
+        row = {"status": "identified", "listed": estimable, "confounded_with": "",
+               "first_order_bias": 0.0}
+        if no_effect[i] and not estimable:
+            row["status"] = "no effect"
+        elif not estimable:
+            row["status"] = "unidentifiable"
+            cols = np.flatnonzero(g[i] != 0)
+            w = np.abs(null[:, cols]).max(axis=1) if null.size else np.zeros(0)
+            partners = {owner[j] for v in null[w > 1e-6] for j in np.flatnonzero(np.abs(v) > 1e-3)}
+            partners.discard(owner[cols[0]] if cols.size else None)
+            row["confounded_with"] = ", ".join(sorted(partners, key=order))
+        elif bias_map is not None:
+            dev = (g[i] @ bias_map - g[i]) * scale * unit[i]  # display units per typical error
+            worst = {}
+            for j in np.flatnonzero(np.abs(dev) > 1e-6 * max(1.0, np.abs(gs[i] * unit[i]).max())):
+                worst[owner[j]] = max(worst.get(owner[j], 0.0), abs(dev[j]))
+            if worst:
+                row["status"] = "biased"
+                row["confounded_with"] = ", ".join(sorted(worst, key=lambda n: -worst[n]))
+                row["first_order_bias"] = float(max(worst.values()))
+        rows.append(row)
+    return rows
+
+
+def null_space_table(null: np.ndarray, names: Sequence[str], tol: float = 1e-3) -> list[dict]:
+    """Each null direction (rows of `null`) as parameter name -> weight, largest 1, weights
+    above `tol` only."""
+    out = []
+    for v in null:
+        v = v / np.abs(v).max()
+        out.append({names[j]: float(v[j]) for j in np.flatnonzero(np.abs(v) > tol)})
+    return out
+
+
+# --------------------------------------------------------------------------- first order
+def response(estimate: Callable, x0: np.ndarray, directions: np.ndarray, *,
+             chunk: int = 512) -> np.ndarray:
+    """First-order response (q, k) of a batch estimator along `directions`.
+
+    ``estimate(rows (m, n)) -> (m, q)`` is evaluated at ``x0 +- directions[j]`` (central
+    differences, the step being the direction itself), `chunk` directions at a time;
+    column j is ``(estimate(x0 + d_j) - estimate(x0 - d_j)) / 2``.
+
+    Parameters
+    ----------
+    x0 : array (n,)
+    directions : array (k, n), or a float h
+        A float stands for ``h`` times each unit vector (k = n: the derivative times h
+        with respect to every input, never formed as an (n, n) array).
+    """
+    x0 = np.asarray(x0, dtype=float)
+    unit = np.ndim(directions) == 0
+    k = x0.size if unit else directions.shape[0]
+    out = []
+    for start in range(0, k, chunk):
+        if unit:
+            idx = np.arange(start, min(k, start + chunk))
+            d = np.zeros((idx.size, x0.size))
+            d[np.arange(idx.size), idx] = directions
+        else:
+            d = directions[start:start + chunk]
+        th = np.asarray(estimate(np.concatenate([x0 + d, x0 - d])), dtype=float)
+        out.append(((th[: len(d)] - th[len(d):]) / 2).T)
+    return np.hstack(out) if out else np.zeros((0, 0))
+
+
+def source_response(estimate: Callable, errors: Callable, sources: Mapping, names: Sequence[str],
+                    *, rel_step: float = 0.01) -> np.ndarray:
+    """An estimate's first-order response to one standard deviation of each element of the
+    named sources (as the GUM linearisation does, about the sources' means; central
+    differences with a step of `rel_step` of the standard deviation, every element in one
+    batch).
+
+    Parameters
+    ----------
+    estimate : callable
+        ``estimate(errors) -> (m, q)``: the estimate from readings simulated with error
+        rows ``errors``.
+    errors : callable
+        ``errors(m) -> dict``: fresh error rows of every source, zero.
+    sources : dict of str to Source
+    names : sequence of str
+
+    Returns
+    -------
+    array (q, K): K the named sources' elements, in order.
+    """
+    elems = [(name, idx) for name in names for idx in np.ndindex(*sources[name].shape)]
+    k = len(elems)
+    if not k:
+        return np.zeros((0, 0))
+    err = errors(2 * k)
+    for name in names:
+        err[name][...] = sources[name].distribution.mean
+    for j, (name, idx) in enumerate(elems):
+        h = rel_step * float(sources[name].distribution.std)
+        err[name][(2 * j, *idx)] += h
+        err[name][(2 * j + 1, *idx)] -= h
+    th = np.asarray(estimate(err), dtype=float)
+    return ((th[0::2] - th[1::2]) / (2 * rel_step)).T
+
+
+def source_variances(g: np.ndarray, factors: Mapping[str, np.ndarray]) -> dict:
+    """First-order variance of each linear function ``g[i] @ theta`` from each source.
+
+    Parameters
+    ----------
+    g : array (m, p)
+    factors : dict of str to array (p, K)
+        Per source, F with ``cov(theta) = F F^T`` (independent sources).
+
+    Returns
+    -------
+    dict of source to array (m,).
+    """
+    return {name: np.sum((g @ f) ** 2, axis=1) for name, f in factors.items()}

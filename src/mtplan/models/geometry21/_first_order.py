@@ -1,0 +1,416 @@
+"""geometry21's first-order uncertainty, identifiability and report extras.
+
+Built on the shared machinery (:mod:`mtplan.fitting.linear`): the joint model's
+Jacobian at zero error (:func:`~mtplan.models.geometry21._joint_ident`), its null space
+and each estimator's first-order map from readings and error sources to the estimated
+coefficients. Every public name here is re-exported by :mod:`mtplan.models.geometry21`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+import pandas as pd
+
+from mtplan._validate import Problems
+from mtplan.fitting.linear import (
+    function_status,
+    null_space_table,
+    response,
+    source_response,
+    source_variances,
+)
+from mtplan.models.geometry21 import (
+    _AXIS,
+    _KIND,
+    _RANK_TOL,
+    _WHITE,
+    NAMES,
+    Setup,
+    Truth,
+    _check_estimator,
+    _estimate_theta,
+    _Geometry,
+    _geometry,
+    _joint_ident,
+    _param_names,
+    _theta_patent,
+    _truth_coefficients,
+    forward,
+    measurands,
+    sources,
+)
+
+
+def _procedure():
+    """geometry21's Procedure record (defined after this module is imported)."""
+    from mtplan.models.geometry21 import PROCEDURE
+
+    return PROCEDURE
+
+
+@functools.lru_cache(maxsize=8)
+def _patent_response(setup: Setup) -> np.ndarray:
+    """B (n_par, n_par): the patent's estimated parameters' first-order response to the
+    true ones (central differences along the Jacobian's columns, 1e-3 of a typical error)."""
+    ji = _joint_ident(setup)
+    eps = 1e-3 * ji["scale"]
+    return response(lambda r: _theta_patent(setup, {"plate_mm": r.reshape(len(r), -1, 2)}),
+                    ji["r0"], (ji["jac"] * eps).T) / eps[None, :]
+
+
+def _owners(geo: _Geometry) -> np.ndarray:
+    """The function (or "mounting") each parameter belongs to."""
+    owner = np.empty(geo.n_par, dtype=object)
+    for name, (_, sl) in geo.layout.items():
+        owner[sl] = name
+    owner[geo.n_coef:] = "mounting"
+    return owner
+
+
+def _unit(name: str) -> float:
+    """Display factor of an error function: urad for angles, um for lengths."""
+    return 1e6 if _KIND[name] in ("ang", "sq") else 1e3
+
+
+def identifiability(setup: Setup | None = None, estimator: str = "joint") -> pd.DataFrame:
+    """Per-measurand status of all 21 error functions for one estimator, at any set-up.
+
+    Parameters
+    ----------
+    setup : Setup, optional (defaults)
+    estimator : {'joint', 'joint_linear', 'patent'}
+
+    Returns
+    -------
+    DataFrame indexed by the 21 ISO names with columns ``status`` ('identified',
+    'unidentifiable', 'no effect' for the data; for the patent estimator also
+    'biased'), ``listed`` (whether it is a measurand at this set-up, i.e. determined by
+    the data), ``confounded_with`` (for unidentifiable ones: the functions sharing the null
+    space; for biased ones: the true errors that bias the estimate at first order), and
+    ``first_order_bias`` (for the patent estimator: the largest first-order bias from
+    a typical error of each confounding function [um or urad]); from
+    :func:`mtplan.fitting.linear.function_status`.
+    """
+    setup = Setup() if setup is None else setup
+    _check_estimator(estimator)
+    ji = _joint_ident(setup)
+    geo = ji["geo"]
+    bmat = _patent_response(setup) if estimator == "patent" else None
+    rows = function_status(
+        ji["g"], ji["scale"], ji["null"], _owners(geo),
+        no_effect=np.array([ji["no_effect"][n] for n in NAMES]),
+        unit=np.array([_unit(n) for n in NAMES]), bias_map=bmat,
+        order=lambda n: (n == "mounting", NAMES.index(n) if n in NAMES else 99))
+    return pd.DataFrame(rows, index=pd.Index(NAMES, name="function"))
+
+
+def identifiability_report(setup: Setup | None = None) -> dict:
+    """Rank, condition number and null space of the joint model's scaled Jacobian.
+
+    The Jacobian's columns are scaled by each parameter's typical size (1 um or
+    10 urad at the end of the travel; 1 um and 10 urad for the plates' offsets and
+    rotations, 1 um for the extra heads' settings), so the condition number compares
+    effects of typical errors.
+
+    Returns
+    -------
+    dict with ``rank``, ``parameters`` (number of coefficients + mounting parameters),
+    ``readings``, ``condition_number`` (of the identified part), ``singular_values``,
+    ``null_space`` (a list of dicts: parameter name -> weight in scaled units, weights
+    above 1e-3, one per null direction), ``measurands`` (the :func:`identifiability`
+    table of the joint estimator), and what a generic analysis needs
+    (:func:`mtplan.plans.identifiability.identifiability`): ``jacobian`` (readings x
+    parameters [mm per parameter unit]), ``scale``, ``names``, ``functions`` (each of the
+    21 measurands as a linear function of the parameters, name -> row) and ``rank_tol``.
+    """
+    setup = Setup() if setup is None else setup
+    ji = _joint_ident(setup)
+    names = _param_names(ji["geo"])
+    sv = ji["sv"]
+    null = null_space_table(ji["null"], names)
+    return {
+        "rank": ji["rank"],
+        "parameters": ji["geo"].n_par,
+        "readings": int(ji["jac"].shape[0]),
+        "condition_number": float(sv[0] / sv[ji["rank"] - 1]),
+        "singular_values": sv,
+        "null_space": null,
+        "measurands": identifiability(setup, "joint"),
+        "jacobian": ji["jac"],
+        "scale": ji["scale"],
+        "names": names,
+        "functions": dict(zip(NAMES, ji["g"])),
+        "rank_tol": _RANK_TOL,
+    }
+
+
+def _source_factors(setup: Setup, estimator: str, truth: Truth | None, only) -> dict:
+    """Per active source: the first-order factor F with cov(theta) = F F^T (n_par, .).
+
+    The white sources (reading noise, repeatability) through the estimator's first-order
+    map from the readings (the joint fits' pseudo-inverse, their derivative to within
+    ~1e-4 relative at realistic errors; the patent's by central differences at the
+    truth's noise-free readings); the others element by element through forward model and
+    estimator (:func:`mtplan.fitting.linear.source_response`)."""
+    truth = Truth() if truth is None else truth
+    active = _procedure().active_sources(setup, only)
+    srcs = sources(setup)
+    resp = _source_response(setup, truth, estimator,
+                            tuple(n for n in active if n not in _WHITE))
+    out, pos = {}, 0
+    for name, src in active.items():
+        if name in _WHITE:
+            out[name] = _linear_map(setup, estimator, truth) * float(src.distribution.std)
+        else:
+            size = int(np.prod(srcs[name].shape, dtype=np.int64))
+            out[name] = resp[:, pos: pos + size]
+            pos += size
+    return out
+
+
+@functools.lru_cache(maxsize=4)
+def _linear_map(setup: Setup, estimator: str, truth: Truth) -> np.ndarray:
+    """A (n_par, 2M): first-order map from the readings to the estimated parameters."""
+    ji = _joint_ident(setup)
+    if estimator != "patent":
+        return ji["pinv"]
+    r_t = forward(setup, truth, _procedure().zero_errors(setup, 1))["plate_mm"].reshape(-1)
+    eps = 1e-6
+    return response(lambda r: _theta_patent(setup, {"plate_mm": r.reshape(len(r), -1, 2)}),
+                    r_t, eps) / eps
+
+
+@functools.lru_cache(maxsize=8)
+def _source_response(setup: Setup, truth: Truth, estimator: str, names: tuple) -> np.ndarray:
+    return source_response(
+        lambda errors: _estimate_theta(setup, forward(setup, truth, errors), estimator),
+        lambda m: _procedure().zero_errors(setup, m), sources(setup), names)
+
+
+def coefficient_covariance(setup: Setup | None = None, *, estimator: str = "joint",
+                           truth: Truth | None = None, sources=None):
+    """First-order covariance of the estimated coefficients from every active error source.
+
+    Linearised about the sources' means (the reversal and servo sources have a non-zero
+    mean), with the estimator's first-order map from readings to parameters; the plate
+    tilts act at second order and contribute nothing here.
+
+    Parameters
+    ----------
+    sources : iterable of str, optional
+        Only these error sources (default: every active one).
+
+    Returns
+    -------
+    names : list of str, e.g. ``'EBX[2]'`` (function and power)
+    cov : array (n_coef, n_coef) [internal units squared]
+    """
+    setup = Setup() if setup is None else setup
+    _check_estimator(estimator)
+    geo = _geometry(setup)
+    cov = np.zeros((geo.n_coef, geo.n_coef))
+    for f in _source_factors(setup, estimator, truth, sources).values():
+        fc = f[: geo.n_coef]
+        cov += fc @ fc.T
+    return _param_names(geo)[: geo.n_coef], cov
+
+
+def _measurand_variances(setup: Setup, estimator: str, truth: Truth | None, only) -> dict:
+    """source -> {measurand: first-order variance [display unit^2]} of the listed ones."""
+    ji = _joint_ident(setup)
+    ms = measurands(setup)
+    g = np.array([ji["g"][NAMES.index(m.name)] * m.scale for m in ms]).reshape(len(ms), -1)
+    var = source_variances(g, _source_factors(setup, estimator, truth, only))
+    return {name: dict(zip((m.name for m in ms), v)) for name, v in var.items()}
+
+
+def budget(setup: Setup | None = None, *, estimator: str = "joint",
+           truth: Truth | None = None) -> pd.DataFrame:
+    """First-order uncertainty budget of the listed measurands, by error source.
+
+    The same first-order propagation as
+    :func:`mtplan.evaluation.simulation.linearize_procedure` (forward model and estimator
+    linearised about the sources' means), through the estimator's linear map instead of
+    differentiating the whole chain per input: seconds instead of minutes for the
+    set-ups with head positions.
+
+    Returns
+    -------
+    DataFrame with columns ``measurand``, ``unit``, ``source``, ``std`` (the standard
+    uncertainty due to that source alone, display unit) and ``share`` (its fraction of
+    the measurand's variance; the sources are independent, so the shares add to 1).
+    """
+    setup = Setup() if setup is None else setup
+    _check_estimator(estimator)
+    var = _measurand_variances(setup, estimator, truth, None)
+    rows = []
+    for m in measurands(setup):
+        total = sum(v[m.name] for v in var.values())
+        for name, v in var.items():
+            rows.append((m.name, m.unit, name, math.sqrt(v[m.name]),
+                         v[m.name] / total if total > 0 else 0.0))
+    return pd.DataFrame(rows, columns=["measurand", "unit", "source", "std", "share"])
+
+
+def first_order_std(setup: Setup, truth: Truth | None = None, *, estimator: str = "joint",
+                    sources=None) -> dict:
+    """First-order standard uncertainty of each listed measurand [display unit] (see
+    :func:`budget`); the planner's screening uses it in place of the generic
+    linearisation."""
+    _check_estimator(estimator)
+    var = _measurand_variances(setup, estimator, truth, sources)
+    return {m.name: math.sqrt(sum(v[m.name] for v in var.values())) for m in measurands(setup)}
+
+
+def _travel(geo: _Geometry, axis: int) -> tuple[float, float]:
+    """Range of an axis's commanded position over every reading [mm]: where the plates read
+    its errors (the lines and circles, and the fixed coordinates of the plates and heads:
+    the YZ plate reads X's errors at its x, 120 mm in the seed)."""
+    x = geo.cmd[:, axis]
+    return float(x.min()), float(x.max())
+
+
+def error_functions(setup: Setup | None = None, readings: dict | None = None, *,
+                    truth: Truth | None = None, estimator: str = "joint", positions: int = 21,
+                    travel: tuple[float, float] | None = None, sources=None) -> pd.DataFrame:
+    """The 21 error functions over their travel: estimate, truth and first-order band.
+
+    Each error function is a function of its axis's position; a measurand is its value at
+    one stated position. This gives every function along the tested travel of its axis,
+    for a report to draw each determined error with its band.
+
+    Parameters
+    ----------
+    setup : Setup, optional
+    readings : dict, optional
+        Readings (the first trial is used) whose estimate is shown.
+    truth : Truth, optional
+        The true functions (simulations); also the point the sources' first-order effect
+        is taken at (default the default Truth).
+    estimator : str
+    positions : int
+        Positions per function, evenly over its travel.
+    travel : (low, high), optional
+        Range of positions [mm] for every axis; default, each axis's range of commanded
+        positions over every reading (the tests' travel, the plates' fixed coordinates and
+        the heads' offsets: where the plates read the errors).
+    sources : iterable of str, optional
+        Only these error sources in the band (default every active one).
+
+    Returns
+    -------
+    DataFrame with one row per function and position: ``function``, ``unit``, ``kind``
+    (pos, str, ang, sq), ``axis`` (X, Y, Z), ``position_mm``, ``estimate`` (NaN without
+    readings or where the data do not determine the value), ``true`` (NaN without truth),
+    ``std`` (first-order standard uncertainty from every active source, display unit;
+    ``inf`` where the data do not determine the value, never NaN) and ``status`` (from
+    :func:`identifiability`). Squareness errors are constants: one row at position 0.
+    """
+    setup = Setup() if setup is None else setup
+    _check_estimator(estimator)
+    p = Problems("error_functions")
+    p.number("positions", positions, low=2, integer=True)
+    if travel is not None and not (len(travel) == 2 and travel[0] < travel[1]):
+        p.add("travel", travel, "a pair (low, high) with low < high [mm]")
+    p.raise_if_any()
+    ji = _joint_ident(setup)
+    geo, s, null = ji["geo"], ji["scale"], ji["null"]
+    _, cov = coefficient_covariance(setup, estimator=estimator, truth=truth, sources=sources)
+    status = identifiability(setup, estimator)["status"]
+    theta = None if readings is None else _estimate_theta(setup, readings, estimator)[0]
+    tcoef = None if truth is None else _truth_coefficients(truth)
+    rows = []
+    for name in NAMES:
+        powers, sl = geo.layout[name]
+        scale = 1e6 if _KIND[name] in ("ang", "sq") else 1e3
+        if _KIND[name] == "sq":
+            pts = np.array([0.0])
+        else:
+            lo, hi = travel if travel is not None else _travel(geo, _AXIS[name])
+            pts = np.linspace(lo, hi, int(positions))
+        for x in pts:
+            b = np.zeros(geo.n_par)
+            b[sl] = [x**k for k in powers]
+            bs = b * s
+            nb = np.linalg.norm(bs)
+            ok = nb == 0 or not null.size or np.linalg.norm(null @ bs) <= 1e-6 * nb
+            var = float(b[: geo.n_coef] @ cov @ b[: geo.n_coef])
+            est = float(b @ theta) * scale if theta is not None and ok else math.nan
+            if tcoef is None:
+                true = math.nan
+            else:
+                tp, tc = tcoef[name]
+                true = float(np.sum(tc * x ** np.array(tp))) * scale
+            rows.append((name, "urad" if scale == 1e6 else "um", _KIND[name], "XYZ"[_AXIS[name]],
+                         float(x), est, true, math.sqrt(max(var, 0.0)) * scale if ok else math.inf,
+                         status[name]))
+    return pd.DataFrame(rows, columns=["function", "unit", "kind", "axis", "position_mm",
+                                       "estimate", "true", "std", "status"])
+
+
+def error_bands(setup: Setup | None = None, *, estimator: str = "joint",
+                positions: int = 11) -> pd.DataFrame:
+    """Standard uncertainty of each error function over [-line_length/2, +line_length/2].
+
+    Returns
+    -------
+    DataFrame with columns ``function``, ``unit``, ``position_mm``, ``std`` (first-order
+    standard uncertainty of the function's value there from every active error source,
+    display unit) and ``status`` (from :func:`identifiability`). Where the data do not
+    determine the value, ``std`` is ``inf`` (never NaN) and ``status`` says why.
+    Squareness rows have position 0. See :func:`error_functions` for estimates and truth.
+    """
+    setup = Setup() if setup is None else setup
+    half = setup.line_length_mm / 2
+    table = error_functions(setup, estimator=estimator, positions=positions, travel=(-half, half))
+    return table[["function", "unit", "position_mm", "std", "status"]]
+
+
+def noise_free_table(setup: Setup | None = None, *, scales=(1.0, 10.0, 100.0),
+                     estimators=("patent", "joint", "joint_linear"), truth: Truth | None = None,
+                     ) -> pd.DataFrame:
+    """Error of each estimator from noise-free readings, angular errors scaled.
+
+    Returns a DataFrame with columns ``measurand``, ``unit``, ``estimator``,
+    ``angular_scale``, ``true``, ``error`` (estimate - truth, display unit) and
+    ``relative`` (error / true).
+    """
+    setup = Setup() if setup is None else setup
+    base = Truth() if truth is None else truth
+    proc = _procedure()
+    rows = []
+    for sc in scales:
+        tr = base.replace(angular_scale=float(sc) * base.angular_scale)
+        readings = forward(setup, tr, proc.zero_errors(setup, 1))
+        tv = proc.display_truth(setup, tr)
+        for est in estimators:
+            out = proc.display_estimate(setup, readings, est)
+            for m in proc.measurands(setup):
+                err = float(out[m.name][0] - tv[m.name])
+                rows.append((m.name, m.unit, est, float(sc), tv[m.name], err,
+                             err / tv[m.name] if tv[m.name] else math.inf))
+    return pd.DataFrame(rows, columns=["measurand", "unit", "estimator", "angular_scale", "true",
+                                       "error", "relative"])
+
+
+def report_extras(setup: Setup, truth: Truth) -> dict:
+    """Uncertainty bands of the error functions over the tested travel, for the report.
+
+    A planner asks how well EBX is known anywhere on the axis, not how well its a2 is:
+    :func:`error_bands` (first order, all active error sources) for the seed's stepwise
+    method and the joint fit; functions the data do not determine are left out.
+    :func:`error_functions` has the same with the estimate and truth over each axis's
+    whole tested travel.
+    """
+    bands = {est: error_bands(setup, estimator=est, positions=21) for est in ("patent", "joint")}
+    return {"bands": {
+        "caption": ("Standard uncertainty of each determined error function over the tested "
+                    "travel (first order, every default error source), the seed's stepwise "
+                    "method against the joint fit. Squareness errors are constants (not drawn)."),
+        "tables": bands,
+    }}
+
+

@@ -1,0 +1,524 @@
+"""line_laser's estimators: the patent's, the registration and the pattern fit.
+
+The pattern fit is the generalised least squares of the shared machinery
+(:mod:`mtplan.fitting`); every name here is re-exported by :mod:`mtplan.models.line_laser`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+
+from mtplan._validate import InvalidInput
+from mtplan.fitting import SourceModel, central_jacobian, gauss_newton, gls_gain, source_effects
+from mtplan.models.line_laser import (
+    _SQ3,
+    _TOL_FLOOR,
+    _angles_from_rotation,
+    _grid_u,
+    _grid_y,
+    _pitch,
+    _registration_check,
+    _shift,
+    forward,
+    height_map,
+    sources,
+    Truth,
+)
+
+
+def _procedure():
+    """line_laser's Procedure record (defined after this module is imported)."""
+    from mtplan.models.line_laser import PROCEDURE
+
+    return PROCEDURE
+
+
+# --------------------------------------------------------------------------- patent
+def _interp_along_line(setup, z, shift):
+    """Values of ``z`` (..., points) at ``x_l + shift``; (values, valid columns)."""
+    p = _pitch(setup)
+    k = int(math.floor(shift / p))
+    f = shift / p - k
+    n = setup.points_per_line
+    cols = np.arange(n)
+    valid = cols + k + 1 <= n - 1 if f > 0 else cols + k <= n - 1
+    valid &= cols + k >= 0
+    i0 = np.clip(cols + k, 0, n - 1)
+    i1 = np.clip(cols + k + 1, 0, n - 1)
+    return (1 - f) * z[..., i0] + f * z[..., i1], valid
+
+
+def _row_search(setup, a, b, cols):
+    """Overlap fraction and mean difference (a - b) for row shifts -n_max..n_max.
+
+    ``b`` row j is compared with ``a`` row j - n. Returns arrays (n_trials, 2 n_max + 1).
+    """
+    ac, bc = a[:, :, cols], b[:, :, cols]  # thresholds from the same part of the artifact
+    thr_a = (ac.max(axis=(1, 2)) + ac.min(axis=(1, 2)))[:, None, None] / 2
+    thr_b = (bc.max(axis=(1, 2)) + bc.min(axis=(1, 2)))[:, None, None] / 2
+    ca, cb = a < thr_a, b < thr_b
+    nmax, lines = setup.max_shift_rows, setup.lines
+    fracs, diffs = [], []
+    for s in range(-nmax, nmax + 1):
+        jb = slice(max(0, s), lines + min(0, s))
+        ja = slice(max(0, -s), lines - max(0, s))
+        agree = ca[:, ja][:, :, cols] == cb[:, jb][:, :, cols]
+        fracs.append(agree.mean(axis=(1, 2)))
+        diffs.append((a[:, ja][:, :, cols] - b[:, jb][:, :, cols]).mean(axis=(1, 2)))
+    return np.stack(fracs, axis=1), np.stack(diffs, axis=1)
+
+
+def _coarse(setup, a, b, shift):
+    """Start of the registration of ``b`` on ``a`` (b moved by ``shift`` in +X): the
+    seed's integer row search and the mean height difference at that row shift.
+
+    Returns
+    -------
+    array (n, 3): (du, dy, dt) [mm].
+    """
+    moved, cols = _interp_along_line(setup, a, shift)
+    fracs, diffs = _row_search(setup, moved, b, cols)
+    best = np.argmax(fracs, axis=1)
+    out = np.empty((a.shape[0], 3))
+    out[:, 0] = -shift
+    out[:, 1] = (best - setup.max_shift_rows) * setup.step_mm
+    out[:, 2] = -np.take_along_axis(diffs, best[:, None], axis=1)[:, 0]
+    return out
+
+
+def estimate_patent(setup, readings) -> dict:
+    """The seed's estimator: integer row shift, mean differences, arccos(h/h').
+
+    Parameters
+    ----------
+    setup : Setup
+    readings : dict
+        ``z_mm`` array (n, 3, lines, points) [mm].
+
+    Returns
+    -------
+    dict of arrays (n,)
+        ``alpha_z`` and ``alpha_y`` [rad]; ``alpha_x`` [rad] is ``|alpha_x|`` (sign-blind).
+    """
+    z = np.asarray(readings["z_mm"], dtype=float)
+    w, h = _shift(setup), setup.raise_mm
+    a, cols = _interp_along_line(setup, z[:, 0], w)  # scan 1 at x_l + w
+    b = z[:, 1]
+    fracs, diffs = _row_search(setup, a, b, cols)
+    best = np.argmax(fracs, axis=1)
+    n1 = best - setup.max_shift_rows
+    l_z = n1 * setup.step_mm
+    l_y = np.take_along_axis(diffs, best[:, None], axis=1)[:, 0]
+    h_prime = (z[:, 1] - z[:, 2]).mean(axis=(1, 2))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.clip(h / h_prime, -1.0, 1.0)
+    return {
+        "alpha_z": np.arctan(l_z / w),
+        "alpha_y": np.arctan(l_y / w),
+        "alpha_x": np.arccos(ratio),
+    }
+
+
+# --------------------------------------------------------------------------- registration
+def _robust_sigma(x, axis):
+    return 1.4826 * np.median(np.abs(x), axis=axis)
+
+
+def _tolerance(setup, z, tol_scale=6.0):
+    """Tolerance on second differences [mm], per trial, shape (n, 1, 1).
+
+    ``tol_scale`` standard deviations of a second difference of the noise (estimated
+    robustly from the second differences along Y, where few straddle a kink), but at
+    least a floor: a tenth of the smallest second difference a kink leaves
+    (``0.25 tan(facet) min(pitch, dy)``, :func:`_planar_cells`; 0.58 um at the default),
+    and never below ``_TOL_FLOOR``. So noise-free data are segmented exactly, a smooth
+    calibration curve along the line (second differences of 0.08 um for a 1 um linearity
+    error) is not taken for a kink, and a perturbation far below the noise changes no mask.
+    """
+    kink = 0.25 * math.tan(math.radians(setup.facet_angle_deg)) * min(_pitch(setup),
+                                                                      setup.step_mm)
+    floor = max(_TOL_FLOOR, 0.1 * kink)
+    d2y = z[:, :-2, :] - 2 * z[:, 1:-1, :] + z[:, 2:, :]
+    sig = _robust_sigma(d2y.reshape(d2y.shape[0], -1), axis=1)  # = sqrt(6) sigma
+    return np.maximum(tol_scale * sig, floor)[:, None, None]
+
+
+def _planar_nodes(z, tol, ky=1):
+    """Nodes whose neighbours (+-1 along the line, +-1 and +-ky along Y) lie on one plane."""
+    ok = np.zeros(z.shape, dtype=bool)
+    ok[:, :, 1:-1] = np.abs(z[:, :, :-2] - 2 * z[:, :, 1:-1] + z[:, :, 2:]) <= tol
+    oky = np.zeros(z.shape, dtype=bool)
+    oky[:, 1:-1, :] = np.abs(z[:, :-2, :] - 2 * z[:, 1:-1, :] + z[:, 2:, :]) <= tol
+    ok &= oky
+    if ky > 1:
+        okw = np.zeros(z.shape, dtype=bool)
+        okw[:, ky:-ky, :] = np.abs(z[:, : -2 * ky, :] - 2 * z[:, ky:-ky, :]
+                                   + z[:, 2 * ky :, :]) <= tol
+        ok &= okw
+    return ok
+
+
+def _planar_cells(z, tol, ky=1):
+    """Cells (n, lines-1, points-1) whose four corners are planar nodes.
+
+    A kink crossing a cell crosses one of its edges, and then the second difference
+    at one of that edge's ends is at least half the slope change times the spacing,
+    so such a cell is rejected (features wider than two samples assumed).
+    """
+    ok = _planar_nodes(z, tol, ky)
+    return ok[:, :-1, :-1] & ok[:, :-1, 1:] & ok[:, 1:, :-1] & ok[:, 1:, 1:]
+
+
+def _register(setup, a, b, start, *, iterations=12):
+    """Translation (du, dy, dt) with ``b(x, y) = a(x - du, y - dy) + dt``, per trial.
+
+    Gauss-Newton on the residuals ``b - a_interp - dt`` over the cells of ``a`` that lie
+    on one plane (bilinear interpolation is exact there). The Jacobian is the slope of
+    ``b`` at its own node from central differences that leave the node out (over
+    +-1 point along the line and +-ky lines along Y): its noise is then independent of
+    the residual's, so the fixed point is unbiased (a slope taken from the interpolated
+    cell of ``a`` shares its noise with the interpolated value and biases the shift by
+    about sigma^2 / (dy * slope^2), a micrometre at the default set-up).
+
+    Parameters
+    ----------
+    a, b : arrays (n, lines, points)
+        Reference and moved scan [mm].
+    start : array (n, 3)
+        Starting translation [mm].
+
+    Returns
+    -------
+    array (n, 3) [mm]; NaN where the normal equations are singular.
+    """
+    n, lines, pts = a.shape
+    p, dy = _pitch(setup), setup.step_mm
+    ky = int(max(1, min(round(p / dy / 2), (lines - 1) // 4)))
+    cells = _planar_cells(a, _tolerance(setup, a), ky).reshape(n, -1)
+    okb = _planar_nodes(b, _tolerance(setup, b), ky).reshape(n, -1)
+    gub = np.zeros_like(b)
+    gyb = np.zeros_like(b)
+    gub[:, :, 1:-1] = (b[:, :, 2:] - b[:, :, :-2]) / (2 * p)
+    gyb[:, ky:-ky, :] = (b[:, 2 * ky :, :] - b[:, : -2 * ky, :]) / (2 * ky * dy)
+    gub, gyb = gub.reshape(n, -1), gyb.reshape(n, -1)
+    af = a.reshape(n, -1)
+    bf = b.reshape(n, -1)
+    jj, ii = np.meshgrid(np.arange(lines), np.arange(pts), indexing="ij")
+    jj, ii = jj.ravel(), ii.ravel()
+    delta = np.array(start, dtype=float)
+    rows = np.arange(n)[:, None]
+    scale = None
+    for it in range(iterations):
+        su = -delta[:, 0] / p
+        sy = -delta[:, 1] / dy
+        ok_row = np.isfinite(su) & np.isfinite(sy)
+        su, sy = np.where(ok_row, su, 0.0), np.where(ok_row, sy, 0.0)
+        ku, kv = np.floor(su), np.floor(sy)
+        fu, fy = (su - ku)[:, None], (sy - kv)[:, None]
+        ic = ii[None, :] + ku.astype(int)[:, None]
+        jc = jj[None, :] + kv.astype(int)[:, None]
+        inside = (ic >= 0) & (ic <= pts - 2) & (jc >= 0) & (jc <= lines - 2)
+        icc = np.clip(ic, 0, pts - 2)
+        jcc = np.clip(jc, 0, lines - 2)
+        valid = inside & okb & cells[rows, jcc * (pts - 1) + icc]
+        k00 = jcc * pts + icc
+        a00, a01 = af[rows, k00], af[rows, k00 + 1]
+        a10, a11 = af[rows, k00 + pts], af[rows, k00 + pts + 1]
+        r = bf - ((1 - fy) * ((1 - fu) * a00 + fu * a01) + fy * ((1 - fu) * a10 + fu * a11))
+        r -= delta[:, 2:3]
+        if it >= 3:  # robust trim once the fit has settled
+            if scale is None:  # 1.4826 x median |r| over the valid points, per trial
+                srt = np.sort(np.where(valid, np.abs(r), np.inf), axis=1)
+                cnt = valid.sum(axis=1)
+                mid = np.take_along_axis(srt, np.maximum(cnt - 1, 0)[:, None] // 2, axis=1)
+                scale = np.maximum(5 * 1.4826 * mid, _TOL_FLOOR)
+            valid &= np.abs(r) <= scale
+        wg = np.where(valid, 1.0, 0.0)
+        ju, jy = gub * wg, gyb * wg
+        s_uu, s_uy, s_yy = (ju * gub).sum(1), (ju * gyb).sum(1), (jy * gyb).sum(1)
+        s_u, s_y, s_1 = ju.sum(1), jy.sum(1), wg.sum(1)
+        mat = np.stack([np.stack([s_uu, s_uy, -s_u], -1), np.stack([s_uy, s_yy, -s_y], -1),
+                        np.stack([-s_u, -s_y, s_1], -1)], -2)
+        rw = r * wg
+        rhs = np.stack([(ju * r).sum(1), (jy * r).sum(1), -rw.sum(1)], -1)
+        # conditioning of the normal equations with unit diagonal
+        diag = np.sqrt(np.maximum(np.einsum("nii->ni", mat), 1e-300))
+        unit = mat / diag[:, :, None] / diag[:, None, :]
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            eig = np.linalg.eigvalsh(unit)
+            bad = ~(eig[:, 0] > 1e-8 * eig[:, -1]) | ~ok_row | (s_1 < 10)
+            unit[bad] = np.eye(3)
+            step = -np.linalg.solve(unit, (rhs / diag)[..., None])[..., 0] / diag
+        step[bad] = np.nan
+        delta = delta + step
+        if it >= 4 and np.all(np.abs(step[~bad]) <= 1e-10):
+            break
+    return delta
+
+
+def _kabsch(a_vecs, b_vecs):
+    """Rotations R (n, 3, 3) minimising sum |R b - a|^2 over the pairs (n, k, 3)."""
+    hmat = np.einsum("nki,nkj->nij", b_vecs, a_vecs)
+    u, _, vt = np.linalg.svd(hmat)
+    v = np.swapaxes(vt, -1, -2)
+    d = np.sign(np.linalg.det(v @ np.swapaxes(u, -1, -2)))
+    fix = np.ones((hmat.shape[0], 3))
+    fix[:, 2] = d
+    return (v * fix[:, None, :]) @ np.swapaxes(u, -1, -2)
+
+
+def estimate_registration(setup, readings) -> dict:
+    """Least-squares registration of the three scans and an exact rotation fit.
+
+    Parameters
+    ----------
+    setup : Setup
+    readings : dict
+        ``z_mm`` array (n, 3, lines, points) [mm].
+
+    Returns
+    -------
+    dict of arrays (n,)
+        ``alpha_z``, ``alpha_y``, ``alpha_x`` [rad], with sign.
+
+    Raises
+    ------
+    InvalidInput
+        Where :func:`observability` says the set-up does not allow it.
+    """
+    ok, why = _registration_check(setup)
+    if not ok:
+        raise InvalidInput([f"line_laser estimator 'registration' cannot determine the "
+                            f"angles at this set-up: {why}"])
+    return _registration_core(setup, np.asarray(readings["z_mm"], dtype=float))
+
+
+def _registration_core(setup, z) -> dict:
+    """The registration estimator without the set-up check; ``z`` (n, 3, lines, points)."""
+    n = z.shape[0]
+    w = _shift(setup)
+    d1 = _register(setup, z[:, 0], z[:, 1], _coarse(setup, z[:, 0], z[:, 1], w))
+    d2 = _register(setup, z[:, 1], z[:, 2], _coarse(setup, z[:, 1], z[:, 2], 0.0))
+    with np.errstate(invalid="ignore"):
+        w_est = np.sqrt(d1[:, 0] ** 2 + d1[:, 2] ** 2 - d1[:, 1] ** 2)
+        h_est = np.sqrt(d2[:, 0] ** 2 + d2[:, 2] ** 2 - d2[:, 1] ** 2)
+    zeros = np.zeros(n)
+    a_vecs = np.stack([np.stack([w_est, d1[:, 1], zeros], -1),
+                       np.stack([zeros, d2[:, 1], h_est], -1)], axis=1)
+    b_vecs = -np.stack([np.stack([d1[:, 0], zeros, d1[:, 2]], -1),
+                        np.stack([d2[:, 0], zeros, d2[:, 2]], -1)], axis=1)
+    finite = np.all(np.isfinite(a_vecs), axis=(1, 2)) & np.all(np.isfinite(b_vecs), axis=(1, 2))
+    rot = np.full((n, 3, 3), np.nan)
+    if finite.any():
+        rot[finite] = _kabsch(a_vecs[finite], b_vecs[finite])
+    az, ay, ax = _angles_from_rotation(rot)
+    return {"alpha_z": az, "alpha_y": ay, "alpha_x": ax}
+
+
+# --------------------------------------------------------------------------- pattern
+#: Truth fields the pattern fit estimates: the three angles and the artifact's pose
+_FIT_FIELDS = ("alpha_z_mrad", "alpha_y_mrad", "alpha_x_mrad", "artifact_x_mm", "artifact_y_mm",
+               "artifact_rz_mrad", "artifact_tilt_x_mrad", "artifact_tilt_y_mrad")
+#: finite-difference steps of the fit's Jacobian [mrad or mm]: 10 urad, 1 um
+_FIT_STEPS = np.array([1e-2, 1e-2, 1e-2, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2])
+#: RMS residual [mm] above which a fit sits in the wrong lattice cell (the pattern's
+#: heights are then off by a good part of the 0.4 mm depth; errors give micrometres)
+_FIT_RMS_MAX = 0.02
+
+
+@functools.lru_cache(maxsize=1)
+def _fit_limits() -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper limits (8,) of the fitted Truth fields (a step stops there)."""
+    from mtplan.models._protocol import fields_info
+
+    info = {i["name"]: i for i in fields_info(Truth)}
+    return (np.array([info[f]["low"] for f in _FIT_FIELDS], dtype=float),
+            np.array([info[f]["high"] for f in _FIT_FIELDS], dtype=float))
+
+
+def _truth_rows(theta: np.ndarray) -> Truth:
+    """A Truth whose fitted fields are arrays (n,) from ``theta`` (n, 8) (no validation:
+    the forward model refuses what it cannot trace)."""
+    import copy
+
+    t = copy.copy(Truth())
+    for k, name in enumerate(_FIT_FIELDS):
+        object.__setattr__(t, name, np.ascontiguousarray(theta[:, k]))
+    return t
+
+
+def _predict(setup, theta: np.ndarray) -> np.ndarray:
+    """Error-free readings (n, 3 * lines * points) [mm] for parameter rows (n, 8)."""
+    n = theta.shape[0]
+    z = forward(setup, _truth_rows(theta), _procedure().zero_errors(setup, n))["z_mm"]
+    return np.asarray(z).reshape(n, -1)
+
+
+@functools.lru_cache(maxsize=16)
+def _pattern_gain(setup, ref: tuple) -> np.ndarray:
+    """Gain K (8, readings) of the generalised least squares at the parameters ``ref``.
+
+    ``K = (J^T C^-1 J)^-1 J^T C^-1`` (:func:`mtplan.fitting.gls_gain`) with ``J`` the
+    readings' Jacobian (central differences, :data:`_FIT_STEPS`, one-sided at the Truth's
+    limits) and ``C = sigma^2 I + U U^T`` their covariance under every active error
+    source of the set-up (:func:`mtplan.fitting.readings_covariance`): ``sigma`` the
+    sensor noise, the other sources by the secant effect of each of their elements at
+    the same parameters. Solved by Woodbury (``C`` is never formed: 15 600 readings,
+    about 15 columns).
+    """
+    theta = np.asarray(ref, dtype=float)[None, :]
+    low, high = _fit_limits()
+    jac = central_jacobian(lambda rows: _predict(setup, rows), theta[0], _FIT_STEPS,
+                           low=low, high=high)
+    model = SourceModel(
+        _procedure().name, sources(setup),
+        lambda errors: forward(setup, _truth_rows(np.repeat(
+            theta, next(iter(errors.values())).shape[0], axis=0)), errors)["z_mm"],
+        lambda m: _procedure().zero_errors(setup, m))
+    others = [k for k, src in model.sources.items()
+              if k != _procedure().noise_source and src.active]
+    D, U = source_effects(model, others)
+    sigma = setup.sensor_noise_um * 1e-3
+    # without reading noise the weight is that of a noise far below any source's effect
+    scale = max(sigma, 1e-6 * max(float(np.abs(U).max(initial=0.0)),
+                                  float(np.sqrt(D.max(initial=0.0))), 1e-3))
+    return gls_gain(jac, (D + scale**2, U))
+
+
+#: grid of the parameters at which gains are taken [mrad, mm]. Noise-free, the fit's fixed
+#: point does not depend on where its gain was taken; with noise the gain's Jacobian is the
+#: fit's weighting, best taken where the kinks of the pattern lie: the lattice offset to
+#: 2 um, the line's and the artifact's rotation about Z to 0.1 mrad (under 1 um at the
+#: line's ends); the angles about X and Y and the tilts (smooth height changes) to 0.5 mrad.
+#: A Monte Carlo's blocks then share a few gains (their first trials scatter by tens of urad)
+_GAIN_GRID = np.array([0.1, 0.5, 0.5, 0.002, 0.002, 0.1, 0.5, 0.5])
+
+
+def _reference(theta: np.ndarray) -> tuple:
+    """Parameters rounded to :data:`_GAIN_GRID`, at which a gain is computed and cached."""
+    g = np.round(np.asarray(theta, dtype=float) / _GAIN_GRID) * _GAIN_GRID
+    return tuple(float(f"{v:.10g}") for v in g)
+
+
+def _pattern_iterate(setup, y, theta, *, iterations=40, relinearise=(12,)):
+    """Gauss-Newton with one gain shared by all rows (:func:`mtplan.fitting.gauss_newton`),
+    re-taken at the rows' median after the iterations in `relinearise`; returns (theta,
+    rms residual [mm], inf for rows the model could not trace)."""
+    fit = gauss_newton(lambda th: y - _predict(setup, th), theta,
+                       _pattern_gain(setup, _reference(np.median(theta, axis=0))),
+                       iterations=iterations, tol=1e-9,  # [mrad, mm]: 1e-6 urad, 1 pm
+                       bounds=_fit_limits(), regain_after=relinearise,
+                       regain=lambda th: _pattern_gain(setup, _reference(np.median(th, axis=0))))
+    rms = np.sqrt(np.mean(fit.residual**2, axis=1))
+    return fit.theta, np.where(fit.ok, rms, np.inf)
+
+
+def _pose_search(setup, z1, angles) -> np.ndarray:
+    """Start parameters (8,) for one trial's scans ``z1`` (3, lines, points): the
+    lattice offset and rotation that best match scan 1, by the least-squares misfit
+    after removing the mean height, over a grid: 0.1 mm over one cell of the lattice
+    and 20 mrad over the Truth's +-100 mrad of rotation (every fourth profile, vertical
+    rays, the angle ``angles[0]`` [mrad] about Z applied to the line, no tilt)."""
+    s = setup.cell_size_mm
+    gx, gy, grz = np.meshgrid(np.arange(0, s * _SQ3 / 2, 0.1), np.arange(0, s, 0.1),
+                              np.arange(-100.0, 100.1, 20.0), indexing="ij")
+    gx, gy, grz = gx.ravel(), gy.ravel(), grz.ravel() * 1e-3
+    az = angles[0] * 1e-3
+    u, yl = _grid_u(setup)[None, :], _grid_y(setup)[::4, None]
+    px = (u * math.cos(az) + 0 * yl).ravel()
+    py = (u * math.sin(az) + yl).ravel()
+    data = z1[0, ::4].ravel()
+    data = data - data.mean()
+    best, best_cost = 0, np.inf
+    for start in range(0, gx.size, 256):  # memory bounded: 256 candidates at a time
+        sl = slice(start, start + 256)
+        c, si = np.cos(grz[sl])[:, None], np.sin(grz[sl])[:, None]
+        dx, dy = px[None, :] - gx[sl, None], py[None, :] - gy[sl, None]
+        h = height_map(setup, c * dx + si * dy, -si * dx + c * dy)[0]
+        h = h - h.mean(axis=1, keepdims=True)  # a reading is the height plus the stand-off
+        cost = ((h - data) ** 2).sum(axis=1)
+        k = int(np.argmin(cost))
+        if cost[k] < best_cost:
+            best, best_cost = start + k, cost[k]
+    return np.array([*angles, gx[best], gy[best], grz[best] * 1e3, 0.0, 0.0])
+
+
+def _pattern_first(setup, z1):
+    """The fit of one trial's scans ``z1`` (3, lines, points): parameters (8,) or None.
+
+    Starts from the registration's angles and the default truth's pose; where that
+    lands in the wrong cell of the lattice, from :func:`_pose_search`. The pose names a
+    cell centre, and the artifact's tilts pivot about it, so the cells' centres are not
+    quite equivalent (the plate's height at the pivot is the set-up's): after a pose
+    search the fit is repeated from the six neighbouring cells and the best kept.
+    """
+    y1 = z1.reshape(1, -1)
+    reg = _registration_core(setup, z1[None])
+    angles = [float(reg[k][0]) * 1e3 for k in ("alpha_z", "alpha_y", "alpha_x")]
+    if not np.all(np.isfinite(angles)):
+        return None
+    start = np.array([*angles, *[getattr(Truth(), f) for f in _FIT_FIELDS[3:]]])
+    th, rms = _pattern_iterate(setup, y1, start[None, :])
+    if rms[0] <= _FIT_RMS_MAX:
+        return th[0]
+    th, rms = _pattern_iterate(setup, y1, _pose_search(setup, z1, angles)[None, :])
+    if not rms[0] <= _FIT_RMS_MAX:
+        return None
+    s = setup.cell_size_mm
+    cells = np.array([[0, s], [0, -s], [s * _SQ3 / 2, s / 2], [-s * _SQ3 / 2, -s / 2],
+                      [s * _SQ3 / 2, -s / 2], [-s * _SQ3 / 2, s / 2]])
+    rz = th[0, 5] * 1e-3
+    moved = cells @ np.array([[math.cos(rz), math.sin(rz)], [-math.sin(rz), math.cos(rz)]])
+    starts = np.repeat(th, len(cells), axis=0)
+    starts[:, 3:5] += moved
+    others, rms_o = _pattern_iterate(setup, np.repeat(y1, len(cells), axis=0), starts)
+    k = int(np.argmin(rms_o))
+    return others[k] if rms_o[k] < rms[0] else th[0]
+
+
+def estimate_pattern(setup, readings) -> dict:
+    """Generalised least squares of the forward model: angles and artifact pose.
+
+    Uses what the registration leaves out: the artifact's pattern as the set-up states
+    it (the hexagonal pockets' pitch, land, depth and facet angle) and the model of every
+    error source. The readings of all three scans are fitted at once over the three
+    angles and the artifact's pose (lattice offset, rotation about Z, two tilts), weighted
+    by the inverse of their covariance under every active error source of the set-up
+    (:func:`_pattern_gain`), by Gauss-Newton with one gain shared by the whole batch
+    (taken at the first trial's fit, :func:`_pattern_first`, rounded to
+    :data:`_GAIN_GRID`, and again at the batch's median should it need more than 12
+    iterations). Trials whose fit misses the pattern
+    (an RMS residual above 20 um: the wrong cell of the lattice) are NaN.
+
+    Arguments, result (angles with sign [rad]) and refusal as
+    :func:`estimate_registration`, from which it starts.
+    """
+    ok, why = _registration_check(setup)
+    if not ok:
+        raise InvalidInput([f"line_laser estimator 'pattern' cannot determine the angles at "
+                            f"this set-up (it starts from the registration): {why}"])
+    z = np.asarray(readings["z_mm"], dtype=float)
+    n = z.shape[0]
+    y = z.reshape(n, -1)
+    theta = np.full((n, len(_FIT_FIELDS)), np.nan)
+    good = np.zeros(n, dtype=bool)
+    todo = np.flatnonzero(np.all(np.isfinite(y), axis=1))
+    for _ in range(3):  # a first trial that cannot be fitted is left out, the next tried
+        if todo.size == 0:
+            break
+        first = todo[0]
+        th = _pattern_first(setup, z[first])
+        if th is None:
+            todo = todo[1:]
+            continue
+        th_all, rms_all = _pattern_iterate(setup, y[todo], np.repeat(th[None, :], todo.size, 0))
+        fit = rms_all <= _FIT_RMS_MAX
+        theta[todo[fit]] = th_all[fit]
+        good[todo[fit]] = True
+        break
+    theta[~good] = np.nan
+    return {"alpha_z": theta[:, 0] * 1e-3, "alpha_y": theta[:, 1] * 1e-3,
+            "alpha_x": theta[:, 2] * 1e-3}
