@@ -565,6 +565,10 @@ class Procedure:
     #: readings table determines (``df`` as read from the file: numeric columns as floats,
     #: rows in the file's order, optional columns possibly absent)
     setup_from_frame: Callable | None = None
+    #: optional ``resolution(setup, estimator) -> {measurand: step}``: the steps [internal
+    #: unit] in which an estimator's values come (a quantised estimator): where its Monte
+    #: Carlo interval has zero width, ``simulate`` states u = step / sqrt(12)
+    resolution: Callable | None = None
 
     # ----------------------------------------------------------------- helpers
     @property
