@@ -435,3 +435,21 @@ def test_schedule_and_duration():
     assert PROC.duration(setup) == pytest.approx(sched["time_s"].iloc[-1])
     # more positions cost more time
     assert PROC.duration(setup.replace(positions=12)) > PROC.duration(setup)
+
+
+def test_posterior_finds_an_artifact_tilted_three_times_the_old_bound():
+    # the artifact's tilt is determined by the readings: its prior is a wide normal, never
+    # a hard bound that would pull the axis (the old prior stopped at +-2 mrad; here 6 mrad
+    # about both directions, readings with every other source drawn)
+    from mtplan.evaluation.posterior import sample_posterior
+
+    setup = PROC.setup(axis="A")
+    errors = PROC.draw_errors(setup, 1, np.random.SeedSequence(3))
+    errors["artifact_tilt"] = np.array([[6e-3, -6e-3]])
+    readings = PROC.forward(setup, PROC.Truth(), errors)
+    post = sample_posterior(PROC, setup, readings, rng=0, progress=False)
+    assert post.converged
+    assert not any("bound" in n for n in post.notes), post.notes
+    for name, value in PROC.display_truth(setup, PROC.Truth()).items():
+        assert post.low[name] <= value <= post.high[name], (name, value, post.low[name],
+                                                            post.high[name])

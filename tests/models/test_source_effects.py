@@ -58,6 +58,12 @@ CASES = [
     ("rotary_axis", {"axis": "CA"}, "tilt_motion", RA_DIRECTIONS),
     ("rotary_axis", {"axis": "CA"}, "angular_positioning", set()),
     ("rotary_axis", {"axis": "CA", "estimator": "angles"}, "angular_positioning", ALL),
+    ("rotary_axis", {"axis": "CA"}, "angular_repeatability", set()),
+    ("rotary_axis", {"axis": "CA", "estimator": "angles"}, "angular_repeatability", ALL),
+    # the sensor's angle influence, a height offset per position varying with the incline's
+    # azimuth: it moves each plane along its normal, so the pierce points (positions), never
+    # the normals (directions)
+    ("rotary_axis", {"axis": "CA"}, "sensor_orientation", RA_POSITIONS),
     # the artifact's real pose: every estimator fits each lattice's plane, none uses it
     ("rotary_axis", {"axis": "CA"}, "artifact_tilt", set()),
     ("rotary_axis", {"axis": "CA"}, "artifact_height_error", set()),
