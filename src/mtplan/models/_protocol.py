@@ -76,7 +76,7 @@ UNITS = {
 }
 UNIT_SUFFIXES = ("mm", "um", "nm", "rad", "mrad", "urad", "deg", "arcsec", "ppm", "s", "ms", "c",
                  "um_per_m", "urad_per_m", "mm_min", "per_s", "um_per_s", "urad_per_s",
-                 "um_per_deg", "urad_per_deg", "um_per_h", "ppm_per_h")
+                 "um_per_deg", "urad_per_deg", "um_per_h", "ppm_per_h", "k_per_m")
 
 
 @dataclass(frozen=True)
