@@ -2,7 +2,7 @@
 
 An estimator that gives the same value in every trial is quantised or blind to the
 measurand: its uncertainty is its resolution (u = step / sqrt(12), where the procedure
-states the step) or not determinable (NaN, null in JSON), never 0. Every procedure,
+states the step; `simulate`) or not determinable (NaN; `estimate`), never 0. Every procedure,
 every estimator, at the defaults: `simulate` (few trials: a zero spread shows at once)
 and `estimate` on the shipped example readings (its `mc` evaluation).
 """

@@ -112,11 +112,7 @@ class ProcedureResult:
         out = []
         for i, m in enumerate(self.measurands):
             u, bias = float(self.mc.std[i]), float(self.bias[i])
-            if not np.isfinite(u):
-                out.append(f"{m.name}: the {self.estimator} estimator gives the same value in "
-                           f"(almost) every trial: it is quantised or blind to {m.name} here, "
-                           "so its uncertainty is not determinable by the Monte Carlo")
-            elif not self.mc.high[i] > self.mc.low[i]:
+            if not self.mc.high[i] > self.mc.low[i]:
                 out.append(f"{m.name}: the {self.estimator} estimator gives the same value in "
                            f"(almost) every trial, an interval of zero width: it is quantised "
                            f"or blind to {m.name} here, so this u is not its uncertainty")
@@ -223,22 +219,19 @@ def check_memory(proc, setup, truth, estimator, active, *, block_size: int, n_jo
 
 
 def _quantised(proc, setup, estimator, measurands, mc) -> None:
-    """A measurand whose Monte Carlo interval has zero width is quantised or unseen by the
-    estimator: where the procedure states the estimator's step q, u = q / sqrt(12) (the
-    rounding error, uniform over a step, where the truth lies is not known) and the
-    interval is the mean +- coverage * q / 2; otherwise u and interval are NaN (not
-    determinable), never 0 (`mc` is changed in place)."""
+    """A measurand of a quantised estimator whose Monte Carlo interval has zero width (it
+    never left its step): where the procedure states the step q, u = q / sqrt(12) (the
+    rounding error, uniform over a step, as where the truth lies is not known) and the
+    interval is the mean +- coverage * q / 2, never u = 0 (`mc` is changed in place). A
+    zero width without a stated step (a source that does not act, with --sources) stays,
+    and :meth:`ProcedureResult.findings` names it."""
     steps = proc.resolution(setup, estimator) if proc.resolution is not None else {}
     for i, m in enumerate(measurands):
-        if mc.high[i] > mc.low[i]:
-            continue
         q = steps.get(m.name)
-        if q:
+        if q and not mc.high[i] > mc.low[i]:
             q = q * m.scale
             mc.std[i] = q / np.sqrt(12.0)
             mc.low[i], mc.high[i] = mc.mean[i] - mc.coverage * q / 2, mc.mean[i] + mc.coverage * q / 2
-        else:
-            mc.std[i] = mc.low[i] = mc.high[i] = np.nan
 
 
 def simulate_uncertainty(
