@@ -95,8 +95,16 @@ Error sources (each a set-up field; 0 switches it off)
 ``z_positioning`` (per reading: repeatability of the slides), ``flatness`` (form of the
 incline, per test), ``thermal_drift`` (linear drift of sensor against table over the
 test's time line from :func:`schedule`), ``radial_motion``, ``axial_motion`` and
-``tilt_motion`` (error motions of the rotary axis, per position), and
-``angular_positioning`` (per position). :func:`sources` says where each default comes from.
+``tilt_motion`` (error motions of the rotary axis, per position), ``angular_positioning``
+(a smooth, repeatable function of the commanded angle: first and second harmonics per
+axis, ISO 230-2's systematic positioning error) with ``angular_repeatability`` (its random
+part, per position), ``sensor_orientation`` (the sensor's angle influence that varies with
+the azimuth of the incline under it: first and second harmonics of that azimuth, a height
+offset per position; it moves the axis sideways by about ``e / tan(incline)`` and
+dominates the positions at its default, 6.9 um of u(EX0C) against 1.27 without it), and
+the artifact's real pose (``artifact_tilt``: normal, no hard bound, since the readings
+determine it; ``artifact_height_error``). :func:`sources` says where each default comes
+from.
 A drift that is linear in time is the first-order model of ISO 230-3; it is the only
 error whose effect depends on the measuring order. At the default rate the order hardly
 matters (A axis, drift alone: u(EZ0A) 0.218 um ascending, 0.202 um in the seed's order;
@@ -161,7 +169,12 @@ the axial error motion of each position reads as a lateral offset of
 axis along its arc is poorly determined (EB0A ~ 58 urad at +-45 deg, ~530 urad at
 +-15 deg), and the angular positioning error has no effect at all on these three.
 
-``angles``: the ``gls`` fit with the azimuths tied to the commanded angles: position
+``angles`` (its figures below are those of per-position positioning errors; with the
+smooth positioning error the tie cannot average the systematic part, and at its default
+5 arcsec u(EB0A) is 35.7 urad against gls's 58.5, u(EA0C) 8.04 against 10.7, but A's
+EC0A 14.0 against 13.8, and 27.8 against 23.6 with the fall line at 60 deg; the Monte
+Carlo holds the smooth error, so its u stays honest as long as the stated bound is):
+the ``gls`` fit with the azimuths tied to the commanded angles: position
 p's azimuth is ``phi0 + theta_p``, ``theta_p`` the commanded angle, ``phi0`` one free
 common zero (it takes up the artifact's azimuth and a zero error of the encoder), so the
 fit has seven parameters per axis in place of 6 + positions: Gauss-Newton on the whole
