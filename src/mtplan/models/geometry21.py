@@ -64,7 +64,9 @@ Error sources
 Reading noise, the plate's own grid error (a smooth random field per plane, cubic in
 the plate coordinates), the plate's mounting in each set-up (in-plane offset, in-plane
 rotation and two tilts), the extra heads' setting, and those of a real 1-2 h test:
-machine repeatability per reading point, reversal (lost motion) between directions of
+machine repeatability per reading point (correlated along each pass: AR(1) with
+``repeatability_correlation`` readings, since a contouring machine's path deviations
+are low-frequency), reversal (lost motion) between directions of
 travel of each axis, the servo contouring error of the circles (first-order position
 loops, radius- and feed-dependent), and thermal drift over the test's duration (a
 growth of each axis's scale and a drift of the head relative to the plate, both
