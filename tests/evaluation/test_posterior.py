@@ -260,16 +260,17 @@ def test_a_measurand_that_depends_on_no_sampled_parameter_is_refused():
         sample_posterior(PROC, SETUP, r, fields=["offset_mm"], rng=0)
 
 
-def _bent():
+def _bent(bounded=False):
     """toy_line with a non-linear source: a bow (x/L)^2 whose amplitude is
-    s (exp(kappa/s) - 1), kappa ~ N(0, s), s = 2 um."""
+    s (exp(kappa/s) - 1), kappa ~ N(0, s) (`bounded`: uniform in +-s), s = 2 um."""
     from mtplan.models import Source
-    from mtplan.uncertainty import Normal
+    from mtplan.uncertainty import Normal, Rectangular
 
     s = 2e-3
+    dist = Rectangular(-s, s) if bounded else Normal(0.0, s)
 
     def sources(setup):
-        return {**toy_line.sources(setup), "bow": Source(Normal(0.0, s), (), "bow")}
+        return {**toy_line.sources(setup), "bow": Source(dist, (), "bow")}
 
     def forward(setup, truth, errors):
         out = toy_line.forward(setup, truth, errors)
@@ -293,3 +294,20 @@ def test_a_non_linear_source_is_sampled_as_a_nuisance_parameter():
     mc_err = post.std["bow"] / math.sqrt(post.ess["bow"])
     assert abs(post.mean["bow"] * 1e3 - drawn) < 4 * post.std["bow"] * 1e3 + 5 * mc_err * 1e3
     assert post.std["bow"] < 0.5 * 2e-3 and post.converged
+
+
+def test_an_estimate_at_an_assumed_bound_is_flagged():
+    # readings made with the bounded nuisance source three times beyond its bound: the
+    # fit stops at the bound, and the notes say that the bound, not the readings, decided
+    proc = _bent(bounded=True)
+    errors = proc.zero_errors(SETUP, 1)
+    errors["bow"] = np.array([6e-3])
+    r = proc.forward(SETUP, PROC.Truth(), errors)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        post = sample_posterior(proc, SETUP, r, rng=1, allow_unconverged=True)
+    assert any(n.startswith("bow = ") and "upper bound" in n for n in post.notes), post.notes
+    # a value well inside its range is not flagged
+    errors["bow"] = np.array([0.0])
+    post = sample_posterior(proc, SETUP, proc.forward(SETUP, PROC.Truth(), errors), rng=1)
+    assert not any("bound of its assumed range" in n for n in post.notes), post.notes

@@ -307,23 +307,35 @@ def test_form_error_aliases_into_the_centre_by_its_full_amplitude(n, lobes, alia
         assert np.all(shift / amp < 1e-2)
 
 
-def test_bore_temperature_moves_the_radius_by_r_alpha_dt_and_not_the_centre():
-    """A bore at 20 degC + dT is a circle of radius r (1 + alpha dT) about the same
-    centre; three points on it give exactly that circle."""
+def test_part_and_scale_temperatures_move_the_radius_by_alpha_part_dt_minus_alpha_scale_dt():
+    """A bore at 20 degC + dT_part is a circle of radius r (1 + alpha_part dT_part) about
+    the same centre; the scales at 20 degC + dT_part + dT_scale read every length short by
+    alpha_scale (dT_part + dT_scale) about the datum at the nominal centre: three points
+    give the radius r (1 + alpha_part dT_part) / (1 + alpha_scale dT_total) and the centre
+    scaled likewise. Part and machine at one temperature: (11.5 - 10) ppm/K only."""
     setup = P.Setup()
     truth = cc.Truth()
-    strain = np.array([-2.3e-5, 0.0, 1.7e-5])  # alpha dT for dT = -2, 0, 1.5 K (steel)
-    errors = P.zero_errors(setup, 3)
-    errors["bore_temperature"] = strain
+    dt_part = np.array([-2.0, 0.0, 1.5, 2.0])
+    dt_scale = np.array([0.0, 1.0, -0.5, 0.0])
+    errors = P.zero_errors(setup, 4)
+    errors["part_temperature"] = dt_part
+    errors["scale_temperature"] = dt_scale
+    r20 = setup.bore_radius_mm + truth.radius_deviation_mm
+    grow = 1 + 11.5e-6 * dt_part
+    read = 1 / (1 + 10e-6 * (dt_part + dt_scale))
     for name in P.estimators:
         est = P.estimate(setup, P.forward(setup, truth, errors), name)
-        r20 = setup.bore_radius_mm + truth.radius_deviation_mm
-        np.testing.assert_allclose(est["radius"] - truth.radius_deviation_mm, r20 * strain,
-                                   rtol=0, atol=1e-11)
-        np.testing.assert_allclose(est["centre_x"], truth.centre_x_mm, rtol=0, atol=1e-11)
-        np.testing.assert_allclose(est["centre_y"], truth.centre_y_mm, rtol=0, atol=1e-11)
-    src = P.sources(setup)["bore_temperature"]
-    assert src.distribution.std == pytest.approx(11.5e-6 * 2.0 / math.sqrt(3))
+        np.testing.assert_allclose(est["radius"] + setup.bore_radius_mm, r20 * grow * read,
+                                   rtol=0, atol=1e-10)
+        np.testing.assert_allclose(est["centre_x"], truth.centre_x_mm * read, rtol=0, atol=1e-11)
+        np.testing.assert_allclose(est["centre_y"], truth.centre_y_mm * read, rtol=0, atol=1e-11)
+    # one temperature for part and machine (the first and last): 1.5 ppm/K of the radius
+    est = P.estimate(setup, P.forward(setup, truth, errors), "three_point")["radius"]
+    np.testing.assert_allclose(est[[0, 3]] - truth.radius_deviation_mm,
+                               r20 * 1.5e-6 * dt_part[[0, 3]], rtol=2e-4, atol=0)
+    src = P.sources(setup)
+    assert src["part_temperature"].distribution.std == pytest.approx(2.0 / math.sqrt(3))
+    assert src["scale_temperature"].distribution.std == pytest.approx(1.0 / math.sqrt(3))
 
 
 def test_tip_radius_error_moves_the_radius_and_not_the_centre():

@@ -8,6 +8,8 @@ refusals, observability flags, Monte Carlo against GUM, the data format.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import math
 
 import numpy as np
@@ -255,6 +257,28 @@ def test_patent_alpha_z_is_quantised_to_dy_over_w():
     assert errors.max() > quantum / 4  # ... and visibly off between steps
     # the default truth (1.5 mrad) is below one step (5.2 mrad): the patent reads 0
     assert PROC.estimate(SETUP, _noise_free(SETUP, ll.Truth()), "patent")["alpha_z"][0] == 0.0
+
+
+@pytest.mark.parametrize("artifact_y", [-0.21, 0.5, 1.3, 2.2])
+def test_patent_alpha_z_switches_half_way_between_steps_wherever_the_artifact_lies(artifact_y):
+    # the nearest whole row shift, as the seed means: alpha_z switches from step k to k+1
+    # at (k + 1/2) steps (to 0.05 step), whatever the artifact's Y position; the noise-free
+    # readings of a fine sweep of alpha_z in one batch (array-valued truth fields)
+    w, dy = ll._shift(SETUP), SETUP.step_mm
+    step = math.atan(dy / w)
+    az = np.linspace(-1.9, 1.9, 153) * step  # 0.025 step apart
+    base = dataclasses.replace(ll.Truth(), artifact_y_mm=artifact_y)
+    fields = {f.name: np.full(az.size, getattr(base, f.name)) for f in dataclasses.fields(base)}
+    truth = copy.copy(base)
+    for name, value in {**fields, "alpha_z_mrad": az * 1e3}.items():
+        object.__setattr__(truth, name, value)
+    readings = PROC.forward(SETUP, truth, PROC.zero_errors(SETUP, az.size))
+    est = PROC.estimate(SETUP, readings, "patent")["alpha_z"]
+    rows = np.round(np.tan(est) * w / dy).astype(int)
+    switch = np.flatnonzero(np.diff(rows))
+    assert rows[0] == -2 and rows[-1] == 2 and np.all(np.diff(rows) >= 0)
+    at = (az[switch] + az[switch + 1]) / 2 / step  # switch points [steps]
+    np.testing.assert_allclose(at, [-1.5, -0.5, 0.5, 1.5], rtol=0, atol=0.05)
 
 
 @pytest.mark.parametrize("ax, ay", [(3.0, 0.0), (3.0, 2.0), (8.0, 0.0), (8.0, -2.0)])

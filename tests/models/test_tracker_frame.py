@@ -245,10 +245,12 @@ def test_short_a_arc_drives_origin_and_offset():
     assert u[20.0]["sq_xy_1"] == pytest.approx(u[180.0]["sq_xy_1"], rel=1e-6)
 
 
-@pytest.mark.parametrize("arc,factor_z,factor_offset", [(20.0, 10.0, 5.0), (60.0, 3.0, 1.5)])
+@pytest.mark.parametrize("arc,factor_z,factor_offset", [(20.0, 10.0, 5.0), (60.0, 2.5, 1.5)])
 def test_angles_beats_patent_on_short_a_arcs(arc, factor_z, factor_offset):
     # Monte Carlo, all default sources (the rotary positioning error included, which only
-    # angles feels): the std of origin_z and ac_offset of patent over that of angles
+    # angles feels; the structure's temperature adds the same 13.5 um to origin_z of both,
+    # which narrows the ratio at 60 deg from 3.3 to 3.1): the std of origin_z and
+    # ac_offset of patent over that of angles
     # exceeds the stated factor by more than 4 standard errors of the ratio (common
     # random numbers make the ratio's error smaller than 1 / sqrt(n - 1); taken as that).
     setup = PROC.Setup(a_arc_deg=arc)

@@ -394,7 +394,34 @@ def _start(fwd, theta0, mode, sigma, notes) -> _Fit:
             break
         theta0 = fit.theta
     notes.extend(fit.budget.notes)
+    notes.extend(_near_bounds(fwd, fit))
     return fit
+
+
+#: an estimate within this share of its allowed range from a bound is flagged
+NEAR_BOUND = 0.01
+
+
+def _near_bounds(fwd, fit: _Fit) -> list[str]:
+    """Notes for the least-squares values that sit at or near an assumed hard bound (a
+    Truth field's range, a bounded source's distribution): there the prior, not the
+    readings, decides, and the result may be pulled by the bound."""
+    b, out = fwd.builder, []
+    rows = [(p.name, v, p.low, p.high) for p, v in zip(b.params, fit.theta, strict=True)]
+    pri = _nuisance_priors(fit.budget)
+    labels = [f"{name}[{i}]" if src.size > 1 else name for name, src in fit.budget.nuisance
+              for i in range(src.size)]
+    rows += [(lab, v, lo, hi) for lab, v, (_, _, lo, hi) in zip(labels, fit.nuis, pri,
+                                                                 strict=True)]
+    for name, value, lo, hi in rows:
+        if not (np.isfinite(lo) and np.isfinite(hi)) or hi <= lo:
+            continue
+        if min(value - lo, hi - value) <= NEAR_BOUND * (hi - lo):
+            side = "lower" if value - lo < hi - value else "upper"
+            out.append(f"{name} = {value:.6g} lies at or near the {side} bound of its assumed "
+                       f"range [{lo:.6g}, {hi:.6g}]: the bound, not the readings, may decide "
+                       "it; check the set-up's stated range")
+    return out
 
 
 # --------------------------------------------------------------------------- what is sampled

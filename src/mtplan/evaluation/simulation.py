@@ -218,6 +218,22 @@ def check_memory(proc, setup, truth, estimator, active, *, block_size: int, n_jo
             "lines or positions) or use fewer jobs."])
 
 
+def _quantised(proc, setup, estimator, measurands, mc) -> None:
+    """A measurand of a quantised estimator whose Monte Carlo interval has zero width (it
+    never left its step): where the procedure states the step q, u = q / sqrt(12) (the
+    rounding error, uniform over a step, as where the truth lies is not known) and the
+    interval is the mean +- coverage * q / 2, never u = 0 (`mc` is changed in place). A
+    zero width without a stated step (a source that does not act, with --sources) stays,
+    and :meth:`ProcedureResult.findings` names it."""
+    steps = proc.resolution(setup, estimator) if proc.resolution is not None else {}
+    for i, m in enumerate(measurands):
+        q = steps.get(m.name)
+        if q and not mc.high[i] > mc.low[i]:
+            q = q * m.scale
+            mc.std[i] = q / np.sqrt(12.0)
+            mc.low[i], mc.high[i] = mc.mean[i] - mc.coverage * q / 2, mc.mean[i] + mc.coverage * q / 2
+
+
 def simulate_uncertainty(
     procedure,
     setup=None,
@@ -288,6 +304,7 @@ def simulate_uncertainty(
         progress=progress,
         label=proc.name,
     )
+    _quantised(proc, setup, est_name, measurands, mc)
     tv = proc.display_truth(setup, truth)
     return ProcedureResult(
         procedure=proc.name,

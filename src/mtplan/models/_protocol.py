@@ -76,7 +76,7 @@ UNITS = {
 }
 UNIT_SUFFIXES = ("mm", "um", "nm", "rad", "mrad", "urad", "deg", "arcsec", "ppm", "s", "ms", "c",
                  "um_per_m", "urad_per_m", "mm_min", "per_s", "um_per_s", "urad_per_s",
-                 "um_per_deg", "urad_per_deg", "um_per_h", "ppm_per_h")
+                 "um_per_deg", "urad_per_deg", "um_per_h", "ppm_per_h", "k_per_m")
 
 
 @dataclass(frozen=True)
@@ -565,6 +565,10 @@ class Procedure:
     #: readings table determines (``df`` as read from the file: numeric columns as floats,
     #: rows in the file's order, optional columns possibly absent)
     setup_from_frame: Callable | None = None
+    #: optional ``resolution(setup, estimator) -> {measurand: step}``: the steps [internal
+    #: unit] in which an estimator's values come (a quantised estimator): where its Monte
+    #: Carlo interval has zero width, ``simulate`` states u = step / sqrt(12)
+    resolution: Callable | None = None
 
     # ----------------------------------------------------------------- helpers
     @property

@@ -77,12 +77,18 @@ Forward model (:func:`forward`, batch-first)
   about ``delta (e/r)^2`` for a planner's centre off by e); tangential slip along the
   wall ``c * gamma`` with gamma the signed angle between the approach and the wall
   normal.
-- Temperature: the bore is at ``20 degC + dT``; its radius is the 20 degC radius times
-  ``1 + alpha dT`` (``alpha = expansion_ppm_per_k``, 11.5e-6/K for steel), growing
-  about its centre, and the estimates are not corrected to 20 degC (ISO 1). At the
-  default (+-2 K, rectangular) that is 250 mm x 11.5e-6/K x 1.15 K = 3.3 um of
-  standard uncertainty in the radius and nothing in the centre: the wall stays a
-  circle about the same centre, and three points on a circle give its centre exactly.
+- Temperature, two sources: the part is at ``20 degC + dT_part``, the stage's scales at
+  ``20 degC + dT_part + dT_scale``. The bore's radius is the 20 degC radius times
+  ``1 + alpha_part dT_part`` (``alpha_part = expansion_ppm_per_k``, 11.5e-6/K for
+  steel), growing about its centre; the scales read every length short by
+  ``alpha_scale (dT_part + dT_scale)`` (``scale_expansion_ppm_per_k``, 10e-6/K), about
+  the stage's datum at the nominal centre. The estimates are not corrected to 20 degC
+  (ISO 1), so the radius reads ``r (alpha_part dT_part - alpha_scale dT_scale_total)``
+  off: at the defaults (part +-2 K, scales +-1 K from the part) 250 mm x (1.5e-6/K x
+  1.15 K, 10e-6/K x 0.58 K) = 0.43 and 1.44 um of standard uncertainty, where a single
+  temperature times the part's coefficient gave 3.3 um. The centre moves only by the
+  scales' strain times its offset from the nominal centre (nanometres): the wall stays
+  a circle about the same centre, and three points on a circle give its centre exactly.
 - p1 and p2 are probed along -y and +y with the same probe model; the planner uses
   the read values, so their errors move the targets.
 
@@ -175,12 +181,21 @@ class Setup(SetupBase):
                                  "calibrated effective tip radius, one per test (the radius is "
                                  "calibrated on a setting ring whose diameter is known to about "
                                  "1 um, ISO 1938-1 / DIN 2250-1 setting rings)", low=0, high=1000)
-    bore_temperature_c: float = param(2.0, doc="Half-width of the (rectangular) deviation of "
-                                      "the bore's temperature from 20 degC, the reference "
+    part_temperature_c: float = param(2.0, doc="Half-width of the (rectangular) deviation of "
+                                      "the part's temperature from 20 degC, the reference "
                                       "temperature of ISO 1; the estimates are not corrected "
                                       "for it (a workshop held at 20 +- 2 degC)", low=0, high=50)
     expansion_ppm_per_k: float = param(11.5, doc="Linear thermal expansion coefficient of the "
                                        "workpiece [1e-6/K]; 11.5: steel", low=0, high=100)
+    scale_temperature_c: float = param(1.0, doc="Half-width of the (rectangular) difference of "
+                                       "the machine scales' temperature from the part's (0 "
+                                       "when part and machine share one temperature; larger "
+                                       "for a part that arrives warmer or colder)", low=0,
+                                       high=50)
+    scale_expansion_ppm_per_k: float = param(10.0, doc="Linear thermal expansion coefficient of "
+                                             "the stage's scales [1e-6/K]; 10: steel-mounted "
+                                             "glass or steel scales (about 0 for glass-ceramic "
+                                             "scales)", low=0, high=100)
     start_scatter_mm: float = param(25.0, doc="Half-width per axis of the uniform scatter of "
                                     "the start point about the truth's start", low=0,
                                     high=10_000)
@@ -251,7 +266,6 @@ def sources(setup: Setup) -> dict[str, Source]:
     scale = setup.scale_error_ppm * 1e-6
     sq = setup.squareness_urad * 1e-6
     s = setup.start_scatter_mm
-    strain = setup.expansion_ppm_per_k * 1e-6 * setup.bore_temperature_c
     return {
         "probe_noise": Source(
             Normal(0.0, setup.probe_noise_um * 1e-3), (k,),
@@ -292,13 +306,33 @@ def sources(setup: Setup) -> dict[str, Source]:
             "Error of the calibrated effective tip radius, one per test: every recorded point "
             "lies that far beyond the wall along its approach. 0.5 um std: the radius is "
             "calibrated on a setting ring (ISO 1938-1) known to about 1 um in diameter."),
-        "bore_temperature": Source(
-            Rectangular(-strain, strain), (),
-            "Thermal strain of the bore, expansion_ppm_per_k x (temperature - 20 degC), the "
-            "temperature uniform within +-bore_temperature_c (default +-2 K: a workshop held at "
-            "20 +- 2 degC; 11.5e-6/K: steel); the bore grows about its centre and the estimates "
-            "are not corrected to 20 degC (ISO 1)."),
+        "part_temperature": Source(
+            Rectangular(-setup.part_temperature_c, setup.part_temperature_c), (),
+            "The part's temperature minus 20 degC [K], uniform within +-part_temperature_c "
+            "(default +-2 K: a workshop held at 20 +- 2 degC, ISO 1's reference temperature; "
+            "the estimates are not corrected to 20 degC). The bore grows about its centre by "
+            "expansion_ppm_per_k (11.5e-6/K: steel); the scales share this temperature (plus "
+            "scale_temperature) and shrink their reading by scale_expansion_ppm_per_k (10e-6/K: "
+            "the coefficient HEIDENHAIN states for its steel-mounted linear scales), so the "
+            "radius reads r (alpha_part dT_part - alpha_scale dT_scale) off: "
+            "(11.5 - 10) ppm/K when part and machine share one temperature."),
+        "scale_temperature": Source(
+            Rectangular(-setup.scale_temperature_c, setup.scale_temperature_c), (),
+            "The machine scales' temperature minus the part's [K], uniform within "
+            "+-scale_temperature_c. Default +-1 K: a part soaked on the machine for hours (ISO/TR "
+            "16015 advises soaking until part and machine agree within a kelvin); a part that "
+            "arrives from a warmer hall needs more. The scales read actual lengths times "
+            "1 - scale_expansion_ppm_per_k x dT_scale, about the stage's datum at the nominal "
+            "centre: the radius, and the centre by that strain times its offset from the "
+            "nominal one (nanometres)."),
     }
+
+
+def _scale_strain(setup: Setup, errors: dict, n: int) -> np.ndarray:
+    """Thermal strain of the stage's scales (n,): alpha_scale (dT_part + dT_scale) [1]."""
+    dt = (np.asarray(errors["part_temperature"], dtype=float).reshape(n)
+          + np.asarray(errors["scale_temperature"], dtype=float).reshape(n))
+    return setup.scale_expansion_ppm_per_k * 1e-6 * dt
 
 
 # --------------------------------------------------------------------------- geometry
@@ -311,7 +345,8 @@ def _wall(setup, truth, errors, n):
     (n,): one truth per batch row (a posterior's walkers).
     """
     centre = np.broadcast_to(_xy_of(truth.centre_x_mm, truth.centre_y_mm), (n, 2))
-    strain = np.asarray(errors["bore_temperature"], dtype=float).reshape(n)
+    strain = setup.expansion_ppm_per_k * 1e-6 * np.asarray(errors["part_temperature"],
+                                                           dtype=float).reshape(n)
     radius = (setup.bore_radius_mm + np.asarray(truth.radius_deviation_mm)) * (1.0 + strain)
     form = np.asarray(errors["roundness"], dtype=float).reshape(n, 2)
     return centre, radius, form, setup.lobes
@@ -451,9 +486,11 @@ def _probe(setup, errors, contact, normal, direction, idx):
                      contact[..., 1] + along * uy + slip * nx], axis=-1)
 
 
-def _stage(errors, n):
-    """M (n,2,2): actual = M @ read, and its inverse."""
-    sc = np.asarray(errors["scale_error"], dtype=float).reshape(n, 2)
+def _stage(errors, n, thermal=0.0):
+    """M (n,2,2): actual = M @ read, and its inverse; `thermal` (n,) is the scales' thermal
+    strain, added to both axes' scale errors."""
+    sc = np.asarray(errors["scale_error"], dtype=float).reshape(n, 2) + np.reshape(thermal,
+                                                                                  (-1, 1))
     sq = np.asarray(errors["squareness"], dtype=float).reshape(n)
     m = np.zeros((n, 2, 2))
     m[:, 0, 0] = 1 + sc[:, 0]
@@ -506,7 +543,7 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     _check_start(setup, truth)
     n = np.asarray(errors["probe_noise"]).shape[0]
     centre, radius, form, lobes = _wall(setup, truth, errors, n)
-    m, minv = _stage(errors, n)
+    m, minv = _stage(errors, n, _scale_strain(setup, errors, n))
     rep = np.asarray(errors["stage_repeatability"], dtype=float).reshape(n, -1, 2)
 
     def apply(mat, q):  # (n, 2, 2) @ (n, k, 2), written out: faster than einsum
@@ -621,7 +658,11 @@ def _radial_covariance(setup: Setup, u, approach, radius) -> np.ndarray:
             sd["roundness"] * np.cos(k * phi), sd["roundness"] * np.sin(k * phi),
             sd["scale_error"] * x * u[..., 0], sd["scale_error"] * y * u[..., 1],
             sd["squareness"] * y * u[..., 0],
-            sd["bore_temperature"] * radius[..., None] * np.ones_like(phi)]
+            sd["part_temperature"] * 1e-6 * (setup.expansion_ppm_per_k
+                                             - setup.scale_expansion_ppm_per_k)
+            * radius[..., None] * np.ones_like(phi),
+            sd["scale_temperature"] * 1e-6 * setup.scale_expansion_ppm_per_k
+            * radius[..., None] * np.ones_like(phi)]
     v = np.stack(cols, axis=-1)
     diag = (sd["probe_noise"] * cos_au) ** 2 + sd["stage_repeatability"] ** 2
     cov = v @ np.swapaxes(v, -1, -2)

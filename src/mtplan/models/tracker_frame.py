@@ -326,6 +326,17 @@ class Setup(SetupBase):
     rotary_positioning_arcsec: float = param(
         5.0, doc="Standard deviation of the A and C axes' angular positioning at each arc "
         "point (actual minus commanded angle)", low=0, high=36000)
+    structure_temperature_c: float = param(
+        2.0, doc="Half-width (rectangular) of the bed's and gantry's temperature minus 20 degC, "
+        "the reference temperature of the marks' stated coordinates (ISO 1): the structure "
+        "grows about the marks' centroid and the frame is not corrected for it", low=0,
+        high=50)
+    structure_expansion_ppm_per_k: float = param(
+        11.5, doc="Linear thermal expansion coefficient of the bed and gantry [1e-6/K] (steel "
+        "weldments 11.5; cast iron 10-11)", low=0, high=100)
+    temperature_gradient_k_per_m: float = param(
+        0.5, doc="Standard deviation of the vertical gradient of the air's temperature along "
+        "the beams, one per test [K/m]: it bends every beam (refraction)", low=0, high=20)
     dwell_s: float = param(3.0, doc="Settling and tracker averaging per point", low=0)
     linear_feed_mm_min: float = param(3000.0, doc="Feed of the linear moves", low=0, low_open=True)
     rotary_move_s: float = param(3.0, doc="Time to index a rotary axis to the next arc point",
@@ -764,6 +775,23 @@ def sources(setup: Setup) -> dict[str, Source]:
             "circles and so where their axes lie across a short arc. Default +-50 um "
             "(rectangular) for an uncalibrated fixture: arm machined to +-50 um, the nest's "
             "height to +-50 um, the spindle's orientation stop +-0.02 deg at 150 mm."),
+        "structure_temperature": Source(
+            Rectangular(-setup.structure_temperature_c, setup.structure_temperature_c), (),
+            "Temperature of the bed and gantry minus 20 degC, one per test [K], uniform within "
+            "+-structure_temperature_c: the marks' coordinates are stated at 20 degC (ISO 1), "
+            "the structure and everything on it stand expanded by structure_expansion_ppm_per_k "
+            "x dT about the marks' centroid, and the registration on the stated marks keeps "
+            "that scale: a sub-machine 1 m from the centroid moves by 13 um at the default "
+            "(11.5e-6/K x 1 m x 1.15 K). Default +-2 K: a machine hall held at 20 +- 2 degC."),
+        "temperature_gradient": Source(
+            Normal(0.0, setup.temperature_gradient_k_per_m), (),
+            "Vertical gradient G of the air's temperature over the hall, one per test [K/m]. "
+            "The refractive index falls by 0.93 ppm/K (Edlen), so a beam bends with curvature "
+            "0.93e-6 G per metre and the tracker sees a target at horizontal distance D "
+            "raised by 0.93e-6 G D^2 / 2 (7.4 um at 4 m for 1 K/m): an elevation error "
+            "0.93e-6 G D / 2. Default 0.5 K/m (standard deviation): halls without displacement "
+            "ventilation stratify by 0.5-1 K/m (Estler et al., Large-scale metrology - an "
+            "update, CIRP Annals 51/2, 2002)."),
         "rotary_positioning": Source(
             Normal(0.0, setup.rotary_positioning_arcsec * math.pi / 648000), (q,),
             "Angular positioning error of the A and C axes at each arc point (actual minus "
@@ -773,6 +801,9 @@ def sources(setup: Setup) -> dict[str, Source]:
             "20 arcsec (+-2 s) for the rotary axes of the swivel heads of such gantries."),
     }
 
+
+#: change of the air's refractive index per kelvin (Edlen) [1/K]
+_DN_DT = 0.93e-6
 
 #: weights of the per-test angle-error terms (horizontal: encoder 1st and 2nd harmonic,
 #: collimation, trunnion tilt; vertical: index, encoder eccentricity) so that the
@@ -808,6 +839,10 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     rate = np.asarray(errors["thermal_drift"])
     if np.any(rate):
         pts = pts + rate[:, None, :] * _times(setup)[0][:, None]
+    grow = np.asarray(errors["structure_temperature"], dtype=float).reshape(-1, 1, 1)
+    if np.any(grow):  # the structure at 20 degC + dT, about the marks' centroid
+        centroid = marks.mean(axis=0)
+        pts = pts + (setup.structure_expansion_ppm_per_k * 1e-6 * grow) * (pts - centroid)
     r, t = _tracker_pose(setup, truth)
     v = (pts - t[..., None, :]) @ r  # tracker-frame coordinates: R^T (p - t), row vectors
     horiz = np.hypot(v[..., 0], v[..., 1])
@@ -822,6 +857,9 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     dist = dist + smr[..., 0]
     daz = (tf[..., 0] / d + tl[..., 0] + smr[..., 1] / d) * d / horiz
     d_el = tf[..., 1] / d + tl[..., 1] + smr[..., 2] / d
+    grad = np.asarray(errors["temperature_gradient"], dtype=float).reshape(-1, 1)
+    if np.any(grad):  # beam bending: the target seen raised by 0.93e-6 G D^2 / 2
+        d_el = d_el + (_DN_DT * 1e-3 / 2) * grad * horiz
     sys = np.asarray(errors["angular_systematic"])
     if np.any(sys):
         s_az, s_el = _systematic_angles(sys, az, el)

@@ -36,6 +36,7 @@ from mtplan.models.geometry21 import (
     _geometry,
     _joint_ident,
     _param_names,
+    _repeatability_filter,
     _theta_patent,
     _truth_coefficients,
     forward,
@@ -164,6 +165,11 @@ def _source_factors(setup: Setup, estimator: str, truth: Truth | None, only) -> 
     for name, src in active.items():
         if name in _WHITE:
             out[name] = _linear_map(setup, estimator, truth) * float(src.distribution.std)
+            f = _repeatability_filter(setup) if name == "repeatability" else None
+            if f is not None:  # correlated along the path: the map times the filter
+                a = out[name].reshape(out[name].shape[0], -1, 2)
+                out[name] = np.stack([(f.T @ a[:, :, c].T).T for c in range(2)],
+                                     axis=2).reshape(a.shape[0], -1)
         else:
             size = int(np.prod(srcs[name].shape, dtype=np.int64))
             out[name] = resp[:, pos: pos + size]

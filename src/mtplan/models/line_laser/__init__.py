@@ -91,7 +91,14 @@ Estimators
   overlap is the *fraction* of agreeing points of the common part (the seed says the
   amount of coinciding data; a raw count favours ``n = 0`` because the common part
   shrinks with ``|n|``, so we normalise). ``l_z = n1 dy``, ``alpha_z = arctan(l_z/w)``:
-  **quantised** in steps of about ``dy/w``.
+  **quantised** in steps of about ``dy/w``. ``n1`` is the whole shift *nearest* the true
+  one, as the seed means: the binarised overlap is a staircase whose steps sit where the
+  facets' edges cross the rows, so its argmax alone switched up to 0.64 step off the
+  half-way points, wherever the artifact lay; the overlap's best shift is refined within
+  the two row intervals beside it (rows interpolated linearly, the centred sum of squared
+  differences minimised in closed form) and rounded (:func:`_nearest_row`), which puts
+  the switch points at +-1/2 step wherever the artifact lies (tested to 0.05 step).
+  ``simulate`` states its u as ``step / sqrt(12)`` (:func:`resolution`), never 0.
 - ``l_y`` is the mean height difference (scan 1 minus scan 2) over the common part
   aligned by ``w`` and ``n1``, ``alpha_y = arctan(l_y/w)``. The seed fixes no sign
   convention; the signs here make both formulas right to first order in this
@@ -980,6 +987,12 @@ def observability(setup) -> dict:
     return {"patent": patent, "registration": reg, "pattern": pattern}
 
 
+def resolution(setup, estimator: str) -> dict:
+    """The steps [rad] in which `estimator`'s values come: the patent's alpha_z is a whole
+    row shift, in steps of ``arctan(dy / w)``; the others are continuous (empty)."""
+    return {"alpha_z": math.atan(setup.step_mm / _shift(setup))} if estimator == "patent" else {}
+
+
 @functools.lru_cache(maxsize=64)
 def _registration_check(setup) -> tuple[bool, str]:
     """Whether the registration works at `setup`: the facets must be resolved (three
@@ -1169,4 +1182,5 @@ PROCEDURE = Procedure(
     levers=tuple("points_per_line step_mm lines shift_fraction raise_mm max_shift_rows "
                  "scan_feed_mm_min rapid_mm_min settle_s".split()),
     setup_from_frame=setup_from_frame,
+    resolution=resolution,
 )

@@ -89,6 +89,45 @@ def _coarse(setup, a, b, shift):
     return out
 
 
+def _nearest_row(setup, a, b, cols, coarse):
+    """The whole row shift nearest the true one, (n,) int, near the overlap's best `coarse`.
+
+    The overlap of binarised scans is a staircase in the true shift: its steps lie where
+    the facets' edges cross the rows, so which whole shift scores best depends on where
+    the artifact lies (the switch points sat up to 0.64 step off the half-way points).
+    The seed wants the nearest step (``l_z = n1 dy``). So the shift is located within the
+    two row intervals beside `coarse`: scan 1's rows interpolated linearly to a shift
+    ``k + f`` (0 <= f <= 1) make the centred sum of squared height differences a quadratic
+    in f, minimised in closed form; the better interval's ``k + f``, rounded, is n1.
+    Symmetric interpolation is unbiased at f = 1/2, so the switch points sit at half a
+    step wherever the artifact lies.
+    """
+    nmax, lines = setup.max_shift_rows, setup.lines
+    n = a.shape[0]
+    best_cost = np.full(n, np.inf)
+    best_shift = coarse.astype(float)
+    for lo in (-1, 0):
+        k = np.clip(coarse + lo, -nmax, nmax - 1)
+        for kk in np.unique(k):
+            rows = np.flatnonzero(k == kk)
+            # b row j against a rows j - kk (f = 0) and j - kk - 1 (f = 1)
+            jb = slice(max(0, kk + 1), lines + min(0, kk))
+            j0 = slice(jb.start - kk, jb.stop - kk)
+            j1 = slice(jb.start - kk - 1, jb.stop - kk - 1)
+            d = (a[rows][:, j0][:, :, cols] - b[rows][:, jb][:, :, cols]).reshape(len(rows), -1)
+            e = (a[rows][:, j1][:, :, cols] - a[rows][:, j0][:, :, cols]).reshape(len(rows), -1)
+            d = d - d.mean(axis=1, keepdims=True)
+            e = e - e.mean(axis=1, keepdims=True)
+            s0, s1, s2 = (d * d).sum(1), (d * e).sum(1), (e * e).sum(1)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                f = np.clip(np.where(s2 > 0, -s1 / s2, 0.0), 0.0, 1.0)
+            cost = (s0 + 2 * f * s1 + f * f * s2) / d.shape[1]
+            better = cost < best_cost[rows]
+            best_cost[rows[better]] = cost[better]
+            best_shift[rows[better]] = kk + f[better]
+    return np.clip(np.floor(best_shift + 0.5), -nmax, nmax).astype(int)
+
+
 def estimate_patent(setup, readings) -> dict:
     """The seed's estimator: integer row shift, mean differences, arccos(h/h').
 
@@ -109,9 +148,9 @@ def estimate_patent(setup, readings) -> dict:
     b = z[:, 1]
     fracs, diffs = _row_search(setup, a, b, cols)
     best = np.argmax(fracs, axis=1)
-    n1 = best - setup.max_shift_rows
+    n1 = _nearest_row(setup, a, b, cols, best - setup.max_shift_rows)
     l_z = n1 * setup.step_mm
-    l_y = np.take_along_axis(diffs, best[:, None], axis=1)[:, 0]
+    l_y = np.take_along_axis(diffs, (n1 + setup.max_shift_rows)[:, None], axis=1)[:, 0]
     h_prime = (z[:, 1] - z[:, 2]).mean(axis=(1, 2))
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.clip(h / h_prime, -1.0, 1.0)

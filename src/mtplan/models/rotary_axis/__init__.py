@@ -95,8 +95,16 @@ Error sources (each a set-up field; 0 switches it off)
 ``z_positioning`` (per reading: repeatability of the slides), ``flatness`` (form of the
 incline, per test), ``thermal_drift`` (linear drift of sensor against table over the
 test's time line from :func:`schedule`), ``radial_motion``, ``axial_motion`` and
-``tilt_motion`` (error motions of the rotary axis, per position), and
-``angular_positioning`` (per position). :func:`sources` says where each default comes from.
+``tilt_motion`` (error motions of the rotary axis, per position), ``angular_positioning``
+(a smooth, repeatable function of the commanded angle: first and second harmonics per
+axis, ISO 230-2's systematic positioning error) with ``angular_repeatability`` (its random
+part, per position), ``sensor_orientation`` (the sensor's angle influence that varies with
+the azimuth of the incline under it: first and second harmonics of that azimuth, a height
+offset per position; it moves the axis sideways by about ``e / tan(incline)`` and
+dominates the positions at its default, 6.9 um of u(EX0C) against 1.27 without it), and
+the artifact's real pose (``artifact_tilt``: normal, no hard bound, since the readings
+determine it; ``artifact_height_error``). :func:`sources` says where each default comes
+from.
 A drift that is linear in time is the first-order model of ISO 230-3; it is the only
 error whose effect depends on the measuring order. At the default rate the order hardly
 matters (A axis, drift alone: u(EZ0A) 0.218 um ascending, 0.202 um in the seed's order;
@@ -161,7 +169,12 @@ the axial error motion of each position reads as a lateral offset of
 axis along its arc is poorly determined (EB0A ~ 58 urad at +-45 deg, ~530 urad at
 +-15 deg), and the angular positioning error has no effect at all on these three.
 
-``angles``: the ``gls`` fit with the azimuths tied to the commanded angles: position
+``angles`` (its figures below are those of per-position positioning errors; with the
+smooth positioning error the tie cannot average the systematic part, and at its default
+5 arcsec u(EB0A) is 35.7 urad against gls's 58.5, u(EA0C) 8.04 against 10.7, but A's
+EC0A 14.0 against 13.8, and 27.8 against 23.6 with the fall line at 60 deg; the Monte
+Carlo holds the smooth error, so its u stays honest as long as the stated bound is):
+the ``gls`` fit with the azimuths tied to the commanded angles: position
 p's azimuth is ``phi0 + theta_p``, ``theta_p`` the commanded angle, ``phi0`` one free
 common zero (it takes up the artifact's azimuth and a zero error of the encoder), so the
 fit has seven parameters per axis in place of 6 + positions: Gauss-Newton on the whole
@@ -315,11 +328,11 @@ class Setup(SetupBase):
                                     "at each reading [um]", low=0, high=1000)
     flatness_um: float = param(2.0, doc="Flatness of the incline over the lattice, peak to "
                                "valley [um]", low=0, high=1000)
-    artifact_tilt_urad: float = param(2000.0, doc="Half-width (rectangular) of each of the two "
-                                      "tilts of the artifact's real plane from its nominal "
-                                      "incline and azimuth [urad]: the plane is clamped by eye, "
-                                      "not calibrated; the seed's method does not need it",
-                                      low=0, high=1e5)
+    artifact_tilt_urad: float = param(5000.0, doc="Standard deviation (normal, no hard "
+                                      "bound) of each of the two tilts of the artifact's real "
+                                      "plane from its nominal incline and azimuth [urad]: the "
+                                      "plane is clamped by eye, not calibrated; the seed's "
+                                      "method does not need it", low=0, high=1e5)
     artifact_height_error_um: float = param(100.0, doc="Half-width (rectangular) of the "
                                             "artifact's real height from the nominal "
                                             "artifact_height_mm [um] (fixture drawing and "
@@ -333,9 +346,22 @@ class Setup(SetupBase):
                                    "valley [um]", low=0, high=1000)
     tilt_motion_urad: float = param(10.0, doc="Tilt error motion of the rotary axis, peak to "
                                     "valley per direction [urad]", low=0, high=1e4)
-    angular_positioning_arcsec: float = param(5.0, doc="Half-width of the rotary axis's "
-                                              "angular positioning error (rectangular) "
-                                              "[arcsec]", low=0, high=3600)
+    angular_positioning_arcsec: float = param(5.0, doc="Bound of the rotary axis's "
+                                              "systematic angular positioning error, a smooth "
+                                              "and repeatable function of the commanded angle "
+                                              "(first and second harmonics, each of amplitude "
+                                              "up to half the bound) [arcsec]", low=0,
+                                              high=3600)
+    angular_repeatability_arcsec: float = param(1.0, doc="Standard deviation of the rotary "
+                                                "axis's random positioning error at each "
+                                                "position (ISO 230-2 repeatability R = 4 s) "
+                                                "[arcsec]", low=0, high=3600)
+    sensor_orientation_ppm: float = param(1200.0, doc="Bound of the part of the sensor's "
+                                          "angle influence that varies with the azimuth of "
+                                          "the incline under it, in ppm of the measuring "
+                                          "range (first and second harmonics in the azimuth, "
+                                          "each of amplitude up to half the bound) [ppm]",
+                                          low=0, high=1e5)
     dwell_s: float = param(0.5, doc="Settling and reading time per lattice point [s]", low=0,
                            high=600)
     feed_mm_min: float = param(2000.0, doc="Feed of the X/Y moves between points [mm/min]",
@@ -539,6 +565,8 @@ class _Plan(NamedTuple):
     fit: np.ndarray  # its pseudo-inverse, transposed (M, 3): heights -> (h, a, b)
     gram: np.ndarray  # local^T local summed over points: (3, 3)
     form: np.ndarray  # height per unit form coefficient, (K, P*M) [1]
+    harmonics: np.ndarray  # [cos t, sin t, cos 2t, sin 2t] of the commanded angles (4, P)
+    orientation: np.ndarray  # the same of the fall line's azimuth under the sensor (4, P)
     times: np.ndarray  # time of each reading from the start (P, M) [s]
     total_time: float  # [s]
 
@@ -571,6 +599,19 @@ def _form_basis(setup: Setup, axis: str, angles: np.ndarray, xy: np.ndarray,
                       xi**3 / 2, eta**3 / 2], axis=-1)
     nz = (rot @ n0)[:, 2]
     return (basis / nz[:, None, None]).reshape(-1, basis.shape[-1])
+
+
+def _harmonics(angle: np.ndarray) -> np.ndarray:
+    """First and second harmonics of `angle` (P,) [rad]: (4, P), cos, sin, cos 2, sin 2."""
+    return np.stack([np.cos(angle), np.sin(angle), np.cos(2 * angle), np.sin(2 * angle)])
+
+
+def _fall_azimuths(setup: Setup) -> np.ndarray:
+    """Azimuth from +X of the nominal incline's fall line at every position (P,) [rad]."""
+    n0 = _incline_normal(setup)
+    normals = np.concatenate([_nominal_rotations(a, np.deg2rad(setup.axis_angles(a))) @ n0
+                              for a in setup.axes])
+    return np.arctan2(normals[:, 1], normals[:, 0])
 
 
 def _times(setup: Setup, xy: np.ndarray) -> tuple[np.ndarray, float]:
@@ -611,6 +652,8 @@ def _plan(setup: Setup) -> _Plan:
         fit=np.ascontiguousarray(fit),
         gram=local @ local.T,
         form=np.ascontiguousarray(form.T),  # (K, P*M)
+        harmonics=_harmonics(np.deg2rad(setup.angles())),
+        orientation=_harmonics(_fall_azimuths(setup)),
         times=times,
         total_time=total,
     )
@@ -742,12 +785,14 @@ def sources(setup: Setup) -> dict[str, Source]:
             "valley is about flatness_um. Default 2 um: DIN 876 grade 00 / ISO 8512 for a "
             "lapped face of 100-150 mm (2 (1 + L/1000) um)."),
         "artifact_tilt": Source(
-            rect(setup.artifact_tilt_urad * 1e-6), (2,),
+            Normal(0.0, setup.artifact_tilt_urad * 1e-6), (2,),
             "Tilts of the artifact's real plane from the nominal one, one pair per test: [0] "
             "about the line across the fall line (the incline angle), [1] about the fall line. "
-            "Default +-2 mrad (0.1 deg): an inclined plane clamped on the table by eye; the "
-            "seed's method (and joint, gls) fit each lattice's plane and never use the nominal "
-            "incline, a posterior must not take it as exact."),
+            "Normal, standard deviation 5 mrad (0.3 deg) by default: an inclined plane clamped "
+            "on the table by eye is easily 5-20 mrad off. No hard bound: the readings "
+            "determine the real plane, so a bounded prior would pull the axis when the plane "
+            "lies beyond it. Every estimator fits each lattice's plane and never uses the "
+            "nominal incline; a posterior must not take it as exact."),
         "artifact_height_error": Source(
             rect(setup.artifact_height_error_um * um), (),
             "Real height of the incline's reference point above its nominal, one per test. "
@@ -774,11 +819,36 @@ def sources(setup: Setup) -> dict[str, Source]:
             "value. Default 10 urad (2 arcsec): wobble specifications of precision rotary "
             "tables (1-5 arcsec)."),
         "angular_positioning": Source(
-            rect(setup.angular_positioning_arcsec * _ARCSEC), (P,),
-            "Angular positioning error of the rotary axis at each position, uniform. Default "
-            "+-5 arcsec: ISO 230-2 positioning accuracy of rotary axes with direct angle "
-            "encoders. patent, joint and gls do not use the angles; angles does, and trusts "
-            "this value (its weight)."),
+            rect(setup.angular_positioning_arcsec * _ARCSEC / (2 * math.sqrt(2))),
+            (len(setup.axes), 4),
+            "Systematic angular positioning error of each rotary axis tested, a smooth and "
+            "repeatable function of the commanded angle theta: a1 cos theta + b1 sin theta + "
+            "a2 cos 2 theta + b2 sin 2 theta (per axis [a1, b1, a2, b2]), each coefficient "
+            "uniform within +-bound / (2 sqrt 2), so each harmonic's amplitude is at most half "
+            "the bound and the error at most the bound. ISO 230-2 finds positioning errors of "
+            "rotary axes dominated by such low orders (eccentricity of the encoder: the first "
+            "harmonic; its ellipticity: the second). Default 5 arcsec: the positioning "
+            "accuracy of rotary tables with direct angle encoders (trunnion A axes are often "
+            "10-30 arcsec: state yours). patent, joint and gls do not use the angles."),
+        "angular_repeatability": Source(
+            Normal(0.0, setup.angular_repeatability_arcsec * _ARCSEC), (P,),
+            "Random part of the angular positioning error at each position (standard "
+            "deviation). Default 1 arcsec: ISO 230-2 unidirectional repeatability R = 4 s of "
+            "about 2-4 arcsec of rotary tables with direct angle encoders."),
+        "sensor_orientation": Source(
+            rect(setup.sensor_orientation_ppm * 1e-6 / (2 * math.sqrt(2))), (4,),
+            "The sensor's angle influence that varies with the azimuth psi of the incline's "
+            "fall line under the fixed sensor (its triangulation plane is fixed on the Z "
+            "slide, the incline turns under it): a height error of every reading at a "
+            "position, range * (a1 cos psi + b1 sin psi + a2 cos 2 psi + b2 sin 2 psi), "
+            "each coefficient uniform within +-bound / (2 sqrt 2), as a fraction of the "
+            "measuring range sensor_range_mm. Default 1200 ppm (0.12 % of the range): "
+            "Micro-Epsilon's operating instructions for optoNCDT 1700 and 2300 give an "
+            "apparent distance change of typ. 0.12-0.2 % of the measuring range for tilts of "
+            "5-15 deg (0.5 % for 15-30 deg), the same about either axis; the part common to "
+            "every azimuth does not move the axis, so the smaller figure bounds the part "
+            "that varies. A first harmonic e moves the axis sideways by about "
+            "e / tan(incline)."),
     }
 
 
@@ -818,7 +888,9 @@ def truth_from_estimate(setup: Setup, estimate: dict) -> Truth:
 #: axis of each per-position source's errors (after the batch axis) that runs over positions
 _POSITION_AXIS = {"probe_noise": 1, "xy_positioning": 2, "z_positioning": 1,
                   "radial_motion": 1, "axial_motion": 1, "tilt_motion": 1,
-                  "angular_positioning": 1}
+                  "angular_repeatability": 1}
+#: sources with one row of errors per axis tested (after the batch axis)
+_AXIS_ROWS = ("angular_positioning",)
 
 
 @functools.lru_cache(maxsize=64)
@@ -904,9 +976,9 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict[str, np.ndarray]:
     """
     times = _plan(setup).times
     z = []
-    for part, sl in _parts(setup):
+    for i, (part, sl) in enumerate(_parts(setup)):
         errs = {k: (v[(slice(None),) * _POSITION_AXIS[k] + (sl,)] if k in _POSITION_AXIS
-                    else v) for k, v in errors.items()}
+                    else v[:, i] if k in _AXIS_ROWS else v) for k, v in errors.items()}
         z.append(_forward_axis(part, truth, errs, times[sl]))
     return {"z_mm": z[0] if len(z) == 1 else np.concatenate(z, axis=1)}
 
@@ -947,7 +1019,9 @@ def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -
     if lever.ndim == 3:
         lever = lever[:, None]
     vec = _rotate_about(lever, ub, g.theta[:, None])  # (P, 2, 3) or (n, P, 2, 3)
-    dpsi = errors["angular_positioning"]
+    # angular positioning: the smooth systematic part (harmonics of the commanded angle)
+    # plus the random part per position, (n, P) [rad]
+    dpsi = errors["angular_positioning"] @ g.harmonics + errors["angular_repeatability"]
     if np.any(dpsi):
         vec = _rotate_about(vec, ub, dpsi[..., None])  # (n, P, 2, 3)
     tilt = errors["tilt_motion"]
@@ -988,6 +1062,9 @@ def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -
     form = errors["flatness"]  # (n, K)
     if np.any(form):
         z += np.matmul(form, g.form).reshape(n, P, M)
+    orient = errors["sensor_orientation"]  # (n, 4): a height error per position
+    if np.any(orient):
+        z += (setup.sensor_range_mm * (orient @ g.orientation))[..., None]
     ez = errors["z_positioning"]  # gap = surface - actual Z position
     if np.any(ez):
         z -= ez if ez.ndim == 3 else ez[..., None]
