@@ -1669,4 +1669,5 @@ PROCEDURE = Procedure(
     levers=tuple("points_per_line step_mm lines shift_fraction raise_mm max_shift_rows "
                  "scan_feed_mm_min rapid_mm_min settle_s".split()),
     setup_from_frame=setup_from_frame,
+    observability=observability,
 )
