@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import time
 
 import pytest
@@ -54,3 +57,32 @@ def test_a_caller_that_stops_early_leaves_nothing_running(client):
 def test_a_task_error_reaches_the_caller(client):
     with pytest.raises(ValueError, match="negative -1"):
         list(ordered_map(_slow_square, [(1, 0.0), (-1, 0.0), (2, 0.0)], backend="dask"))
+
+
+HEAP_SCRIPT = """
+import resource
+import numpy as np
+from mtplan._parallel import _heap_as_in_a_plain_process
+
+def faults():
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for _ in range(100):
+        np.ones(1 << 17).sum()  # 1 MiB, allocated, touched and freed
+    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+
+untuned = faults()
+_heap_as_in_a_plain_process()
+print(untuned, faults())
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's heap (Linux) only")
+def test_a_worker_started_as_a_dask_nanny_does_stops_paying_page_faults_per_array():
+    """Under a nanny's MALLOC_TRIM_THRESHOLD_ every 1 MiB array is a fresh mmap (256 page
+    faults); with the worker's heap set up as in a plain process, it reuses freed memory."""
+    env = {**os.environ, "MALLOC_TRIM_THRESHOLD_": "65536"}
+    out = subprocess.run([sys.executable, "-c", HEAP_SCRIPT], env=env, capture_output=True,
+                         text=True, check=True).stdout
+    untuned, tuned = map(int, out.split())
+    assert untuned > 100 * 200  # about 256 per array
+    assert tuned < untuned / 20
