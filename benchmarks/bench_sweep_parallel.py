@@ -7,7 +7,9 @@ that this script starts on 127.0.0.1 (``dask scheduler``, ``dask worker --nthrea
 stops at the end. Each run writes its CSV; the files must be byte-identical (results never
 depend on the jobs or the backend, and the rows come out in set-up order). Rounds interleave
 the three ways so that a change in the machine's load touches them alike; the best of the
-rounds is the figure, every round is printed, and so is the load average.
+rounds is the figure, every round is printed, and so are the load average and the CPU time
+of the process tree (on a loaded machine the wall times say little; the CPU times show what
+the parallel ways cost beyond the work itself).
 
     .venv/bin/python benchmarks/bench_sweep_parallel.py [--trials 100000] [--repeat 3]
 """
@@ -73,12 +75,28 @@ def dask_cluster(workers: int = 2):
                 p.kill()
 
 
-def timed(out: Path, trials: int, **parallel) -> float:
+def _cpu_seconds() -> float:
+    """CPU time of this process and all it started (the loky pool, the Dask cluster)."""
+    import psutil
+
+    me = psutil.Process()
+    total = 0.0
+    for p in [me, *me.children(recursive=True)]:
+        try:
+            t = p.cpu_times()
+        except psutil.Error:
+            continue
+        total += t.user + t.system
+    return total
+
+
+def timed(out: Path, trials: int, **parallel) -> tuple[float, float]:
+    """(wall time, CPU time of the whole process tree) of one sweep."""
     out.unlink(missing_ok=True)
     out.with_name(out.name + ".sweep.json").unlink(missing_ok=True)
-    t0 = time.perf_counter()
+    c0, t0 = _cpu_seconds(), time.perf_counter()
     sweep("rotary_axis", vary=VARY, trials=trials, seed=1, progress=False, out=out, **parallel)
-    return time.perf_counter() - t0
+    return time.perf_counter() - t0, _cpu_seconds() - c0
 
 
 def main() -> None:
@@ -105,11 +123,14 @@ def main() -> None:
                 out = tmp / f"{name.split(',')[0]}.{r}.csv"
                 times[name].append(timed(out, args.trials, **parallel))
                 files.setdefault(name, out.read_bytes())
-            print(f"  round {r + 1}: " + ", ".join(f"{n} {t[-1]:.2f} s" for n, t in times.items())
-                  + "; load " + " ".join(f"{v:.2f}" for v in os.getloadavg()))
-    best = {name: min(t) for name, t in times.items()}
+            print(f"  round {r + 1}: " + ", ".join(f"{n} {t[-1][0]:.2f} s ({t[-1][1]:.1f} CPU-s)"
+                                                   for n, t in times.items())
+                  + "; load " + " ".join(f"{v:.2f}" for v in os.getloadavg()), flush=True)
+    best = {name: min(w for w, _ in t) for name, t in times.items()}
     for name, t in best.items():
-        print(f"  {name:16s} best {t:6.2f} s   speed-up over 1 job {best['1 job'] / t:.2f}x")
+        cpu = min(c for _, c in times[name])
+        print(f"  {name:16s} best {t:6.2f} s   speed-up over 1 job {best['1 job'] / t:.2f}x"
+              f"   CPU {cpu:.1f} s (whole process tree, cluster's idle work included)")
     same = len(set(files.values())) == 1
     print(f"  CSV files of the three ways: {'byte-identical' if same else 'DIFFER'}")
     if not same:
