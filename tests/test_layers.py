@@ -167,3 +167,173 @@ def test_no_merge_conflict_markers_in_the_sources_and_documents():
               if any(line.startswith(("<<<<<<< ", ">>>>>>> ")) or line == "======="
                      for line in f.read_text(encoding="utf-8").splitlines())]
     assert not marked
+
+
+# --------------------------------------------------------------------------- the contract
+# The Procedure record is a procedure's whole contract: nothing in mtplan may find a
+# procedure's function by name in its module. The one allowed reach into a procedure's
+# module is the registry's: importing each module of mtplan.models and reading its
+# PROCEDURE. Other dynamic imports are allowed only when their target is statically a
+# module outside mtplan.models (the lazy loaders of mtplan.evaluation and mtplan.cli).
+PROCEDURE_PACKAGE = "mtplan.models"
+REGISTRY = ("mtplan.models", "registry")  # (module, function) allowed to import procedures
+REGISTRY_ATTRIBUTES = {"PROCEDURE"}  # all the registry may read from a procedure's module
+
+
+def _static_prefix(node, module: str) -> str | None:
+    """The leading constant text of an import target (a string, or an f-string up to its first
+    field that is not ``__name__``, which is `module`); None when nothing of it is constant."""
+    if isinstance(node, ast.Constant) and isinstance(node.value, str):
+        return node.value
+    if isinstance(node, ast.JoinedStr):
+        text = ""
+        for part in node.values:
+            if isinstance(part, ast.Constant):
+                text += str(part.value)
+            elif isinstance(part.value, ast.Name) and part.value.id == "__name__":
+                text += module
+            else:
+                break
+        return text or None
+    return None
+
+
+def _may_be_procedure(prefix: str | None) -> bool:
+    """Whether an import whose target starts with `prefix` may import a procedure's module."""
+    if prefix is None:
+        return True
+    return prefix.startswith(PROCEDURE_PACKAGE + ".") or (PROCEDURE_PACKAGE + ".").startswith(
+        prefix)
+
+
+def _is_import_module(call) -> bool:
+    f = call.func
+    return (isinstance(f, ast.Name) and f.id in ("import_module", "__import__")) or (
+        isinstance(f, ast.Attribute) and f.attr in ("import_module", "__import__"))
+
+
+def procedure_module_lookups(source: str, module: str) -> list[str]:
+    """Where `source` (the text of the mtplan module `module`) finds something in a
+    procedure's module other than through the Procedure record: reading a function's
+    ``__module__``, ``sys.modules``, ``inspect.getmodule``, or a dynamic import that may reach
+    a procedure's module (anywhere but the registry, and there anything read from the module
+    but ``PROCEDURE``: a ``getattr`` or an attribute)."""
+    tree = ast.parse(source)
+    found = []
+    parents = {child: node for node in ast.walk(tree) for child in ast.iter_child_nodes(node)}
+
+    def where(node):
+        scope = node
+        while scope in parents and not isinstance(scope, ast.FunctionDef | ast.AsyncFunctionDef):
+            scope = parents[scope]
+        return scope.name if isinstance(scope, ast.FunctionDef | ast.AsyncFunctionDef) else ""
+
+    procedure_modules = {}  # name bound to a possibly-procedure module -> the function binding it
+    for node in ast.walk(tree):
+        line = f"{module}:{getattr(node, 'lineno', '?')}"
+        if isinstance(node, ast.Attribute) and node.attr == "__module__":
+            found.append(f"{line} reads __module__ (a procedure's module from its function)")
+        elif isinstance(node, ast.Attribute) and node.attr in ("modules", "getmodule") \
+                and isinstance(node.value, ast.Name) and node.value.id in ("sys", "inspect"):
+            found.append(f"{line} uses {node.value.id}.{node.attr}")
+        elif isinstance(node, ast.Call) and _is_import_module(node):
+            prefix = _static_prefix(node.args[0], module) if node.args else None
+            if not _may_be_procedure(prefix):
+                continue
+            if (module, where(node)) != REGISTRY:
+                found.append(f"{line} imports a module that may be a procedure's "
+                             f"({ast.unparse(node)})")
+                continue
+            parent = parents.get(node)
+            if isinstance(parent, ast.Assign) and all(isinstance(t, ast.Name)
+                                                      for t in parent.targets):
+                procedure_modules.update({t.id: where(node) for t in parent.targets})
+            else:  # used in place (import_module(...).attr): only an assigned name is allowed
+                found.append(f"{line} uses a procedure's module in place ({ast.unparse(parent)})")
+    for node in ast.walk(tree):
+        line = f"{module}:{getattr(node, 'lineno', '?')}"
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) \
+                and node.func.id in ("getattr", "hasattr", "vars", "dir") and node.args \
+                and isinstance(node.args[0], ast.Name) and node.args[0].id in procedure_modules:
+            name = node.args[1] if len(node.args) > 1 else None
+            allowed = (node.func.id == "getattr" and isinstance(name, ast.Constant)
+                       and name.value in REGISTRY_ATTRIBUTES)
+            if not allowed:
+                found.append(f"{line} looks up {ast.unparse(node)} in a procedure's module")
+        elif isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) \
+                and node.value.id in procedure_modules and node.attr not in REGISTRY_ATTRIBUTES:
+            found.append(f"{line} reads {ast.unparse(node)} from a procedure's module")
+    return found
+
+
+def test_nothing_is_found_by_name_in_a_procedures_module():
+    found = [hit for path in sorted(SRC.rglob("*.py"))
+             for hit in procedure_module_lookups(path.read_text(encoding="utf-8"),
+                                                 _module_name(path))]
+    assert not found, found
+
+
+def test_no_procedure_module_is_imported_outside_the_models():
+    """Above the models a procedure is reached through the registry's Procedure only (a module
+    imported by its name would let its functions be called outside the contract)."""
+    procedures = {m for m in GRAPH if m.startswith(PROCEDURE_PACKAGE + ".")
+                  and not m.rpartition(".")[2].startswith("_")}
+    assert {"mtplan.models.rotary_axis", "mtplan.models.geometry21"} <= procedures
+    bad = {m: sorted(GRAPH[m] & procedures) for m in GRAPH
+           if not m.startswith(PROCEDURE_PACKAGE) and GRAPH[m] & procedures}
+    assert not bad, bad
+
+
+OLD_HOOK_LOOKUP = '''
+import importlib
+
+def _predict(proc, setup):
+    own = getattr(importlib.import_module(proc.forward.__module__), "first_order_std", None)
+    return own(setup) if callable(own) else None
+
+def _extras(proc, ps):
+    module = importlib.import_module(proc.forward.__module__)
+    hook = getattr(module, "report_extras", None)
+    return hook(ps.setup, ps.truth)
+'''
+
+REGISTRY_SOURCE = '''
+import importlib, pkgutil
+
+def registry():
+    for info in pkgutil.iter_modules(__path__):
+        module = importlib.import_module(f"{__name__}.{info.name}")
+        proc = getattr(module, "PROCEDURE", None)
+'''
+
+
+@pytest.mark.parametrize("snippet, module, expected", [
+    # the pattern the Procedure record replaced: both functions caught, each twice
+    (OLD_HOOK_LOOKUP, "mtplan.plans.planner", 4),
+    # the same without __module__: a procedure's module named from its procedure's name
+    ("from importlib import import_module\ndef f(proc):\n"
+     "    m = import_module('mtplan.models.' + proc.name)\n    return m.first_order_std\n",
+     "mtplan.plans.planner", 1),
+    ("import importlib\ndef f(name):\n"
+     "    return getattr(importlib.import_module(f'mtplan.models.{name}'), 'report_extras')\n",
+     "mtplan.reports.html", 1),
+    ("import sys\ndef f(proc):\n    return sys.modules[proc.name].observability\n",
+     "mtplan.plans.study", 1),
+    # the registry may import procedures and read PROCEDURE, nothing else
+    (REGISTRY_SOURCE, "mtplan.models", 0),
+    (REGISTRY_SOURCE + "        hook = getattr(module, 'report_extras', None)\n",
+     "mtplan.models", 1),
+    (REGISTRY_SOURCE + "        hook = module.identifiability\n", "mtplan.models", 1),
+    # the same code outside the registry is refused (and its own submodules are no procedures)
+    (REGISTRY_SOURCE.replace("{__name__}", "mtplan.models"), "mtplan.plans.study", 1),
+    (REGISTRY_SOURCE, "mtplan.plans.study", 0),
+    # a lazy loader of another package is no procedure lookup
+    ("import importlib\ndef __getattr__(name):\n"
+     "    return getattr(importlib.import_module(f'mtplan.evaluation.{name}'), name)\n",
+     "mtplan.evaluation", 0),
+    ("import importlib\ndef register(sub, module):\n"
+     "    importlib.import_module(f'mtplan.cli.{module}').register(sub)\n", "mtplan.cli", 0),
+])
+def test_the_procedure_lookup_checker_catches_the_old_pattern(snippet, module, expected):
+    found = procedure_module_lookups(snippet, module)
+    assert len(found) == expected, found

@@ -55,6 +55,38 @@ def test_dask_backend_gives_the_same_table():
     pd.testing.assert_frame_equal(a, b)
 
 
+def test_sweep_files_are_byte_identical_with_one_and_two_jobs(tmp_path, capsys):
+    """The command's file holds the set-ups in grid order whatever the jobs: the workers take
+    the longest set-up first (here 12 positions before 3), which the file must not show."""
+    from mtplan import cli
+
+    files = {}
+    for jobs in ("1", "2"):
+        files[jobs] = tmp_path / f"jobs{jobs}.csv"
+        code = cli.main(["sweep", "rotary_axis", "--vary", "positions=3,12,6", "--vary",
+                         "incline_deg=10,30", "--trials", "200", "--seed", "3", "--jobs", jobs,
+                         "--out", str(files[jobs])])
+        capsys.readouterr()
+        assert code == 0
+    one, two = (files[j].read_bytes() for j in ("1", "2"))
+    assert one == two
+    assert list(pd.read_csv(files["1"])["point"].drop_duplicates()) == list(range(6))
+
+
+def test_a_journal_finished_out_of_order_is_put_in_grid_order(tmp_path):
+    """Each record's bytes are kept, a quoted value with a line end and quotes included."""
+    from mtplan.plans.sweep import _order_journal
+
+    journal = tmp_path / "j.csv"
+    rows = ['2,b,""\n', '0,a,"two\nlines, ""quoted"""\n', '1,c,\n']
+    journal.write_text("point,x,error\n" + "".join(rows), encoding="utf-8")
+    _order_journal(journal)
+    assert journal.read_text(encoding="utf-8") == "point,x,error\n" + rows[1] + rows[2] + rows[0]
+    before = journal.stat().st_mtime_ns
+    _order_journal(journal)  # already in order: left alone
+    assert journal.stat().st_mtime_ns == before
+
+
 def test_estimators_share_random_numbers_and_all_expands():
     df = sweep(P, vary={"n_points": [4]}, trials=500, seed=1, estimators="all")
     assert set(df["estimator"]) == set(P.estimators)

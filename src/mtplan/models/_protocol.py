@@ -26,6 +26,12 @@ A procedure module (``mtplan/models/<name>.py``) defines a module-level
 - optional ``setup_from_frame(df) -> dict[field, Implied]``: the set-up fields a measured
   readings table determines (counts, positions, angles, lattice, radius), each with the
   tolerance within which a value the user states agrees with the file (:class:`Implied`).
+- optional analysis hooks, each a field of :class:`Procedure` whose default None selects
+  the generic analysis: ``identifiability_report``, ``report_extras``, ``identifiability``,
+  ``observability`` and ``first_order_std`` (see the fields' comments).
+
+The :class:`Procedure` record is the whole contract: the planner, the study and the
+reports use only its fields, never a function looked up by name in a procedure's module.
 
 ``simulate`` = draw the active sources + ``forward``; it and the Monte Carlo engine
 live here, once, so no procedure writes its own random-number handling.
@@ -569,6 +575,34 @@ class Procedure:
     #: unit] in which an estimator's values come (a quantised estimator): where its Monte
     #: Carlo interval has zero width, ``simulate`` states u = step / sqrt(12)
     resolution: Callable | None = None
+
+    # ----------------------------------------------------------------- analysis hooks
+    # What the planner, the study and the reports ask a procedure beyond its model. Each
+    # is optional; None (the default) means the generic analysis named with it is used.
+    #: optional ``identifiability_report(setup) -> dict``: the procedure's own rank
+    #: analysis of its full model, with ``rank``, ``parameters``, ``readings``,
+    #: ``condition_number``, ``singular_values`` and ``null_space`` (a list of dicts
+    #: parameter -> weight), and optionally ``jacobian``, ``scale``, ``names``,
+    #: ``rank_tol`` and ``functions`` (the measurands as functions of its parameters, by
+    #: name). None: the sensitivities of the readings to the measurands (or truth fields)
+    #: are analysed (``plans.identifiability``)
+    identifiability_report: Callable | None = None
+    #: optional ``report_extras(setup, truth) -> dict``: procedure-specific data for the
+    #: report (a figure's path, uncertainty bands); plain data, the reports draw it.
+    #: None: no extras
+    report_extras: Callable | None = None
+    #: optional ``identifiability(setup, estimator) -> DataFrame``: per measurand, whether
+    #: that estimator determines it at the set-up and why not; shown in the report per
+    #: estimator (unless ``report_extras`` already gives ``identifiability``). None: not shown
+    identifiability: Callable | None = None
+    #: optional ``observability(setup) -> {estimator: {measurand: ...}}``: which measurands
+    #: each estimator can observe at the set-up, with their limits; shown in the report
+    #: (unless ``report_extras`` already gives ``observability``). None: not shown
+    observability: Callable | None = None
+    #: optional ``first_order_std(setup, truth, *, estimator, sources) -> {measurand: u}``:
+    #: first-order standard uncertainty per measurand [display unit], the planner's fast
+    #: screening. None: the generic GUM linearisation of the forward model and estimator
+    first_order_std: Callable | None = None
 
     # ----------------------------------------------------------------- helpers
     @property

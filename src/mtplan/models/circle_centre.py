@@ -1270,4 +1270,5 @@ PROCEDURE = Procedure(
     levers=tuple("n_points spread_deg free_test_mm miss_tolerance_mm feed_mm_min "
                  "probe_feed_mm_min clearance_mm dwell_s".split()),
     setup_from_frame=setup_from_frame,
+    report_extras=report_extras,
 )

@@ -197,13 +197,10 @@ def _possible_measurands(proc, setups) -> tuple[dict, list]:
     and, where the procedure's identifiability report names them (geometry21: the 21 error
     functions), those the procedure could report at some set-up; in the procedure's order.
     Also each candidate's own list."""
-    import importlib
-
     names = {}
-    module = importlib.import_module(proc.forward.__module__)
-    own = getattr(module, "identifiability_report", None)
-    if callable(own):
-        names.update(dict.fromkeys(own(setups[0]).get("functions", {}), ""))
+    if proc.identifiability_report is not None:
+        names.update(dict.fromkeys(proc.identifiability_report(setups[0]).get("functions", {}),
+                                   ""))
     listed = []
     for s in setups:
         ms = proc.measurands(s)
@@ -429,18 +426,16 @@ def _assess(proc, setup, truth, estimator, sources, predict, identify) -> tuple[
 
 
 def _predict(proc, setup, truth, estimator, sources) -> dict:
-    """Linearised standard uncertainty of each measurand: the procedure module's own
-    ``first_order_std(setup, truth, estimator=, sources=)`` where it has one (geometry21:
-    the same first-order propagation through its estimators' linear maps, much faster
-    than differentiating the chain per input), else the generic GUM propagation."""
-    import importlib
-
+    """Linearised standard uncertainty of each measurand: the procedure's own
+    ``first_order_std(setup, truth, estimator=, sources=)`` where it declares one
+    (geometry21: the same first-order propagation through its estimators' linear maps, much
+    faster than differentiating the chain per input), else the generic GUM propagation."""
     from mtplan.evaluation.simulation import linearize_procedure
 
-    own = getattr(importlib.import_module(proc.forward.__module__), "first_order_std", None)
-    if callable(own):
+    if proc.first_order_std is not None:
         name, _ = proc.estimator(estimator)
-        return {n: float(u) for n, u in own(setup, truth, estimator=name, sources=sources).items()}
+        u = proc.first_order_std(setup, truth, estimator=name, sources=sources)
+        return {n: float(v) for n, v in u.items()}
     g = linearize_procedure(proc, setup, truth, estimator=estimator, sources=sources)
     return {n: float(u) for n, u in zip(g.names, g.std, strict=True)}
 
@@ -608,7 +603,7 @@ def readings_jacobian(procedure, setup=None, truth=None, *, wrt: str | None = No
 def design_identifiability(procedure, setup=None, truth=None) -> dict:
     """Rank, condition number and observability indices O1-O5 of a set-up.
 
-    Uses the procedure module's own ``identifiability_report(setup)`` where it has one
+    Uses the procedure's own ``identifiability_report(setup)`` where it declares one
     (geometry21: the joint model of all error coefficients), else the column-scaled
     sensitivities of :func:`readings_jacobian`.
 
@@ -619,17 +614,13 @@ def design_identifiability(procedure, setup=None, truth=None) -> dict:
     the readings determine) where the module's report gives its Jacobian and the
     measurands as functions of its parameters.
     """
-    import importlib
-
     from mtplan.models import get
     from mtplan.plans.identifiability import identifiability, observability_indices
 
     proc = get(procedure)
     setup = proc.Setup() if setup is None else setup
-    module = importlib.import_module(proc.forward.__module__)
-    own = getattr(module, "identifiability_report", None)
-    if callable(own):
-        rep = own(setup)
+    if proc.identifiability_report is not None:
+        rep = proc.identifiability_report(setup)
         if "jacobian" in rep:  # the model's own Jacobian: the generic analysis, with the
             # measurands as functions of its parameters (geometry21's 21 error functions)
             gen = identifiability(rep["jacobian"], scale=rep["scale"], names=rep["names"],

@@ -743,20 +743,17 @@ def _run_measured(proc, ps, study, recommended):
 def _identifiability(proc, ps):
     """Rank, conditioning, O1-O5 and the inseparable combinations of the set-up's parameters.
 
-    A procedure module with its own ``identifiability_report(setup)`` (geometry21: the joint
-    model of every error coefficient) is asked for it; otherwise the readings' sensitivities
-    to the measurands (or truth fields) are analysed.
+    A procedure with its own ``identifiability_report`` (geometry21: the joint model of every
+    error coefficient) is asked for it; otherwise the readings' sensitivities to the
+    measurands (or truth fields) are analysed.
     """
-    import importlib
     from types import SimpleNamespace
 
     from mtplan.plans.identifiability import identifiability, observability_indices
     from mtplan.plans.planner import readings_jacobian
 
-    module = importlib.import_module(proc.forward.__module__)
-    own = getattr(module, "identifiability_report", None)
-    if callable(own):
-        rep = own(ps.setup)
+    if proc.identifiability_report is not None:
+        rep = proc.identifiability_report(ps.setup)
         sv = np.asarray(rep["singular_values"], dtype=float)
         nulls = [" ".join(f"{w:+.2f} {k}" for k, w in list(d.items())[:6])
                  + (" ..." if len(d) > 6 else "") for d in rep["null_space"]]
@@ -771,18 +768,14 @@ def _identifiability(proc, ps):
 
 
 def _extras(proc, ps):
-    """Procedure-specific material for the report: a module-level ``report_extras(setup,
-    truth) -> dict`` in the procedure's module (data only; the reports draw it)."""
-    import importlib
-
-    module = importlib.import_module(proc.forward.__module__)
-    hook = getattr(module, "report_extras", None)
-    extras = dict(hook(ps.setup, ps.truth)) if callable(hook) else {}
+    """Procedure-specific material for the report: the procedure's ``report_extras(setup,
+    truth) -> dict`` (data only; the reports draw it), with its per-estimator
+    ``identifiability`` and its ``observability`` where it declares them."""
+    extras = dict(proc.report_extras(ps.setup, ps.truth)) if proc.report_extras else {}
     # what the seed's method cannot see: per-estimator identifiability or observability
-    ident = getattr(module, "identifiability", None)
-    if callable(ident) and "identifiability" not in extras:
-        extras["identifiability"] = {est: ident(ps.setup, est) for est in ps.estimators}
-    obs = getattr(module, "observability", None)
-    if callable(obs) and "observability" not in extras:
-        extras["observability"] = obs(ps.setup)
+    if proc.identifiability is not None and "identifiability" not in extras:
+        extras["identifiability"] = {est: proc.identifiability(ps.setup, est)
+                                     for est in ps.estimators}
+    if proc.observability is not None and "observability" not in extras:
+        extras["observability"] = proc.observability(ps.setup)
     return extras

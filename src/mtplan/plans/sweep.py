@@ -15,7 +15,9 @@ again with the same arguments it reads what is there, drops a set-up whose rows
 were cut off by a kill, and computes only what is missing: no row is lost or
 duplicated. A removed output starts a new sweep (its left-over side file is replaced,
 noted in ``table.attrs["notes"]``). A Parquet output is written (atomically) when the sweep completes,
-from a CSV journal ``<out>.partial.csv`` kept while it runs.
+from a CSV journal ``<out>.partial.csv`` kept while it runs. Workers finish set-ups in any
+order; the finished file holds them in grid order, so the same sweep gives the same bytes
+whatever ``n_jobs`` and the backend.
 """
 
 from __future__ import annotations
@@ -210,6 +212,8 @@ def sweep(
         tasks = ((proc, s, truth, tuple(estimators), sources, options, seed, i) for i, s in todo)
         n_rows = len(estimators) * len(proc.measurands(base_setup))
         new_frames = _run(tasks, journal, n_rows, bar, session["n_jobs"], backend)
+    if journal is not None and new_frames and journal.exists():
+        _order_journal(journal)  # set-up order, so any jobs and backend give the same bytes
     if journal is not None:
         # one source of truth for fresh and resumed runs alike: the journal on disk
         table = _read_journal(journal, rewrite=False) if journal.exists() else done
@@ -378,6 +382,37 @@ def _read_journal(journal: Path, rewrite: bool = True):
         with atomic_write(journal, "w", encoding="utf-8", newline="") as fh:
             df.to_csv(fh, index=False)
     return df.drop(columns=["rows_in_setup"], errors="ignore")
+
+
+def _csv_records(text: str) -> list[str]:
+    """The records of CSV text, each with its line end(s): a record ends at a line end
+    outside quotes (a quoted value may hold line ends; a quote inside one is doubled)."""
+    records, current, quotes = [], [], 0
+    for line in text.splitlines(keepends=True):
+        current.append(line)
+        quotes += line.count('"')
+        if quotes % 2 == 0:
+            records.append("".join(current))
+            current, quotes = [], 0
+    if current:
+        records.append("".join(current))
+    return records
+
+
+def _order_journal(journal: Path) -> None:
+    """Rewrite the journal (atomically) with its set-ups in grid order, each record's bytes
+    as written, when the workers finished them in another order."""
+    import csv
+    import io
+
+    header, *records = _csv_records(journal.read_text(encoding="utf-8"))
+    column = next(csv.reader([header])).index("point")
+    points = [int(next(csv.reader(io.StringIO(r)))[column]) for r in records]
+    order = sorted(range(len(records)), key=points.__getitem__)
+    if order == sorted(order):
+        return
+    with atomic_write(journal, "w", encoding="utf-8", newline="") as fh:
+        fh.write(header + "".join(records[i] for i in order))
 
 
 def _append(journal: Path, frame, n_rows: int) -> None:

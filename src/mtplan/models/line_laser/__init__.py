@@ -1183,4 +1183,5 @@ PROCEDURE = Procedure(
                  "scan_feed_mm_min rapid_mm_min settle_s".split()),
     setup_from_frame=setup_from_frame,
     resolution=resolution,
+    observability=observability,
 )
