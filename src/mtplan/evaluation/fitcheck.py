@@ -167,17 +167,33 @@ def _labels(fwd, shapes: dict, origin) -> list[tuple]:
     return [lab for lab, used in zip(out, fwd.mask, strict=True) if used]
 
 
-def _statistics(fwd, fit, g: Gaussian, A: np.ndarray, prior_res: np.ndarray) -> tuple:
+def _basis(A: np.ndarray) -> np.ndarray:
+    """Orthonormal basis (rows, rank) of the span of A's columns: pivoted QR of the columns
+    scaled to unit norm, a column whose part outside the others' span is below the
+    posterior's rank tolerance counted as in it (the parameters the readings do not
+    determine, which the fit holds)."""
+    from scipy.linalg import qr
+
+    from mtplan.evaluation.posterior import _RANK_TOL
+
+    norms = np.linalg.norm(A, axis=0)
+    A = A[:, norms > 0] / norms[norms > 0]
+    if A.shape[1] == 0:
+        return np.zeros((A.shape[0], 0))
+    Q, R, _ = qr(A, mode="economic", pivoting=True)
+    return Q[:, :int(np.sum(np.abs(np.diag(R)) > _RANK_TOL))]
+
+
+def _statistics(fwd, fit, g: Gaussian, Q: np.ndarray, prior_res: np.ndarray) -> tuple:
     """(chi2, z per reading) at the fit: the whitened residuals with the nuisance priors'
-    terms, and the w-test of every reading; `A` (n + q, k) is the whitened Jacobian of the
-    fitted parameters with the priors' rows."""
+    terms, and the w-test of every reading; `Q` (n + q, rank) spans the whitened
+    Jacobian of the fitted parameters with the priors' rows."""
     q = prior_res.size
     pred, ok = fwd.predict(fit.theta[None], fit.nuis[None] if q else None)
     if not ok[0]:
         raise InvalidInput([f"The forward model of {fwd.proc.name} fails at the fit."])
     w = g.whiten(fwd.y - pred[0] - fit.correction)[0]
     chi2 = float(w @ w + prior_res @ prior_res)
-    Q, _ = np.linalg.qr(A)
     cinv = _cinv_diag(g)
     num = _wt(g, w[:, None])[:, 0]  # C^-1 r
     den = cinv - np.sum(_wt(g, Q[:fwd.n]) ** 2, axis=1)
@@ -255,19 +271,17 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
             Jw = g.whiten(J.T).T
             if q:
                 Jw = np.vstack([Jw, np.hstack([np.zeros((q, p)), np.diag(1.0 / pri[:, 1])])])
-            G = fwd.measurand_gradient(fit.theta)
-            kept, _, _ = post._rank_order(Jw, np.any(G != 0, axis=0), p, q)
-            dof = fwd.n - len(kept) - (1 if fit.budget.Dn is not None else 0)
+            Q = _basis(Jw)
+            rank = Q.shape[1]
+            dof = fwd.n + q - rank - (1 if fit.budget.Dn is not None else 0)
             nuisance = [name for name, _ in fit.budget.nuisance]
             if dof <= 0:
                 return FitCheck(chi2=None, dof=dof, p_value=None, ok=None, alpha=alpha,
                                 reason=f"the {fwd.n} readings leave no residual degree of "
-                                f"freedom for the {len(kept)} fitted parameters",
-                                n_readings=fwd.n, n_parameters=len(kept) + q,
-                                nuisance=nuisance)
+                                f"freedom for the {rank - q} fitted parameters",
+                                n_readings=fwd.n, n_parameters=rank, nuisance=nuisance)
             prior_res = (fit.nuis - pri[:, 0]) / pri[:, 1] if q else np.zeros(0)
-            chi2, z = _statistics(fwd, fit, g, Jw[:, list(kept) + list(range(p, p + q))],
-                                  prior_res)
+            chi2, z = _statistics(fwd, fit, g, Q, prior_res)
     except InvalidInput as exc:
         return _not_made("the model cannot be fitted to the readings: "
                          + " ".join(exc.problems), alpha, fwd.n)
@@ -288,5 +302,5 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
     every = own + np.sum(b.U0**2, axis=1) + (0 if b.Dn is None else fit.sigma**2 * np.sum(
         b.Un**2, axis=1))
     return FitCheck(chi2=chi2, dof=int(dof), p_value=pval, ok=bool(pval >= alpha), alpha=alpha,
-                    worst=worst, n_readings=fwd.n, n_parameters=len(kept) + q,
+                    worst=worst, n_readings=fwd.n, n_parameters=rank,
                     nuisance=nuisance, z=z, scatter=np.sqrt(np.where(own > 0, own, every)))
