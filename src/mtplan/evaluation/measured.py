@@ -456,7 +456,7 @@ def estimate_measured(
         result = _mc_result(proc, setup, est_name, est_internal, estimate, trials=trials,
                             coverage=coverage, root=root, seed=seed, notes=notes,
                             progress=progress)
-        return _with_fit(result, readings, fit_alpha, noise="setup", origin=origin)
+        return _with_fit(result, proc, readings, fit_alpha, noise="setup", origin=origin)
     from mtplan.evaluation.posterior import sample_posterior
 
     start_ok = np.all(np.isfinite(estimate))
@@ -475,15 +475,15 @@ def estimate_measured(
         std=np.array([post.std[n] for n in names]),
         low=np.array([post.low[n] for n in names]),
         high=np.array([post.high[n] for n in names]),
-        coverage=float(coverage), seed=seed, details=post, notes=notes), readings, fit_alpha,
-        noise=noise, origin=origin)
+        coverage=float(coverage), seed=seed, details=post, notes=notes), proc, readings,
+        fit_alpha, noise=noise, origin=origin)
 
 
-def _with_fit(result: MeasuredResult, readings, alpha, *, noise, origin) -> MeasuredResult:
+def _with_fit(result: MeasuredResult, proc, readings, alpha, *, noise, origin) -> MeasuredResult:
     """The result with its fit check (:attr:`MeasuredResult.fit`); none when `alpha` is None."""
     if alpha is not None:
         from mtplan.evaluation.fitcheck import fit_check
 
-        result.fit = fit_check(result.procedure, result.setup, readings, alpha=alpha,
+        result.fit = fit_check(proc, result.setup, readings, alpha=alpha,
                                noise=noise, estimator=result.estimator, origin=origin)
     return result
