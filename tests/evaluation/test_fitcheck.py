@@ -169,3 +169,21 @@ def test_cli_warns_and_names_rows_when_the_readings_do_not_fit(tmp_path, capsys)
     fit = json.loads(capsys.readouterr().out)["fit"]
     assert fit["ok"] is False and fit["worst"][0]["row"] == 40
     assert main(["estimate", "rotary_axis", str(path), "--fit-alpha", "2"]) == 2
+
+
+def test_posterior_evaluation_carries_the_fit_and_a_free_noise_takes_one_dof():
+    import warnings
+
+    proc = get("circle_centre")
+    setup = proc.Setup(n_points=6)
+    readings = proc.simulate(setup, proc.Truth(), 1, rng=4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = estimate_measured(proc, setup, readings, uncertainty="posterior", rng=0,
+                                allow_unconverged=True,
+                                posterior_options={"max_steps": 100, "progress": False})
+    fixed = fit_check(proc, setup, readings)
+    assert res.fit.dof == fixed.dof and res.fit.chi2 == pytest.approx(fixed.chi2, rel=1e-6)
+    assert res.to_dict()["fit"]["ok"] is not None
+    free = fit_check(proc, setup, readings, noise="free")
+    assert free.dof == fixed.dof - 1 and free.ok is not None
