@@ -12,7 +12,8 @@ p-value is uniform on [0, 1], so:
 - chi2 / dof: its median (about 1 - 2 / (3 dof)) and the standard error of its mean
   (printed; the mean itself is left out, one diverged fit would own it).
 
-geometry21 and line_laser run on smaller set-ups than their defaults (fewer points)
+geometry21, line_laser and tracker_frame run on smaller set-ups than their defaults (fewer
+points, one sub-machine)
 to keep the run to minutes on a small machine; the check's statistics do not depend on
 the number of readings. Replicates whose fit fails are counted and reported apart.
 
@@ -33,9 +34,10 @@ from mtplan.models import get, registry
 ALPHA = 0.01
 REPLICATES = 200
 SEED = 2024
-#: smaller set-ups for the heavy procedures (their defaults take 10-20 s per fit)
-SETUPS = {"geometry21": {"line_repeats": 1, "line_points": 11, "circle_points": 24},
-          "line_laser": {"lines": 20, "points_per_line": 17}}
+#: smaller set-ups for the heavy procedures (their defaults take 3-20 s per fit)
+SETUPS = {"geometry21": {"line_repeats": 1, "line_points": 7, "circle_points": 12},
+          "line_laser": {"lines": 16, "points_per_line": 9},
+          "tracker_frame": {"n_submachines": 1, "points_per_axis": 5, "points_per_arc": 4}}
 
 
 def run(name: str, replicates: int) -> dict:
