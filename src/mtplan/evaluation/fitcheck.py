@@ -30,7 +30,6 @@ the chi-square distribution. docs/fit_check.md states the method.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,7 +37,7 @@ import numpy as np
 from mtplan._validate import InvalidInput, Problems
 
 # the readings' covariance under the error budget: the one place it is imported from
-from mtplan.evaluation._budget import Budget, Gaussian  # noqa: F401 - Budget: the fit's type
+from mtplan.evaluation._budget import Gaussian
 
 __all__ = ["FitCheck", "fit_check", "FIT_ALPHA", "N_WORST"]
 
