@@ -75,8 +75,8 @@ def main(argv) -> int:
     replicates = int(argv[0]) if argv else REPLICATES
     names = argv[1:] or sorted(registry())
     print(f"fit check on clean readings: alpha {ALPHA}, {replicates} replicates per procedure")
-    print("procedure      checked  flagged  rate    99% band of alpha   KS p    chi2/dof med (se)"
-          "dof  s/fit  failed")
+    print("procedure      checked  flagged  rate    99% band of alpha   KS p    chi2/dof med (se)  "
+          " dof  s/fit  failed")
     bad = False
     for name in names:
         r = run(name, replicates)
