@@ -111,3 +111,24 @@ def test_u_targets_and_dominant_sources():
     assert top["source"] == "noise" and top["field"] == "noise_um" and not top["lever"]
     assert top["measurands"] == [("a", 0.7)]
     assert math.isclose(d.K, 2.0)
+
+
+def test_readings_that_do_not_fit_get_no_decision_with_why():
+    from mtplan.evaluation.fitcheck import FitCheck
+
+    result = _result("fit", [2.0, 1.0], [0, 0])
+    bad = FitCheck(chi2=512.0, dof=146, p_value=1e-40, ok=False,
+                   worst=[{"row": 40, "column": "z_mm", "reading": "z_mm[1,14]", "z": 31.0}])
+    measured = SimpleNamespace(measurands=result.measurands, estimator="fit", uncertainty="mc",
+                               value=np.array([1.0, 2.0]), std=np.array([0.5, 0.5]),
+                               low=np.array([0.0, 1.0]), high=np.array([2.0, 3.0]), fit=bad)
+    specs = [{"measurand": "a", "upper": 10.0}, {"measurand": "b", "lower": 5.0}]
+    for v in d.conformity("p", "T", specs, result, measured):  # conforms / not, were it fit
+        assert v.verdict == d.NO_FIT == "no decision: the readings do not fit the model"
+        assert "chi-square 512" in v.reason and "row 40 z_mm" in v.reason
+        assert v.measured is not None  # the value is still shown
+    rows = d.summary_rows("s", "p", "T", result, ["a"], [], measured, {}, 1.0)
+    assert rows[0].verdict == d.NO_FIT
+    for ok in (True, None):  # a passed check, or one that could not be made, decides as usual
+        measured.fit = FitCheck(chi2=1.0, dof=1, p_value=0.3, ok=ok)
+        assert d.conformity("p", "T", specs[:1], result, measured)[0].verdict == d.CONFORMS

@@ -48,6 +48,9 @@ def register(sub) -> None:
                    help="posterior: time budget of the sampling (default: none)")
     p.add_argument("--allow-unconverged", action="store_true",
                    help="posterior: report an unconverged posterior (flagged) instead of failing")
+    p.add_argument("--fit-alpha", type=float, default=0.01, metavar="ALPHA",
+                   help="significance level of the fit check: the readings do not fit the model "
+                        "when its p-value is below ALPHA (default 0.01)")
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.add_argument("--out", metavar="FILE", help="also write the table to FILE (CSV)")
     p.set_defaults(func=cmd_estimate, truth=None)
@@ -62,6 +65,8 @@ def cmd_estimate(args) -> int:
     noise = _noise(args.noise)
     if args.max_seconds is not None and not args.max_seconds > 0:
         raise UsageError(f"--max-seconds must be a number > 0, got {args.max_seconds!r}")
+    if not 0 < args.fit_alpha < 1:
+        raise UsageError(f"--fit-alpha must be a number between 0 and 1, got {args.fit_alpha!r}")
     config = load_config(args.config)
     proc = procedure_of(args, config)
     if config.get("truth"):
@@ -84,7 +89,8 @@ def cmd_estimate(args) -> int:
                 noise=noise, max_seconds=args.max_seconds,
                 allow_unconverged=args.allow_unconverged,
                 posterior_options={"max_steps": args.max_steps, "progress": None}
-                if method == "posterior" else None, progress=None)
+                if method == "posterior" else None, progress=None, fit_alpha=args.fit_alpha,
+                origin=measurement.origin)
     except NotConvergedError as exc:
         print(f"mtplan: error: {exc}", file=sys.stderr)
         return 1
@@ -135,6 +141,8 @@ def _print_result(result, source) -> None:
     print_table(["measurand", "unit", "value", "u", "interval", "estimate", "correction"], rows)
     for name, why in result.reasons.items():
         print(f"{name}: {why}")
+    if result.fit is not None:
+        print(result.fit.warning() or result.fit.summary())
     if method == "posterior":
         post = result.details
         print(f"posterior: {post.chains.shape[0]} ensembles x {post.n_walkers} walkers x "

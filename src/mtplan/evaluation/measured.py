@@ -66,6 +66,10 @@ class MeasuredResult:
     seed : int or list
     details : ProcedureResult or PosteriorResult
     notes : list of str
+    fit : FitCheck or None
+        Whether the readings fit the model and its error budget
+        (:func:`mtplan.evaluation.fitcheck.fit_check`); when ``fit.ok`` is False the
+        stated uncertainty is not valid for these readings.
     """
 
     procedure: str
@@ -85,6 +89,7 @@ class MeasuredResult:
     determinable: np.ndarray = None
     reasons: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
+    fit: object = None
 
     def __post_init__(self):
         n = len(self.measurands)
@@ -134,6 +139,8 @@ class MeasuredResult:
             ],
             "notes": list(self.notes),
         }
+        if self.fit is not None:
+            doc["fit"] = self.fit.to_dict()
         if self.uncertainty == "posterior":
             doc["posterior"] = self.details.to_dict()
         else:
@@ -378,6 +385,8 @@ def estimate_measured(
     allow_unconverged: bool = False,
     posterior_options: dict | None = None,
     progress: bool | None = False,
+    fit_alpha: float | None = 0.01,
+    origin: dict | None = None,
 ) -> MeasuredResult:
     """The measurands of one measurement, with their uncertainty: the values GUM would report.
 
@@ -408,6 +417,12 @@ def estimate_measured(
     progress : bool or None
         A progress bar of the ``"mc"`` Monte Carlo on stderr (None: when stderr is a
         terminal).
+    fit_alpha : float or None
+        Significance level of the fit check (:attr:`MeasuredResult.fit`,
+        :func:`mtplan.evaluation.fitcheck.fit_check`); None: no fit check.
+    origin : dict, optional
+        Row and column of every reading in its file (``Measurement.origin``), to name
+        the worst readings of the fit check.
 
     Returns
     -------
@@ -422,6 +437,8 @@ def estimate_measured(
     p.choice("uncertainty", uncertainty, UNCERTAINTY_METHODS)
     p.number("trials", trials, integer=True, low=2)
     p.number("coverage", coverage, low=0, high=1, low_open=True, high_open=True)
+    if fit_alpha is not None:
+        p.number("fit_alpha", fit_alpha, low=0, high=1, low_open=True, high_open=True)
     p.raise_if_any()
     notes = []
     measurands = tuple(proc.measurands(setup))
@@ -436,9 +453,10 @@ def estimate_measured(
     root = as_seed_sequence(rng)
     seed = root.entropy if isinstance(root.entropy, int) else list(root.entropy)
     if uncertainty == "mc":
-        return _mc_result(proc, setup, est_name, est_internal, estimate, trials=trials,
-                          coverage=coverage, root=root, seed=seed, notes=notes,
-                          progress=progress)
+        result = _mc_result(proc, setup, est_name, est_internal, estimate, trials=trials,
+                            coverage=coverage, root=root, seed=seed, notes=notes,
+                            progress=progress)
+        return _with_fit(result, proc, readings, fit_alpha, noise="setup", origin=origin)
     from mtplan.evaluation.posterior import sample_posterior
 
     start_ok = np.all(np.isfinite(estimate))
@@ -450,11 +468,22 @@ def estimate_measured(
                      "default truth")
     names = [m.name for m in measurands]
     notes.extend(post.notes)
-    return MeasuredResult(
+    return _with_fit(MeasuredResult(
         procedure=proc.name, estimator=est_name, uncertainty="posterior", setup=setup,
         measurands=measurands, estimate=estimate,
         value=np.array([post.mean[n] for n in names]),
         std=np.array([post.std[n] for n in names]),
         low=np.array([post.low[n] for n in names]),
         high=np.array([post.high[n] for n in names]),
-        coverage=float(coverage), seed=seed, details=post, notes=notes)
+        coverage=float(coverage), seed=seed, details=post, notes=notes), proc, readings,
+        fit_alpha, noise=noise, origin=origin)
+
+
+def _with_fit(result: MeasuredResult, proc, readings, alpha, *, noise, origin) -> MeasuredResult:
+    """The result with its fit check (:attr:`MeasuredResult.fit`); none when `alpha` is None."""
+    if alpha is not None:
+        from mtplan.evaluation.fitcheck import fit_check
+
+        result.fit = fit_check(proc, result.setup, readings, alpha=alpha,
+                               noise=noise, estimator=result.estimator, origin=origin)
+    return result

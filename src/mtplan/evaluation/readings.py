@@ -38,7 +38,7 @@ import numpy as np
 
 from mtplan._validate import InvalidInput
 
-__all__ = ["read_readings", "read_measurement", "Measurement"]
+__all__ = ["read_readings", "read_measurement", "Measurement", "reading_origin"]
 
 _NAN_WORDS = ("", "nan", "na", "n/a", "null", "none")
 #: no reading of a machine tool reaches this in any column's unit (mm, deg, rad, index): 1000 km
@@ -289,11 +289,7 @@ def _check_limits(proc, setup, path, df) -> None:
 # --------------------------------------------------------------------------- 7. the readings
 def _to_readings(proc, setup, path, df, expected, reduced) -> dict:
     """``procedure.from_frame`` with its refusals named after the file."""
-    df = df.copy()
-    for c in df.columns:
-        if expected[c].dtype.kind in "iu" and df[c].dtype.kind == "f":
-            if np.all(df[c] == np.round(df[c])):
-                df[c] = df[c].astype(expected[c].dtype)
+    df = _typed(df, expected)
     try:
         readings = proc.from_frame(setup, df)
     except InvalidInput as exc:
@@ -323,14 +319,98 @@ def _nominal_frame(proc, setup):
     return proc.readings_frame(setup, proc.forward(setup, proc.Truth(), proc.zero_errors(setup, 1)))
 
 
-def _finish(proc, setup, path, df, cols) -> dict:
-    """Steps 5-7 for the set-up the readings were taken with."""
+def _finish(proc, setup, path, df, cols, origin=None) -> dict:
+    """Steps 5-7 for the set-up the readings were taken with; `origin` (a dict) receives
+    the file's data row and column of every reading (:func:`_origin`)."""
     frames = _expected_frames(proc, setup)
     frames = [f[[c for c in f.columns if c not in cols.reduced]] for f in frames]
     df = _match_design(proc, path, df, frames, cols.reduced)
     if not cols.reduced:
         _check_limits(proc, setup, path, df)
-    return _to_readings(proc, setup, path, df, frames[0], cols.reduced)
+    readings = _to_readings(proc, setup, path, df, frames[0], cols.reduced)
+    if origin is not None:
+        lines = df.attrs.get("lines", list(range(2, len(df) + 2)))
+        rows = np.searchsorted(np.sort(lines), lines) + 1  # data row: 1 under the header
+        found = _origin(proc, setup, _typed(df, frames[0]), readings,
+                        _design_columns(frames), rows)
+        origin.update(found or {})
+    return readings
+
+
+# --------------------------------------------------------------------------- where a reading is
+def _typed(df, expected):
+    """The frame with integer columns as integers where the procedure's are (from_frame)."""
+    df = df.copy()
+    for c in df.columns:
+        if expected[c].dtype.kind in "iu" and df[c].dtype.kind == "f":
+            if np.all(df[c] == np.round(df[c])):
+                df[c] = df[c].astype(expected[c].dtype)
+    return df
+
+
+def _origin(proc, setup, df, readings, design, rows) -> dict | None:
+    """Data row (``rows[i]`` for frame row i) and column of every reading: key -> (rows,
+    columns), arrays shaped like the reading without its batch axis (0 and "" where none).
+
+    Found through ``procedure.from_frame`` itself, in 1 + log2(rows) + 1 calls per reading
+    column: the cells of the rows whose index has bit b set are nudged, and the readings
+    that move spell out, bit by bit, the row they come from; a last call nudges a random
+    half of the rows and checks that exactly their readings move. None where a reading
+    depends on several cells or from_frame refuses a nudged frame."""
+    keys = [k for k, v in readings.items() if np.asarray(v).dtype.kind in "fiu"]
+    base = {k: np.asarray(readings[k], dtype=float).reshape(np.shape(readings[k])[1:])
+            for k in keys}
+    out = {k: (np.zeros(v.shape, dtype=int), np.full(v.shape, "", dtype=object))
+           for k, v in base.items()}
+    n = len(df)
+    idx = np.arange(n)
+    bits = max(1, (n - 1).bit_length())
+    rng = np.random.default_rng(0)
+
+    def moved(column, mask):
+        f = df.copy()
+        v = f[column].to_numpy(dtype=float)
+        f[column] = np.where(mask, v + 1e-7 * (np.abs(v) + 1.0), v)
+        r = proc.from_frame(setup, f)
+        return {k: np.asarray(r[k], dtype=float).reshape(base[k].shape) != base[k] for k in keys}
+
+    columns = [c for c in df.columns if c not in design and df[c].dtype.kind in "fiu"]
+    try:
+        for c in columns:
+            every = moved(c, np.ones(n, dtype=bool))
+            code = {k: np.zeros(base[k].shape, dtype=np.int64) for k in keys}
+            for b in range(bits):
+                hit = moved(c, ((idx >> b) & 1).astype(bool))
+                for k in keys:
+                    code[k] |= hit[k].astype(np.int64) << b
+            half = rng.random(n) < 0.5
+            check = moved(c, half)
+            for k in keys:
+                if np.any(code[k][every[k]] >= n) or not np.array_equal(
+                        check[k], every[k] & half[np.minimum(code[k], n - 1)]):
+                    return None
+                rows_k, cols_k = out[k]
+                if np.any(rows_k[every[k]] > 0):  # one reading from two columns
+                    return None
+                rows_k[every[k]] = np.asarray(rows)[code[k][every[k]]]
+                cols_k[every[k]] = c
+    except (InvalidInput, ValueError, TypeError, KeyError, IndexError):
+        return None
+    return out
+
+
+def reading_origin(procedure, setup, readings) -> dict | None:
+    """Row and column of every reading in the table ``procedure.readings_frame`` writes
+    (``mtplan simulate --readings-out``): key -> (rows, columns), arrays shaped like the
+    reading without its batch axis; rows 1-based from the first data row (0: none).
+    None where the procedure's table does not say it (a reading computed from several
+    cells)."""
+    from mtplan.models import get
+
+    proc = get(procedure)
+    frame = proc.readings_frame(setup, readings)
+    design = _design_columns(_expected_frames(proc, setup))
+    return _origin(proc, setup, frame, readings, design, np.arange(1, len(frame) + 1))
 
 
 def read_readings(procedure, setup, path) -> dict:
@@ -381,6 +461,11 @@ class Measurement:
         Fields at their defaults: neither stated nor determined by the file.
     notes : list of str
         What was taken from the file, scaled to it, or read with an assumption.
+    origin : dict or None
+        Where each reading is in the file: key -> (rows, columns), arrays shaped like the
+        reading without its batch axis; a row is the data row, 1 being the first row
+        under the header (comment and blank lines not counted; 0: none). None where the
+        file does not say it (:func:`reading_origin`).
     """
 
     setup: object
@@ -388,6 +473,7 @@ class Measurement:
     from_file: dict = field(default_factory=dict)
     defaults: tuple = ()
     notes: list = field(default_factory=list)
+    origin: dict | None = None
 
 
 def _show(value) -> str:
@@ -494,6 +580,7 @@ def read_measurement(procedure, path, values=None) -> Measurement:
         except InvalidInput as exc:
             _fail(path, " ".join(exc.problems))
     setup, from_file, kept, notes = _complete_setup(proc, given, implied, path)
-    readings = _finish(proc, setup, path, df, cols)
+    origin = {}
+    readings = _finish(proc, setup, path, df, cols, origin)
     return Measurement(setup=setup, readings=readings, from_file=from_file, defaults=kept,
-                       notes=cols.notes + notes)
+                       notes=cols.notes + notes, origin=origin or None)

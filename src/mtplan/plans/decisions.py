@@ -16,6 +16,8 @@ Verdicts follow ISO 14253-1's zones with the rule's guard band ``w`` on both sid
 tolerance limit: the measured value *conforms* inside the tolerance reduced by ``w``, *does
 not conform* outside the tolerance widened by ``w``, and between the two no decision can be
 made ("inside the guard band"). With ``w = 0`` (simple acceptance) every value is decided.
+A measured value whose readings do not fit the model (its fit check failed,
+:func:`fit_verdict`) gets no decision at all: its uncertainty is not valid.
 The acceptance limits are those of the plan (set before measuring, from the planned set-up's
 uncertainty); the measured value's own interval is reported beside them.
 """
@@ -30,7 +32,7 @@ import numpy as np
 from mtplan._validate import InvalidInput
 
 __all__ = ["K", "VERDICTS", "Verdict", "LeverEffect", "SummaryRow", "recommend_estimator",
-           "key_measurands", "conformity", "decide", "lever_effects", "dominant_sources",
+           "key_measurands", "conformity", "decide", "fit_verdict", "lever_effects", "dominant_sources",
            "estimator_comparison", "u_targets", "shown_setup", "summary_rows"]
 
 #: coverage factor of the expanded uncertainty U = k u (ISO 14253-1, JCGM 106)
@@ -40,7 +42,8 @@ DOES_NOT_CONFORM = "does not conform"
 NO_DECISION = "inside the guard band: no decision"
 NOT_DETERMINABLE = "not determinable"
 NOT_MEASURED = "not measured"
-VERDICTS = (CONFORMS, DOES_NOT_CONFORM, NO_DECISION, NOT_DETERMINABLE, NOT_MEASURED)
+NO_FIT = "no decision: the readings do not fit the model"
+VERDICTS = (CONFORMS, DOES_NOT_CONFORM, NO_DECISION, NOT_DETERMINABLE, NOT_MEASURED, NO_FIT)
 
 
 @dataclass
@@ -263,6 +266,23 @@ def decide(value: float, lower, upper, guard: float) -> str:
     return NO_DECISION
 
 
+def fit_verdict(fit) -> tuple[str, str] | None:
+    """(:data:`NO_FIT`, why) when the readings failed their fit check, else None.
+
+    A measured value whose readings do not fit the model and its error budget
+    (``fit.ok`` False, :func:`mtplan.evaluation.fitcheck.fit_check`) has no valid
+    uncertainty, so no conformity decision is made from it; a check that could not be
+    made (``ok`` None) or that passed leaves the decision to the zones.
+    """
+    if fit is None or getattr(fit, "ok", None) is not False:
+        return None
+    why = (f"chi-square {fit.chi2:.4g} with {fit.dof} degrees of freedom, p = "
+           f"{fit.p_value:.2g} < {fit.alpha:g}: the stated uncertainty is not valid for these "
+           f"readings; worst readings {fit.worst_text()}; find the cause (an outlier, an "
+           "effect the set-up's error sources do not have) and measure again")
+    return NO_FIT, why
+
+
 def _measured_value(spec, name, measured, u):
     """(value, u, low, high, source, verdict-or-None, reason) of one measurand."""
     if spec.get("measured") is not None:
@@ -282,8 +302,9 @@ def _measured_value(spec, name, measured, u):
         reason = (getattr(measured, "reasons", None) or {}).get(
             name, "the estimator gives no finite value from these readings")
         return None, None, None, None, source, NOT_DETERMINABLE, reason
+    verdict, reason = fit_verdict(getattr(measured, "fit", None)) or (None, "")
     return (value, float(measured.std[j]), float(measured.low[j]), float(measured.high[j]),
-            source, None, "")
+            source, verdict, reason)
 
 
 def conformity(procedure: str, label: str, specs: list, result, measured=None) -> list:

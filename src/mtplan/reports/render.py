@@ -26,7 +26,8 @@ _PAD = 3.0   # table cell padding, each side [pt]
 #: verdict -> the class (HTML) and colour (PDF) it is shown in
 VERDICT_CLASS = {"conforms": "ok", "does not conform": "bad",
                  "inside the guard band: no decision": "warn", "not determinable": "nd",
-                 "not measured": "nd"}
+                 "not measured": "nd",
+                 "no decision: the readings do not fit the model": "warn"}
 _VERDICT_COLOUR = {"ok": "#1b5e20", "bad": "#b3261e", "warn": "#8a5a00", "nd": "#555555"}
 
 

@@ -1,0 +1,189 @@
+"""The fit check (chi-square of the whitened residuals) on every procedure.
+
+Per procedure, on a small set-up: clean simulated readings pass at alpha = 0.01 (a seed
+range, not one seed: at most one of three replicates may be flagged, probability
+3e-4 when the check is right); one reading moved by 30 times its own scatter is flagged
+and is the worst reading named; readings perturbed by effects outside the model (the
+readings' own scatter three times larger, a harmonic along the readings that no source
+has) are flagged. The p-values' uniformity over many replicates is the benchmark
+``benchmarks/bench_fitcheck.py``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import mtplan
+from mtplan.cli import main
+from mtplan.evaluation.fitcheck import fit_check
+from mtplan.evaluation.measured import estimate_measured
+from mtplan.evaluation.readings import reading_origin
+from mtplan.models import get, registry
+
+EXAMPLES = Path(mtplan.__file__).parent / "examples"
+ALPHA = 0.01
+#: small set-ups: the check's statistics do not depend on the number of readings
+SETUPS = {"geometry21": {"line_repeats": 1, "line_points": 7, "circle_points": 12},
+          "line_laser": {"lines": 16, "points_per_line": 9},
+          "tracker_frame": {"n_submachines": 1, "points_per_axis": 5, "points_per_arc": 4}}
+
+
+def _setup(name):
+    proc = get(name)
+    return proc, proc.Setup(**SETUPS.get(name, {}))
+
+
+def _flat(proc, readings):
+    """The numeric reading arrays (batch of one) as one vector, in the check's order."""
+    keys = [k for k, v in readings.items() if np.asarray(v).dtype.kind in "fiu"]
+    return keys, np.concatenate([np.asarray(readings[k], dtype=float).reshape(-1)
+                                 for k in keys])
+
+
+def _unflat(readings, keys, flat):
+    out, at = dict(readings), 0
+    for k in keys:
+        a = np.asarray(readings[k], dtype=float)
+        out[k] = flat[at:at + a.size].reshape(a.shape)
+        at += a.size
+    return out
+
+
+@pytest.fixture(scope="module")
+def clean():
+    cache = {}
+
+    def get_clean(name):
+        if name not in cache:
+            proc, setup = _setup(name)
+            readings = proc.simulate(setup, proc.Truth(), 1, rng=7)
+            cache[name] = (proc, setup, readings, fit_check(proc, setup, readings))
+        return cache[name]
+
+    return get_clean
+
+
+NAMES = sorted(registry())
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_clean_readings_pass(clean, name):
+    proc, setup, _, fc = clean(name)
+    flagged = [fc.ok is False]
+    for seed in (8, 9):
+        readings = proc.simulate(setup, proc.Truth(), 1, rng=seed)
+        flagged.append(fit_check(proc, setup, readings).ok is False)
+    assert fc.ok is not None and fc.dof > 0, fc.reason
+    assert sum(flagged) <= 1, (name, fc.summary())
+    assert 0 <= fc.p_value <= 1 and fc.chi2 > 0
+    assert fc.n_readings - fc.dof <= fc.n_parameters
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_one_reading_off_by_30_times_its_scatter_is_flagged_and_named(clean, name):
+    proc, setup, readings, fc = clean(name)
+    keys, y = _flat(proc, readings)
+    assert y.size == fc.n_readings
+    # a reading that the fit leaves residual freedom (finite z), in the middle of the file
+    candidates = np.flatnonzero(np.isfinite(fc.z))
+    i = int(candidates[candidates.size // 2])
+    y = y.copy()
+    y[i] += 30 * fc.scatter[i]
+    moved = _unflat(readings, keys, y)
+    out = fit_check(proc, setup, moved)
+    assert out.ok is False, out.summary()
+    origin = reading_origin(proc, setup, readings)
+    rows = np.concatenate([np.asarray(origin[k][0]).reshape(-1) for k in keys])
+    assert out.worst[0]["row"] == rows[i], (out.worst, rows[i])
+    assert abs(out.worst[0]["z"]) > 10
+    assert "do not fit" in out.warning() and f"row {rows[i]}" in out.warning()
+
+
+def _three_times_noise(fc, y, rng):
+    return y + np.sqrt(9 - 1) * fc.scatter * rng.standard_normal(y.size)
+
+
+def _harmonic(fc, y, rng):
+    j = np.arange(y.size)
+    return y + 3 * np.median(fc.scatter) * np.sin(2 * np.pi * 5.3 * j / y.size + rng.random())
+
+
+@pytest.mark.parametrize("effect", [_three_times_noise, _harmonic], ids=["noise_x3", "harmonic"])
+@pytest.mark.parametrize("name", NAMES)
+def test_effects_outside_the_model_are_flagged(clean, name, effect):
+    proc, setup, readings, fc = clean(name)
+    keys, y = _flat(proc, readings)
+    rng = np.random.default_rng(11)
+    out = fit_check(proc, setup, _unflat(readings, keys, effect(fc, y, rng)))
+    assert out.ok is False, out.summary()
+
+
+def test_no_residual_freedom_gives_no_verdict():
+    """circle_centre, 3 contacts without the start points and two coordinates missing: 4
+    readings for the 4 fitted parameters (centre, radius, one start coordinate) leave no
+    residual freedom: ok is None, with the reason."""
+    proc = get("circle_centre")
+    setup = proc.Setup(n_points=3)
+    readings = dict(proc.simulate(setup, proc.Truth(), 1, rng=3))
+    for k in ("p_x_mm", "p_y_mm"):
+        readings[k] = np.full_like(readings[k], np.nan)
+    for k, j in (("x_mm", 0), ("y_mm", 1)):
+        readings[k] = readings[k].copy()
+        readings[k][0, j] = np.nan
+    fc = fit_check(proc, setup, readings)
+    assert fc.n_readings == 4 and fc.dof <= 0
+    assert fc.ok is None and fc.p_value is None and "degree of freedom" in fc.reason
+    assert fc.to_dict()["ok"] is None and "not made" in fc.summary()
+
+
+def test_measured_result_carries_the_fit_and_alpha_is_checked():
+    proc = get("rotary_axis")
+    setup = proc.Setup()
+    readings = proc.simulate(setup, proc.Truth(), 1, rng=5)
+    res = estimate_measured(proc, setup, readings, trials=200, rng=0, fit_alpha=0.05)
+    doc = res.to_dict()["fit"]
+    assert set(doc) >= {"chi2", "dof", "p_value", "ok", "worst"} and doc["alpha"] == 0.05
+    assert all(set(w) >= {"row", "z"} for w in doc["worst"])
+    with pytest.raises(mtplan._validate.InvalidInput, match="fit_alpha"):
+        estimate_measured(proc, setup, readings, trials=200, fit_alpha=1.5)
+
+
+def test_cli_warns_and_names_rows_when_the_readings_do_not_fit(tmp_path, capsys):
+    """A reading of the example file moved by 0.2 mm: the table still prints, then the
+    warning naming its row (the data row, 1 under the header); --json has fit.ok false."""
+    lines = (EXAMPLES / "rotary_axis_readings.csv").read_text().splitlines()
+    cells = lines[40].split(",")  # data row 40
+    cells[-1] = f"{float(cells[-1]) + 0.2:.9f}"
+    lines[40] = ",".join(cells)
+    path = tmp_path / "moved.csv"
+    path.write_text("\n".join(lines) + "\n")
+    assert main(["estimate", "rotary_axis", str(path), "--trials", "200"]) == 0
+    out = capsys.readouterr().out
+    assert "EX0C" in out and "WARNING: the readings do not fit the model" in out
+    assert "row 40 z_mm" in out
+    assert main(["estimate", "rotary_axis", str(path), "--trials", "200", "--json"]) == 0
+    fit = json.loads(capsys.readouterr().out)["fit"]
+    assert fit["ok"] is False and fit["worst"][0]["row"] == 40
+    assert main(["estimate", "rotary_axis", str(path), "--fit-alpha", "2"]) == 2
+
+
+def test_posterior_evaluation_carries_the_fit_and_a_free_noise_takes_one_dof():
+    import warnings
+
+    proc = get("circle_centre")
+    setup = proc.Setup(n_points=6)
+    readings = proc.simulate(setup, proc.Truth(), 1, rng=4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = estimate_measured(proc, setup, readings, uncertainty="posterior", rng=0,
+                                allow_unconverged=True,
+                                posterior_options={"max_steps": 100, "progress": False})
+    fixed = fit_check(proc, setup, readings)
+    assert res.fit.dof == fixed.dof and res.fit.chi2 == pytest.approx(fixed.chi2, rel=1e-6)
+    assert res.to_dict()["fit"]["ok"] is not None
+    free = fit_check(proc, setup, readings, noise="free")
+    assert free.dof == fixed.dof - 1 and free.ok is not None
