@@ -51,7 +51,7 @@ class MeasuredResult:
         estimate (``mc``, always applied; 0 for ``posterior``).
     bias_correction_u : array (n_measurands,)
         Standard uncertainty of the correction (``mc``: its Monte Carlo standard error and
-        its spread over the truths the readings allow, :mod:`mtplan.evaluation.covariance`;
+        its spread over the truths the readings allow, :mod:`mtplan.evaluation.correction`;
         included in :attr:`std`; 0 for ``posterior``).
     value : array (n_measurands,)
         The result: the bias-corrected estimate (``mc``) or the posterior mean.
@@ -309,7 +309,7 @@ def _corrected(r, estimate, names, notes, coverage):
     The interval is the estimate less the quantiles of the estimation error. The bias of
     the estimator at the estimate (the mean error) is always corrected: the Monte Carlo
     mean is an unbiased estimate of it, and its own uncertainty (GUM 3.2.3) is added to u
-    by :mod:`mtplan.evaluation.covariance`; a rule that corrects only a significant bias
+    by :mod:`mtplan.evaluation.correction`; a rule that corrects only a significant bias
     would make the value jump where the bias crosses the rule's threshold. Where the
     errors are heavy-tailed (:func:`_tails`: rare wild trials dominate the moments), the
     Monte Carlo cannot pin a bias down, so none is corrected (unless the estimate lies
@@ -344,7 +344,7 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
                root, seed, notes, progress=False, draws=None):
     """Monte Carlo around the estimate: bias-corrected value, its interval, determinability;
     the correction's uncertainty in u, the interval and the covariance."""
-    from mtplan.evaluation.covariance import NUISANCE_DRAWS, condition_on_readings, correct_mc
+    from mtplan.evaluation.correction import NUISANCE_DRAWS, condition_on_readings, correct_mc
     from mtplan.evaluation.simulation import simulate_uncertainty
 
     measurands = tuple(proc.measurands(setup))
@@ -450,7 +450,7 @@ def estimate_measured(
     nuisance_draws : int, optional
         ``"mc"``: truths drawn from the readings' least squares at which the bias is
         evaluated again, for the correction's uncertainty (default
-        :data:`mtplan.evaluation.covariance.NUISANCE_DRAWS`; 0: none, said in a note).
+        :data:`mtplan.evaluation.correction.NUISANCE_DRAWS`; 0: none, said in a note).
 
     Returns
     -------
