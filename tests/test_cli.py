@@ -53,11 +53,36 @@ def test_simulate_json_contract(capsys, proc):
     code, out, err = run(capsys, "simulate", proc, "--json", "--trials", "200", "--seed", "3")
     assert code == 0, err
     doc = json.loads(out)
-    assert set(doc) == {"procedure", "estimator", "setup", "seed", "trials", "measurands"}
+    assert set(doc) == {"procedure", "estimator", "setup", "seed", "trials", "measurands",
+                        "covariance"}
     assert doc["procedure"] == proc and doc["seed"] == 3 and doc["trials"] == 200
     for m in doc["measurands"]:
         assert set(m) == {"name", "unit", "true", "mean", "bias", "std", "interval", "coverage"}
         assert len(m["interval"]) == 2 and m["coverage"] == 0.95
+    cov = doc["covariance"]
+    assert cov["names"] == [m["name"] for m in doc["measurands"]]
+    assert cov["units"] == [m["unit"] for m in doc["measurands"]]
+
+
+def test_simulate_json_covariance_is_the_trials_covariance(capsys):
+    """`simulate --json` carries the covariance of the Monte Carlo estimates in the display
+    units: the sample covariance of the trials' values (computed here from the kept values,
+    independently of the engine's block-wise merge), its diagonal the u^2 of the table."""
+    import numpy as np
+
+    from mtplan.evaluation import simulate_uncertainty
+
+    code, out, err = run(capsys, "simulate", "rotary_axis", "--json", "--trials", "1500",
+                         "--seed", "4")
+    assert code == 0, err
+    doc = json.loads(out)
+    c = np.array(doc["covariance"]["matrix"])
+    assert doc["covariance"]["units"] == ["um", "um", "urad", "urad"]
+    assert np.diag(c) == pytest.approx([m["std"] ** 2 for m in doc["measurands"]], rel=1e-12)
+    r = simulate_uncertainty("rotary_axis", trials=1500, rng=4, progress=False)
+    values = np.vstack([r.mc.samples(n) for n in doc["covariance"]["names"]])
+    assert c == pytest.approx(np.cov(values, ddof=1), rel=1e-9, abs=1e-12)
+    assert np.all(np.linalg.eigvalsh(c) > 0)
 
 
 @pytest.mark.parametrize("proc", PROCS)

@@ -158,9 +158,22 @@ def test_cli_estimate_json(tmp_path, capsys, toy_cli, method):
     assert [m["name"] for m in doc["measurands"]] == ["offset", "slope"]
     for m in doc["measurands"]:
         assert set(m) == {"name", "unit", "value", "u", "interval", "coverage", "estimate",
-                          "bias_correction", "determinable", "reason"}
+                          "bias_correction", "bias_correction_u", "determinable", "reason"}
     if method == "posterior":
         assert doc["posterior"]["converged"]
+        assert all(m["bias_correction"] == m["bias_correction_u"] == 0 for m in doc["measurands"])
+    # the covariance of the values: names and units in order, symmetric, positive definite,
+    # its diagonal u^2 (the Monte Carlo's estimates plus the correction's part; the samples')
+    cov = doc["covariance"]
+    assert cov["names"] == ["offset", "slope"] and cov["units"] == ["um", "urad"]
+    c = np.array(cov["matrix"])
+    assert c.shape == (2, 2) and c[0, 1] == c[1, 0] and np.all(np.linalg.eigvalsh(c) > 0)
+    assert np.diag(c) == pytest.approx([m["u"] ** 2 for m in doc["measurands"]], rel=1e-12)
+    # points symmetric about x = 0: the least-squares offset and slope are uncorrelated; the
+    # estimated correlation's Monte Carlo error is about 1 / sqrt(n) (n trials, or the
+    # posterior's effective sample size), 4 of them allowed
+    n = 2000 if method == "mc" else min(p["ess"] for p in doc["posterior"]["parameters"])
+    assert abs(c[0, 1] / np.sqrt(c[0, 0] * c[1, 1])) < 4 / np.sqrt(n)
 
 
 def test_cli_estimate_table_and_out(tmp_path, capsys, toy_cli):
@@ -286,29 +299,88 @@ def test_cli_posterior_table_and_time_budget(tmp_path, capsys, toy_cli):
     assert code == 1 and "time budget" in err
 
 
-def test_bias_is_corrected_where_the_monte_carlo_pins_it_down():
-    """A bias beyond three of its Monte Carlo standard errors is corrected; a smaller one is
-    noise and left alone; with heavy tails (the mean outside the interval, or a standard
+def _mc(mean, std=1.0, trials=10_000):
+    """A Monte Carlo summary with Gaussian errors of mean `mean` and standard deviation `std`."""
+    from types import SimpleNamespace
+
+    mean, std = np.atleast_1d(np.asarray(mean, float)), np.broadcast_to(std, np.shape(mean))
+    mc = SimpleNamespace(trials=trials, std=np.array(std, float), mean=mean,
+                         low=mean - 1.96 * std, high=mean + 1.96 * std)
+    return SimpleNamespace(mc=mc, true=np.zeros_like(mean))
+
+
+def test_the_bias_is_always_corrected_so_the_value_has_no_jump():
+    """The mean error is corrected whatever its size: as it crosses three of its Monte Carlo
+    standard errors (where a correction used to switch on) the value moves by exactly as much
+    as the bias does, no jump; with heavy tails (the mean outside the interval, or a standard
     deviation far beyond the interval's spread) none is, and u comes from the interval."""
     from types import SimpleNamespace
 
     from mtplan.evaluation.measured import _corrected
 
-    # errors: significant bias, insignificant bias, heavy tails (std >> interval), and two
-    # heavy-tailed ones whose interval does not hold the estimate: the mean inside it, outside
-    mc = SimpleNamespace(trials=10_000, std=np.array([1.0, 1.0, 500.0, 50.0, 50.0]),
-                         mean=np.array([0.5, 0.01, 40.0, 3.0, 40.0]),
-                         low=np.array([-1.46, -1.95, -2.0, 2.5, 2.5]),
-                         high=np.array([2.46, 1.97, 2.0, 8.0, 8.0]))
-    r = SimpleNamespace(mc=mc, true=np.zeros(5))
+    se = 1.0 / np.sqrt(10_000)
+    means = np.linspace(2.0, 4.0, 201) * se  # across the old threshold, 3 se
+    value, corr, u, low, high = _corrected(_mc(means), np.full(means.size, 10.0),
+                                           [f"m{i}" for i in range(means.size)], [], 0.95)
+    assert np.allclose(corr, -means, rtol=0, atol=1e-15)
+    steps = np.abs(np.diff(value))
+    assert steps.max() <= 1.000001 * np.diff(means).max()  # continuous: no step beyond the bias's
+    assert np.all((low <= value) & (value <= high)) and np.all(u == 1.0)
+    # heavy tails (std >> interval), and two heavy-tailed ones whose interval does not hold the
+    # estimate: the mean inside it, outside
+    mc = SimpleNamespace(trials=10_000, std=np.array([500.0, 50.0, 50.0]),
+                         mean=np.array([40.0, 3.0, 40.0]), low=np.array([-2.0, 2.5, 2.5]),
+                         high=np.array([2.0, 8.0, 8.0]))
     notes = []
-    value, corr, u, low, high = _corrected(r, np.full(5, 10.0), list("abcde"), notes, 0.95)
-    assert corr[0] == pytest.approx(-0.5) and corr[1] == 0 and corr[2] == 0
-    assert u[:2].tolist() == [1.0, 1.0] and u[2] == pytest.approx(4.0 / (2 * 1.959964))
+    value, corr, u, low, high = _corrected(SimpleNamespace(mc=mc, true=np.zeros(3)),
+                                           np.full(3, 10.0), list("cde"), notes, 0.95)
+    assert corr[0] == 0 and u[0] == pytest.approx(4.0 / (2 * 1.959964))
     assert "heavy-tailed" in notes[0] and "c (std 500" in notes[0]
     # no correction would leave the value outside its own interval [2, 7.5]
-    assert value[3] == pytest.approx(10.0 - 3.0) and value[4] == pytest.approx(10.0 - 5.25)
+    assert value[1] == pytest.approx(10.0 - 3.0) and value[2] == pytest.approx(10.0 - 5.25)
     assert np.all(low <= value) and np.all(value <= high)
+
+
+def test_the_corrections_uncertainty_is_in_u_and_the_covariance():
+    """u^2 = u_mc^2 + (u_mc^2 / N + mean of d_k^2): the correction's Monte Carlo standard
+    error and its spread over the truths drawn; each side of the interval widened by k u_c;
+    the covariance's diagonal is u^2 and its off-diagonal carries the d_k's product."""
+    from mtplan.evaluation.covariance import correction_u, mc_covariance
+
+    d = np.array([[0.3, -0.1], [-0.3, 0.1], [0.6, 0.2]])
+    se, nuis = correction_u([2.0, 1.0], 400, d)
+    assert se == pytest.approx([0.1, 0.05])
+    assert nuis == pytest.approx(np.sqrt([0.18, 0.02]))
+    cov_mc = np.array([[4.0, 0.5], [0.5, 1.0]])
+    u = np.hypot([2.0, 1.0], np.hypot(se, nuis))
+    cov = mc_covariance(cov_mc, 400, d, u)
+    assert np.diag(cov) == pytest.approx(u**2)
+    assert cov[0, 1] == pytest.approx(0.5 * (1 + 1 / 400) + np.mean(d[:, 0] * d[:, 1]))
+    assert cov[0, 1] == cov[1, 0]
+
+
+def test_the_correction_moves_with_the_truths_the_readings_allow():
+    """circle_centre's kasa fit at the example readings: the Monte Carlo runs at a truth built
+    from the estimate, whose start point is put at the centre; the truths the readings allow
+    (their least squares) put it elsewhere, and kasa's bias moves with it. That spread is in
+    the correction's u, u = sqrt(u_mc^2 + u_c^2) holds, and without draws only the Monte Carlo
+    standard error remains, said in a note."""
+    proc = registry()["circle_centre"]
+    setup = proc.Setup()
+    path = Path(mtplan.__file__).parent / "examples" / "circle_centre_readings.csv"
+    readings = read_readings(proc, setup, path)
+    res = estimate_measured(proc, setup, readings, estimator="kasa", trials=2000, rng=3)
+    mc_std = res.details.mc.std
+    se = mc_std / np.sqrt(2000)
+    assert np.all(res.bias_correction_u > se)  # the truth spread adds to the standard error
+    assert res.std**2 == pytest.approx(mc_std**2 + res.bias_correction_u**2, rel=1e-12)
+    assert np.diag(res.covariance) == pytest.approx(res.std**2, rel=1e-12)
+    assert any("truths drawn from the readings' least squares" in n for n in res.notes)
+    none = estimate_measured(proc, setup, readings, estimator="kasa", trials=2000, rng=3,
+                             nuisance_draws=0)
+    assert none.bias_correction_u == pytest.approx(se, rel=1e-12)
+    assert any("dependence on the truth is not in u" in n for n in none.notes)
+    assert none.value == pytest.approx(res.value, rel=0, abs=1e-12)
 
 
 def test_simulate_says_when_an_interval_has_zero_width_or_the_bias_dominates():

@@ -96,3 +96,26 @@ def test_the_default_estimator_observes_every_measurand():
         readings = read_readings(proc, proc.Setup(), EXAMPLES / f"{name}_readings.csv")
         res = estimate_measured(proc, proc.Setup(), readings, trials=300, rng=0)
         assert res.estimator in proc.exact_estimators and res.determinable.all(), name
+
+
+@pytest.mark.parametrize("name", ["circle_centre", "rotary_axis"])
+def test_posterior_and_mc_correlations_agree(evaluated, name):
+    """The correlations between the measurands, from the posterior's samples and from the `mc`
+    covariance, agree within 0.1 on the example readings. The Monte Carlo error of an
+    estimated correlation rho from n independent draws is (1 - rho^2) / sqrt(n) (n: the
+    posterior's effective sample size, the mc trials); 0.1 is above four of the difference's
+    standard errors, so a failure is not Monte Carlo noise."""
+    from mtplan.evaluation.covariance import correlation, posterior_covariance
+
+    proc, post, mc = evaluated(name)
+    names = [m.name for m in post.measurands]
+    r_post = correlation(posterior_covariance(post, names))
+    r_mc = correlation(mc.covariance)
+    ess = min(post.ess[n] for n in names)
+    for i in range(len(names)):
+        for j in range(i):
+            se = math.hypot((1 - r_post[i, j] ** 2) / math.sqrt(ess),
+                            (1 - r_mc[i, j] ** 2) / math.sqrt(4000))
+            assert 4 * se < 0.1, (names[i], names[j], se)
+            assert abs(r_post[i, j] - r_mc[i, j]) <= 0.1, (names[i], names[j], r_post[i, j],
+                                                            r_mc[i, j])

@@ -60,6 +60,25 @@ def test_results_csv_written(small_report):
     assert any("sweep" in n for n in names)
 
 
+def test_results_hold_one_covariance_per_test(small_report):
+    """results/covariance_<procedure>_<k>.csv: the measured values' covariance (the test has
+    readings), one row and one column per measurand, its diagonal the measured u^2 of
+    verdicts.csv."""
+    import numpy as np
+    import pandas as pd
+
+    cov = pd.read_csv(small_report / "results" / "covariance_circle_centre_1.csv")
+    names = list(cov["measurand"])
+    assert names == ["centre_x", "centre_y", "radius"] and list(cov["unit"]) == ["um"] * 3
+    assert cov["source"].str.startswith("measured").all()
+    matrix = cov[names].to_numpy()
+    assert np.allclose(matrix, matrix.T, rtol=1e-12, atol=0)
+    verdicts = pd.read_csv(small_report / "results" / "verdicts.csv").set_index("measurand")
+    for i, name in enumerate(names):
+        if name in verdicts.index:
+            assert matrix[i, i] == pytest.approx(verdicts.loc[name, "measured_u"] ** 2, rel=1e-9)
+
+
 # ------------------------------------------------------------------ atomic writes
 def test_failed_pdf_leaves_nothing_behind(small_result, tmp_path, monkeypatch):
     from mtplan.reports import render, write_report

@@ -132,13 +132,17 @@ def _print_result(result, source) -> None:
         est = float(result.estimate[i])
         if not result.determinable[i]:
             rows.append([m.name, m.unit, "not determinable", "-", "-",
-                         fmt(est, abs(est) * 1e-3 or 1.0) if math.isfinite(est) else "-", "-"])
+                         fmt(est, abs(est) * 1e-3 or 1.0) if math.isfinite(est) else "-", "-",
+                         "-"])
             continue
-        corr = fmt(float(result.bias_correction[i]), u) if method == "mc" else "-"
+        u_c = float(result.bias_correction_u[i])
+        corr = fmt(float(result.bias_correction[i]), u_c) if method == "mc" else "-"
+        u_corr = f"{u_c:.2g}" if method == "mc" else "-"
         rows.append([m.name, m.unit, fmt(float(result.value[i]), u), f"{u:.2g}",
                      f"[{fmt(float(result.low[i]), u)}, {fmt(float(result.high[i]), u)}]",
-                     fmt(est, u), corr])
-    print_table(["measurand", "unit", "value", "u", "interval", "estimate", "correction"], rows)
+                     fmt(est, u), corr, u_corr])
+    print_table(["measurand", "unit", "value", "u", "interval", "estimate", "correction",
+                 "u(correction)"], rows)
     for name, why in result.reasons.items():
         print(f"{name}: {why}")
     if result.fit is not None:

@@ -13,6 +13,8 @@ procedure's forward model and estimators with the generic engine
   readings (:func:`estimate_measured`).
 - :mod:`~mtplan.evaluation.posterior`: the emcee posterior of a procedure's
   measurands given measured readings (:func:`sample_posterior`).
+- :mod:`~mtplan.evaluation.correction`: the uncertainty of the `mc` bias correction;
+  :mod:`~mtplan.evaluation.covariance`: the results' covariance.
 
 Heavy submodules are imported on first use, so ``import mtplan.evaluation`` is cheap.
 """

@@ -48,7 +48,11 @@ class MeasuredResult:
         The estimator's value from the readings (provenance).
     bias_correction : array (n_measurands,)
         Added to the estimate to give the value: minus the estimator's bias at the
-        estimate (``mc``; 0 for ``posterior``).
+        estimate (``mc``, always applied; 0 for ``posterior``).
+    bias_correction_u : array (n_measurands,)
+        Standard uncertainty of the correction (``mc``: its Monte Carlo standard error and
+        its spread over the truths the readings allow, :mod:`mtplan.evaluation.correction`;
+        included in :attr:`std`; 0 for ``posterior``).
     value : array (n_measurands,)
         The result: the bias-corrected estimate (``mc``) or the posterior mean.
     std : array (n_measurands,)
@@ -57,6 +61,9 @@ class MeasuredResult:
         Coverage interval of the value (``mc``: the estimate minus the Monte Carlo
         quantiles of the estimation error; ``posterior``: equal-tailed credible
         interval).
+    covariance : array (n_measurands, n_measurands)
+        Covariance of the values [display units]; its diagonal is ``std**2`` (NaN rows and
+        columns for a measurand that is not determinable).
     determinable : array of bool (n_measurands,)
         False where this estimator cannot give the measurand (its value, u and
         interval are NaN and :attr:`reasons` says why).
@@ -86,6 +93,8 @@ class MeasuredResult:
     seed: object
     details: object
     bias_correction: np.ndarray = None
+    bias_correction_u: np.ndarray = None
+    covariance: np.ndarray = None
     determinable: np.ndarray = None
     reasons: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
@@ -95,6 +104,10 @@ class MeasuredResult:
         n = len(self.measurands)
         if self.bias_correction is None:
             self.bias_correction = np.zeros(n)
+        if self.bias_correction_u is None:
+            self.bias_correction_u = np.where(np.isfinite(self.bias_correction), 0.0, np.nan)
+        if self.covariance is None:
+            self.covariance = np.diag(np.asarray(self.std, dtype=float) ** 2)
         if self.determinable is None:
             self.determinable = np.ones(n, dtype=bool)
 
@@ -105,14 +118,15 @@ class MeasuredResult:
 
     def summary(self):
         """DataFrame indexed by measurand: unit, value, u, low, high, estimate,
-        bias_correction, determinable, reason."""
+        bias_correction, bias_correction_u, determinable, reason."""
         import pandas as pd
 
         names = [m.name for m in self.measurands]
         return pd.DataFrame(
             {"unit": [m.unit for m in self.measurands], "value": self.value, "u": self.std,
              "low": self.low, "high": self.high, "estimate": self.estimate,
-             "bias_correction": self.bias_correction, "determinable": self.determinable,
+             "bias_correction": self.bias_correction,
+             "bias_correction_u": self.bias_correction_u, "determinable": self.determinable,
              "reason": [self.reasons.get(n, "") for n in names]},
             index=pd.Index(names, name="measurand"))
 
@@ -133,6 +147,7 @@ class MeasuredResult:
                  "u": num(self.std[i]), "interval": [num(self.low[i]), num(self.high[i])],
                  "coverage": float(self.coverage), "estimate": num(self.estimate[i]),
                  "bias_correction": num(self.bias_correction[i]),
+                 "bias_correction_u": num(self.bias_correction_u[i]),
                  "determinable": bool(self.determinable[i]),
                  "reason": self.reasons.get(m.name)}
                 for i, m in enumerate(self.measurands)
@@ -141,6 +156,10 @@ class MeasuredResult:
         }
         if self.fit is not None:
             doc["fit"] = self.fit.to_dict()
+
+        from mtplan.evaluation.covariance import covariance_doc
+
+        doc["covariance"] = covariance_doc(self.measurands, self.covariance)
         if self.uncertainty == "posterior":
             doc["posterior"] = self.details.to_dict()
         else:
@@ -277,33 +296,44 @@ def _observes(proc, setup, est_name, est_internal, step):
     return slopes, derived
 
 
-def _corrected(r, estimate, names, notes, coverage):
-    """(value, bias correction, u, low, high) from the Monte Carlo around the estimate.
-
-    The interval is the estimate less the quantiles of the estimation error. The bias of
-    the estimator at the estimate (the mean error) is corrected where it is significant,
-    beyond three of its Monte Carlo standard errors; a smaller one is noise, not a
-    recognised systematic effect, and is left alone (GUM 3.2.4). Where the errors are
-    heavy-tailed (their mean outside the interval, or their standard deviation over three
-    times the spread the interval implies: rare wild trials dominate the moments), the
-    Monte Carlo cannot pin a bias down, so none is corrected (unless the estimate lies
-    outside its own interval: then the interval's middle is the value), and the interval's
-    half-width over the coverage factor of a normal distribution stands for the standard
-    deviation, said in a note: the interval is then the result, the moments are not.
-    """
+def _tails(r, coverage):
+    """(heavy, robust, k): which measurands' Monte Carlo errors are heavy-tailed (their mean
+    outside the coverage interval, or their standard deviation over three times the spread
+    the interval implies), the interval's half-width over the normal coverage factor, k."""
     from scipy import stats
 
-    names = np.asarray(names)
-    n = max(int(r.mc.trials), 2)
     std = np.asarray(r.mc.std, dtype=float)
     err_mean = np.asarray(r.mc.mean - r.true, dtype=float)
     err_low, err_high = np.asarray(r.mc.low - r.true), np.asarray(r.mc.high - r.true)
     k = stats.norm.ppf(0.5 + coverage / 2)
     robust = (err_high - err_low) / (2 * k)
     inside = (err_low <= err_mean) & (err_mean <= err_high)
-    heavy = ~inside | (std > 3 * robust)
+    return ~inside | (std > 3 * robust), robust, k
+
+
+def _corrected(r, estimate, names, notes, coverage):
+    """(value, bias correction, u, low, high) from the Monte Carlo around the estimate.
+
+    The interval is the estimate less the quantiles of the estimation error. The bias of
+    the estimator at the estimate (the mean error) is always corrected: the Monte Carlo
+    mean is an unbiased estimate of it, and its own uncertainty (GUM 3.2.3) is added to u
+    by :mod:`mtplan.evaluation.correction`; a rule that corrects only a significant bias
+    would make the value jump where the bias crosses the rule's threshold. Where the
+    errors are heavy-tailed (:func:`_tails`: rare wild trials dominate the moments), the
+    Monte Carlo cannot pin a bias down, so none is corrected (unless the estimate lies
+    outside its own interval: then the interval's middle is the value), and the interval's
+    half-width over the coverage factor of a normal distribution stands for the standard
+    deviation, said in a note: the interval is then the result, the moments are not.
+    u here is the Monte Carlo's alone, without the correction's.
+    """
+    names = np.asarray(names)
+    std = np.asarray(r.mc.std, dtype=float)
+    err_mean = np.asarray(r.mc.mean - r.true, dtype=float)
+    err_low, err_high = np.asarray(r.mc.low - r.true), np.asarray(r.mc.high - r.true)
+    heavy, robust, k = _tails(r, coverage)
     u = np.where(heavy, robust, std)
-    bias = np.where(~heavy & (np.abs(err_mean) > 3 * std / math.sqrt(n)), err_mean, 0.0)
+    inside = (err_low <= err_mean) & (err_mean <= err_high)
+    bias = np.where(heavy, 0.0, err_mean)
     # no correction must leave the value outside its own interval
     middle = 0.5 * (err_low + err_high)
     bias = np.where((err_low <= bias) & (bias <= err_high), bias,
@@ -318,9 +348,11 @@ def _corrected(r, estimate, names, notes, coverage):
     return estimate - bias, 0.0 - bias, u, estimate - err_high, estimate - err_low
 
 
-def _mc_result(proc, setup, est_name, est_internal, estimate, *, trials, coverage, root,
-               seed, notes, progress=False):
-    """Monte Carlo around the estimate: bias-corrected value, its interval, determinability."""
+def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trials, coverage,
+               root, seed, notes, progress=False, draws=None):
+    """Monte Carlo around the estimate: bias-corrected value, its interval, determinability;
+    the correction's uncertainty in u, the interval and the covariance."""
+    from mtplan.evaluation.correction import NUISANCE_DRAWS, condition_on_readings, correct_mc
     from mtplan.evaluation.simulation import simulate_uncertainty
 
     measurands = tuple(proc.measurands(setup))
@@ -332,8 +364,10 @@ def _mc_result(proc, setup, est_name, est_internal, estimate, *, trials, coverag
         notes.append(f"the Monte Carlo ran at the default truth of {proc.name}, not at the "
                      "estimate" + ("" if proc.truth_from_estimate is None else
                                    " (the estimate is not finite)"))
-    r = simulate_uncertainty(proc, setup, truth, estimator=est_name, trials=trials,
-                             coverage=coverage, rng=root, progress=progress)
+    truth, sources, why = condition_on_readings(proc, setup, readings, truth)
+    notes += [why] if why else []
+    r = simulate_uncertainty(proc, setup, truth, estimator=est_name, sources=sources,
+                             trials=trials, coverage=coverage, rng=root, progress=progress)
     value, correction, std, low, high = _corrected(r, estimate, [m.name for m in measurands],
                                                    notes, coverage)
     slopes = None
@@ -363,11 +397,16 @@ def _mc_result(proc, setup, est_name, est_internal, estimate, *, trials, coverag
     bad = np.array([m.name in reasons for m in measurands])
     for arr in (value, std, low, high, correction):
         arr[bad] = np.nan
+    c = correct_mc(proc, setup, readings, est_name, truth, r, value=value, u=std, low=low,
+                   high=high, heavy=_tails(r, coverage)[0], coverage=coverage, rng=root,
+                   sources=sources, draws=NUISANCE_DRAWS if draws is None else draws)
+    notes += c["notes"]
     return MeasuredResult(
         procedure=proc.name, estimator=est_name, uncertainty="mc", setup=setup,
-        measurands=measurands, estimate=estimate, value=value, std=std, low=low, high=high,
-        coverage=float(coverage), seed=seed, details=r, bias_correction=correction,
-        determinable=~bad, reasons=reasons, notes=notes)
+        measurands=measurands, estimate=estimate, value=value, std=c["u"], low=c["low"],
+        high=c["high"], coverage=float(coverage), seed=seed, details=r,
+        bias_correction=correction, bias_correction_u=c["u_correction"],
+        covariance=c["covariance"], determinable=~bad, reasons=reasons, notes=notes)
 
 
 def estimate_measured(
@@ -387,6 +426,7 @@ def estimate_measured(
     progress: bool | None = False,
     fit_alpha: float | None = 0.01,
     origin: dict | None = None,
+    nuisance_draws: int | None = None,
 ) -> MeasuredResult:
     """The measurands of one measurement, with their uncertainty: the values GUM would report.
 
@@ -423,6 +463,10 @@ def estimate_measured(
     origin : dict, optional
         Row and column of every reading in its file (``Measurement.origin``), to name
         the worst readings of the fit check.
+    nuisance_draws : int, optional
+        ``"mc"``: truths drawn from the readings' least squares at which the bias is
+        evaluated again, for the correction's uncertainty (default
+        :data:`mtplan.evaluation.correction.NUISANCE_DRAWS`; 0: none, said in a note).
 
     Returns
     -------
@@ -453,9 +497,9 @@ def estimate_measured(
     root = as_seed_sequence(rng)
     seed = root.entropy if isinstance(root.entropy, int) else list(root.entropy)
     if uncertainty == "mc":
-        result = _mc_result(proc, setup, est_name, est_internal, estimate, trials=trials,
-                            coverage=coverage, root=root, seed=seed, notes=notes,
-                            progress=progress)
+        result = _mc_result(proc, setup, readings, est_name, est_internal, estimate,
+                            trials=trials, coverage=coverage, root=root, seed=seed,
+                            notes=notes, progress=progress, draws=nuisance_draws)
         return _with_fit(result, proc, readings, fit_alpha, noise="setup", origin=origin)
     from mtplan.evaluation.posterior import sample_posterior
 
@@ -468,6 +512,8 @@ def estimate_measured(
                      "default truth")
     names = [m.name for m in measurands]
     notes.extend(post.notes)
+    from mtplan.evaluation.covariance import posterior_covariance
+
     return _with_fit(MeasuredResult(
         procedure=proc.name, estimator=est_name, uncertainty="posterior", setup=setup,
         measurands=measurands, estimate=estimate,
@@ -475,7 +521,8 @@ def estimate_measured(
         std=np.array([post.std[n] for n in names]),
         low=np.array([post.low[n] for n in names]),
         high=np.array([post.high[n] for n in names]),
-        coverage=float(coverage), seed=seed, details=post, notes=notes), proc, readings,
+        coverage=float(coverage), seed=seed, details=post,
+        covariance=posterior_covariance(post, names), notes=notes), proc, readings,
         fit_alpha, noise=noise, origin=origin)
 
 

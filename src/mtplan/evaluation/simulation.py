@@ -123,7 +123,10 @@ class ProcedureResult:
         return out
 
     def to_dict(self) -> dict:
-        """The ``--json`` document of ``mtplan simulate`` (see DESIGN.md)."""
+        """The ``--json`` document of ``mtplan simulate``; ``covariance``: the
+        Monte Carlo estimates' (:func:`mtplan.evaluation.covariance.covariance_doc`)."""
+        from mtplan.evaluation.covariance import covariance_doc
+
         seed = self.mc.seed
         return {
             "procedure": self.procedure,
@@ -144,6 +147,7 @@ class ProcedureResult:
                 }
                 for i, m in enumerate(self.measurands)
             ],
+            "covariance": covariance_doc(self.measurands, self.mc.cov),
         }
 
 

@@ -79,6 +79,7 @@ def build_document(result) -> Document:
         csv.update(frames)
     sections.append(appendix.provenance_section(result.provenance))
     csv.update(_verdict_frames(result))
+    csv.update(_covariance_frames(result))
     meta, signoff, standards = _cover(result)
     return Document(title=study.title, subtitle=study.meta.get("subtitle", ""), meta=meta,
                     provenance=result.provenance, sections=sections, csv=csv,
@@ -99,6 +100,26 @@ def _verdict_frames(result) -> dict:
                "measured_source", "p_conform", "verdict", "reason"]
     verdicts = pd.DataFrame([v.row() for v in result.verdicts], columns=columns)
     return {"verdicts": verdicts, "summary": pd.DataFrame(rows)}
+
+
+def _covariance_frames(result) -> dict:
+    """``results/covariance_<procedure>_<k>.csv`` per test: the covariance of the measured
+    values where the test has readings, else of the recommended estimator's Monte Carlo."""
+    from mtplan.evaluation.covariance import covariance_frame
+
+    frames = {}
+    for k, o in enumerate(result.outcomes, start=1):
+        m = o.measured
+        if m is not None:
+            frame = covariance_frame(m.measurands, m.covariance)
+            source = f"measured ({m.estimator}, {m.uncertainty})"
+        else:
+            r = o.results[o.recommended]
+            frame = covariance_frame(r.measurands, r.mc.cov)
+            source = f"simulated ({r.estimator}, Monte Carlo of the set-up)"
+        frame.insert(2, "source", source)
+        frames[f"covariance_{o.spec.name}_{k}"] = frame
+    return frames
 
 
 # ----------------------------------------------------------------------- summary
