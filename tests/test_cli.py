@@ -53,10 +53,12 @@ def test_simulate_json_contract(capsys, proc):
     code, out, err = run(capsys, "simulate", proc, "--json", "--trials", "200", "--seed", "3")
     assert code == 0, err
     doc = json.loads(out)
-    assert set(doc) == {"procedure", "estimator", "setup", "seed", "trials", "measurands"}
+    assert set(doc) == {"procedure", "estimator", "setup", "seed", "trials", "sources",
+                        "interval_kind", "duration_s", "measurands", "notes"}
     assert doc["procedure"] == proc and doc["seed"] == 3 and doc["trials"] == 200
     for m in doc["measurands"]:
-        assert set(m) == {"name", "unit", "true", "mean", "bias", "std", "interval", "coverage"}
+        assert set(m) == {"name", "unit", "value", "u", "interval", "coverage", "determinable",
+                          "reason", "true", "bias"}
         assert len(m["interval"]) == 2 and m["coverage"] == 0.95
 
 

@@ -565,6 +565,11 @@ class Procedure:
     #: readings table determines (``df`` as read from the file: numeric columns as floats,
     #: rows in the file's order, optional columns possibly absent)
     setup_from_frame: Callable | None = None
+    #: optional ``identifiability(setup, estimator) -> DataFrame`` indexed by every measurand
+    #: the procedure can report, with ``listed`` (a measurand at this set-up), ``status``
+    #: ('identified', 'unidentifiable', 'no effect', ...) and ``confounded_with``: every
+    #: command lists the measurands a set-up leaves out, with the reason
+    identifiability: Callable | None = None
 
     # ----------------------------------------------------------------- helpers
     @property

@@ -1839,4 +1839,5 @@ PROCEDURE = Procedure(
                  "xy_plane_z_mm xz_plane_y_mm yz_plane_x_mm feed_mm_min xy_extra_heads_mm "
                  "xz_extra_heads_mm yz_extra_heads_mm extra_head_tests".split()),
     setup_from_frame=setup_from_frame,
+    identifiability=identifiability,
 )
