@@ -8,7 +8,6 @@ starts fast.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 
 __all__ = [
@@ -284,7 +283,7 @@ def add_common(p, *, mc=True):
     p.add_argument("--set", action="append", metavar="FIELD=VALUE", help="set-up field (repeatable)")
     p.add_argument("--truth", action="append", metavar="FIELD=VALUE",
                    help="true value for the simulation (repeatable)")
-    p.add_argument("--estimator", metavar="NAME", help="estimator (default: the seed's method)")
+    p.add_argument("--estimator", metavar="NAME", help="estimator (default: the patent's method)")
     p.add_argument("--sources", metavar="NAME[,NAME...]",
                    help="simulate with only these error sources (field name without its unit)")
     p.add_argument("--coverage", type=float, default=0.95, metavar="P",

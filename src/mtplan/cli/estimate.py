@@ -31,7 +31,7 @@ def register(sub) -> None:
                         "positions, angles, radius) need not be given, and must agree")
     p.add_argument("--estimator", metavar="NAME",
                    help="estimator (default: the best one that observes every measurand; the "
-                        "seed's method by its name)")
+                        "patent's method by its name)")
     p.add_argument("--uncertainty", choices=["mc", "posterior"], default=None,
                    help="mc: Monte Carlo around the estimate (default); posterior: emcee")
     p.add_argument("--trials", type=int, metavar="N", help="Monte Carlo trials (default 10000)")

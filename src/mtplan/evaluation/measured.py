@@ -418,7 +418,7 @@ def estimate_measured(
         what ``mtplan estimate`` prints), or a batch of one (:func:`read_readings`).
     estimator : str, optional
         Default: :func:`best_estimator`, the best estimator that observes every
-        measurand; the seed's estimator stays available by its name.
+        measurand; the patent's estimator stays available by its name.
     uncertainty : {"mc", "posterior"}
         ``"mc"``: Monte Carlo of the set-up's error sources around the estimate (at
         ``procedure.truth_from_estimate(setup, estimate)`` when the procedure has that

@@ -17,7 +17,7 @@ A procedure module (``mtplan/models/<name>.py``) defines a module-level
   ``errors`` maps every source name to an array of shape ``(n, *source.shape)``;
   ``readings`` is a dict of batch-first arrays (leading axis = trials).
 - ``estimators``: name -> ``estimate(setup, readings) -> dict[measurand, (n,) array]``
-  in internal units (mm, rad). The seed's method is named ``patent`` (or the seed's
+  in internal units (mm, rad). The patent's method is named ``patent`` (or the patent's
   own name) and is always present.
 - ``true_values(setup, truth) -> dict[measurand, float]`` in internal units.
 - ``duration(setup) -> float``: machine time of the test [s].

@@ -778,7 +778,7 @@ def _extras(proc, ps):
     module = importlib.import_module(proc.forward.__module__)
     hook = getattr(module, "report_extras", None)
     extras = dict(hook(ps.setup, ps.truth)) if callable(hook) else {}
-    # what the seed's method cannot see: per-estimator identifiability or observability
+    # what the patent's method cannot see: per-estimator identifiability or observability
     ident = getattr(module, "identifiability", None)
     if callable(ident) and "identifiability" not in extras:
         extras["identifiability"] = {est: ident(ps.setup, est) for est in ps.estimators}
