@@ -5,8 +5,10 @@ call directly. One module per command (:data:`COMMANDS`), each with a
 ``register(subparsers)`` that adds its parser; what they share is in
 :mod:`mtplan.cli._common`, which imports none of them. A user's mistake (unknown
 field, bad value, missing file) exits with status 2 and one line on stderr, never
-a traceback. Heavy modules are imported inside the commands so that
-``mtplan --help`` starts fast.
+a traceback; a reader that leaves early (``| head``) ends the command quietly with status
+141. Every number a command prints comes from the library's result object (its ``to_dict``
+is the ``--json`` document, its ``summary`` the ``--out`` CSV). Heavy modules are imported
+inside the commands so that ``mtplan --help`` starts fast.
 """
 
 from __future__ import annotations
