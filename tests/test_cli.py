@@ -53,15 +53,17 @@ def test_simulate_json_contract(capsys, proc):
     code, out, err = run(capsys, "simulate", proc, "--json", "--trials", "200", "--seed", "3")
     assert code == 0, err
     doc = json.loads(out)
-    assert set(doc) == {"procedure", "estimator", "setup", "seed", "trials", "measurands",
+    assert set(doc) == {"procedure", "estimator", "setup", "seed", "trials", "sources",
+                        "interval_kind", "duration_s", "measurands", "notes",
                         "covariance"}
     assert doc["procedure"] == proc and doc["seed"] == 3 and doc["trials"] == 200
     for m in doc["measurands"]:
-        assert set(m) == {"name", "unit", "true", "mean", "bias", "std", "interval", "coverage"}
+        assert set(m) == {"name", "unit", "value", "u", "interval", "coverage", "determinable",
+                          "reason", "true", "bias"}
         assert len(m["interval"]) == 2 and m["coverage"] == 0.95
     cov = doc["covariance"]
-    assert cov["names"] == [m["name"] for m in doc["measurands"]]
-    assert cov["units"] == [m["unit"] for m in doc["measurands"]]
+    assert cov["names"] == [m["name"] for m in doc["measurands"] if m["determinable"]]
+    assert cov["units"] == [m["unit"] for m in doc["measurands"] if m["determinable"]]
 
 
 def test_simulate_json_covariance_is_the_trials_covariance(capsys):
@@ -78,7 +80,7 @@ def test_simulate_json_covariance_is_the_trials_covariance(capsys):
     doc = json.loads(out)
     c = np.array(doc["covariance"]["matrix"])
     assert doc["covariance"]["units"] == ["um", "um", "urad", "urad"]
-    assert np.diag(c) == pytest.approx([m["std"] ** 2 for m in doc["measurands"]], rel=1e-12)
+    assert np.diag(c) == pytest.approx([m["u"] ** 2 for m in doc["measurands"]], rel=1e-12)
     r = simulate_uncertainty("rotary_axis", trials=1500, rng=4, progress=False)
     values = np.vstack([r.mc.samples(n) for n in doc["covariance"]["names"]])
     assert c == pytest.approx(np.cov(values, ddof=1), rel=1e-9, abs=1e-12)

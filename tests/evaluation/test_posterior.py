@@ -65,7 +65,7 @@ def test_posterior_mean_is_the_least_squares_estimate(known):
 def test_result_contents(known):
     df = known.summary()
     assert list(df.index) == ["offset", "slope", "offset_mm", "slope_rad"]
-    assert set(df.columns) >= {"unit", "mean", "std", "low", "high", "tau", "rhat", "ess"}
+    assert set(df.columns) >= {"unit", "value", "u", "low", "high", "tau", "rhat", "ess"}
     assert df.loc["offset", "unit"] == "um" and df.loc["slope_rad", "unit"] == "rad"
     e, s, w, d = known.chains.shape
     assert e == 4 and s == known.n_steps and w == known.n_walkers >= 2 * d and d == 2

@@ -1,4 +1,4 @@
-"""circle_centre (seed 003): path planner, forward model, estimators, known behaviour.
+"""circle_centre (circle-centre patent): path planner, forward model, estimators, known behaviour.
 
 Statistical tolerances from the Monte Carlo error: a standard deviation from N trials
 is within 4/sqrt(2(N-1)) relative of the true one (about 4 sigma).
@@ -55,14 +55,14 @@ def test_planner_cases_and_geometry(start, case, first, later):
     assert plan.theta2_deg == pytest.approx(120 - plan.theta1_deg, abs=1e-9)
     # the planner's centre is the true one for a round bore without errors
     np.testing.assert_allclose(plan.centre, (0.0, 0.0), atol=1e-9)
-    # d1, d2, d3 on the bore, 120 deg apart, d3 on p1 (the seed's check passes)
+    # d1, d2, d3 on the bore, 120 deg apart, d3 on p1 (the patent's check passes)
     np.testing.assert_allclose(np.hypot(*plan.targets.T), R, atol=1e-9)
     ang = np.angle(plan.targets[:, 0] + 1j * plan.targets[:, 1])
     gaps = np.degrees(np.angle(np.exp(1j * np.diff(np.r_[ang, ang[0]]))))
     np.testing.assert_allclose(np.abs(gaps), 120.0, atol=1e-9)
     np.testing.assert_allclose(plan.targets[-1], plan.p1, atol=1e-9)
     assert max(plan.miss_mm) < 1e-9
-    # every arc: tangent to the radius at both ends, turning as the seed's cases say
+    # every arc: tangent to the radius at both ends, turning as the patent's cases say
     arcs = [s for s in plan.segments if s.kind == "arc"]
     assert arcs[0].start == plan.p2 or math.dist(arcs[0].start, plan.p2) < 1e-9
     for s in arcs:
@@ -290,7 +290,7 @@ def test_which_systematic_errors_reach_the_centre(n, source, centre_moves):
 def test_form_error_aliases_into_the_centre_by_its_full_amplitude(n, lobes, aliased):
     """n equally spaced points see a k-lobed form A cos(k phi - psi) as an eccentricity
     of size A when k = +-1 (mod n), whatever its orientation psi; otherwise not at all
-    (to first order). Three points (the seed's rule) thus put the whole amplitude of an
+    (to first order). Three points (the patent's rule) thus put the whole amplitude of an
     oval bore into the centre."""
     setup = P.setup(n_points=n, lobes=lobes)
     truth = cc.Truth()

@@ -34,7 +34,7 @@ def test_zero_errors_give_nominal_readings():
     np.testing.assert_allclose(r, g21._geometry(setup).local, atol=1e-12)
 
 
-#: the seed's set-up (one head) and one extra YZ head with another tool length and an arm
+#: the patent's set-up (one head) and one extra YZ head with another tool length and an arm
 ONE_HEAD, YZ_HEAD = {}, dict(SMALL, yz_extra_heads_mm=(200, 60, 0))
 
 

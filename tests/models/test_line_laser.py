@@ -1,4 +1,4 @@
-"""Tests of the line-laser mounting-angle procedure (seed 004).
+"""Tests of the line-laser mounting-angle procedure (line-laser patent application of 2019).
 
 Forward model first (exact ray-surface intersection, flat-surface height relation),
 then the estimators: exact noise-free recovery of the registration and pattern
@@ -411,8 +411,8 @@ def test_monte_carlo_std_matches_gum_for_sensor_noise_on_a_small_setup():
 
 
 def test_registration_beats_the_patent_on_alpha_z_and_alpha_x():
-    """At the default set-up the registration wins where the seed quantises (alpha_z)
-    or reads a second-order, sign-blind quantity (alpha_x). For alpha_y the seed's mean
+    """At the default set-up the registration wins where the patent quantises (alpha_z)
+    or reads a second-order, sign-blind quantity (alpha_x). For alpha_y the patent's mean
     height difference is the better one: unbiased once the scan covers a cell pitch and
     w is a whole number of point spacings, it averages every point, and over the
     mirror-symmetric common part it rejects the even degrees of the linearity curve,

@@ -178,7 +178,7 @@ def test_joint_is_never_worse_than_patent_for_reading_noise():
 
 def test_gls_recovers_what_the_joint_fit_loses_to_per_position_errors():
     # with every default source on, the per-position errors (error motions, Z positioning)
-    # dominate and the joint fit's noise-only weighting makes it worse than the seed's
+    # dominate and the joint fit's noise-only weighting makes it worse than the patent's
     # method; weighting by the whole error budget (gls) restores it (linearised, exact)
     # (the errors shared by every position, the sensor's orientation and the smooth
     # angular positioning, are off: a block-diagonal weight does not hold them)
@@ -187,7 +187,7 @@ def test_gls_recovers_what_the_joint_fit_loses_to_per_position_errors():
     u = {e: linearize_procedure(PROC, setup, estimator=e).std for e in ("patent", "joint", "gls")}
     assert np.all(u["gls"] <= u["joint"] * (1 + 1e-9))
     assert u["joint"][1] > 1.1 * u["gls"][1]  # EZ0A: the joint fit loses more than 10 %
-    np.testing.assert_allclose(u["gls"], u["patent"], rtol=0.02)  # the seed's method is efficient
+    np.testing.assert_allclose(u["gls"], u["patent"], rtol=0.02)  # the patent's method is efficient
 
 
 def test_lateral_position_worsens_with_a_small_incline():
@@ -259,7 +259,7 @@ def test_axial_motion_appears_as_lateral_error_through_the_incline():
 
 # --------------------------------------------------------------------------- A order, CA
 @pytest.mark.parametrize("values, angles", [
-    (dict(axis="A"), [0, 15, 30, 45, -15, -30, -45]),  # the seed's example (S203)
+    (dict(axis="A"), [0, 15, 30, 45, -15, -30, -45]),  # the patent's example (S203)
     (dict(axis="A", a_order="ascending"), [-45, -30, -15, 0, 15, 30, 45]),
     (dict(axis="A", positions=4, range_deg=60.0), [10, 30, -10, -30]),
     (dict(axis="CA"), [0, 60, 120, 180, 240, 300, 0, 15, 30, 45, -15, -30, -45]),

@@ -11,7 +11,7 @@ is below 1e-4 um or urad here: air_refraction's 1 ppm scale on origin_x at x ~ 0
 that does moves by 0.01 um or urad or more at the default sizes (the least: line_laser's
 squareness times a mounting angle of 2 mrad, 0.011 urad; the first-order effects are
 0.1 and more). The limit below sits a decade or more from either side. A row may name
-an estimator (``estimator`` in its set-up column; default: the seed's method).
+an estimator (``estimator`` in its set-up column; default: the patent's method).
 """
 
 from __future__ import annotations
@@ -77,7 +77,7 @@ CASES = [
     # the artifact's real pose: every estimator fits each lattice's plane, none uses it
     ("rotary_axis", {"axis": "CA"}, "artifact_tilt", set()),
     ("rotary_axis", {"axis": "CA"}, "artifact_height_error", set()),
-    # geometry21, issue 16 (joint, the seed's set-up): the lines run back and forth and the
+    # geometry21, issue 16 (joint, the patent's set-up): the lines run back and forth and the
     # circles both ways, so reversal cancels; a scale growing over the test's time moves the
     # positioning errors only; the head's drift the translational errors and squareness,
     # never the angular errors the circles give
@@ -159,13 +159,13 @@ def test_a_source_alone_moves_only_its_measurands(capsys, proc, setup, source, m
     # a quantised estimator (line_laser's patent alpha_z) that never leaves its step states
     # u = step / sqrt(12): the spread of its trials is 0 all the same
     steps = p.resolution(s, estimator or p.default_estimator) if p.resolution else {}
-    for m in doc["measurands"]:
-        std = m["std"]
+    for m in (m for m in doc["measurands"] if m["determinable"]):
+        u = m["u"]
         if m["name"] in steps:
             q = steps[m["name"]] * p.measurands(s)[names.index(m["name"])].scale
-            if std == pytest.approx(q / 12**0.5, rel=1e-9):
-                std = 0.0
+            if u == pytest.approx(q / 12**0.5, rel=1e-9):
+                u = 0.0
         if m["name"] in expected:
-            assert std > MOVES, m
+            assert u > MOVES, m
         else:
-            assert std < STILL and abs(m["mean"] - still[m["name"]][0]) < STILL, m
+            assert u < STILL and abs(m["value"] - still[m["name"]][0]) < STILL, m

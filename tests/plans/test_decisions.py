@@ -86,7 +86,7 @@ def test_lever_effects_rank_levers_and_skip_properties():
                               ("probe_noise_um", [0.5, 1.0, 2.0], [0.5, 1.0, 2.0])):
         for v, u in zip(values, us, strict=True):
             rows.append({field: v, "estimator": "e", "measurand": "a", "unit": "um",
-                         "std": u, "trials": 4000, "duration_s": 10.0 * v, "error": ""})
+                         "u": u, "trials": 4000, "duration_s": 10.0 * v, "error": ""})
     frame = pd.DataFrame(rows)
     sweeps = [({"vary": {f: []}}, frame[frame[f].notna()]) for f in
               ("positions", "incline_deg", "probe_noise_um")]

@@ -30,7 +30,7 @@ def test_tidy_table_one_row_per_setup_and_measurand():
     assert {"n_points", "probe_noise_um", "length_mm", "setup_id", "point"} <= set(df.columns)
     assert list(df["point"]) == sorted(df["point"])
     # uncertainty scales with the noise and falls with the number of points
-    offset = df[df.measurand == "offset"].set_index(["n_points", "probe_noise_um"])["std"]
+    offset = df[df.measurand == "offset"].set_index(["n_points", "probe_noise_um"])["u"]
     assert offset[(9, 2.0)] > offset[(9, 0.5)] * 3
     assert offset[(3, 0.5)] > offset[(9, 0.5)]
     # the theory for a mean of n points: u = sigma / sqrt(n), within Monte Carlo error
@@ -43,7 +43,7 @@ def test_rows_do_not_depend_on_the_grid_or_on_n_jobs():
     full = sweep(P, vary=VARY, trials=1000, seed=5)
     part = sweep(P, vary={"n_points": [5], "probe_noise_um": [2.0]}, trials=1000, seed=5)
     row = full[(full.n_points == 5) & (full.probe_noise_um == 2.0)].reset_index(drop=True)
-    np.testing.assert_array_equal(row["std"], part["std"])
+    np.testing.assert_array_equal(row["u"], part["u"])
     par = sweep(P, vary=VARY, trials=1000, seed=5, n_jobs=2, backend="loky")
     pd.testing.assert_frame_equal(full, par)
 
@@ -183,7 +183,7 @@ def test_a_setup_an_estimator_cannot_evaluate_is_recorded_not_fatal(tmp_path):
     df = sweep(proc, vary={"n_points": [3, 5]}, trials=200, seed=1, estimators="all",
                out=tmp_path / "s.csv")
     bad = df[(df.estimator == "fragile") & (df.n_points == 3)]
-    assert len(bad) == 2 and bad["std"].isna().all()
+    assert len(bad) == 2 and bad["u"].isna().all()
     assert bad["error"].str.contains("non-finite").all()
     good = df[~((df.estimator == "fragile") & (df.n_points == 3))]
-    assert good["std"].notna().all() and good["error"].isna().all()
+    assert good["u"].notna().all() and good["error"].isna().all()

@@ -5,8 +5,10 @@ call directly. One module per command (:data:`COMMANDS`), each with a
 ``register(subparsers)`` that adds its parser; what they share is in
 :mod:`mtplan.cli._common`, which imports none of them. A user's mistake (unknown
 field, bad value, missing file) exits with status 2 and one line on stderr, never
-a traceback. Heavy modules are imported inside the commands so that
-``mtplan --help`` starts fast.
+a traceback; a reader that leaves early (``| head``) ends the command quietly with status
+141. Every number a command prints comes from the library's result object (its ``to_dict``
+is the ``--json`` document, its ``summary`` the ``--out`` CSV). Heavy modules are imported
+inside the commands so that ``mtplan --help`` starts fast.
 """
 
 from __future__ import annotations
@@ -49,6 +51,26 @@ def _error(text: str) -> None:
     print("mtplan: error: " + _one_line(text), file=sys.stderr)
 
 
+#: exit status when the reader of stdout left (128 + SIGPIPE, as a shell reports it)
+EXIT_PIPE = 141
+
+
+def _silence_stdout() -> None:
+    """Point stdout at the null device, so that the interpreter's last flush of a closed
+    pipe raises nothing either."""
+    import os
+
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # a replaced stdout (tests): nothing to do
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, fd)
+    finally:
+        os.close(devnull)
+
+
 def main(argv=None) -> int:
     """Entry point of the ``mtplan`` console script."""
     from mtplan._validate import InvalidInput
@@ -72,6 +94,9 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("mtplan: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader left (| head): stop quietly, as a shell tool does
+        _silence_stdout()
+        return EXIT_PIPE
     except Exception as exc:  # a model that cannot be evaluated: one line, status 1
         from mtplan.uncertainty.montecarlo import ModelError
 

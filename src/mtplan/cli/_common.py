@@ -8,7 +8,6 @@ starts fast.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 
 __all__ = [
@@ -16,7 +15,6 @@ __all__ = [
     "ArgumentParser",
     "UsageError",
     "add_common",
-    "fmt",
     "load_config",
     "parse_pairs",
     "print_table",
@@ -30,6 +28,9 @@ __all__ = [
     "parse_sources",
     "parse_vary",
     "write_out",
+    "MAX_TRIALS_ENV",
+    "capped_trials",
+    "trials_cap",
 ]
 
 EXIT_USAGE = 2
@@ -67,6 +68,7 @@ CONFIG_KEYS = {
     "truth": (dict, "true values for the simulation"),
     "vary": (dict, "sweep and plan: field = [values]"),
     "targets": (dict, "plan: measurand = bound"),
+    "determine": ((str, list), "plan: 'all' or the measurands the set-up must determine"),
 }
 
 
@@ -104,7 +106,7 @@ def check_config(data, path) -> None:
             continue
         kind, what = CONFIG_KEYS[key]
         ok = isinstance(value, kind) and not (kind is int and isinstance(value, bool))
-        if ok and key == "sources" and isinstance(value, list):
+        if ok and key in ("sources", "determine") and isinstance(value, list):
             ok = all(isinstance(v, str) for v in value)
         if ok and kind is dict and key in ("setup", "truth"):
             empty = [k for k, v in value.items() if isinstance(v, str) and not v.strip()]
@@ -189,6 +191,35 @@ def parse_sources(args, config):
     return names
 
 
+#: The environment variable that caps every Monte Carlo trial count a command asks for
+#: (``--trials``, a config's ``trials``, the defaults, the adaptive runs' limit): quick
+#: runs of documented commands, as the test of the examples does.
+MAX_TRIALS_ENV = "MTPLAN_MAX_TRIALS"
+
+
+def trials_cap():
+    """The ``MTPLAN_MAX_TRIALS`` cap on every Monte Carlo run, None when it is unset."""
+    import os
+
+    text = os.environ.get(MAX_TRIALS_ENV, "").strip()
+    if not text:
+        return None
+    try:
+        cap = int(text)
+    except ValueError:
+        cap = 0
+    if cap < 2:
+        raise UsageError(f"{MAX_TRIALS_ENV}={text!r} must be an integer >= 2 (or unset)")
+    return cap
+
+
+def capped_trials(trials, default=None):
+    """`trials` (None: `default`) under the ``MTPLAN_MAX_TRIALS`` cap when that is set."""
+    trials = default if trials is None else trials
+    cap = trials_cap()
+    return trials if cap is None or trials is None else min(trials, cap)
+
+
 def run_options(args, config):
     trials = args.trials if args.trials is not None else config.get("trials")
     digits = args.digits if args.digits is not None else config.get("digits")
@@ -197,8 +228,10 @@ def run_options(args, config):
     if trials is not None and digits is not None and args.digits is None and args.trials is not None:
         digits = None
     seed = args.seed if args.seed is not None else config.get("seed", 0)
+    if trials_cap() is not None and digits is not None:  # adaptive runs stop at the cap
+        trials, digits = trials_cap(), None
     return {
-        "trials": trials,
+        "trials": capped_trials(trials, None if digits is not None else 10_000),
         "digits": digits,
         "coverage": args.coverage,
         "interval": args.interval,
@@ -207,16 +240,6 @@ def run_options(args, config):
         "backend": args.backend,
         "scheduler": args.scheduler,
     }
-
-
-def fmt(value, u):
-    """Round `value` to the resolution its uncertainty `u` supports (two digits of u)."""
-    if not math.isfinite(value):
-        return str(value)
-    if not (u > 0 and math.isfinite(u)):
-        return f"{value:.6g}"
-    decimals = max(0, 1 - math.floor(math.log10(u)))
-    return f"{value:.{min(decimals, 9)}f}"
 
 
 def print_table(header, rows, file=None):
@@ -260,7 +283,7 @@ def add_common(p, *, mc=True):
     p.add_argument("--set", action="append", metavar="FIELD=VALUE", help="set-up field (repeatable)")
     p.add_argument("--truth", action="append", metavar="FIELD=VALUE",
                    help="true value for the simulation (repeatable)")
-    p.add_argument("--estimator", metavar="NAME", help="estimator (default: the seed's method)")
+    p.add_argument("--estimator", metavar="NAME", help="estimator (default: the patent's method)")
     p.add_argument("--sources", metavar="NAME[,NAME...]",
                    help="simulate with only these error sources (field name without its unit)")
     p.add_argument("--coverage", type=float, default=0.95, metavar="P",

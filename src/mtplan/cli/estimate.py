@@ -9,8 +9,8 @@ import warnings
 
 from mtplan.cli._common import (
     UsageError,
+    capped_trials,
     check_outputs,
-    fmt,
     load_config,
     print_table,
     procedure_of,
@@ -31,7 +31,7 @@ def register(sub) -> None:
                         "positions, angles, radius) need not be given, and must agree")
     p.add_argument("--estimator", metavar="NAME",
                    help="estimator (default: the best one that observes every measurand; the "
-                        "seed's method by its name)")
+                        "patent's method by its name)")
     p.add_argument("--uncertainty", choices=["mc", "posterior"], default=None,
                    help="mc: Monte Carlo around the estimate (default); posterior: emcee")
     p.add_argument("--trials", type=int, metavar="N", help="Monte Carlo trials (default 10000)")
@@ -73,18 +73,18 @@ def cmd_estimate(args) -> int:
         raise UsageError(f"--config {args.config}: [truth] is for simulations; estimate takes "
                          "the truth from the readings")
     measurement = read_measurement(proc, args.readings, setup_values(args, config))
-    setup, readings = measurement.setup, measurement.readings
     method = args.uncertainty or config.get("uncertainty", "mc")
     if method not in ("mc", "posterior"):
         raise UsageError(f"--uncertainty must be mc or posterior, got {method!r}")
-    trials = args.trials if args.trials is not None else config.get("trials", 10_000)
+    trials = capped_trials(args.trials if args.trials is not None else config.get("trials"),
+                           10_000)
     seed = args.seed if args.seed is not None else config.get("seed", 0)
     try:
         with warnings.catch_warnings():
             # --allow-unconverged: the result says NOT CONVERGED itself, no Python warning
             warnings.simplefilter("ignore", UnconvergedWarning)
             result = estimate_measured(
-                proc, setup, readings, estimator=args.estimator or config.get("estimator"),
+                proc, None, measurement, estimator=args.estimator or config.get("estimator"),
                 uncertainty=method, trials=trials, coverage=args.coverage, rng=seed,
                 noise=noise, max_seconds=args.max_seconds,
                 allow_unconverged=args.allow_unconverged,
@@ -94,15 +94,10 @@ def cmd_estimate(args) -> int:
     except NotConvergedError as exc:
         print(f"mtplan: error: {exc}", file=sys.stderr)
         return 1
-    result.notes[:0] = measurement.notes
     if args.out:
         write_out(args.out, result.summary().to_csv())
     if args.json:
-        doc = result.to_dict()
-        doc["setup_from_file"] = {k: list(v) if isinstance(v, tuple) else v
-                                  for k, v in measurement.from_file.items()}
-        doc["setup_defaults"] = list(measurement.defaults)
-        print(json.dumps(doc, indent=1))
+        print(json.dumps(result.to_dict(), indent=1))
         return 0
     _print_result(result, args.readings)
     return 0
@@ -122,29 +117,33 @@ def _noise(text):
 
 
 def _print_result(result, source) -> None:
-    """One row per measurand: value, u, interval; the estimate and its correction as provenance."""
-    method = result.uncertainty
-    print(f"{result.procedure} ({result.estimator}) from {source}: {method} uncertainty, "
-          f"{100 * result.coverage:g} % intervals, seed {result.seed}")
+    """The table of :meth:`MeasuredResult.to_dict` (value, u, interval; the estimate and its
+    correction as provenance), the not-determinable rows' reasons, the posterior's state and
+    the notes."""
+    from mtplan.reports.labels import fmt
+
+    doc = result.to_dict()
+    method = doc["uncertainty"]
+    print(f"{doc['procedure']} ({doc['estimator']}) from {source}: {method} uncertainty, "
+          f"{100 * result.coverage:g} % intervals, seed {doc['seed']}")
     rows = []
-    for i, m in enumerate(result.measurands):
-        u = float(result.std[i])
-        est = float(result.estimate[i])
-        if not result.determinable[i]:
-            rows.append([m.name, m.unit, "not determinable", "-", "-",
-                         fmt(est, abs(est) * 1e-3 or 1.0) if math.isfinite(est) else "-", "-",
-                         "-"])
+    for m in doc["measurands"]:
+        u, est = m["u"], m["estimate"]
+        if not m["determinable"]:
+            rows.append([m["name"], m["unit"], "not determinable", "-", "-",
+                         "-" if est is None else fmt(est, abs(est) * 1e-3 or 1.0), "-", "-"])
             continue
-        u_c = float(result.bias_correction_u[i])
-        corr = fmt(float(result.bias_correction[i]), u_c) if method == "mc" else "-"
-        u_corr = f"{u_c:.2g}" if method == "mc" else "-"
-        rows.append([m.name, m.unit, fmt(float(result.value[i]), u), f"{u:.2g}",
-                     f"[{fmt(float(result.low[i]), u)}, {fmt(float(result.high[i]), u)}]",
+        mc = method == "mc"
+        corr = fmt(m["bias_correction"], m["bias_correction_u"] or u) if mc else "-"
+        u_corr = f"{m['bias_correction_u']:.2g}" if mc else "-"
+        rows.append([m["name"], m["unit"], fmt(m["value"], u), f"{u:.2g}",
+                     f"[{fmt(m['interval'][0], u)}, {fmt(m['interval'][1], u)}]",
                      fmt(est, u), corr, u_corr])
     print_table(["measurand", "unit", "value", "u", "interval", "estimate", "correction",
                  "u(correction)"], rows)
-    for name, why in result.reasons.items():
-        print(f"{name}: {why}")
+    for m in doc["measurands"]:
+        if m["reason"]:
+            print(f"{m['name']}: {m['reason']}")
     if result.fit is not None:
         print(result.fit.warning() or result.fit.summary())
     if method == "posterior":
@@ -153,9 +152,7 @@ def _print_result(result, source) -> None:
               f"{post.n_steps} steps, max tau {max(post.tau.values()):.1f}, max R-hat "
               f"{max(post.rhat.values()):.4f}, min ESS {min(post.ess.values()):.0f}, "
               f"{'converged' if post.converged else 'NOT CONVERGED'}, {post.wall_s:.1f} s")
-        kinds = {}
-        for src, how in post.budget.items():
-            kinds.setdefault(how.split(",")[0].split(":")[0].split(" (")[0], []).append(src)
-        print("error sources: " + "; ".join(f"{k}: {', '.join(v)}" for k, v in kinds.items()))
-    for note in result.notes:
+        print("error sources: " + "; ".join(f"{k}: {', '.join(v)}"
+                                            for k, v in doc["source_kinds"].items()))
+    for note in doc["notes"]:
         print(f"note: {note}", file=sys.stderr)

@@ -7,6 +7,7 @@ import json
 from mtplan.cli._common import (
     UsageError,
     add_common,
+    capped_trials,
     check_outputs,
     parse_sources,
     parse_vary,
@@ -58,8 +59,9 @@ def cmd_plan(args):
     if args.optimize and not targets and criterion is None:
         return _design_search(args, proc, setup, truth)
     determine = args.determine if args.determine is not None else config.get("determine")
-    if isinstance(determine, str) and determine.strip().lower() != "all":
-        determine = [d.strip() for d in determine.split(",") if d.strip()]
+    if isinstance(determine, str):
+        determine = ("all" if determine.strip().lower() == "all"
+                     else [d.strip() for d in determine.split(",") if d.strip()])
     if not targets and criterion is None and not determine:
         raise UsageError("plan needs at least one --target NAME<=VALUE, --determine, or "
                          "--tolerance with --prior and --max-pfa")
@@ -69,7 +71,8 @@ def cmd_plan(args):
     result = plan(proc, setup, vary, targets, k=args.k, truth=truth,
                   estimator=args.estimator or config.get("estimator"),
                   sources=parse_sources(args, config), confirm=args.confirm,
-                  trials=5000 if args.trials is None else args.trials, seed=seed,
+                  trials=capped_trials(args.trials if args.trials is not None
+                                       else config.get("trials"), 5000), seed=seed,
                   n_jobs=args.jobs, backend=args.backend, criterion=criterion,
                   determine=determine or None)
     if args.out:

@@ -41,7 +41,7 @@ def cmd_sweep(args):
     if args.json:
         print(table.to_json(orient="records"))
         return 0
-    show = list(vary) + ["estimator", "measurand", "unit", "bias", "std", "duration_s"]
+    show = list(vary) + ["estimator", "measurand", "unit", "bias", "u", "duration_s"]
     wide = table[show]
     import pandas as pd
 

@@ -22,9 +22,11 @@ import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
 from mtplan.evaluation.readings import Measurement, read_measurement, read_readings
+from mtplan.evaluation.simulation import ResultDocument, measurand_rows, undetermined_measurands
 
 __all__ = ["read_readings", "read_measurement", "Measurement", "estimate_measured",
-           "best_estimator", "MeasuredResult", "UNCERTAINTY_METHODS"]
+           "best_estimator", "MeasuredResult", "UNCERTAINTY_METHODS", "SOURCE_KINDS",
+           "source_kinds"]
 
 UNCERTAINTY_METHODS = ("mc", "posterior")
 #: Monte Carlo trials per candidate when the best estimator of a set-up is chosen
@@ -34,8 +36,29 @@ SLOPE_TOL = 0.5
 
 
 # --------------------------------------------------------------------------- estimate
+#: How the posterior treats each error source, by the first words of its budget entry
+#: (:attr:`PosteriorResult.budget`): the kinds ``mtplan estimate`` prints, in this order.
+SOURCE_KINDS = ("covariance", "nuisance", "free noise", "absorbed", "no effect", "off")
+
+
+def source_kinds(budget: dict) -> dict:
+    """{kind: [sources]}: the posterior's budget grouped by how each source is treated
+    (:data:`SOURCE_KINDS`; an entry of no known kind is its own kind, up to its first
+    comma, colon or parenthesis)."""
+    import re
+
+    out: dict = {}
+    for src, how in budget.items():
+        kind = next((k for k in SOURCE_KINDS if how.startswith(k)), None)
+        if kind is None:
+            kind = re.split(r",|:| \(", how, maxsplit=1)[0].strip()
+        out.setdefault(kind, []).append(src)
+    order = {k: i for i, k in enumerate(SOURCE_KINDS)}
+    return dict(sorted(out.items(), key=lambda kv: order.get(kv[0], len(order))))
+
+
 @dataclass
-class MeasuredResult:
+class MeasuredResult(ResultDocument):
     """Measurands estimated from measured readings, one result per measurand (display units).
 
     Attributes
@@ -73,6 +96,19 @@ class MeasuredResult:
     seed : int or list
     details : ProcedureResult or PosteriorResult
     notes : list of str
+        What was taken from the readings file (when a :class:`Measurement` was given),
+        then what the evaluation found.
+    setup_from_file : dict
+        Set-up fields whose value the readings file gave (field -> value).
+    setup_defaults : tuple of str
+        Set-up fields at their defaults: neither stated nor determined by the file.
+    undetermined : dict of str to (unit, reason)
+        The measurands the procedure can report that this set-up does not determine.
+    sections : dict
+        Further parts of the result (see :class:`ResultDocument`).
+
+    The JSON and CSV (:meth:`to_dict`, :meth:`summary`) are exactly what ``mtplan
+    estimate`` prints and writes.
     fit : FitCheck or None
         Whether the readings fit the model and its error budget
         (:func:`mtplan.evaluation.fitcheck.fit_check`); when ``fit.ok`` is False the
@@ -99,6 +135,10 @@ class MeasuredResult:
     reasons: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
     fit: object = None
+    setup_from_file: dict = field(default_factory=dict)
+    setup_defaults: tuple = ()
+    undetermined: dict = field(default_factory=dict)
+    sections: dict = field(default_factory=dict)
 
     def __post_init__(self):
         n = len(self.measurands)
@@ -116,55 +156,46 @@ class MeasuredResult:
         """Standard uncertainty of each value (the same array as :attr:`std`)."""
         return self.std
 
-    def summary(self):
-        """DataFrame indexed by measurand: unit, value, u, low, high, estimate,
-        bias_correction, bias_correction_u, determinable, reason."""
-        import pandas as pd
-
-        names = [m.name for m in self.measurands]
-        return pd.DataFrame(
-            {"unit": [m.unit for m in self.measurands], "value": self.value, "u": self.std,
-             "low": self.low, "high": self.high, "estimate": self.estimate,
-             "bias_correction": self.bias_correction,
-             "bias_correction_u": self.bias_correction_u, "determinable": self.determinable,
-             "reason": [self.reasons.get(n, "") for n in names]},
-            index=pd.Index(names, name="measurand"))
-
     def to_dict(self) -> dict:
-        """The ``--json`` document of ``mtplan estimate``: one object per measurand."""
-
-        def num(x):
-            return float(x) if math.isfinite(float(x)) else None
-
-        doc = {
-            "procedure": self.procedure,
-            "estimator": self.estimator,
-            "uncertainty": self.uncertainty,
-            "setup": self.setup.as_dict(),
-            "seed": self.seed,
-            "measurands": [
-                {"name": m.name, "unit": m.unit, "value": num(self.value[i]),
-                 "u": num(self.std[i]), "interval": [num(self.low[i]), num(self.high[i])],
-                 "coverage": float(self.coverage), "estimate": num(self.estimate[i]),
-                 "bias_correction": num(self.bias_correction[i]),
-                 "bias_correction_u": num(self.bias_correction_u[i]),
-                 "determinable": bool(self.determinable[i]),
-                 "reason": self.reasons.get(m.name)}
-                for i, m in enumerate(self.measurands)
-            ],
-            "notes": list(self.notes),
-        }
-        if self.fit is not None:
-            doc["fit"] = self.fit.to_dict()
-
+        """The ``--json`` document of ``mtplan estimate``: the common schema
+        (:class:`~mtplan.evaluation.simulation.ResultDocument`), then the fit check and
+        the covariance of the measurands."""
         from mtplan.evaluation.covariance import covariance_doc
 
+        doc = super().to_dict()
+        if self.fit is not None:
+            doc["fit"] = self.fit.to_dict()
         doc["covariance"] = covariance_doc(self.measurands, self.covariance)
+        return doc
+
+    @property
+    def source_kinds(self) -> dict:
+        """``posterior``: {kind: [sources]}, how the posterior treats each error source
+        (:func:`source_kinds`); {} for ``mc``."""
+        return source_kinds(self.details.budget) if self.uncertainty == "posterior" else {}
+
+    def _head(self) -> dict:
+        doc = {"procedure": self.procedure, "estimator": self.estimator,
+               "uncertainty": self.uncertainty, "setup": self.setup.as_dict(),
+               "seed": self.seed,
+               "setup_from_file": {k: list(v) if isinstance(v, tuple) else v
+                                   for k, v in self.setup_from_file.items()},
+               "setup_defaults": list(self.setup_defaults)}
         if self.uncertainty == "posterior":
             doc["posterior"] = self.details.to_dict()
+            doc["source_kinds"] = self.source_kinds
         else:
             doc["trials"] = int(self.details.mc.trials)
         return doc
+
+    def _rows(self) -> list[dict]:
+        return measurand_rows(self.measurands, value=self.value, u=self.std, low=self.low,
+                              high=self.high, coverage=self.coverage,
+                              determinable=self.determinable, reasons=self.reasons,
+                              undetermined=self.undetermined,
+                              extra={"estimate": self.estimate,
+                                     "bias_correction": self.bias_correction,
+                                     "bias_correction_u": self.bias_correction_u})
 
 
 _BEST: dict = {}
@@ -433,12 +464,15 @@ def estimate_measured(
     Parameters
     ----------
     procedure : str or Procedure
-    setup : Setup
-    readings : dict of str to array
-        A batch of one (:func:`read_readings`).
+    setup : Setup or None
+        None: the set-up of `readings` when that is a :class:`Measurement`.
+    readings : Measurement or dict of str to array
+        A measured file as :func:`read_measurement` gives it (its notes, the set-up fields
+        it gave and those left at their defaults go into the result, so the result is
+        what ``mtplan estimate`` prints), or a batch of one (:func:`read_readings`).
     estimator : str, optional
         Default: :func:`best_estimator`, the best estimator that observes every
-        measurand; the seed's estimator stays available by its name.
+        measurand; the patent's estimator stays available by its name.
     uncertainty : {"mc", "posterior"}
         ``"mc"``: Monte Carlo of the set-up's error sources around the estimate (at
         ``procedure.truth_from_estimate(setup, estimate)`` when the procedure has that
@@ -473,9 +507,11 @@ def estimate_measured(
     MeasuredResult
     """
     from mtplan.models import get
-    from mtplan.uncertainty._random import as_seed_sequence
 
     proc = get(procedure)
+    measurement = readings if isinstance(readings, Measurement) else Measurement(setup, readings)
+    setup = measurement.setup if setup is None else setup
+    readings = measurement.readings
     proc.check_setup(setup)
     p = Problems(f"estimate {proc.name}")
     p.choice("uncertainty", uncertainty, UNCERTAINTY_METHODS)
@@ -484,6 +520,25 @@ def estimate_measured(
     if fit_alpha is not None:
         p.number("fit_alpha", fit_alpha, low=0, high=1, low_open=True, high_open=True)
     p.raise_if_any()
+    result = _estimate(proc, setup, readings, estimator=estimator, uncertainty=uncertainty,
+                       trials=trials, coverage=coverage, rng=rng, noise=noise,
+                       max_seconds=max_seconds, allow_unconverged=allow_unconverged,
+                       posterior_options=posterior_options, progress=progress,
+                       fit_alpha=fit_alpha, nuisance_draws=nuisance_draws,
+                       origin=measurement.origin if origin is None else origin)
+    result.notes[:0] = measurement.notes
+    result.setup_from_file = dict(measurement.from_file)
+    result.setup_defaults = tuple(measurement.defaults)
+    result.undetermined = undetermined_measurands(proc, setup)
+    return result
+
+
+def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage, rng, noise,
+              max_seconds, allow_unconverged, posterior_options, progress, fit_alpha,
+              nuisance_draws, origin) -> MeasuredResult:
+    """:func:`estimate_measured` on checked arguments: the estimate and its uncertainty."""
+    from mtplan.uncertainty._random import as_seed_sequence
+
     notes = []
     measurands = tuple(proc.measurands(setup))
     if estimator is None:

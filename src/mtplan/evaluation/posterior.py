@@ -171,12 +171,13 @@ class PosteriorResult:
         return [m.name for m in self.measurands] + list(self.parameters)
 
     def summary(self):
-        """DataFrame indexed by name: kind, unit, mean, std, low, high, tau, rhat, ess."""
+        """DataFrame indexed by name: kind, unit, value (the posterior mean), u (its standard
+        deviation), low, high, tau, rhat, ess."""
         import pandas as pd
 
         kinds = {m.name: "measurand" for m in self.measurands}
         rows = [{"name": n, "kind": kinds.get(n, "parameter"), "unit": self.units[n],
-                 "mean": self.mean[n], "std": self.std[n], "low": self.low[n],
+                 "value": self.mean[n], "u": self.std[n], "low": self.low[n],
                  "high": self.high[n], "tau": self.tau.get(n, math.nan), "rhat": self.rhat[n],
                  "ess": self.ess[n]} for n in self.names]
         return pd.DataFrame(rows).set_index("name")
@@ -211,7 +212,7 @@ class PosteriorResult:
             "wall_s": float(self.wall_s),
             "parameters": [
                 {"name": p, "unit": self.units[p], "start": float(self.start[p]),
-                 "mean": float(self.mean[p]), "std": float(self.std[p]),
+                 "value": float(self.mean[p]), "u": float(self.std[p]),
                  "interval": [float(self.low[p]), float(self.high[p])],
                  "tau": float(self.tau[p]), "rhat": float(self.rhat[p]), "ess": float(self.ess[p])}
                 for p in self.parameters

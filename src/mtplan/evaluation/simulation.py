@@ -9,7 +9,7 @@ Values are reported in each measurand's display unit (um, urad).
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -20,8 +20,9 @@ from mtplan.uncertainty._random import as_seed_sequence, block_sequence
 from mtplan.uncertainty.gum import GUMResult, _coverage_factor, sensitivities
 from mtplan.uncertainty.montecarlo import MCResult, check_run_options, run_blocks
 
-__all__ = ["ProcedureResult", "simulate_uncertainty", "linearize_procedure", "source_budget",
-           "check_memory"]
+__all__ = ["ProcedureResult", "LinearizedResult", "simulate_uncertainty", "linearize_procedure",
+           "linearize_result", "source_budget", "check_memory", "MEASURAND_KEYS",
+           "measurand_rows", "undetermined_measurands", "ResultDocument", "simulate_readings"]
 
 
 def _resolve(procedure, setup, truth):
@@ -54,8 +55,128 @@ def _procedure_block(proc, setup, truth, estimator, only, root, index, size):
     return _measure(proc, setup, readings, estimator)
 
 
+# --------------------------------------------------------------------------- one schema
+#: The keys of one measurand in every result's JSON (and, with ``interval`` split into
+#: ``low`` and ``high``, every result's CSV): what each command prints, whatever computed it.
+MEASURAND_KEYS = ("name", "unit", "value", "u", "interval", "coverage", "determinable", "reason")
+
+
+def _num(x):
+    """A float for JSON: None for NaN or infinity (JSON has neither)."""
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return None
+    return x if np.isfinite(x) else None
+
+
+def measurand_rows(measurands, *, value, u, low, high, coverage, determinable=None,
+                   reasons=None, undetermined=None, extra=None) -> list[dict]:
+    """One dict per measurand in the common schema (:data:`MEASURAND_KEYS`), then ``extra``.
+
+    ``extra`` maps a key to an array over the measurands (``true``, ``bias``,
+    ``estimate``...). A measurand that is not determinable gets null value, u and interval
+    and its reason; ``undetermined`` ({name: (unit, reason)}) lists the measurands the
+    procedure can report that this set-up does not determine at all, after the others.
+    """
+    reasons = reasons or {}
+    rows = []
+    for i, m in enumerate(measurands):
+        ok = True if determinable is None else bool(determinable[i])
+        row = {"name": m.name, "unit": m.unit,
+               "value": _num(value[i]) if ok else None, "u": _num(u[i]) if ok else None,
+               "interval": [_num(low[i]), _num(high[i])] if ok else [None, None],
+               "coverage": float(coverage), "determinable": ok,
+               "reason": reasons.get(m.name)}
+        row.update({k: _num(v[i]) for k, v in (extra or {}).items()})
+        rows.append(row)
+    for name, (unit, why) in (undetermined or {}).items():
+        row = {"name": name, "unit": unit, "value": None, "u": None, "interval": [None, None],
+               "coverage": float(coverage), "determinable": False, "reason": why}
+        row.update({k: None for k in (extra or {})})
+        rows.append(row)
+    return rows
+
+
+def rows_frame(rows):
+    """The CSV of a result: :func:`measurand_rows` as a DataFrame indexed by measurand, the
+    interval as ``low`` and ``high``."""
+    import pandas as pd
+
+    flat = []
+    for r in rows:
+        r = dict(r)
+        r["low"], r["high"] = r.pop("interval")
+        flat.append(r)
+    df = pd.DataFrame(flat).set_index("name")
+    df.index.name = "measurand"
+    first = ["unit", "value", "u", "low", "high", "coverage", "determinable", "reason"]
+    return df[first + [c for c in df.columns if c not in first]]
+
+
+class ResultDocument:
+    """What every result of :mod:`mtplan.evaluation` shares: its JSON and CSV.
+
+    A subclass gives :meth:`_head` (the keys before the measurands) and :meth:`_rows`
+    (:func:`measurand_rows`); ``notes`` and ``sections`` are dataclass fields. A further
+    part of a result (a fit check, a covariance matrix) is added in ONE place for every
+    command: put it in ``result.sections[key]`` in the function that computes the result;
+    ``to_dict`` writes ``key: part.to_dict()`` (or the part itself when it has no
+    ``to_dict``) after the measurands, and the CLI prints it with ``--json``.
+    """
+
+    def _head(self) -> dict:  # pragma: no cover - every subclass overrides it
+        raise NotImplementedError
+
+    def _rows(self) -> list[dict]:  # pragma: no cover
+        raise NotImplementedError
+
+    def to_dict(self) -> dict:
+        """The ``--json`` document: the head, ``measurands`` (common schema), ``notes`` and
+        the result's sections."""
+        doc = self._head()
+        doc["measurands"] = self._rows()
+        doc["notes"] = list(self.notes)
+        for key, part in self.sections.items():
+            doc[key] = part.to_dict() if hasattr(part, "to_dict") else part
+        return doc
+
+    def summary(self):
+        """DataFrame indexed by measurand in the common schema (the ``--out`` CSV)."""
+        return rows_frame(self._rows())
+
+
+def undetermined_measurands(proc, setup) -> dict:
+    """{name: (unit, reason)}: the measurands `proc` can report that `setup` does not
+    determine at all, from the procedure's ``identifiability`` hook ({} without one).
+
+    What the readings determine does not depend on the estimator, so the hook is asked
+    for its first exact estimator's table (the cheapest: the data's own view). The unit
+    is the suffix of the measurand's Truth field (``EAX_urad``)."""
+    if proc.identifiability is None:
+        return {}
+    estimator = proc.exact_estimators[0] if proc.exact_estimators else proc.default_estimator
+    table = proc.identifiability(setup, estimator)
+    listed = {m.name for m in proc.measurands(setup)}
+    units = dict(f.name.rsplit("_", 1) for f in fields(proc.Truth) if "_" in f.name)
+    out = {}
+    for name, row in table.iterrows():
+        if name in listed or bool(row.get("listed", False)):
+            continue
+        partners = [p.strip() for p in str(row.get("confounded_with", "") or "").split(",")
+                    if p.strip()]
+        if str(row.get("status", "")) == "no effect":
+            why = "it has no effect on the readings"
+        else:
+            shown = ", ".join("the mounting" if p == "mounting" else p for p in partners)
+            why = "the readings do not separate it" + (f" from {shown}" if shown else "")
+        out[name] = (units.get(name, ""), f"not determinable at this set-up ({why}); 'mtplan "
+                     f"plan {proc.name} --determine all' finds a set-up that determines it")
+    return out
+
+
 @dataclass
-class ProcedureResult:
+class ProcedureResult(ResultDocument):
     """Monte Carlo uncertainty of one set-up of one procedure (display units).
 
     Attributes
@@ -71,6 +192,19 @@ class ProcedureResult:
         The Monte Carlo result (means, standard deviations, intervals, covariance).
     duration_s : float
         Machine time of the test [s].
+    undetermined : dict of str to (unit, reason)
+        The measurands the procedure can report that this set-up does not determine: in
+        the JSON and CSV after the others, ``determinable`` false, with the reason.
+    notes : list of str
+        What a reader must not miss (:meth:`findings`: an interval of zero width, a
+        large bias).
+    sections : dict
+        Further parts of the result, written by :meth:`to_dict` (see
+        :class:`ResultDocument`).
+
+    The JSON and CSV give per measurand ``value`` (the mean of the Monte Carlo
+    estimates), ``u`` (their standard deviation), ``interval``, ``coverage``,
+    ``determinable``, ``reason``, ``true`` and ``bias``.
     """
 
     procedure: str
@@ -82,73 +216,65 @@ class ProcedureResult:
     true: np.ndarray
     mc: MCResult
     duration_s: float
+    undetermined: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+    sections: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if not self.notes:
+            self.notes = self.findings()
 
     @property
     def bias(self) -> np.ndarray:
         return self.mc.mean - self.true
 
-    def summary(self):
-        """DataFrame indexed by measurand: unit, true, mean, bias, std, low, high, trials."""
-        import pandas as pd
-
-        return pd.DataFrame(
-            {
-                "unit": [m.unit for m in self.measurands],
-                "true": self.true,
-                "mean": self.mc.mean,
-                "bias": self.bias,
-                "std": self.mc.std,
-                "low": self.mc.low,
-                "high": self.mc.high,
-                "trials": self.mc.trials,
-            },
-            index=pd.Index([m.name for m in self.measurands], name="measurand"),
-        )
+    @property
+    def u(self) -> np.ndarray:
+        """Standard uncertainty of each measurand (the Monte Carlo standard deviation)."""
+        return self.mc.std
 
     def findings(self) -> list[str]:
         """What a reader of the table must not miss: an interval of zero width (the estimator
-        is quantised or blind to the measurand: its uncertainty is its resolution, which the
-        Monte Carlo cannot give) and a bias larger than twice the uncertainty."""
+        is quantised or blind to the measurand, or no simulated source moves it: its
+        uncertainty is then its resolution, which the Monte Carlo cannot give) and a bias
+        larger than twice the uncertainty."""
         out = []
         for i, m in enumerate(self.measurands):
             u, bias = float(self.mc.std[i]), float(self.bias[i])
             if not self.mc.high[i] > self.mc.low[i]:
                 out.append(f"{m.name}: the {self.estimator} estimator gives the same value in "
                            f"(almost) every trial, an interval of zero width: it is quantised "
-                           f"or blind to {m.name} here, so this u is not its uncertainty")
+                           f"or blind to {m.name} here, or no simulated source moves it, so "
+                           "this u is not its uncertainty")
             elif u > 0 and abs(bias) > 2 * u:
                 out.append(f"{m.name}: the {self.estimator} estimator's bias ({bias:.3g} "
                            f"{m.unit}) is {abs(bias) / u:.1f} times its u: the estimate is off, "
                            "not merely uncertain")
         return out
 
+    def _head(self) -> dict:
+        seed = self.mc.seed
+        return {"procedure": self.procedure, "estimator": self.estimator,
+                "setup": self.setup.as_dict(),
+                "seed": int(seed) if isinstance(seed, int | np.integer) else list(seed),
+                "trials": int(self.mc.trials), "sources": list(self.sources),
+                "interval_kind": self.mc.interval, "duration_s": float(self.duration_s)}
+
+    def _rows(self) -> list[dict]:
+        return measurand_rows(self.measurands, value=self.mc.mean, u=self.mc.std,
+                              low=self.mc.low, high=self.mc.high, coverage=self.mc.coverage,
+                              undetermined=self.undetermined,
+                              extra={"true": self.true, "bias": self.bias})
+
     def to_dict(self) -> dict:
-        """The ``--json`` document of ``mtplan simulate``; ``covariance``: the
-        Monte Carlo estimates' (:func:`mtplan.evaluation.covariance.covariance_doc`)."""
+        """The ``--json`` document of ``mtplan simulate``: the common schema, then the
+        ``covariance`` of the Monte Carlo estimates
+        (:func:`mtplan.evaluation.covariance.covariance_doc`)."""
         from mtplan.evaluation.covariance import covariance_doc
 
-        seed = self.mc.seed
-        return {
-            "procedure": self.procedure,
-            "estimator": self.estimator,
-            "setup": self.setup.as_dict(),
-            "seed": int(seed) if isinstance(seed, int | np.integer) else list(seed),
-            "trials": int(self.mc.trials),
-            "measurands": [
-                {
-                    "name": m.name,
-                    "unit": m.unit,
-                    "true": float(self.true[i]),
-                    "mean": float(self.mc.mean[i]),
-                    "bias": float(self.bias[i]),
-                    "std": float(self.mc.std[i]),
-                    "interval": [float(self.mc.low[i]), float(self.mc.high[i])],
-                    "coverage": float(self.mc.coverage),
-                }
-                for i, m in enumerate(self.measurands)
-            ],
-            "covariance": covariance_doc(self.measurands, self.mc.cov),
-        }
+        doc = super().to_dict()
+        doc["covariance"] = covariance_doc(self.measurands, self.mc.cov)
+        return doc
 
 
 def _available_memory() -> int | None:
@@ -320,7 +446,29 @@ def simulate_uncertainty(
         true=np.array([tv[m.name] for m in measurands]),
         mc=mc,
         duration_s=float(proc.duration(setup)),
+        undetermined=undetermined_measurands(proc, setup),
     )
+
+
+def simulate_readings(procedure, setup=None, truth=None, *, rng=None, sources=None):
+    """One simulated measurement as the readings table a measured file holds.
+
+    Parameters
+    ----------
+    procedure : str or Procedure
+    setup, truth : optional (the procedure's defaults)
+    rng : None, int, SeedSequence or Generator
+    sources : iterable of str, optional
+        Simulate with only these error sources.
+
+    Returns
+    -------
+    DataFrame in the procedure's readings format (``procedure.readings_frame``), which
+    ``mtplan estimate`` reads back.
+    """
+    proc, setup, truth = _resolve(procedure, setup, truth)
+    readings = proc.simulate(setup, truth, 1, rng=rng, sources=sources)
+    return proc.readings_frame(setup, readings)
 
 
 def linearize_procedure(
@@ -396,6 +544,81 @@ def linearize_procedure(
         k=_coverage_factor(dof, coverage),
         coverage=coverage,
     )
+
+
+@dataclass
+class LinearizedResult(ResultDocument):
+    """The GUM law of propagation for one set-up (:func:`linearize_result`), with its budget.
+
+    Attributes
+    ----------
+    procedure, estimator : str
+    setup : the procedure's Setup
+    measurands : tuple of Measurand
+    gum : GUMResult
+        Values, sensitivities, covariance (:func:`linearize_procedure`).
+    undetermined, sections
+        As for :class:`ProcedureResult`.
+    notes : list of str
+        Measurands whose u is 0 (no source moves the estimate at first order).
+
+    The JSON gives per measurand ``value``, ``u``, ``interval``, ``coverage``,
+    ``determinable``, ``reason`` and ``budget`` ({source: {"u", "share"}}); the CSV is the
+    budget (:meth:`GUMResult.budget`).
+    """
+
+    procedure: str
+    estimator: str
+    setup: object
+    measurands: tuple
+    gum: GUMResult
+    undetermined: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+    sections: dict = field(default_factory=dict)
+
+    @property
+    def u(self) -> np.ndarray:
+        return self.gum.std
+
+    def budget_shares(self) -> list[dict]:
+        """Per measurand, {source: {"u": its part of u, "share": its share of u^2}}."""
+        groups, var = self.gum.group_variance()
+        cov = self.gum.cov
+        return [{src: {"u": float(np.sqrt(var[i, j])),
+                       "share": float(var[i, j] / cov[i, i]) if cov[i, i] > 0 else 0.0}
+                 for j, src in enumerate(groups)} for i in range(len(self.measurands))]
+
+    def _head(self) -> dict:
+        return {"procedure": self.procedure, "estimator": self.estimator,
+                "setup": self.setup.as_dict(), "k": float(self.gum.k[0])
+                if len(self.gum.k) else None}
+
+    def _rows(self) -> list[dict]:
+        g = self.gum
+        rows = measurand_rows(self.measurands, value=g.value, u=g.std, low=g.low, high=g.high,
+                              coverage=g.coverage, undetermined=self.undetermined)
+        for row, budget in zip(rows, self.budget_shares(), strict=False):
+            row["budget"] = budget
+        for row in rows[len(self.measurands):]:
+            row["budget"] = {}
+        return rows
+
+
+def linearize_result(procedure, setup=None, truth=None, *, estimator: str | None = None,
+                     sources=None, coverage: float = 0.95) -> LinearizedResult:
+    """:func:`linearize_procedure` as a complete result: the ``mtplan linearize`` document."""
+    proc, setup, truth = _resolve(procedure, setup, truth)
+    g = linearize_procedure(proc, setup, truth, estimator=estimator, sources=sources,
+                            coverage=coverage)
+    est_name, _ = proc.estimator(estimator)
+    measurands = tuple(proc.measurands(setup))
+    notes = [f"{m.name}: u = 0: the {est_name} estimator does not move with any error source "
+             f"at first order (it is quantised or blind to {m.name}, or no source moves it), "
+             "so the law of propagation cannot give its uncertainty"
+             for m, u in zip(measurands, g.std, strict=True) if not u > 0]
+    return LinearizedResult(procedure=proc.name, estimator=est_name, setup=setup,
+                            measurands=measurands, gum=g, notes=notes,
+                            undetermined=undetermined_measurands(proc, setup))
 
 
 def source_budget(procedure, setup=None, truth=None, *, estimator=None, trials=10**4, rng=None,

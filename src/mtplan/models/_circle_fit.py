@@ -6,9 +6,9 @@ no Python loop over the batch. Lengths are in whatever unit the points are in (m
 mtplan). Each returns a :class:`Circle2D` of arrays of the batch shape.
 
 - :func:`three_point_circle`: the circle through three points by the formula of the
-  seed patent (CN, procedure 3 of PROCEDURES.md):
+  circle-centre patent (docs/glossary.md, *Source methods*):
   ``a = 2(x2 - x1)``, ``b = 2(y2 - y1)``, ``c = x2^2 + y2^2 - x1^2 - y1^2``,
-  ``d = 2(x3 - x2)`` (the seed prints ``cd3`` for ``xd3``: a typo),
+  ``d = 2(x3 - x2)`` (the patent prints ``cd3`` for ``xd3``: a typo),
   ``e = 2(y3 - y2)``, ``f = x3^2 + y3^2 - x2^2 - y2^2``;
   ``xc = (c e - f b) / (a e - b d)``, ``yc = (a f - c d) / (a e - b d)``.
   The formula is evaluated on coordinates taken relative to the mean of the three
@@ -88,7 +88,7 @@ def circle_residuals(x, y, xc, yc, r) -> np.ndarray:
 
 
 def three_point_circle(x, y) -> Circle2D:
-    """The circle through three points, by the seed's a..f formula.
+    """The circle through three points, by the patent's a..f formula.
 
     Parameters
     ----------
@@ -113,7 +113,7 @@ def three_point_circle(x, y) -> Circle2D:
     a = 2 * (x2 - x1)
     b = 2 * (y2 - y1)
     c = x2 * x2 + y2 * y2 - x1 * x1 - y1 * y1
-    d = 2 * (x3 - x2)  # the seed's "cd3" is xd3
+    d = 2 * (x3 - x2)  # the patent's "cd3" is xd3
     e = 2 * (y3 - y2)
     f = x3 * x3 + y3 * y3 - x2 * x2 - y2 * y2
     with np.errstate(divide="ignore", invalid="ignore"):

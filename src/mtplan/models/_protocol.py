@@ -17,7 +17,7 @@ A procedure module (``mtplan/models/<name>.py``) defines a module-level
   ``errors`` maps every source name to an array of shape ``(n, *source.shape)``;
   ``readings`` is a dict of batch-first arrays (leading axis = trials).
 - ``estimators``: name -> ``estimate(setup, readings) -> dict[measurand, (n,) array]``
-  in internal units (mm, rad). The seed's method is named ``patent`` (or the seed's
+  in internal units (mm, rad). The patent's method is named ``patent`` (or the patent's
   own name) and is always present.
 - ``true_values(setup, truth) -> dict[measurand, float]`` in internal units.
 - ``duration(setup) -> float``: machine time of the test [s].
@@ -591,9 +591,10 @@ class Procedure:
     #: report (a figure's path, uncertainty bands); plain data, the reports draw it.
     #: None: no extras
     report_extras: Callable | None = None
-    #: optional ``identifiability(setup, estimator) -> DataFrame``: per measurand, whether
-    #: that estimator determines it at the set-up and why not; shown in the report per
-    #: estimator (unless ``report_extras`` already gives ``identifiability``). None: not shown
+    #: optional ``identifiability(setup, estimator) -> DataFrame`` indexed by every measurand
+    #: the procedure can report, with ``listed`` (a measurand at this set-up), ``status``
+    #: ('identified', 'unidentifiable', 'no effect', ...) and ``confounded_with``: every
+    #: command lists the measurands a set-up leaves out, with the reason
     identifiability: Callable | None = None
     #: optional ``observability(setup) -> {estimator: {measurand: ...}}``: which measurands
     #: each estimator can observe at the set-up, with their limits; shown in the report

@@ -1,4 +1,4 @@
-"""Bore centre by three probed points in equilateral distribution (seed 003).
+"""Bore centre by three probed points in equilateral distribution (circle-centre patent).
 
 A large two-axis stage carries a ring workpiece; a touch-trigger probe is lowered
 into its bore of nominal radius ``r = bore_radius_mm`` at an arbitrary start point
@@ -6,7 +6,7 @@ and the centre is found from points probed on the wall. The machine frame has it
 origin at the nominal bore centre; the measurands are the deviations of the bore's
 centre (``centre_x``, ``centre_y``) and radius (``radius``) from nominal, in um.
 
-Path planning (the seed's method, :func:`plan_path`)
+Path planning (the patent's method, :func:`plan_path`)
 ----------------------------------------------------
 1. From the start point probe along -y (p1), then along +y (p2). With the chord
    half-length ``h = |p2 - p1| / 2``, ``theta1 = angle p1-o-p2 = 2 asin(h / r)``.
@@ -17,7 +17,7 @@ Path planning (the seed's method, :func:`plan_path`)
 3. d1, d2, d3 are 120 deg apart with d3 on p1. The travel sense (sigma) is the long
    way round from p2 to p1 (away from p1); then d3 = p1, d2 = p1 - 120 deg and
    d1 = p1 - 240 deg along it, so the angle from o-p2 to o-d1 along the travel is
-   ``theta2 = (360 - theta1) - 240 = 120 - theta1`` (the seed's formula is an image
+   ``theta2 = (360 - theta1) - 240 = 120 - theta1`` (the patent's formula is an image
    lost from the text; this is the value its figure and its two d1 cases imply:
    theta2 < 0 means d1 lies behind p2 and the travel reverses at d1).
 4. Each leg from point A to point B of the bore is an arc of a helper circle tangent
@@ -26,12 +26,12 @@ Path planning (the seed's method, :func:`plan_path`)
    theta its centre is the pole ``o + r / cos(theta/2) * u(mid-angle)`` and its
    radius ``r |tan(theta/2)|`` (r_o1 from theta2, r_o2 = r_o3 = r tan 60 deg).
    A leg turning ccw about o turns cw about its helper circle. The first rotation
-   about o1 follows the seed's four cases: (1) theta2 >= 0 and free direction
+   about o1 follows the patent's four cases: (1) theta2 >= 0 and free direction
    positive: ccw; (2) theta2 >= 0, negative: cw; (3) theta2 < 0, positive or 0: cw;
    (4) theta2 < 0, negative: ccw. At d1 the travel keeps its sense when
-   theta2 >= 0 and reverses when theta2 < 0 (the seed's d1 rule). The planner
+   theta2 >= 0 and reverses when theta2 < 0 (the patent's d1 rule). The planner
    derives these senses from geometry; the tests check them against the four cases.
-5. Acceptance check: ``dx = |x_p1 - x_d3|``, ``dy = |y_p1 - y_d3|`` (the seed writes
+5. Acceptance check: ``dx = |x_p1 - x_d3|``, ``dy = |y_p1 - y_d3|`` (the patent writes
    ``x_d3`` in dy: a typo); d3 is accepted when both are within
    ``miss_tolerance_mm`` (:func:`acceptance_check`). The check does not change the
    estimate, so the Monte Carlo reports it beside, not inside, the measurands.
@@ -39,7 +39,7 @@ Path planning (the seed's method, :func:`plan_path`)
 Generalisation to ``n_points`` and ``spread_deg``: the n points are equally spaced,
 ``360/n`` apart when ``spread_deg == 360`` and ``spread/(n-1)`` apart (both ends
 included) otherwise; the last one lands on p1 and the others precede it along the
-travel, so ``theta2 = (360 - theta1) - (n - 1) * step`` (the seed's case is n = 3,
+travel, so ``theta2 = (360 - theta1) - (n - 1) * step`` (the patent's case is n = 3,
 spread 360). A leg longer than 150 deg (only the first transfer of a short arc of
 points) would need a helper circle through or beyond the centre; it is made as a
 straight move to the planner's centre and out along the radius instead.
@@ -94,7 +94,7 @@ Forward model (:func:`forward`, batch-first)
 
 Estimators (internal units, mm)
 -------------------------------
-- ``three_point`` (the seed's method, listed first): the a..f formula. With
+- ``three_point`` (the patent's method, listed first): the a..f formula. With
   ``n_points > 3`` it uses three of the points, the best-spread triple: indices
   ``0, n//3, 2n//3`` for a full circle (nearly equilateral), and the two ends and
   the middle ``0, (n-1)//2, n-1`` for a partial arc. It never refuses (the engine
@@ -159,7 +159,7 @@ class Setup(SetupBase):
     _owner = "circle_centre"
     bore_radius_mm: float = param(250.0, doc="Nominal radius of the bore", low=0, high=10_000,
                                   low_open=True)
-    n_points: int = param(3, doc="Measuring points d1..dn (3: the seed's rule)", low=3, high=360)
+    n_points: int = param(3, doc="Measuring points d1..dn (3: the patent's rule)", low=3, high=360)
     spread_deg: float = param(360.0, doc="Arc the points cover; 360 = full circle, equally "
                               "spaced; less: end points included", low=1, high=360)
     probe_noise_um: float = param(0.5, doc="Probe trigger noise along the approach (std)", low=0,
@@ -417,7 +417,7 @@ def _inside(point, centre, radius, form, lobes):
 
 
 def _plan_core(p1, p2, radius, free_dir, n_points, spread_deg):
-    """The seed's planning, batch-first.
+    """The patent's planning, batch-first.
 
     Parameters
     ----------
@@ -599,7 +599,7 @@ def _result(circle, setup: Setup) -> dict:
 
 
 def estimate_three_point(setup: Setup, readings: dict) -> dict:
-    """The seed's a..f formula on d1, d2, d3 (or the best-spread triple of n points)."""
+    """The patent's a..f formula on d1, d2, d3 (or the best-spread triple of n points)."""
     x, y = _xy(readings)
     idx = _three_indices(x.shape[-1], setup.spread_deg)
     return _result(three_point_circle(x[..., idx], y[..., idx]), setup)
@@ -677,7 +677,7 @@ def estimate_gls(setup: Setup, readings: dict, iterations: int = 4) -> dict:
 
     Uses the path planner's p1 and p2 too where the readings hold them (a bare point file
     has d1..dn only): they are wall points, probed along -y and +y, and their chord's
-    midpoint lies on the bore's centre line; the seed uses them only to plan the path.
+    midpoint lies on the bore's centre line; the patent uses them only to plan the path.
     The residuals ``e_i = |p_i - c| - r`` are weighted by the inverse of their covariance
     under every error source of the set-up (:func:`_radial_covariance`, per trial, since
     the contacts' angles follow the start point): the bore's lobed form, the pre-travel
@@ -812,7 +812,7 @@ class PathPlan:
     theta1_deg, theta2_deg : float
         Angle p1-o-p2, and angle from o-p2 to o-d1 along the travel.
     case : int
-        The seed's case 1..4 of the first rotation.
+        The patent's case 1..4 of the first rotation.
     first_rotation, later_rotation : str
         'ccw' or 'cw' about the helper circles o1 and o2, o3, ...
     targets : array (n_points, 2)
@@ -823,7 +823,7 @@ class PathPlan:
     segments : tuple of Segment
         start -> p1 -> p2 -> d1 -> ... -> dn.
     miss_mm : tuple (dx, dy)
-        The seed's |x_p1 - x_dn|, |y_p1 - y_dn| for the planned d_n.
+        The patent's |x_p1 - x_dn|, |y_p1 - y_dn| for the planned d_n.
     """
 
     start: tuple
@@ -854,7 +854,7 @@ class PathPlan:
 
 
 def _seed_case(theta2: float, free_dir: int) -> tuple[int, str]:
-    """The seed's four cases of the first rotation about o1."""
+    """The patent's four cases of the first rotation about o1."""
     if theta2 >= 0:
         return (1, "ccw") if free_dir >= 0 else (2, "cw")
     return (3, "cw") if free_dir >= 0 else (4, "ccw")
@@ -894,7 +894,7 @@ def _numeric(value) -> bool:
 
 def plan_path(p1, p2, bore_radius_mm: float, free_direction: int, *, n_points: int = 3,
               spread_deg: float = 360.0, start=None) -> PathPlan:
-    """The seed's path from the two y contacts (one measurement).
+    """The patent's path from the two y contacts (one measurement).
 
     Parameters
     ----------
@@ -1012,7 +1012,7 @@ def plan_for_bore(start, *, bore_radius_mm: float, centre=(0.0, 0.0), n_points: 
 
 
 def acceptance_check(p1, d_last, tolerance_mm: float) -> dict:
-    """The seed's acceptance of the last point: ``|x_p1 - x_dn|``, ``|y_p1 - y_dn|``.
+    """The patent's acceptance of the last point: ``|x_p1 - x_dn|``, ``|y_p1 - y_dn|``.
 
     Parameters
     ----------
@@ -1025,7 +1025,7 @@ def acceptance_check(p1, d_last, tolerance_mm: float) -> dict:
     -------
     dict
         ``dx_mm``, ``dy_mm`` (arrays or floats) and ``accepted`` (bool array or bool).
-        The seed's second difference reads ``|y_p1 - x_d3|``, a typo for
+        The patent's second difference reads ``|y_p1 - x_d3|``, a typo for
         ``|y_p1 - y_d3|``, which is used here.
     """
     a = np.asarray(p1, dtype=float)
@@ -1154,7 +1154,7 @@ def report_extras(setup: Setup, truth: Truth) -> dict:
     circles += [(float(c[0]), float(c[1]), float(r), f"o{i + 1}")
                 for i, (c, r) in enumerate(plan.helper_circles)]
     return {"path": {
-        "caption": (f"Planned probing path (seed's case {plan.case}, first rotation "
+        "caption": (f"Planned probing path (patent's case {plan.case}, first rotation "
                     f"{plan.first_rotation}, path length {plan.length_mm:.0f} mm): start, the "
                     "two y contacts p1 and p2, then the measuring points d1..dn reached on "
                     "helper arcs tangent to the radii (dashed: bore and helper circles)."),
@@ -1259,7 +1259,7 @@ PROCEDURE = Procedure(
     description=(
         "A touch probe, lowered anywhere into a bore of known nominal radius, probes -y and "
         "+y, plans three points 120 deg apart reached on helper arcs tangent to the radii, "
-        "and computes the centre from them (seed 003). Compares the three-point formula with "
+        "and computes the centre from them (circle-centre patent). Compares the three-point formula with "
         "algebraic and geometric least-squares circles through n points over any spread."
     ),
     exact_estimators=("three_point", "kasa", "geometric", "gls"),

@@ -1,6 +1,6 @@
-"""Zero point and frames of the sub-machines of a gantry machine by laser tracker (seed 002).
+"""Zero point and frames of the sub-machines of a gantry machine by laser tracker (patent CN106078359A).
 
-Machine and method (CN106078359A, PROCEDURES.md section 5)
+Machine and method (patent CN106078359A)
 ------------------------------------------------------------
 A gantry drilling machine carries ``n_submachines`` five-axis sub-machines, each with
 an AC swivel head. A laser tracker measures in a global frame set up from reference
@@ -49,7 +49,7 @@ Measurands, for each sub-machine k = 1..N:
 
 Estimators
 ----------
-- ``patent``: the seed's method as above; the A and C circles are full 3D
+- ``patent``: the patent's method as above; the A and C circles are full 3D
   orthogonal-distance circles through the points, which do not use the angles at
   which the points were taken.
 - ``angles``: the same construction, but each circle is fitted with the commanded
@@ -94,10 +94,10 @@ per-test systematic angle error moves every point of a sub-machine together, so 
 shifts the frame by a few micrometres whatever the arc; the short-A-arc penalty comes
 from the per-point errors only.
 
-Decisions where the seed is silent or PROCEDURES.md leaves a choice
+Decisions where the patent is silent or leaves a choice
 -------------------------------------------------------------------
-- **The frame is defined by the construction.** The seed is a zero-point
-  *definition* and calibration method: the true frame is the seed's construction
+- **The frame is defined by the construction.** The patent is a zero-point
+  *definition* and calibration method: the true frame is the patent's construction
   applied to the true geometry (true axis directions, true A and C lines, the true
   pivot length). So the true rotation depends on which axis has the longest travel
   (a set-up choice), and the squareness of the linear axes ends up in the two
@@ -113,7 +113,7 @@ Decisions where the seed is silent or PROCEDURES.md leaves a choice
   to 1e-13 mm (``benchmarks/validate_fit3d_tracim.py``). Line directions are
   oriented by the order of travel (first to last point), circle normals by the
   right-hand rule of the positive rotation.
-- **Global frame.** The seed sets it up from corner marks *and* faces; only the four
+- **Global frame.** The patent sets it up from corner marks *and* faces; only the four
   corner marks are modelled, and the tracker-to-global transform is the
   least-squares rigid best fit (Kabsch/Umeyama without scale) of the measured marks
   to their stated coordinates. The registration's uncertainty therefore comes from
@@ -459,7 +459,7 @@ def _frame_axes(setup: Setup) -> tuple[int, int, int]:
 
 
 def _orthonormal(setup: Setup, ux, uy, uz) -> np.ndarray:
-    """The seed's frame: longest-travel axis kept, the others corrected by cross products.
+    """The patent's frame: longest-travel axis kept, the others corrected by cross products.
 
     Returns rotation matrices (..., 3, 3) whose columns are the frame's X, Y, Z axes.
     """
@@ -890,7 +890,7 @@ def _register(setup: Setup, tracker_marks: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 def _fit_arcs_patent(setup: Setup, pts: dict, k: int) -> dict:
-    """The seed's 3D circles (no angles); refuses arcs whose fit does not converge."""
+    """The patent's 3D circles (no angles); refuses arcs whose fit does not converge."""
     fits = {}
     for g, arc in (("C", setup.c_arc_deg), ("A", setup.a_arc_deg)):
         fit = fit_circle_3d(pts[g])
@@ -930,7 +930,7 @@ def _fit_arcs_home(setup: Setup, pts: dict, k: int) -> dict:
 
 
 def _estimate(setup: Setup, readings: dict, fit_arcs) -> dict[str, np.ndarray]:
-    """Registration, lines, the arcs by `fit_arcs`, then the seed's construction."""
+    """Registration, lines, the arcs by `fit_arcs`, then the patent's construction."""
     xyz = _cartesian(readings)
     rot, t = _register(setup, xyz[:, :4])
     glob = np.einsum("nij,npj->npi", rot, xyz) + t[:, None, :]
@@ -967,7 +967,7 @@ def _estimate(setup: Setup, readings: dict, fit_arcs) -> dict[str, np.ndarray]:
 
 
 def estimate_patent(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
-    """The seed's method: lines, 3D circles, common perpendicular, cross-product frame.
+    """The patent's method: lines, 3D circles, common perpendicular, cross-product frame.
 
     Parameters
     ----------
@@ -983,18 +983,18 @@ def estimate_patent(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
 
 
 def estimate_angles(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
-    """The seed's method, but the A and C circles are fitted with the commanded angles.
+    """The patent's method, but the A and C circles are fitted with the commanded angles.
 
     Each arc is fitted as ``p_i = c + R (cos(theta_i + phi0) e1 + sin(theta_i + phi0)
     e2)`` with the commanded angles theta_i of the set-up (the ``angle_deg`` column of
     the readings table), in closed form (:func:`fit_circle_3d_angles`); the axis line
-    is the normal ``e1 x e2`` through c. Everything after the axis lines is the seed's.
+    is the normal ``e1 x e2`` through c. Everything after the axis lines is the patent's.
     """
     return _estimate(setup, readings, _fit_arcs_angles)
 
 
 def estimate_home(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
-    """The seed's method with circles fitted at the commanded angles and through the home
+    """The patent's method with circles fitted at the commanded angles and through the home
     position, which every group of points shares.
 
     The reflector at home is on every group of points: the middle of each linear
@@ -1006,7 +1006,7 @@ def estimate_home(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
 
 
 def true_values(setup: Setup, truth: Truth) -> dict[str, float]:
-    """The seed's construction applied to the true geometry [mm, rad]."""
+    """The patent's construction applied to the true geometry [mm, rad]."""
     nominal = _nominal_origins(setup)
     out = {}
     for k in range(setup.n_submachines):

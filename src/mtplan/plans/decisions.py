@@ -2,7 +2,7 @@
 
 - :func:`recommend_estimator`: the estimator with the smallest root-mean-square error
   (standard uncertainty and bias together) over the measurands that matter, the one
-  listed first (the seed's method) unless another is better beyond the Monte Carlo error.
+  listed first (the patent's method) unless another is better beyond the Monte Carlo error.
 - :func:`conformity`: the verdict of every toleranced measurand, its acceptance plan
   (guard band, global risks, TUR; JCGM 106, ISO 14253-1) applied to the measured value.
 - :func:`lever_effects`: the set-up's own levers (``Procedure.levers``) ranked by how much
@@ -412,19 +412,19 @@ def lever_effects(levers, setup, sweeps, names, estimator) -> list:
         est = estimator if estimator in set(ok["estimator"]) else ok["estimator"].iloc[0]
         for name in names:
             g = ok[(ok["estimator"] == est) & (ok["measurand"] == name)]
-            g = g[np.isfinite(g["std"]) & (g["std"] > 0)]
+            g = g[np.isfinite(g["u"]) & (g["u"] > 0)]
             if len(g) < 2:
                 continue
             at = g[[_same(v, base.get(f)) for v in g[f]]]
-            b = g.loc[g["std"].idxmin()]
-            ref = at.iloc[0] if len(at) else g.loc[g["std"].idxmax()]
-            gain = float(ref["std"] / b["std"])
+            b = g.loc[g["u"].idxmin()]
+            ref = at.iloc[0] if len(at) else g.loc[g["u"].idxmax()]
+            gain = float(ref["u"] / b["u"])
             n = float(g["trials"].min())
             significant = gain > 1 + 3 * math.sqrt(2) / math.sqrt(2 * (n - 1))
             effect = LeverEffect(field=f, measurand=name, unit=str(g["unit"].iloc[0]),
                                  estimator=est, sweep=j, base_value=base.get(f),
-                                 u_base=float(at["std"].iloc[0]) if len(at) else math.nan,
-                                 ref_value=ref[f], best_value=b[f], u_best=float(b["std"]),
+                                 u_base=float(at["u"].iloc[0]) if len(at) else math.nan,
+                                 ref_value=ref[f], best_value=b[f], u_best=float(b["u"]),
                                  duration_base_s=float(ref["duration_s"]),
                                  duration_best_s=float(b["duration_s"]), gain=gain,
                                  significant=bool(significant))

@@ -772,7 +772,7 @@ def _extras(proc, ps):
     truth) -> dict`` (data only; the reports draw it), with its per-estimator
     ``identifiability`` and its ``observability`` where it declares them."""
     extras = dict(proc.report_extras(ps.setup, ps.truth)) if proc.report_extras else {}
-    # what the seed's method cannot see: per-estimator identifiability or observability
+    # what the patent's method cannot see: per-estimator identifiability or observability
     if proc.identifiability is not None and "identifiability" not in extras:
         extras["identifiability"] = {est: proc.identifiability(ps.setup, est)
                                      for est in ps.estimators}

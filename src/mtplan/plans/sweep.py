@@ -41,7 +41,7 @@ from mtplan.uncertainty.montecarlo import check_run_options
 
 __all__ = ["sweep", "setup_seed", "RESULT_COLUMNS"]
 
-RESULT_COLUMNS = ["estimator", "measurand", "unit", "true", "mean", "bias", "std", "low", "high",
+RESULT_COLUMNS = ["estimator", "measurand", "unit", "true", "value", "bias", "u", "low", "high",
                   "trials", "converged", "duration_s", "error"]
 
 
@@ -90,9 +90,9 @@ def _run_setup(proc, setup, truth, estimators, sources, options, seed, point):
                 "measurand": m.name,
                 "unit": m.unit,
                 "true": true[m.name],
-                "mean": float(r.mc.mean[i]) if r else nan,
+                "value": float(r.mc.mean[i]) if r else nan,
                 "bias": float(r.bias[i]) if r else nan,
-                "std": float(r.mc.std[i]) if r else nan,
+                "u": float(r.mc.std[i]) if r else nan,
                 "low": float(r.mc.low[i]) if r else nan,
                 "high": float(r.mc.high[i]) if r else nan,
                 "trials": int(r.mc.trials) if r else 0,

@@ -29,7 +29,7 @@ def procedure_section(k, outcome) -> tuple[Section, dict]:
                              f"interval.{more}", figs.histogram_figure(first, shown)))
     if len(outcome.results) > 1:
         sec.blocks.append(Figure("Bias of each estimator with its ±2u bars, in units of the "
-                                 "first estimator's standard uncertainty u1 (the seed's method "
+                                 "first estimator's standard uncertainty u1 (the patent's method "
                                  "first): a bar shorter than the first one's is a better "
                                  "estimator.", figs.estimator_figure(outcome.results)))
     sec.blocks.append(_budget_table(outcome))
@@ -259,7 +259,7 @@ def _hook_tables(extras) -> list:
             rows.append(row)
         out.append(Table("Identifiability of each error function, per estimator (identified, "
                          "unidentifiable: confounded with the functions named; biased: the "
-                         "seed's stepwise estimate moves with the errors named, bias per "
+                         "patent's stepwise estimate moves with the errors named, bias per "
                          "typical error [µm or µrad])", ["function"] + ests, rows))
     obs = extras.get("observability")
     if obs:

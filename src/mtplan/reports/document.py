@@ -278,7 +278,7 @@ def _methods_section(result) -> Section:
         "Every test is simulated with its error sources (Monte Carlo, JCGM 101) to give the "
         "uncertainty of its set-up; the estimators of a test are compared on the same "
         "simulated readings. The recommended estimator has the smallest root-mean-square "
-        "error (uncertainty and bias) on the measurands that matter; the seed's method "
+        "error (uncertainty and bias) on the measurands that matter; the patent's method "
         "(patent, three_point) is kept unless another is better beyond the Monte Carlo error.",
         Table("Estimators", ["test", "estimator", "method", "use"], rows),
         Table("Terms", ["term", "meaning"], _TERMS)])

@@ -109,7 +109,7 @@ def sweep_figure(table, vary: dict, measurands: list, units: dict, *, xlabel: st
             key = key if isinstance(key, tuple) else (key,)
             label = ", ".join(str(v) if f == "estimator" else f"{f} = {v}"
                               for f, v in zip(group_keys, key, strict=False)) or None
-            _series(ax, g[x], g["std"], g["std"] / np.sqrt(2 * (g["trials"] - 1)), j,
+            _series(ax, g[x], g["u"], g["u"] / np.sqrt(2 * (g["trials"] - 1)), j,
                     min(len(groups), 7), label, span=span)
         if base is not None:
             ax.axvline(float(base), color="#555555", lw=0.8, ls=":")
@@ -118,7 +118,7 @@ def sweep_figure(table, vary: dict, measurands: list, units: dict, *, xlabel: st
         ax.set_ylabel(f"u [{unit(units[name])}]", fontsize=8)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
-        _y_from_zero(ax, sub["std"])
+        _y_from_zero(ax, sub["u"])
     for k in range(n, rows * cols):
         axes[k // cols][k % cols].set_visible(False)
     handles, labels = axes[0][0].get_legend_handles_labels()
@@ -160,19 +160,19 @@ def lever_figure(table, field: str, measurands: list, units: dict, *, estimator:
         ax = axes[k // cols][k % cols]
         sub = table[table["measurand"] == name]
         mine = sub[sub["estimator"] == estimator]
-        top = 1.25 * max([float(mine["std"].max()) if len(mine) else 0.0]
+        top = 1.25 * max([float(mine["u"].max()) if len(mine) else 0.0]
                          + ([targets[name][0]] if name in targets else []))
         for j, est in enumerate(ests):
             g = sub[sub["estimator"] == est].sort_values(field)
             if not len(g):
                 continue
-            if est != estimator and float(g["std"].max()) > top:
+            if est != estimator and float(g["u"].max()) > top:
                 off_scale.add(est)
-            _series(ax, g[field], g["std"], g["std"] / np.sqrt(2 * (g["trials"] - 1)), j,
+            _series(ax, g[field], g["u"], g["u"] / np.sqrt(2 * (g["trials"] - 1)), j,
                     len(ests), est, span=2.0 * span, strong=est == estimator)
             at = g[np.isclose(g[field].astype(float), float(base))]
             if est == estimator and len(at):
-                ax.plot([float(base)], [float(at["std"].iloc[0])], "*", ms=12, color="#222222",
+                ax.plot([float(base)], [float(at["u"].iloc[0])], "*", ms=12, color="#222222",
                         zorder=6)
         if name in targets:
             ax.axhline(targets[name][0], color="#b3261e", lw=1.0, ls="--")

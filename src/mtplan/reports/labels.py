@@ -8,16 +8,16 @@ from __future__ import annotations
 import math
 import re
 
+from mtplan.models._protocol import UNIT_SUFFIXES
+
 __all__ = ["unit", "split_field", "field_label", "field_value", "estimator_text", "fmt",
            "fmt_u", "tolerance_text", "duration_text", "percent", "prior_text"]
 
 _UNIT_TEXT = {"um": "µm", "urad": "µrad", "nm": "nm", "mm": "mm", "rad": "rad",
               "mrad": "mrad", "deg": "deg", "arcsec": "arcsec", "ppm": "ppm", "s": "s",
-              "c": "°C", "1": "", "m": "m", "min": "min", "per": "/"}
-#: unit suffixes of set-up fields, longest first (the protocol's UNIT_SUFFIXES)
-_SUFFIXES = ("um_per_deg", "urad_per_deg", "um_per_m", "urad_per_m", "um_per_s", "urad_per_s",
-             "mm_min", "per_s", "arcsec", "mrad", "urad", "deg", "ppm", "rad", "um", "nm",
-             "mm", "s", "c")
+              "c": "°C", "1": "", "m": "m", "min": "min", "per": "/", "ms": "ms", "h": "h"}
+#: unit suffixes of set-up fields, longest first (the procedures' own list)
+_SUFFIXES = tuple(sorted(UNIT_SUFFIXES, key=len, reverse=True))
 
 
 def unit(name: str) -> str:
@@ -76,7 +76,8 @@ def estimator_text(function) -> str:
 
 def fmt(value, u=None) -> str:
     """`value` rounded to the resolution its uncertainty `u` supports (two significant
-    digits of u); four significant digits without one."""
+    digits of u); four significant digits without one; "n/d" for NaN (not determined).
+    The one number format of the reports and the command line."""
     if value is None:
         return "-"
     try:

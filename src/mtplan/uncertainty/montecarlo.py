@@ -1,7 +1,7 @@
 """Monte Carlo propagation of distributions after JCGM 101:2008 (GUM Supplement 1).
 
 The engine runs trials in fixed-size blocks. Block ``i`` draws from stream ``i`` of
-the seed's ``SeedSequence`` (see :mod:`mtplan.uncertainty._random`), blocks are
+the random seed's ``SeedSequence`` (see :mod:`mtplan.uncertainty._random`), blocks are
 joined in block order, so the same seed gives bit-identical results for any
 ``n_jobs`` and any joblib backend. Memory is bounded by the block size: the first
 ``keep`` values of every output are kept exactly; beyond that each output switches

@@ -1,4 +1,4 @@
-"""The 21 geometric errors of a three-axis machine from a 2D grid encoder (seed 001).
+"""The 21 geometric errors of a three-axis machine from a 2D grid encoder (patent CN101982726).
 
 Machine and model
 -----------------
@@ -21,26 +21,26 @@ have powers 2..``poly_order``** and squareness is a constant. Decision (differs 
 brief's "every function a polynomial without constant term"): ISO 230-1 defines
 straightness relative to the axis's reference straight line, whose direction *is* the
 squareness; a linear straightness term would be the same parameter as the squareness
-(or the plate's rotation) and the model would be rank deficient by definition. The seed
+(or the plate's rotation) and the model would be rank deficient by definition. The patent
 does the same (straightness = record minus its trend line). The error functions are
 functions of position: :func:`error_functions` gives each one's estimate, truth and
 first-order band over its travel; a measurand is the value at one stated position.
 
 Instrument and tests
 --------------------
-A 2D grid plate (HEIDENHAIN KGM 182 in the seed, measuring range 140 mm diameter) is
+A 2D grid plate (HEIDENHAIN KGM 182 in the patent, measuring range 140 mm diameter) is
 fixed on the table in the XY, XZ and YZ planes in turn (plane offsets
 ``xy_plane_z_mm``, ``xz_plane_y_mm``, ``yz_plane_x_mm``: the machine coordinate of the
-spindle reference during that plane's tests with the first head; the seed's YZ plane is
+spindle reference during that plane's tests with the first head; the patent's YZ plane is
 at x = 120 mm), and reads the head's position in the plate's plane. In each plane:
 back-and-forth lines along both axes through the plate centre (``line_length_mm``,
 ``line_repeats``, ``line_points`` per pass) and a circle of radius ``circle_radius_mm``
 about the centre, counter-clockwise then clockwise back along the same arc
-(``circle_points`` per pass, ``circle_arc_deg``; the seed's example program uses 45 deg
+(``circle_points`` per pass, ``circle_arc_deg``; the patent's example program uses 45 deg
 arcs, the brief a full circle, which is the default).
 
 *Several head positions.* The first head sits at (``head_lateral_mm``, 0,
--``head_offset_mm``) in every plane (the seed's single head). Each plane may repeat its
+-``head_offset_mm``) in every plane (the patent's single head). Each plane may repeat its
 tests with extra head positions (``xy_extra_heads_mm``, ``xz_extra_heads_mm``,
 ``yz_extra_heads_mm``: triples of tool length, lateral X and lateral Y offset from the
 spindle axis; for the vertical plates an angle bracket puts the head sideways, its arm
@@ -76,25 +76,25 @@ sums it): plate changes, head changes, then the moves at ``feed_mm_min``. See
 
 Estimators
 ----------
-``patent`` (the seed's stepwise method): step 1 fits each plane's two line records read
-with the first head (trend line + polynomial; the seed's "record minus trend line" as
+``patent`` (the patent's stepwise method): step 1 fits each plane's two line records read
+with the first head (trend line + polynomial; the patent's "record minus trend line" as
 one least-squares fit) for 3 positioning, 6 straightness and 3 squareness errors and the
 plate's offset and rotation; step 2 brings every other reading back to the nominal plate
 frame (step-1 mounting removed exactly), subtracts the step-1 errors' first-order effect
 and solves ``E = Q P`` by least squares for the angular coefficients (and the extra
 heads' settings) from **all three circles stacked**, each circle's radial deviation
-``|r| - R``, together with the 2D line records of the extra heads. The seed assigns the
+``|r| - R``, together with the 2D line records of the extra heads. The patent assigns the
 angular errors to planes (XY: EAY, EBY, ECY, ECX; XZ: EBX, EBZ; YZ: EAZ, EAX, ECZ),
 which the lever arms do not support (the XY circle has no lever for EAY, the YZ circle
-sees EAY through z): stacking is what makes step 2 work; the seed's single head has no
-line records beyond step 1, so with it step 2 is the seed's circles alone. Q is the
-forward model's first-order expansion (its Jacobian at zero error), not the seed's
-damaged formulas. Where the derivation differs from the seed: the seed's lever arms
+sees EAY through z): stacking is what makes step 2 work; the patent's single head has no
+line records beyond step 1, so with it step 2 is the patent's circles alone. Q is the
+forward model's first-order expansion (its Jacobian at zero error), not the patent's
+damaged formulas. Where the derivation differs from the patent: the patent's lever arms
 include each axis's own coordinate (terms ``x^2 sin(theta)``), which ISO 230-1 absorbs
-in the straightness; the X roll column of the seed's Q_YOZ is ``x^n (z cos + y sin)``
+in the straightness; the X roll column of the patent's Q_YOZ is ``x^n (z cos + y sin)``
 whereas a rotation about x seen at fixed x = 120 mm is a rigid rotation of the YZ
 pattern, whose radial component about the centre vanishes, and its three columns (n = 1,
-2, 3) are proportional: Q_YOZ is rank deficient. The seed also ignores the tool-length
+2, 3) are proportional: Q_YOZ is rank deficient. The patent also ignores the tool-length
 lever arm in step 1, so its positioning errors are those at the reading head (EXX - L EBX
 at first order), not at the spindle reference point.
 
@@ -114,7 +114,7 @@ exact model where it is not. A batch of one (a measurement) is plain chord Gauss
 Identifiability (the point of the study)
 ----------------------------------------
 From 2D plate readings the model is rank deficient: see :func:`identifiability` and
-docs/geometry21.md. At the default set-up (the seed's one head, errors defined at the
+docs/geometry21.md. At the default set-up (the patent's one head, errors defined at the
 reading head) the joint Jacobian has rank 42 of 60: the X roll EAX only rotates the YZ
 pattern (confounded with the plate's rotation), and EBY, ECY, EAZ, EBZ, ECZ have no
 lever arm between the functional point and any plate plane (no effect). Decision:
@@ -187,7 +187,7 @@ _DESCR = {
 _ROT = ("rotation about X", "rotation about Y", "rotation about Z")
 #: plate planes: name, in-plane axes (a, b), the fixed axis
 PLANES = (("XY", 0, 1, 2), ("XZ", 0, 2, 1), ("YZ", 1, 2, 0))
-#: the seed's assignment of step-1 errors (lines) to planes; _STEP2 documents the seed's
+#: the patent's assignment of step-1 errors (lines) to planes; _STEP2 documents the patent's
 #: assignment of the angular errors to the circles (step 2 stacks them, module docstring)
 _STEP1 = {"XY": ("EXX", "EYY", "EYX", "EXY", "EC0Y"), "XZ": ("EZZ", "EZX", "EXZ", "EB0Z"),
           "YZ": ("EZY", "EYZ", "EA0Z")}
@@ -222,17 +222,17 @@ class Setup(SetupBase):
     """Set-up of the 2D grid-encoder test of the 21 geometric errors."""
 
     _owner = "geometry21"
-    poly_order: int = param(3, doc="Order of the error polynomials (the seed: 3)", low=2, high=6)
-    line_length_mm: float = param(100.0, doc="Length of each line test (the seed: 100 mm)",
+    poly_order: int = param(3, doc="Order of the error polynomials (the patent: 3)", low=2, high=6)
+    line_length_mm: float = param(100.0, doc="Length of each line test (the patent: 100 mm)",
                                   low=0, high=2 * PLATE_RADIUS_MM, low_open=True)
-    line_repeats: int = param(5, doc="Back-and-forth repeats of each line (the seed: 5)",
+    line_repeats: int = param(5, doc="Back-and-forth repeats of each line (the patent: 5)",
                               low=1, high=100)
     line_points: int = param(21, doc="Readings per line pass", low=3, high=2001)
-    circle_radius_mm: float = param(50.0, doc="Radius of the circle tests (the seed: 30-70 mm)",
+    circle_radius_mm: float = param(50.0, doc="Radius of the circle tests (the patent: 30-70 mm)",
                                     low=0, high=PLATE_RADIUS_MM, low_open=True)
     circle_points: int = param(72, doc="Readings per circle pass (two passes: CCW, CW)",
                                low=8, high=20001)
-    circle_arc_deg: float = param(360.0, doc="Arc of each circle pass (the seed's program: 45)",
+    circle_arc_deg: float = param(360.0, doc="Arc of each circle pass (the patent's program: 45)",
                                   low=0, high=360, low_open=True)
     head_offset_mm: float = param(100.0, doc="Reading head below the spindle reference point "
                                   "(tool length L) of the first head position", low=0, high=1000)
@@ -251,7 +251,7 @@ class Setup(SetupBase):
                                   "'all' (lines and circle) or 'lines'", choices=("all", "lines"))
     xy_plane_z_mm: float = param(0.0, doc="Z of the XY plate set-up", low=-1000, high=1000)
     xz_plane_y_mm: float = param(0.0, doc="Y of the XZ plate set-up", low=-1000, high=1000)
-    yz_plane_x_mm: float = param(120.0, doc="X of the YZ plate set-up (the seed: 120 mm)",
+    yz_plane_x_mm: float = param(120.0, doc="X of the YZ plate set-up (the patent: 120 mm)",
                                  low=-1000, high=1000)
     encoder_noise_um: float = param(0.05, doc="Reading noise of the 2D encoder (std, each "
                                     "component)", low=0, high=100)
@@ -281,7 +281,7 @@ class Setup(SetupBase):
     thermal_drift_um_per_h: float = param(2.0, doc="Drift of the head relative to the plate "
                                           "during the test (std of the rate, each component)",
                                           low=0, high=1000)
-    feed_mm_min: float = param(500.0, doc="Feed of the test moves (the seed: 500 mm/min)",
+    feed_mm_min: float = param(500.0, doc="Feed of the test moves (the patent: 500 mm/min)",
                                low=0, high=100000, low_open=True)
     setup_change_s: float = param(1200.0, doc="Time to mount and align the plate in one plane",
                                   low=0, high=36000)
@@ -359,7 +359,7 @@ class Truth(SetupBase):
     100 mm, squareness 10-20 urad. ``error_scale`` multiplies every error and
     ``angular_scale`` the angular and squareness errors only (large-error studies).
 
-    The six angular errors that the default (the seed's one-head) test cannot see at first
+    The six angular errors that the default (the patent's one-head) test cannot see at first
     order (EAX: only a rotation of the YZ pattern, taken up by the plate's rotation; EBY,
     ECY, EAZ, EBZ, ECZ: no lever arm between the functional point and the plates' planes)
     are zero by default: with realistic values (:data:`HIDDEN_ANGULAR`) their second-order
@@ -484,7 +484,7 @@ def _passes(setup):
                 vel = (sign, z) if t == 0 else (z, sign)
                 out.append((t, 2 * rep + d, uu if t == 0 else z, uu if t == 1 else z,
                             np.abs(uu - uu[0]), setup.line_length_mm, vel, z, 0.0))
-    for d, s in enumerate((1.0, -1.0)):  # CCW, then CW back along the same arc (the seed)
+    for d, s in enumerate((1.0, -1.0)):  # CCW, then CW back along the same arc (the patent)
         phi = th if s > 0 else arc - th
         va, vb = -s * np.sin(phi), s * np.cos(phi)
         vel = tuple(np.where(np.abs(v) > 1e-12, np.sign(v), 0.0) for v in (va, vb))
@@ -1284,7 +1284,7 @@ def _theta_patent(setup: Setup, readings: dict) -> np.ndarray:
     dr = r - pd_["r0"]
     n = r.shape[0]
     theta = np.zeros((n, geo.n_par))
-    # step 1: the first head's line records of each plane -> 12 errors (seed's assignment)
+    # step 1: the first head's line records of each plane -> 12 errors (patent's assignment)
     # + mounting
     for pl in pd_["planes"]:
         est = dr[:, pl["rows"]] @ pl["a1"].T  # one product for the batch
@@ -1331,7 +1331,7 @@ def _measure(setup: Setup, theta: np.ndarray) -> dict:
 
 
 def estimate_patent(setup: Setup, readings: dict) -> dict:
-    """The seed's stepwise estimator (lines, then circles); measurands [mm, rad], (n,)."""
+    """The patent's stepwise estimator (lines, then circles); measurands [mm, rad], (n,)."""
     return _measure(setup, _theta_patent(setup, readings))
 
 

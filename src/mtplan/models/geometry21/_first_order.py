@@ -274,7 +274,7 @@ def first_order_std(setup: Setup, truth: Truth | None = None, *, estimator: str 
 def _travel(geo: _Geometry, axis: int) -> tuple[float, float]:
     """Range of an axis's commanded position over every reading [mm]: where the plates read
     its errors (the lines and circles, and the fixed coordinates of the plates and heads:
-    the YZ plate reads X's errors at its x, 120 mm in the seed)."""
+    the YZ plate reads X's errors at its x, 120 mm in the patent)."""
     x = geo.cmd[:, axis]
     return float(x.min()), float(x.max())
 
@@ -406,7 +406,7 @@ def report_extras(setup: Setup, truth: Truth) -> dict:
     """Uncertainty bands of the error functions over the tested travel, for the report.
 
     A planner asks how well EBX is known anywhere on the axis, not how well its a2 is:
-    :func:`error_bands` (first order, all active error sources) for the seed's stepwise
+    :func:`error_bands` (first order, all active error sources) for the patent's stepwise
     method and the joint fit; functions the data do not determine are left out.
     :func:`error_functions` has the same with the estimate and truth over each axis's
     whole tested travel.
@@ -414,7 +414,7 @@ def report_extras(setup: Setup, truth: Truth) -> dict:
     bands = {est: error_bands(setup, estimator=est, positions=21) for est in ("patent", "joint")}
     return {"bands": {
         "caption": ("Standard uncertainty of each determined error function over the tested "
-                    "travel (first order, every default error source), the seed's stepwise "
+                    "travel (first order, every default error source), the patent's stepwise "
                     "method against the joint fit. Squareness errors are constants (not drawn)."),
         "tables": bands,
     }}

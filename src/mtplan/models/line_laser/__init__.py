@@ -1,4 +1,4 @@
-"""Mounting error angles of a line-laser profile sensor (PROCEDURES.md section 4, seed 004).
+"""Mounting error angles of a line-laser profile sensor (line-laser patent application of 2019).
 
 A line-laser profile sensor on a three-axis machine reports, at each trigger, a
 profile: heights ``z_l`` at fixed points ``x_l`` along its laser line. The machine
@@ -10,7 +10,7 @@ along ``R e_x`` and it measures along ``R e_z``). The machine frame is the scan'
 Y along the Y motion (which builds the data's third coordinate), X in the plane of the
 X and Y motions, Z normal to both; the X and Z motions deviate from those axes by the
 machine's squareness errors. The method scans a standard artifact with a periodic
-pattern three times (the seed's claim 3):
+pattern three times (the patent's claim 3):
 
 1. along Y;
 2. shifted by ``w = shift_fraction * line_width_mm`` in +X, same Y path;
@@ -18,7 +18,7 @@ pattern three times (the seed's claim 3):
 
 Forward model
 -------------
-- **Artifact**: a plate with a honeycomb of hexagonal pockets (the seed's figure 3),
+- **Artifact**: a plate with a honeycomb of hexagonal pockets (the patent's figure 3),
   pitch ``cell_size_mm`` between neighbouring cells, land ``wall_mm`` between
   pockets, depth ``cell_depth_mm``; the pocket walls are plane facets inclined at
   ``facet_angle_deg`` to the plate (a machined pocket with drafted walls). The
@@ -36,7 +36,7 @@ Forward model
   micrometres, so each step contracts the error by ~1e-2 and the iteration ends at
   machine precision; inside one facet one step is exact). ``z_l = 0`` is the middle
   of the measuring range ``range_mm``; the stand-off is set before scanning so that
-  all three scans fit in the range (the seed's claim 5), and set-ups where they
+  all three scans fit in the range (the patent's claim 5), and set-ups where they
   cannot are refused.
 - **Error sources** (each sized by its set-up field; the field's doc names the data
   sheet or standard its default comes from):
@@ -83,16 +83,16 @@ Forward model
 
 Estimators
 ----------
-``patent`` (the seed, claims 7 to 9):
+``patent`` (the patent, claims 7 to 9):
 
 - the heights are binarised (pocket / land, threshold halfway between the extremes of
   the scan); scan 1 is moved by ``w`` along the line (linear interpolation, ``w`` is a
   known distance) and shifted against scan 2 by whole rows ``n = -n_max..n_max``; the
-  overlap is the *fraction* of agreeing points of the common part (the seed says the
+  overlap is the *fraction* of agreeing points of the common part (the patent says the
   amount of coinciding data; a raw count favours ``n = 0`` because the common part
   shrinks with ``|n|``, so we normalise). ``l_z = n1 dy``, ``alpha_z = arctan(l_z/w)``:
   **quantised** in steps of about ``dy/w``. ``n1`` is the whole shift *nearest* the true
-  one, as the seed means: the binarised overlap is a staircase whose steps sit where the
+  one, as the patent means: the binarised overlap is a staircase whose steps sit where the
   facets' edges cross the rows, so its argmax alone switched up to 0.64 step off the
   half-way points, wherever the artifact lay; the overlap's best shift is refined within
   the two row intervals beside it (rows interpolated linearly, the centred sum of squared
@@ -100,7 +100,7 @@ Estimators
   the switch points at +-1/2 step wherever the artifact lies (tested to 0.05 step).
   ``simulate`` states its u as ``step / sqrt(12)`` (:func:`resolution`), never 0.
 - ``l_y`` is the mean height difference (scan 1 minus scan 2) over the common part
-  aligned by ``w`` and ``n1``, ``alpha_y = arctan(l_y/w)``. The seed fixes no sign
+  aligned by ``w`` and ``n1``, ``alpha_y = arctan(l_y/w)``. The patent fixes no sign
   convention; the signs here make both formulas right to first order in this
   module's conventions.
 - ``h'`` is the mean height difference of scans 2 and 3 at the same points,
@@ -111,7 +111,7 @@ Estimators
   direction), and ``h'`` is the mean of that over the points, weighted by how many
   fall on each plane (plus the few rays whose hit crosses a kink between the scans).
   On the land and floors of a *level* artifact that is ``h / (cos alpha_x cos
-  alpha_y)``, the seed's relation, whose arccos is ``arccos(cos alpha_x cos alpha_y)
+  alpha_y)``, the patent's relation, whose arccos is ``arccos(cos alpha_x cos alpha_y)
   ~ sqrt(alpha_x^2 + alpha_y^2)``: even there it absorbs ``alpha_y``, and with the
   artifact's tilt it gives the angle between ``d`` and the plate's normal (1.90 mrad
   at the default truth, against 2.24 mrad for a level plate). On a facet inclined
@@ -131,7 +131,7 @@ Estimators
   says so, with the numbers). The Z scale error adds ``s h`` to ``h'``: 100 ppm
   alone reads as 14 mrad.
 
-``registration`` (improved, self-referencing like the seed, no artifact dimensions
+``registration`` (improved, self-referencing like the patent, no artifact dimensions
 used): each scan is a sampled surface ``z_l = F_k(x_l, y)`` in the sensor's data
 coordinates. Because the machine moves the sensor rigidly, the scans are exact
 translates of one another in those coordinates:
@@ -168,8 +168,8 @@ with an exact pattern, 39 with facets known to 2 um, against the registration's 
 the floor displaced along Y by the depth times the angle). It is the estimator whose
 Monte Carlo agrees with the posterior, which uses the same information.
 
-Decisions where the seed is silent or loose: the seed's ``cos(alpha_x) = h/h'`` ignores
-``alpha_y``; we implement it as written and show the contamination. The seed aligns
+Decisions where the patent is silent or loose: the patent's ``cos(alpha_x) = h/h'`` ignores
+``alpha_y``; we implement it as written and show the contamination. The patent aligns
 along ``x_l`` by ``w``; we interpolate linearly along the line for that (``w`` need not
 be a whole number of points). Rows are compared at the nominal trigger positions
 (the data know no better).
@@ -360,7 +360,7 @@ class Setup(SetupBase):
             p.add("max_shift_rows", self.max_shift_rows,
                   f"an int >= {math.ceil(reach / self.step_mm)}: the search must cover the "
                   f"row shift w*tan(alpha_z) = {reach * 1e3:.3g} um of a {ALPHA_MAX * 1e3:g} "
-                  f"mrad mounting error (the seed: n_max larger than the expected shift)")
+                  f"mrad mounting error (the patent: n_max larger than the expected shift)")
 
 
 @dataclass(frozen=True)
@@ -1169,7 +1169,7 @@ PROCEDURE = Procedure(
     from_frame=from_frame,
     description=(
         "Three scans of a hexagonal-cell artifact (base, shifted by w in X, raised by h in Z) "
-        "give the sensor's mounting angles about Z, Y and X. The seed's estimator quantises "
+        "give the sensor's mounting angles about Z, Y and X. The patent's estimator quantises "
         "alpha_z to dy/w and cannot see the sign (nor, at realistic machine errors, the size) "
         "of alpha_x; the registration estimator fits sub-step translations between the scans "
         "and the rotation exactly."

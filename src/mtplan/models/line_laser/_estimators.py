@@ -73,7 +73,7 @@ def _row_search(setup, a, b, cols):
 
 def _coarse(setup, a, b, shift):
     """Start of the registration of ``b`` on ``a`` (b moved by ``shift`` in +X): the
-    seed's integer row search and the mean height difference at that row shift.
+    patent's integer row search and the mean height difference at that row shift.
 
     Returns
     -------
@@ -95,7 +95,7 @@ def _nearest_row(setup, a, b, cols, coarse):
     The overlap of binarised scans is a staircase in the true shift: its steps lie where
     the facets' edges cross the rows, so which whole shift scores best depends on where
     the artifact lies (the switch points sat up to 0.64 step off the half-way points).
-    The seed wants the nearest step (``l_z = n1 dy``). So the shift is located within the
+    The patent wants the nearest step (``l_z = n1 dy``). So the shift is located within the
     two row intervals beside `coarse`: scan 1's rows interpolated linearly to a shift
     ``k + f`` (0 <= f <= 1) make the centred sum of squared height differences a quadratic
     in f, minimised in closed form; the better interval's ``k + f``, rounded, is n1.
@@ -129,7 +129,7 @@ def _nearest_row(setup, a, b, cols, coarse):
 
 
 def estimate_patent(setup, readings) -> dict:
-    """The seed's estimator: integer row shift, mean differences, arccos(h/h').
+    """The patent's estimator: integer row shift, mean differences, arccos(h/h').
 
     Parameters
     ----------

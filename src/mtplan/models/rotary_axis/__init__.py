@@ -1,4 +1,4 @@
-"""Rotary-axis location from an inclined plane (C and A axes; seed 000, PROCEDURES.md 1).
+"""Rotary-axis location from an inclined plane (C and A axes; rotary-axis patent of 2020).
 
 The test
 --------
@@ -17,13 +17,13 @@ The axis is the line through ``P`` along ``u``. Neither step uses the angles the
 was turned to, so the rotary axis's angular positioning error does not enter (the
 ``angles`` estimator below does use them: see Estimators).
 
-Measuring order. C positions are taken in ascending order from 0 (the seed's six over
-the full turn); A positions, by default, in the seed's order (S203: 0, 15, 30, 45, -15,
--30, -45; ``a_order="seed"``: from 0 up, then from the first negative down), or
+Measuring order. C positions are taken in ascending order from 0 (the patent's six over
+the full turn); A positions, by default, in the patent's order (S203: 0, 15, 30, 45, -15,
+-30, -45; ``a_order="patent"``: from 0 up, then from the first negative down), or
 ascending with ``a_order="ascending"``. The order matters through the thermal drift,
 which runs over the test's time line (:func:`schedule`).
 
-Both axes (``axis="CA"``). The seed measures C (A held at 0) and then A (C held at 0)
+Both axes (``axis="CA"``). The patent measures C (A held at 0) and then A (C held at 0)
 and ends by computing the machining pose from both axis lines. A CA test is that
 sequence on one time line: the C positions (``c_angles_deg``, default the six), then
 the A positions (``positions``, ``range_deg``, ``angles_deg`` and ``a_order`` describe
@@ -41,7 +41,7 @@ measurands:
   (``pose_point_mm``, on the table at A = C = 0) at the pose ``pose_a_deg``,
   ``pose_c_deg``: the point turned about the measured C line (C rides on A, and its line
   was measured at A = 0), then about the measured A line, minus the same on the nominal
-  lines (Z and X through the origin). This is what the seed's last step, "calculate the
+  lines (Z and X through the origin). This is what the patent's last step, "calculate the
   machining attitude from the axes of A and C", needs from the test: the machine's
   actual kinematics in place of the nominal one. The axes' zero-angle errors (EA0A,
   EC0C) are not measured by the test (``angles`` takes a zero error of the encoder
@@ -107,7 +107,7 @@ determine it; ``artifact_height_error``). :func:`sources` says where each defaul
 from.
 A drift that is linear in time is the first-order model of ISO 230-3; it is the only
 error whose effect depends on the measuring order. At the default rate the order hardly
-matters (A axis, drift alone: u(EZ0A) 0.218 um ascending, 0.202 um in the seed's order;
+matters (A axis, drift alone: u(EZ0A) 0.218 um ascending, 0.202 um in the patent's order;
 the other three unchanged), so no further drift source (a random walk, a warm-up curve)
 was added; docs/rotary_axis.md holds the budget tables.
 
@@ -124,18 +124,18 @@ nominal normal's Z component.
 
 Estimators
 ----------
-``patent``: the seed's three steps (the default of ``simulate``; ``estimate`` picks the
-best exact estimator, ``angles`` at the defaults). Decisions where the seed is silent or its
+``patent``: the patent's three steps (the default of ``simulate``; ``estimate`` picks the
+best exact estimator, ``angles`` at the defaults). Decisions where the patent is silent or its
 formulas are lost:
 
 1. Each plane is fitted by ordinary least squares of the heights on (x, y): the sensor
-   errs along Z, so this is the plane the seed's "least-squares solution of
+   errs along Z, so this is the plane the patent's "least-squares solution of
    X A + Y B + Z C + D = 0" means with C = -1. (A total-least-squares plane differs at
    second order in the noise and costs an eigen-decomposition per plane.) The design
    matrix is fixed by the set-up: one matrix product fits every plane of every trial.
 2. Each plane is scaled to a unit normal (pointing up) before ``N P = -D``, so the
    residuals are distances.
-3. ``N v = 1`` with the unit normals, then ``u = v / |v|``, as the seed.
+3. ``N v = 1`` with the unit normals, then ``u = v / |v|``, as the patent.
 
 ``joint``: the least-squares fit of the whole model to all readings at once. The model
 has the four axis parameters, the pierce point's position along the axis, the cone angle
@@ -163,7 +163,7 @@ up to 13 % *worse* there: the per-position errors (error motions of the axis, Z
 positioning) are not independent per reading, so the reading-count weighting that is
 optimal for noise is not optimal for them. Weighted by the whole error budget (``gls``)
 the joint fit recovers that loss and lands on the patent's uncertainty (within 2 %): the
-seed's method is already efficient here. Beyond the estimator, the geometry decides:
+patent's method is already efficient here. Beyond the estimator, the geometry decides:
 the axial error motion of each position reads as a lateral offset of
 ``axial / tan(incline)`` (it dominates EX0C/EY0C by default), the direction of the A
 axis along its arc is poorly determined (EB0A ~ 58 urad at +-45 deg, ~530 urad at
@@ -261,12 +261,12 @@ class Setup(SetupBase):
     _owner = NAME
 
     axis: str = param("C", doc="Rotary axis under test: C (about Z), A (about X), or CA: "
-                      "both, C first at A = 0, then A with C at 0 (the seed's S102, S103), "
+                      "both, C first at A = 0, then A with C at 0 (the patent's S102, S103), "
                       "with the location of C against A and the machining-pose error",
                       choices=("C", "A", "CA"))
     incline_deg: float = param(20.0, doc="Incline of the artifact plane [deg]; > 0, since a "
                                "level plane's normals all lie along the axis and locate nothing "
-                               "(the seed uses 10-30)", low=0, high=60, low_open=True)
+                               "(the patent uses 10-30)", low=0, high=60, low_open=True)
     incline_azimuth_deg: float = param(0.0, doc="Direction of the incline's fall line from +X "
                                        "at the zero position [deg]", low=-360, high=360)
     positions: int | None = param(None, doc="Number of axis positions, >= 3 (empty: 6 for C, "
@@ -280,15 +280,15 @@ class Setup(SetupBase):
                                                  "order [deg]; overrides positions and "
                                                  "range_deg; for CA, of the A part", low=-720,
                                                  high=720, min_len=3)
-    a_order: str = param("seed", doc="Measuring order of the A positions from positions and "
-                         "range_deg: 'seed' (0 and up to +range/2, then from the first "
+    a_order: str = param("patent", doc="Measuring order of the A positions from positions and "
+                         "range_deg: 'patent' (0 and up to +range/2, then from the first "
                          "negative down to -range/2: 0, 15, 30, 45, -15, -30, -45 as in the "
-                         "seed's example) or 'ascending' (-range/2 up to +range/2)",
-                         choices=("seed", "ascending"))
+                         "patent's example) or 'ascending' (-range/2 up to +range/2)",
+                         choices=("patent", "ascending"))
     c_angles_deg: tuple[float, ...] | None = param(None, doc="C angles of the combined test "
                                                    "(axis CA) in measuring order [deg] "
                                                    "(empty: 6 over the full turn, as the "
-                                                   "seed's example)", low=-720, high=720,
+                                                   "patent's example)", low=-720, high=720,
                                                    min_len=3)
     pose_a_deg: float = param(45.0, doc="CA: A angle of the machining pose whose error is "
                               "reported (pose_dx, pose_dy, pose_dz) [deg]", low=-360, high=360)
@@ -331,7 +331,7 @@ class Setup(SetupBase):
     artifact_tilt_urad: float = param(5000.0, doc="Standard deviation (normal, no hard "
                                       "bound) of each of the two tilts of the artifact's real "
                                       "plane from its nominal incline and azimuth [urad]: the "
-                                      "plane is clamped by eye, not calibrated; the seed's "
+                                      "plane is clamped by eye, not calibrated; the patent's "
                                       "method does not need it", low=0, high=1e5)
     artifact_height_error_um: float = param(100.0, doc="Half-width (rectangular) of the "
                                             "artifact's real height from the nominal "
@@ -397,7 +397,7 @@ class Setup(SetupBase):
         span = self.range_deg if self.range_deg is not None else _DEFAULT_RANGE[axis]
         if axis == "A":
             grid = np.linspace(-span / 2, span / 2, n)
-            if self.a_order == "seed":
+            if self.a_order == "patent":
                 grid = np.concatenate([grid[grid >= 0], grid[grid < 0][::-1]])
             return grid
         if span >= 360.0:
@@ -1240,9 +1240,9 @@ def _angle_fields(axis: str, angles: np.ndarray) -> dict:
 
     n = angles.size
     if axis == "C":
-        candidates = [(360.0, "seed"), (float(angles[-1]), "seed")]
+        candidates = [(360.0, "patent"), (float(angles[-1]), "patent")]
     else:
-        candidates = [(float(angles.max() - angles.min()), o) for o in ("seed", "ascending")]
+        candidates = [(float(angles.max() - angles.min()), o) for o in ("patent", "ascending")]
     for span, order in candidates:
         try:
             grid = Setup(axis=axis, positions=n, range_deg=span, a_order=order).axis_angles(axis)
@@ -1359,7 +1359,7 @@ PROCEDURE = Procedure(
     description=(
         "A point laser on the Z slide reads a lattice on an inclined plane at n >= 3 positions "
         "of the rotary axis; the planes' least-squares intersection is a point on the axis and "
-        "N v = 1 gives its direction (seed 000). Measurands: ISO 230-7 location errors of the "
+        "N v = 1 gives its direction (rotary-axis patent application of 2020). Measurands: ISO 230-7 location errors of the "
         "C axis (EX0C, EY0C, EA0C, EB0C) or the A axis (EY0A, EZ0A, EB0A, EC0A); with axis "
         "CA both, the offset and squareness of C to A and the error of a machining pose."
     ),

@@ -75,7 +75,7 @@ def _solve_sym3(sxx, sxy, sxz, syy, syz, szz, rhs: np.ndarray) -> np.ndarray:
 
 
 def _patent_line(setup: Setup, coef: np.ndarray):
-    """The seed's steps 4-5 on fitted planes: pierce point (n,3), unit direction (n,3), normals.
+    """The patent's steps 4-5 on fitted planes: pierce point (n,3), unit direction (n,3), normals.
 
     ``N P = -D`` and ``N v = 1`` share the normal matrix ``N^T N``: one 3 x 3 solve with
     two right-hand sides per trial.
@@ -105,7 +105,7 @@ def _line_measurands(setup: Setup, point: np.ndarray, direction: np.ndarray) -> 
 
 
 def estimate_patent(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
-    """The seed's method: plane per lattice, LS intersection ``N P = -D``, ``N v = 1``.
+    """The patent's method: plane per lattice, LS intersection ``N P = -D``, ``N v = 1``.
 
     Parameters
     ----------
@@ -293,7 +293,7 @@ def estimate_gls(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
     inverse of their covariance under every active per-position error source (reading
     noise, X/Y/Z positioning, error motions, angular positioning), computed once per
     set-up by the law of propagation. The joint fit's own weighting assumes independent
-    reading noise only, which makes it worse than the seed's method when the per-position
+    reading noise only, which makes it worse than the patent's method when the per-position
     errors dominate; the weighting restores the balance. Correlations between positions
     (flatness, scale, drift, the artifact's pose) are left out of the weight
     (block-diagonal).

@@ -1,0 +1,186 @@
+"""Every example and every documented command runs as written.
+
+The commands are collected from the header comments of the files in ``examples/`` and from
+README.md and docs/*.md (fenced and indented code blocks, inline code spans that begin with
+``mtplan``). A span with a placeholder (``PROC``, ``FILE``, ``NAME``, ``...``, ``A|B``,
+``[--json]``) is a template, not a command line; a header command with ``PROC`` is run for
+every procedure with an ``examples/PROC_readings.csv``. Each command runs in a scratch folder
+holding a copy of ``examples/`` (so a command that writes there changes nothing), with
+``MTPLAN_MAX_TRIALS`` capping its Monte Carlo trials, in two worker processes that import
+mtplan once. ``mtplan demo`` and ``mtplan report examples/demo.toml`` compute the shipped
+study, which ``tests/reports/test_report.py::test_demo_end_to_end`` runs end to end: here they
+are parsed and their study loaded.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import re
+import shlex
+import shutil
+import traceback
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples"
+DOCUMENTS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+#: the trial cap of every command here (the planner's confirmation needs 100)
+MAX_TRIALS = "100"
+#: words that stand for a value the reader fills in
+PLACEHOLDERS = {"PROC", "FILE", "NAME", "DIR", "SPEC", "SIGMA", "MEASURAND", "P", "M", "V", "F",
+                "L", "U", "Y", "S", "N", "u", "LO", "HI", "V1", "V2"}
+#: a placeholder as a word of its own or a part of a name (examples/PROC_readings.csv)
+WORD = r"(?<![A-Za-z]){}(?![A-Za-z])"
+#: commands whose full run is another test's (the demo study takes minutes)
+STUDY_COMMANDS = {"demo", "report"}
+
+
+def _template(words) -> bool:
+    for word in words:
+        if "..." in word or "|" in word or word.startswith("["):
+            return True
+        for part in re.split(r"[=,:<>]+", word):
+            if part in PLACEHOLDERS or re.fullmatch(r"[A-Z][A-Z_]*\.(csv|toml)", part):
+                return True
+    return False
+
+
+def _command(text):
+    """The argv of an ``mtplan ...`` line (without a trailing comment), None for a template
+    or a bare reference to a command (``mtplan estimate`` in a sentence)."""
+    text = text.strip().removeprefix("$ ").strip()
+    if not text.startswith("mtplan "):
+        return None
+    words = shlex.split(text, comments=True)[1:]
+    if _template(words) or (len(words) == 1 and words[0] not in ("procedures", "demo")):
+        return None
+    return words
+
+
+def _from_documents():
+    found = []
+    for path in DOCUMENTS:
+        text = path.read_text(encoding="utf-8")
+        blocks = re.findall(r"```[^\n]*\n(.*?)```", text, re.S)
+        prose = re.sub(r"```.*?```", "", text, flags=re.S)
+        lines = [line for b in blocks for line in b.splitlines()]
+        lines += [line for line in prose.splitlines() if line.startswith("    ")]
+        spans = re.findall(r"`([^`]+)`", prose.replace("\n", " "))
+        for item in lines + spans:
+            argv = _command(re.sub(r"\s+", " ", item))
+            if argv is not None:
+                found.append((path.relative_to(ROOT).as_posix(), argv))
+    return found
+
+
+def _header(path):
+    """The leading comment lines of an example file."""
+    lines = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if not line.startswith("#"):
+            break
+        lines.append(line.lstrip("#").strip())
+    return lines
+
+
+def _from_examples():
+    readings = sorted(EXAMPLES.glob("*_readings.csv"))
+    found = []
+    for path in sorted(EXAMPLES.glob("*.toml")):
+        lines = _header(path)
+        texts = [line for line in lines if line.startswith("mtplan ")]
+        texts += re.findall(r"`(mtplan [^`]+)`", " ".join(lines))
+        for text in texts:
+            for proc in ([p.name.removesuffix("_readings.csv") for p in readings]
+                         if re.search(WORD.format("PROC"), text) else [None]):
+                if proc is not None:
+                    text_p = re.sub(WORD.format("PROC"), proc, text)
+                    text_p = re.sub(WORD.format("FILE"), f"examples/{proc}_readings.csv", text_p)
+                else:
+                    text_p = text
+                argv = _command(text_p)
+                if argv is not None:
+                    found.append((path.relative_to(ROOT).as_posix(), argv))
+    return found
+
+
+EXAMPLE_COMMANDS = _from_examples()
+DOCUMENT_COMMANDS = _from_documents()
+COMMANDS = sorted({tuple(argv) for _, argv in EXAMPLE_COMMANDS + DOCUMENT_COMMANDS})
+
+
+def _run(argv, folder):
+    """One command in-process in `folder`: (status, stdout, stderr)."""
+    from mtplan.cli import main
+
+    os.environ["MTPLAN_MAX_TRIALS"] = MAX_TRIALS
+    os.chdir(folder)
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = (_check_study_command(argv) if argv[0] in STUDY_COMMANDS
+                    else main(list(argv)))
+        except Exception:  # noqa: BLE001 - reported by the command's own test
+            code = "exception"
+            err.write(traceback.format_exc())
+    return code, out.getvalue(), err.getvalue()
+
+
+def _check_study_command(argv) -> int:
+    """``demo`` / ``report``: the line parses and its study loads (run in full elsewhere)."""
+    from mtplan.cli import build_parser
+    from mtplan.cli.report import demo_study_path
+    from mtplan.plans.study import load_study
+
+    args = build_parser().parse_args(list(argv))
+    study = demo_study_path() if argv[0] == "demo" else Path(args.study)
+    assert study.resolve() == (EXAMPLES / "demo.toml").resolve() or argv[0] == "report"
+    load_study(study)
+    return 0
+
+
+@pytest.fixture(scope="module")
+def outcomes(tmp_path_factory):
+    """Every command's (status, stdout, stderr), each in its own copy of examples/."""
+    folders = []
+    for i, _ in enumerate(COMMANDS):
+        folder = tmp_path_factory.mktemp(f"cmd{i}")
+        shutil.copytree(EXAMPLES, folder / "examples")
+        folders.append(folder)
+    with ProcessPoolExecutor(max_workers=2) as pool:
+        results = list(pool.map(_run, COMMANDS, folders))
+    return dict(zip(COMMANDS, results, strict=True))
+
+
+def test_the_commands_are_found():
+    """The collection finds what the documents hold (a change of format must not hide them)."""
+    assert len(DOCUMENT_COMMANDS) >= 20
+    headers = {tuple(a) for f, a in EXAMPLE_COMMANDS if f.endswith("geometry21_all21.toml")}
+    assert headers == {("plan", "geometry21", "--config", "examples/geometry21_all21.toml"),
+                       ("simulate", "geometry21", "--config", "examples/geometry21_all21.toml",
+                        "--json")}
+    used = " ".join(" ".join(argv) for argv in COMMANDS)
+    for path in EXAMPLES.iterdir():  # every example file is used by a command
+        assert f"examples/{path.name}" in used, path.name
+
+
+@pytest.mark.parametrize("argv", COMMANDS, ids=[" ".join(a)[:70] for a in COMMANDS])
+def test_documented_command_runs(outcomes, argv):
+    code, out, err = outcomes[argv]
+    assert code == 0, f"mtplan {shlex.join(argv)}: status {code}\n{err[-2000:]}"
+    assert "Traceback" not in err
+    if "--json" in argv:
+        json.loads(out)
+
+
+def test_all21_simulation_lists_every_error(outcomes):
+    argv = ("simulate", "geometry21", "--config", "examples/geometry21_all21.toml", "--json")
+    doc = json.loads(outcomes[argv][1])
+    assert len(doc["measurands"]) == 21
+    assert all(m["determinable"] and m["u"] > 0 for m in doc["measurands"])
