@@ -414,7 +414,7 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
         why = None
         if not finite[i]:
             why = "the estimator gives no finite value from these readings"
-        elif not (std[i] > 0 and high[i] > low[i]):
+        elif m.name in getattr(r, "quantised", {}) or not (std[i] > 0 and high[i] > low[i]):
             why = (f"the {est_name} estimator gives the same value in every Monte Carlo trial "
                    "around the estimate (it is quantised or does not see this measurand), so its "
                    "uncertainty is its resolution, which the Monte Carlo cannot give")

@@ -8,6 +8,7 @@ Values are reported in each measurand's display unit (um, urad).
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from dataclasses import dataclass, field, fields
 
@@ -216,6 +217,9 @@ class ProcedureResult(ResultDocument):
     true: np.ndarray
     mc: MCResult
     duration_s: float
+    #: the measurands of a quantised estimator that never left their step, with the step
+    #: [display unit]: their u is the rounding's, step / sqrt(12)
+    quantised: dict = field(default_factory=dict)
     undetermined: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
     sections: dict = field(default_factory=dict)
@@ -241,7 +245,13 @@ class ProcedureResult(ResultDocument):
         out = []
         for i, m in enumerate(self.measurands):
             u, bias = float(self.mc.std[i]), float(self.bias[i])
-            if not self.mc.high[i] > self.mc.low[i]:
+            if m.name in self.quantised:
+                q = self.quantised[m.name]
+                out.append(f"{m.name}: the {self.estimator} estimator's values come in steps of "
+                           f"{q:.4g} {m.unit} and every trial gave the same one (an interval of "
+                           f"zero width): its u is the rounding's, step / sqrt(12) = {u:.4g} "
+                           f"{m.unit}, where the truth lies within the step not being known")
+            elif not self.mc.high[i] > self.mc.low[i]:
                 out.append(f"{m.name}: the {self.estimator} estimator gives the same value in "
                            f"(almost) every trial, an interval of zero width: it is quantised "
                            f"or blind to {m.name} here, or no simulated source moves it, so "
@@ -348,7 +358,7 @@ def check_memory(proc, setup, truth, estimator, active, *, block_size: int, n_jo
             "lines or positions) or use fewer jobs."])
 
 
-def _quantised(proc, setup, estimator, measurands, mc) -> None:
+def _quantised(proc, setup, estimator, measurands, mc) -> dict:
     """A measurand of a quantised estimator whose Monte Carlo interval has zero width (it
     never left its step): where the procedure states the step q, u = q / sqrt(12) (the
     rounding error, uniform over a step, as where the truth lies is not known) and the
@@ -356,12 +366,15 @@ def _quantised(proc, setup, estimator, measurands, mc) -> None:
     zero width without a stated step (a source that does not act, with --sources) stays,
     and :meth:`ProcedureResult.findings` names it."""
     steps = proc.resolution(setup, estimator) if proc.resolution is not None else {}
+    out = {}
     for i, m in enumerate(measurands):
         q = steps.get(m.name)
         if q and not mc.high[i] > mc.low[i]:
             q = q * m.scale
             mc.std[i] = q / np.sqrt(12.0)
             mc.low[i], mc.high[i] = mc.mean[i] - mc.coverage * q / 2, mc.mean[i] + mc.coverage * q / 2
+            out[m.name] = q
+    return out
 
 
 def simulate_uncertainty(
@@ -434,7 +447,7 @@ def simulate_uncertainty(
         progress=progress,
         label=proc.name,
     )
-    _quantised(proc, setup, est_name, measurands, mc)
+    quantised = _quantised(proc, setup, est_name, measurands, mc)
     tv = proc.display_truth(setup, truth)
     return ProcedureResult(
         procedure=proc.name,
@@ -447,6 +460,7 @@ def simulate_uncertainty(
         mc=mc,
         duration_s=float(proc.duration(setup)),
         undetermined=undetermined_measurands(proc, setup),
+        quantised=quantised,
     )
 
 
