@@ -3,7 +3,7 @@
 Layers, lowest first: the shared utilities (``mtplan``, ``mtplan._validate``, ``_io``,
 ``_parallel``), ``uncertainty`` (the generic engine), ``models`` (the procedures),
 ``evaluation`` (a procedure's set-up uncertainty and measured data), ``plans``,
-``reports``, ``cli``. Every ``import`` counts, also those inside functions.
+``reports``, ``explore`` (the optional designer), ``cli``. Every ``import`` counts, also those inside functions.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 SRC = Path(__file__).resolve().parent.parent / "src"
-LAYERS = ("base", "uncertainty", "models", "evaluation", "plans", "reports", "cli")
+LAYERS = ("base", "uncertainty", "models", "evaluation", "plans", "reports", "explore", "cli")
 
 
 def _module_name(path: Path) -> str:

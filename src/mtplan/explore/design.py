@@ -469,6 +469,15 @@ def study_toml(design: dict, *, title: str | None = None) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _text(v) -> str:
+    """A set-up value as the page's box shows it (25.0 -> '25', a list comma-separated)."""
+    if isinstance(v, list | tuple):
+        return ",".join(_text(x) for x in v)
+    if isinstance(v, float):
+        return format(v, ".15g")
+    return str(v)
+
+
 def design_from_study(text: str, procedure: str | None = None) -> dict:
     """A design from a study file's text (its first procedure, or the one named).
 
@@ -497,9 +506,7 @@ def design_from_study(text: str, procedure: str | None = None) -> dict:
     ps = study.procedures[0]
     design = {
         "procedure": ps.name,
-        "setup": {k: (",".join(f"{x:g}" for x in v) if isinstance(v, tuple) else str(v))
-                  for k, v in ps.setup.as_dict().items() if v is not None
-                  for v in [tuple(v) if isinstance(v, list) else v]},
+        "setup": {k: _text(v) for k, v in ps.setup.as_dict().items() if v is not None},
         "estimator": ps.estimators[0],
         "tolerances": {a["measurand"]: {k: a.get(k) for k in ("lower", "upper", "prior", "rule")
                                         if a.get(k) is not None}
@@ -507,6 +514,10 @@ def design_from_study(text: str, procedure: str | None = None) -> dict:
         "seed": study.seed,
         "trials": ps.trials or study.trials or 10_000,
     }
+    for source, f in source_fields(get(ps.name)).items():  # a source at 0 is switched off
+        if design["setup"].get(f) in ("0", "0.0"):
+            design.setdefault("off", []).append(source)
+            del design["setup"][f]  # on again at its default size
     if ps.plan:
         k = float(ps.plan.get("k", 1.0))
         design["targets"] = {m: float(v) * K / k for m, v in ps.plan.get("targets", {}).items()}

@@ -1,0 +1,56 @@
+"""``mtplan explore`` without a browser: the missing extra, the state functions."""
+
+from __future__ import annotations
+
+import tomllib
+
+import pytest
+
+from mtplan.cli import main
+
+
+def test_without_the_extra_it_exits_2_with_the_install_line(monkeypatch, capsys):
+    import mtplan.explore
+
+    monkeypatch.setattr(mtplan.explore, "missing_extra", lambda: ["starlette"])
+    assert main(["explore", "rotary_axis", "--no-browser"]) == 2
+    err = capsys.readouterr().err
+    assert "pip install 'mtplan[explore]'" in err and len(err.strip().splitlines()) == 1
+
+
+def test_binds_to_loopback_only():
+    from mtplan.explore import HOST
+
+    assert HOST == "127.0.0.1"
+
+
+def test_study_round_trip_keeps_the_design():
+    from mtplan.explore.design import design_from_study, evaluate, study_toml
+
+    design = {"procedure": "circle_centre", "setup": {"n_points": "5", "spread_deg": "270"},
+              "off": ["roundness"], "targets": {"centre_x": "4"},
+              "vary": {"n_points": "3,4,6"},
+              "tolerances": {"centre_x": {"lower": "-20", "upper": "20",
+                                          "prior": "normal:0,8", "rule": "iso14253"}},
+              "seed": 3, "trials": 500}
+    text = study_toml(design)
+    data = tomllib.loads(text)
+    assert data["procedure"][0]["setup"]["roundness_um"] == 0.0
+    assert data["procedure"][0]["plan"]["targets"] == {"centre_x": 4.0}
+    back = design_from_study(text)
+    assert back["off"] == ["roundness"]
+    assert back["setup"]["n_points"] == "5" and back["setup"]["spread_deg"] == "270"
+    assert back["targets"] == {"centre_x": 4.0} and back["seed"] == 3
+    a, b = evaluate(design), evaluate(back)
+    assert [m["U"] for m in a["measurands"]] == [m["U"] for m in b["measurands"]]
+    assert a["measurands"][0]["acceptance"] == b["measurands"][0]["acceptance"]
+
+
+@pytest.mark.parametrize("setup, field", [({"n_points": "2"}, "n_points"),
+                                          ({"spread_deg": "x"}, "spread_deg"),
+                                          ({"nope": "1"}, "nope")])
+def test_a_refused_value_is_named_beside_its_field(setup, field):
+    from mtplan.explore.design import evaluate
+
+    r = evaluate({"procedure": "circle_centre", "setup": setup})
+    assert not r["ok"] and field in r["field_errors"] and field in r["field_errors"][field]
