@@ -105,13 +105,27 @@ def create_app(initial: dict | None = None) -> Starlette:
     async def procedure(request):
         return _answer(d.procedure_info(request.path_params["name"]))
 
+    latest: dict = {}  # page id -> its latest change (a sensitivity gives way to it)
+
+    def seen(body) -> tuple:
+        tab, change = str(body.get("tab", "")), int(body.get("change") or 0)
+        if tab and change > latest.get(tab, -1):
+            latest[tab] = change
+            while len(latest) > 1000:
+                latest.pop(next(iter(latest)))
+        return tab, change
+
     async def evaluate(request):
-        return _answer(await run_in_threadpool(d.evaluate, await _body(request)))
+        body = await _body(request)
+        seen(body)
+        return _answer(await run_in_threadpool(d.evaluate, body.get("design", body)))
 
     async def sensitivity(request):
         body = await _body(request)
-        return _answer(await run_in_threadpool(d.sensitivity, body.get("design") or {},
-                                               body.get("field")))
+        tab, change = seen(body)
+        return _answer(await run_in_threadpool(
+            d.sensitivity, body.get("design") or {}, body.get("field"),
+            stop=lambda: bool(tab) and latest.get(tab, -1) > change))
 
     async def export(request):
         return _answer({"toml": await run_in_threadpool(d.study_toml, await _body(request))})

@@ -370,14 +370,21 @@ def lever_values(proc, setup, field: str, n: int = 9) -> list:
     return vals
 
 
-def sensitivity(design: dict, field: str | None = None, n: int = 9) -> dict:
-    """U (k = 2) of every measurand over a lever's range, the current value marked."""
+def sensitivity(design: dict, field: str | None = None, n: int = 9, *, stop=None) -> dict:
+    """U (k = 2) of every measurand over a lever's range, the current value marked.
+
+    `stop`, a callable, is asked before each point: when it says True (a newer change has
+    come from the same page) the curve is given up, ``superseded`` True, so that it never
+    holds up the numbers of that change.
+    """
     design = normalise(design)
     proc, setup = setup_of(design)
     field = field or design["lever"]
     est, _ = proc.estimator(design["estimator"])
     xs, curves = [], {}
     for x in lever_values(proc, setup, field, n):
+        if stop is not None and stop():
+            return {"field": field, "superseded": True}
         try:
             s = setup.replace(**{field: x})
         except InvalidInput:

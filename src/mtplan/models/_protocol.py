@@ -34,6 +34,7 @@ live here, once, so no procedure writes its own random-number handling.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import types
 import typing
@@ -190,6 +191,13 @@ def _base_type(tp):
 
 def fields_info(cls) -> list[dict]:
     """Field name, kind, default, unit, doc and range of a Setup or Truth class."""
+    return [dict(info) for info in _fields_info(cls)]
+
+
+@functools.lru_cache(maxsize=None)
+def _fields_info(cls) -> tuple:
+    """:func:`fields_info`, once per class (``typing.get_type_hints`` is slow, and every
+    set-up built validates through it)."""
     hints = typing.get_type_hints(cls)
     out = []
     for f in dataclasses.fields(cls):
@@ -210,7 +218,7 @@ def fields_info(cls) -> list[dict]:
                                                  "choices", "min_len")},
             }
         )
-    return out
+    return tuple(out)
 
 
 def _describe(info) -> str:

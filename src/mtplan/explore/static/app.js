@@ -3,7 +3,7 @@
 "use strict";
 
 const $ = (id) => document.getElementById(id);
-const state = { design: null, info: null, procedures: [], changes: 0, sent: 0, rendered: 0,
+const state = { tab: Math.random().toString(36).slice(2) + Date.now().toString(36), design: null, info: null, procedures: [], changes: 0, sent: 0, rendered: 0,
                 inflight: false, pending: false, t0: 0, latencies: [], job: null,
                 sensTimer: null, lastResult: null };
 window.mtplan = state;  // for tests and the benchmark
@@ -111,7 +111,10 @@ function makeField(f) {
   } else {
     box = el("input", { id: "f-" + f.name, type: "text", inputmode: "decimal", value,
                         placeholder: f.optional ? "default" : "" });
-    const numeric = f.low !== null && f.high !== null && isFinite(f.low) && isFinite(f.high);
+    // a slider where the range is of the order of the value (not 0 .. 100000 for a 1 um noise)
+    const scale = Math.max(Math.abs(+f.default || 0), 1);
+    const numeric = f.low !== null && f.high !== null && isFinite(f.low) && isFinite(f.high) &&
+      f.default !== null && (f.high - f.low) <= 50 * scale;
     if (numeric) {
       const step = f.kind === "int" ? 1 : (f.high - f.low) / 500;
       const slider = el("input", { id: "s-" + f.name, type: "range", min: f.low, max: f.high,
@@ -217,7 +220,7 @@ async function refresh() {
   $("status").textContent = "computing\u2026"; $("status").className = "status busy";
   let result;
   try {
-    result = await api("/api/evaluate", state.design);
+    result = await api("/api/evaluate", { design: state.design, tab: state.tab, change: asked });
   } catch (e) {
     result = { ok: false, problems: [String(e.message || e)], field_errors: {} };
   }
@@ -290,22 +293,33 @@ function renderIdent(id) {
                  text: "valuation O1 " + fmt3(id.valuation) }),
     und);
 }
+const PALETTE = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
+  "#7f7f7f", "#bcbd22", "#17becf", "#aec7e8", "#ffbb78", "#98df8a", "#ff9896", "#c5b0d5",
+  "#c49c94", "#f7b6d2", "#c7c7c7", "#dbdb8d", "#9edae5"];
 function renderBudget(r) {
   if (!window.Plotly) return;
   const names = r.measurands.map((m) => m.name);
   const sources = [...new Set(r.measurands.flatMap((m) => Object.keys(m.budget)))];
-  const traces = sources.map((s) => ({
-    type: "bar", orientation: "h", name: s, y: names,
+  const traces = sources.map((s, i) => ({
+    type: "bar", orientation: "h", name: s, y: names, marker: { color: PALETTE[i % PALETTE.length] },
     x: r.measurands.map((m) => (m.u > 0 ? 100 * (m.budget[s] || 0) ** 2 / (m.u * m.u) : 0)),
     hovertemplate: `${s}: %{x:.1f} %<extra></extra>`,
   }));
-  const h = Math.max(220, 22 * names.length + 90);
+  const legendRows = Math.ceil(sources.length / 5);
+  const h = Math.max(200, 20 * names.length + 70) + 22 * legendRows;
   $("budget-plot").style.height = h + "px";
   Plotly.react("budget-plot", traces, {
-    barmode: "stack", margin: { l: 90, r: 10, t: 10, b: 40 }, height: h,
+    barmode: "stack", margin: { l: 90, r: 10, t: 10, b: 50 + 22 * legendRows }, height: h,
     xaxis: { title: { text: "share of u\u00b2 [%]" }, range: [0, 100] },
-    yaxis: { autorange: "reversed" }, legend: { font: { size: 11 } },
+    yaxis: { autorange: "reversed" },
+    legend: { orientation: "h", y: -45 / (h - 60 - 22 * legendRows), yanchor: "top", font: { size: 11 } },
   }, { displayModeBar: false, responsive: true });
+}
+function logAxis(values) {
+  // a logarithmic axis where U spans more than a factor 20 over the lever's range
+  const pos = values.filter((v) => v > 0 && isFinite(v));
+  if (pos.length && Math.max(...pos) / Math.min(...pos) > 20) return { type: "log" };
+  return { rangemode: "tozero" };
 }
 function scheduleSensitivity() {
   clearTimeout(state.sensTimer);
@@ -317,9 +331,9 @@ async function sensitivity() {
   $("lever-name").textContent = field;
   const asked = state.changes;
   let s;
-  try { s = await api("/api/sensitivity", { design: state.design, field }); }
+  try { s = await api("/api/sensitivity", { design: state.design, field, tab: state.tab, change: asked }); }
   catch (e) { $("sens-plot").textContent = "no sensitivity: " + e.message; return; }
-  if (asked !== state.changes || !window.Plotly) return;
+  if (s.superseded || asked !== state.changes || !window.Plotly) return;
   const withTarget = Object.keys(s.targets).filter((n) => n in s.U);
   const shown = withTarget.length ? withTarget : Object.keys(s.U).slice(0, 8);
   const colours = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf"];
@@ -336,7 +350,7 @@ async function sensitivity() {
   Plotly.react("sens-plot", traces, {
     margin: { l: 60, r: 10, t: 10, b: 45 }, height: 300, shapes,
     xaxis: { title: { text: `${s.field} [${unitText(s.unit) || "1"}] (dotted: current value)` } },
-    yaxis: { title: { text: "U (k = 2)" }, rangemode: "tozero" },
+    yaxis: { title: { text: "U (k = 2)" }, ...logAxis(shown.flatMap((n) => s.U[n])) },
     legend: { font: { size: 11 } },
   }, { displayModeBar: false, responsive: true });
   $("sens-plot").dataset.field = s.field;
