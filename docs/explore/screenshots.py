@@ -77,7 +77,11 @@ def main() -> int:
             browser.close()
     finally:
         server.terminate()
-        server.wait(timeout=10)
+        try:
+            server.wait(timeout=10)
+        except subprocess.TimeoutExpired:  # busy computing: stop it
+            server.kill()
+            server.wait()
     return 0
 
 

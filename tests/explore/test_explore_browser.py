@@ -56,7 +56,11 @@ def server():
             time.sleep(0.3)
     yield url
     proc.terminate()
-    proc.wait(timeout=10)
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:  # busy computing: stop it
+        proc.kill()
+        proc.wait()
 
 
 @pytest.fixture(scope="module")

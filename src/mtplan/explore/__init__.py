@@ -38,7 +38,8 @@ def serve(initial: dict | None = None, *, port: int = 8050, open_browser: bool =
     from mtplan.explore.app import create_app
 
     app = create_app(initial)
-    config = uvicorn.Config(app, host=HOST, port=port, log_level=log_level, lifespan="on")
+    config = uvicorn.Config(app, host=HOST, port=port, log_level=log_level, lifespan="on",
+                            timeout_graceful_shutdown=2)
     server = uvicorn.Server(config)
     url = f"http://{HOST}:{port}/"
     if open_browser:

@@ -507,7 +507,7 @@ def design_from_study(text: str, procedure: str | None = None) -> dict:
         entries = [e for e in entries if e.get("name") == procedure] or entries
     if not entries:
         raise InvalidInput(["The study names no [[procedure]]."])
-    e = entries[0]
+    e = {k: v for k, v in entries[0].items() if k != "readings"}  # set-ups, not measurements
     study = load_study({**{k: v for k, v in data.items() if k != "procedure"},
                         "title": data.get("title", "study"), "procedure": [e]})
     ps = study.procedures[0]

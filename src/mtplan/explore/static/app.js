@@ -155,7 +155,7 @@ function buildControls() {
     $(where).append(makeField(f));
     if (f.lever && f.kind !== "bool") {
       const box = el("input", { id: "v-" + f.name, type: "text", value: state.design.vary[f.name] || "",
-                                placeholder: "e.g. values to try" });
+                                placeholder: "values to try, e.g. 4,6,8" });
       box.addEventListener("change", () => {
         if (box.value.trim()) state.design.vary[f.name] = box.value; else delete state.design.vary[f.name];
         pushURL();
@@ -306,13 +306,13 @@ function renderBudget(r) {
     hovertemplate: `${s}: %{x:.1f} %<extra></extra>`,
   }));
   const legendRows = Math.ceil(sources.length / 5);
-  const h = Math.max(200, 20 * names.length + 70) + 22 * legendRows;
+  const h = Math.max(200, 20 * names.length + 70) + 22 * legendRows;  // plot: h - 58 - 22 rows
   $("budget-plot").style.height = h + "px";
   Plotly.react("budget-plot", traces, {
-    barmode: "stack", margin: { l: 90, r: 10, t: 10, b: 50 + 22 * legendRows }, height: h,
-    xaxis: { title: { text: "share of u\u00b2 [%]" }, range: [0, 100] },
+    barmode: "stack", margin: { l: 90, r: 10, t: 38, b: 20 + 22 * legendRows }, height: h,
+    xaxis: { title: { text: "share of u\u00b2 [%]" }, range: [0, 100], side: "top" },
     yaxis: { autorange: "reversed" },
-    legend: { orientation: "h", y: -45 / (h - 60 - 22 * legendRows), yanchor: "top", font: { size: 11 } },
+    legend: { orientation: "h", y: -8 / (h - 58 - 22 * legendRows), yanchor: "top", font: { size: 11 } },
   }, { displayModeBar: false, responsive: true });
 }
 function logAxis(values) {
