@@ -54,3 +54,26 @@ def test_a_refused_value_is_named_beside_its_field(setup, field):
 
     r = evaluate({"procedure": "circle_centre", "setup": setup})
     assert not r["ok"] and field in r["field_errors"] and field in r["field_errors"][field]
+
+
+@pytest.mark.parametrize("name", ["circle_centre", "geometry21", "line_laser", "rotary_axis",
+                                  "tracker_frame"])
+def test_every_error_source_has_the_field_that_sizes_it(name):
+    from mtplan.explore.design import source_fields
+    from mtplan.models import get
+
+    proc = get(name)
+    assert set(source_fields(proc)) == set(proc.sources(proc.Setup()))
+
+
+@pytest.mark.parametrize("name, change", [("rotary_axis", {"probe_noise_um": 0.0,
+                                                           "flatness_um": 7.0}),
+                                          ("circle_centre", {"roundness_um": 0.0})])
+def test_identifiability_reused_across_source_sizes_is_the_fresh_one(name, change):
+    from mtplan.explore import design as d
+    from mtplan.models import get
+
+    proc = get(name)
+    setup = proc.Setup().replace(**change)
+    d._identify_cached(name, d._geometry_key(proc, proc.Setup()))  # cached at the defaults
+    assert d._identify_cached(name, d._geometry_key(proc, setup)) == d.identify(proc, setup)

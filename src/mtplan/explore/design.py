@@ -207,10 +207,18 @@ def predict(proc, setup, estimator) -> dict:
 
 
 @functools.lru_cache(maxsize=256)
-def _identify_cached(name: str, setup_key: str) -> dict:
+def _identify_cached(name: str, geometry_key: str) -> dict:
     proc = get(name)
-    setup = make(proc.Setup, json.loads(setup_key), owner=proc.name)
+    setup = make(proc.Setup, json.loads(geometry_key), owner=proc.name)
     return identify(proc, setup)
+
+
+def _geometry_key(proc, setup) -> str:
+    """The set-up without its error sources' sizes: identifiability is a property of the
+    noise-free readings, so resizing a source reuses it."""
+    sized = set(source_fields(proc).values())
+    return json.dumps({k: v for k, v in setup.as_dict().items() if k not in sized},
+                      sort_keys=True)
 
 
 def identify(proc, setup) -> dict:
@@ -334,7 +342,7 @@ def evaluate(design: dict) -> dict:
         ms.append(row)
     out.update(ok=True, measurands=ms, duration_s=float(proc.duration(setup)),
                method=pred["method"], estimator=est,
-               identifiability=_identify_cached(proc.name, _setup_key(setup)),
+               identifiability=_identify_cached(proc.name, _geometry_key(proc, setup)),
                setup=_json_setup(setup))
     return out
 
