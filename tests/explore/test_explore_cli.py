@@ -77,3 +77,20 @@ def test_identifiability_reused_across_source_sizes_is_the_fresh_one(name, chang
     setup = proc.Setup().replace(**change)
     d._identify_cached(name, d._geometry_key(proc, proc.Setup()))  # cached at the defaults
     assert d._identify_cached(name, d._geometry_key(proc, setup)) == d.identify(proc, setup)
+
+
+def test_cheapest_set_up_is_the_planners_answer_over_the_marked_ranges():
+    from mtplan.explore.jobs import cheapest
+    from mtplan.models import get
+    from mtplan.plans.planner import plan
+
+    design = {"procedure": "circle_centre", "estimator": "kasa", "trials": 400, "seed": 2,
+              "targets": {"centre_x": "6"}, "vary": {"n_points": "3,4,6,8"}}
+    r = cheapest(design)
+    proc = get("circle_centre")
+    direct = plan(proc, proc.Setup(), {"n_points": [3, 4, 6, 8]}, {"centre_x": 6.0}, k=2.0,
+                  estimator="kasa", seed=2, trials=400)
+    assert r["best"]["setup"] == direct.best["setup"]
+    assert r["best"]["confirmed"]["centre_x"] <= 6.0
+    with pytest.raises(Exception, match="range"):
+        cheapest({**design, "vary": {}})
