@@ -94,3 +94,12 @@ def test_cheapest_set_up_is_the_planners_answer_over_the_marked_ranges():
     assert r["best"]["confirmed"]["centre_x"] <= 6.0
     with pytest.raises(Exception, match="range"):
         cheapest({**design, "vary": {}})
+
+
+def test_monte_carlo_reports_its_progress_to_a_callable():
+    from mtplan.evaluation.simulation import simulate_uncertainty
+
+    seen = []
+    r = simulate_uncertainty("circle_centre", trials=300, rng=1, block_size=100,
+                             progress=lambda done, total: seen.append((done, total)))
+    assert seen == [(100, 300), (200, 300), (300, 300)] and r.mc.trials == 300
