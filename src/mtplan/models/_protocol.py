@@ -40,6 +40,7 @@ live here, once, so no procedure writes its own random-number handling.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import types
 import typing
@@ -196,6 +197,13 @@ def _base_type(tp):
 
 def fields_info(cls) -> list[dict]:
     """Field name, kind, default, unit, doc and range of a Setup or Truth class."""
+    return [dict(info) for info in _fields_info(cls)]
+
+
+@functools.lru_cache(maxsize=None)
+def _fields_info(cls) -> tuple:
+    """:func:`fields_info`, once per class (``typing.get_type_hints`` is slow, and every
+    set-up built validates through it)."""
     hints = typing.get_type_hints(cls)
     out = []
     for f in dataclasses.fields(cls):
@@ -216,7 +224,7 @@ def fields_info(cls) -> list[dict]:
                                                  "choices", "min_len")},
             }
         )
-    return out
+    return tuple(out)
 
 
 def _describe(info) -> str:
@@ -604,6 +612,11 @@ class Procedure:
     #: first-order standard uncertainty per measurand [display unit], the planner's fast
     #: screening. None: the generic GUM linearisation of the forward model and estimator
     first_order_std: Callable | None = None
+    #: optional ``first_order_budget(setup, *, estimator) -> DataFrame``: the same
+    #: first-order propagation as ``first_order_std``, by source (columns ``measurand``,
+    #: ``unit``, ``source``, ``std``, ``share``), for the live designer. None: the generic
+    #: GUM linearisation's budget
+    first_order_budget: Callable | None = None
 
     # ----------------------------------------------------------------- helpers
     @property

@@ -432,9 +432,26 @@ def run_blocks(
     )
 
 
+class _CallbackBar:
+    """A progress bar that calls ``callback(done, total)`` after each block (total None:
+    adaptive); what a caller that shows its own progress (the explore page) passes."""
+
+    def __init__(self, callback, total):
+        self.callback, self.total, self.done = callback, total, 0
+
+    def update(self, n):
+        self.done += int(n)
+        self.callback(self.done, self.total)
+
+    def close(self):
+        pass
+
+
 def _progress(progress, total, label):
     if progress is False:
         return None
+    if callable(progress):
+        return _CallbackBar(progress, total)
     try:
         from tqdm.auto import tqdm
     except ImportError:  # pragma: no cover
@@ -550,8 +567,10 @@ def propagate(
         JCGM 101 7.9.2, and ``10**5`` for a fixed number of trials).
     max_trials : int
         Upper limit of the adaptive procedure (``converged`` is False if reached).
-    progress : bool, optional
-        Progress bar on stderr (shown after one second; default: when stderr is a terminal).
+    progress : bool or callable, optional
+        Progress bar on stderr (shown after one second; default: when stderr is a terminal);
+        a callable is called as ``progress(done, total)`` after each block (``total`` None
+        for the adaptive procedure).
     keep : int
         Model values kept exactly per output (default 2*10**6); beyond that each output
         switches to a fine histogram, so memory stays bounded by `keep` and the block size.

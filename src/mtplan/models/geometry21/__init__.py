@@ -1475,4 +1475,5 @@ PROCEDURE = Procedure(
     report_extras=report_extras,
     identifiability=identifiability,
     first_order_std=first_order_std,
+    first_order_budget=budget,
 )

@@ -1,0 +1,89 @@
+"""Screenshots of the designer, one per procedure, for the documentation.
+
+    python docs/explore/screenshots.py        # writes docs/explore/<procedure>.png
+
+Each page is opened through its link with a lever moved, a target and a tolerance entered,
+so the plots show the current value, the target line and the acceptance figures.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import shutil
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+from playwright.sync_api import sync_playwright
+
+HERE = Path(__file__).resolve().parent
+DESIGNS = {
+    "rotary_axis": {"setup": {"positions": "8", "incline_deg": "25"}, "lever": "incline_deg",
+                    "targets": {"EX0C": "2.5", "EY0C": "2.5"},
+                    "tolerances": {"EX0C": {"lower": "-10", "upper": "10",
+                                            "prior": "normal:0,4", "rule": "iso14253"}}},
+    "circle_centre": {"setup": {"n_points": "6"}, "lever": "spread_deg",
+                      "targets": {"centre_x": "4"},
+                      "tolerances": {"centre_x": {"lower": "-400", "upper": "400",
+                                                  "prior": "normal:0,200", "rule": "iso14253"}}},
+    "geometry21": {"setup": {}, "lever": "circle_radius_mm", "targets": {"EBX": "12"},
+                   "tolerances": {"EXX": {"lower": "-6", "upper": "6", "prior": "normal:0,3",
+                                          "rule": "iso14253"}}},
+    "line_laser": {"setup": {"lines": "20", "points_per_line": "17"}, "lever": "raise_mm",
+                   "targets": {"alpha_y": "80"},
+                   "tolerances": {"alpha_y": {"lower": "-2500", "upper": "2500",
+                                              "prior": "normal:0,1200", "rule": "iso14253"}}},
+    "tracker_frame": {"setup": {}, "lever": "a_arc_deg",
+                      "targets": {"origin_x_1": "15", "origin_y_1": "25"},
+                      "tolerances": {"origin_x_1": {"lower": "-100", "upper": "100",
+                                                    "prior": "normal:0,50",
+                                                    "rule": "iso14253"}}},
+}
+
+
+def main() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = subprocess.Popen([sys.executable, "-m", "mtplan.cli", "explore", "--no-browser",
+                               "--port", str(port)], stdout=subprocess.DEVNULL)
+    try:
+        for _ in range(200):
+            try:
+                urllib.request.urlopen(f"http://127.0.0.1:{port}/api/procedures", timeout=5)
+                break
+            except OSError:
+                time.sleep(0.3)
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=shutil.which("chromium"),
+                                        args=["--no-sandbox"])
+            for name, design in DESIGNS.items():
+                page = browser.new_page(viewport={"width": 1500, "height": 1000})
+                page.set_default_timeout(300_000)
+                link = base64.urlsafe_b64encode(json.dumps(
+                    {"procedure": name, **design}).encode()).decode().rstrip("=")
+                page.goto(f"http://127.0.0.1:{port}/?d={link}")
+                page.wait_for_function("window.mtplan && window.mtplan.rendered > 0 && "
+                                       "!window.mtplan.inflight")
+                page.wait_for_selector("#sens-plot[data-field]")
+                time.sleep(1.0)
+                page.screenshot(path=str(HERE / f"{name}.png"), full_page=True)
+                page.close()
+                print("wrote", HERE / f"{name}.png")
+            browser.close()
+    finally:
+        server.terminate()
+        try:
+            server.wait(timeout=10)
+        except subprocess.TimeoutExpired:  # busy computing: stop it
+            server.kill()
+            server.wait()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

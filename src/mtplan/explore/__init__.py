@@ -1,0 +1,48 @@
+"""The live set-up designer: choose a measurement set-up in the browser.
+
+``mtplan explore [PROC]`` serves a page on the loopback address where every set-up field
+of a procedure is a control and the predicted uncertainty, duration, identifiability and
+acceptance figures follow each change. Optional: ``pip install 'mtplan[explore]'``
+(Starlette and Uvicorn for the server, Plotly's JavaScript for the plots).
+
+- :mod:`mtplan.explore.design`: the state and what the page shows, as pure functions;
+- :mod:`mtplan.explore.jobs`: Monte Carlo confirmation and the planner in the background;
+- :mod:`mtplan.explore.app`: the web application (imports the extra's packages).
+"""
+
+from __future__ import annotations
+
+__all__ = ["EXTRA_MODULES", "missing_extra", "serve"]
+
+#: the packages the ``explore`` extra installs, by import name
+EXTRA_MODULES = ("starlette", "uvicorn", "plotly")
+
+HOST = "127.0.0.1"
+
+
+def missing_extra() -> list[str]:
+    """The extra's packages that are not installed."""
+    import importlib.util
+
+    return [m for m in EXTRA_MODULES if importlib.util.find_spec(m) is None]
+
+
+def serve(initial: dict | None = None, *, port: int = 8050, open_browser: bool = True,
+          log_level: str = "warning") -> None:
+    """Serve the designer on ``127.0.0.1:port`` until interrupted (loopback only)."""
+    import threading
+    import webbrowser
+
+    import uvicorn
+
+    from mtplan.explore.app import create_app
+
+    app = create_app(initial)
+    config = uvicorn.Config(app, host=HOST, port=port, log_level=log_level, lifespan="on",
+                            timeout_graceful_shutdown=2)
+    server = uvicorn.Server(config)
+    url = f"http://{HOST}:{port}/"
+    if open_browser:
+        threading.Timer(1.0, webbrowser.open, args=(url,)).start()
+    print(f"mtplan explore: serving on {url} (Ctrl+C to stop)", flush=True)
+    server.run()

@@ -1,0 +1,481 @@
+// mtplan explore: the page. The whole design lives here and in the URL (?d=...); the
+// server computes from what each request carries, so two tabs never share a design.
+"use strict";
+
+const $ = (id) => document.getElementById(id);
+const state = { tab: Math.random().toString(36).slice(2) + Date.now().toString(36), design: null, info: null, procedures: [], changes: 0, sent: 0, rendered: 0,
+                inflight: false, pending: false, t0: 0, latencies: [], job: null,
+                sensTimer: null, lastResult: null };
+window.mtplan = state;  // for tests and the benchmark
+
+// ------------------------------------------------------------------ helpers
+function fmt3(x) {
+  if (x === null || x === undefined || !isFinite(x)) return "-";
+  return String(Number(Number(x).toPrecision(3)));
+}
+function fmt4(x) {
+  if (x === null || x === undefined || !isFinite(x)) return "-";
+  return String(Number(Number(x).toPrecision(4)));
+}
+function pct(x) { return (x === null || x === undefined) ? "-" : fmt4(100 * x) + " %"; }
+function duration(s) {
+  if (!isFinite(s)) return "-";
+  if (s < 120) return s.toFixed(0) + " s";
+  if (s < 7200) return (s / 60).toFixed(1) + " min";
+  return (s / 3600).toFixed(2) + " h";
+}
+function el(tag, attrs, ...kids) {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs || {})) {
+    if (k === "class") e.className = v; else if (k === "text") e.textContent = v;
+    else if (k.startsWith("on")) e.addEventListener(k.slice(2), v); else e.setAttribute(k, v);
+  }
+  for (const k of kids) if (k !== null && k !== undefined) e.append(k);
+  return e;
+}
+async function api(path, body) {
+  const opts = body === undefined ? {} : { method: "POST", body: JSON.stringify(body),
+                                           headers: { "Content-Type": "application/json" } };
+  const r = await fetch(path, opts);
+  const data = await r.json();
+  if (!r.ok) throw new Error(data.error || r.statusText);
+  return data;
+}
+function b64encode(obj) {
+  const bytes = new TextEncoder().encode(JSON.stringify(obj));
+  let s = ""; for (const b of bytes) s += String.fromCharCode(b);
+  return btoa(s).replace(/\+/g, "-").replace(/\//g, "_").replace(/=+$/, "");
+}
+function b64decode(text) {
+  const s = atob(text.replace(/-/g, "+").replace(/_/g, "/"));
+  return JSON.parse(new TextDecoder().decode(Uint8Array.from(s, (c) => c.charCodeAt(0))));
+}
+function banner(text) { const b = $("banner"); b.textContent = text || ""; b.hidden = !text; }
+function pushURL() {
+  const url = new URL(location.href);
+  url.searchParams.set("d", b64encode(state.design));
+  history.replaceState(null, "", url);
+}
+
+// ------------------------------------------------------------------ controls
+function fieldValue(f) {
+  const v = state.design.setup[f.name];
+  if (v !== undefined) return v;
+  if (f.default === null || f.default === undefined) return "";
+  return Array.isArray(f.default) ? f.default.join(",") : String(f.default);
+}
+function rangeText(f) {
+  if (f.choices) return "one of " + f.choices.join(", ");
+  const parts = [];
+  if (f.low !== null) parts.push((f.low_open ? "> " : "\u2265 ") + f.low);
+  if (f.high !== null) parts.push((f.high_open ? "< " : "\u2264 ") + f.high);
+  let t = parts.join(" and ");
+  if (f.kind === "tuple") t = "list" + (f.min_len ? ` of \u2265 ${f.min_len}` : "") + (t ? ", each " + t : "");
+  if (f.kind === "int") t = "integer " + t;
+  if (f.optional) t += (t ? "; " : "") + "empty: default";
+  return t;
+}
+function unitText(u) {
+  return { um: "\u00b5m", urad: "\u00b5rad", um_per_m: "\u00b5m/m", urad_per_m: "\u00b5rad/m",
+           um_per_s: "\u00b5m/s", urad_per_s: "\u00b5rad/s", mm_min: "mm/min", per_s: "1/s",
+           um_per_h: "\u00b5m/h", ppm_per_h: "ppm/h", um_per_deg: "\u00b5m/\u00b0",
+           urad_per_deg: "\u00b5rad/\u00b0", c: "\u00b0C", deg: "\u00b0" }[u] ?? u;
+}
+function label(f) {
+  let name = f.name;
+  if (f.unit && name.endsWith("_" + f.unit)) name = name.slice(0, -f.unit.length - 1);
+  return name.replace(/_/g, " ");
+}
+function setValue(name, value, lever) {
+  state.design.setup[name] = String(value);
+  if (lever) state.design.lever = name;
+  changed();
+}
+function makeField(f) {
+  const value = fieldValue(f);
+  const row = el("div", { class: "field", id: "row-" + f.name, title: f.doc });
+  const input = el("span", { class: "input" });
+  let box;
+  if (f.choices) {
+    box = el("select", { id: "f-" + f.name });
+    for (const c of f.choices) box.append(el("option", { value: c, text: c }));
+    box.value = value;
+    box.addEventListener("change", () => setValue(f.name, box.value, false));
+  } else if (f.kind === "bool") {
+    box = el("input", { id: "f-" + f.name, type: "checkbox" });
+    box.checked = value === "true" || value === "True";
+    box.addEventListener("change", () => setValue(f.name, box.checked ? "true" : "false", false));
+  } else if (f.kind === "tuple" || f.kind === "str") {
+    box = el("input", { id: "f-" + f.name, type: "text", value, placeholder: f.optional ? "default" : "" });
+    box.addEventListener("change", () => setValue(f.name, box.value, false));
+  } else {
+    box = el("input", { id: "f-" + f.name, type: "text", inputmode: "decimal", value,
+                        placeholder: f.optional ? "default" : "" });
+    // a slider where the range is of the order of the value (not 0 .. 100000 for a 1 um noise)
+    const scale = Math.max(Math.abs(+f.default || 0), 1);
+    const numeric = f.low !== null && f.high !== null && isFinite(f.low) && isFinite(f.high) &&
+      f.default !== null && (f.high - f.low) <= 50 * scale;
+    if (numeric) {
+      const step = f.kind === "int" ? 1 : (f.high - f.low) / 500;
+      const slider = el("input", { id: "s-" + f.name, type: "range", min: f.low, max: f.high,
+                                   step, value: value === "" ? f.low : value });
+      slider.addEventListener("input", () => { box.value = slider.value; setValue(f.name, slider.value, true); });
+      box.addEventListener("change", () => { if (isFinite(+box.value)) slider.value = box.value; });
+      input.append(slider);
+    }
+    box.addEventListener("change", () => setValue(f.name, box.value, true));
+  }
+  input.append(box);
+  if (f.source) {
+    const on = el("input", { id: "on-" + f.source, type: "checkbox", title: "switch the source on or off" });
+    on.checked = !state.design.off.includes(f.source);
+    on.addEventListener("change", () => {
+      const off = new Set(state.design.off);
+      if (on.checked) off.delete(f.source); else off.add(f.source);
+      state.design.off = [...off];
+      row.classList.toggle("off", !on.checked);
+      changed();
+    });
+    row.classList.toggle("off", !on.checked);
+    row.append(el("label", { for: "f-" + f.name }, on, " " + label(f)));
+  } else {
+    row.append(el("label", { for: "f-" + f.name, text: label(f) }));
+  }
+  row.append(input, el("span", { class: "unit", text: unitText(f.unit) }),
+             el("span", { class: "range", text: rangeText(f) }),
+             el("span", { class: "error", id: "err-" + f.name }));
+  return row;
+}
+function buildControls() {
+  const info = state.info;
+  $("title").textContent = info.title;
+  for (const id of ["levers", "sources", "others", "vary"]) $(id).replaceChildren();
+  for (const f of info.fields) {
+    const where = f.source ? "sources" : (f.lever ? "levers" : "others");
+    $(where).append(makeField(f));
+    if (f.lever && f.kind !== "bool") {
+      const box = el("input", { id: "v-" + f.name, type: "text", value: state.design.vary[f.name] || "",
+                                placeholder: "values to try, e.g. 4,6,8" });
+      box.addEventListener("change", () => {
+        if (box.value.trim()) state.design.vary[f.name] = box.value; else delete state.design.vary[f.name];
+        pushURL();
+      });
+      $("vary").append(el("div", { class: "field" }, el("label", { text: label(f) + (f.unit ? ` [${unitText(f.unit)}]` : "") }), box));
+    }
+  }
+  const est = $("estimator");
+  est.replaceChildren(...info.estimators.map((e) => el("option", { value: e, text: e })));
+  est.value = state.design.estimator || info.default_estimator;
+  $("procedure").value = info.name;
+  $("seed").value = state.design.seed ?? 0;
+  $("trials").value = state.design.trials ?? 10000;
+  buildAcceptance();
+}
+function buildAcceptance() {
+  const body = $("acceptance").querySelector("tbody");
+  body.replaceChildren();
+  for (const m of state.info.measurands) {
+    const tol = state.design.tolerances[m.name] || {};
+    const inp = (key, cls) => {
+      const i = el("input", { id: `tol-${key}-${m.name}`, type: "text", class: cls || "",
+                              value: tol[key] ?? (key === "rule" ? "iso14253" : "") });
+      i.addEventListener("change", () => {
+        const t = { ...(state.design.tolerances[m.name] || {}) };
+        t[key] = i.value;
+        if (!t.rule) t.rule = "iso14253";
+        if ((t.lower ?? "") === "" && (t.upper ?? "") === "") delete state.design.tolerances[m.name];
+        else state.design.tolerances[m.name] = t;
+        changed();
+      });
+      return i;
+    };
+    const rule = el("select", { id: `tol-rule-${m.name}` });
+    for (const r of ["simple", "iso14253", "dobbert", "guard:1", "target-pfa:0.02"])
+      rule.append(el("option", { value: r, text: r }));
+    rule.value = tol.rule || "iso14253";
+    rule.addEventListener("change", () => {
+      const t = { ...(state.design.tolerances[m.name] || {}), rule: rule.value };
+      state.design.tolerances[m.name] = t; changed();
+    });
+    const out = (k) => el("td", { id: `acc-${k}-${m.name}`, text: "-" });
+    body.append(el("tr", { id: "acc-" + m.name },
+      el("td", { text: `${m.name} [${unitText(m.unit)}]`, title: m.description }),
+      el("td", {}, inp("lower")), el("td", {}, inp("upper")),
+      el("td", {}, inp("prior", "prior")), el("td", {}, rule),
+      out("tur"), out("gb"), out("limits"), out("pfa"), out("pfr")));
+  }
+}
+
+// ------------------------------------------------------------------ evaluation
+function changed() {
+  state.changes += 1;
+  state.t0 = performance.now();
+  pushURL();
+  refresh();
+}
+async function refresh() {
+  if (state.inflight) { state.pending = true; return; }
+  state.inflight = true;
+  const asked = state.changes, t0 = state.t0;
+  $("status").textContent = "computing\u2026"; $("status").className = "status busy";
+  let result;
+  try {
+    result = await api("/api/evaluate", { design: state.design, tab: state.tab, change: asked });
+  } catch (e) {
+    result = { ok: false, problems: [String(e.message || e)], field_errors: {} };
+  }
+  state.inflight = false;
+  if (state.pending) { state.pending = false; refresh(); }
+  if (asked < state.rendered) return;
+  render(result);
+  state.rendered = asked;
+  if (asked === state.changes && t0) state.latencies.push(performance.now() - t0);
+  document.body.dataset.rendered = String(asked);
+  scheduleSensitivity();
+}
+function render(r) {
+  state.lastResult = r;
+  document.querySelectorAll(".field .error").forEach((e) => { e.textContent = ""; });
+  document.querySelectorAll(".field.bad").forEach((e) => e.classList.remove("bad"));
+  for (const [f, msg] of Object.entries(r.field_errors || {})) {
+    const e = $("err-" + f);
+    if (e) { e.textContent = msg; $("row-" + f).classList.add("bad"); }
+  }
+  const tbody = $("measurands").querySelector("tbody");
+  if (!r.ok) {
+    banner((r.problems || []).join(" ") || "Fix the marked fields: the set-up is not evaluated.");
+    $("status").textContent = "not evaluated: the set-up is refused (see the marked fields)";
+    $("status").className = "status err";
+    tbody.querySelectorAll("td.u, td.U").forEach((c) => { c.textContent = "-"; });
+    return;
+  }
+  banner("");
+  $("status").textContent = "up to date"; $("status").className = "status";
+  $("duration").textContent = duration(r.duration_s);
+  $("method").textContent = `${r.method}, estimator ${r.estimator}`;
+  tbody.replaceChildren();
+  for (const m of r.measurands) {
+    const shares = Object.entries(m.budget).map(([s, u]) => [s, m.u > 0 ? (u * u) / (m.u * m.u) : 0])
+      .sort((a, b) => b[1] - a[1]).filter((x) => x[1] > 0.005).slice(0, 3)
+      .map(([s, x]) => `${s} ${(100 * x).toFixed(0)} %`).join(", ");
+    const target = el("input", { id: "t-" + m.name, type: "text", value: state.design.targets[m.name] ?? "" });
+    target.addEventListener("change", () => {
+      if (target.value.trim()) state.design.targets[m.name] = target.value; else delete state.design.targets[m.name];
+      changed();
+    });
+    const cls = m.target === undefined ? "" : (m.U <= m.target ? "meet" : "miss");
+    tbody.append(el("tr", { id: "m-" + m.name, class: cls },
+      el("td", { text: m.name, title: m.description }), el("td", { text: unitText(m.unit) }),
+      el("td", { class: "u", text: fmt3(m.u) }), el("td", { class: "U", text: fmt3(m.U) }),
+      el("td", {}, target, m.target_error ? el("span", { class: "err", text: " " + m.target_error }) : null),
+      el("td", { class: "sources", text: shares || (m.u > 0 ? "" : "u = 0 at first order") })));
+    const a = m.acceptance;
+    const set = (k, t) => { const c = $(`acc-${k}-${m.name}`); if (c) c.textContent = t; };
+    if (a && a.error) { set("tur", a.error); ["gb", "limits", "pfa", "pfr"].forEach((k) => set(k, "")); }
+    else if (a && a.acceptance_limits) {
+      set("tur", fmt4(a.tur)); set("gb", fmt4(a.guard_band));
+      set("limits", `[${fmt4(a.acceptance_limits[0])}, ${fmt4(a.acceptance_limits[1])}]`);
+      set("pfa", pct(a.pfa)); set("pfr", pct(a.pfr));
+    } else ["tur", "gb", "limits", "pfa", "pfr"].forEach((k) => set(k, "-"));
+  }
+  renderIdent(r.identifiability);
+  renderBudget(r);
+}
+function renderIdent(id) {
+  const box = $("ident");
+  const und = id.undetermined.length
+    ? el("span", { class: "warn", id: "undetermined", text: "not determined: " + id.undetermined.join(", ") })
+    : el("span", { id: "undetermined", text: "every measurand is determined" });
+  box.replaceChildren(
+    el("span", { id: "rank", text: `rank ${id.rank} of ${id.n_params} (${id.parameters})` }),
+    el("span", { id: "condition", text: "condition number " + (id.condition === null ? "\u221e" : fmt3(id.condition)) }),
+    el("span", { id: "valuation", title: "O1 (Borm and Menq): geometric mean of the scaled singular values per pose; larger is better, 0 when rank deficient",
+                 text: "valuation O1 " + fmt3(id.valuation) }),
+    und);
+}
+const PALETTE = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
+  "#7f7f7f", "#bcbd22", "#17becf", "#aec7e8", "#ffbb78", "#98df8a", "#ff9896", "#c5b0d5",
+  "#c49c94", "#f7b6d2", "#c7c7c7", "#dbdb8d", "#9edae5"];
+function renderBudget(r) {
+  if (!window.Plotly) return;
+  const names = r.measurands.map((m) => m.name);
+  const sources = [...new Set(r.measurands.flatMap((m) => Object.keys(m.budget)))];
+  const traces = sources.map((s, i) => ({
+    type: "bar", orientation: "h", name: s, y: names, marker: { color: PALETTE[i % PALETTE.length] },
+    x: r.measurands.map((m) => (m.u > 0 ? 100 * (m.budget[s] || 0) ** 2 / (m.u * m.u) : 0)),
+    hovertemplate: `${s}: %{x:.1f} %<extra></extra>`,
+  }));
+  const legendRows = Math.ceil(sources.length / 5);
+  const h = Math.max(200, 20 * names.length + 70) + 22 * legendRows;  // plot: h - 58 - 22 rows
+  $("budget-plot").style.height = h + "px";
+  Plotly.react("budget-plot", traces, {
+    barmode: "stack", margin: { l: 90, r: 10, t: 38, b: 20 + 22 * legendRows }, height: h,
+    xaxis: { title: { text: "share of u\u00b2 [%]" }, range: [0, 100], side: "top" },
+    yaxis: { autorange: "reversed" },
+    legend: { orientation: "h", y: -8 / (h - 58 - 22 * legendRows), yanchor: "top", font: { size: 11 } },
+  }, { displayModeBar: false, responsive: true });
+}
+function logAxis(values) {
+  // a logarithmic axis where U spans more than a factor 20 over the lever's range
+  const pos = values.filter((v) => v > 0 && isFinite(v));
+  if (pos.length && Math.max(...pos) / Math.min(...pos) > 20) return { type: "log" };
+  return { rangemode: "tozero" };
+}
+function scheduleSensitivity() {
+  clearTimeout(state.sensTimer);
+  state.sensTimer = setTimeout(sensitivity, 120);
+}
+async function sensitivity() {
+  const field = state.design.lever;
+  if (!field || !state.lastResult || !state.lastResult.ok) return;
+  $("lever-name").textContent = field;
+  const asked = state.changes;
+  let s;
+  try { s = await api("/api/sensitivity", { design: state.design, field, tab: state.tab, change: asked }); }
+  catch (e) { $("sens-plot").textContent = "no sensitivity: " + e.message; return; }
+  if (s.superseded || asked !== state.changes || !window.Plotly) return;
+  const withTarget = Object.keys(s.targets).filter((n) => n in s.U);
+  const shown = withTarget.length ? withTarget : Object.keys(s.U).slice(0, 8);
+  const colours = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf"];
+  const traces = [], shapes = [];
+  shown.forEach((n, i) => {
+    const c = colours[i % colours.length];
+    traces.push({ x: s.x, y: s.U[n], mode: "lines+markers", name: `${n} [${unitText(s.units[n])}]`,
+                  line: { color: c }, marker: { size: 5 } });
+    if (n in s.targets) shapes.push({ type: "line", xref: "paper", x0: 0, x1: 1, y0: +s.targets[n],
+                                      y1: +s.targets[n], line: { color: c, dash: "dash", width: 1.5 } });
+  });
+  if (s.current !== null) shapes.push({ type: "line", yref: "paper", y0: 0, y1: 1, x0: s.current,
+                                        x1: s.current, line: { color: "#444", width: 1.5, dash: "dot" } });
+  Plotly.react("sens-plot", traces, {
+    margin: { l: 60, r: 10, t: 10, b: 45 }, height: 300, shapes,
+    xaxis: { title: { text: `${s.field} [${unitText(s.unit) || "1"}] (dotted: current value)` } },
+    yaxis: { title: { text: "U (k = 2)" }, ...logAxis(shown.flatMap((n) => s.U[n])) },
+    legend: { font: { size: 11 } },
+  }, { displayModeBar: false, responsive: true });
+  $("sens-plot").dataset.field = s.field;
+}
+
+// ------------------------------------------------------------------ jobs
+async function startJob(kind) {
+  if (state.job) await cancelJob();
+  let id;
+  try { id = (await api("/api/jobs", { kind, design: state.design })).id; }
+  catch (e) { $("job-result").replaceChildren(el("span", { class: "err", text: e.message })); return; }
+  state.job = { id, kind };
+  $("job").hidden = false;
+  $("job-label").textContent = kind === "confirm" ? "Monte Carlo running" : "Planner searching";
+  $("job-progress").removeAttribute("value");
+  $("job-result").replaceChildren();
+  pollJob(id);
+}
+async function pollJob(id) {
+  if (!state.job || state.job.id !== id) return;
+  let s;
+  try { s = await api("/api/jobs/" + id); } catch (e) { s = { state: "error", error: e.message }; }
+  if (!state.job || state.job.id !== id) return;
+  if (s.state === "running") {
+    if (s.total) { $("job-progress").value = s.done / s.total; $("job-label").textContent = `Monte Carlo: ${s.done} of ${s.total} trials`; }
+    else $("job-label").textContent = `${state.job.kind === "confirm" ? "Monte Carlo" : "Planner"}: ${s.elapsed_s.toFixed(0)} s`;
+    setTimeout(() => pollJob(id), 300);
+    return;
+  }
+  state.job = null;
+  $("job").hidden = true;
+  if (s.state === "error") $("job-result").replaceChildren(el("span", { class: "err", id: "job-error", text: s.error }));
+  else if (s.state === "cancelled") $("job-result").replaceChildren(el("span", { id: "job-cancelled", text: "cancelled" }));
+  else if (s.kind === "confirm") showConfirm(s.result);
+  else showPlan(s.result);
+}
+async function cancelJob() {
+  if (!state.job) return;
+  const id = state.job.id;
+  state.job = null;
+  $("job").hidden = true;
+  try { await api(`/api/jobs/${id}/cancel`, {}); } catch (e) { /* finished meanwhile */ }
+  $("job-result").replaceChildren(el("span", { id: "job-cancelled", text: "cancelled" }));
+}
+function showConfirm(r) {
+  const rows = r.measurands.map((m) => el("tr", { id: "mc-" + m.name },
+    el("td", { text: m.name }), el("td", { text: unitText(m.unit) }),
+    el("td", { class: "mc-u", text: fmt3(m.std) }), el("td", { class: "mc-U", text: fmt3(m.U) }),
+    el("td", { text: fmt3(2 * m.predicted_u) }),
+    el("td", { text: m.predicted_u > 0 ? fmt3(m.std / m.predicted_u) : "-" }),
+    el("td", { text: `[${fmt3(m.interval[0])}, ${fmt3(m.interval[1])}]` })));
+  const head = el("tr", {}, ...["Measurand", "Unit", "MC u", "MC U (k=2)", "predicted U", "MC / predicted u", "95 % interval"].map((t) => el("th", { text: t })));
+  $("job-result").replaceChildren(
+    el("div", { id: "mc-summary", text: `Monte Carlo: ${r.trials} trials, seed ${r.seed}, estimator ${r.estimator} (as mtplan simulate)` }),
+    el("table", { id: "mc-table" }, el("thead", {}, head), el("tbody", {}, ...rows)),
+    ...(r.findings || []).map((f) => el("div", { class: "err", text: f })));
+}
+function showPlan(r) {
+  const best = r.best;
+  const now = (state.lastResult && state.lastResult.setup) || {};
+  const changes = Object.entries(best.setup).filter(([k, v]) => String(v) !== String(now[k]));
+  const use = el("button", { id: "use-plan", text: "Use this set-up" });
+  use.addEventListener("click", () => {
+    for (const [k, v] of Object.entries(best.setup)) {
+      if (v === null) continue;
+      state.design.setup[k] = Array.isArray(v) ? v.join(",") : String(v);
+    }
+    buildControls(); changed();
+  });
+  $("job-result").replaceChildren(
+    el("div", { id: "plan-summary", text: `Cheapest of ${r.tried} candidates: ${duration(best.duration_s)}; ` +
+      Object.entries(best.confirmed || {}).map(([n, u]) => `${n} U = ${fmt3(u)} (Monte Carlo)`).join(", ") }),
+    el("div", { text: "Set-up: " + changes.map(([k, v]) => `${k} = ${v}`).join(", ") }), use);
+}
+
+// ------------------------------------------------------------------ export / load
+async function exportStudy() {
+  try {
+    const { toml } = await api("/api/export", state.design);
+    state.lastExport = toml;
+    const a = el("a", { href: URL.createObjectURL(new Blob([toml], { type: "application/toml" })),
+                        download: `${state.design.procedure}_study.toml` });
+    document.body.append(a); a.click(); a.remove();
+  } catch (e) { banner("Export refused: " + e.message); }
+}
+async function loadStudy(text) {
+  try {
+    const { design } = await api("/api/load", { toml: text });
+    await openDesign(design);
+  } catch (e) { banner("The study file was not loaded: " + e.message); }
+}
+
+// ------------------------------------------------------------------ start
+async function openDesign(design) {
+  state.design = design;
+  state.info = await api("/api/procedure/" + design.procedure);
+  if (!state.design.estimator) state.design.estimator = state.info.default_estimator;
+  buildControls();
+  changed();
+}
+function blank(name) {
+  return { procedure: name, setup: {}, off: [], estimator: null, tolerances: {}, targets: {},
+           vary: {}, lever: null, seed: 0, trials: 10000 };
+}
+async function init() {
+  const { procedures, initial } = await api("/api/procedures");
+  state.procedures = procedures;
+  $("procedure").replaceChildren(...procedures.map((p) => el("option", { value: p.name, text: `${p.name}: ${p.title}` })));
+  let design = initial || blank("rotary_axis");
+  const d = new URL(location.href).searchParams.get("d");
+  if (d) { try { design = b64decode(d); } catch (e) { banner("The link's design could not be read; starting from the defaults."); } }
+  design = { ...blank(design.procedure || "rotary_axis"), ...design };
+  await openDesign(design);
+  $("procedure").addEventListener("change", () => openDesign(blank($("procedure").value)));
+  $("estimator").addEventListener("change", () => { state.design.estimator = $("estimator").value; changed(); });
+  $("seed").addEventListener("change", () => { state.design.seed = parseInt($("seed").value || "0", 10); pushURL(); });
+  $("trials").addEventListener("change", () => { state.design.trials = parseInt($("trials").value || "10000", 10); pushURL(); });
+  $("confirm").addEventListener("click", () => startJob("confirm"));
+  $("cheapest").addEventListener("click", () => startJob("cheapest"));
+  $("job-cancel").addEventListener("click", cancelJob);
+  $("export").addEventListener("click", exportStudy);
+  $("reset").addEventListener("click", () => openDesign(blank(state.design.procedure)));
+  $("load").addEventListener("change", async () => {
+    const f = $("load").files[0]; if (f) await loadStudy(await f.text()); $("load").value = "";
+  });
+  document.body.dataset.ready = "1";
+}
+init().catch((e) => banner("The page could not start: " + e.message));

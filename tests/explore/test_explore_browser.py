@@ -1,0 +1,251 @@
+"""The designer in a real browser: one ``mtplan explore`` server and one headless Chromium
+for the whole module, driven by Playwright against Debian's Chromium.
+
+What the page shows is checked against the commands it stands for: ``mtplan linearize``
+(U), ``mtplan accept`` (TUR and risks), ``mtplan report`` (the exported study) and
+``mtplan simulate`` (Monte Carlo confirmation).
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+import time
+import tomllib
+import urllib.request
+
+import pytest
+from playwright.sync_api import sync_playwright
+
+from tests.reports.conftest import need
+
+MTPLAN = [sys.executable, "-m", "mtplan.cli"]
+TIMEOUT_MS = 60_000  # first evaluations import scipy and numpy on a busy machine
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _cli(*args) -> str:
+    r = subprocess.run([*MTPLAN, *args], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    return r.stdout
+
+
+@pytest.fixture(scope="module")
+def server():
+    port = _free_port()
+    proc = subprocess.Popen([*MTPLAN, "explore", "rotary_axis", "--no-browser", "--port",
+                             str(port)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    url = f"http://127.0.0.1:{port}/"
+    deadline = time.monotonic() + 60
+    while True:
+        try:
+            urllib.request.urlopen(url + "api/procedures", timeout=5).read()
+            break
+        except OSError:
+            if proc.poll() is not None or time.monotonic() > deadline:
+                proc.kill()
+                raise RuntimeError("mtplan explore did not start: "
+                                   + proc.stdout.read().decode(errors="replace")) from None
+            time.sleep(0.3)
+    yield url
+    proc.terminate()
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:  # busy computing: stop it
+        proc.kill()
+        proc.wait()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    exe = need("chromium", "chromium-browser")
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=exe, args=["--no-sandbox"])
+        yield b
+        b.close()
+
+
+@pytest.fixture
+def page(browser, server):
+    ctx = browser.new_context(viewport={"width": 1400, "height": 1000}, accept_downloads=True)
+    pg = ctx.new_page()
+    pg.set_default_timeout(TIMEOUT_MS)
+    pg.goto(server)
+    _settled(pg)
+    yield pg
+    ctx.close()
+
+
+def _settled(pg) -> None:
+    """Wait until the numbers on the page answer the last change."""
+    pg.wait_for_function("window.mtplan && window.mtplan.changes > 0 && "
+                         "window.mtplan.rendered === window.mtplan.changes && "
+                         "!window.mtplan.inflight")
+
+
+def _set(pg, field: str, value) -> None:
+    box = pg.locator(f"#f-{field}")
+    box.fill(str(value))
+    box.dispatch_event("change")
+    _settled(pg)
+
+
+def _cell(pg, row: str, cls: str) -> float:
+    return float(pg.locator(f"#{row} td.{cls}").inner_text())
+
+
+def test_levers_give_linearize_u_and_accept_gives_risks(page):
+    _set(page, "positions", 8)
+    _set(page, "incline_deg", 30)
+    doc = json.loads(_cli("linearize", "rotary_axis", "--set", "positions=8",
+                          "--set", "incline_deg=30", "--json"))
+    u = next(m["std"] for m in doc["measurands"] if m["name"] == "EX0C")
+    assert _cell(page, "m-EX0C", "u") == float(f"{u:.3g}")
+    assert _cell(page, "m-EX0C", "U") == float(f"{2 * u:.3g}")
+
+    for key, value in (("lower", "-5"), ("upper", "5"), ("prior", "normal:0,2")):
+        box = page.locator(f"#tol-{key}-EX0C")
+        box.fill(value)
+        box.dispatch_event("change")
+    _settled(page)
+    acc = json.loads(_cli("accept", "--lower", "-5", "--upper", "5", "--u", repr(u),
+                          "--prior", "normal:0,2", "--rule", "iso14253", "--json"))
+    assert float(page.locator("#acc-tur-EX0C").inner_text()) == float(f"{acc['tur']:.4g}")
+    for key in ("pfa", "pfr"):
+        shown = page.locator(f"#acc-{key}-EX0C").inner_text()
+        assert float(shown.rstrip(" %")) == float(f"{100 * acc[key]:.4g}"), key
+    lo, hi = acc["acceptance_limits"]
+    assert page.locator("#acc-limits-EX0C").inner_text() == \
+        f"[{float(f'{lo:.4g}'):g}, {float(f'{hi:.4g}'):g}]"
+
+    # the link holds the design: a new tab opened on it shows the same state
+    url = page.url
+    other = page.context.new_page()
+    other.set_default_timeout(TIMEOUT_MS)
+    other.goto(url)
+    _settled(other)
+    assert other.locator("#f-positions").input_value() == "8"
+    assert other.locator("#f-incline_deg").input_value() == "30"
+    assert other.locator("#tol-prior-EX0C").input_value() == "normal:0,2"
+    assert other.locator("#m-EX0C td.U").inner_text() == page.locator("#m-EX0C td.U").inner_text()
+    assert other.locator("#acc-pfa-EX0C").inner_text() == page.locator("#acc-pfa-EX0C").inner_text()
+    # ... and does not share it: a change in one tab leaves the other as it was
+    _set(other, "positions", 4)
+    assert page.locator("#f-positions").input_value() == "8"
+    assert page.locator("#m-EX0C td.U").inner_text() != other.locator("#m-EX0C td.U").inner_text()
+
+
+def test_export_is_a_study_that_report_accepts(page, tmp_path):
+    _set(page, "positions", 7)
+    _set(page, "incline_deg", 25)
+    page.locator("#on-flatness").uncheck()
+    _settled(page)
+    page.locator("#tol-upper-EX0C").fill("8")
+    page.locator("#tol-upper-EX0C").dispatch_event("change")
+    _settled(page)
+    with page.expect_download() as dl:
+        page.locator("#export").click()
+    study = tmp_path / "study.toml"
+    dl.value.save_as(study)
+    data = tomllib.loads(study.read_text(encoding="utf-8"))
+    setup = data["procedure"][0]["setup"]
+    assert (setup["positions"], setup["incline_deg"], setup["flatness_um"]) == (7, 25.0, 0.0)
+    assert data["procedure"][0]["acceptance"][0]["upper"] == 8.0
+
+    from mtplan.plans.study import load_study
+
+    ps = load_study(study).procedures[0]
+    assert (ps.setup.positions, ps.setup.incline_deg, ps.setup.flatness_um) == (7, 25.0, 0.0)
+    study.write_text(study.read_text(encoding="utf-8").replace("trials = 10000", "trials = 200"),
+                     encoding="utf-8")
+    out = tmp_path / "report"
+    html_path, pdf_path = _cli("report", str(study), "--out", str(out)).split()[:2]
+    html = open(html_path, encoding="utf-8").read()
+    assert pdf_path.endswith(".pdf") and "EX0C" in html and "flatness" in html
+
+    # the file loads back into the page with the same set-up
+    fresh = page.context.new_page()
+    fresh.set_default_timeout(TIMEOUT_MS)
+    fresh.goto(page.url.split("?")[0])
+    _settled(fresh)
+    fresh.locator("#load").set_input_files(str(study))
+    fresh.wait_for_function("document.querySelector('#f-positions').value === '7'")
+    _settled(fresh)
+    assert fresh.locator("#f-incline_deg").input_value() == "25"
+    assert not fresh.locator("#on-flatness").is_checked()
+    assert fresh.locator("#m-EX0C td.U").inner_text() == page.locator("#m-EX0C td.U").inner_text()
+
+
+def test_bad_value_is_shown_beside_its_control_and_the_server_goes_on(page, server):
+    _set(page, "positions", 2)
+    message = page.locator("#err-positions").inner_text()
+    assert "positions" in message and "2" in message and ">= 3" in message
+    assert "not evaluated" in page.locator("#status").inner_text()
+    _set(page, "incline_deg", "abc")
+    assert "incline_deg" in page.locator("#err-incline_deg").inner_text()
+    assert urllib.request.urlopen(server + "api/procedures", timeout=10).status == 200
+    _set(page, "positions", 6)
+    _set(page, "incline_deg", 20)
+    assert page.locator("#err-positions").inner_text() == ""
+    assert _cell(page, "m-EX0C", "U") > 0
+
+
+def test_confirm_by_monte_carlo_matches_simulate_and_cancels(page):
+    page.locator("#trials").fill("400")
+    page.locator("#trials").dispatch_event("change")
+    page.locator("#seed").fill("5")
+    page.locator("#seed").dispatch_event("change")
+    page.locator("#confirm").click()
+    page.wait_for_selector("#mc-table", timeout=120_000)
+    doc = json.loads(_cli("simulate", "rotary_axis", "--trials", "400", "--seed", "5", "--json"))
+    for m in doc["measurands"]:
+        assert float(page.locator(f"#mc-{m['name']} td.mc-u").inner_text()) == \
+            float(f"{m['std']:.3g}"), m["name"]
+    # a long run: progress shown, then cancelled, and the page still answers
+    page.locator("#trials").fill("2000000")
+    page.locator("#trials").dispatch_event("change")
+    page.locator("#confirm").click()
+    page.wait_for_selector("#job:not([hidden])")
+    page.locator("#job-cancel").click()
+    page.wait_for_selector("#job-cancelled")
+    _set(page, "positions", 9)
+    assert _cell(page, "m-EX0C", "U") > 0
+
+
+LEVERS = {"rotary_axis": ("lattice_nx", 4), "geometry21": ("circle_radius_mm", 45),
+          "circle_centre": ("n_points", 5), "line_laser": ("raise_mm", 1.5),
+          "tracker_frame": ("points_per_arc", 9)}
+#: line_laser's default scan has 15 600 readings, whose linearisation takes tens of seconds
+#: (every reading is an input): the page opens it on a smaller scan, through its link
+START = {"line_laser": {"lines": "20", "points_per_line": "17"}}
+
+
+@pytest.mark.parametrize("name", sorted(LEVERS))
+def test_every_procedure_loads_and_follows_a_lever(browser, server, name):
+    import base64
+
+    design = {"procedure": name, "setup": START.get(name, {})}
+    link = base64.urlsafe_b64encode(json.dumps(design).encode()).decode().rstrip("=")
+    ctx = browser.new_context(viewport={"width": 1400, "height": 1000})
+    page = ctx.new_page()
+    page.set_default_timeout(120_000)
+    page.goto(f"{server}?d={link}")
+    _settled(page)
+    assert page.locator("#procedure").input_value() == name
+    first = page.locator("table#measurands tbody tr").first.locator("td.U").inner_text()
+    field, value = LEVERS[name]
+    _set(page, field, value)
+    assert page.locator(f"#err-{field}").inner_text() == ""
+    assert "up to date" in page.locator("#status").inner_text()
+    rows = page.locator("table#measurands tbody tr")
+    assert rows.count() >= 3
+    assert first != "-" and rows.first.locator("td.U").inner_text() != "-"
+    assert f"{field}=" in "".join(page.url) or "d=" in page.url
+    ctx.close()

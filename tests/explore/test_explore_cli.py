@@ -1,0 +1,105 @@
+"""``mtplan explore`` without a browser: the missing extra, the state functions."""
+
+from __future__ import annotations
+
+import tomllib
+
+import pytest
+
+from mtplan.cli import main
+
+
+def test_without_the_extra_it_exits_2_with_the_install_line(monkeypatch, capsys):
+    import mtplan.explore
+
+    monkeypatch.setattr(mtplan.explore, "missing_extra", lambda: ["starlette"])
+    assert main(["explore", "rotary_axis", "--no-browser"]) == 2
+    err = capsys.readouterr().err
+    assert "pip install 'mtplan[explore]'" in err and len(err.strip().splitlines()) == 1
+
+
+def test_binds_to_loopback_only():
+    from mtplan.explore import HOST
+
+    assert HOST == "127.0.0.1"
+
+
+def test_study_round_trip_keeps_the_design():
+    from mtplan.explore.design import design_from_study, evaluate, study_toml
+
+    design = {"procedure": "circle_centre", "setup": {"n_points": "5", "spread_deg": "270"},
+              "off": ["roundness"], "targets": {"centre_x": "4"},
+              "vary": {"n_points": "3,4,6"},
+              "tolerances": {"centre_x": {"lower": "-20", "upper": "20",
+                                          "prior": "normal:0,8", "rule": "iso14253"}},
+              "seed": 3, "trials": 500}
+    text = study_toml(design)
+    data = tomllib.loads(text)
+    assert data["procedure"][0]["setup"]["roundness_um"] == 0.0
+    assert data["procedure"][0]["plan"]["targets"] == {"centre_x": 4.0}
+    back = design_from_study(text)
+    assert back["off"] == ["roundness"]
+    assert back["setup"]["n_points"] == "5" and back["setup"]["spread_deg"] == "270"
+    assert back["targets"] == {"centre_x": 4.0} and back["seed"] == 3
+    a, b = evaluate(design), evaluate(back)
+    assert [m["U"] for m in a["measurands"]] == [m["U"] for m in b["measurands"]]
+    assert a["measurands"][0]["acceptance"] == b["measurands"][0]["acceptance"]
+
+
+@pytest.mark.parametrize("setup, field", [({"n_points": "2"}, "n_points"),
+                                          ({"spread_deg": "x"}, "spread_deg"),
+                                          ({"nope": "1"}, "nope")])
+def test_a_refused_value_is_named_beside_its_field(setup, field):
+    from mtplan.explore.design import evaluate
+
+    r = evaluate({"procedure": "circle_centre", "setup": setup})
+    assert not r["ok"] and field in r["field_errors"] and field in r["field_errors"][field]
+
+
+@pytest.mark.parametrize("name", ["circle_centre", "geometry21", "line_laser", "rotary_axis",
+                                  "tracker_frame"])
+def test_every_error_source_has_the_field_that_sizes_it(name):
+    from mtplan.explore.design import source_fields
+    from mtplan.models import get
+
+    proc = get(name)
+    assert set(source_fields(proc)) == set(proc.sources(proc.Setup()))
+
+
+@pytest.mark.parametrize("name, change", [("rotary_axis", {"probe_noise_um": 0.0,
+                                                           "flatness_um": 7.0}),
+                                          ("circle_centre", {"roundness_um": 0.0})])
+def test_identifiability_reused_across_source_sizes_is_the_fresh_one(name, change):
+    from mtplan.explore import design as d
+    from mtplan.models import get
+
+    proc = get(name)
+    setup = proc.Setup().replace(**change)
+    d._identify_cached(name, d._geometry_key(proc, proc.Setup()))  # cached at the defaults
+    assert d._identify_cached(name, d._geometry_key(proc, setup)) == d.identify(proc, setup)
+
+
+def test_cheapest_set_up_is_the_planners_answer_over_the_marked_ranges():
+    from mtplan.explore.jobs import cheapest
+    from mtplan.models import get
+    from mtplan.plans.planner import plan
+
+    design = {"procedure": "circle_centre", "estimator": "kasa", "trials": 400, "seed": 2,
+              "targets": {"centre_x": "6"}, "vary": {"n_points": "3,4,6,8"}}
+    r = cheapest(design)
+    proc = get("circle_centre")
+    direct = plan(proc, proc.Setup(), {"n_points": [3, 4, 6, 8]}, {"centre_x": 6.0}, k=2.0,
+                  estimator="kasa", seed=2, trials=400)
+    assert r["best"]["setup"] == direct.best["setup"]
+    assert r["best"]["confirmed"]["centre_x"] <= 6.0
+    with pytest.raises(Exception, match="range"):
+        cheapest({**design, "vary": {}})
+
+
+def test_monte_carlo_reports_its_progress_to_a_callable():
+    from mtplan.evaluation.simulation import simulate_uncertainty
+
+    seen = []
+    r = simulate_uncertainty("circle_centre", trials=300, rng=1, block_size=100,
+                             progress=lambda done, total: seen.append((done, total)))
+    assert seen == [(100, 300), (200, 300), (300, 300)] and r.mc.trials == 300
