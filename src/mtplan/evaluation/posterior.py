@@ -60,6 +60,7 @@ from mtplan.uncertainty.sampler import (
     UnconvergedWarning,
     integrated_time,
     mixed_moves,
+    psd_factor,
     run_ensembles,
     split_rhat,
 )
@@ -672,12 +673,8 @@ def _run(logpost: _LogPosterior, space: _Space, root, opts: dict, label: str):
     if p.number("n_walkers", n_walkers, integer=True, low=least) and int(n_walkers) % 2:
         p.add("n_walkers", n_walkers, f"an even int >= {least}")
     p.raise_if_any()
-    cov = 0.5 * (space.cov + space.cov.T)
-    try:
-        factor = np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        cov = cov + np.diag(1e-12 * np.diag(cov).max() + 1e-300 * np.ones(ndim))
-        factor = np.linalg.cholesky(cov)
+    factor = psd_factor(space.cov)  # positive definite by construction
+    cov = factor @ factor.T
     moves = opts["moves"] if opts["moves"] is not None else mixed_moves(space.center, cov)
     run = run_ensembles(logpost, space.center, factor, root=root, n_walkers=int(n_walkers),
                         n_ensembles=int(opts["n_ensembles"]), max_steps=int(opts["max_steps"]),

@@ -40,7 +40,9 @@ __all__ = [
     "EnsembleRun",
     "run_ensembles",
     "independence_move",
+    "random_walk_move",
     "mixed_moves",
+    "psd_factor",
     "split_rhat",
     "integrated_time",
 ]
@@ -203,6 +205,37 @@ def _start_state(log_prob, center, factor, n_walkers, seq):
     return emcee.State(p0, log_prob=lp0, random_state=rstate)
 
 
+def psd_factor(cov) -> np.ndarray:
+    """A lower-triangular factor L with ``L L^T`` the symmetric part of `cov`, positive
+    definite by construction.
+
+    Computed on the correlation matrix (parameters in mm and rad, or a poorly determined
+    one, differ by many orders in variance, and a test in absolute units, such as
+    numpy's ``multivariate_normal``'s, fails on such a covariance however exact); where
+    round-off leaves it indefinite, its eigenvalues are floored at 1e-12 of the largest.
+
+    Raises
+    ------
+    InvalidInput
+        When a variance is not positive and finite.
+    """
+    cov = np.asarray(cov, dtype=float)
+    cov = 0.5 * (cov + cov.T)
+    s = np.sqrt(np.diag(cov))
+    if not np.all(np.isfinite(cov)) or not np.all(s > 0):
+        raise InvalidInput(["The proposal covariance of the sampler needs positive, finite "
+                            "variances on its diagonal."])
+    corr = cov / np.outer(s, s)
+    try:
+        return s[:, None] * np.linalg.cholesky(corr)
+    except np.linalg.LinAlgError:
+        lam, vec = np.linalg.eigh(corr)
+        lam = np.maximum(lam, 1e-12 * lam.max())
+        # QR of (V sqrt(lam))^T: the same L L^T, lower triangular
+        r = np.linalg.qr((vec * np.sqrt(lam)).T, mode="r")
+        return s[:, None] * (r.T * np.sign(np.diag(r)))
+
+
 def independence_move(center, cov, *, inflate: float = 1.1):
     """An emcee move proposing every walker from ``N(center, inflate^2 cov)``.
 
@@ -215,14 +248,15 @@ def independence_move(center, cov, *, inflate: float = 1.1):
     ----------
     center : array (n_params,)
     cov : array (n_params, n_params)
-        Positive definite (a Laplace approximation of the target).
+        Positive definite (a Laplace approximation of the target); factored by
+        :func:`psd_factor`.
     inflate : float
         Scale factor on the proposal's standard deviations.
     """
     import emcee
 
     center = np.asarray(center, dtype=float)
-    chol = np.linalg.cholesky(np.asarray(cov, dtype=float)) * float(inflate)
+    chol = psd_factor(cov) * float(inflate)
     inv = np.linalg.inv(chol)
 
     def log_q(x):
@@ -236,21 +270,34 @@ def independence_move(center, cov, *, inflate: float = 1.1):
     return emcee.moves.MHMove(propose, ndim=center.size)
 
 
+def random_walk_move(cov):
+    """Random-walk Metropolis: every walker steps by ``N(0, cov)``, drawn through
+    :func:`psd_factor` (emcee's ``GaussianMove`` draws with numpy's
+    ``multivariate_normal``, which warns of, and mis-draws from, an ill-conditioned
+    covariance in absolute units)."""
+    import emcee
+
+    chol = psd_factor(cov)
+
+    def propose(coords, random):
+        return coords + random.standard_normal(coords.shape) @ chol.T, np.zeros(len(coords))
+
+    return emcee.moves.MHMove(propose, ndim=chol.shape[0])
+
+
 def mixed_moves(center, cov, *, weight: float = 0.8, inflate: float = 1.0):
     """[(independence move, weight), (random-walk Metropolis, 1 - weight)] for ``run_ensembles``.
 
-    The random walk (emcee's ``GaussianMove``) steps by ``N(0, 2.38^2 cov / n_params)``,
+    The random walk (:func:`random_walk_move`) steps by ``N(0, 2.38^2 cov / n_params)``,
     the classic scale for a near-normal target; it keeps every chain moving where the
     independence proposal is poor (heavy tails, bounded supports, curved ridges). Both
     moves act on each walker alone, so any number of walkers works (the stretch move
     needs at least twice the dimension).
     """
-    import emcee
-
     cov = np.asarray(cov, dtype=float)
     step = cov * (2.38**2 / cov.shape[0])
     return [(independence_move(center, cov, inflate=inflate), float(weight)),
-            (emcee.moves.GaussianMove(step), 1.0 - float(weight))]
+            (random_walk_move(step), 1.0 - float(weight))]
 
 
 def run_ensembles(

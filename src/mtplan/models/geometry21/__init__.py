@@ -1054,12 +1054,47 @@ def _jacobian(geo: _Geometry, theta0: np.ndarray, s: np.ndarray):
 
 
 @functools.lru_cache(maxsize=8)
+def _reading_whitener(setup: Setup):
+    """Sparse whitening W (2M, 2M) of the readings' random scatter, W^T W proportional to
+    its inverse covariance; None where that scatter is white (equal weights are then the
+    efficient ones).
+
+    The scatter is the encoder noise plus the repeatability, both components alike and
+    independent: per component ``s_e^2 I + s_r^2 F F^T`` (F of
+    :func:`_repeatability_filter`), block-diagonal by pass, so W = L^-1 (L its Cholesky
+    factor, scaled) is too: one lower-triangular block per pass, the same for the batch.
+    """
+    import scipy.sparse as sp
+
+    f = _repeatability_filter(setup)
+    se, sr = setup.encoder_noise_um, setup.repeatability_um
+    if f is None or sr <= 0:
+        return None
+    fd = f.toarray()
+    cov = fd @ fd.T + (se / sr) ** 2 * np.eye(fd.shape[0])
+    low = np.linalg.cholesky(cov)
+    w = np.linalg.solve(low, np.eye(fd.shape[0]))  # lower triangular, zero across passes
+    w[np.abs(w) < 1e-14 * np.abs(w).max()] = 0.0
+    return sp.kron(sp.csr_matrix(w), sp.eye(2), format="csr")
+
+
+def _weighted_pinv(jac, s, vt, rank, free, w) -> np.ndarray:
+    """The generalised least-squares map (P, 2M): the pseudo-inverse of the whitened
+    Jacobian on the directions the readings determine (those of the unweighted fit, the
+    whitening being invertible), times the whitening."""
+    return np.asarray((w.T @ restricted_pinv(np.asarray(w @ jac), s, vt, rank, free).T).T)
+
+
+@functools.lru_cache(maxsize=8)
 def _joint_ident(setup: Setup) -> dict:
     """Jacobian of the readings at zero error, its SVD, pseudo-inverse and estimability."""
     geo = _geometry(setup)
     s = _scales(geo)
     r0, jac = _jacobian(geo, np.zeros(geo.n_par), s)
     pinv, rank, sv, vt = _tpinv(jac, s, _free(geo))
+    w = _reading_whitener(setup)
+    if w is not None:  # the readings correlate along each pass: generalised least squares
+        pinv = _weighted_pinv(jac, s, vt, rank, _free(geo), w)
     null = vt[rank:]  # scaled null space (k, P)
     g = _measurand_map(geo)
     gs = g * s
@@ -1104,7 +1139,9 @@ def _linearisation(setup: Setup, key: tuple) -> dict:
     if any(key):
         c = np.asarray(key, dtype=float) * _grid_step(geo)
         _, jac = _jacobian(geo, np.concatenate([c, np.zeros(geo.n_par - geo.n_coef)]), s)
-        pinv = restricted_pinv(jac, s, ji["vt"], ji["rank"], _free(geo))
+        w = _reading_whitener(setup)
+        pinv = restricted_pinv(jac, s, ji["vt"], ji["rank"], _free(geo)) if w is None else \
+            _weighted_pinv(jac, s, ji["vt"], ji["rank"], _free(geo), w)
     else:
         jac, pinv = ji["jac"], ji["pinv"]
     npar = geo.n_par
