@@ -454,8 +454,15 @@ _DEAD = "does not affect the readings"
 _TOGETHER = "is determined by the readings only together with other parameters"
 
 
-def _rank_order(Jw, relevant, p, q):
+def _rank_order(Jw, relevant, p, q, Jd=None):
     """Greedy rank: nuisance elements first, then parameters the measurands depend on.
+
+    A column counts as in the others' span when it is so in the whitened Jacobian `Jw`
+    or in `Jd` (the same rows weighted by each reading's own scatter only): an exact
+    dependence (a scale factor times the coefficients it scales) is one in both, but
+    whitening by correlated readings (an AR(1) path deviation) amplifies the finite
+    differences' round-off, which is white, over a smooth effect, which it damps, and
+    can lift the whitened residual above the tolerance.
 
     Returns the kept parameter indices, {index: reason} of the held ones, and for each
     one held for lying in the others' span its direction of no change of the readings
@@ -463,21 +470,24 @@ def _rank_order(Jw, relevant, p, q):
     """
     order = list(range(p, p + q)) + [j for j in range(p) if relevant[j]] + \
         [j for j in range(p) if not relevant[j]]
-    basis = np.zeros((Jw.shape[0], 0))
+    mats = [Jw] if Jd is None else [Jw, Jd]
+    bases = [np.zeros((m.shape[0], 0)) for m in mats]
     kept, held = [], {}
     for j in order:
-        c = Jw[:, j]
-        nc = float(np.linalg.norm(c))
-        if not nc > 0:
+        nc = [float(np.linalg.norm(m[:, j])) for m in mats]
+        if not nc[0] > 0:
             held[j] = _DEAD
             continue
-        r = c / nc - basis @ (basis.T @ (c / nc))
-        r -= basis @ (basis.T @ r)
-        nr = float(np.linalg.norm(r))
-        if nr < _RANK_TOL:
+        rs = []
+        for m, basis, n_ in zip(mats, bases, nc, strict=True):
+            r = m[:, j] / n_ - basis @ (basis.T @ (m[:, j] / n_))
+            r -= basis @ (basis.T @ r)
+            rs.append(r)
+        if min(float(np.linalg.norm(r)) for r in rs) < _RANK_TOL:
             held[j] = _TOGETHER
             continue
-        basis = np.hstack([basis, (r / nr)[:, None]])
+        bases = [np.hstack([b, (r / np.linalg.norm(r))[:, None]]) for b, r in zip(bases, rs,
+                                                                                   strict=True)]
         if j < p:
             kept.append(j)
     kept = sorted(kept)
@@ -524,6 +534,14 @@ def _held_notes(fwd, fit: _Fit, kept, held, null, G, Jw, cov, notes) -> None:
                      + (f" ({', '.join(cond)} conditional on it)" if cond else ""))
 
 
+def _scatter(budget: Budget, sigma) -> np.ndarray:
+    """Each reading's own standard deviation under the budget (the covariance's diagonal)."""
+    var = budget.D0 + np.sum(budget.U0**2, axis=1)
+    if budget.Dn is not None:
+        var = var + sigma**2 * (budget.Dn + np.sum(budget.Un**2, axis=1))
+    return np.sqrt(np.where(var > 0, var, 1.0))
+
+
 def _identify(fwd, fit: _Fit, notes) -> _Space:
     """Hold what the readings do not determine, refuse what cannot be reported, and the
     Laplace approximation of what is sampled."""
@@ -533,9 +551,11 @@ def _identify(fwd, fit: _Fit, notes) -> _Space:
     steps = np.concatenate([b.steps(fit.theta), 1e-3 * pri[:, 1]])
     J = fwd.jacobian(fit.theta, fit.nuis if q else None, steps)
     Jw = fit.budget.gaussian(fit.sigma).whiten(J.T).T
-    Jw = np.vstack([Jw, np.hstack([np.zeros((q, p)), np.diag(1.0 / pri[:, 1])])])
+    prior_rows = np.hstack([np.zeros((q, p)), np.diag(1.0 / pri[:, 1])])
+    Jw = np.vstack([Jw, prior_rows])
+    Jd = np.vstack([J / _scatter(fit.budget, fit.sigma)[:, None], prior_rows])
     G = fwd.measurand_gradient(fit.theta)
-    kept, held, null = _rank_order(Jw, np.any(G != 0, axis=0), p, q)
+    kept, held, null = _rank_order(Jw, np.any(G != 0, axis=0), p, q, Jd)
     cols = kept + list(range(p, p + q))
     cov = np.linalg.pinv(Jw[:, cols].T @ Jw[:, cols])
     _held_notes(fwd, fit, kept, held, null, G, Jw, cov, notes)

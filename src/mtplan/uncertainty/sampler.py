@@ -378,8 +378,11 @@ def run_ensembles(
         t = float(np.max(tau_max))
         discard = min(int(math.ceil(burn_tau * t)) if math.isfinite(t) else steps // 2, steps - 4)
         rhat = split_rhat(np.stack([s.get_chain()[discard:] for s in samplers]))
-        settled = tau_prev is not None and bool(np.all(np.abs(tau_max - tau_prev)
-                                                       < tau_rtol * tau_max))
+        # an infinite tau (a chain that has not moved) never counts as settled
+        settled = tau_prev is not None and bool(np.all(np.isfinite(tau_max))
+                                                and np.all(np.isfinite(tau_prev))
+                                                and np.all(np.abs(tau_max - tau_prev)
+                                                           < tau_rtol * tau_max))
         if bar is not None:
             bar(steps, t, float(np.max(rhat)))
         if bool(np.all(steps > n_tau * tau_max)) and settled and bool(np.all(rhat < rhat_max)):
