@@ -23,7 +23,8 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["truncated_pinv", "null_convention", "restricted_pinv", "function_status",
+__all__ = ["truncated_pinv", "null_convention", "restricted_pinv", "filter_whitening",
+           "gls_pinv", "function_status",
            "null_space_table", "response", "source_response", "source_variances"]
 
 
@@ -88,6 +89,40 @@ def restricted_pinv(jac: np.ndarray, scale: np.ndarray, vt: np.ndarray, rank: in
     if free is not None and rank < jac.shape[1]:
         pinv = null_convention(pinv, vt[rank:].T, free)
     return scale[:, None] * pinv
+
+
+def filter_whitening(f, ratio: float, components: int = 1):
+    """Sparse whitening W of readings whose scatter is a filtered white process plus white
+    noise: per component the covariance ``F F^T + ratio^2 I`` (up to a common factor),
+    the components alike and independent, interleaved (reading i's components are rows
+    ``components i + c``). ``W^T W`` is the inverse covariance (the same factor).
+
+    W = L^-1, L the Cholesky factor: where F is block-diagonal (independent passes of a
+    path), so are L and W; entries below 1e-14 of the largest are dropped.
+
+    Parameters
+    ----------
+    f : sparse or dense array (m, m)
+        The filter from innovations (unit variance) to the process.
+    ratio : float
+        The white noise's standard deviation over the innovations'.
+    components : int
+    """
+    import scipy.sparse as sp
+
+    fd = f.toarray() if sp.issparse(f) else np.asarray(f, dtype=float)
+    low = np.linalg.cholesky(fd @ fd.T + ratio**2 * np.eye(fd.shape[0]))
+    w = np.linalg.solve(low, np.eye(fd.shape[0]))
+    w[np.abs(w) < 1e-14 * np.abs(w).max()] = 0.0
+    return sp.kron(sp.csr_matrix(w), sp.eye(components), format="csr")
+
+
+def gls_pinv(jac: np.ndarray, scale: np.ndarray, vt: np.ndarray, rank: int,
+             free: np.ndarray | None, w) -> np.ndarray:
+    """The generalised least-squares map (p, n) of readings whitened by `w` (n, n): the
+    :func:`restricted_pinv` of the whitened Jacobian on the directions the unweighted fit
+    determines (`vt`, `rank`: the same ones, the whitening being invertible), times `w`."""
+    return np.asarray((w.T @ restricted_pinv(np.asarray(w @ jac), scale, vt, rank, free).T).T)
 
 
 # --------------------------------------------------------------------------- identifiability

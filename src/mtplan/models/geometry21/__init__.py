@@ -98,8 +98,10 @@ pattern, whose radial component about the centre vanishes, and its three columns
 lever arm in step 1, so its positioning errors are those at the reading head (EXX - L EBX
 at first order), not at the spindle reference point.
 
-``joint``: all coefficients and the nuisance mounting parameters at once, least squares
-with the model's Jacobian (rank-truncated pseudo-inverse, one matrix product per batch),
+``joint``: all coefficients and the nuisance mounting parameters at once, generalised
+least squares with the model's Jacobian, the readings weighted by the covariance of their
+random scatter (encoder noise and the AR(1) repeatability: a sparse whitening, the same
+for the batch; rank-truncated pseudo-inverse, one matrix product per batch),
 then Gauss-Newton on the exact model with **one linearisation for the whole batch**: the
 trials of a Monte Carlo block differ by the noise only, so the exact model is evaluated
 at the batch's (componentwise) median estimate and every trial is moved by the same
@@ -143,7 +145,8 @@ import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
 from mtplan.fitting import central_jacobian
-from mtplan.fitting.linear import restricted_pinv, truncated_pinv
+from mtplan.fitting.linear import filter_whitening, gls_pinv, restricted_pinv, \
+    truncated_pinv
 from mtplan.models._kinematics import chain, polyval, rotate_inverse
 from mtplan.models._protocol import Measurand, Procedure, SetupBase, Source, param
 from mtplan.uncertainty.distributions import Normal, Rectangular
@@ -1055,34 +1058,13 @@ def _jacobian(geo: _Geometry, theta0: np.ndarray, s: np.ndarray):
 
 @functools.lru_cache(maxsize=8)
 def _reading_whitener(setup: Setup):
-    """Sparse whitening W (2M, 2M) of the readings' random scatter, W^T W proportional to
-    its inverse covariance; None where that scatter is white (equal weights are then the
-    efficient ones).
-
-    The scatter is the encoder noise plus the repeatability, both components alike and
-    independent: per component ``s_e^2 I + s_r^2 F F^T`` (F of
-    :func:`_repeatability_filter`), block-diagonal by pass, so W = L^-1 (L its Cholesky
-    factor, scaled) is too: one lower-triangular block per pass, the same for the batch.
-    """
-    import scipy.sparse as sp
-
+    """Whitening (2M, 2M) of the readings' random scatter, encoder noise plus the AR(1)
+    repeatability (:func:`mtplan.fitting.linear.filter_whitening`); None where it is white
+    (equal weights are then the efficient ones)."""
     f = _repeatability_filter(setup)
-    se, sr = setup.encoder_noise_um, setup.repeatability_um
-    if f is None or sr <= 0:
+    if f is None or setup.repeatability_um <= 0:
         return None
-    fd = f.toarray()
-    cov = fd @ fd.T + (se / sr) ** 2 * np.eye(fd.shape[0])
-    low = np.linalg.cholesky(cov)
-    w = np.linalg.solve(low, np.eye(fd.shape[0]))  # lower triangular, zero across passes
-    w[np.abs(w) < 1e-14 * np.abs(w).max()] = 0.0
-    return sp.kron(sp.csr_matrix(w), sp.eye(2), format="csr")
-
-
-def _weighted_pinv(jac, s, vt, rank, free, w) -> np.ndarray:
-    """The generalised least-squares map (P, 2M): the pseudo-inverse of the whitened
-    Jacobian on the directions the readings determine (those of the unweighted fit, the
-    whitening being invertible), times the whitening."""
-    return np.asarray((w.T @ restricted_pinv(np.asarray(w @ jac), s, vt, rank, free).T).T)
+    return filter_whitening(f, setup.encoder_noise_um / setup.repeatability_um, 2)
 
 
 @functools.lru_cache(maxsize=8)
@@ -1094,7 +1076,7 @@ def _joint_ident(setup: Setup) -> dict:
     pinv, rank, sv, vt = _tpinv(jac, s, _free(geo))
     w = _reading_whitener(setup)
     if w is not None:  # the readings correlate along each pass: generalised least squares
-        pinv = _weighted_pinv(jac, s, vt, rank, _free(geo), w)
+        pinv = gls_pinv(jac, s, vt, rank, _free(geo), w)
     null = vt[rank:]  # scaled null space (k, P)
     g = _measurand_map(geo)
     gs = g * s
@@ -1141,7 +1123,7 @@ def _linearisation(setup: Setup, key: tuple) -> dict:
         _, jac = _jacobian(geo, np.concatenate([c, np.zeros(geo.n_par - geo.n_coef)]), s)
         w = _reading_whitener(setup)
         pinv = restricted_pinv(jac, s, ji["vt"], ji["rank"], _free(geo)) if w is None else \
-            _weighted_pinv(jac, s, ji["vt"], ji["rank"], _free(geo), w)
+            gls_pinv(jac, s, ji["vt"], ji["rank"], _free(geo), w)
     else:
         jac, pinv = ji["jac"], ji["pinv"]
     npar = geo.n_par
