@@ -19,7 +19,7 @@ import pytest
 
 from mtplan._validate import InvalidInput
 from mtplan.evaluation.simulation import simulate_uncertainty
-from mtplan.models._protocol import UNIT_SUFFIXES, UNITS, Procedure, fields_info, make
+from mtplan.models.protocol import UNIT_SUFFIXES, UNITS, Procedure, fields_info, make
 
 __all__ = ["CHECKS", "check_procedure", "check_bad_setup_value", "bad_values", "numeric_fields"]
 

@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mtplan.models import registry
-from mtplan.models._protocol import Procedure
+from mtplan.models.protocol import Procedure
 from tests.models import toy_line
 from tests.models.conformance import CHECKS, bad_values, check_bad_setup_value, numeric_fields
 

@@ -117,7 +117,7 @@ def test_every_lever_is_a_setup_field_and_no_error_source():
     """Levers are what an engineer chooses; a field that sizes an error source is a
     property of the machine, the workpiece or the instrument."""
     from mtplan.models import registry
-    from mtplan.models._protocol import fields_info
+    from mtplan.models.protocol import fields_info
 
     for name, proc in registry().items():
         fields = {f["name"] for f in fields_info(proc.Setup)}

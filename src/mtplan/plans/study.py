@@ -247,7 +247,7 @@ def _header(data, problems) -> dict:
 
 def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
     """One ``[[procedure]]`` table, validated; None when it cannot be read at all."""
-    from mtplan.models._protocol import fields_info, make
+    from mtplan.models.protocol import fields_info, make
 
     where = f"procedure #{i + 1}"
     if not isinstance(entry, dict):
@@ -429,7 +429,7 @@ def _readings(proc, readings, path, where, problems) -> dict | None:
 def _grid_problems(proc, base, vary, fields, where) -> list[str]:
     import itertools
 
-    from mtplan.models._protocol import make
+    from mtplan.models.protocol import make
 
     if not isinstance(vary, dict) or not vary:
         return []
@@ -650,7 +650,7 @@ def _run_sweeps(proc, ps, study, bar, n_jobs) -> list:
 
 def _advise(outcome, proc, k) -> None:
     """The summary rows, the levers ranked, the dominant sources and the targets."""
-    from mtplan.models._protocol import fields_info
+    from mtplan.models.protocol import fields_info
     from mtplan.plans import decisions
 
     ps = outcome.spec

@@ -74,7 +74,7 @@ def provenance_section(prov: dict) -> Section:
 # ----------------------------------------------------------------------- tables
 def _setup_table(ps) -> Table:
     from mtplan.models import get
-    from mtplan.models._protocol import fields_info
+    from mtplan.models.protocol import fields_info
 
     proc = get(ps.name)
     docs = {f["name"]: f["doc"] for f in fields_info(proc.Setup)}
@@ -166,7 +166,7 @@ def _panel_names(outcome, limit, csv_name) -> tuple[list, str]:
 
 def _sweep_blocks(k, outcome, csv) -> list:
     from mtplan.models import get
-    from mtplan.models._protocol import fields_info
+    from mtplan.models.protocol import fields_info
 
     ps = outcome.spec
     docs = {f["name"]: f["doc"] for f in fields_info(get(ps.name).Setup)}

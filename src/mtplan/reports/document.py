@@ -323,7 +323,7 @@ def _results_table(o) -> Table:
 
 def _setup_sentence(o) -> str:
     from mtplan.models import get
-    from mtplan.models._protocol import fields_info
+    from mtplan.models.protocol import fields_info
 
     proc = get(o.spec.name)
     docs = {f["name"]: f["doc"] for f in fields_info(proc.Setup)}
@@ -368,7 +368,7 @@ def _test_figure(o) -> Figure | None:
     """The sweep of the lever that matters most, with the target u and the study's
     set-up marked; without one, the measured values against their tolerances."""
     from mtplan.models import get
-    from mtplan.models._protocol import fields_info
+    from mtplan.models.protocol import fields_info
 
     effect = o.levers[0] if o.levers else None
     if effect is None:
@@ -404,7 +404,7 @@ def _source_words(name: str) -> str:
 def _findings(o) -> list[str]:
     """What the simulation shows, in sentences an engineer can act on."""
     from mtplan.models import get
-    from mtplan.models._protocol import fields_info
+    from mtplan.models.protocol import fields_info
 
     docs = {f["name"]: f["doc"] for f in fields_info(get(o.spec.name).Setup)}
     notes = []

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mtplan._validate import InvalidInput
-from mtplan.uncertainty._random import block_sequence
+from mtplan.uncertainty.streams import block_sequence
 
 __all__ = [
     "NotConvergedError",
@@ -283,7 +283,7 @@ def run_ensembles(
         Walkers start at ``center + ball * N(0, 1)`` (standard deviations), or
         ``center + ball @ N(0, I)`` (a factor of the start covariance).
     root : SeedSequence
-        Ensemble ``e`` uses child ``e`` (:func:`mtplan.uncertainty._random.block_sequence`).
+        Ensemble ``e`` uses child ``e`` (:func:`mtplan.uncertainty.streams.block_sequence`).
     n_walkers, n_ensembles, max_steps : int
     check_every : int, optional
         Steps between convergence checks; default: 25, then a tenth of the chain so far
