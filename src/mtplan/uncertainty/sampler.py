@@ -24,8 +24,10 @@ supports, curved ridges).
 
 from __future__ import annotations
 
+import functools
 import math
 import sys
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -172,6 +174,79 @@ def _ball_factor(ball, ndim: int) -> np.ndarray:
                         f"{ball.shape} instead."])
 
 
+class _Pool:
+    """The ensembles' log-probability calls of one step, joined into one vectorised call.
+
+    Each ensemble runs in a thread of its own (:meth:`advance`); its calls of the
+    log-probability wait until every ensemble still running has made its next one, and
+    then all are evaluated together, in ensemble order: one forward-model call for all
+    ensembles' walkers (a model whose cost per row falls with the batch evaluates 4
+    ensembles of 16 walkers in about 60 % of the time of four calls). Which calls join is
+    fixed by the ensembles' own (seeded) moves, never by the threads' timing, so the
+    result does not depend on it.
+    """
+
+    def __init__(self, fn, n: int):
+        self.fn, self.n = fn, n
+        self.cond = threading.Condition()
+        self.live, self.pending, self.results, self.error = n, {}, {}, None
+
+    def call(self, e: int, coords: np.ndarray) -> np.ndarray:
+        if self.n == 1:
+            return self.fn(coords)
+        with self.cond:
+            self.pending[e] = coords
+            self._run_if_complete()
+            while e not in self.results and self.error is None:
+                self.cond.wait()
+            if e not in self.results:
+                raise self.error
+            return self.results.pop(e)
+
+    def _leave(self) -> None:
+        with self.cond:
+            self.live -= 1
+            self._run_if_complete()
+
+    def _run_if_complete(self) -> None:
+        if not self.pending or len(self.pending) < self.live:
+            return
+        keys = sorted(self.pending)
+        rows = [self.pending.pop(k) for k in keys]
+        try:
+            out = np.asarray(self.fn(np.concatenate(rows)))
+            ends = np.cumsum([len(r) for r in rows])[:-1]
+            self.results.update(zip(keys, np.split(out, ends), strict=True))
+        except BaseException as exc:  # noqa: BLE001 - every waiting ensemble raises it
+            self.error = exc
+        self.cond.notify_all()
+
+    def advance(self, samplers, states, n: int, **kwargs) -> list:
+        """Run every ensemble `n` steps from `states`; their new states."""
+        if self.n == 1:
+            return [samplers[0].run_mcmc(states[0], n, progress=False, **kwargs)]
+        self.live, self.pending, self.results, self.error = len(samplers), {}, {}, None
+        out, errors = [None] * len(samplers), []
+
+        def run(e):
+            try:
+                out[e] = samplers[e].run_mcmc(states[e], n, progress=False, **kwargs)
+            except BaseException as exc:  # noqa: BLE001 - raised again below
+                errors.append(exc)
+            finally:
+                self._leave()
+
+        threads = [threading.Thread(target=run, args=(e,), daemon=True)
+                   for e in range(len(samplers))]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        if errors:
+            raise errors[0]
+        return out
+
+
 def _start_state(log_prob, center, factor, n_walkers, seq):
     """An emcee State: walkers in the ball, pulled back inside the support, seeded RandomState."""
     import emcee
@@ -310,9 +385,10 @@ def run_ensembles(
     ndim = center.size
     factor = _ball_factor(ball, ndim)
     samplers, states = [], []
+    pool = _Pool(log_prob, int(n_ensembles))
     for e in range(int(n_ensembles)):
-        samplers.append(emcee.EnsembleSampler(n_walkers, ndim, log_prob, vectorize=True,
-                                              moves=moves))
+        samplers.append(emcee.EnsembleSampler(n_walkers, ndim, functools.partial(pool.call, e),
+                                              vectorize=True, moves=moves))
         states.append(_start_state(log_prob, center, factor, n_walkers, block_sequence(root, e)))
     bar = _bar(progress, label, int(max_steps))
     steps, tau_prev, converged, stopped = 0, None, False, "max_steps"
@@ -322,9 +398,7 @@ def run_ensembles(
     while steps < max_steps and not out_of_time:
         every = check_every if check_every is not None else max(25, steps // 10)
         n = min(int(every), int(max_steps) - steps)
-        for e, sampler in enumerate(samplers):
-            states[e] = sampler.run_mcmc(states[e], n, progress=False,
-                                         skip_initial_state_check=n_walkers <= ndim + 1)
+        states = pool.advance(samplers, states, n, skip_initial_state_check=n_walkers <= ndim + 1)
         steps += n
         tau_all = np.array([integrated_time(s.get_chain()) for s in samplers])
         tau_max = tau_all.max(axis=0)
