@@ -2,8 +2,11 @@
 
 :func:`run_ensembles` runs several independent emcee ensembles on a vectorised
 log-probability until every ensemble's chain is longer than ``n_tau`` integrated
-autocorrelation times, tau has settled between checks and the split R-hat over
-the ensembles is below ``rhat_max``. It knows nothing of procedures: the
+autocorrelation times (the largest estimate over the ensembles), tau has settled
+between checks (the ensembles' mean estimate: the largest of four noisy estimates
+kept short chains running long after they had converged) and the split R-hat over
+the ensembles is below ``rhat_max``. The ensembles advance side by side, each
+step's log-probability calls of all of them joined into one (:class:`_Pool`). It knows nothing of procedures: the
 procedure posterior (:mod:`mtplan.evaluation.posterior`) builds the
 log-probability and the start, and reads the chains.
 
@@ -364,8 +367,9 @@ def run_ensembles(
         Steps between convergence checks; default: 25, then a tenth of the chain so far
         (checks soon for fast-mixing chains, rarely for long ones).
     n_tau, tau_rtol, rhat_max, burn_tau : float
-        Convergence: chain longer than `n_tau` tau, tau's relative change between checks
-        below `tau_rtol`, split R-hat (after `burn_tau` tau of burn-in) below `rhat_max`.
+        Convergence: chain longer than `n_tau` tau (the largest over the ensembles), the
+        relative change of the ensembles' mean tau between checks below `tau_rtol`, split
+        R-hat (after `burn_tau` tau of burn-in) below `rhat_max`.
     max_seconds : float, optional
         Wall-clock budget; checked after every ensemble's share of a check interval.
     moves : emcee move(s), optional
@@ -405,8 +409,11 @@ def run_ensembles(
         t = float(np.max(tau_max))
         discard = min(int(math.ceil(burn_tau * t)) if math.isfinite(t) else steps // 2, steps - 4)
         rhat = split_rhat(np.stack([s.get_chain()[discard:] for s in samplers]))
-        settled = tau_prev is not None and bool(np.all(np.abs(tau_max - tau_prev)
-                                                       < tau_rtol * tau_max))
+        # settled: the ensembles' mean tau (half the noise of their largest) moved by less
+        # than tau_rtol since the last check
+        tau_mean = tau_all.mean(axis=0)
+        settled = tau_prev is not None and bool(np.all(np.abs(tau_mean - tau_prev)
+                                                       < tau_rtol * tau_mean))
         if bar is not None:
             bar(steps, t, float(np.max(rhat)))
         if bool(np.all(steps > n_tau * tau_max)) and settled and bool(np.all(rhat < rhat_max)):
@@ -415,7 +422,7 @@ def run_ensembles(
         out_of_time = max_seconds is not None and time.perf_counter() - t0 > max_seconds
         if out_of_time:
             stopped = "max_seconds"
-        tau_prev = tau_max
+        tau_prev = tau_mean
     if bar is not None and hasattr(bar, "close"):
         bar.close()
     return EnsembleRun(
