@@ -19,7 +19,7 @@ from mtplan.fitting import (
     whitened_residuals,
 )
 from mtplan.fitting.linear import response, truncated_pinv
-from mtplan.models._protocol import Source
+from mtplan.models.protocol import Source
 from mtplan.uncertainty.distributions import Normal, Rectangular
 
 
