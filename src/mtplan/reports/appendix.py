@@ -11,11 +11,12 @@ from mtplan.reports import figures as figs
 from mtplan.reports.model import Figure, Section, Table
 from mtplan.reports.labels import field_label, field_value, fmt, fmt_u, unit
 
-__all__ = ["procedure_section", "provenance_section"]
+__all__ = ["procedure_section", "provenance_section", "measured_blocks"]
 
 
-def procedure_section(k, outcome) -> tuple[Section, dict]:
-    """(appendix section, results CSV frames) of test ``k``."""
+def procedure_section(k, outcome, measured: bool = True) -> tuple[Section, dict]:
+    """(appendix section, results CSV frames) of test ``k``; ``measured=False`` leaves the
+    readings' evaluation out (the test plan is issued before measuring)."""
     ps = outcome.spec
     sec = Section(f"A{k}. {ps.label}: details", anchor=f"a{k}", appendix=True)
     sec.blocks.append(f"Procedure: {outcome.title} ({ps.name}). Estimators compared: "
@@ -42,8 +43,8 @@ def procedure_section(k, outcome) -> tuple[Section, dict]:
         sec.blocks += _plan_blocks(outcome.plan, ps.plan.get("vary", {}))
         if not isinstance(outcome.plan, str):
             csv[f"{ps.name}_{k}_plan"] = outcome.plan.table
-    if outcome.measured is not None:
-        sec.blocks += _measured_blocks(outcome.measured)
+    if outcome.measured is not None and measured:
+        sec.blocks += measured_blocks(outcome.measured)
     t = _identifiability_table(outcome.identifiability)
     if t is not None:
         sec.blocks.append(t)
@@ -277,7 +278,7 @@ def _hook_tables(extras) -> list:
     return out
 
 
-def _measured_blocks(measured) -> list:
+def measured_blocks(measured) -> list:
     """The readings' evaluation in full: estimate, bias correction, value, u, interval."""
     import numpy as np
 

@@ -57,6 +57,12 @@ class Document:
     csv: dict = field(default_factory=dict)  # name -> DataFrame for results/*.csv
     signoff: list = field(default_factory=list)    # (role, name)
     standards: list = field(default_factory=list)  # (test, standards applied)
+    methods: list = field(default_factory=list)    # (test, source method, standards)
+    identification: str = ""   # the document's unique identification, on every page
+    watermark: str = ""        # drawn across every page (simulated readings)
+    end_mark: str = ""         # the last line of the document
+    statement: str = ""        # the cover's statement (results relate only to ...)
+    flow: bool = False         # body sections after the first follow without a page break
 
     @property
     def body(self) -> list:

@@ -1,0 +1,209 @@
+"""The test plan agreed before and the test report (certificate) after: the plan's number
+and fingerprint cited and its rules applied, a changed rule refused, the ISO/IEC 17025
+7.8.2.1 items on the pages, the overall result and its actions, probabilities that agree
+with the intervals, and every measured value in results/measured.csv."""
+
+from __future__ import annotations
+
+import copy
+import json
+import re
+import subprocess
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tests.reports.conftest import need
+
+
+def _pages(pdf) -> list[str]:
+    need("pdftotext")
+    text = subprocess.run(["pdftotext", "-layout", str(pdf), "-"], check=True,
+                          capture_output=True, text=True).stdout
+    return [p for p in text.split("\f") if p.strip()]
+
+
+def _flat(pages) -> str:
+    return " ".join(" ".join(pages).split())
+
+
+# ------------------------------------------------------------------ plan and report
+def test_plan_has_number_and_fingerprint_and_report_cites_both(small_report):
+    from mtplan.plans.agreement import fingerprint
+
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    assert plan["fingerprint"] == fingerprint(plan["rules"])
+    assert plan["document"] == "DOC-<b>1</b>-PLAN"
+    plan_text = _flat(_pages(small_report / "plan.pdf"))
+    assert plan["document"] in plan_text and plan["fingerprint"] in plan_text
+    cover = " ".join(_pages(small_report / "report.pdf")[0].split())
+    assert plan["document"] in cover and plan["fingerprint"][:16] in cover
+
+
+def test_report_applies_the_plans_guard_bands(small_report):
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    verdicts = pd.read_csv(small_report / "results" / "verdicts.csv").set_index("measurand")
+    for rule in plan["rules"]:
+        row = verdicts.loc[rule["measurand"]]
+        assert row["guard_band"] == rule["guard_band"]
+        assert row["acceptance_upper"] == rule["acceptance_upper"]
+        assert row["u"] == rule["u_planned"]
+
+
+@pytest.mark.parametrize("old, new, field", [
+    ("upper = 20.0", "upper = 25.0", "upper"),
+    ('rule = "guard:0.5"', 'rule = "iso14253"', "rule"),
+    ('population_source = "bores of 12 earlier parts"', 'population_source = "a guess"',
+     "population_source"),
+])
+def test_changed_rule_after_the_plan_is_refused_in_one_line(small_study_file, small_report,
+                                                            tmp_path, capsys, old, new,
+                                                            field):
+    from mtplan.cli import main
+
+    text = small_study_file.read_text(encoding="utf-8")
+    assert old in text
+    changed = tmp_path / "changed.toml"
+    changed.write_text(text.replace(old, new, 1), encoding="utf-8")
+    code = main(["report", str(changed), "--out", str(tmp_path / "out"), "--plan",
+                 str(small_report / "plan.json")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert len(err.splitlines()) == 1, err
+    assert f"centre_x {field}: plan DOC-<b>1</b>-PLAN says" in err, err
+    assert not (tmp_path / "out" / "report.pdf").exists()
+
+
+def test_unchanged_study_passes_and_an_edited_plan_is_refused(small_study_file, small_report,
+                                                              tmp_path):
+    from mtplan._validate import InvalidInput
+    from mtplan.plans.agreement import check_study, read_plan
+    from mtplan.plans.study import load_study
+
+    plan = read_plan(small_report / "plan.json")
+    check_study(load_study(small_study_file), plan)  # the same rules: no problem
+    plan["rules"][0]["guard_band"] *= 2
+    edited = tmp_path / "plan.json"
+    edited.write_text(json.dumps(plan), encoding="utf-8")
+    with pytest.raises(InvalidInput, match="do not match its fingerprint"):
+        read_plan(edited)
+
+
+def test_readings_that_do_not_fit_get_no_verdict(small_result, small_report):
+    """Where the fit check says the readings do not fit the model (``measured.fit_ok``
+    False), the report gives no verdict and the overall result is no decision."""
+    from mtplan.plans.agreement import FIT_NO_DECISION, apply_plan, read_plan
+    from mtplan.reports.certificate import overall_result
+
+    result = copy.deepcopy(small_result)
+    result.outcomes[0].measured.fit_ok = False
+    apply_plan(result, read_plan(small_report / "plan.json"))
+    assert {v.verdict for v in result.verdicts} == {FIT_NO_DECISION}
+    assert overall_result(result)[0] == "no decision"
+
+
+# ------------------------------------------------------------------ ISO/IEC 17025 7.8.2.1
+def test_every_page_identified_numbered_and_watermarked(small_report):
+    for name in ("report", "plan"):
+        pages = _pages(small_report / f"{name}.pdf")
+        n = len(pages)
+        for i, page in enumerate(pages, start=1):
+            flat = " ".join(page.split())
+            assert f"page {i} of {n}" in flat, (name, i)
+            assert "DOC-<b>1</b>" in flat, (name, i)
+            assert "SIMULATED READINGS" in flat, (name, i)
+    last = " ".join(_pages(small_report / "report.pdf")[-1].split())
+    assert "End of report" in last
+
+
+def test_report_has_the_17025_items(small_report):
+    text = _flat(_pages(small_report / "report.pdf"))
+    for item in ("Test report", "Lab <b>One</b>", "1 Gauge Street", "place of the test",
+                 "Customer & <i>Co</i>", "SN-42", "condition of the item", "date of the test",
+                 "2024-01-02", "date of issue", "results relate only to the item tested",
+                 "Results as found", "µm", "Deviations from the plan", "authorised by",
+                 "method", "Circle centre measuring"):
+        assert item in text, item
+
+
+def test_conditions_and_instruments_come_from_the_study(small_report):
+    text = _flat(_pages(small_report / "report.pdf"))
+    for item in ("ambient temperature 20.5 °C", "machine temperature 21.0 °C",
+                 "part (artefact) temperature 20.7 °C", "45 min axis cycling",
+                 "machine's error compensation off", "Touch probe", "TP-0042",
+                 "CAL-2024-0815", "2025-08-15", "PTB via DAkkS D-K-99999", "Traceability"):
+        assert item in text, item
+
+
+def test_glossary_and_plain_names(small_report):
+    text = _flat(_pages(small_report / "report.pdf"))
+    for term in ("Glossary", "TUR", "PFA", "PFR", "guard band w", "O1-O5", "three_point",
+                 "kasa"):
+        assert term in text, term
+    assert "X of the bore centre from its nominal position (centre_x)" in text
+
+
+# ------------------------------------------------------------------ probabilities
+@pytest.mark.parametrize("u", [0.5, 2.0, 8.0])
+def test_probability_never_certain_where_the_interval_overlaps_a_limit(u):
+    """A sweep of measured values across both limits of a +-20 tolerance: where the 95 %
+    interval overlaps a limit the printed probability is neither 100 % nor 0 % (nor one
+    that rounds to them), and it lies on the side of 50 % the value does."""
+    from mtplan.plans.agreement import p_conform_measured
+    from mtplan.reports.wording import probability_text
+
+    for y in np.linspace(-40, 40, 801):
+        low, high = y - 2 * u, y + 2 * u
+        p = p_conform_measured(y, u, -20.0, 20.0)
+        text = probability_text(p)
+        assert text not in ("100 %", "0 %", "100.0 %", "0.0 %"), (y, text)
+        overlaps = low <= -20 <= high or low <= 20 <= high
+        if overlaps:
+            value = float(re.sub(r"[<> %]", "", text))
+            assert 0.1 <= value <= 99.9, (y, text)
+        if abs(y) > 20 + 1e-9:
+            assert p < 0.5, y
+        elif abs(y) < 20 - 1e-9:
+            assert p > 0.5, y
+
+
+def test_demo_probabilities_agree_with_the_intervals(demo_report):
+    report, _ = demo_report
+    v = pd.read_csv(report / "results" / "verdicts.csv")
+    v = v[v["measured"].notna()]
+    for r in v.itertuples():
+        crosses = any(r.measured_low <= lim <= r.measured_high for lim in (r.lower, r.upper))
+        if crosses:
+            assert 0.01 < r.p_conform < 0.99, r.measurand
+        if r.measured_low > r.upper or r.measured_high < r.lower:
+            assert r.p_conform < 0.5, r.measurand
+    text = _flat(_pages(report / "report.pdf"))
+    assert not re.search(r"(?<![\d.])(100|0)(\.0)? %", text)
+
+
+# ------------------------------------------------------------------ the demo
+def test_demo_overall_result_and_the_c_axis_action(demo_report):
+    report, _ = demo_report
+    page = " ".join(_pages(report / "report.pdf")[1].split())
+    assert page.startswith("Overall result and actions")
+    assert "Overall result: not accepted: EX0C." in page
+    assert "Adjust the x position of the C axis at the reference height (EX0C)" in page
+    assert "re-test test 1 (C axis location from an inclined plane)" in page
+    assert "EC0Y" in page  # no decision, with the lever or repeats that would decide it
+
+
+def test_measured_csv_has_every_measured_measurand(demo_report):
+    report, _ = demo_report
+    measured = pd.read_csv(report / "results" / "measured.csv")
+    from mtplan.models import get
+    from mtplan.plans.study import load_study
+    from mtplan.cli.report import demo_study_path
+
+    study = load_study(demo_study_path())
+    for ps in study.procedures:
+        names = {m.name for m in get(ps.name).measurands(ps.setup)}
+        got = set(measured.loc[measured["procedure"] == ps.name, "measurand"])
+        assert got == names, ps.name
+    ok = measured[measured["determinable"]]
+    assert np.allclose(ok["U"], 2 * ok["u"]) and (ok["low"] <= ok["high"]).all()
