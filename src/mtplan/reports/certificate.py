@@ -12,6 +12,7 @@ and its appendices. Formatting only: the numbers come from the study and the pla
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import math
 
@@ -23,7 +24,7 @@ from mtplan.reports.wording import (
     method_citation,
     population_text,
     probability_text,
-    rule_wording,
+    rules_text,
 )
 
 __all__ = ["build_report", "build_plan", "overall_result", "measured_frame",
@@ -208,27 +209,29 @@ def _overall_section(result) -> Section:
 
 
 # ----------------------------------------------------------------------- results
-def _result_rows(o) -> list:
+def _result_rows(k, o) -> list:
     rows = []
     for v in o.verdicts:
         res = v.measured_u
         measured = "-" if v.measured is None else fmt(v.measured, res)
         interval = ("-" if v.measured_low is None else
                     f"[{fmt(v.measured_low, res)}, {fmt(v.measured_high, res)}]")
-        rows.append([measurand_name(v.description, v.measurand), unit(v.unit),
+        rows.append([str(k), measurand_name(v.description, v.measurand), unit(v.unit),
                      tolerance_text(v.lower, v.upper), measured,
                      "-" if res is None else fmt_u(2 * res), fmt_u(2 * v.u), interval,
                      probability_text(v.p_conform), _verdict_word(v)])
     return rows
 
 
-def _decision_lines(o) -> list:
+def _probability_lines(verdicts) -> list:
     out = []
-    for v in o.verdicts:
-        u = unit(v.unit)
-        w = "-" if v.guard_band != v.guard_band else fmt(v.guard_band, v.u / 5)
-        line = (f"{v.measurand}: {rule_wording(v.rule, v.guard_band, u, w)}. Probability of "
-                f"conformity {probability_text(v.p_conform)} from the measurement alone")
+    for v in verdicts:
+        if v.p_conform is None:
+            if v.reason:
+                out.append(f"{v.measurand}: {v.verdict}: {v.reason}.")
+            continue
+        line = (f"{v.measurand}: {probability_text(v.p_conform)} from the measurement "
+                "alone")
         if v.p_conform_population is not None and v.prior is not None:
             line += (f"; {probability_text(v.p_conform_population)} with the population "
                      f"{population_text(prior_text(v.prior, v.unit), v.population_source)}")
@@ -247,16 +250,21 @@ def _results_section(result) -> Section:
                       "measurement's own expanded uncertainty (k = 2); U predicted: the plan's. "
                       "As left: no adjustment was made during this test; the results as found "
                       "are the results as left.")
-    header = ["measurand", "unit", "tolerance", "measured", "U achieved", "U predicted",
-              "95 % interval", "probability of conformity", "verdict"]
+    rows, tests = [], []
     for k, o in enumerate(result.outcomes, start=1):
-        if not o.verdicts:
-            continue
-        how = (f"{o.verdicts[0].estimator} estimator; " + _EVALUATION.get(
-            getattr(o.measured, "uncertainty", None), "no readings"))
-        sec.blocks.append(Section(f"{k}. {o.spec.label}", level=2, blocks=[
-            Table(f"Test {k}: {o.spec.label} ({how}).", header, _result_rows(o)),
-            _decision_lines(o)]))
+        if o.verdicts:
+            rows += _result_rows(k, o)
+            how = _EVALUATION.get(getattr(o.measured, "uncertainty", None), "no readings")
+            tests.append(f"{k}: {o.spec.label} ({o.verdicts[0].estimator} estimator; {how})")
+    if rows:
+        sec.blocks.append(Table("Results as found. Tests: " + "; ".join(tests) + ".",
+                                ["test", "measurand", "unit", "tolerance", "measured",
+                                 "U achieved", "U predicted", "95 % interval",
+                                 "probability of conformity", "verdict"], rows))
+        sec.blocks += rules_text(result.verdicts)
+        lines = _probability_lines(result.verdicts)
+        if lines:
+            sec.blocks += ["Probability of conformity (JCGM 106 7.4):", lines]
     untoleranced = sum(len(o.measured.measurands) for o in result.outcomes
                        if o.measured is not None) - sum(
         len(o.verdicts) for o in result.outcomes if o.measured is not None)
@@ -487,16 +495,13 @@ def _plan_test(k, o, plan, study) -> Section:
     blocks.append(Table(f"Test {k}: predicted U (k = 2) and the agreed decision rules.",
                         ["measurand", "unit", "tolerance", "U predicted", "TUR",
                          "guard band w", "PFA", "PFR"], _plan_rows(o, plan)))
-    rules = []
-    for v in o.verdicts:
-        r = next(x for x in plan["rules"] if x["procedure"] == v.procedure
-                 and x["measurand"] == v.measurand)
-        w = "-" if r["guard_band"] is None else fmt(r["guard_band"], r["u_planned"] / 5)
-        rules.append(f"{v.measurand}: {rule_wording(v.rule, r['guard_band'], unit(v.unit), w)}"
-                     f"; risks for the population "
-                     f"{population_text(prior_text(v.prior, v.unit), v.population_source)}.")
-    if rules:
-        blocks.append(rules)
+    blocks += rules_text(o.verdicts)
+    populations = [f"{v.measurand} "
+                   f"{population_text(prior_text(v.prior, v.unit), v.population_source)}"
+                   for v in o.verdicts if v.prior is not None]
+    if populations:
+        blocks.append("Population of items the risks (PFA, PFR) assume: "
+                      + "; ".join(populations) + ".")
     return Section(f"{k}. {o.spec.label}", level=2, blocks=blocks)
 
 
@@ -513,7 +518,8 @@ def build_plan(result, plan) -> Document:
     rules.blocks += [_plan_test(k, o, plan, study)
                      for k, o in enumerate(result.outcomes, start=1)]
     sections = [rules, methods_section(result), _glossary_section()]
-    sections += [test_section(k, o) for k, o in enumerate(result.outcomes, start=1)]
+    sections += [test_section(k, dataclasses.replace(o, measured=None, verdicts=[]))
+                 for k, o in enumerate(result.outcomes, start=1)]
     csv = {}
     for k, o in enumerate(result.outcomes, start=1):
         sec, frames = appendix.procedure_section(k, o, measured=False)

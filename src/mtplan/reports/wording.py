@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 __all__ = ["METHOD_SOURCES", "method_citation", "measurand_name", "probability_text",
-           "rule_wording", "population_text", "GLOSSARY"]
+           "rule_wording", "rules_text", "population_text", "GLOSSARY"]
 
 #: the source method of each procedure: (patent number or "", title in English)
 METHOD_SOURCES = {
@@ -69,20 +69,28 @@ def population_text(prior_words: str, source: str) -> str:
     return f"{prior_words}; source: {source or 'not stated in the study'}"
 
 
-def rule_wording(rule: str, guard_band: float, unit_text: str, value_text: str) -> str:
-    """The decision rule in the words of ILAC-G8:09/2019."""
+def rule_wording(rule: str, guard_band: float) -> str:
+    """The decision rule in the words of ILAC-G8:09/2019 (w itself is in the tables)."""
     kind, _, value = str(rule).partition(":")
     if kind == "simple" or not guard_band:
         return ("simple acceptance (ILAC-G8 4.2.1, binary, no guard band): pass if the "
                 "measured value lies within the tolerance, fail otherwise")
-    how = {"iso14253": "w = U (ISO 14253-1 default rule)",
+    how = {"iso14253": "w = U, the ISO 14253-1 default rule",
            "guard": f"w = {value or '1'} U",
            "target-pfa": f"w set for a global false-accept risk of {value}",
            "dobbert": "w from Dobbert's managed guard band"}.get(kind, kind)
-    return (f"non-binary with guard band (ILAC-G8 4.2.3), {how} = {value_text} {unit_text}: "
-            "pass within the tolerance reduced by w; fail beyond the tolerance widened by w; "
-            "in between no decision (conditional pass inside the tolerance, conditional fail "
-            "outside it)")
+    return (f"non-binary with guard band (ILAC-G8 4.2.3; {how}, U predicted): pass within "
+            "the tolerance reduced by w; fail beyond the tolerance widened by w; in between "
+            "no decision (conditional pass inside the tolerance, conditional fail outside it)")
+
+
+def rules_text(verdicts) -> list:
+    """Each distinct decision rule of a list of verdicts once, naming its measurands."""
+    groups: dict = {}
+    for v in verdicts:
+        key = rule_wording(v.rule, v.guard_band)
+        groups.setdefault(key, []).append(v.measurand)
+    return [f"Decision rule for {', '.join(names)}: {text}." for text, names in groups.items()]
 
 
 GLOSSARY = [
