@@ -208,3 +208,118 @@ def test_measured_csv_has_every_measured_measurand(demo_report):
         assert got == names, ps.name
     ok = measured[measured["determinable"]]
     assert np.allclose(ok["U"], 2 * ok["u"]) and (ok["low"] <= ok["high"]).all()
+
+
+# ------------------------------------------------------------------ figures and tables
+@pytest.fixture()
+def captured_figures(monkeypatch):
+    """The matplotlib figures the report draws, kept open instead of turned into PNG."""
+    import matplotlib.pyplot as plt
+
+    from mtplan.reports import figures
+
+    kept = []
+
+    def keep(fig):
+        kept.append(fig)
+        return b""
+
+    monkeypatch.setattr(figures, "_png", keep)
+    yield kept
+    for fig in kept:
+        plt.close(fig)
+
+
+def test_every_plotted_marker_equals_its_table_value(small_result, captured_figures):
+    """The star of the lever figure is the study's set-up with the recommended estimator,
+    at exactly the u whose U = 2u the test's results table prints."""
+    from mtplan.reports.document import test_section
+
+    o = small_result.outcomes[0]
+    sec = test_section(1, o)
+    table = next(b for b in sec.blocks if hasattr(b, "rows"))
+    first = o.results[o.recommended]
+    u = {m.name: float(first.mc.std[i]) for i, m in enumerate(first.measurands)}
+    printed = {r[0].split(" [")[0]: float(r[2]) for r in table.rows}
+    fig, = captured_figures
+    stars = 0
+    for ax in fig.axes:
+        for line in ax.get_lines():
+            if line.get_marker() == "*":
+                name = ax.get_title()
+                assert line.get_ydata()[0] == pytest.approx(u[name], rel=1e-12)
+                assert 2 * line.get_ydata()[0] == pytest.approx(printed[name], rel=0.05)
+                stars += 1
+    assert stars == len([ax for ax in fig.axes if ax.get_visible() and ax.get_title()])
+
+
+def test_budget_colours_are_distinct_within_each_figure(captured_figures):
+    """Up to 25 error sources in one budget: every source's bars have their own colour."""
+    from matplotlib.colors import to_hex
+
+    from mtplan.reports import figures
+
+    sources = [f"source_{j}" for j in range(25)]
+    budget = pd.DataFrame([{"output": f"m{i}", "input": s, "share": 1 / 25}
+                           for i in range(3) for s in sources])
+    figures.budget_figure(budget)
+    fig, = captured_figures
+    ax = fig.axes[0]
+    colours = [to_hex(c.patches[0].get_facecolor()) for c in ax.containers]
+    assert len(colours) == 25 and len(set(colours)) == 25
+    assert len(set(figures.qualitative_colors(60))) == 60
+
+
+def _words_with_boxes(pdf):
+    """(page width, page height, [(xmin, ymin, xmax, ymax, word)]) per page, from
+    poppler's pdftotext -bbox."""
+    need("pdftotext")
+    html_text = subprocess.run(["pdftotext", "-bbox", str(pdf), "-"], check=True,
+                               capture_output=True, text=True).stdout
+    pages = []
+    for m in re.finditer(r'<page width="([\d.]+)" height="([\d.]+)">(.*?)</page>', html_text,
+                         re.S):
+        words = [(float(a), float(b), float(c), float(d), w) for a, b, c, d, w in re.findall(
+            r'<word xMin="([\d.-]+)" yMin="([\d.-]+)" xMax="([\d.-]+)" yMax="([\d.-]+)">'
+            r'(.*?)</word>', m[3])]
+        pages.append((float(m[1]), float(m[2]), words))
+    return pages
+
+
+def test_no_text_clipped_by_the_page(small_report):
+    """Every word of both documents lies inside the page's 2 cm side margins (a table as
+    wide as the margins, drawn in a frame that pads 6 pt, once overran them)."""
+    for name in ("report", "plan"):
+        for k, (width, height, words) in enumerate(_words_with_boxes(
+                small_report / f"{name}.pdf"), start=1):
+            assert words, (name, k)
+            for x0, y0, x1, y1, word in words:
+                assert 0 <= y0 and y1 <= height, (name, k, word)
+                margin = 72 * 2 / 2.54
+                assert margin <= x0 + 0.5 and x1 <= width - margin + 0.5, (name, k, word, x1)
+
+
+def test_no_text_clipped_by_a_cell(tmp_path):
+    """A table whose cells hold long words: each word's box stays inside its column (the
+    column edges found from the header words' positions)."""
+    from mtplan.reports.model import Document, Section, Table
+    from mtplan.reports.render import column_widths, render_pdf
+
+    t = Table("Long words", ["alpha", "beta", "gamma", "delta"],
+              [["Perpendicularity", "Straightnesses", "-12.345", "conditional"],
+               ["Observability", "x", "7.1", "Repeatability-limited"]])
+    prov = {"date": "today", "study_sha256": "0" * 64, "versions": {"mtplan": "x"}}
+    doc = Document(title="Cells", subtitle="", meta={}, provenance=prov,
+                   sections=[Section("Table", blocks=[t], anchor="t")])
+    pdf = tmp_path / "cells.pdf"
+    pdf.write_bytes(render_pdf(doc))
+    _, _, words = _words_with_boxes(pdf)[1]
+    from mtplan.reports.render import _table_size
+
+    size = _table_size(t, 470.0)
+    edges = np.cumsum([72 * 2 / 2.54 + 6] + column_widths(t, 470.0, size))
+    for row in t.rows:
+        for j, cell in enumerate(row):
+            for x0, _, x1, _, w in words:
+                if w == cell:
+                    assert edges[j] - 0.5 <= x0 and x1 <= edges[j + 1] + 0.5, (cell, x0, x1)

@@ -216,8 +216,8 @@ def _result_rows(k, o) -> list:
         measured = "-" if v.measured is None else fmt(v.measured, res)
         interval = ("-" if v.measured_low is None else
                     f"[{fmt(v.measured_low, res)}, {fmt(v.measured_high, res)}]")
-        rows.append([str(k), measurand_name(v.description, v.measurand), unit(v.unit),
-                     tolerance_text(v.lower, v.upper), measured,
+        rows.append([str(k), measurand_name(v.description, v.measurand),
+                     tolerance_text(v.lower, v.upper, v.unit), measured,
                      "-" if res is None else fmt_u(2 * res), fmt_u(2 * v.u), interval,
                      probability_text(v.p_conform), _verdict_word(v)])
     return rows
@@ -258,7 +258,7 @@ def _results_section(result) -> Section:
             tests.append(f"{k}: {o.spec.label} ({o.verdicts[0].estimator} estimator; {how})")
     if rows:
         sec.blocks.append(Table("Results as found. Tests: " + "; ".join(tests) + ".",
-                                ["test", "measurand", "unit", "tolerance", "measured",
+                                ["test", "measurand", "tolerance", "measured",
                                  "U achieved", "U predicted", "95 % interval",
                                  "probability of conformity", "verdict"], rows))
         sec.blocks += rules_text(result.verdicts)
@@ -472,7 +472,9 @@ def _plan_rows(o, plan) -> list:
 
 
 def _pct(p) -> str:
-    return "-" if p is None else probability_text(p).replace("> 99.9 %", "> 99.9 %")
+    from mtplan.reports.labels import percent
+
+    return "-" if p is None else percent(p)
 
 
 def _plan_test(k, o, plan, study) -> Section:

@@ -162,19 +162,22 @@ def _test_figure(o) -> Figure | None:
     spec, table = o.sweeps[effect.sweep]
     docs = {f["name"]: f["doc"] for f in fields_info(get(o.spec.name).Setup)}
     ok = table[table["error"].astype(str) == ""] if "error" in table else table
-    units = {m.name: m.unit for m in o.results[o.recommended].measurands}
+    first = o.results[o.recommended]
+    units = {m.name: m.unit for m in first.measurands}
+    marked = {m.name: float(first.mc.std[i]) for i, m in enumerate(first.measurands)}
     label = field_label(effect.field, docs.get(effect.field, ""))
     targets = {n: t for n, t in o.targets.items() if n in o.key}
     what = sorted({t[1] for t in targets.values()})
     return Figure(
         f"Standard uncertainty against {label} ({int(ok['trials'].max())} Monte Carlo trials "
-        "per set-up; bars: Monte Carlo error of u); the star is the study's set-up"
+        "per set-up; bars: Monte Carlo error of u); the star is the study's set-up with the "
+        f"{o.recommended} estimator, at the u (U / 2) of the table above"
         + (f", the dashed line the {' or '.join(what)}" if what else "")
         + "; u = 0 (an estimator constant over every trial, below its resolution) is not "
         "drawn. Other levers and all measurands: appendix.",
         figs.lever_figure(ok, effect.field, o.key[:4], units, estimator=effect.estimator,
                           recommended=o.recommended, base=effect.base_value, targets=targets,
-                          xlabel=label))
+                          xlabel=label, marked=marked))
 
 
 def _duration_change(before: float, after: float) -> str:

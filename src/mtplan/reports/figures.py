@@ -20,6 +20,24 @@ __all__ = ["bands_figure", "sweep_figure", "lever_figure", "acceptance_figure", 
 _COLORS = ["#1f5fa8", "#d9622b", "#3a923a", "#b0306d", "#7a5cc2", "#8c6d31", "#2a9fa8"]
 
 
+def qualitative_colors(n: int) -> list:
+    """``n`` colours that tell every series apart: matplotlib's qualitative palettes
+    (tab10, then tab20, then tab20 with tab20b and tab20c: up to 60 distinct colours)."""
+    from matplotlib import colormaps
+    from matplotlib.colors import to_hex
+
+    if n <= 10:
+        names = ["tab10"]
+    elif n <= 20:
+        names = ["tab20"]
+    else:
+        names = ["tab20", "tab20b", "tab20c"]
+    colours = [to_hex(c) for name in names for c in colormaps[name].colors]
+    if n > len(colours):
+        raise ValueError(f"{n} series need more than {len(colours)} distinct colours")
+    return colours[:n]
+
+
 def _figure(w=6.4, h=3.6, *, layout="constrained", dpi=140):
     from matplotlib.figure import Figure
 
@@ -134,13 +152,16 @@ def sweep_figure(table, vary: dict, measurands: list, units: dict, *, xlabel: st
 
 
 def lever_figure(table, field: str, measurands: list, units: dict, *, estimator: str,
-                 recommended: str, base, targets: dict, xlabel: str) -> bytes:
+                 recommended: str, base, targets: dict, xlabel: str,
+                 marked: dict | None = None) -> bytes:
     """The customer's sweep: u against one lever for the measurands that matter,
     ``estimator`` drawn strong (the recommended one where the sweep ran it), the other
     estimators hollow and offset, the
     study's set-up starred and the target u (``targets``: measurand -> (u, what)) as a
     dashed line. The y axis starts at zero and ends above the recommended estimator and
-    the target; an estimator beyond it is marked "off scale" in the legend."""
+    the target; an estimator beyond it is marked "off scale" in the legend. ``marked``
+    (measurand -> u) is the study's set-up with the estimator the tables use, starred at
+    exactly the tables' value (without it, the sweep's own point of ``estimator``)."""
     from matplotlib.lines import Line2D
 
     import textwrap
@@ -160,8 +181,10 @@ def lever_figure(table, field: str, measurands: list, units: dict, *, estimator:
         ax = axes[k // cols][k % cols]
         sub = table[table["measurand"] == name]
         mine = sub[sub["estimator"] == estimator]
+        star = None if marked is None else marked.get(name)
         top = 1.25 * max([float(mine["std"].max()) if len(mine) else 0.0]
-                         + ([targets[name][0]] if name in targets else []))
+                         + ([targets[name][0]] if name in targets else [])
+                         + ([star] if star is not None and np.isfinite(star) else []))
         for j, est in enumerate(ests):
             g = sub[sub["estimator"] == est].sort_values(field)
             if not len(g):
@@ -171,9 +194,10 @@ def lever_figure(table, field: str, measurands: list, units: dict, *, estimator:
             _series(ax, g[field], g["std"], g["std"] / np.sqrt(2 * (g["trials"] - 1)), j,
                     len(ests), est, span=2.0 * span, strong=est == estimator)
             at = g[np.isclose(g[field].astype(float), float(base))]
-            if est == estimator and len(at):
-                ax.plot([float(base)], [float(at["std"].iloc[0])], "*", ms=12, color="#222222",
-                        zorder=6)
+            if est == estimator and len(at) and marked is None:
+                star = float(at["std"].iloc[0])
+        if star is not None and np.isfinite(star) and star > 0:
+            ax.plot([float(base)], [star], "*", ms=12, color="#222222", zorder=6)
         if name in targets:
             ax.axhline(targets[name][0], color="#b3261e", lw=1.0, ls="--")
         ax.set_title(name, fontsize=9)
@@ -188,7 +212,8 @@ def lever_figure(table, field: str, measurands: list, units: dict, *, estimator:
     labels = [f"{x} (recommended)" if x == recommended else
               f"{x} (off scale)" if x in off_scale else x for x in labels]
     handles.append(Line2D([], [], marker="*", ms=10, ls="", color="#222222"))
-    labels.append("study set-up")
+    labels.append("study set-up" if marked is None else
+                  f"study set-up, {recommended} (the tables' value)")
     shown = {what for name, (_, what) in targets.items() if name in measurands}
     if shown:
         handles.append(Line2D([], [], color="#b3261e", lw=1.0, ls="--"))
@@ -290,9 +315,10 @@ def budget_figure(budget) -> bytes:
     fig = _figure(6.4, 0.28 * len(pivot) + 1.2 + 0.2 * math.ceil(len(pivot.columns) / 4))
     ax = fig.add_subplot()
     left = np.zeros(len(pivot))
+    colours = qualitative_colors(len(pivot.columns))
     for j, src in enumerate(pivot.columns):
         vals = pivot[src].to_numpy()
-        ax.barh(range(len(pivot)), vals, left=left, color=_COLORS[j % len(_COLORS)], label=src)
+        ax.barh(range(len(pivot)), vals, left=left, color=colours[j], label=src)
         left += vals
     ax.set_yticks(range(len(pivot)), pivot.index, fontsize=8)
     ax.invert_yaxis()

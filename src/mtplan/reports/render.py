@@ -343,7 +343,7 @@ def render_pdf(doc: Document) -> bytes:
     from reportlab.platypus.tableofcontents import TableOfContents
 
     st = _styles()
-    width = A4[0] - 4 * cm
+    width = A4[0] - 4 * cm - 12  # the frame pads 6 pt on each side
     story = _cover_flowables(doc, width, st) + [PageBreak()]
     toc = TableOfContents()
     toc.levelStyles = st["toc"]
