@@ -145,6 +145,14 @@ def test_glossary_and_plain_names(small_report):
     assert "X of the bore centre from its nominal position (centre_x)" in text
 
 
+def test_customer_words(small_report):
+    """No developer words ("the seed's"), no negative zero, the method cited by its title."""
+    for name in ("report", "plan"):
+        text = _flat(_pages(small_report / f"{name}.pdf"))
+        assert "seed's" not in text, name
+        assert not re.search(r"(?<![\d.])-0(\.0+)?(?![\d.])", text), name
+
+
 # ------------------------------------------------------------------ probabilities
 @pytest.mark.parametrize("u", [0.5, 2.0, 8.0])
 def test_probability_never_certain_where_the_interval_overlaps_a_limit(u):

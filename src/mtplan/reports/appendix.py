@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from mtplan.reports import figures as figs
 from mtplan.reports.model import Figure, Section, Table
+from mtplan.reports.wording import customer_words
 from mtplan.reports.labels import field_label, field_value, fmt, fmt_u, unit
 
 __all__ = ["procedure_section", "provenance_section", "measured_blocks"]
@@ -30,7 +31,7 @@ def procedure_section(k, outcome, measured: bool = True) -> tuple[Section, dict]
                              f"interval.{more}", figs.histogram_figure(first, shown)))
     if len(outcome.results) > 1:
         sec.blocks.append(Figure("Bias of each estimator with its ±2u bars, in units of the "
-                                 "first estimator's standard uncertainty u1 (the seed's method "
+                                 "first estimator's standard uncertainty u1 (the source method "
                                  "first): a bar shorter than the first one's is a better "
                                  "estimator.", figs.estimator_figure(outcome.results)))
     sec.blocks.append(_budget_table(outcome))
@@ -51,10 +52,12 @@ def procedure_section(k, outcome, measured: bool = True) -> tuple[Section, dict]
     sec.blocks += _hook_tables(outcome.extras)
     bands = outcome.extras.get("bands")
     if bands is not None:
-        sec.blocks.append(Figure(bands["caption"], figs.bands_figure(bands["tables"])))
+        sec.blocks.append(Figure(customer_words(bands["caption"]),
+                                 figs.bands_figure(bands["tables"])))
     path = outcome.extras.get("path")
     if path is not None:
-        sec.blocks.append(Figure(path.get("caption", "Planned path."), figs.path_figure(path)))
+        sec.blocks.append(Figure(customer_words(path.get("caption", "Planned path.")),
+                                 figs.path_figure(path)))
     return sec, csv
 
 
@@ -86,7 +89,7 @@ def _setup_table(ps) -> Table:
                                                   if isinstance(v, list) else str(v))
         mark = "" if v == defaults.get(k) else " *"
         kind = "lever" if k in proc.levers else "property"
-        rows.append([k, shown + mark, kind, docs.get(k, "")])
+        rows.append([k, shown + mark, kind, customer_words(docs.get(k, ""))])
     return Table("Set-up (* differs from the default; lever: chosen by the engineer, "
                  "property: of the machine, workpiece or instrument)",
                  ["field", "value", "kind", "meaning"], rows)
@@ -260,7 +263,7 @@ def _hook_tables(extras) -> list:
             rows.append(row)
         out.append(Table("Identifiability of each error function, per estimator (identified, "
                          "unidentifiable: confounded with the functions named; biased: the "
-                         "seed's stepwise estimate moves with the errors named, bias per "
+                         "source method's stepwise estimate moves with the errors named, bias per "
                          "typical error [µm or µrad])", ["function"] + ests, rows))
     obs = extras.get("observability")
     if obs:

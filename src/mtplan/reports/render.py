@@ -258,7 +258,7 @@ def _cover_flowables(doc: Document, width: float, st: dict) -> list:
     out.append(Paragraph(
         f"Uncertainty evaluated after JCGM 101 (GUM Supplement 1) with mtplan "
         f"{escape(doc.provenance['versions'].get('mtplan', ''))}; every number is traceable "
-        "to the study file, the readings files and the seed named in the provenance.",
+        "to the study file, the readings files and the random seed named in the provenance.",
         st["caption"]))
     return out
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["METHOD_SOURCES", "method_citation", "measurand_name", "probability_text",
+__all__ = ["METHOD_SOURCES", "method_citation", "customer_words", "measurand_name", "probability_text",
            "rule_wording", "rules_text", "population_text", "GLOSSARY"]
 
 #: the source method of each procedure: (patent number or "", title in English)
@@ -33,6 +33,18 @@ def method_citation(procedure: str) -> str:
     if number:
         return f"patent {number}, \u201c{title}\u201d"
     return f"\u201c{title}\u201d (patent number not stated in the available copy)"
+
+
+def customer_words(text: str) -> str:
+    """Developer wording in a model's documentation as a customer reads it: "the seed's
+    method" is the source method (a seed is only a random seed here)."""
+    import re
+
+    text = re.sub(r"\b([Tt])he seed's method\b", r"\1he source method", text)
+    text = re.sub(r"\bThe seed's\b", "The source method's", text)
+    text = re.sub(r"\bthe seed's\b", "the source method's", text)
+    text = re.sub(r"\bseed's\b", "source method's", text)
+    return re.sub(r"\b(the|The) seed\b", r"\1 source method", text)
 
 
 def measurand_name(description: str, code: str) -> str:
