@@ -55,7 +55,7 @@ checked_by = "C. Checker"
 [[procedure]]
 name = "circle_centre"
 label = "Bore <script>alert(1)</script> & co"
-standards = ["ISO 1101:2017"]
+standards = ["ISO 10360-5:2020"]
 estimators = ["three_point", "kasa"]
 notes = "Notes with <img src=x onerror=alert(2)>"
   [[procedure.sweep]]

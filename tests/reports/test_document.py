@@ -97,7 +97,7 @@ def test_verdict_in_html(small_report):
 def test_cover_shows_the_header_and_sign_off(small_report):
     cover = pdf_pages(small_report / "report.pdf")[0]
     for text in ("DOC-<b>1</b>", "Customer & <i>Co</i>", "SN-42", "2024-01-02",
-                 "P. Preparer", "C. Checker", "ISO 1101:2017", "14253-1:2017",
+                 "P. Preparer", "C. Checker", "ISO 10360-5:2020", "14253-1:2017",
                  "JCGM 101:2008", "signature", "Lab <b>One</b>", "1 Gauge Street"):
         assert text in cover, text
     page = (small_report / "report.html").read_text(encoding="utf-8")

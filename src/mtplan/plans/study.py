@@ -83,6 +83,13 @@ CONDITION_KEYS = {"ambient_temperature_c": ("ambient temperature", "temperature"
                   "warm_up": ("warm-up before the test", "text"),
                   "compensation": ("machine's error compensation", "bool"),
                   "notes": ("other conditions", "text")}
+#: standards a study may not cite because no procedure computes what they require
+#: ("honoured or not cited"): standard -> what it requires
+UNHONOURED_STANDARDS = {
+    "ISO 230-2": "the bidirectional positioning values A, E, M, R and B per axis from "
+                 "repeated runs in both directions",
+    "ISO 1101": "a position tolerance as a diameter zone",
+}
 _INSTRUMENT_KEYS = {"name", "serial", "certificate", "calibration_due", "traceability",
                     "used_in"}
 _PROC_KEYS = {"name", "label", "setup", "truth", "estimators", "sweep", "plan", "acceptance",
@@ -384,6 +391,12 @@ def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
         problems.append(f"{where} 'standards' must be a list of texts. Got {standards!r} "
                         "instead.")
         standards = []
+    for cited in standards:
+        for std, needs in UNHONOURED_STANDARDS.items():
+            if cited.replace("\u00a0", " ").startswith(std):
+                problems.append(f"{where} cites {cited!r}, which requires {needs}; this "
+                                "procedure does not evaluate that: remove it from "
+                                "'standards'.")
     return ProcedureStudy(name=name, label=str(entry.get("label", proc.title)), setup=setup,
                           truth=truth, estimators=estimators, sweeps=list(sweeps), plan=plan,
                           acceptance=acceptance, readings=readings,
