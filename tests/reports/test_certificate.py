@@ -331,3 +331,43 @@ def test_no_text_clipped_by_a_cell(tmp_path):
             for x0, _, x1, _, w in words:
                 if w == cell:
                     assert edges[j] - 0.5 <= x0 and x1 <= edges[j + 1] + 0.5, (cell, x0, x1)
+
+
+def test_an_outlier_is_marked_not_squashing_the_rest(captured_figures):
+    """A bias of -1500 u among biases below 1 u: the axis stays on the others and the
+    outlier is a triangle at the edge with its value printed."""
+    from types import SimpleNamespace
+
+    from mtplan.reports import figures
+
+    names = [SimpleNamespace(name=f"m{i}") for i in range(8)]
+    ok = SimpleNamespace(measurands=names, bias=np.full(8, 0.1), mc=SimpleNamespace(
+        std=np.ones(8)))
+    bad = SimpleNamespace(measurands=names, bias=np.r_[-1500.0, np.full(7, 0.2)],
+                          mc=SimpleNamespace(std=np.ones(8)))
+    figures.estimator_figure({"patent": ok, "joint": bad})
+    fig, = captured_figures
+    ax = fig.axes[0]
+    low, high = ax.get_xlim()
+    assert -20 < low < -2 and 2 < high < 20
+    marks = [ln for ln in ax.get_lines() if ln.get_marker() == "<"]
+    assert len(marks) == 1 and marks[0].get_xdata()[0] == pytest.approx(0.97 * low)
+    assert any(t.get_text() == "-1.5e+03" for t in ax.texts)
+
+
+def test_no_legend_entry_without_its_curve(captured_figures):
+    """A sweep where one estimator is u = 0 (not drawn) everywhere: no legend entry for it."""
+    from mtplan.reports import figures
+
+    rows = []
+    for x in (3, 6):
+        rows.append({"n": x, "measurand": "a", "estimator": "kasa", "std": 1.0 / x,
+                     "trials": 200})
+        rows.append({"n": x, "measurand": "a", "estimator": "flat", "std": 0.0,
+                     "trials": 200})
+    figures.lever_figure(pd.DataFrame(rows), "n", ["a"], {"a": "um"}, estimator="kasa",
+                         recommended="kasa", base=3, targets={}, xlabel="n",
+                         marked={"a": 1 / 3})
+    fig, = captured_figures
+    labels = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
+    assert "kasa (recommended)" in labels and not any("flat" in x for x in labels)

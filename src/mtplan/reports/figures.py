@@ -151,6 +151,21 @@ def sweep_figure(table, vary: dict, measurands: list, units: dict, *, xlabel: st
     return _png(fig)
 
 
+def _drawn_legend(axes) -> tuple[list, list]:
+    """Legend entries of the curves drawn in any panel (a curve drawn nowhere has none)."""
+    handles, labels = [], []
+    for ax in np.ravel(axes):
+        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+            lines = h.lines if hasattr(h, "lines") else (h,)
+            ys = [np.asarray(getattr(ln, "get_ydata", lambda: [])(), dtype=float)
+                  for ln in lines if ln is not None and hasattr(ln, "get_ydata")]
+            drawn = any(np.isfinite(y).any() for y in ys if y.size)
+            if drawn and lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    return handles, labels
+
+
 def lever_figure(table, field: str, measurands: list, units: dict, *, estimator: str,
                  recommended: str, base, targets: dict, xlabel: str,
                  marked: dict | None = None) -> bytes:
@@ -208,7 +223,7 @@ def lever_figure(table, field: str, measurands: list, units: dict, *, estimator:
         ax.set_ylim(0, top if top > 0 else 1.0)
     for k in range(n, rows * cols):
         axes[k // cols][k % cols].set_visible(False)
-    handles, labels = axes[0][0].get_legend_handles_labels()
+    handles, labels = _drawn_legend(axes)
     labels = [f"{x} (recommended)" if x == recommended else
               f"{x} (off scale)" if x in off_scale else x for x in labels]
     handles.append(Line2D([], [], marker="*", ms=10, ls="", color="#222222"))
@@ -358,6 +373,19 @@ def histogram_figure(result, names: list | None = None) -> bytes:
     return _png(fig)
 
 
+def robust_limit(groups, *, factor: float = 4.0) -> float | None:
+    """An axis half-range that an outlier does not squash: 1.5 times the 90th percentile
+    of the values when the largest exceeds ``factor`` times it, else None (autoscale)."""
+    v = np.concatenate([np.ravel(np.asarray(g, dtype=float)) for g in groups])
+    v = v[np.isfinite(v)]
+    if v.size < 3:
+        return None
+    typical = float(np.percentile(v, 90))
+    if typical <= 0 or v.max() <= factor * typical:
+        return None
+    return 1.5 * typical
+
+
 def estimator_figure(results: dict) -> bytes:
     """Bias with +-2u bars per estimator and measurand, in units of the first estimator's u
     (so measurands in um and urad share one axis)."""
@@ -367,14 +395,29 @@ def estimator_figure(results: dict) -> bytes:
     k = len(results)
     fig = _figure(6.4, min(0.16 * len(names) * k + 1.3, 9.0))
     ax = fig.add_subplot()
+    lim = robust_limit([np.abs(np.asarray(r.bias) / u1) + 2 * np.asarray(r.mc.std) / u1
+                        for r in results.values()])
     for j, (est, r) in enumerate(results.items()):
         y = np.arange(len(names)) + (j - (k - 1) / 2) * 0.8 / max(k, 1)
-        ax.errorbar(np.asarray(r.bias) / u1, y, xerr=2 * np.asarray(r.mc.std) / u1, fmt="o",
-                    ms=3, capsize=2, lw=1, color=_COLORS[j % len(_COLORS)], label=est)
+        x = np.asarray(r.bias) / u1
+        err = 2 * np.asarray(r.mc.std) / u1
+        inside = np.abs(x) <= (lim if lim is not None else np.inf)
+        colour = _COLORS[j % len(_COLORS)]
+        ax.errorbar(np.where(inside, x, np.nan), y, xerr=np.where(inside, err, np.nan),
+                    fmt="o", ms=3, capsize=2, lw=1, color=colour, label=est)
+        for xi, yi in zip(x[~inside], y[~inside], strict=True):  # outliers: marked, printed
+            edge = 0.97 * lim * np.sign(xi)
+            ax.plot([edge], [yi], ">" if xi > 0 else "<", ms=6, color=colour)
+            ax.annotate(f"{xi:.3g}", (edge, yi), xytext=(-4 if xi > 0 else 4, 3),
+                        textcoords="offset points", fontsize=6, color=colour,
+                        ha="right" if xi > 0 else "left")
+    if lim is not None:
+        ax.set_xlim(-lim, lim)
     ax.axvline(0, color="k", lw=0.8)
     ax.set_yticks(range(len(names)), names, fontsize=7 if len(names) > 8 else 8)
     ax.set_ylim(len(names) - 0.5, -0.5)
-    ax.set_xlabel("bias ± 2u, in units of u of the first estimator")
+    ax.set_xlabel("bias ± 2u, in units of u of the first estimator"
+                  + ("; triangles: beyond the axis, value printed" if lim is not None else ""))
     ax.grid(alpha=0.3, axis="x")
     fig.legend(fontsize=7, loc="outside lower center", ncol=len(results), frameon=False)
     return _png(fig)
