@@ -323,6 +323,8 @@ def _posterior_blocks(post) -> list:
     names = [m.name for m in post.measurands]
     samples = {f"{m.name} [{unit(m.unit)}]": post.samples[m.name] for m in post.measurands}
     state = "converged" if post.converged else "NOT CONVERGED: read with care"
+    # a free parameter that is a measurand in its field's units (EX0C_um) is listed once
+    others = [p for p in post.parameters if p.rsplit("_", 1)[0] not in names]
     return [
         Table(f"Posterior diagnostics ({state}; {post.chains.shape[0]} ensembles of "
               f"{post.n_walkers} walkers, {post.n_steps} steps, burn-in {post.discard}, thinned "
@@ -331,7 +333,7 @@ def _posterior_blocks(post) -> list:
               ["quantity", "mean", "u", "tau", "R-hat", "ESS"],
               [[n, fmt(post.mean[n], post.std[n]), fmt_u(post.std[n]),
                 f"{post.tau.get(n, float('nan')):.3g}", f"{post.rhat[n]:.4f}",
-                f"{post.ess[n]:.0f}"] for n in names + list(post.parameters)]),
+                f"{post.ess[n]:.0f}"] for n in names + others]),
         Figure("Posterior of the measurands: pairwise samples and marginal histograms "
                "(corner plot); lines: posterior mean.", figs.corner_figure(samples)),
         Figure("Walker traces of the free parameters (every walker of the first ensemble; "
