@@ -42,6 +42,29 @@ def test_plan_has_number_and_fingerprint_and_report_cites_both(small_report):
     assert plan["document"] in cover and plan["fingerprint"][:16] in cover
 
 
+def test_plan_only_then_report_against_it(small_study_file, tmp_path, capsys):
+    """The workflow: --plan-only before the test (no readings used, no report), then
+    --plan plan.json after it: the report cites that plan and lists no deviation."""
+    from mtplan.cli import main
+
+    plan_dir, report_dir = tmp_path / "plan", tmp_path / "report"
+    assert main(["report", str(small_study_file), "--out", str(plan_dir), "--plan-only"]) == 0
+    assert (plan_dir / "plan.pdf").exists() and (plan_dir / "plan.json").exists()
+    assert not (plan_dir / "report.pdf").exists()
+    assert not (plan_dir / "results" / "measured.csv").exists()
+    plan = json.loads((plan_dir / "plan.json").read_text(encoding="utf-8"))
+    capsys.readouterr()
+    assert main(["report", str(small_study_file), "--out", str(report_dir), "--plan",
+                 str(plan_dir / "plan.json")]) == 0
+    out = capsys.readouterr().out
+    assert str(report_dir / "report.pdf") in out and "plan.pdf" not in out
+    text = _flat(_pages(report_dir / "report.pdf"))
+    assert plan["fingerprint"][:16] in text
+    assert "Deviations from the test plan, additions and exclusions: • none" in text
+    verdicts = pd.read_csv(report_dir / "results" / "verdicts.csv").set_index("measurand")
+    assert verdicts.loc["centre_x", "verdict"] == "does not conform"
+
+
 def test_report_applies_the_plans_guard_bands(small_report):
     plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
     verdicts = pd.read_csv(small_report / "results" / "verdicts.csv").set_index("measurand")
