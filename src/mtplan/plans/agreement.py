@@ -192,7 +192,8 @@ def apply_plan(result, plan) -> list[str]:
         fit_ok = _fit_ok(o)
         for v in o.verdicts:
             r = planned[(v.procedure, v.measurand)]
-            v.p_conform_population = v.p_conform
+            if v.p_conform_population is None:  # once: apply_plan may run again
+                v.p_conform_population = v.p_conform
             if r["guard_band"] is None:  # the plan could not fix a rule for it
                 v.verdict, v.p_conform = NOT_DETERMINABLE, None
                 continue
