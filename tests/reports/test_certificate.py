@@ -394,3 +394,10 @@ def test_no_legend_entry_without_its_curve(captured_figures):
     fig, = captured_figures
     labels = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
     assert "kasa (recommended)" in labels and not any("flat" in x for x in labels)
+
+
+def test_a_value_rounding_to_zero_has_no_sign():
+    from mtplan.reports.model import Table
+
+    t = Table("zeros", ["a", "b", "c"], [["-0.00", "-0", "-0.05"]])
+    assert t.rows == [["0.00", "0", "-0.05"]]
