@@ -114,6 +114,7 @@ def _pages_non_blank(pdf: Path, tmp_path: Path) -> int:
     import numpy as np
     from matplotlib.image import imread
 
+    tmp_path.mkdir(parents=True, exist_ok=True)
     subprocess.run(["pdftoppm", "-r", "30", "-png", str(pdf), str(tmp_path / "page")],
                    check=True, capture_output=True)
     pages = sorted(tmp_path.glob("page*.png"))
