@@ -68,10 +68,10 @@ def issue_plan(result) -> dict:
     limits, predicted uncertainty and risks each one fixes, a document number and the
     fingerprint of the rules. Numbers are the planned set-up's (no readings used)."""
     study = result.study
-    verdicts = {(v.procedure, v.measurand): v for v in result.verdicts}
+    verdicts = {(v.procedure, v.label, v.measurand): v for v in result.verdicts}
     rules = []
     for r in declared_rules(study):
-        v = verdicts.get((r["procedure"], r["measurand"]))
+        v = verdicts.get((r["procedure"], r["test"], r["measurand"]))
         fixed = dict(r)
         fixed.update({"unit": v.unit if v else "", "u_planned": _num(v.u if v else None),
                       "k": v.k if v else 2.0,
@@ -126,20 +126,20 @@ def check_study(study, plan) -> None:
         One problem: the measurand and field, the plan's value and the study's.
     """
     number = plan.get("document", "the plan")
-    planned = {(r["procedure"], r["measurand"]): r for r in plan["rules"]}
-    stated = {(r["procedure"], r["measurand"]): r for r in declared_rules(study)}
+    planned = {(r["procedure"], r["test"], r["measurand"]): r for r in plan["rules"]}
+    stated = {(r["procedure"], r["test"], r["measurand"]): r for r in declared_rules(study)}
     for key in planned:
         if key not in stated:
-            raise InvalidInput([f"The study no longer tolerances {key[1]} of {key[0]}, which "
-                                f"plan {number} does; issue a new plan."])
+            raise InvalidInput([f"The study no longer tolerances {key[2]} of {key[0]} "
+                                f"({key[1]}), which plan {number} does; issue a new plan."])
     for key, r in stated.items():
         if key not in planned:
-            raise InvalidInput([f"The study tolerances {key[1]} of {key[0]}, which plan "
-                                f"{number} does not; issue a new plan."])
+            raise InvalidInput([f"The study tolerances {key[2]} of {key[0]} ({key[1]}), "
+                                f"which plan {number} does not; issue a new plan."])
         p = planned[key]
         for name in (*_DECLARED, "population_source", "coverage"):
             if r.get(name) != p.get(name):
-                raise InvalidInput([f"{key[0]} {key[1]} {name}: plan {number} says "
+                raise InvalidInput([f"{key[0]} {key[2]} {name}: plan {number} says "
                                     f"{p.get(name)!r}, the study {r.get(name)!r}; the rules "
                                     "agreed before the test cannot change after it (issue a "
                                     "new plan)."])
@@ -186,12 +186,12 @@ def apply_plan(result, plan) -> list[str]:
     """
     from mtplan.plans.decisions import NOT_DETERMINABLE, NOT_MEASURED, decide
 
-    planned = {(r["procedure"], r["measurand"]): r for r in plan["rules"]}
+    planned = {(r["procedure"], r["test"], r["measurand"]): r for r in plan["rules"]}
     deviations = []
     for o in result.outcomes:
         fit_ok = _fit_ok(o)
         for v in o.verdicts:
-            r = planned[(v.procedure, v.measurand)]
+            r = planned[(v.procedure, v.label, v.measurand)]
             if v.p_conform_population is None:  # once: apply_plan may run again
                 v.p_conform_population = v.p_conform
             if r["guard_band"] is None:  # the plan could not fix a rule for it

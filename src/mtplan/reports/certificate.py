@@ -449,11 +449,11 @@ def build_report(result, plan, deviations=()) -> Document:
 
 # ----------------------------------------------------------------------- the plan
 def _plan_rows(o, plan) -> list:
-    rules = {(r["procedure"], r["measurand"]): r for r in plan["rules"]}
+    rules = {(r["procedure"], r["test"], r["measurand"]): r for r in plan["rules"]}
     index = {m.name: i for i, m in enumerate(o.results[o.recommended].measurands)}
     rows = []
     for v in o.verdicts:
-        r = rules[(v.procedure, v.measurand)]
+        r = rules[(v.procedure, v.label, v.measurand)]
         u = unit(v.unit)
         w = "-" if r["guard_band"] is None else fmt(r["guard_band"], r["u_planned"] / 5)
         rows.append([measurand_name(v.description, v.measurand), u,

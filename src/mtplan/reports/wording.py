@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["METHOD_SOURCES", "method_citation", "customer_words", "measurand_name", "probability_text",
-           "rule_wording", "rules_text", "population_text", "GLOSSARY"]
+__all__ = ["METHOD_SOURCES", "method_citation", "customer_words", "measurand_name",
+           "probability_text", "rule_wording", "rules_text", "population_text", "GLOSSARY"]
 
 #: the source method of each procedure: (patent number or "", title in English)
 METHOD_SOURCES = {
@@ -136,7 +136,8 @@ GLOSSARY = [
     ["estimator", "the calculation that turns readings into results: patent (the source "
                   "method's own steps), three_point (the three-point rule), kasa and geometric "
                   "(least-squares circles, algebraic and geometric), joint and joint_linear (fits "
-                  "of all readings at once, Gauss-Newton and linearised), angles and home (fits that use the commanded angles "
+                  "of all readings at once, Gauss-Newton and linearised), angles and home (fits "
+                  "that use the commanded angles "
                   "or the shared home point), gls (generalised least squares of the whole "
                   "model), registration and pattern (fits of the scans to each other or to "
                   "the artefact's known pattern)"],
