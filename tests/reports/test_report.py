@@ -24,10 +24,12 @@ PLAN_TITLES = ["Tests and decision rules", "Methods and estimators", "Glossary",
 
 # ------------------------------------------------------------------ escaping
 def test_script_in_labels_is_text_in_html(small_report):
-    page = (small_report / "report.html").read_text(encoding="utf-8")
-    assert "<script" not in page.lower()
-    assert "&lt;script&gt;alert(1)&lt;/script&gt;" in page
-    assert "<img src=x" not in page and "&lt;img src=x onerror=alert(2)&gt;" in page
+    for name in ("report", "plan"):
+        page = (small_report / f"{name}.html").read_text(encoding="utf-8")
+        assert "<script" not in page.lower() and "<img src=x" not in page, name
+        assert "&lt;script&gt;alert(1)&lt;/script&gt;" in page, name
+    page = (small_report / "plan.html").read_text(encoding="utf-8")  # the notes: in the plan
+    assert "&lt;img src=x onerror=alert(2)&gt;" in page
 
 
 def test_script_in_labels_is_text_in_pdf(small_report):
