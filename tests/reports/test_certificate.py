@@ -115,15 +115,20 @@ def test_unchanged_study_passes_and_an_edited_plan_is_refused(small_study_file, 
 
 
 def test_readings_that_do_not_fit_get_no_verdict(small_result, small_report):
-    """Where the fit check says the readings do not fit the model (``measured.fit_ok``
-    False), the report gives no verdict and the overall result is no decision."""
+    """Where the fit check says the readings do not fit the model (``measured.fit.ok``
+    False), the report gives no verdict, says why, and the overall result is no decision."""
+    import dataclasses
+
     from mtplan.plans.agreement import FIT_NO_DECISION, apply_plan, read_plan
     from mtplan.reports.certificate import overall_result
 
     result = copy.deepcopy(small_result)
-    result.outcomes[0].measured.fit_ok = False
+    measured = result.outcomes[0].measured
+    assert measured.fit is not None and measured.fit.ok is not None
+    measured.fit = dataclasses.replace(measured.fit, ok=False, p_value=1e-9)
     apply_plan(result, read_plan(small_report / "plan.json"))
     assert {v.verdict for v in result.verdicts} == {FIT_NO_DECISION}
+    assert all("chi-square" in v.reason for v in result.verdicts)
     assert overall_result(result)[0] == "no decision"
 
 

@@ -160,14 +160,13 @@ def p_conform_measured(value, u, lower, upper) -> float | None:
     return max(0.0, cdf(hi) - cdf(lo))
 
 
-def _fit_ok(outcome):
-    """Whether the readings of a test fit its model: the fit check's result when the
-    readings' evaluation carries one (``measured.fit_ok``), else None (not checked)."""
+def _fit_failure(outcome) -> tuple[str, str] | None:
+    """(verdict, why) when the readings of a test do not fit its model (the fit check of
+    their evaluation, :func:`mtplan.plans.decisions.fit_verdict`), else None."""
+    from mtplan.plans.decisions import fit_verdict
+
     measured = outcome.measured
-    if measured is None:
-        return None
-    ok = getattr(measured, "fit_ok", None)
-    return None if ok is None else bool(ok)
+    return None if measured is None else fit_verdict(measured.fit)
 
 
 def apply_plan(result, plan) -> list[str]:
@@ -176,7 +175,7 @@ def apply_plan(result, plan) -> list[str]:
     The verdicts of ``result`` are updated in place: guard band, acceptance limits, planned
     u and risks from the plan; the probability of conformity from the measurement alone
     (``p_conform``; the population's stays in ``p_conform_population``). Readings that do
-    not fit the model (:func:`_fit_ok` False) get no verdict: :data:`FIT_NO_DECISION`.
+    not fit the model (:func:`_fit_failure`) get no verdict: :data:`FIT_NO_DECISION`.
 
     Returns
     -------
@@ -189,7 +188,7 @@ def apply_plan(result, plan) -> list[str]:
     planned = {(r["procedure"], r["test"], r["measurand"]): r for r in plan["rules"]}
     deviations = []
     for o in result.outcomes:
-        fit_ok = _fit_ok(o)
+        misfit = _fit_failure(o)
         for v in o.verdicts:
             r = planned[(v.procedure, v.label, v.measurand)]
             if v.p_conform_population is None:  # once: apply_plan may run again
@@ -207,8 +206,8 @@ def apply_plan(result, plan) -> list[str]:
             v.p_conform = p_conform_measured(v.measured, v.measured_u, v.lower, v.upper)
             if v.verdict in (NOT_MEASURED, NOT_DETERMINABLE) or v.measured is None:
                 continue
-            if fit_ok is False:
-                v.verdict = FIT_NO_DECISION
+            if misfit is not None:
+                v.verdict, v.reason = misfit
                 continue
             v.verdict = decide(v.measured, v.lower, v.upper, v.guard_band)
             if v.measured_u is not None and v.measured_u > 1.1 * v.u:
