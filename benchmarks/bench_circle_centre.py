@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 from mtplan.models import get
-from mtplan.uncertainty._random import as_seed_sequence, block_sequence
+from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
 from mtplan.evaluation.simulation import simulate_uncertainty
 
 from _budget import budget_table, mc_std  # benchmarks/ is the script's folder

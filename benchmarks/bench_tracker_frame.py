@@ -29,7 +29,7 @@ import numpy as np
 
 from mtplan.models import get
 from mtplan.models import tracker_frame as tf
-from mtplan.models._fit3d import fit_circle_3d, fit_circle_3d_angles, fit_line_3d
+from mtplan.fitting.fit3d import fit_circle_3d, fit_circle_3d_angles, fit_line_3d
 from mtplan.evaluation.simulation import simulate_uncertainty
 
 from _budget import budget_table, mc_std  # benchmarks/ is the script's folder

@@ -1,4 +1,4 @@
-"""Check the 3D line, plane and circle fits of ``mtplan.models._fit3d`` against TraCIM data.
+"""Check the 3D line, plane and circle fits of ``mtplan.fitting.fit3d`` against TraCIM data.
 
 Reads the PTB TraCIM "Gauss" package kept outside the project
 (``../shared/refdata/tracim_gauss/``, see its README section 3): LINE_3D b01-b04,
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mtplan.models._fit3d import _kasa_start, fit_circle_3d, fit_line_3d, fit_plane
+from mtplan.fitting.fit3d import _kasa_start, fit_circle_3d, fit_line_3d, fit_plane
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "refdata" / "tracim_gauss"
 if not DEFAULT.is_dir():

@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 
 from mtplan import cli
 from mtplan.models import registry
-from mtplan.models._protocol import fields_info  # noqa: E402
+from mtplan.models.protocol import fields_info  # noqa: E402
 
 PROCS = sorted(registry())
 FIELDS = sorted({i["name"] for p in registry().values() for i in fields_info(p.Setup)})

@@ -15,6 +15,7 @@ are parsed and their study loaded.
 from __future__ import annotations
 
 import contextlib
+import glob
 import io
 import json
 import os
@@ -39,6 +40,8 @@ PLACEHOLDERS = {"PROC", "FILE", "NAME", "DIR", "SPEC", "SIGMA", "MEASURAND", "P"
 WORD = r"(?<![A-Za-z]){}(?![A-Za-z])"
 #: commands whose full run is another test's (the demo study takes minutes)
 STUDY_COMMANDS = {"demo", "report"}
+#: commands that serve until stopped: started on a free loopback port, asked for their page
+SERVER_COMMANDS = {"explore"}
 
 
 def _template(words) -> bool:
@@ -92,9 +95,10 @@ def _header(path):
 def _from_examples():
     readings = sorted(EXAMPLES.glob("*_readings.csv"))
     found = []
-    for path in sorted(EXAMPLES.glob("*.toml")):
+    for path in sorted(p for p in EXAMPLES.iterdir() if p.suffix in (".toml", ".csv")):
         lines = _header(path)
-        texts = [line for line in lines if line.startswith("mtplan ")]
+        texts = [line.removeprefix("Run: ") for line in lines
+                 if line.startswith(("mtplan ", "Run: mtplan "))]
         texts += re.findall(r"`(mtplan [^`]+)`", " ".join(lines))
         for text in texts:
             for proc in ([p.name.removesuffix("_readings.csv") for p in readings]
@@ -121,6 +125,10 @@ def _run(argv, folder):
 
     os.environ["MTPLAN_MAX_TRIALS"] = MAX_TRIALS
     os.chdir(folder)
+    if argv[0] in SERVER_COMMANDS:
+        return _serve_once(argv)
+    argv = [w for word in argv for w in (sorted(glob.glob(word)) or [word] if "*" in word
+                                         else [word])]  # as the shell expands a pattern
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
@@ -130,6 +138,39 @@ def _run(argv, folder):
             code = "exception"
             err.write(traceback.format_exc())
     return code, out.getvalue(), err.getvalue()
+
+
+def _serve_once(argv):
+    """``explore``: the command as written plus ``--no-browser --port P`` (a free loopback
+    port) in its own process, until its page answers; then it is stopped."""
+    import socket
+    import subprocess
+    import sys
+    import time
+    import urllib.request
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    cmd = [sys.executable, "-m", "mtplan.cli", *argv, "--no-browser", "--port", str(port)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    status, deadline = "no answer within 120 s", time.monotonic() + 120
+    try:
+        while time.monotonic() < deadline and proc.poll() is None:
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=5) as page:
+                    status = 0 if page.status == 200 else f"HTTP {page.status}"
+                    break
+            except OSError:
+                time.sleep(0.5)
+    finally:
+        proc.terminate()
+        try:
+            out, err = proc.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+    return status, out, err
 
 
 def _check_study_command(argv) -> int:

@@ -65,8 +65,8 @@ GRAPH = _graph()
 
 def test_the_graph_sees_the_package():
     assert {"mtplan.cli", "mtplan.cli._common", "mtplan.evaluation.simulation",
-            "mtplan.uncertainty.sampler", "mtplan.models._protocol", "mtplan.fitting.gls"} <= set(GRAPH)
-    assert "mtplan.models._protocol" in GRAPH["mtplan.evaluation.simulation"]
+            "mtplan.uncertainty.sampler", "mtplan.models.protocol", "mtplan.fitting.gls"} <= set(GRAPH)
+    assert "mtplan.models.protocol" in GRAPH["mtplan.evaluation.simulation"]
 
 
 @pytest.mark.parametrize("module", sorted(GRAPH))
@@ -74,6 +74,30 @@ def test_dependencies_point_down(module):
     rank = LAYERS.index(_layer(module))
     upward = sorted(t for t in GRAPH[module] if LAYERS.index(_layer(t)) > rank)
     assert not upward, f"{module} ({_layer(module)}) imports higher layers: {upward}"
+
+
+def _private_across_packages() -> list[str]:
+    """Imports of an underscore module (``mtplan.models._x``) from outside its package.
+
+    The top-level helpers (``mtplan._validate``, ``mtplan._io``, ``mtplan._parallel``) are
+    the base layer every package shares; any other ``_module`` is its package's own."""
+    bad = []
+    for module, targets in GRAPH.items():
+        for target in targets:
+            parts = target.split(".")
+            private = [i for i, part in enumerate(parts) if part.startswith("_") and i >= 2]
+            if not private:
+                continue
+            owner = ".".join(parts[: private[0]])
+            if not (module == owner or module.startswith(owner + ".")):
+                bad.append(f"{module} imports {target}")
+    return sorted(bad)
+
+
+def test_no_underscore_module_is_imported_across_packages():
+    """What one package uses of another is public: its ``__init__`` or a module without a
+    leading underscore (docs/api.md lists them)."""
+    assert _private_across_packages() == []
 
 
 def test_the_engine_knows_nothing_of_procedures():
@@ -277,9 +301,14 @@ def test_nothing_is_found_by_name_in_a_procedures_module():
 def test_no_procedure_module_is_imported_outside_the_models():
     """Above the models a procedure is reached through the registry's Procedure only (a module
     imported by its name would let its functions be called outside the contract)."""
-    procedures = {m for m in GRAPH if m.startswith(PROCEDURE_PACKAGE + ".")
-                  and not m.rpartition(".")[2].startswith("_")}
+    from mtplan.models import registry
+
+    # a procedure's module and its submodules (the protocol and shared kinematics are not one)
+    homes = {proc.forward.__module__.removesuffix(".__init__") for proc in registry().values()}
+    homes = {h if h.count(".") == 2 else h.rpartition(".")[0] for h in homes}
+    procedures = {m for m in GRAPH if m in homes or any(m.startswith(h + ".") for h in homes)}
     assert {"mtplan.models.rotary_axis", "mtplan.models.geometry21"} <= procedures
+    assert "mtplan.models.protocol" not in procedures
     bad = {m: sorted(GRAPH[m] & procedures) for m in GRAPH
            if not m.startswith(PROCEDURE_PACKAGE) and GRAPH[m] & procedures}
     assert not bad, bad

@@ -282,7 +282,7 @@ def _bent(bounded=False):
 
 
 def test_a_non_linear_source_is_sampled_as_a_nuisance_parameter():
-    from mtplan.uncertainty._random import as_seed_sequence, block_sequence
+    from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
 
     proc = _bent()
     r = proc.simulate(SETUP, PROC.Truth(), 1, rng=5)

@@ -7,7 +7,7 @@ import pytest
 from scipy.optimize import least_squares
 
 from mtplan._validate import InvalidInput
-from mtplan.models._circle_fit import (
+from mtplan.fitting.circle import (
     circle_residuals,
     geometric_fit,
     kasa_fit,

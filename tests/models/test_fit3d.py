@@ -1,4 +1,4 @@
-"""Batch-first orthogonal-distance fits in 3D (mtplan.models._fit3d).
+"""Batch-first orthogonal-distance fits in 3D (mtplan.fitting.fit3d).
 
 Cases are constructed here (the TraCIM comparison is the ad-hoc script
 benchmarks/validate_fit3d_tracim.py, which reads ../shared and is not a test):
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from mtplan.models._fit3d import (
+from mtplan.fitting.fit3d import (
     _kasa_start,
     circle_residuals,
     common_perpendicular,
@@ -41,7 +41,7 @@ def _circle_points(centre, normal, radius, angles_deg):
 
 
 def _distance_to_circle(p, c, n, r):
-    """Orthogonal distance of points to a circle, written out without _fit3d."""
+    """Orthogonal distance of points to a circle, written out without mtplan.fitting.fit3d."""
     q = p - c
     h = q @ n
     rho = np.linalg.norm(q - np.outer(h, n), axis=1)

@@ -8,7 +8,7 @@ import pytest
 
 from mtplan._validate import InvalidInput
 from mtplan.models import geometry21 as g21
-from mtplan.models._kinematics import rotate, rotate_inverse, rotation_matrix
+from mtplan.models.kinematics import rotate, rotate_inverse, rotation_matrix
 from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 
 P = g21.PROCEDURE

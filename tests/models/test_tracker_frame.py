@@ -18,7 +18,7 @@ import pytest
 from mtplan._validate import InvalidInput
 from mtplan.models import get
 from mtplan.models import tracker_frame as tf
-from mtplan.models._fit3d import circle_residuals, fit_circle_3d
+from mtplan.fitting.fit3d import circle_residuals, fit_circle_3d
 from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 
 PROC = get("tracker_frame")

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mtplan.models._protocol import Measurand
+from mtplan.models.protocol import Measurand
 from mtplan.plans import decisions as d
 
 

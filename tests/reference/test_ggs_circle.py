@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mtplan.models._circle_fit import geometric_fit, kasa_fit
+from mtplan.fitting.circle import geometric_fit, kasa_fit
 from mtplan.models.circle_centre import fit_points
 
 DATA = Path(__file__).parent / "ggs1994_circle.csv"

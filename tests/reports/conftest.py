@@ -28,6 +28,21 @@ title = "Small study <script>alert('title')</script>"
 subtitle = "A & B <b>bold?</b>"
 seed = 3
 trials = 300
+simulated = true
+[laboratory]
+name = "Lab <b>One</b>"
+address = "1 Gauge Street, Metrotown"
+[conditions]
+machine_temperature_c = 21.0
+part_temperature_c = 20.7
+warm_up = "45 min axis cycling"
+compensation = false
+[[instrument]]
+name = "Touch probe"
+serial = "TP-0042"
+certificate = "CAL-2024-0815"
+calibration_due = 2025-08-15
+traceability = "PTB via DAkkS D-K-99999"
 [header]
 document = "DOC-<b>1</b>"
 revision = "B"
@@ -40,7 +55,7 @@ checked_by = "C. Checker"
 [[procedure]]
 name = "circle_centre"
 label = "Bore <script>alert(1)</script> & co"
-standards = ["ISO 1101:2017"]
+standards = ["ISO 10360-5:2020"]
 estimators = ["three_point", "kasa"]
 notes = "Notes with <img src=x onerror=alert(2)>"
   [[procedure.sweep]]
@@ -57,6 +72,7 @@ notes = "Notes with <img src=x onerror=alert(2)>"
   lower = -20.0
   upper = 20.0
   prior = "normal:0,8"
+  population_source = "bores of 12 earlier parts"
   rule = "guard:0.5"
   [[procedure.acceptance]]          # centre_y (about -200 um) lies well inside
   measurand = "centre_y"
@@ -87,8 +103,25 @@ def small_result(small_study_file):
 
 @pytest.fixture(scope="session")
 def small_report(small_result, tmp_path_factory) -> Path:
+    """The plan and the report of the small study (plan.*, report.*, results/)."""
     from mtplan.reports import write_report
 
     out = tmp_path_factory.mktemp("report")
     write_report(small_result, out)
     return out
+
+
+@pytest.fixture(scope="session")
+def demo_report(tmp_path_factory):
+    """`mtplan demo` run once for every test that looks at it: (folder, stdout)."""
+    import contextlib
+    import io
+
+    from mtplan.cli import main
+
+    out = tmp_path_factory.mktemp("demo") / "demo"
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        code = main(["demo", "--out", str(out), "--jobs", "2"])
+    assert code == 0
+    return out, buf.getvalue()

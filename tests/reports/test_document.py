@@ -14,6 +14,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from mtplan.reports.certificate import WATERMARK
 from tests.reports.conftest import need
 
 
@@ -65,11 +66,11 @@ def _header_words(doc) -> set[str]:
 
 
 # ------------------------------------------------------------------ the small study
-def test_summary_follows_the_cover_and_says_does_not_conform(small_report):
+def test_overall_result_follows_the_cover(small_report):
     pages = pdf_pages(small_report / "report.pdf")
-    assert pages[1].lstrip().startswith("Summary")
-    assert "does not conform" in pages[1] and "conforms" in pages[1]
-    assert "centre_x" in pages[1] and "centre_y" in pages[1]
+    assert pages[1].replace(WATERMARK, "").lstrip().startswith("Overall result and actions")
+    assert "Overall result: not accepted: centre_x." in pages[1]
+    assert "Adjust the x of the bore centre" in " ".join(pages[1].split())
 
 
 def test_verdicts_csv(small_report):
@@ -81,41 +82,45 @@ def test_verdicts_csv(small_report):
     assert v.loc["centre_x", "acceptance_upper"] == pytest.approx(
         20 - v.loc["centre_x", "guard_band"])
     assert v.loc["centre_y", "guard_band"] == pytest.approx(v.loc["centre_y", "U"])  # iso14253
+    assert v.loc["centre_x", "population_source"] == "bores of 12 earlier parts"
     summary = pd.read_csv(small_report / "results" / "summary.csv")
     assert set(summary["measurand"]) == {"centre_x", "centre_y"}
 
 
 def test_verdict_in_html(small_report):
-    page = (small_report / "index.html").read_text(encoding="utf-8")
+    page = (small_report / "report.html").read_text(encoding="utf-8")
     assert '<span class="v-bad">does not conform</span>' in page
     assert '<span class="v-ok">conforms</span>' in page
-    assert page.index('id="summary"') < page.index('id="conformity"')
+    assert page.index('id="overall"') < page.index('id="results"')
 
 
 def test_cover_shows_the_header_and_sign_off(small_report):
     cover = pdf_pages(small_report / "report.pdf")[0]
-    for text in ("DOC-<b>1</b>", "Customer & <i>Co</i>", "SN-42", "2024-01-02", "20.5 °C",
-                 "P. Preparer", "C. Checker", "ISO 1101:2017", "14253-1:2017",
-                 "JCGM 101:2008", "signature"):
+    for text in ("DOC-<b>1</b>", "Customer & <i>Co</i>", "SN-42", "2024-01-02",
+                 "P. Preparer", "C. Checker", "ISO 10360-5:2020", "14253-1:2017",
+                 "JCGM 101:2008", "signature", "Lab <b>One</b>", "1 Gauge Street"):
         assert text in cover, text
-    page = (small_report / "index.html").read_text(encoding="utf-8")
+    page = (small_report / "report.html").read_text(encoding="utf-8")
     assert "Customer &amp; &lt;i&gt;Co&lt;/i&gt;" in page and "P. Preparer" in page
 
 
-def test_decision_sentence_names_rule_limits_and_risks(small_report):
-    text = " ".join(pdf_pages(small_report / "report.pdf", raw=True))
-    text = " ".join(text.split())
-    assert "centre_x: accept if the measured value lies within ±" in text
-    assert "reduced by the guard band w = 0.5 U" in text
-    assert "DOES NOT CONFORM" in text and "centre_y" in text
-    assert "Global false accept" in text  # centre_x has a prior
+def test_decision_rule_in_ilac_words_with_its_population(small_report):
+    text = " ".join(" ".join(pdf_pages(small_report / "report.pdf", raw=True)).split())
+    assert ("Decision rule for centre_x: non-binary with guard band (ILAC-G8 4.2.3; w = 0.5 U"
+            in text)
+    assert "from the measurement alone" in text
+    assert "N(0, 8 µm); source: bores of 12 earlier parts" in text
+    plan = " ".join(" ".join(pdf_pages(small_report / "plan.pdf", raw=True)).split())
+    assert "centre_x N(0, 8 µm); source: bores of 12 earlier parts" in plan
 
 
 def test_fonts_embedded_and_outline(small_report):
     pdf = small_report / "report.pdf"
     assert_fonts_embedded(pdf)
-    assert_has_outline(pdf, ["Summary", "Contents", "Conformity decisions",
-                             "What the simulation shows", "Provenance"])
+    assert_has_outline(pdf, ["Overall result and actions", "Contents", "Results as found",
+                             "Glossary", "Provenance"])
+    assert_has_outline(small_report / "plan.pdf", ["Tests and decision rules",
+                                                   "What the simulation shows", "Glossary"])
 
 
 def test_fonts_embedded_and_outline_read_without_a_viewer(small_report):
@@ -126,16 +131,20 @@ def test_fonts_embedded_and_outline_read_without_a_viewer(small_report):
     fonts = re.findall(rb"/Type /Font\b", raw)
     assert fonts and raw.count(b"/FontFile") >= raw.count(b"/Type /FontDescriptor") > 0
     assert b"/Subtype /Type3" not in raw and re.search(rb"/Outlines \d+ 0 R", raw)
-    for title in ("Summary", "Contents", "Conformity decisions", "Provenance"):
+    for title in ("Overall result and actions", "Contents", "Results as found", "Provenance"):
         assert f"/Title ({title})".encode() in raw, title
 
 
 def test_header_words_whole_in_small_report(small_result, small_report):
-    from mtplan.reports.document import build_document
+    import json
 
+    from mtplan.reports.certificate import build_report
+
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
     tokens = set(" ".join(pdf_pages(small_report / "report.pdf", raw=True)).split())
-    tokens |= {t.strip("()[],") for t in tokens}
-    missing = sorted(w for w in _header_words(build_document(small_result)) if w not in tokens)
+    tokens |= {t.strip("()[],;") for t in tokens}
+    doc = build_report(small_result, plan)
+    missing = sorted(w for w in _header_words(doc) if w not in tokens)
     assert not missing, missing
 
 
@@ -195,23 +204,27 @@ def test_no_header_word_broken_in_the_pdf(tmp_path):
     assert_fonts_embedded(pdf)
 
 
-def test_not_determinable_is_said_with_its_reason(small_result):
+def test_not_determinable_is_said_with_its_reason(small_result, small_report):
     """A measurand the readings cannot determine shows "not determinable" and why, never a
-    number (the summary, the decisions and the HTML)."""
+    number (the results table, the decision lines, the overall result and the HTML)."""
     import copy
+    import json
 
-    from mtplan.reports.document import build_document
+    from mtplan.reports.certificate import build_report
     from mtplan.reports.render import render_html
 
     result = copy.deepcopy(small_result)
     o = result.outcomes[0]
     why = "every trial gives the same value: quantised estimate"
-    for item in (o.verdicts[1], o.summary[1]):
-        item.verdict, item.reason, item.measured = "not determinable", why, None
-    doc = build_document(result)
-    summary = doc.sections[0]
-    row = next(r for r in summary.blocks[0].rows if r[1].startswith("centre_y"))
-    assert row[-2:] == ["n/d", "not determinable"]
-    assert any(why in b for b in summary.blocks if isinstance(b, str))
+    v = o.verdicts[1]
+    v.verdict, v.reason, v.measured, v.measured_u = "not determinable", why, None, None
+    v.measured_low = v.measured_high = v.p_conform = None
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    doc = build_report(result, plan)
+    results = doc.sections[1]
+    table = results.blocks[1]
+    row = next(r for r in table.rows if "(centre_y)" in r[1])
+    assert row[3] == "-" and row[-1] == "not determinable"
+    assert "centre_y (not determinable)" in " ".join(doc.sections[0].blocks[:2])
     page = render_html(doc)
     assert '<span class="v-nd">not determinable</span>' in page and why in page

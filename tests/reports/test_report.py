@@ -11,19 +11,25 @@ from pathlib import Path
 
 import pytest
 
+from mtplan.reports.certificate import WATERMARK
 from tests.reports.conftest import need
 
-SECTION_TITLES = ["Summary", "Contents", "Conformity decisions", "Methods, estimators and terms",
-                  "Provenance", "What the simulation shows", "Measured data",
-                  "Plan: the cheapest set-up meeting the targets"]
+REPORT_TITLES = ["Overall result and actions", "Contents", "Results as found",
+                 "Test conditions and instruments", "Deviations from the plan", "Glossary",
+                 "Measured data", "Provenance"]
+PLAN_TITLES = ["Tests and decision rules", "Methods and estimators", "Glossary",
+               "What the simulation shows", "Plan: the cheapest set-up meeting the targets",
+               "Provenance"]
 
 
 # ------------------------------------------------------------------ escaping
 def test_script_in_labels_is_text_in_html(small_report):
-    page = (small_report / "index.html").read_text(encoding="utf-8")
-    assert "<script" not in page.lower()
-    assert "&lt;script&gt;alert(1)&lt;/script&gt;" in page
-    assert "<img src=x" not in page and "&lt;img src=x onerror=alert(2)&gt;" in page
+    for name in ("report", "plan"):
+        page = (small_report / f"{name}.html").read_text(encoding="utf-8")
+        assert "<script" not in page.lower() and "<img src=x" not in page, name
+        assert "&lt;script&gt;alert(1)&lt;/script&gt;" in page, name
+    page = (small_report / "plan.html").read_text(encoding="utf-8")  # the notes: in the plan
+    assert "&lt;img src=x onerror=alert(2)&gt;" in page
 
 
 def test_script_in_labels_is_text_in_pdf(small_report):
@@ -45,7 +51,7 @@ class _Links(html.parser.HTMLParser):
 
 
 def test_html_is_self_contained(small_report):
-    page = (small_report / "index.html").read_text(encoding="utf-8")
+    page = (small_report / "report.html").read_text(encoding="utf-8")
     parser = _Links()
     parser.feed(page)
     assert parser.refs, "the page should at least link its sections and embed figures"
@@ -129,6 +135,7 @@ def _pages_non_blank(pdf: Path, tmp_path: Path) -> int:
     import numpy as np
     from matplotlib.image import imread
 
+    tmp_path.mkdir(parents=True, exist_ok=True)
     subprocess.run(["pdftoppm", "-r", "30", "-png", str(pdf), str(tmp_path / "page")],
                    check=True, capture_output=True)
     pages = sorted(tmp_path.glob("page*.png"))
@@ -141,12 +148,13 @@ def _pages_non_blank(pdf: Path, tmp_path: Path) -> int:
 
 
 def test_pdf_pages_non_blank_and_titles(small_report, tmp_path):
-    n = _pages_non_blank(small_report / "report.pdf", tmp_path)
-    assert n >= 4
-    text = _pdftotext(small_report / "report.pdf")
-    for title in SECTION_TITLES:
-        assert title in text, title
-    assert "1. Bore" in text
+    for name, titles in (("report", REPORT_TITLES), ("plan", PLAN_TITLES)):
+        n = _pages_non_blank(small_report / f"{name}.pdf", tmp_path / name)
+        assert n >= 4
+        text = _pdftotext(small_report / f"{name}.pdf")
+        for title in titles:
+            assert title in text, (name, title)
+        assert "1. Bore" in text
 
 
 # ------------------------------------------------------------------ the HTML, in a browser
@@ -186,7 +194,7 @@ window.addEventListener('load', function () {
 
 def check_in_browser(report: Path, tmp_path: Path) -> None:
     """Open index.html in headless Chromium: every image loads, no errors, not blank."""
-    page = (report / "index.html").read_text(encoding="utf-8")
+    page = (report / "report.html").read_text(encoding="utf-8")
     probe = tmp_path / "probe.html"  # a copy with the probe: the report itself stays script-free
     probe.write_text(page.replace("<head>", "<head>" + _PROBE, 1), encoding="utf-8")
     dom = _chrome(["--virtual-time-budget=10000", "--dump-dom", probe.as_uri()], tmp_path)
@@ -197,7 +205,7 @@ def check_in_browser(report: Path, tmp_path: Path) -> None:
     assert errors == 0, m[4]
     shot = tmp_path / "screenshot.png"
     _chrome(["--window-size=1280,2000", "--hide-scrollbars", f"--screenshot={shot}",
-             (report / "index.html").as_uri()], tmp_path)
+             (report / "report.html").as_uri()], tmp_path)
     assert shot.exists(), "no screenshot"
     import numpy as np
     from matplotlib.image import imread
@@ -213,31 +221,29 @@ def test_html_in_browser(small_report, tmp_path):
 
 
 # ------------------------------------------------------------------ the demo, end to end
-def test_demo_end_to_end(tmp_path, capsys):
-    """`mtplan demo` on the shipped study: the whole chain, and the document a customer
-    receives: summary after the cover listing every test, a verdict for every toleranced
-    measurand, a body of at most 15 pages, embedded fonts, bookmarks, whole header words."""
+def test_demo_end_to_end(demo_report, tmp_path):
+    """`mtplan demo` on the shipped study: the whole chain, and the documents a customer
+    receives: the overall result after the cover, a verdict for every toleranced measurand,
+    a report body of at most 12 pages, embedded fonts, bookmarks, whole header words."""
     import pandas as pd
 
-    from mtplan.cli import main
     from tests.reports.test_document import (
         assert_fonts_embedded,
         assert_has_outline,
         pdf_pages,
     )
 
-    code = main(["demo", "--out", str(tmp_path / "demo")])
-    out = capsys.readouterr().out
-    assert code == 0
-    report = tmp_path / "demo"
-    assert str(report / "index.html") in out and str(report / "report.pdf") in out
+    report, out = demo_report
+    for name in ("plan.pdf", "plan.html", "plan.json", "report.pdf", "report.html"):
+        assert str(report / name) in out, name
     pdf = report / "report.pdf"
     text = _pdftotext(pdf)
     for title in ["C axis location", "21 geometric errors", "Bore centre", "line-laser",
-                  "laser tracker", "Provenance", "Measured data", "Conformity decisions"]:
+                  "laser tracker", "Provenance", "Measured data", "Results as found"]:
         assert title in text, title
     pages = pdf_pages(pdf)
-    assert pages[1].lstrip().startswith("Summary"), pages[1][:200]
+    first = pages[1].replace(WATERMARK, "").lstrip()
+    assert first.startswith("Overall result and actions"), first[:200]
     verdicts = pd.read_csv(report / "results" / "verdicts.csv")
     summary = pd.read_csv(report / "results" / "summary.csv")
     procedures = ["rotary_axis", "geometry21", "circle_centre", "line_laser", "tracker_frame"]
@@ -246,11 +252,12 @@ def test_demo_end_to_end(tmp_path, capsys):
     decided = {"conforms", "does not conform", "inside the guard band: no decision",
                "not determinable"}
     assert set(verdicts["verdict"]) <= decided
-    for name in summary["measurand"]:  # every test's rows on the summary page
-        assert name in pages[1], name
+    for name in verdicts["measurand"]:  # every toleranced measurand in the results
+        assert f"({name})" in " ".join(text.split()), name
     appendix = next(i for i, p in enumerate(pages) if re.search(r"^\s*A1\. ", p, re.M))
-    assert appendix <= 15, f"the customer body has {appendix} pages"
+    assert appendix <= 12, f"the report's body has {appendix} pages"
     assert_fonts_embedded(pdf)
-    assert_has_outline(pdf, ["Summary", "Conformity decisions", "Provenance"])
-    _pages_non_blank(pdf, tmp_path)
+    assert_has_outline(pdf, ["Overall result and actions", "Results as found", "Provenance"])
+    _pages_non_blank(pdf, tmp_path / "report")
+    _pages_non_blank(report / "plan.pdf", tmp_path / "plan")
     check_in_browser(report, tmp_path)

@@ -101,14 +101,14 @@ def test_header_read_with_the_older_top_level_keys(tmp_path):
     path.write_text('customer = "Old"\nmachine = "Mill"\nauthor = "Me"\n'
                     '[header]\ndate = 2024-05-06\nambient_temperature_c = 19\n'
                     '[[procedure]]\nname = "circle_centre"\n'
-                    'standards = ["ISO 1101:2017"]\n'
+                    'standards = ["ISO 10360-5:2020"]\n'
                     '[procedure.acceptance]\nmeasurand = "centre_x"\nupper = 10.0\n',
                     encoding="utf-8")
     study = load_study(path)
     assert study.header == {"customer": "Old", "machine_type": "Mill", "date": "2024-05-06",
                             "ambient_temperature_c": 19.0, "prepared_by": "Me"}
     ps = study.procedures[0]
-    assert ps.standards == ["ISO 1101:2017"]
+    assert ps.standards == ["ISO 10360-5:2020"]
     assert ps.acceptance == [{"measurand": "centre_x", "upper": 10.0}]
     assert len(study.digest) == 64
 
@@ -117,7 +117,7 @@ def test_every_lever_is_a_setup_field_and_no_error_source():
     """Levers are what an engineer chooses; a field that sizes an error source is a
     property of the machine, the workpiece or the instrument."""
     from mtplan.models import registry
-    from mtplan.models._protocol import fields_info
+    from mtplan.models.protocol import fields_info
 
     for name, proc in registry().items():
         fields = {f["name"] for f in fields_info(proc.Setup)}
@@ -126,3 +126,12 @@ def test_every_lever_is_a_setup_field_and_no_error_source():
         sources = proc.sources(proc.Setup())
         sized = {f for f in fields for s in sources if f.startswith(f"{s}_")}
         assert not sized & set(proc.levers), (name, sized & set(proc.levers))
+
+
+@pytest.mark.parametrize("standard", ["ISO 230-2:2014", "ISO 1101:2017"])
+def test_a_standard_the_procedure_does_not_honour_is_not_cited(standard):
+    """ISO 230-2 asks for A, E, M, R, B per axis and ISO 1101 for a diameter position zone;
+    no procedure evaluates them, so a study that cites them is refused, naming why."""
+    problems = problems_of({"procedure": [{"name": "circle_centre",
+                                           "standards": ["ISO 10360-5:2020", standard]}]})
+    assert len(problems) == 1 and standard in problems[0] and "requires" in problems[0]

@@ -19,7 +19,7 @@ from mtplan.uncertainty import (
     coverage_interval,
     propagate,
 )
-from mtplan.uncertainty._random import as_seed_sequence, block_sequence
+from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
 from mtplan.uncertainty.montecarlo import numerical_tolerance
 
 

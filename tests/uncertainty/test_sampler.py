@@ -7,7 +7,7 @@ import warnings
 
 import numpy as np
 
-from mtplan.uncertainty._random import as_seed_sequence
+from mtplan.uncertainty.streams import as_seed_sequence
 from mtplan.uncertainty.sampler import run_ensembles, split_rhat
 
 MEAN = np.array([1.0, -2.0])

@@ -144,7 +144,7 @@ def procedure_of(args, config):
 
 def procedure_and_setup(args, config=None):
     from mtplan._validate import InvalidInput
-    from mtplan.models._protocol import make
+    from mtplan.models.protocol import make
 
     config = load_config(args.config) if config is None else config
     proc = procedure_of(args, config)

@@ -14,7 +14,7 @@ def register(sub) -> None:
 
 def cmd_procedures(args):
     from mtplan.models import registry
-    from mtplan.models._protocol import fields_info
+    from mtplan.models.protocol import fields_info
 
     procs = registry()
     if args.procedure:

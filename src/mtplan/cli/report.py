@@ -2,27 +2,37 @@
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
 
 
 def register(sub) -> None:
-    p = sub.add_parser("report", help="HTML and PDF report of a study")
+    p = sub.add_parser("report", help="test plan and test report (HTML and PDF) of a study")
     p.add_argument("study", metavar="STUDY.toml", help="the study file")
     p.add_argument("--out", metavar="DIR", required=True, help="output folder")
     p.add_argument("--jobs", type=int, default=1, metavar="J", help="parallel workers")
+    how = p.add_mutually_exclusive_group()
+    how.add_argument("--plan-only", action="store_true",
+                     help="issue the test plan only (plan.pdf, plan.html, plan.json), before "
+                          "measuring: the readings are not used")
+    how.add_argument("--plan", metavar="PLAN.json",
+                     help="the agreed plan (plan.json of --plan-only): the study must state "
+                          "exactly its rules; writes the test report decided with them")
     p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("demo", help="the built-in study, end to end")
     p.add_argument("--out", metavar="DIR", default="mtplan-report", help="output folder")
-    p.add_argument("--jobs", type=int, default=1, metavar="J", help="parallel workers")
+    p.add_argument("--jobs", type=int, default=min(os.cpu_count() or 1, 4), metavar="J",
+                   help="parallel workers (default: the machine's cores, at most 4)")
     p.set_defaults(func=cmd_demo)
 
 
-def _report(study_path, out, jobs, progress, command):
+def _report(study_path, out, jobs, progress, command, plan_path=None, plan_only=False):
     from mtplan._io import output_problem
     from mtplan.cli._common import UsageError
+    from mtplan.plans import agreement
     from mtplan.plans.study import load_study, run_study
     from mtplan.reports import write_report
 
@@ -31,11 +41,20 @@ def _report(study_path, out, jobs, progress, command):
         raise UsageError(f"--out: {problem}")
     start = time.perf_counter()
     study = load_study(study_path)
-    result = run_study(study, progress=progress, n_jobs=jobs, command=command)
-    written = write_report(result, out)
-    print(f"report written in {time.perf_counter() - start:.1f} s:", file=sys.stderr)
-    print(written["html"])
-    print(written["pdf"])
+    plan = None
+    if plan_path is not None:  # refused before anything is computed
+        plan = agreement.read_plan(plan_path)
+        agreement.check_study(study, plan)
+    result = run_study(study, progress=progress, n_jobs=jobs, command=command,
+                       readings=not plan_only)
+    computed = time.perf_counter()
+    written = write_report(result, out, plan, plan_only=plan_only)
+    end = time.perf_counter()
+    print(f"written in {end - start:.1f} s (study {computed - start:.1f} s, documents "
+          f"{end - computed:.1f} s, {jobs} workers):", file=sys.stderr)
+    for key in ("plan_pdf", "plan_html", "plan_json", "report_pdf", "report_html"):
+        if key in written:
+            print(written[key])
     return 0
 
 
@@ -47,8 +66,10 @@ def _command(*words) -> str:
 
 
 def cmd_report(args):
-    command = _command("report", args.study, "--out", args.out, "--jobs", args.jobs)
-    return _report(args.study, args.out, args.jobs, progress=None, command=command)
+    extra = ["--plan-only"] if args.plan_only else (["--plan", args.plan] if args.plan else [])
+    command = _command("report", args.study, "--out", args.out, "--jobs", args.jobs, *extra)
+    return _report(args.study, args.out, args.jobs, progress=None, command=command,
+                   plan_path=args.plan, plan_only=args.plan_only)
 
 
 def demo_study_path():
@@ -57,6 +78,7 @@ def demo_study_path():
 
 
 def cmd_demo(args):
-    """Run the default study end to end and say where the report is."""
+    """Run the default study end to end: the test plan issued, then the test report decided
+    with it (both from this one run; the report says so among its deviations)."""
     command = _command("demo", "--out", args.out, "--jobs", args.jobs)
     return _report(demo_study_path(), args.out, args.jobs, progress=True, command=command)

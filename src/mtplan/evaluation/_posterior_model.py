@@ -45,7 +45,7 @@ class Param:
     @property
     def step(self) -> float:
         """Finite-difference step [the parameter's unit]: 1e-7 mm or 1e-7 rad."""
-        from mtplan.models._protocol import UNITS
+        from mtplan.models.protocol import UNITS
 
         return _STEP * UNITS.get(self.unit, 1.0)
 
@@ -53,7 +53,7 @@ class Param:
 def truth_parameters(proc, truth, fields=None) -> list[Param]:
     """The free parameters: `fields` (names of fields or of elements ``field[i]``), else
     ``proc.posterior_fields``, else every float field and every element of a tuple field."""
-    from mtplan.models._protocol import fields_info
+    from mtplan.models.protocol import fields_info
 
     every = []
     for info in fields_info(type(truth)):
@@ -106,7 +106,7 @@ class TruthBuilder:
     """
 
     def __init__(self, base, params):
-        from mtplan.models._protocol import SetupBase
+        from mtplan.models.protocol import SetupBase
 
         self.base = base
         self.params = tuple(params)

@@ -101,7 +101,7 @@ def condition_on_readings(proc, setup, readings, truth):
 
     An error source whose effect free Truth parameters that no measurand depends on
     reproduce exactly is *absorbed* by them (the posterior's budget,
-    :mod:`mtplan.evaluation._budget`): circle_centre's start scatter is a move of the start
+    :mod:`mtplan.fitting.budget`): circle_centre's start scatter is a move of the start
     point, and where the probe started shows in the readings (p1 and p2 lie on the line
     through it). Its realised value sets the design (the contacts' angles), which the
     readings show and a Monte Carlo over it would average away: the covariance of the
@@ -148,7 +148,7 @@ def laplace_truths(proc, setup, readings, n: int, rng) -> tuple[list, str | None
     domain is left out. Returns ``([], reason)`` where the least squares cannot be made
     (a measurand the readings do not determine, a fit that fails).
     """
-    from mtplan.uncertainty._random import as_seed_sequence, named_generator
+    from mtplan.uncertainty.streams import as_seed_sequence, named_generator
 
     found, why = _least_squares(proc, setup, readings)
     if found is None:

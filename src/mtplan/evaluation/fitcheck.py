@@ -9,7 +9,7 @@ evaluated (``mc`` or ``posterior``):
    elements the posterior samples as nuisance (their set-up distributions as
    priors, one pseudo-reading each), weighted by the readings' covariance under the
    whole error budget: the same fit and the same covariance the posterior starts
-   from (:mod:`mtplan.evaluation.posterior`, :mod:`mtplan.evaluation._budget`).
+   from (:mod:`mtplan.evaluation.posterior`, :mod:`mtplan.fitting.budget`).
 2. The residuals at that fit, whitened by the covariance: their squared norm (with
    the nuisance elements' prior terms) is chi-square distributed with
    ``dof = readings - fitted parameters`` degrees of freedom when the readings fit
@@ -37,7 +37,7 @@ import numpy as np
 from mtplan._validate import InvalidInput, Problems
 
 # the readings' covariance under the error budget: the one place it is imported from
-from mtplan.evaluation._budget import Gaussian
+from mtplan.fitting import Gaussian
 
 __all__ = ["FitCheck", "fit_check", "FIT_ALPHA", "N_WORST"]
 

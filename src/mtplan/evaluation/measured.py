@@ -537,7 +537,7 @@ def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage
               max_seconds, allow_unconverged, posterior_options, progress, fit_alpha,
               nuisance_draws, origin) -> MeasuredResult:
     """:func:`estimate_measured` on checked arguments: the estimate and its uncertainty."""
-    from mtplan.uncertainty._random import as_seed_sequence
+    from mtplan.uncertainty.streams import as_seed_sequence
 
     notes = []
     measurands = tuple(proc.measurands(setup))

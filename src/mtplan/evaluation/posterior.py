@@ -54,7 +54,7 @@ from mtplan._validate import InvalidInput, Problems
 from mtplan.fitting import Budget, error_budget
 from mtplan.evaluation._posterior_model import DOMAIN_ERRORS, Forward, TruthBuilder, \
     truth_parameters
-from mtplan.uncertainty._random import as_seed_sequence
+from mtplan.uncertainty.streams import as_seed_sequence
 from mtplan.uncertainty.sampler import (
     NotConvergedError,
     UnconvergedWarning,
@@ -442,7 +442,7 @@ class _Space:
 
 def _internal_unit(setup, source: str) -> str:
     """Internal unit of a source's elements, from its set-up field's unit suffix."""
-    from mtplan.models._protocol import fields_info
+    from mtplan.models.protocol import fields_info
 
     unit = next((i["unit"] for i in fields_info(type(setup)) if i["name"].startswith(source + "_")),
                 "")
@@ -588,7 +588,7 @@ def _check_noise_dof(fwd, fit: _Fit, n_sampled: int) -> None:
     dof = rank - n_sampled
     if dof >= MIN_NOISE_DOF:
         return
-    from mtplan.models._protocol import fields_info
+    from mtplan.models.protocol import fields_info
 
     ns = proc.noise_source
     fld = next((i["name"] for i in fields_info(type(fwd.setup)) if i["name"].startswith(ns + "_")),

@@ -494,7 +494,7 @@ def _complete_setup(proc, given, implied, path):
     in one sentence. A default that the file contradicts is replaced by the file's value
     (for a bound: by the bound); a default the file agrees with is kept.
     """
-    from mtplan.models._protocol import fields_info, make
+    from mtplan.models.protocol import fields_info, make
 
     defaults = {i["name"]: i["default"] for i in fields_info(proc.Setup)}
     chosen, taken, confirmed, conflicts, notes = {}, [], [], [], []
@@ -567,7 +567,7 @@ def read_measurement(procedure, path, values=None) -> Measurement:
         implies).
     """
     from mtplan.models import get
-    from mtplan.models._protocol import parse_fields
+    from mtplan.models.protocol import parse_fields
 
     proc = get(procedure)
     given = parse_fields(proc.Setup, values, owner=proc.name)  # each value alone, first

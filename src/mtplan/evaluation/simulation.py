@@ -16,8 +16,8 @@ import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
 from mtplan._parallel import check_parallel
-from mtplan.models._protocol import Procedure
-from mtplan.uncertainty._random import as_seed_sequence, block_sequence
+from mtplan.models.protocol import Procedure
+from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
 from mtplan.uncertainty.gum import GUMResult, _coverage_factor, sensitivities
 from mtplan.uncertainty.montecarlo import MCResult, check_run_options, run_blocks
 

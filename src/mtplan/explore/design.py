@@ -35,7 +35,7 @@ import numpy as np
 
 from mtplan._validate import InvalidInput
 from mtplan.models import get, registry
-from mtplan.models._protocol import UNIT_SUFFIXES, fields_info, make, parse_fields
+from mtplan.models.protocol import UNIT_SUFFIXES, fields_info, make, parse_fields
 
 __all__ = ["K", "procedures_info", "procedure_info", "normalise", "setup_of", "evaluate",
            "sensitivity", "study_toml", "design_from_study", "source_fields", "lever_values",

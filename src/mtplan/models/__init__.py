@@ -1,8 +1,8 @@
 """Measurement procedures: forward models and estimators, one module each.
 
 Every module ``mtplan/models/<name>.py`` whose name does not start with ``_`` and
-that defines ``PROCEDURE`` (a :class:`~mtplan.models._protocol.Procedure`) is
-registered under ``PROCEDURE.name``; see :mod:`mtplan.models._protocol`.
+that defines ``PROCEDURE`` (a :class:`~mtplan.models.protocol.Procedure`) is
+registered under ``PROCEDURE.name``; see :mod:`mtplan.models.protocol`.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import importlib
 import pkgutil
 
 from mtplan._validate import InvalidInput
-from mtplan.models._protocol import Measurand, Procedure, SetupBase, Source, param
+from mtplan.models.protocol import Measurand, Procedure, SetupBase, Source, param
 
 __all__ = ["Measurand", "Procedure", "SetupBase", "Source", "param", "registry", "get"]
 

@@ -130,8 +130,8 @@ import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
 from mtplan.fitting import gls_step
-from mtplan.models._circle_fit import geometric_fit, kasa_fit, three_point_circle
-from mtplan.models._protocol import Measurand, Procedure, SetupBase, Source, param
+from mtplan.fitting.circle import geometric_fit, kasa_fit, three_point_circle
+from mtplan.models.protocol import Measurand, Procedure, SetupBase, Source, param
 from mtplan.uncertainty import Normal, Rectangular
 
 __all__ = [
@@ -1190,7 +1190,7 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     """
     from scipy.stats import chi2
 
-    from mtplan.models._protocol import Implied
+    from mtplan.models.protocol import Implied
 
     x = pd.to_numeric(df["x_mm"], errors="coerce").to_numpy(dtype=float)
     y = pd.to_numeric(df["y_mm"], errors="coerce").to_numpy(dtype=float)

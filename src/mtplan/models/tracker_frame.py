@@ -57,7 +57,7 @@ Estimators
   column of the readings table): the least-squares fit of ``p_i = c + R (cos(theta_i
   + phi0) e1 + sin(theta_i + phi0) e2)`` over c, R and the orientation (normal ``n =
   e1 x e2``, phase phi0), solved exactly in closed form as a similarity transform of
-  known planar points (``_fit3d.fit_circle_3d_angles``; no iteration, no start
+  known planar points (``mtplan.fitting.fit3d.fit_circle_3d_angles``; no iteration, no start
   value). A circle through points on a short arc gets its radius, and so the
   position of the axis across the arc, only from the sagitta, second order in the
   arc; with known angle steps the spacing of the points gives it to first order
@@ -109,7 +109,7 @@ Decisions where the patent is silent or leaves a choice
 - **Fits.** Lines: orthogonal-distance (total least squares). Circles: the full 3-D
   orthogonal-distance circle (README of the shared TraCIM data, section 3), not a
   plane fit followed by a circle in that plane; on short arcs the two differ. All
-  fits are batch-first (``_fit3d``) and validated against the TraCIM gauss package
+  fits are batch-first (:mod:`mtplan.fitting.fit3d`) and validated against the TraCIM gauss package
   to 1e-13 mm (``benchmarks/validate_fit3d_tracim.py``). Line directions are
   oriented by the order of travel (first to last point), circle normals by the
   right-hand rule of the positive rotation.
@@ -219,13 +219,13 @@ from mtplan.fitting import (
     gls_gain,
     readings_covariance,
 )
-from mtplan.models._fit3d import (
+from mtplan.fitting.fit3d import (
     common_perpendicular,
     fit_circle_3d,
     fit_circle_3d_angles,
     fit_line_3d,
 )
-from mtplan.models._protocol import (
+from mtplan.models.protocol import (
     Measurand,
     Procedure,
     SetupBase,
@@ -1315,7 +1315,7 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     full turn without its repeated end, within 1e-6 deg). Where the table is not regular
     enough to tell, the field is left out and the design check names the offending row.
     """
-    from mtplan.models._protocol import Implied
+    from mtplan.models.protocol import Implied
 
     group = df["group"].astype(str).str.strip().to_numpy()
     sub = pd.to_numeric(df["submachine"], errors="coerce").to_numpy(dtype=float)

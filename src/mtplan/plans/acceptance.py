@@ -194,7 +194,7 @@ def _bvn_rect(x_lo, x_hi, y_lo, y_hi, r, q):
 def _as_generator(rng) -> np.random.Generator:
     if isinstance(rng, np.random.Generator):
         return rng
-    from mtplan.uncertainty._random import as_seed_sequence
+    from mtplan.uncertainty.streams import as_seed_sequence
 
     return np.random.default_rng(as_seed_sequence(rng))
 

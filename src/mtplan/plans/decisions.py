@@ -74,7 +74,12 @@ class Verdict:
     measured_source : str
         Where the measured value comes from ("" when none).
     p_conform : float or None
-        Probability that the true value lies within the tolerance given the measured value.
+        Probability that the true value lies within the tolerance given the measured value
+        (from the population when there is one; the report's :func:`~mtplan.plans.agreement.
+        apply_plan` sets it from the measurement alone and keeps this one in
+        ``p_conform_population``).
+    population_source : str
+        Where the population of items (the prior) comes from, as the study states it.
     verdict : str
         One of :data:`VERDICTS`.
     reason : str
@@ -106,6 +111,8 @@ class Verdict:
     measured_high: float | None = None
     measured_source: str = ""
     p_conform: float | None = None
+    p_conform_population: float | None = None
+    population_source: str = ""
     verdict: str = NOT_MEASURED
     reason: str = ""
 
@@ -125,6 +132,8 @@ class Verdict:
                 "measured": self.measured, "measured_u": self.measured_u,
                 "measured_low": self.measured_low, "measured_high": self.measured_high,
                 "measured_source": self.measured_source, "p_conform": self.p_conform,
+                "p_conform_population": self.p_conform_population,
+                "population_source": self.population_source,
                 "verdict": self.verdict, "reason": self.reason}
 
 
@@ -340,7 +349,9 @@ def conformity(procedure: str, label: str, specs: list, result, measured=None) -
         v = Verdict(procedure=procedure, label=label, measurand=name, unit=m.unit,
                     description=m.description, estimator=result.estimator,
                     lower=spec.get("lower"), upper=spec.get("upper"), u=u, rule=str(rule),
-                    prior=prior, prior_text=spec.get("prior"), measured=y, measured_u=uy,
+                    prior=prior, prior_text=spec.get("prior"),
+                    population_source=str(spec.get("population_source", "")),
+                    measured=y, measured_u=uy,
                     measured_low=low, measured_high=high, measured_source=source,
                     reason=reason)
         if not (u > 0 and math.isfinite(u)):

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
-from mtplan.models._protocol import fields_info, make
+from mtplan.models.protocol import fields_info, make
 
 __all__ = ["PlanResult", "plan", "pareto_front", "optimize_design", "readings_jacobian",
            "design_identifiability", "parse_target", "PfaCriterion"]

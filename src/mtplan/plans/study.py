@@ -67,17 +67,38 @@ from mtplan._validate import InvalidInput
 __all__ = ["Study", "ProcedureStudy", "StudyResult", "HEADER_KEYS", "load_study", "run_study"]
 
 #: the document header's keys, in the order the cover shows them
-HEADER_KEYS = ("document", "revision", "customer", "machine_maker", "machine_type",
-               "machine_serial", "location", "operator", "date", "ambient_temperature_c",
-               "prepared_by", "checked_by", "approved_by")
+HEADER_KEYS = ("document", "revision", "plan_document", "plan_date", "customer",
+               "customer_address", "machine_maker", "machine_type", "machine_serial",
+               "item_condition", "location", "operator", "date", "issue_date",
+               "ambient_temperature_c", "prepared_by", "checked_by", "approved_by")
+_DATE_KEYS = {"date", "issue_date", "plan_date"}
 _TOP_KEYS = {"title", "subtitle", "customer", "machine", "author", "header", "seed", "digits",
-             "trials", "max_trials", "coverage", "procedure"}
+             "trials", "max_trials", "coverage", "procedure", "simulated", "laboratory",
+             "conditions", "instrument"}
+_LAB_KEYS = {"name", "address", "accreditation"}
+#: the test conditions (ISO 230-1 6, ISO 230-2 5.1): key -> (label, kind)
+CONDITION_KEYS = {"ambient_temperature_c": ("ambient temperature", "temperature"),
+                  "machine_temperature_c": ("machine temperature", "temperature"),
+                  "part_temperature_c": ("part (artefact) temperature", "temperature"),
+                  "warm_up": ("warm-up before the test", "text"),
+                  "compensation": ("machine's error compensation", "bool"),
+                  "notes": ("other conditions", "text")}
+#: standards a study may not cite because no procedure computes what they require
+#: ("honoured or not cited"): standard -> what it requires
+UNHONOURED_STANDARDS = {
+    "ISO 230-2": "the bidirectional positioning values A, E, M, R and B per axis from "
+                 "repeated runs in both directions",
+    "ISO 1101": "a position tolerance as a diameter zone",
+}
+_INSTRUMENT_KEYS = {"name", "serial", "certificate", "calibration_due", "traceability",
+                    "used_in"}
 _PROC_KEYS = {"name", "label", "setup", "truth", "estimators", "sweep", "plan", "acceptance",
               "readings", "trials", "digits", "max_trials", "budget", "budget_trials", "notes",
               "standards"}
 _SWEEP_KEYS = {"vary", "trials", "estimators"}
 _PLAN_KEYS = {"targets", "vary", "k", "estimator", "trials"}
-_ACCEPT_KEYS = {"measurand", "lower", "upper", "prior", "rule", "measured"}
+_ACCEPT_KEYS = {"measurand", "lower", "upper", "prior", "rule", "measured",
+                "population_source"}
 _READ_KEYS = {"file", "uncertainty", "estimator", "trials", "options", "allow_unconverged"}
 
 
@@ -144,6 +165,10 @@ class Study:
     procedures: list
     max_trials: int = 200_000
     header: dict = field(default_factory=dict)        # HEADER_KEYS -> value (those given)
+    laboratory: dict = field(default_factory=dict)    # name, address, accreditation
+    conditions: dict = field(default_factory=dict)    # CONDITION_KEYS -> value (those given)
+    instruments: list = field(default_factory=list)   # dicts: _INSTRUMENT_KEYS
+    simulated: bool = False                           # readings simulated, not measured
 
 
 def load_study(source) -> Study:
@@ -163,18 +188,25 @@ def load_study(source) -> Study:
                         f"{', '.join(sorted(_TOP_KEYS))}.")
     top = _top_level(data, problems)
     header = _header(data, problems)
+    certificate = _certificate(data, header, problems)
     entries = data.get("procedure", [])
     if not isinstance(entries, list) or not entries:
         problems.append("The study needs at least one [[procedure]] table.")
         entries = []
     procs = registry()
     out = [_procedure(i, entry, procs, path, problems) for i, entry in enumerate(entries)]
+    names = {ps.name for ps in out if ps is not None}
+    for j, inst in enumerate(certificate["instruments"]):
+        for used in inst.get("used_in", []):
+            if used not in names:
+                problems.append(f"instrument #{j + 1} 'used_in' names {used!r}, which is no "
+                                f"procedure of the study ({', '.join(sorted(names))}).")
     if problems:
         raise InvalidInput(problems)
     meta = {k: str(data[k]) for k in ("subtitle", "customer", "machine", "author") if k in data}
     return Study(title=str(data.get("title", "mtplan study")), path=path,
                  digest=hashlib.sha256(raw).hexdigest(), meta=meta, procedures=out,
-                 header=header, **top)
+                 header=header, **certificate, **top)
 
 
 def _read(source):
@@ -236,7 +268,7 @@ def _header(data, problems) -> dict:
                                 f"from -30 to 60 [degC]. Got {value!r} instead.")
                 continue
             out[key] = float(value)
-        elif key == "date" and isinstance(value, datetime.date | datetime.datetime):
+        elif key in _DATE_KEYS and isinstance(value, datetime.date | datetime.datetime):
             out[key] = value.isoformat()
         elif isinstance(value, str | int) and not isinstance(value, bool):
             out[key] = str(value)
@@ -245,9 +277,71 @@ def _header(data, problems) -> dict:
     return out
 
 
+def _certificate(data, header, problems) -> dict:
+    """The laboratory, the test conditions, the instruments and whether the readings are
+    simulated: what a test report needs beyond the results (ISO/IEC 17025 7.8)."""
+    lab = data.get("laboratory", {})
+    if not isinstance(lab, dict):
+        problems.append("The study's 'laboratory' must be a table.")
+        lab = {}
+    _unknown(problems, "The study's laboratory", lab, _LAB_KEYS)
+    cond = data.get("conditions", {})
+    if not isinstance(cond, dict):
+        problems.append("The study's 'conditions' must be a table.")
+        cond = {}
+    _unknown(problems, "The study's conditions", cond, set(CONDITION_KEYS))
+    conditions = {}
+    if "ambient_temperature_c" in header:
+        conditions["ambient_temperature_c"] = header["ambient_temperature_c"]
+    for key, value in cond.items():
+        kind = CONDITION_KEYS.get(key, (None, None))[1]
+        if kind == "temperature" and not (isinstance(value, int | float)
+                                          and not isinstance(value, bool)
+                                          and -30 <= value <= 60):
+            problems.append(f"The study's conditions {key!r} must be a number from -30 to 60 "
+                            f"[degC]. Got {value!r} instead.")
+        elif kind == "bool" and not isinstance(value, bool):
+            problems.append(f"The study's conditions {key!r} must be true (on) or false "
+                            f"(off). Got {value!r} instead.")
+        elif kind == "text" and not isinstance(value, str):
+            problems.append(f"The study's conditions {key!r} must be text. Got {value!r} "
+                            "instead.")
+        elif kind is not None:
+            conditions[key] = float(value) if kind == "temperature" else value
+    instruments = data.get("instrument", [])
+    if not isinstance(instruments, list) or not all(isinstance(x, dict) for x in instruments):
+        problems.append("The study's 'instrument' must be an array of tables ([[instrument]]).")
+        instruments = []
+    shown = []
+    for j, inst in enumerate(instruments):
+        at = f"instrument #{j + 1}"
+        _unknown(problems, at, inst, _INSTRUMENT_KEYS)
+        for key in ("name", "serial", "certificate"):
+            if not (isinstance(inst.get(key), str) and inst[key].strip()):
+                problems.append(f"{at} needs {key!r} (text). Got {inst.get(key)!r} instead.")
+        due = inst.get("calibration_due")
+        if due is not None and not isinstance(due, datetime.date):
+            problems.append(f"{at} 'calibration_due' must be a date (2025-06-30). Got {due!r} "
+                            "instead.")
+        used = inst.get("used_in", [])
+        if not (isinstance(used, list) and all(isinstance(x, str) for x in used)):
+            problems.append(f"{at} 'used_in' must be a list of procedure names. Got {used!r} "
+                            "instead.")
+            used = []
+        shown.append({**{k: str(v) for k, v in inst.items() if k != "used_in"},
+                      "used_in": list(used)})
+    simulated = data.get("simulated", False)
+    if not isinstance(simulated, bool):
+        problems.append(f"The study's 'simulated' must be true or false. Got {simulated!r} "
+                        "instead.")
+        simulated = False
+    return {"laboratory": {k: str(v) for k, v in lab.items()}, "conditions": conditions,
+            "instruments": shown, "simulated": simulated}
+
+
 def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
     """One ``[[procedure]]`` table, validated; None when it cannot be read at all."""
-    from mtplan.models._protocol import fields_info, make
+    from mtplan.models.protocol import fields_info, make
 
     where = f"procedure #{i + 1}"
     if not isinstance(entry, dict):
@@ -297,6 +391,12 @@ def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
         problems.append(f"{where} 'standards' must be a list of texts. Got {standards!r} "
                         "instead.")
         standards = []
+    for cited in standards:
+        for std, needs in UNHONOURED_STANDARDS.items():
+            if cited.replace("\u00a0", " ").startswith(std):
+                problems.append(f"{where} cites {cited!r}, which requires {needs}; this "
+                                "procedure does not evaluate that: remove it from "
+                                "'standards'.")
     return ProcedureStudy(name=name, label=str(entry.get("label", proc.title)), setup=setup,
                           truth=truth, estimators=estimators, sweeps=list(sweeps), plan=plan,
                           acceptance=acceptance, readings=readings,
@@ -393,6 +493,9 @@ def _acceptance(tables, measurands, path, where, problems) -> list:
         elif name in seen:
             problems.append(f"{at} repeats measurand {name!r}; one tolerance per measurand.")
         seen.add(name)
+        source = acc.get("population_source")
+        if source is not None and not isinstance(source, str):
+            problems.append(f"{at} 'population_source' must be text. Got {source!r} instead.")
         for key in ("lower", "upper", "measured"):
             v = acc.get(key)
             if v is not None and not (isinstance(v, int | float) and not isinstance(v, bool)
@@ -429,7 +532,7 @@ def _readings(proc, readings, path, where, problems) -> dict | None:
 def _grid_problems(proc, base, vary, fields, where) -> list[str]:
     import itertools
 
-    from mtplan.models._protocol import make
+    from mtplan.models.protocol import make
 
     if not isinstance(vary, dict) or not vary:
         return []
@@ -550,7 +653,7 @@ def _provenance(study: Study, command: str | None) -> dict:
 
 
 def run_study(study: Study, *, progress=None, n_jobs: int = 1,
-              command: str | None = None) -> StudyResult:
+              command: str | None = None, readings: bool = True) -> StudyResult:
     """Compute every result a study asks for (the reports only render them).
 
     Parameters
@@ -562,18 +665,20 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
         Parallel workers for the Monte Carlo and the sweeps.
     command : str, optional
         The command line that asked for the study, for the provenance.
+    readings : bool
+        Evaluate the readings (False: the plan only, issued before measuring).
     """
     outcomes = []
     bar = _bar(progress, _count_steps(study))
     for k, ps in enumerate(study.procedures, start=1):
-        outcomes.append(_run_procedure(k, ps, study, bar, n_jobs))
+        outcomes.append(_run_procedure(k, ps, study, bar, n_jobs, readings))
     if bar is not None:
         bar.close()
     return StudyResult(study=study, outcomes=outcomes,
                        provenance=_provenance(study, command))
 
 
-def _run_procedure(k, ps, study, bar, n_jobs) -> ProcedureOutcome:
+def _run_procedure(k, ps, study, bar, n_jobs, readings=True) -> ProcedureOutcome:
     """Monte Carlo, budget, sweeps, plan, readings and the decisions of one procedure."""
     from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
     from mtplan.models import get
@@ -619,7 +724,7 @@ def _run_procedure(k, ps, study, bar, n_jobs) -> ProcedureOutcome:
     if ps.plan is not None:
         outcome.plan = _run_plan(proc, ps, study)
         _tick(bar, f"{ps.name} plan")
-    if ps.readings is not None:
+    if ps.readings is not None and readings:
         outcome.measured = _run_measured(proc, ps, study, recommended)
         _tick(bar, f"{ps.name} readings")
     decider = results.get(getattr(outcome.measured, "estimator", None), results[recommended])
@@ -650,7 +755,7 @@ def _run_sweeps(proc, ps, study, bar, n_jobs) -> list:
 
 def _advise(outcome, proc, k) -> None:
     """The summary rows, the levers ranked, the dominant sources and the targets."""
-    from mtplan.models._protocol import fields_info
+    from mtplan.models.protocol import fields_info
     from mtplan.plans import decisions
 
     ps = outcome.spec

@@ -36,7 +36,7 @@ import numpy as np
 from mtplan._io import atomic_write, output_problem
 from mtplan._parallel import check_parallel, effective_jobs, ordered_map, parallel_session
 from mtplan._validate import InvalidInput, Problems
-from mtplan.models._protocol import fields_info, make
+from mtplan.models.protocol import fields_info, make
 from mtplan.uncertainty.montecarlo import check_run_options
 
 __all__ = ["sweep", "setup_seed", "RESULT_COLUMNS"]

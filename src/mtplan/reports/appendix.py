@@ -9,13 +9,15 @@ from __future__ import annotations
 
 from mtplan.reports import figures as figs
 from mtplan.reports.model import Figure, Section, Table
+from mtplan.reports.wording import customer_words
 from mtplan.reports.labels import field_label, field_value, fmt, fmt_u, unit
 
-__all__ = ["procedure_section", "provenance_section"]
+__all__ = ["procedure_section", "provenance_section", "measured_blocks"]
 
 
-def procedure_section(k, outcome) -> tuple[Section, dict]:
-    """(appendix section, results CSV frames) of test ``k``."""
+def procedure_section(k, outcome, measured: bool = True) -> tuple[Section, dict]:
+    """(appendix section, results CSV frames) of test ``k``; ``measured=False`` leaves the
+    readings' evaluation out (the test plan is issued before measuring)."""
     ps = outcome.spec
     sec = Section(f"A{k}. {ps.label}: details", anchor=f"a{k}", appendix=True)
     sec.blocks.append(f"Procedure: {outcome.title} ({ps.name}). Estimators compared: "
@@ -29,7 +31,7 @@ def procedure_section(k, outcome) -> tuple[Section, dict]:
                              f"interval.{more}", figs.histogram_figure(first, shown)))
     if len(outcome.results) > 1:
         sec.blocks.append(Figure("Bias of each estimator with its ±2u bars, in units of the "
-                                 "first estimator's standard uncertainty u1 (the patent's method "
+                                 "first estimator's standard uncertainty u1 (the source method "
                                  "first): a bar shorter than the first one's is a better "
                                  "estimator.", figs.estimator_figure(outcome.results)))
     sec.blocks.append(_budget_table(outcome))
@@ -42,18 +44,20 @@ def procedure_section(k, outcome) -> tuple[Section, dict]:
         sec.blocks += _plan_blocks(outcome.plan, ps.plan.get("vary", {}))
         if not isinstance(outcome.plan, str):
             csv[f"{ps.name}_{k}_plan"] = outcome.plan.table
-    if outcome.measured is not None:
-        sec.blocks += _measured_blocks(outcome.measured)
+    if outcome.measured is not None and measured:
+        sec.blocks += measured_blocks(outcome.measured)
     t = _identifiability_table(outcome.identifiability)
     if t is not None:
         sec.blocks.append(t)
     sec.blocks += _hook_tables(outcome.extras)
     bands = outcome.extras.get("bands")
     if bands is not None:
-        sec.blocks.append(Figure(bands["caption"], figs.bands_figure(bands["tables"])))
+        sec.blocks.append(Figure(customer_words(bands["caption"]),
+                                 figs.bands_figure(bands["tables"])))
     path = outcome.extras.get("path")
     if path is not None:
-        sec.blocks.append(Figure(path.get("caption", "Planned path."), figs.path_figure(path)))
+        sec.blocks.append(Figure(customer_words(path.get("caption", "Planned path.")),
+                                 figs.path_figure(path)))
     return sec, csv
 
 
@@ -74,7 +78,7 @@ def provenance_section(prov: dict) -> Section:
 # ----------------------------------------------------------------------- tables
 def _setup_table(ps) -> Table:
     from mtplan.models import get
-    from mtplan.models._protocol import fields_info
+    from mtplan.models.protocol import fields_info
 
     proc = get(ps.name)
     docs = {f["name"]: f["doc"] for f in fields_info(proc.Setup)}
@@ -85,7 +89,7 @@ def _setup_table(ps) -> Table:
                                                   if isinstance(v, list) else str(v))
         mark = "" if v == defaults.get(k) else " *"
         kind = "lever" if k in proc.levers else "property"
-        rows.append([k, shown + mark, kind, docs.get(k, "")])
+        rows.append([k, shown + mark, kind, customer_words(docs.get(k, ""))])
     return Table("Set-up (* differs from the default; lever: chosen by the engineer, "
                  "property: of the machine, workpiece or instrument)",
                  ["field", "value", "kind", "meaning"], rows)
@@ -166,7 +170,7 @@ def _panel_names(outcome, limit, csv_name) -> tuple[list, str]:
 
 def _sweep_blocks(k, outcome, csv) -> list:
     from mtplan.models import get
-    from mtplan.models._protocol import fields_info
+    from mtplan.models.protocol import fields_info
 
     ps = outcome.spec
     docs = {f["name"]: f["doc"] for f in fields_info(get(ps.name).Setup)}
@@ -259,7 +263,7 @@ def _hook_tables(extras) -> list:
             rows.append(row)
         out.append(Table("Identifiability of each error function, per estimator (identified, "
                          "unidentifiable: confounded with the functions named; biased: the "
-                         "patent's stepwise estimate moves with the errors named, bias per "
+                         "source method's stepwise estimate moves with the errors named, bias per "
                          "typical error [µm or µrad])", ["function"] + ests, rows))
     obs = extras.get("observability")
     if obs:
@@ -277,7 +281,7 @@ def _hook_tables(extras) -> list:
     return out
 
 
-def _measured_blocks(measured) -> list:
+def measured_blocks(measured) -> list:
     """The readings' evaluation in full: estimate, bias correction, value, u, interval."""
     import numpy as np
 
@@ -319,6 +323,8 @@ def _posterior_blocks(post) -> list:
     names = [m.name for m in post.measurands]
     samples = {f"{m.name} [{unit(m.unit)}]": post.samples[m.name] for m in post.measurands}
     state = "converged" if post.converged else "NOT CONVERGED: read with care"
+    # a free parameter that is a measurand in its field's units (EX0C_um) is listed once
+    others = [p for p in post.parameters if p.rsplit("_", 1)[0] not in names]
     return [
         Table(f"Posterior diagnostics ({state}; {post.chains.shape[0]} ensembles of "
               f"{post.n_walkers} walkers, {post.n_steps} steps, burn-in {post.discard}, thinned "
@@ -327,7 +333,7 @@ def _posterior_blocks(post) -> list:
               ["quantity", "mean", "u", "tau", "R-hat", "ESS"],
               [[n, fmt(post.mean[n], post.std[n]), fmt_u(post.std[n]),
                 f"{post.tau.get(n, float('nan')):.3g}", f"{post.rhat[n]:.4f}",
-                f"{post.ess[n]:.0f}"] for n in names + list(post.parameters)]),
+                f"{post.ess[n]:.0f}"] for n in names + others]),
         Figure("Posterior of the measurands: pairwise samples and marginal histograms "
                "(corner plot); lines: posterior mean.", figs.corner_figure(samples)),
         Figure("Walker traces of the free parameters (every walker of the first ensemble; "

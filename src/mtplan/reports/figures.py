@@ -20,6 +20,24 @@ __all__ = ["bands_figure", "sweep_figure", "lever_figure", "acceptance_figure", 
 _COLORS = ["#1f5fa8", "#d9622b", "#3a923a", "#b0306d", "#7a5cc2", "#8c6d31", "#2a9fa8"]
 
 
+def qualitative_colors(n: int) -> list:
+    """``n`` colours that tell every series apart: matplotlib's qualitative palettes
+    (tab10, then tab20, then tab20 with tab20b and tab20c: up to 60 distinct colours)."""
+    from matplotlib import colormaps
+    from matplotlib.colors import to_hex
+
+    if n <= 10:
+        names = ["tab10"]
+    elif n <= 20:
+        names = ["tab20"]
+    else:
+        names = ["tab20", "tab20b", "tab20c"]
+    colours = [to_hex(c) for name in names for c in colormaps[name].colors]
+    if n > len(colours):
+        raise ValueError(f"{n} series need more than {len(colours)} distinct colours")
+    return colours[:n]
+
+
 def _figure(w=6.4, h=3.6, *, layout="constrained", dpi=140):
     from matplotlib.figure import Figure
 
@@ -133,14 +151,32 @@ def sweep_figure(table, vary: dict, measurands: list, units: dict, *, xlabel: st
     return _png(fig)
 
 
+def _drawn_legend(axes) -> tuple[list, list]:
+    """Legend entries of the curves drawn in any panel (a curve drawn nowhere has none)."""
+    handles, labels = [], []
+    for ax in np.ravel(axes):
+        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+            lines = h.lines if hasattr(h, "lines") else (h,)
+            ys = [np.asarray(getattr(ln, "get_ydata", lambda: [])(), dtype=float)
+                  for ln in lines if ln is not None and hasattr(ln, "get_ydata")]
+            drawn = any(np.isfinite(y).any() for y in ys if y.size)
+            if drawn and lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    return handles, labels
+
+
 def lever_figure(table, field: str, measurands: list, units: dict, *, estimator: str,
-                 recommended: str, base, targets: dict, xlabel: str) -> bytes:
+                 recommended: str, base, targets: dict, xlabel: str,
+                 marked: dict | None = None) -> bytes:
     """The customer's sweep: u against one lever for the measurands that matter,
     ``estimator`` drawn strong (the recommended one where the sweep ran it), the other
     estimators hollow and offset, the
     study's set-up starred and the target u (``targets``: measurand -> (u, what)) as a
     dashed line. The y axis starts at zero and ends above the recommended estimator and
-    the target; an estimator beyond it is marked "off scale" in the legend."""
+    the target; an estimator beyond it is marked "off scale" in the legend. ``marked``
+    (measurand -> u) is the study's set-up with the estimator the tables use, starred at
+    exactly the tables' value (without it, the sweep's own point of ``estimator``)."""
     from matplotlib.lines import Line2D
 
     import textwrap
@@ -160,8 +196,10 @@ def lever_figure(table, field: str, measurands: list, units: dict, *, estimator:
         ax = axes[k // cols][k % cols]
         sub = table[table["measurand"] == name]
         mine = sub[sub["estimator"] == estimator]
+        star = None if marked is None else marked.get(name)
         top = 1.25 * max([float(mine["u"].max()) if len(mine) else 0.0]
-                         + ([targets[name][0]] if name in targets else []))
+                         + ([targets[name][0]] if name in targets else [])
+                         + ([star] if star is not None and np.isfinite(star) else []))
         for j, est in enumerate(ests):
             g = sub[sub["estimator"] == est].sort_values(field)
             if not len(g):
@@ -171,9 +209,10 @@ def lever_figure(table, field: str, measurands: list, units: dict, *, estimator:
             _series(ax, g[field], g["u"], g["u"] / np.sqrt(2 * (g["trials"] - 1)), j,
                     len(ests), est, span=2.0 * span, strong=est == estimator)
             at = g[np.isclose(g[field].astype(float), float(base))]
-            if est == estimator and len(at):
-                ax.plot([float(base)], [float(at["u"].iloc[0])], "*", ms=12, color="#222222",
-                        zorder=6)
+            if est == estimator and len(at) and marked is None:
+                star = float(at["u"].iloc[0])
+        if star is not None and np.isfinite(star) and star > 0:
+            ax.plot([float(base)], [star], "*", ms=12, color="#222222", zorder=6)
         if name in targets:
             ax.axhline(targets[name][0], color="#b3261e", lw=1.0, ls="--")
         ax.set_title(name, fontsize=9)
@@ -184,11 +223,12 @@ def lever_figure(table, field: str, measurands: list, units: dict, *, estimator:
         ax.set_ylim(0, top if top > 0 else 1.0)
     for k in range(n, rows * cols):
         axes[k // cols][k % cols].set_visible(False)
-    handles, labels = axes[0][0].get_legend_handles_labels()
+    handles, labels = _drawn_legend(axes)
     labels = [f"{x} (recommended)" if x == recommended else
               f"{x} (off scale)" if x in off_scale else x for x in labels]
     handles.append(Line2D([], [], marker="*", ms=10, ls="", color="#222222"))
-    labels.append("study set-up")
+    labels.append("study set-up" if marked is None else
+                  f"study set-up, {recommended} (the tables' value)")
     shown = {what for name, (_, what) in targets.items() if name in measurands}
     if shown:
         handles.append(Line2D([], [], color="#b3261e", lw=1.0, ls="--"))
@@ -290,9 +330,10 @@ def budget_figure(budget) -> bytes:
     fig = _figure(6.4, 0.28 * len(pivot) + 1.2 + 0.2 * math.ceil(len(pivot.columns) / 4))
     ax = fig.add_subplot()
     left = np.zeros(len(pivot))
+    colours = qualitative_colors(len(pivot.columns))
     for j, src in enumerate(pivot.columns):
         vals = pivot[src].to_numpy()
-        ax.barh(range(len(pivot)), vals, left=left, color=_COLORS[j % len(_COLORS)], label=src)
+        ax.barh(range(len(pivot)), vals, left=left, color=colours[j], label=src)
         left += vals
     ax.set_yticks(range(len(pivot)), pivot.index, fontsize=8)
     ax.invert_yaxis()
@@ -332,6 +373,19 @@ def histogram_figure(result, names: list | None = None) -> bytes:
     return _png(fig)
 
 
+def robust_limit(groups, *, factor: float = 4.0) -> float | None:
+    """An axis half-range that an outlier does not squash: 1.5 times the 90th percentile
+    of the values when the largest exceeds ``factor`` times it, else None (autoscale)."""
+    v = np.concatenate([np.ravel(np.asarray(g, dtype=float)) for g in groups])
+    v = v[np.isfinite(v)]
+    if v.size < 3:
+        return None
+    typical = float(np.percentile(v, 90))
+    if typical <= 0 or v.max() <= factor * typical:
+        return None
+    return 1.5 * typical
+
+
 def estimator_figure(results: dict) -> bytes:
     """Bias with +-2u bars per estimator and measurand, in units of the first estimator's u
     (so measurands in um and urad share one axis)."""
@@ -341,14 +395,29 @@ def estimator_figure(results: dict) -> bytes:
     k = len(results)
     fig = _figure(6.4, min(0.16 * len(names) * k + 1.3, 9.0))
     ax = fig.add_subplot()
+    lim = robust_limit([np.abs(np.asarray(r.bias) / u1) + 2 * np.asarray(r.mc.std) / u1
+                        for r in results.values()])
     for j, (est, r) in enumerate(results.items()):
         y = np.arange(len(names)) + (j - (k - 1) / 2) * 0.8 / max(k, 1)
-        ax.errorbar(np.asarray(r.bias) / u1, y, xerr=2 * np.asarray(r.mc.std) / u1, fmt="o",
-                    ms=3, capsize=2, lw=1, color=_COLORS[j % len(_COLORS)], label=est)
+        x = np.asarray(r.bias) / u1
+        err = 2 * np.asarray(r.mc.std) / u1
+        inside = np.abs(x) <= (lim if lim is not None else np.inf)
+        colour = _COLORS[j % len(_COLORS)]
+        ax.errorbar(np.where(inside, x, np.nan), y, xerr=np.where(inside, err, np.nan),
+                    fmt="o", ms=3, capsize=2, lw=1, color=colour, label=est)
+        for xi, yi in zip(x[~inside], y[~inside], strict=True):  # outliers: marked, printed
+            edge = 0.97 * lim * np.sign(xi)
+            ax.plot([edge], [yi], ">" if xi > 0 else "<", ms=6, color=colour)
+            ax.annotate(f"{xi:.3g}", (edge, yi), xytext=(-4 if xi > 0 else 4, 3),
+                        textcoords="offset points", fontsize=6, color=colour,
+                        ha="right" if xi > 0 else "left")
+    if lim is not None:
+        ax.set_xlim(-lim, lim)
     ax.axvline(0, color="k", lw=0.8)
     ax.set_yticks(range(len(names)), names, fontsize=7 if len(names) > 8 else 8)
     ax.set_ylim(len(names) - 0.5, -0.5)
-    ax.set_xlabel("bias ± 2u, in units of u of the first estimator")
+    ax.set_xlabel("bias ± 2u, in units of u of the first estimator"
+                  + ("; triangles: beyond the axis, value printed" if lim is not None else ""))
     ax.grid(alpha=0.3, axis="x")
     fig.legend(fontsize=7, loc="outside lower center", ncol=len(results), frameon=False)
     return _png(fig)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 import re
 
-from mtplan.models._protocol import UNIT_SUFFIXES
+from mtplan.models.protocol import UNIT_SUFFIXES
 
 __all__ = ["unit", "split_field", "field_label", "field_value", "estimator_text", "fmt",
            "fmt_u", "tolerance_text", "duration_text", "percent", "prior_text"]

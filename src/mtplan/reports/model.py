@@ -13,6 +13,7 @@ __all__ = ["Document", "Section", "Table", "Figure"]
 
 _NUMERIC = re.compile(r"^[\[(]?[-+±≤≥]? ?(\d|\.\d)[\d.,eE+\-− ]*[\])%]?( %)?$")
 _EMPTY = {"-", "", "n/d"}
+_NEGATIVE_ZERO = re.compile(r"^[-−]0(\.0+)?$")
 
 
 @dataclass
@@ -20,6 +21,11 @@ class Table:
     caption: str
     header: list
     rows: list
+
+    def __post_init__(self):
+        # a value that rounds to zero is printed without a sign ("-0.00" reads as negative)
+        self.rows = [[c[1:] if isinstance(c, str) and _NEGATIVE_ZERO.match(c) else c
+                      for c in row] for row in self.rows]
 
     @property
     def numeric(self) -> list:
@@ -57,6 +63,12 @@ class Document:
     csv: dict = field(default_factory=dict)  # name -> DataFrame for results/*.csv
     signoff: list = field(default_factory=list)    # (role, name)
     standards: list = field(default_factory=list)  # (test, standards applied)
+    methods: list = field(default_factory=list)    # (test, source method, standards)
+    identification: str = ""   # the document's unique identification, on every page
+    watermark: str = ""        # drawn across every page (simulated readings)
+    end_mark: str = ""         # the last line of the document
+    statement: str = ""        # the cover's statement (results relate only to ...)
+    flow: bool = False         # body sections after the first follow without a page break
 
     @property
     def body(self) -> list:

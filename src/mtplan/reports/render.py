@@ -14,7 +14,7 @@ from xml.sax.saxutils import escape
 
 from mtplan._io import atomic_write, output_problem
 from mtplan._validate import InvalidInput
-from mtplan.reports.document import build_document
+from mtplan.plans.agreement import FIT_NO_DECISION
 from mtplan.reports.model import Document, Figure, Section, Table
 
 __all__ = ["render_html", "render_pdf", "write_report", "column_widths", "VERDICT_CLASS"]
@@ -26,8 +26,8 @@ _PAD = 3.0   # table cell padding, each side [pt]
 #: verdict -> the class (HTML) and colour (PDF) it is shown in
 VERDICT_CLASS = {"conforms": "ok", "does not conform": "bad",
                  "inside the guard band: no decision": "warn", "not determinable": "nd",
-                 "not measured": "nd",
-                 "no decision: the readings do not fit the model": "warn"}
+                 FIT_NO_DECISION: "warn",
+                 "not measured": "nd"}
 _VERDICT_COLOUR = {"ok": "#1b5e20", "bad": "#b3261e", "warn": "#8a5a00", "nd": "#555555"}
 
 
@@ -96,6 +96,7 @@ def _styles() -> dict:
                                    splitLongWords=0, alignment=2),
         "caption": ParagraphStyle("Caption", parent=body, fontName=f + "-Oblique",
                                   fontSize=8, leading=10, textColor=grey, spaceAfter=2),
+        "end": ParagraphStyle("End", parent=body, alignment=1, spaceBefore=18),
         "toc": [ParagraphStyle("TOC1", fontName=f, fontSize=10, leading=14, leftIndent=10),
                 ParagraphStyle("TOC2", fontName=f, fontSize=8.5, leading=11, leftIndent=26)],
     }
@@ -232,26 +233,32 @@ def _block_flowables(items, width: float, st: dict) -> list:
 
 # ----------------------------------------------------------------------- PDF: pages
 def _cover_flowables(doc: Document, width: float, st: dict) -> list:
-    """Title, the header table, the standards per test and the sign-off block."""
+    """Title, the header table, the methods and standards per test, the statement and the
+    sign-off block."""
     from reportlab.lib.units import cm
     from reportlab.platypus import Paragraph, Spacer
 
-    out = [Spacer(1, 1.5 * cm), Paragraph(escape(doc.title), st["title"])]
+    out = [Spacer(1, 0.6 * cm), Paragraph(escape(doc.title), st["title"])]
     if doc.subtitle:
         out.append(Paragraph(escape(doc.subtitle), st["subtitle"]))
     rows = [[k, v] for k, v in doc.meta.items()]
-    rows.append(["report date", doc.provenance["date"]])
-    out += _table_flowables(Table("Test report", ["item", "value"], rows), width, st)
+    out += _table_flowables(Table(doc.title.split(" (")[0], ["item", "value"], rows), width, st)
+    if doc.methods:
+        out += _table_flowables(Table("Methods: the source method of each test and the "
+                                      "standards applied", ["test", "method", "standards"],
+                                      [list(r) for r in doc.methods]), width, st)
     if doc.standards:
         out += _table_flowables(Table("Standards applied", ["test", "standards"],
                                       [list(r) for r in doc.standards]), width, st)
+    if doc.statement:
+        out.append(Paragraph(escape(doc.statement), st["body"]))
     sign = [[role, name or "", "", ""] for role, name in doc.signoff]
     out += _table_flowables(Table("Sign-off", ["", "name", "date", "signature"], sign),
                             width, st, row_height=0.9 * cm)
     out.append(Paragraph(
         f"Uncertainty evaluated after JCGM 101 (GUM Supplement 1) with mtplan "
         f"{escape(doc.provenance['versions'].get('mtplan', ''))}; every number is traceable "
-        "to the study file, the readings files and the seed named in the provenance.",
+        "to the study file, the readings files and the random seed named in the provenance.",
         st["caption"]))
     return out
 
@@ -282,36 +289,61 @@ def _doc_template(buf, doc: Document):
                 pageCompression=1)
 
 
-def _footer(doc: Document):
+def _canvas_maker(doc: Document):
+    """A canvas that knows the page count: every page gets the document's identification,
+    "page x of N" and, for simulated readings, the watermark."""
     from reportlab.lib import colors
     from reportlab.lib.pagesizes import A4
     from reportlab.lib.units import cm
+    from reportlab.pdfgen.canvas import Canvas
 
-    number = " ".join(x for x in (doc.meta.get("document number", ""),
-                                  f"rev. {doc.meta['revision']}" if "revision" in doc.meta
-                                  else "") if x)
+    ident = doc.identification or " - ".join(
+        x for x in (doc.meta.get("document number", ""), doc.title) if x)
 
-    def draw(canvas, page_doc):
-        canvas.saveState()
-        canvas.setFont(_FONT, 7)
-        canvas.setFillColor(colors.HexColor("#666666"))
-        left = " - ".join(x for x in (number, doc.title) if x)
-        canvas.drawString(2 * cm, 1.2 * cm, left[:110])
-        canvas.drawRightString(A4[0] - 2 * cm, 1.2 * cm, f"page {page_doc.page}")
-        canvas.restoreState()
+    class _Numbered(Canvas):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self._pages = []
 
-    return draw
+        def showPage(self):  # noqa: N802 - reportlab's name
+            self._pages.append(dict(self.__dict__))
+            self._startPage()
+
+        def save(self):
+            total = len(self._pages)
+            for state in self._pages:
+                self.__dict__.update(state)
+                self._decorate(total)
+                super().showPage()
+            super().save()
+
+        def _decorate(self, total):
+            self.saveState()
+            self.setFont(_FONT, 7)
+            self.setFillColor(colors.HexColor("#555555"))
+            self.drawString(2 * cm, 1.2 * cm, ident[:100])
+            self.drawRightString(A4[0] - 2 * cm, 1.2 * cm,
+                                 f"page {self._pageNumber} of {total}")
+            if doc.watermark:  # a band across the top of every page (text, so it is read)
+                self.setFillColor(colors.Color(0.70, 0.15, 0.12, alpha=0.10))
+                self.rect(0, A4[1] - 1.35 * cm, A4[0], 0.75 * cm, stroke=0, fill=1)
+                self.setFillColor(colors.HexColor("#b3261e"))
+                self.setFont(_FONT + "-Bold", 11)
+                self.drawCentredString(A4[0] / 2, A4[1] - 1.1 * cm, doc.watermark)
+            self.restoreState()
+
+    return _Numbered
 
 
 def render_pdf(doc: Document) -> bytes:
     """The report as a PDF: cover, summary, contents, body, appendix."""
     from reportlab.lib.pagesizes import A4
     from reportlab.lib.units import cm
-    from reportlab.platypus import PageBreak, Paragraph, TableStyle
+    from reportlab.platypus import PageBreak, Paragraph, Spacer, TableStyle
     from reportlab.platypus.tableofcontents import TableOfContents
 
     st = _styles()
-    width = A4[0] - 4 * cm
+    width = A4[0] - 4 * cm - 12  # the frame pads 6 pt on each side
     story = _cover_flowables(doc, width, st) + [PageBreak()]
     toc = TableOfContents()
     toc.levelStyles = st["toc"]
@@ -322,45 +354,80 @@ def render_pdf(doc: Document) -> bytes:
     body, appendix = doc.body, doc.appendix
     for i, sec in enumerate(body):
         story += [Paragraph(escape(sec.title), st["h1"])]
-        story += _block_flowables(sec.blocks, width, st) + [PageBreak()]
+        story += _block_flowables(sec.blocks, width, st)
         if i == 0:  # the summary first, then the contents
-            story += [Paragraph("Contents", st["toc_head"]), toc, PageBreak()]
+            story += [PageBreak(), Paragraph("Contents", st["toc_head"]), toc, PageBreak()]
+        elif not doc.flow or i == len(body) - 1:
+            story.append(PageBreak())
+        else:
+            story.append(Spacer(1, 14))
     for i, sec in enumerate(appendix):
         story += [Paragraph(escape(sec.title), st["h1"])]
         story += _block_flowables(sec.blocks, width, st)
         if i < len(appendix) - 1:
             story.append(PageBreak())
+    if doc.end_mark:
+        story.append(Paragraph(f"<b>\u2014 {escape(doc.end_mark)} \u2014</b>", st["end"]))
     buf = io.BytesIO()
     pdf = _doc_template(buf, doc)
-    footer = _footer(doc)
-    pdf.multiBuild(story, onFirstPage=footer, onLaterPages=footer)
+    pdf.multiBuild(story, canvasmaker=_canvas_maker(doc))
     return buf.getvalue()
 
 
-def write_report(result, out_dir) -> dict:
-    """Write ``index.html``, ``report.pdf`` and ``results/*.csv`` for a computed study.
+def _write_doc(doc: Document, out: Path, name: str) -> dict:
+    html = render_html(doc)
+    pdf = render_pdf(doc)
+    written = {}
+    for csv_name, frame in doc.csv.items():
+        path = out / "results" / f"{csv_name}.csv"
+        with atomic_write(path, "w", encoding="utf-8", newline="") as fh:
+            frame.to_csv(fh, index=False)
+        written[csv_name] = path
+    with atomic_write(out / f"{name}.pdf", "wb") as fh:
+        fh.write(pdf)
+    with atomic_write(out / f"{name}.html", "w", encoding="utf-8") as fh:
+        fh.write(html)
+    written[f"{name}_pdf"] = out / f"{name}.pdf"
+    written[f"{name}_html"] = out / f"{name}.html"
+    return written
 
-    Every file is written to a temporary name and renamed into place, so an
-    interrupted report leaves no half-written file. Returns the paths written.
+
+def write_report(result, out_dir, plan=None, *, plan_only: bool = False) -> dict:
+    """Write the test plan and the test report of a computed study.
+
+    Without ``plan`` the plan is issued from ``result`` (``plan.json``, ``plan.pdf``,
+    ``plan.html``, the planning study's ``results/*.csv``) and, unless ``plan_only``, the
+    report decided with it (``report.pdf``, ``report.html``, ``results/verdicts.csv``,
+    ``results/measured.csv``), saying that both came from the same run. With ``plan`` (a
+    dict from :func:`mtplan.plans.agreement.read_plan`, already checked against the study)
+    only the report is written. Every file is written to a temporary name and renamed into
+    place, so an interrupted report leaves no half-written file. Returns the paths written
+    (``pdf``/``html``: the last document written).
     """
+    import json
+
+    from mtplan.plans import agreement
+    from mtplan.reports.certificate import build_plan, build_report
+
     out = Path(out_dir)
     for path in (out, out / "results"):
         problem = output_problem(path, folder=True)
         if problem:
             raise InvalidInput([f"The report folder cannot be written: {problem}."])
-    doc = build_document(result)
-    html = render_html(doc)
-    pdf = render_pdf(doc)
-    written = {}
-    for name, frame in doc.csv.items():
-        path = out / "results" / f"{name}.csv"
-        with atomic_write(path, "w", encoding="utf-8", newline="") as fh:
-            frame.to_csv(fh, index=False)
-        written[name] = path
-    with atomic_write(out / "report.pdf", "wb") as fh:
-        fh.write(pdf)
-    with atomic_write(out / "index.html", "w", encoding="utf-8") as fh:
-        fh.write(html)
-    written["pdf"] = out / "report.pdf"
-    written["html"] = out / "index.html"
+    written, deviations = {}, []
+    if plan is None:
+        plan = agreement.issue_plan(result)
+        plan_doc = build_plan(result, plan)
+        written.update(_write_doc(plan_doc, out, "plan"))
+        with atomic_write(out / "plan.json", "w", encoding="utf-8") as fh:
+            json.dump(plan, fh, indent=1)
+        written["plan_json"] = out / "plan.json"
+        written["pdf"], written["html"] = written["plan_pdf"], written["plan_html"]
+        if plan_only:
+            return written
+        deviations.append(f"The test plan {plan['document']} was issued in the same run as "
+                          "this report, not agreed before the test.")
+    deviations += agreement.apply_plan(result, plan)
+    written.update(_write_doc(build_report(result, plan, deviations), out, "report"))
+    written["pdf"], written["html"] = written["report_pdf"], written["report_html"]
     return written

@@ -1,7 +1,7 @@
 """Monte Carlo propagation of distributions after JCGM 101:2008 (GUM Supplement 1).
 
 The engine runs trials in fixed-size blocks. Block ``i`` draws from stream ``i`` of
-the random seed's ``SeedSequence`` (see :mod:`mtplan.uncertainty._random`), blocks are
+the random seed's ``SeedSequence`` (see :mod:`mtplan.uncertainty.streams`), blocks are
 joined in block order, so the same seed gives bit-identical results for any
 ``n_jobs`` and any joblib backend. Memory is bounded by the block size: the first
 ``keep`` values of every output are kept exactly; beyond that each output switches
@@ -34,7 +34,7 @@ import numpy as np
 
 from mtplan._parallel import check_parallel, effective_jobs, ordered_map, parallel_session
 from mtplan._validate import InvalidInput, Problems
-from mtplan.uncertainty._random import as_seed_sequence, block_sequence, named_generator
+from mtplan.uncertainty.streams import as_seed_sequence, block_sequence, named_generator
 from mtplan.uncertainty.distributions import Distribution
 
 __all__ = ["MCResult", "ModelError", "propagate", "run_blocks", "numerical_tolerance",

@@ -2,8 +2,11 @@
 
 :func:`run_ensembles` runs several independent emcee ensembles on a vectorised
 log-probability until every ensemble's chain is longer than ``n_tau`` integrated
-autocorrelation times, tau has settled between checks and the split R-hat over
-the ensembles is below ``rhat_max``. It knows nothing of procedures: the
+autocorrelation times (the largest estimate over the ensembles), tau has settled
+between checks (the ensembles' mean estimate: the largest of four noisy estimates
+kept short chains running long after they had converged) and the split R-hat over
+the ensembles is below ``rhat_max``. The ensembles advance side by side, each
+step's log-probability calls of all of them joined into one (:class:`_Pool`). It knows nothing of procedures: the
 procedure posterior (:mod:`mtplan.evaluation.posterior`) builds the
 log-probability and the start, and reads the chains.
 
@@ -24,15 +27,17 @@ supports, curved ridges).
 
 from __future__ import annotations
 
+import functools
 import math
 import sys
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from mtplan._validate import InvalidInput
-from mtplan.uncertainty._random import block_sequence
+from mtplan.uncertainty.streams import block_sequence
 
 __all__ = [
     "NotConvergedError",
@@ -172,6 +177,79 @@ def _ball_factor(ball, ndim: int) -> np.ndarray:
     raise InvalidInput([f"The 'ball' parameter of run_ensembles must be an array ({ndim},) of "
                         f"standard deviations or a ({ndim}, {ndim}) factor. Got shape "
                         f"{ball.shape} instead."])
+
+
+class _Pool:
+    """The ensembles' log-probability calls of one step, joined into one vectorised call.
+
+    Each ensemble runs in a thread of its own (:meth:`advance`); its calls of the
+    log-probability wait until every ensemble still running has made its next one, and
+    then all are evaluated together, in ensemble order: one forward-model call for all
+    ensembles' walkers (a model whose cost per row falls with the batch evaluates 4
+    ensembles of 16 walkers in about 60 % of the time of four calls). Which calls join is
+    fixed by the ensembles' own (seeded) moves, never by the threads' timing, so the
+    result does not depend on it.
+    """
+
+    def __init__(self, fn, n: int):
+        self.fn, self.n = fn, n
+        self.cond = threading.Condition()
+        self.live, self.pending, self.results, self.error = n, {}, {}, None
+
+    def call(self, e: int, coords: np.ndarray) -> np.ndarray:
+        if self.n == 1:
+            return self.fn(coords)
+        with self.cond:
+            self.pending[e] = coords
+            self._run_if_complete()
+            while e not in self.results and self.error is None:
+                self.cond.wait()
+            if e not in self.results:
+                raise self.error
+            return self.results.pop(e)
+
+    def _leave(self) -> None:
+        with self.cond:
+            self.live -= 1
+            self._run_if_complete()
+
+    def _run_if_complete(self) -> None:
+        if not self.pending or len(self.pending) < self.live:
+            return
+        keys = sorted(self.pending)
+        rows = [self.pending.pop(k) for k in keys]
+        try:
+            out = np.asarray(self.fn(np.concatenate(rows)))
+            ends = np.cumsum([len(r) for r in rows])[:-1]
+            self.results.update(zip(keys, np.split(out, ends), strict=True))
+        except BaseException as exc:  # noqa: BLE001 - every waiting ensemble raises it
+            self.error = exc
+        self.cond.notify_all()
+
+    def advance(self, samplers, states, n: int, **kwargs) -> list:
+        """Run every ensemble `n` steps from `states`; their new states."""
+        if self.n == 1:
+            return [samplers[0].run_mcmc(states[0], n, progress=False, **kwargs)]
+        self.live, self.pending, self.results, self.error = len(samplers), {}, {}, None
+        out, errors = [None] * len(samplers), []
+
+        def run(e):
+            try:
+                out[e] = samplers[e].run_mcmc(states[e], n, progress=False, **kwargs)
+            except BaseException as exc:  # noqa: BLE001 - raised again below
+                errors.append(exc)
+            finally:
+                self._leave()
+
+        threads = [threading.Thread(target=run, args=(e,), daemon=True)
+                   for e in range(len(samplers))]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        if errors:
+            raise errors[0]
+        return out
 
 
 def _start_state(log_prob, center, factor, n_walkers, seq):
@@ -330,14 +408,15 @@ def run_ensembles(
         Walkers start at ``center + ball * N(0, 1)`` (standard deviations), or
         ``center + ball @ N(0, I)`` (a factor of the start covariance).
     root : SeedSequence
-        Ensemble ``e`` uses child ``e`` (:func:`mtplan.uncertainty._random.block_sequence`).
+        Ensemble ``e`` uses child ``e`` (:func:`mtplan.uncertainty.streams.block_sequence`).
     n_walkers, n_ensembles, max_steps : int
     check_every : int, optional
         Steps between convergence checks; default: 25, then a tenth of the chain so far
         (checks soon for fast-mixing chains, rarely for long ones).
     n_tau, tau_rtol, rhat_max, burn_tau : float
-        Convergence: chain longer than `n_tau` tau, tau's relative change between checks
-        below `tau_rtol`, split R-hat (after `burn_tau` tau of burn-in) below `rhat_max`.
+        Convergence: chain longer than `n_tau` tau (the largest over the ensembles), the
+        relative change of the ensembles' mean tau between checks below `tau_rtol`, split
+        R-hat (after `burn_tau` tau of burn-in) below `rhat_max`.
     max_seconds : float, optional
         Wall-clock budget; checked after every ensemble's share of a check interval.
     moves : emcee move(s), optional
@@ -357,9 +436,10 @@ def run_ensembles(
     ndim = center.size
     factor = _ball_factor(ball, ndim)
     samplers, states = [], []
+    pool = _Pool(log_prob, int(n_ensembles))
     for e in range(int(n_ensembles)):
-        samplers.append(emcee.EnsembleSampler(n_walkers, ndim, log_prob, vectorize=True,
-                                              moves=moves))
+        samplers.append(emcee.EnsembleSampler(n_walkers, ndim, functools.partial(pool.call, e),
+                                              vectorize=True, moves=moves))
         states.append(_start_state(log_prob, center, factor, n_walkers, block_sequence(root, e)))
     bar = _bar(progress, label, int(max_steps))
     steps, tau_prev, converged, stopped = 0, None, False, "max_steps"
@@ -369,20 +449,21 @@ def run_ensembles(
     while steps < max_steps and not out_of_time:
         every = check_every if check_every is not None else max(25, steps // 10)
         n = min(int(every), int(max_steps) - steps)
-        for e, sampler in enumerate(samplers):
-            states[e] = sampler.run_mcmc(states[e], n, progress=False,
-                                         skip_initial_state_check=n_walkers <= ndim + 1)
+        states = pool.advance(samplers, states, n, skip_initial_state_check=n_walkers <= ndim + 1)
         steps += n
         tau_all = np.array([integrated_time(s.get_chain()) for s in samplers])
         tau_max = tau_all.max(axis=0)
         t = float(np.max(tau_max))
         discard = min(int(math.ceil(burn_tau * t)) if math.isfinite(t) else steps // 2, steps - 4)
         rhat = split_rhat(np.stack([s.get_chain()[discard:] for s in samplers]))
-        # an infinite tau (a chain that has not moved) never counts as settled
-        settled = tau_prev is not None and bool(np.all(np.isfinite(tau_max))
+        # settled: the ensembles' mean tau (half the noise of their largest) moved by less
+        # than tau_rtol since the last check; an infinite tau (a chain that has not moved)
+        # never counts as settled
+        tau_mean = tau_all.mean(axis=0)
+        settled = tau_prev is not None and bool(np.all(np.isfinite(tau_mean))
                                                 and np.all(np.isfinite(tau_prev))
-                                                and np.all(np.abs(tau_max - tau_prev)
-                                                           < tau_rtol * tau_max))
+                                                and np.all(np.abs(tau_mean - tau_prev)
+                                                           < tau_rtol * tau_mean))
         if bar is not None:
             bar(steps, t, float(np.max(rhat)))
         if bool(np.all(steps > n_tau * tau_max)) and settled and bool(np.all(rhat < rhat_max)):
@@ -391,7 +472,7 @@ def run_ensembles(
         out_of_time = max_seconds is not None and time.perf_counter() - t0 > max_seconds
         if out_of_time:
             stopped = "max_seconds"
-        tau_prev = tau_max
+        tau_prev = tau_mean
     if bar is not None and hasattr(bar, "close"):
         bar.close()
     return EnsembleRun(

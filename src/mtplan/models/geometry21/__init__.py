@@ -3,7 +3,7 @@
 Machine and model
 -----------------
 A vertical three-axis machine with a cross table (X on top of Y) and a head moving in
-Z. The rigid-body model (:mod:`mtplan.models._kinematics`) chains exact homogeneous
+Z. The rigid-body model (:mod:`mtplan.models.kinematics`) chains exact homogeneous
 transforms ``p = f + T_X(x) T_Y(y) T_Z(z) (h - f)`` with the 21 error functions in ISO
 230-1 names, all taken in the sense *tool (reading head) relative to workpiece (plate)*:
 positioning EXX, EYY, EZZ; straightness EYX, EZX, EXY, EZY, EXZ, EYZ; angular EAX, EBX,
@@ -146,8 +146,8 @@ from mtplan._validate import InvalidInput, Problems
 from mtplan.fitting import central_jacobian
 from mtplan.fitting.linear import filter_whitening, gls_pinv, restricted_pinv, \
     truncated_pinv
-from mtplan.models._kinematics import chain, polyval, rotate_inverse
-from mtplan.models._protocol import Measurand, Procedure, SetupBase, Source, param
+from mtplan.models.kinematics import chain, polyval, rotate_inverse
+from mtplan.models.protocol import Measurand, Procedure, SetupBase, Source, param
 from mtplan.uncertainty.distributions import Normal, Rectangular
 
 __all__ = [
@@ -1421,7 +1421,7 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     not regular enough to tell, the field is left out and the design check names the
     offending row.
     """
-    from mtplan.models._protocol import Implied
+    from mtplan.models.protocol import Implied
 
     tol = 1e-6
     plane = df["plane"].astype(str).str.strip().to_numpy()

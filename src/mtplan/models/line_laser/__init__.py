@@ -194,7 +194,7 @@ import numpy as np
 import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
-from mtplan.models._protocol import (
+from mtplan.models.protocol import (
     Measurand,
     Procedure,
     SetupBase,
@@ -1129,7 +1129,7 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     each within 1e-6 mm. Where the table is not regular enough to tell, the field is left
     out and the design check names the offending row.
     """
-    from mtplan.models._protocol import Implied
+    from mtplan.models.protocol import Implied
 
     tol = 1e-6
     line = pd.to_numeric(df["line"], errors="coerce").to_numpy(dtype=float)

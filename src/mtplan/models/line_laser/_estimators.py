@@ -371,7 +371,7 @@ _FIT_RMS_MAX = 0.02
 @functools.lru_cache(maxsize=1)
 def _fit_limits() -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper limits (8,) of the fitted Truth fields (a step stops there)."""
-    from mtplan.models._protocol import fields_info
+    from mtplan.models.protocol import fields_info
 
     info = {i["name"]: i for i in fields_info(Truth)}
     return (np.array([info[f]["low"] for f in _FIT_FIELDS], dtype=float),

@@ -211,8 +211,8 @@ import numpy as np
 import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
-from mtplan.models._fit3d import common_perpendicular
-from mtplan.models._protocol import (
+from mtplan.fitting.fit3d import common_perpendicular
+from mtplan.models.protocol import (
     Measurand,
     Procedure,
     SetupBase,
@@ -1236,7 +1236,7 @@ _LATTICE_TOL_MM = 1e-6
 
 def _angle_fields(axis: str, angles: np.ndarray) -> dict:
     """positions, range_deg and a_order that give `angles` of `axis`, where some do."""
-    from mtplan.models._protocol import Implied
+    from mtplan.models.protocol import Implied
 
     n = angles.size
     if axis == "C":
@@ -1259,7 +1259,7 @@ def _angle_fields(axis: str, angles: np.ndarray) -> dict:
 
 def _lattice_fields(x: np.ndarray, y: np.ndarray, axis: str, angle_deg: float) -> dict:
     """Lattice counts, side and offset from the commanded points of one position."""
-    from mtplan.models._protocol import Implied
+    from mtplan.models.protocol import Implied
 
     xs = np.unique(np.round(x / _LATTICE_TOL_MM)) * _LATTICE_TOL_MM
     ys = np.unique(np.round(y / _LATTICE_TOL_MM)) * _LATTICE_TOL_MM
@@ -1299,7 +1299,7 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     coordinates within 1e-6 mm. Where the table is not regular enough to tell, the
     field is left out and the design check names the offending row.
     """
-    from mtplan.models._protocol import Implied
+    from mtplan.models.protocol import Implied
 
     axes = df["axis"].astype(str).str.strip().str.upper().to_numpy()
     position = pd.to_numeric(df["position"], errors="coerce").to_numpy(dtype=float)

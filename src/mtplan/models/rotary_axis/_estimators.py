@@ -172,9 +172,19 @@ def _joint_start(setup: Setup, coef: np.ndarray):
     return par, phi, station
 
 
+def _block_weight(weights: np.ndarray) -> np.ndarray:
+    """The weight (3P, 3P) of all plane coefficients: each position's (P, 3, 3) on the
+    block diagonal."""
+    P = weights.shape[0]
+    w_full = np.zeros((P, 3, P, 3))
+    w_full[np.arange(P), :, np.arange(P), :] = weights
+    return w_full.reshape(3 * P, 3 * P)
+
+
 def _joint_fit(setup: Setup, coef: np.ndarray, *, max_iter: int = 30, rtol: float = 1e-9,
                weights: np.ndarray | None = None):
-    """Gauss-Newton on the batch, the azimuths eliminated by their Schur complement.
+    """Gauss-Newton on the batch over the six line parameters and every position's azimuth
+    (:func:`mtplan.fitting.gls_step`, the positions' weights on the block diagonal).
 
     A trial has converged when every step is below `rtol` times the parameter's
     standard uncertainty for readings of unit variance (1e-9 of it: 1e-6 of the
@@ -189,6 +199,7 @@ def _joint_fit(setup: Setup, coef: np.ndarray, *, max_iter: int = 30, rtol: floa
     """
     g = _plan(setup)
     W = np.broadcast_to(g.gram, (g.theta.size, 3, 3)) if weights is None else weights
+    w_full = _block_weight(W)
     par, phi, station = _joint_start(setup, coef)
     n, P = phi.shape
     done = np.zeros(n, dtype=bool)
@@ -206,21 +217,17 @@ def _joint_fit(setup: Setup, coef: np.ndarray, *, max_iter: int = 30, rtol: floa
                           - _joint_model(setup, pa - d, ph, st)) / (2 * step)
         jp = (_joint_model(setup, pa, ph + _PHI_STEP, st)
               - _joint_model(setup, pa, ph - _PHI_STEP, st)) / (2 * _PHI_STEP)  # (k, P, 3)
-        wjg = np.einsum("kpia,pij->kpaj", jg, W)  # (k, P, 6, 3) = Jg^T W
-        wjp = np.einsum("kpi,pij->kpj", jp, W)
-        A = np.einsum("kpai,kpib->kab", wjg, jg)
-        B = np.einsum("kpai,kpi->kpa", wjg, jp)
-        C = np.einsum("kpi,kpi->kp", jp, wjp)
-        gg = np.einsum("kpai,kpi->ka", wjg, r)
-        gp = np.einsum("kpi,kpi->kp", wjp, r)
-        S_inv = np.linalg.inv(A - np.einsum("kpa,kpb->kab", B / C[..., None], B))
-        dg = np.einsum("kab,kb->ka", S_inv, gg - np.einsum("kpa,kp->ka", B, gp / C))
-        dp = (gp - np.einsum("kpa,ka->kp", B, dg)) / C
+        jac = np.zeros((len(pa), P, 3, 6 + P))  # azimuth p moves position p's plane only
+        jac[..., :6] = jg
+        for p in range(P):
+            jac[:, p, :, 6 + p] = jp[:, p]
+        step, inv = gls_step(jac.reshape(len(pa), 3 * P, 6 + P), r.reshape(len(pa), -1),
+                             weight=w_full)
+        dg, dp = step[:, :6], step[:, 6:]
         par[todo] = pa + dg
         phi[todo] = ph + dp
-        small = np.all(np.abs(dg) <= rtol * np.sqrt(np.abs(np.diagonal(S_inv, axis1=1, axis2=2)))
-                       + 1e-14, axis=1)
-        small &= np.all(np.abs(dp) <= rtol / np.sqrt(C) + 1e-14, axis=1)
+        sd = np.sqrt(np.abs(np.diagonal(inv, axis1=1, axis2=2)))
+        small = np.all(np.abs(step) <= rtol * sd + 1e-14, axis=1)
         done[todo[small]] = True
     return par, phi, station, done
 
@@ -333,10 +340,7 @@ def _angles_fit(setup: Setup, coef: np.ndarray, weights: np.ndarray, *, max_iter
     d = phi - theta
     par = np.column_stack([par6, np.arctan2(np.sin(d).mean(axis=1), np.cos(d).mean(axis=1))])
     done = np.zeros(len(par), dtype=bool)
-    P = weights.shape[0]
-    w_full = np.zeros((P, 3, P, 3))  # the positions' blocks on the diagonal
-    w_full[np.arange(P), :, np.arange(P), :] = weights
-    w_full = w_full.reshape(3 * P, 3 * P)
+    w_full = _block_weight(weights)
     for _ in range(max_iter):
         todo = np.flatnonzero(~done)
         if todo.size == 0:

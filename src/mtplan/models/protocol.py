@@ -50,7 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mtplan._validate import InvalidInput, Problems, is_real
-from mtplan.uncertainty._random import as_seed_sequence, block_sequence, named_generator
+from mtplan.uncertainty.streams import as_seed_sequence, block_sequence, named_generator
 from mtplan.uncertainty.distributions import Constant, Distribution
 
 __all__ = [

@@ -1,0 +1,532 @@
+"""The test report (certificate) and the test plan as document models.
+
+:func:`build_report` is what the customer signs after the test: the ISO/IEC 17025 7.8.2.1
+items on its cover, the overall result and the actions on the first page after it, the
+as-found results of each toleranced measurand (achieved U beside the plan's prediction),
+the test conditions and instruments, the deviations from the plan, a glossary and an end
+mark. :func:`build_plan` is what both parties sign before it: per test the set-up,
+instruments, estimator, predicted U, TUR, duration, identifiability and the decision rule
+in ILAC-G8 wording with its risks, then the planning study (sweeps, estimators, levers)
+and its appendices. Formatting only: the numbers come from the study and the plan.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import math
+
+from mtplan.reports.labels import duration_text, fmt, fmt_u, prior_text, tolerance_text, unit
+from mtplan.reports.model import Document, Figure, Section, Table
+from mtplan.reports.wording import (
+    GLOSSARY,
+    measurand_name,
+    method_citation,
+    population_text,
+    probability_text,
+    rules_text,
+)
+
+__all__ = ["build_report", "build_plan", "overall_result", "measured_frame",
+           "RESULTS_RELATE", "END_MARK"]
+
+RESULTS_RELATE = ("The results relate only to the item tested, in the condition and under "
+                  "the test conditions stated. This report shall not be reproduced except in "
+                  "full without the written approval of the laboratory.")
+END_MARK = "End of report"
+WATERMARK = "SIMULATED READINGS - NOT A MEASUREMENT"
+
+
+# ----------------------------------------------------------------------- shared pieces
+def _item(header) -> str:
+    parts = [header.get(k) for k in ("machine_maker", "machine_type")]
+    text = ", ".join(p for p in parts if p) or "not stated"
+    if header.get("machine_serial"):
+        text += f"; serial number {header['machine_serial']}"
+    return text
+
+
+def _lab(study) -> str:
+    lab = study.laboratory
+    return lab.get("name", "not stated in the study")
+
+
+def _methods(result) -> list:
+    """(test, method source, standards) rows: each source method cited once."""
+    rows = []
+    for o in result.outcomes:
+        applied = list(o.spec.standards) + ["JCGM 101:2008"]
+        if o.verdicts:
+            applied += ["ISO 14253-1:2017", "JCGM 106:2012", "ILAC-G8:09/2019"]
+        rows.append([o.spec.label, method_citation(o.spec.name),
+                     ", ".join(a.replace(" ", "\u00a0") for a in applied)])
+    return rows
+
+
+def _instruments(study, procedure: str | None = None) -> list:
+    rows = []
+    for inst in study.instruments:
+        if procedure is not None and inst["used_in"] and procedure not in inst["used_in"]:
+            continue
+        rows.append([inst["name"], inst["serial"], inst["certificate"],
+                     inst.get("calibration_due", "-"), inst.get("traceability", "-")])
+    return rows
+
+
+def _instrument_table(study) -> Table | None:
+    rows = _instruments(study)
+    if not rows:
+        return None
+    return Table("Instruments used: each calibrated, its certificate valid on the date of the "
+                 "test.", ["instrument", "serial number", "calibration certificate",
+                           "calibration due", "traceability"], rows)
+
+
+def _issue_date(study) -> str:
+    return study.header.get("issue_date") or datetime.date.today().isoformat()
+
+
+_EVALUATION = {"mc": "U of the readings by Monte Carlo",
+               "posterior": "U of the readings from the Bayesian posterior"}
+
+
+def _verdict_word(v) -> str:
+    return v.verdict
+
+
+# ----------------------------------------------------------------------- overall result
+def overall_result(result) -> tuple[str, list, list]:
+    """(result, deciding measurands, undecided measurands): "not accepted" when any
+    toleranced measurand does not conform (those decide), else "no decision" when any has
+    no verdict (those decide), else "accepted"."""
+    from mtplan.plans.decisions import CONFORMS, DOES_NOT_CONFORM
+
+    verdicts = result.verdicts
+    failed = [v for v in verdicts if v.verdict == DOES_NOT_CONFORM]
+    open_ = [v for v in verdicts if v.verdict not in (CONFORMS, DOES_NOT_CONFORM)]
+    if failed:
+        return "not accepted", failed, open_
+    if open_:
+        return "no decision", open_, []
+    return ("accepted" if verdicts else "no decision"), [], []
+
+
+def _needed_u(v) -> float | None:
+    """The predicted U that would decide a value inside the guard band: the distance of
+    the measured value to the nearest tolerance limit, over the rule's w / U."""
+    if v.measured is None or not (v.u and v.guard_band):
+        return None
+    limits = [x for x in (v.lower, v.upper) if x is not None]
+    gap = min(abs(v.measured - x) for x in limits)
+    return gap * (2 * v.u) / v.guard_band
+
+
+def _lever_for(o, v, needed) -> str:
+    """A swept set-up whose predicted U is below ``needed``, in words, or ""."""
+    from mtplan.models import get
+    from mtplan.models.protocol import fields_info
+    from mtplan.reports.labels import field_label
+
+    docs = {f["name"]: f["doc"] for f in fields_info(get(o.spec.name).Setup)}
+    best = None
+    for spec, table in o.sweeps:
+        if isinstance(table, str) or len(spec["vary"]) != 1:
+            continue
+        f = next(iter(spec["vary"]))
+        if f not in get(o.spec.name).levers:
+            continue
+        rows = table[(table["measurand"] == v.measurand) & (table["estimator"] == v.estimator)]
+        rows = rows[(2 * rows["u"] <= needed) & (rows["u"] > 0)]
+        for r in rows.itertuples():
+            cand = (float(getattr(r, "duration_s", math.nan)), f, getattr(r, f), 2 * r.u)
+            if best is None or cand[0] < best[0]:
+                best = cand
+    if best is None:
+        return ""
+    label = field_label(best[1], docs.get(best[1], "")).split(" [")[0]
+    value = f"{best[2]:g}" if isinstance(best[2], float) else str(best[2])
+    return (f"set {label} to {value} (predicted U {fmt_u(best[3])} {unit(v.unit)} < "
+            f"{fmt_u(needed)} {unit(v.unit)}, agreed in a revised plan) and re-test")
+
+
+def _actions(result, failed, open_) -> list:
+    by_proc = {o.spec.name: (k, o) for k, o in enumerate(result.outcomes, start=1)}
+    out = []
+    for v in failed:
+        k, o = by_proc[v.procedure]
+        u = unit(v.unit)
+        res = v.measured_u
+        target = 0.0 if v.lower is not None and v.upper is not None and v.lower < 0 < v.upper \
+            else ((v.lower or 0) + (v.upper or 0)) / 2
+        out.append(f"Adjust the {measurand_name(v.description, v.measurand)[:1].lower()}"
+                   f"{measurand_name(v.description, v.measurand)[1:]}: measured "
+                   f"{fmt(v.measured, res)} {u} against the tolerance "
+                   f"{tolerance_text(v.lower, v.upper, v.unit)}; correct it by about "
+                   f"{fmt(target - v.measured, res)} {u} (for a machine axis: its location in "
+                   "the control's kinematic model or the mechanical alignment), then re-test "
+                   f"test {k} ({o.spec.label}) and report the result as left.")
+    for v in open_:
+        k, o = by_proc[v.procedure]
+        name = measurand_name(v.description, v.measurand)
+        if v.verdict.startswith("no decision: the readings"):
+            out.append(f"{name}: the readings do not fit the model; find the cause (set-up, "
+                       f"instrument, machine state) and repeat test {k} ({o.spec.label}).")
+            continue
+        needed = _needed_u(v)
+        if needed is None:
+            out.append(f"{name}: {v.verdict}" + (f" ({v.reason})" if v.reason else "")
+                       + f"; repeat test {k} ({o.spec.label}).")
+            continue
+        lever = _lever_for(o, v, needed)
+        reps = math.ceil((2 * v.u / needed) ** 2) if needed > 0 else None
+        how = lever or (f"no swept set-up reaches it: repeat the test {reps} times and "
+                        "average (U falls with the square root of the repeats), agreed in a "
+                        "revised plan" if reps else "no set-up can decide it")
+        out.append(f"{name}: no decision (inside the guard band). A decision needs a "
+                   f"predicted U below {fmt_u(needed)} {unit(v.unit)} (now "
+                   f"{fmt_u(2 * v.u)}): {how}.")
+    return out
+
+
+def _overall_section(result) -> Section:
+    outcome, deciding, undecided = overall_result(result)
+    codes = ", ".join(v.measurand for v in deciding)
+    head = f"Overall result: {outcome}" + (f": {codes}" if codes else "") + "."
+    blocks = [head]
+    if undecided:
+        blocks.append("Also without a decision: " + ", ".join(
+            f"{v.measurand} ({v.verdict})" for v in undecided) + ".")
+    n = len(result.verdicts)
+    n_ok = sum(v.verdict == "conforms" for v in result.verdicts)
+    blocks.append(f"{n_ok} of {n} toleranced measurands conform to the rules of the test plan.")
+    actions = _actions(result, deciding if outcome == "not accepted" else [],
+                       undecided if outcome == "not accepted" else deciding)
+    if actions:
+        blocks += ["Actions required:", actions]
+    else:
+        blocks.append("No action required.")
+    return Section("Overall result and actions", blocks=blocks, anchor="overall")
+
+
+# ----------------------------------------------------------------------- results
+def _result_rows(k, o) -> list:
+    rows = []
+    for v in o.verdicts:
+        res = v.measured_u
+        measured = "-" if v.measured is None else fmt(v.measured, res)
+        interval = ("-" if v.measured_low is None else
+                    f"[{fmt(v.measured_low, res)}, {fmt(v.measured_high, res)}]")
+        rows.append([str(k), measurand_name(v.description, v.measurand),
+                     tolerance_text(v.lower, v.upper, v.unit), measured,
+                     "-" if res is None else fmt_u(2 * res), fmt_u(2 * v.u), interval,
+                     probability_text(v.p_conform), _verdict_word(v)])
+    return rows
+
+
+def _probability_lines(verdicts) -> list:
+    out = []
+    for v in verdicts:
+        if v.p_conform is None:
+            if v.reason:
+                out.append(f"{v.measurand}: {v.verdict}: {v.reason}.")
+            continue
+        line = (f"{v.measurand}: {probability_text(v.p_conform)} from the measurement "
+                "alone")
+        if v.p_conform_population is not None and v.prior is not None:
+            line += (f"; {probability_text(v.p_conform_population)} with the population "
+                     f"{population_text(prior_text(v.prior, v.unit), v.population_source)}")
+        if v.reason:
+            line += f". Note: {v.reason}"
+        out.append(line + ".")
+    return out
+
+
+def _results_section(result) -> Section:
+    from mtplan.reports import figures as figs
+
+    sec = Section("Results as found", anchor="results")
+    sec.blocks.append("Each toleranced measurand as found (before any adjustment), decided "
+                      "with the rule and the guard band of the test plan. U achieved: the "
+                      "measurement's own expanded uncertainty (k = 2); U predicted: the plan's. "
+                      "As left: no adjustment was made during this test; the results as found "
+                      "are the results as left.")
+    rows, tests = [], []
+    for k, o in enumerate(result.outcomes, start=1):
+        if o.verdicts:
+            rows += _result_rows(k, o)
+            how = _EVALUATION.get(getattr(o.measured, "uncertainty", None), "no readings")
+            tests.append(f"{k}: {o.spec.label} ({o.verdicts[0].estimator} estimator; {how})")
+    if rows:
+        sec.blocks.append(Table("Results as found. Tests: " + "; ".join(tests) + ".",
+                                ["test", "measurand", "tolerance", "measured",
+                                 "U achieved", "U predicted", "95 % interval",
+                                 "probability of conformity", "verdict"], rows))
+        sec.blocks += rules_text(result.verdicts)
+        lines = _probability_lines(result.verdicts)
+        if lines:
+            sec.blocks += ["Probability of conformity (JCGM 106 7.4):", lines]
+    untoleranced = sum(len(o.measured.measurands) for o in result.outcomes
+                       if o.measured is not None) - sum(
+        len(o.verdicts) for o in result.outcomes if o.measured is not None)
+    if untoleranced > 0:
+        what = "quantity" if untoleranced == 1 else f"{untoleranced} quantities"
+        sec.blocks.append(f"The measured {what} without a tolerance: with U in the appendix "
+                          "and in results/measured.csv.")
+    if result.verdicts:
+        sec.blocks.append(Figure("Measured values (dot, 95 % interval) against the tolerance "
+                                 "(black lines), the guard bands (amber: no decision), the "
+                                 "zones of conformity (green) and non-conformity (red).",
+                                 figs.acceptance_figure(result.verdicts)))
+    return sec
+
+
+def _conditions_section(result) -> Section:
+    from mtplan.plans.study import CONDITION_KEYS
+
+    study = result.study
+    rows = []
+    for key, (label, kind) in CONDITION_KEYS.items():
+        value = study.conditions.get(key)
+        if value is None:
+            shown = "not recorded"
+        elif kind == "temperature":
+            shown = f"{value:.1f} °C"
+        elif kind == "bool":
+            shown = "on" if value else "off"
+        else:
+            shown = str(value)
+        rows.append([label, shown])
+    blocks = [Table("Test conditions (ISO 230-1 6.1: temperatures, warm-up, compensation).",
+                    ["condition", "value"], rows)]
+    table = _instrument_table(study)
+    if table is not None:
+        blocks.append(table)
+        blocks.append("Traceability: every instrument is calibrated against standards "
+                      "traceable to the SI through the national metrology institute named "
+                      "in its traceability column.")
+    else:
+        blocks.append("No instruments are named in the study: the traceability of these "
+                      "results cannot be stated.")
+    return Section("Test conditions and instruments", blocks=blocks, anchor="conditions")
+
+
+def _deviations_section(deviations) -> Section:
+    blocks = ["Deviations from the test plan, additions and exclusions:"]
+    blocks.append(list(deviations) if deviations else ["none"])
+    return Section("Deviations from the plan", blocks=blocks, anchor="deviations")
+
+
+def _glossary_section() -> Section:
+    return Section("Glossary", anchor="glossary", blocks=[Table("Terms used in this document.",
+                                                                ["term", "meaning"],
+                                                                GLOSSARY)])
+
+
+def measured_frame(result):
+    """Every measured measurand of every test with its U: ``results/measured.csv``."""
+    import pandas as pd
+
+    rows = []
+    for o in result.outcomes:
+        m = o.measured
+        if m is None:
+            continue
+        det = getattr(m, "determinable", None)
+        for j, q in enumerate(m.measurands):
+            ok = det is None or bool(det[j])
+            u = float(m.std[j]) if ok else math.nan
+            rows.append({"procedure": o.spec.name, "test": o.spec.label, "measurand": q.name,
+                         "description": q.description, "unit": q.unit,
+                         "value": float(m.value[j]) if ok else math.nan, "u": u, "k": 2.0,
+                         "U": 2 * u, "low": float(m.low[j]) if ok else math.nan,
+                         "high": float(m.high[j]) if ok else math.nan,
+                         "estimator": m.estimator, "uncertainty": m.uncertainty,
+                         "determinable": ok})
+    return pd.DataFrame(rows, columns=["procedure", "test", "measurand", "description", "unit",
+                                       "value", "u", "k", "U", "low", "high", "estimator",
+                                       "uncertainty", "determinable"])
+
+
+def _measured_appendix(k, o) -> Section:
+    from mtplan.reports.appendix import measured_blocks
+
+    m = o.measured
+    det = getattr(m, "determinable", None)
+    rows = []
+    for j, q in enumerate(m.measurands):
+        ok = det is None or bool(det[j])
+        u = float(m.std[j]) if ok else None
+        rows.append([measurand_name(q.description, q.name), unit(q.unit),
+                     fmt(m.value[j], u) if ok else "n/d", fmt_u(2 * u) if ok else "n/d",
+                     f"[{fmt(m.low[j], u)}, {fmt(m.high[j], u)}]" if ok else "-"])
+    sec = Section(f"A{k}. {o.spec.label}: every measured quantity", anchor=f"m{k}",
+                  appendix=True)
+    sec.blocks.append(Table(f"Every measured quantity of test {k} ({m.estimator} estimator).",
+                            ["measurand", "unit", "measured", "U (k = 2)", "95 % interval"],
+                            rows))
+    sec.blocks += measured_blocks(m)
+    return sec
+
+
+def _cover_meta(result, plan, kind) -> dict:
+    study = result.study
+    h = study.header
+    lab = study.laboratory
+    doc_no = h.get("document", "not stated")
+    meta = {}
+    if kind == "report":
+        meta["title"] = "Test report (certificate of the acceptance test)"
+        meta["report number"] = f"{doc_no}" + (f", revision {h['revision']}"
+                                               if h.get("revision") else "")
+        meta["test plan"] = (f"{plan['document']}, issued {plan['issued']}; rules "
+                             f"fingerprint SHA-256 {plan['fingerprint'][:16]}")
+    else:
+        meta["title"] = "Test plan (to be agreed before the test)"
+        meta["plan number"] = plan["document"] + (f", revision {plan['revision']}"
+                                                  if plan.get("revision") else "")
+        meta["rules fingerprint (SHA-256)"] = plan["fingerprint"]
+    meta["laboratory"] = _lab(study)
+    meta["laboratory address"] = lab.get("address", "not stated in the study")
+    if lab.get("accreditation"):
+        meta["accreditation"] = lab["accreditation"]
+    meta["place of the test"] = h.get("location", "not stated")
+    meta["customer"] = h.get("customer", "not stated")
+    if h.get("customer_address"):
+        meta["customer address"] = h["customer_address"]
+    meta["item tested"] = _item(h)
+    meta["condition of the item"] = h.get("item_condition", "not stated")
+    meta["date of the test"] = h.get("date", "not stated")
+    if kind == "report":
+        meta["date of issue"] = _issue_date(study)
+        meta["authorised by"] = h.get("approved_by") or "not yet authorised (see sign-off)"
+    else:
+        meta["date of issue"] = plan["issued"]
+    return meta
+
+
+def _document(result, plan, kind, sections, csv) -> Document:
+    study = result.study
+    meta = _cover_meta(result, plan, kind)
+    title = meta.pop("title")
+    number = (meta.get("report number") if kind == "report" else meta.get("plan number"))
+    signoff = ([("prepared", study.header.get("prepared_by", "")),
+                ("checked", study.header.get("checked_by", "")),
+                ("authorised", study.header.get("approved_by", ""))] if kind == "report" else
+               [("agreed for the laboratory", study.header.get("approved_by", "")),
+                ("agreed for the customer", "")])
+    doc = Document(title=title, subtitle=study.title, meta=meta,
+                   provenance=result.provenance, sections=sections, csv=csv,
+                   signoff=signoff, standards=[])
+    doc.methods = _methods(result)
+    doc.identification = f"{number} - {title.split(' (')[0]}"
+    doc.watermark = WATERMARK if study.simulated else ""
+    doc.end_mark = END_MARK if kind == "report" else "End of test plan"
+    doc.flow = kind == "report"
+    doc.statement = RESULTS_RELATE if kind == "report" else (
+        "The decision rules, guard bands and risks below are agreed before the test; the test "
+        "report will apply exactly these rules (their fingerprint is cited on it).")
+    return doc
+
+
+# ----------------------------------------------------------------------- the report
+def build_report(result, plan, deviations=()) -> Document:
+    """The test report of a computed study decided by :func:`~mtplan.plans.agreement.
+    apply_plan` with ``plan``."""
+    from mtplan.reports.appendix import provenance_section
+    from mtplan.reports.document import covariance_frames, verdict_frames
+
+    sections = [_overall_section(result), _results_section(result),
+                _conditions_section(result), _deviations_section(deviations),
+                _glossary_section()]
+    for k, o in enumerate(result.outcomes, start=1):
+        if o.measured is not None:
+            sections.append(_measured_appendix(k, o))
+    sections.append(provenance_section(result.provenance))
+    csv = verdict_frames(result)
+    csv["measured"] = measured_frame(result)
+    csv.update(covariance_frames(result))
+    return _document(result, plan, "report", sections, csv)
+
+
+# ----------------------------------------------------------------------- the plan
+def _plan_rows(o, plan) -> list:
+    rules = {(r["procedure"], r["test"], r["measurand"]): r for r in plan["rules"]}
+    index = {m.name: i for i, m in enumerate(o.results[o.recommended].measurands)}
+    rows = []
+    for v in o.verdicts:
+        r = rules[(v.procedure, v.label, v.measurand)]
+        u = unit(v.unit)
+        w = "-" if r["guard_band"] is None else fmt(r["guard_band"], r["u_planned"] / 5)
+        rows.append([measurand_name(v.description, v.measurand), u,
+                     tolerance_text(v.lower, v.upper),
+                     "-" if r["u_planned"] is None else fmt_u(2 * r["u_planned"]),
+                     "-" if r["tur"] is None else f"{r['tur']:.1f}", w,
+                     _pct(r["pfa"]), _pct(r["pfr"])])
+    for name in o.key:
+        if name in {v.measurand for v in o.verdicts} or name not in index:
+            continue
+        m = o.results[o.recommended].measurands[index[name]]
+        u2 = 2 * float(o.results[o.recommended].mc.std[index[name]])
+        rows.append([measurand_name(m.description, name), unit(m.unit), "-", fmt_u(u2), "-",
+                     "-", "-", "-"])
+    return rows
+
+
+def _pct(p) -> str:
+    from mtplan.reports.labels import percent
+
+    return "-" if p is None else percent(p)
+
+
+def _plan_test(k, o, plan, study) -> Section:
+    from mtplan.reports.document import setup_sentence
+
+    blocks = [f"Set-up: {setup_sentence(o)}. Estimator: {o.recommended}. Duration (machine "
+              f"time): {duration_text(o.duration_s)}. Method: {method_citation(o.spec.name)}; "
+              f"standards: {', '.join(o.spec.standards) or 'none named'}."]
+    inst = _instruments(study, o.spec.name)
+    blocks.append("Instruments: " + ("; ".join(f"{r[0]} (serial {r[1]}, certificate {r[2]})"
+                                               for r in inst) if inst else
+                                     "none named in the study") + ".")
+    ident = o.identifiability
+    if ident is not None:
+        full = ident.rank >= ident.n_params
+        blocks.append(f"Identifiability: the readings determine {ident.rank} of "
+                      f"{ident.n_params} parameters"
+                      + (" (full rank)" if full else ": some combinations cannot be "
+                         "separated") + f"; condition number {ident.condition_number:.3g}.")
+    blocks.append(Table(f"Test {k}: predicted U (k = 2) and the agreed decision rules.",
+                        ["measurand", "unit", "tolerance", "U predicted", "TUR",
+                         "guard band w", "PFA", "PFR"], _plan_rows(o, plan)))
+    blocks += rules_text(o.verdicts)
+    populations = [f"{v.measurand} "
+                   f"{population_text(prior_text(v.prior, v.unit), v.population_source)}"
+                   for v in o.verdicts if v.prior is not None]
+    if populations:
+        blocks.append("Population of items the risks (PFA, PFR) assume: "
+                      + "; ".join(populations) + ".")
+    return Section(f"{k}. {o.spec.label}", level=2, blocks=blocks)
+
+
+def build_plan(result, plan) -> Document:
+    """The test plan of a computed study (its readings, if any, are not used)."""
+    from mtplan.reports import appendix
+    from mtplan.reports.document import methods_section, test_section
+
+    study = result.study
+    rules = Section("Tests and decision rules", anchor="rules", blocks=[
+        "What each test measures, how, with which instruments and how long, the uncertainty "
+        "it is predicted to reach and the decision rule both parties agree before measuring "
+        f"(coverage {study.coverage:.0%}, k = 2)."])
+    rules.blocks += [_plan_test(k, o, plan, study)
+                     for k, o in enumerate(result.outcomes, start=1)]
+    sections = [rules, methods_section(result), _glossary_section()]
+    sections += [test_section(k, dataclasses.replace(o, measured=None, verdicts=[]))
+                 for k, o in enumerate(result.outcomes, start=1)]
+    csv = {}
+    for k, o in enumerate(result.outcomes, start=1):
+        sec, frames = appendix.procedure_section(k, o, measured=False)
+        sections.append(sec)
+        csv.update(frames)
+    sections.append(appendix.provenance_section(result.provenance))
+    return _document(result, plan, "plan", sections, csv)

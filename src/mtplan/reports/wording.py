@@ -1,0 +1,146 @@
+"""Words a customer reads: the methods' sources, plain measurand names, probabilities and
+decision rules in the wording of ILAC-G8, and the glossary. Formatting only."""
+
+from __future__ import annotations
+
+import math
+
+__all__ = ["METHOD_SOURCES", "method_citation", "customer_words", "measurand_name",
+           "probability_text", "rule_wording", "rules_text", "population_text", "GLOSSARY"]
+
+#: the source method of each procedure: (patent number or "", title in English)
+METHOD_SOURCES = {
+    "rotary_axis": ("", "Method for measuring direction and spatial position of rotation "
+                        "center of rotating shaft (Chinese patent, filed 2020-06-12)"),
+    "geometry21": ("", "Detection method for geometric motion errors of three-axis numerical "
+                       "control equipment (Chinese patent)"),
+    "tracker_frame": ("CN106078359A", "Zero point definition and calibration method for a "
+                                      "gantry-type multi-spindle drilling combined machine "
+                                      "tool"),
+    "circle_centre": ("", "Circle centre measuring and calculating method and device for "
+                          "high-precision circular fitting (Chinese patent)"),
+    "line_laser": ("", "Line laser mounting error angle determination method (Chinese patent, "
+                       "filed 2019-09-03)"),
+}
+
+
+def method_citation(procedure: str) -> str:
+    """The source method of a procedure, cited once: its patent number (where the source
+    states it) and title."""
+    number, title = METHOD_SOURCES.get(procedure, ("", ""))
+    if not title:
+        return "no published source method"
+    if number:
+        return f"patent {number}, \u201c{title}\u201d"
+    return f"\u201c{title}\u201d (patent number not stated in the available copy)"
+
+
+def customer_words(text: str) -> str:
+    """Developer wording in a model's documentation as a customer reads it: "the seed's
+    method" is the source method (a seed is only a random seed here)."""
+    import re
+
+    text = re.sub(r"\b([Tt])he seed's method\b", r"\1he source method", text)
+    text = re.sub(r"\bThe seed's\b", "The source method's", text)
+    text = re.sub(r"\bthe seed's\b", "the source method's", text)
+    text = re.sub(r"\bseed's\b", "source method's", text)
+    return re.sub(r"\b(the|The) seed\b", r"\1 source method", text)
+
+
+def measurand_name(description: str, code: str) -> str:
+    """A measurand's plain name with its code in parentheses: "X position of the C axis at
+    the reference height (EX0C)"."""
+    text = description.strip().rstrip(".")
+    if not text:
+        return code
+    return f"{text[:1].upper()}{text[1:]} ({code})"
+
+
+def probability_text(p, low=None, high=None, lower=None, upper=None) -> str:
+    """A probability of conformity in per cent, consistent with the measured interval
+    [low, high]: never "100 %" or "0 %" (a Monte Carlo or normal tail is never exactly
+    zero) and, where the interval overlaps a tolerance limit, at most "> 99.9 %" and at
+    least "< 0.1 %" so the figure cannot read as certain."""
+    if p is None or not math.isfinite(p):
+        return "-"
+    p = min(max(float(p), 0.0), 1.0)
+    if p > 0.999:
+        return "> 99.9 %"
+    if p < 0.001:
+        return "< 0.1 %"
+    x = 100 * p
+    if x >= 99.5 or x < 0.5:
+        return f"{x:.1f} %"
+    return f"{x:.0f} %" if x >= 10 else f"{x:.1f} %"
+
+
+def population_text(prior_words: str, source: str) -> str:
+    """The population of items a risk assumes, with its stated source."""
+    if not prior_words:
+        return "no population stated (risks not evaluated)"
+    return f"{prior_words}; source: {source or 'not stated in the study'}"
+
+
+def rule_wording(rule: str, guard_band: float) -> str:
+    """The decision rule in the words of ILAC-G8:09/2019 (w itself is in the tables)."""
+    kind, _, value = str(rule).partition(":")
+    if kind == "simple" or not guard_band:
+        return ("simple acceptance (ILAC-G8 4.2.1, binary, no guard band): pass if the "
+                "measured value lies within the tolerance, fail otherwise")
+    how = {"iso14253": "w = U, the ISO 14253-1 default rule",
+           "guard": f"w = {value or '1'} U",
+           "target-pfa": f"w set for a global false-accept risk of {value}",
+           "dobbert": "w from Dobbert's managed guard band"}.get(kind, kind)
+    return (f"non-binary with guard band (ILAC-G8 4.2.3; {how}, U predicted): pass within "
+            "the tolerance reduced by w; fail beyond the tolerance widened by w; in between "
+            "no decision (conditional pass inside the tolerance, conditional fail outside it)")
+
+
+def rules_text(verdicts) -> list:
+    """Each distinct decision rule of a list of verdicts once, naming its measurands."""
+    groups: dict = {}
+    for v in verdicts:
+        key = rule_wording(v.rule, v.guard_band)
+        groups.setdefault(key, []).append(v.measurand)
+    return [f"Decision rule for {', '.join(names)}: {text}." for text, names in groups.items()]
+
+
+GLOSSARY = [
+    ["U, k", "expanded uncertainty U = k u with coverage factor k = 2 (about 95 % coverage)"],
+    ["U predicted", "U of the planned set-up from a Monte Carlo simulation of every error "
+                    "source (JCGM 101), fixed in the test plan"],
+    ["U achieved", "U of the measurement's own evaluation of its readings"],
+    ["TUR", "test uncertainty ratio: the tolerance width divided by 2U (predicted)"],
+    ["guard band w", "the distance between a tolerance limit and its acceptance limit; the "
+                     "decision rule of the test plan fixes it before measuring"],
+    ["PFA", "probability of false accept: the global risk (JCGM 106 9.5) that an item of the "
+            "stated population is accepted although it does not conform"],
+    ["PFR", "probability of false reject: the global risk that an item of the stated "
+            "population is rejected although it conforms"],
+    ["probability of conformity", "the probability that the true value lies within the "
+                                  "tolerance, given the measured value and its U "
+                                  "(JCGM 106 7.4); from the measurement alone unless "
+                                  "stated otherwise"],
+    ["population", "the distribution of the true values over the items of this kind (the "
+                   "prior of the risks), with the source the study states"],
+    ["pass / fail / no decision", "ILAC-G8 4.2.3: pass (conforms) within the acceptance "
+                                  "limits, fail (does not conform) beyond the tolerance "
+                                  "widened by w, no decision in between"],
+    ["O1-O5", "observability indices of a set-up from the singular values s1 >= ... >= sL "
+              "of the readings' scaled sensitivity matrix over m poses: O1 their geometric "
+              "mean over the square root of m, O2 = sL/s1 (inverse condition number), O3 = sL "
+              "(the smallest), O4 = sL²/s1 (noise amplification), O5 = 1/(1/s1 + ... + "
+              "1/sL); larger is better, all are 0 when a parameter cannot be determined"],
+    ["identifiability", "whether the readings determine every parameter of the model (full "
+                        "rank) and how well (condition number)"],
+    ["estimator", "the calculation that turns readings into results: patent (the source "
+                  "method's own steps), three_point (the three-point rule), kasa and geometric "
+                  "(least-squares circles, algebraic and geometric), joint and joint_linear (fits "
+                  "of all readings at once, Gauss-Newton and linearised), angles and home (fits "
+                  "that use the commanded angles "
+                  "or the shared home point), gls (generalised least squares of the whole "
+                  "model), registration and pattern (fits of the scans to each other or to "
+                  "the artefact's known pattern)"],
+    ["as found / as left", "results before / after any adjustment made during the visit"],
+    ["lever", "a set-up choice of the test engineer (counts, geometry, order, dwell)"],
+]

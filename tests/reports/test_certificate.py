@@ -1,0 +1,408 @@
+"""The test plan agreed before and the test report (certificate) after: the plan's number
+and fingerprint cited and its rules applied, a changed rule refused, the ISO/IEC 17025
+7.8.2.1 items on the pages, the overall result and its actions, probabilities that agree
+with the intervals, and every measured value in results/measured.csv."""
+
+from __future__ import annotations
+
+import copy
+import json
+import re
+import subprocess
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from mtplan.reports.certificate import WATERMARK
+from tests.reports.conftest import need
+
+
+def _pages(pdf) -> list[str]:
+    need("pdftotext")
+    text = subprocess.run(["pdftotext", "-layout", str(pdf), "-"], check=True,
+                          capture_output=True, text=True).stdout
+    return [p for p in text.split("\f") if p.strip()]
+
+
+def _flat(pages) -> str:
+    return " ".join(" ".join(pages).split())
+
+
+# ------------------------------------------------------------------ plan and report
+def test_plan_has_number_and_fingerprint_and_report_cites_both(small_report):
+    from mtplan.plans.agreement import fingerprint
+
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    assert plan["fingerprint"] == fingerprint(plan["rules"])
+    assert plan["document"] == "DOC-<b>1</b>-PLAN"
+    plan_text = _flat(_pages(small_report / "plan.pdf"))
+    assert plan["document"] in plan_text and plan["fingerprint"] in plan_text
+    cover = " ".join(_pages(small_report / "report.pdf")[0].split())
+    assert plan["document"] in cover and plan["fingerprint"][:16] in cover
+
+
+def test_plan_only_then_report_against_it(small_study_file, tmp_path, capsys):
+    """The workflow: --plan-only before the test (no readings used, no report), then
+    --plan plan.json after it: the report cites that plan and lists no deviation."""
+    from mtplan.cli import main
+
+    plan_dir, report_dir = tmp_path / "plan", tmp_path / "report"
+    assert main(["report", str(small_study_file), "--out", str(plan_dir), "--plan-only"]) == 0
+    assert (plan_dir / "plan.pdf").exists() and (plan_dir / "plan.json").exists()
+    assert not (plan_dir / "report.pdf").exists()
+    assert not (plan_dir / "results" / "measured.csv").exists()
+    plan = json.loads((plan_dir / "plan.json").read_text(encoding="utf-8"))
+    capsys.readouterr()
+    assert main(["report", str(small_study_file), "--out", str(report_dir), "--plan",
+                 str(plan_dir / "plan.json")]) == 0
+    out = capsys.readouterr().out
+    assert str(report_dir / "report.pdf") in out and "plan.pdf" not in out
+    text = _flat(_pages(report_dir / "report.pdf"))
+    assert plan["fingerprint"][:16] in text
+    assert "Deviations from the test plan, additions and exclusions: • none" in text
+    verdicts = pd.read_csv(report_dir / "results" / "verdicts.csv").set_index("measurand")
+    assert verdicts.loc["centre_x", "verdict"] == "does not conform"
+
+
+def test_report_applies_the_plans_guard_bands(small_report):
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    verdicts = pd.read_csv(small_report / "results" / "verdicts.csv").set_index("measurand")
+    for rule in plan["rules"]:
+        row = verdicts.loc[rule["measurand"]]
+        assert row["guard_band"] == rule["guard_band"]
+        assert row["acceptance_upper"] == rule["acceptance_upper"]
+        assert row["u"] == rule["u_planned"]
+
+
+@pytest.mark.parametrize("old, new, field", [
+    ("upper = 20.0", "upper = 25.0", "upper"),
+    ('rule = "guard:0.5"', 'rule = "iso14253"', "rule"),
+    ('population_source = "bores of 12 earlier parts"', 'population_source = "a guess"',
+     "population_source"),
+])
+def test_changed_rule_after_the_plan_is_refused_in_one_line(small_study_file, small_report,
+                                                            tmp_path, capsys, old, new,
+                                                            field):
+    from mtplan.cli import main
+
+    text = small_study_file.read_text(encoding="utf-8")
+    assert old in text
+    changed = tmp_path / "changed.toml"
+    changed.write_text(text.replace(old, new, 1), encoding="utf-8")
+    code = main(["report", str(changed), "--out", str(tmp_path / "out"), "--plan",
+                 str(small_report / "plan.json")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert len(err.splitlines()) == 1, err
+    assert f"centre_x {field}: plan DOC-<b>1</b>-PLAN says" in err, err
+    assert not (tmp_path / "out" / "report.pdf").exists()
+
+
+def test_unchanged_study_passes_and_an_edited_plan_is_refused(small_study_file, small_report,
+                                                              tmp_path):
+    from mtplan._validate import InvalidInput
+    from mtplan.plans.agreement import check_study, read_plan
+    from mtplan.plans.study import load_study
+
+    plan = read_plan(small_report / "plan.json")
+    check_study(load_study(small_study_file), plan)  # the same rules: no problem
+    plan["rules"][0]["guard_band"] *= 2
+    edited = tmp_path / "plan.json"
+    edited.write_text(json.dumps(plan), encoding="utf-8")
+    with pytest.raises(InvalidInput, match="do not match its fingerprint"):
+        read_plan(edited)
+
+
+def test_readings_that_do_not_fit_get_no_verdict(small_result, small_report):
+    """Where the fit check says the readings do not fit the model (``measured.fit.ok``
+    False), the report gives no verdict, says why, and the overall result is no decision."""
+    import dataclasses
+
+    from mtplan.plans.agreement import FIT_NO_DECISION, apply_plan, read_plan
+    from mtplan.reports.certificate import overall_result
+
+    result = copy.deepcopy(small_result)
+    measured = result.outcomes[0].measured
+    assert measured.fit is not None and measured.fit.ok is not None
+    measured.fit = dataclasses.replace(measured.fit, ok=False, p_value=1e-9)
+    apply_plan(result, read_plan(small_report / "plan.json"))
+    assert {v.verdict for v in result.verdicts} == {FIT_NO_DECISION}
+    assert all("chi-square" in v.reason for v in result.verdicts)
+    assert overall_result(result)[0] == "no decision"
+
+
+# ------------------------------------------------------------------ ISO/IEC 17025 7.8.2.1
+def test_every_page_identified_numbered_and_watermarked(small_report):
+    for name in ("report", "plan"):
+        pages = _pages(small_report / f"{name}.pdf")
+        n = len(pages)
+        for i, page in enumerate(pages, start=1):
+            flat = " ".join(page.split())
+            assert f"page {i} of {n}" in flat, (name, i)
+            assert "DOC-<b>1</b>" in flat, (name, i)
+            assert "SIMULATED READINGS" in flat, (name, i)
+    last = " ".join(_pages(small_report / "report.pdf")[-1].split())
+    assert "End of report" in last
+
+
+def test_report_has_the_17025_items(small_report):
+    text = _flat(_pages(small_report / "report.pdf"))
+    for item in ("Test report", "Lab <b>One</b>", "1 Gauge Street", "place of the test",
+                 "Customer & <i>Co</i>", "SN-42", "condition of the item", "date of the test",
+                 "2024-01-02", "date of issue", "results relate only to the item tested",
+                 "Results as found", "µm", "Deviations from the plan", "authorised by",
+                 "method", "Circle centre measuring"):
+        assert item in text, item
+
+
+def test_conditions_and_instruments_come_from_the_study(small_report):
+    text = _flat(_pages(small_report / "report.pdf"))
+    for item in ("ambient temperature 20.5 °C", "machine temperature 21.0 °C",
+                 "part (artefact) temperature 20.7 °C", "45 min axis cycling",
+                 "machine's error compensation off", "Touch probe", "TP-0042",
+                 "CAL-2024-0815", "2025-08-15", "PTB via DAkkS D-K-99999", "Traceability"):
+        assert item in text, item
+
+
+def test_glossary_and_plain_names(small_report):
+    text = _flat(_pages(small_report / "report.pdf"))
+    for term in ("Glossary", "TUR", "PFA", "PFR", "guard band w", "O1-O5", "three_point",
+                 "kasa"):
+        assert term in text, term
+    assert "X of the bore centre from its nominal position (centre_x)" in text
+
+
+def test_customer_words(small_report):
+    """No developer words ("the seed's"), no negative zero, the method cited by its title."""
+    for name in ("report", "plan"):
+        text = _flat(_pages(small_report / f"{name}.pdf"))
+        assert "seed's" not in text, name
+        assert not re.search(r"(?<![\d.])-0(\.0+)?(?![\d.])", text), name
+
+
+# ------------------------------------------------------------------ probabilities
+@pytest.mark.parametrize("u", [0.5, 2.0, 8.0])
+def test_probability_never_certain_where_the_interval_overlaps_a_limit(u):
+    """A sweep of measured values across both limits of a +-20 tolerance: where the 95 %
+    interval overlaps a limit the printed probability is neither 100 % nor 0 % (nor one
+    that rounds to them), and it lies on the side of 50 % the value does."""
+    from mtplan.plans.agreement import p_conform_measured
+    from mtplan.reports.wording import probability_text
+
+    for y in np.linspace(-40, 40, 801):
+        low, high = y - 2 * u, y + 2 * u
+        p = p_conform_measured(y, u, -20.0, 20.0)
+        text = probability_text(p)
+        assert text not in ("100 %", "0 %", "100.0 %", "0.0 %"), (y, text)
+        overlaps = low <= -20 <= high or low <= 20 <= high
+        if overlaps:
+            value = float(re.sub(r"[<> %]", "", text))
+            assert 0.1 <= value <= 99.9, (y, text)
+        if abs(y) > 20 + 1e-9:
+            assert p < 0.5, y
+        elif abs(y) < 20 - 1e-9:
+            assert p > 0.5, y
+
+
+def test_demo_probabilities_agree_with_the_intervals(demo_report):
+    report, _ = demo_report
+    v = pd.read_csv(report / "results" / "verdicts.csv")
+    v = v[v["measured"].notna()]
+    for r in v.itertuples():
+        crosses = any(r.measured_low <= lim <= r.measured_high for lim in (r.lower, r.upper))
+        if crosses:
+            assert 0.01 < r.p_conform < 0.99, r.measurand
+        if r.measured_low > r.upper or r.measured_high < r.lower:
+            assert r.p_conform < 0.5, r.measurand
+    text = _flat(_pages(report / "report.pdf"))
+    assert not re.search(r"(?<![\d.])(100|0)(\.0)? %", text)
+
+
+# ------------------------------------------------------------------ the demo
+def test_demo_overall_result_and_the_c_axis_action(demo_report):
+    report, _ = demo_report
+    page = " ".join(_pages(report / "report.pdf")[1].split())
+    assert page.replace(WATERMARK, "").lstrip().startswith("Overall result and actions")
+    assert "Overall result: not accepted: EX0C." in page
+    assert "Adjust the x position of the C axis at the reference height (EX0C)" in page
+    assert "re-test test 1 (C axis location from an inclined plane)" in page
+    assert "EC0Y" in page  # no decision, with the lever or repeats that would decide it
+
+
+def test_measured_csv_has_every_measured_measurand(demo_report):
+    report, _ = demo_report
+    measured = pd.read_csv(report / "results" / "measured.csv")
+    from mtplan.models import get
+    from mtplan.plans.study import load_study
+    from mtplan.cli.report import demo_study_path
+
+    study = load_study(demo_study_path())
+    for ps in study.procedures:
+        names = {m.name for m in get(ps.name).measurands(ps.setup)}
+        got = set(measured.loc[measured["procedure"] == ps.name, "measurand"])
+        assert got == names, ps.name
+    ok = measured[measured["determinable"]]
+    assert np.allclose(ok["U"], 2 * ok["u"]) and (ok["low"] <= ok["high"]).all()
+
+
+# ------------------------------------------------------------------ figures and tables
+@pytest.fixture()
+def captured_figures(monkeypatch):
+    """The matplotlib figures the report draws, kept open instead of turned into PNG."""
+    import matplotlib.pyplot as plt
+
+    from mtplan.reports import figures
+
+    kept = []
+
+    def keep(fig):
+        kept.append(fig)
+        return b""
+
+    monkeypatch.setattr(figures, "_png", keep)
+    yield kept
+    for fig in kept:
+        plt.close(fig)
+
+
+def test_every_plotted_marker_equals_its_table_value(small_result, captured_figures):
+    """The star of the lever figure is the study's set-up with the recommended estimator,
+    at exactly the u whose U = 2u the test's results table prints."""
+    from mtplan.reports.document import test_section
+
+    o = small_result.outcomes[0]
+    sec = test_section(1, o)
+    table = next(b for b in sec.blocks if hasattr(b, "rows"))
+    first = o.results[o.recommended]
+    u = {m.name: float(first.mc.std[i]) for i, m in enumerate(first.measurands)}
+    printed = {r[0].split(" [")[0]: float(r[2]) for r in table.rows}
+    fig, = captured_figures
+    stars = 0
+    for ax in fig.axes:
+        for line in ax.get_lines():
+            if line.get_marker() == "*":
+                name = ax.get_title()
+                assert line.get_ydata()[0] == pytest.approx(u[name], rel=1e-12)
+                assert 2 * line.get_ydata()[0] == pytest.approx(printed[name], rel=0.05)
+                stars += 1
+    assert stars == len([ax for ax in fig.axes if ax.get_visible() and ax.get_title()])
+
+
+def test_budget_colours_are_distinct_within_each_figure(captured_figures):
+    """Up to 25 error sources in one budget: every source's bars have their own colour."""
+    from matplotlib.colors import to_hex
+
+    from mtplan.reports import figures
+
+    sources = [f"source_{j}" for j in range(25)]
+    budget = pd.DataFrame([{"output": f"m{i}", "input": s, "share": 1 / 25}
+                           for i in range(3) for s in sources])
+    figures.budget_figure(budget)
+    fig, = captured_figures
+    ax = fig.axes[0]
+    colours = [to_hex(c.patches[0].get_facecolor()) for c in ax.containers]
+    assert len(colours) == 25 and len(set(colours)) == 25
+    assert len(set(figures.qualitative_colors(60))) == 60
+
+
+def _words_with_boxes(pdf):
+    """(page width, page height, [(xmin, ymin, xmax, ymax, word)]) per page, from
+    poppler's pdftotext -bbox."""
+    need("pdftotext")
+    html_text = subprocess.run(["pdftotext", "-bbox", str(pdf), "-"], check=True,
+                               capture_output=True, text=True).stdout
+    pages = []
+    for m in re.finditer(r'<page width="([\d.]+)" height="([\d.]+)">(.*?)</page>', html_text,
+                         re.S):
+        words = [(float(a), float(b), float(c), float(d), w) for a, b, c, d, w in re.findall(
+            r'<word xMin="([\d.-]+)" yMin="([\d.-]+)" xMax="([\d.-]+)" yMax="([\d.-]+)">'
+            r'(.*?)</word>', m[3])]
+        pages.append((float(m[1]), float(m[2]), words))
+    return pages
+
+
+def test_no_text_clipped_by_the_page(small_report):
+    """Every word of both documents lies inside the page's 2 cm side margins (a table as
+    wide as the margins, drawn in a frame that pads 6 pt, once overran them)."""
+    for name in ("report", "plan"):
+        for k, (width, height, words) in enumerate(_words_with_boxes(
+                small_report / f"{name}.pdf"), start=1):
+            assert words, (name, k)
+            for x0, y0, x1, y1, word in words:
+                assert 0 <= y0 and y1 <= height, (name, k, word)
+                margin = 72 * 2 / 2.54
+                assert margin <= x0 + 0.5 and x1 <= width - margin + 0.5, (name, k, word, x1)
+
+
+def test_no_text_clipped_by_a_cell(tmp_path):
+    """A table whose cells hold long words: each word's box stays inside its column (the
+    column edges found from the header words' positions)."""
+    from mtplan.reports.model import Document, Section, Table
+    from mtplan.reports.render import column_widths, render_pdf
+
+    t = Table("Long words", ["alpha", "beta", "gamma", "delta"],
+              [["Perpendicularity", "Straightnesses", "-12.345", "conditional"],
+               ["Observability", "x", "7.1", "Repeatability-limited"]])
+    prov = {"date": "today", "study_sha256": "0" * 64, "versions": {"mtplan": "x"}}
+    doc = Document(title="Cells", subtitle="", meta={}, provenance=prov,
+                   sections=[Section("Table", blocks=[t], anchor="t")])
+    pdf = tmp_path / "cells.pdf"
+    pdf.write_bytes(render_pdf(doc))
+    _, _, words = _words_with_boxes(pdf)[1]
+    from mtplan.reports.render import _table_size
+
+    size = _table_size(t, 470.0)
+    edges = np.cumsum([72 * 2 / 2.54 + 6] + column_widths(t, 470.0, size))
+    for row in t.rows:
+        for j, cell in enumerate(row):
+            for x0, _, x1, _, w in words:
+                if w == cell:
+                    assert edges[j] - 0.5 <= x0 and x1 <= edges[j + 1] + 0.5, (cell, x0, x1)
+
+
+def test_an_outlier_is_marked_not_squashing_the_rest(captured_figures):
+    """A bias of -1500 u among biases below 1 u: the axis stays on the others and the
+    outlier is a triangle at the edge with its value printed."""
+    from types import SimpleNamespace
+
+    from mtplan.reports import figures
+
+    names = [SimpleNamespace(name=f"m{i}") for i in range(8)]
+    ok = SimpleNamespace(measurands=names, bias=np.full(8, 0.1), mc=SimpleNamespace(
+        std=np.ones(8)))
+    bad = SimpleNamespace(measurands=names, bias=np.r_[-1500.0, np.full(7, 0.2)],
+                          mc=SimpleNamespace(std=np.ones(8)))
+    figures.estimator_figure({"patent": ok, "joint": bad})
+    fig, = captured_figures
+    ax = fig.axes[0]
+    low, high = ax.get_xlim()
+    assert -20 < low < -2 and 2 < high < 20
+    marks = [ln for ln in ax.get_lines() if ln.get_marker() == "<"]
+    assert len(marks) == 1 and marks[0].get_xdata()[0] == pytest.approx(0.97 * low)
+    assert any(t.get_text() == "-1.5e+03" for t in ax.texts)
+
+
+def test_no_legend_entry_without_its_curve(captured_figures):
+    """A sweep where one estimator is u = 0 (not drawn) everywhere: no legend entry for it."""
+    from mtplan.reports import figures
+
+    rows = []
+    for x in (3, 6):
+        rows.append({"n": x, "measurand": "a", "estimator": "kasa", "std": 1.0 / x,
+                     "trials": 200})
+        rows.append({"n": x, "measurand": "a", "estimator": "flat", "std": 0.0,
+                     "trials": 200})
+    figures.lever_figure(pd.DataFrame(rows), "n", ["a"], {"a": "um"}, estimator="kasa",
+                         recommended="kasa", base=3, targets={}, xlabel="n",
+                         marked={"a": 1 / 3})
+    fig, = captured_figures
+    labels = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
+    assert "kasa (recommended)" in labels and not any("flat" in x for x in labels)
+
+
+def test_a_value_rounding_to_zero_has_no_sign():
+    from mtplan.reports.model import Table
+
+    t = Table("zeros", ["a", "b", "c"], [["-0.00", "-0", "-0.05"]])
+    assert t.rows == [["0.00", "0", "-0.05"]]
