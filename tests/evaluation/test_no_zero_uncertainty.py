@@ -42,7 +42,7 @@ def test_simulate_and_estimate_never_state_u_zero(proc_name, estimator):
                                progress=False)
     doc = json.loads(json.dumps(res.to_dict()))
     for m in doc["measurands"]:
-        assert _nonzero(m["std"], *m["interval"]), (estimator, m)
+        assert _nonzero(m["u"], *m["interval"]), (estimator, m)
     readings = read_readings(proc, setup, EXAMPLES / f"{proc_name}_readings.csv")
     out = estimate_measured(proc, setup, readings, estimator=estimator, uncertainty="mc",
                             trials=24, rng=3)

@@ -36,15 +36,13 @@ def method_citation(procedure: str) -> str:
 
 
 def customer_words(text: str) -> str:
-    """Developer wording in a model's documentation as a customer reads it: "the seed's
-    method" is the source method (a seed is only a random seed here)."""
+    """Developer wording in a model's documentation as a customer reads it: "the patent's
+    method" is the source method, cited once by its number and title elsewhere."""
     import re
 
-    text = re.sub(r"\b([Tt])he seed's method\b", r"\1he source method", text)
-    text = re.sub(r"\bThe seed's\b", "The source method's", text)
-    text = re.sub(r"\bthe seed's\b", "the source method's", text)
-    text = re.sub(r"\bseed's\b", "source method's", text)
-    return re.sub(r"\b(the|The) seed\b", r"\1 source method", text)
+    text = re.sub(r"\b([Tt])he patent's method\b", r"\1he source method", text)
+    text = re.sub(r"\b([Tt])he patent's own\b", r"\1he source method's own", text)
+    return text
 
 
 def measurand_name(description: str, code: str) -> str:
