@@ -73,7 +73,10 @@ def test_every_example_readings_file_estimates_with_no_set(capsys, name):
                          "--trials", 50)
     assert code == 0, err
     doc = json.loads(out)
-    assert all(math.isfinite(m["estimate"]) for m in doc["measurands"])
+    # every measurand the set-up determines has a finite estimate; those it does not (the six
+    # blind errors of geometry21's one-head set-up) are listed with their reason
+    assert all(math.isfinite(m["estimate"]) for m in doc["measurands"] if m["determinable"])
+    assert all(m["reason"] for m in doc["measurands"] if not m["determinable"])
 
 
 @pytest.mark.parametrize("n", [3, 4, 12])

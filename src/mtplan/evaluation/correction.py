@@ -247,7 +247,9 @@ def correct_mc(proc, setup, readings, estimator, truth0, r, *, value, u, low, hi
                                sources=sources, draws=draws, trials=draw_trials(trials))
     se, nuis = correction_u(np.where(heavy, u, r.mc.std), trials, d)
     bad = ~np.isfinite(u)
-    u_c = np.where(bad, np.nan, np.hypot(se, nuis))
+    # a heavy-tailed measurand is not corrected (its interval is the result): no correction,
+    # no correction's uncertainty (a bias from a few hundred trials of such errors is noise)
+    u_c = np.where(bad, np.nan, np.where(heavy, 0.0, np.hypot(se, nuis)))
     k = stats.norm.ppf(0.5 + coverage / 2)
     notes = []
     if why is not None:
