@@ -389,9 +389,9 @@ def test_no_legend_entry_without_its_curve(captured_figures):
 
     rows = []
     for x in (3, 6):
-        rows.append({"n": x, "measurand": "a", "estimator": "kasa", "std": 1.0 / x,
+        rows.append({"n": x, "measurand": "a", "estimator": "kasa", "u": 1.0 / x,
                      "trials": 200})
-        rows.append({"n": x, "measurand": "a", "estimator": "flat", "std": 0.0,
+        rows.append({"n": x, "measurand": "a", "estimator": "flat", "u": 0.0,
                      "trials": 200})
     figures.lever_figure(pd.DataFrame(rows), "n", ["a"], {"a": "um"}, estimator="kasa",
                          recommended="kasa", base=3, targets={}, xlabel="n",
