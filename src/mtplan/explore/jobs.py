@@ -31,8 +31,8 @@ def confirm(design: dict, progress=None) -> dict:
     doc = r.to_dict()
     pred = predict(proc, setup, est)["u"]
     for m in doc["measurands"]:
-        m["U"] = K * m["std"]
-        m["predicted_u"] = pred[m["name"]]
+        m["U"] = None if m["u"] is None else K * m["u"]
+        m["predicted_u"] = pred.get(m["name"])
     doc["findings"] = r.findings()
     return doc
 

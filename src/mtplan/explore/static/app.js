@@ -398,9 +398,9 @@ async function cancelJob() {
 function showConfirm(r) {
   const rows = r.measurands.map((m) => el("tr", { id: "mc-" + m.name },
     el("td", { text: m.name }), el("td", { text: unitText(m.unit) }),
-    el("td", { class: "mc-u", text: fmt3(m.std) }), el("td", { class: "mc-U", text: fmt3(m.U) }),
+    el("td", { class: "mc-u", text: fmt3(m.u) }), el("td", { class: "mc-U", text: fmt3(m.U) }),
     el("td", { text: fmt3(2 * m.predicted_u) }),
-    el("td", { text: m.predicted_u > 0 ? fmt3(m.std / m.predicted_u) : "-" }),
+    el("td", { text: m.predicted_u > 0 ? fmt3(m.u / m.predicted_u) : "-" }),
     el("td", { text: `[${fmt3(m.interval[0])}, ${fmt3(m.interval[1])}]` })));
   const head = el("tr", {}, ...["Measurand", "Unit", "MC u", "MC U (k=2)", "predicted U", "MC / predicted u", "95 % interval"].map((t) => el("th", { text: t })));
   $("job-result").replaceChildren(
