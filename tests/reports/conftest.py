@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
@@ -113,15 +114,30 @@ def small_report(small_result, tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="session")
 def demo_report(tmp_path_factory):
-    """`mtplan demo` run once for every test that looks at it: (folder, stdout)."""
+    """`mtplan demo` run once for every test that looks at it: (folder, stdout).
+
+    Once for the whole run, also with pytest-xdist: the first worker to get the lock builds
+    the demo in the workers' common temporary folder, the others wait for it and read it."""
     import contextlib
+    import fcntl
     import io
 
     from mtplan.cli import main
 
-    out = tmp_path_factory.mktemp("demo") / "demo"
-    buf = io.StringIO()
-    with contextlib.redirect_stdout(buf):
-        code = main(["demo", "--out", str(out), "--jobs", "2"])
-    assert code == 0
-    return out, buf.getvalue()
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # shared by the workers of this run
+    out, log = root / "demo-shared" / "demo", root / "demo-shared" / "stdout.txt"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with open(root / "demo-shared.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            if not log.exists():
+                buf = io.StringIO()
+                with contextlib.redirect_stdout(buf):
+                    code = main(["demo", "--out", str(out), "--jobs", "2"])
+                assert code == 0
+                log.write_text(buf.getvalue(), encoding="utf-8")
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+    return out, log.read_text(encoding="utf-8")
