@@ -225,6 +225,7 @@ from mtplan.fitting.fit3d import (
     fit_circle_3d_angles,
     fit_line_3d,
 )
+from mtplan.models.first_order import with_chain_rule
 from mtplan.models.protocol import (
     Measurand,
     Procedure,
@@ -1344,7 +1345,8 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     return out
 
 
-PROCEDURE = Procedure(
+# first-order prediction (designer, planner) by the chain rule: estimator map x reading effects
+PROCEDURE = with_chain_rule(Procedure(
     name=NAME,
     title="Zero point and frames of gantry sub-machines by laser tracker",
     Setup=Setup,
@@ -1369,4 +1371,4 @@ PROCEDURE = Procedure(
                  "points_per_axis c_arc_deg a_arc_deg points_per_arc tracker_distance_mm "
                  "tracker_height_mm dwell_s linear_feed_mm_min".split()),
     setup_from_frame=setup_from_frame,
-)
+))
