@@ -413,14 +413,27 @@ class Truth(SetupBase):
 # --------------------------------------------------------------------------- geometry
 def _rot(axis: np.ndarray, angle) -> np.ndarray:
     """Rotation matrices (..., 3, 3) about unit `axis` (..., 3) by `angle` (...) [rad]
-    (Rodrigues; axis and angle broadcast)."""
+    (Rodrigues, ``I + sin K + (1 - cos) K K``; axis and angle broadcast)."""
     angle = np.asarray(angle, dtype=float)
-    x, y, z = (np.asarray(axis, dtype=float)[..., i] for i in range(3))
-    o = np.zeros_like(x)
-    k = np.stack([np.stack([o, -z, y], -1), np.stack([z, o, -x], -1), np.stack([-y, x, o], -1)],
-                 -2)
+    axis = np.asarray(axis, dtype=float)
+    if angle.ndim == 0 and axis.ndim == 1:  # one matrix: the same sums, without arrays
+        x, y, z = (float(v) for v in axis)
+        s, c = float(np.sin(angle)), 1.0 - float(np.cos(angle))
+        return np.array([
+            [1.0 + c * (-z * z - y * y), s * -z + c * (y * x), s * y + c * (z * x)],
+            [s * z + c * (y * x), 1.0 + c * (-z * z - x * x), s * -x + c * (z * y)],
+            [s * -y + c * (z * x), s * x + c * (z * y), 1.0 + c * (-y * y - x * x)]])
+    x, y, z = axis[..., 0], axis[..., 1], axis[..., 2]
+    k = np.zeros((*x.shape, 3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -z, y, -x
+    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = z, -y, x
+    kk = np.empty_like(k)  # K K, element by element (K is skew: K K = a a^T - |a|^2 I)
+    kk[..., 0, 0], kk[..., 1, 1], kk[..., 2, 2] = -z * z - y * y, -z * z - x * x, -y * y - x * x
+    kk[..., 0, 1] = kk[..., 1, 0] = y * x
+    kk[..., 0, 2] = kk[..., 2, 0] = z * x
+    kk[..., 1, 2] = kk[..., 2, 1] = z * y
     s, c = np.sin(angle)[..., None, None], np.cos(angle)[..., None, None]
-    return np.eye(3) + s * k + (1 - c) * (k @ k)
+    return np.eye(3) + s * k + (1 - c) * kk
 
 
 def _mv(r: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -544,6 +557,18 @@ class _Head:
     origin: np.ndarray  # true origin (tool tip with the true pivot length)
 
 
+def _travel_axes(sxy, syz, szx) -> np.ndarray:
+    """Unit directions (..., 3, 3), rows X, Y, Z, of the linear travels of a sub-machine
+    before its frame's rotation, for its squareness angles [rad]."""
+    z0 = np.zeros(np.broadcast_shapes(np.shape(sxy), np.shape(syz), np.shape(szx)))
+    ux = np.stack([z0 + 1.0, z0, z0], axis=-1)
+    uy = np.stack([np.sin(sxy) + z0, np.cos(sxy) + z0, z0], axis=-1)
+    alpha = np.sin(szx) + z0
+    beta = (np.sin(syz) - alpha * np.sin(sxy)) / np.cos(sxy)
+    uz = np.stack([alpha, beta, np.sqrt(1.0 - alpha**2 - beta**2)], axis=-1)
+    return np.stack([ux, uy, uz], axis=-2)
+
+
 def _head(setup: Setup, truth: Truth, k: int) -> _Head:
     """True geometry of sub-machine k (0-based): vectors (3,), or (m, 3) for a truth whose
     fields are arrays (m,) (one truth per batch row)."""
@@ -552,13 +577,7 @@ def _head(setup: Setup, truth: Truth, k: int) -> _Head:
                _cyc(truth.frame_rz_urad, k) * u)
     sxy, syz, szx = (_cyc(truth.sq_xy_urad, k) * u, _cyc(truth.sq_yz_urad, k) * u,
                      _cyc(truth.sq_zx_urad, k) * u)
-    z0 = np.zeros(np.broadcast_shapes(np.shape(sxy), np.shape(syz), np.shape(szx)))
-    ux = np.stack([z0 + 1.0, z0, z0], axis=-1)
-    uy = np.stack([np.sin(sxy) + z0, np.cos(sxy) + z0, z0], axis=-1)
-    alpha = np.sin(szx) + z0
-    beta = (np.sin(syz) - alpha * np.sin(sxy)) / np.cos(sxy)
-    uz = np.stack([alpha, beta, np.sqrt(1.0 - alpha**2 - beta**2)], axis=-1)
-    axes = np.stack([ux, uy, uz], axis=-2) @ np.swapaxes(rf, -1, -2)  # rows: rf @ u_i
+    axes = _travel_axes(sxy, syz, szx) @ np.swapaxes(rf, -1, -2)  # rows: rf @ u_i
     e = np.eye(3)
     c_loc = _mv(_rot(e[1], _cyc(truth.c_tilt_y_urad, k) * u)
                 @ _rot(e[0], _cyc(truth.c_tilt_x_urad, k) * u), e[2])
@@ -1048,9 +1067,9 @@ def truth_from_estimate(setup: Setup, estimate: dict) -> Truth:
                 frame_rz_urad=zero, wrist_dx_um=zero, wrist_dy_um=zero, wrist_dz_um=zero)
     for k in range(1, n + 1):
         sq = {ab: first[f"sq_{ab}_{k}"] for ab in ("xy", "yz", "zx")}
-        local = Truth(**base, sq_xy_urad=(sq["xy"] * 1e6,), sq_yz_urad=(sq["yz"] * 1e6,),
-                      sq_zx_urad=(sq["zx"] * 1e6,), ac_offset_um=(0.0,))
-        r_loc = _orthonormal(setup, *_head(setup, local, 0).axes)
+        # the frame of the local axes (the head untilted, the frame unrotated)
+        r_loc = _orthonormal(setup, *_travel_axes(*(sq[ab] * 1e6 * 1e-6 for ab in ("xy", "yz",
+                                                                                 "zx"))))
         r_est = _rxyz(first[f"rot_x_{k}"], first[f"rot_y_{k}"], first[f"rot_z_{k}"])
         rx, ry, rz = _angles(r_est @ r_loc.T)
         c_dir = _rxyz(float(rx), float(ry), float(rz))[:, 2]
