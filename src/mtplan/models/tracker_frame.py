@@ -1201,6 +1201,15 @@ def estimate_gls(setup: Setup, readings: dict, *, iterations: int = 30) -> dict[
     re-taken once at the batch's median; the measurands
     are the construction applied to the fitted geometry (:func:`true_values`).
     """
+    from threadpoolctl import threadpool_limits
+
+    # matrices of a few hundred rows: a team of BLAS threads costs more than it gains
+    # (3 times, on a busy machine), so the fit runs on one
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _estimate_gls(setup, readings, iterations)
+
+
+def _estimate_gls(setup: Setup, readings: dict, iterations: int) -> dict[str, np.ndarray]:
     y = _gls_vector(readings)
     start_truth, start = _gls_start(setup, readings)
     # the gain depends on the held fields only (the fitted ones come from theta)
