@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import time
 import traceback
 from pathlib import Path
 
@@ -115,17 +116,30 @@ def create_app(initial: dict | None = None) -> Starlette:
                 latest.pop(next(iter(latest)))
         return tab, change
 
+    evaluating = [0]  # numbers' requests in flight: a sensitivity gives them the CPU
+
     async def evaluate(request):
         body = await _body(request)
         seen(body)
-        return _answer(await run_in_threadpool(d.evaluate, body.get("design", body)))
+        evaluating[0] += 1
+        try:
+            return _answer(await run_in_threadpool(d.evaluate, body.get("design", body)))
+        finally:
+            evaluating[0] -= 1
 
     async def sensitivity(request):
         body = await _body(request)
         tab, change = seen(body)
+
+        def stop() -> bool:  # before each point: wait (up to 2 s) while numbers are computed
+            for _ in range(400):
+                if not evaluating[0]:
+                    break
+                time.sleep(0.005)
+            return bool(tab) and latest.get(tab, -1) > change
+
         return _answer(await run_in_threadpool(
-            d.sensitivity, body.get("design") or {}, body.get("field"),
-            stop=lambda: bool(tab) and latest.get(tab, -1) > change))
+            d.sensitivity, body.get("design") or {}, body.get("field"), stop=stop))
 
     async def export(request):
         return _answer({"toml": await run_in_threadpool(d.study_toml, await _body(request))})

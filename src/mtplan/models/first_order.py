@@ -9,17 +9,19 @@ first-order propagation in two smaller parts:
 - the **reading effects**: the derivative of the readings with respect to each element,
   times its standard deviation, by the same Richardson differences with the same steps.
   The elements of a source are moved together in groups in which every reading depends
-  on one element at most (found by NaN probes, and checked), so that a source of
-  reading noise costs 4 forward runs, not ``4 E``;
+  on one element at most (found by NaN probes, and checked with the elements moved by
+  random signs), so that a source of reading noise costs 5 forward runs, not ``4 E``;
 - the **estimator map** ``G = d estimate / d readings`` at the error-free readings (the
-  readings at the sources' means), Richardson differences over each reading with a step
-  of 1e-3 of its standard deviation under the budget.
+  readings at the sources' means), central differences over each reading with a step of
+  1e-3 of its standard deviation under the budget.
 
 Per measurand i and source s the variance is ``sum_j (G E_s)_ij^2``, as
-``GUMResult.group_variance`` sums it. The two agree with the whole-chain
-differentiation to the truncation error of the differences (relative 1e-7 or below;
-the tests hold them to 1e-5), at a fraction of the cost: tens of estimator runs per
-reading instead of per source element, and a few forward runs per source.
+``GUMResult.group_variance`` sums it. Both ways are finite differences of one
+first-order propagation: u agrees to about 1e-7, each source's variance to about 1e-7 of
+the product of its effects and the map (which can exceed its own size for a source the
+estimator cancels, as circle_centre's start scatter); the tests hold 1e-5 of u and of
+u^2. With up to ``_WHOLE_MAX`` source elements the whole chain is differentiated as
+``mtplan linearize`` does (the cheaper way there, and exact to it).
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ __all__ = ["reading_effects", "estimator_map", "chain_variances", "chain_budget"
 #: step of the differences, in standard deviations (that of ``mtplan.uncertainty.gum``)
 REL_STEP = 1e-3
 _CHUNK_CELLS = 400_000  # about this many numbers per batch of rows (cache-sized arrays)
-_WHOLE_MAX = 64  # source elements up to which the whole chain is differentiated at once
+_WHOLE_MAX = 256  # source elements up to which the whole chain is differentiated at once
 
 
 def _base_errors(proc, setup, active) -> tuple[dict, dict]:
