@@ -531,3 +531,20 @@ def _assert_chain_rule_is_the_linearisation(proc, setup, estimator):
                                                ("home", {"n_submachines": 1})])
 def test_first_order_hooks_equal_the_linearisation(estimator, changes):
     _assert_chain_rule_is_the_linearisation(PROC, PROC.setup(changes), estimator)
+
+
+@pytest.mark.parametrize("changes", [{}, {"n_submachines": 3, "points_per_arc": 9},
+                                     {"straightness_um": 0.0, "a_arc_deg": 20.0}])
+def test_gls_covariance_from_grouped_rows_is_the_budgets(changes):
+    """The gls weights' secant effects from grouped rows are source_effects' numbers,
+    bit for bit (each reading of a group's rows depends on one of its elements)."""
+    from mtplan.fitting import SourceModel, source_effects
+    from mtplan.models.first_order import secant_effects
+
+    setup = PROC.setup(changes)
+    theta = tf._gls_start(setup, PROC.simulate(setup, draws=1, rng=1))[1][None, :]
+    model = SourceModel(PROC.name, tf.sources(setup), lambda e: tf._gls_vector(tf.forward(
+        setup, tf._gls_truth(setup, tf.Truth(), np.repeat(theta, len(e["air_refraction"]), 0)),
+        e)), lambda m: PROC.zero_errors(setup, m))
+    for want, got in zip(source_effects(model), secant_effects(model), strict=True):
+        assert want.shape == got.shape and np.array_equal(want, got)

@@ -1,4 +1,4 @@
-"""The GUM law of propagation of a procedure by the chain rule: estimator map times reading effects.
+"""GUM law of propagation of a procedure by the chain rule: estimator map x reading effects.
 
 ``mtplan linearize`` (:func:`mtplan.evaluation.simulation.linearize_procedure`)
 differentiates the whole chain, forward model then estimator, with respect to every
@@ -32,14 +32,17 @@ import math
 import numpy as np
 import pandas as pd
 
+from mtplan._validate import InvalidInput
 from mtplan.uncertainty.gum import sensitivities
 
 __all__ = ["reading_effects", "estimator_map", "chain_variances", "chain_budget", "chain_std",
-           "with_chain_rule"]
+           "with_chain_rule", "secant_effects"]
 
 #: step of the differences, in standard deviations (that of ``mtplan.uncertainty.gum``)
 REL_STEP = 1e-3
 _CHUNK_CELLS = 400_000  # about this many numbers per batch of rows (cache-sized arrays)
+_SUPPORT = 1e-9  # (mtplan.fitting.budget's) relative size below which an effect is zero
+_PROBE = 32  # (mtplan.fitting.budget's) elements from which a source is first NaN-probed
 _WHOLE_MAX = 256  # source elements up to which the whole chain is differentiated at once
 
 
@@ -73,8 +76,8 @@ class _Batch:
     """Rows of errors, each at the sources' means but for one source's values, run through
     the forward model in cache-sized batches of rows."""
 
-    def __init__(self, proc, setup, truth, base: dict):
-        self.proc, self.setup, self.truth, self.base = proc, setup, truth, base
+    def __init__(self, readings, base: dict):
+        self.readings, self.base = readings, base
         self.parts: list[tuple[str, np.ndarray]] = []
         self.rows = 0
         width = sum(int(np.prod(v.shape[1:], dtype=np.int64)) for v in base.values())
@@ -98,7 +101,7 @@ class _Batch:
                     errors[name][lo - s:hi - s] = values[lo - a:hi - a].reshape(
                         (hi - lo, *errors[name].shape[1:]))
             with np.errstate(all="ignore"):
-                out.append(_readings(self.proc, self.setup, self.truth, errors))
+                out.append(self.readings(errors))
         self.parts, self.rows = [], 0
         return np.concatenate(out) if out else np.zeros((0, 0))
 
@@ -208,7 +211,7 @@ def reading_effects(proc, setup, truth, active: dict) -> tuple[np.ndarray, dict]
     own element's move alone (else that source is taken element by element).
     """
     base, stats = _base_errors(proc, setup, active)
-    batch = _Batch(proc, setup, truth, base)
+    batch = _Batch(lambda errors: _readings(proc, setup, truth, errors), base)
     f0 = _readings(proc, setup, truth, base)[0]
     n = f0.size
     grouping = _groups(batch, stats)
@@ -257,6 +260,95 @@ def _checked(vals, f0, elem, grp: _Grouping, sign) -> bool:
     return bool(np.all(np.abs(mixed - expect) <= 1e-12 * scale)
                 and np.all(np.abs(plus - f0)[~dep] <= 1e-15 * scale[~dep])
                 and np.all(np.abs(minus - f0)[~dep] <= 1e-15 * scale[~dep]))
+
+
+def secant_effects(model) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`mtplan.fitting.source_effects` of a :class:`~mtplan.fitting.SourceModel`,
+    the same numbers (D (n,), U (n, k)), from grouped rows.
+
+    Each element's secant (half the change of the readings with it at plus and minus one
+    standard deviation, all other errors zero) is read off rows that move a whole group
+    of elements at once where every reading depends on one element of the group at most
+    (:func:`_groups`): the readings are the same numbers as with the element moved
+    alone. An element is a term of D or a column of U by the rules of
+    ``mtplan.fitting.budget``: by the readings that depend on it for a source of at
+    least 32 elements whose readings each depend on one of them (its NaN probes), else
+    by the readings it moves by more than 1e-9 of its largest secant or curvature.
+    """
+    names = [k for k, src in model.sources.items()
+             if np.any(np.asarray(src.distribution.std) > 0)]
+    base = model.errors(1)
+    f0 = model.at(None, base)[0]
+    n = f0.size
+    stats = {}
+    for name in names:
+        src = model.sources[name]
+        shape = (*src.shape, *src.distribution.event_shape)
+        n_el = int(np.prod(shape, dtype=np.int64))
+        std = np.asarray(src.distribution.std, dtype=float)
+        sd = (np.full(n_el, float(std.reshape(-1)[0])) if std.size == 1 else std.reshape(-1)
+              if std.size == n_el else np.broadcast_to(std, shape).reshape(-1))
+        stats[name] = (base[name].reshape(-1).astype(float), sd, shape)
+    batch = _Batch(lambda errors: model.at(None, errors), base)
+    grouping = _groups(batch, stats)
+    sign = np.where(np.random.default_rng(0).random(max([st[0].size for st in stats.values()],
+                                                        default=0)) < 0.5, -1.0, 1.0)
+    where = {}
+    for name, (grp, _elem) in grouping.items():
+        zero, sd, _ = stats[name]
+        moves = np.vstack([sd, -sd, sign[:sd.size] * sd])  # +sd, -sd, random signs
+        where[name] = batch.add(name, (zero + grp.members()[:, None, :] * moves[None]).reshape(
+            -1, sd.size))
+    pred = batch.run() if where else np.zeros((0, n))
+    D, cols = np.zeros(n), [np.zeros((n, 0))]
+    for name in names:
+        grp, elem = grouping[name]
+        zero, sd, _ = stats[name]
+        vals = pred[where[name]].reshape(grp.count, 3, n)
+        if not np.all(np.isfinite(vals[:, :2])):
+            raise InvalidInput([f"The forward model of {model.name} gives no finite readings "
+                                f"with the source {name!r} one standard deviation off its mean."])
+        plus, minus, mixed = vals[:, 0], vals[:, 1], vals[:, 2]
+        sec, cur = 0.5 * (plus - minus), 0.5 * (plus + minus) - f0  # (G, n)
+        owner = np.full((grp.count, n), -1)  # the element behind each group's reading
+        if elem is None:
+            owner[:] = grp.table[:, :1]
+        else:
+            live = elem >= 0
+            owner[live] = grp.table[np.nonzero(live)[0], elem[live]]
+        probed = (elem is not None and grp.count == 1 and sd.size >= _PROBE
+                  and np.all(mixed[0] == np.where(live[0], np.where(
+                      sign[np.maximum(owner[0], 0)] > 0, plus[0], minus[0]), f0))
+                  and np.all(plus[0][~live[0]] == f0[~live[0]])
+                  and np.all(minus[0][~live[0]] == f0[~live[0]]))
+        d, u = _classify(sec, cur, owner, sd.size, n, probed=probed)
+        D = D + d
+        cols.append(u)
+    return D, np.hstack(cols)
+
+
+def _classify(sec, cur, owner, n_el, n, *, probed):
+    """D's terms (n,) and U's columns (n, k) of one source from each group's secants and
+    curvatures `sec`, `cur` (G, n) with the element `owner` (G, n) behind each reading."""
+    g, r = np.nonzero(owner >= 0)
+    j = owner[g, r]
+    if probed:  # an element's readings: those that depend on it
+        keep = np.ones(j.size, dtype=bool)
+    else:  # those it moves by more than _SUPPORT of its largest secant or curvature
+        big = np.zeros(n_el)
+        np.maximum.at(big, j, np.maximum(np.abs(sec[g, r]), np.abs(cur[g, r])))
+        keep = (np.abs(sec[g, r]) > _SUPPORT * big[j]) | (np.abs(cur[g, r]) > _SUPPORT * big[j])
+    count = np.bincount(j[keep], minlength=n_el)
+    d = np.zeros(n)
+    one = keep & (count[j] == 1)
+    order = np.argsort(j[one], kind="stable")  # element order, as the budget adds them
+    np.add.at(d, r[one][order], sec[g[one], r[one]][order] ** 2)
+    multi = np.flatnonzero(count > 1)
+    u = np.zeros((n, multi.size))
+    col = np.searchsorted(multi, j)
+    sel = np.isin(j, multi)
+    u[r[sel], col[sel]] = sec[g[sel], r[sel]]
+    return d, u
 
 
 def estimator_map(estimate, y0: np.ndarray, steps: np.ndarray) -> np.ndarray:

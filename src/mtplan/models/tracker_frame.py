@@ -213,11 +213,11 @@ import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
 from mtplan.fitting import (
+    Gaussian,
     SourceModel,
     central_jacobian,
     gauss_newton,
     gls_gain,
-    readings_covariance,
 )
 from mtplan.fitting.fit3d import (
     common_perpendicular,
@@ -225,7 +225,7 @@ from mtplan.fitting.fit3d import (
     fit_circle_3d_angles,
     fit_line_3d,
 )
-from mtplan.models.first_order import with_chain_rule
+from mtplan.models.first_order import secant_effects, with_chain_rule
 from mtplan.models.protocol import (
     Measurand,
     Procedure,
@@ -1146,7 +1146,8 @@ def _gls_gain(setup: Setup, base: Truth, ref: tuple) -> np.ndarray:
     readings' Jacobian (central differences) and ``C`` (plus a floor of 1 nm and
     0.1 nrad) their covariance under every active error source of the set-up, by the
     secant effect of each element of a source at the same parameters
-    (:func:`mtplan.fitting.readings_covariance`). The readings are few (3 per point), so
+    (:func:`mtplan.fitting.readings_covariance`'s numbers, from grouped rows:
+    :func:`mtplan.models.first_order.secant_effects`). The readings are few (3 per point), so
     ``C`` is formed and factorised, scaled to unit diagonal.
     """
     theta = np.asarray(ref, dtype=float)[None, :]
@@ -1160,7 +1161,8 @@ def _gls_gain(setup: Setup, base: Truth, ref: tuple) -> np.ndarray:
     # a floor far below any source's effect (1 nm, 0.1 nrad), so that readings no source
     # moves (or a set-up without sources) keep a weight and C stays regular
     floor = np.repeat([1e-6, 1e-10, 1e-10], _n_points(setup))
-    return gls_gain(jac, readings_covariance(model, floor=floor))
+    D, U = secant_effects(model)  # readings_covariance's effects, from grouped rows
+    return gls_gain(jac, Gaussian.known(D + floor**2, U))
 
 
 def _gls_start(setup: Setup, readings: dict) -> tuple[Truth, np.ndarray]:
