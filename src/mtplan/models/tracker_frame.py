@@ -206,6 +206,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import types
 from dataclasses import dataclass
 
 import numpy as np
@@ -569,9 +570,35 @@ def _travel_axes(sxy, syz, szx) -> np.ndarray:
     return np.stack([ux, uy, uz], axis=-2)
 
 
+#: the Truth fields of each sub-machine's head (tuples, one per sub-machine)
+_HEAD_FIELDS = ("frame_rx_urad", "frame_ry_urad", "frame_rz_urad", "sq_xy_urad", "sq_yz_urad",
+                "sq_zx_urad", "c_tilt_x_urad", "c_tilt_y_urad", "a_tilt_y_urad",
+                "a_tilt_z_urad", "wrist_dx_um", "wrist_dy_um", "wrist_dz_um", "ac_offset_um",
+                "pivot_length_error_um")
+
+
 def _head(setup: Setup, truth: Truth, k: int) -> _Head:
     """True geometry of sub-machine k (0-based): vectors (3,), or (m, 3) for a truth whose
-    fields are arrays (m,) (one truth per batch row)."""
+    fields are arrays (m,) (one truth per batch row). A truth of one value per field is
+    looked up by those values (the same head comes back in many forward calls)."""
+    values = tuple(_cyc(getattr(truth, f), k) for f in _HEAD_FIELDS)
+    if any(v.ndim for v in values) or np.ndim(truth.ac_angle_deg):
+        return _head_of(setup, truth, k)
+    return _cached_head(setup, k, tuple(float(v) for v in values), float(truth.ac_angle_deg))
+
+
+@functools.lru_cache(maxsize=256)
+def _cached_head(setup: Setup, k: int, values: tuple, ac_angle_deg: float) -> _Head:
+    fields = {f: (v,) for f, v in zip(_HEAD_FIELDS, values, strict=True)}
+    head = _head_of(setup, types.SimpleNamespace(**fields, ac_angle_deg=ac_angle_deg), k)
+    for f in dataclasses.fields(head):  # shared by every caller: read-only
+        value = getattr(head, f.name)
+        if isinstance(value, np.ndarray):
+            value.setflags(write=False)
+    return head
+
+
+def _head_of(setup: Setup, truth, k: int) -> _Head:
     u = 1e-6
     rf = _rxyz(_cyc(truth.frame_rx_urad, k) * u, _cyc(truth.frame_ry_urad, k) * u,
                _cyc(truth.frame_rz_urad, k) * u)
