@@ -462,6 +462,16 @@ def _cyc(values: tuple, k: int) -> np.ndarray:
     return np.asarray(values[k % len(values)], dtype=float)
 
 
+def _cross(a, b):
+    """Cross products of vectors (..., 3), broadcast: ``np.cross``'s sums without its
+    axis handling (a few microseconds, where the geometry of one truth calls it often)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack(np.broadcast_arrays(a1 * b2 - a2 * b1, a2 * b0 - a0 * b2,
+                                        a0 * b1 - a1 * b0), axis=-1)
+
+
 def _unit(v):
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
@@ -483,8 +493,8 @@ def _orthonormal(setup: Setup, ux, uy, uz) -> np.ndarray:
     cyclic = (j - i) % 3 == 1
     cols = [None, None, None]
     cols[i] = _unit(u[i])
-    cols[k] = _unit(np.cross(cols[i], u[j]) if cyclic else np.cross(u[j], cols[i]))
-    cols[j] = np.cross(cols[k], cols[i]) if cyclic else np.cross(cols[i], cols[k])
+    cols[k] = _unit(_cross(cols[i], u[j]) if cyclic else _cross(u[j], cols[i]))
+    cols[j] = _cross(cols[k], cols[i]) if cyclic else _cross(cols[i], cols[k])
     return np.stack(cols, axis=-1)
 
 
@@ -613,7 +623,7 @@ def _head_of(setup: Setup, truth, k: int) -> _Head:
     a_loc = _mv(_rot(e[2], _cyc(truth.a_tilt_z_urad, k) * u)
                 @ _rot(e[1], _cyc(truth.a_tilt_y_urad, k) * u), a0)
     c_dir, a_dir = _mv(rf, c_loc), _mv(rf, a_loc)
-    perp = _unit(np.cross(c_dir, a_dir))
+    perp = _unit(_cross(c_dir, a_dir))
     nominal = _nominal_origins(setup)[k] + np.array([0.0, 0.0, setup.pivot_length_mm])
     wrist = nominal + 1e-3 * np.stack(np.broadcast_arrays(
         _cyc(truth.wrist_dx_um, k), _cyc(truth.wrist_dy_um, k), _cyc(truth.wrist_dz_um, k)), -1)
@@ -628,7 +638,7 @@ def _head_of(setup: Setup, truth, k: int) -> _Head:
 def _fixture_displacement(head: _Head, fixture: np.ndarray) -> np.ndarray:
     """Global displacement (n, 3) [mm] of the reflector for its fixture errors (n, 3) [mm]:
     across C away from it (``perp``), along C, and round C (``perp x C``)."""
-    round_c = np.cross(head.perp, head.c_dir)
+    round_c = _cross(head.perp, head.c_dir)
     return (fixture[:, 0, None] * head.perp + fixture[:, 1, None] * head.c_dir
             + fixture[:, 2, None] * round_c)
 
@@ -694,7 +704,7 @@ def _straightness(setup: Setup, truth: Truth, coef: np.ndarray) -> np.ndarray:
         for i, ax in enumerate(AXES):
             u = axes[..., i, :]
             v1 = _unit(e[(i + 1) % 3] - np.sum(e[(i + 1) % 3] * u, axis=-1)[..., None] * u)
-            across = np.broadcast_to(np.stack([v1, np.cross(u, v1)], axis=-2), (n, 2, 3))
+            across = np.broadcast_to(np.stack([v1, _cross(u, v1)], axis=-2), (n, 2, 3))
             t = lin[ax]
             shape = _legendre(t / t[-1])  # (3, P); travels are > 0
             dev = np.einsum("ndt,tp,ndj->npj", coef[:, k, i], shape, across)
