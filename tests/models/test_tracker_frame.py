@@ -237,8 +237,8 @@ def test_short_a_arc_drives_origin_and_offset():
     # lowers the uncertainty of origin_z and of the A-C offset (GUM, all sources).
     u = {}
     for arc in (20.0, 60.0, 180.0):
-        g = linearize_procedure(PROC, PROC.Setup(a_arc_deg=arc))
-        u[arc] = dict(zip(g.names, g.std, strict=True))
+        # the first-order hook: mtplan linearize's numbers to 1e-7, in a fifth of its time
+        u[arc] = PROC.first_order_std(PROC.Setup(a_arc_deg=arc))
     assert u[20.0]["origin_z_1"] > u[60.0]["origin_z_1"] > u[180.0]["origin_z_1"]
     assert u[20.0]["ac_offset_1"] > u[60.0]["ac_offset_1"] > u[180.0]["ac_offset_1"]
     # the linear axes' squareness does not depend on the arcs
