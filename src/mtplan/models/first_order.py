@@ -27,6 +27,7 @@ u^2. With up to ``_WHOLE_MAX`` source elements the whole chain is differentiated
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
@@ -36,7 +37,8 @@ from mtplan._validate import InvalidInput
 from mtplan.uncertainty.gum import sensitivities
 
 __all__ = ["reading_effects", "estimator_map", "chain_variances", "chain_budget", "chain_std",
-           "with_chain_rule", "secant_effects"]
+           "with_chain_rule", "secant_effects",
+           "one_blas_thread"]
 
 #: step of the differences, in standard deviations (that of ``mtplan.uncertainty.gum``)
 REL_STEP = 1e-3
@@ -373,7 +375,7 @@ def estimator_map(estimate, y0: np.ndarray, steps: np.ndarray) -> np.ndarray:
     return ((v[:n] - v[n:]) / (2 * steps[:, None])).T
 
 
-def _whole_chain(proc, setup, truth, est_name, active, estimate) -> dict:
+def _whole_chain(proc, setup, truth, active, measure) -> dict:
     """Per source variances by differentiating forward model and estimator together
     (``mtplan linearize``'s way, the cheaper one for a few source elements)."""
     base, stats = _base_errors(proc, setup, active)
@@ -387,7 +389,7 @@ def _whole_chain(proc, setup, truth, est_name, active, estimate) -> dict:
         errors = {k: np.repeat(v, m, axis=0) for k, v in base.items()}
         for k, a, b in zip(names, sizes[:-1], sizes[1:], strict=True):
             errors[k] = points[:, a:b].reshape((m, *stats[k][2]))
-        return estimate(_readings(proc, setup, truth, errors))
+        return measure(proc.forward(setup, truth, errors))
 
     _, jac = sensitivities(chain, x, u, max_batch=max(64, _CHUNK_CELLS // max(x.size, 1)))
     return {k: np.sum((jac[:, a:b] * u[a:b]) ** 2, axis=1)
@@ -400,28 +402,33 @@ def chain_variances(proc, setup, truth=None, *, estimator=None, sources=None) ->
     The procedure's readings are the concatenation of its forward model's arrays (each
     flattened per trial), split back by their shapes for the estimator.
     """
-    from threadpoolctl import threadpool_limits
-
     # small products: a team of BLAS threads costs more than it gains, most on a busy machine
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         return _chain_variances(proc, setup, truth, estimator, sources)
+
+
+@functools.lru_cache(maxsize=1)
+def _controller():
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
+
+
+def one_blas_thread():
+    """A context in which BLAS runs on one thread: for the products of a few hundred rows
+    that fits and propagations are made of, where a team of threads costs more than it
+    gains (several times, on a busy machine). The libraries are found once (threadpoolctl's
+    own ``threadpool_limits`` looks for them each time: milliseconds)."""
+    return _controller().limit(limits=1, user_api="blas")
 
 
 def _chain_variances(proc, setup, truth, estimator, sources) -> dict:
     truth = proc.Truth() if truth is None else truth
     est_name, _ = proc.estimator(estimator)
     active = proc.active_sources(setup, sources)
-    zero = proc.forward(setup, truth, _base_errors(proc, setup, active)[0])
-    layout = [(k, np.asarray(v).shape[1:]) for k, v in zero.items()]
     measurands = proc.measurands(setup)
-    scale = np.array([m.scale for m in measurands])
 
-    def estimate(rows):
-        m, pos, readings = rows.shape[0], 0, {}
-        for k, shape in layout:
-            size = int(np.prod(shape, dtype=np.int64))
-            readings[k] = rows[:, pos:pos + size].reshape((m, *shape))
-            pos += size
+    def measure(readings):  # (m, q) [display units]
         est = proc.estimators[est_name](setup, readings)
         return np.column_stack([np.asarray(est[mm.name], dtype=float) * mm.scale
                                 for mm in measurands])
@@ -429,7 +436,18 @@ def _chain_variances(proc, setup, truth, estimator, sources) -> dict:
     n_el = sum(int(np.prod((*s.shape, *s.distribution.event_shape), dtype=np.int64))
                for s in active.values())
     if n_el <= _WHOLE_MAX:
-        return _whole_chain(proc, setup, truth, est_name, active, estimate)
+        return _whole_chain(proc, setup, truth, active, measure)
+    zero = proc.forward(setup, truth, _base_errors(proc, setup, active)[0])
+    layout = [(k, np.asarray(v).shape[1:]) for k, v in zero.items()]
+
+    def estimate(rows):  # the readings flattened per trial, as reading_effects has them
+        m, pos, readings = rows.shape[0], 0, {}
+        for k, shape in layout:
+            size = int(np.prod(shape, dtype=np.int64))
+            readings[k] = rows[:, pos:pos + size].reshape((m, *shape))
+            pos += size
+        return measure(readings)
+
     f0, effects = reading_effects(proc, setup, truth, active)
     var_r = sum((e**2).sum(axis=1) for e in effects.values()) if effects else np.zeros(f0.size)
     sd = np.sqrt(var_r)

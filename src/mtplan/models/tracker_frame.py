@@ -226,7 +226,7 @@ from mtplan.fitting.fit3d import (
     fit_circle_3d_angles,
     fit_line_3d,
 )
-from mtplan.models.first_order import secant_effects, with_chain_rule
+from mtplan.models.first_order import one_blas_thread, secant_effects, with_chain_rule
 from mtplan.models.protocol import (
     Measurand,
     Procedure,
@@ -1240,11 +1240,9 @@ def estimate_gls(setup: Setup, readings: dict, *, iterations: int = 30) -> dict[
     re-taken once at the batch's median; the measurands
     are the construction applied to the fitted geometry (:func:`true_values`).
     """
-    from threadpoolctl import threadpool_limits
-
     # matrices of a few hundred rows: a team of BLAS threads costs more than it gains
     # (3 times, on a busy machine), so the fit runs on one
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         return _estimate_gls(setup, readings, iterations)
 
 
