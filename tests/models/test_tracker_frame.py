@@ -542,9 +542,17 @@ def test_gls_covariance_from_grouped_rows_is_the_budgets(changes):
     from mtplan.models.first_order import secant_effects
 
     setup = PROC.setup(changes)
-    theta = tf._gls_start(setup, PROC.simulate(setup, draws=1, rng=1))[1][None, :]
-    model = SourceModel(PROC.name, tf.sources(setup), lambda e: tf._gls_vector(tf.forward(
-        setup, tf._gls_truth(setup, tf.Truth(), np.repeat(theta, len(e["air_refraction"]), 0)),
-        e)), lambda m: PROC.zero_errors(setup, m))
-    for want, got in zip(source_effects(model), secant_effects(model), strict=True):
-        assert want.shape == got.shape and np.array_equal(want, got)
+    other = ("test", str(changes))  # groups kept for another set-up: used where they fit
+    secant_effects(SourceModel(PROC.name, tf.sources(PROC.Setup(straightness_um=0.0)),
+                               lambda e: tf._gls_vector(tf.forward(
+                                   PROC.Setup(straightness_um=0.0), tf.Truth(), e)),
+                               lambda m: PROC.zero_errors(PROC.Setup(straightness_um=0.0), m)),
+                   key=other)
+    for seed, key in ((1, None), (2, ("test", setup)), (3, ("test", setup)), (4, other)):
+        theta = tf._gls_start(setup, PROC.simulate(setup, draws=1, rng=seed))[1][None, :]
+        model = SourceModel(PROC.name, tf.sources(setup), lambda e, th=theta: tf._gls_vector(
+            tf.forward(setup, tf._gls_truth(setup, tf.Truth(), np.repeat(
+                th, len(e["air_refraction"]), 0)), e)), lambda m: PROC.zero_errors(setup, m))
+        for want, got in zip(source_effects(model), secant_effects(model, key=key),
+                             strict=True):
+            assert want.shape == got.shape and np.array_equal(want, got)

@@ -264,7 +264,7 @@ def _checked(vals, f0, elem, grp: _Grouping, sign) -> bool:
                 and np.all(np.abs(minus - f0)[~dep] <= 1e-15 * scale[~dep]))
 
 
-def secant_effects(model) -> tuple[np.ndarray, np.ndarray]:
+def secant_effects(model, *, key=None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`mtplan.fitting.source_effects` of a :class:`~mtplan.fitting.SourceModel`,
     the same numbers (D (n,), U (n, k)), from grouped rows.
 
@@ -276,6 +276,12 @@ def secant_effects(model) -> tuple[np.ndarray, np.ndarray]:
     ``mtplan.fitting.budget``: by the readings that depend on it for a source of at
     least 32 elements whose readings each depend on one of them (its NaN probes), else
     by the readings it moves by more than 1e-9 of its largest secant or curvature.
+
+    `key` (hashable), optional, names the model's dependency structure (its set-up): the
+    groups found for it are used again for the next model of that key. Every group is
+    checked with its elements moved by random signs (each reading must come out as its
+    own element's move alone, exactly); one that fails is found again, then taken
+    element by element.
     """
     names = [k for k, src in model.sources.items()
              if np.any(np.asarray(src.distribution.std) > 0)]
@@ -292,41 +298,80 @@ def secant_effects(model) -> tuple[np.ndarray, np.ndarray]:
               if std.size == n_el else np.broadcast_to(std, shape).reshape(-1))
         stats[name] = (base[name].reshape(-1).astype(float), sd, shape)
     batch = _Batch(lambda errors: model.at(None, errors), base)
-    grouping = _groups(batch, stats)
+    grouping = _GROUPINGS.get(key) if key is not None else None
+    if grouping is not None and (set(grouping) != set(stats) or any(
+            grouping[k][0].label.size != stats[k][1].size for k in stats)):
+        grouping = None  # kept for other sources or sizes
+    fresh = grouping is None
+    grouping = _groups(batch, stats) if fresh else grouping
     sign = np.where(np.random.default_rng(0).random(max([st[0].size for st in stats.values()],
                                                         default=0)) < 0.5, -1.0, 1.0)
-    where = {}
-    for name, (grp, _elem) in grouping.items():
-        zero, sd, _ = stats[name]
-        moves = np.vstack([sd, -sd, sign[:sd.size] * sd])  # +sd, -sd, random signs
-        where[name] = batch.add(name, (zero + grp.members()[:, None, :] * moves[None]).reshape(
-            -1, sd.size))
-    pred = batch.run() if where else np.zeros((0, n))
+    while True:
+        vals = _secant_rows(batch, grouping, stats, sign, n)
+        bad = [name for name, (grp, elem) in grouping.items()
+               if elem is not None and not _exact(vals[name], f0, _owner(grp, elem, n), sign)]
+        if not bad:
+            break
+        if not fresh:  # the structure is not the one kept under this key
+            grouping, fresh = _groups(batch, stats), True
+            continue
+        grouping = {**grouping, **{name: (_groupings(stats[name][2])[-1], None)
+                                   for name in bad}}
+    if key is not None:
+        _GROUPINGS[key] = grouping
+        while len(_GROUPINGS) > 64:
+            _GROUPINGS.pop(next(iter(_GROUPINGS)))
     D, cols = np.zeros(n), [np.zeros((n, 0))]
     for name in names:
         grp, elem = grouping[name]
-        zero, sd, _ = stats[name]
-        vals = pred[where[name]].reshape(grp.count, 3, n)
-        if not np.all(np.isfinite(vals[:, :2])):
+        plus, minus = vals[name][:, 0], vals[name][:, 1]
+        if not (np.all(np.isfinite(plus)) and np.all(np.isfinite(minus))):
             raise InvalidInput([f"The forward model of {model.name} gives no finite readings "
                                 f"with the source {name!r} one standard deviation off its mean."])
-        plus, minus, mixed = vals[:, 0], vals[:, 1], vals[:, 2]
         sec, cur = 0.5 * (plus - minus), 0.5 * (plus + minus) - f0  # (G, n)
-        owner = np.full((grp.count, n), -1)  # the element behind each group's reading
-        if elem is None:
-            owner[:] = grp.table[:, :1]
-        else:
-            live = elem >= 0
-            owner[live] = grp.table[np.nonzero(live)[0], elem[live]]
-        probed = (elem is not None and grp.count == 1 and sd.size >= _PROBE
-                  and np.all(mixed[0] == np.where(live[0], np.where(
-                      sign[np.maximum(owner[0], 0)] > 0, plus[0], minus[0]), f0))
-                  and np.all(plus[0][~live[0]] == f0[~live[0]])
-                  and np.all(minus[0][~live[0]] == f0[~live[0]]))
-        d, u = _classify(sec, cur, owner, sd.size, n, probed=probed)
+        sd = stats[name][1]
+        probed = elem is not None and grp.count == 1 and sd.size >= _PROBE
+        d, u = _classify(sec, cur, _owner(grp, elem, n), sd.size, n, probed=probed)
         D = D + d
         cols.append(u)
     return D, np.hstack(cols)
+
+
+_GROUPINGS: dict = {}  # secant_effects' key -> its groups
+
+
+def _secant_rows(batch, grouping, stats, sign, n) -> dict:
+    """Per source, the readings (G, 3, n) with each group's elements at +sd, -sd and
+    random signs times sd."""
+    where = {}
+    for name, (grp, _elem) in grouping.items():
+        zero, sd, _ = stats[name]
+        moves = np.vstack([sd, -sd, sign[:sd.size] * sd])
+        where[name] = batch.add(name, (zero + grp.members()[:, None, :] * moves[None]).reshape(
+            -1, sd.size))
+    pred = batch.run() if where else np.zeros((0, n))
+    return {name: pred[w].reshape(grouping[name][0].count, 3, n) for name, w in where.items()}
+
+
+def _owner(grp, elem, n) -> np.ndarray:
+    """The element behind each group's reading (G, n), -1 for none."""
+    owner = np.full((grp.count, n), -1)
+    if elem is None:
+        owner[:] = grp.table[:, :1]
+    else:
+        live = elem >= 0
+        owner[live] = grp.table[np.nonzero(live)[0], elem[live]]
+    return owner
+
+
+def _exact(vals, f0, owner, sign) -> bool:
+    """Each group's readings with random signs (row 2) are, reading by reading, those of
+    its element's move alone (rows 0 and 1), and f0 where it has none."""
+    plus, minus, mixed = vals[:, 0], vals[:, 1], vals[:, 2]
+    live = owner >= 0
+    expect = np.where(live, np.where(sign[np.maximum(owner, 0)] > 0, plus, minus), f0)
+    return bool(np.all(mixed == expect) and np.all((plus == f0) | live)
+                and np.all((minus == f0) | live))
 
 
 def _classify(sec, cur, owner, n_el, n, *, probed):

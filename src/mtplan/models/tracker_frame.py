@@ -1198,7 +1198,7 @@ def _gls_gain(setup: Setup, base: Truth, ref: tuple) -> np.ndarray:
     # a floor far below any source's effect (1 nm, 0.1 nrad), so that readings no source
     # moves (or a set-up without sources) keep a weight and C stays regular
     floor = np.repeat([1e-6, 1e-10, 1e-10], _n_points(setup))
-    D, U = secant_effects(model)  # readings_covariance's effects, from grouped rows
+    D, U = secant_effects(model, key=(NAME, setup))  # readings_covariance's numbers
     return gls_gain(jac, Gaussian.known(D + floor**2, U))
 
 
