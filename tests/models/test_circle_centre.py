@@ -476,3 +476,13 @@ def _assert_chain_rule_is_the_linearisation(proc, setup, estimator):
                                                ("gls", {"n_points": 8})])
 def test_first_order_hooks_equal_the_linearisation(estimator, changes):
     _assert_chain_rule_is_the_linearisation(P, P.setup(changes), estimator)
+
+
+def test_first_order_hooks_without_any_source_give_zero():
+    setup = P.setup({f: 0.0 for f in (
+        "probe_noise_um", "pretravel_variation_um", "tangential_slip_um_per_deg",
+        "roundness_um", "scale_error_ppm", "squareness_urad", "stage_repeatability_um",
+        "tip_radius_um", "part_temperature_c", "scale_temperature_c", "start_scatter_mm")})
+    assert not P.active_sources(setup)
+    assert set(P.first_order_std(setup).values()) == {0.0}
+    assert P.first_order_budget(setup, estimator="kasa").empty

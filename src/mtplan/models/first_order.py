@@ -425,6 +425,8 @@ def _whole_chain(proc, setup, truth, active, measure) -> dict:
     (``mtplan linearize``'s way, the cheaper one for a few source elements)."""
     base, stats = _base_errors(proc, setup, active)
     names = list(stats)
+    if not names:  # no active source: no variance
+        return {}
     x = np.concatenate([stats[k][0] for k in names])
     u = np.concatenate([stats[k][1] for k in names])
     sizes = np.cumsum([0] + [stats[k][0].size for k in names])
