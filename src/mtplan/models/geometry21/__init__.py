@@ -312,6 +312,19 @@ class Setup(SetupBase):
                       "lateral offsets in [-200, 200] mm")
 
 
+#: the fields that size an error source: the geometry, the Jacobian and the patent's
+#: design do not depend on them and are computed once for every size (:func:`_sizeless`)
+_SIZES = ("encoder_noise_um", "grid_error_um", "plate_offset_mm", "plate_tilt_urad",
+          "head_setting_um", "repeatability_um", "reversal_um", "servo_lag_ms",
+          "thermal_growth_ppm_per_h", "thermal_drift_um_per_h")
+
+
+@functools.lru_cache(maxsize=64)
+def _sizeless(setup: Setup) -> Setup:
+    """The set-up with every error source at its default size."""
+    return setup.replace(**{f: Setup.__dataclass_fields__[f].default for f in _SIZES})
+
+
 def extra_heads(setup: Setup) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The head offsets h = (lateral X, lateral Y, -tool length) of each plane [mm].
 
@@ -497,6 +510,8 @@ def _passes(setup):
 
 @functools.lru_cache(maxsize=16)
 def _geometry(setup: Setup) -> _Geometry:
+    if (key := _sizeless(setup)) != setup:  # one geometry for every size of the sources
+        return _geometry(key)
     heads = extra_heads(setup)
     passes = _passes(setup)
     v = setup.feed_mm_min / 60.0  # [mm/s]
@@ -840,6 +855,8 @@ def _repeatability_filter(setup: Setup):
     length = setup.repeatability_correlation
     if length <= 0:
         return None
+    if (key := _sizeless(setup)) != setup:
+        return _repeatability_filter(key)
     geo = _geometry(setup)
     keys = np.stack([geo.plane, geo.head, geo.test, geo.pass_], axis=1)
     start = np.ones(len(keys), dtype=bool)
@@ -1055,7 +1072,6 @@ def _jacobian(geo: _Geometry, theta0: np.ndarray, s: np.ndarray):
     return predict(theta0[None, :])[0], central_jacobian(predict, theta0, 0.1 * s)
 
 
-@functools.lru_cache(maxsize=8)
 def _reading_whitener(setup: Setup):
     """Whitening (2M, 2M) of the readings' random scatter, encoder noise plus the AR(1)
     repeatability (:func:`mtplan.fitting.linear.filter_whitening`); None where it is white
@@ -1063,36 +1079,60 @@ def _reading_whitener(setup: Setup):
     one does, so the two are not weighted as mirror images: the reversal and a growth linear
     in time no longer cancel exactly (0.03 um in EXX, 0.08 urad in EAY at the defaults);
     weighting the CW pass as the CCW one reversed would, at 13 % more u in EBX, ECX, EAY."""
-    f = _repeatability_filter(setup)
-    if f is None or setup.repeatability_um <= 0:
+    if _repeatability_filter(setup) is None or setup.repeatability_um <= 0:
         return None
-    return filter_whitening(f, setup.encoder_noise_um / setup.repeatability_um, 2)
+    return _whitener(_sizeless(setup), setup.encoder_noise_um / setup.repeatability_um)
 
 
 @functools.lru_cache(maxsize=8)
+def _whitener(key: Setup, ratio: float):
+    return filter_whitening(_repeatability_filter(key), ratio, 2)
+
+
+@functools.lru_cache(maxsize=16)
 def _joint_ident(setup: Setup) -> dict:
-    """Jacobian of the readings at zero error, its SVD, pseudo-inverse and estimability."""
-    geo = _geometry(setup)
+    """Jacobian of the readings at zero error, its SVD, pseudo-inverse and estimability:
+    the geometry's (:func:`_joint_geometry`) with the fit's weights (``pinv``)."""
+    key, ji = _sizeless(setup), _joint_geometry(_sizeless(setup))
+    if _reading_whitener(setup) is None:
+        return {**ji, "pinv": ji["pinv0"]}
+    # the readings correlate along each pass: generalised least squares
+    return {**ji, "pinv": _gls(key, setup.encoder_noise_um / setup.repeatability_um)}
+
+
+@functools.lru_cache(maxsize=8)
+def _joint_geometry(key: Setup) -> dict:
+    """What does not depend on the sources' sizes: the Jacobian (closed form,
+    :func:`._maps.zero_jacobian`), its SVD and the unweighted pseudo-inverse ``pinv0``."""
+    from mtplan.models.geometry21._maps import zero_jacobian
+
+    geo = _geometry(key)
     s = _scales(geo)
-    r0, jac = _jacobian(geo, np.zeros(geo.n_par), s)
-    pinv, rank, sv, vt = _tpinv(jac, s, _free(geo))
-    w = _reading_whitener(setup)
-    if w is not None:  # the readings correlate along each pass: generalised least squares
-        pinv = gls_pinv(jac, s, vt, rank, _free(geo), w)
+    r0, jac = _predict(geo, np.zeros((1, geo.n_par))).reshape(-1), zero_jacobian(geo)
+    pinv0, rank, sv, vt = _tpinv(jac, s, _free(geo))
     null = vt[rank:]  # scaled null space (k, P)
+    colnorm = np.linalg.norm(jac * s, axis=0)
+    dead = colnorm <= _RANK_TOL * sv[0]
+    if null.size and np.any(dead):  # the null space's basis: each parameter without effect
+        rest = np.where(dead, 0.0, null)  # alone (its column is exactly 0), then the others
+        _, sv_r, vt_r = np.linalg.svd(rest, full_matrices=False)
+        null = np.concatenate([vt_r[sv_r > 1e-8], np.eye(geo.n_par)[dead]])
     g = _measurand_map(geo)
     gs = g * s
     resid = np.linalg.norm(gs @ null.T, axis=1) / np.linalg.norm(gs, axis=1) if null.size else \
         np.zeros(len(NAMES))
-    colnorm = np.linalg.norm(jac * s, axis=0)
     no_effect = {name: bool(np.all(colnorm[sl] <= _RANK_TOL * sv[0]))
                  for name, (_, sl) in geo.layout.items()}
-    return {
-        "geo": geo, "jac": jac, "scale": s, "pinv": pinv, "rank": rank, "sv": sv, "null": null,
-        "vt": vt,
-        "g": g, "estimable": {n: bool(r < 1e-6) for n, r in zip(NAMES, resid)},
-        "no_effect": no_effect, "r0": r0,
-    }
+    return {"geo": geo, "jac": jac, "scale": s, "pinv0": pinv0, "rank": rank, "sv": sv,
+            "null": null, "vt": vt, "g": g, "no_effect": no_effect, "r0": r0,
+            "estimable": {n: bool(r < 1e-6) for n, r in zip(NAMES, resid)}}
+
+
+@functools.lru_cache(maxsize=16)
+def _gls(key: Setup, ratio: float) -> np.ndarray:
+    ji = _joint_geometry(key)
+    return gls_pinv(ji["jac"], ji["scale"], ji["vt"], ji["rank"], _free(ji["geo"]),
+                    _whitener(key, ratio))
 
 
 def _readings_matrix(setup: Setup, readings: dict) -> np.ndarray:
@@ -1252,6 +1292,8 @@ def _theta_joint(setup: Setup, readings: dict, iterations: int) -> np.ndarray:
 # --------------------------------------------------------------------------- patent
 @functools.lru_cache(maxsize=8)
 def _patent_design(setup: Setup) -> dict:
+    if (key := _sizeless(setup)) != setup:  # the geometry's, for every size of the sources
+        return _patent_design(key)
     ji = _joint_ident(setup)
     geo, jac, s = ji["geo"], ji["jac"], ji["scale"]
     m = geo.plane.size
@@ -1406,68 +1448,7 @@ from mtplan.models.geometry21._first_order import (  # noqa: E402
     noise_free_table,
     report_extras,
 )
-
-
-def setup_from_frame(df: pd.DataFrame) -> dict:
-    """The set-up fields a measured plate table determines (see ``Implied``).
-
-    From the rows of the first head position (``head`` 0, or all rows of a table
-    without that column) of the XY plane: the points per line pass and per circle pass,
-    the line repeats (half the line passes), the line length (the span of the commanded
-    X), the circle's radius and arc (its commanded points about the plane's centre: 360
-    when they are evenly spaced over a full turn without the repeated end); from each
-    plane's rows, the plane's position (Z of the XY rows, Y of the XZ rows, X of the YZ
-    rows). Lengths agree within 1e-6 mm, the arc within 1e-6 deg. Where the table is
-    not regular enough to tell, the field is left out and the design check names the
-    offending row.
-    """
-    from mtplan.models.protocol import Implied
-
-    tol = 1e-6
-    plane = df["plane"].astype(str).str.strip().to_numpy()
-    test = df["test"].astype(str).str.strip().to_numpy()
-    pss = pd.to_numeric(df["pass"], errors="coerce").to_numpy(dtype=float)
-    cmd = df[["x_mm", "y_mm", "z_mm"]].apply(pd.to_numeric, errors="coerce").to_numpy(float)
-    keep = np.ones(len(df), dtype=bool)
-    if "head" in df.columns:
-        keep = pd.to_numeric(df["head"], errors="coerce").to_numpy(dtype=float) == 0
-    if not (np.all(np.isfinite(pss)) and np.all(np.isfinite(cmd))):
-        return {}
-    out = {}
-    for k, (name, a, b, c) in enumerate(PLANES):
-        rows = keep & (plane == name)
-        level = cmd[rows, c]
-        if level.size and np.ptp(level) <= tol:
-            field = ("xy_plane_z_mm", "xz_plane_y_mm", "yz_plane_x_mm")[k]
-            out[field] = Implied(float(level[0]), tol, why=f"the {name} rows' {'XYZ'[c]}")
-        if k:
-            continue
-        line = rows & (test == _TEST_NAMES[0])
-        if np.any(line):
-            n_pass = np.unique(pss[line]).size
-            first = line & (pss == pss[line].min())
-            out["line_points"] = Implied(int(first.sum()), why="the points of an XY line pass")
-            if n_pass % 2 == 0:
-                out["line_repeats"] = Implied(n_pass // 2, why="the XY line passes, there "
-                                              "and back")
-            out["line_length_mm"] = Implied(float(f"{np.ptp(cmd[first, a]):.12g}"), tol,
-                                            why="the span of an XY line pass")
-        circle = rows & (test == _TEST_NAMES[2])
-        if np.any(circle):
-            first = circle & (pss == pss[circle].min())
-            n = int(first.sum())
-            out["circle_points"] = Implied(n, why="the points of an XY circle pass")
-            la, lb = cmd[first, a], cmd[first, b]
-            radius = np.hypot(la, lb)
-            if n >= 2 and np.ptp(radius) <= 2 * tol:
-                out["circle_radius_mm"] = Implied(float(f"{radius.mean():.12g}"), tol,
-                                                  why="the XY circle's commanded points")
-                th = np.degrees(np.unwrap(np.arctan2(lb, la)))
-                th = np.abs(th - th[0])
-                full = np.allclose(th, 360.0 * np.arange(n) / n, rtol=0, atol=tol)
-                out["circle_arc_deg"] = Implied(360.0 if full else float(f"{th[-1]:.12g}"),
-                                                tol, why="the XY circle's commanded points")
-    return out
+from mtplan.models.geometry21._frames import setup_from_frame  # noqa: E402
 
 
 PROCEDURE = Procedure(
