@@ -116,11 +116,17 @@ def filter_whitening(f, ratio: float, components: int = 1):
     # the covariance is block-diagonal over the connected components of F's pattern: the
     # Cholesky factor and its inverse are too, so each block is factorised alone
     _, label = connected_components(abs(fs) + abs(fs.T), directed=False)
-    blocks, big = [], 0.0
+    blocks, big, seen = [], 0.0, {}
     for idx in _groups(label):
-        fd = fs[idx].toarray()[:, idx]
-        low = np.linalg.cholesky(fd @ fd.T + ratio**2 * np.eye(idx.size))
-        wb = np.linalg.solve(low, np.eye(idx.size))
+        if idx[-1] - idx[0] + 1 == idx.size:  # contiguous (a path's pass): a slice
+            fd = fs[idx[0]: idx[-1] + 1, idx[0]: idx[-1] + 1].toarray()
+        else:
+            fd = fs[idx].toarray()[:, idx]
+        key = (fd.shape, fd.tobytes())
+        if key not in seen:  # passes alike share their factor
+            low = np.linalg.cholesky(fd @ fd.T + ratio**2 * np.eye(idx.size))
+            seen[key] = np.linalg.solve(low, np.eye(idx.size))
+        wb = seen[key]
         big = max(big, float(np.abs(wb).max()))
         blocks.append((idx, wb))
     rows, cols, vals = [], [], []

@@ -850,32 +850,42 @@ def _repeatability_filter(setup: Setup):
     x_k = phi x_(k-1) + sqrt(1 - phi^2) e_k, phi = exp(-1 / length): every x has the
     innovations' variance, and x_j, x_k correlate by phi^|j - k|; passes are independent.
     """
-    import scipy.sparse as sp
-
     length = setup.repeatability_correlation
     if length <= 0:
         return None
-    if (key := _sizeless(setup)) != setup:
-        return _repeatability_filter(key)
-    geo = _geometry(setup)
+    return _ar1_filter(_pass_lengths(_sizeless(setup)), length)
+
+
+@functools.lru_cache(maxsize=16)
+def _pass_lengths(key: Setup) -> tuple:
+    """The number of readings of each pass (contiguous readings of one plane, head, test
+    and pass), in order: all the filter depends on besides the length."""
+    geo = _geometry(key)
     keys = np.stack([geo.plane, geo.head, geo.test, geo.pass_], axis=1)
     start = np.ones(len(keys), dtype=bool)
     start[1:] = np.any(keys[1:] != keys[:-1], axis=1)
-    bounds = np.append(np.flatnonzero(start), len(keys))
+    return tuple(np.diff(np.append(np.flatnonzero(start), len(keys))).tolist())
+
+
+@functools.lru_cache(maxsize=8)
+def _ar1_filter(lengths: tuple, length: float):
+    import scipy.sparse as sp
+
     phi = math.exp(-1.0 / length)
     gain = math.sqrt(1.0 - phi * phi)
     rows, cols, vals = [], [], []
-    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
-        k = np.arange(b - a)
+    a = 0
+    for n in lengths:
+        k = np.arange(n)
         j, i = np.meshgrid(k, k)  # x_i from e_j, j <= i
         keep = j <= i
         w = phi ** (i - j) * np.where(j == 0, 1.0, gain)
         rows.append(a + i[keep])
         cols.append(a + j[keep])
         vals.append(w[keep])
-    m = len(keys)
+        a += n
     return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                         shape=(m, m))
+                         shape=(a, a))
 
 
 @functools.lru_cache(maxsize=8)
@@ -1081,12 +1091,13 @@ def _reading_whitener(setup: Setup):
     weighting the CW pass as the CCW one reversed would, at 13 % more u in EBX, ECX, EAY."""
     if _repeatability_filter(setup) is None or setup.repeatability_um <= 0:
         return None
-    return _whitener(_sizeless(setup), setup.encoder_noise_um / setup.repeatability_um)
+    return _whitener(_pass_lengths(_sizeless(setup)), setup.repeatability_correlation,
+                     setup.encoder_noise_um / setup.repeatability_um)
 
 
 @functools.lru_cache(maxsize=8)
-def _whitener(key: Setup, ratio: float):
-    return filter_whitening(_repeatability_filter(key), ratio, 2)
+def _whitener(lengths: tuple, length: float, ratio: float):
+    return filter_whitening(_ar1_filter(lengths, length), ratio, 2)
 
 
 @functools.lru_cache(maxsize=16)
@@ -1132,7 +1143,7 @@ def _joint_geometry(key: Setup) -> dict:
 def _gls(key: Setup, ratio: float) -> np.ndarray:
     ji = _joint_geometry(key)
     return gls_pinv(ji["jac"], ji["scale"], ji["vt"], ji["rank"], _free(ji["geo"]),
-                    _whitener(key, ratio))
+                    _whitener(_pass_lengths(key), key.repeatability_correlation, ratio))
 
 
 def _readings_matrix(setup: Setup, readings: dict) -> np.ndarray:

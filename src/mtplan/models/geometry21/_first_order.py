@@ -36,13 +36,33 @@ from mtplan.models.geometry21 import (
     _joint_ident,
     _param_names,
     _repeatability_filter,
+    _rows,
     _sizeless,
     _truth_coefficients,
     forward,
     measurands,
     sources,
 )
-from mtplan.models.geometry21._maps import patent_map
+from mtplan.models.geometry21._maps import patent_map, source_readings_map
+
+
+@functools.lru_cache(maxsize=1)
+def _blas():
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
+
+
+def _one_blas_thread(fn):
+    """Run `fn` with one BLAS thread: its products are small (a few thousand readings by
+    ~100 parameters), where threads only wait on each other, and on a loaded machine they
+    spin for many times the work (the designer's live numbers)."""
+    @functools.wraps(fn)
+    def run(*args, **kwargs):
+        with _blas().limit(limits=1, user_api="blas"):
+            return fn(*args, **kwargs)
+
+    return run
 
 
 def _procedure():
@@ -106,6 +126,7 @@ def identifiability(setup: Setup | None = None, estimator: str = "joint") -> pd.
     return pd.DataFrame(rows, index=pd.Index(NAMES, name="function"))
 
 
+@_one_blas_thread
 def identifiability_report(setup: Setup | None = None) -> dict:
     """Rank, condition number and null space of the joint model's scaled Jacobian.
 
@@ -202,8 +223,11 @@ def _source_response(setup: Setup, truth: Truth, estimator: str, names: tuple) -
     at_mean = zero(1)
     for name in names:
         at_mean[name][...] = srcs[name].distribution.mean
-    readings = source_response(lambda errors: forward(setup, truth, errors)["plate_mm"].reshape(
-        len(errors["reversal"]), -1), zero, srcs, names)
+    if _rows(truth) is None:
+        readings = source_readings_map(setup, truth, names)
+    else:  # one truth per row: through the forward model
+        readings = source_response(lambda errors: forward(setup, truth, errors)["plate_mm"]
+                                   .reshape(len(errors["reversal"]), -1), zero, srcs, names)
     if not readings.size:
         return readings
     return patent_map(setup, forward(setup, truth, at_mean)["plate_mm"]) @ readings
@@ -246,6 +270,7 @@ def _measurand_variances(setup: Setup, estimator: str, truth: Truth | None, only
     return {name: dict(zip((m.name for m in ms), v)) for name, v in var.items()}
 
 
+@_one_blas_thread
 def budget(setup: Setup | None = None, *, estimator: str = "joint",
            truth: Truth | None = None) -> pd.DataFrame:
     """First-order uncertainty budget of the listed measurands, by error source.
@@ -274,6 +299,7 @@ def budget(setup: Setup | None = None, *, estimator: str = "joint",
     return pd.DataFrame(rows, columns=["measurand", "unit", "source", "std", "share"])
 
 
+@_one_blas_thread
 def first_order_std(setup: Setup, truth: Truth | None = None, *, estimator: str = "joint",
                     sources=None) -> dict:
     """First-order standard uncertainty of each listed measurand [display unit] (see

@@ -18,9 +18,14 @@ from mtplan.models.geometry21 import (
     _KIND,
     NAMES,
     Setup,
+    _forward_matrix,
     _Geometry,
+    _geometry,
+    _grid_basis,
     _patent_design,
+    _plane_slices,
     _readings_matrix,
+    sources,
 )
 
 
@@ -150,3 +155,50 @@ def patent_map(setup: Setup, readings: np.ndarray) -> np.ndarray:
     out = lin1.copy()
     out[c2] += step2
     return out
+
+
+def source_readings_map(setup: Setup, truth, names) -> np.ndarray:
+    """(2M, K): the readings' first-order response to one standard deviation of each element
+    of the named sources (in the order of :func:`mtplan.fitting.linear.source_response`),
+    about the sources' means, in closed form: the grid's field, the plates' offsets and the
+    extra heads' settings add; the drift, reversal and servo features move the head by
+    their patterns (the servo's square by twice the mean following time); a plate's tilt
+    and rotation turn the mean head position (``Rinv`` to first order: ``-e x loc``)."""
+    srcs = sources(setup)
+    geo = _geometry(setup)
+    m = geo.plane.size
+    feat = np.concatenate([np.zeros(9), np.full(3, srcs["servo_lag"].distribution.mean)])
+    feat = np.concatenate([feat, feat[9:] ** 2])
+    feat[6:9] = srcs["reversal"].distribution.mean
+    base = _forward_matrix(setup, truth)
+    loc = (np.concatenate([[1.0], feat]) @ base).reshape(m, 3)
+    pattern = geo.pattern[:, :, :2]  # (15, M, 2): plate-frame u, v per unit feature
+    planes = _plane_slices(geo)
+    cols = []
+    for name in names:
+        sd = float(srcs[name].distribution.std)
+        shape = srcs[name].shape
+        out = np.zeros((int(np.prod(shape, dtype=np.int64)), m, 2))
+        if name == "grid_error":
+            basis = _grid_basis(geo)
+            for j, (k, c, p) in enumerate(np.ndindex(*shape)):
+                out[j, planes[k], c] = basis[planes[k], p]
+        elif name == "plate_offset":
+            for j, (k, c) in enumerate(np.ndindex(*shape)):
+                out[j, planes[k], c] = -1.0
+        elif name == "head_setting":
+            for j, (e, c) in enumerate(np.ndindex(*shape)):
+                out[j, geo.xslices[e][1], c] = 1.0
+        elif name == "plate_tilt":
+            for k, sl in enumerate(planes):
+                lu, lv, ln = loc[sl].T
+                out[3 * k, sl, 1] = ln  # about u
+                out[3 * k + 1, sl, 0] = -ln  # about v
+                out[3 * k + 2, sl] = np.column_stack([lv, -lu])  # about the normal
+        else:
+            first = {"thermal_growth": 0, "thermal_drift": 3, "reversal": 6, "servo_lag": 9}[name]
+            out[:] = pattern[first: first + 3]
+            if name == "servo_lag":
+                out += 2.0 * feat[9:12, None, None] * pattern[12:15]
+        cols.append(sd * out.reshape(out.shape[0], -1))
+    return np.concatenate(cols).T if cols else np.zeros((2 * m, 0))
