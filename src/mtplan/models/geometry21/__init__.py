@@ -1104,25 +1104,46 @@ def _whitener(lengths: tuple, length: float, ratio: float):
 def _joint_ident(setup: Setup) -> dict:
     """Jacobian of the readings at zero error, its SVD, pseudo-inverse and estimability:
     the geometry's (:func:`_joint_geometry`) with the fit's weights (``pinv``)."""
-    key, ji = _sizeless(setup), _joint_geometry(_sizeless(setup))
-    if _reading_whitener(setup) is None:
-        return {**ji, "pinv": ji["pinv0"]}
-    # the readings correlate along each pass: generalised least squares
-    return {**ji, "pinv": _gls(key, setup.encoder_noise_um / setup.repeatability_um)}
+    return _Ident(_joint_geometry(_sizeless(setup)), setup)
+
+
+class _Ident(dict):
+    """:func:`_joint_geometry`'s dict; the pseudo-inverses ``pinv0`` (unweighted) and
+    ``pinv`` (the joint fit's: generalised least squares where the readings correlate along
+    each pass) are computed when first asked for (the patent's first order needs neither)."""
+
+    def __init__(self, base: dict, setup: Setup):
+        super().__init__(base)
+        self.setup = setup
+
+    def __missing__(self, key):
+        s = self.setup
+        if key == "pinv0":
+            self[key] = _tpinv(self["jac"], self["scale"], _free(self["geo"]))[0]
+        elif key == "pinv" and _reading_whitener(s) is None:
+            self[key] = self["pinv0"]
+        elif key == "pinv":
+            self[key] = _gls(_sizeless(s), s.encoder_noise_um / s.repeatability_um)
+        else:
+            raise KeyError(key)
+        return self[key]
 
 
 @functools.lru_cache(maxsize=8)
 def _joint_geometry(key: Setup) -> dict:
     """What does not depend on the sources' sizes: the Jacobian (closed form,
-    :func:`._maps.zero_jacobian`), its SVD and the unweighted pseudo-inverse ``pinv0``."""
+    :func:`._maps.zero_jacobian`), its SVD, null space and the measurands' estimability."""
     from mtplan.models.geometry21._maps import zero_jacobian
 
     geo = _geometry(key)
     s = _scales(geo)
     r0, jac = _predict(geo, np.zeros((1, geo.n_par))).reshape(-1), zero_jacobian(geo)
-    pinv0, rank, sv, vt = _tpinv(jac, s, _free(geo))
+    a_s = jac * s  # the SVD as truncated_pinv's (tall: of the QR's R)
+    _, sv, vt = np.linalg.svd(np.linalg.qr(a_s, mode="r")) if a_s.shape[0] > a_s.shape[1] \
+        else np.linalg.svd(a_s, full_matrices=False)
+    rank = int(np.sum(sv > _RANK_TOL * sv[0])) if sv.size and sv[0] > 0 else 0
     null = vt[rank:]  # scaled null space (k, P)
-    colnorm = np.linalg.norm(jac * s, axis=0)
+    colnorm = np.linalg.norm(a_s, axis=0)
     dead = colnorm <= _RANK_TOL * sv[0]
     if null.size and np.any(dead):  # the null space's basis: each parameter without effect
         rest = np.where(dead, 0.0, null)  # alone (its column is exactly 0), then the others
@@ -1134,7 +1155,7 @@ def _joint_geometry(key: Setup) -> dict:
         np.zeros(len(NAMES))
     no_effect = {name: bool(np.all(colnorm[sl] <= _RANK_TOL * sv[0]))
                  for name, (_, sl) in geo.layout.items()}
-    return {"geo": geo, "jac": jac, "scale": s, "pinv0": pinv0, "rank": rank, "sv": sv,
+    return {"geo": geo, "jac": jac, "scale": s, "rank": rank, "sv": sv,
             "null": null, "vt": vt, "g": g, "no_effect": no_effect, "r0": r0,
             "estimable": {n: bool(r < 1e-6) for n, r in zip(NAMES, resid)}}
 
