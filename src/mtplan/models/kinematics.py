@@ -54,13 +54,14 @@ def rotate(a, b, c, v):
     # Rz
     x1 = cc * vx - sc * vy
     y1 = sc * vx + cc * vy
-    # Ry
-    x2 = cb * x1 + sb * vz
+    # Ry, Rx: written into the result (no stacked copy)
+    out = np.empty((*np.broadcast_shapes(np.shape(x1), np.shape(vz), np.shape(ca),
+                                         np.shape(cb)), 3))
+    out[..., 0] = cb * x1 + sb * vz
     z2 = -sb * x1 + cb * vz
-    # Rx
-    y3 = ca * y1 - sa * z2
-    z3 = sa * y1 + ca * z2
-    return np.stack(np.broadcast_arrays(x2, y3, z3), axis=-1)
+    out[..., 1] = ca * y1 - sa * z2
+    out[..., 2] = sa * y1 + ca * z2
+    return out
 
 
 def rotate_inverse(a, b, c, v):
