@@ -241,8 +241,9 @@ def _local_blocks(U: np.ndarray) -> tuple[np.ndarray, list]:
 
     Columns are taken in order of their support (fewest readings first); one joins the
     blocks when the readings it links (with the blocks they already belong to) number
-    ``LOCAL_MAX`` at most, else it stays in the low-rank part. Returns (mask of the
-    blocks' columns, list of (rows, columns) per block)."""
+    ``LOCAL_MAX`` at most and the merged block's size squared grows by no more than the
+    readings' count (what the column costs in the low-rank part), else it stays there.
+    Returns (mask of the blocks' columns, list of (rows, columns) per block)."""
     import scipy.sparse as sp
 
     nz = U != 0
@@ -265,7 +266,8 @@ def _local_blocks(U: np.ndarray) -> tuple[np.ndarray, list]:
         if not count[j]:  # no effect: left in the low-rank part, where it drops out
             continue
         roots = {root(i) for i in idx[ptr[j]: ptr[j + 1]]}
-        if sum(size[r] for r in roots) > LOCAL_MAX:
+        merged = sum(size[r] for r in roots)
+        if merged > LOCAL_MAX or merged**2 - sum(size[r] ** 2 for r in roots) > U.shape[0]:
             continue
         local[j] = True
         first, *rest = roots
