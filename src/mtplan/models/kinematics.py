@@ -35,7 +35,7 @@ def _cos_sin(angle):
     return np.cos(angle), np.sin(angle)
 
 
-def rotate(a, b, c, v):
+def rotate(a, b, c, v, cs=(None, None, None)):
     """Apply R = Rx(a) Ry(b) Rz(c) to vectors `v`, exactly.
 
     Parameters
@@ -44,12 +44,15 @@ def rotate(a, b, c, v):
         Rotation angles about x, y, z [rad].
     v : array of shape (..., 3)
         Vectors.
+    cs : three (cos, sin) pairs or None
+        The angles' cosines and sines where already known (the same values).
 
     Returns
     -------
     array of shape (..., 3)
     """
-    (ca, sa), (cb, sb), (cc, sc) = _cos_sin(a), _cos_sin(b), _cos_sin(c)
+    (ca, sa), (cb, sb), (cc, sc) = (_cos_sin(x) if t is None else t
+                                    for x, t in zip((a, b, c), cs, strict=True))
     vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
     # Rz
     x1 = cc * vx - sc * vy
@@ -110,8 +113,13 @@ def polyval(coef: np.ndarray, powers, u: np.ndarray) -> np.ndarray:
     return coef @ basis
 
 
+def _known(trig: dict, axis: str) -> tuple:
+    """The (cos, sin) pairs of axis `axis`'s three angular errors the caller gave (or None)."""
+    return tuple(trig.get(f"E{r}{axis}") for r in "ABC")
+
+
 def chain(values: dict, x: np.ndarray, y: np.ndarray, z: np.ndarray, head: np.ndarray,
-          ref: np.ndarray | None = None):
+          ref: np.ndarray | None = None, trig: dict | None = None):
     """Relative position of the head in the workpiece frame, exact.
 
     Parameters
@@ -127,13 +135,15 @@ def chain(values: dict, x: np.ndarray, y: np.ndarray, z: np.ndarray, head: np.nd
     ref : array of shape (3,), optional
         Offset of the functional point at which the errors are defined (the angular
         error motions rotate about it); default the spindle reference point (0, 0, 0).
+    trig : dict of str to (cos, sin), optional
+        The angular errors' cosines and sines where the caller has them (the same values).
 
     Returns
     -------
     array of shape (n, m, 3)
         Position of the head relative to the workpiece frame [mm].
     """
-    v = values
+    v, t = values, trig or {}
     n = next(iter(v.values())).shape[0]
     m = x.shape[0]
     # axis directions (squareness), exact
@@ -144,13 +154,13 @@ def chain(values: dict, x: np.ndarray, y: np.ndarray, z: np.ndarray, head: np.nd
     ref = np.zeros(3) if ref is None else np.asarray(ref, dtype=float)
     hv = np.broadcast_to(np.asarray(head, dtype=float) - ref, (n, m, 3))  # (3,) or (m, 3)
     # Z (vectors relative to the functional point; rotations about it)
-    p = rotate(v["EAZ"], v["EBZ"], v["ECZ"], hv)
+    p = rotate(v["EAZ"], v["EBZ"], v["ECZ"], hv, _known(t, "Z"))
     p = p + z[None, :, None] * d_z + np.stack([v["EXZ"], v["EYZ"], v["EZZ"]], axis=-1)
     # Y
-    p = rotate(v["EAY"], v["EBY"], v["ECY"], p)
+    p = rotate(v["EAY"], v["EBY"], v["ECY"], p, _known(t, "Y"))
     p = p + y[None, :, None] * d_y + np.stack([v["EXY"], v["EYY"], v["EZY"]], axis=-1)
     # X
-    p = rotate(v["EAX"], v["EBX"], v["ECX"], p)
+    p = rotate(v["EAX"], v["EBX"], v["ECX"], p, _known(t, "X"))
     p = p + ref
     p[..., 0] += x[None, :] + v["EXX"]
     p[..., 1] += v["EYX"]

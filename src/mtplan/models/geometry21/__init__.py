@@ -466,6 +466,7 @@ class _Geometry:
     ref: np.ndarray        # (3,) functional point
     pattern: np.ndarray    # (15, M, 3) plate-frame effect of the drift/reversal/servo features
     powers: np.ndarray     # (3, poly_order + 1, M) powers of each axis's commanded position
+    distinct: tuple        # per axis: (index (M,) into its distinct positions, their powers)
     layout: dict           # function -> (powers, slice into coefficients)
     n_coef: int
     n_extra: int           # extra head positions, all planes
@@ -580,6 +581,8 @@ def _geometry(setup: Setup) -> _Geometry:
                             c["test"])
     geo["pattern"] = _to_plate_frame(plane, basis, pat)
     geo["powers"] = cmd.T[:, None, :] ** np.arange(setup.poly_order + 1)[None, :, None]
+    geo["distinct"] = tuple((inv, u[None, :] ** np.arange(setup.poly_order + 1)[:, None])
+                            for u, inv in (np.unique(x, return_inverse=True) for x in cmd.T))
     return _Geometry(**geo)
 
 
@@ -630,15 +633,20 @@ def _to_plate_frame(plane, basis, vec):
     return out
 
 
-def _values(geo: _Geometry, coefs: dict) -> dict:
-    """Function values at the points: name -> (n, M) ((n, 1) for squareness)."""
+def _values(geo: _Geometry, coefs: dict, trig: dict | None = None) -> dict:
+    """Function values at the points: name -> (n, M) ((n, 1) for squareness); into `trig`
+    the angular ones' (cos, sin): each at its axis's distinct positions, then spread."""
     out = {}
     for name in NAMES:
         powers, coef = coefs[name]
         if _KIND[name] == "sq":
             out[name] = coef[:, :1] * np.ones((1, 1))
         elif powers and max(powers) < geo.powers.shape[1]:
-            out[name] = coef @ geo.powers[_AXIS[name], list(powers)]
+            inv, at = geo.distinct[_AXIS[name]]
+            vals = coef @ at[list(powers)]
+            out[name] = vals[:, inv]
+            if trig is not None and _KIND[name] == "ang" and np.any(vals):
+                trig[name] = (np.cos(vals)[:, inv], np.sin(vals)[:, inv])
         else:
             out[name] = polyval(coef, powers, geo.cmd[:, _AXIS[name]])
     return out
@@ -908,7 +916,8 @@ def _forward_matrix(setup: Setup, truth: Truth) -> np.ndarray:
 
 def _truth_positions(geo: _Geometry, coefs: dict) -> np.ndarray:
     """Head positions (n, M, 3) in the plates' frames for coefficients (n, L) per function."""
-    return _local3(geo, chain(_values(geo, coefs), *geo.cmd.T, geo.hvec, geo.ref))
+    trig: dict = {}
+    return _local3(geo, chain(_values(geo, coefs, trig), *geo.cmd.T, geo.hvec, geo.ref, trig))
 
 
 def true_values(setup: Setup, truth: Truth) -> dict:
@@ -1036,7 +1045,8 @@ def _predict(geo: _Geometry, theta: np.ndarray) -> np.ndarray:
     """Noise-free readings (n, M, 2) for parameters theta (n, n_par), exact model."""
     n = theta.shape[0]
     coefs = {name: (pw, theta[:, sl]) for name, (pw, sl) in geo.layout.items()}
-    p = chain(_values(geo, coefs), *geo.cmd.T, geo.hvec, geo.ref)
+    trig: dict = {}
+    p = chain(_values(geo, coefs, trig), *geo.cmd.T, geo.hvec, geo.ref, trig)
     offset, turn, head = _nuisance(geo, theta)
     rot = np.zeros((n, 3, 3))
     rot[:, :, 2] = turn
