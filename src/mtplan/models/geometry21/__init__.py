@@ -659,7 +659,10 @@ def _plane_slices(geo: _Geometry) -> list[slice]:
 
 def _local3(geo: _Geometry, p: np.ndarray) -> np.ndarray:
     """Head positions (n, M, 3) [machine frame] in each plate's nominal frame (n, M, 3)."""
-    return _to_plate_frame(geo.plane, geo.basis, p - geo.origin[geo.plane])
+    out = np.empty(p.shape)
+    for k, sl in enumerate(_plane_slices(geo)):  # the planes' readings are contiguous
+        np.matmul(p[..., sl, :] - geo.origin[k], geo.basis[k], out=out[..., sl, :])
+    return out
 
 
 def _rotation_rows(rot: np.ndarray) -> np.ndarray:
