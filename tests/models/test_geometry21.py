@@ -449,6 +449,30 @@ def test_closed_form_maps_are_the_central_differences(kw):
     assert dev.max() <= 1e-6
 
 
+@pytest.mark.parametrize("kw", [{}, dict(SMALL, yz_extra_heads_mm=(100, 60, 0))])
+def test_closed_form_source_response_is_the_central_differences(kw):
+    """The readings' response to every element of the non-white sources (closed form) is the
+    forward model's central differences about the sources' means (1 % of a standard
+    deviation; the plates' tilts act at second order, the servo's square is differenced
+    exactly), to 1e-6 of each source's largest effect."""
+    from mtplan.fitting.linear import source_response
+    from mtplan.models.geometry21._maps import source_readings_map
+
+    setup, truth = g21.Setup(**kw), g21.Truth()
+    names = tuple(n for n in P.active_sources(setup, None) if n not in g21._WHITE)
+    srcs = g21.sources(setup)
+    fd = source_response(lambda e: P.forward(setup, truth, e)["plate_mm"].reshape(
+        len(e["reversal"]), -1), lambda m: P.zero_errors(setup, m), srcs, names)
+    got = source_readings_map(setup, truth, names)
+    assert got.shape == fd.shape
+    pos = 0
+    for name in names:
+        k = int(np.prod(srcs[name].shape))
+        a, b = got[:, pos: pos + k], fd[:, pos: pos + k]
+        assert np.abs(a - b).max() <= 1e-6 * np.abs(b).max(), name
+        pos += k
+
+
 def test_resizing_a_source_reuses_the_geometry_and_reweights_the_fit():
     """What depends on the geometry only is computed once for every size of the sources;
     the joint fit's weights (encoder noise against the path-correlated repeatability) are
