@@ -154,11 +154,16 @@ def chain(values: dict, x: np.ndarray, y: np.ndarray, z: np.ndarray, head: np.nd
     ref = np.zeros(3) if ref is None else np.asarray(ref, dtype=float)
     hv = np.broadcast_to(np.asarray(head, dtype=float) - ref, (n, m, 3))  # (3,) or (m, 3)
     # Z (vectors relative to the functional point; rotations about it)
+    # (in place, in the same order of operations: (p + u d) + delta)
     p = rotate(v["EAZ"], v["EBZ"], v["ECZ"], hv, _known(t, "Z"))
-    p = p + z[None, :, None] * d_z + np.stack([v["EXZ"], v["EYZ"], v["EZZ"]], axis=-1)
+    p += z[None, :, None] * d_z
+    for i, c in enumerate("XYZ"):
+        p[..., i] += v[f"E{c}Z"]
     # Y
     p = rotate(v["EAY"], v["EBY"], v["ECY"], p, _known(t, "Y"))
-    p = p + y[None, :, None] * d_y + np.stack([v["EXY"], v["EYY"], v["EZY"]], axis=-1)
+    p += y[None, :, None] * d_y
+    for i, c in enumerate("XYZ"):
+        p[..., i] += v[f"E{c}Y"]
     # X
     p = rotate(v["EAX"], v["EBX"], v["ECX"], p, _known(t, "X"))
     p = p + ref
