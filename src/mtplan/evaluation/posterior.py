@@ -382,7 +382,7 @@ def _start(fwd, theta0, mode, sigma, notes) -> _Fit:
     if key not in _STARTS:
         own: list = []
         fit = _fit_start(fwd, theta0, mode, sigma, own)
-        if len(_STARTS) >= 4:
+        if len(_STARTS) >= 2:  # a budget's low-rank part can hold tens of MB
             _STARTS.pop(next(iter(_STARTS)))
         _STARTS[key] = (fit, own, list(fwd.slots))
     fit, own, slots = _STARTS[key]
