@@ -57,6 +57,36 @@ def test_the_gaussian_is_the_dense_normal(n):
                        atol=1e-10 * np.abs(R @ np.linalg.inv(C)).max())
 
 
+def test_a_path_correlated_source_joins_the_gaussian_s_block_diagonal_base():
+    """Elements confined to short passes of readings (an AR(1) scatter along a path), with
+    a few that touch every reading: the base is block-diagonal, the rest low rank, and the
+    log-likelihood, whitening, C^-1 and the fit check's pieces are the dense normal's."""
+    from mtplan.evaluation.fitcheck import _cinv_diag, _wt
+
+    n, rng = DENSE_MAX + 400, np.random.default_rng(7)
+    D = rng.uniform(0.5, 2.0, n) * 1e-6
+    cols = []
+    for start in range(0, n, 40):  # passes of 40 readings, 10 innovations each
+        for j in range(10):
+            c = np.zeros(n)
+            c[start + j: start + 40] = 0.8 ** np.arange(40 - j) * 1e-3
+            cols.append(c)
+    U = np.column_stack([*cols, rng.normal(size=(n, 4)) * 1e-3])
+    g = Gaussian.known(D, U)
+    assert g.wb is not None and g.q.shape[1] == 4
+    C = _dense(D, U)
+    Ci = np.linalg.inv(C)
+    R = rng.normal(size=(3, n)) * 1e-3
+    quad = np.einsum("ij,ij->i", R @ Ci, R)
+    expect = -0.5 * (quad + np.linalg.slogdet(C)[1] + n * np.log(2 * np.pi))
+    assert np.allclose(g.loglike(R), expect, rtol=1e-10, atol=1e-8)
+    assert np.allclose(np.einsum("ij,ij->i", g.whiten(R), g.whiten(R)), quad, rtol=1e-10)
+    assert np.allclose(g.inverse_times(R), R @ Ci, rtol=1e-8, atol=1e-10 * np.abs(R @ Ci).max())
+    assert np.allclose(_cinv_diag(g), np.diag(Ci), rtol=1e-8)
+    V = rng.normal(size=(n, 2))
+    assert np.allclose(_wt(g, V), g.whiten(np.eye(n)) @ V, rtol=1e-8, atol=1e-12)
+
+
 def _linear_model(n=12):
     """Readings A e of a scale error (1 element), a shared offset (2) and noise (n)."""
     x = np.linspace(-1.0, 1.0, n)

@@ -426,6 +426,67 @@ def test_first_order_budget_agrees_with_the_generic_linearisation():
                                                                         row.source)
 
 
+@pytest.mark.parametrize("kw", [{}, dict(SMALL, yz_extra_heads_mm=(100, 60, 0),
+                                        xz_extra_heads_mm=(150, 0, 30), reference_tool_mm=0.0,
+                                        circle_arc_deg=90.0)])
+def test_closed_form_maps_are_the_central_differences(kw):
+    """The readings' Jacobian at zero error and the patent's derivative, in closed form, are
+    the central differences of the exact chains they replace (those differ from the true
+    derivative by ~1e-8 of the largest entry: truncation and rounding), to 1e-6."""
+    from mtplan.fitting.linear import response
+    from mtplan.models.geometry21._maps import patent_map, zero_jacobian
+
+    setup = g21.Setup(**kw)
+    geo = g21._geometry(setup)
+    r0, fd = g21._jacobian(geo, np.zeros(geo.n_par), g21._scales(geo))
+    jac = zero_jacobian(geo)
+    assert np.abs(jac - fd).max() <= 1e-6 * np.abs(fd).max()
+    assert not np.any(jac[:, np.abs(fd).max(axis=0) == 0])  # no effect stays exactly none
+    rt = P.forward(setup, g21.Truth(), P.zero_errors(setup, 1))["plate_mm"].reshape(-1)
+    fd = response(lambda r: g21._theta_patent(setup, {"plate_mm": r.reshape(len(r), -1, 2)}),
+                  rt, 1e-6) / 1e-6
+    dev = np.abs(patent_map(setup, rt) - fd) / np.abs(fd).max(axis=1, keepdims=True).clip(1e-300)
+    assert dev.max() <= 1e-6
+
+
+@pytest.mark.parametrize("kw", [{}, dict(SMALL, yz_extra_heads_mm=(100, 60, 0))])
+def test_closed_form_source_response_is_the_central_differences(kw):
+    """The readings' response to every element of the non-white sources (closed form) is the
+    forward model's central differences about the sources' means (1 % of a standard
+    deviation; the plates' tilts act at second order, the servo's square is differenced
+    exactly), to 1e-6 of each source's largest effect."""
+    from mtplan.fitting.linear import source_response
+    from mtplan.models.geometry21._maps import source_readings_map
+
+    setup, truth = g21.Setup(**kw), g21.Truth()
+    names = tuple(n for n in P.active_sources(setup, None) if n not in g21._WHITE)
+    srcs = g21.sources(setup)
+    fd = source_response(lambda e: P.forward(setup, truth, e)["plate_mm"].reshape(
+        len(e["reversal"]), -1), lambda m: P.zero_errors(setup, m), srcs, names)
+    got = source_readings_map(setup, truth, names)
+    assert got.shape == fd.shape
+    pos = 0
+    for name in names:
+        k = int(np.prod(srcs[name].shape))
+        a, b = got[:, pos: pos + k], fd[:, pos: pos + k]
+        assert np.abs(a - b).max() <= 1e-6 * np.abs(b).max(), name
+        pos += k
+
+
+def test_resizing_a_source_reuses_the_geometry_and_reweights_the_fit():
+    """What depends on the geometry only is computed once for every size of the sources;
+    the joint fit's weights (encoder noise against the path-correlated repeatability) are
+    the resized set-up's own."""
+    base, noisy = g21.Setup(**SMALL), g21.Setup(**SMALL, encoder_noise_um=0.5, reversal_um=0)
+    assert g21._geometry(noisy) is g21._geometry(base)
+    assert g21._joint_ident(noisy)["jac"] is g21._joint_ident(base)["jac"]
+    w = g21.filter_whitening(g21._repeatability_filter(noisy), 0.5 / 0.3, 2)
+    ji = g21._joint_ident(noisy)
+    direct = g21.gls_pinv(ji["jac"], ji["scale"], ji["vt"], ji["rank"], g21._free(ji["geo"]), w)
+    np.testing.assert_allclose(ji["pinv"], direct, rtol=0, atol=1e-12 * np.abs(direct).max())
+    assert not np.allclose(ji["pinv"], g21._joint_ident(base)["pinv"])
+
+
 # ----------------------------------------------------------------- readings and the plan
 def test_readings_with_heads_round_trip_and_old_tables_still_read():
     setup = g21.Setup(**ALL21_SMALL)

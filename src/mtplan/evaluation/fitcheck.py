@@ -141,7 +141,7 @@ def _wt(g: Gaussian, V: np.ndarray) -> np.ndarray:
     """``W^T V`` for the whitening ``W`` of a known Gaussian (``W^T W = C^-1``), V (n, m)."""
     if g.mode == "dense":
         return g.white.T @ V
-    return g.rs[:, None] * (V - g.q @ (g.shrink[:, None] * (g.q.T @ V)))
+    return g.base_t(V - g.q @ (g.shrink[:, None] * (g.q.T @ V)))
 
 
 def _cinv_diag(g: Gaussian) -> np.ndarray:
@@ -149,6 +149,9 @@ def _cinv_diag(g: Gaussian) -> np.ndarray:
     if g.mode == "dense":
         return np.sum(g.white**2, axis=0)
     s = g.shrink
+    if g.wb is not None:  # a block base B: diag(B^T B) less the low-rank part's
+        return (np.asarray(g.wb.multiply(g.wb).sum(axis=0)).ravel()
+                - (g.base_t(g.q) ** 2) @ (2.0 * s - s * s))
     return g.rs**2 * (1.0 - (g.q**2) @ (2.0 * s - s * s))
 
 

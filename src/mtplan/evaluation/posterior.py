@@ -42,6 +42,7 @@ budget runs out first, :class:`NotConvergedError` carries the partial result
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 import warnings
@@ -366,7 +367,31 @@ def _noise_ml(fwd, fit: _Fit) -> float:
     return float(math.exp(res.x))
 
 
+#: recent starts (an estimate's bias correction, its fit check and its posterior start
+#: from the same readings): key -> (fit, notes, nuisance slots); a copy is handed out
+_STARTS: dict = {}
+
+
 def _start(fwd, theta0, mode, sigma, notes) -> _Fit:
+    """:func:`_fit_start`, remembered for the same procedure, set-up, readings, parameters,
+    start and noise (a pure function of them: the result is the same, only sooner)."""
+    b = fwd.builder
+    key = (fwd.proc.name, fwd.setup, tuple(fwd.keys), fwd.y.tobytes(), fwd.mask.tobytes(),
+           repr(b.base), tuple((p.name, p.low, p.high) for p in b.params),
+           np.asarray(theta0, dtype=float).tobytes(), mode, sigma)
+    if key not in _STARTS:
+        own: list = []
+        fit = _fit_start(fwd, theta0, mode, sigma, own)
+        if len(_STARTS) >= 2:  # a budget's low-rank part can hold tens of MB
+            _STARTS.pop(next(iter(_STARTS)))
+        _STARTS[key] = (fit, own, list(fwd.slots))
+    fit, own, slots = _STARTS[key]
+    notes.extend(own)
+    fwd.slots = list(slots)
+    return dataclasses.replace(fit, theta=fit.theta.copy(), nuis=fit.nuis.copy())
+
+
+def _fit_start(fwd, theta0, mode, sigma, notes) -> _Fit:
     """Budget at the start, generalised least squares, the budget again where it moved."""
     setup_sd = None
     if fwd.proc.noise_source is not None:

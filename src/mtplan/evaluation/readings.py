@@ -339,8 +339,10 @@ def _finish(proc, setup, path, df, cols, origin=None) -> dict:
 
 # --------------------------------------------------------------------------- where a reading is
 def _typed(df, expected):
-    """The frame with integer columns as integers where the procedure's are (from_frame)."""
+    """The frame with integer columns as integers where the procedure's are (from_frame),
+    without the file's attributes (pandas deep-copies them on every copy and column)."""
     df = df.copy()
+    df.attrs = {}
     for c in df.columns:
         if expected[c].dtype.kind in "iu" and df[c].dtype.kind == "f":
             if np.all(df[c] == np.round(df[c])):

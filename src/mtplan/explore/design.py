@@ -159,11 +159,25 @@ def setup_of(design):
 
 
 # --------------------------------------------------------------------------- prediction
+@functools.lru_cache(maxsize=1)
+def _blas():
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
+
+
+def _one_blas_thread():
+    """One BLAS thread for the live numbers: their products are small, where threads only
+    wait on each other (on a loaded machine they spin for many times the work)."""
+    return _blas().limit(limits=1, user_api="blas")
+
+
 @functools.lru_cache(maxsize=512)
 def _predict_cached(name: str, setup_key: str, estimator: str):
     proc = get(name)
     setup = make(proc.Setup, json.loads(setup_key), owner=proc.name)
-    return _predict(proc, setup, estimator)
+    with _one_blas_thread():
+        return _predict(proc, setup, estimator)
 
 
 def _predict(proc, setup, estimator) -> dict:
@@ -206,7 +220,8 @@ def predict(proc, setup, estimator) -> dict:
 def _identify_cached(name: str, geometry_key: str) -> dict:
     proc = get(name)
     setup = make(proc.Setup, json.loads(geometry_key), owner=proc.name)
-    return identify(proc, setup)
+    with _one_blas_thread():
+        return identify(proc, setup)
 
 
 def _geometry_key(proc, setup) -> str:

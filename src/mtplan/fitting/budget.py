@@ -46,6 +46,7 @@ __all__ = ["Budget", "Gaussian", "error_budget", "DENSE_MAX", "NONLINEAR", "MAX_
 
 _LOG_2PI = math.log(2 * math.pi)
 DENSE_MAX = 2000  # readings: dense covariance up to this count
+LOCAL_MAX = 512  # readings: elements within blocks of at most this many join the base
 NONLINEAR = 0.1  # curvature norm [readings' independent scatter] above which a source is sampled
 MAX_NUISANCE = 16  # at most this many source elements are sampled as nuisance parameters
 _ABSORBED = 1e-5  # relative residual below which a source is reproduced by free parameters
@@ -235,12 +236,92 @@ def _thin_svd(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return (a @ v[:, keep]) / s, s
 
 
+def _local_blocks(U: np.ndarray) -> tuple[np.ndarray, list]:
+    """The columns of U confined to small blocks of readings, and the blocks.
+
+    Columns are taken in order of their support (fewest readings first); one joins the
+    blocks when the readings it links (with the blocks they already belong to) number
+    ``LOCAL_MAX`` at most and the merged block's size squared grows by no more than the
+    readings' count (what the column costs in the low-rank part), else it stays there.
+    Returns (mask of the blocks' columns, list of (rows, columns) per block)."""
+    import scipy.sparse as sp
+
+    nz = U != 0
+    count = nz.sum(axis=0)
+    csc = sp.csc_matrix(nz)
+    ptr, idx = csc.indptr.tolist(), csc.indices.tolist()
+    local = np.zeros(U.shape[1], dtype=bool)
+    parent = list(range(U.shape[0]))
+    size = [1] * U.shape[0]
+
+    def root(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for j in np.argsort(count, kind="stable"):
+        if count[j] > LOCAL_MAX:
+            break
+        if not count[j]:  # no effect: left in the low-rank part, where it drops out
+            continue
+        roots = {root(i) for i in idx[ptr[j]: ptr[j + 1]]}
+        merged = sum(size[r] for r in roots)
+        if merged > LOCAL_MAX or merged**2 - sum(size[r] ** 2 for r in roots) > U.shape[0]:
+            continue
+        local[j] = True
+        first, *rest = roots
+        for r in rest:
+            parent[r] = first
+            size[first] += size[r]
+    if not np.any(local):
+        return local, []
+    label = np.array([root(i) for i in range(U.shape[0])])
+    cols = np.flatnonzero(local)
+    owner = label[np.argmax(nz[:, cols], axis=0)]
+    order = np.argsort(owner, kind="stable")
+    groups = np.split(order, np.flatnonzero(np.diff(owner[order])) + 1)
+    return local, [(np.flatnonzero(label == owner[g[0]]), cols[g]) for g in groups]
+
+
+def _block_whitening(D: np.ndarray, U: np.ndarray, blocks: list):
+    """Sparse whitening W (``W^T W = (diag D + U U^T)^-1``, block lower-triangular) and the
+    log-determinant of ``diag D + U U^T``, for U's columns confined to the `blocks`
+    (rows, columns of the full U, of which `U` holds the local ones in order)."""
+    import scipy.sparse as sp
+
+    n = D.size
+    logdet = float(np.sum(np.log(D)))
+    local_cols = np.sort(np.concatenate([c for _, c in blocks]))
+    full = np.zeros(n, dtype=bool)
+    rows, cols, vals = [], [], []
+    for rows_b, cols_b in blocks:
+        full[rows_b] = True
+        ub = U[np.ix_(rows_b, np.searchsorted(local_cols, cols_b))]
+        sb = np.sqrt(D[rows_b])
+        chol = np.linalg.cholesky((np.diag(D[rows_b]) + ub @ ub.T) / np.outer(sb, sb))
+        logdet += 2.0 * float(np.sum(np.log(np.diag(chol))))  # scaled: D's part is in
+        wb = np.linalg.solve(chol, np.eye(rows_b.size)) / sb[None, :]
+        i, j = np.nonzero(wb)
+        rows.append(rows_b[i])
+        cols.append(rows_b[j])
+        vals.append(wb[i, j])
+    rest = np.flatnonzero(~full)
+    rows.append(rest)
+    cols.append(rest)
+    vals.append(1.0 / np.sqrt(D[rest]))
+    w = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=(n, n))
+    return w, logdet
+
+
 class Gaussian:
     """Log-likelihood of residuals under ``C = D + U U^T`` (known) or ``sigma^2 C_n + C_0``."""
 
     def __init__(self, n: int):
         self.n = n
         self.free = False
+        self.wb = None
 
     @classmethod
     def known(cls, D, U) -> Gaussian:
@@ -251,13 +332,26 @@ class Gaussian:
             raise InvalidInput([f"With {g.n} readings the posterior needs every reading to have "
                                 "its own noise (an error source of the set-up that touches it "
                                 "alone); some have none."])
-        g.rs = 1.0 / np.sqrt(D)
-        q, s = _thin_svd(U * g.rs[:, None])
+        g.rs, g.wb, logdet, U = 1.0 / np.sqrt(D), None, float(np.sum(np.log(D))), U
+        local, blocks = _local_blocks(U)
+        if blocks:  # elements within small blocks of readings (a path's correlated scatter)
+            g.wb, logdet = _block_whitening(D, U[:, local], blocks)
+            U = U[:, ~local]
+        q, s = _thin_svd(g.base(U.T).T)
         keep = s > 1e-12 * (s[0] if s.size else 1.0)
         g.q, g.shrink = q[:, keep], 1.0 - 1.0 / np.sqrt(1.0 + s[keep] ** 2)
-        g.logdet = float(np.sum(np.log(D)) + np.sum(np.log1p(s[keep] ** 2)))
+        g.logdet = logdet + float(np.sum(np.log1p(s[keep] ** 2)))
         g.mode = "woodbury"
         return g
+
+    def base(self, R: np.ndarray) -> np.ndarray:
+        """Rows R (m, n) whitened by the base of a Woodbury Gaussian: ``D^-1/2``, or the
+        block whitening of D and the elements confined to small blocks of readings."""
+        return R * self.rs if self.wb is None else np.asarray((self.wb @ R.T).T)
+
+    def base_t(self, V: np.ndarray) -> np.ndarray:
+        """``B^T V`` (n, m) for the base whitening B of :meth:`base`."""
+        return self.rs[:, None] * V if self.wb is None else np.asarray(self.wb.T @ V)
 
     @classmethod
     def dense(cls, cov) -> Gaussian:
@@ -321,7 +415,7 @@ class Gaussian:
         R = np.atleast_2d(R)
         if self.mode == "dense":
             return R @ self.white.T
-        w = R * self.rs
+        w = self.base(R)
         return w - ((w @ self.q) * self.shrink) @ self.q.T
 
     def inverse_times(self, R: np.ndarray) -> np.ndarray:
@@ -330,7 +424,7 @@ class Gaussian:
         w = self.whiten(R)
         if self.mode == "dense":
             return w @ self.white
-        return (w - ((w @ self.q) * self.shrink) @ self.q.T) * self.rs
+        return self.base_t((w - ((w @ self.q) * self.shrink) @ self.q.T).T).T
 
     def loglike(self, R: np.ndarray, log_sigma=None) -> np.ndarray:
         """Gaussian log-likelihood of residual rows R (m, n); `log_sigma` (m,) when free."""
@@ -340,7 +434,7 @@ class Gaussian:
                 w = self.whiten(R)
                 quad = np.einsum("ij,ij->i", w, w)
             else:  # r^T C^-1 r = |w|^2 - sum_j (w . q_j)^2 s_j^2 / (1 + s_j^2), w = D^-1/2 r
-                w = R * self.rs
+                w = self.base(R)
                 p = w @ self.q
                 damp = 1.0 - (1.0 - self.shrink) ** 2
                 quad = np.einsum("ij,ij->i", w, w) - (p * p) @ damp

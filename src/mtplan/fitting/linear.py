@@ -109,12 +109,42 @@ def filter_whitening(f, ratio: float, components: int = 1):
     components : int
     """
     import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
 
-    fd = f.toarray() if sp.issparse(f) else np.asarray(f, dtype=float)
-    low = np.linalg.cholesky(fd @ fd.T + ratio**2 * np.eye(fd.shape[0]))
-    w = np.linalg.solve(low, np.eye(fd.shape[0]))
-    w[np.abs(w) < 1e-14 * np.abs(w).max()] = 0.0
-    return sp.kron(sp.csr_matrix(w), sp.eye(components), format="csr")
+    fs = sp.csr_matrix(f, dtype=float)
+    m = fs.shape[0]
+    # the covariance is block-diagonal over the connected components of F's pattern: the
+    # Cholesky factor and its inverse are too, so each block is factorised alone
+    _, label = connected_components(abs(fs) + abs(fs.T), directed=False)
+    blocks, big, seen = [], 0.0, {}
+    for idx in _groups(label):
+        if idx[-1] - idx[0] + 1 == idx.size:  # contiguous (a path's pass): a slice
+            fd = fs[idx[0]: idx[-1] + 1, idx[0]: idx[-1] + 1].toarray()
+        else:
+            fd = fs[idx].toarray()[:, idx]
+        key = (fd.shape, fd.tobytes())
+        if key not in seen:  # passes alike share their factor
+            low = np.linalg.cholesky(fd @ fd.T + ratio**2 * np.eye(idx.size))
+            seen[key] = np.linalg.solve(low, np.eye(idx.size))
+        wb = seen[key]
+        big = max(big, float(np.abs(wb).max()))
+        blocks.append((idx, wb))
+    rows, cols, vals = [], [], []
+    for idx, wb in blocks:
+        i, j = np.nonzero(np.abs(wb) >= 1e-14 * big)
+        rows.append(idx[i])
+        cols.append(idx[j])
+        vals.append(wb[i, j])
+    w = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=(m, m))
+    return sp.kron(w, sp.eye(components), format="csr")
+
+
+def _groups(label: np.ndarray) -> list[np.ndarray]:
+    """Indices of each label's members, in increasing order."""
+    order = np.argsort(label, kind="stable")
+    cuts = np.flatnonzero(np.diff(label[order])) + 1
+    return np.split(order, cuts)
 
 
 def gls_pinv(jac: np.ndarray, scale: np.ndarray, vt: np.ndarray, rank: int,

@@ -35,7 +35,7 @@ def _cos_sin(angle):
     return np.cos(angle), np.sin(angle)
 
 
-def rotate(a, b, c, v):
+def rotate(a, b, c, v, cs=(None, None, None)):
     """Apply R = Rx(a) Ry(b) Rz(c) to vectors `v`, exactly.
 
     Parameters
@@ -44,23 +44,27 @@ def rotate(a, b, c, v):
         Rotation angles about x, y, z [rad].
     v : array of shape (..., 3)
         Vectors.
+    cs : three (cos, sin) pairs or None
+        The angles' cosines and sines where already known (the same values).
 
     Returns
     -------
     array of shape (..., 3)
     """
-    (ca, sa), (cb, sb), (cc, sc) = _cos_sin(a), _cos_sin(b), _cos_sin(c)
+    (ca, sa), (cb, sb), (cc, sc) = (_cos_sin(x) if t is None else t
+                                    for x, t in zip((a, b, c), cs, strict=True))
     vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
     # Rz
     x1 = cc * vx - sc * vy
     y1 = sc * vx + cc * vy
-    # Ry
-    x2 = cb * x1 + sb * vz
+    # Ry, Rx: written into the result (no stacked copy)
+    out = np.empty((*np.broadcast_shapes(np.shape(x1), np.shape(vz), np.shape(ca),
+                                         np.shape(cb)), 3))
+    out[..., 0] = cb * x1 + sb * vz
     z2 = -sb * x1 + cb * vz
-    # Rx
-    y3 = ca * y1 - sa * z2
-    z3 = sa * y1 + ca * z2
-    return np.stack(np.broadcast_arrays(x2, y3, z3), axis=-1)
+    out[..., 1] = ca * y1 - sa * z2
+    out[..., 2] = sa * y1 + ca * z2
+    return out
 
 
 def rotate_inverse(a, b, c, v):
@@ -109,8 +113,13 @@ def polyval(coef: np.ndarray, powers, u: np.ndarray) -> np.ndarray:
     return coef @ basis
 
 
+def _known(trig: dict, axis: str) -> tuple:
+    """The (cos, sin) pairs of axis `axis`'s three angular errors the caller gave (or None)."""
+    return tuple(trig.get(f"E{r}{axis}") for r in "ABC")
+
+
 def chain(values: dict, x: np.ndarray, y: np.ndarray, z: np.ndarray, head: np.ndarray,
-          ref: np.ndarray | None = None):
+          ref: np.ndarray | None = None, trig: dict | None = None):
     """Relative position of the head in the workpiece frame, exact.
 
     Parameters
@@ -126,13 +135,15 @@ def chain(values: dict, x: np.ndarray, y: np.ndarray, z: np.ndarray, head: np.nd
     ref : array of shape (3,), optional
         Offset of the functional point at which the errors are defined (the angular
         error motions rotate about it); default the spindle reference point (0, 0, 0).
+    trig : dict of str to (cos, sin), optional
+        The angular errors' cosines and sines where the caller has them (the same values).
 
     Returns
     -------
     array of shape (n, m, 3)
         Position of the head relative to the workpiece frame [mm].
     """
-    v = values
+    v, t = values, trig or {}
     n = next(iter(v.values())).shape[0]
     m = x.shape[0]
     # axis directions (squareness), exact
@@ -143,13 +154,18 @@ def chain(values: dict, x: np.ndarray, y: np.ndarray, z: np.ndarray, head: np.nd
     ref = np.zeros(3) if ref is None else np.asarray(ref, dtype=float)
     hv = np.broadcast_to(np.asarray(head, dtype=float) - ref, (n, m, 3))  # (3,) or (m, 3)
     # Z (vectors relative to the functional point; rotations about it)
-    p = rotate(v["EAZ"], v["EBZ"], v["ECZ"], hv)
-    p = p + z[None, :, None] * d_z + np.stack([v["EXZ"], v["EYZ"], v["EZZ"]], axis=-1)
+    # (in place, in the same order of operations: (p + u d) + delta)
+    p = rotate(v["EAZ"], v["EBZ"], v["ECZ"], hv, _known(t, "Z"))
+    p += z[None, :, None] * d_z
+    for i, c in enumerate("XYZ"):
+        p[..., i] += v[f"E{c}Z"]
     # Y
-    p = rotate(v["EAY"], v["EBY"], v["ECY"], p)
-    p = p + y[None, :, None] * d_y + np.stack([v["EXY"], v["EYY"], v["EZY"]], axis=-1)
+    p = rotate(v["EAY"], v["EBY"], v["ECY"], p, _known(t, "Y"))
+    p += y[None, :, None] * d_y
+    for i, c in enumerate("XYZ"):
+        p[..., i] += v[f"E{c}Y"]
     # X
-    p = rotate(v["EAX"], v["EBX"], v["ECX"], p)
+    p = rotate(v["EAX"], v["EBX"], v["ECX"], p, _known(t, "X"))
     p = p + ref
     p[..., 0] += x[None, :] + v["EXX"]
     p[..., 1] += v["EYX"]

@@ -312,6 +312,19 @@ class Setup(SetupBase):
                       "lateral offsets in [-200, 200] mm")
 
 
+#: the fields that size an error source: the geometry, the Jacobian and the patent's
+#: design do not depend on them and are computed once for every size (:func:`_sizeless`)
+_SIZES = ("encoder_noise_um", "grid_error_um", "plate_offset_mm", "plate_tilt_urad",
+          "head_setting_um", "repeatability_um", "reversal_um", "servo_lag_ms",
+          "thermal_growth_ppm_per_h", "thermal_drift_um_per_h")
+
+
+@functools.lru_cache(maxsize=64)
+def _sizeless(setup: Setup) -> Setup:
+    """The set-up with every error source at its default size."""
+    return setup.replace(**{f: Setup.__dataclass_fields__[f].default for f in _SIZES})
+
+
 def extra_heads(setup: Setup) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The head offsets h = (lateral X, lateral Y, -tool length) of each plane [mm].
 
@@ -453,6 +466,7 @@ class _Geometry:
     ref: np.ndarray        # (3,) functional point
     pattern: np.ndarray    # (15, M, 3) plate-frame effect of the drift/reversal/servo features
     powers: np.ndarray     # (3, poly_order + 1, M) powers of each axis's commanded position
+    distinct: tuple        # per axis: (index (M,) into its distinct positions, their powers)
     layout: dict           # function -> (powers, slice into coefficients)
     n_coef: int
     n_extra: int           # extra head positions, all planes
@@ -497,6 +511,8 @@ def _passes(setup):
 
 @functools.lru_cache(maxsize=16)
 def _geometry(setup: Setup) -> _Geometry:
+    if (key := _sizeless(setup)) != setup:  # one geometry for every size of the sources
+        return _geometry(key)
     heads = extra_heads(setup)
     passes = _passes(setup)
     v = setup.feed_mm_min / 60.0  # [mm/s]
@@ -565,6 +581,8 @@ def _geometry(setup: Setup) -> _Geometry:
                             c["test"])
     geo["pattern"] = _to_plate_frame(plane, basis, pat)
     geo["powers"] = cmd.T[:, None, :] ** np.arange(setup.poly_order + 1)[None, :, None]
+    geo["distinct"] = tuple((inv, u[None, :] ** np.arange(setup.poly_order + 1)[:, None])
+                            for u, inv in (np.unique(x, return_inverse=True) for x in cmd.T))
     return _Geometry(**geo)
 
 
@@ -615,15 +633,20 @@ def _to_plate_frame(plane, basis, vec):
     return out
 
 
-def _values(geo: _Geometry, coefs: dict) -> dict:
-    """Function values at the points: name -> (n, M) ((n, 1) for squareness)."""
+def _values(geo: _Geometry, coefs: dict, trig: dict | None = None) -> dict:
+    """Function values at the points: name -> (n, M) ((n, 1) for squareness); into `trig`
+    the angular ones' (cos, sin): each at its axis's distinct positions, then spread."""
     out = {}
     for name in NAMES:
         powers, coef = coefs[name]
         if _KIND[name] == "sq":
             out[name] = coef[:, :1] * np.ones((1, 1))
         elif powers and max(powers) < geo.powers.shape[1]:
-            out[name] = coef @ geo.powers[_AXIS[name], list(powers)]
+            inv, at = geo.distinct[_AXIS[name]]
+            vals = coef @ at[list(powers)]
+            out[name] = vals[:, inv]
+            if trig is not None and _KIND[name] == "ang" and np.any(vals):
+                trig[name] = (np.cos(vals)[:, inv], np.sin(vals)[:, inv])
         else:
             out[name] = polyval(coef, powers, geo.cmd[:, _AXIS[name]])
     return out
@@ -636,7 +659,10 @@ def _plane_slices(geo: _Geometry) -> list[slice]:
 
 def _local3(geo: _Geometry, p: np.ndarray) -> np.ndarray:
     """Head positions (n, M, 3) [machine frame] in each plate's nominal frame (n, M, 3)."""
-    return _to_plate_frame(geo.plane, geo.basis, p - geo.origin[geo.plane])
+    out = np.empty(p.shape)
+    for k, sl in enumerate(_plane_slices(geo)):  # the planes' readings are contiguous
+        np.matmul(p[..., sl, :] - geo.origin[k], geo.basis[k], out=out[..., sl, :])
+    return out
 
 
 def _rotation_rows(rot: np.ndarray) -> np.ndarray:
@@ -663,6 +689,13 @@ def _mount(geo: _Geometry, loc: np.ndarray, offset: np.ndarray, head: np.ndarray
         rotation about its normal (applied as Rx Ry Rz in plate coordinates).
     """
     n = max(loc.shape[0], rot.shape[0])
+    if not np.any(rot):  # Rinv's rows are exactly (1, 0, 0), (0, 1, 0): the shifts alone
+        out = np.array(np.broadcast_to(loc[:, :, :2], (n, loc.shape[1], 2)))
+        for k, sl in enumerate(_plane_slices(geo)):
+            out[:, sl, :] -= offset[:, None, k, :]
+        for e, (_k, sl) in enumerate(geo.xslices):
+            out[:, sl, :] += head[:, None, e, :]
+        return out
     out = np.empty((n, loc.shape[1], 2))
     rows = []
     for k, sl in enumerate(_plane_slices(geo)):
@@ -835,30 +868,42 @@ def _repeatability_filter(setup: Setup):
     x_k = phi x_(k-1) + sqrt(1 - phi^2) e_k, phi = exp(-1 / length): every x has the
     innovations' variance, and x_j, x_k correlate by phi^|j - k|; passes are independent.
     """
-    import scipy.sparse as sp
-
     length = setup.repeatability_correlation
     if length <= 0:
         return None
-    geo = _geometry(setup)
+    return _ar1_filter(_pass_lengths(_sizeless(setup)), length)
+
+
+@functools.lru_cache(maxsize=16)
+def _pass_lengths(key: Setup) -> tuple:
+    """The number of readings of each pass (contiguous readings of one plane, head, test
+    and pass), in order: all the filter depends on besides the length."""
+    geo = _geometry(key)
     keys = np.stack([geo.plane, geo.head, geo.test, geo.pass_], axis=1)
     start = np.ones(len(keys), dtype=bool)
     start[1:] = np.any(keys[1:] != keys[:-1], axis=1)
-    bounds = np.append(np.flatnonzero(start), len(keys))
+    return tuple(np.diff(np.append(np.flatnonzero(start), len(keys))).tolist())
+
+
+@functools.lru_cache(maxsize=8)
+def _ar1_filter(lengths: tuple, length: float):
+    import scipy.sparse as sp
+
     phi = math.exp(-1.0 / length)
     gain = math.sqrt(1.0 - phi * phi)
     rows, cols, vals = [], [], []
-    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
-        k = np.arange(b - a)
+    a = 0
+    for n in lengths:
+        k = np.arange(n)
         j, i = np.meshgrid(k, k)  # x_i from e_j, j <= i
         keep = j <= i
         w = phi ** (i - j) * np.where(j == 0, 1.0, gain)
         rows.append(a + i[keep])
         cols.append(a + j[keep])
         vals.append(w[keep])
-    m = len(keys)
+        a += n
     return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                         shape=(m, m))
+                         shape=(a, a))
 
 
 @functools.lru_cache(maxsize=8)
@@ -874,7 +919,8 @@ def _forward_matrix(setup: Setup, truth: Truth) -> np.ndarray:
 
 def _truth_positions(geo: _Geometry, coefs: dict) -> np.ndarray:
     """Head positions (n, M, 3) in the plates' frames for coefficients (n, L) per function."""
-    return _local3(geo, chain(_values(geo, coefs), *geo.cmd.T, geo.hvec, geo.ref))
+    trig: dict = {}
+    return _local3(geo, chain(_values(geo, coefs, trig), *geo.cmd.T, geo.hvec, geo.ref, trig))
 
 
 def true_values(setup: Setup, truth: Truth) -> dict:
@@ -1002,7 +1048,8 @@ def _predict(geo: _Geometry, theta: np.ndarray) -> np.ndarray:
     """Noise-free readings (n, M, 2) for parameters theta (n, n_par), exact model."""
     n = theta.shape[0]
     coefs = {name: (pw, theta[:, sl]) for name, (pw, sl) in geo.layout.items()}
-    p = chain(_values(geo, coefs), *geo.cmd.T, geo.hvec, geo.ref)
+    trig: dict = {}
+    p = chain(_values(geo, coefs, trig), *geo.cmd.T, geo.hvec, geo.ref, trig)
     offset, turn, head = _nuisance(geo, theta)
     rot = np.zeros((n, 3, 3))
     rot[:, :, 2] = turn
@@ -1055,7 +1102,6 @@ def _jacobian(geo: _Geometry, theta0: np.ndarray, s: np.ndarray):
     return predict(theta0[None, :])[0], central_jacobian(predict, theta0, 0.1 * s)
 
 
-@functools.lru_cache(maxsize=8)
 def _reading_whitener(setup: Setup):
     """Whitening (2M, 2M) of the readings' random scatter, encoder noise plus the AR(1)
     repeatability (:func:`mtplan.fitting.linear.filter_whitening`); None where it is white
@@ -1063,36 +1109,82 @@ def _reading_whitener(setup: Setup):
     one does, so the two are not weighted as mirror images: the reversal and a growth linear
     in time no longer cancel exactly (0.03 um in EXX, 0.08 urad in EAY at the defaults);
     weighting the CW pass as the CCW one reversed would, at 13 % more u in EBX, ECX, EAY."""
-    f = _repeatability_filter(setup)
-    if f is None or setup.repeatability_um <= 0:
+    if _repeatability_filter(setup) is None or setup.repeatability_um <= 0:
         return None
-    return filter_whitening(f, setup.encoder_noise_um / setup.repeatability_um, 2)
+    return _whitener(_pass_lengths(_sizeless(setup)), setup.repeatability_correlation,
+                     setup.encoder_noise_um / setup.repeatability_um)
 
 
 @functools.lru_cache(maxsize=8)
+def _whitener(lengths: tuple, length: float, ratio: float):
+    return filter_whitening(_ar1_filter(lengths, length), ratio, 2)
+
+
+@functools.lru_cache(maxsize=16)
 def _joint_ident(setup: Setup) -> dict:
-    """Jacobian of the readings at zero error, its SVD, pseudo-inverse and estimability."""
-    geo = _geometry(setup)
+    """Jacobian of the readings at zero error, its SVD, pseudo-inverse and estimability:
+    the geometry's (:func:`_joint_geometry`) with the fit's weights (``pinv``)."""
+    return _Ident(_joint_geometry(_sizeless(setup)), setup)
+
+
+class _Ident(dict):
+    """:func:`_joint_geometry`'s dict; the pseudo-inverses ``pinv0`` (unweighted) and
+    ``pinv`` (the joint fit's: generalised least squares where the readings correlate along
+    each pass) are computed when first asked for (the patent's first order needs neither)."""
+
+    def __init__(self, base: dict, setup: Setup):
+        super().__init__(base)
+        self.setup = setup
+
+    def __missing__(self, key):
+        s = self.setup
+        if key == "pinv0":
+            self[key] = _tpinv(self["jac"], self["scale"], _free(self["geo"]))[0]
+        elif key == "pinv" and _reading_whitener(s) is None:
+            self[key] = self["pinv0"]
+        elif key == "pinv":
+            self[key] = _gls(_sizeless(s), s.encoder_noise_um / s.repeatability_um)
+        else:
+            raise KeyError(key)
+        return self[key]
+
+
+@functools.lru_cache(maxsize=8)
+def _joint_geometry(key: Setup) -> dict:
+    """What does not depend on the sources' sizes: the Jacobian (closed form,
+    :func:`._maps.zero_jacobian`), its SVD, null space and the measurands' estimability."""
+    from mtplan.models.geometry21._maps import zero_jacobian
+
+    geo = _geometry(key)
     s = _scales(geo)
-    r0, jac = _jacobian(geo, np.zeros(geo.n_par), s)
-    pinv, rank, sv, vt = _tpinv(jac, s, _free(geo))
-    w = _reading_whitener(setup)
-    if w is not None:  # the readings correlate along each pass: generalised least squares
-        pinv = gls_pinv(jac, s, vt, rank, _free(geo), w)
+    r0, jac = _predict(geo, np.zeros((1, geo.n_par))).reshape(-1), zero_jacobian(geo)
+    a_s = jac * s  # the SVD as truncated_pinv's (tall: of the QR's R)
+    _, sv, vt = np.linalg.svd(np.linalg.qr(a_s, mode="r")) if a_s.shape[0] > a_s.shape[1] \
+        else np.linalg.svd(a_s, full_matrices=False)
+    rank = int(np.sum(sv > _RANK_TOL * sv[0])) if sv.size and sv[0] > 0 else 0
     null = vt[rank:]  # scaled null space (k, P)
+    colnorm = np.linalg.norm(a_s, axis=0)
+    dead = colnorm <= _RANK_TOL * sv[0]
+    if null.size and np.any(dead):  # the null space's basis: each parameter without effect
+        rest = np.where(dead, 0.0, null)  # alone (its column is exactly 0), then the others
+        _, sv_r, vt_r = np.linalg.svd(rest, full_matrices=False)
+        null = np.concatenate([vt_r[sv_r > 1e-8], np.eye(geo.n_par)[dead]])
     g = _measurand_map(geo)
     gs = g * s
     resid = np.linalg.norm(gs @ null.T, axis=1) / np.linalg.norm(gs, axis=1) if null.size else \
         np.zeros(len(NAMES))
-    colnorm = np.linalg.norm(jac * s, axis=0)
     no_effect = {name: bool(np.all(colnorm[sl] <= _RANK_TOL * sv[0]))
                  for name, (_, sl) in geo.layout.items()}
-    return {
-        "geo": geo, "jac": jac, "scale": s, "pinv": pinv, "rank": rank, "sv": sv, "null": null,
-        "vt": vt,
-        "g": g, "estimable": {n: bool(r < 1e-6) for n, r in zip(NAMES, resid)},
-        "no_effect": no_effect, "r0": r0,
-    }
+    return {"geo": geo, "jac": jac, "scale": s, "rank": rank, "sv": sv,
+            "null": null, "vt": vt, "g": g, "no_effect": no_effect, "r0": r0,
+            "estimable": {n: bool(r < 1e-6) for n, r in zip(NAMES, resid)}}
+
+
+@functools.lru_cache(maxsize=16)
+def _gls(key: Setup, ratio: float) -> np.ndarray:
+    ji = _joint_geometry(key)
+    return gls_pinv(ji["jac"], ji["scale"], ji["vt"], ji["rank"], _free(ji["geo"]),
+                    _whitener(_pass_lengths(key), key.repeatability_correlation, ratio))
 
 
 def _readings_matrix(setup: Setup, readings: dict) -> np.ndarray:
@@ -1249,90 +1341,6 @@ def _theta_joint(setup: Setup, readings: dict, iterations: int) -> np.ndarray:
     return solve(out, False)[0]
 
 
-# --------------------------------------------------------------------------- patent
-@functools.lru_cache(maxsize=8)
-def _patent_design(setup: Setup) -> dict:
-    ji = _joint_ident(setup)
-    geo, jac, s = ji["geo"], ji["jac"], ji["scale"]
-    m = geo.plane.size
-    j3 = jac.reshape(m, 2, geo.n_par)
-
-    def cols(names):
-        return np.concatenate([np.arange(geo.n_par)[geo.layout[n][1]] for n in names])
-
-    c1_all = cols([n for pl in _STEP1.values() for n in pl])
-    planes = []
-    for k, (pl, a, b, _c) in enumerate(PLANES):
-        A, B = "XYZ"[a], "XYZ"[b]
-        sq = {"XY": "EC0Y", "XZ": "EB0Z", "YZ": "EA0Z"}[pl]
-        fit = [f"E{A}{A}", f"E{B}{B}", f"E{B}{A}", f"E{A}{B}", sq]
-        c1 = np.concatenate([cols(fit), geo.n_coef + 3 * k + np.arange(3)])
-        lines = np.flatnonzero((geo.plane == k) & (geo.test < 2) & (geo.head == 0))
-        rows = (2 * lines[:, None] + np.arange(2)).ravel()
-        a1, rank1, _, _ = _tpinv(jac[np.ix_(rows, c1)], s[c1])
-        circ = np.flatnonzero((geo.plane == k) & (geo.test == 2))
-        er = geo.local[circ] / setup.circle_radius_mm  # (Mc, 2) radial unit vectors
-        jrad = np.einsum("mc,mcp->mp", er, j3[circ])  # first-order radial model (Mc, P)
-        # the extra heads' lines; with extra heads, the first head's lines again, for the
-        # plate's mounting that step 2 re-estimates from every head (below)
-        more = np.any((geo.plane == k) & (geo.head > 0))
-        xlines = np.flatnonzero((geo.plane == k) & (geo.test < 2) & ((geo.head > 0) | more))
-        jlin = j3[xlines].reshape(-1, geo.n_par)  # extra heads' lines, both components
-        keep = np.isin(c1, cols(_STEP1[pl]))
-        planes.append(dict(rows=rows, c1=c1, a1=a1, keep=keep, circ=circ, xlines=xlines,
-                           q1=np.concatenate([jrad, jlin])[:, c1_all],
-                           q2=np.concatenate([jrad, jlin]), rank1=rank1,
-                           nuis=geo.n_coef + 3 * k + np.arange(3)))
-    # step 2: the three circles stacked with the extra heads' lines: the angular errors
-    # and the extra heads' settings (see the module docstring)
-    # where extra heads read a plate, step 2 corrects that plate's mounting too: step 1 took
-    # into it what it could not tell from it (the X roll and the other axes' errors at
-    # the plate's fixed coordinate), which step 2 subtracts again with the step-1 errors
-    mounts = [geo.n_coef + 3 * k + j for k in range(3) if np.any((geo.plane == k) & (geo.head > 0))
-              for j in range(3)]
-    c2 = np.concatenate([cols([n for n in NAMES if _KIND[n] == "ang"]), mounts,
-                         np.arange(geo.n_coef + 9, geo.n_par)]).astype(int)
-    q2 = np.concatenate([pl["q2"][:, c2] for pl in planes])
-    a2, rank2, _, _ = _tpinv(q2, s[c2])
-    return {"geo": geo, "planes": planes, "c1_all": c1_all, "c2": c2, "a2": a2, "rank2": rank2,
-            "r0": ji["r0"]}
-
-
-def _theta_patent(setup: Setup, readings: dict) -> np.ndarray:
-    pd_ = _patent_design(setup)
-    geo = pd_["geo"]
-    r = _readings_matrix(setup, readings)
-    dr = r - pd_["r0"]
-    n = r.shape[0]
-    theta = np.zeros((n, geo.n_par))
-    # step 1: the first head's line records of each plane -> 12 errors (patent's assignment)
-    # + mounting
-    for pl in pd_["planes"]:
-        est = dr[:, pl["rows"]] @ pl["a1"].T  # one product for the batch
-        theta[:, pl["c1"][pl["keep"]]] = est[:, pl["keep"]]
-        theta[:, pl["nuis"]] = est[:, -3:]
-    # step 2: every other reading back in the nominal plate frame (step-1 mounting removed
-    # exactly), less the step-1 errors' first-order effect -> angular errors, head settings
-    r3 = r.reshape(n, -1, 2)
-    es = []
-    for pl in pd_["planes"]:
-        o_u, o_v, phi = (theta[:, pl["nuis"][j]][:, None] for j in range(3))
-        c, sn = np.cos(phi), np.sin(phi)
-        parts = []
-        for idx in (pl["circ"], pl["xlines"]):
-            rc = r3[:, idx, :]
-            lu = c * rc[..., 0] - sn * rc[..., 1] + o_u
-            lv = sn * rc[..., 0] + c * rc[..., 1] + o_v
-            parts.append((lu, lv))
-        (cu, cv), (xu, xv) = parts
-        dev = np.concatenate([np.hypot(cu, cv) - setup.circle_radius_mm,
-                              np.stack([xu, xv], axis=-1).reshape(n, -1)
-                              - geo.local[pl["xlines"]].ravel()], axis=1)
-        es.append(dev - theta[:, pd_["c1_all"]] @ pl["q1"].T)
-    theta[:, pd_["c2"]] += np.concatenate(es, axis=1) @ pd_["a2"].T  # rotations: corrections
-    return theta
-
-
 def _estimate_theta(setup: Setup, readings: dict, estimator: str) -> np.ndarray:
     if estimator == "patent":
         return _theta_patent(setup, readings)
@@ -1393,8 +1401,9 @@ def coefficients(setup: Setup, readings: dict, *, estimator: str = "joint") -> d
     return {name: (pw, theta[:, sl]) for name, (pw, sl) in geo.layout.items()}
 
 
-# the first-order uncertainty, identifiability and report extras (on the shared fitting
-# machinery); below the estimators they use, re-exported here
+# the patent's stepwise estimator, then the first-order uncertainty, identifiability and
+# report extras (on the shared fitting machinery); below what they use, re-exported here
+from mtplan.models.geometry21._patent import _patent_design, _theta_patent  # noqa: E402
 from mtplan.models.geometry21._first_order import (  # noqa: E402
     budget,
     coefficient_covariance,
@@ -1406,68 +1415,7 @@ from mtplan.models.geometry21._first_order import (  # noqa: E402
     noise_free_table,
     report_extras,
 )
-
-
-def setup_from_frame(df: pd.DataFrame) -> dict:
-    """The set-up fields a measured plate table determines (see ``Implied``).
-
-    From the rows of the first head position (``head`` 0, or all rows of a table
-    without that column) of the XY plane: the points per line pass and per circle pass,
-    the line repeats (half the line passes), the line length (the span of the commanded
-    X), the circle's radius and arc (its commanded points about the plane's centre: 360
-    when they are evenly spaced over a full turn without the repeated end); from each
-    plane's rows, the plane's position (Z of the XY rows, Y of the XZ rows, X of the YZ
-    rows). Lengths agree within 1e-6 mm, the arc within 1e-6 deg. Where the table is
-    not regular enough to tell, the field is left out and the design check names the
-    offending row.
-    """
-    from mtplan.models.protocol import Implied
-
-    tol = 1e-6
-    plane = df["plane"].astype(str).str.strip().to_numpy()
-    test = df["test"].astype(str).str.strip().to_numpy()
-    pss = pd.to_numeric(df["pass"], errors="coerce").to_numpy(dtype=float)
-    cmd = df[["x_mm", "y_mm", "z_mm"]].apply(pd.to_numeric, errors="coerce").to_numpy(float)
-    keep = np.ones(len(df), dtype=bool)
-    if "head" in df.columns:
-        keep = pd.to_numeric(df["head"], errors="coerce").to_numpy(dtype=float) == 0
-    if not (np.all(np.isfinite(pss)) and np.all(np.isfinite(cmd))):
-        return {}
-    out = {}
-    for k, (name, a, b, c) in enumerate(PLANES):
-        rows = keep & (plane == name)
-        level = cmd[rows, c]
-        if level.size and np.ptp(level) <= tol:
-            field = ("xy_plane_z_mm", "xz_plane_y_mm", "yz_plane_x_mm")[k]
-            out[field] = Implied(float(level[0]), tol, why=f"the {name} rows' {'XYZ'[c]}")
-        if k:
-            continue
-        line = rows & (test == _TEST_NAMES[0])
-        if np.any(line):
-            n_pass = np.unique(pss[line]).size
-            first = line & (pss == pss[line].min())
-            out["line_points"] = Implied(int(first.sum()), why="the points of an XY line pass")
-            if n_pass % 2 == 0:
-                out["line_repeats"] = Implied(n_pass // 2, why="the XY line passes, there "
-                                              "and back")
-            out["line_length_mm"] = Implied(float(f"{np.ptp(cmd[first, a]):.12g}"), tol,
-                                            why="the span of an XY line pass")
-        circle = rows & (test == _TEST_NAMES[2])
-        if np.any(circle):
-            first = circle & (pss == pss[circle].min())
-            n = int(first.sum())
-            out["circle_points"] = Implied(n, why="the points of an XY circle pass")
-            la, lb = cmd[first, a], cmd[first, b]
-            radius = np.hypot(la, lb)
-            if n >= 2 and np.ptp(radius) <= 2 * tol:
-                out["circle_radius_mm"] = Implied(float(f"{radius.mean():.12g}"), tol,
-                                                  why="the XY circle's commanded points")
-                th = np.degrees(np.unwrap(np.arctan2(lb, la)))
-                th = np.abs(th - th[0])
-                full = np.allclose(th, 360.0 * np.arange(n) / n, rtol=0, atol=tol)
-                out["circle_arc_deg"] = Implied(360.0 if full else float(f"{th[-1]:.12g}"),
-                                                tol, why="the XY circle's commanded points")
-    return out
+from mtplan.models.geometry21._frames import setup_from_frame  # noqa: E402
 
 
 PROCEDURE = Procedure(

@@ -18,7 +18,6 @@ from mtplan._validate import Problems
 from mtplan.fitting.linear import (
     function_status,
     null_space_table,
-    response,
     source_response,
     source_variances,
 )
@@ -37,12 +36,33 @@ from mtplan.models.geometry21 import (
     _joint_ident,
     _param_names,
     _repeatability_filter,
-    _theta_patent,
+    _rows,
+    _sizeless,
     _truth_coefficients,
     forward,
     measurands,
     sources,
 )
+from mtplan.models.geometry21._maps import patent_map, source_readings_map
+
+
+@functools.lru_cache(maxsize=1)
+def _blas():
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
+
+
+def _one_blas_thread(fn):
+    """Run `fn` with one BLAS thread: its products are small (a few thousand readings by
+    ~100 parameters), where threads only wait on each other, and on a loaded machine they
+    spin for many times the work (the designer's live numbers)."""
+    @functools.wraps(fn)
+    def run(*args, **kwargs):
+        with _blas().limit(limits=1, user_api="blas"):
+            return fn(*args, **kwargs)
+
+    return run
 
 
 def _procedure():
@@ -55,11 +75,9 @@ def _procedure():
 @functools.lru_cache(maxsize=8)
 def _patent_response(setup: Setup) -> np.ndarray:
     """B (n_par, n_par): the patent's estimated parameters' first-order response to the
-    true ones (central differences along the Jacobian's columns, 1e-3 of a typical error)."""
+    true ones (its derivative at the noise-free readings times the Jacobian)."""
     ji = _joint_ident(setup)
-    eps = 1e-3 * ji["scale"]
-    return response(lambda r: _theta_patent(setup, {"plate_mm": r.reshape(len(r), -1, 2)}),
-                    ji["r0"], (ji["jac"] * eps).T) / eps[None, :]
+    return patent_map(setup, ji["r0"]) @ ji["jac"]
 
 
 def _owners(geo: _Geometry) -> np.ndarray:
@@ -108,6 +126,7 @@ def identifiability(setup: Setup | None = None, estimator: str = "joint") -> pd.
     return pd.DataFrame(rows, index=pd.Index(NAMES, name="function"))
 
 
+@_one_blas_thread
 def identifiability_report(setup: Setup | None = None) -> dict:
     """Rank, condition number and null space of the joint model's scaled Jacobian.
 
@@ -153,9 +172,11 @@ def _source_factors(setup: Setup, estimator: str, truth: Truth | None, only) -> 
 
     The white sources (reading noise, repeatability) through the estimator's first-order
     map from the readings (the joint fits' pseudo-inverse, their derivative to within
-    ~1e-4 relative at realistic errors; the patent's by central differences at the
-    truth's noise-free readings); the others element by element through forward model and
-    estimator (:func:`mtplan.fitting.linear.source_response`)."""
+    ~1e-4 relative at realistic errors; the patent's derivative at the truth's noise-free
+    readings, :func:`mtplan.models.geometry21._maps.patent_map`); the others element by
+    element through the forward model (:func:`mtplan.fitting.linear.source_response`) and
+    the estimator: the joint fits' whole, the patent's derivative at the readings of the
+    sources' means."""
     truth = Truth() if truth is None else truth
     active = _procedure().active_sources(setup, only)
     srcs = sources(setup)
@@ -177,23 +198,39 @@ def _source_factors(setup: Setup, estimator: str, truth: Truth | None, only) -> 
     return out
 
 
-@functools.lru_cache(maxsize=4)
 def _linear_map(setup: Setup, estimator: str, truth: Truth) -> np.ndarray:
     """A (n_par, 2M): first-order map from the readings to the estimated parameters."""
-    ji = _joint_ident(setup)
     if estimator != "patent":
-        return ji["pinv"]
-    r_t = forward(setup, truth, _procedure().zero_errors(setup, 1))["plate_mm"].reshape(-1)
-    eps = 1e-6
-    return response(lambda r: _theta_patent(setup, {"plate_mm": r.reshape(len(r), -1, 2)}),
-                    r_t, eps) / eps
+        return _joint_ident(setup)["pinv"]
+    return _patent_linear_map(_sizeless(setup), truth)  # the same for every size
+
+
+@functools.lru_cache(maxsize=8)
+def _patent_linear_map(key: Setup, truth: Truth) -> np.ndarray:
+    return patent_map(key, forward(key, truth, _procedure().zero_errors(key, 1))["plate_mm"])
 
 
 @functools.lru_cache(maxsize=8)
 def _source_response(setup: Setup, truth: Truth, estimator: str, names: tuple) -> np.ndarray:
-    return source_response(
-        lambda errors: _estimate_theta(setup, forward(setup, truth, errors), estimator),
-        lambda m: _procedure().zero_errors(setup, m), sources(setup), names)
+    def zero(m):
+        return _procedure().zero_errors(setup, m)
+
+    if estimator != "patent":
+        return source_response(
+            lambda errors: _estimate_theta(setup, forward(setup, truth, errors), estimator),
+            zero, sources(setup), names)
+    srcs = sources(setup)
+    at_mean = zero(1)
+    for name in names:
+        at_mean[name][...] = srcs[name].distribution.mean
+    if _rows(truth) is None:
+        readings = source_readings_map(setup, truth, names)
+    else:  # one truth per row: through the forward model
+        readings = source_response(lambda errors: forward(setup, truth, errors)["plate_mm"]
+                                   .reshape(len(errors["reversal"]), -1), zero, srcs, names)
+    if not readings.size:
+        return readings
+    return patent_map(setup, forward(setup, truth, at_mean)["plate_mm"]) @ readings
 
 
 def coefficient_covariance(setup: Setup | None = None, *, estimator: str = "joint",
@@ -233,6 +270,7 @@ def _measurand_variances(setup: Setup, estimator: str, truth: Truth | None, only
     return {name: dict(zip((m.name for m in ms), v)) for name, v in var.items()}
 
 
+@_one_blas_thread
 def budget(setup: Setup | None = None, *, estimator: str = "joint",
            truth: Truth | None = None) -> pd.DataFrame:
     """First-order uncertainty budget of the listed measurands, by error source.
@@ -261,6 +299,7 @@ def budget(setup: Setup | None = None, *, estimator: str = "joint",
     return pd.DataFrame(rows, columns=["measurand", "unit", "source", "std", "share"])
 
 
+@_one_blas_thread
 def first_order_std(setup: Setup, truth: Truth | None = None, *, estimator: str = "joint",
                     sources=None) -> dict:
     """First-order standard uncertainty of each listed measurand [display unit] (see
