@@ -777,14 +777,17 @@ _NOMINAL: dict = {}
 
 
 def _row(truth, i: int):
-    """A scalar Truth near row i of a batched one: its values rounded to 0.01 of their unit
-    (mrad, mm), so that nearby batches share the cached error-free trace; which rays stay on
-    their plane is checked ray by ray (:func:`_trace`), so the rounding costs no accuracy."""
+    """A scalar Truth near row i of a batched one (or near a scalar one): its values rounded
+    to 0.01 of their unit (mrad, mm), so that nearby truths share the cached error-free
+    trace; which rays stay on their plane is checked ray by ray (:func:`_trace`), so the
+    rounding costs no accuracy. A scalar truth already on that grid is returned itself."""
     import dataclasses
 
-    return dataclasses.replace(truth, **{
-        f.name: round(float(np.ravel(getattr(truth, f.name))[i]), 2)
-        for f in dataclasses.fields(truth) if np.ndim(getattr(truth, f.name))})
+    values = {f.name: round(float(np.ravel(getattr(truth, f.name))[i]), 2)
+              for f in dataclasses.fields(truth)}
+    if not _batched(truth) and all(values[k] == getattr(truth, k) for k in values):
+        return truth
+    return dataclasses.replace(truth, **values)
 
 
 def _nominal(setup, truth):
@@ -830,9 +833,10 @@ def _trace(setup, truth, disp, offsets=None):
     """
     ex, d, q, c0 = _frames(setup, truth)
     m = disp.shape[0]
-    batched = _batched(truth)
-    # one truth per row: the planes of a nearby truth's error-free hits, checked ray by ray
-    key = _row(truth, 0) if batched else truth
+    # the planes of a nearby truth's error-free hits (its values rounded: nearby truths,
+    # a posterior's walkers or a Jacobian's steps, share it), checked ray by ray
+    key = _row(truth, 0)
+    moved_truth = key is not truth
     _, x0, y0, _, _, _, margin = _nominal(setup, key)
     plan = _plan(setup, key)
     pts = setup.points_per_line
@@ -855,7 +859,7 @@ def _trace(setup, truth, disp, offsets=None):
         offsets = None
     t /= np.take(den, plan["cls"], axis=1)
     top = np.maximum(t.max(axis=1), -t.min(axis=1))  # |t| per row
-    if batched:  # on the same plane while the hit stays within its margin
+    if moved_truth:  # on the same plane while the hit stays within its margin
         bound = _move_bound(setup, key, base, exr, dr, den, top, extra)
         rows, ray = _prefix_rays(plan, 2.0 * bound + extra + 1e-9)
         ox, oy, oz = _ray_origins(setup, base, exr, rows, ray)
@@ -1275,6 +1279,9 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     return out
 
 
+# the first-order budget (a submodule: each estimator's linear map times the sources' effects)
+from mtplan.models.line_laser._first_order import budget as first_order_budget  # noqa: E402
+
 PROCEDURE = Procedure(
     name="line_laser",
     title="Mounting error angles of a line-laser profile sensor",
@@ -1306,4 +1313,5 @@ PROCEDURE = Procedure(
     setup_from_frame=setup_from_frame,
     resolution=resolution,
     observability=observability,
+    first_order_budget=first_order_budget,
 )
