@@ -774,19 +774,35 @@ def _origins(setup, truth, disp):
 
 
 _NOMINAL: dict = {}
+#: error-free traces kept (about 2 MB each at the default scan)
+_CACHED = 48
+
+
+#: grid [mrad, mm] of the batched truths whose error-free traces are cached (:func:`_row`),
+#: so that half a step moves a hit by about a micrometre at most: coarse for the tilts of
+#: the measuring direction (0.25 mrad over the 4 mm range), finer for the rotations about
+#: Z (0.05 mrad over the line's 8 mm and the scans' 20 mm reach) and the lattice offset
+#: (1:1); the plate's tilts, which the walkers hardly move, on the default truth's grid
+_KEY_GRID = {"alpha_z_mrad": 0.1, "alpha_y_mrad": 0.5, "alpha_x_mrad": 0.5,
+             "artifact_x_mm": 0.002, "artifact_y_mm": 0.002, "artifact_rz_mrad": 0.1,
+             "artifact_tilt_x_mrad": 0.1, "artifact_tilt_y_mrad": 0.1}
 
 
 def _row(truth, i: int):
-    """A scalar Truth near row i of a batched one (or near a scalar one): its values rounded
-    to 0.01 of their unit (mrad, mm), so that nearby truths share the cached error-free
-    trace; which rays stay on their plane is checked ray by ray (:func:`_trace`), so the
-    rounding costs no accuracy. A scalar truth already on that grid is returned itself."""
+    """A scalar Truth near row i of a batched one: its values rounded to :data:`_KEY_GRID`,
+    so that nearby batches (a posterior's walkers, a Jacobian's steps) share the cached
+    error-free trace; which rays stay on their plane is checked ray by ray (:func:`_trace`),
+    so the rounding costs no accuracy. A scalar truth is returned itself: its own trace is
+    cached, so that which facet a ray at a kink belongs to (the facet whose NaN error makes
+    it NaN, as the error budget's probes ask) is the truth's own."""
     import dataclasses
 
-    values = {f.name: round(float(np.ravel(getattr(truth, f.name))[i]), 2)
-              for f in dataclasses.fields(truth)}
-    if not _batched(truth) and all(values[k] == getattr(truth, k) for k in values):
+    if not _batched(truth):
         return truth
+    values = {}
+    for f in dataclasses.fields(truth):
+        g = _KEY_GRID.get(f.name, 0.01)
+        values[f.name] = float(f"{round(float(np.ravel(getattr(truth, f.name))[i]) / g) * g:.10g}")
     return dataclasses.replace(truth, **values)
 
 
@@ -800,9 +816,11 @@ def _nominal(setup, truth):
         t = _newton(setup, ox, oy, oz, d, t, np.arange(t.size))
         x, y = ox + t * d[0], oy + t * d[1]
         z, gx, gy, margin = height_map(setup, x, y, margin=True)
-        if len(_NOMINAL) > 16:
-            _NOMINAL.clear()
-            _FACET_OF.clear()
+        while len(_NOMINAL) >= _CACHED:  # the oldest out
+            old = next(iter(_NOMINAL))
+            del _NOMINAL[old]
+            _FACET_OF.pop(old, None)
+            _PLANS.pop(old, None)
         _NOMINAL[key] = (t, x, y, z, gx, gy, margin)
         _FACET_OF[key] = _facet_element(setup, x, y, z)
     return _NOMINAL[key]
@@ -833,8 +851,7 @@ def _trace(setup, truth, disp, offsets=None):
     """
     ex, d, q, c0 = _frames(setup, truth)
     m = disp.shape[0]
-    # the planes of a nearby truth's error-free hits (its values rounded: nearby truths,
-    # a posterior's walkers or a Jacobian's steps, share it), checked ray by ray
+    # one truth per row: the planes of a nearby truth's error-free hits, checked ray by ray
     key = _row(truth, 0)
     moved_truth = key is not truth
     _, x0, y0, _, _, _, margin = _nominal(setup, key)
@@ -916,8 +933,6 @@ def _plan(setup, key):
         ray = np.arange(t0.size)
         order = np.argsort(margin, kind="stable")
         ex, d, q, c0 = _frames(setup, key)
-        if len(_PLANS) > 16:
-            _PLANS.clear()
         _PLANS[(setup, key)] = {
             "nominal": nominal, "cls": cls, "grads": grads, "c": z0 - gx0 * x0 - gy0 * y0,
             "i_t": (ray // pts) * n_planes + cls, "i_v": (ray % pts) * n_planes + cls,
