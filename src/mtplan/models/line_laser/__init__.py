@@ -788,21 +788,24 @@ _KEY_GRID = {"alpha_z_mrad": 0.1, "alpha_y_mrad": 0.5, "alpha_x_mrad": 0.5,
              "artifact_tilt_x_mrad": 0.1, "artifact_tilt_y_mrad": 0.1}
 
 
-def _row(truth, i: int):
-    """A scalar Truth near row i of a batched one: its values rounded to :data:`_KEY_GRID`,
-    so that nearby batches (a posterior's walkers, a Jacobian's steps) share the cached
-    error-free trace; which rays stay on their plane is checked ray by ray (:func:`_trace`),
-    so the rounding costs no accuracy. A scalar truth is returned itself: its own trace is
-    cached, so that which facet a ray at a kink belongs to (the facet whose NaN error makes
-    it NaN, as the error budget's probes ask) is the truth's own."""
+def _row(truth, i: int, *, own: bool = False):
+    """A scalar Truth near row i of a batched one (or near a scalar one): its values rounded
+    to :data:`_KEY_GRID`, so that nearby truths (a posterior's walkers, a fit's iterates, a
+    Jacobian's steps) share the cached error-free trace; which rays stay on their plane is
+    checked ray by ray (:func:`_trace`), so the rounding costs no accuracy. A scalar truth
+    on that grid, or any with `own`, is returned itself (:func:`_trace` asks for its own
+    trace where facet errors are NaN: which facet a ray at a kink belongs to, the one whose
+    NaN error makes it NaN as the error budget's probes ask, is then the truth's own)."""
     import dataclasses
 
-    if not _batched(truth):
+    if own and not _batched(truth):
         return truth
     values = {}
     for f in dataclasses.fields(truth):
         g = _KEY_GRID.get(f.name, 0.01)
         values[f.name] = float(f"{round(float(np.ravel(getattr(truth, f.name))[i]) / g) * g:.10g}")
+    if not _batched(truth) and all(values[k] == getattr(truth, k) for k in values):
+        return truth
     return dataclasses.replace(truth, **values)
 
 
@@ -851,8 +854,8 @@ def _trace(setup, truth, disp, offsets=None):
     """
     ex, d, q, c0 = _frames(setup, truth)
     m = disp.shape[0]
-    # one truth per row: the planes of a nearby truth's error-free hits, checked ray by ray
-    key = _row(truth, 0)
+    # the planes of a nearby truth's error-free hits, checked ray by ray
+    key = _row(truth, 0, own=offsets is not None and bool(np.isnan(offsets).any()))
     moved_truth = key is not truth
     _, x0, y0, _, _, _, margin = _nominal(setup, key)
     plan = _plan(setup, key)
