@@ -497,3 +497,62 @@ def test_frame_round_trip_and_bad_frames():
 
 def test_duration_grows_with_the_scan():
     assert PROC.duration(SETUP.replace(lines=160)) > PROC.duration(SETUP) > 0
+
+
+# --------------------------------------------------------------------------- first-order budget
+#: 16 profiles 0.25 mm apart: 3 120 readings, where the patent's alpha_x is not clipped
+FIRST_ORDER_SETUP = ll.Setup(lines=16, step_mm=0.25)
+
+
+def test_first_order_budget_of_the_patent_is_the_gum_linearisation():
+    """The budget through the patent's linear map equals the generic GUM linearisation
+    (every reading's noise an input of a finite-difference Jacobian) source by source, to
+    1e-4 of u: the generic one's own round-off (its steps move the readings by
+    nanometres) is 3e-5 here; alpha_z, a whole row shift, has u = 0 in both."""
+    setup = FIRST_ORDER_SETUP
+    table = PROC.first_order_budget(setup, estimator="patent")
+    gum = linearize_procedure(PROC, setup, estimator="patent")
+    groups, var = gum.group_variance()
+    assert set(table.source) == set(groups)
+    for i, name in enumerate(gum.names):
+        rows = table[table.measurand == name].set_index("source")
+        ours = rows.loc[list(groups), "std"].to_numpy()
+        np.testing.assert_allclose(ours, np.sqrt(np.maximum(var[i], 0.0)), rtol=0,
+                                   atol=1e-4 * gum.std[i], err_msg=name)
+        assert rows["share"].sum() == pytest.approx(1.0 if gum.std[i] > 0 else 0.0)
+    assert gum.std[0] == 0.0 and gum.std[1] > 0 and gum.std[2] > 0
+
+
+def test_pattern_linear_map_is_the_estimators_derivative():
+    """The pattern fit's map ``(K J)^-1 K`` times the sources' exact effects gives each
+    source's part of u; a secant of the estimator itself (errors at +-0.1 standard
+    deviation: the estimate is linear there to 1e-8) along each scalar source, and along a
+    random direction of the readings' noise, gives the same to 1e-5."""
+    from mtplan.models.line_laser import _first_order as fo
+
+    setup = FIRST_ORDER_SETUP
+    scale = np.array([m.scale for m in PROC.measurands(setup)])
+    lmap = fo._pattern_map(setup, ll.Truth()) * scale[:, None]
+    var = fo._variances(setup, "pattern")
+    srcs = PROC.sources(setup)
+    names = ("shift_error", "raise_error", "z_scale", "squareness_xy", "squareness_zy")
+    errors = PROC.zero_errors(setup, 2 * len(names) + 2)
+    for k, name in enumerate(names):
+        sd = float(srcs[name].distribution.std)
+        errors[name][2 * k: 2 * k + 2] = [0.1 * sd, -0.1 * sd]
+    direction = np.random.default_rng(4).standard_normal(errors["sensor_noise"].shape[1:])
+    errors["sensor_noise"][-2:] = [0.1e-3 * direction, -0.1e-3 * direction]
+    est = PROC.estimators["pattern"](setup, PROC.forward(setup, ll.Truth(), errors))
+    got = np.stack([est[m.name] for m in PROC.measurands(setup)], axis=1) * scale
+    secant = (got[0::2] - got[1::2]) / 0.2  # per standard deviation (per 1 um of noise)
+    for k, name in enumerate(names):
+        np.testing.assert_allclose(np.abs(secant[k]), np.sqrt(var[name]), rtol=1e-5,
+                                   err_msg=name)
+    np.testing.assert_allclose(secant[-1], lmap @ direction.ravel() * 1e-3, rtol=1e-5)
+    np.testing.assert_allclose(np.sqrt(var["sensor_noise"]),
+                               np.sqrt((lmap**2).sum(axis=1)) * setup.sensor_noise_um * 1e-3,
+                               rtol=1e-12)
+
+
+def test_first_order_budget_leaves_the_registration_to_the_generic_linearisation():
+    assert PROC.first_order_budget(FIRST_ORDER_SETUP, estimator="registration") is None

@@ -179,7 +179,8 @@ def _parse_cells(path, header, rows, cols: _Columns, expected):
         j = int(np.flatnonzero(dup)[0])
         first = int(np.flatnonzero((df == df.iloc[j]).all(axis=1).to_numpy())[0])
         _fail(path, f"row {lines[j]} repeats row {lines[first]}")
-    df.attrs["lines"] = lines
+    # an array, not a list: pandas deep-copies attrs on every operation on the frame
+    df.attrs["lines"] = np.asarray(lines, dtype=np.int64)
     return df
 
 
@@ -259,7 +260,7 @@ def _match_design(proc, path, df, frames, reduced):
         perm = np.empty(len(got), dtype=int)
         perm[target] = order
         out = df.iloc[perm].reset_index(drop=True)
-        out.attrs["lines"] = [lines[i] for i in perm]
+        out.attrs["lines"] = np.asarray(lines, dtype=np.int64)[perm]
         return out
     wanted = set(want)
     bad = next(i for i, g in enumerate(got) if g not in wanted or got.count(g) > want.count(g))

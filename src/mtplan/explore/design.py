@@ -189,8 +189,9 @@ def _predict(proc, setup, estimator) -> dict:
     """
     from mtplan.evaluation.simulation import linearize_procedure
 
-    if proc.first_order_budget is not None:
-        table = proc.first_order_budget(setup, estimator=estimator)
+    table = None if proc.first_order_budget is None else proc.first_order_budget(
+        setup, estimator=estimator)  # None: not for this estimator
+    if table is not None:
         names = [m.name for m in proc.measurands(setup)]
         u = {n: 0.0 for n in names}
         budget = {n: {} for n in names}

@@ -614,8 +614,8 @@ class Procedure:
     first_order_std: Callable | None = None
     #: optional ``first_order_budget(setup, *, estimator) -> DataFrame``: the same
     #: first-order propagation as ``first_order_std``, by source (columns ``measurand``,
-    #: ``unit``, ``source``, ``std``, ``share``), for the live designer. None: the generic
-    #: GUM linearisation's budget
+    #: ``unit``, ``source``, ``std``, ``share``), for the live designer. None (or the hook
+    #: returning None for an estimator it does not map): the generic GUM linearisation's budget
     first_order_budget: Callable | None = None
 
     # ----------------------------------------------------------------- helpers

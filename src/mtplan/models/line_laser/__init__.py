@@ -693,23 +693,24 @@ def _displacements(setup, errors) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- forward
-def _newton(setup, ox, oy, oz, d, t, idx, rays=None, offsets=None):
+def _newton(setup, ox, oy, oz, d, t, idx, rays=None, offsets=None, *, rows=None):
     """Solve ``oz + t d_z = height(ox + t d_x, oy + t d_y)`` in place for ``t[idx]``.
 
     Newton's method on the piecewise-planar height map: inside one plane a step is
     exact; across a kink each step contracts the error by ``tan(facet) |d_xy|``
     (about 1e-2), so it ends at machine precision in a few steps. ``offsets`` (m,
-    facets): the facets' position errors of each row of ``rays`` rays (:func:`height_map`).
+    facets): the facets' position errors of each row of ``rays`` rays (:func:`height_map`);
+    ``rows`` (like ``ox``), instead of ``rays``: the batch row of each ray.
     """
     for _ in range(60):
         if idx.size == 0:
             break
         tt = t[idx]
-        # one direction (3,), or one per batch row (m, 3) for rows of `rays` rays each
-        dx, dy, dz = (d[idx // rays].T if rays and np.ndim(d) == 2 else d)
-        rows = None if offsets is None else idx // rays
+        # one direction (3,), or one per batch row (m, 3)
+        row = rows[idx] if rows is not None else (idx // rays if rays else None)
+        dx, dy, dz = (d[row].T if row is not None and np.ndim(d) == 2 else d)
         z, gx, gy = height_map(setup, ox[idx] + tt * dx, oy[idx] + tt * dy, offsets=offsets,
-                               rows=rows)
+                               rows=None if offsets is None else row)
         step = (oz[idx] + tt * dz - z) / (dz - gx * dx - gy * dy)
         t[idx] = tt - step
         idx = idx[np.abs(step) > 1e-15 * (1.0 + np.abs(tt))]
@@ -741,13 +742,10 @@ def _batched(truth) -> bool:
     return bool(np.ndim(truth.alpha_z_mrad) or np.ndim(truth.artifact_x_mm))
 
 
-def _origins(setup, truth, disp):
-    """Ray origins in the artifact frame, three arrays (m, 3, lines, points) flattened.
-
-    ``disp`` (m, 3, 3): each scan's displacement from its nominal position [mm]
-    (:func:`_displacements`).
-    """
-    ex, _, q, c0 = _frames(setup, truth)
+def _base(setup, disp, q, c0):
+    """The rays' origins at ``x_l = 0`` in the artifact frame, (m, 3, lines, 3): the
+    sensor's nominal positions moved by ``disp`` (m, 3, 3) [mm]; ``q``, ``c0`` the pose
+    (:func:`_frames`, one per row or one for all)."""
     m = disp.shape[0]
     pos = np.zeros((m, 3, setup.lines, 3))
     pos[:, 1:, :, 0] = _shift(setup)
@@ -758,24 +756,57 @@ def _origins(setup, truth, disp):
     # one pose per row (a batched truth): (m, 3) and (m, 3, 3), the scan axes added
     c0 = c0[:, None, None, :] if c0.ndim == 2 else c0
     q = q[:, None] if q.ndim == 3 else q
+    return (pos - c0) @ q  # rows: q.T @ (p - c0)
+
+
+def _origins(setup, truth, disp):
+    """Ray origins in the artifact frame, three arrays (m, 3, lines, points) flattened.
+
+    ``disp`` (m, 3, 3): each scan's displacement from its nominal position [mm]
+    (:func:`_displacements`).
+    """
+    ex, _, q, c0 = _frames(setup, truth)
+    m = disp.shape[0]
     ex = ex[:, None, None, None, :] if ex.ndim == 2 else ex
-    base = (pos - c0) @ q  # rows: q.T @ (p - c0)
+    base = _base(setup, disp, q, c0)
     u = _grid_u(setup)
     return tuple((base[..., k : k + 1] + u * ex[..., k]).reshape(m, -1) for k in range(3))
 
 
 _NOMINAL: dict = {}
+#: error-free traces kept (about 2 MB each at the default scan)
+_CACHED = 48
 
 
-def _row(truth, i: int):
-    """A scalar Truth near row i of a batched one: its values rounded to 0.01 of their unit
-    (mrad, mm), so that nearby batches share the cached error-free trace; which rays stay on
-    their plane is checked ray by ray (:func:`_trace`), so the rounding costs no accuracy."""
+#: grid [mrad, mm] of the batched truths whose error-free traces are cached (:func:`_row`),
+#: so that half a step moves a hit by about a micrometre at most: coarse for the tilts of
+#: the measuring direction (0.25 mrad over the 4 mm range), finer for the rotations about
+#: Z (0.05 mrad over the line's 8 mm and the scans' 20 mm reach) and the lattice offset
+#: (1:1); the plate's tilts, which the walkers hardly move, on the default truth's grid
+_KEY_GRID = {"alpha_z_mrad": 0.1, "alpha_y_mrad": 0.5, "alpha_x_mrad": 0.5,
+             "artifact_x_mm": 0.002, "artifact_y_mm": 0.002, "artifact_rz_mrad": 0.1,
+             "artifact_tilt_x_mrad": 0.1, "artifact_tilt_y_mrad": 0.1}
+
+
+def _row(truth, i: int, *, own: bool = False):
+    """A scalar Truth near row i of a batched one (or near a scalar one): its values rounded
+    to :data:`_KEY_GRID`, so that nearby truths (a posterior's walkers, a fit's iterates, a
+    Jacobian's steps) share the cached error-free trace; which rays stay on their plane is
+    checked ray by ray (:func:`_trace`), so the rounding costs no accuracy. A scalar truth
+    on that grid, or any with `own`, is returned itself (:func:`_trace` asks for its own
+    trace where facet errors are NaN: which facet a ray at a kink belongs to, the one whose
+    NaN error makes it NaN as the error budget's probes ask, is then the truth's own)."""
     import dataclasses
 
-    return dataclasses.replace(truth, **{
-        f.name: round(float(np.ravel(getattr(truth, f.name))[i]), 2)
-        for f in dataclasses.fields(truth) if np.ndim(getattr(truth, f.name))})
+    if own and not _batched(truth):
+        return truth
+    values = {}
+    for f in dataclasses.fields(truth):
+        g = _KEY_GRID.get(f.name, 0.01)
+        values[f.name] = float(f"{round(float(np.ravel(getattr(truth, f.name))[i]) / g) * g:.10g}")
+    if not _batched(truth) and all(values[k] == getattr(truth, k) for k in values):
+        return truth
+    return dataclasses.replace(truth, **values)
 
 
 def _nominal(setup, truth):
@@ -788,9 +819,11 @@ def _nominal(setup, truth):
         t = _newton(setup, ox, oy, oz, d, t, np.arange(t.size))
         x, y = ox + t * d[0], oy + t * d[1]
         z, gx, gy, margin = height_map(setup, x, y, margin=True)
-        if len(_NOMINAL) > 16:
-            _NOMINAL.clear()
-            _FACET_OF.clear()
+        while len(_NOMINAL) >= _CACHED:  # the oldest out
+            old = next(iter(_NOMINAL))
+            del _NOMINAL[old]
+            _FACET_OF.pop(old, None)
+            _PLANS.pop(old, None)
         _NOMINAL[key] = (t, x, y, z, gx, gy, margin)
         _FACET_OF[key] = _facet_element(setup, x, y, z)
     return _NOMINAL[key]
@@ -810,46 +843,145 @@ def _trace(setup, truth, disp, offsets=None):
     plane, and its hit is the exact ray-plane intersection (on a facet, the plane moved
     by its error: the height changes by ``-offset tan(facet)``); the others (near
     kinks) are solved by :func:`_newton`.
+
+    The ray-plane intersection ``t = (c + g . O) / (-g . d)`` (``g = (gx, gy, -1)`` the
+    plane's slopes, ``O`` the ray's origin, ``c`` the plane's height at the artifact's
+    origin) is assembled from small tables (:func:`_plan`): the origin is
+    ``B[row, scan, line] + x_l e_x[row]``, so ``g . O`` is a table over (row, scan, line,
+    plane) plus one over (row, point, plane), the denominator one over (row, plane), and
+    each ray looks its entries up. The rays near a kink are found among the prefix of the
+    rays sorted by margin that a bound of the move allows (:func:`_move_bound`).
     """
-    _, d, _, _ = _frames(setup, truth)
-    ox, oy, oz = _origins(setup, truth, disp)
+    ex, d, q, c0 = _frames(setup, truth)
     m = disp.shape[0]
-    batched = _batched(truth)
-    # one truth per row: the planes of a nearby truth's error-free hits, checked ray by ray
-    key = _row(truth, 0) if batched else truth
-    t0, x0, y0, z0, gx0, gy0, margin = _nominal(setup, key)
-    rays = ox.shape[1]
-    extra = 0.0
+    # the planes of a nearby truth's error-free hits, checked ray by ray
+    key = _row(truth, 0, own=offsets is not None and bool(np.isnan(offsets).any()))
+    moved_truth = key is not truth
+    _, x0, y0, _, _, _, margin = _nominal(setup, key)
+    plan = _plan(setup, key)
+    pts = setup.points_per_line
+    g = np.column_stack([plan["grads"], -np.ones(len(plan["grads"]))])  # (P, 3)
+    base = _base(setup, disp, q, c0)  # (m, 3, lines, 3)
+    exr, dr = np.atleast_2d(ex), np.atleast_2d(d)  # (1 or m, 3)
+    tab_v = (_grid_u(setup)[None, :, None] * (exr @ g.T)[:, None, :]).reshape(len(exr), -1)
+    den = -(dr @ g.T)  # (1 or m, P)
+    t = np.take((base @ g.T).reshape(m, -1), plan["i_t"], axis=1)
+    t += np.take(tab_v, plan["i_v"], axis=1)
+    t += plan["c"]
+    extra = np.zeros(m)
     if offsets is not None and np.any(offsets != 0):
         offsets = np.asarray(offsets, dtype=float).reshape(m, -1)
         elem = _FACET_OF[(setup, key)]
-        on = elem >= 0
-        shift = np.zeros((m, rays))
-        shift[:, on] = -offsets[:, elem[on]] * math.tan(math.radians(setup.facet_angle_deg))
-        z0 = z0 + shift
-        extra = 2.0 * np.abs(offsets).max(axis=1)[:, None]  # (m, 1)
+        on = np.flatnonzero(elem >= 0)
+        t[:, on] -= offsets[:, elem[on]] * math.tan(math.radians(setup.facet_angle_deg))
+        extra = 2.0 * np.abs(offsets).max(axis=1)
     else:
         offsets = None
-    d = np.broadcast_to(d, (m, 3)) if batched else d
-    dk = d.T[..., None] if batched else d  # components, (3, m, 1) or (3,)
-    t = (z0 + gx0 * (ox - x0) + gy0 * (oy - y0) - oz) / (dk[2] - gx0 * dk[0] - gy0 * dk[1])
-    if batched:  # on the same plane while the hit stays within its margin
-        moved = np.hypot(ox + t * dk[0] - x0, oy + t * dk[1] - y0)
-        near = np.flatnonzero((2.0 * moved + extra + 1e-9 >= margin).ravel())
+    t /= np.take(den, plan["cls"], axis=1)
+    top = np.maximum(t.max(axis=1), -t.min(axis=1))  # |t| per row
+    if moved_truth:  # on the same plane while the hit stays within its margin
+        bound = _move_bound(setup, key, base, exr, dr, den, top, extra)
+        rows, ray = _prefix_rays(plan, 2.0 * bound + extra + 1e-9)
+        ox, oy, oz = _ray_origins(setup, base, exr, rows, ray)
+        tt = t[rows, ray]
+        dxy = dr[rows % len(dr)]
+        moved = np.hypot(ox + tt * dxy[:, 0] - x0[ray], oy + tt * dxy[:, 1] - y0[ray])
+        sel = np.flatnonzero(2.0 * moved + extra[rows] + 1e-9 >= margin[ray])
     else:
         move = 2.0 * np.abs(disp).sum(axis=2).max(axis=1) + 1e-9
-        near = np.flatnonzero((margin[None, :] <= move[:, None] + extra).ravel())
-    if near.size:
-        t = t.ravel()
-        t = _newton(setup, ox.ravel(), oy.ravel(), oz.ravel(), d, t, near, rays, offsets)
-    t = t.reshape(m, 3, setup.lines, setup.points_per_line)
-    if np.any(np.abs(t) > setup.range_mm / 2):
+        rows, ray = _prefix_rays(plan, move + extra)
+        ox, oy, oz = _ray_origins(setup, base, exr, rows, ray)
+        tt = t[rows, ray]
+        sel = np.arange(rows.size)
+    if sel.size:
+        tn = _newton(setup, ox[sel], oy[sel], oz[sel], d, tt[sel], np.arange(sel.size),
+                     offsets=offsets, rows=rows[sel])
+        t[rows[sel], ray[sel]] = tn
+        top = max(float(top.max(initial=0.0)), float(np.abs(tn).max()))
+    else:
+        top = float(top.max(initial=0.0))
+    if top > setup.range_mm / 2:
         raise InvalidInput([
             f"line_laser: the profiles leave the sensor's range (|z_l| up to "
-            f"{np.abs(t).max():.4g} mm > range_mm/2 = {setup.range_mm / 2:g} mm) with these "
+            f"{top:.4g} mm > range_mm/2 = {setup.range_mm / 2:g} mm) with these "
             f"truth angles and artifact tilts; enlarge range_mm or lower raise_mm"
         ])
-    return t
+    return t.reshape(m, 3, setup.lines, pts)
+
+
+_PLANS: dict = {}
+
+
+def _plan(setup, key):
+    """What :func:`_trace` needs of the error-free trace of the truth `key`, cached.
+
+    Every error-free hit lies on one of a few planes (land and floor, the six facet
+    orientations): ``cls`` (rays,) names it in ``grads`` (P, 2), the planes' slopes;
+    ``c`` (rays,) is ``z0 - gx0 x0 - gy0 y0``, the plane's height at the artifact's
+    origin; ``i_t`` and ``i_v`` index the tables of :func:`_trace`; ``order`` sorts the
+    rays by their margin to a kink (``sorted_margin``), so the rays within a distance of
+    a kink are a prefix of it; ``base``, ``ex``, ``d`` and ``top`` are the error-free
+    origins, directions and largest ``|t|`` that :func:`_move_bound` compares with.
+    """
+    nominal = _nominal(setup, key)
+    if _PLANS.get((setup, key), {}).get("nominal") is not nominal:
+        t0, x0, y0, z0, gx0, gy0, margin = nominal
+        # the planes' slopes (a few distinct pairs), without a sort of the pairs
+        ux, ix = np.unique(gx0, return_inverse=True)
+        uy, iy = np.unique(gy0, return_inverse=True)
+        codes, cls = np.unique(ix.reshape(-1) * len(uy) + iy.reshape(-1), return_inverse=True)
+        grads = np.stack([ux[codes // len(uy)], uy[codes % len(uy)]], axis=1)
+        cls = np.asarray(cls).reshape(-1)
+        pts, n_planes = setup.points_per_line, len(grads)
+        ray = np.arange(t0.size)
+        order = np.argsort(margin, kind="stable")
+        ex, d, q, c0 = _frames(setup, key)
+        _PLANS[(setup, key)] = {
+            "nominal": nominal, "cls": cls, "grads": grads, "c": z0 - gx0 * x0 - gy0 * y0,
+            "i_t": (ray // pts) * n_planes + cls, "i_v": (ray % pts) * n_planes + cls,
+            "order": order, "sorted_margin": margin[order],
+            "base": _base(setup, np.zeros((1, 3, 3)), q, c0)[0], "ex": ex, "d": d,
+            "top": float(np.abs(t0).max()),
+            "tan": float(np.abs(grads).max(initial=0.0)),
+        }
+    return _PLANS[(setup, key)]
+
+
+def _prefix_rays(plan, thr):
+    """(row, ray) of every ray whose margin is at most ``thr`` (m,) of its row (none where
+    ``thr`` is NaN: a row of NaN errors, whose rays are not solved again)."""
+    k = np.searchsorted(plan["sorted_margin"], np.where(np.isnan(thr), -np.inf, thr),
+                        side="right")
+    rows = np.repeat(np.arange(k.size), k)
+    pos = np.arange(int(k.sum())) - np.repeat(np.cumsum(k) - k, k)
+    return rows, plan["order"][pos]
+
+
+def _ray_origins(setup, base, exr, rows, ray):
+    """Origins (ox, oy, oz) of the rays ``ray`` of batch rows ``rows`` (:func:`_base`)."""
+    pts, lines = setup.points_per_line, setup.lines
+    u = _grid_u(setup)[ray % pts]
+    b = base[rows, ray // (pts * lines), (ray // pts) % lines]
+    e = exr[rows % len(exr)]
+    return tuple(b[:, k] + u * e[:, k] for k in range(3))
+
+
+def _move_bound(setup, key, base, exr, dr, den, top, extra):
+    """Per row, a bound (m,) of how far any ray's hit moves in the plate's plane from the
+    error-free hit of the truth `key` (:func:`_plan`): the origin's move, ``|t|`` times the
+    direction's change, and ``|t - t0|`` times the error-free direction's slope, with
+    ``t - t0 = (g . dO - t0 (den - den0)) / den`` bounded plane by plane's largest slope."""
+    plan = _plan(setup, key)
+    dxy0 = abs(plan["d"][0]) + abs(plan["d"][1])
+    half = setup.line_width_mm / 2
+    d_base = np.abs(base - plan["base"]).max(axis=(1, 2))  # (m, 3)
+    d_o = d_base + half * np.abs(exr - plan["ex"])  # (m, 3): the origins' move
+    d_d = np.abs(dr - plan["d"])  # (1 or m, 3)
+    tan = plan["tan"]
+    d_den = d_d[:, 2] + tan * (d_d[:, 0] + d_d[:, 1])
+    d_t = (tan * (d_o[:, 0] + d_o[:, 1]) + d_o[:, 2] + plan["top"] * d_den
+           + 0.5 * extra * tan) / den.min(axis=1)
+    return d_o[:, 0] + d_o[:, 1] + top * (d_d[:, 0] + d_d[:, 1]) + d_t * dxy0
 
 
 def forward(setup, truth, errors) -> dict:
@@ -878,11 +1010,23 @@ def forward(setup, truth, errors) -> dict:
         t = np.broadcast_to(_trace(setup, truth, disp[:1], facets[:1]),
                             (n, 3, setup.lines, setup.points_per_line))
     else:
-        t = _trace(setup, truth, disp, facets)
+        t = _trace(setup, truth, disp, facets)  # a new array: the errors are added in place
     scale = np.asarray(errors["z_scale"], dtype=float).reshape(n)
-    lin = np.asarray(errors["linearity"], dtype=float).reshape(n, -1) @ _linearity_basis(setup)
-    z = (1.0 + scale)[:, None, None, None] * t + lin[:, None, None, :]
-    return {"z_mm": z + np.asarray(errors["sensor_noise"], dtype=float)}
+    coef = np.asarray(errors["linearity"], dtype=float).reshape(n, -1)
+    noise = np.asarray(errors["sensor_noise"], dtype=float)
+    z = t if t.flags.writeable else np.array(t)
+    if not _all_zero(scale):
+        z *= (1.0 + scale)[:, None, None, None]
+    if not _all_zero(coef):
+        z += (coef @ _linearity_basis(setup))[:, None, None, :]
+    if not _all_zero(noise):
+        z += noise
+    return {"z_mm": z}
+
+
+def _all_zero(a: np.ndarray) -> bool:
+    """Whether `a` is all zero, reading each broadcast (zero-stride) axis once."""
+    return not np.any(a[tuple(slice(None) if st else slice(0, 1) for st in a.strides)])
 
 
 def true_values(setup, truth) -> dict:
@@ -1153,6 +1297,9 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     return out
 
 
+# the first-order budget (a submodule: each estimator's linear map times the sources' effects)
+from mtplan.models.line_laser._first_order import budget as first_order_budget  # noqa: E402
+
 PROCEDURE = Procedure(
     name="line_laser",
     title="Mounting error angles of a line-laser profile sensor",
@@ -1184,4 +1331,5 @@ PROCEDURE = Procedure(
     setup_from_frame=setup_from_frame,
     resolution=resolution,
     observability=observability,
+    first_order_budget=first_order_budget,
 )

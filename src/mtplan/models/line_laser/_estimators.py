@@ -249,6 +249,8 @@ def _register(setup, a, b, start, *, iterations=12):
     jj, ii = jj.ravel(), ii.ravel()
     delta = np.array(start, dtype=float)
     rows = np.arange(n)[:, None]
+    af_flat, node_base = af.ravel(), rows * (lines * pts)
+    cells_flat, cell_base = cells.ravel(), rows * ((lines - 1) * (pts - 1))
     scale = None
     for it in range(iterations):
         su = -delta[:, 0] / p
@@ -262,10 +264,11 @@ def _register(setup, a, b, start, *, iterations=12):
         inside = (ic >= 0) & (ic <= pts - 2) & (jc >= 0) & (jc <= lines - 2)
         icc = np.clip(ic, 0, pts - 2)
         jcc = np.clip(jc, 0, lines - 2)
-        valid = inside & okb & cells[rows, jcc * (pts - 1) + icc]
-        k00 = jcc * pts + icc
-        a00, a01 = af[rows, k00], af[rows, k00 + 1]
-        a10, a11 = af[rows, k00 + pts], af[rows, k00 + pts + 1]
+        # gathers from the flattened batch (a 1-D take: faster than 2-D fancy indexing)
+        valid = inside & okb & cells_flat.take(cell_base + jcc * (pts - 1) + icc)
+        k00 = node_base + jcc * pts + icc
+        a00, a01 = af_flat.take(k00), af_flat.take(k00 + 1)
+        a10, a11 = af_flat.take(k00 + pts), af_flat.take(k00 + pts + 1)
         r = bf - ((1 - fy) * ((1 - fu) * a00 + fu * a01) + fy * ((1 - fu) * a10 + fu * a11))
         r -= delta[:, 2:3]
         if it >= 3:  # robust trim once the fit has settled
