@@ -7,8 +7,88 @@ Set ``HYPOTHESIS_PROFILE=explore`` to search with fresh random examples instead.
 
 import os
 
+import pytest
 from hypothesis import settings
 
 settings.register_profile("mtplan", derandomize=True, database=None, print_blob=True)
 settings.register_profile("explore", derandomize=False)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "mtplan"))
+
+
+# --- scheduling on the workers (`make test`: pytest -n 2 --dist loadfile) --------------------
+#
+# Each file is one unit of work, as --dist loadfile makes it, except the files below, whose
+# tests share no expensive fixture and are split: one unit per test (SPLIT), or per procedure
+# where the tests of one procedure share its module-scoped posterior (BY_PROCEDURE). The units
+# start longest first (the ranking of a --durations profile), so that no long unit is left for
+# the end while the other worker idles; the demo the report tests share starts at once.
+# (pytest-xdist's own loadgroup cannot do this under pytest 9: its xdist_group marks no longer
+# reach the scheduler, so the units are made here, from the test ids.)
+SPLIT = {
+    "tests/evaluation/test_no_zero_uncertainty.py",
+    "tests/evaluation/test_readings.py",
+    "tests/evaluation/test_measured.py",
+    "tests/test_cli_schema.py",
+    "tests/plans/test_accept_cli.py",
+}
+BY_PROCEDURE = {"tests/evaluation/test_posterior_procedures.py"}
+#: units that start first, longest first: (file, text in the test's name or "")
+LONGEST_FIRST = [
+    ("tests/reports/test_certificate.py", "demo"),  # builds the demo test_report.py reads
+    ("tests/reports/test_certificate.py", ""),
+    ("tests/evaluation/test_posterior_procedures.py", "line_laser"),
+    ("tests/evaluation/test_posterior_procedures.py", "geometry21"),
+    ("tests/evaluation/test_readings.py", "geometry21"),
+    ("tests/test_documented_commands.py", ""),
+    ("tests/evaluation/test_posterior_procedures.py", "tracker_frame"),
+    ("tests/test_cli_schema.py", "geometry21"),
+    ("tests/plans/test_accept_cli.py", "optimize"),
+    ("tests/evaluation/test_no_zero_uncertainty.py", "geometry21"),
+    ("tests/evaluation/test_no_zero_uncertainty.py", "tracker_frame-gls"),
+    ("tests/evaluation/test_measured.py", "geometry21"),
+    ("tests/models/test_line_laser.py", ""),
+    ("tests/models/test_geometry21.py", ""),
+    ("tests/evaluation/test_posterior.py", ""),
+    ("tests/explore/test_explore_browser.py", ""),
+    ("tests/evaluation/test_readings.py", ""),
+    ("tests/evaluation/test_no_zero_uncertainty.py", "line_laser"),
+    ("tests/test_cli_fuzz.py", ""),
+    ("tests/reference/test_ggs_circle.py", ""),
+]
+
+
+def unit_of_work(nodeid: str) -> str:
+    """The unit of work a test belongs to: its file, its own id or its procedure."""
+    path = nodeid.split("::")[0]
+    if path in SPLIT:
+        return nodeid
+    if path in BY_PROCEDURE and nodeid.endswith("]"):
+        return f"{path}[{nodeid.rsplit('[', 1)[1]}"
+    return path
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """The units of work longest first (the same order on every worker)."""
+    root = config.rootpath
+    ranked = []
+    for index, item in enumerate(items):
+        path = item.path.relative_to(root).as_posix()
+        rank = next((i for i, (file, text) in enumerate(LONGEST_FIRST)
+                     if path == file and text in item.name), len(LONGEST_FIRST))
+        ranked.append((rank, index, item))
+    items[:] = [item for _, _, item in sorted(ranked, key=lambda r: r[:2])]
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """--dist loadfile with the units above, taken in the order collected."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class Units(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return unit_of_work(nodeid)
+
+    config.option.loadscopereorder = False  # keep the longest-first order
+    return Units(config, log)
