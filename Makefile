@@ -7,16 +7,19 @@ PY     := $(VENV)/bin/python
 
 .PHONY: demo test bench clean
 
+# pip as the venv brings it (no self-upgrade: seconds, and nothing here needs a newer one);
+# no byte-compiling of every installed module at install time (Python compiles what it
+# imports, once, on first use)
+PIP    := $(PY) -m pip install --quiet --no-compile --disable-pip-version-check
+
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e .
+	$(PIP) -e .
 	touch $@
 
 $(VENV)/.installed-test: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PIP) -e '.[test]'
 	touch $(VENV)/.installed $@
 
 demo: $(VENV)/.installed
