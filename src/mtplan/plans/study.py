@@ -657,11 +657,14 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
               command: str | None = None, readings: bool = True) -> StudyResult:
     """Compute every result a study asks for (the reports only render them).
 
-    The work is cut into stages that run on ``n_jobs`` worker processes at once (each stage
-    on one core): first each estimator's Monte Carlo, each sweep and each procedure's plan,
-    identifiability and extras, of every procedure; then, once a procedure's recommended
-    estimator is known, its budget and its readings evaluation. Every stage draws from the
-    study's seed exactly as a serial run does, so the result does not depend on ``n_jobs``.
+    The work is cut into stages, each computed on one core: each estimator's Monte Carlo,
+    each sweep, and each procedure's plan, identifiability and extras; then, as soon as a
+    procedure's Monte Carlo stages are done and so its recommended estimator is known, its
+    budget and its readings evaluation. ``n_jobs`` worker processes take the ready stages,
+    the readings and budgets first (the longest, on which the procedure waits). Every stage
+    draws from the study's seed exactly as a serial run does, so the result does not depend
+    on ``n_jobs`` nor on the order the stages ran in (beyond the last bits of floating-point
+    sums, which numpy and BLAS may add in another order in another process).
 
     Parameters
     ----------
@@ -678,24 +681,27 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
     from mtplan._parallel import effective_jobs
     from mtplan.plans import decisions
 
-    jobs = effective_jobs(n_jobs)
-    bar = _bar(progress, _count_steps(study))
     procs = study.procedures
-    first = [(kind, i, arg) for i, ps in enumerate(procs) for kind, arg in
-             [("mc", est) for est in ps.estimators] + [("sweep", j) for j in range(len(ps.sweeps))]
-             + [("misc", None)]]
-    done = dict(zip(first, _stages(first, study, jobs, bar), strict=True))
-    partial = []
-    for i, ps in enumerate(procs):
+    bar = _bar(progress, _count_steps(study))
+    partial = {}  # procedure index -> (results, key, recommended)
+
+    def unlocked(i, done):
+        """The budget and readings stages of procedure ``i`` once its Monte Carlo is done."""
+        ps = procs[i]
+        if i in partial or any(("mc", i, est) not in done for est in ps.estimators):
+            return []
         results = {est: done[("mc", i, est)] for est in ps.estimators}
         targeted = list((ps.plan or {}).get("targets", {}))
         key = decisions.key_measurands(results[ps.estimators[0]].measurands,
                                        [a["measurand"] for a in ps.acceptance], targeted)
-        partial.append((results, key, decisions.recommend_estimator(results, key)))
-    second = [(kind, i, partial[i][2]) for i, ps in enumerate(procs)
-              for kind in ("budget", "readings")
-              if kind == "budget" or (readings and ps.readings is not None)]
-    done.update(zip(second, _stages(second, study, jobs, bar), strict=True))
+        partial[i] = (results, key, decisions.recommend_estimator(results, key))
+        return [(kind, i, partial[i][2]) for kind in ("readings", "budget")
+                if kind == "budget" or (readings and ps.readings is not None)]
+
+    first = [("mc", i, est) for i, ps in enumerate(procs) for est in ps.estimators]
+    first += [("sweep", i, j) for i, ps in enumerate(procs) for j in range(len(ps.sweeps))]
+    first += [("misc", i, None) for i in range(len(procs))]
+    done = _run_stages(first, unlocked, study, effective_jobs(n_jobs), bar)
     outcomes = []
     for i, ps in enumerate(procs):
         results, key, recommended = partial[i]
@@ -723,24 +729,61 @@ def _model(name):
     return get(name)
 
 
-def _stages(tasks, study, jobs, bar):
-    """Yield each stage's result in task order, computed on ``jobs`` processes (one core
-    each: the stages share the cores instead of each splitting its Monte Carlo)."""
-    from mtplan._parallel import ordered_map
+#: which ready stage a free worker takes first: the long ones a procedure waits on
+_PRIORITY = {"readings": 0, "budget": 1, "mc": 2, "sweep": 3, "misc": 4}
 
-    work = [(kind, study.procedures[i], study, arg) for kind, i, arg in tasks]
-    for (kind, i, arg), value in zip(tasks, ordered_map(_stage, work, n_jobs=jobs),
-                                     strict=True):
+
+def _run_stages(tasks, unlocked, study, jobs, bar) -> dict:
+    """Every stage's result, {(kind, procedure index, arg): result}: ``tasks`` and those
+    ``unlocked(i, done)`` adds as they become ready, on ``jobs`` processes (one stage, on
+    one core, per worker at a time) or, for one job, here."""
+    ready = sorted(tasks, key=lambda t: _PRIORITY[t[0]])
+    done = {}
+
+    def finish(task, value):
+        done[task] = value
+        kind, i, arg = task
         name = study.procedures[i].name
         if kind in ("mc", "sweep", "budget", "readings"):
             _tick(bar, f"{name} {arg if kind == 'mc' else kind}")
         elif study.procedures[i].plan is not None:
             _tick(bar, f"{name} plan")
-        yield value
+        ready.extend(unlocked(i, done))
+        ready.sort(key=lambda t: _PRIORITY[t[0]])  # stable: study order within a kind
+
+    if jobs == 1:
+        while ready:
+            task = ready.pop(0)
+            finish(task, _stage_work(task[0], study.procedures[task[1]], study, task[2]))
+        return done
+    from concurrent.futures import FIRST_COMPLETED, wait
+
+    from joblib.executor import get_memmapping_executor
+
+    executor = get_memmapping_executor(jobs)  # joblib's reusable loky workers
+    running = {}
+    while ready or running:
+        while ready and len(running) < jobs:
+            task = ready.pop(0)
+            running[executor.submit(_stage, task[0], study.procedures[task[1]], study,
+                                    task[2])] = task
+        finished, _ = wait(running, return_when=FIRST_COMPLETED)
+        for future in finished:
+            finish(running.pop(future), future.result())
+    return done
 
 
 def _stage(kind, ps, study, arg):
-    """One stage of a procedure (see :func:`run_study`), computed on one core."""
+    """One stage of a procedure (see :func:`run_study`) in a worker: with one BLAS thread,
+    as the workers share the cores."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1):
+        return _stage_work(kind, ps, study, arg)
+
+
+def _stage_work(kind, ps, study, arg):
+    """One stage of a procedure, in this process."""
     from mtplan.evaluation.simulation import simulate_uncertainty
 
     proc = _model(ps.name)
