@@ -97,3 +97,17 @@ def test_a_changed_source_file_misses_the_cache(small_study_file, monkeypatch, t
 
     monkeypatch.setattr(module, "_sha256", edited)
     assert study_cache_key(study) != key
+
+
+def test_the_cache_keeps_only_the_newest_results(tmp_path):
+    import os
+
+    from mtplan.plans import study as module
+
+    for i in range(module.CACHE_KEEP + 2):
+        path = tmp_path / f"study-{i:064x}.pickle"
+        path.write_bytes(b"x")
+        os.utime(path, (1000 + i, 1000 + i))
+    module._prune(tmp_path)
+    kept = sorted(p.name for p in tmp_path.glob("study-*.pickle"))
+    assert kept == [f"study-{i:064x}.pickle" for i in range(2, module.CACHE_KEEP + 2)]

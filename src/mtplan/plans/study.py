@@ -1034,6 +1034,19 @@ def run_study_cached(study: Study, cache_dir, *, progress=None, n_jobs: int = 1,
         with open(tmp, "wb") as fh:
             pickle.dump(result.outcomes, fh, protocol=pickle.HIGHEST_PROTOCOL)
         os.replace(tmp, path)
+        _prune(path.parent)
     except OSError:  # a cache that cannot be written only costs the next run its time
         pass
     return result
+
+
+#: how many study results the cache keeps (the newest; each code change makes a new key)
+CACHE_KEEP = 4
+
+
+def _prune(folder: Path) -> None:
+    """Remove all but the CACHE_KEEP newest study results of the cache folder."""
+    stored = sorted(folder.glob("study-*.pickle"), key=lambda p: p.stat().st_mtime,
+                    reverse=True)
+    for old in stored[CACHE_KEEP:]:
+        old.unlink(missing_ok=True)
