@@ -7,26 +7,31 @@ PY     := $(VENV)/bin/python
 
 .PHONY: demo test bench clean
 
+# pip as the venv brings it (no self-upgrade: seconds, and nothing here needs a newer one);
+# no byte-compiling of every installed module at install time: Python compiles what it
+# imports, once, on first use, into the venv (so the runs below let it write its bytecode
+# even where PYTHONDONTWRITEBYTECODE is set: without it every process, each worker too,
+# would compile numpy, scipy, pandas and matplotlib from source again)
+PIP    := $(PY) -m pip install --quiet --no-compile --disable-pip-version-check
+
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e .
+	$(PIP) -e .
 	touch $@
 
 $(VENV)/.installed-test: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PIP) -e '.[test]'
 	touch $(VENV)/.installed $@
 
 demo: $(VENV)/.installed
-	$(VENV)/bin/mtplan demo
+	PYTHONDONTWRITEBYTECODE= $(VENV)/bin/mtplan demo
 
 test: $(VENV)/.installed-test
-	$(PY) -m pytest -n 2 --dist loadfile
+	PYTHONDONTWRITEBYTECODE= $(PY) -m pytest -n 2 --dist loadfile
 
 bench: $(VENV)/.installed
-	$(PY) benchmarks/bench_propagate.py
+	PYTHONDONTWRITEBYTECODE= $(PY) benchmarks/bench_propagate.py
 
 clean:
 	rm -rf $(VENV) build src/*.egg-info .pytest_cache

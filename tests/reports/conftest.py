@@ -135,7 +135,7 @@ def demo_report(tmp_path_factory):
             if not log.exists():
                 buf = io.StringIO()
                 with contextlib.redirect_stdout(buf):
-                    code = main(["demo", "--out", str(out), "--jobs", "2"])
+                    code = main(["demo", "--out", str(out), "--jobs", "2", "--no-cache"])
                 assert code == 0
                 log.write_text(buf.getvalue(), encoding="utf-8")
         finally:

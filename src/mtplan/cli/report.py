@@ -13,6 +13,9 @@ def register(sub) -> None:
     p.add_argument("study", metavar="STUDY.toml", help="the study file")
     p.add_argument("--out", metavar="DIR", required=True, help="output folder")
     p.add_argument("--jobs", type=int, default=1, metavar="J", help="parallel workers")
+    p.add_argument("--cache", metavar="DIR", default=None,
+                   help="reuse the study's result stored in DIR by an earlier run of the same "
+                        "study, readings, mtplan code and numeric packages (default: none)")
     how = p.add_mutually_exclusive_group()
     how.add_argument("--plan-only", action="store_true",
                      help="issue the test plan only (plan.pdf, plan.html, plan.json), before "
@@ -26,14 +29,22 @@ def register(sub) -> None:
     p.add_argument("--out", metavar="DIR", default="mtplan-report", help="output folder")
     p.add_argument("--jobs", type=int, default=min(os.cpu_count() or 1, 4), metavar="J",
                    help="parallel workers (default: the machine's cores, at most 4)")
+    cache = p.add_mutually_exclusive_group()
+    cache.add_argument("--cache", metavar="DIR", default=None,
+                       help="where the study's result is kept for the next run of the same "
+                            "study, readings, mtplan code and numeric packages (default: "
+                            "$XDG_CACHE_HOME/mtplan or ~/.cache/mtplan)")
+    cache.add_argument("--no-cache", action="store_true",
+                       help="compute the study anew and store nothing")
     p.set_defaults(func=cmd_demo)
 
 
-def _report(study_path, out, jobs, progress, command, plan_path=None, plan_only=False):
+def _report(study_path, out, jobs, progress, command, plan_path=None, plan_only=False,
+            cache=None):
     from mtplan._io import output_problem
     from mtplan.cli._common import UsageError
     from mtplan.plans import agreement
-    from mtplan.plans.study import load_study, run_study
+    from mtplan.plans.study import load_study, run_study_cached
     from mtplan.reports import write_report
 
     problem = output_problem(out, folder=True)
@@ -45,12 +56,13 @@ def _report(study_path, out, jobs, progress, command, plan_path=None, plan_only=
     if plan_path is not None:  # refused before anything is computed
         plan = agreement.read_plan(plan_path)
         agreement.check_study(study, plan)
-    result = run_study(study, progress=progress, n_jobs=jobs, command=command,
-                       readings=not plan_only)
+    result = run_study_cached(study, cache, progress=progress, n_jobs=jobs, command=command,
+                              readings=not plan_only)
     computed = time.perf_counter()
-    written = write_report(result, out, plan, plan_only=plan_only)
+    written = write_report(result, out, plan, plan_only=plan_only, n_jobs=jobs)
     end = time.perf_counter()
-    print(f"written in {end - start:.1f} s (study {computed - start:.1f} s, documents "
+    how = "read from the cache" if "cached" in result.provenance else "computed"
+    print(f"written in {end - start:.1f} s (study {computed - start:.1f} s, {how}; documents "
           f"{end - computed:.1f} s, {jobs} workers):", file=sys.stderr)
     for key in ("plan_pdf", "plan_html", "plan_json", "report_pdf", "report_html"):
         if key in written:
@@ -69,7 +81,7 @@ def cmd_report(args):
     extra = ["--plan-only"] if args.plan_only else (["--plan", args.plan] if args.plan else [])
     command = _command("report", args.study, "--out", args.out, "--jobs", args.jobs, *extra)
     return _report(args.study, args.out, args.jobs, progress=None, command=command,
-                   plan_path=args.plan, plan_only=args.plan_only)
+                   plan_path=args.plan, plan_only=args.plan_only, cache=args.cache)
 
 
 def demo_study_path():
@@ -77,8 +89,19 @@ def demo_study_path():
     return Path(__file__).resolve().parent.parent / "examples" / "demo.toml"
 
 
+def default_cache_dir() -> Path:
+    """Where ``mtplan demo`` keeps the study's result: ``$XDG_CACHE_HOME/mtplan``, else
+    ``~/.cache/mtplan``."""
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "mtplan"
+
+
 def cmd_demo(args):
     """Run the default study end to end: the test plan issued, then the test report decided
-    with it (both from this one run; the report says so among its deviations)."""
+    with it (both from this one run; the report says so among its deviations). The study's
+    result is kept in the cache folder and reused while the study, its readings, mtplan's
+    code and the numeric packages stay the same."""
     command = _command("demo", "--out", args.out, "--jobs", args.jobs)
-    return _report(demo_study_path(), args.out, args.jobs, progress=True, command=command)
+    cache = None if args.no_cache else (args.cache or default_cache_dir())
+    return _report(demo_study_path(), args.out, args.jobs, progress=True, command=command,
+                   cache=cache)

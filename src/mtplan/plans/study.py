@@ -64,7 +64,8 @@ import numpy as np
 
 from mtplan._validate import InvalidInput
 
-__all__ = ["Study", "ProcedureStudy", "StudyResult", "HEADER_KEYS", "load_study", "run_study"]
+__all__ = ["Study", "ProcedureStudy", "StudyResult", "HEADER_KEYS", "load_study", "run_study",
+           "run_study_cached", "study_cache_key"]
 
 #: the document header's keys, in the order the cover shows them
 HEADER_KEYS = ("document", "revision", "plan_document", "plan_date", "customer",
@@ -656,101 +657,184 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
               command: str | None = None, readings: bool = True) -> StudyResult:
     """Compute every result a study asks for (the reports only render them).
 
+    The work is cut into stages, each computed on one core: each estimator's Monte Carlo,
+    each sweep, and each procedure's plan, identifiability and extras; then, as soon as a
+    procedure's Monte Carlo stages are done and so its recommended estimator is known, its
+    budget and its readings evaluation. ``n_jobs`` worker processes take the ready stages,
+    the readings and budgets first (the longest, on which the procedure waits). Every stage
+    draws from the study's seed exactly as a serial run does, so the result does not depend
+    on ``n_jobs`` nor on the order the stages ran in (beyond the last bits of floating-point
+    sums, which numpy and BLAS may add in another order in another process).
+
     Parameters
     ----------
     study : Study
     progress : bool or None
         A progress bar on stderr: True, False, or None (only on a terminal).
     n_jobs : int
-        Parallel workers for the Monte Carlo and the sweeps.
+        Parallel worker processes (-1: all cores).
     command : str, optional
         The command line that asked for the study, for the provenance.
     readings : bool
         Evaluate the readings (False: the plan only, issued before measuring).
     """
-    outcomes = []
+    from mtplan._parallel import effective_jobs
+    from mtplan.plans import decisions
+
+    procs = study.procedures
     bar = _bar(progress, _count_steps(study))
-    for k, ps in enumerate(study.procedures, start=1):
-        outcomes.append(_run_procedure(k, ps, study, bar, n_jobs, readings))
+    partial = {}  # procedure index -> (results, key, recommended)
+
+    def unlocked(i, done):
+        """The budget and readings stages of procedure ``i`` once its Monte Carlo is done."""
+        ps = procs[i]
+        if i in partial or any(("mc", i, est) not in done for est in ps.estimators):
+            return []
+        results = {est: done[("mc", i, est)] for est in ps.estimators}
+        targeted = list((ps.plan or {}).get("targets", {}))
+        key = decisions.key_measurands(results[ps.estimators[0]].measurands,
+                                       [a["measurand"] for a in ps.acceptance], targeted)
+        partial[i] = (results, key, decisions.recommend_estimator(results, key))
+        return [(kind, i, partial[i][2]) for kind in ("readings", "budget")
+                if kind == "budget" or (readings and ps.readings is not None)]
+
+    first = [("mc", i, est) for i, ps in enumerate(procs) for est in ps.estimators]
+    first += [("sweep", i, j) for i, ps in enumerate(procs) for j in range(len(ps.sweeps))]
+    first += [("misc", i, None) for i in range(len(procs))]
+    done = _run_stages(first, unlocked, study, effective_jobs(n_jobs), bar)
+    outcomes = []
+    for i, ps in enumerate(procs):
+        results, key, recommended = partial[i]
+        budget, gum, budget_estimator = done[("budget", i, recommended)]
+        plan, identifiability, extras = done[("misc", i, None)]
+        outcome = ProcedureOutcome(
+            spec=ps, title=_model(ps.name).title, results=results, gum=gum, budget=budget,
+            sweeps=[done[("sweep", i, j)] for j in range(len(ps.sweeps))], plan=plan,
+            measured=done.get(("readings", i, recommended)), identifiability=identifiability,
+            extras=extras, recommended=recommended, key=key, budget_estimator=budget_estimator)
+        decider = results.get(getattr(outcome.measured, "estimator", None), results[recommended])
+        outcome.verdicts = decisions.conformity(ps.name, ps.label, ps.acceptance, decider,
+                                                outcome.measured)
+        _advise(outcome, _model(ps.name), i + 1)
+        outcomes.append(outcome)
     if bar is not None:
         bar.close()
     return StudyResult(study=study, outcomes=outcomes,
                        provenance=_provenance(study, command))
 
 
-def _run_procedure(k, ps, study, bar, n_jobs, readings=True) -> ProcedureOutcome:
-    """Monte Carlo, budget, sweeps, plan, readings and the decisions of one procedure."""
-    from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
+def _model(name):
     from mtplan.models import get
-    from mtplan.plans import decisions
+
+    return get(name)
+
+
+#: which ready stage a free worker takes first: the long ones a procedure waits on
+_PRIORITY = {"readings": 0, "budget": 1, "mc": 2, "sweep": 3, "misc": 4}
+
+
+def _run_stages(tasks, unlocked, study, jobs, bar) -> dict:
+    """Every stage's result, {(kind, procedure index, arg): result}: ``tasks`` and those
+    ``unlocked(i, done)`` adds as they become ready, on ``jobs`` processes (one stage, on
+    one core, per worker at a time) or, for one job, here."""
+    ready = sorted(tasks, key=lambda t: _PRIORITY[t[0]])
+    done = {}
+
+    def finish(task, value):
+        done[task] = value
+        kind, i, arg = task
+        name = study.procedures[i].name
+        if kind in ("mc", "sweep", "budget", "readings"):
+            _tick(bar, f"{name} {arg if kind == 'mc' else kind}")
+        elif study.procedures[i].plan is not None:
+            _tick(bar, f"{name} plan")
+        ready.extend(unlocked(i, done))
+        ready.sort(key=lambda t: _PRIORITY[t[0]])  # stable: study order within a kind
+
+    if jobs == 1:
+        while ready:
+            task = ready.pop(0)
+            finish(task, _stage_work(task[0], study.procedures[task[1]], study, task[2]))
+        return done
+    from concurrent.futures import FIRST_COMPLETED, wait
+
+    from joblib.executor import get_memmapping_executor
+
+    executor = get_memmapping_executor(jobs)  # joblib's reusable loky workers
+    running = {}
+    while ready or running:
+        while ready and len(running) < jobs:
+            task = ready.pop(0)
+            running[executor.submit(_stage, task[0], study.procedures[task[1]], study,
+                                    task[2])] = task
+        finished, _ = wait(running, return_when=FIRST_COMPLETED)
+        for future in finished:
+            finish(running.pop(future), future.result())
+    return done
+
+
+def _stage(kind, ps, study, arg):
+    """One stage of a procedure (see :func:`run_study`) in a worker: with one BLAS thread,
+    as the workers share the cores."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1):
+        return _stage_work(kind, ps, study, arg)
+
+
+def _stage_work(kind, ps, study, arg):
+    """One stage of a procedure, in this process."""
+    from mtplan.evaluation.simulation import simulate_uncertainty
+
+    proc = _model(ps.name)
+    if kind == "mc":
+        # the procedure's own choice wins over the study's: trials (fixed) or digits
+        if ps.trials is not None or ps.digits is not None:
+            digits, trials = ps.digits, ps.trials
+        else:
+            digits, trials = study.digits, study.trials
+        if digits is None and trials is None:
+            trials = 10_000
+        return simulate_uncertainty(
+            proc, ps.setup, ps.truth, estimator=arg, trials=None if digits else trials,
+            digits=digits, coverage=study.coverage, rng=study.seed, n_jobs=1,
+            progress=False, max_trials=ps.max_trials or study.max_trials)
+    if kind == "sweep":
+        return _run_sweep(proc, ps, study, ps.sweeps[arg])
+    if kind == "misc":
+        plan = _run_plan(proc, ps, study) if ps.plan is not None else None
+        return plan, _identifiability(proc, ps), _extras(proc, ps)
+    if kind == "budget":
+        return _run_budget(proc, ps, study, arg)
+    return _run_measured(proc, ps, study, arg)
+
+
+def _run_budget(proc, ps, study, recommended):
+    """(budget, GUM result or None, the estimator the budget is of)."""
+    from mtplan.evaluation.simulation import linearize_procedure
     from mtplan.uncertainty.montecarlo import ModelError
 
-    proc = get(ps.name)
-    # the procedure's own choice wins over the study's: trials (fixed) or digits (adaptive)
-    if ps.trials is not None or ps.digits is not None:
-        digits, trials = ps.digits, ps.trials
-    else:
-        digits, trials = study.digits, study.trials
-    if digits is None and trials is None:
-        trials = 10_000
-    results = {}
-    for est in ps.estimators:
-        results[est] = simulate_uncertainty(
-            proc, ps.setup, ps.truth, estimator=est, trials=None if digits else trials,
-            digits=digits, coverage=study.coverage, rng=study.seed, n_jobs=n_jobs,
-            progress=False, max_trials=ps.max_trials or study.max_trials)
-        _tick(bar, f"{ps.name} {est}")
-    first = results[ps.estimators[0]]
-    targeted = list((ps.plan or {}).get("targets", {}))
-    key = decisions.key_measurands(first.measurands, [a["measurand"] for a in ps.acceptance],
-                                   targeted)
-    recommended = decisions.recommend_estimator(results, key)
-    gum, budget_estimator = None, recommended
     if ps.budget == "gum":
         gum = linearize_procedure(proc, ps.setup, ps.truth, estimator=recommended,
                                   coverage=study.coverage)
-        budget = gum.budget()
-    else:
-        try:
-            budget = _mc_budget(proc, ps, study, n_jobs, recommended)
-        except ModelError:  # one source alone can leave an estimator without a solution
-            budget_estimator = ps.estimators[0]
-            budget = _mc_budget(proc, ps, study, n_jobs, budget_estimator)
-    _tick(bar, f"{ps.name} budget")
-    outcome = ProcedureOutcome(spec=ps, title=proc.title, results=results, gum=gum,
-                               budget=budget, sweeps=_run_sweeps(proc, ps, study, bar, n_jobs),
-                               recommended=recommended, key=key,
-                               budget_estimator=budget_estimator)
-    if ps.plan is not None:
-        outcome.plan = _run_plan(proc, ps, study)
-        _tick(bar, f"{ps.name} plan")
-    if ps.readings is not None and readings:
-        outcome.measured = _run_measured(proc, ps, study, recommended)
-        _tick(bar, f"{ps.name} readings")
-    decider = results.get(getattr(outcome.measured, "estimator", None), results[recommended])
-    outcome.verdicts = decisions.conformity(ps.name, ps.label, ps.acceptance, decider,
-                                            outcome.measured)
-    _advise(outcome, proc, k)
-    outcome.identifiability = _identifiability(proc, ps)
-    outcome.extras = _extras(proc, ps)
-    return outcome
+        return gum.budget(), gum, recommended
+    try:
+        return _mc_budget(proc, ps, study, 1, recommended), None, recommended
+    except ModelError:  # one source alone can leave an estimator without a solution
+        return _mc_budget(proc, ps, study, 1, ps.estimators[0]), None, ps.estimators[0]
 
 
-def _run_sweeps(proc, ps, study, bar, n_jobs) -> list:
+def _run_sweep(proc, ps, study, sw):
     from mtplan.plans.sweep import sweep
 
-    sweeps = []
-    for sw in ps.sweeps:
-        try:
-            table = sweep(proc, ps.setup, sw["vary"], truth=ps.truth,
-                          estimators=sw.get("estimators", ps.estimators),
-                          trials=sw.get("trials", 2000), seed=study.seed, n_jobs=n_jobs,
-                          progress=False)
-        except InvalidInput as exc:  # a set-up the estimators refuse is a finding
-            table = " ".join(exc.problems)
-        sweeps.append((sw, table))
-        _tick(bar, f"{ps.name} sweep")
-    return sweeps
+    try:
+        table = sweep(proc, ps.setup, sw["vary"], truth=ps.truth,
+                      estimators=sw.get("estimators", ps.estimators),
+                      trials=sw.get("trials", 2000), seed=study.seed, n_jobs=1,
+                      progress=False)
+    except InvalidInput as exc:  # a set-up the estimators refuse is a finding
+        table = " ".join(exc.problems)
+    return sw, table
 
 
 def _advise(outcome, proc, k) -> None:
@@ -884,3 +968,85 @@ def _extras(proc, ps):
     if proc.observability is not None and "observability" not in extras:
         extras["observability"] = proc.observability(ps.setup)
     return extras
+
+
+# ----------------------------------------------------------------------- the result cache
+#: the packages whose versions a study's numbers depend on (besides mtplan's own code)
+_NUMERIC_PACKAGES = ("numpy", "scipy", "pandas", "emcee", "joblib")
+
+
+def study_cache_key(study: Study, readings: bool = True) -> str:
+    """SHA-256 of everything a study's result depends on: the study file, its readings
+    files, whether the readings are evaluated, every file of the installed mtplan package
+    (its code, templates and examples), the Python version and the numeric packages'
+    versions. Any change to one of them gives another key; ``n_jobs`` does not enter (the
+    result does not depend on it)."""
+    import importlib.metadata as md
+    import platform
+
+    digest = hashlib.sha256()
+    digest.update(f"study {study.digest}\nreadings {bool(readings)}\n".encode())
+    for ps in study.procedures:
+        if ps.readings is not None and readings:
+            digest.update(f"{ps.name} {_sha256(ps.readings['file'])}\n".encode())
+    package = Path(__file__).resolve().parent.parent
+    for path in sorted(package.rglob("*")):
+        if path.is_file() and "__pycache__" not in path.parts:
+            digest.update(f"{path.relative_to(package).as_posix()} {_sha256(path)}\n".encode())
+    digest.update(f"python {platform.python_version()} {platform.machine()}\n".encode())
+    for pkg in _NUMERIC_PACKAGES:
+        try:
+            digest.update(f"{pkg} {md.version(pkg)}\n".encode())
+        except md.PackageNotFoundError:
+            digest.update(f"{pkg} -\n".encode())
+    return digest.hexdigest()
+
+
+def run_study_cached(study: Study, cache_dir, *, progress=None, n_jobs: int = 1,
+                     command: str | None = None, readings: bool = True) -> StudyResult:
+    """:func:`run_study`, or its result stored in ``cache_dir`` by an earlier run with the
+    same :func:`study_cache_key` (None: always computed). The provenance is this run's (its
+    date and command) and names the cache file the numbers were read from."""
+    import os
+    import pickle
+
+    if cache_dir is None:
+        return run_study(study, progress=progress, n_jobs=n_jobs, command=command,
+                         readings=readings)
+    key = study_cache_key(study, readings)
+    path = Path(cache_dir) / f"study-{key}.pickle"
+    try:
+        with open(path, "rb") as fh:
+            outcomes = pickle.load(fh)
+    except (OSError, EOFError, pickle.UnpicklingError, AttributeError, ImportError):
+        outcomes = None  # none stored, or unreadable: computed again and stored anew
+    if outcomes is not None:
+        for outcome, ps in zip(outcomes, study.procedures, strict=True):
+            outcome.spec = ps  # the same content (the key says so); this run's file paths
+        provenance = _provenance(study, command)
+        provenance["cached"] = str(path)
+        return StudyResult(study=study, outcomes=outcomes, provenance=provenance)
+    result = run_study(study, progress=progress, n_jobs=n_jobs, command=command,
+                       readings=readings)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        with open(tmp, "wb") as fh:
+            pickle.dump(result.outcomes, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(tmp, path)
+        _prune(path.parent)
+    except OSError:  # a cache that cannot be written only costs the next run its time
+        pass
+    return result
+
+
+#: how many study results the cache keeps (the newest; each code change makes a new key)
+CACHE_KEEP = 4
+
+
+def _prune(folder: Path) -> None:
+    """Remove all but the CACHE_KEEP newest study results of the cache folder."""
+    stored = sorted(folder.glob("study-*.pickle"), key=lambda p: p.stat().st_mtime,
+                    reverse=True)
+    for old in stored[CACHE_KEEP:]:
+        old.unlink(missing_ok=True)

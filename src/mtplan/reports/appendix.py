@@ -70,6 +70,9 @@ def provenance_section(prov: dict) -> Section:
         rows += [[f"readings of {label}", path], [f"readings SHA-256 of {label}", digest]]
     rows += [["seed", str(prov["seed"])], ["Python", prov["python"]]]
     rows += [[k, v] for k, v in prov["versions"].items()]
+    if prov.get("cached"):  # the numbers of an earlier run with the same inputs and code
+        rows.append(["study result", f"read from {prov['cached']}, stored by an earlier run "
+                     "of the same study, readings, mtplan code and numeric packages"])
     return Section("Provenance", anchor="provenance", appendix=True,
                    blocks=[Table("Software, command, seeds, study and readings files",
                                  ["item", "value"], rows)])

@@ -392,7 +392,8 @@ def _write_doc(doc: Document, out: Path, name: str) -> dict:
     return written
 
 
-def write_report(result, out_dir, plan=None, *, plan_only: bool = False) -> dict:
+def write_report(result, out_dir, plan=None, *, plan_only: bool = False,
+                 n_jobs: int = 1) -> dict:
     """Write the test plan and the test report of a computed study.
 
     Without ``plan`` the plan is issued from ``result`` (``plan.json``, ``plan.pdf``,
@@ -401,7 +402,9 @@ def write_report(result, out_dir, plan=None, *, plan_only: bool = False) -> dict
     ``results/measured.csv``), saying that both came from the same run. With ``plan`` (a
     dict from :func:`mtplan.plans.agreement.read_plan`, already checked against the study)
     only the report is written. Every file is written to a temporary name and renamed into
-    place, so an interrupted report leaves no half-written file. Returns the paths written
+    place, so an interrupted report leaves no half-written file. With ``n_jobs`` > 1 the
+    plan and the report are built and rendered at the same time, each in its own process
+    (the same documents as one after the other). Returns the paths written
     (``pdf``/``html``: the last document written).
     """
     import json
@@ -415,6 +418,8 @@ def write_report(result, out_dir, plan=None, *, plan_only: bool = False) -> dict
         if problem:
             raise InvalidInput([f"The report folder cannot be written: {problem}."])
     written, deviations = {}, []
+    if plan is None and not plan_only and n_jobs != 1:
+        return _write_both(result, out, agreement.issue_plan(result), n_jobs)
     if plan is None:
         plan = agreement.issue_plan(result)
         plan_doc = build_plan(result, plan)
@@ -425,9 +430,45 @@ def write_report(result, out_dir, plan=None, *, plan_only: bool = False) -> dict
         written["pdf"], written["html"] = written["plan_pdf"], written["plan_html"]
         if plan_only:
             return written
-        deviations.append(f"The test plan {plan['document']} was issued in the same run as "
-                          "this report, not agreed before the test.")
+        deviations.append(_same_run(plan))
     deviations += agreement.apply_plan(result, plan)
     written.update(_write_doc(build_report(result, plan, deviations), out, "report"))
+    written["pdf"], written["html"] = written["report_pdf"], written["report_html"]
+    return written
+
+
+def _same_run(plan) -> str:
+    return (f"The test plan {plan['document']} was issued in the same run as this report, not "
+            "agreed before the test.")
+
+
+def _document(result, plan, out: Path, kind: str) -> dict:
+    """Build, render and write the plan (``kind`` "plan") or the report decided with it."""
+    from mtplan.plans import agreement
+    from mtplan.reports.certificate import build_plan, build_report
+
+    if kind == "plan":
+        return _write_doc(build_plan(result, plan), out, "plan")
+    deviations = [_same_run(plan)] + agreement.apply_plan(result, plan)
+    return _write_doc(build_report(result, plan, deviations), out, "report")
+
+
+def _write_both(result, out: Path, plan: dict, n_jobs: int) -> dict:
+    """The plan and the report of one run, each built and rendered in its own process: the
+    report's process decides its own copy of ``result`` with the plan, as the serial path
+    does after the plan was written; ``result`` is then decided here too."""
+    import json
+
+    import joblib
+
+    from mtplan.plans import agreement
+
+    with atomic_write(out / "plan.json", "w", encoding="utf-8") as fh:
+        json.dump(plan, fh, indent=1)
+    parallel = joblib.Parallel(n_jobs=2, batch_size=1)
+    plan_files, report_files = parallel(joblib.delayed(_document)(result, plan, out, kind)
+                                        for kind in ("plan", "report"))
+    agreement.apply_plan(result, plan)
+    written = {**plan_files, **report_files, "plan_json": out / "plan.json"}
     written["pdf"], written["html"] = written["report_pdf"], written["report_html"]
     return written
