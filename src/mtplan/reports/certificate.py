@@ -25,6 +25,7 @@ from mtplan.reports.wording import (
     population_text,
     probability_text,
     rules_text,
+    value_warnings,
 )
 
 __all__ = ["build_report", "build_plan", "overall_result", "measured_frame",
@@ -242,9 +243,10 @@ def _result_rows(k, o) -> list:
     for v in o.verdicts:
         res = v.measured_u
         measured = "-" if v.measured is None else fmt(v.measured, res)
+        achieved = "-" if res is None else fmt_u(2 * res)
         rows.append([str(k), measurand_name(v.description, v.measurand),
                      tolerance_text(v.lower, v.upper, v.unit, v.zone), measured,
-                     "-" if res is None else fmt_u(2 * res), fmt_u(2 * v.u), _interval(v),
+                     f"{achieved} ({fmt_u(2 * v.u)})", _interval(v),
                      probability_text(v.p_conform), _verdict_word(v)])
     return rows
 
@@ -268,7 +270,7 @@ def _as_left_rows(k, o) -> list:
         rows.append([str(k), measurand_name(v.description, v.measurand),
                      tolerance_text(v.lower, v.upper, v.unit, v.zone), _value_text(f),
                      "-" if f is None else _verdict_word(f), _value_text(v), _interval(v),
-                     probability_text(v.p_conform), _verdict_word(v)])
+                     _verdict_word(v)])
     return rows
 
 
@@ -298,7 +300,8 @@ def _results_section(result) -> Section:
     sec = Section("Results as found" + (" and as left" if adjusted else ""), anchor="results")
     sec.blocks.append("Each toleranced measurand as found (before any adjustment), decided "
                       "with the rule and the guard band of the test plan. U achieved: the "
-                      "measurement's own expanded uncertainty (k = 2); U predicted: the plan's. "
+                      "measurement's own expanded uncertainty (k = 2); in parentheses the U "
+                      "the plan predicted. "
                       + ("As left: no adjustment was made during this test; the results as "
                          "found are the results as left." if not adjusted else
                          "As left: test " + ", ".join(map(str, adjusted)) + " was measured "
@@ -313,8 +316,9 @@ def _results_section(result) -> Section:
     if rows:
         sec.blocks.append(Table("Results as found. Tests: " + "; ".join(tests) + ".",
                                 ["test", "measurand", "tolerance", "measured",
-                                 "U achieved", "U predicted", "95 % interval",
-                                 "probability of conformity", "verdict"], rows))
+                                 "U achieved (predicted)", "95 % interval",
+                                 "probability of conformity", "verdict"], rows,
+                                grow=1, size=7.0))
         sec.blocks += rules_text(result.verdicts)
         lines = _probability_lines(result.verdicts)
         if lines:
@@ -327,8 +331,7 @@ def _results_section(result) -> Section:
                                 "(k = 2).", ["test", "measurand", "tolerance", "as found",
                                              "verdict as found", "as left",
                                              "95 % interval as left",
-                                             "probability of conformity as left",
-                                             "verdict as left"], left))
+                                             "verdict as left"], left, grow=1, size=7.0))
         lines = _probability_lines([v for o in result.outcomes for v in o.as_left_verdicts],
                                    " as left")
         if lines:
@@ -422,18 +425,26 @@ def _measured_appendix(k, o) -> Section:
 
     m = o.measured
     det = getattr(m, "determinable", None)
-    rows = []
+    rows, items = [], []
     for j, q in enumerate(m.measurands):
         ok = det is None or bool(det[j])
         u = float(m.std[j]) if ok else None
-        rows.append([measurand_name(q.description, q.name), unit(q.unit),
+        if ok:
+            items.append((q.name, float(m.value[j]), u, float(m.low[j]), float(m.high[j])))
+        rows.append([measurand_name(q.description, q.name),
+                     unit(q.unit),
                      fmt(m.value[j], u) if ok else "n/d", fmt_u(2 * u) if ok else "n/d",
                      f"[{fmt(m.low[j], u)}, {fmt(m.high[j], u)}]" if ok else "-"])
     sec = Section(f"A{k}. {o.spec.label}: every measured quantity", anchor=f"m{k}",
                   appendix=True)
     sec.blocks.append(Table(f"Every measured quantity of test {k} ({m.estimator} estimator).",
                             ["measurand", "unit", "measured", "U (k = 2)", "95 % interval"],
-                            rows))
+                            rows, grow=0))
+    warnings, flagged = value_warnings(items)
+    for row, q in zip(rows, m.measurands, strict=True):
+        row[0] += " *" if q.name in flagged else ""
+    if warnings:
+        sec.blocks += ["* Read these values with care:", warnings]
     sec.blocks += measured_blocks(m)
     return sec
 
@@ -567,7 +578,7 @@ def _plan_test(k, o, plan, study) -> Section:
                          "separated") + f"; condition number {ident.condition_number:.3g}.")
     blocks.append(Table(f"Test {k}: predicted U (k = 2) and the agreed decision rules.",
                         ["measurand", "unit", "tolerance", "U predicted", "TUR",
-                         "guard band w", "PFA", "PFR"], _plan_rows(o, plan)))
+                         "guard band w", "PFA", "PFR"], _plan_rows(o, plan), grow=0))
     blocks += rules_text(o.verdicts)
     populations = [f"{v.measurand} "
                    f"{population_text(prior_text(v.prior, v.unit), v.population_source)}"

@@ -115,7 +115,7 @@ def sweep_figure(table, vary: dict, measurands: list, units: dict, *, xlabel: st
     group_keys = others + (["estimator"] if table["estimator"].nunique() > 1 else [])
     width = min(2.35 * cols + 0.3, 7.4)
     fig, axes = _panels(rows, cols, width, 2.0 * rows + 0.75, dpi=120)
-    xlabel = "\n".join(textwrap.wrap(xlabel or x, int(16 * (width - 0.3) / cols)))
+    xlabel = "\n".join(textwrap.wrap(xlabel or x, int(13 * (width - 0.3) / cols)))
     xs = table[x].astype(float)
     span = float(xs.max() - xs.min()) or 1.0
     for k, name in enumerate(measurands):
@@ -186,7 +186,7 @@ def lever_figure(table, field: str, measurands: list, units: dict, *, estimator:
     rows = math.ceil(n / cols)
     width = 7.0 if cols > 2 else 2.8 * cols + 1.0
     fig = _figure(width, 1.9 * rows + 0.6)
-    xlabel = "\n".join(textwrap.wrap(xlabel, int(16 * width / cols)))
+    xlabel = "\n".join(textwrap.wrap(xlabel, int(13 * width / cols)))
     axes = fig.subplots(rows, cols, squeeze=False)
     ests = [estimator] + [e for e in table["estimator"].unique() if e != estimator]
     xs = table[field].astype(float)
@@ -425,6 +425,8 @@ def estimator_figure(results: dict) -> bytes:
 
 def corner_figure(samples: dict) -> bytes:
     """Pairwise scatter and marginal histograms of posterior samples (label -> array)."""
+    from matplotlib.ticker import MaxNLocator
+
     names = list(samples)[:6]
     n = len(names)
     size = max(1.7 * n + 0.8, 3.6)
@@ -435,6 +437,9 @@ def corner_figure(samples: dict) -> bytes:
         for j, b in enumerate(names):
             ax = axes[i][j]
             ax.tick_params(labelsize=6)
+            # at most 4 ticks a panel: "-12.5-10.0" must not run together
+            ax.xaxis.set_major_locator(MaxNLocator(4))
+            ax.yaxis.set_major_locator(MaxNLocator(4))
             xb = np.asarray(samples[b])
             if j > i:
                 ax.set_visible(False)
@@ -490,9 +495,19 @@ def path_figure(path: dict) -> bytes:
     for j, line in enumerate(path.get("polylines", [])):
         line = np.asarray(line)
         ax.plot(line[:, 0], line[:, 1], lw=1.4, color=_COLORS[j % len(_COLORS)])
-    for name, (x, y) in path.get("points", {}).items():
+    points = {n: (float(x), float(y)) for n, (x, y) in path.get("points", {}).items()}
+    span = max([abs(c) for xy in points.values() for c in xy] + [1e-9])
+    merged: list = []  # points that coincide (within 2 % of the drawing) share one label
+    for name, xy in points.items():
+        near = next((m for m in merged if math.dist(m[1], xy) <= 0.02 * span), None)
+        if near is None:
+            merged.append([[name], xy])
+        else:
+            near[0].append(name)
+    for names, (x, y) in merged:
         ax.plot([x], [y], "o", ms=5, color="k")
-        ax.annotate(name, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
+        ax.annotate(" = ".join(names), (x, y), textcoords="offset points", xytext=(4, 4),
+                    fontsize=8)
     if "view" in path:  # (cx, cy, half-size): keep the drawing on the part that matters
         cx, cy, half = path["view"]
         ax.set_xlim(cx - half, cx + half)
