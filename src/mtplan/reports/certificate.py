@@ -16,6 +16,7 @@ import dataclasses
 import datetime
 import math
 
+from mtplan.plans.decisions import NO_DECISION, NO_FIT
 from mtplan.reports.labels import duration_text, fmt, fmt_u, prior_text, tolerance_text, unit
 from mtplan.reports.model import Document, Figure, Section, Table
 from mtplan.reports.wording import (
@@ -28,8 +29,8 @@ from mtplan.reports.wording import (
     value_warnings,
 )
 
-__all__ = ["build_report", "build_plan", "overall_result", "measured_frame",
-           "RESULTS_RELATE", "END_MARK"]
+__all__ = ["build_report", "build_plan", "overall_result", "final_verdicts", "measured_frame",
+           "VERDICT_SHORT", "RESULTS_RELATE", "END_MARK"]
 
 RESULTS_RELATE = ("The results relate only to the item tested, in the condition and under "
                   "the test conditions stated. This report shall not be reproduced except in "
@@ -94,8 +95,13 @@ _EVALUATION = {"mc": "U of the readings by Monte Carlo",
                "posterior": "U of the readings from the Bayesian posterior"}
 
 
+#: a verdict as a results table shows it: short enough for its column
+VERDICT_SHORT = {NO_DECISION: "no decision (guard band)",
+                 NO_FIT: "no decision (readings do not fit)"}
+
+
 def _verdict_word(v) -> str:
-    return v.verdict
+    return VERDICT_SHORT.get(v.verdict, v.verdict)
 
 
 # ----------------------------------------------------------------------- overall result

@@ -27,7 +27,8 @@ _PAD = 3.0   # table cell padding, each side [pt]
 VERDICT_CLASS = {"conforms": "ok", "does not conform": "bad",
                  "inside the guard band: no decision": "warn", "not determinable": "nd",
                  FIT_NO_DECISION: "warn",
-                 "not measured": "nd"}
+                 "not measured": "nd", "no decision (guard band)": "warn",
+                 "no decision (readings do not fit)": "warn"}
 _VERDICT_COLOUR = {"ok": "#1b5e20", "bad": "#b3261e", "warn": "#8a5a00", "nd": "#555555"}
 
 
