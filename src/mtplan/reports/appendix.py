@@ -294,8 +294,10 @@ def _hook_tables(extras) -> list:
     return out
 
 
-def measured_blocks(measured) -> list:
-    """The readings' evaluation in full: estimate, bias correction, value, u, interval."""
+def measured_blocks(measured, warn: bool = True) -> list:
+    """The readings' evaluation in full: estimate, bias correction, value, u, interval;
+    ``warn``: with the warnings of :func:`~mtplan.reports.wording.value_warnings` (False
+    where the page already gives them)."""
     import numpy as np
 
     n = len(measured.measurands)
@@ -322,7 +324,7 @@ def measured_blocks(measured) -> list:
         measured.uncertainty, measured.uncertainty)
     text = [f"Readings evaluated with the {measured.estimator} estimator; uncertainty: {how}."]
     text += [f"{name}: not determinable: {why}." for name, why in reasons.items()]
-    warnings, flagged = value_warnings(items)
+    warnings, flagged = value_warnings(items) if warn else ([], set())
     for row in rows:
         row[0] += " *" if row[0] in flagged else ""
     text += [f"* {w}" for w in warnings]

@@ -443,15 +443,16 @@ def _measured_appendix(k, o) -> Section:
                      f"[{fmt(m.low[j], u)}, {fmt(m.high[j], u)}]" if ok else "-"])
     sec = Section(f"A{k}. {o.spec.label}: every measured quantity", anchor=f"m{k}",
                   appendix=True)
-    sec.blocks.append(Table(f"Every measured quantity of test {k} ({m.estimator} estimator).",
-                            ["measurand", "unit", "measured", "U (k = 2)", "95 % interval"],
-                            rows, grow=0))
     warnings, flagged = value_warnings(items)
     for row, q in zip(rows, m.measurands, strict=True):
         row[0] += " *" if q.name in flagged else ""
+    sec.blocks.append(Table(f"Every measured quantity of test {k} ({m.estimator} estimator)"
+                            + ("; *: read with care (below)." if warnings else "."),
+                            ["measurand", "unit", "measured", "U (k = 2)", "95 % interval"],
+                            rows, grow=0))
     if warnings:
         sec.blocks += ["* Read these values with care:", warnings]
-    sec.blocks += measured_blocks(m)
+    sec.blocks += measured_blocks(m, warn=False)
     return sec
 
 

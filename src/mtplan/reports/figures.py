@@ -44,12 +44,15 @@ def _figure(w=6.4, h=3.6, *, layout="constrained", dpi=140):
     return Figure(figsize=(w, h), dpi=dpi, layout=layout)
 
 
-def _panels(rows, cols, w, h, *, legend_rows=1, dpi=140):
+def _panels(rows, cols, w, h, *, legend_rows=1, label_lines=1, dpi=140):
     """A grid of panels with fixed margins [in]: much faster than a constrained layout
-    for the many-panel sweeps, with room for a legend below."""
+    for the many-panel sweeps, with room for a legend of ``legend_rows`` below and x
+    labels of ``label_lines`` lines."""
+    more = 0.14 * (label_lines - 1)  # each further line of the x label [in]
+    h = h + more * rows
     fig = _figure(w, h, layout=None, dpi=dpi)
-    left, right, top, bottom = 0.62, 0.12, 0.3, 0.55 + 0.2 * legend_rows  # margins [in]
-    gap_x, gap_y = 0.7, 0.75  # between panels [in]: y labels; x label and the next title
+    left, right, top, bottom = 0.62, 0.12, 0.3, 0.55 + 0.2 * legend_rows + more  # [in]
+    gap_x, gap_y = 0.7, 0.75 + more  # between panels [in]: y labels; x label, next title
     ax_w = (w - left - right - (cols - 1) * gap_x) / cols
     ax_h = (h - top - bottom - (rows - 1) * gap_y) / rows
     fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h,
@@ -114,8 +117,12 @@ def sweep_figure(table, vary: dict, measurands: list, units: dict, *, xlabel: st
     rows = math.ceil(n / cols)
     group_keys = others + (["estimator"] if table["estimator"].nunique() > 1 else [])
     width = min(2.35 * cols + 0.3, 7.4)
-    fig, axes = _panels(rows, cols, width, 2.0 * rows + 0.75, dpi=120)
     xlabel = "\n".join(textwrap.wrap(xlabel or x, int(13 * (width - 0.3) / cols)))
+    series = min(table.groupby(group_keys).ngroups if group_keys else 0, 7)
+    entries = series + (base is not None)
+    legend_rows = max(1, math.ceil(entries / 4))
+    fig, axes = _panels(rows, cols, width, 2.0 * rows + 0.55 + 0.2 * legend_rows,
+                        legend_rows=legend_rows, label_lines=xlabel.count("\n") + 1, dpi=120)
     xs = table[x].astype(float)
     span = float(xs.max() - xs.min()) or 1.0
     for k, name in enumerate(measurands):
