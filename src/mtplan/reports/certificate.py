@@ -16,7 +16,6 @@ import dataclasses
 import datetime
 import math
 
-from mtplan.plans.decisions import NO_DECISION, NO_FIT
 from mtplan.reports.labels import duration_text, fmt, fmt_u, prior_text, tolerance_text, unit
 from mtplan.reports.model import Document, Figure, Section, Table
 from mtplan.reports.wording import (
@@ -27,10 +26,11 @@ from mtplan.reports.wording import (
     probability_text,
     rules_text,
     value_warnings,
+    verdict_short,
 )
 
 __all__ = ["build_report", "build_plan", "overall_result", "final_verdicts", "measured_frame",
-           "VERDICT_SHORT", "RESULTS_RELATE", "END_MARK"]
+           "RESULTS_RELATE", "END_MARK"]
 
 RESULTS_RELATE = ("The results relate only to the item tested, in the condition and under "
                   "the test conditions stated. This report shall not be reproduced except in "
@@ -95,13 +95,8 @@ _EVALUATION = {"mc": "U of the readings by Monte Carlo",
                "posterior": "U of the readings from the Bayesian posterior"}
 
 
-#: a verdict as a results table shows it: short enough for its column
-VERDICT_SHORT = {NO_DECISION: "no decision (guard band)",
-                 NO_FIT: "no decision (readings do not fit)"}
-
-
 def _verdict_word(v) -> str:
-    return VERDICT_SHORT.get(v.verdict, v.verdict)
+    return verdict_short(v.verdict)
 
 
 # ----------------------------------------------------------------------- overall result
@@ -350,9 +345,10 @@ def _results_section(result) -> Section:
         sec.blocks.append(f"The measured {what} without a tolerance: with U in the appendix "
                           "and in results/measured.csv.")
     if result.verdicts:
-        sec.blocks.append(Figure("Measured values (dot, 95 % interval) against the tolerance "
-                                 "(black lines), the guard bands (amber: no decision), the "
-                                 "zones of conformity (green) and non-conformity (red).",
+        sec.blocks.append(Figure("Measured values as found (dot, 95 % interval) against the "
+                                 "tolerance (black lines), the guard bands (amber: no "
+                                 "decision), the zones of conformity (green) and "
+                                 "non-conformity (red).",
                                  figs.acceptance_figure(result.verdicts)))
     return sec
 

@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from mtplan.reports.labels import unit
+from mtplan.reports.wording import verdict_short
 
 __all__ = ["bands_figure", "sweep_figure", "lever_figure", "acceptance_figure", "pareto_figure",
            "budget_figure", "histogram_figure", "estimator_figure", "corner_figure",
@@ -264,6 +265,7 @@ def acceptance_figure(verdicts: list) -> bytes:
                   if x is not None and math.isfinite(x)]
         width = (hi - lo) if lo is not None and hi is not None else max(abs(p) for p in points)
         left = min(points + [(lo if lo is not None else min(points)) - w]) - 0.25 * width
+        left = 0.0 if getattr(v, "zone", None) else left  # a position deviation: >= 0
         right = max(points + [(hi if hi is not None else max(points)) + w]) + 0.25 * width
         a_lo = lo + w if lo is not None else left
         a_hi = hi - w if hi is not None else right
@@ -291,7 +293,7 @@ def acceptance_figure(verdicts: list) -> bytes:
         ax.set_ylim(0, 1.0)
         ax.set_yticks([])
         ax.tick_params(labelsize=7)
-        ax.set_title(f"{v.measurand}: {v.verdict}", fontsize=7.5, loc="left")
+        ax.set_title(f"{v.measurand}: {verdict_short(v.verdict)}", fontsize=7.5, loc="left")
         ax.set_xlabel(f"{v.measurand} [{unit(v.unit)}]", fontsize=7)
         ax.xaxis.set_major_locator(_max_n(5))
     for k in range(n, rows * cols):

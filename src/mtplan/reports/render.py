@@ -16,6 +16,7 @@ from mtplan._io import atomic_write, output_problem
 from mtplan._validate import InvalidInput
 from mtplan.plans.agreement import FIT_NO_DECISION
 from mtplan.reports.model import Document, Figure, Section, Table
+from mtplan.reports.wording import VERDICT_SHORT
 
 __all__ = ["render_html", "render_pdf", "write_report", "column_widths", "VERDICT_CLASS"]
 
@@ -27,8 +28,8 @@ _PAD = 3.0   # table cell padding, each side [pt]
 VERDICT_CLASS = {"conforms": "ok", "does not conform": "bad",
                  "inside the guard band: no decision": "warn", "not determinable": "nd",
                  FIT_NO_DECISION: "warn",
-                 "not measured": "nd", "no decision (guard band)": "warn",
-                 "no decision (readings do not fit)": "warn"}
+                 "not measured": "nd"}
+VERDICT_CLASS.update({short: VERDICT_CLASS[full] for full, short in VERDICT_SHORT.items()})
 _VERDICT_COLOUR = {"ok": "#1b5e20", "bad": "#b3261e", "warn": "#8a5a00", "nd": "#555555"}
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 __all__ = ["METHOD_SOURCES", "method_citation", "customer_words", "measurand_name",
-           "probability_text", "rule_wording", "rules_text", "population_text", "value_warnings",
+           "probability_text", "rule_wording", "rules_text", "population_text", "value_warnings", "VERDICT_SHORT", "verdict_short",
            "GLOSSARY"]
 
 #: the source method of each procedure: (patent number or "", title in English)
@@ -103,6 +103,18 @@ def rules_text(verdicts) -> list:
         key = rule_wording(v.rule, v.guard_band)
         groups.setdefault(key, []).append(v.measurand)
     return [f"Decision rule for {', '.join(names)}: {text}." for text, names in groups.items()]
+
+
+#: a verdict as a table column or a panel title shows it (the full wording stays in the
+#: CSV and the rules)
+VERDICT_SHORT = {"inside the guard band: no decision": "no decision (guard band)",
+                 "no decision: the readings do not fit the model":
+                     "no decision (readings do not fit)"}
+
+
+def verdict_short(verdict: str) -> str:
+    """A verdict short enough for a table column or a figure panel's title."""
+    return VERDICT_SHORT.get(verdict, verdict)
 
 
 def value_warnings(items, *, bound: bool = True, resolution: bool = True) -> tuple[list, set]:
