@@ -406,3 +406,80 @@ def test_a_value_rounding_to_zero_has_no_sign():
 
     t = Table("zeros", ["a", "b", "c"], [["-0.00", "-0", "-0.05"]])
     assert t.rows == [["0.00", "0", "-0.05"]]
+
+
+# ------------------------------------------------------------------ words and layout
+def test_values_cut_at_a_bound_or_not_resolved_are_warned():
+    """The line-laser case: alpha_x by the source method, mean 14845 urad with interval
+    [0, 46610] against a true 1000, is warned twice; a resolved value is not."""
+    from mtplan.reports.wording import value_warnings
+
+    lines, flagged = value_warnings([("alpha_x", 1000.0, 16014.0, 0.0, 46610.0),
+                                     ("alpha_y", -2000.0, 2.7, -2005.4, -1994.4),
+                                     ("zero", 0.0, 1.0, -2.0, 2.0)])
+    assert flagged == {"alpha_x"}
+    assert "physical bound 0" in lines[0] and "not resolved" in lines[1]
+    cut, _ = value_warnings([("alpha_x", 1000.0, 16014.0, 0.0, 46610.0)], resolution=False)
+    assert len(cut) == 1 and "bound" in cut[0]
+
+
+def test_the_simulation_table_warns_where_an_estimator_is_cut_or_blind():
+    from types import SimpleNamespace
+
+    from mtplan.reports.appendix import _uncertainty_table
+    from mtplan.reports.model import Table
+
+    def result(mean, std, low, high):
+        return SimpleNamespace(
+            measurands=[SimpleNamespace(name="alpha_x", unit="urad"),
+                        SimpleNamespace(name="alpha_z", unit="urad")],
+            true=np.array([1000.0, 1500.0]), bias=np.asarray(mean) - [1000.0, 1500.0],
+            mc=SimpleNamespace(mean=np.asarray(mean), std=np.asarray(std),
+                               low=np.asarray(low), high=np.asarray(high), trials=400,
+                               digits=None, coverage=0.95, converged=True))
+
+    outcome = SimpleNamespace(gum=None, recommended="pattern", results={
+        "patent": result([14845.0, 0.0], [16014.0, 1443.0], [0.0, -2375.0], [46610.0, 2375.0]),
+        "pattern": result([1004.0, 1500.0], [166.0, 40.0], [679.0, 1424.0], [1323.0, 1579.0])})
+    blocks = _uncertainty_table(outcome)
+    table = blocks[0]
+    assert isinstance(table, Table)
+    marked = [r[:2] for r in table.rows if r[1].endswith(" *")]
+    assert marked == [["patent", "alpha_x *"], ["patent", "alpha_z *"]]
+    text = " ".join(blocks[2])
+    assert "alpha_x (patent): the interval ends at the physical bound 0" in text
+    assert "alpha_z (patent)" in text and "pattern" not in text
+
+
+def test_results_table_names_wrap_at_most_twice(small_result, small_report):
+    """Every measurand's name in the results table fits its column in two lines."""
+    import json as _json
+
+    from reportlab.lib.utils import simpleSplit
+
+    from mtplan.plans.agreement import apply_plan
+    from mtplan.reports.certificate import build_report
+    from mtplan.reports.model import Table
+    from mtplan.reports.render import _FONT, _PAD, _register_fonts, _table_size, column_widths
+
+    result = copy.deepcopy(small_result)
+    plan = _json.loads((small_report / "plan.json").read_text())
+    apply_plan(result, plan)
+    doc = build_report(result, plan)
+    results = next(s for s in doc.sections if s.anchor == "results")
+    (table,) = [b for b in results.blocks if isinstance(b, Table)]
+    _register_fonts()
+    size = _table_size(table, 470.0)
+    width = column_widths(table, 470.0, size)[1] - 2 * _PAD - 1
+    for row in table.rows:
+        assert len(simpleSplit(row[1], _FONT, size, width)) <= 2, row[1]
+
+
+def test_coinciding_path_points_share_one_label(captured_figures):
+    from mtplan.reports import figures
+
+    figures.path_figure({"points": {"p1": (0.0, -250.0), "p2": (0.0, 250.0),
+                                    "d3": (0.5, -250.0)}})
+    (fig,) = captured_figures
+    labels = sorted(t.get_text() for t in fig.axes[0].texts)
+    assert labels == ["p1 = d3", "p2"]

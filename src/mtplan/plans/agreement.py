@@ -47,6 +47,9 @@ def declared_rules(study) -> list[dict]:
                         "rule": str(a.get("rule", "simple")), "prior": a.get("prior"),
                         "population_source": a.get("population_source", ""),
                         "coverage": study.coverage})
+            if "position" in a:  # a diameter zone (ISO 1101): what it is a zone of
+                out[-1].update({"position": list(a["position"]),
+                                "nominal": [float(x) for x in a["nominal"]]})
     return out
 
 
@@ -137,7 +140,7 @@ def check_study(study, plan) -> None:
             raise InvalidInput([f"The study tolerances {key[2]} of {key[0]} ({key[1]}), "
                                 f"which plan {number} does not; issue a new plan."])
         p = planned[key]
-        for name in (*_DECLARED, "population_source", "coverage"):
+        for name in (*_DECLARED, "population_source", "coverage", "position", "nominal"):
             if r.get(name) != p.get(name):
                 raise InvalidInput([f"{key[0]} {key[2]} {name}: plan {number} says "
                                     f"{p.get(name)!r}, the study {r.get(name)!r}; the rules "
@@ -160,22 +163,15 @@ def p_conform_measured(value, u, lower, upper) -> float | None:
     return max(0.0, cdf(hi) - cdf(lo))
 
 
-def _fit_failure(outcome) -> tuple[str, str] | None:
-    """(verdict, why) when the readings of a test do not fit its model (the fit check of
-    their evaluation, :func:`mtplan.plans.decisions.fit_verdict`), else None."""
-    from mtplan.plans.decisions import fit_verdict
-
-    measured = outcome.measured
-    return None if measured is None else fit_verdict(measured.fit)
-
-
 def apply_plan(result, plan) -> list[str]:
     """Decide every toleranced measurand of a computed study with the plan's guard bands.
 
     The verdicts of ``result`` are updated in place: guard band, acceptance limits, planned
     u and risks from the plan; the probability of conformity from the measurement alone
-    (``p_conform``; the population's stays in ``p_conform_population``). Readings that do
-    not fit the model (:func:`_fit_failure`) get no verdict: :data:`FIT_NO_DECISION`.
+    (``p_conform``; the population's stays in ``p_conform_population``; a position zone's
+    from its own samples). The as-left verdicts (readings after an adjustment) are decided
+    the same way. Readings that do not fit the model
+    (:func:`~mtplan.plans.decisions.fit_verdict`) get no verdict: :data:`FIT_NO_DECISION`.
 
     Returns
     -------
@@ -183,36 +179,48 @@ def apply_plan(result, plan) -> list[str]:
         The deviations from the plan found on the way (a measurement whose own U exceeds
         the predicted one, a guard band the study would now compute differently).
     """
-    from mtplan.plans.decisions import NOT_DETERMINABLE, NOT_MEASURED, decide
-
     planned = {(r["procedure"], r["test"], r["measurand"]): r for r in plan["rules"]}
     deviations = []
     for o in result.outcomes:
-        misfit = _fit_failure(o)
-        for v in o.verdicts:
-            r = planned[(v.procedure, v.label, v.measurand)]
-            if v.p_conform_population is None:  # once: apply_plan may run again
-                v.p_conform_population = v.p_conform
-            if r["guard_band"] is None:  # the plan could not fix a rule for it
-                v.verdict, v.p_conform = NOT_DETERMINABLE, None
-                continue
-            if not math.isclose(r["guard_band"], v.guard_band, rel_tol=1e-9, abs_tol=1e-12):
-                deviations.append(f"{v.measurand}: this run's planned set-up gives a guard band "
-                                  f"of {v.guard_band:.4g} {v.unit}; the plan's "
-                                  f"{r['guard_band']:.4g} {v.unit} is applied.")
-            v.u, v.guard_band = r["u_planned"], r["guard_band"]
-            v.acceptance_limits = (r["acceptance_lower"], r["acceptance_upper"])
-            v.pfa, v.pfr, v.tur = r["pfa"], r["pfr"], r["tur"]
-            v.p_conform = p_conform_measured(v.measured, v.measured_u, v.lower, v.upper)
-            if v.verdict in (NOT_MEASURED, NOT_DETERMINABLE) or v.measured is None:
-                continue
-            if misfit is not None:
-                v.verdict, v.reason = misfit
-                continue
-            v.verdict = decide(v.measured, v.lower, v.upper, v.guard_band)
-            if v.measured_u is not None and v.measured_u > 1.1 * v.u:
-                deviations.append(f"{v.measurand}: the measurement's U "
-                                  f"({2 * v.measured_u:.3g} {v.unit}) exceeds the plan's "
-                                  f"predicted U ({2 * v.u:.3g} {v.unit}) that set the guard "
-                                  "band.")
+        for verdicts, measured, when in ((o.verdicts, o.measured, ""),
+                                         (getattr(o, "as_left_verdicts", []),
+                                          getattr(o, "as_left", None), " as left")):
+            deviations += _apply(verdicts, measured, planned, when)
+    return deviations
+
+
+def _apply(verdicts, measured, planned, when) -> list[str]:
+    """:func:`apply_plan` for the verdicts of one evaluation of a test's readings."""
+    from mtplan.plans.decisions import NOT_DETERMINABLE, NOT_MEASURED, decide, fit_verdict
+
+    misfit = None if measured is None else fit_verdict(measured.fit)
+    deviations = []
+    for v in verdicts:
+        r = planned[(v.procedure, v.label, v.measurand)]
+        if v.p_conform_population is None:  # once: apply_plan may run again
+            v.p_conform_population = v.p_conform
+        if r["guard_band"] is None:  # the plan could not fix a rule for it
+            v.verdict, v.p_conform = NOT_DETERMINABLE, None
+            continue
+        if not math.isclose(r["guard_band"], v.guard_band, rel_tol=1e-9,
+                            abs_tol=1e-12) and not when:
+            deviations.append(f"{v.measurand}: this run's planned set-up gives a guard band "
+                              f"of {v.guard_band:.4g} {v.unit}; the plan's "
+                              f"{r['guard_band']:.4g} {v.unit} is applied.")
+        v.u, v.guard_band = r["u_planned"], r["guard_band"]
+        v.acceptance_limits = (r["acceptance_lower"], r["acceptance_upper"])
+        v.pfa, v.pfr, v.tur = r["pfa"], r["pfr"], r["tur"]
+        v.p_conform = (v.p_conform_samples if v.p_conform_samples is not None else
+                       p_conform_measured(v.measured, v.measured_u, v.lower, v.upper))
+        if v.verdict in (NOT_MEASURED, NOT_DETERMINABLE) or v.measured is None:
+            continue
+        if misfit is not None:
+            v.verdict, v.reason = misfit
+            continue
+        v.verdict = decide(v.measured, v.lower, v.upper, v.guard_band)
+        if v.measured_u is not None and v.measured_u > 1.1 * v.u:
+            deviations.append(f"{v.measurand}{when}: the measurement's U "
+                              f"({2 * v.measured_u:.3g} {v.unit}) exceeds the plan's "
+                              f"predicted U ({2 * v.u:.3g} {v.unit}) that set the guard "
+                              "band.")
     return deviations

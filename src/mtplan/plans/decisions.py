@@ -32,7 +32,7 @@ import numpy as np
 from mtplan._validate import InvalidInput
 
 __all__ = ["K", "VERDICTS", "Verdict", "LeverEffect", "SummaryRow", "recommend_estimator",
-           "key_measurands", "conformity", "decide", "fit_verdict", "lever_effects", "dominant_sources",
+           "key_measurands", "conformity", "position_verdict", "decide", "fit_verdict", "lever_effects", "dominant_sources",
            "estimator_comparison", "u_targets", "shown_setup", "summary_rows"]
 
 #: coverage factor of the expanded uncertainty U = k u (ISO 14253-1, JCGM 106)
@@ -84,6 +84,13 @@ class Verdict:
         One of :data:`VERDICTS`.
     reason : str
         Why a verdict is "not determinable", or a caution about the decision.
+    p_conform_samples : float or None
+        The probability of conformity from the measured value's own samples (a position
+        zone, whose deviation is not normal); used instead of the normal one.
+    zone : dict or None
+        For a position tolerance as a diameter zone (ISO 1101): ``position`` (the two
+        coordinate measurands), ``nominal`` and ``diameter``; the measurand is then the
+        position deviation ``2 sqrt(dx^2 + dy^2)`` with the tolerance 0 to ``diameter``.
     """
 
     procedure: str
@@ -115,6 +122,8 @@ class Verdict:
     population_source: str = ""
     verdict: str = NOT_MEASURED
     reason: str = ""
+    p_conform_samples: float | None = None
+    zone: dict | None = None
 
     @property
     def U(self) -> float:  # noqa: N802 - the symbol of ISO 14253-1
@@ -339,6 +348,9 @@ def conformity(procedure: str, label: str, specs: list, result, measured=None) -
 
     out = []
     for spec in specs:
+        if "position" in spec:
+            out.append(position_verdict(procedure, label, spec, result, measured))
+            continue
         name = spec["measurand"]
         i = [m.name for m in result.measurands].index(name)
         m = result.measurands[i]
@@ -381,6 +393,108 @@ def conformity(procedure: str, label: str, specs: list, result, measured=None) -
                             f"u ({u:.3g} {m.unit}) that set the guard band")
         out.append(v)
     return out
+
+
+# ----------------------------------------------------------------------- position (ISO 1101)
+def _joint_samples(measured, names) -> tuple[np.ndarray, str]:
+    """Samples (n, 2) of the measured values of two measurands [display unit] and how they
+    were drawn: the posterior's draws, or the Monte Carlo's estimation errors about the
+    value (the bias correction's own uncertainty added as an independent normal term), or,
+    where the Monte Carlo kept no values, a normal distribution with the covariance."""
+    index = [[m.name for m in measured.measurands].index(n) for n in names]
+    value = np.asarray(measured.value, dtype=float)[index]
+    std = np.asarray(measured.std, dtype=float)[index]
+    rng = np.random.default_rng(np.random.SeedSequence(
+        measured.seed if measured.seed is not None else 0, spawn_key=(1101,)))
+    details = measured.details
+    if measured.uncertainty == "posterior":
+        return (np.column_stack([np.asarray(details.samples[n], dtype=float) for n in names]),
+                "posterior draws")
+    kept = [details.mc.samples(n) for n in names]
+    if any(k is None for k in kept):
+        cov = np.asarray(measured.covariance, dtype=float)[np.ix_(index, index)]
+        return (rng.multivariate_normal(value, cov, size=200_000),
+                "a normal distribution with the measured covariance")
+    s = np.column_stack(kept)
+    y = value - (s - s.mean(axis=0))
+    extra = np.sqrt(np.maximum(std**2 - y.var(axis=0, ddof=1), 0.0))
+    return y + rng.standard_normal(y.shape) * extra, "Monte Carlo samples"
+
+
+def _shortest(x: np.ndarray, coverage: float) -> tuple[float, float]:
+    """Shortest interval holding ``coverage`` of the samples ``x`` (JCGM 101 7.7.2)."""
+    x = np.sort(x)
+    n = x.size
+    m = max(1, min(n - 1, int(round(coverage * n))))
+    widths = x[m:] - x[:-m]
+    j = int(np.argmin(widths))
+    return float(x[j]), float(x[j + m])
+
+
+def position_verdict(procedure, label, spec, result, measured=None) -> Verdict:
+    """The verdict of a position tolerance as a diameter zone (ISO 1101).
+
+    The measurand is the position deviation ``P = 2 sqrt(dx^2 + dy^2)`` of the two
+    coordinates ``spec["position"]`` from ``spec["nominal"]``, toleranced from 0 to
+    ``spec["diameter"]``. Its distribution is not normal (Rice-like near zero): value,
+    u, the shortest 95 % interval and the probability of conformity come from the measured
+    coordinates' joint samples (:func:`_joint_samples`). The planned u, which sets the
+    guard band, is that of P at the zone's edge, where P moves with the coordinates'
+    radial error: twice the standard deviation along the planned covariance's major axis.
+    """
+    from mtplan.plans import acceptance as acc
+
+    names, nominal = list(spec["position"]), np.asarray(spec["nominal"], dtype=float)
+    d = float(spec["diameter"])
+    idx = [[m.name for m in result.measurands].index(n) for n in names]
+    unit_ = result.measurands[idx[0]].unit
+    cov = np.asarray(result.mc.cov, dtype=float)[np.ix_(idx, idx)]
+    u = 2.0 * math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0))
+    prior = acc.parse_prior(spec["prior"]) if spec.get("prior") else None
+    rule = str(spec.get("rule", "simple"))
+    v = Verdict(procedure=procedure, label=label, measurand=spec["measurand"], unit=unit_,
+                description=f"position of ({', '.join(names)}), diameter zone",
+                estimator=result.estimator, lower=None, upper=d, u=u, rule=rule, prior=prior,
+                prior_text=spec.get("prior"),
+                population_source=str(spec.get("population_source", "")),
+                zone={"position": names, "nominal": [float(x) for x in nominal],
+                      "diameter": d})
+    verdict, reason = None, ""
+    if measured is None:
+        v.verdict, v.reason = NOT_MEASURED, "no readings"
+    else:
+        det = np.asarray(measured.determinable)
+        j = [[m.name for m in measured.measurands].index(n) for n in names]
+        value = np.asarray(measured.value, dtype=float)[j]
+        how = "posterior" if measured.uncertainty == "posterior" else "Monte Carlo"
+        v.measured_source = f"readings, {measured.estimator} estimator, {how}"
+        if not (det[j].all() and np.isfinite(value).all()):
+            v.verdict, v.reason = NOT_DETERMINABLE, "a coordinate is not determinable"
+        else:
+            xy, drawn = _joint_samples(measured, names)
+            p = 2.0 * np.hypot(xy[:, 0] - nominal[0], xy[:, 1] - nominal[1])
+            v.measured = float(2.0 * np.hypot(*(value - nominal)))
+            v.measured_u = float(p.std(ddof=1))
+            v.measured_low, v.measured_high = _shortest(p, measured.coverage)
+            v.p_conform_samples = float(np.mean(p <= d))
+            v.measured_source += f"; P from {p.size} {drawn}"
+            verdict, reason = fit_verdict(getattr(measured, "fit", None)) or (None, "")
+    if not u > 0:
+        v.verdict, v.reason = NOT_DETERMINABLE, "the planned coordinates have no uncertainty"
+        return v
+    try:
+        plan = acc.plan_acceptance(None, d, u, prior=prior, rule=acc.parse_rule(rule),
+                                   measured=v.measured)
+    except InvalidInput as exc:
+        v.verdict, v.reason = NOT_DETERMINABLE, " ".join(exc.problems)
+        return v
+    v.guard_band, v.acceptance_limits = plan.guard_band, tuple(plan.acceptance_limits)
+    v.pfa, v.pfr, v.conditional_pfa = plan.pfa, plan.pfr, plan.conditional_pfa
+    v.tur, v.p_conform = plan.tur, v.p_conform_samples
+    if v.measured is not None:
+        v.verdict = verdict or decide(v.measured, None, d, v.guard_band)
+        v.reason = reason
+    return v
 
 
 # ----------------------------------------------------------------------- levers

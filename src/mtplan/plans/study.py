@@ -89,18 +89,25 @@ CONDITION_KEYS = {"ambient_temperature_c": ("ambient temperature", "temperature"
 UNHONOURED_STANDARDS = {
     "ISO 230-2": "the bidirectional positioning values A, E, M, R and B per axis from "
                  "repeated runs in both directions",
-    "ISO 1101": "a position tolerance as a diameter zone",
+    "ISO 1101": "a position tolerance as a diameter zone (an acceptance table with "
+                "'position', 'nominal' and 'diameter')",
 }
 _INSTRUMENT_KEYS = {"name", "serial", "certificate", "calibration_due", "traceability",
                     "used_in"}
 _PROC_KEYS = {"name", "label", "setup", "truth", "estimators", "sweep", "plan", "acceptance",
-              "readings", "trials", "digits", "max_trials", "budget", "budget_trials", "notes",
-              "standards"}
+              "readings", "as_left", "trials", "digits", "max_trials", "budget", "budget_trials",
+              "notes", "standards"}
 _SWEEP_KEYS = {"vary", "trials", "estimators"}
 _PLAN_KEYS = {"targets", "vary", "k", "estimator", "trials"}
 _ACCEPT_KEYS = {"measurand", "lower", "upper", "prior", "rule", "measured",
                 "population_source"}
+#: a position tolerance as a diameter zone (ISO 1101): the deviation 2 sqrt(dx^2 + dy^2) of
+#: two coordinate measurands from their nominal within the zone's diameter (their unit)
+_POSITION_KEYS = {"measurand", "position", "nominal", "diameter", "prior", "rule",
+                  "population_source"}
 _READ_KEYS = {"file", "uncertainty", "estimator", "trials", "options", "allow_unconverged"}
+#: readings taken again after an adjustment, evaluated as the readings are
+_AS_LEFT_KEYS = {"file", "adjustment"}
 
 
 def _unknown(problems, where, table, allowed):
@@ -144,6 +151,7 @@ class ProcedureStudy:
     plan: dict | None = None
     acceptance: list = field(default_factory=list)    # dicts: one per toleranced measurand
     readings: dict | None = None
+    as_left: dict | None = None       # file (readings after adjustment), adjustment (text)
     trials: int | None = None
     digits: int | None = None
     max_trials: int | None = None
@@ -387,13 +395,17 @@ def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
                                        f"{where} {what}")
     acceptance = _acceptance(entry.get("acceptance"), measurands, path, where, problems)
     readings = _readings(proc, entry.get("readings"), path, where, problems)
+    as_left = _as_left(entry.get("as_left"), readings, path, where, problems)
     standards = entry.get("standards", [])
     if not (isinstance(standards, list) and all(isinstance(x, str) for x in standards)):
         problems.append(f"{where} 'standards' must be a list of texts. Got {standards!r} "
                         "instead.")
         standards = []
+    positioned = any("position" in a for a in acceptance)
     for cited in standards:
         for std, needs in UNHONOURED_STANDARDS.items():
+            if std == "ISO 1101" and positioned:  # a position zone honours it
+                continue
             if cited.replace("\u00a0", " ").startswith(std):
                 problems.append(f"{where} cites {cited!r}, which requires {needs}; this "
                                 "procedure does not evaluate that: remove it from "
@@ -401,7 +413,8 @@ def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
     return ProcedureStudy(name=name, label=str(entry.get("label", proc.title)), setup=setup,
                           truth=truth, estimators=estimators, sweeps=list(sweeps), plan=plan,
                           acceptance=acceptance, readings=readings,
-                          trials=entry.get("trials"), digits=entry.get("digits"),
+                          as_left=as_left, trials=entry.get("trials"),
+                          digits=entry.get("digits"),
                           max_trials=entry.get("max_trials"), budget=entry.get("budget", "gum"),
                           budget_trials=entry.get("budget_trials", 2000),
                           notes=str(entry.get("notes", "")), standards=list(standards))
@@ -476,7 +489,8 @@ def _acceptance(tables, measurands, path, where, problems) -> list:
     out, seen = [], set()
     for j, acc in enumerate(tables):
         at = f"{where} acceptance" + (f" #{j + 1}" if len(tables) > 1 else "")
-        _unknown(problems, at, acc, _ACCEPT_KEYS)
+        if "position" not in acc:
+            _unknown(problems, at, acc, _ACCEPT_KEYS)
         prior = acc.get("prior")
         if isinstance(prior, str) and path is not None and not Path(prior).is_absolute() \
                 and not prior.lower().startswith(("normal:", "gamma:")):
@@ -487,6 +501,9 @@ def _acceptance(tables, measurands, path, where, problems) -> list:
                     parse(acc[key])
                 except InvalidInput as exc:
                     problems += [f"{at}: {p}" for p in exc.problems]
+        if "position" in acc:
+            out.append(_position(acc, measurands, seen, at, problems))
+            continue
         name = acc.get("measurand")
         if name not in measurands:
             problems.append(f"{at} names measurand {name!r}, which is no measurand "
@@ -509,6 +526,58 @@ def _acceptance(tables, measurands, path, where, problems) -> list:
             problems.append(f"{at} 'upper' must be > 'lower' = {lo!r}. Got {hi!r} instead.")
         out.append(acc)
     return out
+
+
+def _position(acc, measurands, seen, at, problems) -> dict:
+    """A position tolerance as a diameter zone (ISO 1101): ``position`` (two coordinate
+    measurands), ``nominal`` (their nominal values), ``diameter`` (the zone, > 0, in their
+    unit) and a name (``measurand``, default ``position``) that no measurand has; its
+    prior and rule are checked by :func:`_acceptance`."""
+    _unknown(problems, at, acc, _POSITION_KEYS)
+    acc = {"measurand": "position", **acc}
+    pos, nominal, d = acc.get("position"), acc.get("nominal"), acc.get("diameter")
+    if not (isinstance(pos, list) and len(pos) == 2 and all(p in measurands for p in pos)
+            and pos[0] != pos[1]):
+        problems.append(f"{at} 'position' must name two different coordinate measurands "
+                        f"({', '.join(sorted(measurands))}). Got {pos!r} instead.")
+    if not (isinstance(nominal, list) and len(nominal) == 2
+            and all(isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+                    for x in nominal)):
+        problems.append(f"{at} 'nominal' must be the two coordinates' nominal values "
+                        f"[x, y]. Got {nominal!r} instead.")
+    if not (isinstance(d, int | float) and not isinstance(d, bool) and math.isfinite(d)
+            and d > 0):
+        problems.append(f"{at} 'diameter' must be a number > 0 (the zone's diameter in the "
+                        f"coordinates' unit). Got {d!r} instead.")
+    name = acc["measurand"]
+    if not isinstance(name, str) or name in measurands or name in seen:
+        problems.append(f"{at} 'measurand' names the position {name!r}, which must be a new "
+                        "name (no measurand of the procedure and no other tolerance's).")
+    seen.add(name)
+    # a deviation is >= 0: the zone is a one-sided tolerance, 0 to the diameter
+    return {**acc, "lower": None, "upper": float(d) if isinstance(d, int | float) else None}
+
+
+def _as_left(table, readings, path, where, problems) -> dict | None:
+    """``[procedure.as_left]``: readings taken again after an adjustment (``file``, same
+    format as the readings), evaluated and decided as the readings are; ``adjustment``
+    says what was adjusted."""
+    if _subtable(problems, where, "as_left", table, _AS_LEFT_KEYS) is None:
+        return None
+    if readings is None:
+        problems.append(f"{where} 'as_left' needs the readings as found ([procedure.readings]) "
+                        "too.")
+    note = table.get("adjustment", "")
+    if not isinstance(note, str):
+        problems.append(f"{where} as_left 'adjustment' must be text. Got {note!r} instead.")
+    f = table.get("file")
+    rp = Path(f) if isinstance(f, str) and f else None
+    if rp is not None and not rp.is_absolute() and path is not None:
+        rp = path.parent / rp
+    if rp is None or not rp.exists():
+        problems.append(f"{where} as_left file {f!r} does not exist.")
+        return table
+    return {**table, "file": rp}
 
 
 def _readings(proc, readings, path, where, problems) -> dict | None:
@@ -585,6 +654,8 @@ class ProcedureOutcome:
     setup_shown: dict = field(default_factory=dict)
     duration_s: float = math.nan
     budget_estimator: str = ""
+    as_left: object | None = None      # readings after adjustment, evaluated
+    as_left_verdicts: list = field(default_factory=list)
 
 
 @dataclass
@@ -640,6 +711,8 @@ def _provenance(study: Study, command: str | None) -> dict:
             versions[pkg] = "not installed"
     readings = [(ps.label, str(ps.readings["file"]), _sha256(ps.readings["file"]))
                 for ps in study.procedures if ps.readings is not None]
+    readings += [(f"{ps.label} (as left)", str(ps.as_left["file"]),
+                  _sha256(ps.as_left["file"])) for ps in study.procedures if ps.as_left]
     return {
         "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "command": command or "(called from Python)",
@@ -695,8 +768,9 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
         key = decisions.key_measurands(results[ps.estimators[0]].measurands,
                                        [a["measurand"] for a in ps.acceptance], targeted)
         partial[i] = (results, key, decisions.recommend_estimator(results, key))
-        return [(kind, i, partial[i][2]) for kind in ("readings", "budget")
-                if kind == "budget" or (readings and ps.readings is not None)]
+        return [(kind, i, partial[i][2]) for kind in ("readings", "as_left", "budget")
+                if kind == "budget" or (readings and ps.readings is not None
+                                        and (kind == "readings" or ps.as_left is not None))]
 
     first = [("mc", i, est) for i, ps in enumerate(procs) for est in ps.estimators]
     first += [("sweep", i, j) for i, ps in enumerate(procs) for j in range(len(ps.sweeps))]
@@ -715,6 +789,10 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
         decider = results.get(getattr(outcome.measured, "estimator", None), results[recommended])
         outcome.verdicts = decisions.conformity(ps.name, ps.label, ps.acceptance, decider,
                                                 outcome.measured)
+        outcome.as_left = done.get(("as_left", i, recommended))  # after an adjustment
+        if outcome.as_left is not None:
+            outcome.as_left_verdicts = decisions.conformity(ps.name, ps.label, ps.acceptance,
+                                                            decider, outcome.as_left)
         _advise(outcome, _model(ps.name), i + 1)
         outcomes.append(outcome)
     if bar is not None:
@@ -806,6 +884,8 @@ def _stage_work(kind, ps, study, arg):
         return plan, _identifiability(proc, ps), _extras(proc, ps)
     if kind == "budget":
         return _run_budget(proc, ps, study, arg)
+    if kind == "as_left":
+        return _run_measured(proc, ps, study, arg, ps.as_left["file"])
     return _run_measured(proc, ps, study, arg)
 
 
@@ -881,7 +961,7 @@ def _count_steps(study):
     n = 0
     for ps in study.procedures:
         n += len(ps.estimators) + 1 + len(ps.sweeps)
-        n += sum(x is not None for x in (ps.plan, ps.readings))
+        n += sum(x is not None for x in (ps.plan, ps.readings, ps.as_left))
     return n
 
 
@@ -914,12 +994,13 @@ def _run_plan(proc, ps, study):
         return " ".join(exc.problems)
 
 
-def _run_measured(proc, ps, study, recommended):
-    """The readings evaluated, by default with the estimator the study recommends."""
+def _run_measured(proc, ps, study, recommended, file=None):
+    """The readings (or those of ``file``, taken after an adjustment) evaluated, by default
+    with the estimator the study recommends."""
     from mtplan.evaluation import measured
 
     spec = ps.readings
-    readings = measured.read_readings(proc, ps.setup, spec["file"])
+    readings = measured.read_readings(proc, ps.setup, file or spec["file"])
     return measured.estimate_measured(proc, ps.setup, readings,
                                       estimator=spec.get("estimator") or recommended,
                                       uncertainty=spec.get("uncertainty", "mc"),
@@ -989,6 +1070,8 @@ def study_cache_key(study: Study, readings: bool = True) -> str:
     for ps in study.procedures:
         if ps.readings is not None and readings:
             digest.update(f"{ps.name} {_sha256(ps.readings['file'])}\n".encode())
+            if ps.as_left is not None:
+                digest.update(f"{ps.name} as left {_sha256(ps.as_left['file'])}\n".encode())
     package = Path(__file__).resolve().parent.parent
     for path in sorted(package.rglob("*")):
         if path.is_file() and "__pycache__" not in path.parts:

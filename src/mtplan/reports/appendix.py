@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from mtplan.reports import figures as figs
 from mtplan.reports.model import Figure, Section, Table
-from mtplan.reports.wording import customer_words
-from mtplan.reports.labels import field_label, field_value, fmt, fmt_u, unit
+from mtplan.reports.wording import customer_words, value_warnings
+from mtplan.reports.labels import duration_text, field_label, field_value, fmt, fmt_u, unit
 
 __all__ = ["procedure_section", "provenance_section", "measured_blocks"]
 
@@ -23,7 +23,7 @@ def procedure_section(k, outcome, measured: bool = True) -> tuple[Section, dict]
     sec.blocks.append(f"Procedure: {outcome.title} ({ps.name}). Estimators compared: "
                       f"{', '.join(ps.estimators)}; recommended: {outcome.recommended}.")
     sec.blocks.append(_setup_table(ps))
-    sec.blocks.append(_uncertainty_table(outcome))
+    sec.blocks += _uncertainty_table(outcome)
     first = outcome.results[outcome.recommended]
     shown, more = _panel_names(outcome, 8, f"results/{ps.name}_{k}_uncertainty.csv")
     sec.blocks.append(Figure(f"Monte Carlo distributions of the measurands "
@@ -95,11 +95,14 @@ def _setup_table(ps) -> Table:
         rows.append([k, shown + mark, kind, customer_words(docs.get(k, ""))])
     return Table("Set-up (* differs from the default; lever: chosen by the engineer, "
                  "property: of the machine, workpiece or instrument)",
-                 ["field", "value", "kind", "meaning"], rows)
+                 ["field", "value", "kind", "meaning"], rows, grow=0)
 
 
-def _uncertainty_table(outcome) -> Table:
-    rows = []
+def _uncertainty_table(outcome) -> list:
+    """The Monte Carlo of every estimator (a table), and a warning under it for each
+    estimate its interval or u makes unreliable (:func:`~mtplan.reports.wording.
+    value_warnings`)."""
+    rows, items = [], []
     gum = outcome.gum
     for est, r in outcome.results.items():
         for i, m in enumerate(r.measurands):
@@ -107,12 +110,21 @@ def _uncertainty_table(outcome) -> Table:
             u_gum = (float(gum.std[gum.index(m.name)])
                      if gum is not None and est == outcome.recommended else None)
             shown_u = u if u > 0 else None
+            items.append(((f"{m.name} ({est})", float(r.true[i]), u, float(r.mc.low[i]),
+                           float(r.mc.high[i])), abs(float(r.bias[i])) >= u))
             rows.append([est, m.name, unit(m.unit), fmt(r.true[i], shown_u),
                          fmt(r.mc.mean[i], shown_u), fmt(r.bias[i], shown_u),
                          fmt_u(u) if u > 0 else "n/d",
                          fmt_u(u_gum) if u_gum is not None else "-",
                          f"[{fmt(r.mc.low[i], shown_u)}, {fmt(r.mc.high[i], shown_u)}]"
                          if u > 0 else "n/d"])
+    # an interval cut by a bound, and a true value U does not resolve where the estimator
+    # is also biased by u or more (a true value near zero is no finding in a simulation)
+    cut, flagged = value_warnings([i for i, _ in items], resolution=False)
+    blind, flagged_too = value_warnings([i for i, biased in items if biased], bound=False)
+    warnings, flagged = cut + blind, flagged | flagged_too
+    for row, (item, _) in zip(rows, items, strict=True):
+        row[1] += " *" if item[0] in flagged else ""
     first = next(iter(outcome.results.values()))
     if first.mc.digits:
         counts = sorted({r.mc.trials for r in outcome.results.values()})
@@ -129,10 +141,11 @@ def _uncertainty_table(outcome) -> Table:
     if gum is None:
         header.remove("u GUM")
         rows = [r[:7] + r[8:] for r in rows]
-    return Table(
+    return [Table(
         f"Uncertainty: {how}; {100 * first.mc.coverage:g} % probabilistically symmetric coverage "
         f"intervals; values rounded to two significant digits of u; n/d: the estimator gives "
-        f"the same value in every trial{gum_note}.", header, rows)
+        f"the same value in every trial{gum_note}.", header, rows)] + (
+        ["Read with care (u against the true value):", warnings] if warnings else [])
 
 
 def _budget_table(outcome) -> Table:
@@ -219,7 +232,7 @@ def _plan_blocks(plan, vary) -> list:
     changed = [field_value(f, best["setup"][f]) for f in vary if f in best["setup"]]
     blocks = [Section("Plan: the cheapest set-up meeting the targets", level=2, blocks=[
         f"Recommended by the plan: {', '.join(changed) or 'the base set-up'}; machine time "
-        f"{best['duration_s'] / 60:.1f} min (confirmed by Monte Carlo).",
+        f"{duration_text(best['duration_s'])} (confirmed by Monte Carlo).",
         Table(f"Targets (k = {plan.k:g}) against the linearised prediction and the Monte Carlo "
               "confirmation", ["measurand", "target", "predicted", "Monte Carlo"], rows)])]
     from mtplan.plans.planner import pareto_front
@@ -284,8 +297,10 @@ def _hook_tables(extras) -> list:
     return out
 
 
-def measured_blocks(measured) -> list:
-    """The readings' evaluation in full: estimate, bias correction, value, u, interval."""
+def measured_blocks(measured, warn: bool = True) -> list:
+    """The readings' evaluation in full: estimate, bias correction, value, u, interval;
+    ``warn``: with the warnings of :func:`~mtplan.reports.wording.value_warnings` (False
+    where the page already gives them)."""
     import numpy as np
 
     n = len(measured.measurands)
@@ -294,21 +309,28 @@ def measured_blocks(measured) -> list:
     correction = getattr(measured, "bias_correction", None)
     correction = np.zeros(n) if correction is None else np.asarray(correction, dtype=float)
     reasons = getattr(measured, "reasons", None) or {}
-    rows = []
+    rows, items = [], []
     for i, m in enumerate(measured.measurands):
         u = float(measured.std[i])
         if not determinable[i]:
             rows.append([m.name, unit(m.unit), fmt(measured.estimate[i]), "-", "n/d", "n/d",
                          "n/d"])
             continue
-        rows.append([m.name, unit(m.unit), fmt(measured.estimate[i], u),
-                     fmt(correction[i], u), fmt(measured.value[i], u), fmt_u(u),
+        items.append((m.name, float(measured.value[i]), u, float(measured.low[i]),
+                      float(measured.high[i])))
+        rows.append([m.name, unit(m.unit),
+                     fmt(measured.estimate[i], u), fmt(correction[i], u),
+                     fmt(measured.value[i], u), fmt_u(u),
                      f"[{fmt(measured.low[i], u)}, {fmt(measured.high[i], u)}]"])
     how = {"mc": "Monte Carlo of the set-up's error sources about the estimate",
            "posterior": "Bayesian posterior of the forward model (emcee)"}.get(
         measured.uncertainty, measured.uncertainty)
     text = [f"Readings evaluated with the {measured.estimator} estimator; uncertainty: {how}."]
     text += [f"{name}: not determinable: {why}." for name, why in reasons.items()]
+    warnings, flagged = value_warnings(items) if warn else ([], set())
+    for row in rows:
+        row[0] += " *" if row[0] in flagged else ""
+    text += [f"* {w}" for w in warnings]
     text += [str(x) for x in measured.notes]
     blocks = [Section("Measured data", level=2, blocks=text + [
         Table("Measurands from the readings (estimate: the estimator's value; correction: "

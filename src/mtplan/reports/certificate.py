@@ -25,9 +25,11 @@ from mtplan.reports.wording import (
     population_text,
     probability_text,
     rules_text,
+    value_warnings,
+    verdict_short,
 )
 
-__all__ = ["build_report", "build_plan", "overall_result", "measured_frame",
+__all__ = ["build_report", "build_plan", "overall_result", "final_verdicts", "measured_frame",
            "RESULTS_RELATE", "END_MARK"]
 
 RESULTS_RELATE = ("The results relate only to the item tested, in the condition and under "
@@ -56,6 +58,9 @@ def _methods(result) -> list:
     rows = []
     for o in result.outcomes:
         applied = list(o.spec.standards) + ["JCGM 101:2008"]
+        if any(v.zone for v in o.verdicts) and not any(a.startswith("ISO 1101")
+                                                       for a in applied):
+            applied.append("ISO 1101:2017")  # a position tolerance as a diameter zone
         if o.verdicts:
             applied += ["ISO 14253-1:2017", "JCGM 106:2012", "ILAC-G8:09/2019"]
         rows.append([o.spec.label, method_citation(o.spec.name),
@@ -91,17 +96,28 @@ _EVALUATION = {"mc": "U of the readings by Monte Carlo",
 
 
 def _verdict_word(v) -> str:
-    return v.verdict
+    return verdict_short(v.verdict)
 
 
 # ----------------------------------------------------------------------- overall result
+def final_verdicts(result) -> list:
+    """The verdicts the overall result rests on: a test's results as left where it was
+    measured again after an adjustment (``[procedure.as_left]``), else as found."""
+    out = []
+    for o in result.outcomes:
+        left = {v.measurand: v for v in getattr(o, "as_left_verdicts", [])}
+        out += [left.get(v.measurand, v) for v in o.verdicts]
+    return out
+
+
 def overall_result(result) -> tuple[str, list, list]:
     """(result, deciding measurands, undecided measurands): "not accepted" when any
     toleranced measurand does not conform (those decide), else "no decision" when any has
-    no verdict (those decide), else "accepted"."""
+    no verdict (those decide), else "accepted". Results as left replace those as found
+    (:func:`final_verdicts`)."""
     from mtplan.plans.decisions import CONFORMS, DOES_NOT_CONFORM
 
-    verdicts = result.verdicts
+    verdicts = final_verdicts(result)
     failed = [v for v in verdicts if v.verdict == DOES_NOT_CONFORM]
     open_ = [v for v in verdicts if v.verdict not in (CONFORMS, DOES_NOT_CONFORM)]
     if failed:
@@ -196,9 +212,17 @@ def _overall_section(result) -> Section:
     if undecided:
         blocks.append("Also without a decision: " + ", ".join(
             f"{v.measurand} ({v.verdict})" for v in undecided) + ".")
-    n = len(result.verdicts)
-    n_ok = sum(v.verdict == "conforms" for v in result.verdicts)
-    blocks.append(f"{n_ok} of {n} toleranced measurands conform to the rules of the test plan.")
+    final = final_verdicts(result)
+    n_ok = sum(v.verdict == "conforms" for v in final)
+    blocks.append(f"{n_ok} of {len(final)} toleranced measurands conform to the rules of the "
+                  "test plan.")
+    left = [f"test {k} ({o.spec.label}" + (f"; adjusted: {o.spec.as_left['adjustment']}"
+                                            if o.spec.as_left.get("adjustment") else "") + ")"
+            for k, o in enumerate(result.outcomes, start=1) if o.as_left_verdicts]
+    if left:
+        blocks.append("The overall result uses the results as left (measured again after "
+                      "an adjustment) for " + "; ".join(left) + ", and the results as found "
+                      "for the other tests.")
     actions = _actions(result, deciding if outcome == "not accepted" else [],
                        undecided if outcome == "not accepted" else deciding)
     if actions:
@@ -209,29 +233,58 @@ def _overall_section(result) -> Section:
 
 
 # ----------------------------------------------------------------------- results
+def _interval(v) -> str:
+    res = v.measured_u
+    return ("-" if v.measured_low is None else
+            f"[{fmt(v.measured_low, res)}, {fmt(v.measured_high, res)}]")
+
+
 def _result_rows(k, o) -> list:
     rows = []
     for v in o.verdicts:
         res = v.measured_u
         measured = "-" if v.measured is None else fmt(v.measured, res)
-        interval = ("-" if v.measured_low is None else
-                    f"[{fmt(v.measured_low, res)}, {fmt(v.measured_high, res)}]")
+        achieved = "-" if res is None else fmt_u(2 * res)
         rows.append([str(k), measurand_name(v.description, v.measurand),
-                     tolerance_text(v.lower, v.upper, v.unit), measured,
-                     "-" if res is None else fmt_u(2 * res), fmt_u(2 * v.u), interval,
+                     tolerance_text(v.lower, v.upper, v.unit, v.zone), measured,
+                     f"{achieved} ({fmt_u(2 * v.u)})", _interval(v),
                      probability_text(v.p_conform), _verdict_word(v)])
     return rows
 
 
-def _probability_lines(verdicts) -> list:
+def _value_text(v) -> str:
+    """"12.9 ± 3.1" (value ± U achieved) or "-"."""
+    if v is None or v.measured is None:
+        return "-"
+    if v.measured_u is None:
+        return fmt(v.measured)
+    return f"{fmt(v.measured, v.measured_u)} ± {fmt_u(2 * v.measured_u)}"
+
+
+def _as_left_rows(k, o) -> list:
+    """As found and as left side by side, one row per toleranced measurand of a test that
+    was measured again after an adjustment."""
+    found = {v.measurand: v for v in o.verdicts}
+    rows = []
+    for v in o.as_left_verdicts:
+        f = found.get(v.measurand)
+        rows.append([str(k), measurand_name(v.description, v.measurand),
+                     tolerance_text(v.lower, v.upper, v.unit, v.zone), _value_text(f),
+                     "-" if f is None else _verdict_word(f), _value_text(v), _interval(v),
+                     _verdict_word(v)])
+    return rows
+
+
+def _probability_lines(verdicts, when="") -> list:
     out = []
     for v in verdicts:
         if v.p_conform is None:
             if v.reason:
-                out.append(f"{v.measurand}: {v.verdict}: {v.reason}.")
+                out.append(f"{v.measurand}{when}: {v.verdict}: {v.reason}.")
             continue
-        line = (f"{v.measurand}: {probability_text(v.p_conform)} from the measurement "
-                "alone")
+        alone = ("from the measurement's own samples" if v.p_conform_samples is not None
+                 else "from the measurement alone")
+        line = f"{v.measurand}{when}: {probability_text(v.p_conform)} {alone}"
         if v.p_conform_population is not None and v.prior is not None:
             line += (f"; {probability_text(v.p_conform_population)} with the population "
                      f"{population_text(prior_text(v.prior, v.unit), v.population_source)}")
@@ -244,12 +297,17 @@ def _probability_lines(verdicts) -> list:
 def _results_section(result) -> Section:
     from mtplan.reports import figures as figs
 
-    sec = Section("Results as found", anchor="results")
+    adjusted = [k for k, o in enumerate(result.outcomes, start=1) if o.as_left_verdicts]
+    sec = Section("Results as found" + (" and as left" if adjusted else ""), anchor="results")
     sec.blocks.append("Each toleranced measurand as found (before any adjustment), decided "
                       "with the rule and the guard band of the test plan. U achieved: the "
-                      "measurement's own expanded uncertainty (k = 2); U predicted: the plan's. "
-                      "As left: no adjustment was made during this test; the results as found "
-                      "are the results as left.")
+                      "measurement's own expanded uncertainty (k = 2); in parentheses the U "
+                      "the plan predicted. "
+                      + ("As left: no adjustment was made during this test; the results as "
+                         "found are the results as left." if not adjusted else
+                         "As left: test " + ", ".join(map(str, adjusted)) + " was measured "
+                         "again after an adjustment and decided by the same rules (below); "
+                         "the other tests were not adjusted."))
     rows, tests = [], []
     for k, o in enumerate(result.outcomes, start=1):
         if o.verdicts:
@@ -259,12 +317,26 @@ def _results_section(result) -> Section:
     if rows:
         sec.blocks.append(Table("Results as found. Tests: " + "; ".join(tests) + ".",
                                 ["test", "measurand", "tolerance", "measured",
-                                 "U achieved", "U predicted", "95 % interval",
-                                 "probability of conformity", "verdict"], rows))
+                                 "U achieved (predicted)", "95 % interval",
+                                 "probability of conformity", "verdict"], rows,
+                                grow=1, size=7.0))
         sec.blocks += rules_text(result.verdicts)
         lines = _probability_lines(result.verdicts)
         if lines:
             sec.blocks += ["Probability of conformity (JCGM 106 7.4):", lines]
+    if adjusted:
+        left = [row for k, o in enumerate(result.outcomes, start=1) if o.as_left_verdicts
+                for row in _as_left_rows(k, o)]
+        sec.blocks.append(Table("Results as found and as left (after the adjustment), each "
+                                "decided by the rules of the test plan; value ± U achieved "
+                                "(k = 2).", ["test", "measurand", "tolerance", "as found",
+                                             "verdict as found", "as left",
+                                             "95 % interval as left",
+                                             "verdict as left"], left, grow=1, size=7.0))
+        lines = _probability_lines([v for o in result.outcomes for v in o.as_left_verdicts],
+                                   " as left")
+        if lines:
+            sec.blocks += ["Probability of conformity as left:", lines]
     untoleranced = sum(len(o.measured.measurands) for o in result.outcomes
                        if o.measured is not None) - sum(
         len(o.verdicts) for o in result.outcomes if o.measured is not None)
@@ -273,9 +345,10 @@ def _results_section(result) -> Section:
         sec.blocks.append(f"The measured {what} without a tolerance: with U in the appendix "
                           "and in results/measured.csv.")
     if result.verdicts:
-        sec.blocks.append(Figure("Measured values (dot, 95 % interval) against the tolerance "
-                                 "(black lines), the guard bands (amber: no decision), the "
-                                 "zones of conformity (green) and non-conformity (red).",
+        sec.blocks.append(Figure("Measured values as found (dot, 95 % interval) against the "
+                                 "tolerance (black lines), the guard bands (amber: no "
+                                 "decision), the zones of conformity (green) and "
+                                 "non-conformity (red).",
                                  figs.acceptance_figure(result.verdicts)))
     return sec
 
@@ -323,28 +396,30 @@ def _glossary_section() -> Section:
 
 
 def measured_frame(result):
-    """Every measured measurand of every test with its U: ``results/measured.csv``."""
+    """Every measured measurand of every test with its U, as found and (where a test was
+    measured again after an adjustment) as left: ``results/measured.csv``."""
     import pandas as pd
 
     rows = []
-    for o in result.outcomes:
-        m = o.measured
+    for o, m, state in [(o, m, state) for o in result.outcomes
+                        for m, state in ((o.measured, "as found"), (o.as_left, "as left"))]:
         if m is None:
             continue
         det = getattr(m, "determinable", None)
         for j, q in enumerate(m.measurands):
             ok = det is None or bool(det[j])
             u = float(m.std[j]) if ok else math.nan
-            rows.append({"procedure": o.spec.name, "test": o.spec.label, "measurand": q.name,
+            rows.append({"procedure": o.spec.name, "test": o.spec.label, "state": state,
+                         "measurand": q.name,
                          "description": q.description, "unit": q.unit,
                          "value": float(m.value[j]) if ok else math.nan, "u": u, "k": 2.0,
                          "U": 2 * u, "low": float(m.low[j]) if ok else math.nan,
                          "high": float(m.high[j]) if ok else math.nan,
                          "estimator": m.estimator, "uncertainty": m.uncertainty,
                          "determinable": ok})
-    return pd.DataFrame(rows, columns=["procedure", "test", "measurand", "description", "unit",
-                                       "value", "u", "k", "U", "low", "high", "estimator",
-                                       "uncertainty", "determinable"])
+    return pd.DataFrame(rows, columns=["procedure", "test", "state", "measurand", "description",
+                                       "unit", "value", "u", "k", "U", "low", "high",
+                                       "estimator", "uncertainty", "determinable"])
 
 
 def _measured_appendix(k, o) -> Section:
@@ -352,19 +427,28 @@ def _measured_appendix(k, o) -> Section:
 
     m = o.measured
     det = getattr(m, "determinable", None)
-    rows = []
+    rows, items = [], []
     for j, q in enumerate(m.measurands):
         ok = det is None or bool(det[j])
         u = float(m.std[j]) if ok else None
-        rows.append([measurand_name(q.description, q.name), unit(q.unit),
+        if ok:
+            items.append((q.name, float(m.value[j]), u, float(m.low[j]), float(m.high[j])))
+        rows.append([measurand_name(q.description, q.name),
+                     unit(q.unit),
                      fmt(m.value[j], u) if ok else "n/d", fmt_u(2 * u) if ok else "n/d",
                      f"[{fmt(m.low[j], u)}, {fmt(m.high[j], u)}]" if ok else "-"])
     sec = Section(f"A{k}. {o.spec.label}: every measured quantity", anchor=f"m{k}",
                   appendix=True)
-    sec.blocks.append(Table(f"Every measured quantity of test {k} ({m.estimator} estimator).",
+    warnings, flagged = value_warnings(items)
+    for row, q in zip(rows, m.measurands, strict=True):
+        row[0] += " *" if q.name in flagged else ""
+    sec.blocks.append(Table(f"Every measured quantity of test {k} ({m.estimator} estimator)"
+                            + ("; *: read with care (below)." if warnings else "."),
                             ["measurand", "unit", "measured", "U (k = 2)", "95 % interval"],
-                            rows))
-    sec.blocks += measured_blocks(m)
+                            rows, grow=0))
+    if warnings:
+        sec.blocks += ["* Read these values with care:", warnings]
+    sec.blocks += measured_blocks(m, warn=False)
     return sec
 
 
@@ -458,7 +542,7 @@ def _plan_rows(o, plan) -> list:
         u = unit(v.unit)
         w = "-" if r["guard_band"] is None else fmt(r["guard_band"], r["u_planned"] / 5)
         rows.append([measurand_name(v.description, v.measurand), u,
-                     tolerance_text(v.lower, v.upper),
+                     tolerance_text(v.lower, v.upper, zone=v.zone),
                      "-" if r["u_planned"] is None else fmt_u(2 * r["u_planned"]),
                      "-" if r["tur"] is None else f"{r['tur']:.1f}", w,
                      _pct(r["pfa"]), _pct(r["pfr"])])
@@ -497,7 +581,7 @@ def _plan_test(k, o, plan, study) -> Section:
                          "separated") + f"; condition number {ident.condition_number:.3g}.")
     blocks.append(Table(f"Test {k}: predicted U (k = 2) and the agreed decision rules.",
                         ["measurand", "unit", "tolerance", "U predicted", "TUR",
-                         "guard band w", "PFA", "PFR"], _plan_rows(o, plan)))
+                         "guard band w", "PFA", "PFR"], _plan_rows(o, plan), grow=0))
     blocks += rules_text(o.verdicts)
     populations = [f"{v.measurand} "
                    f"{population_text(prior_text(v.prior, v.unit), v.population_source)}"

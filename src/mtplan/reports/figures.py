@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from mtplan.reports.labels import unit
+from mtplan.reports.wording import verdict_short
 
 __all__ = ["bands_figure", "sweep_figure", "lever_figure", "acceptance_figure", "pareto_figure",
            "budget_figure", "histogram_figure", "estimator_figure", "corner_figure",
@@ -44,12 +45,15 @@ def _figure(w=6.4, h=3.6, *, layout="constrained", dpi=140):
     return Figure(figsize=(w, h), dpi=dpi, layout=layout)
 
 
-def _panels(rows, cols, w, h, *, legend_rows=1, dpi=140):
+def _panels(rows, cols, w, h, *, legend_rows=1, label_lines=1, dpi=140):
     """A grid of panels with fixed margins [in]: much faster than a constrained layout
-    for the many-panel sweeps, with room for a legend below."""
+    for the many-panel sweeps, with room for a legend of ``legend_rows`` below and x
+    labels of ``label_lines`` lines."""
+    more = 0.14 * (label_lines - 1)  # each further line of the x label [in]
+    h = h + more * rows
     fig = _figure(w, h, layout=None, dpi=dpi)
-    left, right, top, bottom = 0.62, 0.12, 0.3, 0.55 + 0.2 * legend_rows  # margins [in]
-    gap_x, gap_y = 0.7, 0.75  # between panels [in]: y labels; x label and the next title
+    left, right, top, bottom = 0.62, 0.12, 0.3, 0.55 + 0.2 * legend_rows + more  # [in]
+    gap_x, gap_y = 0.7, 0.75 + more  # between panels [in]: y labels; x label, next title
     ax_w = (w - left - right - (cols - 1) * gap_x) / cols
     ax_h = (h - top - bottom - (rows - 1) * gap_y) / rows
     fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h,
@@ -114,8 +118,12 @@ def sweep_figure(table, vary: dict, measurands: list, units: dict, *, xlabel: st
     rows = math.ceil(n / cols)
     group_keys = others + (["estimator"] if table["estimator"].nunique() > 1 else [])
     width = min(2.35 * cols + 0.3, 7.4)
-    fig, axes = _panels(rows, cols, width, 2.0 * rows + 0.75, dpi=120)
-    xlabel = "\n".join(textwrap.wrap(xlabel or x, int(16 * (width - 0.3) / cols)))
+    xlabel = "\n".join(textwrap.wrap(xlabel or x, int(13 * (width - 0.3) / cols)))
+    series = min(table.groupby(group_keys).ngroups if group_keys else 0, 7)
+    entries = series + (base is not None)
+    legend_rows = max(1, math.ceil(entries / 4))
+    fig, axes = _panels(rows, cols, width, 2.0 * rows + 0.55 + 0.2 * legend_rows,
+                        legend_rows=legend_rows, label_lines=xlabel.count("\n") + 1, dpi=120)
     xs = table[x].astype(float)
     span = float(xs.max() - xs.min()) or 1.0
     for k, name in enumerate(measurands):
@@ -186,7 +194,7 @@ def lever_figure(table, field: str, measurands: list, units: dict, *, estimator:
     rows = math.ceil(n / cols)
     width = 7.0 if cols > 2 else 2.8 * cols + 1.0
     fig = _figure(width, 1.9 * rows + 0.6)
-    xlabel = "\n".join(textwrap.wrap(xlabel, int(16 * width / cols)))
+    xlabel = "\n".join(textwrap.wrap(xlabel, int(13 * width / cols)))
     axes = fig.subplots(rows, cols, squeeze=False)
     ests = [estimator] + [e for e in table["estimator"].unique() if e != estimator]
     xs = table[field].astype(float)
@@ -257,6 +265,7 @@ def acceptance_figure(verdicts: list) -> bytes:
                   if x is not None and math.isfinite(x)]
         width = (hi - lo) if lo is not None and hi is not None else max(abs(p) for p in points)
         left = min(points + [(lo if lo is not None else min(points)) - w]) - 0.25 * width
+        left = 0.0 if getattr(v, "zone", None) else left  # a position deviation: >= 0
         right = max(points + [(hi if hi is not None else max(points)) + w]) + 0.25 * width
         a_lo = lo + w if lo is not None else left
         a_hi = hi - w if hi is not None else right
@@ -284,7 +293,7 @@ def acceptance_figure(verdicts: list) -> bytes:
         ax.set_ylim(0, 1.0)
         ax.set_yticks([])
         ax.tick_params(labelsize=7)
-        ax.set_title(f"{v.measurand}: {v.verdict}", fontsize=7.5, loc="left")
+        ax.set_title(f"{v.measurand}: {verdict_short(v.verdict)}", fontsize=7.5, loc="left")
         ax.set_xlabel(f"{v.measurand} [{unit(v.unit)}]", fontsize=7)
         ax.xaxis.set_major_locator(_max_n(5))
     for k in range(n, rows * cols):
@@ -425,6 +434,8 @@ def estimator_figure(results: dict) -> bytes:
 
 def corner_figure(samples: dict) -> bytes:
     """Pairwise scatter and marginal histograms of posterior samples (label -> array)."""
+    from matplotlib.ticker import MaxNLocator
+
     names = list(samples)[:6]
     n = len(names)
     size = max(1.7 * n + 0.8, 3.6)
@@ -435,6 +446,9 @@ def corner_figure(samples: dict) -> bytes:
         for j, b in enumerate(names):
             ax = axes[i][j]
             ax.tick_params(labelsize=6)
+            # at most 4 ticks a panel: "-12.5-10.0" must not run together
+            ax.xaxis.set_major_locator(MaxNLocator(4))
+            ax.yaxis.set_major_locator(MaxNLocator(4))
             xb = np.asarray(samples[b])
             if j > i:
                 ax.set_visible(False)
@@ -490,9 +504,19 @@ def path_figure(path: dict) -> bytes:
     for j, line in enumerate(path.get("polylines", [])):
         line = np.asarray(line)
         ax.plot(line[:, 0], line[:, 1], lw=1.4, color=_COLORS[j % len(_COLORS)])
-    for name, (x, y) in path.get("points", {}).items():
+    points = {n: (float(x), float(y)) for n, (x, y) in path.get("points", {}).items()}
+    span = max([abs(c) for xy in points.values() for c in xy] + [1e-9])
+    merged: list = []  # points that coincide (within 2 % of the drawing) share one label
+    for name, xy in points.items():
+        near = next((m for m in merged if math.dist(m[1], xy) <= 0.02 * span), None)
+        if near is None:
+            merged.append([[name], xy])
+        else:
+            near[0].append(name)
+    for names, (x, y) in merged:
         ax.plot([x], [y], "o", ms=5, color="k")
-        ax.annotate(name, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
+        ax.annotate(" = ".join(names), (x, y), textcoords="offset points", xytext=(4, 4),
+                    fontsize=8)
     if "view" in path:  # (cx, cy, half-size): keep the drawing on the part that matters
         cx, cy, half = path["view"]
         ax.set_xlim(cx - half, cx + half)

@@ -87,9 +87,14 @@ def fmt(value, u=None) -> str:
     if not math.isfinite(value):
         return "n/d" if math.isnan(value) else str(value)
     if u is None or not (math.isfinite(u) and u > 0):
-        return f"{value:.4g}"
+        return _no_minus_zero(f"{value:.4g}")
     decimals = max(0, 1 - math.floor(math.log10(u)))
-    return f"{value:.{min(decimals, 9)}f}"
+    return _no_minus_zero(f"{value:.{min(decimals, 9)}f}")
+
+
+def _no_minus_zero(text: str) -> str:
+    """"-0.00" -> "0.00": a value that rounds to zero has no sign."""
+    return text[1:] if text.startswith("-") and not text.strip("-0.") else text
 
 
 def fmt_u(u) -> str:
@@ -104,9 +109,13 @@ def fmt_u(u) -> str:
     return f"{u:.{min(decimals, 9)}f}"
 
 
-def tolerance_text(lower, upper, unit_name: str = "") -> str:
-    """±10 µm, [-5, 10] µm, <= 10 µm or >= -5 µm."""
+def tolerance_text(lower, upper, unit_name: str = "", zone=None) -> str:
+    """±10 µm, [-5, 10] µm, <= 10 µm or >= -5 µm; a position zone (``zone``: its
+    ``diameter`` and ``nominal``) as "Ø 800 µm at (0, 0)"."""
     u = f" {unit(unit_name)}" if unit_name else ""
+    if zone is not None:
+        x, y = zone["nominal"]
+        return f"Ø {zone['diameter']:g}{u} at ({x:g}, {y:g})"
     if lower is None and upper is None:
         return "-"
     if lower is None:

@@ -18,9 +18,14 @@ _NEGATIVE_ZERO = re.compile(r"^[-−]0(\.0+)?$")
 
 @dataclass
 class Table:
+    """A table; ``grow``: the column (a long plain name) that gets the PDF's spare width
+    first, so it wraps least; ``size``: the largest font size [pt] the PDF may use."""
+
     caption: str
     header: list
     rows: list
+    grow: int | None = None
+    size: float | None = None
 
     def __post_init__(self):
         # a value that rounds to zero is printed without a sign ("-0.00" reads as negative)

@@ -16,6 +16,7 @@ from mtplan._io import atomic_write, output_problem
 from mtplan._validate import InvalidInput
 from mtplan.plans.agreement import FIT_NO_DECISION
 from mtplan.reports.model import Document, Figure, Section, Table
+from mtplan.reports.wording import VERDICT_SHORT
 
 __all__ = ["render_html", "render_pdf", "write_report", "column_widths", "VERDICT_CLASS"]
 
@@ -28,6 +29,7 @@ VERDICT_CLASS = {"conforms": "ok", "does not conform": "bad",
                  "inside the guard band: no decision": "warn", "not determinable": "nd",
                  FIT_NO_DECISION: "warn",
                  "not measured": "nd"}
+VERDICT_CLASS.update({short: VERDICT_CLASS[full] for full, short in VERDICT_SHORT.items()})
 _VERDICT_COLOUR = {"ok": "#1b5e20", "bad": "#b3261e", "warn": "#8a5a00", "nd": "#555555"}
 
 
@@ -108,12 +110,20 @@ def column_widths(t: Table, width: float, size: float = _SIZE) -> list:
     than the header's longest word (so no header word is broken) nor than the longest word
     of the cells (up to 80 pt, or 70 % of the width in a two-column table: paths and
     digests stay whole there), nor, for numeric columns, than their widest number; the
+    table's ``grow`` column (a long name) then gets the spare width it can use first; the
     rest of the width shared by how much text each column holds. The widths may add up to
     more than ``width`` when the words do not fit (see :func:`_table_size`)."""
     least, want = _column_needs(t, size, 0.7 * width if len(t.header) <= 2 else 80.0)
     spare = width - sum(least)
     if spare <= 0:
         return least
+    if t.grow is not None and want[t.grow] > least[t.grow]:  # this column first
+        g = t.grow
+        more = min(spare, want[g] - least[g])
+        least = [w + more if j == g else w for j, w in enumerate(least)]
+        spare -= more
+        if spare <= 0:
+            return least
     extra = [w - lo for w, lo in zip(want, least, strict=True)]
     if sum(extra) <= spare:  # everything fits on one line: share the rest by text
         return [w + (width - sum(want)) * w / sum(want) for w in want]
@@ -148,6 +158,8 @@ def _table_size(t: Table, width: float) -> float:
     """The table's font size [pt]: 7.5, or smaller (down to 5.5) until its words fit."""
     cap = 0.7 * width if len(t.header) <= 2 else 80.0
     for size in (_SIZE, 7.0, 6.5, 6.0, 5.5):
+        if t.size is not None and size > t.size:
+            continue
         if sum(_column_needs(t, size, cap)[0]) <= width:
             return size
     return 5.5

@@ -6,7 +6,8 @@ from __future__ import annotations
 import math
 
 __all__ = ["METHOD_SOURCES", "method_citation", "customer_words", "measurand_name",
-           "probability_text", "rule_wording", "rules_text", "population_text", "GLOSSARY"]
+           "probability_text", "rule_wording", "rules_text", "population_text", "value_warnings", "VERDICT_SHORT", "verdict_short",
+           "GLOSSARY"]
 
 #: the source method of each procedure: (patent number or "", title in English)
 METHOD_SOURCES = {
@@ -42,6 +43,7 @@ def customer_words(text: str) -> str:
 
     text = re.sub(r"\b([Tt])he patent's method\b", r"\1he source method", text)
     text = re.sub(r"\b([Tt])he patent's own\b", r"\1he source method's own", text)
+    text = re.sub(r"\b([Tt])he patent's\b", r"\1he source method's", text)
     return text
 
 
@@ -101,6 +103,51 @@ def rules_text(verdicts) -> list:
         key = rule_wording(v.rule, v.guard_band)
         groups.setdefault(key, []).append(v.measurand)
     return [f"Decision rule for {', '.join(names)}: {text}." for text, names in groups.items()]
+
+
+#: a verdict as a table column or a panel title shows it (the full wording stays in the
+#: CSV and the rules)
+VERDICT_SHORT = {"inside the guard band: no decision": "no decision (guard band)",
+                 "no decision: the readings do not fit the model":
+                     "no decision (readings do not fit)"}
+
+
+def verdict_short(verdict: str) -> str:
+    """A verdict short enough for a table column or a figure panel's title."""
+    return VERDICT_SHORT.get(verdict, verdict)
+
+
+def value_warnings(items, *, bound: bool = True, resolution: bool = True) -> tuple[list, set]:
+    """The warnings a reader must see under a table of values: ``items`` holds (label,
+    value, u, low, high) per row; returns (sentences, labels warned about). ``bound`` and
+    ``resolution`` switch the two checks:
+
+    - An interval that ends exactly at zero while the value does not: the estimator
+      cannot pass that physical bound (an angle from an arccos), so the value and u are
+      pushed away from it and the interval is cut by it: not a valid result.
+    - U = 2u at least the value's size: the value is not resolved (it does not differ
+      from zero).
+    """
+    check_bound, at_bound, unresolved = bound, [], []
+    for label, value, u, low, high in items:
+        if value is None or u is None or not (math.isfinite(value) and math.isfinite(u)
+                                              and u > 0 and value != 0):
+            continue
+        scale = max(abs(value), u)
+        if check_bound and any(end is not None and math.isfinite(end)
+                               and abs(end) <= 1e-9 * scale for end in (low, high)):
+            at_bound.append(label)
+        if resolution and 2 * u >= abs(value):
+            unresolved.append(label)
+    out = []
+    if at_bound:
+        out.append(f"{', '.join(at_bound)}: the interval ends at the physical bound 0, which "
+                   "the estimator cannot pass: the value and u are pushed away from it and "
+                   "the interval is cut by it; not a valid result.")
+    if unresolved:
+        out.append(f"{', '.join(unresolved)}: U (k = 2) is at least the value's size: the "
+                   "value is not resolved (it does not differ from zero).")
+    return out, set(at_bound) | set(unresolved)
 
 
 GLOSSARY = [
