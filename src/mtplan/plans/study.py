@@ -808,7 +808,7 @@ def _model(name):
 
 
 #: which ready stage a free worker takes first: the long ones a procedure waits on
-_PRIORITY = {"readings": 0, "budget": 1, "mc": 2, "sweep": 3, "misc": 4}
+_PRIORITY = {"as_left": 0, "readings": 0, "budget": 1, "mc": 2, "sweep": 3, "misc": 4}
 
 
 def _run_stages(tasks, unlocked, study, jobs, bar) -> dict:
@@ -822,7 +822,7 @@ def _run_stages(tasks, unlocked, study, jobs, bar) -> dict:
         done[task] = value
         kind, i, arg = task
         name = study.procedures[i].name
-        if kind in ("mc", "sweep", "budget", "readings"):
+        if kind in ("mc", "sweep", "budget", "readings", "as_left"):
             _tick(bar, f"{name} {arg if kind == 'mc' else kind}")
         elif study.procedures[i].plan is not None:
             _tick(bar, f"{name} plan")
