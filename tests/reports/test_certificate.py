@@ -179,6 +179,8 @@ def test_customer_words(small_report):
         text = _flat(_pages(small_report / f"{name}.pdf"))
         assert "seed's" not in text, name
         assert not re.search(r"(?<![\d.])-0(\.0+)?(?![\d.])", text), name
+        # units as printed, also in notes made by the library (e.g. "held at EY0A = 10 um")
+        assert not re.search(r"\d u(m|rad)\b", text), name
 
 
 # ------------------------------------------------------------------ probabilities

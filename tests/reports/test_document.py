@@ -158,6 +158,10 @@ def test_provenance_names_command_commit_and_readings_digest(small_result, small
         assert re.fullmatch(r"[0-9a-f]{40}( with uncommitted changes)?", prov["git_commit"])
     text = " ".join(" ".join(pdf_pages(small_report / "report.pdf", raw=True)).split())
     assert digest in text and "mtplan report small.toml --out report" in text
+    # the test plan is agreed before measuring: its provenance names no readings
+    plan = " ".join(" ".join(pdf_pages(small_report / "plan.pdf", raw=True)).split())
+    assert "mtplan report small.toml --out report" in plan and "date of the plan" in plan
+    assert digest not in plan and "readings SHA-256" not in plan
 
 
 # ------------------------------------------------------------------ table headers

@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from mtplan._validate import InvalidInput
+from mtplan.models.protocol import shown_with_unit
 from mtplan.evaluation.covariance import correction_u, mc_covariance
 
 __all__ = ["NUISANCE_DRAWS", "DRAW_TRIALS", "draw_trials", "condition_on_readings",
@@ -132,7 +133,7 @@ def condition_on_readings(proc, setup, readings, truth):
     if conditioned is None:
         return truth, None, None
     sources = [k for k in proc.active_sources(setup) if k not in absorbed]
-    shown = ", ".join(f"{builder.names[i]} = {theta[i]:.6g}" for i in at)
+    shown = ", ".join(shown_with_unit(builder.names[i], theta[i]) for i in at)
     note = (f"the Monte Carlo is conditional on what the readings show: {', '.join(absorbed)} "
             f"off, its realised effect taken as {shown} (the readings' least squares)")
     return conditioned, sources, note

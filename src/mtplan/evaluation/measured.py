@@ -392,7 +392,8 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
         truth = proc.truth_from_estimate(setup, est_internal)
     else:
         truth = proc.Truth()
-        notes.append(f"the Monte Carlo ran at the default truth of {proc.name}, not at the "
+        notes.append(f"the Monte Carlo ran at the default truth of the procedure ({proc.title}), "
+                     "not at the "
                      "estimate" + ("" if proc.truth_from_estimate is None else
                                    " (the estimate is not finite)"))
     truth, sources, why = condition_on_readings(proc, setup, readings, truth)

@@ -53,6 +53,7 @@ import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
 from mtplan.fitting import Budget, error_budget
+from mtplan.models.protocol import shown_with_unit
 from mtplan.evaluation._posterior_model import DOMAIN_ERRORS, Forward, TruthBuilder, \
     truth_parameters
 from mtplan.uncertainty.streams import as_seed_sequence
@@ -552,11 +553,13 @@ def _held_notes(fwd, fit: _Fit, kept, held, null, G, Jw, cov, notes) -> None:
         if not group:
             continue
         cond = [n for i, n in enumerate(names) if why == _DEAD and np.any(G[i, group] != 0)]
-        verb = why if len(group) == 1 else why.replace("does not", "do not").replace(
+        one = len(group) == 1
+        verb = why if one else why.replace("does not", "do not").replace(
             "is determined", "are determined")
-        notes.append(f"{', '.join(b.names[j] for j in group)} {verb}: held at "
-                     f"{', '.join(f'{fit.theta[j]:.6g}' for j in group)}"
-                     + (f" ({', '.join(cond)} conditional on it)" if cond else ""))
+        notes.append(f"{', '.join(shown_with_unit(b.names[j], fit.theta[j]) for j in group)}: "
+                     f"held there, since {'it' if one else 'they'} {verb}"
+                     + (f" ({', '.join(cond)} conditional on {'it' if one else 'them'})"
+                        if cond else ""))
 
 
 def _scatter(budget: Budget, sigma) -> np.ndarray:

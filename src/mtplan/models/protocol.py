@@ -60,6 +60,8 @@ __all__ = [
     "SetupBase",
     "param",
     "fields_info",
+    "split_unit",
+    "shown_with_unit",
     "make",
     "frame_columns",
     "parse_fields",
@@ -84,6 +86,23 @@ UNITS = {
 UNIT_SUFFIXES = ("mm", "um", "nm", "rad", "mrad", "urad", "deg", "arcsec", "ppm", "s", "ms", "c",
                  "um_per_m", "urad_per_m", "mm_min", "per_s", "um_per_s", "urad_per_s",
                  "um_per_deg", "urad_per_deg", "um_per_h", "ppm_per_h", "k_per_m")
+
+_SUFFIXES_LONGEST_FIRST = tuple(sorted(UNIT_SUFFIXES, key=len, reverse=True))
+
+
+def split_unit(name: str) -> tuple[str, str]:
+    """(base, unit suffix) of a field name: ``"EY0A_um"`` -> ``("EY0A", "um")``; the suffix
+    is "" when the name has none of :data:`UNIT_SUFFIXES`."""
+    for suffix in _SUFFIXES_LONGEST_FIRST:
+        if name.endswith("_" + suffix):
+            return name[: -len(suffix) - 1], suffix
+    return name, ""
+
+
+def shown_with_unit(name: str, value) -> str:
+    """A field's value as a note prints it: ``("EY0A_um", 10.0)`` -> ``"EY0A = 10 um"``."""
+    base, suffix = split_unit(name)
+    return f"{base} = {value:.6g}" + (f" {suffix}" if suffix else "")
 
 
 @dataclass(frozen=True)
@@ -210,8 +229,7 @@ def _fields_info(cls) -> tuple:
         if f.name.startswith("_"):
             continue
         (kind, elem), optional = _base_type(hints[f.name])
-        unit = next((s for s in sorted(UNIT_SUFFIXES, key=len, reverse=True)
-                     if f.name.endswith("_" + s)), "")
+        unit = split_unit(f.name)[1]
         out.append(
             {
                 "name": f.name,

@@ -61,12 +61,15 @@ def procedure_section(k, outcome, measured: bool = True) -> tuple[Section, dict]
     return sec, csv
 
 
-def provenance_section(prov: dict) -> Section:
-    rows = [["date of the report", prov["date"]], ["command", prov.get("command", "-")],
+def provenance_section(prov: dict, document: str = "report") -> Section:
+    """Software, command, seed, study and, in a report, the readings files. A test plan
+    (``document="plan"``) is agreed before measuring: it names no readings."""
+    plan = document == "plan"
+    rows = [[f"date of the {document}", prov["date"]], ["command", prov.get("command", "-")],
             ["mtplan git commit", prov.get("git_commit") or "not known (not run from a "
                                                              "git checkout)"],
             ["study file", prov["study_file"]], ["study SHA-256", prov["study_sha256"]]]
-    for label, path, digest in prov.get("readings", []):
+    for label, path, digest in [] if plan else prov.get("readings", []):
         rows += [[f"readings of {label}", path], [f"readings SHA-256 of {label}", digest]]
     rows += [["seed", str(prov["seed"])], ["Python", prov["python"]]]
     rows += [[k, v] for k, v in prov["versions"].items()]
@@ -74,7 +77,8 @@ def provenance_section(prov: dict) -> Section:
         rows.append(["study result", f"read from {prov['cached']}, stored by an earlier run "
                      "of the same study, readings, mtplan code and numeric packages"])
     return Section("Provenance", anchor="provenance", appendix=True,
-                   blocks=[Table("Software, command, seeds, study and readings files",
+                   blocks=[Table("Software, command, seed and study" if plan else
+                                 "Software, command, seeds, study and readings files",
                                  ["item", "value"], rows)])
 
 
@@ -331,7 +335,7 @@ def measured_blocks(measured, warn: bool = True) -> list:
     for row in rows:
         row[0] += " *" if row[0] in flagged else ""
     text += [f"* {w}" for w in warnings]
-    text += [str(x) for x in measured.notes]
+    text += [customer_words(str(x)) for x in measured.notes]
     blocks = [Section("Measured data", level=2, blocks=text + [
         Table("Measurands from the readings (estimate: the estimator's value; correction: "
               "the bias correction added; value: the reported value, the posterior mean for "

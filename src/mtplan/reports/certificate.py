@@ -612,5 +612,5 @@ def build_plan(result, plan) -> Document:
         sec, frames = appendix.procedure_section(k, o, measured=False)
         sections.append(sec)
         csv.update(frames)
-    sections.append(appendix.provenance_section(result.provenance))
+    sections.append(appendix.provenance_section(result.provenance, document="plan"))
     return _document(result, plan, "plan", sections, csv)

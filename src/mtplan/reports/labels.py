@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 import re
 
-from mtplan.models.protocol import UNIT_SUFFIXES
+from mtplan.models.protocol import split_unit
 
 __all__ = ["unit", "split_field", "field_label", "field_value", "estimator_text", "fmt",
            "fmt_u", "tolerance_text", "duration_text", "percent", "prior_text"]
@@ -16,8 +16,6 @@ __all__ = ["unit", "split_field", "field_label", "field_value", "estimator_text"
 _UNIT_TEXT = {"um": "µm", "urad": "µrad", "nm": "nm", "mm": "mm", "rad": "rad",
               "mrad": "mrad", "deg": "deg", "arcsec": "arcsec", "ppm": "ppm", "s": "s",
               "c": "°C", "1": "", "m": "m", "min": "min", "per": "/", "ms": "ms", "h": "h"}
-#: unit suffixes of set-up fields, longest first (the procedures' own list)
-_SUFFIXES = tuple(sorted(UNIT_SUFFIXES, key=len, reverse=True))
 
 
 def unit(name: str) -> str:
@@ -36,10 +34,7 @@ def unit(name: str) -> str:
 
 def split_field(name: str) -> tuple[str, str]:
     """(base, unit suffix) of a set-up field name; the suffix is "" when it has none."""
-    for suffix in _SUFFIXES:
-        if name.endswith("_" + suffix):
-            return name[: -len(suffix) - 1], suffix
-    return name, ""
+    return split_unit(name)
 
 
 def field_label(name: str, doc: str = "") -> str:

@@ -38,13 +38,16 @@ def method_citation(procedure: str) -> str:
 
 def customer_words(text: str) -> str:
     """Developer wording in a model's documentation as a customer reads it: "the patent's
-    method" is the source method, cited once by its number and title elsewhere."""
+    method" is the source method, cited once by its number and title elsewhere; um and
+    urad as µm and µrad."""
     import re
 
     text = re.sub(r"\b([Tt])he patent's method\b", r"\1he source method", text)
     text = re.sub(r"\b([Tt])he patent's own\b", r"\1he source method's own", text)
     text = re.sub(r"\b([Tt])he patent's\b", r"\1he source method's", text)
-    return text
+    # units as printed: "um" and "urad" stand alone (never inside a field name such as
+    # probe_noise_um)
+    return re.sub(r"(?<![A-Za-z_])u(m|rad)(?![A-Za-z_])", "\u00b5\\1", text)
 
 
 def measurand_name(description: str, code: str) -> str:
