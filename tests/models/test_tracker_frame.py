@@ -602,6 +602,33 @@ def test_first_order_hooks_equal_the_linearisation(estimator, changes):
     _assert_chain_rule_is_the_linearisation(PROC, PROC.setup(changes), estimator)
 
 
+def test_reading_effects_with_groups_kept_from_another_setup_are_those_found_afresh(
+        monkeypatch):
+    """The designer's next lever position reuses the groups of the last (same sources'
+    shapes): the effects are those of groups found afresh, bit for bit; kept groups that
+    do not fit (here every reading said to depend on one element) are found again."""
+    from mtplan.models import first_order as fo
+
+    a, b = PROC.Setup(a_arc_deg=30.0), PROC.Setup(a_arc_deg=45.0, points_per_axis=11)
+    truth = PROC.Truth()
+    monkeypatch.setattr(fo, "_EFFECT_GROUPS", {})
+    f0, fresh = fo.reading_effects(PROC, b, truth, PROC.active_sources(b))
+    fo._EFFECT_GROUPS.clear()
+    fo.reading_effects(PROC, a, truth, PROC.active_sources(a))
+    (key, kept), = fo._EFFECT_GROUPS.items()
+    assert "machine_repeatability" in kept
+    for groups in (kept, {**kept, "machine_repeatability": (
+            fo._Grouping(np.zeros(94 * 3, dtype=int)), np.zeros((1, f0.size), dtype=int))}):
+        fo._EFFECT_GROUPS.clear()
+        fo._EFFECT_GROUPS[key] = groups
+        got_f0, got = fo.reading_effects(PROC, b, truth, PROC.active_sources(b))
+        np.testing.assert_array_equal(got_f0, f0)
+        assert list(got) == list(fresh)
+        for name, eff in fresh.items():
+            np.testing.assert_array_equal(got[name], eff, err_msg=name)
+        assert fo._EFFECT_GROUPS[key]["machine_repeatability"][0].count > 1
+
+
 @pytest.mark.parametrize("changes", [{}, {"n_submachines": 3, "points_per_arc": 9},
                                      {"straightness_um": 0.0, "a_arc_deg": 20.0}])
 def test_gls_covariance_from_grouped_rows_is_the_budgets(changes):
