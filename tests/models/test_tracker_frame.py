@@ -431,6 +431,91 @@ def test_truth_from_estimate_reproduces_the_estimate(changes):
         assert (tv[m.name] - est[m.name][0]) * m.scale == pytest.approx(0.0, abs=1e-6), m.name
 
 
+@pytest.mark.parametrize("changes", [{}, {"n_submachines": 3, "a_arc_deg": 20.0}])
+def test_truths_from_estimates_are_truth_from_estimate_row_by_row(changes):
+    """The batch form gives each row's truth: its readings are those of the row's
+    truth_from_estimate (bit for bit), and its measurands those of the row."""
+    setup = PROC.Setup(**changes)
+    est = PROC.estimate(setup, PROC.simulate(setup, draws=3, rng=5))
+    rows = PROC.forward(setup, PROC.truths_from_estimates(setup, est), PROC.zero_errors(setup, 3))
+    for i in range(3):
+        one = PROC.truth_from_estimate(setup, {k: v[i:i + 1] for k, v in est.items()})
+        r = PROC.forward(setup, one, PROC.zero_errors(setup, 1))
+        for k, v in r.items():
+            np.testing.assert_array_equal(rows[k][i], v[0])
+        tv = PROC.true_values(setup, one)
+        for m in PROC.measurands(setup):
+            assert (tv[m.name] - est[m.name][i]) * m.scale == pytest.approx(0.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("changes", [{}, {"a_arc_deg": 12.0, "n_submachines": 3}])
+def test_readings_jacobian_in_one_run_is_the_step_by_step_one(changes):
+    """The readings' sensitivities to the measurands with every step in one forward run
+    (truths_from_estimates) are those of one truth_from_estimate and forward run per
+    step: the same central differences (held to 1e-9 of the largest entry; they agree
+    bit for bit on this machine)."""
+    import dataclasses
+
+    import mtplan.models
+    from mtplan.plans.planner import readings_jacobian
+
+    setup = PROC.Setup(**changes)
+    j, names = readings_jacobian(PROC, setup)
+    step_by_step = dataclasses.replace(PROC, truths_from_estimates=None)
+    get_ = mtplan.models.get
+    try:  # readings_jacobian looks its procedure up: hand it the one without the hook
+        mtplan.models.get = lambda p: p if p is step_by_step else get_(p)
+        j0, names0 = readings_jacobian(step_by_step, setup)
+    finally:
+        mtplan.models.get = get_
+    assert names == names0 == [m.name for m in PROC.measurands(setup)]
+    np.testing.assert_allclose(j, j0, rtol=0, atol=1e-9 * np.abs(j0).max())
+
+
+@pytest.mark.parametrize("estimator", ["patent", "angles", "home"])
+def test_fits_shared_by_identical_rows_give_each_rows_estimate(estimator, monkeypatch):
+    """The rows of the first-order map move one reading each: their groups of points are
+    mostly the error-free ones, fitted once (``_on_distinct``). The estimates equal
+    those with every row fitted (patent and home bit for bit; angles' closed form,
+    batched, to 1e-12 mm and rad); a Monte Carlo batch is fitted whole."""
+    setup = PROC.Setup(a_arc_deg=30.0)
+    f0 = PROC.forward(setup, PROC.Truth(), PROC.zero_errors(setup, 1))
+    y0 = np.concatenate([f0[k][0] for k in tf.READING_COLUMNS])
+    n, p = y0.size, y0.size // 3
+    rows = np.repeat(y0[None], 2 * n, axis=0)
+    rows[np.arange(2 * n), np.tile(np.arange(n), 2)] += np.repeat([1e-6, -1e-6], n)
+    readings = {k: rows[:, i * p:(i + 1) * p] for i, k in enumerate(tf.READING_COLUMNS)}
+    shared = PROC.estimators[estimator](setup, readings)
+    calls = []
+    monkeypatch.setattr(tf, "_on_distinct", lambda fit, pts: calls.append(1) or fit(pts))
+    whole = PROC.estimators[estimator](setup, readings)
+    assert calls
+    for k, v in whole.items():
+        np.testing.assert_allclose(shared[k], v, rtol=0, atol=0 if estimator != "angles"
+                                   else 1e-12)
+
+
+
+def test_fits_are_shared_only_by_identical_rows():
+    import collections
+
+    seen, Fit = [], collections.namedtuple("Fit", "total iterations")
+
+    def fit(q):
+        seen.append(q.shape[0])
+        return Fit(q.sum(axis=(1, 2)), 7)
+
+    pts = np.arange(4 * 7 * 3, dtype=float).reshape(4, 7, 3)
+    pts[3] = pts[0]
+    pts[3, 2, 1] += 1e-9  # alike but for one number: its own fit
+    assert tf._on_distinct(fit, pts)[0].tolist() == pts.sum(axis=(1, 2)).tolist()
+    rows = pts[[0, 1, 0, 0, 1, 0, 3]]
+    got = tf._on_distinct(fit, rows)
+    assert seen == [4, 3]  # none alike: the batch whole; then each distinct row once
+    np.testing.assert_array_equal(got[0], rows.sum(axis=(1, 2)))
+    assert got[1] == 7
+
+
 def test_an_arc_too_short_for_the_noise_is_refused_not_estimated():
     # 1 deg of A over 335 mm: a sagitta of 13 um against tens of um of tracker noise
     setup = PROC.Setup(a_arc_deg=1.0, points_per_arc=25)
@@ -515,6 +600,33 @@ def test_gls_is_efficient_home_scatters_about_it():
                                                ("home", {"n_submachines": 1})])
 def test_first_order_hooks_equal_the_linearisation(estimator, changes):
     _assert_chain_rule_is_the_linearisation(PROC, PROC.setup(changes), estimator)
+
+
+def test_reading_effects_with_groups_kept_from_another_setup_are_those_found_afresh(
+        monkeypatch):
+    """The designer's next lever position reuses the groups of the last (same sources'
+    shapes): the effects are those of groups found afresh, bit for bit; kept groups that
+    do not fit (here every reading said to depend on one element) are found again."""
+    from mtplan.models import first_order as fo
+
+    a, b = PROC.Setup(a_arc_deg=30.0), PROC.Setup(a_arc_deg=45.0, points_per_axis=11)
+    truth = PROC.Truth()
+    monkeypatch.setattr(fo, "_EFFECT_GROUPS", {})
+    f0, fresh = fo.reading_effects(PROC, b, truth, PROC.active_sources(b))
+    fo._EFFECT_GROUPS.clear()
+    fo.reading_effects(PROC, a, truth, PROC.active_sources(a))
+    (key, kept), = fo._EFFECT_GROUPS.items()
+    assert "machine_repeatability" in kept
+    for groups in (kept, {**kept, "machine_repeatability": (
+            fo._Grouping(np.zeros(94 * 3, dtype=int)), np.zeros((1, f0.size), dtype=int))}):
+        fo._EFFECT_GROUPS.clear()
+        fo._EFFECT_GROUPS[key] = groups
+        got_f0, got = fo.reading_effects(PROC, b, truth, PROC.active_sources(b))
+        np.testing.assert_array_equal(got_f0, f0)
+        assert list(got) == list(fresh)
+        for name, eff in fresh.items():
+            np.testing.assert_array_equal(got[name], eff, err_msg=name)
+        assert fo._EFFECT_GROUPS[key]["machine_repeatability"][0].count > 1
 
 
 @pytest.mark.parametrize("changes", [{}, {"n_submachines": 3, "points_per_arc": 9},

@@ -210,13 +210,23 @@ def reading_effects(proc, setup, truth, active: dict) -> tuple[np.ndarray, dict]
     Richardson central differences with steps of ``REL_STEP`` standard deviations (an
     element of zero standard deviation contributes nothing). A group's readings are
     checked with its elements moved by random signs: each reading must come out as its
-    own element's move alone (else that source is taken element by element).
+    own element's move alone (else that source is taken element by element). The groups
+    found are kept for the next call with the same procedure, number of readings and
+    sources' shapes (the designer's next lever position) and checked the same way there;
+    a source whose kept groups fail is grouped afresh.
     """
     base, stats = _base_errors(proc, setup, active)
     batch = _Batch(lambda errors: _readings(proc, setup, truth, errors), base)
     f0 = _readings(proc, setup, truth, base)[0]
     n = f0.size
-    grouping = _groups(batch, stats)
+    # the groups of the last set-up with these sources' shapes and as many readings (a
+    # lever moved in the designer): checked below like new ones, found again where not
+    key = (proc.name, n, tuple((name, st[2]) for name, st in stats.items()))
+    kept = _EFFECT_GROUPS.get(key, {})
+    fresh = set(stats) - set(kept)
+    found = _groups(batch, {name: stats[name] for name in stats if name in fresh})
+    grouping = {name: kept[name] if name in kept else found[name] for name in stats}
+    passed = {}
     rng = np.random.default_rng(0)
     effects = {}
     while grouping:
@@ -234,8 +244,10 @@ def reading_effects(proc, setup, truth, active: dict) -> tuple[np.ndarray, dict]
             mean, std, shape = stats[name]
             vals = pred[where[name]].reshape(grp.count, 5, n)
             if elem is not None and not _checked(vals, f0, elem, grp, signs[name]):
-                redo[name] = (_groupings(shape)[-1], None)
+                redo[name] = (_groupings(shape)[-1], None)  # element by element
                 continue
+            if elem is not None:  # (element by element is not kept: found again next time)
+                passed[name] = (grp, elem)
             # h J by Richardson: (4 d1 - d2) / 3, d1 = (f+ - f-) / 2h, d2 = (f2+ - f2-) / 4h;
             # the effect J std is h J / REL_STEP
             eff_g = (2 * (vals[:, 0] - vals[:, 1]) - (vals[:, 2] - vals[:, 3]) / 4) / 3 / REL_STEP
@@ -247,8 +259,18 @@ def reading_effects(proc, setup, truth, active: dict) -> tuple[np.ndarray, dict]
                 col = grp.table[g, elem[g, r]]
                 eff[r, col] = np.where(std[col] > 0, eff_g[g, r], 0.0)
             effects[name] = eff
+        stale = {name: stats[name] for name in redo if name not in fresh}
+        if stale:  # kept groups that do not fit this set-up: found for it
+            redo.update(_groups(batch, stale))
+            fresh.update(stale)
         grouping = redo
+    if len(_EFFECT_GROUPS) >= 16:  # (cleared, not trimmed: the designer's threads share it)
+        _EFFECT_GROUPS.clear()
+    _EFFECT_GROUPS[key] = passed
     return f0, {name: effects[name] for name in stats}
+
+
+_EFFECT_GROUPS: dict = {}  # reading_effects' (procedure, readings, source shapes) -> groups
 
 
 def _checked(vals, f0, elem, grp: _Grouping, sign) -> bool:

@@ -579,6 +579,12 @@ class Procedure:
     #: measurands equal an estimate (internal units; nuisance fields at their
     #: defaults), for Monte Carlo around a measured result and as a posterior start
     truth_from_estimate: Callable | None = None
+    #: optional ``truths_from_estimates(setup, estimates) -> Truth``: ``truth_from_estimate``
+    #: for many estimates at once, `estimates` mapping each measurand to an array (m,); the
+    #: Truth's float fields are arrays (m,), which ``forward`` takes as one truth per batch
+    #: row. The readings' sensitivities to the measurands are then one forward run
+    #: (``plans.planner.readings_jacobian``); None: one run per step of each measurand
+    truths_from_estimates: Callable | None = None
     #: Truth fields that are free parameters of a posterior (default: every float field)
     posterior_fields: tuple = ()
     #: the error source whose spread is the readings' noise in the likelihood

@@ -560,7 +560,8 @@ def readings_jacobian(procedure, setup=None, truth=None, *, wrt: str | None = No
     Returns
     -------
     (J, names): J of shape (n_readings, n_params), central differences with steps of
-    1e-6 of each value's magnitude (at least 1e-9).
+    1e-6 of each value's magnitude (at least 1e-9); every step of every measurand in one
+    forward run where the procedure declares ``truths_from_estimates``.
     """
     import dataclasses
 
@@ -578,6 +579,20 @@ def readings_jacobian(procedure, setup=None, truth=None, *, wrt: str | None = No
         return np.concatenate([np.asarray(v, dtype=float).ravel() for v in r.values()])
 
     cols, names = [], []
+    if wrt == "measurands" and proc.truths_from_estimates is not None:
+        # every step of every measurand as one batch row: one truth per row, one forward run
+        base = proc.true_values(setup, truth)
+        names = list(base)
+        h = np.array([max(abs(v) * 1e-6, 1e-9) for v in base.values()])
+        step = np.concatenate([np.diag(h), -np.diag(h)])  # (2 p, p): up rows, then down
+        rows = np.array(list(base.values()), dtype=float)[None, :] + step
+        r = proc.forward(setup, proc.truths_from_estimates(
+            setup, {n: rows[:, j] for j, n in enumerate(names)}),
+            proc.zero_errors(setup, rows.shape[0]))
+        f = np.concatenate([np.asarray(v, dtype=float).reshape(rows.shape[0], -1)
+                            for v in r.values()], axis=1)
+        p = len(names)
+        return ((f[:p] - f[p:]) / (2 * h[:, None])).T, names
     if wrt == "measurands":
         base = proc.true_values(setup, truth)
         for name, v in base.items():
