@@ -15,9 +15,24 @@ from collections.abc import Callable, Iterable, Iterator
 
 from mtplan._validate import InvalidInput, Problems
 
-__all__ = ["BACKENDS", "check_parallel", "ordered_map", "parallel_session"]
+__all__ = ["BACKENDS", "check_parallel", "one_blas_thread", "ordered_map", "parallel_session"]
 
 BACKENDS = ("loky", "threading", "multiprocessing", "dask", "sequential")
+
+
+def one_blas_thread():
+    """A context in which every BLAS library runs on one thread (threadpoolctl).
+
+    scipy's linear algebra brings its own OpenBLAS, loaded on scipy.linalg's first import;
+    ``threadpool_limits`` limits only the libraries loaded when it is entered, so a first
+    import inside it (``scipy.optimize.least_squares`` in a posterior's start) left that
+    library on every core: its threads spun against each other, and a thin SVD that takes
+    5 ms on one thread took 80 ms of CPU. It is loaded here first.
+    """
+    import scipy.linalg  # noqa: F401 - loads scipy's OpenBLAS before the limit is set
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=1, user_api="blas")
 
 
 def check_parallel(problems: Problems, n_jobs, backend, scheduler=None) -> None:

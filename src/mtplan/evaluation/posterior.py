@@ -913,9 +913,8 @@ def sample_posterior(
     """
     import sys
 
+    from mtplan._parallel import one_blas_thread
     from mtplan.models import get
-
-    from threadpoolctl import threadpool_limits
 
     t_start = time.perf_counter()
     proc = get(procedure)
@@ -936,7 +935,7 @@ def sample_posterior(
         notes.append(f"{int((~fwd.mask).sum())} reading(s) missing from the file (NaN) are left "
                      "out of the likelihood")
     # one BLAS thread: the matrices are small and many, and threads only wait for each other
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         theta0 = _initial_theta(proc, setup, readings, builder, start, estimator, notes)
         fit = _start(fwd, theta0, mode, sigma, notes)
         space = _identify(fwd, fit, notes)
