@@ -9,6 +9,7 @@ directly (see :func:`_dask_map`).
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import sys
 from collections.abc import Callable, Iterable, Iterator
@@ -20,19 +21,26 @@ __all__ = ["BACKENDS", "check_parallel", "one_blas_thread", "ordered_map", "para
 BACKENDS = ("loky", "threading", "multiprocessing", "dask", "sequential")
 
 
+@functools.lru_cache(maxsize=1)
+def _blas_controller():
+    import scipy.linalg  # noqa: F401 - loads scipy's own OpenBLAS before the look-up
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
+
+
 def one_blas_thread():
-    """A context in which every BLAS library runs on one thread (threadpoolctl).
+    """A context in which numpy's and scipy's BLAS run on one thread (threadpoolctl).
 
-    scipy's linear algebra brings its own OpenBLAS, loaded on scipy.linalg's first import;
-    ``threadpool_limits`` limits only the libraries loaded when it is entered, so a first
-    import inside it (``scipy.optimize.least_squares`` in a posterior's start) left that
-    library on every core: its threads spun against each other, and a thin SVD that takes
-    5 ms on one thread took 80 ms of CPU. It is loaded here first.
+    For the many small products that fits, budgets, samplers and propagations are made
+    of, a team of threads costs more than it gains (several times, on a busy machine).
+    The libraries are found once (``threadpool_limits`` looks them up on every call:
+    milliseconds), after scipy.linalg is imported: a limit covers only the libraries
+    loaded when it is set, and scipy brings its own OpenBLAS, loaded on first use; left
+    out, it ran a posterior's least squares on every core, where a thin SVD that takes
+    5 ms on one thread took 80 ms of spinning CPU.
     """
-    import scipy.linalg  # noqa: F401 - loads scipy's OpenBLAS before the limit is set
-    from threadpoolctl import threadpool_limits
-
-    return threadpool_limits(limits=1, user_api="blas")
+    return _blas_controller().limit(limits=1, user_api="blas")
 
 
 def check_parallel(problems: Problems, n_jobs, backend, scheduler=None) -> None:

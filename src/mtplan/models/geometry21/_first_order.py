@@ -14,6 +14,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from mtplan._parallel import one_blas_thread
 from mtplan._validate import Problems
 from mtplan.fitting.linear import (
     function_status,
@@ -46,20 +47,13 @@ from mtplan.models.geometry21 import (
 from mtplan.models.geometry21._maps import patent_map, source_readings_map
 
 
-@functools.lru_cache(maxsize=1)
-def _blas():
-    from threadpoolctl import ThreadpoolController
-
-    return ThreadpoolController()
-
-
 def _one_blas_thread(fn):
     """Run `fn` with one BLAS thread: its products are small (a few thousand readings by
     ~100 parameters), where threads only wait on each other, and on a loaded machine they
     spin for many times the work (the designer's live numbers)."""
     @functools.wraps(fn)
     def run(*args, **kwargs):
-        with _blas().limit(limits=1, user_api="blas"):
+        with one_blas_thread():
             return fn(*args, **kwargs)
 
     return run
