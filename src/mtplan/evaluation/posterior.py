@@ -701,8 +701,9 @@ class _LogPosterior:
         if idx.size == 0:
             return out
         pred, good = self.fwd.predict(th[idx], nu[idx] if q else None)
-        ll = self.gauss.loglike(self.fwd.y - pred - self.fit.correction,
-                                None if log_sigma is None else log_sigma[idx])
+        res = self.fwd.y - pred
+        res -= self.fit.correction  # in place: (m, readings) arrays are megabytes
+        ll = self.gauss.loglike(res, None if log_sigma is None else log_sigma[idx])
         good &= np.isfinite(ll)
         out[idx[good]] = lp[idx[good]] + ll[good]
         return out
