@@ -1443,6 +1443,7 @@ from mtplan.models.geometry21._first_order import (  # noqa: E402
     identifiability_report,
     noise_free_table,
     report_extras,
+    sensitivities,
 )
 from mtplan.models.geometry21._frames import setup_from_frame  # noqa: E402
 
@@ -1474,4 +1475,5 @@ PROCEDURE = Procedure(
     identifiability=identifiability,
     first_order_std=first_order_std,
     first_order_budget=budget,
+    first_order_sensitivities=sensitivities,
 )
