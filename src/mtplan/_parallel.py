@@ -9,15 +9,38 @@ directly (see :func:`_dask_map`).
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import sys
 from collections.abc import Callable, Iterable, Iterator
 
 from mtplan._validate import InvalidInput, Problems
 
-__all__ = ["BACKENDS", "check_parallel", "ordered_map", "parallel_session"]
+__all__ = ["BACKENDS", "check_parallel", "one_blas_thread", "ordered_map", "parallel_session"]
 
 BACKENDS = ("loky", "threading", "multiprocessing", "dask", "sequential")
+
+
+@functools.lru_cache(maxsize=1)
+def _blas_controller():
+    import scipy.linalg  # noqa: F401 - loads scipy's own OpenBLAS before the look-up
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
+
+
+def one_blas_thread():
+    """A context in which numpy's and scipy's BLAS run on one thread (threadpoolctl).
+
+    For the many small products that fits, budgets, samplers and propagations are made
+    of, a team of threads costs more than it gains (several times, on a busy machine).
+    The libraries are found once (``threadpool_limits`` looks them up on every call:
+    milliseconds), after scipy.linalg is imported: a limit covers only the libraries
+    loaded when it is set, and scipy brings its own OpenBLAS, loaded on first use; left
+    out, it ran a posterior's least squares on every core, where a thin SVD that takes
+    5 ms on one thread took 80 ms of spinning CPU.
+    """
+    return _blas_controller().limit(limits=1, user_api="blas")
 
 
 def check_parallel(problems: Problems, n_jobs, backend, scheduler=None) -> None:

@@ -3,6 +3,8 @@ large-error bias of the stepwise (patent) method, and Monte Carlo against linear
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -12,6 +14,8 @@ from mtplan.models.kinematics import rotate, rotate_inverse, rotation_matrix
 from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 
 P = g21.PROCEDURE
+#: the procedure without its closed-form sensitivities: the generic GUM linearisation
+GENERIC = dataclasses.replace(P, first_order_sensitivities=None)
 SMALL = dict(poly_order=2, line_points=5, line_repeats=1, circle_points=12)
 
 
@@ -417,13 +421,33 @@ def test_first_order_budget_agrees_with_the_generic_linearisation():
     setup = g21.Setup(**SMALL, yz_extra_heads_mm=(100, 60, 0))
     for est in ("joint", "patent"):
         fast = g21.budget(setup, estimator=est)
-        gum = linearize_procedure(P, setup, estimator=est).budget()
+        gum = linearize_procedure(GENERIC, setup, estimator=est).budget()
         gum = gum.set_index(["output", "input"])["contribution"]
         for row in fast.itertuples():
             want = gum.get((row.measurand, row.source), 0.0)
             # (plate tilts act at second order: a few 1e-5 either way)
             assert row.std == pytest.approx(want, rel=1e-3, abs=1e-3), (est, row.measurand,
                                                                         row.source)
+
+
+@pytest.mark.parametrize("est", ["joint", "patent"])
+@pytest.mark.parametrize("kw,only", [({}, None),
+                                     ({"yz_extra_heads_mm": (100, 60, 0)}, None),
+                                     ({}, ["grid_error", "repeatability", "thermal_drift"])])
+def test_linearize_uses_the_closed_form_with_the_generic_numbers(est, kw, only):
+    """``linearize`` through the sensitivities hook (the estimator's linear map) gives the
+    generic linearisation's numbers (central differences of the forward model and the
+    estimator per element): value to round-off, every sensitivity to 1e-4 of the largest
+    (the joint fit's map is its derivative at zero error, the generic one's at the truth's
+    small errors: ~1e-5 apart), u to 1e-4."""
+    setup = g21.Setup(**SMALL, **kw)
+    fast = linearize_procedure(P, setup, estimator=est, sources=only)
+    gum = linearize_procedure(GENERIC, setup, estimator=est, sources=only)
+    assert fast.inputs == gum.inputs and fast.groups == gum.groups
+    np.testing.assert_allclose(fast.value, gum.value, rtol=0, atol=1e-8)
+    assert np.abs(fast.sensitivity - gum.sensitivity).max() <= 1e-4 * np.abs(
+        gum.sensitivity).max()
+    np.testing.assert_allclose(fast.std, gum.std, rtol=1e-4)
 
 
 @pytest.mark.parametrize("kw", [{}, dict(SMALL, yz_extra_heads_mm=(100, 60, 0),

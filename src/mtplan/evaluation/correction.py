@@ -68,8 +68,7 @@ def _least_squares(proc, setup, readings):
     """The readings' generalised least squares over the whole budget, cached per readings:
     ``((builder, theta, kept, root of the kept parameters' covariance, how), None)`` or
     ``(None, reason)``."""
-    from threadpoolctl import threadpool_limits
-
+    from mtplan._parallel import one_blas_thread
     from mtplan.evaluation import posterior as post
     from mtplan.evaluation._posterior_model import DOMAIN_ERRORS, Forward, TruthBuilder, \
         truth_parameters
@@ -82,7 +81,7 @@ def _least_squares(proc, setup, readings):
         builder = TruthBuilder(base, truth_parameters(proc, base, None))
         try:  # the posterior's start, without its sampling
             fwd = Forward(proc, setup, readings, builder, batch=True)
-            with threadpool_limits(limits=1, user_api="blas"):
+            with one_blas_thread():
                 theta0 = post._initial_theta(proc, setup, readings, builder, None, None, [])
                 fit = post._start(fwd, theta0, "setup", None, [])
                 space = post._identify(fwd, fit, [])

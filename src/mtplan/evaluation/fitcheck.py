@@ -247,9 +247,8 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
     from mtplan.evaluation import posterior as post
     from mtplan.evaluation._posterior_model import Forward, TruthBuilder, truth_parameters
     from mtplan.evaluation.readings import reading_origin
+    from mtplan._parallel import one_blas_thread
     from mtplan.models import get
-
-    from threadpoolctl import threadpool_limits
 
     proc = get(procedure)
     p_ = Problems(f"fit check {proc.name}")
@@ -262,7 +261,7 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
     fwd = Forward(proc, setup, readings, builder)
     notes: list = []
     try:
-        with threadpool_limits(limits=1, user_api="blas"):
+        with one_blas_thread():
             theta0 = post._initial_theta(proc, setup, readings, builder, None, estimator, notes)
             fit = post._start(fwd, theta0, mode, sigma, notes)
             g = fit.budget.gaussian(fit.sigma)

@@ -704,8 +704,9 @@ class _LogPosterior:
         if idx.size == 0:
             return out
         pred, good = self.fwd.predict(th[idx], nu[idx] if q else None)
-        ll = self.gauss.loglike(self.fwd.y - pred - self.fit.correction,
-                                None if log_sigma is None else log_sigma[idx])
+        res = self.fwd.y - pred
+        res -= self.fit.correction  # in place: (m, readings) arrays are megabytes
+        ll = self.gauss.loglike(res, None if log_sigma is None else log_sigma[idx])
         good &= np.isfinite(ll)
         out[idx[good]] = lp[idx[good]] + ll[good]
         return out
@@ -916,9 +917,8 @@ def sample_posterior(
     """
     import sys
 
+    from mtplan._parallel import one_blas_thread
     from mtplan.models import get
-
-    from threadpoolctl import threadpool_limits
 
     t_start = time.perf_counter()
     proc = get(procedure)
@@ -939,7 +939,7 @@ def sample_posterior(
         notes.append(f"{int((~fwd.mask).sum())} reading(s) missing from the file (NaN) are left "
                      "out of the likelihood")
     # one BLAS thread: the matrices are small and many, and threads only wait for each other
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         theta0 = _initial_theta(proc, setup, readings, builder, start, estimator, notes)
         fit = _start(fwd, theta0, mode, sigma, notes)
         space = _identify(fwd, fit, notes)

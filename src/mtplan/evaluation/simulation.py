@@ -538,7 +538,15 @@ def linearize_procedure(
         out = _measure(proc, setup, proc.forward(setup, truth, errors), est_name)
         return np.column_stack([out[mm.name] for mm in measurands])
 
-    if x.size:
+    closed = None if proc.first_order_sensitivities is None else \
+        proc.first_order_sensitivities(setup, truth, estimator=est_name, sources=sources)
+    if closed is not None:  # the procedure's closed form of the same linearisation
+        f0, jac = (np.asarray(a, dtype=float) for a in closed)
+        if f0.shape != (len(measurands),) or jac.shape != (len(measurands), x.size):
+            raise InvalidInput([f"The first_order_sensitivities hook of {proc.name} gave "
+                                f"shapes {f0.shape} and {jac.shape}; the linearisation needs "
+                                f"({len(measurands)},) and ({len(measurands)}, {x.size})."])
+    elif x.size:
         f0, jac = sensitivities(evaluate, x, u, max_batch=max(64, 2_000_000 // max(x.size, 1)))
     else:
         f0 = evaluate(np.zeros((1, 0)))[0]

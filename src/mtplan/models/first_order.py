@@ -27,12 +27,12 @@ u^2. With up to ``_WHOLE_MAX`` source elements the whole chain is differentiated
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 
 import numpy as np
 import pandas as pd
 
+from mtplan._parallel import one_blas_thread
 from mtplan._validate import InvalidInput
 from mtplan.uncertainty.gum import sensitivities
 
@@ -474,21 +474,6 @@ def chain_variances(proc, setup, truth=None, *, estimator=None, sources=None) ->
     # small products: a team of BLAS threads costs more than it gains, most on a busy machine
     with one_blas_thread():
         return _chain_variances(proc, setup, truth, estimator, sources)
-
-
-@functools.lru_cache(maxsize=1)
-def _controller():
-    from threadpoolctl import ThreadpoolController
-
-    return ThreadpoolController()
-
-
-def one_blas_thread():
-    """A context in which BLAS runs on one thread: for the products of a few hundred rows
-    that fits and propagations are made of, where a team of threads costs more than it
-    gains (several times, on a busy machine). The libraries are found once (threadpoolctl's
-    own ``threadpool_limits`` looks for them each time: milliseconds)."""
-    return _controller().limit(limits=1, user_api="blas")
 
 
 def _chain_variances(proc, setup, truth, estimator, sources) -> dict:

@@ -28,7 +28,8 @@ A procedure module (``mtplan/models/<name>.py``) defines a module-level
   tolerance within which a value the user states agrees with the file (:class:`Implied`).
 - optional analysis hooks, each a field of :class:`Procedure` whose default None selects
   the generic analysis: ``identifiability_report``, ``report_extras``, ``identifiability``,
-  ``observability`` and ``first_order_std`` (see the fields' comments).
+  ``observability``, ``first_order_std`` and ``first_order_sensitivities`` (see the
+  fields' comments).
 
 The :class:`Procedure` record is the whole contract: the planner, the study and the
 reports use only its fields, never a function looked up by name in a procedure's module.
@@ -641,6 +642,13 @@ class Procedure:
     #: ``unit``, ``source``, ``std``, ``share``), for the live designer. None (or the hook
     #: returning None for an estimator it does not map): the generic GUM linearisation's budget
     first_order_budget: Callable | None = None
+    #: optional ``first_order_sensitivities(setup, truth, *, estimator, sources) -> (value,
+    #: jacobian)``: the measurands [display unit] at the sources' means and their
+    #: sensitivity to every element of every active source (columns: the active sources in
+    #: order, each one's elements flattened), the closed form of the generic GUM
+    #: linearisation that ``mtplan linearize`` makes. None (or the hook returning None): the
+    #: generic one (central differences through the forward model and the estimator)
+    first_order_sensitivities: Callable | None = None
 
     # ----------------------------------------------------------------- helpers
     @property

@@ -371,11 +371,11 @@ def run_blocks(
     stats: list[np.ndarray] = []
     converged = not adaptive
     jobs = max(effective_jobs(n_jobs), 1)
-    from threadpoolctl import threadpool_limits
+    from mtplan._parallel import one_blas_thread
 
     # Blocks do many small matrix products: BLAS threads only fight each other (and the
     # workers) over the cores, so each block runs single-threaded, as joblib's workers do.
-    with threadpool_limits(limits=1, user_api="blas"), \
+    with one_blas_thread(), \
             parallel_session(n_jobs, backend, scheduler) as session:
         tasks = ((*block_args, root, i, sizes(i)) for i in range(n_blocks_max))
         chunk = jobs if adaptive else None

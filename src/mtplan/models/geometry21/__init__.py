@@ -474,6 +474,10 @@ class _Geometry:
     n_par: int             # coefficients + 3 per plane + 2 per extra head
     u_end: float
     duration_s: float
+    # the readings' distinct points (plane, commanded position, head offset) as a geometry
+    # of their own (its per-reading arrays only), and the point of every reading: the rigid-
+    # body chain is evaluated once per point and spread (repeated passes, forward and back)
+    points: tuple | None = None
 
 
 def _plane_centre(setup, k):
@@ -583,7 +587,30 @@ def _geometry(setup: Setup) -> _Geometry:
     geo["powers"] = cmd.T[:, None, :] ** np.arange(setup.poly_order + 1)[None, :, None]
     geo["distinct"] = tuple((inv, u[None, :] ** np.arange(setup.poly_order + 1)[:, None])
                             for u, inv in (np.unique(x, return_inverse=True) for x in cmd.T))
+    geo["points"] = _points(geo)
     return _Geometry(**geo)
+
+
+def _points(geo: dict) -> tuple:
+    """(geometry of the distinct points, index (M,) of each reading's point).
+
+    A reading's position in its plate's nominal frame (:func:`_truth_positions`) depends on
+    its plane, commanded position and head offset only; the line passes repeat their points
+    (``line_repeats``, forward and back), so about a quarter of the readings are distinct.
+    The points keep the planes' order (plane first), so each plane's are contiguous, as
+    :func:`_local3` needs; only the per-reading arrays are taken (no extra-head slices).
+    """
+    key = np.column_stack([geo["plane"], geo["cmd"], geo["hvec"]])
+    _, rep, spread = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    sub = {k: v for k, v in geo.items() if k != "points"}
+    for k in ("plane", "head", "xhead", "test", "pass_", "point", "cmd", "local", "hvec",
+              "time_s"):
+        sub[k] = geo[k][rep]
+    sub["pattern"] = geo["pattern"][:, rep]
+    sub["powers"] = geo["powers"][..., rep]
+    sub["distinct"] = tuple((inv[rep], at) for inv, at in geo["distinct"])
+    sub["xslices"], sub["n_extra"] = (), 0
+    return _Geometry(**sub), np.asarray(spread).reshape(-1)
 
 
 def _feature_patterns(setup, plane, cmd, local, vdir, time_s, phi, sense, test):
@@ -918,9 +945,13 @@ def _forward_matrix(setup: Setup, truth: Truth) -> np.ndarray:
 
 
 def _truth_positions(geo: _Geometry, coefs: dict) -> np.ndarray:
-    """Head positions (n, M, 3) in the plates' frames for coefficients (n, L) per function."""
+    """Head positions (n, M, 3) in the plates' frames for coefficients (n, L) per function,
+    exact: the chain evaluated once per distinct point (:func:`_points`), the same numbers
+    spread to every reading."""
+    sub, spread = geo.points
     trig: dict = {}
-    return _local3(geo, chain(_values(geo, coefs, trig), *geo.cmd.T, geo.hvec, geo.ref, trig))
+    p = chain(_values(sub, coefs, trig), *sub.cmd.T, sub.hvec, sub.ref, trig)
+    return np.take(_local3(sub, p), spread, axis=1)
 
 
 def true_values(setup: Setup, truth: Truth) -> dict:
@@ -1048,12 +1079,10 @@ def _predict(geo: _Geometry, theta: np.ndarray) -> np.ndarray:
     """Noise-free readings (n, M, 2) for parameters theta (n, n_par), exact model."""
     n = theta.shape[0]
     coefs = {name: (pw, theta[:, sl]) for name, (pw, sl) in geo.layout.items()}
-    trig: dict = {}
-    p = chain(_values(geo, coefs, trig), *geo.cmd.T, geo.hvec, geo.ref, trig)
     offset, turn, head = _nuisance(geo, theta)
     rot = np.zeros((n, 3, 3))
     rot[:, :, 2] = turn
-    return _mount(geo, _local3(geo, p), offset, head, rot)
+    return _mount(geo, _truth_positions(geo, coefs), offset, head, rot)
 
 
 def _measurand_map(geo: _Geometry) -> np.ndarray:
@@ -1414,6 +1443,7 @@ from mtplan.models.geometry21._first_order import (  # noqa: E402
     identifiability_report,
     noise_free_table,
     report_extras,
+    sensitivities,
 )
 from mtplan.models.geometry21._frames import setup_from_frame  # noqa: E402
 
@@ -1445,4 +1475,5 @@ PROCEDURE = Procedure(
     identifiability=identifiability,
     first_order_std=first_order_std,
     first_order_budget=budget,
+    first_order_sensitivities=sensitivities,
 )
