@@ -33,6 +33,7 @@ import tomllib
 
 import numpy as np
 
+from mtplan._parallel import one_blas_thread
 from mtplan._validate import InvalidInput
 from mtplan.models import get, registry
 from mtplan.models.protocol import UNIT_SUFFIXES, fields_info, make, parse_fields
@@ -159,24 +160,11 @@ def setup_of(design):
 
 
 # --------------------------------------------------------------------------- prediction
-@functools.lru_cache(maxsize=1)
-def _blas():
-    from threadpoolctl import ThreadpoolController
-
-    return ThreadpoolController()
-
-
-def _one_blas_thread():
-    """One BLAS thread for the live numbers: their products are small, where threads only
-    wait on each other (on a loaded machine they spin for many times the work)."""
-    return _blas().limit(limits=1, user_api="blas")
-
-
 @functools.lru_cache(maxsize=512)
 def _predict_cached(name: str, setup_key: str, estimator: str):
     proc = get(name)
     setup = make(proc.Setup, json.loads(setup_key), owner=proc.name)
-    with _one_blas_thread():
+    with one_blas_thread():  # small products: threads only wait on each other
         return _predict(proc, setup, estimator)
 
 
@@ -221,7 +209,7 @@ def predict(proc, setup, estimator) -> dict:
 def _identify_cached(name: str, geometry_key: str) -> dict:
     proc = get(name)
     setup = make(proc.Setup, json.loads(geometry_key), owner=proc.name)
-    with _one_blas_thread():
+    with one_blas_thread():
         return identify(proc, setup)
 
 
