@@ -70,7 +70,7 @@ def test_ggs_points_with_no_setup_give_the_published_circle(capsys):
 @pytest.mark.parametrize("name", sorted(registry()))
 def test_every_example_readings_file_estimates_with_no_set(capsys, name):
     # the trials give only the u, which is not what is checked here: 10 are enough (each of
-    # line_laser's costs a fifth of a second)
+    # line_laser's costs about 0.08 s of CPU)
     code, out, err = run(capsys, "estimate", name, EXAMPLES / f"{name}_readings.csv", "--json",
                          "--trials", 10)
     assert code == 0, err
