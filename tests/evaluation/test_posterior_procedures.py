@@ -11,6 +11,10 @@ whole forward model; what the set-up knows only to a tolerance is an error sourc
 differs from the bias-corrected `mc` value by at most 0.5 u. The default estimator is an exact one
 and determines every measurand. The `mc` path: no value outside its own interval, no interval
 of zero width.
+
+The `mc` trials (:data:`TRIALS`) are what the tolerances need: 4000 where the correlations are
+compared (four standard errors of a correlation below 0.1), 2000 for line_laser, whose
+correlations are not compared and whose `mc` costs ten times the others' per trial.
 """
 
 from __future__ import annotations
@@ -29,6 +33,12 @@ from mtplan.models import registry
 
 EXAMPLES = Path(mtplan.__file__).parent / "examples"
 HEAVY = {"line_laser", "geometry21", "tracker_frame"}
+#: the `mc` trials of the default estimator: the u ratio's band widens by four standard errors
+#: of the ratio, 4 hypot(1/sqrt(2 ESS), 1/sqrt(2 (trials - 1))): 0.058 at 4000 trials, 0.073 at
+#: 2000 (with the posterior's ESS of about 6000), so a posterior u more than 23 % away from the
+#: `mc` u (a source left out of the likelihood or counted twice) still fails
+TRIALS = {"line_laser": 2000}
+DEFAULT_TRIALS = 4000
 
 
 def _params(name):
@@ -47,7 +57,8 @@ def default_mc():
             proc = registry()[name]
             setup = proc.Setup()
             readings = read_readings(proc, setup, EXAMPLES / f"{name}_readings.csv")
-            mc = estimate_measured(proc, setup, readings, uncertainty="mc", trials=4000, rng=1)
+            mc = estimate_measured(proc, setup, readings, uncertainty="mc",
+                                  trials=TRIALS.get(name, DEFAULT_TRIALS), rng=1)
             cache[name] = (proc, setup, readings, mc)
         return cache[name]
 
@@ -80,7 +91,9 @@ def test_posterior_of_every_measurand_against_mc(evaluated, name):
         assert mc.determinable[i], (m.name, mc.reasons)
         ratio = u_post / u_mc
         # Monte Carlo error of the ratio: the posterior's ESS and the mc trials, 4 sigma
-        tol = 4 * math.hypot(1 / math.sqrt(2 * post.ess[m.name]), 1 / math.sqrt(2 * 3999))
+        trials = TRIALS.get(name, DEFAULT_TRIALS)
+        tol = 4 * math.hypot(1 / math.sqrt(2 * post.ess[m.name]),
+                             1 / math.sqrt(2 * (trials - 1)))
         assert 0.85 - tol <= ratio <= 1.15 + tol, (m.name, ratio, u_post, u_mc)
         # the default estimators are efficient (ratio ~1): the estimate scatters about the
         # posterior's by sqrt(u_mc^2 - u_post^2), small, so the issue's 0.5 u holds as it is
@@ -92,7 +105,7 @@ def test_posterior_of_every_measurand_against_mc(evaluated, name):
 def test_mc_values_lie_in_their_intervals_of_nonzero_width(default_mc, name):
     """Every estimator of every procedure: a determinable measurand's value lies strictly
     inside its interval; one that is not has NaN numbers and a reason. (The default
-    estimator's result is the one the posterior is held to, 4000 trials.)"""
+    estimator's result is the one the posterior is held to, :data:`TRIALS`.)"""
     proc, setup, readings, default = default_mc(name)
     for est in proc.estimators:
         if est == default.estimator:
@@ -133,7 +146,7 @@ def test_posterior_and_mc_correlations_agree(evaluated, name):
     for i in range(len(names)):
         for j in range(i):
             se = math.hypot((1 - r_post[i, j] ** 2) / math.sqrt(ess),
-                            (1 - r_mc[i, j] ** 2) / math.sqrt(4000))
+                            (1 - r_mc[i, j] ** 2) / math.sqrt(TRIALS.get(name, DEFAULT_TRIALS)))
             assert 4 * se < 0.1, (names[i], names[j], se)
             assert abs(r_post[i, j] - r_mc[i, j]) <= 0.1, (names[i], names[j], r_post[i, j],
                                                             r_mc[i, j])
