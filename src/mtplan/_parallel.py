@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterable, Iterator
 
 from mtplan._validate import InvalidInput, Problems
 
-__all__ = ["BACKENDS", "check_parallel", "ordered_map", "parallel_session"]
+__all__ = ["BACKENDS", "check_parallel", "ordered_map", "parallel_session", "stage_executor"]
 
 BACKENDS = ("loky", "threading", "multiprocessing", "dask", "sequential")
 
@@ -62,6 +62,39 @@ def _reach(address: str) -> None:
         reason = "no answer" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc))
         raise InvalidInput([f"The Dask scheduler {address!r} cannot be reached ({reason} within "
                             f"{CONNECT_TIMEOUT_S:g} s)."]) from None
+
+
+#: the pool :func:`stage_executor` hands out: (number of workers, executor)
+_stage_pool: tuple | None = None
+
+
+def stage_executor(jobs: int):
+    """A reusable pool of ``jobs`` worker processes for whole stages submitted one by one
+    (the staged study, then the documents drawn from it): the same pool, already started,
+    for every caller that asks for the same number of workers.
+
+    On Linux the workers are forked from this process when the first task is submitted, so
+    they start with every module this process has imported by then (a caller imports what
+    its tasks need first; each worker would otherwise import, and on a fresh installation
+    byte-compile, numpy, scipy and the models again). Elsewhere: joblib's loky workers.
+    Arguments and results travel pickled; the workers take no part in the results' values.
+    """
+    global _stage_pool
+    if _stage_pool is not None and _stage_pool[0] == jobs:
+        return _stage_pool[1]
+    if _stage_pool is not None:
+        _stage_pool[1].shutdown(wait=True)
+    if sys.platform.startswith("linux"):
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        executor = ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork"))
+    else:  # pragma: no cover - fork is only safe on Linux
+        from joblib.executor import get_memmapping_executor
+
+        executor = get_memmapping_executor(jobs, max_nbytes=None)
+    _stage_pool = (jobs, executor)
+    return executor
 
 
 def effective_jobs(n_jobs: int) -> int:

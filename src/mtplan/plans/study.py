@@ -836,9 +836,10 @@ def _run_stages(tasks, unlocked, study, jobs, bar) -> dict:
         return done
     from concurrent.futures import FIRST_COMPLETED, wait
 
-    from joblib.executor import get_memmapping_executor
+    from mtplan._parallel import stage_executor
 
-    executor = get_memmapping_executor(jobs)  # joblib's reusable loky workers
+    _import_stage_modules(study)  # before the workers start: they inherit them
+    executor = stage_executor(jobs)
     running = {}
     while ready or running:
         while ready and len(running) < jobs:
@@ -849,6 +850,22 @@ def _run_stages(tasks, unlocked, study, jobs, bar) -> dict:
         for future in finished:
             finish(running.pop(future), future.result())
     return done
+
+
+def _import_stage_modules(study) -> None:
+    """Import what the stages of ``study`` run (the workers forked from this process then
+    have them; see :func:`mtplan._parallel.stage_executor`)."""
+    import threadpoolctl  # noqa: F401
+
+    import mtplan.evaluation.measured  # noqa: F401
+    import mtplan.evaluation.posterior  # noqa: F401
+    import mtplan.evaluation.simulation  # noqa: F401
+    import mtplan.plans.identifiability  # noqa: F401
+    import mtplan.plans.planner  # noqa: F401
+    import mtplan.plans.sweep  # noqa: F401
+
+    for ps in study.procedures:
+        _model(ps.name)
 
 
 def _stage(kind, ps, study, arg):
@@ -965,15 +982,37 @@ def _count_steps(study):
     return n
 
 
+class _Lines:
+    """The progress where stderr is no terminal (a CI log, a pipe): one short line per
+    finished stage, instead of a bar redrawn with carriage returns."""
+
+    def __init__(self, total: int, file):
+        self.total, self.n, self.file = total, 0, file
+        self.text = ""
+
+    def set_postfix_str(self, text: str) -> None:
+        self.text = text
+
+    def update(self, n: int = 1) -> None:
+        self.n += n
+        print(f"study {self.n}/{self.total}: {self.text}", file=self.file, flush=True)
+
+    def close(self) -> None:
+        pass
+
+
 def _bar(progress, total):
+    """A progress bar on a terminal; with ``progress`` True and stderr no terminal, a line
+    per stage; None where there is nothing to show."""
     import sys
 
-    if progress is False:
+    if progress is False or (progress is None and not sys.stderr.isatty()):
         return None
+    if not sys.stderr.isatty():
+        return _Lines(total, sys.stderr)
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc="study", unit="step", file=sys.stderr, leave=False,
-                disable=progress is None and not sys.stderr.isatty())
+    return tqdm(total=total, desc="study", unit="step", file=sys.stderr, leave=False)
 
 
 def _tick(bar, text):
