@@ -349,6 +349,7 @@ def _canvas_maker(doc: Document):
 
 def render_pdf(doc: Document) -> bytes:
     """The report as a PDF: cover, summary, contents, body, appendix."""
+    from reportlab import rl_config
     from reportlab.lib.pagesizes import A4
     from reportlab.lib.units import cm
     from reportlab.platypus import PageBreak, Paragraph, Spacer, TableStyle
@@ -380,8 +381,6 @@ def render_pdf(doc: Document) -> bytes:
             story.append(PageBreak())
     if doc.end_mark:
         story.append(Paragraph(f"<b>\u2014 {escape(doc.end_mark)} \u2014</b>", st["end"]))
-    from reportlab import rl_config
-
     buf = io.BytesIO()
     pdf = _doc_template(buf, doc)
     # binary Flate streams, not ASCII85 text ones: reportlab's pure-Python ASCII85 encoder
@@ -423,8 +422,8 @@ def write_report(result, out_dir, plan=None, *, plan_only: bool = False,
     dict from :func:`mtplan.plans.agreement.read_plan`, already checked against the study)
     only the report is written. Every file is written to a temporary name and renamed into
     place, so an interrupted report leaves no half-written file. With ``n_jobs`` > 1 the
-    plan and the report are built and rendered at the same time, each in its own process
-    (the same documents as one after the other; see :func:`_write_both`). Returns the paths written
+    plan's figures and the report are drawn on that many processes at once (the same
+    documents as one after the other; see :func:`_write_both`). Returns the paths written
     (``pdf``/``html``: the last document written).
     """
     import json
@@ -489,7 +488,7 @@ def _write_both(result, out: Path, plan: dict, n_jobs: int) -> dict:
 
     with atomic_write(out / "plan.json", "w", encoding="utf-8") as fh:
         json.dump(plan, fh, indent=1)
-    # joblib's reusable loky workers: those the study ran on, already started
+    # the pool the study ran on, when it ran here: its workers are started already
     executor = stage_executor(max(effective_jobs(n_jobs), 2))
     parts = [executor.submit(plan_parts, k, o) for k, o in enumerate(result.outcomes, start=1)]
     report = executor.submit(_document, result, plan, out, "report")
