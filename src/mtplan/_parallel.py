@@ -73,26 +73,30 @@ def stage_executor(jobs: int):
     (the staged study, then the documents drawn from it): the same pool, already started,
     for every caller that asks for the same number of workers.
 
-    On Linux the workers are forked from this process when the first task is submitted, so
-    they start with every module this process has imported by then (a caller imports what
-    its tasks need first; each worker would otherwise import, and on a fresh installation
-    byte-compile, numpy, scipy and the models again). Elsewhere: joblib's loky workers.
-    Arguments and results travel pickled; the workers take no part in the results' values.
+    On Linux, in a process with no other thread, the workers are forked from this process
+    when the first task is submitted, all at once, so they start with every module this
+    process has imported by then (a caller imports what its tasks need first; each worker
+    would otherwise import, and on a fresh installation byte-compile, numpy, scipy and the
+    models again). Elsewhere, or beside other threads (whose locks a forked child could find
+    held): joblib's loky workers, started afresh. Arguments and results travel pickled; the
+    workers take no part in the results' values.
     """
+    import threading
+
     global _stage_pool
     if _stage_pool is not None and _stage_pool[0] == jobs:
         return _stage_pool[1]
     if _stage_pool is not None:
         _stage_pool[1].shutdown(wait=True)
-    if sys.platform.startswith("linux"):
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        executor = ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork"))
-    else:  # pragma: no cover - fork is only safe on Linux
+        _stage_pool = None
+    if not sys.platform.startswith("linux") or threading.active_count() > 1:
         from joblib.executor import get_memmapping_executor
 
-        executor = get_memmapping_executor(jobs, max_nbytes=None)
+        return get_memmapping_executor(jobs, max_nbytes=None)  # loky reuses its own pool
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    executor = ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork"))
     _stage_pool = (jobs, executor)
     return executor
 

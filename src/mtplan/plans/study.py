@@ -1012,6 +1012,7 @@ def _bar(progress, total):
         return _Lines(total, sys.stderr)
     from tqdm.auto import tqdm
 
+    tqdm.monitor_interval = 0  # no monitor thread: the stage workers are forked after it
     return tqdm(total=total, desc="study", unit="step", file=sys.stderr, leave=False)
 
 
