@@ -75,9 +75,10 @@ def stage_executor(jobs: int):
 
     On Linux, in a process with no other thread, the workers are forked from this process
     when the first task is submitted, all at once, so they start with every module this
-    process has imported by then (a caller imports what its tasks need first; each worker
-    would otherwise import, and on a fresh installation byte-compile, numpy, scipy and the
-    models again). Elsewhere, or beside other threads (whose locks a forked child could find
+    process has imported by then (each worker would otherwise import numpy, scipy, pandas
+    and the models again; a module only the tasks need is imported by each worker, at once:
+    importing it here first would keep the other core idle meanwhile, and on a fresh
+    installation also while it is compiled to bytecode). Elsewhere, or beside other threads (whose locks a forked child could find
     held): joblib's loky workers, started afresh. Arguments and results travel pickled; the
     workers take no part in the results' values.
     """

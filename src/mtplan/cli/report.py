@@ -51,10 +51,6 @@ def _report(study_path, out, jobs, progress, command, plan_path=None, plan_only=
     if problem:
         raise UsageError(f"--out: {problem}")
     start = time.perf_counter()
-    if jobs != 1:  # the worker processes, forked later, then draw and render without importing
-        import matplotlib.backends.backend_agg  # noqa: F401
-        import matplotlib.figure  # noqa: F401
-        import reportlab.platypus  # noqa: F401
     study = load_study(study_path)
     plan = None
     if plan_path is not None:  # refused before anything is computed

@@ -838,8 +838,7 @@ def _run_stages(tasks, unlocked, study, jobs, bar) -> dict:
 
     from mtplan._parallel import stage_executor
 
-    _import_stage_modules(study)  # before the workers start: they inherit them
-    executor = stage_executor(jobs)
+    executor = stage_executor(jobs)  # forked: with the modules imported here (the models)
     running = {}
     while ready or running:
         while ready and len(running) < jobs:
@@ -850,22 +849,6 @@ def _run_stages(tasks, unlocked, study, jobs, bar) -> dict:
         for future in finished:
             finish(running.pop(future), future.result())
     return done
-
-
-def _import_stage_modules(study) -> None:
-    """Import what the stages of ``study`` run (the workers forked from this process then
-    have them; see :func:`mtplan._parallel.stage_executor`)."""
-    import threadpoolctl  # noqa: F401
-
-    import mtplan.evaluation.measured  # noqa: F401
-    import mtplan.evaluation.posterior  # noqa: F401
-    import mtplan.evaluation.simulation  # noqa: F401
-    import mtplan.plans.identifiability  # noqa: F401
-    import mtplan.plans.planner  # noqa: F401
-    import mtplan.plans.sweep  # noqa: F401
-
-    for ps in study.procedures:
-        _model(ps.name)
 
 
 def _stage(kind, ps, study, arg):
