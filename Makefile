@@ -14,14 +14,30 @@ PY     := $(VENV)/bin/python
 # would compile numpy, scipy, pandas and matplotlib from source again)
 PIP    := $(PY) -m pip install --quiet --no-compile --disable-pip-version-check
 
+# The install at once on both cores, where this Python's own pip can install into the venv
+# (pip >= 22.3, --python): the dependencies (resolved from the index: most of the time) in
+# one pip, mtplan itself (--no-deps: its build in an isolated setuptools) in another, and pip
+# into the venv (ensurepip) in a third; they write disjoint files. Elsewhere one after the
+# other, with the venv's own pip. $(1): the extras ("" or "[test]").
+DEPS = $$($(PYTHON) -c 'import tomllib; p = tomllib.load(open("pyproject.toml", "rb"))["project"]; print(*p["dependencies"], *(d for e in "$(1)".strip("[]").split(",") if e for d in p["optional-dependencies"][e]))')
+HOSTPIP := $(PYTHON) -m pip --python $(PY) install --quiet --no-compile --disable-pip-version-check
+define install
+	$(PYTHON) -m venv --without-pip $(VENV)
+	if $(PYTHON) -m pip --python $(PY) --version >/dev/null 2>&1; then \
+		$(PY) -m ensurepip --default-pip >/dev/null & venvpip=$$!; \
+		$(HOSTPIP) --no-deps -e . & self=$$!; \
+		$(HOSTPIP) $(DEPS) && wait $$self && wait $$venvpip; \
+	else \
+		$(PY) -m ensurepip --default-pip >/dev/null && $(PIP) -e '.$(1)'; \
+	fi
+endef
+
 $(VENV)/.installed: pyproject.toml
-	$(PYTHON) -m venv $(VENV)
-	$(PIP) -e .
+	$(call install,)
 	touch $@
 
 $(VENV)/.installed-test: pyproject.toml
-	$(PYTHON) -m venv $(VENV)
-	$(PIP) -e '.[test]'
+	$(call install,[test])
 	touch $(VENV)/.installed $@
 
 demo: $(VENV)/.installed

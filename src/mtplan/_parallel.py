@@ -16,7 +16,8 @@ from collections.abc import Callable, Iterable, Iterator
 
 from mtplan._validate import InvalidInput, Problems
 
-__all__ = ["BACKENDS", "check_parallel", "one_blas_thread", "ordered_map", "parallel_session"]
+__all__ = ["BACKENDS", "check_parallel", "one_blas_thread", "ordered_map", "parallel_session",
+           "stage_executor"]
 
 BACKENDS = ("loky", "threading", "multiprocessing", "dask", "sequential")
 
@@ -85,6 +86,44 @@ def _reach(address: str) -> None:
         reason = "no answer" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc))
         raise InvalidInput([f"The Dask scheduler {address!r} cannot be reached ({reason} within "
                             f"{CONNECT_TIMEOUT_S:g} s)."]) from None
+
+
+#: the pool :func:`stage_executor` hands out: (number of workers, executor)
+_stage_pool: tuple | None = None
+
+
+def stage_executor(jobs: int):
+    """A reusable pool of ``jobs`` worker processes for whole stages submitted one by one
+    (the staged study, then the documents drawn from it): the same pool, already started,
+    for every caller that asks for the same number of workers.
+
+    On Linux, in a process with no other thread, the workers are forked from this process
+    when the first task is submitted, all at once, so they start with every module this
+    process has imported by then (each worker would otherwise import numpy, scipy, pandas
+    and the models again; a module only the tasks need is imported by each worker, at once:
+    importing it here first would keep the other core idle meanwhile, and on a fresh
+    installation also while it is compiled to bytecode). Elsewhere, or beside other threads (whose locks a forked child could find
+    held): joblib's loky workers, started afresh. Arguments and results travel pickled; the
+    workers take no part in the results' values.
+    """
+    import threading
+
+    global _stage_pool
+    if _stage_pool is not None and _stage_pool[0] == jobs:
+        return _stage_pool[1]
+    if _stage_pool is not None:
+        _stage_pool[1].shutdown(wait=True)
+        _stage_pool = None
+    if not sys.platform.startswith("linux") or threading.active_count() > 1:
+        from joblib.executor import get_memmapping_executor
+
+        return get_memmapping_executor(jobs, max_nbytes=None)  # loky reuses its own pool
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    executor = ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork"))
+    _stage_pool = (jobs, executor)
+    return executor
 
 
 def effective_jobs(n_jobs: int) -> int:

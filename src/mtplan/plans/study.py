@@ -836,9 +836,9 @@ def _run_stages(tasks, unlocked, study, jobs, bar) -> dict:
         return done
     from concurrent.futures import FIRST_COMPLETED, wait
 
-    from joblib.executor import get_memmapping_executor
+    from mtplan._parallel import stage_executor
 
-    executor = get_memmapping_executor(jobs)  # joblib's reusable loky workers
+    executor = stage_executor(jobs)  # forked: with the modules imported here (the models)
     running = {}
     while ready or running:
         while ready and len(running) < jobs:
@@ -854,9 +854,9 @@ def _run_stages(tasks, unlocked, study, jobs, bar) -> dict:
 def _stage(kind, ps, study, arg):
     """One stage of a procedure (see :func:`run_study`) in a worker: with one BLAS thread,
     as the workers share the cores."""
-    from threadpoolctl import threadpool_limits
+    from mtplan._parallel import one_blas_thread
 
-    with threadpool_limits(limits=1):
+    with one_blas_thread():  # scipy's own OpenBLAS too
         return _stage_work(kind, ps, study, arg)
 
 
@@ -965,15 +965,38 @@ def _count_steps(study):
     return n
 
 
+class _Lines:
+    """The progress where stderr is no terminal (a CI log, a pipe): one short line per
+    finished stage, instead of a bar redrawn with carriage returns."""
+
+    def __init__(self, total: int, file):
+        self.total, self.n, self.file = total, 0, file
+        self.text = ""
+
+    def set_postfix_str(self, text: str) -> None:
+        self.text = text
+
+    def update(self, n: int = 1) -> None:
+        self.n += n
+        print(f"study {self.n}/{self.total}: {self.text}", file=self.file, flush=True)
+
+    def close(self) -> None:
+        pass
+
+
 def _bar(progress, total):
+    """A progress bar on a terminal; with ``progress`` True and stderr no terminal, a line
+    per stage; None where there is nothing to show."""
     import sys
 
-    if progress is False:
+    if progress is False or (progress is None and not sys.stderr.isatty()):
         return None
+    if not sys.stderr.isatty():
+        return _Lines(total, sys.stderr)
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc="study", unit="step", file=sys.stderr, leave=False,
-                disable=progress is None and not sys.stderr.isatty())
+    tqdm.monitor_interval = 0  # no monitor thread: the stage workers are forked after it
+    return tqdm(total=total, desc="study", unit="step", file=sys.stderr, leave=False)
 
 
 def _tick(bar, text):

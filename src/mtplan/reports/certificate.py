@@ -592,11 +592,25 @@ def _plan_test(k, o, plan, study) -> Section:
     return Section(f"{k}. {o.spec.label}", level=2, blocks=blocks)
 
 
-def build_plan(result, plan) -> Document:
-    """The test plan of a computed study (its readings, if any, are not used)."""
+def plan_parts(k, o) -> tuple:
+    """What the test plan draws from test ``k`` alone (its figures): (its body section,
+    (its appendix section, the appendix's CSV frames)). Each test's parts can be drawn in
+    another process (:func:`build_plan`'s ``parts``)."""
     from mtplan.reports import appendix
-    from mtplan.reports.document import methods_section, test_section
+    from mtplan.reports.document import test_section
 
+    return (test_section(k, dataclasses.replace(o, measured=None, verdicts=[])),
+            appendix.procedure_section(k, o, measured=False))
+
+
+def build_plan(result, plan, parts=None) -> Document:
+    """The test plan of a computed study (its readings, if any, are not used). ``parts``:
+    :func:`plan_parts` of each test, in test order, where they were drawn already."""
+    from mtplan.reports import appendix
+    from mtplan.reports.document import methods_section
+
+    if parts is None:
+        parts = [plan_parts(k, o) for k, o in enumerate(result.outcomes, start=1)]
     study = result.study
     rules = Section("Tests and decision rules", anchor="rules", blocks=[
         "What each test measures, how, with which instruments and how long, the uncertainty "
@@ -605,11 +619,9 @@ def build_plan(result, plan) -> Document:
     rules.blocks += [_plan_test(k, o, plan, study)
                      for k, o in enumerate(result.outcomes, start=1)]
     sections = [rules, methods_section(result), _glossary_section()]
-    sections += [test_section(k, dataclasses.replace(o, measured=None, verdicts=[]))
-                 for k, o in enumerate(result.outcomes, start=1)]
+    sections += [body for body, _ in parts]
     csv = {}
-    for k, o in enumerate(result.outcomes, start=1):
-        sec, frames = appendix.procedure_section(k, o, measured=False)
+    for _, (sec, frames) in parts:
         sections.append(sec)
         csv.update(frames)
     sections.append(appendix.provenance_section(result.provenance, document="plan"))

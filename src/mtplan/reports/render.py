@@ -349,6 +349,7 @@ def _canvas_maker(doc: Document):
 
 def render_pdf(doc: Document) -> bytes:
     """The report as a PDF: cover, summary, contents, body, appendix."""
+    from reportlab import rl_config
     from reportlab.lib.pagesizes import A4
     from reportlab.lib.units import cm
     from reportlab.platypus import PageBreak, Paragraph, Spacer, TableStyle
@@ -382,7 +383,13 @@ def render_pdf(doc: Document) -> bytes:
         story.append(Paragraph(f"<b>\u2014 {escape(doc.end_mark)} \u2014</b>", st["end"]))
     buf = io.BytesIO()
     pdf = _doc_template(buf, doc)
-    pdf.multiBuild(story, canvasmaker=_canvas_maker(doc))
+    # binary Flate streams, not ASCII85 text ones: reportlab's pure-Python ASCII85 encoder
+    # took half the rendering time of a PDF with figures (each is encoded on every pass)
+    a85, rl_config.useA85 = rl_config.useA85, 0
+    try:
+        pdf.multiBuild(story, canvasmaker=_canvas_maker(doc))
+    finally:
+        rl_config.useA85 = a85
     return buf.getvalue()
 
 
@@ -415,8 +422,8 @@ def write_report(result, out_dir, plan=None, *, plan_only: bool = False,
     dict from :func:`mtplan.plans.agreement.read_plan`, already checked against the study)
     only the report is written. Every file is written to a temporary name and renamed into
     place, so an interrupted report leaves no half-written file. With ``n_jobs`` > 1 the
-    plan and the report are built and rendered at the same time, each in its own process
-    (the same documents as one after the other). Returns the paths written
+    plan's figures and the report are drawn on that many processes at once (the same
+    documents as one after the other; see :func:`_write_both`). Returns the paths written
     (``pdf``/``html``: the last document written).
     """
     import json
@@ -466,20 +473,28 @@ def _document(result, plan, out: Path, kind: str) -> dict:
 
 
 def _write_both(result, out: Path, plan: dict, n_jobs: int) -> dict:
-    """The plan and the report of one run, each built and rendered in its own process: the
-    report's process decides its own copy of ``result`` with the plan, as the serial path
-    does after the plan was written; ``result`` is then decided here too."""
+    """The plan and the report of one run, drawn on ``n_jobs`` worker processes: each test's
+    part of the plan (its figures: most of the work) is a task, the whole report another
+    (its process decides its own copy of ``result`` with the plan, as the serial path does
+    after the plan was written); the plan is put together and rendered here as the report
+    is still being drawn; ``result`` is then decided here too. The same files as the serial
+    path: every figure and table is drawn from the same data."""
     import json
+    from concurrent.futures import wait
 
-    import joblib
-
+    from mtplan._parallel import effective_jobs, stage_executor
     from mtplan.plans import agreement
+    from mtplan.reports.certificate import build_plan, plan_parts
 
     with atomic_write(out / "plan.json", "w", encoding="utf-8") as fh:
         json.dump(plan, fh, indent=1)
-    parallel = joblib.Parallel(n_jobs=2, batch_size=1)
-    plan_files, report_files = parallel(joblib.delayed(_document)(result, plan, out, kind)
-                                        for kind in ("plan", "report"))
+    # the pool the study ran on, when it ran here: its workers are started already
+    executor = stage_executor(max(effective_jobs(n_jobs), 2))
+    parts = [executor.submit(plan_parts, k, o) for k, o in enumerate(result.outcomes, start=1)]
+    report = executor.submit(_document, result, plan, out, "report")
+    wait(parts)
+    plan_files = _write_doc(build_plan(result, plan, [f.result() for f in parts]), out, "plan")
+    report_files = report.result()
     agreement.apply_plan(result, plan)
     written = {**plan_files, **report_files, "plan_json": out / "plan.json"}
     written["pdf"], written["html"] = written["report_pdf"], written["report_html"]
