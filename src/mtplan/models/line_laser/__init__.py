@@ -1299,6 +1299,7 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
 
 # the first-order budget (a submodule: each estimator's linear map times the sources' effects)
 from mtplan.models.line_laser._first_order import budget as first_order_budget  # noqa: E402
+from mtplan.models.line_laser._first_order import sensitivities  # noqa: E402
 
 PROCEDURE = Procedure(
     name="line_laser",
@@ -1332,4 +1333,5 @@ PROCEDURE = Procedure(
     resolution=resolution,
     observability=observability,
     first_order_budget=first_order_budget,
+    first_order_sensitivities=sensitivities,
 )
