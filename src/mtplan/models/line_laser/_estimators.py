@@ -462,7 +462,8 @@ def _residuals(setup, y, theta) -> np.ndarray:
                                _residuals(setup, y[h:], theta[h:])])
 
 
-def _pattern_iterate(setup, y, theta, *, iterations=60, relinearise=(12, 24, 36), tol=1e-9):
+def _pattern_iterate(setup, y, theta, *, iterations=60, relinearise=(12, 24, 36), tol=1e-9,
+                     refs=None, polish=True):
     """Gauss-Newton row by row, batched: returns (theta, rms residual [mm], inf for rows
     the model could not trace).
 
@@ -473,10 +474,12 @@ def _pattern_iterate(setup, y, theta, *, iterations=60, relinearise=(12, 24, 36)
     estimate. Rows whose gains share a point share one matrix product.
     A row stops when its own step is within `tol` [mrad, mm] (1e-6 urad, 1 pm) in every
     parameter: its iterations, gains and result are those it would have alone.
+    `refs` (rows, 8) gives the start's gain points instead; `polish` False keeps them at
+    convergence.
     """
     theta = np.array(theta, dtype=float, copy=True)
     low, high = _fit_limits()
-    refs = np.round(theta / _GAIN_GRID) * _GAIN_GRID
+    refs = np.round((theta if refs is None else refs) / _GAIN_GRID) * _GAIN_GRID
     moves = np.zeros(theta.shape[0], dtype=int)
     active = np.ones(theta.shape[0], dtype=bool)
     rms = np.full(theta.shape[0], np.inf)
@@ -498,7 +501,7 @@ def _pattern_iterate(setup, y, theta, *, iterations=60, relinearise=(12, 24, 36)
         theta[idx] = np.clip(theta[idx] + step, low, high)
         done = np.all(np.abs(step) <= tol, axis=1)
         here = np.round(theta[idx] / _GAIN_GRID) * _GAIN_GRID
-        move = done & np.any(here != refs[idx], axis=1) & (moves[idx] < 2)
+        move = done & np.any(here != refs[idx], axis=1) & (moves[idx] < 2) & polish
         refs[idx[move]], moves[idx[move]] = here[move], moves[idx[move]] + 1
         active[idx[done & ~move]] = False
         if it in relinearise:
@@ -584,12 +587,18 @@ def _pattern_rows(setup, z) -> np.ndarray:
                       cells[None, :, 0] * si + cells[None, :, 1] * c], axis=-1)  # (f, 6, 2)
     starts = np.repeat(th, len(cells), axis=0)
     starts[:, 3:5] += moved.reshape(-1, 2)
-    others, rms_o = _pattern_iterate(setup, np.repeat(y[found], len(cells), axis=0), starts)
+    # the neighbours are compared under the trial's own gain (a lattice step away: the
+    # same kinks); the one kept is then weighted at its own fit
+    others, rms_o = _pattern_iterate(setup, np.repeat(y[found], len(cells), axis=0), starts,
+                                     refs=np.repeat(th, len(cells), axis=0), polish=False)
     others, rms_o = others.reshape(found.size, len(cells), -1), rms_o.reshape(found.size, -1)
     kbest = np.argmin(rms_o, axis=1)
     pick = np.arange(found.size)
     better = rms_o[pick, kbest] < rms
-    out[found] = np.where(better[:, None], others[pick, kbest], th)
+    out[found] = th
+    if better.any():
+        out[found[better]] = _pattern_iterate(setup, y[found[better]],
+                                              others[pick[better], kbest[better]])[0]
     return out
 
 
