@@ -612,9 +612,9 @@ def estimate_pattern(setup, readings) -> dict:
     by the inverse of their covariance under every active error source of the set-up
     (:func:`_pattern_gain`), by Gauss-Newton (:func:`_pattern_rows`). Each trial is
     fitted from its own data alone (its result does not depend on the other trials of
-    the batch); trials whose fit gains share a rounded point share its matrix product.
-    Trials whose fit misses the pattern
-    (an RMS residual above 20 um: the wrong cell of the lattice) are NaN.
+    the batch); trials whose gains are taken at one rounded point share its matrix
+    product. Trials whose fit misses the pattern (an RMS residual above 20 um: the wrong
+    cell of the lattice) are NaN.
 
     Arguments, result (angles with sign [rad]) and refusal as
     :func:`estimate_registration`, from which it starts.
