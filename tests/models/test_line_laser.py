@@ -246,6 +246,19 @@ def test_exact_estimators_recover_all_angles_with_sign_each_trial_on_its_own(est
                                        err_msg=msg)
 
 
+def test_pattern_fit_of_a_noisy_trial_does_not_depend_on_its_batch():
+    """With every error source drawn, each trial's gains are its own (taken at its start
+    and its fit, rounded): four trials as one batch, as two of two and one by one give the
+    same estimates, to the fit's stopping rule (2e-6 urad, as above)."""
+    readings = PROC.simulate(SETUP, draws=4, rng=11)
+    batch = PROC.display_estimate(SETUP, readings, "pattern")
+    for part in (slice(0, 2), slice(2, 4), slice(1, 2), slice(3, 4)):
+        some = PROC.display_estimate(SETUP, {"z_mm": readings["z_mm"][part]}, "pattern")
+        for name, values in some.items():
+            np.testing.assert_allclose(values, batch[name][part], rtol=0, atol=2e-6,
+                                       err_msg=f"{part}, {name}")
+
+
 def test_registration_is_blind_to_positioning_errors_of_w_and_h():
     """w and h come from the data (vector lengths), so their positioning errors drop out."""
     setup = SETUP.replace(shift_error_um=20.0, raise_error_um=20.0)
