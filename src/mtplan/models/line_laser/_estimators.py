@@ -436,9 +436,13 @@ def _pattern_gain(setup, ref: tuple) -> np.ndarray:
 #: 2 um, the line's and the artifact's rotation about Z to 0.1 mrad (under 1 um at the
 #: line's ends); the angles about X and Y and the tilts (smooth height changes) to 0.5 mrad.
 #: A trial's gain is taken at its own start rounded to the grid, and again at its fit so
-#: rounded (:func:`_pattern_iterate`): the trials of a Monte Carlo share the gains of the
-#: few grid points their fits scatter over (16 for 64 trials at the default set-up)
+#: rounded where the fit lies farther from the gain's point (:func:`_pattern_iterate`): the
+#: trials of a Monte Carlo share the gains of the few grid points their starts round to
+#: (9 for 256 trials at the default set-up)
 _GAIN_GRID = np.array([0.1, 0.5, 0.5, 0.002, 0.002, 0.1, 0.5, 0.5])
+#: steps of the grid [1] a converged fit may lie from its gain's point before the gain is
+#: taken again at the fit
+_GAIN_FAR = 1.5
 
 
 def _reference(theta: np.ndarray) -> tuple:
@@ -469,9 +473,9 @@ def _pattern_iterate(setup, y, theta, *, iterations=60, relinearise=(12, 24, 36)
 
     Each row's gain is taken at its own parameters rounded to :data:`_GAIN_GRID`: at its
     start, after the iterations in `relinearise` while it has not converged, and where it
-    converges under a gain taken at another grid point, at its fit's (at most twice: a fit
-    on a cell's edge could hop between two), so that its weighting is that of its own
-    estimate. Rows whose gains share a point share one matrix product.
+    converges more than :data:`_GAIN_FAR` steps from its gain's point, at its fit's (at
+    most twice: a fit could hop between two points), so that its weighting is taken near
+    its own estimate. Rows whose gains share a point share one matrix product.
     A row stops when its own step is within `tol` [mrad, mm] (1e-6 urad, 1 pm) in every
     parameter: its iterations, gains and result are those it would have alone.
     `refs` (rows, 8) gives the start's gain points instead; `polish` False keeps them at
@@ -500,9 +504,10 @@ def _pattern_iterate(setup, y, theta, *, iterations=60, relinearise=(12, 24, 36)
             step[sel] = r[sel] @ _pattern_gain(setup, _reference(ref)).T
         theta[idx] = np.clip(theta[idx] + step, low, high)
         done = np.all(np.abs(step) <= tol, axis=1)
-        here = np.round(theta[idx] / _GAIN_GRID) * _GAIN_GRID
-        move = done & np.any(here != refs[idx], axis=1) & (moves[idx] < 2) & polish
-        refs[idx[move]], moves[idx[move]] = here[move], moves[idx[move]] + 1
+        far = np.any(np.abs(theta[idx] - refs[idx]) > _GAIN_FAR * _GAIN_GRID, axis=1)
+        move = done & far & (moves[idx] < 2) & polish
+        refs[idx[move]] = np.round(theta[idx[move]] / _GAIN_GRID[None, :]) * _GAIN_GRID
+        moves[idx[move]] += 1
         active[idx[done & ~move]] = False
         if it in relinearise:
             refs[active] = np.round(theta[active] / _GAIN_GRID) * _GAIN_GRID
