@@ -118,10 +118,13 @@ class GUMResult:
         gidx = np.array([groups.index(g) for g in self.groups])
         var = np.zeros((len(self.names), len(groups)))
         for g in range(len(groups)):
-            sel = gidx == g
-            c = self.sensitivity[:, sel]
-            v = self.input_cov[np.ix_(sel, sel)]
-            var[:, g] = np.einsum("ij,jk,ik->i", c, v, c)
+            sel = np.flatnonzero(gidx == g)
+            if sel[-1] - sel[0] + 1 == sel.size:  # a run of inputs: views, no copy
+                run = slice(sel[0], sel[-1] + 1)
+                c, v = self.sensitivity[:, run], self.input_cov[run, run]
+            else:
+                c, v = self.sensitivity[:, sel], self.input_cov[np.ix_(sel, sel)]
+            var[:, g] = ((c @ v) * c).sum(axis=1)
         return groups, var
 
     def budget(self):

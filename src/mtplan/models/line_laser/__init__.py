@@ -155,10 +155,11 @@ squares of the whole forward model over the three angles and the artifact's pose
 offset, rotation about Z, two tilts), every reading of the three scans at once, weighted by
 the inverse of the readings' covariance under every active error source
 (``C = sigma^2 I + U U^T``, one column of ``U`` per element of a source other than the
-noise: its effect at one standard deviation). Gauss-Newton with one gain shared by the
-whole batch (a linear stage: one matrix product per step), started from the registration's
-angles and the default truth's pose, or a grid search of the lattice offset and rotation
-where that misses. What it uses that the registration does not: a height error that is
+noise: its effect at one standard deviation). Gauss-Newton, each trial with its own gains
+(taken at its start and its fit, rounded to a grid, so trials that round alike share one
+matrix product per step), started from the trial's registration angles and the default
+truth's pose, or a grid search of the lattice offset and rotation where that misses: a
+trial's estimate does not depend on the other trials of its batch. What it uses that the registration does not: a height error that is
 fixed along the line (the sensor's *linearity*) is not a rotation of the line on a known
 pattern, so it separates from ``alpha_y`` (the registration reads its mean over the cells,
 40 of its 41 urad; the pattern fit 2.8 urad); the pattern's shape gives ``alpha_z`` from
@@ -1299,6 +1300,7 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
 
 # the first-order budget (a submodule: each estimator's linear map times the sources' effects)
 from mtplan.models.line_laser._first_order import budget as first_order_budget  # noqa: E402
+from mtplan.models.line_laser._first_order import sensitivities  # noqa: E402
 
 PROCEDURE = Procedure(
     name="line_laser",
@@ -1332,4 +1334,5 @@ PROCEDURE = Procedure(
     resolution=resolution,
     observability=observability,
     first_order_budget=first_order_budget,
+    first_order_sensitivities=sensitivities,
 )

@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from mtplan._validate import InvalidInput
-from mtplan.fitting import SourceModel, central_jacobian, gauss_newton, gls_gain, source_effects
+from mtplan.fitting import SourceModel, central_jacobian, gls_gain, source_effects
 from mtplan.models.line_laser import (
     _SQ3,
     _TOL_FLOOR,
@@ -399,7 +399,7 @@ def _predict(setup, theta: np.ndarray) -> np.ndarray:
     return np.asarray(z).reshape(n, -1)
 
 
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=64)
 def _pattern_gain(setup, ref: tuple) -> np.ndarray:
     """Gain K (8, readings) of the generalised least squares at the parameters ``ref``.
 
@@ -435,8 +435,14 @@ def _pattern_gain(setup, ref: tuple) -> np.ndarray:
 #: fit's weighting, best taken where the kinks of the pattern lie: the lattice offset to
 #: 2 um, the line's and the artifact's rotation about Z to 0.1 mrad (under 1 um at the
 #: line's ends); the angles about X and Y and the tilts (smooth height changes) to 0.5 mrad.
-#: A Monte Carlo's blocks then share a few gains (their first trials scatter by tens of urad)
+#: A trial's gain is taken at its own start rounded to the grid, and again at its fit so
+#: rounded where the fit lies farther from the gain's point (:func:`_pattern_iterate`): the
+#: trials of a Monte Carlo share the gains of the few grid points their starts round to
+#: (9 for 256 trials at the default set-up)
 _GAIN_GRID = np.array([0.1, 0.5, 0.5, 0.002, 0.002, 0.1, 0.5, 0.5])
+#: steps of the grid [1] a converged fit may lie from its gain's point before the gain is
+#: taken again at the fit
+_GAIN_FAR = 1.5
 
 
 def _reference(theta: np.ndarray) -> tuple:
@@ -445,80 +451,160 @@ def _reference(theta: np.ndarray) -> tuple:
     return tuple(float(f"{v:.10g}") for v in g)
 
 
-def _pattern_iterate(setup, y, theta, *, iterations=40, relinearise=(12,)):
-    """Gauss-Newton with one gain shared by all rows (:func:`mtplan.fitting.gauss_newton`),
-    re-taken at the rows' median after the iterations in `relinearise`; returns (theta,
-    rms residual [mm], inf for rows the model could not trace)."""
-    fit = gauss_newton(lambda th: y - _predict(setup, th), theta,
-                       _pattern_gain(setup, _reference(np.median(theta, axis=0))),
-                       iterations=iterations, tol=1e-9,  # [mrad, mm]: 1e-6 urad, 1 pm
-                       bounds=_fit_limits(), regain_after=relinearise,
-                       regain=lambda th: _pattern_gain(setup, _reference(np.median(th, axis=0))))
-    rms = np.sqrt(np.mean(fit.residual**2, axis=1))
-    return fit.theta, np.where(fit.ok, rms, np.inf)
+def _residuals(setup, y, theta) -> np.ndarray:
+    """``y - prediction`` (k, readings) for parameter rows (k, 8); NaN for a row the
+    model cannot trace. The forward model refuses a whole batch when one row leaves the
+    sensor's range, so a refused batch is split in halves until each row is judged alone
+    (a row's residual never depends on the rows beside it)."""
+    try:
+        return y - _predict(setup, theta)
+    except InvalidInput:
+        if theta.shape[0] == 1:
+            return np.full_like(y, np.nan)
+        h = theta.shape[0] // 2
+        return np.concatenate([_residuals(setup, y[:h], theta[:h]),
+                               _residuals(setup, y[h:], theta[h:])])
 
 
-def _pose_search(setup, z1, angles) -> np.ndarray:
-    """Start parameters (8,) for one trial's scans ``z1`` (3, lines, points): the
-    lattice offset and rotation that best match scan 1, by the least-squares misfit
-    after removing the mean height, over a grid: 0.1 mm over one cell of the lattice
-    and 20 mrad over the Truth's +-100 mrad of rotation (every fourth profile, vertical
-    rays, the angle ``angles[0]`` [mrad] about Z applied to the line, no tilt)."""
+def _pattern_iterate(setup, y, theta, *, iterations=60, relinearise=(12, 24, 36), tol=1e-9,
+                     refs=None, polish=True):
+    """Gauss-Newton row by row, batched: returns (theta, rms residual [mm], inf for rows
+    the model could not trace).
+
+    Each row's gain is taken at its own parameters rounded to :data:`_GAIN_GRID`: at its
+    start, after the iterations in `relinearise` while it has not converged, and where it
+    converges more than :data:`_GAIN_FAR` steps from its gain's point, at its fit's (at
+    most twice: a fit could hop between two points), so that its weighting is taken near
+    its own estimate. Rows whose gains share a point share one matrix product.
+    A row stops when its own step is within `tol` [mrad, mm] (1e-6 urad, 1 pm) in every
+    parameter: its iterations, gains and result are those it would have alone.
+    `refs` (rows, 8) gives the start's gain points instead; `polish` False keeps them at
+    convergence.
+    """
+    theta = np.array(theta, dtype=float, copy=True)
+    low, high = _fit_limits()
+    refs = np.round((theta if refs is None else refs) / _GAIN_GRID) * _GAIN_GRID
+    moves = np.zeros(theta.shape[0], dtype=int)
+    active = np.ones(theta.shape[0], dtype=bool)
+    rms = np.full(theta.shape[0], np.inf)
+    for it in range(iterations):
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        r = _residuals(setup, y[idx], theta[idx])
+        fin = np.all(np.isfinite(r), axis=1)
+        active[idx[~fin]] = False
+        rms[idx[~fin]] = np.inf
+        idx, r = idx[fin], r[fin]
+        rms[idx] = np.sqrt(np.mean(r**2, axis=1))
+        uniq, which = np.unique(refs[idx], axis=0, return_inverse=True)
+        step = np.empty((idx.size, theta.shape[1]))
+        for g, ref in enumerate(uniq):
+            sel = np.flatnonzero(which.ravel() == g)
+            step[sel] = r[sel] @ _pattern_gain(setup, _reference(ref)).T
+        theta[idx] = np.clip(theta[idx] + step, low, high)
+        done = np.all(np.abs(step) <= tol, axis=1)
+        far = np.any(np.abs(theta[idx] - refs[idx]) > _GAIN_FAR * _GAIN_GRID, axis=1)
+        move = done & far & (moves[idx] < 2) & polish
+        refs[idx[move]] = np.round(theta[idx[move]] / _GAIN_GRID[None, :]) * _GAIN_GRID
+        moves[idx[move]] += 1
+        active[idx[done & ~move]] = False
+        if it in relinearise:
+            refs[active] = np.round(theta[active] / _GAIN_GRID) * _GAIN_GRID
+    return theta, rms
+
+
+def _pose_search(setup, z, az_mrad) -> np.ndarray:
+    """Start poses (k, 3) (lattice offset [mm], rotation about Z [mrad]) for the scans
+    ``z`` (k, 3, lines, points): per row, the lattice offset and rotation that best match
+    its scan 1, by the least-squares misfit after removing the mean height, over a grid:
+    0.1 mm over one cell of the lattice and 20 mrad over the Truth's +-100 mrad of
+    rotation (every fourth profile, vertical rays, no tilt, the row's angle about Z
+    ``az_mrad`` (k,) rounded to 1 mrad applied to the line: under 0.02 mm at the line's
+    ends, a fifth of the grid). Rows with one rounded angle share the candidates' heights:
+    their misfits are one matrix product."""
     s = setup.cell_size_mm
     gx, gy, grz = np.meshgrid(np.arange(0, s * _SQ3 / 2, 0.1), np.arange(0, s, 0.1),
                               np.arange(-100.0, 100.1, 20.0), indexing="ij")
     gx, gy, grz = gx.ravel(), gy.ravel(), grz.ravel() * 1e-3
-    az = angles[0] * 1e-3
-    u, yl = _grid_u(setup)[None, :], _grid_y(setup)[::4, None]
-    px = (u * math.cos(az) + 0 * yl).ravel()
-    py = (u * math.sin(az) + yl).ravel()
-    data = z1[0, ::4].ravel()
-    data = data - data.mean()
-    best, best_cost = 0, np.inf
-    for start in range(0, gx.size, 256):  # memory bounded: 256 candidates at a time
-        sl = slice(start, start + 256)
-        c, si = np.cos(grz[sl])[:, None], np.sin(grz[sl])[:, None]
-        dx, dy = px[None, :] - gx[sl, None], py[None, :] - gy[sl, None]
-        h = height_map(setup, c * dx + si * dy, -si * dx + c * dy)[0]
-        h = h - h.mean(axis=1, keepdims=True)  # a reading is the height plus the stand-off
-        cost = ((h - data) ** 2).sum(axis=1)
-        k = int(np.argmin(cost))
-        if cost[k] < best_cost:
-            best, best_cost = start + k, cost[k]
-    return np.array([*angles, gx[best], gy[best], grz[best] * 1e3, 0.0, 0.0])
+    data = z[:, 0, ::4].reshape(z.shape[0], -1)
+    data = data - data.mean(axis=1, keepdims=True)
+    best = np.zeros(z.shape[0], dtype=int)
+    az_round = np.round(np.asarray(az_mrad, dtype=float))
+    for az in np.unique(az_round):
+        rows = np.flatnonzero(az_round == az)
+        u, yl = _grid_u(setup)[None, :], _grid_y(setup)[::4, None]
+        px = (u * math.cos(az * 1e-3) + 0 * yl).ravel()
+        py = (u * math.sin(az * 1e-3) + yl).ravel()
+        best_cost = np.full(rows.size, np.inf)
+        for start in range(0, gx.size, 256):  # memory bounded: 256 candidates at a time
+            sl = slice(start, start + 256)
+            c, si = np.cos(grz[sl])[:, None], np.sin(grz[sl])[:, None]
+            dx, dy = px[None, :] - gx[sl, None], py[None, :] - gy[sl, None]
+            h = height_map(setup, c * dx + si * dy, -si * dx + c * dy)[0]
+            h = h - h.mean(axis=1, keepdims=True)  # a reading is the height plus the stand-off
+            # |h - d|^2 without |d|^2 (the same for every candidate of a row)
+            cost = (h * h).sum(axis=1)[:, None] - 2 * h @ data[rows].T
+            k = np.argmin(cost, axis=0)
+            better = cost[k, np.arange(rows.size)] < best_cost
+            best_cost[better] = cost[k[better], np.flatnonzero(better)]
+            best[rows[better]] = start + k[better]
+    return np.column_stack([gx[best], gy[best], grz[best] * 1e3])
 
 
-def _pattern_first(setup, z1):
-    """The fit of one trial's scans ``z1`` (3, lines, points): parameters (8,) or None.
+def _pattern_rows(setup, z) -> np.ndarray:
+    """The fit of each row's scans ``z`` (k, 3, lines, points): parameters (k, 8), NaN
+    where it misses the pattern. Every step is a function of the row alone.
 
-    Starts from the registration's angles and the default truth's pose; where that
+    Starts from the row's registration angles and the default truth's pose; where that
     lands in the wrong cell of the lattice, from :func:`_pose_search`. The pose names a
     cell centre, and the artifact's tilts pivot about it, so the cells' centres are not
     quite equivalent (the plate's height at the pivot is the set-up's): after a pose
     search the fit is repeated from the six neighbouring cells and the best kept.
     """
-    y1 = z1.reshape(1, -1)
-    reg = _registration_core(setup, z1[None])
-    angles = [float(reg[k][0]) * 1e3 for k in ("alpha_z", "alpha_y", "alpha_x")]
-    if not np.all(np.isfinite(angles)):
-        return None
-    start = np.array([*angles, *[getattr(Truth(), f) for f in _FIT_FIELDS[3:]]])
-    th, rms = _pattern_iterate(setup, y1, start[None, :])
-    if rms[0] <= _FIT_RMS_MAX:
-        return th[0]
-    th, rms = _pattern_iterate(setup, y1, _pose_search(setup, z1, angles)[None, :])
-    if not rms[0] <= _FIT_RMS_MAX:
-        return None
+    k = z.shape[0]
+    y = z.reshape(k, -1)
+    reg = _registration_core(setup, z)
+    angles = np.column_stack([reg[a] for a in ("alpha_z", "alpha_y", "alpha_x")]) * 1e3
+    out = np.full((k, len(_FIT_FIELDS)), np.nan)
+    todo = np.flatnonzero(np.all(np.isfinite(angles), axis=1))
+    pose = np.array([getattr(Truth(), f) for f in _FIT_FIELDS[3:]])
+    start = np.column_stack([angles[todo], np.broadcast_to(pose, (todo.size, pose.size))])
+    th, rms = _pattern_iterate(setup, y[todo], start)
+    hit = rms <= _FIT_RMS_MAX
+    out[todo[hit]] = th[hit]
+    miss = todo[~hit]
+    if miss.size == 0:
+        return out
+    start = np.column_stack([angles[miss], _pose_search(setup, z[miss], angles[miss, 0]),
+                             np.zeros((miss.size, 2))])
+    th, rms = _pattern_iterate(setup, y[miss], start)
+    hit = rms <= _FIT_RMS_MAX
+    found, th, rms = miss[hit], th[hit], rms[hit]
+    if found.size == 0:
+        return out
     s = setup.cell_size_mm
     cells = np.array([[0, s], [0, -s], [s * _SQ3 / 2, s / 2], [-s * _SQ3 / 2, -s / 2],
                       [s * _SQ3 / 2, -s / 2], [-s * _SQ3 / 2, s / 2]])
-    rz = th[0, 5] * 1e-3
-    moved = cells @ np.array([[math.cos(rz), math.sin(rz)], [-math.sin(rz), math.cos(rz)]])
+    rz = th[:, 5] * 1e-3
+    c, si = np.cos(rz)[:, None], np.sin(rz)[:, None]
+    moved = np.stack([cells[None, :, 0] * c - cells[None, :, 1] * si,
+                      cells[None, :, 0] * si + cells[None, :, 1] * c], axis=-1)  # (f, 6, 2)
     starts = np.repeat(th, len(cells), axis=0)
-    starts[:, 3:5] += moved
-    others, rms_o = _pattern_iterate(setup, np.repeat(y1, len(cells), axis=0), starts)
-    k = int(np.argmin(rms_o))
-    return others[k] if rms_o[k] < rms[0] else th[0]
+    starts[:, 3:5] += moved.reshape(-1, 2)
+    # the neighbours are compared under the trial's own gain (a lattice step away: the
+    # same kinks); the one kept is then weighted at its own fit
+    others, rms_o = _pattern_iterate(setup, np.repeat(y[found], len(cells), axis=0), starts,
+                                     refs=np.repeat(th, len(cells), axis=0), polish=False)
+    others, rms_o = others.reshape(found.size, len(cells), -1), rms_o.reshape(found.size, -1)
+    kbest = np.argmin(rms_o, axis=1)
+    pick = np.arange(found.size)
+    better = rms_o[pick, kbest] < rms
+    out[found] = th
+    if better.any():
+        out[found[better]] = _pattern_iterate(setup, y[found[better]],
+                                              others[pick[better], kbest[better]])[0]
+    return out
 
 
 def estimate_pattern(setup, readings) -> dict:
@@ -529,11 +615,11 @@ def estimate_pattern(setup, readings) -> dict:
     error source. The readings of all three scans are fitted at once over the three
     angles and the artifact's pose (lattice offset, rotation about Z, two tilts), weighted
     by the inverse of their covariance under every active error source of the set-up
-    (:func:`_pattern_gain`), by Gauss-Newton with one gain shared by the whole batch
-    (taken at the first trial's fit, :func:`_pattern_first`, rounded to
-    :data:`_GAIN_GRID`, and again at the batch's median should it need more than 12
-    iterations). Trials whose fit misses the pattern
-    (an RMS residual above 20 um: the wrong cell of the lattice) are NaN.
+    (:func:`_pattern_gain`), by Gauss-Newton (:func:`_pattern_rows`). Each trial is
+    fitted from its own data alone (its result does not depend on the other trials of
+    the batch); trials whose gains are taken at one rounded point share its matrix
+    product. Trials whose fit misses the pattern (an RMS residual above 20 um: the wrong
+    cell of the lattice) are NaN.
 
     Arguments, result (angles with sign [rad]) and refusal as
     :func:`estimate_registration`, from which it starts.
@@ -543,24 +629,9 @@ def estimate_pattern(setup, readings) -> dict:
         raise InvalidInput([f"line_laser estimator 'pattern' cannot determine the angles at "
                             f"this set-up (it starts from the registration): {why}"])
     z = np.asarray(readings["z_mm"], dtype=float)
-    n = z.shape[0]
-    y = z.reshape(n, -1)
-    theta = np.full((n, len(_FIT_FIELDS)), np.nan)
-    good = np.zeros(n, dtype=bool)
-    todo = np.flatnonzero(np.all(np.isfinite(y), axis=1))
-    for _ in range(3):  # a first trial that cannot be fitted is left out, the next tried
-        if todo.size == 0:
-            break
-        first = todo[0]
-        th = _pattern_first(setup, z[first])
-        if th is None:
-            todo = todo[1:]
-            continue
-        th_all, rms_all = _pattern_iterate(setup, y[todo], np.repeat(th[None, :], todo.size, 0))
-        fit = rms_all <= _FIT_RMS_MAX
-        theta[todo[fit]] = th_all[fit]
-        good[todo[fit]] = True
-        break
-    theta[~good] = np.nan
+    theta = np.full((z.shape[0], len(_FIT_FIELDS)), np.nan)
+    rows = np.flatnonzero(np.all(np.isfinite(z.reshape(z.shape[0], -1)), axis=1))
+    if rows.size:
+        theta[rows] = _pattern_rows(setup, z[rows])
     return {"alpha_z": theta[:, 0] * 1e-3, "alpha_y": theta[:, 1] * 1e-3,
             "alpha_x": theta[:, 2] * 1e-3}
