@@ -229,6 +229,10 @@ def _register(setup, a, b, start, *, iterations=12):
     start : array (n, 3)
         Starting translation [mm].
 
+    Each row stops at its own convergence (every step within 1e-10 mm, from the fifth
+    iteration): its result is the one it has alone, and the batch's later iterations
+    cost only the rows still moving.
+
     Returns
     -------
     array (n, 3) [mm]; NaN where the normal equations are singular.
@@ -243,18 +247,23 @@ def _register(setup, a, b, start, *, iterations=12):
     gub[:, :, 1:-1] = (b[:, :, 2:] - b[:, :, :-2]) / (2 * p)
     gyb[:, ky:-ky, :] = (b[:, 2 * ky :, :] - b[:, : -2 * ky, :]) / (2 * ky * dy)
     gub, gyb = gub.reshape(n, -1), gyb.reshape(n, -1)
-    af = a.reshape(n, -1)
+    af_flat = a.reshape(-1)
     bf = b.reshape(n, -1)
     jj, ii = np.meshgrid(np.arange(lines), np.arange(pts), indexing="ij")
     jj, ii = jj.ravel(), ii.ravel()
     delta = np.array(start, dtype=float)
-    rows = np.arange(n)[:, None]
-    af_flat, node_base = af.ravel(), rows * (lines * pts)
-    cells_flat, cell_base = cells.ravel(), rows * ((lines - 1) * (pts - 1))
+    cells_flat = cells.ravel()
     scale = None
+    act = np.arange(n)  # rows still iterating: a row stops at its own convergence
     for it in range(iterations):
-        su = -delta[:, 0] / p
-        sy = -delta[:, 1] / dy
+        if it == 0 or act.size < g_u.shape[0]:
+            g_u, g_y, ok_b, b_f = gub[act], gyb[act], okb[act], bf[act]
+            node_base = act[:, None] * (lines * pts)
+            cell_base = act[:, None] * ((lines - 1) * (pts - 1))
+            sc = None if scale is None else scale[act]
+        d = delta[act]
+        su = -d[:, 0] / p
+        sy = -d[:, 1] / dy
         ok_row = np.isfinite(su) & np.isfinite(sy)
         su, sy = np.where(ok_row, su, 0.0), np.where(ok_row, sy, 0.0)
         ku, kv = np.floor(su), np.floor(sy)
@@ -265,22 +274,23 @@ def _register(setup, a, b, start, *, iterations=12):
         icc = np.clip(ic, 0, pts - 2)
         jcc = np.clip(jc, 0, lines - 2)
         # gathers from the flattened batch (a 1-D take: faster than 2-D fancy indexing)
-        valid = inside & okb & cells_flat.take(cell_base + jcc * (pts - 1) + icc)
+        valid = inside & ok_b & cells_flat.take(cell_base + jcc * (pts - 1) + icc)
         k00 = node_base + jcc * pts + icc
         a00, a01 = af_flat.take(k00), af_flat.take(k00 + 1)
         a10, a11 = af_flat.take(k00 + pts), af_flat.take(k00 + pts + 1)
-        r = bf - ((1 - fy) * ((1 - fu) * a00 + fu * a01) + fy * ((1 - fu) * a10 + fu * a11))
-        r -= delta[:, 2:3]
+        r = b_f - ((1 - fy) * ((1 - fu) * a00 + fu * a01) + fy * ((1 - fu) * a10 + fu * a11))
+        r -= d[:, 2:3]
         if it >= 3:  # robust trim once the fit has settled
-            if scale is None:  # 1.4826 x median |r| over the valid points, per trial
+            if sc is None:  # 1.4826 x median |r| over the valid points, per trial
                 srt = np.sort(np.where(valid, np.abs(r), np.inf), axis=1)
                 cnt = valid.sum(axis=1)
                 mid = np.take_along_axis(srt, np.maximum(cnt - 1, 0)[:, None] // 2, axis=1)
                 scale = np.maximum(5 * 1.4826 * mid, _TOL_FLOOR)
-            valid &= np.abs(r) <= scale
+                sc = scale
+            valid &= np.abs(r) <= sc
         wg = np.where(valid, 1.0, 0.0)
-        ju, jy = gub * wg, gyb * wg
-        s_uu, s_uy, s_yy = (ju * gub).sum(1), (ju * gyb).sum(1), (jy * gyb).sum(1)
+        ju, jy = g_u * wg, g_y * wg
+        s_uu, s_uy, s_yy = (ju * g_u).sum(1), (ju * g_y).sum(1), (jy * g_y).sum(1)
         s_u, s_y, s_1 = ju.sum(1), jy.sum(1), wg.sum(1)
         mat = np.stack([np.stack([s_uu, s_uy, -s_u], -1), np.stack([s_uy, s_yy, -s_y], -1),
                         np.stack([-s_u, -s_y, s_1], -1)], -2)
@@ -295,9 +305,11 @@ def _register(setup, a, b, start, *, iterations=12):
             unit[bad] = np.eye(3)
             step = -np.linalg.solve(unit, (rhs / diag)[..., None])[..., 0] / diag
         step[bad] = np.nan
-        delta = delta + step
-        if it >= 4 and np.all(np.abs(step[~bad]) <= 1e-10):
-            break
+        delta[act] = d + step
+        if it >= 4:
+            act = act[~np.all(np.abs(step) <= 1e-10, axis=1) & ~bad]
+            if act.size == 0:
+                break
     return delta
 
 
