@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from mtplan._validate import InvalidInput
-from mtplan.fitting import SourceModel, central_jacobian, gls_gain, source_effects
+from mtplan.fitting import Gaussian, SourceModel, central_jacobian, gls_gain, source_effects
 from mtplan.models.line_laser import (
     _SQ3,
     _TOL_FLOOR,
@@ -430,18 +430,45 @@ def _pattern_gain(setup, ref: tuple) -> np.ndarray:
                            low=low, high=high)
     others = [k for k, src in sources(setup).items()
               if k != _procedure().noise_source and src.active]
-    D, U = _source_effects(setup, ref, tuple(k for k in others if k not in _COARSE_SOURCES))
+    fine = tuple(k for k in others if k not in _COARSE_SOURCES)
     coarse = tuple(k for k in others if k in _COARSE_SOURCES)
+    D, U = _source_effects(setup, ref, fine)
+    sigma = setup.sensor_noise_um * 1e-3
     if coarse:
         # rounded within the Truth's limits (the coarse grid's points may lie beyond)
         at = tuple(np.clip(_reference(theta, _COVARIANCE_GRID), low, high).tolist())
-        d_c, u_c = _coarse_effects(setup, at, coarse)
+        big, g_c = _coarse_covariance(setup, at, coarse)
+        if not np.any(D) and sigma >= 1e-6 * max(big, float(np.abs(U).max(initial=0.0))):
+            return _updated_gain(jac, g_c, U)
+        d_c, u_c = _source_effects(setup, at, coarse)
         D, U = D + d_c, np.hstack([U, u_c])
-    sigma = setup.sensor_noise_um * 1e-3
     # without reading noise the weight is that of a noise far below any source's effect
     scale = max(sigma, 1e-6 * max(float(np.abs(U).max(initial=0.0)),
                                   float(np.sqrt(D.max(initial=0.0))), 1e-3))
     return gls_gain(jac, (D + scale**2, U))
+
+
+@functools.lru_cache(maxsize=4)
+def _coarse_covariance(setup, at: tuple, names: tuple) -> tuple[float, Gaussian]:
+    """``sigma^2 I + U U^T`` of the sources `names` at the parameters ``at``, factored
+    (:class:`mtplan.fitting.Gaussian`), and the largest of their effects and of 1 um [mm]
+    (a few points are kept: the artifact's 180 facets give a U of 15 600 x 180, 22 MB)."""
+    D, U = _source_effects(setup, at, names)
+    big = max(float(np.abs(U).max(initial=0.0)), float(np.sqrt(D.max(initial=0.0))), 1e-3)
+    return big, Gaussian.known(D + (setup.sensor_noise_um * 1e-3) ** 2, U)
+
+
+def _updated_gain(jac: np.ndarray, g: Gaussian, U: np.ndarray) -> np.ndarray:
+    """:func:`mtplan.fitting.gls_gain` for the covariance ``G + U U^T``, ``G`` factored:
+    by Woodbury, ``C^-1 = G^-1 - G^-1 U (I + U^T G^-1 U)^-1 U^T G^-1`` (a few columns U:
+    G's factorisation, most of a gain's cost, is shared by the gains at one coarse point)."""
+    jt = jac.T
+    p = jt.shape[0]
+    rows = g.inverse_times(np.vstack([jt, U.T]))  # J^T G^-1 and U^T G^-1
+    a, b = rows[:p], rows[p:]
+    inner = np.eye(U.shape[1]) + b @ U
+    cj = a - np.linalg.solve(inner, b @ jt.T).T @ b  # J^T C^-1
+    return np.linalg.solve(cj @ jt.T, cj)
 
 
 def _source_effects(setup, ref: tuple, names: tuple) -> tuple[np.ndarray, np.ndarray]:
@@ -454,10 +481,6 @@ def _source_effects(setup, ref: tuple, names: tuple) -> tuple[np.ndarray, np.nda
             theta, next(iter(errors.values())).shape[0], axis=0)), errors)["z_mm"],
         lambda m: _procedure().zero_errors(setup, m))
     return source_effects(model, list(names))
-
-
-#: a few points: the artifact's 180 facets give a U of 15 600 x 180 (22 MB)
-_coarse_effects = functools.lru_cache(maxsize=8)(_source_effects)
 
 
 #: grid of the parameters at which gains are taken [mrad, mm]. Noise-free, the fit's fixed
