@@ -16,6 +16,7 @@ import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
 from mtplan._parallel import check_parallel
+from mtplan.models.first_order import element_moments
 from mtplan.models.protocol import Procedure
 from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
 from mtplan.uncertainty.gum import GUMResult, _coverage_factor, sensitivities
@@ -511,15 +512,8 @@ def linearize_procedure(
     xs, us, groups, names = [], [], [], []
     pos = 0
     for name, src in active.items():
-        shape = (*src.shape, *src.distribution.event_shape)
-        size = int(np.prod(shape, dtype=np.int64))
-        mean = np.broadcast_to(np.asarray(src.distribution.mean, dtype=float),
-                               shape if shape else ()).ravel()
-        std = np.broadcast_to(np.asarray(src.distribution.std, dtype=float),
-                              shape if shape else ()).ravel()
-        if mean.size != size:
-            mean = np.resize(mean, size)
-            std = np.resize(std, size)
+        mean, std, shape = element_moments(src)
+        size = mean.size
         xs.append(mean)
         us.append(std)
         groups += [name] * size

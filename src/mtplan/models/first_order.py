@@ -37,7 +37,7 @@ from mtplan._validate import InvalidInput
 from mtplan.uncertainty.gum import sensitivities
 
 __all__ = ["reading_effects", "estimator_map", "chain_variances", "chain_budget", "chain_std",
-           "with_chain_rule", "secant_effects",
+           "with_chain_rule", "secant_effects", "element_moments",
            "one_blas_thread"]
 
 #: step of the differences, in standard deviations (that of ``mtplan.uncertainty.gum``)
@@ -48,20 +48,27 @@ _PROBE = 32  # (mtplan.fitting.budget's) elements from which a source is first N
 _WHOLE_MAX = 256  # source elements up to which the whole chain is differentiated at once
 
 
+def element_moments(src) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """A source's (mean, std) per element, flat, and the elements' shape (the source's
+    shape and its distribution's event shape): the inputs of a linearisation."""
+    shape = (*src.shape, *src.distribution.event_shape)
+    size = int(np.prod(shape, dtype=np.int64))
+    mean = np.broadcast_to(np.asarray(src.distribution.mean, dtype=float),
+                           shape if shape else ()).ravel()
+    std = np.broadcast_to(np.asarray(src.distribution.std, dtype=float),
+                          shape if shape else ()).ravel()
+    if mean.size != size:
+        mean, std = np.resize(mean, size), np.resize(std, size)
+    return mean, std, shape
+
+
 def _base_errors(proc, setup, active) -> tuple[dict, dict]:
     """Error rows of one trial at the sources' means, and each active source's (mean,
     std) per element, broadcast as the linearisation does."""
     base = proc.zero_errors(setup, 1)
     stats = {}
     for name, src in active.items():
-        shape = (*src.shape, *src.distribution.event_shape)
-        size = int(np.prod(shape, dtype=np.int64))
-        mean = np.broadcast_to(np.asarray(src.distribution.mean, dtype=float),
-                               shape if shape else ()).ravel()
-        std = np.broadcast_to(np.asarray(src.distribution.std, dtype=float),
-                              shape if shape else ()).ravel()
-        if mean.size != size:
-            mean, std = np.resize(mean, size), np.resize(std, size)
+        mean, std, shape = element_moments(src)
         base[name] = mean.reshape((1, *shape))
         stats[name] = (mean, std, shape)
     return base, stats
