@@ -102,9 +102,10 @@ def stage_executor(jobs: int):
     process has imported by then (each worker would otherwise import numpy, scipy, pandas
     and the models again; a module only the tasks need is imported by each worker, at once:
     importing it here first would keep the other core idle meanwhile, and on a fresh
-    installation also while it is compiled to bytecode). Elsewhere, or beside other threads (whose locks a forked child could find
-    held): joblib's loky workers, started afresh. Arguments and results travel pickled; the
-    workers take no part in the results' values.
+    installation also while it is compiled to bytecode). Elsewhere, or beside other
+    threads (whose locks a forked child could find held): joblib's loky workers, started
+    afresh. Arguments and results travel pickled; the workers take no part in the
+    results' values.
     """
     import threading
 
