@@ -731,7 +731,9 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
     """Compute every result a study asks for (the reports only render them).
 
     The work is cut into stages, each computed on one core: each estimator's Monte Carlo,
-    each sweep, and each procedure's plan, identifiability and extras; then, as soon as a
+    each distinct set-up of a procedure's sweeps (one stage for every sweep that holds it:
+    the base set-up is in most), and each procedure's plan, identifiability and extras;
+    then, as soon as a
     procedure's Monte Carlo stages are done and so its recommended estimator is known, its
     budget and its readings evaluation. ``n_jobs`` worker processes take the ready stages,
     the readings and budgets first (the longest, on which the procedure waits). Every stage
@@ -755,7 +757,12 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
     from mtplan.plans import decisions
 
     procs = study.procedures
-    bar = _bar(progress, _count_steps(study))
+    # each sweep's grid here, each of its set-ups and estimators one stage, shared by the
+    # sweeps of a procedure that hold the same set-up (the base set-up is in most of them)
+    grids = {(i, j): _sweep_grid(_model(ps.name), ps, study, sw)
+             for i, ps in enumerate(procs) for j, sw in enumerate(ps.sweeps)}
+    points = _points(grids)
+    bar = _bar(progress, _count_steps(study, len(points)))
     partial = {}  # procedure index -> (results, key, recommended)
 
     def unlocked(i, done):
@@ -773,7 +780,7 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
                                         and (kind == "readings" or ps.as_left is not None))]
 
     first = [("mc", i, est) for i, ps in enumerate(procs) for est in ps.estimators]
-    first += [("sweep", i, j) for i, ps in enumerate(procs) for j in range(len(ps.sweeps))]
+    first += list(points.values())
     first += [("misc", i, None) for i in range(len(procs))]
     done = _run_stages(first, unlocked, study, effective_jobs(n_jobs), bar)
     outcomes = []
@@ -783,7 +790,8 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
         plan, identifiability, extras = done[("misc", i, None)]
         outcome = ProcedureOutcome(
             spec=ps, title=_model(ps.name).title, results=results, gum=gum, budget=budget,
-            sweeps=[done[("sweep", i, j)] for j in range(len(ps.sweeps))], plan=plan,
+            sweeps=[_sweep_result(ps.sweeps[j], grids[(i, j)], i, points, done)
+                    for j in range(len(ps.sweeps))], plan=plan,
             measured=done.get(("readings", i, recommended)), identifiability=identifiability,
             extras=extras, recommended=recommended, key=key, budget_estimator=budget_estimator)
         decider = results.get(getattr(outcome.measured, "estimator", None), results[recommended])
@@ -808,7 +816,7 @@ def _model(name):
 
 
 #: which ready stage a free worker takes first: the long ones a procedure waits on
-_PRIORITY = {"as_left": 0, "readings": 0, "budget": 1, "mc": 2, "sweep": 3, "misc": 4}
+_PRIORITY = {"as_left": 0, "readings": 0, "budget": 1, "mc": 2, "point": 3, "misc": 4}
 
 
 def _run_stages(tasks, unlocked, study, jobs, bar) -> dict:
@@ -822,8 +830,8 @@ def _run_stages(tasks, unlocked, study, jobs, bar) -> dict:
         done[task] = value
         kind, i, arg = task
         name = study.procedures[i].name
-        if kind in ("mc", "sweep", "budget", "readings", "as_left"):
-            _tick(bar, f"{name} {arg if kind == 'mc' else kind}")
+        if kind in ("mc", "point", "budget", "readings", "as_left"):
+            _tick(bar, f"{name} {arg if kind == 'mc' else 'sweep' if kind == 'point' else kind}")
         elif study.procedures[i].plan is not None:
             _tick(bar, f"{name} plan")
         ready.extend(unlocked(i, done))
@@ -877,8 +885,11 @@ def _stage_work(kind, ps, study, arg):
             proc, ps.setup, ps.truth, estimator=arg, trials=None if digits else trials,
             digits=digits, coverage=study.coverage, rng=study.seed, n_jobs=1,
             progress=False, max_trials=ps.max_trials or study.max_trials)
-    if kind == "sweep":
-        return _run_sweep(proc, ps, study, ps.sweeps[arg])
+    if kind == "point":
+        from mtplan.plans.sweep import point_rows
+
+        return {est: point_rows(proc, arg.setup, ps.truth, est, None, dict(arg.options),
+                                study.seed) for est in arg.estimators}
     if kind == "misc":
         plan = _run_plan(proc, ps, study) if ps.plan is not None else None
         return plan, _identifiability(proc, ps), _extras(proc, ps)
@@ -904,16 +915,77 @@ def _run_budget(proc, ps, study, recommended):
         return _mc_budget(proc, ps, study, 1, ps.estimators[0]), None, ps.estimators[0]
 
 
-def _run_sweep(proc, ps, study, sw):
-    from mtplan.plans.sweep import sweep
+@dataclass(frozen=True)
+class _Point:
+    """One set-up of a procedure's sweeps, with the Monte Carlo options of its sweep: a
+    stage that evaluates every estimator any of those sweeps asks of it, one after the
+    other in one process (they share the procedure's caches of the set-up), once for all
+    the sweeps that hold it. ``fields``: its field values as text (the same text, the same
+    seed and rows, :func:`~mtplan.plans.sweep.setup_seed`)."""
+
+    fields: str
+    options: tuple
+    estimators: tuple
+    setup: object = field(compare=False)
+
+
+class _Grid:
+    """A sweep's set-ups (grid order), estimators and options, and each set-up's key
+    (field values as text, options) to its :class:`_Point`."""
+
+    def __init__(self, setups, estimators, options):
+        from mtplan.plans.sweep import _canonical  # the text the set-up's seed is made of
+
+        self.setups, self.estimators = setups, list(estimators)
+        opts = tuple(sorted(options.items()))
+        self.keys = [(_canonical(s), opts) for s in setups]
+
+
+def _points(grids) -> dict:
+    """{(procedure index, set-up key): the point stage} over the study's sweeps
+    ({(i, j): _Grid or the reason it cannot run}): one stage per distinct set-up and
+    options of a procedure, with the estimators of every sweep that holds it."""
+    wanted = {}
+    for (i, _), g in grids.items():
+        if isinstance(g, str):
+            continue
+        for setup, key in zip(g.setups, g.keys, strict=True):
+            ests = wanted.setdefault((i, key), (setup, []))[1]
+            ests += [e for e in g.estimators if e not in ests]
+    return {(i, key): ("point", i, _Point(key[0], key[1], tuple(ests), setup))
+            for (i, key), (setup, ests) in wanted.items()}
+
+
+def _sweep_grid(proc, ps, study, sw):
+    """The grid of a sweep of the study (:class:`_Grid`), or why it cannot run (a set-up
+    the procedure refuses is a finding, shown in the report)."""
+    from mtplan.plans.sweep import sweep_grid
 
     try:
-        table = sweep(proc, ps.setup, sw["vary"], truth=ps.truth,
-                      estimators=sw.get("estimators", ps.estimators),
-                      trials=sw.get("trials", 2000), seed=study.seed, n_jobs=1,
-                      progress=False)
-    except InvalidInput as exc:  # a set-up the estimators refuse is a finding
-        table = " ".join(exc.problems)
+        g = sweep_grid(proc, ps.setup, sw["vary"], truth=ps.truth,
+                       estimators=sw.get("estimators", ps.estimators),
+                       trials=sw.get("trials", 2000), seed=study.seed)
+    except InvalidInput as exc:
+        return " ".join(exc.problems)
+    return _Grid(g.setups, g.estimators, g.options)
+
+
+def _sweep_result(sw, grid, i, points, done):
+    """(spec, table) of a sweep from its point stages: the table :func:`~mtplan.plans.sweep.
+    sweep` gives for it (each set-up's rows are a function of the set-up alone)."""
+    import pandas as pd
+
+    from mtplan.plans.sweep import sweep_table
+
+    if isinstance(grid, str):
+        return sw, grid
+    frames = []
+    for p, key in enumerate(grid.keys):
+        rows = done[points[(i, key)]]
+        frames.append(pd.DataFrame([dict(row, point=p) for est in grid.estimators
+                                    for row in rows[est]]))
+    table = sweep_table(frames)
+    table.attrs["notes"] = []
     return sw, table
 
 
@@ -957,10 +1029,10 @@ def _mc_budget(proc, ps, study, n_jobs, estimator):
                          "share": df["share"]})
 
 
-def _count_steps(study):
-    n = 0
+def _count_steps(study, points):
+    n = points
     for ps in study.procedures:
-        n += len(ps.estimators) + 1 + len(ps.sweeps)
+        n += len(ps.estimators) + 1
         n += sum(x is not None for x in (ps.plan, ps.readings, ps.as_left))
     return n
 

@@ -39,7 +39,7 @@ from mtplan._validate import InvalidInput, Problems
 from mtplan.models.protocol import fields_info, make
 from mtplan.uncertainty.montecarlo import check_run_options
 
-__all__ = ["sweep", "setup_seed", "RESULT_COLUMNS"]
+__all__ = ["sweep", "sweep_grid", "point_rows", "sweep_table", "setup_seed", "RESULT_COLUMNS"]
 
 RESULT_COLUMNS = ["estimator", "measurand", "unit", "true", "value", "bias", "u", "low", "high",
                   "trials", "converged", "duration_s", "error"]
@@ -61,6 +61,19 @@ def setup_seed(seed: int, setup) -> np.random.SeedSequence:
 
 
 def _run_setup(proc, setup, truth, estimators, sources, options, seed, point):
+    rows = []
+    for est in estimators:
+        rows += point_rows(proc, setup, truth, est, sources, options, seed, point)
+    return rows
+
+
+def point_rows(proc, setup, truth, estimator, sources, options, seed, point=0) -> list:
+    """The rows of one set-up and one estimator of a sweep (one per measurand), with
+    ``point`` its index in the grid: what :func:`sweep` computes for it, on its own (the
+    set-up's seed, :func:`setup_seed`, does not depend on the grid or the other
+    estimators), so that a study can compute each once and share it between its sweeps.
+    An estimator that cannot evaluate the set-up gives rows with NaN and the reason in
+    ``error``."""
     from mtplan.uncertainty.montecarlo import ModelError
     from mtplan.evaluation.simulation import simulate_uncertainty
 
@@ -69,38 +82,48 @@ def _run_setup(proc, setup, truth, estimators, sources, options, seed, point):
     true = proc.display_truth(setup, truth)
     duration = float(proc.duration(setup))
     rows = []
-    for est in estimators:
-        try:
-            r = simulate_uncertainty(proc, setup, truth, estimator=est, sources=sources,
-                                     rng=setup_seed(seed, setup), n_jobs=1, progress=False,
-                                     **options)
-        except (ModelError, InvalidInput) as exc:
-            # an estimator that cannot evaluate this set-up is a finding of the sweep,
-            # recorded in its rows, not a reason to lose the other set-ups
-            r, error = None, str(exc)
-        else:
-            error = ""
-        for i, m in enumerate(proc.measurands(setup)):
-            nan = float("nan")
-            rows.append({
-                "point": point,
-                "setup_id": setup_id(setup),
-                **fields,
-                "estimator": est,
-                "measurand": m.name,
-                "unit": m.unit,
-                "true": true[m.name],
-                "value": float(r.mc.mean[i]) if r else nan,
-                "bias": float(r.bias[i]) if r else nan,
-                "u": float(r.mc.std[i]) if r else nan,
-                "low": float(r.mc.low[i]) if r else nan,
-                "high": float(r.mc.high[i]) if r else nan,
-                "trials": int(r.mc.trials) if r else 0,
-                "converged": bool(r.mc.converged) if r else False,
-                "duration_s": duration,
-                "error": error,
-            })
+    try:
+        r = simulate_uncertainty(proc, setup, truth, estimator=estimator, sources=sources,
+                                 rng=setup_seed(seed, setup), n_jobs=1, progress=False,
+                                 **options)
+    except (ModelError, InvalidInput) as exc:
+        # an estimator that cannot evaluate this set-up is a finding of the sweep,
+        # recorded in its rows, not a reason to lose the other set-ups
+        r, error = None, str(exc)
+    else:
+        error = ""
+    for i, m in enumerate(proc.measurands(setup)):
+        nan = float("nan")
+        rows.append({
+            "point": point,
+            "setup_id": setup_id(setup),
+            **fields,
+            "estimator": estimator,
+            "measurand": m.name,
+            "unit": m.unit,
+            "true": true[m.name],
+            "value": float(r.mc.mean[i]) if r else nan,
+            "bias": float(r.bias[i]) if r else nan,
+            "u": float(r.mc.std[i]) if r else nan,
+            "low": float(r.mc.low[i]) if r else nan,
+            "high": float(r.mc.high[i]) if r else nan,
+            "trials": int(r.mc.trials) if r else 0,
+            "converged": bool(r.mc.converged) if r else False,
+            "duration_s": duration,
+            "error": error,
+        })
     return rows
+
+
+def sweep_table(frames) -> "pd.DataFrame":
+    """A sweep's table from the frames of its set-ups (any order): put together in grid
+    order (``point``), as :func:`sweep` returns it."""
+    import pandas as pd
+
+    table = pd.concat(frames, ignore_index=True) if len(frames) else pd.DataFrame()
+    if len(table):
+        table = table.sort_values("point", kind="stable").reset_index(drop=True)
+    return table
 
 
 def _grid(proc, base, vary):
@@ -182,19 +205,12 @@ def sweep(
     """
     import pandas as pd
 
-    from mtplan.models import get
-
-    proc = get(procedure)
-    base_setup = proc.Setup() if base_setup is None else base_setup
-    proc.check_setup(base_setup)
-    truth = proc.Truth() if truth is None else truth
-    estimators, fmt = _check_arguments(proc, base_setup, estimators, sources, trials, digits,
-                                       coverage, interval, seed, n_jobs, backend, scheduler, out)
-    if trials is None and digits is None:
-        trials = 10**4
-    setups = _grid(proc, base_setup, dict(vary or {}))
-    options = {"trials": trials, "digits": digits, "coverage": coverage, "interval": interval}
-    _check_memory(proc, setups, truth, estimators, sources, options, n_jobs)
+    g = sweep_grid(procedure, base_setup, vary, truth=truth, estimators=estimators,
+                   sources=sources, trials=trials, digits=digits, coverage=coverage,
+                   interval=interval, seed=seed, n_jobs=n_jobs, backend=backend,
+                   scheduler=scheduler, out=out)
+    proc, base_setup, truth, estimators = g.proc, g.base_setup, g.truth, g.estimators
+    fmt, setups, options = g.fmt, g.setups, g.options
     signature = _signature(proc, base_setup, truth, vary, estimators, sources, options, seed)
     done, journal, notes = pd.DataFrame(), None, []
     with parallel_session(n_jobs, backend, scheduler) as session:  # a bad scheduler: no file
@@ -216,17 +232,41 @@ def sweep(
         _order_journal(journal)  # set-up order, so any jobs and backend give the same bytes
     if journal is not None:
         # one source of truth for fresh and resumed runs alike: the journal on disk
-        table = _read_journal(journal, rewrite=False) if journal.exists() else done
+        table = sweep_table([_read_journal(journal, rewrite=False) if journal.exists() else done])
     else:
-        table = pd.concat(new_frames, ignore_index=True) if new_frames else pd.DataFrame()
-    if len(table):
-        table = table.sort_values("point", kind="stable").reset_index(drop=True)
+        table = sweep_table(new_frames)
     if out is not None and fmt == "parquet":
         with atomic_write(out, "wb") as fh:
             table.to_parquet(fh, index=False)
         Path(journal).unlink(missing_ok=True)
     table.attrs["notes"] = notes
     return table
+
+
+def sweep_grid(procedure, base_setup=None, vary=None, *, truth=None, estimators=None,
+               sources=None, trials=None, digits=None, coverage=0.95, interval="symmetric",
+               seed=0, n_jobs=1, backend=None, scheduler=None, out=None):
+    """A sweep's arguments checked (every problem at once) and its grid: a namespace of
+    ``proc``, ``base_setup``, ``truth``, ``estimators`` (names), ``fmt`` (of ``out``),
+    ``setups`` (grid order) and ``options`` (of each set-up's Monte Carlo). Arguments as
+    :func:`sweep`; a grid whose largest set-up would not fit in memory is refused."""
+    from types import SimpleNamespace
+
+    from mtplan.models import get
+
+    proc = get(procedure)
+    base_setup = proc.Setup() if base_setup is None else base_setup
+    proc.check_setup(base_setup)
+    truth = proc.Truth() if truth is None else truth
+    estimators, fmt = _check_arguments(proc, base_setup, estimators, sources, trials, digits,
+                                       coverage, interval, seed, n_jobs, backend, scheduler, out)
+    if trials is None and digits is None:
+        trials = 10**4
+    setups = _grid(proc, base_setup, dict(vary or {}))
+    options = {"trials": trials, "digits": digits, "coverage": coverage, "interval": interval}
+    _check_memory(proc, setups, truth, estimators, sources, options, n_jobs)
+    return SimpleNamespace(proc=proc, base_setup=base_setup, truth=truth,
+                           estimators=estimators, fmt=fmt, setups=setups, options=options)
 
 
 def _check_arguments(proc, base_setup, estimators, sources, trials, digits, coverage, interval,
