@@ -58,6 +58,29 @@ def test_plan_and_report_rendered_at_once_are_the_serial_ones(small_result, tmp_
         assert (both / name).read_bytes().startswith(b"%PDF")
 
 
+def test_plan_figures_drawn_as_each_test_completes_are_the_serial_ones(small_study_file,
+                                                                       tmp_path):
+    """Each test's part of the plan drawn on the study's workers as soon as the test is
+    complete (``then``, as ``mtplan report`` and ``mtplan demo`` do with workers): the same
+    outcomes as a run without, and the same documents as the serial path draws afterwards."""
+    from mtplan.reports import write_report
+    from mtplan.reports.certificate import plan_parts
+
+    study = load_study(small_study_file)
+    early = run_study(study, progress=False, n_jobs=2, then=plan_parts)
+    assert early.then is not None and len(early.then) == len(early.outcomes)
+    _same(early.outcomes, run_study(study, progress=False, n_jobs=2).outcomes, "outcomes")
+    plain = pickle.loads(pickle.dumps(early))
+    plain.then = None
+    serial, both = tmp_path / "serial", tmp_path / "both"
+    one = write_report(plain, serial)
+    two = write_report(early, both, n_jobs=2)
+    assert set(one) == set(two)
+    for name in ["plan.json", "plan.html", "report.html",
+                 *(p.relative_to(serial) for p in (serial / "results").glob("*.csv"))]:
+        assert (serial / name).read_bytes() == (both / name).read_bytes(), name
+
+
 def test_the_cache_returns_the_stored_result_and_any_change_misses_it(small_study_file,
                                                                        tmp_path):
     study = load_study(small_study_file)

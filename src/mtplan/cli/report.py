@@ -46,6 +46,7 @@ def _report(study_path, out, jobs, progress, command, plan_path=None, plan_only=
     from mtplan.plans import agreement
     from mtplan.plans.study import load_study, run_study_cached
     from mtplan.reports import write_report
+    from mtplan.reports.certificate import plan_parts
 
     problem = output_problem(out, folder=True)
     if problem:
@@ -56,8 +57,11 @@ def _report(study_path, out, jobs, progress, command, plan_path=None, plan_only=
     if plan_path is not None:  # refused before anything is computed
         plan = agreement.read_plan(plan_path)
         agreement.check_study(study, plan)
+    # with workers and both documents to write, each test's figures of the plan are drawn
+    # as soon as the test is complete, beside the other tests' stages
+    early = plan_parts if jobs != 1 and plan is None and not plan_only else None
     result = run_study_cached(study, cache, progress=progress, n_jobs=jobs, command=command,
-                              readings=not plan_only)
+                              readings=not plan_only, then=early)
     computed = time.perf_counter()
     written = write_report(result, out, plan, plan_only=plan_only, n_jobs=jobs)
     end = time.perf_counter()

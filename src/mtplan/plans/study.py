@@ -663,6 +663,8 @@ class StudyResult:
     study: Study
     outcomes: list
     provenance: dict
+    #: what ``run_study``'s ``then`` gave for each test (in test order), or None
+    then: list | None = None
 
     @property
     def verdicts(self) -> list:
@@ -727,7 +729,7 @@ def _provenance(study: Study, command: str | None) -> dict:
 
 
 def run_study(study: Study, *, progress=None, n_jobs: int = 1,
-              command: str | None = None, readings: bool = True) -> StudyResult:
+              command: str | None = None, readings: bool = True, then=None) -> StudyResult:
     """Compute every result a study asks for (the reports only render them).
 
     The work is cut into stages, each computed on one core: each estimator's Monte Carlo,
@@ -752,6 +754,11 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
         The command line that asked for the study, for the provenance.
     readings : bool
         Evaluate the readings (False: the plan only, issued before measuring).
+    then : callable, optional
+        ``then(k, outcome)``, a module-level function, run on the workers as one more stage
+        of test ``k`` (1-based) as soon as its outcome is complete, while the other tests
+        are still computed (the documents' figures of a test, say); its values, in test
+        order, are the result's ``then``.
     """
     from mtplan._parallel import effective_jobs
     from mtplan.plans import decisions
@@ -763,50 +770,72 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
              for i, ps in enumerate(procs) for j, sw in enumerate(ps.sweeps)}
     points = _points(grids)
     bar = _bar(progress, _count_steps(study, len(points)))
-    partial = {}  # procedure index -> (results, key, recommended)
+    partial = {}  # procedure index -> (results, key, recommended, its later stages)
+    outcomes, payloads = {}, {}
 
     def unlocked(i, done):
-        """The budget and readings stages of procedure ``i`` once its Monte Carlo is done."""
+        """The budget and readings stages of procedure ``i`` once its Monte Carlo is done;
+        its ``then`` stage once all of its stages are."""
         ps = procs[i]
-        if i in partial or any(("mc", i, est) not in done for est in ps.estimators):
+        if i not in partial:
+            if any(("mc", i, est) not in done for est in ps.estimators):
+                return []
+            results = {est: done[("mc", i, est)] for est in ps.estimators}
+            targeted = list((ps.plan or {}).get("targets", {}))
+            key = decisions.key_measurands(results[ps.estimators[0]].measurands,
+                                           [a["measurand"] for a in ps.acceptance], targeted)
+            best = decisions.recommend_estimator(results, key)
+            later = [(kind, i, best) for kind in ("readings", "as_left", "budget")
+                     if kind == "budget" or (readings and ps.readings is not None
+                                             and (kind == "readings" or ps.as_left is not None))]
+            partial[i] = (results, key, best, later)
+            return later
+        if then is None or i in outcomes:
             return []
-        results = {est: done[("mc", i, est)] for est in ps.estimators}
-        targeted = list((ps.plan or {}).get("targets", {}))
-        key = decisions.key_measurands(results[ps.estimators[0]].measurands,
-                                       [a["measurand"] for a in ps.acceptance], targeted)
-        partial[i] = (results, key, decisions.recommend_estimator(results, key))
-        return [(kind, i, partial[i][2]) for kind in ("readings", "as_left", "budget")
-                if kind == "budget" or (readings and ps.readings is not None
-                                        and (kind == "readings" or ps.as_left is not None))]
+        mine = [t for (j, _), t in points.items() if j == i] + partial[i][3] + [("misc", i, None)]
+        if any(t not in done for t in mine):
+            return []
+        outcomes[i] = _outcome(i, ps, partial[i], grids, points, done)
+        payloads[("then", i, None)] = (then, i + 1, outcomes[i])
+        return [("then", i, None)]
 
     first = [("mc", i, est) for i, ps in enumerate(procs) for est in ps.estimators]
     first += list(points.values())
     first += [("misc", i, None) for i in range(len(procs))]
-    done = _run_stages(first, unlocked, study, effective_jobs(n_jobs), bar)
-    outcomes = []
+    done = _run_stages(first, unlocked, study, effective_jobs(n_jobs), bar, payloads)
     for i, ps in enumerate(procs):
-        results, key, recommended = partial[i]
-        budget, gum, budget_estimator = done[("budget", i, recommended)]
-        plan, identifiability, extras = done[("misc", i, None)]
-        outcome = ProcedureOutcome(
-            spec=ps, title=_model(ps.name).title, results=results, gum=gum, budget=budget,
-            sweeps=[_sweep_result(ps.sweeps[j], grids[(i, j)], i, points, done)
-                    for j in range(len(ps.sweeps))], plan=plan,
-            measured=done.get(("readings", i, recommended)), identifiability=identifiability,
-            extras=extras, recommended=recommended, key=key, budget_estimator=budget_estimator)
-        decider = results.get(getattr(outcome.measured, "estimator", None), results[recommended])
-        outcome.verdicts = decisions.conformity(ps.name, ps.label, ps.acceptance, decider,
-                                                outcome.measured)
-        outcome.as_left = done.get(("as_left", i, recommended))  # after an adjustment
-        if outcome.as_left is not None:
-            outcome.as_left_verdicts = decisions.conformity(ps.name, ps.label, ps.acceptance,
-                                                            decider, outcome.as_left)
-        _advise(outcome, _model(ps.name), i + 1)
-        outcomes.append(outcome)
+        if i not in outcomes:
+            outcomes[i] = _outcome(i, ps, partial[i], grids, points, done)
     if bar is not None:
         bar.close()
-    return StudyResult(study=study, outcomes=outcomes,
-                       provenance=_provenance(study, command))
+    return StudyResult(study=study, outcomes=[outcomes[i] for i in range(len(procs))],
+                       provenance=_provenance(study, command),
+                       then=None if then is None else [done[("then", i, None)]
+                                                       for i in range(len(procs))])
+
+
+def _outcome(i, ps, partial, grids, points, done) -> ProcedureOutcome:
+    """Test ``i``'s outcome from its stages' results: verdicts, advice and summary."""
+    from mtplan.plans import decisions
+
+    results, key, recommended, _ = partial
+    budget, gum, budget_estimator = done[("budget", i, recommended)]
+    plan, identifiability, extras = done[("misc", i, None)]
+    outcome = ProcedureOutcome(
+        spec=ps, title=_model(ps.name).title, results=results, gum=gum, budget=budget,
+        sweeps=[_sweep_result(ps.sweeps[j], grids[(i, j)], i, points, done)
+                for j in range(len(ps.sweeps))], plan=plan,
+        measured=done.get(("readings", i, recommended)), identifiability=identifiability,
+        extras=extras, recommended=recommended, key=key, budget_estimator=budget_estimator)
+    decider = results.get(getattr(outcome.measured, "estimator", None), results[recommended])
+    outcome.verdicts = decisions.conformity(ps.name, ps.label, ps.acceptance, decider,
+                                            outcome.measured)
+    outcome.as_left = done.get(("as_left", i, recommended))  # after an adjustment
+    if outcome.as_left is not None:
+        outcome.as_left_verdicts = decisions.conformity(ps.name, ps.label, ps.acceptance,
+                                                        decider, outcome.as_left)
+    _advise(outcome, _model(ps.name), i + 1)
+    return outcome
 
 
 def _model(name):
@@ -815,14 +844,17 @@ def _model(name):
     return get(name)
 
 
-#: which ready stage a free worker takes first: the long ones a procedure waits on
-_PRIORITY = {"as_left": 0, "readings": 0, "budget": 1, "mc": 2, "point": 3, "misc": 4}
+#: which ready stage a free worker takes first: the long ones a procedure waits on, then
+#: what completes a procedure soonest (a procedure's ``then`` waits for its last sweep)
+_PRIORITY = {"as_left": 0, "readings": 0, "budget": 1, "then": 1, "mc": 2, "misc": 2,
+             "point": 3}
 
 
-def _run_stages(tasks, unlocked, study, jobs, bar) -> dict:
+def _run_stages(tasks, unlocked, study, jobs, bar, payloads) -> dict:
     """Every stage's result, {(kind, procedure index, arg): result}: ``tasks`` and those
     ``unlocked(i, done)`` adds as they become ready, on ``jobs`` processes (one stage, on
-    one core, per worker at a time) or, for one job, here."""
+    one core, per worker at a time) or, for one job, here. A stage in ``payloads`` is
+    given its payload as its argument instead of its key's."""
     ready = sorted(tasks, key=lambda t: _PRIORITY[t[0]])
     done = {}
 
@@ -832,7 +864,7 @@ def _run_stages(tasks, unlocked, study, jobs, bar) -> dict:
         name = study.procedures[i].name
         if kind in ("mc", "point", "budget", "readings", "as_left"):
             _tick(bar, f"{name} {arg if kind == 'mc' else 'sweep' if kind == 'point' else kind}")
-        elif study.procedures[i].plan is not None:
+        elif kind == "misc" and study.procedures[i].plan is not None:
             _tick(bar, f"{name} plan")
         ready.extend(unlocked(i, done))
         ready.sort(key=lambda t: _PRIORITY[t[0]])  # stable: study order within a kind
@@ -840,7 +872,8 @@ def _run_stages(tasks, unlocked, study, jobs, bar) -> dict:
     if jobs == 1:
         while ready:
             task = ready.pop(0)
-            finish(task, _stage_work(task[0], study.procedures[task[1]], study, task[2]))
+            finish(task, _stage_work(task[0], study.procedures[task[1]], study,
+                                     payloads.pop(task, task[2])))
         return done
     from concurrent.futures import FIRST_COMPLETED, wait
 
@@ -852,7 +885,7 @@ def _run_stages(tasks, unlocked, study, jobs, bar) -> dict:
         while ready and len(running) < jobs:
             task = ready.pop(0)
             running[executor.submit(_stage, task[0], study.procedures[task[1]], study,
-                                    task[2])] = task
+                                    payloads.pop(task, task[2]))] = task
         finished, _ = wait(running, return_when=FIRST_COMPLETED)
         for future in finished:
             finish(running.pop(future), future.result())
@@ -872,6 +905,9 @@ def _stage_work(kind, ps, study, arg):
     """One stage of a procedure, in this process."""
     from mtplan.evaluation.simulation import simulate_uncertainty
 
+    if kind == "then":
+        function, k, outcome = arg
+        return function(k, outcome)
     proc = _model(ps.name)
     if kind == "mc":
         # the procedure's own choice wins over the study's: trials (fixed) or digits
@@ -1181,16 +1217,18 @@ def study_cache_key(study: Study, readings: bool = True) -> str:
 
 
 def run_study_cached(study: Study, cache_dir, *, progress=None, n_jobs: int = 1,
-                     command: str | None = None, readings: bool = True) -> StudyResult:
+                     command: str | None = None, readings: bool = True,
+                     then=None) -> StudyResult:
     """:func:`run_study`, or its result stored in ``cache_dir`` by an earlier run with the
     same :func:`study_cache_key` (None: always computed). The provenance is this run's (its
-    date and command) and names the cache file the numbers were read from."""
+    date and command) and names the cache file the numbers were read from. ``then`` as
+    :func:`run_study` where the study is computed (a result read from the cache has none)."""
     import os
     import pickle
 
     if cache_dir is None:
         return run_study(study, progress=progress, n_jobs=n_jobs, command=command,
-                         readings=readings)
+                         readings=readings, then=then)
     key = study_cache_key(study, readings)
     path = Path(cache_dir) / f"study-{key}.pickle"
     try:
@@ -1205,7 +1243,7 @@ def run_study_cached(study: Study, cache_dir, *, progress=None, n_jobs: int = 1,
         provenance["cached"] = str(path)
         return StudyResult(study=study, outcomes=outcomes, provenance=provenance)
     result = run_study(study, progress=progress, n_jobs=n_jobs, command=command,
-                       readings=readings)
+                       readings=readings, then=then)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")

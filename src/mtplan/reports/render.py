@@ -473,12 +473,14 @@ def _document(result, plan, out: Path, kind: str) -> dict:
 
 
 def _write_both(result, out: Path, plan: dict, n_jobs: int) -> dict:
-    """The plan and the report of one run, drawn on ``n_jobs`` worker processes: each test's
-    part of the plan (its figures: most of the work) is a task, the whole report another
-    (its process decides its own copy of ``result`` with the plan, as the serial path does
-    after the plan was written); the plan is put together and rendered here as the report
-    is still being drawn; ``result`` is then decided here too. The same files as the serial
-    path: every figure and table is drawn from the same data."""
+    """The plan and the report of one run, drawn on ``n_jobs`` worker processes: the whole
+    report is a task (its process decides its own copy of ``result`` with the plan, as the
+    serial path does after the plan was written), each test's part of the plan (its
+    figures: most of the work) another, unless the study drew them already as each test
+    was complete (``result.then``: :func:`mtplan.reports.certificate.plan_parts` given to
+    :func:`mtplan.plans.study.run_study`); the plan is put together and rendered here as
+    the report is still being drawn; ``result`` is then decided here too. The same files as
+    the serial path: every figure and table is drawn from the same data."""
     import json
     from concurrent.futures import wait
 
@@ -490,10 +492,15 @@ def _write_both(result, out: Path, plan: dict, n_jobs: int) -> dict:
         json.dump(plan, fh, indent=1)
     # the pool the study ran on, when it ran here: its workers are started already
     executor = stage_executor(max(effective_jobs(n_jobs), 2))
-    parts = [executor.submit(plan_parts, k, o) for k, o in enumerate(result.outcomes, start=1)]
-    report = executor.submit(_document, result, plan, out, "report")
-    wait(parts)
-    plan_files = _write_doc(build_plan(result, plan, [f.result() for f in parts]), out, "plan")
+    report = executor.submit(_document, result, plan, out, "report")  # the longest task
+    if result.then is not None:  # drawn on the study's workers as each test was complete
+        parts = result.then
+    else:
+        futures = [executor.submit(plan_parts, k, o)
+                   for k, o in enumerate(result.outcomes, start=1)]
+        wait(futures)
+        parts = [f.result() for f in futures]
+    plan_files = _write_doc(build_plan(result, plan, parts), out, "plan")
     report_files = report.result()
     agreement.apply_plan(result, plan)
     written = {**plan_files, **report_files, "plan_json": out / "plan.json"}
