@@ -7,6 +7,7 @@ import pickle
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from mtplan.plans.study import load_study, run_study, run_study_cached, study_cache_key
 
@@ -33,52 +34,49 @@ def _same(a, b, where="result") -> None:
         assert a == b, where
 
 
-def test_two_workers_give_the_serial_result(small_study_file):
-    """Stages on two processes draw the same streams as one serial run: identical outcomes.
-    The serial run is made here: the shared ``small_result`` is decided in place by the plan
-    when another test of this worker writes its report first."""
-    serial = run_study(load_study(small_study_file), progress=False)
-    parallel = run_study(load_study(small_study_file), progress=False, n_jobs=2)
-    _same(parallel.outcomes, serial.outcomes, "outcomes")
-
-
-def test_plan_and_report_rendered_at_once_are_the_serial_ones(small_result, tmp_path):
-    """The plan and the report built in two processes: the same plan.json, HTML and CSV
-    files as one after the other (the PDFs differ only in their creation time)."""
-    from mtplan.reports import write_report
-
-    serial, both = tmp_path / "serial", tmp_path / "both"
-    one = write_report(pickle.loads(pickle.dumps(small_result)), serial)
-    two = write_report(pickle.loads(pickle.dumps(small_result)), both, n_jobs=2)
-    assert set(one) == set(two)
-    for name in ["plan.json", "plan.html", "report.html",
-                 *(p.relative_to(serial) for p in (serial / "results").glob("*.csv"))]:
-        assert (serial / name).read_bytes() == (both / name).read_bytes(), name
-    for name in ("plan.pdf", "report.pdf"):
-        assert (both / name).read_bytes().startswith(b"%PDF")
-
-
-def test_plan_figures_drawn_as_each_test_completes_are_the_serial_ones(small_study_file,
-                                                                       tmp_path):
-    """Each test's part of the plan drawn on the study's workers as soon as the test is
-    complete (``then``, as ``mtplan report`` and ``mtplan demo`` do with workers): the same
-    outcomes as a run without, and the same documents as the serial path draws afterwards."""
-    from mtplan.reports import write_report
+@pytest.fixture(scope="module")
+def early_result(small_study_file):
+    """The small study on two workers, each test's part of the plan drawn as soon as the
+    test is complete (``then``), as ``mtplan report`` and ``mtplan demo`` do with workers."""
     from mtplan.reports.certificate import plan_parts
 
-    study = load_study(small_study_file)
-    early = run_study(study, progress=False, n_jobs=2, then=plan_parts)
-    assert early.then is not None and len(early.then) == len(early.outcomes)
-    _same(early.outcomes, run_study(study, progress=False, n_jobs=2).outcomes, "outcomes")
-    plain = pickle.loads(pickle.dumps(early))
-    plain.then = None
-    serial, both = tmp_path / "serial", tmp_path / "both"
-    one = write_report(plain, serial)
-    two = write_report(early, both, n_jobs=2)
-    assert set(one) == set(two)
+    return run_study(load_study(small_study_file), progress=False, n_jobs=2, then=plan_parts)
+
+
+def test_two_workers_give_the_serial_result(small_study_file, early_result):
+    """Stages on two processes draw the same streams as one serial run: identical outcomes
+    (also where each test's figures are drawn beside the stages). The serial run is made
+    here: the shared ``small_result`` is decided in place by the plan when another test of
+    this worker writes its report first."""
+    serial = run_study(load_study(small_study_file), progress=False)
+    assert early_result.then is not None and len(early_result.then) == len(serial.outcomes)
+    _same(early_result.outcomes, serial.outcomes, "outcomes")
+
+
+def test_plan_and_report_rendered_at_once_are_the_serial_ones(early_result, tmp_path):
+    """The plan and the report built in two processes, with each test's figures drawn there
+    (from a result read from the cache) or drawn already as the study ran: the same
+    plan.json, HTML and CSV files as one after the other (the PDFs differ only in their
+    creation time)."""
+    from mtplan.reports import write_report
+
+    def copy(then):
+        result = pickle.loads(pickle.dumps(early_result))
+        result.then = result.then if then else None
+        return result
+
+    serial, both, early = tmp_path / "serial", tmp_path / "both", tmp_path / "early"
+    one = write_report(copy(False), serial)
+    two = write_report(copy(False), both, n_jobs=2)
+    three = write_report(copy(True), early, n_jobs=2)
+    assert set(one) == set(two) == set(three)
     for name in ["plan.json", "plan.html", "report.html",
                  *(p.relative_to(serial) for p in (serial / "results").glob("*.csv"))]:
         assert (serial / name).read_bytes() == (both / name).read_bytes(), name
+        assert (serial / name).read_bytes() == (early / name).read_bytes(), name
+    for name in ("plan.pdf", "report.pdf"):
+        assert (both / name).read_bytes().startswith(b"%PDF")
+        assert (early / name).read_bytes().startswith(b"%PDF")
 
 
 def test_the_cache_returns_the_stored_result_and_any_change_misses_it(small_study_file,
