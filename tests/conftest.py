@@ -97,6 +97,12 @@ def pytest_configure(config):
     if getattr(config.option, "numprocesses", None) and not os.environ.get("PYTEST_XDIST_WORKER"):
         for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
             os.environ.setdefault(name, "1")
+    # every process of the suite (workers, pools, the commands it runs) with the allocator
+    # settings `mtplan` takes (mtplan._parallel.keep_freed_memory): set before they start
+    from mtplan._parallel import MALLOC_SETTINGS
+
+    for name, value in MALLOC_SETTINGS.items():
+        os.environ.setdefault(name, str(value))
 
 
 @pytest.hookimpl(tryfirst=True)

@@ -80,9 +80,24 @@ print(untuned, faults())
 def test_a_worker_started_as_a_dask_nanny_does_stops_paying_page_faults_per_array():
     """Under a nanny's MALLOC_TRIM_THRESHOLD_ every 1 MiB array is a fresh mmap (256 page
     faults); with the worker's heap set up as in a plain process, it reuses freed memory."""
-    env = {**os.environ, "MALLOC_TRIM_THRESHOLD_": "65536"}
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}
+    env["MALLOC_TRIM_THRESHOLD_"] = "65536"  # the nanny's, and no other setting
     out = subprocess.run([sys.executable, "-c", HEAP_SCRIPT], env=env, capture_output=True,
                          text=True, check=True).stdout
     untuned, tuned = map(int, out.split())
     assert untuned > 100 * 200  # about 256 per array
     assert tuned < untuned / 20
+
+
+def test_keep_freed_memory_takes_its_settings_under_glibc():
+    """The allocator settings `mtplan` takes (large arrays from the heap, freed memory kept)
+    are accepted by glibc's mallopt; elsewhere the call says it did nothing."""
+    import platform
+
+    from mtplan._parallel import MALLOC_SETTINGS, keep_freed_memory
+
+    taken = keep_freed_memory()
+    if platform.libc_ver()[0] == "glibc":
+        assert taken is True
+    assert set(MALLOC_SETTINGS) == {"MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_",
+                                    "MALLOC_TOP_PAD_"}
