@@ -735,9 +735,8 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
     The work is cut into stages, each computed on one core: each estimator's Monte Carlo,
     each distinct set-up of a procedure's sweeps (one stage for every sweep that holds it:
     the base set-up is in most), and each procedure's plan, identifiability and extras;
-    then, as soon as a
-    procedure's Monte Carlo stages are done and so its recommended estimator is known, its
-    budget and its readings evaluation. ``n_jobs`` worker processes take the ready stages,
+    then, as soon as a procedure's Monte Carlo stages are done and so its recommended
+    estimator is known, its budget and its readings evaluation. ``n_jobs`` worker processes take the ready stages,
     the readings and budgets first (the longest, on which the procedure waits). Every stage
     draws from the study's seed exactly as a serial run does, so the result does not depend
     on ``n_jobs`` nor on the order the stages ran in (beyond the last bits of floating-point
@@ -764,8 +763,8 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
     from mtplan.plans import decisions
 
     procs = study.procedures
-    # each sweep's grid here, each of its set-ups and estimators one stage, shared by the
-    # sweeps of a procedure that hold the same set-up (the base set-up is in most of them)
+    # each sweep's grid here; each distinct set-up of a procedure's sweeps one stage, with
+    # the estimators of every sweep that holds it (the base set-up is in most of them)
     grids = {(i, j): _sweep_grid(_model(ps.name), ps, study, sw)
              for i, ps in enumerate(procs) for j, sw in enumerate(ps.sweeps)}
     points = _points(grids)

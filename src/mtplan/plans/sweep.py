@@ -39,7 +39,7 @@ from mtplan._validate import InvalidInput, Problems
 from mtplan.models.protocol import fields_info, make
 from mtplan.uncertainty.montecarlo import check_run_options
 
-__all__ = ["sweep", "sweep_grid", "point_rows", "sweep_table", "setup_seed", "RESULT_COLUMNS"]
+__all__ = ["sweep", "setup_seed", "RESULT_COLUMNS"]
 
 RESULT_COLUMNS = ["estimator", "measurand", "unit", "true", "value", "bias", "u", "low", "high",
                   "trials", "converged", "duration_s", "error"]
