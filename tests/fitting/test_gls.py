@@ -114,6 +114,64 @@ def test_the_readings_covariance_of_a_linear_model_is_exact():
     assert g.mode == "dense" and np.isclose(g.logdet, np.linalg.slogdet(expect)[1], rtol=1e-6)
 
 
+def _patches(structure=None, rows=None):
+    """Readings in 8 patches of 5; element (p, k) of a 'patch' source moves reading k and
+    k + 1 of patch p (non-linearly: a square beside the linear term), so that the readings
+    of a patch depend on two elements. Colouring: k even / odd never share a reading, and
+    patches never share one either (the colour of an element is k % 2)."""
+    n_p, per = 8, 5
+    srcs = {"patch": Source(Normal(0.0, 1e-3), (n_p, per - 1), "patch errors"),
+            "noise": Source(Normal(0.0, 1e-4), (n_p * per,), "reading noise")}
+
+    def readings(errors):
+        e = np.asarray(errors["patch"], dtype=float)
+        m = e.shape[0]
+        if rows is not None and np.any(e != 0):
+            rows.append(m)
+        y = np.zeros((m, n_p, per))
+        y[:, :, :-1] += e + 50.0 * e**2
+        y[:, :, 1:] += 0.5 * e
+        return y.reshape(m, -1) + errors["noise"]
+
+    def zero(m):
+        return {k: np.zeros((m, *s.shape)) for k, s in srcs.items()}
+
+    return SourceModel("patches", srcs, readings, zero, structure)
+
+
+def test_coloured_source_effects_equal_the_element_by_element_ones():
+    n_p, per = 8, 5
+    elem = np.arange(n_p * (per - 1)).reshape(n_p, per - 1)
+    colours = (elem % 2).reshape(-1)
+    owners = np.full((2, n_p * per), -1)
+    for p in range(n_p):
+        for k in range(per - 1):
+            for r in (k, k + 1):
+                owners[k % 2, p * per + r] = elem[p, k]
+    calls = []
+
+    def structure(name):
+        calls.append(name)
+        return (colours, owners) if name == "patch" else None
+
+    plain, coloured = [], []
+    D0, U0 = source_effects(_patches(rows=plain))
+    D1, U1 = source_effects(_patches(structure, coloured))
+    assert calls == ["patch", "noise"]
+    assert sum(coloured) == 4 and sum(plain) >= 2 * n_p * (per - 1)  # 2 per colour, not element
+    assert U1.shape == U0.shape == (n_p * per, n_p * (per - 1))
+    assert np.array_equal(D1, D0) and np.array_equal(U1, U0)
+    # a colouring that does not hold (an element left out of its readings' owners: they
+    # move in a row that, by the colouring, touches none of them) is not used
+    wrong = owners.copy()
+    wrong[0, 0] = -1
+    fallback = []
+    D2, U2 = source_effects(_patches(lambda name: (colours, wrong) if name == "patch" else None,
+                                     fallback))
+    assert np.array_equal(D2, D0) and np.array_equal(U2, U0)
+    assert sum(fallback) == 4 + sum(plain)
+
+
 def test_gauss_newton_with_one_gain_solves_a_linear_model_in_one_step():
     model, x, _ = _linear_model()
     rng = np.random.default_rng(5)

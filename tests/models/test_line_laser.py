@@ -72,6 +72,25 @@ def test_facet_errors_repeat_only_beyond_the_scanned_window():
     assert ll.facet_count(SETUP) == 6 * np.prod(ll._facet_layout(SETUP)) // 2
 
 
+@pytest.mark.parametrize("ref", [(0.0,) * 8, (1.2, -0.5, 3.0, 0.4, -0.7, 80.0, 1.0, -1.5)])
+def test_the_facets_colouring_gives_the_element_by_element_covariance(ref, monkeypatch):
+    """Facet k of every pocket in one row (:func:`source_structure`): the facets' part of
+    the readings' covariance, as the pattern fit's gain weights with it, is the one of
+    360 rows of one facet each, to round-off (a reading's value in a colour's row is the
+    one it has with its own facet moved alone)."""
+    from mtplan.models.line_laser import _estimators as est
+
+    D1, U1 = est._source_effects(SETUP, ref, ("facet_position",))
+    monkeypatch.setattr(est, "source_structure", lambda *args: None)
+    D0, U0 = est._source_effects(SETUP, ref, ("facet_position",))
+    assert np.array_equal(D1, D0)
+    # U U^T (15 600 square) against random directions
+    v = np.random.default_rng(1).normal(size=(D0.size, 16))
+    c1, c0 = U1 @ (U1.T @ v), U0 @ (U0.T @ v)
+    np.testing.assert_allclose(c1, c0, rtol=0, atol=1e-12 * np.abs(c0).max())
+    assert np.abs(U0).max() > 2e-3 * math.tan(math.radians(25)) / 2  # the facets move readings
+
+
 def test_land_heights_follow_the_exact_raise_relation():
     """On the land, scans 2 and 3 differ by h n_z / (n . e_zl) exactly (n: plate normal)."""
     truth = ll.Truth()

@@ -297,6 +297,16 @@ class Forward:
         with np.errstate(all="ignore"):
             return self._flat(self.proc.forward(self.setup, truth, errors), m)
 
+    def structure(self, truth, name: str):
+        """The procedure's colouring of source `name` at `truth`
+        (``Procedure.source_structure``), on the used readings; None without one."""
+        hook = getattr(self.proc, "source_structure", None)
+        plan = None if hook is None else hook(self.setup, truth, name)
+        if plan is None:
+            return None
+        colours, owners = plan
+        return colours, np.asarray(owners)[:, self.mask]
+
     # ----------------------------------------------------------------- many rows
     def _loop(self, theta, nuis):
         m = theta.shape[0]

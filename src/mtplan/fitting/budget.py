@@ -159,6 +159,58 @@ def _probed(fwd, truth, name: str, sd: np.ndarray, f0: np.ndarray, shape) -> _Ef
     return _Effect(sd, row, s1, c1, multi, S, C)
 
 
+def _coloured(fwd, truth, name: str, sd: np.ndarray, f0: np.ndarray, shape, colours,
+              owners) -> _Effect | None:
+    """The effects of a source whose elements the model has coloured: elements of one
+    colour never move a common reading, so each colour is one row at +sigma and one at
+    -sigma (Curtis, Powell and Reid's grouping of a sparse Jacobian's columns), and
+    ``owners`` (colours, n) names the element of each colour that each reading depends
+    on (-1: none). 2 C forward rows instead of 2 E; the secants and curvatures are those
+    of the element-by-element evaluation, and so is the support rule (:data:`_SUPPORT`).
+    None where a reading no element of a colour owns moves in that colour's rows (a
+    colouring that does not hold: the caller evaluates element by element)."""
+    colours = np.asarray(colours, dtype=np.int64).reshape(-1)
+    owners = np.asarray(owners, dtype=np.int64)
+    n_el, k = sd.size, owners.shape[0]
+    errors = fwd.errors(2 * k, copy_of=(name,))
+    a = errors[name].reshape(2 * k, -1)
+    for c in range(k):
+        on = colours == c
+        a[c, on] += sd[on]
+        a[k + c, on] -= sd[on]
+    errors[name] = a.reshape(2 * k, *shape)
+    pred = fwd.at(truth, errors)
+    if not np.all(np.isfinite(pred)):
+        raise InvalidInput([f"The forward model of {_name(fwd)} gives no finite readings "
+                            f"with the source {name!r} one standard deviation off its mean."])
+    sec = 0.5 * (pred[:k] - pred[k:])
+    cur = 0.5 * (pred[:k] + pred[k:]) - f0
+    free = owners < 0
+    if np.any(sec[free] != 0) or np.any(cur[free] != 0):
+        return None
+    c_idx, r_idx = np.nonzero(~free)
+    e = owners[c_idx, r_idx]
+    if np.any(colours[e] != c_idx):
+        raise ValueError(f"the colouring of {name!r} names an element in a colour not its own")
+    s, cu = sec[c_idx, r_idx], cur[c_idx, r_idx]
+    big = np.zeros(n_el)
+    np.maximum.at(big, e, np.maximum(np.abs(s), np.abs(cu)))
+    nz = (np.abs(s) > _SUPPORT * big[e]) | (np.abs(cu) > _SUPPORT * big[e])
+    count = np.bincount(e[nz], minlength=n_el)
+    row, s1, c1 = np.full(n_el, -1), np.zeros(n_el), np.zeros(n_el)
+    one = nz & (count[e] == 1)
+    row[e[one]], s1[e[one]], c1[e[one]] = r_idx[one], s[one], cu[one]
+    multi = np.flatnonzero(count > 1)
+    col = np.full(n_el, -1)
+    col[multi] = np.arange(multi.size)
+    many = count[e] > 1
+    n = f0.size
+    S, C = np.zeros((n, multi.size)), np.zeros((n, multi.size))
+    S[r_idx[many], col[e[many]]] = s[many]
+    C[r_idx[many], col[e[many]]] = cu[many]
+    return _Effect(sd, row, s1, c1, multi, S, C)
+
+
 def _name(fwd) -> str:
     """The procedure's name for messages (a posterior's Forward, or a :class:`SourceModel`)."""
     proc = getattr(fwd, "proc", None)
@@ -178,6 +230,12 @@ def _effect(fwd, truth, name: str, std, f0: np.ndarray) -> _Effect:
         sd = std.reshape(-1)
     else:
         sd = np.broadcast_to(std, shape).reshape(-1)
+    hook = getattr(fwd, "structure", None)
+    plan = hook(truth, name) if hook is not None else None
+    if plan is not None:
+        eff = _coloured(fwd, truth, name, sd, f0, shape, *plan)
+        if eff is not None:
+            return eff
     if n_el >= _PROBE:
         eff = _probed(fwd, truth, name, sd, f0, shape)
         if eff is not None:

@@ -58,12 +58,23 @@ class SourceModel:
     zero_errors : callable
         ``zero_errors(m) -> dict``: fresh, writable error rows of every source at zero
         (or at the value the effects are taken about).
+    structure : callable, optional
+        ``structure(name) -> (colours, owners)`` or None: a colouring of the source's
+        elements (elements of one colour never move a common reading; ``owners``
+        (colours, n) the element of each colour each reading depends on, -1 none), so
+        that its effects take two forward rows per colour, not per element (a
+        procedure's ``source_structure``).
     """
 
-    def __init__(self, name: str, sources: Mapping, readings: Callable, zero_errors: Callable):
+    def __init__(self, name: str, sources: Mapping, readings: Callable, zero_errors: Callable,
+                 structure: Callable | None = None):
         self.name, self.sources = name, dict(sources)
-        self._readings, self._zero = readings, zero_errors
+        self._readings, self._zero, self._structure = readings, zero_errors, structure
         self._n = None
+
+    def structure(self, truth, name: str):
+        """The colouring of source `name` (see the class), or None."""
+        return None if self._structure is None else self._structure(name)
 
     def errors(self, m: int, copy_of=()) -> dict:
         return self._zero(m)

@@ -608,6 +608,15 @@ class Procedure:
     #: unit] in which an estimator's values come (a quantised estimator): where its Monte
     #: Carlo interval has zero width, ``simulate`` states u = step / sqrt(12)
     resolution: Callable | None = None
+    #: optional ``source_structure(setup, truth, name) -> (colours, owners)`` or None: for a
+    #: source of many elements that each move a few readings (an artifact's facets), a
+    #: colouring of its elements: those of one colour never move a common reading, and
+    #: ``owners`` (colours, readings) names the element of each colour each reading of
+    #: ``forward`` (flattened) depends on, -1 for none. The source's effects in the
+    #: readings' covariance then take two forward rows per colour instead of two per
+    #: element (``fitting.source_effects``, the posterior's budget). None: NaN probes, then
+    #: element by element
+    source_structure: Callable | None = None
 
     # ----------------------------------------------------------------- analysis hooks
     # What the planner, the study and the reports ask a procedure beyond its model. Each

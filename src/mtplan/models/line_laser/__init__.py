@@ -635,6 +635,23 @@ def sources(setup) -> dict:
     }
 
 
+def source_structure(setup, truth, name: str):
+    """The facets' colouring (:attr:`mtplan.models.protocol.Procedure.source_structure`):
+    colour k holds facet k of every pocket. A reading depends only on the facets of the
+    pocket its hit lies in (:func:`height_map`: ``offsets`` of that pocket alone; pockets
+    are 0.6 mm of land apart, a facet error moves micrometres), and no two scanned
+    pockets share an error (:func:`_facet_layout`), so facets of one colour never move a
+    common reading. The owners are taken at the error-free hits of the truth's traced
+    neighbour (:func:`_row`, as :func:`_trace` does); `truth` scalar or batched (its
+    first row). None for every other source."""
+    if name != "facet_position":
+        return None
+    _, x, y, _, _, _, _ = _nominal(setup, _row(truth, 0))
+    pocket = _lattice_local(setup, x, y)[2]
+    colours = np.tile(np.arange(6), facet_count(setup) // 6)
+    return colours, 6 * pocket[None, :] + np.arange(6)[:, None]
+
+
 def _linearity_basis(setup) -> np.ndarray:
     """Orthonormal Legendre polynomials along the line, shape (degrees, points_per_line).
 
@@ -1336,4 +1353,5 @@ PROCEDURE = Procedure(
     observability=observability,
     first_order_budget=first_order_budget,
     first_order_sensitivities=sensitivities,
+    source_structure=source_structure,
 )

@@ -24,6 +24,7 @@ from mtplan.models.line_laser import (
     _shift,
     forward,
     height_map,
+    source_structure,
     sources,
     Truth,
 )
@@ -479,7 +480,8 @@ def _source_effects(setup, ref: tuple, names: tuple) -> tuple[np.ndarray, np.nda
         _procedure().name, sources(setup),
         lambda errors: forward(setup, _truth_rows(np.repeat(
             theta, next(iter(errors.values())).shape[0], axis=0)), errors)["z_mm"],
-        lambda m: _procedure().zero_errors(setup, m))
+        lambda m: _procedure().zero_errors(setup, m),
+        lambda name: source_structure(setup, _truth_rows(theta), name))
     return source_effects(model, list(names))
 
 
