@@ -256,12 +256,19 @@ def _register(setup, a, b, start, *, iterations=12):
     cells_flat = cells.ravel()
     scale = None
     act = np.arange(n)  # rows still iterating: a row stops at its own convergence
+    # per active row: its whole shift (ku, kv) and what depends on that alone (the cells
+    # gathered from a, the mask of usable nodes), kept while the shift stays (after the
+    # first steps, the rows move within one cell)
+    shift = np.full((n, 2), np.nan)
+    held = None
     for it in range(iterations):
         if it == 0 or act.size < g_u.shape[0]:
             g_u, g_y, ok_b, b_f = gub[act], gyb[act], okb[act], bf[act]
             node_base = act[:, None] * (lines * pts)
             cell_base = act[:, None] * ((lines - 1) * (pts - 1))
             sc = None if scale is None else scale[act]
+            if held is not None:
+                held = [h[keep] for h in held]
         d = delta[act]
         su = -d[:, 0] / p
         sy = -d[:, 1] / dy
@@ -269,16 +276,25 @@ def _register(setup, a, b, start, *, iterations=12):
         su, sy = np.where(ok_row, su, 0.0), np.where(ok_row, sy, 0.0)
         ku, kv = np.floor(su), np.floor(sy)
         fu, fy = (su - ku)[:, None], (sy - kv)[:, None]
-        ic = ii[None, :] + ku.astype(int)[:, None]
-        jc = jj[None, :] + kv.astype(int)[:, None]
-        inside = (ic >= 0) & (ic <= pts - 2) & (jc >= 0) & (jc <= lines - 2)
-        icc = np.clip(ic, 0, pts - 2)
-        jcc = np.clip(jc, 0, lines - 2)
-        # gathers from the flattened batch (a 1-D take: faster than 2-D fancy indexing)
-        valid = inside & ok_b & cells_flat.take(cell_base + jcc * (pts - 1) + icc)
-        k00 = node_base + jcc * pts + icc
-        a00, a01 = af_flat.take(k00), af_flat.take(k00 + 1)
-        a10, a11 = af_flat.take(k00 + pts), af_flat.take(k00 + pts + 1)
+        moved = np.flatnonzero((ku != shift[act, 0]) | (kv != shift[act, 1]))
+        shift[act, 0], shift[act, 1] = ku, kv
+        if held is None:
+            held = [np.empty((act.size, lines * pts)) for _ in range(4)]
+            held.append(np.empty((act.size, lines * pts), dtype=bool))
+        if moved.size:
+            ic = ii[None, :] + ku[moved].astype(int)[:, None]
+            jc = jj[None, :] + kv[moved].astype(int)[:, None]
+            inside = (ic >= 0) & (ic <= pts - 2) & (jc >= 0) & (jc <= lines - 2)
+            icc = np.clip(ic, 0, pts - 2)
+            jcc = np.clip(jc, 0, lines - 2)
+            # gathers from the flattened batch (a 1-D take: faster than 2-D fancy indexing)
+            held[4][moved] = inside & ok_b[moved] & cells_flat.take(
+                cell_base[moved] + jcc * (pts - 1) + icc)
+            k00 = node_base[moved] + jcc * pts + icc
+            for h, off in zip(held[:4], (0, 1, pts, pts + 1), strict=True):
+                h[moved] = af_flat.take(k00 + off)
+        a00, a01, a10, a11, valid = held
+        valid = valid.copy()
         r = b_f - ((1 - fy) * ((1 - fu) * a00 + fu * a01) + fy * ((1 - fu) * a10 + fu * a11))
         r -= d[:, 2:3]
         if it >= 3:  # robust trim once the fit has settled
@@ -308,7 +324,8 @@ def _register(setup, a, b, start, *, iterations=12):
         step[bad] = np.nan
         delta[act] = d + step
         if it >= 4:
-            act = act[~np.all(np.abs(step) <= 1e-10, axis=1) & ~bad]
+            keep = ~np.all(np.abs(step) <= 1e-10, axis=1) & ~bad
+            act = act[keep]
             if act.size == 0:
                 break
     return delta
