@@ -91,6 +91,29 @@ def test_the_facets_colouring_gives_the_element_by_element_covariance(ref, monke
     assert np.abs(U0).max() > 2e-3 * math.tan(math.radians(25)) / 2  # the facets move readings
 
 
+def test_the_pattern_fit_reuses_a_registration_of_the_same_readings_only():
+    """The registration just computed for the same readings is the pattern fit's start
+    (a sweep's set-up evaluates both); readings that differ in one value are registered
+    again: the pattern fit gives what it gives with no registration before it."""
+    from mtplan.models.line_laser import _estimators as est
+
+    rng = np.random.default_rng(8)
+    z = _noise_free(SETUP, ll.Truth(), 2)["z_mm"] + rng.normal(0, 1e-3, (2, 3, SETUP.lines,
+                                                                       SETUP.points_per_line))
+    other = z.copy()
+    other[1, 2, 40, 30] += 2e-3
+    est._LAST_REGISTRATION.clear()
+    alone = est.estimate_pattern(SETUP, {"z_mm": other})
+    est.estimate_registration(SETUP, {"z_mm": z})
+    after = est.estimate_pattern(SETUP, {"z_mm": other})
+    for k in alone:
+        np.testing.assert_array_equal(after[k], alone[k])
+    again = est.estimate_registration(SETUP, {"z_mm": other})
+    assert est._LAST_REGISTRATION[0][1] is not other  # a copy: the caller may change its own
+    np.testing.assert_array_equal(again["alpha_z"],
+                                  est._registration_uncached(SETUP, other)["alpha_z"])
+
+
 def test_land_heights_follow_the_exact_raise_relation():
     """On the land, scans 2 and 3 differ by h n_z / (n . e_zl) exactly (n: plate normal)."""
     truth = ll.Truth()

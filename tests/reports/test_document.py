@@ -208,6 +208,37 @@ def test_no_header_word_broken_in_the_pdf(tmp_path):
     assert_fonts_embedded(pdf)
 
 
+@pytest.mark.parametrize("one_pass", [False, True])
+def test_every_figure_is_in_the_pdf_however_many_passes_it_took(one_pass, monkeypatch):
+    """The first of the PDF's passes (laying out the contents' page numbers) leaves the
+    figures out; the pass that is kept has each of them, and so has a document laid out
+    in a single pass (drawn once more)."""
+    import io
+
+    from matplotlib.figure import Figure as MplFigure
+    from reportlab.platypus.tableofcontents import TableOfContents
+
+    from mtplan.reports.document import Document, Section
+    from mtplan.reports.model import Figure
+    from mtplan.reports.render import render_pdf
+
+    def png(colour):
+        fig = MplFigure(figsize=(2, 1), dpi=50)
+        fig.add_subplot().plot([0, 1], [0, 1], color=colour)
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png")
+        return buf.getvalue()
+
+    if one_pass:
+        monkeypatch.setattr(TableOfContents, "isSatisfied", lambda self: True)
+    prov = {"date": "today", "study_sha256": "0" * 64, "versions": {"mtplan": "x"}}
+    doc = Document(title="Figures", subtitle="", meta={}, provenance=prov, sections=[
+        Section("Summary", blocks=[Figure("red", png("red"))], anchor="s"),
+        Section("More", blocks=[Figure("blue", png("blue"))], anchor="m")])
+    # each figure an RGB image (their alpha masks, alike, are one object)
+    assert len(re.findall(rb"/DeviceRGB[^>]*/Subtype /Image", render_pdf(doc))) == 2
+
+
 def test_not_determinable_is_said_with_its_reason(small_result, small_report):
     """A measurand the readings cannot determine shows "not determinable" and why, never a
     number (the results table, the decision lines, the overall result and the HTML)."""

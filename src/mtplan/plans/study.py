@@ -57,6 +57,7 @@ import datetime
 import hashlib
 import math
 import tomllib
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -736,8 +737,10 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
     each distinct set-up of a procedure's sweeps (one stage for every sweep that holds it:
     the base set-up is in most), and each procedure's plan, identifiability and extras;
     then, as soon as a procedure's Monte Carlo stages are done and so its recommended
-    estimator is known, its budget and its readings evaluation. ``n_jobs`` worker processes take the ready stages,
-    the readings and budgets first (the longest, on which the procedure waits). Every stage
+    estimator is known, its budget and its readings evaluation. ``n_jobs`` worker
+    processes take the ready stages, the readings and budgets first (the longest, on which
+    the procedure waits), the sweeps' set-ups last, those of the procedures whose Monte
+    Carlo was quickest first (:func:`_order`). Every stage
     draws from the study's seed exactly as a serial run does, so the result does not depend
     on ``n_jobs`` nor on the order the stages ran in (beyond the last bits of floating-point
     sums, which numpy and BLAS may add in another order in another process).
@@ -849,24 +852,36 @@ _PRIORITY = {"as_left": 0, "readings": 0, "budget": 1, "then": 1, "mc": 2, "misc
              "point": 3}
 
 
+def _order(ready, cost) -> None:
+    """Sort the ready stages in place: by :data:`_PRIORITY`, and the sweeps' set-ups of the
+    procedures whose Monte Carlo took least time (``cost``: seconds per procedure index,
+    those not yet timed last) first, so that those procedures complete, and their ``then``
+    runs, while the costly ones' set-ups are still computed; otherwise in study order."""
+    ready.sort(key=lambda t: (_PRIORITY[t[0]],
+                              cost.get(t[1], math.inf) if t[0] == "point" else 0.0))
+
+
 def _run_stages(tasks, unlocked, study, jobs, bar, payloads) -> dict:
     """Every stage's result, {(kind, procedure index, arg): result}: ``tasks`` and those
     ``unlocked(i, done)`` adds as they become ready, on ``jobs`` processes (one stage, on
     one core, per worker at a time) or, for one job, here. A stage in ``payloads`` is
     given its payload as its argument instead of its key's."""
-    ready = sorted(tasks, key=lambda t: _PRIORITY[t[0]])
+    ready, cost, started = list(tasks), {}, {}
+    _order(ready, cost)
     done = {}
 
     def finish(task, value):
         done[task] = value
         kind, i, arg = task
+        if kind == "mc" and task in started:
+            cost[i] = cost.get(i, 0.0) + time.perf_counter() - started.pop(task)
         name = study.procedures[i].name
         if kind in ("mc", "point", "budget", "readings", "as_left"):
             _tick(bar, f"{name} {arg if kind == 'mc' else 'sweep' if kind == 'point' else kind}")
         elif kind == "misc" and study.procedures[i].plan is not None:
             _tick(bar, f"{name} plan")
         ready.extend(unlocked(i, done))
-        ready.sort(key=lambda t: _PRIORITY[t[0]])  # stable: study order within a kind
+        _order(ready, cost)  # stable: study order within a kind
 
     if jobs == 1:
         while ready:
@@ -883,6 +898,7 @@ def _run_stages(tasks, unlocked, study, jobs, bar, payloads) -> dict:
     while ready or running:
         while ready and len(running) < jobs:
             task = ready.pop(0)
+            started[task] = time.perf_counter()
             running[executor.submit(_stage, task[0], study.procedures[task[1]], study,
                                     payloads.pop(task, task[2]))] = task
         finished, _ = wait(running, return_when=FIRST_COMPLETED)

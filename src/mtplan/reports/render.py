@@ -8,6 +8,7 @@ least as wide as their header's longest word) and right-aligns numeric columns.
 from __future__ import annotations
 
 import base64
+import functools
 import io
 from pathlib import Path
 from xml.sax.saxutils import escape
@@ -211,13 +212,28 @@ def _table_flowables(t: Table, width: float, st: dict, row_height: float | None 
 def _figure_flowables(f: Figure, width: float, st: dict) -> list:
     from reportlab.lib.units import cm
     from reportlab.lib.utils import ImageReader
-    from reportlab.platypus import Image, KeepTogether, Paragraph, Spacer
+    from reportlab.platypus import KeepTogether, Paragraph, Spacer
 
     w, h = ImageReader(io.BytesIO(f.png)).getSize()
     natural = 72.0 / _DPI  # points per pixel at the figure's own size
     scale = min(natural * 1.05, width / w, 16.5 * cm / h)
-    img = Image(io.BytesIO(f.png), width=w * scale, height=h * scale)
+    img = _laid_out_first()(io.BytesIO(f.png), width=w * scale, height=h * scale)
     return [KeepTogether([img, Paragraph(escape(f.caption), st["caption"]), Spacer(1, 8)])]
+
+
+@functools.lru_cache(maxsize=1)
+def _laid_out_first():
+    """reportlab's Image, not drawn on the first of a document's passes: that pass only
+    lays the pages out (the contents' page numbers come from it) and its canvas is thrown
+    away, so decoding and compressing each figure there was a quarter of a PDF's time."""
+    from reportlab.platypus import Image
+
+    class LaidOutFirst(Image):
+        def draw(self):
+            if getattr(getattr(self.canv, "_doctemplate", None), "passes", 2) > 1:
+                super().draw()
+
+    return LaidOutFirst
 
 
 def _block_flowables(items, width: float, st: dict) -> list:
@@ -281,6 +297,12 @@ def _doc_template(buf, doc: Document):
     from reportlab.platypus import Paragraph, SimpleDocTemplate
 
     class _Doc(SimpleDocTemplate):
+        passes = 0  # the passes begun (:func:`_laid_out_first` draws from the second on)
+
+        def build(self, *args, **kwargs):
+            self.passes += 1
+            super().build(*args, **kwargs)
+
         def afterFlowable(self, flowable):
             if not isinstance(flowable, Paragraph):
                 return
@@ -387,7 +409,13 @@ def render_pdf(doc: Document) -> bytes:
     # took half the rendering time of a PDF with figures (each is encoded on every pass)
     a85, rl_config.useA85 = rl_config.useA85, 0
     try:
-        pdf.multiBuild(story, canvasmaker=_canvas_maker(doc))
+        if pdf.multiBuild(story, canvasmaker=_canvas_maker(doc)) == 1:
+            # laid out in one pass (no contents to number): again, with the figures
+            buf.seek(0)
+            buf.truncate()
+            pdf = _doc_template(buf, doc)
+            pdf.passes = 1
+            pdf.multiBuild(story, canvasmaker=_canvas_maker(doc))
     finally:
         rl_config.useA85 = a85
     return buf.getvalue()

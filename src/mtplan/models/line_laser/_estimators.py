@@ -368,8 +368,25 @@ def estimate_registration(setup, readings) -> dict:
     return _registration_core(setup, np.asarray(readings["z_mm"], dtype=float))
 
 
+#: the last registration of this process: (set-up, its readings, its result). The pattern
+#: fit starts from the registration of the same readings, which a Monte Carlo of both
+#: estimators (a sweep's set-up) has just computed: the same numbers, found again
+_LAST_REGISTRATION: list = []
+
+
 def _registration_core(setup, z) -> dict:
     """The registration estimator without the set-up check; ``z`` (n, 3, lines, points)."""
+    if _LAST_REGISTRATION:
+        last_setup, last_z, last = _LAST_REGISTRATION[0]
+        if last_setup == setup and last_z.shape == z.shape and np.array_equal(last_z, z):
+            return {k: v.copy() for k, v in last.items()}
+    out = _registration_uncached(setup, z)
+    _LAST_REGISTRATION[:] = [(setup, np.array(z, dtype=float), {k: v.copy() for k, v in
+                                                                 out.items()})]
+    return out
+
+
+def _registration_uncached(setup, z) -> dict:
     n = z.shape[0]
     w = _shift(setup)
     d1 = _register(setup, z[:, 0], z[:, 1], _coarse(setup, z[:, 0], z[:, 1], w))
