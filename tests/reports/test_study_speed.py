@@ -37,10 +37,11 @@ def _same(a, b, where="result") -> None:
 @pytest.fixture(scope="module")
 def early_result(small_study_file):
     """The small study on two workers, each test's part of the plan drawn as soon as the
-    test is complete (``then``), as ``mtplan report`` and ``mtplan demo`` do with workers."""
-    from mtplan.reports.certificate import plan_parts
+    test is complete (``then``: its body and its appendix, each a stage), as ``mtplan
+    report`` and ``mtplan demo`` do with workers."""
+    from mtplan.reports.certificate import PLAN_PARTS
 
-    return run_study(load_study(small_study_file), progress=False, n_jobs=2, then=plan_parts)
+    return run_study(load_study(small_study_file), progress=False, n_jobs=2, then=PLAN_PARTS)
 
 
 def test_two_workers_give_the_serial_result(small_study_file, early_result):
@@ -50,6 +51,7 @@ def test_two_workers_give_the_serial_result(small_study_file, early_result):
     this worker writes its report first."""
     serial = run_study(load_study(small_study_file), progress=False)
     assert early_result.then is not None and len(early_result.then) == len(serial.outcomes)
+    assert all(len(parts) == 2 for parts in early_result.then)  # (body, appendix) per test
     _same(early_result.outcomes, serial.outcomes, "outcomes")
 
 

@@ -46,7 +46,7 @@ def _report(study_path, out, jobs, progress, command, plan_path=None, plan_only=
     from mtplan.plans import agreement
     from mtplan.plans.study import load_study, run_study_cached
     from mtplan.reports import write_report
-    from mtplan.reports.certificate import plan_parts
+    from mtplan.reports.certificate import PLAN_PARTS
 
     problem = output_problem(out, folder=True)
     if problem:
@@ -59,7 +59,7 @@ def _report(study_path, out, jobs, progress, command, plan_path=None, plan_only=
         agreement.check_study(study, plan)
     # with workers and both documents to write, each test's figures of the plan are drawn
     # as soon as the test is complete, beside the other tests' stages
-    early = plan_parts if jobs != 1 and plan is None and not plan_only else None
+    early = PLAN_PARTS if jobs != 1 and plan is None and not plan_only else None
     result = run_study_cached(study, cache, progress=progress, n_jobs=jobs, command=command,
                               readings=not plan_only, then=early)
     computed = time.perf_counter()

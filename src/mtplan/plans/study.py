@@ -756,11 +756,12 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
         The command line that asked for the study, for the provenance.
     readings : bool
         Evaluate the readings (False: the plan only, issued before measuring).
-    then : callable, optional
+    then : callable or tuple of callables, optional
         ``then(k, outcome)``, a module-level function, run on the workers as one more stage
         of test ``k`` (1-based) as soon as its outcome is complete, while the other tests
         are still computed (the documents' figures of a test, say); its values, in test
-        order, are the result's ``then``.
+        order, are the result's ``then``. A tuple: each function its own stage (so that a
+        test's parts are drawn on several workers), the values a tuple per test.
     """
     from mtplan._parallel import effective_jobs
     from mtplan.plans import decisions
@@ -774,6 +775,7 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
     bar = _bar(progress, _count_steps(study, len(points)))
     partial = {}  # procedure index -> (results, key, recommended, its later stages)
     outcomes, payloads = {}, {}
+    thens = tuple(then) if isinstance(then, (tuple, list)) else () if then is None else (then,)
 
     def unlocked(i, done):
         """The budget and readings stages of procedure ``i`` once its Monte Carlo is done;
@@ -792,14 +794,15 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
                                              and (kind == "readings" or ps.as_left is not None))]
             partial[i] = (results, key, best, later)
             return later
-        if then is None or i in outcomes:
+        if not thens or i in outcomes:
             return []
         mine = [t for (j, _), t in points.items() if j == i] + partial[i][3] + [("misc", i, None)]
         if any(t not in done for t in mine):
             return []
         outcomes[i] = _outcome(i, ps, partial[i], grids, points, done)
-        payloads[("then", i, None)] = (then, i + 1, outcomes[i])
-        return [("then", i, None)]
+        for j, function in enumerate(thens):
+            payloads[("then", i, j)] = (function, i + 1, outcomes[i])
+        return [("then", i, j) for j in range(len(thens))]
 
     first = [("mc", i, est) for i, ps in enumerate(procs) for est in ps.estimators]
     first += list(points.values())
@@ -812,8 +815,10 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
         bar.close()
     return StudyResult(study=study, outcomes=[outcomes[i] for i in range(len(procs))],
                        provenance=_provenance(study, command),
-                       then=None if then is None else [done[("then", i, None)]
-                                                       for i in range(len(procs))])
+                       then=None if not thens else [
+                           tuple(done[("then", i, j)] for j in range(len(thens)))
+                           if isinstance(then, (tuple, list)) else done[("then", i, 0)]
+                           for i in range(len(procs))])
 
 
 def _outcome(i, ps, partial, grids, points, done) -> ProcedureOutcome:

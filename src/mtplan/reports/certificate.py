@@ -595,12 +595,27 @@ def _plan_test(k, o, plan, study) -> Section:
 def plan_parts(k, o) -> tuple:
     """What the test plan draws from test ``k`` alone (its figures): (its body section,
     (its appendix section, the appendix's CSV frames)). Each test's parts can be drawn in
-    another process (:func:`build_plan`'s ``parts``)."""
-    from mtplan.reports import appendix
+    another process (:func:`build_plan`'s ``parts``), each part in its own
+    (:data:`PLAN_PARTS`)."""
+    return plan_body(k, o), plan_appendix(k, o)
+
+
+def plan_body(k, o):
+    """Test ``k``'s section of the plan's body (:func:`plan_parts`)."""
     from mtplan.reports.document import test_section
 
-    return (test_section(k, dataclasses.replace(o, measured=None, verdicts=[])),
-            appendix.procedure_section(k, o, measured=False))
+    return test_section(k, dataclasses.replace(o, measured=None, verdicts=[]))
+
+
+def plan_appendix(k, o) -> tuple:
+    """Test ``k``'s appendix section of the plan and its CSV frames (:func:`plan_parts`)."""
+    from mtplan.reports import appendix
+
+    return appendix.procedure_section(k, o, measured=False)
+
+
+#: :func:`plan_parts` as two functions, each drawn where it runs (``run_study``'s ``then``)
+PLAN_PARTS = (plan_body, plan_appendix)
 
 
 def build_plan(result, plan, parts=None) -> Document:

@@ -505,7 +505,7 @@ def _write_both(result, out: Path, plan: dict, n_jobs: int) -> dict:
     report is a task (its process decides its own copy of ``result`` with the plan, as the
     serial path does after the plan was written), each test's part of the plan (its
     figures: most of the work) another, unless the study drew them already as each test
-    was complete (``result.then``: :func:`mtplan.reports.certificate.plan_parts` given to
+    was complete (``result.then``: :data:`mtplan.reports.certificate.PLAN_PARTS` given to
     :func:`mtplan.plans.study.run_study`); the plan is put together and rendered here as
     the report is still being drawn; ``result`` is then decided here too. The same files as
     the serial path: every figure and table is drawn from the same data."""
