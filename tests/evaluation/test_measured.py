@@ -237,6 +237,37 @@ def test_round_trip_every_procedure(tmp_path, name):
                                                              truth[m.name], res.std[i])
 
 
+@pytest.mark.parametrize("name, estimator", [("tracker_frame", "gls"),
+                                             ("line_laser", "patent"),
+                                             ("rotary_axis", "angles")])
+def test_the_slopes_first_try_in_one_batch_is_each_measurand_alone(name, estimator):
+    """Whether an estimator follows each measurand is tried first with all of them moved
+    at once (the noise-free readings stacked, one estimator call): each row gives what it
+    gives alone (the same fixed point of a weighted fit; the patent's quantised alpha_z
+    exactly)."""
+    from mtplan.evaluation.measured import _first_steps
+
+    proc = registry()[name]
+    setup = proc.Setup()
+    zero = proc.zero_errors(setup, 1)
+    truth = proc.Truth()
+    est = {k: float(np.asarray(v).reshape(-1)[0]) for k, v in
+           proc.estimate(setup, proc.forward(setup, truth, zero), estimator).items()}
+    measurands = proc.measurands(setup)
+    step = np.full(len(measurands), 2.0)
+    batch = _first_steps(proc, setup, estimator, est, step, zero)
+    assert batch is not None
+    for i, m in enumerate(measurands):
+        for (value, true), sign in zip(batch[i], (1.0, -1.0), strict=True):
+            moved = dict(est)
+            moved[m.name] += sign * step[i] / m.scale
+            t = proc.truth_from_estimate(setup, moved)
+            alone = proc.estimate(setup, proc.forward(setup, t, zero), estimator)[m.name]
+            assert true == pytest.approx(float(proc.true_values(setup, t)[m.name]), abs=0)
+            assert value == pytest.approx(float(np.asarray(alone).reshape(-1)[0]),
+                                          rel=1e-9, abs=1e-12), (m.name, sign)
+
+
 def test_an_estimator_that_cannot_give_a_measurand_says_so():
     """line_laser's patent alpha_z is quantised to whole rows (a Monte Carlo spread of 0)
     and its alpha_x does not follow the measurand (sign-blind, second order): both are
