@@ -74,6 +74,43 @@ def keep_freed_memory() -> bool:
                for k, v in MALLOC_SETTINGS.items())
 
 
+#: what ``mtplan report`` and ``mtplan demo`` import only after the study has started (the
+#: documents' figures and PDF, the posterior, the sweeps' pool), then pandas: imported by
+#: :func:`compile_ahead`'s second process while this one imports scipy and the models
+DOCUMENT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "reportlab.platypus",
+                    "reportlab.pdfgen.canvas", "jinja2", "emcee", "joblib", "pandas")
+
+
+def compile_ahead(modules=DOCUMENT_MODULES):
+    """On the first run after an install, import ``modules`` in a second Python process now,
+    so that their bytecode is written while this process imports others, and the imports
+    this process and its workers make later find it written. Python compiles every
+    module it imports that has no bytecode yet, and the installs leave none (pip's
+    ``--no-compile``): about 4 s of a first ``mtplan demo``, on one core, beside an idle
+    one. Nothing where bytecode is not written (``PYTHONDONTWRITEBYTECODE``) or where the
+    top-level packages have theirs already (every later run). The second process is not
+    waited for; it only imports. Returns it, or None."""
+    import importlib.util
+    import subprocess
+
+    if sys.dont_write_bytecode:
+        return None
+    missing = False
+    for top in dict.fromkeys(m.split(".")[0] for m in modules):
+        try:
+            spec = importlib.util.find_spec(top)
+        except (ImportError, ValueError):
+            continue
+        if spec is not None and spec.cached and not os.path.exists(spec.cached):
+            missing = True
+            break
+    if not missing:
+        return None
+    code = "".join(f"try:\n import {m}\nexcept Exception:\n pass\n" for m in modules)
+    return subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.DEVNULL,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
 def check_parallel(problems: Problems, n_jobs, backend, scheduler=None) -> None:
     """Record problems with the ``n_jobs``, ``backend`` and ``scheduler`` parameters."""
     if problems.number("n_jobs", n_jobs, integer=True, low=-64, high=4096):
