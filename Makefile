@@ -14,30 +14,28 @@ PY     := $(VENV)/bin/python
 # would compile numpy, scipy, pandas and matplotlib from source again)
 PIP    := $(PY) -m pip install --quiet --no-compile --disable-pip-version-check
 
-# The install at once on both cores, where this Python's own pip can install into the venv
-# (pip >= 22.3, --python). Where requirements/ holds pinned files for this Python
-# (tools/lock.py --fits: CPython 3.11 on x86-64 Linux), every package comes by its wheel's
-# address and hash, with no resolution over the package indexes (7 s of a 13 s install):
-# the dependencies in two pip processes of about equal size (with pip itself, as the venv
-# would bring it, and setuptools), the test extras in a third, then mtplan itself,
-# editable, built with that setuptools. Elsewhere pip resolves pyproject.toml's ranges: the
+# Where requirements/ holds pinned files for this Python (tools/lock.py --fits: CPython 3.11
+# on x86-64 Linux), every package comes by its wheel's address and hash, with no resolution
+# over the package indexes (7 s of a 13 s install): pip puts uv (the installer, pinned too)
+# into the venv, uv fetches and unpacks the dependencies in parallel (pip itself, as the venv
+# would bring it, and setuptools with them; the test extras with $(1) "[test]"), then mtplan
+# itself, editable, built with that setuptools. Elsewhere, where this Python's own pip can
+# install into the venv (pip >= 22.3, --python), pip resolves pyproject.toml's ranges: the
 # dependencies in one pip, mtplan itself (--no-deps: its build in an isolated setuptools)
-# in another, and pip into the venv (ensurepip) in a third. Without such a pip, one after
-# the other with the venv's own pip. Parallel pips write disjoint files. $(1): the extras
-# ("" or "[test]").
+# in another, and pip into the venv (ensurepip) in a third, at once on both cores (they write
+# disjoint files); without such a pip, one after the other with the venv's own pip.
 DEPS = $$($(PYTHON) -c 'import tomllib; p = tomllib.load(open("pyproject.toml", "rb"))["project"]; print(*p["dependencies"], *(d for e in "$(1)".strip("[]").split(",") if e for d in p["optional-dependencies"][e]))')
 HOSTPIP := $(PYTHON) -m pip --python $(PY) install --quiet --no-compile --disable-pip-version-check
+UV := $(VENV)/bin/uv pip install --quiet --python $(PY) --no-deps
 LOCKED = $(wildcard requirements/*/*.txt)
 define install
 	$(PYTHON) -m venv --without-pip $(VENV)
 	if ! $(PYTHON) -m pip --python $(PY) --version >/dev/null 2>&1; then \
 		$(PY) -m ensurepip --default-pip >/dev/null && $(PIP) -e '.$(1)'; \
 	elif lock=$$($(PYTHON) tools/lock.py --fits); then \
-		$(HOSTPIP) --no-deps -r $$lock/core-1.txt & one=$$!; \
-		$(HOSTPIP) --no-deps -r $$lock/core-2.txt & two=$$!; \
-		$(if $(1),$(HOSTPIP) --no-deps -r $$lock/test.txt & three=$$!;) \
-		wait $$one && wait $$two $(if $(1),&& wait $$three) \
-			&& $(HOSTPIP) --no-deps --no-build-isolation -e .; \
+		$(HOSTPIP) --no-deps -r $$lock/uv.txt \
+			&& $(UV) --require-hashes -r $$lock/core.txt $(if $(1),-r $$lock/test.txt) \
+			&& $(UV) --no-build-isolation -e .; \
 	else \
 		$(PY) -m ensurepip --default-pip >/dev/null & venvpip=$$!; \
 		$(HOSTPIP) --no-deps -e . & self=$$!; \
