@@ -101,3 +101,26 @@ def test_keep_freed_memory_takes_its_settings_under_glibc():
         assert taken is True
     assert set(MALLOC_SETTINGS) == {"MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_",
                                     "MALLOC_TOP_PAD_"}
+
+
+def test_compile_ahead_compiles_in_a_second_process_only_what_has_no_bytecode(tmp_path,
+                                                                              monkeypatch):
+    """The first run after an install: modules without bytecode are imported (so compiled)
+    in a second process; once they have it, or where no bytecode is written, nothing."""
+    from mtplan._parallel import compile_ahead
+
+    pkg = tmp_path / "mtplan_probe_pkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("VALUE = 1\n")
+    (pkg / "part.py").write_text("from mtplan_probe_pkg import VALUE\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delenv("PYTHONDONTWRITEBYTECODE", raising=False)
+    monkeypatch.setenv("PYTHONPATH", str(tmp_path))
+    monkeypatch.setattr(sys, "dont_write_bytecode", True)
+    assert compile_ahead(("mtplan_probe_pkg.part",)) is None  # no bytecode written here
+    monkeypatch.setattr(sys, "dont_write_bytecode", False)
+    helper = compile_ahead(("mtplan_probe_pkg.part", "no_such_module_here"))
+    assert helper is not None and helper.wait(timeout=60) == 0
+    cached = {p.name.split(".")[0] for p in (pkg / "__pycache__").iterdir()}
+    assert cached == {"__init__", "part"}
+    assert compile_ahead(("mtplan_probe_pkg.part",)) is None  # compiled already
