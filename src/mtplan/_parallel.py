@@ -8,6 +8,7 @@ directly (see :func:`_dask_map`).
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import functools
 import os
@@ -192,6 +193,19 @@ def stage_executor(jobs: int):
     executor = ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork"))
     _stage_pool = (jobs, executor)
     return executor
+
+
+def _close_stage_pool() -> None:
+    """The stage pool shut down at exit, while the modules it needs are still there (left
+    to the garbage collector at the interpreter's end, its manager's callback found them
+    gone and printed an ignored exception)."""
+    global _stage_pool
+    if _stage_pool is not None:
+        _stage_pool[1].shutdown(wait=True)
+        _stage_pool = None
+
+
+atexit.register(_close_stage_pool)
 
 
 def effective_jobs(n_jobs: int) -> int:
