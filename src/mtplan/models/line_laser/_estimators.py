@@ -533,7 +533,9 @@ _GAIN_GRID = np.array([0.1, 0.5, 0.5, 0.002, 0.002, 0.1, 0.5, 0.5])
 #: taken again at the fit
 _GAIN_FAR = 1.5
 #: the error sources whose part of a gain's covariance is taken on :data:`_COVARIANCE_GRID`:
-#: the artifact's facets, one pair of forward rows per facet (360 of a gain's some 420)
+#: the artifact's facets, 180 columns of the covariance's low-rank part (its factorisation
+#: is most of a gain's cost; the facets' effects take 12 forward rows, one per colour and
+#: sign, :func:`mtplan.models.line_laser.source_structure`; they took 360, one pair per facet)
 _COARSE_SOURCES = ("facet_position",)
 #: grid of the parameters at which :data:`_COARSE_SOURCES` are taken [mrad, mm]: as
 #: :data:`_GAIN_GRID`, but 0.3 mrad about Z and 1.5 mrad about X (where the trials of a
@@ -541,8 +543,8 @@ _COARSE_SOURCES = ("facet_position",)
 #: the gain's own point, 1024 paired trials at the default set-up moved each alpha_z by
 #: 1.4 urad RMS and alpha_x by 3.6 (3 % and 2 % of their u), u(alpha_z) up 0.9 +- 0.1 %,
 #: u(alpha_x) 0.1 +- 0.1 %; a grid 5 times the gain's moved them by 2.1 and 5.5 urad. A
-#: Monte Carlo of 256 trials: 2 or 3 facet points instead of 8 or 9 gains' (each a third
-#: of a second: 360 forward rows and the factorisation, :func:`_coarse_covariance`)
+#: Monte Carlo of 256 trials: 2 or 3 facet points instead of 8 or 9 gains' (each a
+#: factorisation of 15 600 readings, :func:`_coarse_covariance`)
 _COVARIANCE_GRID = _GAIN_GRID * np.array([3.0, 1.0, 3.0, 1.0, 1.0, 1.0, 1.0, 1.0])
 
 
