@@ -19,7 +19,8 @@ PIP    := $(PY) -m pip install --quiet --no-compile --disable-pip-version-check
 # over the package indexes (7 s of a 13 s install): pip puts uv (the installer, pinned too)
 # into the venv, uv fetches and unpacks the dependencies in parallel (pip itself, as the venv
 # would bring it, and setuptools with them; the test extras with $(1) "[test]"), then mtplan
-# itself, editable, built with that setuptools. Elsewhere, where this Python's own pip can
+# itself, editable, built with that setuptools. Where that fails (no uv for this system, the
+# wheels' host out of reach), and elsewhere, where this Python's own pip can
 # install into the venv (pip >= 22.3, --python), pip resolves pyproject.toml's ranges: the
 # dependencies in one pip, mtplan itself (--no-deps: its build in an isolated setuptools)
 # in another, and pip into the venv (ensurepip) in a third, at once on both cores (they write
@@ -32,11 +33,14 @@ define install
 	$(PYTHON) -m venv --without-pip $(VENV)
 	if ! $(PYTHON) -m pip --python $(PY) --version >/dev/null 2>&1; then \
 		$(PY) -m ensurepip --default-pip >/dev/null && $(PIP) -e '.$(1)'; \
-	elif lock=$$($(PYTHON) tools/lock.py --fits); then \
-		$(HOSTPIP) --no-deps -r $$lock/uv.txt \
+	elif lock=$$($(PYTHON) tools/lock.py --fits) \
+			&& $(HOSTPIP) --no-deps -r $$lock/uv.txt \
 			&& $(UV) --require-hashes -r $$lock/core.txt $(if $(1),-r $$lock/test.txt) \
-			&& $(UV) --no-build-isolation -e .; \
+			&& $(UV) --no-build-isolation -e .; then \
+		:; \
 	else \
+		if [ -n "$$lock" ]; then echo "make: the pinned install failed (above);" \
+			"pip resolves pyproject.toml's ranges instead" >&2; fi; \
 		$(PY) -m ensurepip --default-pip >/dev/null & venvpip=$$!; \
 		$(HOSTPIP) --no-deps -e . & self=$$!; \
 		$(HOSTPIP) $(DEPS) && wait $$self && wait $$venvpip; \
