@@ -159,6 +159,22 @@ def _probed(fwd, truth, name: str, sd: np.ndarray, f0: np.ndarray, shape) -> _Ef
     return _Effect(sd, row, s1, c1, multi, S, C)
 
 
+def _secants(fwd, truth, name: str, shape, step: np.ndarray, f0: np.ndarray):
+    """Secants and curvatures (rows, n) of the source `name` moved by each row of ``step``
+    (rows, elements) about its mean, plus and minus: one forward call of 2 rows each."""
+    m = step.shape[0]
+    errors = fwd.errors(2 * m, copy_of=(name,))
+    a = errors[name].reshape(2 * m, -1)
+    a[:m] += step
+    a[m:] -= step
+    errors[name] = a.reshape(2 * m, *shape)
+    pred = fwd.at(truth, errors)
+    if not np.all(np.isfinite(pred)):
+        raise InvalidInput([f"The forward model of {_name(fwd)} gives no finite readings "
+                            f"with the source {name!r} one standard deviation off its mean."])
+    return 0.5 * (pred[:m] - pred[m:]), 0.5 * (pred[:m] + pred[m:]) - f0
+
+
 def _coloured(fwd, truth, name: str, sd: np.ndarray, f0: np.ndarray, shape, colours,
               owners) -> _Effect | None:
     """The effects of a source whose elements the model has coloured: elements of one
@@ -172,19 +188,11 @@ def _coloured(fwd, truth, name: str, sd: np.ndarray, f0: np.ndarray, shape, colo
     colours = np.asarray(colours, dtype=np.int64).reshape(-1)
     owners = np.asarray(owners, dtype=np.int64)
     n_el, k = sd.size, owners.shape[0]
-    errors = fwd.errors(2 * k, copy_of=(name,))
-    a = errors[name].reshape(2 * k, -1)
+    step = np.zeros((k, n_el))
     for c in range(k):
         on = colours == c
-        a[c, on] += sd[on]
-        a[k + c, on] -= sd[on]
-    errors[name] = a.reshape(2 * k, *shape)
-    pred = fwd.at(truth, errors)
-    if not np.all(np.isfinite(pred)):
-        raise InvalidInput([f"The forward model of {_name(fwd)} gives no finite readings "
-                            f"with the source {name!r} one standard deviation off its mean."])
-    sec = 0.5 * (pred[:k] - pred[k:])
-    cur = 0.5 * (pred[:k] + pred[k:]) - f0
+        step[c, on] = sd[on]
+    sec, cur = _secants(fwd, truth, name, shape, step, f0)
     free = owners < 0
     if np.any(sec[free] != 0) or np.any(cur[free] != 0):
         return None
@@ -247,17 +255,9 @@ def _effect(fwd, truth, name: str, std, f0: np.ndarray) -> _Effect:
     for start in range(0, n_el, chunk):
         idx = np.arange(start, min(n_el, start + chunk))
         b = idx.size
-        errors = fwd.errors(2 * b, copy_of=(name,))
-        a = errors[name].reshape(2 * b, -1)
-        a[np.arange(b), idx] += sd[idx]
-        a[b + np.arange(b), idx] -= sd[idx]
-        errors[name] = a.reshape(2 * b, *shape)
-        pred = fwd.at(truth, errors)
-        if not np.all(np.isfinite(pred)):
-            raise InvalidInput([f"The forward model of {_name(fwd)} gives no finite readings "
-                                f"with the source {name!r} one standard deviation off its mean."])
-        sec = 0.5 * (pred[:b] - pred[b:])
-        cur = 0.5 * (pred[:b] + pred[b:]) - f0
+        step = np.zeros((b, n_el))
+        step[np.arange(b), idx] = sd[idx]
+        sec, cur = _secants(fwd, truth, name, shape, step, f0)
         big = np.maximum(np.abs(sec).max(axis=1), np.abs(cur).max(axis=1))
         nz = (np.abs(sec) > _SUPPORT * big[:, None]) | (np.abs(cur) > _SUPPORT * big[:, None])
         count = nz.sum(axis=1)
