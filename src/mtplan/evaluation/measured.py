@@ -303,12 +303,11 @@ def _observes(proc, setup, est_name, est_internal, step):
     zero = proc.zero_errors(setup, 1)
 
     def estimate_at(m, delta):
-        est = dict(est_internal)
-        est[m.name] = est[m.name] + delta / m.scale
+        moved = _moved(proc, setup, est_internal, m, delta, zero)
+        if moved is None:
+            return np.nan, np.nan
+        true, r = moved
         try:
-            truth = proc.truth_from_estimate(setup, est)
-            true = float(np.asarray(proc.true_values(setup, truth)[m.name]).reshape(-1)[0])
-            r = proc.forward(setup, truth, zero)
             return (float(np.asarray(proc.estimate(setup, r, est_name)[m.name]).reshape(-1)[0]),
                     true)
         except (InvalidInput, ValueError, ArithmeticError):
@@ -331,6 +330,19 @@ def _observes(proc, setup, est_name, est_internal, step):
     return slopes, derived
 
 
+def _moved(proc, setup, est_internal, m, delta, zero):
+    """(true value of measurand ``m``, noise-free readings) of the truth built from the
+    estimate with ``m`` moved by ``delta`` [display]; None outside the truth's domain."""
+    est = dict(est_internal)
+    est[m.name] = est[m.name] + delta / m.scale
+    try:
+        truth = proc.truth_from_estimate(setup, est)
+        true = float(np.asarray(proc.true_values(setup, truth)[m.name]).reshape(-1)[0])
+        return true, proc.forward(setup, truth, zero)
+    except (InvalidInput, ValueError, ArithmeticError):
+        return None
+
+
 def _first_steps(proc, setup, est_name, est_internal, step, zero):
     """:func:`_observes`' first try, every measurand +-``step`` at once: the noise-free
     readings of the 2 M moved truths stacked, one call of the estimator (each row is
@@ -342,16 +354,11 @@ def _first_steps(proc, setup, est_name, est_internal, step, zero):
     rows, where, trues = [], [], np.full((len(measurands), 2), np.nan)
     for i, m in enumerate(measurands):
         for j, sign in enumerate((1.0, -1.0)):
-            est = dict(est_internal)
-            est[m.name] = est[m.name] + sign * step[i] / m.scale
-            try:
-                truth = proc.truth_from_estimate(setup, est)
-                true = float(np.asarray(proc.true_values(setup, truth)[m.name]).reshape(-1)[0])
-                rows.append(proc.forward(setup, truth, zero))
-            except (InvalidInput, ValueError, ArithmeticError):
-                continue
-            trues[i, j] = true
-            where.append((i, j))
+            moved = _moved(proc, setup, est_internal, m, sign * step[i], zero)
+            if moved is not None:
+                trues[i, j] = moved[0]
+                rows.append(moved[1])
+                where.append((i, j))
     if not rows or any(not isinstance(v, np.ndarray) or v.ndim == 0 or v.shape[0] != 1
                        for r in rows for v in r.values()):
         return None
