@@ -4,7 +4,8 @@ Layers, lowest first: the shared utilities (``mtplan``, ``mtplan._validate``, ``
 ``_parallel``), ``uncertainty`` (the generic engine), ``fitting`` (the readings'
 covariance, the generalised least-squares fitter and the fit check every procedure
 shares), ``models`` (the procedures), ``evaluation`` (a procedure's set-up uncertainty
-and measured data), ``plans``, ``reports``, ``explore`` (the optional designer), ``cli``. Every ``import`` counts, also those
+and measured data), ``testing`` (the conformance checks of a procedure), ``plans``,
+``reports``, ``explore`` (the optional designer), ``cli``. Every ``import`` counts, also those
 inside functions.
 """
 
@@ -16,8 +17,8 @@ from pathlib import Path
 import pytest
 
 SRC = Path(__file__).resolve().parent.parent / "src"
-LAYERS = ("base", "uncertainty", "fitting", "models", "evaluation", "plans", "reports", "explore",
-          "cli")
+LAYERS = ("base", "uncertainty", "fitting", "models", "evaluation", "testing", "plans", "reports",
+          "explore", "cli")
 
 
 def _module_name(path: Path) -> str:

@@ -1,35 +1,35 @@
 """The conformance suite every procedure passes (scikit-learn's parametrize_with_checks).
 
-Parametrised over every registered procedure and the test-only ``toy_line``: the checks
-of ``tests/models/conformance.py`` (shapes, units, source naming, seed and ``n_jobs``
-invariance, noise-free recovery, readings round trip, duration, and errors on bad
-set-ups), each procedure against each check.
+The checks are mtplan's own, shipped in :mod:`mtplan.testing` for procedures anywhere: here
+each one runs on every registered procedure (whatever registered it: mtplan's entry points
+or an installed plug-in's) and on the test-only ``toy_line``. No list of procedures or of
+their tunings is kept here: a procedure states what the checks need in its record.
 """
 
 from __future__ import annotations
 
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
 
-from mtplan.models import registry
+from mtplan.models import broken, registry
 from mtplan.models.protocol import Procedure
+from mtplan.testing import CHECKS, ProcedureCheckError, check_procedure
 from tests.models import toy_line
-from tests.models.conformance import CHECKS, bad_values, check_bad_setup_value, numeric_fields
 
 PROCEDURES = {"toy_line": toy_line.PROCEDURE, **registry()}
-NAMES = list(PROCEDURES)
 
 
-@pytest.fixture(params=NAMES)
+@pytest.fixture(params=list(PROCEDURES))
 def proc(request) -> Procedure:
     return PROCEDURES[request.param]
 
 
-def test_registry_finds_the_procedures():
-    assert "toy_line" not in registry()  # test procedure is not registered
+def test_the_registry_finds_the_procedures():
+    assert "toy_line" not in registry()  # the test procedure is not registered
+    assert {"circle_centre", "geometry21", "line_laser", "rotary_axis",
+            "tracker_frame"} <= set(registry())
     for name, p in registry().items():
         assert p.name == name
+    assert broken() == []
 
 
 @pytest.mark.parametrize("check", CHECKS, ids=lambda c: c.__name__.removeprefix("check_"))
@@ -37,10 +37,16 @@ def test_conformance(proc, check):
     check(proc)
 
 
-@pytest.mark.parametrize("name", NAMES)
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(data=st.data())
-def test_bad_setup_values_name_the_field(name, data):
-    proc = PROCEDURES[name]
-    info = data.draw(st.sampled_from(numeric_fields(proc)))
-    check_bad_setup_value(proc, info, data.draw(st.sampled_from(bad_values(info))))
+def test_check_procedure_names_every_failed_check():
+    """A procedure that breaks two rules is told both, with what is wrong in each."""
+    import dataclasses
+
+    bad = dataclasses.replace(toy_line.PROCEDURE, levers=("no_such_field",),
+                              duration=lambda setup: -1.0)
+    with pytest.raises(ProcedureCheckError) as exc:
+        check_procedure(bad)
+    assert set(exc.value.failures) == {"check_levers", "check_duration"}
+    assert "no_such_field" in exc.value.failures["check_levers"]
+    assert "-1.0" in exc.value.failures["check_duration"]
+    assert isinstance(exc.value, AssertionError) and exc.value.procedure == "toy_line"
+    check_procedure(toy_line.PROCEDURE)  # the unchanged toy passes every check

@@ -101,4 +101,5 @@ PROCEDURE = Procedure(
     exact_estimators=("least_squares",),
     block_size=2000,
     noise_source="probe_noise",
+    levers=("n_points", "length_mm"),
 )

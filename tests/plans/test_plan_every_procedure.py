@@ -1,4 +1,4 @@
-"""`mtplan plan` end to end on every registered procedure (small set-ups, few trials)."""
+"""`mtplan plan` end to end on every registered procedure (default set-ups, few trials)."""
 
 from __future__ import annotations
 
@@ -7,30 +7,40 @@ import json
 import pytest
 
 from mtplan import cli
+from mtplan._validate import InvalidInput
 from mtplan.models import registry
-
-# a cheap set-up and a field to vary per procedure (geometry21's full set-up has ~3500
-# error inputs: its linearisation takes seconds, so the test uses fewer points)
-CASES = {
-    "circle_centre": ([], "n_points=3,5", "centre_x"),
-    "geometry21": (["line_points=9", "line_repeats=1", "circle_points=24"],
-                   "circle_radius_mm=30,60", "EXX"),
-    "line_laser": (["lines=16", "points_per_line=33"], "raise_mm=1,2", "alpha_y"),
-    "rotary_axis": ([], "positions=3,6", "EX0C"),
-    "tracker_frame": (["n_submachines=1"], "a_arc_deg=60,120", "origin_z_1"),
-}
+from mtplan.models.protocol import fields_info
 
 
-def test_every_procedure_has_a_case():
-    assert set(CASES) == set(registry())
+def _case(proc) -> tuple[str, str]:
+    """(--vary, measurand) for `proc`, read from its record: its first numeric lever, from
+    its default to the next value its set-up takes, and its first measurand that the default
+    estimator gives continuously, at the default set-up (no table to keep: a procedure's
+    defaults are its cheap, representative set-up). A quantised measurand (one with a
+    ``resolution`` step) has a linearised u of 0: the planner predicts that it meets any
+    target, and only the Monte Carlo confirmation refuses, with another message."""
+    setup = proc.Setup()
+    steps = proc.resolution(setup, proc.default_estimator) if proc.resolution else {}
+    measurand = next(m.name for m in proc.measurands(setup) if m.name not in steps)
+    fields = {info["name"]: info for info in fields_info(proc.Setup)}
+    for info in (fields[lever] for lever in proc.levers):
+        default = getattr(setup, info["name"])
+        if info["kind"] not in (int, float) or default is None:
+            continue
+        step = 1 if info["kind"] is int else abs(default) / 4 or 1.0
+        for other in (default + step, default - step):
+            try:
+                proc.setup(**{info["name"]: other})
+            except InvalidInput:
+                continue
+            return f"{info['name']}={default},{other}", measurand
+    raise AssertionError(f"{proc.name} has no numeric lever a plan could vary")
 
 
 @pytest.mark.parametrize("name", sorted(registry()))
 def test_plan_end_to_end(capsys, name):
-    sets, vary, measurand = CASES[name]
+    vary, measurand = _case(registry()[name])
     argv = ["plan", name, "--vary", vary, "--trials", "300", "--json", "--confirm", "2"]
-    for s in sets:
-        argv += ["--set", s]
     # a target every candidate meets: the cheapest candidate wins and is confirmed
     assert cli.main([*argv, "--target", f"{measurand}<=1e9"]) == 0
     doc = json.loads(capsys.readouterr().out)

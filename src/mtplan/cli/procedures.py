@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 
 
 def register(sub) -> None:
@@ -13,7 +14,7 @@ def register(sub) -> None:
 
 
 def cmd_procedures(args):
-    from mtplan.models import registry
+    from mtplan.models import broken, registry
     from mtplan.models.protocol import fields_info
 
     procs = registry()
@@ -21,6 +22,9 @@ def cmd_procedures(args):
         from mtplan.models import get
 
         procs = {args.procedure: get(args.procedure)}
+    else:  # the installed plug-ins that gave no procedure, each named with why
+        for why in broken():
+            print(f"mtplan: warning: {why}", file=sys.stderr)
     doc = []
     for name, proc in procs.items():
         setup = proc.Setup()

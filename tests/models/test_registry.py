@@ -1,0 +1,107 @@
+"""The registry: procedures come from the entry points of ``mtplan.procedures``, mtplan's own
+included; a plug-in that gives none is named, and the others work.
+
+Installed packages are stood in for by their metadata alone (a ``.dist-info`` folder with
+``entry_points.txt``, which is what an install writes) on ``sys.path``;
+``tests/models/test_adding_a_procedure.py`` builds and installs a real one.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+import tomllib
+from pathlib import Path
+
+import pytest
+
+import mtplan.models as models
+from mtplan import cli
+from mtplan._validate import InvalidInput
+from mtplan.models import ENTRY_POINT_GROUP, Procedure, broken, get, registry
+from tests.models import toy_line
+
+PYPROJECT = Path(__file__).resolve().parents[2] / "pyproject.toml"
+BUILT_IN = {"circle_centre", "geometry21", "line_laser", "rotary_axis", "tracker_frame"}
+
+
+def _installed(site: Path, package: str, points: dict[str, str]) -> None:
+    """The metadata an install of `package` declaring `points` leaves in `site`."""
+    info = site / f"{package.replace('-', '_')}-0.1.0.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {package}\nVersion: 0.1.0\n",
+                                   encoding="utf-8")
+    lines = [f"[{ENTRY_POINT_GROUP}]", *(f"{k} = {v}" for k, v in points.items())]
+    (info / "entry_points.txt").write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+@pytest.fixture
+def site(tmp_path, monkeypatch):
+    """A folder of installed metadata, first on sys.path, and a registry loaded afresh (the
+    one loaded before comes back afterwards)."""
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(models, "_REGISTRY", None)
+    monkeypatch.setattr(models, "_BROKEN", [])
+    return tmp_path
+
+
+def test_pyproject_registers_every_procedure_module_of_mtplan():
+    """The table in pyproject.toml and the modules of mtplan.models that define a procedure
+    agree: none is forgotten (the registry's fallback for an old install finds modules)."""
+    modules = set()
+    for info in pkgutil.iter_modules(models.__path__):
+        module = importlib.import_module(f"mtplan.models.{info.name}")
+        if isinstance(getattr(module, "PROCEDURE", None), Procedure):
+            modules.add(info.name)
+    table = tomllib.loads(PYPROJECT.read_text(encoding="utf-8"))["project"]["entry-points"]
+    assert modules == BUILT_IN
+    assert table[ENTRY_POINT_GROUP] == {m: f"mtplan.models.{m}:PROCEDURE" for m in modules}
+    assert set(registry()) == BUILT_IN
+
+
+def test_the_built_in_procedures_come_from_mtplans_entry_points(site):
+    """An mtplan whose metadata registers two procedures has exactly those two: the modules
+    are not scanned where mtplan declares entry points."""
+    _installed(site, "mtplan", {"rotary_axis": "mtplan.models.rotary_axis:PROCEDURE",
+                                "circle_centre": "mtplan.models.circle_centre:PROCEDURE"})
+    assert list(registry()) == ["circle_centre", "rotary_axis"]
+    assert broken() == []
+
+
+def test_without_mtplans_entry_points_the_built_in_modules_are_found(site):
+    """An mtplan installed before it declared entry points still has its procedures."""
+    _installed(site, "mtplan", {})
+    assert set(registry()) == BUILT_IN
+
+
+BAD = {
+    "no_import": ("mtplan_no_such_module:PROCEDURE", "ModuleNotFoundError"),
+    "not_one": ("math:pi", "names a float, not an mtplan.models.Procedure"),
+    "other_name": ("tests.models.toy_line:PROCEDURE", "names the procedure 'toy_line'"),
+    "rotary_axis": ("tests.models.toy_line:PROCEDURE", "'rotary_axis' is already registered"),
+}
+
+
+def test_a_broken_plugin_is_named_and_the_others_work(site, capsys):
+    _installed(site, "mtplan-plugins", {"toy_line": "tests.models.toy_line:PROCEDURE",
+                                        **{k: v for k, (v, _) in BAD.items()}})
+    procs = registry()
+    assert procs["toy_line"] is toy_line.PROCEDURE
+    assert BUILT_IN <= set(procs) and procs["rotary_axis"].title != toy_line.PROCEDURE.title
+    reasons = broken()
+    assert len(reasons) == len(BAD)
+    for name, (value, why) in BAD.items():
+        (reason,) = [r for r in reasons if f"the entry point {name} = {value!r}" in r]
+        assert "package mtplan-plugins 0.1.0" in reason and why in reason, reason
+    with pytest.raises(InvalidInput, match="'no_import' is installed but unusable.*Module"):
+        get("no_import")
+    # the command line: the list works and names each on stderr; the name is a one-line error
+    assert cli.main(["procedures"]) == 0
+    out, err = capsys.readouterr()
+    assert "toy_line: Straight edge" in out and "rotary_axis:" in out
+    assert [line.startswith("mtplan: warning: the entry point ")
+            for line in err.splitlines()] == [True] * len(BAD)
+    assert cli.main(["simulate", "not_one"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "names a float" in err
+    assert cli.main(["simulate", "toy_line", "--trials", "100"]) == 0
