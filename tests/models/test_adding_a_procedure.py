@@ -127,12 +127,14 @@ def test_the_installed_procedure_is_listed_and_the_broken_one_named(installed):
 
 def test_the_installed_procedure_passes_check_procedure(installed):
     run, _ = installed
-    done = run("-c", "from mtplan.models import get\n"
+    done = run("-c", "import sys\n"
+                     "from mtplan.models import get\n"
                      "from mtplan.testing import check_procedure\n"
                      f"check_procedure({NAME!r})\n"
-                     f"print(get({NAME!r}).forward.__module__)\n")
+                     f"print(get({NAME!r}).forward.__module__, 'pytest' in sys.modules)\n")
     assert done.returncode == 0, done.stderr
-    assert done.stdout.strip() == f"mtplan_{NAME}"  # found through the installed package
+    # found through the installed package, and checked without a test framework
+    assert done.stdout.split() == [f"mtplan_{NAME}", "False"]
 
 
 def test_the_guides_commands_run_on_the_installed_procedure(installed):
