@@ -202,7 +202,7 @@ def numeric_fields(proc: Procedure) -> list[dict]:
 
 def bad_values(info) -> list:
     """Values the set-up field described by `info` (from ``fields_info``) must refuse."""
-    bad = [math.nan, math.inf, -math.inf, "abc", None] if not info["optional"] else [math.nan, "abc"]
+    bad = [math.nan, "abc"] if info["optional"] else [math.nan, math.inf, -math.inf, "abc", None]
     if info["low"] is not None:
         bad.append(info["low"] - (1 if info["kind"] is int else 1e-3 * max(abs(info["low"]), 1)))
     if info["high"] is not None:
