@@ -5,8 +5,9 @@ procedure's forward model and estimators with the generic engine
 (:mod:`mtplan.uncertainty`).
 
 - :mod:`~mtplan.evaluation.first_order`: the one first-order (linearisation) service
-  (:func:`first_order`): u per measurand, its budget by source and the sensitivities of a
-  set-up, for the planner, the set-up designer and ``mtplan linearize``.
+  (:func:`mtplan.evaluation.first_order.first_order`): u per measurand, its budget by
+  source and the sensitivities of a set-up, for the planner, the set-up designer and
+  ``mtplan linearize``.
 - :mod:`~mtplan.evaluation.simulation`: Monte Carlo (:func:`simulate_uncertainty`) and
   GUM (:func:`linearize_procedure`) of a set-up, budgets by error source
   (:func:`source_budget`).
@@ -29,8 +30,6 @@ import importlib
 __all__ = [
     "ProcedureResult",
     "simulate_uncertainty",
-    "first_order",
-    "FirstOrder",
     "linearize_procedure",
     "linearize_result",
     "LinearizedResult",
@@ -48,8 +47,6 @@ __all__ = [
 _WHERE = {
     "ProcedureResult": "simulation",
     "simulate_uncertainty": "simulation",
-    "first_order": "first_order",
-    "FirstOrder": "first_order",
     "linearize_procedure": "simulation",
     "linearize_result": "simulation",
     "LinearizedResult": "simulation",
