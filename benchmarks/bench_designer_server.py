@@ -2,7 +2,7 @@
 
 For each procedure, moves one lever to new values (so that no answer comes from the
 cache) and times the whole evaluation of each, and its two parts: the first-order
-prediction with its budget (``Procedure.first_order_budget``, else ``mtplan linearize``)
+prediction with its budget (the first-order service, ``mtplan linearize``'s numbers)
 and the identifiability of the new geometry. CPU time of this process (what a request
 costs whatever else the machine runs) and wall time, median and maximum [ms]; then the
 largest relative difference between the designer's u and ``mtplan linearize``'s.

@@ -14,6 +14,7 @@ import pytest
 
 from mtplan._validate import InvalidInput
 from mtplan.models import circle_centre as cc
+from mtplan.evaluation.first_order import first_order
 from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 from tests.models.first_order_check import assert_chain_rule_is_the_linearisation as _assert_chain_rule_is_the_linearisation  # noqa: E501
 
@@ -458,15 +459,15 @@ def test_gls_uses_p1_p2_and_beats_the_unweighted_fits():
 @pytest.mark.parametrize("estimator,changes", [("three_point", {}), ("kasa", {"n_points": 24}),
                                                ("geometric", {"n_points": 24, "spread_deg": 90.0}),
                                                ("gls", {"n_points": 8})])
-def test_first_order_hooks_equal_the_linearisation(estimator, changes):
+def test_chain_rule_in_two_parts_is_the_whole_chain(estimator, changes):
     _assert_chain_rule_is_the_linearisation(P, P.setup(changes), estimator)
 
 
-def test_first_order_hooks_without_any_source_give_zero():
+def test_first_order_without_any_source_gives_zero():
     setup = P.setup({f: 0.0 for f in (
         "probe_noise_um", "pretravel_variation_um", "tangential_slip_um_per_deg",
         "roundness_um", "scale_error_ppm", "squareness_urad", "stage_repeatability_um",
         "tip_radius_um", "part_temperature_c", "scale_temperature_c", "start_scatter_mm")})
     assert not P.active_sources(setup)
-    assert set(P.first_order_std(setup).values()) == {0.0}
-    assert P.first_order_budget(setup, estimator="kasa").empty
+    assert set(first_order(P, setup).u().values()) == {0.0}
+    assert first_order(P, setup, estimator="kasa").budget().empty

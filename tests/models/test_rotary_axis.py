@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 from mtplan._validate import InvalidInput
 from mtplan.models import get
 from mtplan.models import rotary_axis as ra
+from mtplan.evaluation.first_order import first_order
 from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 from tests.models.first_order_check import assert_chain_rule_is_the_linearisation as _assert_chain_rule_is_the_linearisation  # noqa: E501
 
@@ -26,10 +27,9 @@ PROC = get("rotary_axis")
 
 
 def _first_order(setup, estimator):
-    """The GUM u of every measurand by the procedure's first-order hook: mtplan linearize's
-    numbers to 1e-7 (test_first_order_hooks_equal_the_linearisation), in a tenth of its
-    time."""
-    u = PROC.first_order_std(setup, estimator=estimator)
+    """The GUM u of every measurand by the first-order service (mtplan linearize's
+    numbers)."""
+    u = first_order(PROC, setup, estimator=estimator).u()
     return np.array([u[m.name] for m in PROC.measurands(setup)])
 
 
@@ -474,5 +474,5 @@ def test_posterior_finds_an_artifact_tilted_three_times_the_old_bound():
 @pytest.mark.parametrize("estimator,changes", [("patent", {}), ("joint", {"axis": "A"}),
                                                ("angles", {"axis": "CA"}),
                                                ("gls", {"incline_deg": 35.0})])
-def test_first_order_hooks_equal_the_linearisation(estimator, changes):
+def test_chain_rule_in_two_parts_is_the_whole_chain(estimator, changes):
     _assert_chain_rule_is_the_linearisation(PROC, PROC.setup(changes), estimator)

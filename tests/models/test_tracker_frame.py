@@ -19,6 +19,7 @@ from mtplan._validate import InvalidInput
 from mtplan.models import get
 from mtplan.models import tracker_frame as tf
 from mtplan.fitting.fit3d import circle_residuals, fit_circle_3d
+from mtplan.evaluation.first_order import first_order
 from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 from tests.models.first_order_check import assert_chain_rule_is_the_linearisation as _assert_chain_rule_is_the_linearisation  # noqa: E501
 
@@ -238,8 +239,8 @@ def test_short_a_arc_drives_origin_and_offset():
     # lowers the uncertainty of origin_z and of the A-C offset (GUM, all sources).
     u = {}
     for arc in (20.0, 60.0, 180.0):
-        # the first-order hook: mtplan linearize's numbers to 1e-7, in a fifth of its time
-        u[arc] = PROC.first_order_std(PROC.Setup(a_arc_deg=arc))
+        # the first-order service: mtplan linearize's numbers
+        u[arc] = first_order(PROC, PROC.Setup(a_arc_deg=arc)).u()
     assert u[20.0]["origin_z_1"] > u[60.0]["origin_z_1"] > u[180.0]["origin_z_1"]
     assert u[20.0]["ac_offset_1"] > u[60.0]["ac_offset_1"] > u[180.0]["ac_offset_1"]
     # the linear axes' squareness does not depend on the arcs
@@ -598,7 +599,7 @@ def test_gls_is_efficient_home_scatters_about_it():
 
 @pytest.mark.parametrize("estimator,changes", [("patent", {}), ("angles", {"a_arc_deg": 20.0}),
                                                ("home", {"n_submachines": 1})])
-def test_first_order_hooks_equal_the_linearisation(estimator, changes):
+def test_chain_rule_in_two_parts_is_the_whole_chain(estimator, changes):
     _assert_chain_rule_is_the_linearisation(PROC, PROC.setup(changes), estimator)
 
 
@@ -607,21 +608,35 @@ def test_reading_effects_with_groups_kept_from_another_setup_are_those_found_afr
     """The designer's next lever position reuses the groups of the last (same sources'
     shapes): the effects are those of groups found afresh, bit for bit; kept groups that
     do not fit (here every reading said to depend on one element) are found again."""
-    from mtplan.models import first_order as fo
+    from mtplan.fitting import effects as fo
 
     a, b = PROC.Setup(a_arc_deg=30.0), PROC.Setup(a_arc_deg=45.0, points_per_axis=11)
     truth = PROC.Truth()
+
+    def effects(setup):
+        stats = {name: fo.element_moments(src) for name, src in PROC.active_sources(setup).items()}
+        base = PROC.zero_errors(setup, 1)
+        for name, (mean, _std, shape) in stats.items():
+            base[name] = mean.reshape((1, *shape))
+
+        def readings(errors):
+            r = PROC.forward(setup, truth, errors)
+            m = next(iter(r.values())).shape[0]
+            return np.concatenate([np.asarray(v).reshape(m, -1) for v in r.values()], axis=1)
+
+        return fo.reading_effects(readings, base, stats, key=PROC.name)
+
     monkeypatch.setattr(fo, "_EFFECT_GROUPS", {})
-    f0, fresh = fo.reading_effects(PROC, b, truth, PROC.active_sources(b))
+    f0, fresh = effects(b)
     fo._EFFECT_GROUPS.clear()
-    fo.reading_effects(PROC, a, truth, PROC.active_sources(a))
+    effects(a)
     (key, kept), = fo._EFFECT_GROUPS.items()
     assert "machine_repeatability" in kept
     for groups in (kept, {**kept, "machine_repeatability": (
-            fo._Grouping(np.zeros(94 * 3, dtype=int)), np.zeros((1, f0.size), dtype=int))}):
+            fo.Grouping(np.zeros(94 * 3, dtype=int)), np.zeros((1, f0.size), dtype=int))}):
         fo._EFFECT_GROUPS.clear()
         fo._EFFECT_GROUPS[key] = groups
-        got_f0, got = fo.reading_effects(PROC, b, truth, PROC.active_sources(b))
+        got_f0, got = effects(b)
         np.testing.assert_array_equal(got_f0, f0)
         assert list(got) == list(fresh)
         for name, eff in fresh.items():
@@ -635,7 +650,7 @@ def test_gls_covariance_from_grouped_rows_is_the_budgets(changes):
     """The gls weights' secant effects from grouped rows are source_effects' numbers,
     bit for bit (each reading of a group's rows depends on one of its elements)."""
     from mtplan.fitting import SourceModel, source_effects
-    from mtplan.models.first_order import secant_effects
+    from mtplan.fitting.effects import secant_effects
 
     setup = PROC.setup(changes)
     other = ("test", str(changes))  # groups kept for another set-up: used where they fit

@@ -4,6 +4,10 @@ The layer between the procedures (:mod:`mtplan.models`) and the plans: it joins 
 procedure's forward model and estimators with the generic engine
 (:mod:`mtplan.uncertainty`).
 
+- :mod:`~mtplan.evaluation.first_order`: the one first-order (linearisation) service
+  (:func:`mtplan.evaluation.first_order.first_order`): u per measurand, its budget by
+  source and the sensitivities of a set-up, for the planner, the set-up designer and
+  ``mtplan linearize``.
 - :mod:`~mtplan.evaluation.simulation`: Monte Carlo (:func:`simulate_uncertainty`) and
   GUM (:func:`linearize_procedure`) of a set-up, budgets by error source
   (:func:`source_budget`).

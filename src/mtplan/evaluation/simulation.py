@@ -16,10 +16,10 @@ import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
 from mtplan._parallel import check_parallel
-from mtplan.models.first_order import element_moments
+from mtplan.evaluation.first_order import first_order
 from mtplan.models.protocol import Procedure
 from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
-from mtplan.uncertainty.gum import GUMResult, _coverage_factor, sensitivities
+from mtplan.uncertainty.gum import GUMResult, _coverage_factor
 from mtplan.uncertainty.montecarlo import MCResult, check_run_options, run_blocks
 
 __all__ = ["ProcedureResult", "LinearizedResult", "simulate_uncertainty", "linearize_procedure",
@@ -499,60 +499,27 @@ def linearize_procedure(
 
     The inputs are every element of every active error source (grouped by source
     in the budget); the model is forward model + estimator, linearised at the
-    sources' means (zero error). With an efficient estimator and Gaussian sources
-    this is also the Cramer-Rao (Fisher) prediction of the set-up.
+    sources' means (zero error), by the first-order service
+    (:func:`mtplan.evaluation.first_order.first_order`, which the planner and the
+    designer call too). With an efficient estimator and Gaussian sources this is also
+    the Cramer-Rao (Fisher) prediction of the set-up.
     """
     proc, setup, truth = _resolve(procedure, setup, truth)
     p = Problems(f"linearize {proc.name}")
     p.number("coverage", coverage, low=0, high=1, low_open=True, high_open=True)
     p.raise_if_any()
-    est_name, _ = proc.estimator(estimator)
-    active = proc.active_sources(setup, sources)
-    layout = []  # (name, start, size, shape)
-    xs, us, groups, names = [], [], [], []
-    pos = 0
-    for name, src in active.items():
-        mean, std, shape = element_moments(src)
-        size = mean.size
-        xs.append(mean)
-        us.append(std)
-        groups += [name] * size
-        names += [name] if size == 1 and not shape else [f"{name}[{j}]" for j in range(size)]
-        layout.append((name, pos, size, shape))
-        pos += size
-    measurands = tuple(proc.measurands(setup))
-    x = np.concatenate(xs) if xs else np.zeros(0)
-    u = np.concatenate(us) if us else np.zeros(0)
-
-    def evaluate(points):
-        m = points.shape[0]
-        errors = proc.zero_errors(setup, m)
-        for name, start, size, shape in layout:
-            errors[name] = points[:, start : start + size].reshape((m, *shape))
-        out = _measure(proc, setup, proc.forward(setup, truth, errors), est_name)
-        return np.column_stack([out[mm.name] for mm in measurands])
-
-    closed = None if proc.first_order_sensitivities is None else \
-        proc.first_order_sensitivities(setup, truth, estimator=est_name, sources=sources)
-    if closed is not None:  # the procedure's closed form of the same linearisation
-        f0, jac = (np.asarray(a, dtype=float) for a in closed)
-        if f0.shape != (len(measurands),) or jac.shape != (len(measurands), x.size):
-            raise InvalidInput([f"The first_order_sensitivities hook of {proc.name} gave "
-                                f"shapes {f0.shape} and {jac.shape}; the linearisation needs "
-                                f"({len(measurands)},) and ({len(measurands)}, {x.size})."])
-    elif x.size:
-        f0, jac = sensitivities(evaluate, x, u, max_batch=max(64, 2_000_000 // max(x.size, 1)))
-    else:
-        f0 = evaluate(np.zeros((1, 0)))[0]
-        jac = np.zeros((len(measurands), 0))
+    fo = first_order(proc, setup, truth, estimator=estimator, sources=sources)
+    u = fo.input_std
+    jac = fo.sensitivity
+    measurands = fo.measurands
     cov_in = np.diag(u**2)
     cov = (jac * u**2) @ jac.T
     dof = np.full(len(measurands), np.inf)
     return GUMResult(
-        names=tuple(mm.name for mm in measurands),
-        inputs=tuple(names),
-        groups=tuple(groups),
-        value=f0,
+        names=fo.names,
+        inputs=fo.inputs,
+        groups=fo.groups,
+        value=fo.value,
         sensitivity=jac,
         input_cov=cov_in,
         cov=cov,

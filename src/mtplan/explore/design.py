@@ -169,30 +169,12 @@ def _predict_cached(name: str, setup_key: str, estimator: str):
 
 
 def _predict(proc, setup, estimator) -> dict:
-    """u per measurand [display unit] and its budget by source (std per source).
+    """u per measurand [display unit] and its budget by source (std per source): the
+    first-order service's numbers (those of ``mtplan linearize`` and the planner)."""
+    from mtplan.evaluation.first_order import first_order
 
-    The GUM law of propagation of ``mtplan linearize``; where the procedure declares a
-    first-order budget through its estimators' linear maps (``Procedure.first_order_budget``:
-    geometry21), that same propagation is taken from it, in a fraction of the time.
-    """
-    from mtplan.evaluation.simulation import linearize_procedure
-
-    table = None if proc.first_order_budget is None else proc.first_order_budget(
-        setup, estimator=estimator)  # None: not for this estimator
-    if table is not None:
-        names = [m.name for m in proc.measurands(setup)]
-        u = {n: 0.0 for n in names}
-        budget = {n: {} for n in names}
-        for row in table.itertuples(index=False):
-            budget[row.measurand][row.source] = float(row.std)
-            u[row.measurand] += float(row.std) ** 2
-        return {"u": {n: math.sqrt(v) for n, v in u.items()}, "budget": budget,
-                "method": f"first-order budget of {proc.name}'s {estimator} estimator"}
-    g = linearize_procedure(proc, setup, estimator=estimator)
-    groups, var = g.group_variance()
-    budget = {n: {s: float(math.sqrt(max(var[i, j], 0.0))) for j, s in enumerate(groups)}
-              for i, n in enumerate(g.names)}
-    return {"u": {n: float(s) for n, s in zip(g.names, g.std, strict=True)}, "budget": budget,
+    fo = first_order(proc, setup, estimator=estimator)
+    return {"u": fo.u(), "budget": fo.budget_std(),
             "method": "GUM law of propagation (mtplan linearize)"}
 
 

@@ -12,6 +12,9 @@ model from parameters and error sources to readings).
   Gauss-Newton fitter over it (:func:`central_jacobian`, :func:`gls_gain`,
   :func:`gauss_newton`, :func:`gls_step`) and the residuals whitened by it
   (:func:`whitened_residuals`).
+- :mod:`~mtplan.fitting.effects`: how each element of each error source moves each
+  reading (NaN probes, grouped rows, secants and derivatives), written once for the
+  budget, the fits' covariance and the first-order linearisation.
 - :mod:`~mtplan.fitting.linear`: rank-truncated pseudo-inverses with a convention for
   the null space, and first-order propagation of error sources through an estimator.
 """

@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from mtplan._validate import InvalidInput
+from mtplan.fitting.effects import Effect, effect
 
 __all__ = ["Budget", "Gaussian", "error_budget", "DENSE_MAX", "NONLINEAR", "MAX_NUISANCE"]
 
@@ -50,228 +51,9 @@ LOCAL_MAX = 512  # readings: elements within blocks of at most this many join th
 NONLINEAR = 0.1  # curvature norm [readings' independent scatter] above which a source is sampled
 MAX_NUISANCE = 16  # at most this many source elements are sampled as nuisance parameters
 _ABSORBED = 1e-5  # relative residual below which a source is reproduced by free parameters
-_SUPPORT = 1e-9  # relative size below which an element's effect on a reading is zero
 _ODD_CHECK = 64  # sources with at most this many elements are also checked at +-2 sigma
-_PROBE = 32  # sources with at least this many elements are first tried by NaN probes
 _NEGLIGIBLE = 1e-6  # an element whose effect is below this in the readings' scatter (or 1e-8
 # of its source's largest) is round-off, no effect
-
-
-@dataclass
-class _Effect:
-    """Secant and curvature of every element of one source (sparse where they touch one reading)."""
-
-    std: np.ndarray  # (E,)
-    row: np.ndarray  # (E,) the reading an element touches alone, -1 when several or none
-    s1: np.ndarray  # (E,) its secant there
-    c1: np.ndarray  # (E,) its curvature there
-    multi: np.ndarray  # (k,) elements touching several readings
-    S: np.ndarray  # (n, k) their secants
-    C: np.ndarray  # (n, k) their curvatures
-
-    @property
-    def any(self) -> bool:
-        return bool(np.any(self.row >= 0) or self.multi.size)
-
-    def diag(self, n: int) -> np.ndarray:
-        d = np.zeros(n)
-        one = self.row >= 0
-        np.add.at(d, self.row[one], self.s1[one] ** 2)
-        return d
-
-    def curvature(self, n: int) -> np.ndarray:
-        c = np.zeros(n)
-        one = self.row >= 0
-        np.add.at(c, self.row[one], self.c1[one])
-        return c + self.C.sum(axis=1)
-
-    def dense(self, n: int) -> np.ndarray:
-        """Secants of every element as a dense array (n, E)."""
-        out = np.zeros((n, self.std.size))
-        one = np.flatnonzero(self.row >= 0)
-        out[self.row[one], one] = self.s1[one]
-        out[:, self.multi] = self.S
-        return out
-
-    def nonlinearity(self, ref: np.ndarray) -> float:
-        """Largest norm of an element's curvature in units of `ref` (a std per reading)."""
-        one = self.row >= 0
-        single = np.abs(self.c1[one]) / ref[self.row[one]] if one.any() else np.zeros(0)
-        multi = np.sqrt(np.sum((self.C / ref[:, None]) ** 2, axis=0))
-        return float(max(single.max(initial=0.0), multi.max(initial=0.0)))
-
-
-def _probed(fwd, truth, name: str, sd: np.ndarray, f0: np.ndarray, shape) -> _Effect | None:
-    """The effects of a source whose readings each depend on one element at most, found
-    in 2 log2(E) + 3 forward rows instead of 2 E; None where that does not hold.
-
-    Row pair b sets the elements whose index has bit b set (then those with it clear)
-    to NaN: the readings that turn NaN spell out, bit by bit, the element each depends
-    on (a reading NaN in both rows of a pair depends on several). Then all elements at
-    +sigma, all at -sigma, and a random mixture: when each reading depends on its one
-    element alone, the mixture's readings are exactly the +sigma or -sigma ones, which
-    is checked (a model that does not pass NaN on fails the check too).
-    """
-    n_el, n = sd.size, fwd.n
-    bits = max(1, (n_el - 1).bit_length())
-    idx = np.arange(n_el)
-    sign = np.where(np.random.default_rng(0).random(n_el) < 0.5, -1.0, 1.0)
-    errors = fwd.errors(2 * bits + 3, copy_of=(name,))
-    a = errors[name].reshape(2 * bits + 3, -1)
-    for b in range(bits):
-        on = ((idx >> b) & 1).astype(bool)
-        a[2 * b, on] = np.nan
-        a[2 * b + 1, ~on] = np.nan
-    a[2 * bits] += sd
-    a[2 * bits + 1] -= sd
-    a[2 * bits + 2] += sign * sd
-    errors[name] = a.reshape(2 * bits + 3, *shape)
-    try:
-        with np.errstate(all="ignore"):
-            pred = fwd.at(truth, errors)
-    except Exception:  # noqa: BLE001 - a model that refuses NaN: element by element
-        return None
-    on, off = np.isnan(pred[0:2 * bits:2]), np.isnan(pred[1:2 * bits:2])
-    dep = on.any(axis=0) | off.any(axis=0)
-    plus, minus, mixed = pred[2 * bits:]
-    if np.any(on & off) or not np.all((on ^ off)[:, dep]) \
-            or not np.all(np.isfinite(pred[2 * bits:])):
-        return None
-    elem = (on.astype(np.int64) << np.arange(bits)[:, None]).sum(axis=0)
-    if np.any(elem[dep] >= n_el):
-        return None
-    expect = np.where(dep, np.where(sign[np.minimum(elem, n_el - 1)] > 0, plus, minus), f0)
-    scale = np.abs(f0) + np.abs(plus - minus) + 1e-300
-    if not (np.all(np.abs(mixed - expect) <= 1e-12 * scale)
-            and np.all(plus[~dep] == f0[~dep]) and np.all(minus[~dep] == f0[~dep])):
-        return None
-    sec, cur = 0.5 * (plus - minus), 0.5 * (plus + minus) - f0
-    reads = np.flatnonzero(dep)
-    count = np.bincount(elem[reads], minlength=n_el)
-    row, s1, c1 = np.full(n_el, -1), np.zeros(n_el), np.zeros(n_el)
-    single = reads[count[elem[reads]] == 1]
-    row[elem[single]], s1[elem[single]], c1[elem[single]] = single, sec[single], cur[single]
-    multi = np.flatnonzero(count > 1)
-    S, C = np.zeros((n, multi.size)), np.zeros((n, multi.size))
-    col = {e: k for k, e in enumerate(multi)}
-    for i in reads[count[elem[reads]] > 1]:
-        S[i, col[elem[i]]], C[i, col[elem[i]]] = sec[i], cur[i]
-    return _Effect(sd, row, s1, c1, multi, S, C)
-
-
-def _secants(fwd, truth, name: str, shape, step: np.ndarray, f0: np.ndarray):
-    """Secants and curvatures (rows, n) of the source `name` moved by each row of ``step``
-    (rows, elements) about its mean, plus and minus: one forward call of 2 rows each."""
-    m = step.shape[0]
-    errors = fwd.errors(2 * m, copy_of=(name,))
-    a = errors[name].reshape(2 * m, -1)
-    a[:m] += step
-    a[m:] -= step
-    errors[name] = a.reshape(2 * m, *shape)
-    pred = fwd.at(truth, errors)
-    if not np.all(np.isfinite(pred)):
-        raise InvalidInput([f"The forward model of {_name(fwd)} gives no finite readings "
-                            f"with the source {name!r} one standard deviation off its mean."])
-    return 0.5 * (pred[:m] - pred[m:]), 0.5 * (pred[:m] + pred[m:]) - f0
-
-
-def _coloured(fwd, truth, name: str, sd: np.ndarray, f0: np.ndarray, shape, colours,
-              owners) -> _Effect | None:
-    """The effects of a source whose elements the model has coloured: elements of one
-    colour never move a common reading, so each colour is one row at +sigma and one at
-    -sigma (Curtis, Powell and Reid's grouping of a sparse Jacobian's columns), and
-    ``owners`` (colours, n) names the element of each colour that each reading depends
-    on (-1: none). 2 C forward rows instead of 2 E; the secants and curvatures are those
-    of the element-by-element evaluation, and so is the support rule (:data:`_SUPPORT`).
-    None where a reading no element of a colour owns moves in that colour's rows (a
-    colouring that does not hold: the caller evaluates element by element)."""
-    colours = np.asarray(colours, dtype=np.int64).reshape(-1)
-    owners = np.asarray(owners, dtype=np.int64)
-    n_el, k = sd.size, owners.shape[0]
-    step = np.zeros((k, n_el))
-    for c in range(k):
-        on = colours == c
-        step[c, on] = sd[on]
-    sec, cur = _secants(fwd, truth, name, shape, step, f0)
-    free = owners < 0
-    if np.any(sec[free] != 0) or np.any(cur[free] != 0):
-        return None
-    c_idx, r_idx = np.nonzero(~free)
-    e = owners[c_idx, r_idx]
-    if np.any(colours[e] != c_idx):
-        raise ValueError(f"the colouring of {name!r} names an element in a colour not its own")
-    s, cu = sec[c_idx, r_idx], cur[c_idx, r_idx]
-    big = np.zeros(n_el)
-    np.maximum.at(big, e, np.maximum(np.abs(s), np.abs(cu)))
-    nz = (np.abs(s) > _SUPPORT * big[e]) | (np.abs(cu) > _SUPPORT * big[e])
-    count = np.bincount(e[nz], minlength=n_el)
-    row, s1, c1 = np.full(n_el, -1), np.zeros(n_el), np.zeros(n_el)
-    one = nz & (count[e] == 1)
-    row[e[one]], s1[e[one]], c1[e[one]] = r_idx[one], s[one], cu[one]
-    multi = np.flatnonzero(count > 1)
-    col = np.full(n_el, -1)
-    col[multi] = np.arange(multi.size)
-    many = count[e] > 1
-    n = f0.size
-    S, C = np.zeros((n, multi.size)), np.zeros((n, multi.size))
-    S[r_idx[many], col[e[many]]] = s[many]
-    C[r_idx[many], col[e[many]]] = cu[many]
-    return _Effect(sd, row, s1, c1, multi, S, C)
-
-
-def _name(fwd) -> str:
-    """The procedure's name for messages (a posterior's Forward, or a :class:`SourceModel`)."""
-    proc = getattr(fwd, "proc", None)
-    return getattr(proc, "name", None) or getattr(fwd, "name", "the procedure")
-
-
-def _effect(fwd, truth, name: str, std, f0: np.ndarray) -> _Effect:
-    """Evaluate one source's elements at their mean +- `std`: by NaN probes when every
-    reading depends on one element at most (:func:`_probed`), else in chunks of rows."""
-    src = fwd.sources[name]
-    shape = (*src.shape, *src.distribution.event_shape)
-    n_el = int(np.prod(shape, dtype=np.int64))
-    std = np.asarray(std, dtype=float)
-    if std.size == 1:
-        sd = np.full(n_el, float(std.reshape(-1)[0]))
-    elif std.size == n_el:
-        sd = std.reshape(-1)
-    else:
-        sd = np.broadcast_to(std, shape).reshape(-1)
-    hook = getattr(fwd, "structure", None)
-    plan = hook(truth, name) if hook is not None else None
-    if plan is not None:
-        eff = _coloured(fwd, truth, name, sd, f0, shape, *plan)
-        if eff is not None:
-            return eff
-    if n_el >= _PROBE:
-        eff = _probed(fwd, truth, name, sd, f0, shape)
-        if eff is not None:
-            return eff
-    n = fwd.n
-    chunk = int(max(8, min(n_el, 4_000_000 // max(n, n_el, 1))))
-    row, s1, c1 = np.full(n_el, -1), np.zeros(n_el), np.zeros(n_el)
-    multi, S, C = [], [], []
-    for start in range(0, n_el, chunk):
-        idx = np.arange(start, min(n_el, start + chunk))
-        b = idx.size
-        step = np.zeros((b, n_el))
-        step[np.arange(b), idx] = sd[idx]
-        sec, cur = _secants(fwd, truth, name, shape, step, f0)
-        big = np.maximum(np.abs(sec).max(axis=1), np.abs(cur).max(axis=1))
-        nz = (np.abs(sec) > _SUPPORT * big[:, None]) | (np.abs(cur) > _SUPPORT * big[:, None])
-        count = nz.sum(axis=1)
-        one = count == 1
-        r = np.argmax(nz, axis=1)
-        row[idx[one]] = r[one]
-        s1[idx[one]] = sec[one, r[one]]
-        c1[idx[one]] = cur[one, r[one]]
-        many = count > 1
-        multi.append(idx[many])
-        S.append(sec[many].T)
-        C.append(cur[many].T)
-    return _Effect(sd, row, s1, c1, np.concatenate(multi), np.hstack(S) if S else np.zeros((n, 0)),
-                   np.hstack(C) if C else np.zeros((n, 0)))
 
 
 # --------------------------------------------------------------------------- the Gaussian
@@ -577,13 +359,13 @@ class Budget:
         return self._cache[key]
 
 
-def _negligible(eff: _Effect, ref, n: int) -> bool:
+def _negligible(eff: Effect, ref, n: int) -> bool:
     """Every element's effect is below ``_NEGLIGIBLE`` of the readings' scatter (round-off)."""
     return bool(np.sqrt(eff.diag(n)).max(initial=0.0) <= _NEGLIGIBLE * ref.min()
                 and np.all(np.linalg.norm(eff.S / ref[:, None], axis=0) <= _NEGLIGIBLE))
 
 
-def _absorbed(eff: _Effect, tangent: _Effect | None, ref, J, nuisance_params, names) -> str | None:
+def _absorbed(eff: Effect, tangent: Effect | None, ref, J, nuisance_params, names) -> str | None:
     """The free nuisance parameters that reproduce the source's effect, or None."""
     if not nuisance_params or np.any(eff.row >= 0) or not eff.multi.size:
         return None
@@ -630,7 +412,7 @@ def error_budget(fwd, truth, noise: str, sigma, J, G, names) -> Budget:
     if noise in ("known", "free"):
         setup_sd = float(np.max(np.asarray(fwd.sources[ns].distribution.std)))
         std[ns] = np.asarray(setup_sd if setup_sd > 0 else 1e-3)
-    effects = {k: _effect(fwd, truth, k, sd, f0) for k, sd in std.items()}
+    effects = {k: effect(fwd, truth, k, sd, f0) for k, sd in std.items()}
     var = sum((e.diag(n) + np.sum(e.S**2, axis=1) for e in effects.values()), np.zeros(n))
     diag = sum((e.diag(n) for e in effects.values()), np.zeros(n))
     ref = np.sqrt(np.where(diag > 0, diag, var))
@@ -648,14 +430,14 @@ def error_budget(fwd, truth, noise: str, sigma, J, G, names) -> Budget:
             continue
         nl = eff.nonlinearity(ref)
         if eff.std.size <= _ODD_CHECK:  # odd non-linearity: the secant over +-2 sigma differs
-            wide = _effect(fwd, truth, name, 2.0 * eff.std, f0).dense(n) / 2.0
+            wide = effect(fwd, truth, name, 2.0 * eff.std, f0).dense(n) / 2.0
             odd = np.sqrt(np.sum(((wide - eff.dense(n)) / ref[:, None]) ** 2, axis=0))
             nl = max(nl, float(odd.max(initial=0.0)))
         budget.nonlinearity[name] = nl
         if name == ns and noise in ("known", "free"):
             _add_noise(budget, name, eff, noise, sigma, n)
             continue
-        tangent = _effect(fwd, truth, name, eff.std * 1e-4, f0) if nl > NONLINEAR else None
+        tangent = effect(fwd, truth, name, eff.std * 1e-4, f0) if nl > NONLINEAR else None
         if tangent is not None:
             tangent.S = tangent.S * 1e4
         by = _absorbed(eff, tangent, ref, J, nuis_params, names)
@@ -682,7 +464,7 @@ def error_budget(fwd, truth, noise: str, sigma, J, G, names) -> Budget:
     return budget
 
 
-def _add_noise(budget: Budget, name: str, eff: _Effect, noise: str, sigma, n: int) -> None:
+def _add_noise(budget: Budget, name: str, eff: Effect, noise: str, sigma, n: int) -> None:
     """The noise source, per unit of its standard deviation: free, or at the given `sigma`."""
     ref = float(np.max(eff.std))
     d, u = eff.diag(n) / ref**2, eff.S / ref

@@ -35,7 +35,8 @@ from typing import NamedTuple
 import numpy as np
 
 from mtplan._validate import InvalidInput
-from mtplan.fitting.budget import Budget, Gaussian, _effect
+from mtplan.fitting.budget import Budget, Gaussian
+from mtplan.fitting.effects import effect
 
 __all__ = ["SourceModel", "source_effects", "readings_covariance", "central_jacobian",
            "gls_gain", "gauss_newton", "GaussNewtonResult", "gls_step", "whitened_residuals",
@@ -100,7 +101,7 @@ def source_effects(model: SourceModel, names=None) -> tuple[np.ndarray, np.ndarr
     linear one otherwise). An element that touches one reading alone adds its square
     to ``D``; one that touches several is a column of ``U``. Sources of many elements
     whose readings each depend on one element (reading noise) cost a few forward rows,
-    not two per element (see :mod:`mtplan.fitting.budget`).
+    not two per element (see :mod:`mtplan.fitting.effects`).
 
     Returns
     -------
@@ -115,7 +116,7 @@ def source_effects(model: SourceModel, names=None) -> tuple[np.ndarray, np.ndarr
     n = f0.size
     D, cols = np.zeros(n), [np.zeros((n, 0))]
     for name in names:
-        eff = _effect(model, None, name, np.asarray(model.sources[name].distribution.std,
+        eff = effect(model, None, name, np.asarray(model.sources[name].distribution.std,
                                                      dtype=float), f0)
         D = D + eff.diag(n)
         cols.append(eff.S)

@@ -131,7 +131,6 @@ import pandas as pd
 from mtplan._validate import InvalidInput, Problems
 from mtplan.fitting import gls_step
 from mtplan.fitting.circle import geometric_fit, kasa_fit, three_point_circle
-from mtplan.models.first_order import with_chain_rule
 from mtplan.models.protocol import Measurand, Procedure, SetupBase, Source, param
 from mtplan.uncertainty import Normal, Rectangular
 
@@ -1244,8 +1243,7 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     return out
 
 
-# first-order prediction (designer, planner) by the chain rule: estimator map x reading effects
-PROCEDURE = with_chain_rule(Procedure(
+PROCEDURE = Procedure(
     name="circle_centre",
     title="Bore centre by three probed points in equilateral distribution",
     Setup=Setup,
@@ -1273,4 +1271,4 @@ PROCEDURE = with_chain_rule(Procedure(
                  "probe_feed_mm_min clearance_mm dwell_s".split()),
     setup_from_frame=setup_from_frame,
     report_extras=report_extras,
-))
+)

@@ -28,8 +28,9 @@ A procedure module (``mtplan/models/<name>.py``) defines a module-level
   tolerance within which a value the user states agrees with the file (:class:`Implied`).
 - optional analysis hooks, each a field of :class:`Procedure` whose default None selects
   the generic analysis: ``identifiability_report``, ``report_extras``, ``identifiability``,
-  ``observability``, ``first_order_std`` and ``first_order_sensitivities`` (see the
-  fields' comments).
+  ``observability`` and one derivative hook, ``first_order_sensitivities`` (the closed
+  form of the first-order sensitivities, from which the first-order service derives u
+  and the budget for every caller; see the fields' comments).
 
 The :class:`Procedure` record is the whole contract: the planner, the study and the
 reports use only its fields, never a function looked up by name in a procedure's module.
@@ -642,21 +643,15 @@ class Procedure:
     #: each estimator can observe at the set-up, with their limits; shown in the report
     #: (unless ``report_extras`` already gives ``observability``). None: not shown
     observability: Callable | None = None
-    #: optional ``first_order_std(setup, truth, *, estimator, sources) -> {measurand: u}``:
-    #: first-order standard uncertainty per measurand [display unit], the planner's fast
-    #: screening. None: the generic GUM linearisation of the forward model and estimator
-    first_order_std: Callable | None = None
-    #: optional ``first_order_budget(setup, *, estimator) -> DataFrame``: the same
-    #: first-order propagation as ``first_order_std``, by source (columns ``measurand``,
-    #: ``unit``, ``source``, ``std``, ``share``), for the live designer. None (or the hook
-    #: returning None for an estimator it does not map): the generic GUM linearisation's budget
-    first_order_budget: Callable | None = None
-    #: optional ``first_order_sensitivities(setup, truth, *, estimator, sources) -> (value,
-    #: jacobian)``: the measurands [display unit] at the sources' means and their
-    #: sensitivity to every element of every active source (columns: the active sources in
-    #: order, each one's elements flattened), the closed form of the generic GUM
-    #: linearisation that ``mtplan linearize`` makes. None (or the hook returning None): the
-    #: generic one (central differences through the forward model and the estimator)
+    #: optional ``first_order_sensitivities(setup, truth, *, estimator, sources) ->
+    #: jacobian``: the derivative hook (as astropy.modeling's ``fit_deriv``), the closed form
+    #: of the measurands' sensitivity [display unit per internal unit] to every element of
+    #: every active source (columns: the active sources in order, each one's elements
+    #: flattened) at the sources' means. The first-order service
+    #: (``mtplan.evaluation.first_order``) takes it for the planner, the designer and
+    #: ``mtplan linearize`` alike, and derives u and the budget by source from it and the
+    #: sources' standard deviations. None (or the hook returning None for an estimator it
+    #: does not map): the chain rule through the forward model and the estimator
     first_order_sensitivities: Callable | None = None
 
     # ----------------------------------------------------------------- helpers

@@ -226,7 +226,8 @@ from mtplan.fitting.fit3d import (
     fit_circle_3d_angles,
     fit_line_3d,
 )
-from mtplan.models.first_order import one_blas_thread, secant_effects, with_chain_rule
+from mtplan._parallel import one_blas_thread
+from mtplan.fitting.effects import secant_effects
 from mtplan.models.protocol import (
     Measurand,
     Procedure,
@@ -1456,8 +1457,7 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     return out
 
 
-# first-order prediction (designer, planner) by the chain rule: estimator map x reading effects
-PROCEDURE = with_chain_rule(Procedure(
+PROCEDURE = Procedure(
     name=NAME,
     title="Zero point and frames of gantry sub-machines by laser tracker",
     Setup=Setup,
@@ -1483,4 +1483,4 @@ PROCEDURE = with_chain_rule(Procedure(
                  "points_per_axis c_arc_deg a_arc_deg points_per_arc tracker_distance_mm "
                  "tracker_height_mm dwell_s linear_feed_mm_min".split()),
     setup_from_frame=setup_from_frame,
-))
+)

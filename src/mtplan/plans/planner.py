@@ -421,23 +421,11 @@ def _candidate(row, setup, names, targets) -> dict:
 def _assess(proc, setup, truth, estimator, sources, predict, identify) -> tuple[dict, dict]:
     """One candidate's linearised uncertainties (when `predict`) and identifiability
     (when `identify`)."""
-    u = _predict(proc, setup, truth, estimator, sources) if predict else {}
+    from mtplan.evaluation.first_order import first_order
+
+    u = first_order(proc, setup, truth, estimator=estimator, sources=sources).u() if predict \
+        else {}
     return u, design_identifiability(proc, setup, truth) if identify else {}
-
-
-def _predict(proc, setup, truth, estimator, sources) -> dict:
-    """Linearised standard uncertainty of each measurand: the procedure's own
-    ``first_order_std(setup, truth, estimator=, sources=)`` where it declares one
-    (geometry21: the same first-order propagation through its estimators' linear maps, much
-    faster than differentiating the chain per input), else the generic GUM propagation."""
-    from mtplan.evaluation.simulation import linearize_procedure
-
-    if proc.first_order_std is not None:
-        name, _ = proc.estimator(estimator)
-        u = proc.first_order_std(setup, truth, estimator=name, sources=sources)
-        return {n: float(v) for n, v in u.items()}
-    g = linearize_procedure(proc, setup, truth, estimator=estimator, sources=sources)
-    return {n: float(u) for n, u in zip(g.names, g.std, strict=True)}
 
 
 # --------------------------------------------------------------------------- design search

@@ -1473,7 +1473,5 @@ PROCEDURE = Procedure(
     identifiability_report=identifiability_report,
     report_extras=report_extras,
     identifiability=identifiability,
-    first_order_std=first_order_std,
-    first_order_budget=budget,
     first_order_sensitivities=sensitivities,
 )

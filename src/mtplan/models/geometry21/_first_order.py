@@ -296,28 +296,25 @@ def budget(setup: Setup | None = None, *, estimator: str = "joint",
 @_one_blas_thread
 def sensitivities(setup: Setup, truth: Truth | None = None, *, estimator: str = "joint",
                   sources=None):
-    """The listed measurands at the sources' means [display unit] and their sensitivity to
-    every element of every active source: ``(value (q,), jacobian (q, elements))``, the
-    columns in the order of the generic GUM linearisation
-    (:func:`mtplan.evaluation.simulation.linearize_procedure`: the active sources in order,
-    each one's elements flattened).
+    """The listed measurands' sensitivity to every element of every active source [display
+    unit per internal unit]: the jacobian (q, elements), the columns in the order of the
+    first-order service (:func:`mtplan.evaluation.first_order.first_order`: the active
+    sources in order, each one's elements flattened); the procedure's
+    ``first_order_sensitivities``.
 
-    The same first-order propagation as that one, through the estimator's linear map
-    (:func:`budget`'s factors, per unit of each element) instead of differentiating the
-    forward model and the estimator per element: a second instead of a quarter of a
-    minute at the default set-up. The value is the estimator's on the readings at the
-    sources' means, as there. None where a source's factor does not have one column per
-    element (then the generic linearisation).
+    The same first-order propagation as the generic chain rule, through the estimator's
+    linear map (:func:`budget`'s factors, per unit of each element) instead of
+    differentiating the forward model and the estimator per element: a second instead of
+    a quarter of a minute at the default set-up. None where a source's factor does not
+    have one column per element (then the generic chain rule).
     """
     truth = Truth() if truth is None else truth
     _check_estimator(estimator)
-    proc = _procedure()
-    active = proc.active_sources(setup, sources)
+    active = _procedure().active_sources(setup, sources)
     factors = _source_factors(setup, estimator, truth, sources)
     ms = measurands(setup)
     g = np.array([_joint_ident(setup)["g"][NAMES.index(m.name)] * m.scale
                   for m in ms]).reshape(len(ms), -1)
-    errors = proc.zero_errors(setup, 1)
     cols = []
     for name, src in active.items():
         shape = (*src.shape, *src.distribution.event_shape)
@@ -327,19 +324,14 @@ def sensitivities(setup: Setup, truth: Truth | None = None, *, estimator: str = 
         std = np.broadcast_to(np.asarray(src.distribution.std, dtype=float), shape).ravel()
         with np.errstate(divide="ignore", invalid="ignore"):
             cols.append(np.where(std > 0, (g @ factors[name]) / std, 0.0))
-        errors[name][...] = np.asarray(src.distribution.mean, dtype=float)
-    est = proc.estimators[estimator](setup, forward(setup, truth, errors))
-    value = np.array([float(np.asarray(est[m.name], dtype=float).reshape(-1)[0]) * m.scale
-                      for m in ms])
-    return value, (np.hstack(cols) if cols else np.zeros((len(ms), 0)))
+    return np.hstack(cols) if cols else np.zeros((len(ms), 0))
 
 
 @_one_blas_thread
 def first_order_std(setup: Setup, truth: Truth | None = None, *, estimator: str = "joint",
                     sources=None) -> dict:
     """First-order standard uncertainty of each listed measurand [display unit] (see
-    :func:`budget`); the planner's screening uses it in place of the generic
-    linearisation."""
+    :func:`budget`), from the same factors as :func:`sensitivities`."""
     _check_estimator(estimator)
     var = _measurand_variances(setup, estimator, truth, sources)
     return {m.name: math.sqrt(sum(v[m.name] for v in var.values())) for m in measurands(setup)}

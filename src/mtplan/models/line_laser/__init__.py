@@ -1316,8 +1316,8 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     return out
 
 
-# the first-order budget (a submodule: each estimator's linear map times the sources' effects)
-from mtplan.models.line_laser._first_order import budget as first_order_budget  # noqa: E402
+# the closed-form sensitivities (a submodule: each estimator's linear map times the sources'
+# effects)
 from mtplan.models.line_laser._first_order import sensitivities  # noqa: E402
 
 PROCEDURE = Procedure(
@@ -1351,7 +1351,6 @@ PROCEDURE = Procedure(
     setup_from_frame=setup_from_frame,
     resolution=resolution,
     observability=observability,
-    first_order_budget=first_order_budget,
     first_order_sensitivities=sensitivities,
     source_structure=source_structure,
 )

@@ -1,6 +1,7 @@
-"""line_laser's first-order budget: each estimator's linear map times each source's effect.
+"""line_laser's closed-form sensitivities: each estimator's linear map times each source's
+effect (the procedure's ``first_order_sensitivities``).
 
-The GUM law of propagation of :func:`mtplan.evaluation.simulation.linearize_procedure`
+The generic chain rule of the first-order service (:mod:`mtplan.evaluation.first_order`)
 differentiates forward model and estimator together, input by input: one input per
 reading's noise, 15 600 at the default scan, each through the whole estimator. Here the
 same first-order propagation is taken in two factors:
@@ -23,8 +24,8 @@ same first-order propagation is taken in two factors:
 The standard uncertainty of measurand i from a source is then the root sum of squares
 of ``L_i . effect_e * u_e`` over the source's elements ``e``. The registration's map is
 not written out (its masks and trims are cut-offs, its fit a Gauss-Newton on
-interpolated, self-referenced scans): :func:`budget` returns None for it, and the
-generic linearisation is used. The two agree to the generic one's own finite-difference
+interpolated, self-referenced scans): :func:`sensitivities` returns None for it, and the
+generic chain rule is used. The two agree to the generic one's own finite-difference
 error: at 16 profiles 0.25 mm apart (3 120 readings) every source's part of u to 3e-5 of
 it for the patent and 5e-6 for the pattern fit, in 0.015 s and 0.3 s against 2 s and
 7 s (``tests/models/test_line_laser.py`` holds the patent to the generic to 1e-4 and the
@@ -33,11 +34,9 @@ pattern fit's map to the estimator's own secants to 1e-5).
 
 from __future__ import annotations
 
-import functools
 import math
 
 import numpy as np
-import pandas as pd
 
 from mtplan.models.line_laser import (
     _FACET_OF,
@@ -171,88 +170,19 @@ def _check_pattern(setup) -> None:
                             f"at this set-up (it starts from the registration): {why}"])
 
 
-@functools.lru_cache(maxsize=32)
-def _variances(setup, estimator: str) -> dict | None:
-    """source -> variances (3,) of the measurands [display unit^2], active sources only."""
-    from mtplan.models.line_laser import PROCEDURE, forward
-
-    truth = Truth()
-    if estimator == "patent":
-        z = forward(setup, truth, PROCEDURE.zero_errors(setup, 1))["z_mm"][0]
-        lmap = _patent_map(setup, z)
-    elif estimator == "pattern":
-        _check_pattern(setup)
-        lmap = _pattern_map(setup, truth)
-    else:
-        return None
-    scale = np.array([m.scale for m in measurands(setup)])[:, None]
-    lmap = lmap * scale
-    effects = _effects(setup, truth)
-    out = {}
-    for name, src in sources(setup).items():
-        if not src.active:
-            continue
-        std = np.broadcast_to(np.asarray(src.distribution.std, dtype=float),
-                              (*src.shape, *src.distribution.event_shape)).reshape(-1)
-        eff = effects[name]
-        if eff is None:  # the readings' own noise
-            out[name] = (lmap**2).sum(axis=1) * std**2 if std.size == 1 else \
-                (lmap**2) @ std**2
-        elif isinstance(eff, tuple):  # one element per reading: sums over each element
-            elem, deriv = eff
-            on = elem >= 0
-            per = np.stack([np.bincount(elem[on], weights=row[on] * deriv[on],
-                                        minlength=std.size) for row in lmap])
-            out[name] = (per**2) @ std**2
-        else:
-            out[name] = ((lmap @ eff) ** 2) @ std**2
-    return out
-
-
-def budget(setup=None, *, estimator: str = "patent") -> pd.DataFrame | None:
-    """First-order uncertainty budget of the three angles, by error source.
-
-    The same first-order propagation as
-    :func:`mtplan.evaluation.simulation.linearize_procedure` at the default truth, through
-    the estimator's linear map and the exact effects of the sources on the readings (the
-    module's docstring): milliseconds instead of a differentiation of the estimator per
-    reading. None for an estimator whose map is not written out (``registration``).
-
-    Returns
-    -------
-    DataFrame with columns ``measurand``, ``unit``, ``source``, ``std`` (the standard
-    uncertainty due to that source alone, display unit) and ``share`` (its fraction of
-    the measurand's variance), or None.
-    """
-    from mtplan.models.line_laser import Setup
-
-    setup = Setup() if setup is None else setup
-    var = _variances(setup, estimator)
-    if var is None:
-        return None
-    rows = []
-    for i, m in enumerate(measurands(setup)):
-        total = sum(float(v[i]) for v in var.values())
-        for name, v in var.items():
-            rows.append((m.name, m.unit, name, math.sqrt(max(float(v[i]), 0.0)),
-                         float(v[i]) / total if total > 0 else 0.0))
-    return pd.DataFrame(rows, columns=["measurand", "unit", "source", "std", "share"])
-
-
 def sensitivities(setup, truth=None, *, estimator: str = "patent", sources=None):
-    """The measurands at the sources' means [display unit] and their sensitivity to every
-    element of every active source: ``(value (3,), jacobian (3, elements))``, the columns
-    in the order of the generic GUM linearisation
-    (:func:`mtplan.evaluation.simulation.linearize_procedure`: the active sources in order,
-    each one's elements flattened); the procedure's ``first_order_sensitivities``.
+    """The measurands' sensitivity to every element of every active source [display unit
+    per internal unit]: the jacobian (3, elements), the columns in the order of the
+    first-order service (:func:`mtplan.evaluation.first_order.first_order`: the active
+    sources in order, each one's elements flattened); the procedure's
+    ``first_order_sensitivities``.
 
-    The same first-order propagation as that one, through the estimator's linear map at
-    the truth and the sources' exact effects on the readings (the module's docstring)
-    instead of a differentiation of the forward model and the estimator per element: a
-    few seconds instead of half a minute at the default set-up. The value is the
-    estimator's on the readings at the sources' means, as there. None for an estimator
-    whose map is not written out (``registration``) or a source whose effect does not
-    have one column per element: then the generic linearisation.
+    The same first-order propagation as the generic chain rule, through the estimator's
+    linear map at the truth and the sources' exact effects on the readings (the module's
+    docstring) instead of a differentiation of the forward model and the estimator per
+    element: a few seconds instead of half a minute at the default set-up. None for an
+    estimator whose map is not written out (``registration``) or a source whose effect
+    does not have one column per element: then the generic chain rule.
     """
     from mtplan.models.line_laser import PROCEDURE, forward
 
@@ -268,7 +198,6 @@ def sensitivities(setup, truth=None, *, estimator: str = "patent", sources=None)
     ms = measurands(setup)
     lmap = lmap * np.array([m.scale for m in ms])[:, None]
     effects = _effects(setup, truth)
-    errors = PROCEDURE.zero_errors(setup, 1)
     cols = []
     for name, src in PROCEDURE.active_sources(setup, sources).items():
         shape = (*src.shape, *src.distribution.event_shape)
@@ -286,8 +215,4 @@ def sensitivities(setup, truth=None, *, estimator: str = "patent", sources=None)
         if col.shape[1] != size:
             return None
         cols.append(col)
-        errors[name][...] = np.asarray(src.distribution.mean, dtype=float)
-    est = PROCEDURE.estimators[estimator](setup, forward(setup, truth, errors))
-    value = np.array([float(np.asarray(est[m.name], dtype=float).reshape(-1)[0]) * m.scale
-                      for m in ms])
-    return value, (np.hstack(cols) if cols else np.zeros((len(ms), 0)))
+    return np.hstack(cols) if cols else np.zeros((len(ms), 0))

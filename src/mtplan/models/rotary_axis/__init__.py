@@ -212,7 +212,6 @@ import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
 from mtplan.fitting.fit3d import common_perpendicular
-from mtplan.models.first_order import with_chain_rule
 from mtplan.models.protocol import (
     Measurand,
     Procedure,
@@ -1344,8 +1343,7 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     return out
 
 
-# first-order prediction (designer, planner) by the chain rule: estimator map x reading effects
-PROCEDURE = with_chain_rule(Procedure(
+PROCEDURE = Procedure(
     name=NAME,
     title="Rotary-axis location from an inclined plane (C and A axes)",
     Setup=Setup,
@@ -1375,4 +1373,4 @@ PROCEDURE = with_chain_rule(Procedure(
                  "lattice_offset_y_mm artifact_height_mm z_follows_surface dwell_s "
                  "feed_mm_min".split()),
     setup_from_frame=setup_from_frame,
-))
+)
