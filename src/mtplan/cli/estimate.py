@@ -15,6 +15,7 @@ from mtplan.cli._common import (
     print_table,
     procedure_of,
     setup_values,
+    trials_cap,
     write_out,
 )
 
@@ -34,7 +35,9 @@ def register(sub) -> None:
                         "patent's method by its name)")
     p.add_argument("--uncertainty", choices=["mc", "posterior"], default=None,
                    help="mc: Monte Carlo around the estimate (default); posterior: emcee")
-    p.add_argument("--trials", type=int, metavar="N", help="Monte Carlo trials (default 10000)")
+    p.add_argument("--trials", type=int, metavar="N",
+                   help="Monte Carlo trials (default: the first-order u and interval where a "
+                        "Monte Carlo of 1000 trials validates them, else 10000 trials)")
     p.add_argument("--seed", type=int, metavar="S", help="random seed (default 0)")
     p.add_argument("--coverage", type=float, default=0.95, metavar="P",
                    help="coverage probability (default 0.95)")
@@ -58,7 +61,7 @@ def register(sub) -> None:
 
 def cmd_estimate(args) -> int:
     """Read the readings, estimate, print; exit status 2 with one line on bad input."""
-    from mtplan.evaluation.measured import estimate_measured, read_measurement
+    from mtplan.evaluation.measured import FULL_TRIALS, estimate_measured, read_measurement
     from mtplan.evaluation.posterior import NotConvergedError, UnconvergedWarning
 
     check_outputs(out=args.out)
@@ -76,8 +79,10 @@ def cmd_estimate(args) -> int:
     method = args.uncertainty or config.get("uncertainty", "mc")
     if method not in ("mc", "posterior"):
         raise UsageError(f"--uncertainty must be mc or posterior, got {method!r}")
+    # no count stated: first order where a short Monte Carlo validates it (the library's
+    # default); under MTPLAN_MAX_TRIALS a Monte Carlo of at most that many trials
     trials = capped_trials(args.trials if args.trials is not None else config.get("trials"),
-                           10_000)
+                           None if trials_cap() is None else FULL_TRIALS)
     seed = args.seed if args.seed is not None else config.get("seed", 0)
     try:
         with warnings.catch_warnings():

@@ -224,11 +224,12 @@ def correction_spread(proc, setup, readings, estimator, truth0, *, heavy, rng, s
 
 
 def correct_mc(proc, setup, readings, estimator, truth0, r, *, value, u, low, high, heavy,
-               coverage, rng, sources=None, draws: int = NUISANCE_DRAWS) -> dict:
+               coverage, rng, sources=None, draws: int = NUISANCE_DRAWS, cov=None) -> dict:
     """The correction's uncertainty put into an `mc` result: u, interval and covariance.
 
     `value`, `u`, `low`, `high` are the corrected values and the Monte Carlo's own u and
-    interval (NaN where a measurand is not determinable); `r` the Monte Carlo at `truth0`.
+    interval (NaN where a measurand is not determinable); `r` the Monte Carlo at `truth0`;
+    `cov` the covariance that stands for the Monte Carlo's (the validated first order's).
     The correction's u is ``u_c = sqrt(u_se^2 + u_truth^2)`` (:func:`correction_u`), the
     result's ``sqrt(u^2 + u_c^2)``, each side of the interval ``sqrt(side^2 + (k u_c)^2)``
     (k the normal coverage factor) and the covariance :func:`mc_covariance`.
@@ -263,5 +264,6 @@ def correct_mc(proc, setup, readings, estimator, truth0, r, *, value, u, low, hi
             "high": value + np.hypot(high - value, k * u_c),
             "u_correction": u_c, "u_correction_mc": np.where(bad, np.nan, se),
             "u_correction_truth": np.where(bad, np.nan, nuis),
-            "covariance": mc_covariance(r.mc.cov, trials, d, np.hypot(u, u_c)),
+            "covariance": mc_covariance(r.mc.cov if cov is None else cov, trials, d,
+                                        np.hypot(u, u_c)),
             "notes": notes}

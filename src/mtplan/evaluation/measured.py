@@ -23,6 +23,7 @@ import numpy as np
 from mtplan._validate import InvalidInput, Problems
 from mtplan.evaluation.readings import Measurement, read_measurement, read_readings
 from mtplan.evaluation.simulation import ResultDocument, measurand_rows, undetermined_measurands
+from mtplan.uncertainty.gum import GUMResult
 
 __all__ = ["read_readings", "read_measurement", "Measurement", "estimate_measured",
            "best_estimator", "MeasuredResult", "UNCERTAINTY_METHODS", "SOURCE_KINDS",
@@ -31,6 +32,18 @@ __all__ = ["read_readings", "read_measurement", "Measurement", "estimate_measure
 UNCERTAINTY_METHODS = ("mc", "posterior")
 #: Monte Carlo trials per candidate when the best estimator of a set-up is chosen
 PILOT_TRIALS = 400
+#: ``mc`` without a trial count: the trials of the Monte Carlo that validates the first-order
+#: (GUM) result, tried in turn until one validates it, and of the full Monte Carlo that
+#: replaces it where none does
+VALIDATION_TRIALS = (1_000, 2_000)
+FULL_TRIALS = 10_000
+#: the first-order u and interval are validated when the Monte Carlo's u and each end of its
+#: interval lie within this many of their own standard errors of them (JCGM 101 8.2, with
+#: the tolerance the Monte Carlo resolves) ...
+VALIDATION_SE = 3.0
+#: ... and that tolerance of u is at most this fraction of it (else the Monte Carlo cannot
+#: confirm first order to the digits shown, and the full Monte Carlo runs)
+VALIDATION_U_MAX = 0.12
 #: an estimator "follows" a measurand when its noise-free response to it is 1 within this
 SLOPE_TOL = 0.5
 
@@ -426,6 +439,78 @@ def _corrected(r, estimate, names, notes, coverage):
     return estimate - bias, 0.0 - bias, u, estimate - err_high, estimate - err_low
 
 
+def _first_order(proc, setup, truth, est_name, sources, coverage):
+    """The first-order (GUM) result of the estimator at `truth`, or why there is none."""
+    from mtplan.evaluation.simulation import linearize_procedure
+
+    try:
+        return linearize_procedure(proc, setup, truth, estimator=est_name, sources=sources,
+                                   coverage=coverage)
+    except (InvalidInput, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        return (f"first order could not be evaluated ({exc}); a Monte Carlo of "
+                f"{FULL_TRIALS} trials gave u and the intervals")
+
+
+def _validated_first_order(proc, setup, gum, r, coverage):
+    """(`gum` or None, note): the first-order (GUM) u and interval `gum` where the Monte
+    Carlo `r` at the same truth validates them after JCGM 101 8.2, to the tolerance its
+    trials resolve.
+
+    Validated when every measurand the Monte Carlo resolves (finite, non-zero spread, not
+    heavy-tailed) has its Monte Carlo u within :data:`VALIDATION_SE` standard errors of the
+    first-order u (the relative standard error of a standard deviation from M trials,
+    ``sqrt((kurtosis - 1) / 4M)``, with the trials' own kurtosis; that tolerance at most
+    :data:`VALIDATION_U_MAX`) and each end of its coverage interval within as many standard
+    errors of a quantile (``sqrt(p (1 - p) / M) / phi(z_p)`` u, normal) of the first-order
+    interval's end, both centred on the Monte Carlo's mean error. A first-order u of 0 where
+    the Monte Carlo spreads (a quantised or non-linear estimator) is never validated.
+    """
+    from scipy import stats
+
+    m = int(r.mc.trials)
+    u_mc = np.asarray(r.mc.std, dtype=float)
+    u_fo = np.asarray(gum.std, dtype=float)
+    err_mean = np.asarray(r.mc.mean - r.true, dtype=float)
+    err_low, err_high = np.asarray(r.mc.low - r.true), np.asarray(r.mc.high - r.true)
+    p = (1.0 - coverage) / 2
+    z = stats.norm.ppf(1.0 - p)
+    se_end = math.sqrt(p * (1 - p) / m) / stats.norm.pdf(z)
+    resolved = np.isfinite(u_mc) & (u_mc > 0) & ~_tails(r, coverage)[0]
+    names = [mm.name for mm in proc.measurands(setup)]
+    kurtosis = np.full(len(names), 3.0)  # normal, where the trials were not kept
+    for i, n in enumerate(names):
+        x = r.mc.samples(n)
+        if x is not None and resolved[i]:
+            dev = np.asarray(x, dtype=float) - float(np.mean(x))
+            kurtosis[i] = float(np.mean(dev**4) / np.mean(dev**2) ** 2)
+    tol_u = VALIDATION_SE * np.sqrt(np.maximum(kurtosis - 1.0, 0.0) / (4.0 * m))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = u_mc / u_fo
+        d_end = np.maximum(np.abs(err_mean - z * u_fo - err_low),
+                           np.abs(err_mean + z * u_fo - err_high)) / (se_end * u_fo)
+    ok = ((u_fo > 0) & (np.abs(ratio - 1.0) <= tol_u) & (tol_u <= VALIDATION_U_MAX)
+          & (d_end <= VALIDATION_SE))
+    failed = [n for n, res, good in zip(names, resolved, ok, strict=True) if res and not good]
+    if not resolved.any():
+        return None, (f"first order not validated (the {m}-trial Monte Carlo resolves no "
+                      f"measurand); a Monte Carlo of {FULL_TRIALS} trials gave u and the "
+                      "intervals")
+    if failed:
+        shown = ", ".join(f"{n} (u Monte Carlo / first order {q:.3g}, an interval end "
+                          f"{e:.1f} standard errors off the normal one's)"
+                          for n, q, e, res, good in zip(names, ratio, d_end, resolved, ok,
+                                                        strict=True) if res and not good)
+        return None, (f"first order not validated by Monte Carlos of "
+                      f"{' or '.join(map(str, VALIDATION_TRIALS))} trials (at {m}: {shown}); a "
+                      f"Monte Carlo of {FULL_TRIALS} trials gave u and the intervals")
+    worst = float(np.nanmax(np.where(resolved, np.abs(ratio - 1.0), np.nan)))
+    return gum, (f"u and the intervals are first order (GUM law of propagation at the "
+                 f"Monte Carlo's truth), validated by a Monte Carlo of {m} trials (JCGM 101 8.2: its u "
+                 f"within {100 * worst:.1f} % of first order, its u and interval ends within "
+                 f"{VALIDATION_SE:g} of their standard errors), which also gave the bias "
+                 "correction; --trials N runs a Monte Carlo of N trials instead")
+
+
 def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trials, coverage,
                root, seed, notes, progress=False, draws=None):
     """Monte Carlo around the estimate: bias-corrected value, its interval, determinability;
@@ -445,10 +530,33 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
                                    " (the estimate is not finite)"))
     truth, sources, why = condition_on_readings(proc, setup, readings, truth)
     notes += [why] if why else []
-    r = simulate_uncertainty(proc, setup, truth, estimator=est_name, sources=sources,
-                             trials=trials, coverage=coverage, rng=root, progress=progress)
+    first_order = None
+    if trials is None:  # the first-order result where a short Monte Carlo validates it
+        gum = _first_order(proc, setup, truth, est_name, sources, coverage)
+        for m in VALIDATION_TRIALS if isinstance(gum, GUMResult) else ():
+            r = simulate_uncertainty(proc, setup, truth, estimator=est_name, sources=sources,
+                                     trials=m, coverage=coverage, rng=root, progress=progress)
+            first_order, verdict = _validated_first_order(proc, setup, gum, r, coverage)
+            if first_order is not None:
+                break
+        else:
+            verdict = gum if isinstance(gum, str) else verdict
+        notes.append(verdict)
+        if first_order is None:
+            r = simulate_uncertainty(proc, setup, truth, estimator=est_name, sources=sources,
+                                     trials=FULL_TRIALS, coverage=coverage, rng=root,
+                                     progress=progress)
+    else:
+        r = simulate_uncertainty(proc, setup, truth, estimator=est_name, sources=sources,
+                                 trials=trials, coverage=coverage, rng=root, progress=progress)
     value, correction, std, low, high = _corrected(r, estimate, [m.name for m in measurands],
                                                    notes, coverage)
+    if first_order is not None:  # u and the interval from first order, the bias from the MC
+        from scipy import stats
+
+        std = first_order.std.copy()
+        half = stats.norm.ppf(0.5 + coverage / 2) * std
+        low, high = value - half, value + half
     slopes = None
     if finite.all():  # over two robust standard deviations (the interval's half width / 2)
         spread = np.where(high > low, 0.5 * (high - low) / 1.96, 0.0)
@@ -478,7 +586,8 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
         arr[bad] = np.nan
     c = correct_mc(proc, setup, readings, est_name, truth, r, value=value, u=std, low=low,
                    high=high, heavy=_tails(r, coverage)[0], coverage=coverage, rng=root,
-                   sources=sources, draws=NUISANCE_DRAWS if draws is None else draws)
+                   sources=sources, draws=NUISANCE_DRAWS if draws is None else draws,
+                   cov=None if first_order is None else first_order.cov)
     notes += c["notes"]
     return MeasuredResult(
         procedure=proc.name, estimator=est_name, uncertainty="mc", setup=setup,
@@ -495,7 +604,7 @@ def estimate_measured(
     *,
     estimator: str | None = None,
     uncertainty: str = "mc",
-    trials: int = 10_000,
+    trials: int | None = None,
     coverage: float = 0.95,
     rng=None,
     noise="setup",
@@ -530,8 +639,11 @@ def estimate_measured(
         does not follow the measurand) is "not determinable", with the reason.
         ``"posterior"``: emcee posterior of the forward model over the whole error
         budget (:func:`mtplan.evaluation.posterior.sample_posterior`).
-    trials : int
-        Monte Carlo trials (``"mc"``).
+    trials : int or None
+        Monte Carlo trials (``"mc"``). None: the first-order (GUM) u and interval at the
+        estimate where a Monte Carlo of 1000 (then 2000, :data:`VALIDATION_TRIALS`) trials
+        validates them (JCGM 101 8.2; that Monte Carlo gives the bias correction), else a
+        Monte Carlo of :data:`FULL_TRIALS` trials; a note says which.
     coverage : float
     rng : None, int, SeedSequence or Generator
     noise, max_seconds, allow_unconverged, posterior_options
@@ -563,7 +675,8 @@ def estimate_measured(
     proc.check_setup(setup)
     p = Problems(f"estimate {proc.name}")
     p.choice("uncertainty", uncertainty, UNCERTAINTY_METHODS)
-    p.number("trials", trials, integer=True, low=2)
+    if trials is not None:
+        p.number("trials", trials, integer=True, low=2)
     p.number("coverage", coverage, low=0, high=1, low_open=True, high_open=True)
     if fit_alpha is not None:
         p.number("fit_alpha", fit_alpha, low=0, high=1, low_open=True, high_open=True)
