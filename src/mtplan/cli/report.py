@@ -41,9 +41,6 @@ def register(sub) -> None:
 
 def _report(study_path, out, jobs, progress, command, plan_path=None, plan_only=False,
             cache=None):
-    from mtplan._parallel import compile_ahead
-
-    compile_ahead()  # the first run after an install: the documents' modules compiled beside
     from mtplan._io import output_problem
     from mtplan.cli._common import UsageError
     from mtplan.plans import agreement
