@@ -15,12 +15,12 @@ the parallel ways cost beyond the work itself).
 
 Where Dask's time went, on this sweep: not in task size or serialisation (a task pickles
 to 2.6 kB, its result to 2.4 kB), nor in re-imports (once per worker). The workers spent
-1.6 times the CPU of one job on the same set-ups (54 against 34 CPU-s): a Dask nanny
-starts its workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which makes every large numpy
-temporary a fresh ``mmap`` paid in page faults; and joblib's Dask backend sent the set-ups in
-chunks of 8 with a barrier after each. Each worker's heap is now set up as in a plain process
-and tasks go to the client's futures as workers free up (``mtplan._parallel``): the workers
-spend 35 CPU-s, as one job does.
+1.6 times the CPU of one job on the same set-ups: a Dask nanny starts its workers with
+``MALLOC_TRIM_THRESHOLD_=65536``, which makes every large numpy temporary a fresh ``mmap``
+paid in page faults. The workers here are started with that variable unset through Dask's
+own configuration (``distributed.nanny.pre-spawn-environ``, given to ``dask worker`` in
+its environment, as docs/performance.md shows), as the local cluster of ``--backend dask``
+is (``mtplan._parallel.NANNY_ENVIRON``).
 """
 
 from __future__ import annotations
@@ -57,12 +57,16 @@ def dask_cluster(workers: int = 2):
         raise SystemExit("the dask command is missing: pip install 'mtplan[dask]'")
     address = f"tcp://127.0.0.1:{_free_port()}"
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+    # the nannies start their workers without Dask's MALLOC_TRIM_THRESHOLD_ (see above)
+    worker_env = {**os.environ, "DASK_DISTRIBUTED__NANNY__PRE_SPAWN_ENVIRON":
+                  "{'MALLOC_TRIM_THRESHOLD_': None}"}
     procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port",
                                address.rsplit(":", 1)[1], "--no-dashboard"], **quiet)]
     try:
         for _ in range(workers):
             procs.append(subprocess.Popen([dask, "worker", address, "--nthreads", "1",
-                                           "--host", "127.0.0.1", "--no-dashboard"], **quiet))
+                                           "--host", "127.0.0.1", "--no-dashboard"],
+                                          env=worker_env, **quiet))
         deadline = time.monotonic() + 120
         while True:
             try:

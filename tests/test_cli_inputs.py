@@ -70,13 +70,73 @@ def test_a_folder_as_config_is_refused(tmp_path, capsys):
     (("--sources", " , "), "no error source"),
     (("--trials", "0"), "trials"),
     (("--trials", "-5"), "trials"),
-    (("--jobs", "0"), "n_jobs"),
+    (("--jobs", "0"), "--jobs"),
     (("--digits", "0"), "digits"),
     (("--trials", "1000000000000"), ("trials", "1e+09")),
     (("--scheduler", "tcp://127.0.0.1:1"), "backend='dask'"),
 ])
 def test_empty_zero_and_unbounded_options_are_refused(capsys, argv, needle):
     refused(capsys, "simulate", "circle_centre", *argv, needle=needle)
+
+
+# --------------------------------------------------------------------------- counts
+#: the integer options that count nothing, so that zero or a negative value can be right
+NOT_COUNTS = {"--seed": "a random seed: any integer", "--port": "a port, checked by explore"}
+
+
+def _int_options():
+    """(command, option, its argparse type) for every integer-valued option of every command,
+    read from the parsers."""
+    import argparse
+
+    from mtplan.cli import build_parser
+    from mtplan.cli._common import count, workers
+
+    commands = next(a for a in build_parser()._actions
+                    if isinstance(a, argparse._SubParsersAction)).choices
+    found = [(name, action.option_strings[-1], action.type)
+             for name, parser in commands.items() for action in parser._actions
+             if action.type in (int, count, workers)]
+    assert {o for _, o, _ in found} >= {"--jobs", "--trials"}, found  # the parsers were read
+    return found
+
+
+def test_every_integer_option_is_a_count_or_says_why_not():
+    """A new integer option takes the count type (refused at zero while the command line is
+    read) unless it is listed above with the reason it is not a count."""
+    plain = {o for _, o, kind in _int_options() if kind is int}
+    assert plain <= set(NOT_COUNTS), plain - set(NOT_COUNTS)
+
+
+COUNTS = [(c, o, v) for c, o, kind in _int_options() if kind is not int
+          for v in (("0", "-1") if kind.__name__ == "count" else ("0",))]
+
+
+@pytest.mark.parametrize("command, option, value", COUNTS,
+                         ids=[f"{c} {o} {v}" for c, o, v in COUNTS])
+def test_every_count_of_zero_or_less_is_refused_before_work_starts(capsys, command, option,
+                                                                   value):
+    """Every command, every count option: exit 2, one line naming the option, nothing run
+    (the demo's --jobs 0 too, which would otherwise start the study)."""
+    start = time.monotonic()
+    refused(capsys, command, option, value, needle=(f"argument {option}", repr(value)))
+    assert time.monotonic() - start < 5
+
+
+@pytest.mark.parametrize("argv", [("report", "examples/demo.toml", "--out", "D"), ("demo",)])
+def test_jobs_zero_is_refused_with_a_study_that_would_run(tmp_path, capsys, argv):
+    """The case the issue found: a valid study and output, --jobs 0: no pool's traceback."""
+    argv = [str(tmp_path / a) if a == "D" else a for a in argv]
+    refused(capsys, *argv, "--jobs", "0", needle="--jobs")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_minus_one_job_still_means_every_core():
+    from mtplan.cli import build_parser
+
+    args = build_parser().parse_args(["report", "examples/demo.toml", "--out", "D", "--jobs",
+                                      "-1"])
+    assert args.jobs == -1
 
 
 @pytest.mark.parametrize("argv, needle", [

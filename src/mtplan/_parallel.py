@@ -17,15 +17,8 @@ from collections.abc import Callable, Iterable, Iterator
 
 from mtplan._validate import InvalidInput, Problems
 
-__all__ = ["BACKENDS", "check_parallel", "keep_freed_memory", "one_blas_thread", "ordered_map",
-           "parallel_session", "stage_executor"]
-
-#: glibc malloc's settings for :func:`keep_freed_memory` (their environment variables, read
-#: when a process starts, give a process started with them the same): arrays up to 1 GiB
-#: from the heap, freed memory kept unless 2 GiB lie free at its top, the heap grown by
-#: 256 MiB at a time
-MALLOC_SETTINGS = {"MALLOC_MMAP_THRESHOLD_": 1 << 30, "MALLOC_TRIM_THRESHOLD_": (1 << 31) - 1,
-                   "MALLOC_TOP_PAD_": 1 << 28}
+__all__ = ["BACKENDS", "check_parallel", "one_blas_thread", "ordered_map", "parallel_session",
+           "stage_executor"]
 
 BACKENDS = ("loky", "threading", "multiprocessing", "dask", "sequential")
 
@@ -50,66 +43,6 @@ def one_blas_thread():
     5 ms on one thread took 80 ms of spinning CPU.
     """
     return _blas_controller().limit(limits=1, user_api="blas")
-
-
-def keep_freed_memory() -> bool:
-    """Let this process's allocator (glibc's malloc, where it is) serve large arrays from its
-    heap and keep the memory they free for the next ones (:data:`MALLOC_SETTINGS`, set by
-    ``mallopt``); the processes it forks inherit that. By default each array above a few
-    megabytes is a fresh mapping that the kernel zeroes page by page when it is first
-    written, and unmaps when it is freed: line_laser's Monte Carlo, whose readings are
-    15 600 wide, spent 14 % of its time in those page faults (500 trials of the example
-    readings: 1.7 of 10.8 s in the kernel, 0.5 of 9.6 s so). The numbers do not change; a
-    process keeps its peak heap until it ends (the same peak there). Returns whether the
-    settings were taken (not on another C library)."""
-    import ctypes
-    import ctypes.util
-
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):
-        return False
-    codes = {"MALLOC_TRIM_THRESHOLD_": -1, "MALLOC_TOP_PAD_": -2, "MALLOC_MMAP_THRESHOLD_": -3}
-    return all(mallopt(ctypes.c_int(codes[k]), ctypes.c_int(v)) == 1
-               for k, v in MALLOC_SETTINGS.items())
-
-
-#: what ``mtplan report`` and ``mtplan demo`` import only after the study has started (the
-#: documents' figures and PDF, the posterior, the sweeps' pool), then pandas: imported by
-#: :func:`compile_ahead`'s second process while this one imports scipy and the models
-DOCUMENT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "reportlab.platypus",
-                    "reportlab.pdfgen.canvas", "jinja2", "emcee", "joblib", "pandas")
-
-
-def compile_ahead(modules=DOCUMENT_MODULES):
-    """On the first run after an install, import ``modules`` in a second Python process now,
-    so that their bytecode is written while this process imports others, and the imports
-    this process and its workers make later find it written. Python compiles every
-    module it imports that has no bytecode yet, and the installs leave none (pip's
-    ``--no-compile``): about 4 s of a first ``mtplan demo``, on one core, beside an idle
-    one. Nothing where bytecode is not written (``PYTHONDONTWRITEBYTECODE``) or where the
-    top-level packages have theirs already (every later run). The second process is not
-    waited for; it only imports. Returns it, or None."""
-    import importlib.util
-    import subprocess
-
-    if sys.dont_write_bytecode:
-        return None
-    missing = False
-    for top in dict.fromkeys(m.split(".")[0] for m in modules):
-        try:
-            spec = importlib.util.find_spec(top)
-        except (ImportError, ValueError):
-            continue
-        if spec is not None and spec.cached and not os.path.exists(spec.cached):
-            missing = True
-            break
-    if not missing:
-        return None
-    code = "".join(f"try:\n import {m}\nexcept Exception:\n pass\n" for m in modules)
-    return subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.DEVNULL,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
 def check_parallel(problems: Problems, n_jobs, backend, scheduler=None) -> None:
@@ -215,6 +148,16 @@ def effective_jobs(n_jobs: int) -> int:
     return n_jobs
 
 
+#: Dask's configuration for the local cluster :func:`parallel_session` starts: its nannies
+#: start the workers without ``MALLOC_TRIM_THRESHOLD_`` (None unsets a variable of
+#: ``distributed.nanny.pre-spawn-environ``), so that a worker's C heap behaves as in a plain
+#: process. Dask's default, 65536, switches off glibc's dynamic thresholds: every array above
+#: 128 KiB is then a fresh ``mmap`` paid in page faults and handed back when freed, and a
+#: sweep's Monte Carlo blocks took half as long again in the kernel. A cluster started
+#: elsewhere takes the same setting from its own Dask configuration (docs/performance.md).
+NANNY_ENVIRON = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+
+
 @contextlib.contextmanager
 def parallel_session(n_jobs: int = 1, backend: str | None = None, scheduler: str | None = None):
     """Context in which :func:`ordered_map` runs with `backend`.
@@ -227,6 +170,7 @@ def parallel_session(n_jobs: int = 1, backend: str | None = None, scheduler: str
         yield {"n_jobs": n_jobs, "backend": backend}
         return
     try:
+        import dask
         import distributed
     except ImportError as exc:  # pragma: no cover - depends on the installation
         raise ImportError(
@@ -246,12 +190,13 @@ def parallel_session(n_jobs: int = 1, backend: str | None = None, scheduler: str
         try:
             client = distributed.get_client()
         except ValueError:
-            cluster = distributed.LocalCluster(
-                n_workers=max(effective_jobs(n_jobs), 1),
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=None,
-            )
+            with dask.config.set(NANNY_ENVIRON):
+                cluster = distributed.LocalCluster(
+                    n_workers=max(effective_jobs(n_jobs), 1),
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                )
             client = distributed.Client(cluster)
             owned += [client, cluster]
     try:
@@ -304,31 +249,6 @@ def ordered_map(
             yield from parallel(joblib.delayed(fn)(*t) for t in batch)
 
 
-_heap_tuned = False
-
-
-def _heap_as_in_a_plain_process() -> None:
-    """Let a Dask worker's C heap keep freed blocks, as every mtplan process does
-    (:func:`keep_freed_memory`), once per process.
-
-    A Dask nanny starts its worker with ``MALLOC_TRIM_THRESHOLD_=65536``. Setting a trim
-    threshold switches off glibc's dynamic thresholds, so every array above 128 KiB is a
-    fresh ``mmap`` whose pages the kernel zeroes on first touch, and the heap is handed back
-    after each free: a Monte Carlo block of a sweep then spends half as long again in the
-    kernel (500 000 page faults per six 20 000-trial set-ups of rotary_axis, against 5 000).
-    """
-    global _heap_tuned
-    if not _heap_tuned:
-        _heap_tuned = True
-        keep_freed_memory()
-
-
-def _in_dask_worker(fn, task):
-    """Run one task on a Dask worker (with the worker's heap set up once, see above)."""
-    _heap_as_in_a_plain_process()
-    return fn(*task)
-
-
 def _dask_map(fn, tasks: Iterable[tuple], chunk: int | None) -> Iterator:
     """``fn(*task)`` for each task on the session's Dask client, yielded in task order.
 
@@ -357,7 +277,7 @@ def _dask_map(fn, tasks: Iterable[tuple], chunk: int | None) -> Iterator:
                 if task is None:
                     exhausted = True
                     break
-                future = client.submit(_in_dask_worker, fn, task, pure=False)
+                future = client.submit(fn, *task, pure=False)
                 index[future.key] = submitted
                 running.add(future)
                 submitted += 1

@@ -73,10 +73,8 @@ def _silence_stdout() -> None:
 
 def main(argv=None) -> int:
     """Entry point of the ``mtplan`` console script."""
-    from mtplan._parallel import keep_freed_memory
     from mtplan._validate import InvalidInput
 
-    keep_freed_memory()  # large arrays reused, not mapped afresh: the same numbers, sooner
     try:
         parser = build_parser()
         args = parser.parse_args(argv)

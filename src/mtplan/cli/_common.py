@@ -30,6 +30,8 @@ __all__ = [
     "write_out",
     "MAX_TRIALS_ENV",
     "capped_trials",
+    "count",
+    "workers",
     "trials_cap",
 ]
 
@@ -275,6 +277,36 @@ def parse_vary(items):
     return vary
 
 
+# --------------------------------------------------------------------------- counts
+# Every option that counts something takes one of these as its argparse ``type``, so that a
+# count of zero (or a negative one) is refused while the command line is read, before any
+# work starts, with one line naming the option (tests/test_cli_inputs.py finds every such
+# option in the parsers).
+def _whole_number(text: str) -> int | None:
+    try:
+        return int(text)
+    except ValueError:
+        return None
+
+
+def count(text: str) -> int:
+    """A count option's value (trials, digits, steps, candidates): a whole number >= 1."""
+    value = _whole_number(text)
+    if value is None or value < 1:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}")
+    return value
+
+
+def workers(text: str) -> int:
+    """A ``--jobs`` value: a whole number of parallel workers other than 0 (negative ones
+    count back from the machine's cores, joblib's convention: -1 is every core)."""
+    value = _whole_number(text)
+    if value is None or value == 0:
+        raise argparse.ArgumentTypeError(
+            f"must be a whole number of workers >= 1 (or -1: every core), got {text!r}")
+    return value
+
+
 # --------------------------------------------------------------------------- parser
 def add_common(p, *, mc=True):
     """The options of the commands that evaluate one procedure's set-up."""
@@ -292,11 +324,13 @@ def add_common(p, *, mc=True):
     p.add_argument("--out", metavar="FILE", help="also write the table to FILE")
     if mc:
         g = p.add_mutually_exclusive_group()
-        g.add_argument("--trials", type=int, metavar="N", help="Monte Carlo trials (default 10000)")
-        g.add_argument("--digits", type=int, metavar="D",
+        g.add_argument("--trials", type=count, metavar="N",
+                       help="Monte Carlo trials (default 10000)")
+        g.add_argument("--digits", type=count, metavar="D",
                        help="adaptive Monte Carlo to D significant digits (JCGM 101 7.9)")
         p.add_argument("--seed", type=int, metavar="S", help="random seed (default 0)")
-        p.add_argument("--jobs", type=int, default=1, metavar="J", help="parallel workers (-1: all)")
+        p.add_argument("--jobs", type=workers, default=1, metavar="J",
+                       help="parallel workers (-1: all)")
         p.add_argument("--backend", choices=["loky", "threading", "dask"],
                        help="joblib backend (dask: --scheduler or a local cluster)")
         p.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler address")

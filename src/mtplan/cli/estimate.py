@@ -11,6 +11,7 @@ from mtplan.cli._common import (
     UsageError,
     capped_trials,
     check_outputs,
+    count,
     load_config,
     print_table,
     procedure_of,
@@ -35,7 +36,7 @@ def register(sub) -> None:
                         "patent's method by its name)")
     p.add_argument("--uncertainty", choices=["mc", "posterior"], default=None,
                    help="mc: Monte Carlo around the estimate (default); posterior: emcee")
-    p.add_argument("--trials", type=int, metavar="N",
+    p.add_argument("--trials", type=count, metavar="N",
                    help="Monte Carlo trials (default: the first-order u and interval where a "
                         "Monte Carlo of 1000 trials validates them, else 10000 trials)")
     p.add_argument("--seed", type=int, metavar="S", help="random seed (default 0)")
@@ -45,7 +46,7 @@ def register(sub) -> None:
                    help="posterior: the noise source's standard deviation in the readings' unit "
                         "(mm or rad), 'free' (estimated from the readings) or 'setup' (default: "
                         "the set-up's; every other error source always is)")
-    p.add_argument("--max-steps", type=int, default=20000, metavar="N",
+    p.add_argument("--max-steps", type=count, default=20000, metavar="N",
                    help="posterior: step budget per ensemble (default 20000)")
     p.add_argument("--max-seconds", type=float, metavar="S",
                    help="posterior: time budget of the sampling (default: none)")

@@ -9,6 +9,7 @@ from mtplan.cli._common import (
     add_common,
     capped_trials,
     check_outputs,
+    count,
     parse_sources,
     parse_vary,
     procedure_and_setup,
@@ -28,7 +29,7 @@ def register(sub) -> None:
                    help="candidate values of a set-up field (repeatable)")
     p.add_argument("--k", type=float, default=1.0,
                    help="coverage factor of the targets (default 1: standard uncertainty)")
-    p.add_argument("--confirm", type=int, default=5,
+    p.add_argument("--confirm", type=count, default=5,
                    help="most candidates checked by Monte Carlo (default 5)")
     p.add_argument("--tolerance", metavar="NAME=LO,HI",
                    help="tolerance of a measurand (empty LO or HI: one-sided), with --prior and "

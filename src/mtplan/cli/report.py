@@ -7,12 +7,14 @@ import sys
 import time
 from pathlib import Path
 
+from mtplan.cli._common import workers
+
 
 def register(sub) -> None:
     p = sub.add_parser("report", help="test plan and test report (HTML and PDF) of a study")
     p.add_argument("study", metavar="STUDY.toml", help="the study file")
     p.add_argument("--out", metavar="DIR", required=True, help="output folder")
-    p.add_argument("--jobs", type=int, default=1, metavar="J", help="parallel workers")
+    p.add_argument("--jobs", type=workers, default=1, metavar="J", help="parallel workers")
     p.add_argument("--cache", metavar="DIR", default=None,
                    help="reuse the study's result stored in DIR by an earlier run of the same "
                         "study, readings, mtplan code and numeric packages (default: none)")
@@ -27,7 +29,7 @@ def register(sub) -> None:
 
     p = sub.add_parser("demo", help="the built-in study, end to end")
     p.add_argument("--out", metavar="DIR", default="mtplan-report", help="output folder")
-    p.add_argument("--jobs", type=int, default=min(os.cpu_count() or 1, 4), metavar="J",
+    p.add_argument("--jobs", type=workers, default=min(os.cpu_count() or 1, 4), metavar="J",
                    help="parallel workers (default: the machine's cores, at most 4)")
     cache = p.add_mutually_exclusive_group()
     cache.add_argument("--cache", metavar="DIR", default=None,
@@ -41,9 +43,6 @@ def register(sub) -> None:
 
 def _report(study_path, out, jobs, progress, command, plan_path=None, plan_only=False,
             cache=None):
-    from mtplan._parallel import compile_ahead
-
-    compile_ahead()  # the first run after an install: the documents' modules compiled beside
     from mtplan._io import output_problem
     from mtplan.cli._common import UsageError
     from mtplan.plans import agreement
