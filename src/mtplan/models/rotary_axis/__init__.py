@@ -18,10 +18,13 @@ was turned to, so the rotary axis's angular positioning error does not enter (th
 ``angles`` estimator below does use them: see Estimators).
 
 Measuring order. C positions are taken in ascending order from 0 (the patent's six over
-the full turn); A positions, by default, in the patent's order (S203: 0, 15, 30, 45, -15,
--30, -45; ``a_order="patent"``: from 0 up, then from the first negative down), or
-ascending with ``a_order="ascending"``. The order matters through the thermal drift,
-which runs over the test's time line (:func:`schedule`).
+the full turn); A positions, by default, ascending (``a_order="ascending"``: -45 ... 45,
+every position approached from one side, so the axis's reversal value is a common zero
+that no estimator sees), or in the patent's order (S203: 0, 15, 30, 45, -15, -30, -45;
+``a_order="patent"``: from 0 up, then from the first negative down), whose negative half
+is approached from above and carries the reversal value (it moves ``angles``' EB0A; the
+Monte Carlo draws it, so its u says so). The order also matters through the thermal
+drift, which runs over the test's time line (:func:`schedule`).
 
 Both axes (``axis="CA"``). The patent measures C (A held at 0) and then A (C held at 0)
 and ends by computing the machining pose from both axis lines. A CA test is that
@@ -103,8 +106,15 @@ the azimuth of the incline under it: first and second harmonics of that azimuth,
 offset per position; it moves the axis sideways by about ``e / tan(incline)`` and
 dominates the positions at its default, 6.9 um of u(EX0C) against 1.27 without it), and
 the artifact's real pose (``artifact_tilt``: normal, no hard bound, since the readings
-determine it; ``artifact_height_error``). :func:`sources` says where each default comes
-from.
+determine it; ``artifact_height_error``), and the errors that act one to one: the laser
+spot's lateral offset (``spot_offset_u``) and the sensor's zero (``sensor_zero_u``), the
+X/Y motion's slope and bow in Z, machine-fixed (``xy_slope_halfwidth``,
+``xy_straightness_halfwidth``), the rotary axis's reversal value (``reversal_halfwidth``:
+a position approached against the first move is off by B) and the repeatable short-period
+share of its positioning error (``angular_short_period_halfwidth``), and the sensor's
+linearity curve about mid-range (``sensor_linearity_halfwidth``; ``sensor_scale`` is the
+gain). A field named ``..._u_<unit>`` is a standard uncertainty, ``..._halfwidth_<unit>``
+a half-width. :func:`sources` says where each default comes from.
 A drift that is linear in time is the first-order model of ISO 230-3; it is the only
 error whose effect depends on the measuring order. At the default rate the order hardly
 matters (A axis, drift alone: u(EZ0A) 0.218 um ascending, 0.202 um in the patent's order;
@@ -221,7 +231,7 @@ from mtplan.models.protocol import (
     frame_columns,
     param,
 )
-from mtplan.uncertainty.distributions import Normal, Rectangular
+from mtplan.uncertainty.distributions import Arcsine, Normal, Rectangular
 
 __all__ = [
     "Setup",
@@ -281,10 +291,12 @@ class Setup(SetupBase):
                                                  "order [deg]; overrides positions and "
                                                  "range_deg; for CA, of the A part", low=-720,
                                                  high=720, min_len=3)
-    a_order: str = param("patent", doc="Measuring order of the A positions from positions and "
-                         "range_deg: 'patent' (0 and up to +range/2, then from the first "
+    a_order: str = param("ascending", doc="Measuring order of the A positions from positions "
+                         "and range_deg: 'ascending' (-range/2 up to +range/2, every position "
+                         "approached in one direction, so the reversal value B cannot bias the "
+                         "result) or 'patent' (0 and up to +range/2, then from the first "
                          "negative down to -range/2: 0, 15, 30, 45, -15, -30, -45 as in the "
-                         "patent's example) or 'ascending' (-range/2 up to +range/2)",
+                         "patent's example; its down-approached positions carry B)",
                          choices=("patent", "ascending"))
     c_angles_deg: tuple[float, ...] | None = param(None, doc="C angles of the combined test "
                                                    "(axis CA) in measuring order [deg] "
@@ -357,6 +369,47 @@ class Setup(SetupBase):
                                                 "axis's random positioning error at each "
                                                 "position (ISO 230-2 repeatability R = 4 s) "
                                                 "[arcsec]", low=0, high=3600)
+    spot_offset_u_um: float = param(5.0, doc="Standard uncertainty of each component (X, "
+                                    "Y) of the laser spot's lateral offset from the point the "
+                                    "slides command, as located by scanning a sphere or an edge "
+                                    "[um] (docs/rotary_axis.md: the spot's 50-100 um diameter, "
+                                    "located to about a tenth)", low=0, high=1000)
+    sensor_zero_u_um: float = param(2.0, doc="Standard uncertainty of the sensor's zero (the "
+                                    "reading at the commanded Z on the nominal surface), as set "
+                                    "on a gauge block by the Z slide [um] (ISO 230-2 "
+                                    "repeatability of Z)", low=0, high=1000)
+    xy_slope_halfwidth_urad: float = param(20.0, doc="Half-width (rectangular) of each "
+                                           "component of the slope of the X and Y motion "
+                                           "against Z over the lattice, the same at every "
+                                           "position [urad] (half the ISO 10791-2 squareness "
+                                           "tolerance of 0.020 mm/500 mm)", low=0, high=1e4)
+    xy_straightness_halfwidth_um: float = param(1.0, doc="Half-width (rectangular) of the bow "
+                                                "of the X and of the Y motion in Z over +-50 "
+                                                "mm about the table centre, the same at every "
+                                                "position [um] (ISO 10791-2 straightness "
+                                                "0.010 mm/500 mm, proportional to 100 mm)",
+                                                low=0, high=1000)
+    reversal_halfwidth_arcsec: float = param(5.0, doc="Half-width (rectangular, sign unknown) "
+                                             "of the rotary axis's reversal value B (ISO 230-2) "
+                                             "[arcsec]: a position approached in the other "
+                                             "direction than the first is off by B (worm-driven "
+                                             "tables: 2-10 arcsec)", low=0, high=3600)
+    angular_short_period_halfwidth_arcsec: float = param(1.0, doc="Amplitude (arcsine: a "
+                                                         "sinusoid of unknown phase) of the "
+                                                         "rotary axis's short-period "
+                                                         "positioning error at each position "
+                                                         "(encoder interpolation, worm), "
+                                                         "systematic: the same in every test "
+                                                         "[arcsec] (angle encoders' error "
+                                                         "within one signal period, about "
+                                                         "+-1 % of a 30-80 arcsec period)",
+                                                         low=0, high=3600)
+    sensor_linearity_halfwidth_ppm: float = param(800.0, doc="Half-width of the sensor's "
+                                                  "linearity deviation over its range, in ppm "
+                                                  "of sensor_range_mm [ppm] (a curve about the "
+                                                  "best straight line, zero at mid-range; "
+                                                  "triangulation data sheets: +-0.08 % of the "
+                                                  "range)", low=0, high=1e5)
     sensor_orientation_ppm: float = param(1200.0, doc="Bound of the part of the sensor's "
                                           "angle influence that varies with the azimuth of "
                                           "the incline under it, in ppm of the measuring "
@@ -570,6 +623,8 @@ class _Plan(NamedTuple):
     orientation: np.ndarray  # the same of the fall line's azimuth under the sensor (4, P)
     times: np.ndarray  # time of each reading from the start (P, M) [s]
     total_time: float  # [s]
+    down: np.ndarray  # 1 where a position is approached against the first move, else 0 (P,)
+    machine: np.ndarray  # the X/Y motion's Z error per unit term: x, y, bows (4, P, M) [mm]
 
 
 def _form_basis(setup: Setup, axis: str, angles: np.ndarray, xy: np.ndarray,
@@ -615,6 +670,26 @@ def _fall_azimuths(setup: Setup) -> np.ndarray:
     return np.arctan2(normals[:, 1], normals[:, 0])
 
 
+#: the length over which the X and Y motion's bow is stated (+-50 mm about the table centre)
+_BOW_HALF_MM = 50.0
+
+
+def _approached_down(angles: np.ndarray) -> np.ndarray:
+    """1 where a position is approached in the other direction than the axis's first move
+    (the first position in the first move's direction, after an overrun), else 0 (P,)."""
+    step = np.sign(np.diff(angles))
+    first = step[np.flatnonzero(step)[0]] if np.any(step) else 1.0
+    direction = np.concatenate([[first], np.where(step == 0, first, step)])
+    return (direction != first).astype(float)
+
+
+def _machine_basis(xy: np.ndarray) -> np.ndarray:
+    """The X/Y motion's Z error per unit slope (x, y) [mm/rad] and per unit bow [1] at the
+    commanded points `xy` (P, M, 2): (4, P, M)."""
+    x, y = xy[..., 0], xy[..., 1]
+    return np.stack([x, y, (x / _BOW_HALF_MM) ** 2, (y / _BOW_HALF_MM) ** 2])
+
+
 def _times(setup: Setup, xy: np.ndarray) -> tuple[np.ndarray, float]:
     """Time of each reading (P, M) and of the whole test [s]: index, moves, dwell."""
     speed = setup.feed_mm_min / 60.0
@@ -657,6 +732,8 @@ def _plan(setup: Setup) -> _Plan:
         orientation=_harmonics(_fall_azimuths(setup)),
         times=times,
         total_time=total,
+        down=np.concatenate([_approached_down(setup.axis_angles(a)) for a in setup.axes]),
+        machine=_machine_basis(xy),
     )
     for arr in out:
         if isinstance(arr, np.ndarray):
@@ -765,9 +842,11 @@ def sources(setup: Setup) -> dict[str, Source]:
             "ground metal surface (makers quote 0.5-2 um)."),
         "sensor_scale": Source(
             rect(setup.sensor_scale_ppm * 1e-6), (),
-            "Scale (gain) error of the sensor, one per test, rectangular. Default +-500 ppm: "
-            "the linearity of laser triangulation sensors, typically +-0.03-0.1 % of the range. "
-            "With z_follows_surface it acts on the sensor's small residual only."),
+            "Scale (gain) error of the sensor, one per test, rectangular: its reading from "
+            "mid-range is s (1 + kappa). Default +-500 ppm: the gain's share of a triangulation "
+            "sensor's calibration (makers' certificates: +-0.03-0.1 % of the range); the "
+            "curvature is sensor_linearity_halfwidth. With z_follows_surface it acts on the "
+            "sensor's small residual only."),
         "xy_positioning": Source(
             Normal(0.0, setup.xy_positioning_um * um), (2, P, M),
             "X and Y positioning error of the slides at each lattice point (standard deviation; "
@@ -836,6 +915,63 @@ def sources(setup: Setup) -> dict[str, Source]:
             "Random part of the angular positioning error at each position (standard "
             "deviation). Default 1 arcsec: ISO 230-2 unidirectional repeatability R = 4 s of "
             "about 2-4 arcsec of rotary tables with direct angle encoders."),
+        "spot_offset_u": Source(
+            Normal(0.0, setup.spot_offset_u_um * um), (2,),
+            "Lateral offset [0] X, [1] Y of the laser spot from the point the slides command, "
+            "one per test (the sensor is fixed on the spindle): every reading is the height "
+            "d away, so every plane, and with it the axis, moves by -d in X and Y, one to one. "
+            "Normal, default 5 um per component: the spot (50-100 um across on a 10 mm "
+            "triangulation sensor's data sheet) located on the machine by scanning a sphere or "
+            "an edge, to about a tenth of its diameter."),
+        "sensor_zero_u": Source(
+            Normal(0.0, setup.sensor_zero_u_um * um), (),
+            "Zero of the sensor (its reading at the commanded Z on the nominal surface), one "
+            "per test: every reading is off by it, so the planes move along Z: one to one into "
+            "the A axis's EZ0A, nothing on C. Normal, default 2 um: set on a gauge block by "
+            "the Z slide, whose ISO 230-2 repeatability is a few micrometres."),
+        "xy_slope_halfwidth": Source(
+            rect(setup.xy_slope_halfwidth_urad * _URAD), (2,),
+            "Slope in Z of the X [0] and Y [1] motion over the lattice (the squareness of X "
+            "and Y to Z), machine-fixed: the same at every position. Each plane's slope is "
+            "off by it, so the normals and with them the axis's direction tilt (EA0C, EB0C; "
+            "EB0A, EC0A). Rectangular, default +-20 urad: half of ISO 10791-2's squareness "
+            "tolerance of 0.020 mm/500 mm (40 urad), for a machine measured and compensated "
+            "to within half of it."),
+        "xy_straightness_halfwidth": Source(
+            rect(setup.xy_straightness_halfwidth_um * um), (2,),
+            "Bow in Z of the X [0] and Y [1] motion, b (x / 50 mm)^2 and b (y / 50 mm)^2 "
+            "about the table centre, machine-fixed. Rectangular, default +-1 um: ISO 10791-2's "
+            "straightness tolerance 0.010 mm/500 mm, taken proportionally to 100 mm."),
+        "reversal_halfwidth": Source(
+            rect(setup.reversal_halfwidth_arcsec * _ARCSEC), (len(setup.axes),),
+            "Reversal value B (ISO 230-2) of each rotary axis tested, sign unknown: a position "
+            "approached in the other direction than the test's first move is off by B (the "
+            "first position is approached in the direction of the first move, after an "
+            "overrun). Only the angles estimator uses the angles; in ascending order every "
+            "position is approached one way and B is a common zero it absorbs; in the "
+            "patent's A order (up, then down) it moves EB0A. Rectangular, default +-5 arcsec: "
+            "ISO 230-2 reversal values of worm-driven rotary tables, 2-10 arcsec in makers' "
+            "acceptance reports."),
+        "angular_short_period_halfwidth": Source(
+            Arcsine(-setup.angular_short_period_halfwidth_arcsec * _ARCSEC,
+                    setup.angular_short_period_halfwidth_arcsec * _ARCSEC), (P,),
+            "Short-period share of the rotary axis's positioning error at each position (the "
+            "angle encoder's interpolation error within a signal period, the worm's error "
+            "per turn): repeatable, so the same in every test, but of a period far shorter "
+            "than the positions' spacing, so unrelated from one position to the next. "
+            "Arcsine (a sinusoid of unknown phase), default amplitude 1 arcsec: angle "
+            "encoders' position error within one signal period, about +-1 % of a 30-80 "
+            "arcsec signal period (makers' catalogues). Only the angles estimator uses it."),
+        "sensor_linearity_halfwidth": Source(
+            rect(0.4 * setup.sensor_linearity_halfwidth_ppm * 1e-6), (2,),
+            "The sensor's linearity deviation over its range, one curve per test: with x = 2 "
+            "s / range (s the sensor value from mid-range), range (c2 1.5 x^2 + c3 (5 x^3 - 3 "
+            "x) / 2), the Legendre terms P2 - P2(0) and P3 (a deviation about the best "
+            "straight line, zero at mid-range, where the zero is set), each coefficient "
+            "uniform within +-0.4 bound, so the curve stays within +-bound. Default 800 ppm: "
+            "+-0.08 % of the range, triangulation sensors' data sheets (e.g. Micro-Epsilon "
+            "optoNCDT 1750). The gain is sensor_scale. With z_follows_surface the sensor "
+            "works about mid-range and this acts on tens of micrometres only."),
         "sensor_orientation": Source(
             rect(setup.sensor_orientation_ppm * 1e-6 / (2 * math.sqrt(2))), (4,),
             "The sensor's angle influence that varies with the azimuth psi of the incline's "
@@ -889,9 +1025,9 @@ def truth_from_estimate(setup: Setup, estimate: dict) -> Truth:
 #: axis of each per-position source's errors (after the batch axis) that runs over positions
 _POSITION_AXIS = {"probe_noise": 1, "xy_positioning": 2, "z_positioning": 1,
                   "radial_motion": 1, "axial_motion": 1, "tilt_motion": 1,
-                  "angular_repeatability": 1}
+                  "angular_repeatability": 1, "angular_short_period_halfwidth": 1}
 #: sources with one row of errors per axis tested (after the batch axis)
-_AXIS_ROWS = ("angular_positioning",)
+_AXIS_ROWS = ("angular_positioning", "reversal_halfwidth")
 
 
 @functools.lru_cache(maxsize=64)
@@ -1022,7 +1158,9 @@ def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -
     vec = _rotate_about(lever, ub, g.theta[:, None])  # (P, 2, 3) or (n, P, 2, 3)
     # angular positioning: the smooth systematic part (harmonics of the commanded angle)
     # plus the random part per position, (n, P) [rad]
-    dpsi = errors["angular_positioning"] @ g.harmonics + errors["angular_repeatability"]
+    dpsi = (errors["angular_positioning"] @ g.harmonics + errors["angular_repeatability"]
+            + errors["angular_short_period_halfwidth"]
+            + errors["reversal_halfwidth"][:, None] * g.down)
     if np.any(dpsi):
         vec = _rotate_about(vec, ub, dpsi[..., None])  # (n, P, 2, 3)
     tilt = errors["tilt_motion"]
@@ -1060,6 +1198,16 @@ def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -
     if np.any(xy_err):
         z += np.multiply(c1[..., None], xy_err[:, 0], out=tmp)
         z += np.multiply(c2[..., None], xy_err[:, 1], out=tmp)
+    spot = errors["spot_offset_u"]  # (n, 2): the spot reads the height d away
+    if np.any(spot):
+        z += (c1 * spot[:, :1] + c2 * spot[:, 1:])[..., None]
+    zero = errors["sensor_zero_u"]  # (n,)
+    if np.any(zero):
+        z += zero[:, None, None]
+    motion = np.concatenate([errors["xy_slope_halfwidth"], errors["xy_straightness_halfwidth"]],
+                            axis=-1)  # (n, 4): the slides' Z error, the same at every position
+    if np.any(motion):
+        z -= np.tensordot(motion, g.machine, axes=1)
     form = errors["flatness"]  # (n, K)
     if np.any(form):
         z += np.matmul(form, g.form).reshape(n, P, M)
@@ -1070,11 +1218,16 @@ def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -
     if np.any(ez):
         z -= ez if ez.ndim == 3 else ez[..., None]
     kappa = errors["sensor_scale"]  # reading = Z_cmd + (gap - Z_cmd) (1 + kappa) + noise
-    if np.any(kappa):
-        np.subtract(z, noise, out=tmp)
-        tmp -= g.z_cmd
-        tmp *= kappa[:, None, None]
-        z += tmp
+    lin = errors["sensor_linearity_halfwidth"]  # (n, 2): + range (c2 1.5 x^2 + c3 P3(x))
+    if np.any(kappa) or np.any(lin):
+        s = z - noise - g.z_cmd  # the sensor value from mid-range
+        if np.any(lin):
+            half = setup.sensor_range_mm / 2
+            x = s / half
+            z += 2 * half * (lin[:, :1, None] * 1.5 * x * x
+                             + lin[:, 1:, None] * 0.5 * x * (5 * x * x - 3))
+        if np.any(kappa):
+            z += s * kappa[:, None, None]
     return z
 
 
