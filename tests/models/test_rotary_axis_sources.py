@@ -100,3 +100,79 @@ def test_every_new_source_is_listed_with_its_reference():
                        ("sensor_linearity_halfwidth", "ppm")):
         assert f"{name}_{unit}" in fields
         assert "default" in src[name].description.lower() and src[name].active
+
+
+# --------------------------------------------------------------------------- angle influence
+THIRD = 5000e-6 / 3  # the largest coefficient at the default bound (0.5 % at 30 deg)
+
+
+def test_angle_influence_bound_follows_the_data_sheet_at_the_actual_tilt():
+    # the table: 0.12 % at 5 deg, 0.2 % at 15, 0.5 % at 30, linear between and on beyond;
+    # on the A axis the plane's slope is 48.4, 35.5, 24.8, 20 deg at |A| = 45, 30, 15, 0
+    from mtplan.models import rotary_axis as ra
+
+    setup = PROC.setup(axis="A")
+    tau, _ = ra._tilts(setup)
+    np.testing.assert_allclose(tau, [48.4, 35.5, 24.8, 20.0, 24.8, 35.5, 48.4], atol=0.05)
+    bound = ra._plan(setup).tilt_bound  # [mm] for the default 10 mm range
+    expected = 10.0 * np.interp(tau, [0, 5, 15, 30, 60], [0, 0.0012, 0.002, 0.005, 0.011])
+    np.testing.assert_allclose(bound * THIRD * 3 / 5000e-6 * 5000e-6, expected, rtol=1e-12)
+    # every sign of the three parts stays within the bound at every position, and the
+    # corner of all three at + reaches it where the tilt lies along the triangulation plane
+    base = _noise_free_z(setup)
+    for signs in np.array(np.meshgrid(*[[-1, 1]] * 3)).reshape(3, -1).T:
+        z = _noise_free_z(setup, angle_influence_halfwidth=signs * THIRD)
+        err = (z - base).mean(axis=-1)
+        assert np.all(np.abs(err) <= expected * (1 + 1e-9)), (signs, err, expected)
+    c = PROC.setup(axis="C")
+    err = (_noise_free_z(c, angle_influence_halfwidth=(THIRD,) * 3) - _noise_free_z(c))[:, 0]
+    assert err[0] == pytest.approx(0.030, rel=1e-9)  # 0.3 % of 10 mm at 20 deg, phi = 0
+
+
+def _noise_free_z(setup, **errors):
+    err = PROC.zero_errors(setup, 1)
+    for name, value in errors.items():
+        err[name] = np.asarray(value, dtype=float)[None]
+    return PROC.forward(setup, PROC.Truth(), err)["z_mm"][0]
+
+
+@pytest.mark.parametrize("values, part, expected", [
+    # C: the odd part along the triangulation plane (XZ) is a first harmonic of the fall
+    # line's azimuth: EX0C moves by about e / tan(incline) = 10 um / tan 20 deg; the sensor's
+    # mirror symmetry leaves EY0C; the even part and the anisotropy are the same at, or a
+    # second harmonic over, the full turn: nothing moves
+    (dict(axis="C"), 1, {"EX0C": 27.47}),
+    (dict(axis="C"), 0, {}),
+    (dict(axis="C"), 2, {}),
+    # the triangulation plane turned to YZ: the odd part moves EY0C instead
+    (dict(axis="C", sensor_azimuth_deg=90.0), 1, {"EY0C": 27.47}),
+    # A: the even part grows with the tilt, 10 um at 20 deg to 28.9 um at 48.4 deg here
+    # (c0 at its largest): a bow over the arc that reads as EZ0A (a common offset would move
+    # it by its own size, as the sensor's zero; the bow moves it by -32 um); the
+    # anisotropy, cos 2 phi of the fall line's azimuth (-70 ... 70 deg over the arc), by 68
+    # um (the values this model gives, kept so that a change shows)
+    (dict(axis="A"), 0, {"EZ0A": -32.32}),
+    (dict(axis="A"), 2, {"EZ0A": 67.64}),
+])
+def test_angle_influence_moves_what_the_geometry_says(values, part, expected):
+    setup = PROC.setup(**values)
+    coef = np.zeros(3)
+    coef[part] = THIRD
+    base = _estimate(setup, "angles")
+    moved = _estimate(setup, "angles", angle_influence_halfwidth=coef)
+    for name in base:
+        change = float(moved[name][0] - base[name][0])
+        if name in expected:
+            assert change == pytest.approx(expected[name], rel=0.01), (name, change)
+        else:
+            assert abs(change) < 0.01 * max([1.0, *map(abs, expected.values())]), (name, change)
+
+
+def test_a_tilt_beyond_the_sensor_range_is_refused_naming_the_field():
+    from mtplan._validate import InvalidInput
+
+    with pytest.raises(InvalidInput, match="sensor_max_tilt_deg.*52.2 deg at A = -45"):
+        PROC.setup(axis="A", incline_deg=30.0)
+    with pytest.raises(InvalidInput, match="sensor_max_tilt_deg"):
+        PROC.setup(axis="A", sensor_max_tilt_deg=30.0)
+    PROC.setup(axis="A", range_deg=30.0, sensor_max_tilt_deg=30.0)  # 25.6 deg: inside

@@ -101,11 +101,13 @@ test's time line from :func:`schedule`), ``radial_motion``, ``axial_motion`` and
 ``tilt_motion`` (error motions of the rotary axis, per position), ``angular_positioning``
 (a smooth, repeatable function of the commanded angle: first and second harmonics per
 axis, ISO 230-2's systematic positioning error) with ``angular_repeatability`` (its random
-part, per position), ``sensor_orientation`` (the sensor's angle influence that varies with
-the azimuth of the incline under it: first and second harmonics of that azimuth, a height
-offset per position; it moves the axis sideways by about ``e / tan(incline)`` and
-dominates the positions at its default, 6.9 um of u(EX0C) against 1.27 without it), and
-the artifact's real pose (``artifact_tilt``: normal, no hard bound, since the readings
+part, per position), ``angle_influence_halfwidth`` (the sensor's angle influence as a
+function of the surface's local tilt in the sensor's frame: a height offset per position,
+``range B(tau) (c0 + c1 cos phi + c2 cos 2 phi)``, B the data sheet's bound at the tilt's
+magnitude tau, phi its direction from the triangulation plane; the even part c0 grows
+with the tilt, the odd part c1 moves a C axis sideways by about ``e / tan(incline)``
+along the triangulation plane, the anisotropy c2; a set-up tilting the surface beyond
+``sensor_max_tilt_deg`` is refused), the artifact's real pose (``artifact_tilt``: normal, no hard bound, since the readings
 determine it; ``artifact_height_error``), and the errors that act one to one: the laser
 spot's lateral offset (``spot_offset_u``) and the sensor's zero (``sensor_zero_u``), the
 X/Y motion's slope and bow in Z, machine-fixed (``xy_slope_halfwidth``,
@@ -410,12 +412,23 @@ class Setup(SetupBase):
                                                   "best straight line, zero at mid-range; "
                                                   "triangulation data sheets: +-0.08 % of the "
                                                   "range)", low=0, high=1e5)
-    sensor_orientation_ppm: float = param(1200.0, doc="Bound of the part of the sensor's "
-                                          "angle influence that varies with the azimuth of "
-                                          "the incline under it, in ppm of the measuring "
-                                          "range (first and second harmonics in the azimuth, "
-                                          "each of amplitude up to half the bound) [ppm]",
-                                          low=0, high=1e5)
+    angle_influence_halfwidth_ppm: float = param(5000.0, doc="Bound of the sensor's angle "
+                                                 "influence at a 30 deg tilt of the surface, "
+                                                 "in ppm of sensor_range_mm; at other tilts "
+                                                 "the bound follows the data sheet's table "
+                                                 "(0.12 % at 5 deg, 0.2 % at 15, 0.5 % at "
+                                                 "30 deg for diffuse surfaces) scaled to it "
+                                                 "[ppm]", low=0, high=1e5)
+    sensor_max_tilt_deg: float = param(50.0, doc="Largest tilt of the surface under the "
+                                       "sensor the set-up may have [deg]; larger tilts are "
+                                       "refused. Data sheets state the angle influence to 30 "
+                                       "deg; beyond, the bound is extrapolated along the "
+                                       "table's last row (the A axis's default +-45 deg tilts "
+                                       "the 20 deg incline to 48.4 deg)", low=0, high=70,
+                                       low_open=True)
+    sensor_azimuth_deg: float = param(0.0, doc="Azimuth from +X of the sensor's triangulation "
+                                      "plane (its laser and receiver) at spindle orientation 0 "
+                                      "[deg]", low=-360, high=360)
     dwell_s: float = param(0.5, doc="Settling and reading time per lattice point [s]", low=0,
                            high=600)
     feed_mm_min: float = param(2000.0, doc="Feed of the X/Y moves between points [mm/min]",
@@ -511,7 +524,15 @@ class Setup(SetupBase):
                 f"(a sensor reading along -Z needs less than {_MAX_SLOPE_DEG:g} deg); reduce "
                 f"incline_deg or the angles ({field})"
             )
-        elif not self.z_follows_surface:
+        elif np.any((tilt := np.degrees(np.arccos(np.clip(nz, -1, 1))))
+                    > self.sensor_max_tilt_deg):
+            worst = int(np.argmax(tilt))
+            p.add("sensor_max_tilt_deg", self.sensor_max_tilt_deg,
+                  f">= the largest tilt of the surface under the sensor, {tilt[worst]:.1f} deg "
+                  f"at {axis} = {angles[worst]:g} deg (the sensor's angle influence is not "
+                  f"stated beyond its range: state a sensor whose data sheet covers the tilt, "
+                  f"or reduce incline_deg or the angles ({field}))")
+        if not np.any(steep) and not self.z_follows_surface:
             _, _, z_cmd = _lattice(self, axis, angles)
             span = float(np.max(np.ptp(z_cmd, axis=1)))
             if span > self.sensor_range_mm:
@@ -620,7 +641,9 @@ class _Plan(NamedTuple):
     gram: np.ndarray  # local^T local summed over points: (3, 3)
     form: np.ndarray  # height per unit form coefficient, (K, P*M) [1]
     harmonics: np.ndarray  # [cos t, sin t, cos 2t, sin 2t] of the commanded angles (4, P)
-    orientation: np.ndarray  # the same of the fall line's azimuth under the sensor (4, P)
+    tilt_bound: np.ndarray  # range x the angle influence's bound at each position's tilt
+    # relative to its bound at 30 deg (P,) [mm]
+    tilt_direction: np.ndarray  # the tilt's direction from the triangulation plane (P,) [rad]
     times: np.ndarray  # time of each reading from the start (P, M) [s]
     total_time: float  # [s]
     down: np.ndarray  # 1 where a position is approached against the first move, else 0 (P,)
@@ -662,12 +685,31 @@ def _harmonics(angle: np.ndarray) -> np.ndarray:
     return np.stack([np.cos(angle), np.sin(angle), np.cos(2 * angle), np.sin(2 * angle)])
 
 
-def _fall_azimuths(setup: Setup) -> np.ndarray:
-    """Azimuth from +X of the nominal incline's fall line at every position (P,) [rad]."""
+#: the angle influence's bound [fraction of the range] against the surface's tilt [deg]:
+#: laser triangulation on diffuse surfaces (Micro-Epsilon optoNCDT 1700/2300 operating
+#: instructions: typ. 0.12-0.2 % at 5-15 deg, 0.5 % at 15-30 deg); beyond the last row the
+#: bound runs on along its slope (an extrapolation, stated in the field's doc)
+_TILT_TABLE_DEG = np.array([0.0, 5.0, 15.0, 30.0])
+_TILT_TABLE = np.array([0.0, 0.0012, 0.002, 0.005])
+
+
+def _tilts(setup: Setup) -> tuple[np.ndarray, np.ndarray]:
+    """Magnitude [deg] and direction from +X [rad] of the nominal surface's tilt under the
+    sensor at every position: the angle of the normal from Z, the fall line's azimuth (P,)."""
     n0 = _incline_normal(setup)
     normals = np.concatenate([_nominal_rotations(a, np.deg2rad(setup.axis_angles(a))) @ n0
                               for a in setup.axes])
-    return np.arctan2(normals[:, 1], normals[:, 0])
+    tau = np.degrees(np.arccos(np.clip(normals[:, 2], -1.0, 1.0)))
+    return tau, np.arctan2(normals[:, 1], normals[:, 0])
+
+
+def _tilt_bound(tau: np.ndarray) -> np.ndarray:
+    """The angle influence's bound at tilts `tau` [deg] relative to its bound at 30 deg (P,)."""
+    slope = (_TILT_TABLE[-1] - _TILT_TABLE[-2]) / (_TILT_TABLE_DEG[-1] - _TILT_TABLE_DEG[-2])
+    inside = np.interp(tau, _TILT_TABLE_DEG, _TILT_TABLE)
+    beyond = _TILT_TABLE[-1] + slope * (tau - _TILT_TABLE_DEG[-1])
+    bound = np.where(tau > _TILT_TABLE_DEG[-1], beyond, inside)
+    return bound / _TILT_TABLE[-1]
 
 
 #: the length over which the X and Y motion's bow is stated (+-50 mm about the table centre)
@@ -729,7 +771,8 @@ def _plan(setup: Setup) -> _Plan:
         gram=local @ local.T,
         form=np.ascontiguousarray(form.T),  # (K, P*M)
         harmonics=_harmonics(np.deg2rad(setup.angles())),
-        orientation=_harmonics(_fall_azimuths(setup)),
+        tilt_bound=setup.sensor_range_mm * _tilt_bound(_tilts(setup)[0]),
+        tilt_direction=_tilts(setup)[1] - math.radians(setup.sensor_azimuth_deg),
         times=times,
         total_time=total,
         down=np.concatenate([_approached_down(setup.axis_angles(a)) for a in setup.axes]),
@@ -972,20 +1015,27 @@ def sources(setup: Setup) -> dict[str, Source]:
             "+-0.08 % of the range, triangulation sensors' data sheets (e.g. Micro-Epsilon "
             "optoNCDT 1750). The gain is sensor_scale. With z_follows_surface the sensor "
             "works about mid-range and this acts on tens of micrometres only."),
-        "sensor_orientation": Source(
-            rect(setup.sensor_orientation_ppm * 1e-6 / (2 * math.sqrt(2))), (4,),
-            "The sensor's angle influence that varies with the azimuth psi of the incline's "
-            "fall line under the fixed sensor (its triangulation plane is fixed on the Z "
-            "slide, the incline turns under it): a height error of every reading at a "
-            "position, range * (a1 cos psi + b1 sin psi + a2 cos 2 psi + b2 sin 2 psi), "
-            "each coefficient uniform within +-bound / (2 sqrt 2), as a fraction of the "
-            "measuring range sensor_range_mm. Default 1200 ppm (0.12 % of the range): "
-            "Micro-Epsilon's operating instructions for optoNCDT 1700 and 2300 give an "
-            "apparent distance change of typ. 0.12-0.2 % of the measuring range for tilts of "
-            "5-15 deg (0.5 % for 15-30 deg), the same about either axis; the part common to "
-            "every azimuth does not move the axis, so the smaller figure bounds the part "
-            "that varies. A first harmonic e moves the axis sideways by about "
-            "e / tan(incline)."),
+        "angle_influence_halfwidth": Source(
+            rect(setup.angle_influence_halfwidth_ppm * 1e-6 / 3), (3,),
+            "The sensor's angle influence: a height error of every reading of a position that "
+            "depends on the local tilt of the surface in the sensor's frame, magnitude tau "
+            "and direction phi (the fall line's azimuth from the triangulation plane), "
+            "range * B(tau) * (c0 + c1 cos phi + c2 cos 2 phi): an even part c0 that grows "
+            "with the tilt's magnitude, an odd part c1 along the triangulation plane (it "
+            "changes sign when the sensor turns by 180 deg) and the anisotropy across it c2 "
+            "(a sensor is symmetric about its triangulation plane: no sin phi terms). Each "
+            "coefficient uniform within +-1/3 of the bound at 30 deg (the field), one set per "
+            "test (one sensor), B(tau) the table relative to 30 deg, so the error stays "
+            "within the data sheet's bound at the actual tilt. B: the angle "
+            "influence tables of laser triangulation sensors on diffuse surfaces (Micro-"
+            "Epsilon's operating instructions for optoNCDT 1700 and 2300: typ. 0.12-0.2 % "
+            "of the range at 5-15 deg, 0.5 % at 15-30 deg), taken as 0.12 % at 5 deg, 0.2 % "
+            "at 15, 0.5 % at 30 (linear between, through 0 at 0 deg; beyond 30 deg along "
+            "the last row's slope, an extrapolation), scaled so that B(30 deg) = "
+            "angle_influence_halfwidth_ppm. Default 5000 ppm (0.5 %). On a C axis the tilt "
+            "is the incline at every position and the odd part moves the axis sideways by "
+            "about e / tan(incline); on an A axis the tilt grows with |A| and the even part "
+            "moves EZ0A."),
     }
 
 
@@ -1211,9 +1261,11 @@ def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -
     form = errors["flatness"]  # (n, K)
     if np.any(form):
         z += np.matmul(form, g.form).reshape(n, P, M)
-    orient = errors["sensor_orientation"]  # (n, 4): a height error per position
-    if np.any(orient):
-        z += (setup.sensor_range_mm * (orient @ g.orientation))[..., None]
+    influence = errors["angle_influence_halfwidth"]  # (n, 3): a height error per position
+    if np.any(influence):
+        phi = g.tilt_direction
+        shape = np.stack([np.ones_like(phi), np.cos(phi), np.cos(2 * phi)]) * g.tilt_bound
+        z += (influence @ shape)[..., None]
     ez = errors["z_positioning"]  # gap = surface - actual Z position
     if np.any(ez):
         z -= ez if ez.ndim == 3 else ez[..., None]
