@@ -176,3 +176,73 @@ def test_a_tilt_beyond_the_sensor_range_is_refused_naming_the_field():
     with pytest.raises(InvalidInput, match="sensor_max_tilt_deg"):
         PROC.setup(axis="A", sensor_max_tilt_deg=30.0)
     PROC.setup(axis="A", range_deg=30.0, sensor_max_tilt_deg=30.0)  # 25.6 deg: inside
+
+
+# --------------------------------------------------------------------------- the reversal
+@pytest.mark.parametrize("axis", ["C", "A", "CA"])
+def test_reversal_cancels_the_odd_errors_exactly(axis):
+    # the spot's lateral offset and the angle influence's odd part change sign with the
+    # sensor turned by 180 deg about the spindle: the two passes' mean holds neither
+    setup = PROC.setup(axis=axis, sensor_reversal=True)
+    base = _estimate(setup, "angles")
+    moved = _estimate(setup, "angles", spot_offset_u=(0.010, -0.007),
+                      angle_influence_halfwidth=(0.0, THIRD, 0.0))
+    for name in base:
+        assert float(moved[name][0] - base[name][0]) == pytest.approx(0.0, abs=1e-6), name
+
+
+def test_reversal_takes_the_odd_part_out_of_u_ex0c():
+    # u^2(EX0C) at the default C set-up (GUM, angles) loses what the odd errors carried
+    # (the angle influence, all odd on C, and the spot's offset), and half of what the
+    # per-reading errors carried (each lattice point is read twice); the rest stays (the
+    # drift runs over a longer time line: its share is below 1 % either way)
+    from mtplan.evaluation.simulation import linearize_result
+
+    def budget(setup):
+        r = linearize_result(PROC, setup, estimator="angles")
+        return r.u[0] ** 2, {k: v["share"] for k, v in r.budget_shares()[0].items()}
+
+    u2, share = budget(PROC.setup())
+    u2_rev, share_rev = budget(PROC.setup(sensor_reversal=True))
+    odd = share["angle_influence_halfwidth"] + share["spot_offset_u"]
+    assert odd > 0.95  # 90 % and 9 %: what dominates EX0C
+    per_reading = sum(share[k] for k in ("probe_noise", "xy_positioning", "z_positioning"))
+    expected = u2 * (1 - odd - per_reading / 2 - share["thermal_drift"]) \
+        + u2_rev * share_rev["thermal_drift"]
+    assert u2_rev == pytest.approx(expected, rel=1e-3)
+    assert math.sqrt(u2_rev) < 0.1 * math.sqrt(u2)  # 16.7 um -> 1.27 um
+
+
+def test_reversal_costs_a_second_pass_and_the_spindle_turns():
+    from mtplan.models import rotary_axis as ra
+
+    setup = PROC.setup()
+    rev = setup.replace(sensor_reversal=True)
+    sched = ra.schedule(rev)
+    assert len(sched) == 2 * len(ra.schedule(setup))
+    # per position a second pass: the dwell at every point, the serpentine's 24 moves of 10 mm,
+    # the move back from its last point to its first (40 mm in X and Y), the spindle's turn
+    speed = setup.feed_mm_min / 60
+    second = (setup.n_points * setup.dwell_s + 240.0 / speed + math.hypot(40.0, 40.0) / speed
+              + setup.spindle_orient_s)
+    assert PROC.duration(rev) == pytest.approx(PROC.duration(setup) + 6 * second, rel=1e-9)
+    assert PROC.duration(rev.replace(spindle_orient_s=15.0)) == pytest.approx(
+        PROC.duration(rev) + 10.0 * setup.n_positions)
+
+
+def test_reversal_readings_carry_the_sensor_orientation_and_round_trip():
+    from mtplan._validate import InvalidInput
+    from mtplan.models import rotary_axis as ra
+
+    setup = PROC.setup(axis="A", sensor_reversal=True)
+    readings = PROC.simulate(setup, draws=1, rng=3)
+    df = PROC.readings_frame(setup, readings)
+    assert sorted(set(df["sensor_deg"])) == [0.0, 180.0]
+    back = PROC.from_frame(setup, df.sample(frac=1.0, random_state=1))
+    np.testing.assert_array_equal(back["z_mm"], readings["z_mm"])
+    assert ra.setup_from_frame(df)["sensor_reversal"].value is True
+    with pytest.raises(InvalidInput, match="sensor_deg"):
+        PROC.from_frame(setup, df.drop(columns="sensor_deg"))
+    flipped = df.assign(sensor_deg=np.where(df["sensor_deg"] > 0, 0.0, 180.0))
+    with pytest.raises(InvalidInput, match="sensor_deg"):
+        PROC.from_frame(setup, flipped)

@@ -123,6 +123,13 @@ matters (A axis, drift alone: u(EZ0A) 0.218 um ascending, 0.202 um in the patent
 the other three unchanged), so no further drift source (a random walk, a warm-up curve)
 was added; docs/rotary_axis.md holds the budget tables.
 
+The reversal (``sensor_reversal``): every lattice is read twice, with the sensor at 0
+and at 180 deg about the spindle (M19, ``spindle_orient_s`` between the passes). The
+spot's lateral offset and the angle influence's odd part change sign with the sensor;
+the estimators fit each point's mean over the two passes, in which they cancel. The
+readings are (n, P, 2 M), the second pass's points numbered on from M; ``duration``
+counts the second pass.
+
 Forward model
 -------------
 Exact rigid-body geometry: the artifact plane is turned about the *true* axis by the
@@ -429,6 +436,14 @@ class Setup(SetupBase):
     sensor_azimuth_deg: float = param(0.0, doc="Azimuth from +X of the sensor's triangulation "
                                       "plane (its laser and receiver) at spindle orientation 0 "
                                       "[deg]", low=-360, high=360)
+    sensor_reversal: bool = param(False, doc="Read each lattice twice, with the sensor at 0 "
+                                  "and at 180 deg about the spindle (M19): the mean cancels "
+                                  "the odd part of the angle influence and the spot's lateral "
+                                  "offset; costs a second pass and spindle_orient_s per "
+                                  "position")
+    spindle_orient_s: float = param(5.0, doc="Time to turn the spindle with the sensor by 180 "
+                                    "deg (M19) and settle, once per position with "
+                                    "sensor_reversal [s]", low=0, high=600)
     dwell_s: float = param(0.5, doc="Settling and reading time per lattice point [s]", low=0,
                            high=600)
     feed_mm_min: float = param(2000.0, doc="Feed of the X/Y moves between points [mm/min]",
@@ -446,6 +461,16 @@ class Setup(SetupBase):
     def n_points(self) -> int:
         """Lattice points per position."""
         return self.lattice_nx * self.lattice_ny
+
+    @property
+    def n_passes(self) -> int:
+        """Passes over each lattice: 2 with sensor_reversal (sensor at 0 and 180 deg), else 1."""
+        return 2 if self.sensor_reversal else 1
+
+    @property
+    def n_readings(self) -> int:
+        """Readings per position: the lattice points of every pass."""
+        return self.n_points * self.n_passes
 
     @property
     def axes(self) -> tuple[str, ...]:
@@ -634,20 +659,22 @@ class _Plan(NamedTuple):
     n0: np.ndarray  # upward unit normal of the incline at the zero position (3,)
     q0: np.ndarray  # a point of the incline at the zero position (3,) [mm]
     centres: np.ndarray  # lattice centres (P, 2) [mm]
-    xy: np.ndarray  # lattice points (P, M, 2) [mm]
-    z_cmd: np.ndarray  # commanded Z: (P, M) following, (P, 1) otherwise [mm]
+    xy: np.ndarray  # commanded point of each reading, every pass (P, R, 2) [mm]
+    z_cmd: np.ndarray  # commanded Z: (P, R) following, (P, 1) otherwise [mm]
     local: np.ndarray  # [1; gx; gy] (3, M): plane in local coordinates -> heights
+    read_local: np.ndarray  # the same for each reading, every pass (3, R)
+    sensor_sign: np.ndarray  # +1 at the sensor's 0 deg pass, -1 at its 180 deg one (R,)
     fit: np.ndarray  # its pseudo-inverse, transposed (M, 3): heights -> (h, a, b)
     gram: np.ndarray  # local^T local summed over points: (3, 3)
-    form: np.ndarray  # height per unit form coefficient, (K, P*M) [1]
+    form: np.ndarray  # height per unit form coefficient, (K, P*R) [1]
     harmonics: np.ndarray  # [cos t, sin t, cos 2t, sin 2t] of the commanded angles (4, P)
     tilt_bound: np.ndarray  # range x the angle influence's bound at each position's tilt
     # relative to its bound at 30 deg (P,) [mm]
     tilt_direction: np.ndarray  # the tilt's direction from the triangulation plane (P,) [rad]
-    times: np.ndarray  # time of each reading from the start (P, M) [s]
+    times: np.ndarray  # time of each reading from the start (P, R) [s]
     total_time: float  # [s]
     down: np.ndarray  # 1 where a position is approached against the first move, else 0 (P,)
-    machine: np.ndarray  # the X/Y motion's Z error per unit term: x, y, bows (4, P, M) [mm]
+    machine: np.ndarray  # the X/Y motion's Z error per unit term: x, y, bows (4, P, R) [mm]
 
 
 def _form_basis(setup: Setup, axis: str, angles: np.ndarray, xy: np.ndarray,
@@ -733,7 +760,8 @@ def _machine_basis(xy: np.ndarray) -> np.ndarray:
 
 
 def _times(setup: Setup, xy: np.ndarray) -> tuple[np.ndarray, float]:
-    """Time of each reading (P, M) and of the whole test [s]: index, moves, dwell."""
+    """Time of each reading (P, R) and of the whole test [s]: index, moves, dwell, and the
+    spindle's turn before each second pass."""
     speed = setup.feed_mm_min / 60.0
     flat = xy.reshape(-1, 2)
     steps = np.zeros(len(flat))
@@ -741,6 +769,8 @@ def _times(setup: Setup, xy: np.ndarray) -> tuple[np.ndarray, float]:
     steps += setup.dwell_s
     steps = steps.reshape(xy.shape[:2])
     steps[:, 0] += setup.index_time_s  # turn, clamp and settle before each lattice
+    for k in range(1, setup.n_passes):
+        steps[:, k * setup.n_points] += setup.spindle_orient_s  # M19 by 180 deg
     times = np.cumsum(steps.ravel()).reshape(steps.shape)
     return times, float(times[-1, -1])
 
@@ -756,6 +786,10 @@ def _plan(setup: Setup) -> _Plan:
     gx, gy = _serpentine(setup.lattice_nx, setup.lattice_ny, setup.lattice_size_mm)
     local = np.stack([np.ones_like(gx), gx, gy])
     fit = np.linalg.pinv(local.T).T  # (M, 3): coef = heights @ fit
+    # every pass reads the lattice in the same order: readings (P, R), R = passes x M
+    passes, P = setup.n_passes, xy.shape[0]
+    xy, z = np.tile(xy, (1, passes, 1)), np.tile(z, (1, passes))
+    form = np.tile(form.reshape(P, -1, form.shape[-1]), (1, passes, 1)).reshape(-1, form.shape[-1])
     times, total = _times(setup, xy)  # one time line through every axis's positions
     z_cmd = z if setup.z_follows_surface else centres3[:, 2:]
     out = _Plan(
@@ -767,6 +801,8 @@ def _plan(setup: Setup) -> _Plan:
         xy=xy,
         z_cmd=np.ascontiguousarray(z_cmd),
         local=local,
+        read_local=np.ascontiguousarray(np.tile(local, (1, passes))),
+        sensor_sign=np.repeat([1.0, -1.0][:passes], setup.n_points),
         fit=np.ascontiguousarray(fit),
         gram=local @ local.T,
         form=np.ascontiguousarray(form.T),  # (K, P*M)
@@ -871,7 +907,7 @@ def sources(setup: Setup) -> dict[str, Source]:
 
     Shapes: P = positions, M = lattice points per position.
     """
-    P, M = setup.n_positions, setup.n_points
+    P, M = setup.n_positions, setup.n_readings  # M: readings per position, every pass
     um = _UM
 
     def rect(half):
@@ -1239,7 +1275,7 @@ def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -
 
     # per reading (n, P, M): one matrix product for the planes, then each active source
     # added in place (a source switched off is all zeros and skipped)
-    z = np.matmul(coef.reshape(n * P, 3), g.local).reshape(n, P, M)
+    z = np.matmul(coef.reshape(n * P, 3), g.read_local).reshape(n, P, M)
     z += noise
     tmp = np.empty_like(z)
     if drift is not None:
@@ -1248,9 +1284,9 @@ def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -
     if np.any(xy_err):
         z += np.multiply(c1[..., None], xy_err[:, 0], out=tmp)
         z += np.multiply(c2[..., None], xy_err[:, 1], out=tmp)
-    spot = errors["spot_offset_u"]  # (n, 2): the spot reads the height d away
+    spot = errors["spot_offset_u"]  # (n, 2): the spot reads the height d away (-d at 180)
     if np.any(spot):
-        z += (c1 * spot[:, :1] + c2 * spot[:, 1:])[..., None]
+        z += (c1 * spot[:, :1] + c2 * spot[:, 1:])[..., None] * g.sensor_sign
     zero = errors["sensor_zero_u"]  # (n,)
     if np.any(zero):
         z += zero[:, None, None]
@@ -1262,10 +1298,11 @@ def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -
     if np.any(form):
         z += np.matmul(form, g.form).reshape(n, P, M)
     influence = errors["angle_influence_halfwidth"]  # (n, 3): a height error per position
-    if np.any(influence):
+    if np.any(influence):  # even, odd (its sign turns with the sensor), anisotropic
         phi = g.tilt_direction
-        shape = np.stack([np.ones_like(phi), np.cos(phi), np.cos(2 * phi)]) * g.tilt_bound
-        z += (influence @ shape)[..., None]
+        even = influence[:, ::2] @ (np.stack([np.ones_like(phi), np.cos(2 * phi)]) * g.tilt_bound)
+        odd = influence[:, 1:2] * (np.cos(phi) * g.tilt_bound)
+        z += even[..., None] + odd[..., None] * g.sensor_sign
     ez = errors["z_positioning"]  # gap = surface - actual Z position
     if np.any(ez):
         z -= ez if ez.ndim == 3 else ez[..., None]
@@ -1321,15 +1358,25 @@ def schedule(setup: Setup) -> pd.DataFrame:
     previous one at ``feed_mm_min`` plus ``dwell_s``; the reading is taken at its end.
     """
     g = _plan(setup)
-    P, M = setup.n_positions, setup.n_points
+    P, M = setup.n_positions, setup.n_readings
     return pd.DataFrame({
         "axis": np.repeat(_position_axes(setup), M),
         "position": np.repeat(np.arange(P), M),
         "point": np.tile(np.arange(M), P),
         "x_mm": g.xy[..., 0].ravel(),
         "y_mm": g.xy[..., 1].ravel(),
+        **_sensor_column(setup),
         "time_s": g.times.ravel(),
     })
+
+
+def _sensor_column(setup: Setup) -> dict:
+    """``sensor_deg`` (0 or 180, the spindle's orientation of each reading) with
+    sensor_reversal, else nothing: {} or {"sensor_deg": array (P*R,)}."""
+    if not setup.sensor_reversal:
+        return {}
+    sign = np.tile(_plan(setup).sensor_sign, setup.n_positions)
+    return {"sensor_deg": np.where(sign > 0, 0.0, 180.0)}
 
 
 def duration(setup: Setup) -> float:
@@ -1350,10 +1397,12 @@ def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
 
     Columns: ``axis`` (the axis turned: C or A; both in a CA test), ``position``
     (0-based over the whole test), ``angle_deg`` (commanded angle of that axis),
-    ``point`` (0-based, in measuring order), ``x_mm``, ``y_mm`` (commanded lattice
-    point), ``z_mm`` (Z position + sensor value).
+    ``point`` (0-based, in measuring order; with sensor_reversal the second pass goes on
+    from the lattice's point count), ``x_mm``, ``y_mm`` (commanded lattice point), with
+    sensor_reversal ``sensor_deg`` (the sensor's orientation about the spindle: 0 or
+    180), ``z_mm`` (Z position + sensor value).
     """
-    z = _check_readings(setup, readings)[0]
+    z = _check_readings(setup, readings, passes=True)[0]
     g = _plan(setup)
     P, M = z.shape
     return pd.DataFrame({
@@ -1363,6 +1412,7 @@ def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
         "point": np.tile(np.arange(M), P),
         "x_mm": g.xy[..., 0].ravel(),
         "y_mm": g.xy[..., 1].ravel(),
+        **_sensor_column(setup),
         "z_mm": z.ravel(),
     })
 
@@ -1382,10 +1432,11 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict[str, np.ndarray]:
     """
     data = frame_columns(df, _COLUMNS, f"{NAME} readings")
     p = Problems(f"{NAME} readings")
-    P, M = setup.n_positions, setup.n_points
+    P, M = setup.n_positions, setup.n_readings
     if len(df) != P * M:
-        p.add_text(f"The {NAME} readings must have {P * M} rows ({P} positions x {M} points) "
-                   f"for this set-up; got {len(df)}")
+        p.add_text(f"The {NAME} readings must have {P * M} rows ({P} positions x {M} readings"
+                   f"{' over two sensor orientations' if setup.sensor_reversal else ''}) for "
+                   f"this set-up; got {len(df)}")
         p.raise_if_any()
     pos, pt = data["position"], data["point"]
     for col, v, top in (("position", pos, P), ("point", pt, M)):
@@ -1405,9 +1456,18 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict[str, np.ndarray]:
     g = _plan(setup)
     checks = (("angle_deg", np.repeat(setup.angles(), M), 1e-6),
               ("x_mm", g.xy[..., 0].ravel(), 1e-3), ("y_mm", g.xy[..., 1].ravel(), 1e-3))
+    if setup.sensor_reversal or "sensor_deg" in df.columns:
+        expected = _sensor_column(setup).get("sensor_deg", np.zeros(P * M))
+        if "sensor_deg" not in df.columns:
+            p.add_text(f"The {NAME} readings of a set-up with sensor_reversal must have the "
+                       "column 'sensor_deg' (0 or 180: the sensor's orientation of each reading)")
+            p.raise_if_any()
+        got = pd.to_numeric(df["sensor_deg"], errors="coerce").to_numpy(dtype=float)
+        checks += (("sensor_deg", expected, 1e-6),)
+        data = {**data, "sensor_deg": got}
     for col, expected, tol in checks:
         got = data[col][order]
-        bad = np.flatnonzero(np.abs(got - expected) > tol)
+        bad = np.flatnonzero(~(np.abs(got - expected) <= tol))
         if bad.size:
             row = int(order[bad[0]])
             p.add_text(f"The column {col!r} of the {NAME} readings must match the set-up "
@@ -1542,6 +1602,11 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
         lattice_at = next((p for p in order if abs(per_position[p][1]) <= _ANGLE_TOL_DEG),
                           lattice_at)
     rows = position == lattice_at
+    if "sensor_deg" in df.columns:  # the sensor's orientations: the lattice is the 0 deg pass
+        sensor = pd.to_numeric(df["sensor_deg"], errors="coerce").to_numpy(dtype=float)
+        turned = bool(np.any(np.abs(sensor - 180.0) <= _ANGLE_TOL_DEG))
+        out["sensor_reversal"] = Implied(turned, why="the file's sensor_deg column")
+        rows &= np.abs(sensor) <= _ANGLE_TOL_DEG
     x = pd.to_numeric(df["x_mm"], errors="coerce").to_numpy(dtype=float)[rows]
     y = pd.to_numeric(df["y_mm"], errors="coerce").to_numpy(dtype=float)[rows]
     if np.all(np.isfinite(x)) and np.all(np.isfinite(y)):
