@@ -381,8 +381,9 @@ class Setup(SetupBase):
     spot_offset_u_um: float = param(5.0, doc="Standard uncertainty of each component (X, "
                                     "Y) of the laser spot's lateral offset from the point the "
                                     "slides command, as located by scanning a sphere or an edge "
-                                    "[um] (docs/rotary_axis.md: the spot's 50-100 um diameter, "
-                                    "located to about a tenth)", low=0, high=1000)
+                                    "[um] (a 10 mm triangulation sensor's spot is 50-100 um "
+                                    "across on its data sheet; located to about a tenth)",
+                                    low=0, high=1000)
     sensor_zero_u_um: float = param(2.0, doc="Standard uncertainty of the sensor's zero (the "
                                     "reading at the commanded Z on the nominal surface), as set "
                                     "on a gauge block by the Z slide [um] (ISO 230-2 "
