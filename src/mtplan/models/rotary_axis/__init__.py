@@ -1398,10 +1398,10 @@ def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
 
     Columns: ``axis`` (the axis turned: C or A; both in a CA test), ``position``
     (0-based over the whole test), ``angle_deg`` (commanded angle of that axis),
-    ``point`` (0-based, in measuring order; with sensor_reversal the second pass goes on
-    from the lattice's point count), ``x_mm``, ``y_mm`` (commanded lattice point), with
-    sensor_reversal ``sensor_deg`` (the sensor's orientation about the spindle: 0 or
-    180), ``z_mm`` (Z position + sensor value).
+    ``point`` (0-based, in measuring order; with sensor_reversal the pass at 180 deg goes
+    on from the lattice's point count, over the same points in the same order), ``x_mm``,
+    ``y_mm`` (commanded lattice point), ``z_mm`` (Z position + sensor value). (The
+    schedule has the sensor's orientation as ``sensor_deg``.)
     """
     z = _check_readings(setup, readings, passes=True)[0]
     g = _plan(setup)
@@ -1413,7 +1413,6 @@ def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
         "point": np.tile(np.arange(M), P),
         "x_mm": g.xy[..., 0].ravel(),
         "y_mm": g.xy[..., 1].ravel(),
-        **_sensor_column(setup),
         "z_mm": z.ravel(),
     })
 
@@ -1457,15 +1456,6 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict[str, np.ndarray]:
     g = _plan(setup)
     checks = (("angle_deg", np.repeat(setup.angles(), M), 1e-6),
               ("x_mm", g.xy[..., 0].ravel(), 1e-3), ("y_mm", g.xy[..., 1].ravel(), 1e-3))
-    if setup.sensor_reversal or "sensor_deg" in df.columns:
-        expected = _sensor_column(setup).get("sensor_deg", np.zeros(P * M))
-        if "sensor_deg" not in df.columns:
-            p.add_text(f"The {NAME} readings of a set-up with sensor_reversal must have the "
-                       "column 'sensor_deg' (0 or 180: the sensor's orientation of each reading)")
-            p.raise_if_any()
-        got = pd.to_numeric(df["sensor_deg"], errors="coerce").to_numpy(dtype=float)
-        checks += (("sensor_deg", expected, 1e-6),)
-        data = {**data, "sensor_deg": got}
     for col, expected, tol in checks:
         got = data[col][order]
         bad = np.flatnonzero(~(np.abs(got - expected) <= tol))
@@ -1603,13 +1593,18 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
         lattice_at = next((p for p in order if abs(per_position[p][1]) <= _ANGLE_TOL_DEG),
                           lattice_at)
     rows = position == lattice_at
-    if "sensor_deg" in df.columns:  # the sensor's orientations: the lattice is the 0 deg pass
-        sensor = pd.to_numeric(df["sensor_deg"], errors="coerce").to_numpy(dtype=float)
-        turned = bool(np.any(np.abs(sensor - 180.0) <= _ANGLE_TOL_DEG))
-        out["sensor_reversal"] = Implied(turned, why="the file's sensor_deg column")
-        rows &= np.abs(sensor) <= _ANGLE_TOL_DEG
     x = pd.to_numeric(df["x_mm"], errors="coerce").to_numpy(dtype=float)[rows]
     y = pd.to_numeric(df["y_mm"], errors="coerce").to_numpy(dtype=float)[rows]
+    point = pd.to_numeric(df["point"], errors="coerce").to_numpy(dtype=float)[rows]
+    if np.all(np.isfinite(point)):  # a second pass over the same points: the sensor reversed
+        order = np.argsort(point, kind="stable")
+        x, y, h = x[order], y[order], x.size // 2
+        twice = (x.size % 2 == 0 and h >= 4 and np.allclose(x[:h], x[h:], atol=_LATTICE_TOL_MM)
+                 and np.allclose(y[:h], y[h:], atol=_LATTICE_TOL_MM))
+        out["sensor_reversal"] = Implied(bool(twice), why="the file's points per position: "
+                                         + ("each lattice point twice" if twice else "once"))
+        if twice:
+            x, y = x[:h], y[:h]
     if np.all(np.isfinite(x)) and np.all(np.isfinite(y)):
         out.update(_lattice_fields(x, y, first_axis, per_position[lattice_at][1]))
     return out
