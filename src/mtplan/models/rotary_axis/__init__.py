@@ -18,10 +18,13 @@ was turned to, so the rotary axis's angular positioning error does not enter (th
 ``angles`` estimator below does use them: see Estimators).
 
 Measuring order. C positions are taken in ascending order from 0 (the patent's six over
-the full turn); A positions, by default, in the patent's order (S203: 0, 15, 30, 45, -15,
--30, -45; ``a_order="patent"``: from 0 up, then from the first negative down), or
-ascending with ``a_order="ascending"``. The order matters through the thermal drift,
-which runs over the test's time line (:func:`schedule`).
+the full turn); A positions, by default, ascending (``a_order="ascending"``: -45 ... 45,
+every position approached from one side, so the axis's reversal value is a common zero
+that no estimator sees), or in the patent's order (S203: 0, 15, 30, 45, -15, -30, -45;
+``a_order="patent"``: from 0 up, then from the first negative down), whose negative half
+is approached from above and carries the reversal value (it moves ``angles``' EB0A; the
+Monte Carlo draws it, so its u says so). The order also matters through the thermal
+drift, which runs over the test's time line (:func:`schedule`).
 
 Both axes (``axis="CA"``). The patent measures C (A held at 0) and then A (C held at 0)
 and ends by computing the machining pose from both axis lines. A CA test is that
@@ -98,18 +101,34 @@ test's time line from :func:`schedule`), ``radial_motion``, ``axial_motion`` and
 ``tilt_motion`` (error motions of the rotary axis, per position), ``angular_positioning``
 (a smooth, repeatable function of the commanded angle: first and second harmonics per
 axis, ISO 230-2's systematic positioning error) with ``angular_repeatability`` (its random
-part, per position), ``sensor_orientation`` (the sensor's angle influence that varies with
-the azimuth of the incline under it: first and second harmonics of that azimuth, a height
-offset per position; it moves the axis sideways by about ``e / tan(incline)`` and
-dominates the positions at its default, 6.9 um of u(EX0C) against 1.27 without it), and
-the artifact's real pose (``artifact_tilt``: normal, no hard bound, since the readings
-determine it; ``artifact_height_error``). :func:`sources` says where each default comes
-from.
+part, per position), ``angle_influence_halfwidth`` (the sensor's angle influence as a
+function of the surface's local tilt in the sensor's frame: a height offset per position,
+``range B(tau) (c0 + c1 cos phi + c2 cos 2 phi)``, B the data sheet's bound at the tilt's
+magnitude tau, phi its direction from the triangulation plane; the even part c0 grows
+with the tilt, the odd part c1 moves a C axis sideways by about ``e / tan(incline)``
+along the triangulation plane, the anisotropy c2; a set-up tilting the surface beyond
+``sensor_max_tilt_deg`` is refused), the artifact's real pose (``artifact_tilt``: normal, no hard bound, since the readings
+determine it; ``artifact_height_error``), and the errors that act one to one: the laser
+spot's lateral offset (``spot_offset_u``) and the sensor's zero (``sensor_zero_u``), the
+X/Y motion's slope and bow in Z, machine-fixed (``xy_slope_halfwidth``,
+``xy_straightness_halfwidth``), the rotary axis's reversal value (``reversal_halfwidth``:
+a position approached against the first move is off by B) and the repeatable short-period
+share of its positioning error (``angular_short_period_halfwidth``), and the sensor's
+linearity curve about mid-range (``sensor_linearity_halfwidth``; ``sensor_scale`` is the
+gain). A field named ``..._u_<unit>`` is a standard uncertainty, ``..._halfwidth_<unit>``
+a half-width. :func:`sources` says where each default comes from.
 A drift that is linear in time is the first-order model of ISO 230-3; it is the only
 error whose effect depends on the measuring order. At the default rate the order hardly
 matters (A axis, drift alone: u(EZ0A) 0.218 um ascending, 0.202 um in the patent's order;
 the other three unchanged), so no further drift source (a random walk, a warm-up curve)
 was added; docs/rotary_axis.md holds the budget tables.
+
+The reversal (``sensor_reversal``): every lattice is read twice, with the sensor at 0
+and at 180 deg about the spindle (M19, ``spindle_orient_s`` between the passes). The
+spot's lateral offset and the angle influence's odd part change sign with the sensor;
+the estimators fit each point's mean over the two passes, in which they cancel. The
+readings are (n, P, 2 M), the second pass's points numbered on from M; ``duration``
+counts the second pass.
 
 Forward model
 -------------
@@ -210,17 +229,16 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from mtplan._validate import InvalidInput, Problems
+from mtplan._validate import Problems
 from mtplan.fitting.fit3d import common_perpendicular
 from mtplan.models.protocol import (
     Measurand,
     Procedure,
     SetupBase,
     Source,
-    frame_columns,
     param,
 )
-from mtplan.uncertainty.distributions import Normal, Rectangular
+from mtplan.uncertainty.distributions import Arcsine, Normal, Rectangular
 
 __all__ = [
     "Setup",
@@ -280,10 +298,12 @@ class Setup(SetupBase):
                                                  "order [deg]; overrides positions and "
                                                  "range_deg; for CA, of the A part", low=-720,
                                                  high=720, min_len=3)
-    a_order: str = param("patent", doc="Measuring order of the A positions from positions and "
-                         "range_deg: 'patent' (0 and up to +range/2, then from the first "
+    a_order: str = param("ascending", doc="Measuring order of the A positions from positions "
+                         "and range_deg: 'ascending' (-range/2 up to +range/2, every position "
+                         "approached in one direction, so the reversal value B cannot bias the "
+                         "result) or 'patent' (0 and up to +range/2, then from the first "
                          "negative down to -range/2: 0, 15, 30, 45, -15, -30, -45 as in the "
-                         "patent's example) or 'ascending' (-range/2 up to +range/2)",
+                         "patent's example; its down-approached positions carry B)",
                          choices=("patent", "ascending"))
     c_angles_deg: tuple[float, ...] | None = param(None, doc="C angles of the combined test "
                                                    "(axis CA) in measuring order [deg] "
@@ -356,12 +376,73 @@ class Setup(SetupBase):
                                                 "axis's random positioning error at each "
                                                 "position (ISO 230-2 repeatability R = 4 s) "
                                                 "[arcsec]", low=0, high=3600)
-    sensor_orientation_ppm: float = param(1200.0, doc="Bound of the part of the sensor's "
-                                          "angle influence that varies with the azimuth of "
-                                          "the incline under it, in ppm of the measuring "
-                                          "range (first and second harmonics in the azimuth, "
-                                          "each of amplitude up to half the bound) [ppm]",
-                                          low=0, high=1e5)
+    spot_offset_u_um: float = param(5.0, doc="Standard uncertainty of each component (X, "
+                                    "Y) of the laser spot's lateral offset from the point the "
+                                    "slides command, as located by scanning a sphere or an edge "
+                                    "[um] (a 10 mm triangulation sensor's spot is 50-100 um "
+                                    "across on its data sheet; located to about a tenth)",
+                                    low=0, high=1000)
+    sensor_zero_u_um: float = param(2.0, doc="Standard uncertainty of the sensor's zero (the "
+                                    "reading at the commanded Z on the nominal surface), as set "
+                                    "on a gauge block by the Z slide [um] (ISO 230-2 "
+                                    "repeatability of Z)", low=0, high=1000)
+    xy_slope_halfwidth_urad: float = param(20.0, doc="Half-width (rectangular) of each "
+                                           "component of the slope of the X and Y motion "
+                                           "against Z over the lattice, the same at every "
+                                           "position [urad] (half the ISO 10791-2 squareness "
+                                           "tolerance of 0.020 mm/500 mm)", low=0, high=1e4)
+    xy_straightness_halfwidth_um: float = param(1.0, doc="Half-width (rectangular) of the bow "
+                                                "of the X and of the Y motion in Z over +-50 "
+                                                "mm about the table centre, the same at every "
+                                                "position [um] (ISO 10791-2 straightness "
+                                                "0.010 mm/500 mm, proportional to 100 mm)",
+                                                low=0, high=1000)
+    reversal_halfwidth_arcsec: float = param(5.0, doc="Half-width (rectangular, sign unknown) "
+                                             "of the rotary axis's reversal value B (ISO 230-2) "
+                                             "[arcsec]: a position approached in the other "
+                                             "direction than the first is off by B (worm-driven "
+                                             "tables: 2-10 arcsec)", low=0, high=3600)
+    angular_short_period_halfwidth_arcsec: float = param(1.0, doc="Amplitude (arcsine: a "
+                                                         "sinusoid of unknown phase) of the "
+                                                         "rotary axis's short-period "
+                                                         "positioning error at each position "
+                                                         "(encoder interpolation, worm), "
+                                                         "systematic: the same in every test "
+                                                         "[arcsec] (angle encoders' error "
+                                                         "within one signal period, about "
+                                                         "+-1 % of a 30-80 arcsec period)",
+                                                         low=0, high=3600)
+    sensor_linearity_halfwidth_ppm: float = param(800.0, doc="Half-width of the sensor's "
+                                                  "linearity deviation over its range, in ppm "
+                                                  "of sensor_range_mm [ppm] (a curve about the "
+                                                  "best straight line, zero at mid-range; "
+                                                  "triangulation data sheets: +-0.08 % of the "
+                                                  "range)", low=0, high=1e5)
+    angle_influence_halfwidth_ppm: float = param(5000.0, doc="Bound of the sensor's angle "
+                                                 "influence at a 30 deg tilt of the surface, "
+                                                 "in ppm of sensor_range_mm; at other tilts "
+                                                 "the bound follows the data sheet's table "
+                                                 "(0.12 % at 5 deg, 0.2 % at 15, 0.5 % at "
+                                                 "30 deg for diffuse surfaces) scaled to it "
+                                                 "[ppm]", low=0, high=1e5)
+    sensor_max_tilt_deg: float = param(50.0, doc="Largest tilt of the surface under the "
+                                       "sensor the set-up may have [deg]; larger tilts are "
+                                       "refused. Data sheets state the angle influence to 30 "
+                                       "deg; beyond, the bound is extrapolated along the "
+                                       "table's last row (the A axis's default +-45 deg tilts "
+                                       "the 20 deg incline to 48.4 deg)", low=0, high=70,
+                                       low_open=True)
+    sensor_azimuth_deg: float = param(0.0, doc="Azimuth from +X of the sensor's triangulation "
+                                      "plane (its laser and receiver) at spindle orientation 0 "
+                                      "[deg]", low=-360, high=360)
+    sensor_reversal: bool = param(False, doc="Read each lattice twice, with the sensor at 0 "
+                                  "and at 180 deg about the spindle (M19): the mean cancels "
+                                  "the odd part of the angle influence and the spot's lateral "
+                                  "offset; costs a second pass and spindle_orient_s per "
+                                  "position")
+    spindle_orient_s: float = param(5.0, doc="Time to turn the spindle with the sensor by 180 "
+                                    "deg (M19) and settle, once per position with "
+                                    "sensor_reversal [s]", low=0, high=600)
     dwell_s: float = param(0.5, doc="Settling and reading time per lattice point [s]", low=0,
                            high=600)
     feed_mm_min: float = param(2000.0, doc="Feed of the X/Y moves between points [mm/min]",
@@ -379,6 +460,16 @@ class Setup(SetupBase):
     def n_points(self) -> int:
         """Lattice points per position."""
         return self.lattice_nx * self.lattice_ny
+
+    @property
+    def n_passes(self) -> int:
+        """Passes over each lattice: 2 with sensor_reversal (sensor at 0 and 180 deg), else 1."""
+        return 2 if self.sensor_reversal else 1
+
+    @property
+    def n_readings(self) -> int:
+        """Readings per position: the lattice points of every pass."""
+        return self.n_points * self.n_passes
 
     @property
     def axes(self) -> tuple[str, ...]:
@@ -457,7 +548,15 @@ class Setup(SetupBase):
                 f"(a sensor reading along -Z needs less than {_MAX_SLOPE_DEG:g} deg); reduce "
                 f"incline_deg or the angles ({field})"
             )
-        elif not self.z_follows_surface:
+        elif np.any((tilt := np.degrees(np.arccos(np.clip(nz, -1, 1))))
+                    > self.sensor_max_tilt_deg):
+            worst = int(np.argmax(tilt))
+            p.add("sensor_max_tilt_deg", self.sensor_max_tilt_deg,
+                  f">= the largest tilt of the surface under the sensor, {tilt[worst]:.1f} deg "
+                  f"at {axis} = {angles[worst]:g} deg (the sensor's angle influence is not "
+                  f"stated beyond its range: state a sensor whose data sheet covers the tilt, "
+                  f"or reduce incline_deg or the angles ({field}))")
+        if not np.any(steep) and not self.z_follows_surface:
             _, _, z_cmd = _lattice(self, axis, angles)
             span = float(np.max(np.ptp(z_cmd, axis=1)))
             if span > self.sensor_range_mm:
@@ -559,16 +658,22 @@ class _Plan(NamedTuple):
     n0: np.ndarray  # upward unit normal of the incline at the zero position (3,)
     q0: np.ndarray  # a point of the incline at the zero position (3,) [mm]
     centres: np.ndarray  # lattice centres (P, 2) [mm]
-    xy: np.ndarray  # lattice points (P, M, 2) [mm]
-    z_cmd: np.ndarray  # commanded Z: (P, M) following, (P, 1) otherwise [mm]
+    xy: np.ndarray  # commanded point of each reading, every pass (P, R, 2) [mm]
+    z_cmd: np.ndarray  # commanded Z: (P, R) following, (P, 1) otherwise [mm]
     local: np.ndarray  # [1; gx; gy] (3, M): plane in local coordinates -> heights
+    read_local: np.ndarray  # the same for each reading, every pass (3, R)
+    sensor_sign: np.ndarray  # +1 at the sensor's 0 deg pass, -1 at its 180 deg one (R,)
     fit: np.ndarray  # its pseudo-inverse, transposed (M, 3): heights -> (h, a, b)
     gram: np.ndarray  # local^T local summed over points: (3, 3)
-    form: np.ndarray  # height per unit form coefficient, (K, P*M) [1]
+    form: np.ndarray  # height per unit form coefficient, (K, P*R) [1]
     harmonics: np.ndarray  # [cos t, sin t, cos 2t, sin 2t] of the commanded angles (4, P)
-    orientation: np.ndarray  # the same of the fall line's azimuth under the sensor (4, P)
-    times: np.ndarray  # time of each reading from the start (P, M) [s]
+    tilt_bound: np.ndarray  # range x the angle influence's bound at each position's tilt
+    # relative to its bound at 30 deg (P,) [mm]
+    tilt_direction: np.ndarray  # the tilt's direction from the triangulation plane (P,) [rad]
+    times: np.ndarray  # time of each reading from the start (P, R) [s]
     total_time: float  # [s]
+    down: np.ndarray  # 1 where a position is approached against the first move, else 0 (P,)
+    machine: np.ndarray  # the X/Y motion's Z error per unit term: x, y, bows (4, P, R) [mm]
 
 
 def _form_basis(setup: Setup, axis: str, angles: np.ndarray, xy: np.ndarray,
@@ -606,16 +711,56 @@ def _harmonics(angle: np.ndarray) -> np.ndarray:
     return np.stack([np.cos(angle), np.sin(angle), np.cos(2 * angle), np.sin(2 * angle)])
 
 
-def _fall_azimuths(setup: Setup) -> np.ndarray:
-    """Azimuth from +X of the nominal incline's fall line at every position (P,) [rad]."""
+#: the angle influence's bound [fraction of the range] against the surface's tilt [deg]:
+#: laser triangulation on diffuse surfaces (Micro-Epsilon optoNCDT 1700/2300 operating
+#: instructions: typ. 0.12-0.2 % at 5-15 deg, 0.5 % at 15-30 deg); beyond the last row the
+#: bound runs on along its slope (an extrapolation, stated in the field's doc)
+_TILT_TABLE_DEG = np.array([0.0, 5.0, 15.0, 30.0])
+_TILT_TABLE = np.array([0.0, 0.0012, 0.002, 0.005])
+
+
+def _tilts(setup: Setup) -> tuple[np.ndarray, np.ndarray]:
+    """Magnitude [deg] and direction from +X [rad] of the nominal surface's tilt under the
+    sensor at every position: the angle of the normal from Z, the fall line's azimuth (P,)."""
     n0 = _incline_normal(setup)
     normals = np.concatenate([_nominal_rotations(a, np.deg2rad(setup.axis_angles(a))) @ n0
                               for a in setup.axes])
-    return np.arctan2(normals[:, 1], normals[:, 0])
+    tau = np.degrees(np.arccos(np.clip(normals[:, 2], -1.0, 1.0)))
+    return tau, np.arctan2(normals[:, 1], normals[:, 0])
+
+
+def _tilt_bound(tau: np.ndarray) -> np.ndarray:
+    """The angle influence's bound at tilts `tau` [deg] relative to its bound at 30 deg (P,)."""
+    slope = (_TILT_TABLE[-1] - _TILT_TABLE[-2]) / (_TILT_TABLE_DEG[-1] - _TILT_TABLE_DEG[-2])
+    inside = np.interp(tau, _TILT_TABLE_DEG, _TILT_TABLE)
+    beyond = _TILT_TABLE[-1] + slope * (tau - _TILT_TABLE_DEG[-1])
+    bound = np.where(tau > _TILT_TABLE_DEG[-1], beyond, inside)
+    return bound / _TILT_TABLE[-1]
+
+
+#: the length over which the X and Y motion's bow is stated (+-50 mm about the table centre)
+_BOW_HALF_MM = 50.0
+
+
+def _approached_down(angles: np.ndarray) -> np.ndarray:
+    """1 where a position is approached in the other direction than the axis's first move
+    (the first position in the first move's direction, after an overrun), else 0 (P,)."""
+    step = np.sign(np.diff(angles))
+    first = step[np.flatnonzero(step)[0]] if np.any(step) else 1.0
+    direction = np.concatenate([[first], np.where(step == 0, first, step)])
+    return (direction != first).astype(float)
+
+
+def _machine_basis(xy: np.ndarray) -> np.ndarray:
+    """The X/Y motion's Z error per unit slope (x, y) [mm/rad] and per unit bow [1] at the
+    commanded points `xy` (P, M, 2): (4, P, M)."""
+    x, y = xy[..., 0], xy[..., 1]
+    return np.stack([x, y, (x / _BOW_HALF_MM) ** 2, (y / _BOW_HALF_MM) ** 2])
 
 
 def _times(setup: Setup, xy: np.ndarray) -> tuple[np.ndarray, float]:
-    """Time of each reading (P, M) and of the whole test [s]: index, moves, dwell."""
+    """Time of each reading (P, R) and of the whole test [s]: index, moves, dwell, and the
+    spindle's turn before each second pass."""
     speed = setup.feed_mm_min / 60.0
     flat = xy.reshape(-1, 2)
     steps = np.zeros(len(flat))
@@ -623,6 +768,8 @@ def _times(setup: Setup, xy: np.ndarray) -> tuple[np.ndarray, float]:
     steps += setup.dwell_s
     steps = steps.reshape(xy.shape[:2])
     steps[:, 0] += setup.index_time_s  # turn, clamp and settle before each lattice
+    for k in range(1, setup.n_passes):
+        steps[:, k * setup.n_points] += setup.spindle_orient_s  # M19 by 180 deg
     times = np.cumsum(steps.ravel()).reshape(steps.shape)
     return times, float(times[-1, -1])
 
@@ -638,6 +785,10 @@ def _plan(setup: Setup) -> _Plan:
     gx, gy = _serpentine(setup.lattice_nx, setup.lattice_ny, setup.lattice_size_mm)
     local = np.stack([np.ones_like(gx), gx, gy])
     fit = np.linalg.pinv(local.T).T  # (M, 3): coef = heights @ fit
+    # every pass reads the lattice in the same order: readings (P, R), R = passes x M
+    passes, P = setup.n_passes, xy.shape[0]
+    xy, z = np.tile(xy, (1, passes, 1)), np.tile(z, (1, passes))
+    form = np.tile(form.reshape(P, -1, form.shape[-1]), (1, passes, 1)).reshape(-1, form.shape[-1])
     times, total = _times(setup, xy)  # one time line through every axis's positions
     z_cmd = z if setup.z_follows_surface else centres3[:, 2:]
     out = _Plan(
@@ -649,13 +800,18 @@ def _plan(setup: Setup) -> _Plan:
         xy=xy,
         z_cmd=np.ascontiguousarray(z_cmd),
         local=local,
+        read_local=np.ascontiguousarray(np.tile(local, (1, passes))),
+        sensor_sign=np.repeat([1.0, -1.0][:passes], setup.n_points),
         fit=np.ascontiguousarray(fit),
         gram=local @ local.T,
         form=np.ascontiguousarray(form.T),  # (K, P*M)
         harmonics=_harmonics(np.deg2rad(setup.angles())),
-        orientation=_harmonics(_fall_azimuths(setup)),
+        tilt_bound=setup.sensor_range_mm * _tilt_bound(_tilts(setup)[0]),
+        tilt_direction=_tilts(setup)[1] - math.radians(setup.sensor_azimuth_deg),
         times=times,
         total_time=total,
+        down=np.concatenate([_approached_down(setup.axis_angles(a)) for a in setup.axes]),
+        machine=_machine_basis(xy),
     )
     for arr in out:
         if isinstance(arr, np.ndarray):
@@ -748,9 +904,15 @@ def measurands(setup: Setup) -> tuple[Measurand, ...]:
 def sources(setup: Setup) -> dict[str, Source]:
     """Every error source of the set-up, in internal units (mm, rad, 1).
 
-    Shapes: P = positions, M = lattice points per position.
+    Shapes: P = positions, M = readings per position (the lattice's points, twice with
+    sensor_reversal).
     """
-    P, M = setup.n_positions, setup.n_points
+    return {**_machine_sources(setup), **_sensor_and_setup_sources(setup)}
+
+
+def _machine_sources(setup: Setup) -> dict[str, Source]:
+    """The readings' noise and gain, the slides, the artifact, the drift, the rotary axis."""
+    P, M = setup.n_positions, setup.n_readings  # M: readings per position, every pass
     um = _UM
 
     def rect(half):
@@ -764,9 +926,11 @@ def sources(setup: Setup) -> dict[str, Source]:
             "ground metal surface (makers quote 0.5-2 um)."),
         "sensor_scale": Source(
             rect(setup.sensor_scale_ppm * 1e-6), (),
-            "Scale (gain) error of the sensor, one per test, rectangular. Default +-500 ppm: "
-            "the linearity of laser triangulation sensors, typically +-0.03-0.1 % of the range. "
-            "With z_follows_surface it acts on the sensor's small residual only."),
+            "Scale (gain) error of the sensor, one per test, rectangular: its reading from "
+            "mid-range is s (1 + kappa). Default +-500 ppm: the gain's share of a triangulation "
+            "sensor's calibration (makers' certificates: +-0.03-0.1 % of the range); the "
+            "curvature is sensor_linearity_halfwidth. With z_follows_surface it acts on the "
+            "sensor's small residual only."),
         "xy_positioning": Source(
             Normal(0.0, setup.xy_positioning_um * um), (2, P, M),
             "X and Y positioning error of the slides at each lattice point (standard deviation; "
@@ -835,20 +999,97 @@ def sources(setup: Setup) -> dict[str, Source]:
             "Random part of the angular positioning error at each position (standard "
             "deviation). Default 1 arcsec: ISO 230-2 unidirectional repeatability R = 4 s of "
             "about 2-4 arcsec of rotary tables with direct angle encoders."),
-        "sensor_orientation": Source(
-            rect(setup.sensor_orientation_ppm * 1e-6 / (2 * math.sqrt(2))), (4,),
-            "The sensor's angle influence that varies with the azimuth psi of the incline's "
-            "fall line under the fixed sensor (its triangulation plane is fixed on the Z "
-            "slide, the incline turns under it): a height error of every reading at a "
-            "position, range * (a1 cos psi + b1 sin psi + a2 cos 2 psi + b2 sin 2 psi), "
-            "each coefficient uniform within +-bound / (2 sqrt 2), as a fraction of the "
-            "measuring range sensor_range_mm. Default 1200 ppm (0.12 % of the range): "
-            "Micro-Epsilon's operating instructions for optoNCDT 1700 and 2300 give an "
-            "apparent distance change of typ. 0.12-0.2 % of the measuring range for tilts of "
-            "5-15 deg (0.5 % for 15-30 deg), the same about either axis; the part common to "
-            "every azimuth does not move the axis, so the smaller figure bounds the part "
-            "that varies. A first harmonic e moves the axis sideways by about "
-            "e / tan(incline)."),
+    }
+
+
+def _sensor_and_setup_sources(setup: Setup) -> dict[str, Source]:
+    """The errors that act one to one (spot, zero, the slides' slope and bow, reversal,
+    short-period positioning, linearity) and the sensor's angle influence."""
+    P = setup.n_positions
+    um = _UM
+
+    def rect(half):
+        return Rectangular(-half, half)
+
+    return {
+        "spot_offset_u": Source(
+            Normal(0.0, setup.spot_offset_u_um * um), (2,),
+            "Lateral offset [0] X, [1] Y of the laser spot from the point the slides command, "
+            "one per test (the sensor is fixed on the spindle): every reading is the height "
+            "d away, so every plane, and with it the axis, moves by -d in X and Y, one to one. "
+            "Normal, default 5 um per component: the spot (50-100 um across on a 10 mm "
+            "triangulation sensor's data sheet) located on the machine by scanning a sphere or "
+            "an edge, to about a tenth of its diameter."),
+        "sensor_zero_u": Source(
+            Normal(0.0, setup.sensor_zero_u_um * um), (),
+            "Zero of the sensor (its reading at the commanded Z on the nominal surface), one "
+            "per test: every reading is off by it, so the planes move along Z: one to one into "
+            "the A axis's EZ0A, nothing on C. Normal, default 2 um: set on a gauge block by "
+            "the Z slide, whose ISO 230-2 repeatability is a few micrometres."),
+        "xy_slope_halfwidth": Source(
+            rect(setup.xy_slope_halfwidth_urad * _URAD), (2,),
+            "Slope in Z of the X [0] and Y [1] motion over the lattice (the squareness of X "
+            "and Y to Z), machine-fixed: the same at every position. Each plane's slope is "
+            "off by it, so the normals and with them the axis's direction tilt (EA0C, EB0C; "
+            "EB0A, EC0A). Rectangular, default +-20 urad: half of ISO 10791-2's squareness "
+            "tolerance of 0.020 mm/500 mm (40 urad), for a machine measured and compensated "
+            "to within half of it."),
+        "xy_straightness_halfwidth": Source(
+            rect(setup.xy_straightness_halfwidth_um * um), (2,),
+            "Bow in Z of the X [0] and Y [1] motion, b (x / 50 mm)^2 and b (y / 50 mm)^2 "
+            "about the table centre, machine-fixed. Rectangular, default +-1 um: ISO 10791-2's "
+            "straightness tolerance 0.010 mm/500 mm, taken proportionally to 100 mm."),
+        "reversal_halfwidth": Source(
+            rect(setup.reversal_halfwidth_arcsec * _ARCSEC), (len(setup.axes),),
+            "Reversal value B (ISO 230-2) of each rotary axis tested, sign unknown: a position "
+            "approached in the other direction than the test's first move is off by B (the "
+            "first position is approached in the direction of the first move, after an "
+            "overrun). Only the angles estimator uses the angles; in ascending order every "
+            "position is approached one way and B is a common zero it absorbs; in the "
+            "patent's A order (up, then down) it moves EB0A. Rectangular, default +-5 arcsec: "
+            "ISO 230-2 reversal values of worm-driven rotary tables, 2-10 arcsec in makers' "
+            "acceptance reports."),
+        "angular_short_period_halfwidth": Source(
+            Arcsine(-setup.angular_short_period_halfwidth_arcsec * _ARCSEC,
+                    setup.angular_short_period_halfwidth_arcsec * _ARCSEC), (P,),
+            "Short-period share of the rotary axis's positioning error at each position (the "
+            "angle encoder's interpolation error within a signal period, the worm's error "
+            "per turn): repeatable, so the same in every test, but of a period far shorter "
+            "than the positions' spacing, so unrelated from one position to the next. "
+            "Arcsine (a sinusoid of unknown phase), default amplitude 1 arcsec: angle "
+            "encoders' position error within one signal period, about +-1 % of a 30-80 "
+            "arcsec signal period (makers' catalogues). Only the angles estimator uses it."),
+        "sensor_linearity_halfwidth": Source(
+            rect(0.4 * setup.sensor_linearity_halfwidth_ppm * 1e-6), (2,),
+            "The sensor's linearity deviation over its range, one curve per test: with x = 2 "
+            "s / range (s the sensor value from mid-range), range (c2 1.5 x^2 + c3 (5 x^3 - 3 "
+            "x) / 2), the Legendre terms P2 - P2(0) and P3 (a deviation about the best "
+            "straight line, zero at mid-range, where the zero is set), each coefficient "
+            "uniform within +-0.4 bound, so the curve stays within +-bound. Default 800 ppm: "
+            "+-0.08 % of the range, triangulation sensors' data sheets (e.g. Micro-Epsilon "
+            "optoNCDT 1750). The gain is sensor_scale. With z_follows_surface the sensor "
+            "works about mid-range and this acts on tens of micrometres only."),
+        "angle_influence_halfwidth": Source(
+            rect(setup.angle_influence_halfwidth_ppm * 1e-6 / 3), (3,),
+            "The sensor's angle influence: a height error of every reading of a position that "
+            "depends on the local tilt of the surface in the sensor's frame, magnitude tau "
+            "and direction phi (the fall line's azimuth from the triangulation plane), "
+            "range * B(tau) * (c0 + c1 cos phi + c2 cos 2 phi): an even part c0 that grows "
+            "with the tilt's magnitude, an odd part c1 along the triangulation plane (it "
+            "changes sign when the sensor turns by 180 deg) and the anisotropy across it c2 "
+            "(a sensor is symmetric about its triangulation plane: no sin phi terms). Each "
+            "coefficient uniform within +-1/3 of the bound at 30 deg (the field), one set per "
+            "test (one sensor), B(tau) the table relative to 30 deg, so the error stays "
+            "within the data sheet's bound at the actual tilt. B: the angle "
+            "influence tables of laser triangulation sensors on diffuse surfaces (Micro-"
+            "Epsilon's operating instructions for optoNCDT 1700 and 2300: typ. 0.12-0.2 % "
+            "of the range at 5-15 deg, 0.5 % at 15-30 deg), taken as 0.12 % at 5 deg, 0.2 % "
+            "at 15, 0.5 % at 30 (linear between, through 0 at 0 deg; beyond 30 deg along "
+            "the last row's slope, an extrapolation), scaled so that B(30 deg) = "
+            "angle_influence_halfwidth_ppm. Default 5000 ppm (0.5 %). On a C axis the tilt "
+            "is the incline at every position and the odd part moves the axis sideways by "
+            "about e / tan(incline); on an A axis the tilt grows with |A| and the even part "
+            "moves EZ0A."),
     }
 
 
@@ -888,9 +1129,9 @@ def truth_from_estimate(setup: Setup, estimate: dict) -> Truth:
 #: axis of each per-position source's errors (after the batch axis) that runs over positions
 _POSITION_AXIS = {"probe_noise": 1, "xy_positioning": 2, "z_positioning": 1,
                   "radial_motion": 1, "axial_motion": 1, "tilt_motion": 1,
-                  "angular_repeatability": 1}
+                  "angular_repeatability": 1, "angular_short_period_halfwidth": 1}
 #: sources with one row of errors per axis tested (after the batch axis)
-_AXIS_ROWS = ("angular_positioning",)
+_AXIS_ROWS = ("angular_positioning", "reversal_halfwidth")
 
 
 @functools.lru_cache(maxsize=64)
@@ -1021,7 +1262,9 @@ def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -
     vec = _rotate_about(lever, ub, g.theta[:, None])  # (P, 2, 3) or (n, P, 2, 3)
     # angular positioning: the smooth systematic part (harmonics of the commanded angle)
     # plus the random part per position, (n, P) [rad]
-    dpsi = errors["angular_positioning"] @ g.harmonics + errors["angular_repeatability"]
+    dpsi = (errors["angular_positioning"] @ g.harmonics + errors["angular_repeatability"]
+            + errors["angular_short_period_halfwidth"]
+            + errors["reversal_halfwidth"][:, None] * g.down)
     if np.any(dpsi):
         vec = _rotate_about(vec, ub, dpsi[..., None])  # (n, P, 2, 3)
     tilt = errors["tilt_motion"]
@@ -1050,7 +1293,7 @@ def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -
 
     # per reading (n, P, M): one matrix product for the planes, then each active source
     # added in place (a source switched off is all zeros and skipped)
-    z = np.matmul(coef.reshape(n * P, 3), g.local).reshape(n, P, M)
+    z = np.matmul(coef.reshape(n * P, 3), g.read_local).reshape(n, P, M)
     z += noise
     tmp = np.empty_like(z)
     if drift is not None:
@@ -1059,21 +1302,39 @@ def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -
     if np.any(xy_err):
         z += np.multiply(c1[..., None], xy_err[:, 0], out=tmp)
         z += np.multiply(c2[..., None], xy_err[:, 1], out=tmp)
+    spot = errors["spot_offset_u"]  # (n, 2): the spot reads the height d away (-d at 180)
+    if np.any(spot):
+        z += (c1 * spot[:, :1] + c2 * spot[:, 1:])[..., None] * g.sensor_sign
+    zero = errors["sensor_zero_u"]  # (n,)
+    if np.any(zero):
+        z += zero[:, None, None]
+    motion = np.concatenate([errors["xy_slope_halfwidth"], errors["xy_straightness_halfwidth"]],
+                            axis=-1)  # (n, 4): the slides' Z error, the same at every position
+    if np.any(motion):
+        z -= np.tensordot(motion, g.machine, axes=1)
     form = errors["flatness"]  # (n, K)
     if np.any(form):
         z += np.matmul(form, g.form).reshape(n, P, M)
-    orient = errors["sensor_orientation"]  # (n, 4): a height error per position
-    if np.any(orient):
-        z += (setup.sensor_range_mm * (orient @ g.orientation))[..., None]
+    influence = errors["angle_influence_halfwidth"]  # (n, 3): a height error per position
+    if np.any(influence):  # even, odd (its sign turns with the sensor), anisotropic
+        phi = g.tilt_direction
+        even = influence[:, ::2] @ (np.stack([np.ones_like(phi), np.cos(2 * phi)]) * g.tilt_bound)
+        odd = influence[:, 1:2] * (np.cos(phi) * g.tilt_bound)
+        z += even[..., None] + odd[..., None] * g.sensor_sign
     ez = errors["z_positioning"]  # gap = surface - actual Z position
     if np.any(ez):
         z -= ez if ez.ndim == 3 else ez[..., None]
     kappa = errors["sensor_scale"]  # reading = Z_cmd + (gap - Z_cmd) (1 + kappa) + noise
-    if np.any(kappa):
-        np.subtract(z, noise, out=tmp)
-        tmp -= g.z_cmd
-        tmp *= kappa[:, None, None]
-        z += tmp
+    lin = errors["sensor_linearity_halfwidth"]  # (n, 2): + range (c2 1.5 x^2 + c3 P3(x))
+    if np.any(kappa) or np.any(lin):
+        s = z - noise - g.z_cmd  # the sensor value from mid-range
+        if np.any(lin):
+            half = setup.sensor_range_mm / 2
+            x = s / half
+            z += 2 * half * (lin[:, :1, None] * 1.5 * x * x
+                             + lin[:, 1:, None] * 0.5 * x * (5 * x * x - 3))
+        if np.any(kappa):
+            z += s * kappa[:, None, None]
     return z
 
 
@@ -1115,15 +1376,25 @@ def schedule(setup: Setup) -> pd.DataFrame:
     previous one at ``feed_mm_min`` plus ``dwell_s``; the reading is taken at its end.
     """
     g = _plan(setup)
-    P, M = setup.n_positions, setup.n_points
+    P, M = setup.n_positions, setup.n_readings
     return pd.DataFrame({
         "axis": np.repeat(_position_axes(setup), M),
         "position": np.repeat(np.arange(P), M),
         "point": np.tile(np.arange(M), P),
         "x_mm": g.xy[..., 0].ravel(),
         "y_mm": g.xy[..., 1].ravel(),
+        **_sensor_column(setup),
         "time_s": g.times.ravel(),
     })
+
+
+def _sensor_column(setup: Setup) -> dict:
+    """``sensor_deg`` (0 or 180, the spindle's orientation of each reading) with
+    sensor_reversal, else nothing: {} or {"sensor_deg": array (P*R,)}."""
+    if not setup.sensor_reversal:
+        return {}
+    sign = np.tile(_plan(setup).sensor_sign, setup.n_positions)
+    return {"sensor_deg": np.where(sign > 0, 0.0, 180.0)}
 
 
 def duration(setup: Setup) -> float:
@@ -1131,216 +1402,18 @@ def duration(setup: Setup) -> float:
     return _plan(setup).total_time
 
 
-_COLUMNS = ("position", "angle_deg", "point", "x_mm", "y_mm", "z_mm")
-
-
 def _position_axes(setup: Setup) -> np.ndarray:
     """The axis ('C' or 'A') turned at each position, array (positions,) of str."""
     return np.concatenate([np.full(len(setup.axis_angles(a)), a) for a in setup.axes])
 
 
-def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
-    """The first trial's readings as a tidy table, one reading per row in measuring order.
-
-    Columns: ``axis`` (the axis turned: C or A; both in a CA test), ``position``
-    (0-based over the whole test), ``angle_deg`` (commanded angle of that axis),
-    ``point`` (0-based, in measuring order), ``x_mm``, ``y_mm`` (commanded lattice
-    point), ``z_mm`` (Z position + sensor value).
-    """
-    z = _check_readings(setup, readings)[0]
-    g = _plan(setup)
-    P, M = z.shape
-    return pd.DataFrame({
-        "axis": np.repeat(_position_axes(setup), M),
-        "position": np.repeat(np.arange(P), M),
-        "angle_deg": np.repeat(setup.angles(), M),
-        "point": np.tile(np.arange(M), P),
-        "x_mm": g.xy[..., 0].ravel(),
-        "y_mm": g.xy[..., 1].ravel(),
-        "z_mm": z.ravel(),
-    })
-
-
-def from_frame(setup: Setup, df: pd.DataFrame) -> dict[str, np.ndarray]:
-    """Readings (a batch of one) from a table in the format of :func:`readings_frame`.
-
-    Rows may come in any order. The positions, angles and lattice points must be the
-    set-up's (x, y within 1 um, angles within 1e-6 deg), and so must the ``axis``
-    column where the table has one.
-
-    Raises
-    ------
-    InvalidInput
-        Naming the missing column, the row with a missing or non-numeric value, a
-        duplicate or missing reading, or a point that is not the set-up's.
-    """
-    data = frame_columns(df, _COLUMNS, f"{NAME} readings")
-    p = Problems(f"{NAME} readings")
-    P, M = setup.n_positions, setup.n_points
-    if len(df) != P * M:
-        p.add_text(f"The {NAME} readings must have {P * M} rows ({P} positions x {M} points) "
-                   f"for this set-up; got {len(df)}")
-        p.raise_if_any()
-    pos, pt = data["position"], data["point"]
-    for col, v, top in (("position", pos, P), ("point", pt, M)):
-        bad = np.flatnonzero((v != np.round(v)) | (v < 0) | (v >= top))
-        if bad.size:
-            p.add_text(f"The column {col!r} of the {NAME} readings must hold ints 0..{top - 1}; "
-                       f"row {int(bad[0])} holds {v[bad[0]]!r}")
-    p.raise_if_any()
-    flat = pos.astype(int) * M + pt.astype(int)
-    counts = np.bincount(flat, minlength=P * M)
-    if np.any(counts != 1):
-        k = int(np.flatnonzero(counts != 1)[0])
-        what = "is missing" if counts[k] == 0 else f"appears {counts[k]} times"
-        p.add_text(f"The {NAME} reading of position {k // M}, point {k % M} {what}")
-        p.raise_if_any()
-    order = np.argsort(flat, kind="stable")
-    g = _plan(setup)
-    checks = (("angle_deg", np.repeat(setup.angles(), M), 1e-6),
-              ("x_mm", g.xy[..., 0].ravel(), 1e-3), ("y_mm", g.xy[..., 1].ravel(), 1e-3))
-    for col, expected, tol in checks:
-        got = data[col][order]
-        bad = np.flatnonzero(np.abs(got - expected) > tol)
-        if bad.size:
-            row = int(order[bad[0]])
-            p.add_text(f"The column {col!r} of the {NAME} readings must match the set-up "
-                       f"(within {tol:g}); row {row} holds {got[bad[0]]!r} where the set-up "
-                       f"has {expected[bad[0]]!r}")
-    if "axis" in df.columns:
-        got = df["axis"].astype(str).str.strip().str.upper().to_numpy()[order]
-        expected = np.repeat(_position_axes(setup), M)
-        bad = np.flatnonzero(got != expected)
-        if bad.size:
-            row = int(order[bad[0]])
-            p.add_text(f"The column 'axis' of the {NAME} readings must match the set-up "
-                       f"(axis={setup.axis!r}); row {row} holds {got[bad[0]]!r} where the "
-                       f"set-up turns {expected[bad[0]]!r}")
-    p.raise_if_any()
-    return {"z_mm": data["z_mm"][order].reshape(1, P, M)}
-
-
-def reading_limits(setup: Setup) -> dict:
-    """The distance sensor's measuring range around the nominal surface at each point [mm]."""
-    nominal = readings_frame(setup, forward(setup, Truth(), PROCEDURE.zero_errors(setup, 1)))
-    half = setup.sensor_range_mm / 2
-    return {"z_mm": (nominal["z_mm"].to_numpy() - half, nominal["z_mm"].to_numpy() + half,
-                     f"the sensor's measuring range (sensor_range_mm = {setup.sensor_range_mm:g} "
-                     "about the nominal surface)")}
-
-
-# --------------------------------------------------------------------------- set-up from a file
-_ANGLE_TOL_DEG = 1e-6  # as from_frame: commanded angles agree to 1e-6 deg
-_LATTICE_TOL_MM = 1e-6
-
-
-def _angle_fields(axis: str, angles: np.ndarray) -> dict:
-    """positions, range_deg and a_order that give `angles` of `axis`, where some do."""
-    from mtplan.models.protocol import Implied
-
-    n = angles.size
-    if axis == "C":
-        candidates = [(360.0, "patent"), (float(angles[-1]), "patent")]
-    else:
-        candidates = [(float(angles.max() - angles.min()), o) for o in ("patent", "ascending")]
-    for span, order in candidates:
-        try:
-            grid = Setup(axis=axis, positions=n, range_deg=span, a_order=order).axis_angles(axis)
-        except (InvalidInput, ValueError):
-            continue
-        if grid.shape == angles.shape and np.allclose(grid, angles, rtol=0, atol=_ANGLE_TOL_DEG):
-            out = {"range_deg": Implied(span, _ANGLE_TOL_DEG, why=f"the file's {n} {axis} angles")}
-            if axis == "A":
-                out["a_order"] = Implied(order, why="the order of the file's A angles")
-            return out
-    return {"range_deg": Implied(None, why=f"the file's {axis} angles are not an evenly "
-                                 "spaced range: they are angles_deg")}
-
-
-def _lattice_fields(x: np.ndarray, y: np.ndarray, axis: str, angle_deg: float) -> dict:
-    """Lattice counts, side and offset from the commanded points of one position."""
-    from mtplan.models.protocol import Implied
-
-    xs = np.unique(np.round(x / _LATTICE_TOL_MM)) * _LATTICE_TOL_MM
-    ys = np.unique(np.round(y / _LATTICE_TOL_MM)) * _LATTICE_TOL_MM
-    nx, ny = xs.size, ys.size
-    if nx < 2 or ny < 2 or nx * ny != x.size:
-        return {}
-    why = "the commanded points of the file's first position"
-    out = {"lattice_nx": Implied(nx, why=why), "lattice_ny": Implied(ny, why=why)}
-    size = float(xs[-1] - xs[0])
-    if abs(size - float(ys[-1] - ys[0])) > 2 * _LATTICE_TOL_MM:
-        return out  # not a square lattice: the design check names the rows
-    out["lattice_size_mm"] = Implied(size, _LATTICE_TOL_MM, why=why)
-    cx, cy = float(xs[0] + xs[-1]) / 2, float(ys[0] + ys[-1]) / 2
-    t = math.radians(angle_deg)
-    if axis == "C":  # the lattice turns with the table about Z
-        ox, oy = math.cos(t) * cx + math.sin(t) * cy, -math.sin(t) * cx + math.cos(t) * cy
-    elif abs(angle_deg) <= _ANGLE_TOL_DEG:  # A: X stays; Y only at the zero position
-        ox, oy = cx, cy
-    else:
-        ox, oy = cx, None
-    out["lattice_offset_x_mm"] = Implied(ox, _LATTICE_TOL_MM, why=why)
-    if oy is not None:
-        out["lattice_offset_y_mm"] = Implied(oy, _LATTICE_TOL_MM, why=why)
-    return out
-
-
-def setup_from_frame(df: pd.DataFrame) -> dict:
-    """The set-up fields a measured readings table determines (see ``Implied``).
-
-    The axis (the ``axis`` column: C, A, or both for CA); per axis part the commanded
-    angles in measuring order (``angles_deg``, for CA ``c_angles_deg`` and the A part's
-    ``angles_deg``), their number (``positions``) and, where they are an evenly spaced
-    range, ``range_deg`` and ``a_order`` (so that stated ones are checked); the lattice
-    (``lattice_nx``, ``lattice_ny``, ``lattice_size_mm`` and its offset at the zero
-    position) from the commanded points of the first position (of the first position at
-    A = 0 for the Y offset of an A test). Angles agree within 1e-6 deg, lattice
-    coordinates within 1e-6 mm. Where the table is not regular enough to tell, the
-    field is left out and the design check names the offending row.
-    """
-    from mtplan.models.protocol import Implied
-
-    axes = df["axis"].astype(str).str.strip().str.upper().to_numpy()
-    position = pd.to_numeric(df["position"], errors="coerce").to_numpy(dtype=float)
-    angle = pd.to_numeric(df["angle_deg"], errors="coerce").to_numpy(dtype=float)
-    kinds = set(axes)
-    axis = {frozenset("C"): "C", frozenset("A"): "A", frozenset("CA"): "CA"}.get(frozenset(kinds))
-    if axis is None or not np.all(np.isfinite(position)) or not np.all(np.isfinite(angle)):
-        return {}
-    out = {"axis": Implied(axis, why="the file's axis column")}
-    order = np.unique(position)
-    per_position = {}
-    for p in order:
-        rows = position == p
-        if np.ptp(angle[rows]) > _ANGLE_TOL_DEG or len(set(axes[rows])) != 1:
-            return out  # one position, one angle of one axis: else from_frame names it
-        per_position[p] = (axes[rows][0], float(angle[rows][0]))
-    parts = {a: np.array([ang for ax, ang in per_position.values() if ax == a])
-             for a in ("C", "A")}
-    main = "A" if axis == "CA" else axis
-    angles = parts[main]
-    if angles.size < 3:
-        return out
-    why = f"the file's {angles.size} {main} positions"
-    out["angles_deg"] = Implied(tuple(float(a) for a in angles), _ANGLE_TOL_DEG, why=why)
-    out["positions"] = Implied(int(angles.size), why=why)
-    out.update(_angle_fields(main, angles))
-    if axis == "CA":
-        c = parts["C"]
-        out["c_angles_deg"] = Implied(tuple(float(a) for a in c), _ANGLE_TOL_DEG,
-                                      why=f"the file's {c.size} C positions")
-    first_axis = "C" if axis == "CA" else axis
-    lattice_at = next(p for p in order if per_position[p][0] == first_axis)
-    if axis == "A":  # the Y offset shows only at A = 0
-        lattice_at = next((p for p in order if abs(per_position[p][1]) <= _ANGLE_TOL_DEG),
-                          lattice_at)
-    rows = position == lattice_at
-    x = pd.to_numeric(df["x_mm"], errors="coerce").to_numpy(dtype=float)[rows]
-    y = pd.to_numeric(df["y_mm"], errors="coerce").to_numpy(dtype=float)[rows]
-    if np.all(np.isfinite(x)) and np.all(np.isfinite(y)):
-        out.update(_lattice_fields(x, y, first_axis, per_position[lattice_at][1]))
-    return out
+# the readings as a table (a submodule of their own: the CSV format and what it determines)
+from mtplan.models.rotary_axis._readings import (  # noqa: E402
+    from_frame,
+    reading_limits,
+    readings_frame,
+    setup_from_frame,
+)
 
 
 PROCEDURE = Procedure(

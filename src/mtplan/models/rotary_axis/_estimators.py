@@ -22,16 +22,28 @@ from mtplan.models.rotary_axis import (
 
 
 # --------------------------------------------------------------------------- estimators
-def _check_readings(setup: Setup, readings) -> np.ndarray:
+def _check_readings(setup: Setup, readings, *, passes: bool = False) -> np.ndarray:
+    """The readings z_mm, (n, P, R); unless `passes`, each lattice point's mean over the
+    sensor's orientations (n, P, M): with sensor_reversal the mean of the readings at 0
+    and 180 deg, in which the odd errors of the sensor (the spot's lateral offset, the
+    angle influence's odd part) cancel."""
     if not isinstance(readings, dict) or "z_mm" not in readings:
         raise InvalidInput([f"The 'readings' parameter of {NAME} must be a dict with the key "
                             f"'z_mm'. Got {type(readings).__name__} instead."])
     z = np.asarray(readings["z_mm"], dtype=float)
-    shape = (setup.n_positions, setup.n_points)
+    shape = (setup.n_positions, setup.n_readings)
     if z.ndim != 3 or z.shape[1:] != shape:
         raise InvalidInput([f"The 'readings' parameter of {NAME} must hold 'z_mm' of shape "
                             f"(n, {shape[0]}, {shape[1]}) for this set-up. Got {z.shape} instead."])
-    return z
+    return z if passes else _pass_mean(setup, z)
+
+
+def _pass_mean(setup: Setup, z: np.ndarray) -> np.ndarray:
+    """Each lattice point's mean over the passes: (n, P, R) -> (n, P, M)."""
+    if setup.n_passes == 1:
+        return z
+    n, P, _ = z.shape
+    return z.reshape(n, P, setup.n_passes, setup.n_points).mean(axis=2)
 
 
 def _planes(setup: Setup, z: np.ndarray) -> np.ndarray:
@@ -277,7 +289,7 @@ def _gls_weights(setup: Setup) -> np.ndarray:
     src, truth = sources(setup), Truth()
 
     def planes_of(errors):
-        z = forward(setup, truth, errors)["z_mm"]
+        z = _pass_mean(setup, forward(setup, truth, errors)["z_mm"])
         return _planes(setup, z).reshape(z.shape[0], -1)
 
     model = SourceModel(NAME, src, planes_of,
