@@ -1443,7 +1443,7 @@ PROCEDURE = Procedure(
     reading_limits=reading_limits,
     levers=tuple("incline_deg incline_azimuth_deg positions range_deg angles_deg a_order "
                  "c_angles_deg lattice_nx lattice_ny lattice_size_mm lattice_offset_x_mm "
-                 "lattice_offset_y_mm artifact_height_mm z_follows_surface dwell_s "
-                 "feed_mm_min".split()),
+                 "lattice_offset_y_mm artifact_height_mm z_follows_surface sensor_reversal "
+                 "dwell_s feed_mm_min".split()),
     setup_from_frame=setup_from_frame,
 )
