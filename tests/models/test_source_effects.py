@@ -124,15 +124,27 @@ CASES = [
     # moves it by delta (e/r)^2, below 1e-6 um)
     ("circle_centre", {}, "tip_radius", {"radius"}),
     ("circle_centre", {"estimator": "geometric"}, "tip_radius", {"radius"}),
-    # the part grows about its centre; the scales read every length short about the
-    # stage's datum at the nominal centre: the radius, and the centre by the strain times
-    # its 0.4 mm offset from the nominal one (a few nanometres, above the limit here)
-    ("circle_centre", {}, "part_temperature", {"radius", "centre_x", "centre_y"}),
-    ("circle_centre", {}, "scale_temperature", {"radius", "centre_x", "centre_y"}),
-    ("circle_centre", {"estimator": "geometric"}, "part_temperature",
+    # the part grows about its clamping point (the bore's centre by default); the scales
+    # read every length short about their datum, 300 mm off per axis: the radius, and the
+    # centre by the strain times its offset from the datum (micrometres)
+    ("circle_centre", {}, "part_temperature_halfwidth", {"radius", "centre_x", "centre_y"}),
+    ("circle_centre", {}, "scale_temperature_halfwidth", {"radius", "centre_x", "centre_y"}),
+    ("circle_centre", {"estimator": "geometric"}, "part_temperature_halfwidth",
      {"radius", "centre_x", "centre_y"}),
-    ("circle_centre", {"estimator": "geometric"}, "scale_temperature",
+    ("circle_centre", {"estimator": "geometric"}, "scale_temperature_halfwidth",
      {"radius", "centre_x", "centre_y"}),
+    # measured temperatures (corrected to 20 degC): the thermometers' errors and the
+    # expansion coefficients' (times the 5 K the result was corrected by); the part
+    # clamped 200 mm off the bore so that its growth moves the centre as well
+    ("circle_centre", {"part_temperature_c": 25, "scale_temperature_c": 25, "clamp_x_mm": -200,
+                       "clamp_y_mm": -200}, "part_temperature_u",
+     {"radius", "centre_x", "centre_y"}),
+    ("circle_centre", {"part_temperature_c": 25, "scale_temperature_c": 25},
+     "scale_temperature_u", {"radius", "centre_x", "centre_y"}),
+    ("circle_centre", {"part_temperature_c": 25, "scale_temperature_c": 25, "clamp_x_mm": -200,
+                       "clamp_y_mm": -200}, "expansion_u", {"radius", "centre_x", "centre_y"}),
+    ("circle_centre", {"part_temperature_c": 25, "scale_temperature_c": 25},
+     "scale_expansion_u", {"radius", "centre_x", "centre_y"}),
 ]
 
 
