@@ -29,6 +29,8 @@ STILL = 1e-3  # ... and |bias| and spread below it, one that does not
 TRACKER_ORIGINS = {f"origin_{a}_{k}" for a in "yz" for k in (1, 2)}
 TRACKER_DIRECTIONS = {f"{q}_{k}" for q in ("rot_x", "rot_y", "rot_z", "sq_xy", "sq_yz", "sq_zx")
                       for k in (1, 2)}
+TRACKER_GRADIENT = {f"{q}_{k}" for q in ("origin_x", "origin_y", "origin_z", "rot_x", "ac_offset",
+                                        "sq_yz", "sq_zx") for k in (1, 2)}
 ALL = None  # every measurand
 RA_POSE = {"pose_dx", "pose_dy", "pose_dz"}
 RA_POSITIONS = {"EX0C", "EY0C", "EY0A", "EZ0A", "ac_offset"} | RA_POSE
@@ -52,14 +54,18 @@ CASES = [
     ("tracker_frame", {}, "reflector_fixture", set()),
     # the structure at 20 degC + dT grows about the marks' centroid (the bed centre, Z = 0):
     # the origins move by their distance from it (Y across the bed, Z the height), the
-    # directions keep theirs; origin_x (x = 0) stays
-    ("tracker_frame", {}, "structure_temperature", TRACKER_ORIGINS),
+    # directions keep theirs; origin_x (x = 0) stays. Measured (25 degC, corrected): the
+    # thermometer's error and the expansion coefficient's (times the 5 K) do the same
+    ("tracker_frame", {}, "structure_temperature_halfwidth", TRACKER_ORIGINS),
+    ("tracker_frame", {"structure_temperature_c": 25}, "structure_temperature_u",
+     TRACKER_ORIGINS),
+    ("tracker_frame", {"structure_temperature_c": 25}, "structure_expansion_u", TRACKER_ORIGINS),
     # a vertical gradient bends the beams: elevation errors growing with the horizontal
     # distance tilt what is spread along X (the X travel: sq_zx; the A arc about X: rot_x,
-    # sq_yz) and move the origins; the yaw and the X-Y squareness stay
-    ("tracker_frame", {}, "temperature_gradient",
-     {f"{q}_{k}" for q in ("origin_x", "origin_y", "origin_z", "rot_x", "ac_offset", "sq_yz",
-                           "sq_zx") for k in (1, 2)}),
+    # sq_yz) and move the origins; the yaw and the X-Y squareness stay. Assumed (0 to 1
+    # K/m, warm air above) or measured (its thermometers' error), the same bending
+    ("tracker_frame", {}, "air_gradient_range", TRACKER_GRADIENT),
+    ("tracker_frame", {"air_gradient_k_per_m": 0.8}, "air_gradient_u", TRACKER_GRADIENT),
     # rotary_axis, the combined C+A test: translations of the axis at each position move
     # the axes' positions, the offset of C from A and the pose, never a direction; tilts
     # the reverse; the angles are not used at all

@@ -153,6 +153,13 @@ Decisions where the patent is silent or leaves a choice
   terms, which tilt the fitted direction only through the sampling at
   ``points_per_axis`` points (the true direction is that of the least-squares line
   of the continuous travel).
+- **Temperatures.** The structure stands expanded about the marks' centroid by its
+  temperature minus 20 degC; the air's vertical gradient bends every beam (warm air above:
+  a signed mean). Measured (``structure_temperature_c``, ``air_gradient_k_per_m``), every
+  estimator corrects both (:func:`_corrected_readings`, the registered points shrunk back
+  about the centroid; ``gls`` through its forward model), and the thermometers' and the
+  expansion coefficient's errors are sources. Not measured, they are a zero-mean half-width
+  and a range from 0 (signed mean), uncorrected; the set-up's notes say so.
 - **Rotary positioning.** The A and C axes stop at the commanded angle plus an
   error (source ``rotary_positioning``, standard deviation 5 arcsec by default, an
   ISO 230-2 bidirectional accuracy of positioning of about 20 arcsec, some 4 s, for
@@ -328,17 +335,40 @@ class Setup(SetupBase):
     rotary_positioning_arcsec: float = param(
         5.0, doc="Standard deviation of the A and C axes' angular positioning at each arc "
         "point (actual minus commanded angle)", low=0, high=36000)
-    structure_temperature_c: float = param(
-        2.0, doc="Half-width (rectangular) of the bed's and gantry's temperature minus 20 degC, "
-        "the reference temperature of the marks' stated coordinates (ISO 1): the structure "
-        "grows about the marks' centroid and the frame is not corrected for it", low=0,
-        high=50)
+    structure_temperature_c: float | None = param(
+        None, doc="Measured temperature of the bed and gantry [degC] (the mean of sensors on "
+        "the structure): the frames are corrected to 20 degC, the marks' reference "
+        "temperature (ISO 1); empty: not measured, the structure is assumed at 20 degC within "
+        "+-structure_temperature_halfwidth_k and nothing is corrected", low=10, high=40)
+    structure_temperature_u_k: float = param(
+        0.3, doc="Standard uncertainty of the measured structure temperature as the mean "
+        "temperature of the bed and gantry [K] (calibrated contact sensors 0.1 K; a weldment "
+        "several metres long is not isothermal); used when structure_temperature_c is given",
+        low=0, high=10)
+    structure_temperature_halfwidth_k: float = param(
+        2.0, doc="Half-width (rectangular) of the structure's temperature minus 20 degC when "
+        "it is not measured [K]: a machine hall held at 20 +- 2 degC", low=0, high=50)
     structure_expansion_ppm_per_k: float = param(
         11.5, doc="Linear thermal expansion coefficient of the bed and gantry [1e-6/K] (steel "
         "weldments 11.5; cast iron 10-11)", low=0, high=100)
-    temperature_gradient_k_per_m: float = param(
-        0.5, doc="Standard deviation of the vertical gradient of the air's temperature along "
-        "the beams, one per test [K/m]: it bends every beam (refraction)", low=0, high=20)
+    structure_expansion_u_ppm_per_k: float = param(
+        1.0, doc="Standard uncertainty of the structure's expansion coefficient [1e-6/K] "
+        "(steels and cast irons span 10-12.5e-6/K; ISO/TR 16015)", low=0, high=100)
+    air_gradient_k_per_m: float | None = param(
+        None, doc="Measured vertical gradient of the air's temperature along the beams [K/m], "
+        "positive with warm air above (two thermometers at different heights): every "
+        "estimator corrects the elevations for the beams' bending; empty: not measured, "
+        "the gradient is taken uniform between 0 and air_gradient_range_k_per_m", low=-10,
+        high=10)
+    air_gradient_u_k_per_m: float = param(
+        0.2, doc="Standard uncertainty of the measured gradient as the mean along the beams "
+        "[K/m] (two thermometers of 0.1 K a metre apart, 0.14 K/m, and the gradient's "
+        "change along the hall); used when air_gradient_k_per_m is given", low=0, high=20)
+    air_gradient_range_k_per_m: float = param(
+        1.0, doc="Upper end of the vertical gradient of the air's temperature when it is not "
+        "measured [K/m]: uniform between 0 and it, warm air above (halls without displacement "
+        "ventilation stratify by 0.5-1 K/m, Estler et al., CIRP Annals 51/2, 2002)", low=0,
+        high=20)
     dwell_s: float = param(3.0, doc="Settling and tracker averaging per point", low=0)
     linear_feed_mm_min: float = param(3000.0, doc="Feed of the linear moves", low=0, low_open=True)
     rotary_move_s: float = param(3.0, doc="Time to index a rotary axis to the next arc point",
@@ -360,6 +390,28 @@ class Setup(SetupBase):
                 p.add(field, getattr(self, field),
                       f"> 0: with an arc of 0 all points of the {ax.upper()} arc lie at one "
                       "angle, so no circle and no axis line can be fitted")
+
+
+    def notes(self) -> list[str]:
+        """Which temperatures were assumed rather than measured, and what was corrected."""
+        out = []
+        if self.structure_temperature_c is None:
+            out.append(f"temperature: the structure's temperature was assumed (20 degC +- "
+                       f"{self.structure_temperature_halfwidth_k:g} K, rectangular), not "
+                       "measured: the frames are not corrected to 20 degC (state "
+                       "structure_temperature_c)")
+        else:
+            out.append(f"temperature: the frames are corrected to 20 degC from the structure "
+                       f"at {self.structure_temperature_c:g} degC (about the marks' centroid)")
+        if self.air_gradient_k_per_m is None:
+            out.append(f"temperature: the air's vertical gradient was assumed (0 to "
+                       f"{self.air_gradient_range_k_per_m:g} K/m, warm air above), not "
+                       "measured: its mean bends the beams, a bias of the simulated estimates "
+                       "that estimate's bias correction removes (state air_gradient_k_per_m)")
+        else:
+            out.append(f"temperature: the elevations are corrected for the measured air "
+                       f"gradient of {self.air_gradient_k_per_m:g} K/m")
+        return out
 
 
 @dataclass(frozen=True)
@@ -832,23 +884,7 @@ def sources(setup: Setup) -> dict[str, Source]:
             "circles and so where their axes lie across a short arc. Default +-50 um "
             "(rectangular) for an uncalibrated fixture: arm machined to +-50 um, the nest's "
             "height to +-50 um, the spindle's orientation stop +-0.02 deg at 150 mm."),
-        "structure_temperature": Source(
-            Rectangular(-setup.structure_temperature_c, setup.structure_temperature_c), (),
-            "Temperature of the bed and gantry minus 20 degC, one per test [K], uniform within "
-            "+-structure_temperature_c: the marks' coordinates are stated at 20 degC (ISO 1), "
-            "the structure and everything on it stand expanded by structure_expansion_ppm_per_k "
-            "x dT about the marks' centroid, and the registration on the stated marks keeps "
-            "that scale: a sub-machine 1 m from the centroid moves by 13 um at the default "
-            "(11.5e-6/K x 1 m x 1.15 K). Default +-2 K: a machine hall held at 20 +- 2 degC."),
-        "temperature_gradient": Source(
-            Normal(0.0, setup.temperature_gradient_k_per_m), (),
-            "Vertical gradient G of the air's temperature over the hall, one per test [K/m]. "
-            "The refractive index falls by 0.93 ppm/K (Edlen), so a beam bends with curvature "
-            "0.93e-6 G per metre and the tracker sees a target at horizontal distance D "
-            "raised by 0.93e-6 G D^2 / 2 (7.4 um at 4 m for 1 K/m): an elevation error "
-            "0.93e-6 G D / 2. Default 0.5 K/m (standard deviation): halls without displacement "
-            "ventilation stratify by 0.5-1 K/m (Estler et al., Large-scale metrology - an "
-            "update, CIRP Annals 51/2, 2002)."),
+        **_thermal_sources(setup),
         "rotary_positioning": Source(
             Normal(0.0, setup.rotary_positioning_arcsec * math.pi / 648000), (q,),
             "Angular positioning error of the A and C axes at each arc point (actual minus "
@@ -857,6 +893,70 @@ def sources(setup: Setup) -> dict[str, Source]:
             "(standard deviation): an ISO 230-2 bidirectional positioning accuracy of about "
             "20 arcsec (+-2 s) for the rotary axes of the swivel heads of such gantries."),
     }
+
+
+def _thermal_sources(setup: Setup) -> dict[str, Source]:
+    """The temperatures' sources: each the actual value minus the one the estimators correct
+    with (:func:`_reference_thermal`); a thermometer's where measured, the assumed range's
+    where not."""
+    t_measured = setup.structure_temperature_c is not None
+    g_measured = setup.air_gradient_k_per_m is not None
+    hw = 0.0 if t_measured else setup.structure_temperature_halfwidth_k
+    top = 0.0 if g_measured else setup.air_gradient_range_k_per_m
+    return {
+        "structure_temperature_u": Source(
+            Normal(0.0, setup.structure_temperature_u_k if t_measured else 0.0), (),
+            "Error of the measured structure temperature as the mean temperature of the bed "
+            "and gantry [K] (active when structure_temperature_c is given); the frames are "
+            "corrected to 20 degC with structure_temperature_c. Default 0.3 K: calibrated "
+            "sensors (0.1 K) on a structure that is not isothermal (ISO/TR 16015)."),
+        "structure_temperature_halfwidth": Source(
+            Rectangular(-hw, hw), (),
+            "Temperature of the bed and gantry minus 20 degC when it is not measured, one per "
+            "test [K], uniform within +-structure_temperature_halfwidth_k: the marks' "
+            "coordinates are stated at 20 degC (ISO 1), the structure and everything on it "
+            "stand expanded by structure_expansion_ppm_per_k x dT about the marks' centroid, "
+            "and the registration on the stated marks keeps that scale: a sub-machine 1 m "
+            "from the centroid moves by 13 um at the default (11.5e-6/K x 1 m x 1.15 K). "
+            "Default +-2 K: a machine hall held at 20 +- 2 degC; nothing is corrected."),
+        "structure_expansion_u": Source(
+            Normal(0.0, setup.structure_expansion_u_ppm_per_k * 1e-6), (),
+            "Error of the structure's expansion coefficient [1/K]: it acts times the "
+            "measured T - 20 degC, by the distance from the marks' centroid. Default 1e-6/K: "
+            "steels and cast irons span 10-12.5e-6/K (ISO/TR 16015)."),
+        "air_gradient_u": Source(
+            Normal(0.0, setup.air_gradient_u_k_per_m if g_measured else 0.0), (),
+            "Error of the measured vertical gradient of the air's temperature as its mean "
+            "along the beams [K/m] (active when air_gradient_k_per_m is given; the "
+            "elevations are corrected with air_gradient_k_per_m). Default 0.2 K/m: two "
+            "thermometers of 0.1 K a metre apart and the gradient's change along the hall."),
+        "air_gradient_range": Source(
+            Rectangular(0.0, top), (),
+            "Vertical gradient G of the air's temperature over the hall when it is not "
+            "measured, one per test [K/m], uniform between 0 and air_gradient_range_k_per_m: "
+            "warm air lies above, so its mean is signed (+0.5 K/m at the default) and "
+            "biases the simulated estimates (estimate's bias correction removes the mean). "
+            "The refractive index falls by 0.93 ppm/K (Edlen), so a beam bends with "
+            "curvature 0.93e-6 G per metre and the tracker sees a target at horizontal "
+            "distance D raised by 0.93e-6 G D^2 / 2 (7.4 um at 4 m for 1 K/m): an elevation "
+            "error 0.93e-6 G D / 2. Default 1 K/m: halls without displacement ventilation "
+            "stratify by 0.5-1 K/m (Estler et al., Large-scale metrology - an update, CIRP "
+            "Annals 51/2, 2002)."),
+    }
+
+
+def _reference_thermal(setup: Setup) -> tuple[float, float]:
+    """The structure's temperature minus 20 degC [K] and the air's gradient [K/m] that the
+    estimators correct with: the measured ones, 0 where not measured."""
+    dt = 0.0 if setup.structure_temperature_c is None else setup.structure_temperature_c - 20.0
+    g = 0.0 if setup.air_gradient_k_per_m is None else setup.air_gradient_k_per_m
+    return dt, g
+
+
+def _bending(gradient, horiz):
+    """Elevation error [rad] of a beam bent by the vertical gradient (K/m) over the horizontal
+    distance `horiz` [mm]: the target seen raised by 0.93e-6 G D^2 / 2."""
+    return (_DN_DT * 1e-3 / 2) * gradient * horiz
 
 
 #: change of the air's refractive index per kelvin (Edlen) [1/K]
@@ -896,10 +996,15 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     rate = np.asarray(errors["thermal_drift"])
     if np.any(rate):
         pts = pts + rate[:, None, :] * _times(setup)[0][:, None]
-    grow = np.asarray(errors["structure_temperature"], dtype=float).reshape(-1, 1, 1)
+    dt_ref, g_ref = _reference_thermal(setup)
+
+    def e(name):
+        return np.asarray(errors[name], dtype=float).reshape(-1, 1, 1)
+
+    grow = ((setup.structure_expansion_ppm_per_k * 1e-6 + e("structure_expansion_u"))
+            * (dt_ref + e("structure_temperature_u") + e("structure_temperature_halfwidth")))
     if np.any(grow):  # the structure at 20 degC + dT, about the marks' centroid
-        centroid = marks.mean(axis=0)
-        pts = pts + (setup.structure_expansion_ppm_per_k * 1e-6 * grow) * (pts - centroid)
+        pts = pts + grow * (pts - marks.mean(axis=0))
     r, t = _tracker_pose(setup, truth)
     v = (pts - t[..., None, :]) @ r  # tracker-frame coordinates: R^T (p - t), row vectors
     horiz = np.hypot(v[..., 0], v[..., 1])
@@ -914,9 +1019,9 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     dist = dist + smr[..., 0]
     daz = (tf[..., 0] / d + tl[..., 0] + smr[..., 1] / d) * d / horiz
     d_el = tf[..., 1] / d + tl[..., 1] + smr[..., 2] / d
-    grad = np.asarray(errors["temperature_gradient"], dtype=float).reshape(-1, 1)
+    grad = g_ref + (e("air_gradient_u") + e("air_gradient_range")).reshape(-1, 1)
     if np.any(grad):  # beam bending: the target seen raised by 0.93e-6 G D^2 / 2
-        d_el = d_el + (_DN_DT * 1e-3 / 2) * grad * horiz
+        d_el = d_el + _bending(grad, horiz)
     sys = np.asarray(errors["angular_systematic"])
     if np.any(sys):
         s_az, s_el = _systematic_angles(sys, az, el)
@@ -930,6 +1035,21 @@ def _cartesian(readings: dict) -> np.ndarray:
     el = np.asarray(readings["elevation_rad"], dtype=float)
     ce = np.cos(el)
     return np.stack([d * ce * np.cos(az), d * ce * np.sin(az), d * np.sin(el)], axis=-1)
+
+
+def _corrected_readings(setup: Setup, readings: dict) -> dict:
+    """The readings with the elevations corrected for the measured air gradient (the beams'
+    bending, :func:`_bending`, over the horizontal distance the readings give); unchanged
+    where it was not measured."""
+    _, g_ref = _reference_thermal(setup)
+    if not g_ref:
+        return readings
+    d = np.asarray(readings["distance_mm"], dtype=float)
+    read = np.asarray(readings["elevation_rad"], dtype=float)
+    el = read
+    for _ in range(2):  # read = el + bending(d cos el): the fixed point, to 1e-15 rad
+        el = read - _bending(g_ref, d * np.cos(el))
+    return {**readings, "elevation_rad": el}
 
 
 def _register(setup: Setup, tracker_marks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1012,10 +1132,15 @@ def _fit_arcs_home(setup: Setup, pts: dict, k: int) -> dict:
 
 def _estimate(setup: Setup, readings: dict, fit_arcs) -> dict[str, np.ndarray]:
     """Registration, lines, the arcs by `fit_arcs`, then the patent's construction."""
-    xyz = _cartesian(readings)
+    xyz = _cartesian(_corrected_readings(setup, readings))
     rot, t = _register(setup, xyz[:, :4])
     glob = xyz @ np.swapaxes(rot, -1, -2) + t[:, None, :]  # R v + t (a product: einsum's
     # loop over the batch took 20 times as long)
+    dt_ref, _ = _reference_thermal(setup)
+    if dt_ref:  # to 20 degC: the structure shrunk back about the marks' centroid
+        centroid = _marks(setup).mean(axis=0)
+        glob = centroid + (glob - centroid) / (1.0 + setup.structure_expansion_ppm_per_k
+                                               * 1e-6 * dt_ref)
     sl = _slices(setup)
     nominal = _nominal_origins(setup)
     dot = lambda a, b: np.einsum("ni,ni->n", a, b)  # noqa: E731
