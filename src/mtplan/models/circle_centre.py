@@ -132,6 +132,7 @@ import pandas as pd
 from mtplan._validate import InvalidInput, Problems
 from mtplan.fitting import gls_step
 from mtplan.fitting.circle import geometric_fit, kasa_fit, three_point_circle
+from mtplan.models import _temperature as temperature
 from mtplan.models.first_order import with_chain_rule
 from mtplan.models.protocol import Measurand, Procedure, SetupBase, Source, param
 from mtplan.uncertainty import Normal, Rectangular
@@ -271,16 +272,9 @@ class Setup(SetupBase):
 
     def notes(self) -> list[str]:
         """Which temperatures were assumed rather than measured, and what was corrected."""
-        out = []
-        if self.part_temperature_c is None:
-            out.append(f"temperature: the part's temperature was assumed (20 degC +- "
-                       f"{self.part_temperature_halfwidth_k:g} K, rectangular), not measured: "
-                       "the result is not corrected to 20 degC (state part_temperature_c)")
-        if self.scale_temperature_c is None:
-            out.append(f"temperature: the scales' temperature was assumed (the part's +- "
-                       f"{self.scale_temperature_halfwidth_k:g} K, rectangular), not measured"
-                       + ("" if self.part_temperature_c is None else
-                          "; the scales are corrected as if at the part's measured temperature"))
+        out = (temperature.assumed_note(self, "part_temperature", "the part's temperature")
+               + temperature.assumed_note(self, "scale_temperature", "the scales' temperature",
+                                          about="the part's"))
         if self.part_temperature_c is not None or self.scale_temperature_c is not None:
             dtp, dts = _reference_deviations(self)
             out.append(f"temperature: corrected to 20 degC from the part at {20 + dtp:g} degC "
@@ -372,47 +366,41 @@ def sources(setup: Setup) -> dict[str, Source]:
 
 
 def _thermal_sources(setup: Setup) -> dict[str, Source]:
-    """The temperatures' sources: each is the actual value minus the one the estimators
-    correct with (:func:`_reference_deviations`), so it is zero-mean, and either the
-    thermometer's (measured) or the assumed half-width's (not measured) is active."""
-    part_measured = setup.part_temperature_c is not None
-    scale_measured = setup.scale_temperature_c is not None
-    hw_p = 0.0 if part_measured else setup.part_temperature_halfwidth_k
-    hw_s = 0.0 if scale_measured else setup.scale_temperature_halfwidth_k
+    """The temperatures' sources, measured or assumed (:mod:`mtplan.models._temperature`: each
+    the actual value minus the one the estimators correct with, so zero-mean), and the
+    expansion coefficients'."""
     return {
-        "part_temperature_u": Source(
-            Normal(0.0, setup.part_temperature_u_k if part_measured else 0.0), (),
-            "Error of the measured part temperature [K] (active when part_temperature_c is "
-            "given): the part is at part_temperature_c plus this, and the estimates are "
-            "corrected to 20 degC (ISO 1) with part_temperature_c. Default 0.2 K: a "
-            "calibrated contact thermometer on a soaked part (ISO/TR 16015). The bore grows "
-            "about the part's clamping point by expansion_ppm_per_k x dT; when the scales' "
-            "temperature is not measured they follow the part's."),
-        "part_temperature_halfwidth": Source(
-            Rectangular(-hw_p, hw_p), (),
-            "The part's temperature minus 20 degC [K] when it is not measured, uniform within "
-            "+-part_temperature_halfwidth_k (default +-2 K: a workshop held at 20 +- 2 degC, "
-            "ISO 1's reference temperature); nothing is corrected. The bore grows about the "
-            "clamping point by expansion_ppm_per_k (11.5e-6/K: steel); the scales share this "
-            "temperature (plus scale_temperature_halfwidth) and shrink their reading about "
-            "their datum by scale_expansion_ppm_per_k (10e-6/K: the coefficient HEIDENHAIN "
-            "states for its steel-mounted linear scales), so the radius reads r (alpha_part "
-            "- alpha_scale) dT off and the centre alpha_scale dT times its offset from the "
-            "scales' datum (300 mm x 10e-6/K x 1.15 K = 3.5 um per axis at the defaults)."),
-        "scale_temperature_u": Source(
-            Normal(0.0, setup.scale_temperature_u_k if scale_measured else 0.0), (),
-            "Error of the measured scale temperature [K] (active when scale_temperature_c is "
-            "given); default 0.2 K. The scales read every length from their datum times "
-            "1 - scale_expansion_ppm_per_k x dT_scale."),
-        "scale_temperature_halfwidth": Source(
-            Rectangular(-hw_s, hw_s), (),
-            "The machine scales' temperature minus the part's [K] when it is not measured, "
-            "uniform within +-scale_temperature_halfwidth_k. Default +-1 K: a part soaked on "
-            "the machine for hours (ISO/TR 16015 advises soaking until part and machine agree "
-            "within a kelvin); a part that arrives from a warmer hall needs more. The scales "
-            "read lengths from their datum (scale_datum_x_mm, scale_datum_y_mm) times 1 - "
-            "scale_expansion_ppm_per_k x dT_scale: the radius, and the centre by that strain "
-            "times its offset from the datum (300 mm x 10e-6/K x 0.58 K = 1.7 um)."),
+        **temperature.temperature_sources(
+            setup, "part_temperature",
+            measured="Error of the measured part temperature [K]: the part is at "
+            "part_temperature_c plus this, and the estimates are corrected to 20 degC (ISO 1) "
+            "with part_temperature_c. Default 0.2 K: a calibrated contact thermometer on a "
+            "soaked part (ISO/TR 16015). The bore grows about the part's clamping point by "
+            "expansion_ppm_per_k x dT; when the scales' temperature is not measured they "
+            "follow the part's.",
+            assumed="The part's temperature minus 20 degC [K] when it is not measured, uniform "
+            "within +-part_temperature_halfwidth_k (default +-2 K: a workshop held at 20 +- 2 "
+            "degC, ISO 1's reference temperature); nothing is corrected. The bore grows about "
+            "the clamping point by expansion_ppm_per_k (11.5e-6/K: steel); the scales share "
+            "this temperature (plus scale_temperature_halfwidth) and shrink their reading "
+            "about their datum by scale_expansion_ppm_per_k (10e-6/K: the coefficient "
+            "HEIDENHAIN states for its steel-mounted linear scales), so the radius reads r "
+            "(alpha_part - alpha_scale) dT off and the centre alpha_scale dT times its offset "
+            "from the scales' datum (300 mm x 10e-6/K x 1.15 K = 3.5 um per axis at the "
+            "defaults)."),
+        **temperature.temperature_sources(
+            setup, "scale_temperature",
+            measured="Error of the measured scale temperature [K]; default 0.2 K. The scales "
+            "read every length from their datum times 1 - scale_expansion_ppm_per_k x "
+            "dT_scale.",
+            assumed="The machine scales' temperature minus the part's [K] when it is not "
+            "measured, uniform within +-scale_temperature_halfwidth_k. Default +-1 K: a part "
+            "soaked on the machine for hours (ISO/TR 16015 advises soaking until part and "
+            "machine agree within a kelvin); a part that arrives from a warmer hall needs "
+            "more. The scales read lengths from their datum (scale_datum_x_mm, "
+            "scale_datum_y_mm) times 1 - scale_expansion_ppm_per_k x dT_scale: the radius, "
+            "and the centre by that strain times its offset from the datum (300 mm x "
+            "10e-6/K x 0.58 K = 1.7 um)."),
         "expansion_u": Source(
             Normal(0.0, setup.expansion_u_ppm_per_k * 1e-6), (),
             "Error of the workpiece's expansion coefficient [1/K]: it moves the corrected "
@@ -430,9 +418,8 @@ def _reference_deviations(setup: Setup) -> tuple[float, float]:
     """The temperatures minus 20 degC [K] of the part and the scales that the estimators
     correct with: the measured ones, 0 where the part is not measured, and the part's
     where the scales are not."""
-    dtp = 0.0 if setup.part_temperature_c is None else setup.part_temperature_c - 20.0
-    dts = dtp if setup.scale_temperature_c is None else setup.scale_temperature_c - 20.0
-    return dtp, dts
+    dtp = temperature.deviation(setup, "part_temperature")
+    return dtp, temperature.deviation(setup, "scale_temperature", default=dtp)
 
 
 def _thermal(setup: Setup, errors: dict, n: int) -> tuple[np.ndarray, np.ndarray]:
