@@ -115,3 +115,30 @@ def test_the_warm_example_covers_the_truth_only_when_corrected(capsys):
     off = {m["name"]: m["value"] - truth[m["name"]] for m in cold["measurands"]}
     assert math.hypot(off["centre_x"], off["centre_y"]) > 12.0
     assert any("assumed" in n and "not measured" in n for n in cold["notes"])
+
+
+@pytest.mark.parametrize("changes", [
+    {"part_temperature_c": 20.0, "scale_temperature_c": 20.0},
+    {"part_temperature_c": 25.0, "scale_temperature_c": 25.0, "scale_datum_x_mm": 0.0,
+     "scale_datum_y_mm": 0.0}])
+def test_the_thermometers_sources_have_their_place_in_the_posterior(changes):
+    """With both temperatures measured the thermometers' sources (and, 5 K off 20 degC, the
+    expansion coefficients') are in the posterior's covariance, and its u agrees with the mc
+    u within 0.85-1.15 widened by four standard errors of the ratio (0.058 at 4000 trials
+    and the posterior's effective sample size), as for every procedure. (With the scales'
+    datum 300 mm off and a measured temperature other than 20 degC the posterior's budget
+    takes every source as absorbed by start_x at its second least-squares point and
+    refuses: not solved yet.)"""
+    from mtplan.evaluation.measured import estimate_measured, read_readings
+
+    setup = P.setup(changes)
+    readings = read_readings(P, setup, EXAMPLES / "circle_centre_readings.csv")
+    post = estimate_measured(P, setup, readings, uncertainty="posterior", rng=0)
+    mc = estimate_measured(P, setup, readings, trials=4000, rng=0)
+    how = post.details.budget  # source -> how the likelihood holds it
+    held = ("part_temperature_u", "scale_temperature_u")
+    held += ("expansion_u", "scale_expansion_u") if changes["part_temperature_c"] != 20 else ()
+    for name in held:
+        assert how[name] in ("covariance", "nuisance"), (name, how[name])
+    ratio = post.std / mc.std
+    assert np.all((0.85 - 0.058 <= ratio) & (ratio <= 1.15 + 0.058)), ratio
