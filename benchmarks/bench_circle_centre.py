@@ -70,7 +70,8 @@ def budget(trials: int) -> None:
     """The docs' tables (see the module docstring)."""
     proc = get("circle_centre")
     setup = proc.Setup()
-    old = [s for s in proc.active_sources(setup) if s not in ("tip_radius", "part_temperature", "scale_temperature")]
+    old = [s for s in proc.active_sources(setup)
+           if s != "tip_radius" and "temperature" not in s and "expansion" not in s]
     print(f"three_point, default set-up; u by Monte Carlo ({trials} trials, rng 3), shares of "
           "u^2 by the GUM budget (linearize) [%]")
     print(budget_table(proc, setup, (setup, old), trials, "three_point"))

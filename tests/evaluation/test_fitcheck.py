@@ -99,7 +99,10 @@ def test_one_reading_off_by_30_times_its_scatter_is_flagged_and_named(clean, nam
     origin = reading_origin(proc, setup, readings)
     rows = np.concatenate([np.asarray(origin[k][0]).reshape(-1) for k in keys])
     assert out.worst[0]["row"] == rows[i], (out.worst, rows[i])
-    assert abs(out.worst[0]["z"]) > 10
+    # geometry21's model lets every reading of a circle have its own 0.3 um of repeatable
+    # path deviation (path_residual, which the line repeats share but a circle point does
+    # not), so 30 times its 0.05 um encoder scatter is about 8 of its w-test's sigmas
+    assert abs(out.worst[0]["z"]) > (6 if name == "geometry21" else 10)
     assert "do not fit" in out.warning() and f"row {rows[i]}" in out.warning()
 
 
@@ -119,7 +122,7 @@ def _harmonic_size(setup, fc):
     phases), a path deviation the repeatability states. Outside the model is the size the
     test had with independent readings: 3 x sqrt(0.3^2 + 0.05^2) = 0.91 um raises it by
     about 400 (p < 1e-33)."""
-    if hasattr(setup, "repeatability_correlation") and setup.repeatability_correlation > 0:
+    if getattr(setup, "repeatability_correlation_mm", 0) > 0:
         return 1e-3 * np.hypot(setup.repeatability_um, setup.encoder_noise_um)
     return np.median(fc.scatter)
 

@@ -504,10 +504,13 @@ def test_resizing_a_source_reuses_the_geometry_and_reweights_the_fit():
     """What depends on the geometry only is computed once for every size of the sources;
     the joint fit's weights (encoder noise against the path-correlated repeatability) are
     the resized set-up's own."""
-    base, noisy = g21.Setup(**SMALL), g21.Setup(**SMALL, encoder_noise_um=0.5, reversal_um=0)
+    from mtplan.fitting.linear import filter_whitening
+
+    base = g21.Setup(**SMALL, path_residual_um=0.0)
+    noisy = g21.Setup(**SMALL, encoder_noise_um=0.5, reversal_um=0, path_residual_um=0.0)
     assert g21._geometry(noisy) is g21._geometry(base)
     assert g21._joint_ident(noisy)["jac"] is g21._joint_ident(base)["jac"]
-    w = g21.filter_whitening(g21._repeatability_filter(noisy), 0.5 / 0.3, 2)
+    w = filter_whitening(g21._repeatability_filter(noisy), 0.5 / 0.3, 2)
     ji = g21._joint_ident(noisy)
     direct = g21.gls_pinv(ji["jac"], ji["scale"], ji["vt"], ji["rank"], g21._free(ji["geo"]), w)
     np.testing.assert_allclose(ji["pinv"], direct, rtol=0, atol=1e-12 * np.abs(direct).max())
@@ -557,10 +560,10 @@ def test_plan_finds_the_head_positions_that_determine_all_21():
 
 def test_joint_weights_the_readings_by_their_ar1_covariance():
     """The joint map is the generalised least squares of the readings' random scatter
-    (encoder noise plus the AR(1) repeatability): it still reproduces the determined
+    (encoder noise, the AR(1) repeatability and the repeatable path residual): it still reproduces the determined
     parameters, and its variance from that scatter is at most the unweighted fit's for
     every measurand (the Gauss-Markov bound; EBX, ECX, EAY from about 10.4 to 8.1 urad at
-    the default set-up); with no correlation it is the unweighted fit."""
+    the default set-up); with no correlation and no residual it is the unweighted fit."""
     from mtplan.fitting.linear import truncated_pinv
 
     setup = g21.Setup(**SMALL)
@@ -573,11 +576,13 @@ def test_joint_weights_the_readings_by_their_ar1_covariance():
     per = (setup.repeatability_um * 1e-3) ** 2 * f @ f.T \
         + (setup.encoder_noise_um * 1e-3) ** 2 * np.eye(f.shape[0])
     cov = np.kron(per, np.eye(2))
+    basis = g21._residual_basis(g21._sizeless(setup))  # the repeatable path residual too
+    cov = cov + (setup.path_residual_um * 1e-3) ** 2 * basis @ basis.T
     var = {k: np.diag(ji["g"] @ a @ cov @ a.T @ ji["g"].T) for k, a in
            (("gls", ji["pinv"]), ("ols", ols))}
     assert np.all(var["gls"] <= var["ols"] * (1 + 1e-9))
     assert np.any(var["gls"] < 0.9 * var["ols"])
-    white = g21.Setup(**SMALL, repeatability_correlation=0.0)
+    white = g21.Setup(**SMALL, repeatability_correlation_mm=0.0, path_residual_um=0.0)
     np.testing.assert_array_equal(g21._joint_ident(white)["pinv"],
                                   truncated_pinv(g21._joint_ident(white)["jac"], s, g21._free(geo),
                                                  rank_tol=g21._RANK_TOL)[0])

@@ -29,6 +29,8 @@ STILL = 1e-3  # ... and |bias| and spread below it, one that does not
 TRACKER_ORIGINS = {f"origin_{a}_{k}" for a in "yz" for k in (1, 2)}
 TRACKER_DIRECTIONS = {f"{q}_{k}" for q in ("rot_x", "rot_y", "rot_z", "sq_xy", "sq_yz", "sq_zx")
                       for k in (1, 2)}
+TRACKER_GRADIENT = {f"{q}_{k}" for q in ("origin_x", "origin_y", "origin_z", "rot_x", "ac_offset",
+                                        "sq_yz", "sq_zx") for k in (1, 2)}
 ALL = None  # every measurand
 RA_POSE = {"pose_dx", "pose_dy", "pose_dz"}
 RA_POSITIONS = {"EX0C", "EY0C", "EY0A", "EZ0A", "ac_offset"} | RA_POSE
@@ -52,14 +54,18 @@ CASES = [
     ("tracker_frame", {}, "reflector_fixture", set()),
     # the structure at 20 degC + dT grows about the marks' centroid (the bed centre, Z = 0):
     # the origins move by their distance from it (Y across the bed, Z the height), the
-    # directions keep theirs; origin_x (x = 0) stays
-    ("tracker_frame", {}, "structure_temperature", TRACKER_ORIGINS),
+    # directions keep theirs; origin_x (x = 0) stays. Measured (25 degC, corrected): the
+    # thermometer's error and the expansion coefficient's (times the 5 K) do the same
+    ("tracker_frame", {}, "structure_temperature_halfwidth", TRACKER_ORIGINS),
+    ("tracker_frame", {"structure_temperature_c": 25}, "structure_temperature_u",
+     TRACKER_ORIGINS),
+    ("tracker_frame", {"structure_temperature_c": 25}, "structure_expansion_u", TRACKER_ORIGINS),
     # a vertical gradient bends the beams: elevation errors growing with the horizontal
     # distance tilt what is spread along X (the X travel: sq_zx; the A arc about X: rot_x,
-    # sq_yz) and move the origins; the yaw and the X-Y squareness stay
-    ("tracker_frame", {}, "temperature_gradient",
-     {f"{q}_{k}" for q in ("origin_x", "origin_y", "origin_z", "rot_x", "ac_offset", "sq_yz",
-                           "sq_zx") for k in (1, 2)}),
+    # sq_yz) and move the origins; the yaw and the X-Y squareness stay. Assumed (0 to 1
+    # K/m, warm air above) or measured (its thermometers' error), the same bending
+    ("tracker_frame", {}, "air_gradient_range", TRACKER_GRADIENT),
+    ("tracker_frame", {"air_gradient_k_per_m": 0.8}, "air_gradient_u", TRACKER_GRADIENT),
     # rotary_axis, the combined C+A test: translations of the axis at each position move
     # the axes' positions, the offset of C from A and the pose, never a direction; tilts
     # the reverse; the angles are not used at all
@@ -85,15 +91,19 @@ CASES = [
     # circles both ways, so reversal cancels; a scale growing over the test's time moves the
     # positioning errors only; the head's drift the translational errors and squareness,
     # never the angular errors the circles give. Exact for the unweighted fit, the joint one
-    # with independent readings (repeatability_correlation 0). Weighted by the correlated
+    # with independent readings (repeatability_correlation_mm 0). Weighted by the correlated
     # repeatability (the default) the full circles' CW and CCW passes are not mirror images
     # in time (both start at 0 deg), and 0.03 um of the 2 um reversal reaches EXX (u 0.24
     # um), 0.04-0.08 urad of the 2 ppm/h growth EBX, ECX, EAY (u 8 urad), below 1e-3 the rest
     ("geometry21", {"estimator": "joint"}, "repeatability", ALL),
-    ("geometry21", {"estimator": "joint", "repeatability_correlation": 0}, "reversal", set()),
-    ("geometry21", {"estimator": "joint", "repeatability_correlation": 0}, "thermal_growth",
+    # the repeatable short-wave residual beyond the polynomials: every error function's
+    # fit sees it (truncation), with either estimator
+    ("geometry21", {"estimator": "joint"}, "path_residual", ALL),
+    ("geometry21", {}, "path_residual", ALL),
+    ("geometry21", {"estimator": "joint", "repeatability_correlation_mm": 0}, "reversal", set()),
+    ("geometry21", {"estimator": "joint", "repeatability_correlation_mm": 0}, "thermal_growth",
      {"EXX", "EYY", "EZZ"}),
-    ("geometry21", {"estimator": "joint", "repeatability_correlation": 0}, "thermal_drift",
+    ("geometry21", {"estimator": "joint", "repeatability_correlation_mm": 0}, "thermal_drift",
      {"EXX", "EYY", "EZZ", "EYX", "EZX", "EXY", "EZY", "EXZ", "EYZ", "EC0Y", "EB0Z", "EA0Z"}),
     # line_laser, issue 17 (docs/line_laser.md). The patent reads alpha_z in whole rows
     # (5 mrad steps): it never moves; the linearity curve is the same at the same x_l of
@@ -128,15 +138,27 @@ CASES = [
     # moves it by delta (e/r)^2, below 1e-6 um)
     ("circle_centre", {}, "tip_radius", {"radius"}),
     ("circle_centre", {"estimator": "geometric"}, "tip_radius", {"radius"}),
-    # the part grows about its centre; the scales read every length short about the
-    # stage's datum at the nominal centre: the radius, and the centre by the strain times
-    # its 0.4 mm offset from the nominal one (a few nanometres, above the limit here)
-    ("circle_centre", {}, "part_temperature", {"radius", "centre_x", "centre_y"}),
-    ("circle_centre", {}, "scale_temperature", {"radius", "centre_x", "centre_y"}),
-    ("circle_centre", {"estimator": "geometric"}, "part_temperature",
+    # the part grows about its clamping point (the bore's centre by default); the scales
+    # read every length short about their datum, 300 mm off per axis: the radius, and the
+    # centre by the strain times its offset from the datum (micrometres)
+    ("circle_centre", {}, "part_temperature_halfwidth", {"radius", "centre_x", "centre_y"}),
+    ("circle_centre", {}, "scale_temperature_halfwidth", {"radius", "centre_x", "centre_y"}),
+    ("circle_centre", {"estimator": "geometric"}, "part_temperature_halfwidth",
      {"radius", "centre_x", "centre_y"}),
-    ("circle_centre", {"estimator": "geometric"}, "scale_temperature",
+    ("circle_centre", {"estimator": "geometric"}, "scale_temperature_halfwidth",
      {"radius", "centre_x", "centre_y"}),
+    # measured temperatures (corrected to 20 degC): the thermometers' errors and the
+    # expansion coefficients' (times the 5 K the result was corrected by); the part
+    # clamped 200 mm off the bore so that its growth moves the centre as well
+    ("circle_centre", {"part_temperature_c": 25, "scale_temperature_c": 25, "clamp_x_mm": -200,
+                       "clamp_y_mm": -200}, "part_temperature_u",
+     {"radius", "centre_x", "centre_y"}),
+    ("circle_centre", {"part_temperature_c": 25, "scale_temperature_c": 25},
+     "scale_temperature_u", {"radius", "centre_x", "centre_y"}),
+    ("circle_centre", {"part_temperature_c": 25, "scale_temperature_c": 25, "clamp_x_mm": -200,
+                       "clamp_y_mm": -200}, "expansion_u", {"radius", "centre_x", "centre_y"}),
+    ("circle_centre", {"part_temperature_c": 25, "scale_temperature_c": 25},
+     "scale_expansion_u", {"radius", "centre_x", "centre_y"}),
 ]
 
 

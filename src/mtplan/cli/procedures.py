@@ -50,7 +50,7 @@ def cmd_procedures(args):
         print("  set-up fields (default):")
         for f in d["setup"]:
             default = f["default"]
-            default = "axis default" if default is None else default
+            default = "empty" if default is None else default  # the doc says what it means
             print(f"    {f['name']} = {default}    {f['doc']}")
         print()
     return 0

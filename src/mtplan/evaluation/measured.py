@@ -705,7 +705,7 @@ def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage
     """:func:`estimate_measured` on checked arguments: the estimate and its uncertainty."""
     from mtplan.uncertainty.streams import as_seed_sequence
 
-    notes = []
+    notes = list(setup.notes())
     measurands = tuple(proc.measurands(setup))
     if estimator is None:
         est_name, est_internal = _default_estimate(proc, setup, readings, measurands, notes)

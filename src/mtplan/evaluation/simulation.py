@@ -242,8 +242,10 @@ class ProcedureResult(ResultDocument):
         """What a reader of the table must not miss: an interval of zero width (the estimator
         is quantised or blind to the measurand, or no simulated source moves it: its
         uncertainty is then its resolution, which the Monte Carlo cannot give) and a bias
-        larger than twice the uncertainty."""
-        out = []
+        larger than twice the uncertainty. The set-up's own notes come first
+        (:meth:`mtplan.models.protocol.SetupBase.notes`: a temperature assumed, not
+        measured)."""
+        out = list(self.setup.notes()) if hasattr(self.setup, "notes") else []
         for i, m in enumerate(self.measurands):
             u, bias = float(self.mc.std[i]), float(self.bias[i])
             if m.name in self.quantised:

@@ -77,18 +77,19 @@ Forward model (:func:`forward`, batch-first)
   about ``delta (e/r)^2`` for a planner's centre off by e); tangential slip along the
   wall ``c * gamma`` with gamma the signed angle between the approach and the wall
   normal.
-- Temperature, two sources: the part is at ``20 degC + dT_part``, the stage's scales at
-  ``20 degC + dT_part + dT_scale``. The bore's radius is the 20 degC radius times
-  ``1 + alpha_part dT_part`` (``alpha_part = expansion_ppm_per_k``, 11.5e-6/K for
-  steel), growing about its centre; the scales read every length short by
-  ``alpha_scale (dT_part + dT_scale)`` (``scale_expansion_ppm_per_k``, 10e-6/K), about
-  the stage's datum at the nominal centre. The estimates are not corrected to 20 degC
-  (ISO 1), so the radius reads ``r (alpha_part dT_part - alpha_scale dT_scale_total)``
-  off: at the defaults (part +-2 K, scales +-1 K from the part) 250 mm x (1.5e-6/K x
-  1.15 K, 10e-6/K x 0.58 K) = 0.43 and 1.44 um of standard uncertainty, where a single
-  temperature times the part's coefficient gave 3.3 um. The centre moves only by the
-  scales' strain times its offset from the nominal centre (nanometres): the wall stays
-  a circle about the same centre, and three points on a circle give its centre exactly.
+- Temperature (ISO 1: dimensions at 20 degC). The part grows about its clamping point
+  (``clamp_x_mm``, ``clamp_y_mm``) by ``alpha_part dT_part``; the stage's scales grow
+  about their datum (``scale_datum_x_mm``, ``scale_datum_y_mm``, the fixed point about
+  which real scales grow) by ``alpha_scale dT_scale`` and read lengths from the datum
+  that much short; the stage's scale and squareness errors act about the same datum
+  (``actual = D + M (read - D)``). A measured temperature (``part_temperature_c``,
+  ``scale_temperature_c``) is corrected for by every estimator (:func:`_to_20c`, exact for
+  a circle), leaving its thermometer's error (``*_temperature_u``) and the expansion
+  coefficients' (``expansion_u``, ``scale_expansion_u``) as sources; one not measured is
+  a zero-mean rectangular half-width (``*_temperature_halfwidth``), uncorrected, and the
+  set-up's notes say so. Unmeasured scales follow the part's actual temperature within
+  their half-width. The sources are the actual temperatures minus the reference ones the
+  estimators correct with, so zero errors give the truth exactly.
 - p1 and p2 are probed along -y and +y with the same probe model; the planner uses
   the read values, so their errors move the targets.
 
@@ -131,6 +132,7 @@ import pandas as pd
 from mtplan._validate import InvalidInput, Problems
 from mtplan.fitting import gls_step
 from mtplan.fitting.circle import geometric_fit, kasa_fit, three_point_circle
+from mtplan.models import _temperature as temperature
 from mtplan.models.protocol import Measurand, Procedure, SetupBase, Source, param
 from mtplan.uncertainty import Normal, Rectangular
 
@@ -181,21 +183,58 @@ class Setup(SetupBase):
                                  "calibrated effective tip radius, one per test (the radius is "
                                  "calibrated on a setting ring whose diameter is known to about "
                                  "1 um, ISO 1938-1 / DIN 2250-1 setting rings)", low=0, high=1000)
-    part_temperature_c: float = param(2.0, doc="Half-width of the (rectangular) deviation of "
-                                      "the part's temperature from 20 degC, the reference "
-                                      "temperature of ISO 1; the estimates are not corrected "
-                                      "for it (a workshop held at 20 +- 2 degC)", low=0, high=50)
+    part_temperature_c: float | None = param(
+        None, doc="Measured temperature of the part [degC] (ISO 1's reference is 20 degC): "
+        "the estimates are corrected to 20 degC with it; empty: not measured, the part is "
+        "assumed at 20 degC within +-part_temperature_halfwidth_k and nothing is corrected",
+        low=10, high=40)
+    part_temperature_u_k: float = param(
+        0.2, doc="Standard uncertainty of the measured part temperature (thermometer's "
+        "calibration, its contact, one reading standing for the whole part; ISO/TR 16015 "
+        "names these) [K]; used when part_temperature_c is given", low=0, high=10)
+    part_temperature_halfwidth_k: float = param(
+        2.0, doc="Half-width of the (rectangular) deviation of the part's temperature from "
+        "20 degC when it is not measured [K] (a workshop held at 20 +- 2 degC)", low=0,
+        high=50)
     expansion_ppm_per_k: float = param(11.5, doc="Linear thermal expansion coefficient of the "
                                        "workpiece [1e-6/K]; 11.5: steel", low=0, high=100)
-    scale_temperature_c: float = param(1.0, doc="Half-width of the (rectangular) difference of "
-                                       "the machine scales' temperature from the part's (0 "
-                                       "when part and machine share one temperature; larger "
-                                       "for a part that arrives warmer or colder)", low=0,
-                                       high=50)
+    expansion_u_ppm_per_k: float = param(
+        1.0, doc="Standard uncertainty of the workpiece's expansion coefficient [1e-6/K] "
+        "(steels span 10.5-12.5e-6/K: ISO/TR 16015 advises about 1e-6/K for a material "
+        "known by its kind only)", low=0, high=100)
+    scale_temperature_c: float | None = param(
+        None, doc="Measured temperature of the stage's scales (or of the machine structure "
+        "that carries them) [degC]; empty: not measured, the scales are taken at the part's "
+        "temperature within +-scale_temperature_halfwidth_k", low=10, high=40)
+    scale_temperature_u_k: float = param(
+        0.2, doc="Standard uncertainty of the measured scale temperature [K]; used when "
+        "scale_temperature_c is given", low=0, high=10)
+    scale_temperature_halfwidth_k: float = param(
+        1.0, doc="Half-width of the (rectangular) difference of the scales' temperature from "
+        "the part's when it is not measured [K] (0 when part and machine share one "
+        "temperature; larger for a part that arrives warmer or colder)", low=0, high=50)
     scale_expansion_ppm_per_k: float = param(10.0, doc="Linear thermal expansion coefficient of "
                                              "the stage's scales [1e-6/K]; 10: steel-mounted "
                                              "glass or steel scales (about 0 for glass-ceramic "
                                              "scales)", low=0, high=100)
+    scale_expansion_u_ppm_per_k: float = param(
+        0.5, doc="Standard uncertainty of the scales' effective expansion coefficient "
+        "[1e-6/K] (a scale mounted on steel follows its mounting, 10-11.5e-6/K)", low=0,
+        high=100)
+    scale_datum_x_mm: float = param(
+        -300.0, doc="x of the X scale's datum (its fixed point, about which it grows) from "
+        "the nominal bore centre [mm]; -300: a bore in the middle of a 600 mm travel whose "
+        "scale is fixed at its end", low=-100_000, high=100_000)
+    scale_datum_y_mm: float = param(
+        -300.0, doc="y of the Y scale's datum from the nominal bore centre [mm]", low=-100_000,
+        high=100_000)
+    clamp_x_mm: float = param(
+        0.0, doc="x of the point about which the part grows (where it is clamped or centred "
+        "on the table) from the nominal bore centre [mm]; 0: a ring clamped concentrically",
+        low=-100_000, high=100_000)
+    clamp_y_mm: float = param(
+        0.0, doc="y of the part's clamping point from the nominal bore centre [mm]",
+        low=-100_000, high=100_000)
     start_scatter_mm: float = param(25.0, doc="Half-width per axis of the uniform scatter of "
                                     "the start point about the truth's start", low=0,
                                     high=10_000)
@@ -228,6 +267,21 @@ class Setup(SetupBase):
         if roundness_mm >= 0.05 * self.bore_radius_mm:
             p.add("roundness_um", self.roundness_um,
                   f"< 5 % of the bore radius ({50 * self.bore_radius_mm:g} um)")
+
+
+    def notes(self) -> list[str]:
+        """Which temperatures were assumed rather than measured, and what was corrected."""
+        out = (temperature.assumed_note(self, "part_temperature", "the part's temperature")
+               + temperature.assumed_note(self, "scale_temperature", "the scales' temperature",
+                                          about="the part's"))
+        if self.part_temperature_c is not None or self.scale_temperature_c is not None:
+            dtp, dts = _reference_deviations(self)
+            out.append(f"temperature: corrected to 20 degC from the part at {20 + dtp:g} degC "
+                       f"and the scales at {20 + dts:g} degC (scales about their datum "
+                       f"({self.scale_datum_x_mm:g}, {self.scale_datum_y_mm:g}) mm, the part "
+                       f"about its clamping point ({self.clamp_x_mm:g}, {self.clamp_y_mm:g}) "
+                       "mm)")
+        return out
 
 
 @dataclass(frozen=True)
@@ -306,48 +360,121 @@ def sources(setup: Setup) -> dict[str, Source]:
             "Error of the calibrated effective tip radius, one per test: every recorded point "
             "lies that far beyond the wall along its approach. 0.5 um std: the radius is "
             "calibrated on a setting ring (ISO 1938-1) known to about 1 um in diameter."),
-        "part_temperature": Source(
-            Rectangular(-setup.part_temperature_c, setup.part_temperature_c), (),
-            "The part's temperature minus 20 degC [K], uniform within +-part_temperature_c "
-            "(default +-2 K: a workshop held at 20 +- 2 degC, ISO 1's reference temperature; "
-            "the estimates are not corrected to 20 degC). The bore grows about its centre by "
-            "expansion_ppm_per_k (11.5e-6/K: steel); the scales share this temperature (plus "
-            "scale_temperature) and shrink their reading by scale_expansion_ppm_per_k (10e-6/K: "
-            "the coefficient HEIDENHAIN states for its steel-mounted linear scales), so the "
-            "radius reads r (alpha_part dT_part - alpha_scale dT_scale) off: "
-            "(11.5 - 10) ppm/K when part and machine share one temperature."),
-        "scale_temperature": Source(
-            Rectangular(-setup.scale_temperature_c, setup.scale_temperature_c), (),
-            "The machine scales' temperature minus the part's [K], uniform within "
-            "+-scale_temperature_c. Default +-1 K: a part soaked on the machine for hours (ISO/TR "
-            "16015 advises soaking until part and machine agree within a kelvin); a part that "
-            "arrives from a warmer hall needs more. The scales read actual lengths times "
-            "1 - scale_expansion_ppm_per_k x dT_scale, about the stage's datum at the nominal "
-            "centre: the radius, and the centre by that strain times its offset from the "
-            "nominal one (nanometres)."),
+        **_thermal_sources(setup),
     }
 
 
-def _scale_strain(setup: Setup, errors: dict, n: int) -> np.ndarray:
-    """Thermal strain of the stage's scales (n,): alpha_scale (dT_part + dT_scale) [1]."""
-    dt = (np.asarray(errors["part_temperature"], dtype=float).reshape(n)
-          + np.asarray(errors["scale_temperature"], dtype=float).reshape(n))
-    return setup.scale_expansion_ppm_per_k * 1e-6 * dt
+def _thermal_sources(setup: Setup) -> dict[str, Source]:
+    """The temperatures' sources, measured or assumed (:mod:`mtplan.models._temperature`: each
+    the actual value minus the one the estimators correct with, so zero-mean), and the
+    expansion coefficients'."""
+    return {
+        **temperature.temperature_sources(
+            setup, "part_temperature",
+            measured="Error of the measured part temperature [K]: the part is at "
+            "part_temperature_c plus this, and the estimates are corrected to 20 degC (ISO 1) "
+            "with part_temperature_c. Default 0.2 K: a calibrated contact thermometer on a "
+            "soaked part (ISO/TR 16015). The bore grows about the part's clamping point by "
+            "expansion_ppm_per_k x dT; when the scales' temperature is not measured they "
+            "follow the part's.",
+            assumed="The part's temperature minus 20 degC [K] when it is not measured, uniform "
+            "within +-part_temperature_halfwidth_k (default +-2 K: a workshop held at 20 +- 2 "
+            "degC, ISO 1's reference temperature); nothing is corrected. The bore grows about "
+            "the clamping point by expansion_ppm_per_k (11.5e-6/K: steel); the scales share "
+            "this temperature (plus scale_temperature_halfwidth) and shrink their reading "
+            "about their datum by scale_expansion_ppm_per_k (10e-6/K: the coefficient "
+            "HEIDENHAIN states for its steel-mounted linear scales), so the radius reads r "
+            "(alpha_part - alpha_scale) dT off and the centre alpha_scale dT times its offset "
+            "from the scales' datum (300 mm x 10e-6/K x 1.15 K = 3.5 um per axis at the "
+            "defaults)."),
+        **temperature.temperature_sources(
+            setup, "scale_temperature",
+            measured="Error of the measured scale temperature [K]; default 0.2 K. The scales "
+            "read every length from their datum times 1 - scale_expansion_ppm_per_k x "
+            "dT_scale.",
+            assumed="The machine scales' temperature minus the part's [K] when it is not "
+            "measured, uniform within +-scale_temperature_halfwidth_k. Default +-1 K: a part "
+            "soaked on the machine for hours (ISO/TR 16015 advises soaking until part and "
+            "machine agree within a kelvin); a part that arrives from a warmer hall needs "
+            "more. The scales read lengths from their datum (scale_datum_x_mm, "
+            "scale_datum_y_mm) times 1 - scale_expansion_ppm_per_k x dT_scale: the radius, "
+            "and the centre by that strain times its offset from the datum (300 mm x "
+            "10e-6/K x 0.58 K = 1.7 um)."),
+        "expansion_u": Source(
+            Normal(0.0, setup.expansion_u_ppm_per_k * 1e-6), (),
+            "Error of the workpiece's expansion coefficient [1/K]: it moves the corrected "
+            "result by u(alpha) x (T_part - 20 degC) x the length from the clamping point. "
+            "Default 1e-6/K: steels span 10.5-12.5e-6/K (ISO/TR 16015)."),
+        "scale_expansion_u": Source(
+            Normal(0.0, setup.scale_expansion_u_ppm_per_k * 1e-6), (),
+            "Error of the scales' effective expansion coefficient [1/K]: u(alpha) x "
+            "(T_scale - 20 degC) x the length from the datum. Default 0.5e-6/K: a scale "
+            "mounted on steel follows its mounting (10-11.5e-6/K)."),
+    }
+
+
+def _reference_deviations(setup: Setup) -> tuple[float, float]:
+    """The temperatures minus 20 degC [K] of the part and the scales that the estimators
+    correct with: the measured ones, 0 where the part is not measured, and the part's
+    where the scales are not."""
+    dtp = temperature.deviation(setup, "part_temperature")
+    return dtp, temperature.deviation(setup, "scale_temperature", default=dtp)
+
+
+def _thermal(setup: Setup, errors: dict, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The actual thermal strains (n,) of the part (about its clamping point) and of the
+    scales (about their datum): alpha (T - 20 degC) with the actual alphas and temperatures."""
+    def e(name):
+        return np.asarray(errors[name], dtype=float).reshape(n)
+
+    dtp_ref, dts_ref = _reference_deviations(setup)
+    dtp = dtp_ref + e("part_temperature_u") + e("part_temperature_halfwidth")
+    if setup.scale_temperature_c is None:  # the scales follow the part's actual temperature
+        dts = dtp + e("scale_temperature_halfwidth") + e("scale_temperature_u")
+    else:
+        dts = dts_ref + e("scale_temperature_u") + e("scale_temperature_halfwidth")
+    part = (setup.expansion_ppm_per_k * 1e-6 + e("expansion_u")) * dtp
+    scale = (setup.scale_expansion_ppm_per_k * 1e-6 + e("scale_expansion_u")) * dts
+    return part, scale
+
+
+def _datum(setup: Setup) -> np.ndarray:
+    return np.array([setup.scale_datum_x_mm, setup.scale_datum_y_mm])
+
+
+def _clamp(setup: Setup) -> np.ndarray:
+    return np.array([setup.clamp_x_mm, setup.clamp_y_mm])
+
+
+def _to_20c(setup: Setup, cx, cy, r) -> tuple:
+    """A circle read at the test's temperatures, corrected to 20 degC (ISO 1): the read
+    coordinates scaled back about the scales' datum by 1 + alpha_scale dT_scale, then the
+    part shrunk about its clamping point by 1 + alpha_part dT_part, with the reference
+    temperatures (:func:`_reference_deviations`) and the stated alphas. Exact for a circle
+    (both are similarities); the identity where nothing was measured."""
+    dtp, dts = _reference_deviations(setup)
+    if dtp == 0.0 and dts == 0.0:
+        return cx, cy, r
+    s = 1.0 + setup.scale_expansion_ppm_per_k * 1e-6 * dts
+    g = 1.0 + setup.expansion_ppm_per_k * 1e-6 * dtp
+    (dx, dy), (kx, ky) = _datum(setup), _clamp(setup)
+    ax, ay = dx + s * (np.asarray(cx) - dx), dy + s * (np.asarray(cy) - dy)
+    return kx + (ax - kx) / g, ky + (ay - ky) / g, s * np.asarray(r) / g
 
 
 # --------------------------------------------------------------------------- geometry
-def _wall(setup, truth, errors, n):
+def _wall(setup, truth, errors, n, part_strain):
     """True centre (n,2), radius (n,), form coefficients (n,2), lobes.
 
-    The radius is the one at the test's temperature: the 20 degC radius times
-    ``1 + strain`` (the bore grows about its centre; its form error is left at its
-    20 degC size, a change of 1e-5 of a few micrometres). Truth fields may be arrays
-    (n,): one truth per batch row (a posterior's walkers).
+    The bore at the test's temperature: the 20 degC bore scaled by ``1 + part_strain``
+    about the part's clamping point (its form error is left at its 20 degC size, a
+    change of 1e-5 of a few micrometres). Truth fields may be arrays (n,): one truth per
+    batch row (a posterior's walkers).
     """
-    centre = np.broadcast_to(_xy_of(truth.centre_x_mm, truth.centre_y_mm), (n, 2))
-    strain = setup.expansion_ppm_per_k * 1e-6 * np.asarray(errors["part_temperature"],
-                                                           dtype=float).reshape(n)
-    radius = (setup.bore_radius_mm + np.asarray(truth.radius_deviation_mm)) * (1.0 + strain)
+    grow = 1.0 + np.reshape(part_strain, (n, 1))
+    k = _clamp(setup)
+    centre = k + (np.broadcast_to(_xy_of(truth.centre_x_mm, truth.centre_y_mm), (n, 2)) - k) * grow
+    radius = (setup.bore_radius_mm + np.asarray(truth.radius_deviation_mm)) * grow[:, 0]
     form = np.asarray(errors["roundness"], dtype=float).reshape(n, 2)
     return centre, radius, form, setup.lobes
 
@@ -542,8 +669,10 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     """
     _check_start(setup, truth)
     n = np.asarray(errors["probe_noise"]).shape[0]
-    centre, radius, form, lobes = _wall(setup, truth, errors, n)
-    m, minv = _stage(errors, n, _scale_strain(setup, errors, n))
+    part_strain, scale_strain = _thermal(setup, errors, n)
+    centre, radius, form, lobes = _wall(setup, truth, errors, n, part_strain)
+    m, minv = _stage(errors, n, scale_strain)
+    datum = _datum(setup)
     rep = np.asarray(errors["stage_repeatability"], dtype=float).reshape(n, -1, 2)
 
     def apply(mat, q):  # (n, 2, 2) @ (n, k, 2), written out: faster than einsum
@@ -551,18 +680,18 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
         return np.stack([mat[:, 0, 0, None] * x + mat[:, 0, 1, None] * y,
                          mat[:, 1, 0, None] * x + mat[:, 1, 1, None] * y], axis=-1)
 
-    def to_actual(q):  # read -> actual
-        return apply(m, q)
+    def to_actual(q):  # read -> actual: the scales grow (and err) about their datum
+        return datum + apply(m, q - datum)
 
     def to_read(q):
-        return apply(minv, q)
+        return datum + apply(minv, q - datum)
 
     start = _xy_of(truth.start_x_mm, truth.start_y_mm) + np.asarray(
         errors["start_scatter"], dtype=float).reshape(n, 2)
     # p1 along -y, p2 along +y (read frame), from the start
     dirs_read = np.broadcast_to(np.array([[0.0, -1.0], [0.0, 1.0]]), (n, 2, 2))
     origin = to_actual(np.broadcast_to(start[:, None, :], (n, 2, 2)))
-    dirs = to_actual(dirs_read)
+    dirs = apply(m, dirs_read)  # a direction: no datum
     dirs = dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
     cp, nrm = _contact(origin, dirs, centre, radius, form, lobes)
     stylus = _probe(setup, errors, cp, nrm, dirs, slice(0, 2))
@@ -573,7 +702,7 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     u_read = np.stack([np.cos(plan["alpha"]), np.sin(plan["alpha"])], axis=-1)
     o_read = np.broadcast_to(plan["centre"][:, None, :], u_read.shape)
     origin = to_actual(o_read)
-    dirs = to_actual(u_read)
+    dirs = apply(m, u_read)
     dirs = dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
     cd, nrm = _contact(origin, dirs, centre, radius, form, lobes)
     stylus = _probe(setup, errors, cd, nrm, dirs, slice(2, None))
@@ -594,8 +723,10 @@ def _three_indices(n: int, spread_deg: float) -> list[int]:
 
 
 def _result(circle, setup: Setup) -> dict:
-    return {"centre_x": np.asarray(circle.xc), "centre_y": np.asarray(circle.yc),
-            "radius": np.asarray(circle.r) - setup.bore_radius_mm}
+    """The measurands of a circle fitted to read points, corrected to 20 degC."""
+    cx, cy, r = _to_20c(setup, circle.xc, circle.yc, circle.r)
+    return {"centre_x": np.asarray(cx), "centre_y": np.asarray(cy),
+            "radius": np.asarray(r) - setup.bore_radius_mm}
 
 
 def estimate_three_point(setup: Setup, readings: dict) -> dict:
@@ -634,15 +765,17 @@ def _contacts(readings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return pts, approach, has_p
 
 
-def _radial_covariance(setup: Setup, u, approach, radius) -> np.ndarray:
+def _radial_covariance(setup: Setup, u, approach, radius, centre) -> np.ndarray:
     """Covariance (..., m, m) of the contacts' radial errors under the set-up's error budget.
 
     The linearised physics of :func:`forward` along each contact's outward unit radial
-    `u` (..., m, 2), for a contact approached along `approach` (the radial where NaN):
-    probe noise and tip-radius error along the approach, the pre-travel's three lobes of the
-    approach direction, the stage's repeatability (isotropic), scale and squareness errors
-    (read = M^-1 actual), the bore's lobed form and its thermal growth. Tangential slip
-    moves contacts along the wall and start scatter moves the path: neither changes a
+    `u` (..., m, 2), for a contact approached along `approach` (the radial where NaN), on
+    the circle of `radius` (...) about `centre` (..., 2): probe noise and tip-radius error
+    along the approach, the pre-travel's three lobes of the approach direction, the stage's
+    repeatability (isotropic), scale and squareness errors (read = M^-1 actual, about the
+    scales' datum), the bore's lobed form, and the temperatures and expansion coefficients
+    (the part grows about its clamping point, the scales about their datum). Tangential
+    slip moves contacts along the wall and start scatter moves the path: neither changes a
     contact's distance from the centre to first order.
     """
     src = sources(setup)
@@ -652,17 +785,26 @@ def _radial_covariance(setup: Setup, u, approach, radius) -> np.ndarray:
     c3, s3 = a[..., 0] * (4 * a[..., 0] ** 2 - 3), a[..., 1] * (3 - 4 * a[..., 1] ** 2)
     phi = np.arctan2(u[..., 1], u[..., 0])
     k = setup.lobes
-    x, y = radius[..., None] * u[..., 0], radius[..., None] * u[..., 1]
+    pts = np.asarray(centre)[..., None, :] + radius[..., None, None] * u
+    from_datum = pts - _datum(setup)
+    from_clamp = np.sum((pts - _clamp(setup)) * u, axis=-1)  # radial growth per unit strain
+    along_datum = np.sum(from_datum * u, axis=-1)
+    alpha_p = setup.expansion_ppm_per_k * 1e-6
+    alpha_s = setup.scale_expansion_ppm_per_k * 1e-6
+    dtp, dts = _reference_deviations(setup)
+    sd_p = math.hypot(sd["part_temperature_u"], sd["part_temperature_halfwidth"])
+    sd_s = math.hypot(sd["scale_temperature_u"], sd["scale_temperature_halfwidth"])
+    follow = 1.0 if setup.scale_temperature_c is None else 0.0  # scales follow the part
     cols = [sd["pretravel_variation"] * c3 * cos_au, sd["pretravel_variation"] * s3 * cos_au,
             sd["tip_radius"] * cos_au,
             sd["roundness"] * np.cos(k * phi), sd["roundness"] * np.sin(k * phi),
-            sd["scale_error"] * x * u[..., 0], sd["scale_error"] * y * u[..., 1],
-            sd["squareness"] * y * u[..., 0],
-            sd["part_temperature"] * 1e-6 * (setup.expansion_ppm_per_k
-                                             - setup.scale_expansion_ppm_per_k)
-            * radius[..., None] * np.ones_like(phi),
-            sd["scale_temperature"] * 1e-6 * setup.scale_expansion_ppm_per_k
-            * radius[..., None] * np.ones_like(phi)]
+            sd["scale_error"] * from_datum[..., 0] * u[..., 0],
+            sd["scale_error"] * from_datum[..., 1] * u[..., 1],
+            sd["squareness"] * from_datum[..., 1] * u[..., 0],
+            sd_p * (alpha_p * from_clamp - follow * alpha_s * along_datum),
+            sd_s * alpha_s * along_datum,
+            sd["expansion_u"] * dtp * from_clamp,
+            sd["scale_expansion_u"] * dts * along_datum]
     v = np.stack(cols, axis=-1)
     diag = (sd["probe_noise"] * cos_au) ** 2 + sd["stage_repeatability"] ** 2
     cov = v @ np.swapaxes(v, -1, -2)
@@ -701,7 +843,7 @@ def estimate_gls(setup: Setup, readings: dict, iterations: int = 4) -> dict:
         dist = np.linalg.norm(diff, axis=-1)
         u = diff / dist[..., None]
         e = dist - r[..., None]
-        cov = _radial_covariance(setup, u, approach, r)
+        cov = _radial_covariance(setup, u, approach, r, c)
         big = 1e6 * np.max(np.diagonal(cov, axis1=-2, axis2=-1), axis=-1)
         cov[..., 0, 0] += np.where(dup[..., 0], big, 0.0)
         cov[..., 1, 1] += np.where(dup[..., 1], big, 0.0)
@@ -709,7 +851,8 @@ def estimate_gls(setup: Setup, readings: dict, iterations: int = 4) -> dict:
         step, _ = gls_step(jac, -e, cov)
         c = c + step[..., :2]
         r = r + step[..., 2]
-    return {"centre_x": c[..., 0], "centre_y": c[..., 1], "radius": r - setup.bore_radius_mm}
+    cx, cy, r = _to_20c(setup, c[..., 0], c[..., 1], r)
+    return {"centre_x": cx, "centre_y": cy, "radius": r - setup.bore_radius_mm}
 
 
 ESTIMATORS = {"three_point": estimate_three_point, "kasa": estimate_kasa,

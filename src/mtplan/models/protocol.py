@@ -87,7 +87,8 @@ UNITS = {
 }
 UNIT_SUFFIXES = ("mm", "um", "nm", "rad", "mrad", "urad", "deg", "arcsec", "ppm", "s", "ms", "c",
                  "um_per_m", "urad_per_m", "mm_min", "per_s", "um_per_s", "urad_per_s",
-                 "um_per_deg", "urad_per_deg", "um_per_h", "ppm_per_h", "k_per_m")
+                 "um_per_deg", "urad_per_deg", "um_per_h", "ppm_per_h", "k_per_m", "k",
+                 "ppm_per_k")
 
 _SUFFIXES_LONGEST_FIRST = tuple(sorted(UNIT_SUFFIXES, key=len, reverse=True))
 
@@ -336,6 +337,12 @@ class SetupBase:
 
     def _check(self, problems: Problems) -> None:
         """Cross-field rules; record problems with ``problems.add`` / ``add_text``."""
+
+    def notes(self) -> list[str]:
+        """What a reader of any result of this set-up must know about it (a temperature
+        assumed, not measured); a procedure's Setup adds its own. Results print them
+        first among their notes."""
+        return []
 
     def replace(self, **changes):
         """A copy with `changes` applied (validated)."""

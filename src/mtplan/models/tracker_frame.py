@@ -86,14 +86,6 @@ Estimators
   the smallest-geometric-mean rule. About 5 times slower than ``home`` (about 5 000
   trials/s).
 
-What the Monte Carlo shows (docs/tracker_frame.md holds the tables and the commands):
-on short A arcs ``angles`` determines origin_z and the A-C offset several times better
-than ``patent`` (20 deg: origin_z_1 about 14 times), because its circles get the
-radius from the spacing of the points, not only from the sagitta. The tracker's
-per-test systematic angle error moves every point of a sub-machine together, so it
-shifts the frame by a few micrometres whatever the arc; the short-A-arc penalty comes
-from the per-point errors only.
-
 Decisions where the patent is silent or leaves a choice
 -------------------------------------------------------------------
 - **The frame is defined by the construction.** The patent is a zero-point
@@ -118,77 +110,18 @@ Decisions where the patent is silent or leaves a choice
   least-squares rigid best fit (Kabsch/Umeyama without scale) of the measured marks
   to their stated coordinates. The registration's uncertainty therefore comes from
   the tracker's own errors on the marks and enters every sub-machine alike.
-- **Tracker specification.** Makers state the maximum permissible error (MPE) after
-  ISO 10360-10 in the form a + b L for the distance (ADM) and c + d L transverse
-  to the beam; an MPE is a bound, not a standard deviation. With
-  ``mpe_model="normal_k2"`` (default) an MPE is taken as an expanded uncertainty
-  with k = 2, i.e. a normal error of standard deviation MPE/2; makers state that
-  typical results are half the MPE, which is this reading. ``mpe_model="rectangular"``
-  takes the MPE as the half-width of a rectangular distribution (std MPE/sqrt 3),
-  the cautious reading of a bound without further knowledge. The defaults are the
-  Leica AT960's (ADM 10 um + 0.3 um/m; transverse 15 um + 6 um/m). The constant
-  and the length-proportional parts have different causes (ADM zero and noise
-  versus refractive index and scale; encoder and pointing noise versus angular
-  errors that grow into position), so each part is a separate source and their
-  standard deviations add in quadrature, not linearly as in the MPE envelope.
-- **Angle errors: per test and per point.** The transverse d L part comes from the
-  angle encoders and the instrument's geometry (ASME B89.4.19 / ISO 10360-10 test
-  the geometric misalignments that the NIST model of Muralikrishnan et al. 2009
-  lists: beam offsets and tilt, trunnion tilt, encoder eccentricity, vertical
-  index). Those are constant over a test, so they displace nearby points (a short
-  arc, one sub-machine) together; only the angular repeatability is independent
-  from point to point. d is split accordingly: ``angular_systematic`` (5 um/m, nine
-  per-test coefficients of low-order functions of azimuth and elevation, see
-  :func:`_systematic_angles`) and ``transverse_per_length`` (3 um/m per point);
-  5.8 um/m in quadrature is the data sheet's 6. The split is a modelling choice,
-  not a maker's figure: makers state the MPE only. The transverse constant part c
-  stays per point, in both directions across the beam (horizontal, vertical), as
-  an angle error ``e / d``.
-- **Reflector, air, drift, travels.** The SMR's centring error appears in a new
-  direction at each point (it is turned toward the tracker in its nest); the air's
-  refractive index scales every distance by one factor per test; the tracker drifts
-  against the machine linearly in time over the test's time line (:func:`_times`,
-  the marks first, so later sub-machines drift further from the registration);
-  each linear travel deviates from its reference straight line by smooth Legendre
-  terms, which tilt the fitted direction only through the sampling at
-  ``points_per_axis`` points (the true direction is that of the least-squares line
-  of the continuous travel).
-- **Rotary positioning.** The A and C axes stop at the commanded angle plus an
-  error (source ``rotary_positioning``, standard deviation 5 arcsec by default, an
-  ISO 230-2 bidirectional accuracy of positioning of about 20 arcsec, some 4 s, for
-  the rotary axes of such swivel heads), independent from point to point: the
-  reflector is at the actual angle, the readings report the commanded one. The
-  systematic (cyclic, repeatable) part of a real axis's positioning error is
-  correlated from point to point, which this model does not capture. ``patent``
-  does not see this error at all (its points stay on the true circles).
-- **Reflector fixture.** ``reflector_offset_mm`` is the fixture's stated (drawing)
-  offset. An uncalibrated fixture clamped in a spindle puts its nest within tens of
-  micrometres of that: the arm is machined to a tolerance, the nest's height against
-  the tool tip likewise, and the arm's direction round C is set by the spindle's
-  orientation stop (+-0.02 deg is 52 um at 150 mm). Source ``reflector_fixture``
-  (default +-50 um, rectangular, each of the three directions, one per mounting)
-  carries it. The estimators are blind to it (their circles' radii and phases are
-  free); without it a posterior would know the radii of the C and A circles to
-  the micrometre, and with them where a short A arc's axis lies (u(origin_z_1) 8.0 um
-  against 15.5 um from ``angles``). Set it to 0 for a calibrated fixture.
-- **Tracker position.** The tracker stands near ``(-tracker_distance, 0,
-  tracker_height)``; the Truth fields ``tracker_dx_um``, ``tracker_dy_um``,
-  ``tracker_dz_um`` (default 0) say where exactly. The registration on the marks
-  finds it together with the yaw, so every estimator is blind to it; a posterior
-  that took the set-up's position as exact would skip the registration's translation
-  error (about 4 um in each direction from four marks, the rest of the gap in
-  origin_x and origin_y).
-- **Pivot length.** ``pivot_length_mm`` is the stated value the estimator uses; the
-  true pivot length differs by ``Truth.pivot_length_error_um`` (default 0), which
-  shows up as a bias of the origin along C (the readings do not depend on it). It is
-  not a source: it comes from the head's own calibration (tool setter, RTCP cycle),
-  it is not in the readings of this test (the reflector's height against the tool tip
-  is the fixture's), so every estimator and the posterior add it alike, 1:1 along C;
-  the origins are stated conditional on the stated L, and u(L) adds in quadrature to
-  origin along C.
-- Not modelled: line-of-sight limits of the tracker, a drift of the tracker's
-  orientation (only its position drifts), the systematic (repeatable) part of the
-  rotary axes' positioning error, re-measuring the marks at the end of the test.
+- **The error sources** (the tracker's MPE and how it becomes a distribution, the angle
+  errors per test and per point, the reflector, air, drift, travels, the rotary
+  positioning, the reflector's fixture, the tracker's position, the pivot length): the
+  decisions and the sources of their defaults are in docs/tracker_frame.md, "Modelling
+  decisions behind the sources".
+- **Temperatures.** The structure stands expanded about the marks' centroid by its
+  temperature minus 20 degC; the air's vertical gradient bends every beam (warm air above:
+  a signed mean). Measured (``structure_temperature_c``, ``air_gradient_k_per_m``), every
+  estimator corrects both (:func:`_corrected_readings`, the registered points shrunk back
+  about the centroid; ``gls`` through its forward model), and the thermometers' and the
+  expansion coefficient's errors are sources. Not measured, they are a zero-mean half-width
+  and a range from 0 (signed mean), uncorrected; the set-up's notes say so.
 
 Degenerate set-ups are refused by the Setup and Truth checks: a zero travel (no
 direction), a zero arc (all arc points at one angle: no circle, no axis), fewer
@@ -228,6 +161,7 @@ from mtplan.fitting.fit3d import (
 )
 from mtplan._parallel import one_blas_thread
 from mtplan.fitting.effects import secant_effects
+from mtplan.models import _temperature as temperature
 from mtplan.models.protocol import (
     Measurand,
     Procedure,
@@ -329,17 +263,40 @@ class Setup(SetupBase):
     rotary_positioning_arcsec: float = param(
         5.0, doc="Standard deviation of the A and C axes' angular positioning at each arc "
         "point (actual minus commanded angle)", low=0, high=36000)
-    structure_temperature_c: float = param(
-        2.0, doc="Half-width (rectangular) of the bed's and gantry's temperature minus 20 degC, "
-        "the reference temperature of the marks' stated coordinates (ISO 1): the structure "
-        "grows about the marks' centroid and the frame is not corrected for it", low=0,
-        high=50)
+    structure_temperature_c: float | None = param(
+        None, doc="Measured temperature of the bed and gantry [degC] (the mean of sensors on "
+        "the structure): the frames are corrected to 20 degC, the marks' reference "
+        "temperature (ISO 1); empty: not measured, the structure is assumed at 20 degC within "
+        "+-structure_temperature_halfwidth_k and nothing is corrected", low=10, high=40)
+    structure_temperature_u_k: float = param(
+        0.3, doc="Standard uncertainty of the measured structure temperature as the mean "
+        "temperature of the bed and gantry [K] (calibrated contact sensors 0.1 K; a weldment "
+        "several metres long is not isothermal); used when structure_temperature_c is given",
+        low=0, high=10)
+    structure_temperature_halfwidth_k: float = param(
+        2.0, doc="Half-width (rectangular) of the structure's temperature minus 20 degC when "
+        "it is not measured [K]: a machine hall held at 20 +- 2 degC", low=0, high=50)
     structure_expansion_ppm_per_k: float = param(
         11.5, doc="Linear thermal expansion coefficient of the bed and gantry [1e-6/K] (steel "
         "weldments 11.5; cast iron 10-11)", low=0, high=100)
-    temperature_gradient_k_per_m: float = param(
-        0.5, doc="Standard deviation of the vertical gradient of the air's temperature along "
-        "the beams, one per test [K/m]: it bends every beam (refraction)", low=0, high=20)
+    structure_expansion_u_ppm_per_k: float = param(
+        1.0, doc="Standard uncertainty of the structure's expansion coefficient [1e-6/K] "
+        "(steels and cast irons span 10-12.5e-6/K; ISO/TR 16015)", low=0, high=100)
+    air_gradient_k_per_m: float | None = param(
+        None, doc="Measured vertical gradient of the air's temperature along the beams [K/m], "
+        "positive with warm air above (two thermometers at different heights): every "
+        "estimator corrects the elevations for the beams' bending; empty: not measured, "
+        "the gradient is taken uniform between 0 and air_gradient_range_k_per_m", low=-10,
+        high=10)
+    air_gradient_u_k_per_m: float = param(
+        0.2, doc="Standard uncertainty of the measured gradient as the mean along the beams "
+        "[K/m] (two thermometers of 0.1 K a metre apart, 0.14 K/m, and the gradient's "
+        "change along the hall); used when air_gradient_k_per_m is given", low=0, high=20)
+    air_gradient_range_k_per_m: float = param(
+        1.0, doc="Upper end of the vertical gradient of the air's temperature when it is not "
+        "measured [K/m]: uniform between 0 and it, warm air above (halls without displacement "
+        "ventilation stratify by 0.5-1 K/m, Estler et al., CIRP Annals 51/2, 2002)", low=0,
+        high=20)
     dwell_s: float = param(3.0, doc="Settling and tracker averaging per point", low=0)
     linear_feed_mm_min: float = param(3000.0, doc="Feed of the linear moves", low=0, low_open=True)
     rotary_move_s: float = param(3.0, doc="Time to index a rotary axis to the next arc point",
@@ -361,6 +318,18 @@ class Setup(SetupBase):
                 p.add(field, getattr(self, field),
                       f"> 0: with an arc of 0 all points of the {ax.upper()} arc lie at one "
                       "angle, so no circle and no axis line can be fitted")
+
+
+    def notes(self) -> list[str]:
+        """Which temperatures were assumed rather than measured."""
+        out = temperature.assumed_note(self, "structure_temperature",
+                                       "the structure's temperature")
+        if self.air_gradient_k_per_m is None:
+            out.append(f"temperature: the air's vertical gradient was assumed (0 to "
+                       f"{self.air_gradient_range_k_per_m:g} K/m, warm air above), not measured: "
+                       "its mean biases the simulated estimates; estimate's bias correction "
+                       "removes it (state air_gradient_k_per_m)")
+        return out
 
 
 @dataclass(frozen=True)
@@ -833,23 +802,7 @@ def sources(setup: Setup) -> dict[str, Source]:
             "circles and so where their axes lie across a short arc. Default +-50 um "
             "(rectangular) for an uncalibrated fixture: arm machined to +-50 um, the nest's "
             "height to +-50 um, the spindle's orientation stop +-0.02 deg at 150 mm."),
-        "structure_temperature": Source(
-            Rectangular(-setup.structure_temperature_c, setup.structure_temperature_c), (),
-            "Temperature of the bed and gantry minus 20 degC, one per test [K], uniform within "
-            "+-structure_temperature_c: the marks' coordinates are stated at 20 degC (ISO 1), "
-            "the structure and everything on it stand expanded by structure_expansion_ppm_per_k "
-            "x dT about the marks' centroid, and the registration on the stated marks keeps "
-            "that scale: a sub-machine 1 m from the centroid moves by 13 um at the default "
-            "(11.5e-6/K x 1 m x 1.15 K). Default +-2 K: a machine hall held at 20 +- 2 degC."),
-        "temperature_gradient": Source(
-            Normal(0.0, setup.temperature_gradient_k_per_m), (),
-            "Vertical gradient G of the air's temperature over the hall, one per test [K/m]. "
-            "The refractive index falls by 0.93 ppm/K (Edlen), so a beam bends with curvature "
-            "0.93e-6 G per metre and the tracker sees a target at horizontal distance D "
-            "raised by 0.93e-6 G D^2 / 2 (7.4 um at 4 m for 1 K/m): an elevation error "
-            "0.93e-6 G D / 2. Default 0.5 K/m (standard deviation): halls without displacement "
-            "ventilation stratify by 0.5-1 K/m (Estler et al., Large-scale metrology - an "
-            "update, CIRP Annals 51/2, 2002)."),
+        **_thermal_sources(setup),
         "rotary_positioning": Source(
             Normal(0.0, setup.rotary_positioning_arcsec * math.pi / 648000), (q,),
             "Angular positioning error of the A and C axes at each arc point (actual minus "
@@ -860,8 +813,45 @@ def sources(setup: Setup) -> dict[str, Source]:
     }
 
 
-#: change of the air's refractive index per kelvin (Edlen) [1/K]
-_DN_DT = 0.93e-6
+def _thermal_sources(setup: Setup) -> dict[str, Source]:
+    """The structure's temperature and the air's gradient, measured or assumed
+    (:mod:`mtplan.models._temperature`), and the structure's expansion coefficient."""
+    return {
+        **temperature.temperature_sources(
+            setup, "structure_temperature",
+            measured="Error of the measured structure temperature as the mean temperature of "
+            "the bed and gantry [K]; the frames are corrected to 20 degC with "
+            "structure_temperature_c. Default 0.3 K: calibrated sensors (0.1 K) on a structure "
+            "that is not isothermal (ISO/TR 16015).",
+            assumed="Temperature of the bed and gantry minus 20 degC when it is not measured, "
+            "one per test [K], uniform within +-structure_temperature_halfwidth_k: the marks' "
+            "coordinates are stated at 20 degC (ISO 1), the structure and everything on it "
+            "stand expanded by structure_expansion_ppm_per_k x dT about the marks' centroid, "
+            "and the registration on the stated marks keeps that scale: a sub-machine 1 m from "
+            "the centroid moves by 13 um at the default (11.5e-6/K x 1 m x 1.15 K). Default "
+            "+-2 K: a machine hall held at 20 +- 2 degC; nothing is corrected."),
+        "structure_expansion_u": Source(
+            Normal(0.0, setup.structure_expansion_u_ppm_per_k * 1e-6), (),
+            "Error of the structure's expansion coefficient [1/K]: it acts times the "
+            "measured T - 20 degC, by the distance from the marks' centroid. Default 1e-6/K: "
+            "steels and cast irons span 10-12.5e-6/K (ISO/TR 16015)."),
+        **temperature.gradient_sources(
+            setup, "air_gradient",
+            measured="Error of the measured vertical gradient of the air's temperature as its "
+            "mean along the beams [K/m]; the elevations are corrected with "
+            "air_gradient_k_per_m. Default 0.2 K/m: two thermometers of 0.1 K a metre apart "
+            "and the gradient's change along the hall.",
+            assumed="Vertical gradient G of the air's temperature when it is not measured, one "
+            "per test [K/m], uniform between 0 and air_gradient_range_k_per_m: warm air lies "
+            "above, so its mean is signed (+0.5 K/m at the default) and biases the simulated "
+            "estimates (estimate's bias correction removes the mean). The refractive index "
+            "falls by 0.93 ppm/K (Edlen), so a beam bends with curvature 0.93e-6 G per metre "
+            "and the tracker sees a target at horizontal distance D raised by 0.93e-6 G D^2 / "
+            "2 (7.4 um at 4 m for 1 K/m). Default 1 K/m: halls without displacement "
+            "ventilation stratify by 0.5-1 K/m (Estler et al., Large-scale metrology - an "
+            "update, CIRP Annals 51/2, 2002)."),
+    }
+
 
 #: weights of the per-test angle-error terms (horizontal: encoder 1st and 2nd harmonic,
 #: collimation, trunnion tilt; vertical: index, encoder eccentricity) so that the
@@ -897,10 +887,15 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     rate = np.asarray(errors["thermal_drift"])
     if np.any(rate):
         pts = pts + rate[:, None, :] * _times(setup)[0][:, None]
-    grow = np.asarray(errors["structure_temperature"], dtype=float).reshape(-1, 1, 1)
+    dt_ref = temperature.deviation(setup, "structure_temperature")
+
+    def e(name):
+        return np.asarray(errors[name], dtype=float).reshape(-1, 1, 1)
+
+    grow = ((setup.structure_expansion_ppm_per_k * 1e-6 + e("structure_expansion_u"))
+            * (dt_ref + e("structure_temperature_u") + e("structure_temperature_halfwidth")))
     if np.any(grow):  # the structure at 20 degC + dT, about the marks' centroid
-        centroid = marks.mean(axis=0)
-        pts = pts + (setup.structure_expansion_ppm_per_k * 1e-6 * grow) * (pts - centroid)
+        pts = pts + grow * (pts - marks.mean(axis=0))
     r, t = _tracker_pose(setup, truth)
     v = (pts - t[..., None, :]) @ r  # tracker-frame coordinates: R^T (p - t), row vectors
     horiz = np.hypot(v[..., 0], v[..., 1])
@@ -915,9 +910,10 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     dist = dist + smr[..., 0]
     daz = (tf[..., 0] / d + tl[..., 0] + smr[..., 1] / d) * d / horiz
     d_el = tf[..., 1] / d + tl[..., 1] + smr[..., 2] / d
-    grad = np.asarray(errors["temperature_gradient"], dtype=float).reshape(-1, 1)
+    grad = (temperature.gradient(setup, "air_gradient") + e("air_gradient_u")
+            + e("air_gradient_range")).reshape(-1, 1)
     if np.any(grad):  # beam bending: the target seen raised by 0.93e-6 G D^2 / 2
-        d_el = d_el + (_DN_DT * 1e-3 / 2) * grad * horiz
+        d_el = d_el + temperature.bending(grad, horiz)
     sys = np.asarray(errors["angular_systematic"])
     if np.any(sys):
         s_az, s_el = _systematic_angles(sys, az, el)
@@ -931,6 +927,16 @@ def _cartesian(readings: dict) -> np.ndarray:
     el = np.asarray(readings["elevation_rad"], dtype=float)
     ce = np.cos(el)
     return np.stack([d * ce * np.cos(az), d * ce * np.sin(az), d * np.sin(el)], axis=-1)
+
+
+def _corrected_readings(setup: Setup, readings: dict) -> dict:
+    """The readings with the elevations corrected for the measured air gradient (unchanged
+    where it was not measured)."""
+    g = temperature.gradient(setup, "air_gradient")
+    if not g:
+        return readings
+    return {**readings, "elevation_rad": temperature.unbend(
+        readings["elevation_rad"], np.asarray(readings["distance_mm"], dtype=float), g)}
 
 
 def _register(setup: Setup, tracker_marks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1013,10 +1019,15 @@ def _fit_arcs_home(setup: Setup, pts: dict, k: int) -> dict:
 
 def _estimate(setup: Setup, readings: dict, fit_arcs) -> dict[str, np.ndarray]:
     """Registration, lines, the arcs by `fit_arcs`, then the patent's construction."""
-    xyz = _cartesian(readings)
+    xyz = _cartesian(_corrected_readings(setup, readings))
     rot, t = _register(setup, xyz[:, :4])
     glob = xyz @ np.swapaxes(rot, -1, -2) + t[:, None, :]  # R v + t (a product: einsum's
     # loop over the batch took 20 times as long)
+    dt_ref = temperature.deviation(setup, "structure_temperature")
+    if dt_ref:  # to 20 degC: the structure shrunk back about the marks' centroid
+        centroid = _marks(setup).mean(axis=0)
+        glob = centroid + (glob - centroid) / (1.0 + setup.structure_expansion_ppm_per_k
+                                               * 1e-6 * dt_ref)
     sl = _slices(setup)
     nominal = _nominal_origins(setup)
     dot = lambda a, b: np.einsum("ni,ni->n", a, b)  # noqa: E731
@@ -1231,7 +1242,7 @@ def _gls_gain(setup: Setup, base: Truth, ref: tuple) -> np.ndarray:
     0.1 nrad) their covariance under every active error source of the set-up, by the
     secant effect of each element of a source at the same parameters
     (:func:`mtplan.fitting.readings_covariance`'s numbers, from grouped rows:
-    :func:`mtplan.models.first_order.secant_effects`). The readings are few (3 per point), so
+    :func:`mtplan.fitting.effects.secant_effects`). The readings are few (3 per point), so
     ``C`` is formed and factorised, scaled to unit diagonal.
     """
     theta = np.asarray(ref, dtype=float)[None, :]

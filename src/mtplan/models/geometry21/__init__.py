@@ -64,9 +64,11 @@ Error sources
 Reading noise, the plate's own grid error (a smooth random field per plane, cubic in
 the plate coordinates), the plate's mounting in each set-up (in-plane offset, in-plane
 rotation and two tilts), the extra heads' setting, and those of a real 1-2 h test:
-machine repeatability per reading point (correlated along each pass: AR(1) with
-``repeatability_correlation`` readings, since a contouring machine's path deviations
-are low-frequency), reversal (lost motion) between directions of
+machine repeatability per reading point (correlated along each pass: AR(1) in the path
+length with ``repeatability_correlation_mm``, since a contouring machine's path deviations
+are low-frequency), the machine's repeatable short-wave path deviation beyond the
+polynomials (``path_residual_um``: the same in every pass, so the error of truncating the
+model enters u), reversal (lost motion) between directions of
 travel of each axis, the servo contouring error of the circles (first-order position
 loops, radius- and feed-dependent), and thermal drift over the test's duration (a
 growth of each axis's scale and a drift of the head relative to the plate, both
@@ -99,8 +101,8 @@ lever arm in step 1, so its positioning errors are those at the reading head (EX
 at first order), not at the spindle reference point.
 
 ``joint``: all coefficients and the nuisance mounting parameters at once, generalised
-least squares (weights: the encoder noise's and AR(1) repeatability's covariance, a sparse
-whitening) with the model's Jacobian (rank-truncated pseudo-inverse, one product per batch),
+least squares (weights: the covariance of the encoder noise, the AR(1) repeatability and the
+repeatable path residual: a sparse whitening with a low-rank update, :mod:`._path`) with the model's Jacobian (rank-truncated pseudo-inverse, one product per batch),
 then Gauss-Newton on the exact model with **one linearisation for the whole batch**: the
 trials of a Monte Carlo block differ by the noise only, so the exact model is evaluated
 at the batch's (componentwise) median estimate and every trial is moved by the same
@@ -144,7 +146,7 @@ import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
 from mtplan.fitting import central_jacobian
-from mtplan.fitting.linear import filter_whitening, gls_pinv, restricted_pinv, \
+from mtplan.fitting.linear import gls_pinv, restricted_pinv, \
     truncated_pinv
 from mtplan.models.kinematics import chain, polyval, rotate_inverse
 from mtplan.models.protocol import Measurand, Procedure, SetupBase, Source, param
@@ -268,11 +270,15 @@ class Setup(SetupBase):
                                    low=0, high=1000)
     repeatability_um: float = param(0.3, doc="Machine repeatability at each reading point (std, "
                                     "each in-plane component; ISO 230-2 R = 4 s)", low=0, high=100)
-    repeatability_correlation: float = param(10.0, doc="Correlation length of the "
-                                             "repeatability along each pass of the path "
-                                             "[readings]: AR(1), the correlation of readings "
-                                             "k apart is exp(-k / length); 0: independent",
-                                             low=0, high=1e4)
+    repeatability_correlation_mm: float = param(
+        50.0, doc="Correlation length of the repeatability along the path of each pass [mm]: "
+        "AR(1) in the path length, readings s mm apart correlate by exp(-s / length), however "
+        "densely the pass is read; 0: independent", low=0, high=1e5)
+    path_residual_um: float = param(
+        0.3, doc="RMS of the machine's repeatable short-wave path deviation beyond the "
+        "polynomials, each axis and direction (harmonics of 10-40 mm wavelength of the "
+        "axis's position: ball-screw pitch, guideway waviness); the same in every pass",
+        low=0, high=100)
     reversal_um: float = param(2.0, doc="Reversal value of each axis (mean; drawn uniform on "
                                "[0, 2x]; ISO 230-2 B, 1-3 um with linear scales)", low=0, high=100)
     servo_lag_ms: float = param(2.0, doc="Following time 1/Kv of each axis's position loop "
@@ -315,7 +321,8 @@ class Setup(SetupBase):
 #: the fields that size an error source: the geometry, the Jacobian and the patent's
 #: design do not depend on them and are computed once for every size (:func:`_sizeless`)
 _SIZES = ("encoder_noise_um", "grid_error_um", "plate_offset_mm", "plate_tilt_urad",
-          "head_setting_um", "repeatability_um", "reversal_um", "servo_lag_ms",
+          "head_setting_um", "repeatability_um", "path_residual_um", "reversal_um",
+          "servo_lag_ms",
           "thermal_growth_ppm_per_h", "thermal_drift_um_per_h")
 
 
@@ -796,16 +803,29 @@ def sources(setup: Setup) -> dict:
             Normal(0.0, setup.repeatability_um * 1e-3), (m, 2),
             "The machine's non-repeatable path deviation at each reading point, each "
             "in-plane component, independent between passes and correlated along each pass: "
-            "the source's elements are the innovations of an AR(1) process whose "
-            "correlation between readings k apart is exp(-k / repeatability_correlation) "
-            "(standard deviation repeatability_um at every reading). Default 0.3 um: "
+            "the source's elements are the innovations of an AR(1) process in the path "
+            "length, readings s mm apart correlating by exp(-s / repeatability_correlation_mm) "
+            "(standard deviation repeatability_um at every reading), so reading a pass more "
+            "densely adds readings, not independent information. Default 0.3 um: "
             "ISO 230-2 unidirectional repeatability R = 4 s of about 1.2 um, typical of a "
             "machining centre with linear scales (data sheets: R 1-3 um). Default correlation "
-            "length 10 readings, 50 mm of the lines (5 mm apart) and 44 mm of the circles: "
-            "the path deviations of a contouring machine are low-frequency (ISO 230-4: the "
-            "servo's and the guideways' deviations span tens of millimetres, several "
-            "ball-screw pitches of 10-20 mm), not white from one reading to the next; 0 "
-            "gives independent readings."),
+            "length 50 mm: the path deviations of a contouring machine are low-frequency "
+            "(ISO 230-4: the servo's and the guideways' deviations span tens of millimetres, "
+            "several ball-screw pitches of 10-20 mm), not white from one reading to the next; "
+            "0 gives independent readings."),
+        "path_residual": Source(
+            Normal(0.0, setup.path_residual_um * 1e-3), (3, 3, _residual_knots(geo)[1]),
+            "The machine's repeatable path deviation beyond the fitted polynomials: for each "
+            "axis (X, Y, Z) and each direction of the tool's deviation (x, y, z), a random "
+            "function of the axis's commanded position, correlated over 5 mm (AR(1) over "
+            "knots 2.5 mm apart, linearly interpolated; the elements are its innovations), "
+            "RMS path_residual_um. A function of position, so every pass (repeat, direction, "
+            "head) sees the same; the polynomials cannot follow it, so the error of "
+            "truncating the model enters u. The measurands are the smooth (polynomial) part "
+            "of each error function. Default 0.3 um: the short-wave part of ISO 230-1 "
+            "straightness and ISO 230-2 positioning records of a machining centre with linear "
+            "scales (periodic deviations of ball-screw drives and guideway waviness of "
+            "0.2-1 um over 5-20 mm), assumed."),
         "reversal": Source(
             Rectangular(0.0, 2e-3 * setup.reversal_um), (3,),
             "Reversal value (lost motion) B of each axis, drawn uniform on [0, 2 reversal_um] "
@@ -874,6 +894,9 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
         basis = _grid_basis(geo)
         for k, sl in enumerate(_plane_slices(geo)):
             r[:, sl, :] += np.swapaxes(g[:, k] @ basis[sl].T, 1, 2)
+    res = errors["path_residual"]
+    if np.any(res):  # the same function of position in every pass: one product
+        r += (res.reshape(n, -1) @ _residual_basis(_sizeless(setup)).T).reshape(n, -1, 2)
     r += errors["encoder_noise"]
     e = errors["repeatability"]
     if np.any(e):
@@ -884,53 +907,6 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
             n_, m_, _ = e.shape
             r += (f @ np.moveaxis(e, 1, 0).reshape(m_, -1)).reshape(m_, n_, 2).swapaxes(0, 1)
     return {"plate_mm": r}
-
-
-@functools.lru_cache(maxsize=8)
-def _repeatability_filter(setup: Setup):
-    """The AR(1) filter of the repeatability along each pass, a sparse lower-triangular
-    matrix (M, M) from innovations to path deviations (None when the length is 0).
-
-    Within a pass (one plane, head, test and pass: contiguous readings) x_0 = e_0 and
-    x_k = phi x_(k-1) + sqrt(1 - phi^2) e_k, phi = exp(-1 / length): every x has the
-    innovations' variance, and x_j, x_k correlate by phi^|j - k|; passes are independent.
-    """
-    length = setup.repeatability_correlation
-    if length <= 0:
-        return None
-    return _ar1_filter(_pass_lengths(_sizeless(setup)), length)
-
-
-@functools.lru_cache(maxsize=16)
-def _pass_lengths(key: Setup) -> tuple:
-    """The number of readings of each pass (contiguous readings of one plane, head, test
-    and pass), in order: all the filter depends on besides the length."""
-    geo = _geometry(key)
-    keys = np.stack([geo.plane, geo.head, geo.test, geo.pass_], axis=1)
-    start = np.ones(len(keys), dtype=bool)
-    start[1:] = np.any(keys[1:] != keys[:-1], axis=1)
-    return tuple(np.diff(np.append(np.flatnonzero(start), len(keys))).tolist())
-
-
-@functools.lru_cache(maxsize=8)
-def _ar1_filter(lengths: tuple, length: float):
-    import scipy.sparse as sp
-
-    phi = math.exp(-1.0 / length)
-    gain = math.sqrt(1.0 - phi * phi)
-    rows, cols, vals = [], [], []
-    a = 0
-    for n in lengths:
-        k = np.arange(n)
-        j, i = np.meshgrid(k, k)  # x_i from e_j, j <= i
-        keep = j <= i
-        w = phi ** (i - j) * np.where(j == 0, 1.0, gain)
-        rows.append(a + i[keep])
-        cols.append(a + j[keep])
-        vals.append(w[keep])
-        a += n
-    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                         shape=(a, a))
 
 
 @functools.lru_cache(maxsize=8)
@@ -1131,24 +1107,6 @@ def _jacobian(geo: _Geometry, theta0: np.ndarray, s: np.ndarray):
     return predict(theta0[None, :])[0], central_jacobian(predict, theta0, 0.1 * s)
 
 
-def _reading_whitener(setup: Setup):
-    """Whitening (2M, 2M) of the readings' random scatter, encoder noise plus the AR(1)
-    repeatability (:func:`mtplan.fitting.linear.filter_whitening`); None where it is white
-    (equal weights are then the efficient ones). A full circle's CW pass starts where the CCW
-    one does, so the two are not weighted as mirror images: the reversal and a growth linear
-    in time no longer cancel exactly (0.03 um in EXX, 0.08 urad in EAY at the defaults);
-    weighting the CW pass as the CCW one reversed would, at 13 % more u in EBX, ECX, EAY."""
-    if _repeatability_filter(setup) is None or setup.repeatability_um <= 0:
-        return None
-    return _whitener(_pass_lengths(_sizeless(setup)), setup.repeatability_correlation,
-                     setup.encoder_noise_um / setup.repeatability_um)
-
-
-@functools.lru_cache(maxsize=8)
-def _whitener(lengths: tuple, length: float, ratio: float):
-    return filter_whitening(_ar1_filter(lengths, length), ratio, 2)
-
-
 @functools.lru_cache(maxsize=16)
 def _joint_ident(setup: Setup) -> dict:
     """Jacobian of the readings at zero error, its SVD, pseudo-inverse and estimability:
@@ -1172,7 +1130,7 @@ class _Ident(dict):
         elif key == "pinv" and _reading_whitener(s) is None:
             self[key] = self["pinv0"]
         elif key == "pinv":
-            self[key] = _gls(_sizeless(s), s.encoder_noise_um / s.repeatability_um)
+            self[key] = _gls(_sizeless(s), _weight_ratios(s))
         else:
             raise KeyError(key)
         return self[key]
@@ -1210,10 +1168,10 @@ def _joint_geometry(key: Setup) -> dict:
 
 
 @functools.lru_cache(maxsize=16)
-def _gls(key: Setup, ratio: float) -> np.ndarray:
+def _gls(key: Setup, ratios: tuple) -> np.ndarray:
     ji = _joint_geometry(key)
     return gls_pinv(ji["jac"], ji["scale"], ji["vt"], ji["rank"], _free(ji["geo"]),
-                    _whitener(_pass_lengths(key), key.repeatability_correlation, ratio))
+                    _whitening(key, *ratios))
 
 
 def _readings_matrix(setup: Setup, readings: dict) -> np.ndarray:
@@ -1433,6 +1391,17 @@ def coefficients(setup: Setup, readings: dict, *, estimator: str = "joint") -> d
 # the patent's stepwise estimator, then the first-order uncertainty, identifiability and
 # report extras (on the shared fitting machinery); below what they use, re-exported here
 from mtplan.models.geometry21._patent import _patent_design, _theta_patent  # noqa: E402
+from mtplan.models.geometry21._path import (  # noqa: E402
+    RESIDUAL_CORRELATION_MM,
+    RESIDUAL_KNOT_MM,
+    _pass_lengths,
+    _reading_whitener,
+    _repeatability_filter,
+    _residual_basis,
+    _residual_knots,
+    _weight_ratios,
+    _whitening,
+)
 from mtplan.models.geometry21._first_order import (  # noqa: E402
     budget,
     coefficient_covariance,

@@ -25,6 +25,8 @@ from mtplan.models.geometry21 import (
     _patent_design,
     _plane_slices,
     _readings_matrix,
+    _residual_basis,
+    _sizeless,
     sources,
 )
 
@@ -189,6 +191,8 @@ def source_readings_map(setup: Setup, truth, names) -> np.ndarray:
         elif name == "head_setting":
             for j, (e, c) in enumerate(np.ndindex(*shape)):
                 out[j, geo.xslices[e][1], c] = 1.0
+        elif name == "path_residual":
+            out[:] = _residual_basis(_sizeless(setup)).T.reshape(-1, m, 2)
         elif name == "plate_tilt":
             for k, sl in enumerate(planes):
                 lu, lv, ln = loc[sl].T
