@@ -213,7 +213,8 @@ def _whole_chain(proc, setup, truth, base, stats, measure):
 
 
 def _chain_rule(proc, setup, truth, base, stats, measure):
-    """Value and Jacobian as the estimator's map times the readings' effects."""
+    """Jacobian as the estimator's map times the readings' effects (value None: taken when
+    first asked for)."""
     zero = proc.forward(setup, truth, base)
     layout = [(k, np.asarray(v).shape[1:]) for k, v in zero.items()]
 
@@ -242,7 +243,7 @@ def _chain_rule(proc, setup, truth, base, stats, measure):
         std = stats[name][1]
         with np.errstate(divide="ignore", invalid="ignore"):
             cols.append(np.where(std > 0, (g @ e) / np.where(std > 0, std, 1.0), 0.0))
-    return estimate(f0[None, :])[0], np.hstack(cols)
+    return None, np.hstack(cols)  # (the value when asked for: the planner and designer need u)
 
 
 def estimator_map(estimate, y0: np.ndarray, steps: np.ndarray) -> np.ndarray:
