@@ -182,13 +182,15 @@ def first_order(proc, setup, truth=None, *, estimator: str | None = None, source
                 raise InvalidInput([f"The first_order_sensitivities hook of {proc.name} gave "
                                     f"shape {jac.shape}; the linearisation needs "
                                     f"({len(measurands)}, {u.size})."])
-            method = f"closed-form sensitivities of {proc.name}'s {est_name} estimator"
+            method = (f"GUM law of propagation (mtplan linearize), closed-form sensitivities "
+                      f"of {proc.name}'s {est_name} estimator")
             return FirstOrder(measurands, jac, u, tuple(inputs), tuple(groups), method,
                               value_of)
         chain = _whole_chain if u.size <= WHOLE_MAX else _chain_rule
         value, jac = chain(proc, setup, truth, base, stats, measure)
     return FirstOrder(measurands, jac, u, tuple(inputs), tuple(groups),
-                      "GUM law of propagation (chain rule through the forward model)",
+                      "GUM law of propagation (mtplan linearize), chain rule through the "
+                      "forward model and the estimator",
                       value_of, value)
 
 
