@@ -182,13 +182,15 @@ def first_order(proc, setup, truth=None, *, estimator: str | None = None, source
                 raise InvalidInput([f"The first_order_sensitivities hook of {proc.name} gave "
                                     f"shape {jac.shape}; the linearisation needs "
                                     f"({len(measurands)}, {u.size})."])
-            method = f"closed-form sensitivities of {proc.name}'s {est_name} estimator"
+            method = (f"GUM law of propagation (mtplan linearize), closed-form sensitivities "
+                      f"of {proc.name}'s {est_name} estimator")
             return FirstOrder(measurands, jac, u, tuple(inputs), tuple(groups), method,
                               value_of)
         chain = _whole_chain if u.size <= WHOLE_MAX else _chain_rule
         value, jac = chain(proc, setup, truth, base, stats, measure)
     return FirstOrder(measurands, jac, u, tuple(inputs), tuple(groups),
-                      "GUM law of propagation (chain rule through the forward model)",
+                      "GUM law of propagation (mtplan linearize), chain rule through the "
+                      "forward model and the estimator",
                       value_of, value)
 
 
@@ -213,7 +215,8 @@ def _whole_chain(proc, setup, truth, base, stats, measure):
 
 
 def _chain_rule(proc, setup, truth, base, stats, measure):
-    """Value and Jacobian as the estimator's map times the readings' effects."""
+    """Jacobian as the estimator's map times the readings' effects (value None: taken when
+    first asked for)."""
     zero = proc.forward(setup, truth, base)
     layout = [(k, np.asarray(v).shape[1:]) for k, v in zero.items()]
 
@@ -242,7 +245,7 @@ def _chain_rule(proc, setup, truth, base, stats, measure):
         std = stats[name][1]
         with np.errstate(divide="ignore", invalid="ignore"):
             cols.append(np.where(std > 0, (g @ e) / np.where(std > 0, std, 1.0), 0.0))
-    return estimate(f0[None, :])[0], np.hstack(cols)
+    return None, np.hstack(cols)  # (the value when asked for: the planner and designer need u)
 
 
 def estimator_map(estimate, y0: np.ndarray, steps: np.ndarray) -> np.ndarray:

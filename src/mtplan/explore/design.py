@@ -174,8 +174,7 @@ def _predict(proc, setup, estimator) -> dict:
     from mtplan.evaluation.first_order import first_order
 
     fo = first_order(proc, setup, estimator=estimator)
-    return {"u": fo.u(), "budget": fo.budget_std(),
-            "method": "GUM law of propagation (mtplan linearize)"}
+    return {"u": fo.u(), "budget": fo.budget_std(), "method": fo.method}
 
 
 def _setup_key(setup) -> str:
