@@ -70,14 +70,14 @@ def test_validation_rejects_a_first_order_u_off_the_monte_carlo():
     measurand and the ratio named."""
     proc, m = _measurement("circle_centre")
     setup = m.setup
-    gum = measured._first_order(proc, setup, proc.Truth(), "gls", None, 0.95)
+    gum = measured._first_order(proc, setup, proc.Truth(), "gls", None)
     from mtplan.evaluation.simulation import simulate_uncertainty
 
     r = simulate_uncertainty(proc, setup, None, estimator="gls", trials=1000, rng=0)
     assert measured._validated_first_order(proc, setup, gum, r, 0.95)[0] is gum
     import dataclasses
 
-    small = dataclasses.replace(gum, cov=gum.cov * 0.8**2)
+    small = dataclasses.replace(gum, input_std=gum.input_std * 0.8)
     got, note = measured._validated_first_order(proc, setup, small, r, 0.95)
     assert got is None
     assert "centre_x (u Monte Carlo / first order 1.2" in note

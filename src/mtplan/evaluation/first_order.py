@@ -108,6 +108,12 @@ class FirstOrder:
         """Standard uncertainty per measurand [display unit]."""
         return np.sqrt(self.variance_by_source().sum(axis=1))
 
+    @property
+    def cov(self) -> np.ndarray:
+        """Covariance of the measurands (q, q) [display unit^2], the inputs independent."""
+        a = self.sensitivity * self.input_std
+        return a @ a.T
+
     def u(self) -> dict:
         """{measurand: standard uncertainty [display unit]}."""
         return {n: float(s) for n, s in zip(self.names, self.std, strict=True)}

@@ -23,7 +23,6 @@ import numpy as np
 from mtplan._validate import InvalidInput, Problems
 from mtplan.evaluation.readings import Measurement, read_measurement, read_readings
 from mtplan.evaluation.simulation import ResultDocument, measurand_rows, undetermined_measurands
-from mtplan.uncertainty.gum import GUMResult
 
 __all__ = ["read_readings", "read_measurement", "Measurement", "estimate_measured",
            "best_estimator", "MeasuredResult", "UNCERTAINTY_METHODS", "SOURCE_KINDS",
@@ -439,22 +438,22 @@ def _corrected(r, estimate, names, notes, coverage):
     return estimate - bias, 0.0 - bias, u, estimate - err_high, estimate - err_low
 
 
-def _first_order(proc, setup, truth, est_name, sources, coverage):
-    """The first-order (GUM) result of the estimator at `truth`, or why there is none."""
-    from mtplan.evaluation.simulation import linearize_procedure
+def _first_order(proc, setup, truth, est_name, sources):
+    """The first-order propagation (:class:`~mtplan.evaluation.first_order.FirstOrder`) of
+    the estimator at `truth`, or why there is none."""
+    from mtplan.evaluation.first_order import first_order
 
     try:
-        return linearize_procedure(proc, setup, truth, estimator=est_name, sources=sources,
-                                   coverage=coverage)
+        return first_order(proc, setup, truth, estimator=est_name, sources=sources)
     except (InvalidInput, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         return (f"first order could not be evaluated ({exc}); a Monte Carlo of "
                 f"{FULL_TRIALS} trials gave u and the intervals")
 
 
 def _validated_first_order(proc, setup, gum, r, coverage):
-    """(`gum` or None, note): the first-order (GUM) u and interval `gum` where the Monte
-    Carlo `r` at the same truth validates them after JCGM 101 8.2, to the tolerance its
-    trials resolve.
+    """(`gum` or None, note): the first-order (GUM) u and interval of `gum` (a
+    :class:`~mtplan.evaluation.first_order.FirstOrder`) where the Monte Carlo `r` at the same
+    truth validates them after JCGM 101 8.2, to the tolerance its trials resolve.
 
     Validated when every measurand the Monte Carlo resolves (finite, non-zero spread, not
     heavy-tailed) has its Monte Carlo u within :data:`VALIDATION_SE` standard errors of the
@@ -532,8 +531,8 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
     notes += [why] if why else []
     first_order = None
     if trials is None:  # the first-order result where a short Monte Carlo validates it
-        gum = _first_order(proc, setup, truth, est_name, sources, coverage)
-        for m in VALIDATION_TRIALS if isinstance(gum, GUMResult) else ():
+        gum = _first_order(proc, setup, truth, est_name, sources)
+        for m in VALIDATION_TRIALS if not isinstance(gum, str) else ():
             r = simulate_uncertainty(proc, setup, truth, estimator=est_name, sources=sources,
                                      trials=m, coverage=coverage, rng=root, progress=progress)
             first_order, verdict = _validated_first_order(proc, setup, gum, r, coverage)
