@@ -49,17 +49,33 @@ def test_validated_first_order_agrees_with_the_full_monte_carlo():
     assert np.all(np.abs(quick.bias_correction - full.bias_correction) <= 4 * se)
 
 
-def test_a_non_normal_output_is_not_validated_and_the_full_monte_carlo_runs():
-    """rotary_axis's EX0C is dominated by one rectangular input (its 95 % interval is about
-    +-1.7 u, not +-1.96 u): the interval ends of the validating Monte Carlo lie off the
-    normal ones by more than their standard errors, so the full Monte Carlo gives the
-    result, and the note says why."""
-    proc, m = _measurement("rotary_axis")
-    r = estimate_measured(proc, None, m, estimator="angles", rng=0, fit_alpha=None)
-    note = _note(r, "first order not validated")
-    assert "EX0C" in note and f"{FULL_TRIALS} trials" in note
+def test_a_non_normal_output_is_not_validated():
+    """rotary_axis's EB0C under the slides' slope alone follows a rectangular distribution
+    (its 95 % interval is +-1.65 u, not +-1.96 u): the interval ends of the validating Monte
+    Carlo lie off the normal ones by more than their standard errors, so first order is
+    refused and the note names the measurand."""
+    from mtplan.evaluation.simulation import simulate_uncertainty
+
+    proc = get("rotary_axis")
+    setup, only = proc.Setup(), ["xy_slope_halfwidth"]
+    gum = measured._first_order(proc, setup, proc.Truth(), "angles", only)
+    r = simulate_uncertainty(proc, setup, None, estimator="angles", sources=only, trials=1000,
+                             rng=0)
+    got, note = measured._validated_first_order(proc, setup, gum, r, 0.95)
+    assert got is None
+    assert "EB0C (u Monte Carlo / first order" in note and f"{FULL_TRIALS} trials" in note
+
+
+def test_without_validation_the_full_monte_carlo_is_the_explicit_one(monkeypatch):
+    """Where first order is not validated, the result is the 10 000-trial Monte Carlo's,
+    bit for bit (the same as --trials 10000)."""
+    monkeypatch.setattr(measured, "_validated_first_order",
+                        lambda *a: (None, "first order not validated (forced)"))
+    proc, m = _measurement("circle_centre")
+    r = estimate_measured(proc, None, m, estimator="gls", rng=0, fit_alpha=None)
+    assert _note(r, "first order not validated")
     assert r.details.mc.trials == FULL_TRIALS
-    explicit = estimate_measured(proc, None, m, estimator="angles", trials=FULL_TRIALS, rng=0,
+    explicit = estimate_measured(proc, None, m, estimator="gls", trials=FULL_TRIALS, rng=0,
                                  fit_alpha=None)
     np.testing.assert_array_equal(r.std, explicit.std)
     np.testing.assert_array_equal(r.low, explicit.low)
