@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 import warnings
 
@@ -17,6 +18,7 @@ from mtplan.cli._common import (
     procedure_of,
     setup_values,
     trials_cap,
+    workers,
     write_out,
 )
 
@@ -40,6 +42,9 @@ def register(sub) -> None:
                    help="Monte Carlo trials (default: the first-order u and interval where a "
                         "Monte Carlo of 1000 trials validates them, else 10000 trials)")
     p.add_argument("--seed", type=int, metavar="S", help="random seed (default 0)")
+    p.add_argument("--jobs", type=workers, default=min(os.cpu_count() or 1, 4), metavar="J",
+                   help="mc: parallel workers of the Monte Carlo (default: the machine's "
+                        "cores, at most 4; the numbers do not depend on it)")
     p.add_argument("--coverage", type=float, default=0.95, metavar="P",
                    help="coverage probability (default 0.95)")
     p.add_argument("--noise", metavar="SIGMA|free|setup", default="setup",
@@ -96,7 +101,7 @@ def cmd_estimate(args) -> int:
                 allow_unconverged=args.allow_unconverged,
                 posterior_options={"max_steps": args.max_steps, "progress": None}
                 if method == "posterior" else None, progress=None, fit_alpha=args.fit_alpha,
-                origin=measurement.origin)
+                origin=measurement.origin, n_jobs=args.jobs)
     except NotConvergedError as exc:
         print(f"mtplan: error: {exc}", file=sys.stderr)
         return 1

@@ -169,7 +169,7 @@ def laplace_truths(proc, setup, readings, n: int, rng) -> tuple[list, str | None
 
 
 def correction_spread(proc, setup, readings, estimator, truth0, *, heavy, rng, sources=None,
-                      draws: int = NUISANCE_DRAWS, trials: int = DRAW_TRIALS):
+                      draws: int = NUISANCE_DRAWS, trials: int = DRAW_TRIALS, n_jobs: int = 1):
     """Bias at truths the readings allow minus the bias at `truth0` [display units].
 
     Parameters
@@ -187,6 +187,8 @@ def correction_spread(proc, setup, readings, estimator, truth0, *, heavy, rng, s
         The error sources of the Monte Carlo (default: all active ones).
     draws, trials : int
         Truths drawn (:func:`laplace_truths`) and Monte Carlo trials at each.
+    n_jobs : int
+        Workers of each Monte Carlo (the numbers do not depend on it).
 
     Returns
     -------
@@ -207,7 +209,7 @@ def correction_spread(proc, setup, readings, estimator, truth0, *, heavy, rng, s
 
     def bias(truth):
         r = simulate_uncertainty(proc, setup, truth, estimator=estimator, sources=sources,
-                                 trials=trials, rng=rng, progress=False)
+                                 trials=trials, rng=rng, progress=False, n_jobs=n_jobs)
         middle = 0.5 * (r.mc.low + r.mc.high)
         return np.where(heavy, middle, r.mc.mean) - r.true
 
@@ -224,7 +226,8 @@ def correction_spread(proc, setup, readings, estimator, truth0, *, heavy, rng, s
 
 
 def correct_mc(proc, setup, readings, estimator, truth0, r, *, value, u, low, high, heavy,
-               coverage, rng, sources=None, draws: int = NUISANCE_DRAWS, cov=None) -> dict:
+               coverage, rng, sources=None, draws: int = NUISANCE_DRAWS, cov=None,
+               n_jobs: int = 1) -> dict:
     """The correction's uncertainty put into an `mc` result: u, interval and covariance.
 
     `value`, `u`, `low`, `high` are the corrected values and the Monte Carlo's own u and
@@ -245,7 +248,8 @@ def correct_mc(proc, setup, readings, estimator, truth0, r, *, value, u, low, hi
     value, u = np.asarray(value, dtype=float), np.asarray(u, dtype=float)
     trials = int(r.mc.trials)
     d, why = correction_spread(proc, setup, readings, estimator, truth0, heavy=heavy, rng=rng,
-                               sources=sources, draws=draws, trials=draw_trials(trials))
+                               sources=sources, draws=draws, trials=draw_trials(trials),
+                               n_jobs=n_jobs)
     se, nuis = correction_u(np.where(heavy, u, r.mc.std), trials, d)
     bad = ~np.isfinite(u)
     # a heavy-tailed measurand is not corrected (its interval is the result): no correction,

@@ -511,7 +511,7 @@ def _validated_first_order(proc, setup, gum, r, coverage):
 
 
 def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trials, coverage,
-               root, seed, notes, progress=False, draws=None):
+               root, seed, notes, progress=False, draws=None, n_jobs=1):
     """Monte Carlo around the estimate: bias-corrected value, its interval, determinability;
     the correction's uncertainty in u, the interval and the covariance."""
     from mtplan.evaluation.correction import NUISANCE_DRAWS, condition_on_readings, correct_mc
@@ -534,7 +534,8 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
         gum = _first_order(proc, setup, truth, est_name, sources)
         for m in VALIDATION_TRIALS if not isinstance(gum, str) else ():
             r = simulate_uncertainty(proc, setup, truth, estimator=est_name, sources=sources,
-                                     trials=m, coverage=coverage, rng=root, progress=progress)
+                                     trials=m, coverage=coverage, rng=root, progress=progress,
+                                     n_jobs=n_jobs)
             first_order, verdict = _validated_first_order(proc, setup, gum, r, coverage)
             if first_order is not None:
                 break
@@ -544,10 +545,11 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
         if first_order is None:
             r = simulate_uncertainty(proc, setup, truth, estimator=est_name, sources=sources,
                                      trials=FULL_TRIALS, coverage=coverage, rng=root,
-                                     progress=progress)
+                                     progress=progress, n_jobs=n_jobs)
     else:
         r = simulate_uncertainty(proc, setup, truth, estimator=est_name, sources=sources,
-                                 trials=trials, coverage=coverage, rng=root, progress=progress)
+                                 trials=trials, coverage=coverage, rng=root, progress=progress,
+                                 n_jobs=n_jobs)
     value, correction, std, low, high = _corrected(r, estimate, [m.name for m in measurands],
                                                    notes, coverage)
     if first_order is not None:  # u and the interval from first order, the bias from the MC
@@ -586,7 +588,7 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
     c = correct_mc(proc, setup, readings, est_name, truth, r, value=value, u=std, low=low,
                    high=high, heavy=_tails(r, coverage)[0], coverage=coverage, rng=root,
                    sources=sources, draws=NUISANCE_DRAWS if draws is None else draws,
-                   cov=None if first_order is None else first_order.cov)
+                   cov=None if first_order is None else first_order.cov, n_jobs=n_jobs)
     notes += c["notes"]
     return MeasuredResult(
         procedure=proc.name, estimator=est_name, uncertainty="mc", setup=setup,
@@ -614,6 +616,7 @@ def estimate_measured(
     fit_alpha: float | None = 0.01,
     origin: dict | None = None,
     nuisance_draws: int | None = None,
+    n_jobs: int = 1,
 ) -> MeasuredResult:
     """The measurands of one measurement, with their uncertainty: the values GUM would report.
 
@@ -660,6 +663,8 @@ def estimate_measured(
         ``"mc"``: truths drawn from the readings' least squares at which the bias is
         evaluated again, for the correction's uncertainty (default
         :data:`mtplan.evaluation.correction.NUISANCE_DRAWS`; 0: none, said in a note).
+    n_jobs : int
+        ``"mc"``: workers of the Monte Carlo runs (the numbers do not depend on it).
 
     Returns
     -------
@@ -690,7 +695,8 @@ def estimate_measured(
                            max_seconds=max_seconds, allow_unconverged=allow_unconverged,
                            posterior_options=posterior_options, progress=progress,
                            fit_alpha=fit_alpha, nuisance_draws=nuisance_draws,
-                           origin=measurement.origin if origin is None else origin)
+                           origin=measurement.origin if origin is None else origin,
+                           n_jobs=n_jobs)
     result.notes[:0] = measurement.notes
     result.setup_from_file = dict(measurement.from_file)
     result.setup_defaults = tuple(measurement.defaults)
@@ -700,7 +706,7 @@ def estimate_measured(
 
 def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage, rng, noise,
               max_seconds, allow_unconverged, posterior_options, progress, fit_alpha,
-              nuisance_draws, origin) -> MeasuredResult:
+              nuisance_draws, origin, n_jobs) -> MeasuredResult:
     """:func:`estimate_measured` on checked arguments: the estimate and its uncertainty."""
     from mtplan.uncertainty.streams import as_seed_sequence
 
@@ -719,7 +725,8 @@ def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage
     if uncertainty == "mc":
         result = _mc_result(proc, setup, readings, est_name, est_internal, estimate,
                             trials=trials, coverage=coverage, root=root, seed=seed,
-                            notes=notes, progress=progress, draws=nuisance_draws)
+                            notes=notes, progress=progress, draws=nuisance_draws,
+                            n_jobs=n_jobs)
         return _with_fit(result, proc, readings, fit_alpha, noise="setup", origin=origin)
     from mtplan.evaluation.posterior import sample_posterior
 
