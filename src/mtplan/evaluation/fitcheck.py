@@ -179,9 +179,10 @@ class FitCheck:
         return ", ".join(f"{self._where(w)} (z = {w['z']:+.1f})" for w in self.worst[:count])
 
     def _chi2_text(self) -> str:
-        sign = ">=" if self.chi2_ok else "<"
+        limit = self.alpha if self.alpha_chi2 is None else self.alpha_chi2
+        sign = ">=" if self.p_value >= limit else "<"
         return (f"chi-square {self.chi2:.4g} with {self.dof} degrees of freedom, "
-                f"p = {self.p_value:.3g} {sign} {self.alpha_chi2:g}")
+                f"p = {self.p_value:.3g} {sign} {limit:g}")
 
     def _w_text(self) -> str:
         if self.w_max is None:
@@ -204,12 +205,12 @@ class FitCheck:
         """Which test failed and why, in words; None when the check passed or was not made."""
         if self.ok is not False:
             return None
-        parts = []
-        if self.w_ok is False:
+        parts = []  # a check built by hand with ok False alone: its chi-square is the reason
+        if self.w_ok is False and self.worst:
             parts.append(f"the w-test names {self._where(self.worst[0])} "
                          f"(w = {self.w_max:+.2f}, beyond {self.w_critical:.2f}, the limit over "
                          f"{self.n_tested} readings at {self.alpha_w:g})")
-        if self.chi2_ok is False:
+        if self.chi2_ok is False or (not parts and self.chi2 is not None):
             parts.append(self._chi2_text())
         return "; ".join(parts)
 
