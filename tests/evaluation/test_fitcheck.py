@@ -246,6 +246,8 @@ def test_the_significance_level_is_split_between_the_two_tests(clean):
         assert fit_check(proc, setup, readings, alpha=alpha).ok == (alpha <= fc.p_overall)
     chi_only = fit_check(proc, setup, readings, w_share=0.0)
     assert chi_only.ok == (fc.p_value >= ALPHA) and chi_only.w_ok is None
+    none_listed = fit_check(proc, setup, readings, n_worst=0)
+    assert none_listed.worst == [] and none_listed.w_at in none_listed.summary()
 
 
 def test_one_reading_at_twice_its_detectable_bias_is_flagged_by_the_w_test_alone(clean):
@@ -281,3 +283,22 @@ def test_posterior_evaluation_carries_the_fit_and_a_free_noise_takes_one_dof():
     assert res.to_dict()["fit"]["ok"] is not None
     free = fit_check(proc, setup, readings, noise="free")
     assert free.dof == fixed.dof - 1 and free.ok is not None
+
+
+def test_the_docs_examples_are_what_the_check_prints():
+    """docs/fit_check.md prints a passing check and a warning (rotary_axis, seed 3, the
+    reading on row 86 moved by 10 um) and the chi-square's p-value alone: they are what the
+    code prints now (the doc's line wraps aside)."""
+    doc = " ".join((Path(__file__).resolve().parents[2] / "docs" / "fit_check.md")
+                   .read_text(encoding="utf-8").split())
+    proc = get("rotary_axis")
+    setup = proc.Setup()
+    readings = proc.simulate(setup, proc.Truth(), 1, rng=3)
+    passed = fit_check(proc, setup, readings)
+    keys, y = _flat(proc, readings)
+    y = y.copy()
+    y[84] += 0.010
+    failed = fit_check(proc, setup, _unflat(readings, keys, y))
+    assert " ".join(passed.summary().split()) in doc
+    assert " ".join(failed.warning().split()) in doc
+    assert f"The chi-square alone passes these readings (p = {failed.p_value:.2g})" in doc

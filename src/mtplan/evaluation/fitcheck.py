@@ -116,7 +116,8 @@ class FitCheck:
     n_tested : int
         Readings that have a w (residual freedom left by the fit): the Bonferroni count.
     w_max : float or None
-        The w of the worst reading (signed; ``worst[0]["z"]``).
+        The w of the worst reading (signed; ``worst[0]["z"]``); ``w_at`` names it ("row 86
+        z_mm").
     w_critical : float or None
         The limit of ``|w_max|``: ``Phi^-1(1 - alpha_w / (2 n_tested))``.
     p_w : float or None
@@ -155,6 +156,7 @@ class FitCheck:
     w_ok: bool | None = None
     p_overall: float | None = None
     mdb: np.ndarray | None = field(default=None, repr=False)
+    w_at: str | None = None
 
     def to_dict(self) -> dict:
         """The ``fit`` object of ``mtplan estimate --json``."""
@@ -168,7 +170,8 @@ class FitCheck:
                 "alpha_chi2": num(self.alpha_chi2), "chi2_ok": self.chi2_ok,
                 "alpha_w": num(self.alpha_w), "n_tested": int(self.n_tested),
                 "w_max": num(self.w_max), "w_critical": num(self.w_critical),
-                "p_w": num(self.p_w), "w_ok": self.w_ok, "p_overall": num(self.p_overall)}
+                "p_w": num(self.p_w), "w_ok": self.w_ok, "w_at": self.w_at,
+                "p_overall": num(self.p_overall)}
 
     @staticmethod
     def _where(w: dict) -> str:
@@ -188,7 +191,7 @@ class FitCheck:
         if self.w_max is None:
             return "no reading has a w-test (the fit leaves no reading residual freedom)"
         sign = "<=" if self.w_ok else ">"
-        return (f"largest |w| {abs(self.w_max):.2f} at {self._where(self.worst[0])} "
+        return (f"largest |w| {abs(self.w_max):.2f} at {self.w_at} "
                 f"(w = {self.w_max:+.2f}) {sign} {self.w_critical:.2f}, the limit over "
                 f"{self.n_tested} readings at {self.alpha_w:g}")
 
@@ -206,8 +209,8 @@ class FitCheck:
         if self.ok is not False:
             return None
         parts = []  # a check built by hand with ok False alone: its chi-square is the reason
-        if self.w_ok is False and self.worst:
-            parts.append(f"the w-test names {self._where(self.worst[0])} "
+        if self.w_ok is False:
+            parts.append(f"the w-test names {self.w_at} "
                          f"(w = {self.w_max:+.2f}, beyond {self.w_critical:.2f}, the limit over "
                          f"{self.n_tested} readings at {self.alpha_w:g})")
         if self.chi2_ok is False or (not parts and self.chi2 is not None):
@@ -406,7 +409,7 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
     return FitCheck(chi2=chi2, dof=int(dof), p_value=pval, alpha=alpha,
                     worst=worst[:n_worst], n_readings=fwd.n, n_parameters=rank,
                     nuisance=nuisance, z=z, scatter=np.sqrt(np.where(own > 0, own, every)),
-                    mdb=mdb, **snoop)
+                    mdb=mdb, w_at=FitCheck._where(worst[0]) if worst else None, **snoop)
 
 
 def _snooping(z: np.ndarray, order: list, pval: float, alpha: float, w_share: float) -> dict:
