@@ -246,6 +246,7 @@ def test_the_significance_level_is_split_between_the_two_tests(clean):
         assert fit_check(proc, setup, readings, alpha=alpha).ok == (alpha <= fc.p_overall)
     chi_only = fit_check(proc, setup, readings, w_share=0.0)
     assert chi_only.ok == (fc.p_value >= ALPHA) and chi_only.w_ok is None
+    assert "the w-test not made" in chi_only.summary()
     none_listed = fit_check(proc, setup, readings, n_worst=0)
     assert none_listed.worst == [] and none_listed.w_at in none_listed.summary()
 

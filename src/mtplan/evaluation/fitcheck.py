@@ -190,6 +190,8 @@ class FitCheck:
     def _w_text(self) -> str:
         if self.w_max is None:
             return "no reading has a w-test (the fit leaves no reading residual freedom)"
+        if self.w_critical is None:
+            return f"largest |w| {abs(self.w_max):.2f} at {self.w_at} (the w-test not made)"
         sign = "<=" if self.w_ok else ">"
         return (f"largest |w| {abs(self.w_max):.2f} at {self.w_at} "
                 f"(w = {self.w_max:+.2f}) {sign} {self.w_critical:.2f}, the limit over "
