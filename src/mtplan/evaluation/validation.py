@@ -172,8 +172,8 @@ class Verdict:
         if self.share_tested:
             return (f"{share}, {100 * self.share_level:g} % interval [{100 * self.interval[0]:.0f}"
                     f", {100 * self.interval[1]:.0f}] %); {disp}: {self.verdict}")
-        return (f"{disp}, the generalised chi-square, as {' and '.join(self.correlated_by)} "
-                f"correlate the comparisons ({share}; not tested, not binomial): "
+        return (f"{disp} (generalised chi-square: the comparisons are correlated by "
+                f"{' and '.join(self.correlated_by)}); {share}, not tested: not binomial): "
                 f"{self.verdict}")
 
 
