@@ -1,4 +1,4 @@
-"""The fit check (chi-square of the whitened residuals) on every procedure.
+"""The fit check (chi-square of the whitened residuals and the largest w) on every procedure.
 
 Per procedure, on a small set-up: clean simulated readings pass at alpha = 0.01 (a seed
 range, not one seed: at most one of three replicates may be flagged, probability
@@ -174,23 +174,101 @@ def test_measured_result_carries_the_fit_and_alpha_is_checked():
         estimate_measured(proc, setup, readings, trials=200, fit_alpha=1.5)
 
 
-def test_cli_warns_and_names_rows_when_the_readings_do_not_fit(tmp_path, capsys):
-    """A reading of the example file moved by 0.2 mm: the table still prints, then the
-    warning naming its row (the data row, 1 under the header); --json has fit.ok false."""
+def _edited(tmp_path, row, shift_mm, comments=0):
+    """The rotary_axis example with the reading on the file's `row` (as a spreadsheet counts
+    it: the header is row 1) moved by `shift_mm`, after `comments` comment lines put on top
+    (which move every row down)."""
     lines = (EXAMPLES / "rotary_axis_readings.csv").read_text().splitlines()
-    cells = lines[40].split(",")  # data row 40
-    cells[-1] = f"{float(cells[-1]) + 0.2:.9f}"
-    lines[40] = ",".join(cells)
+    lines = [f"# comment {i}" for i in range(comments)] + lines
+    cells = lines[row - 1].split(",")
+    assert cells[:4] == ["C", "3", "180.0", "9"] or comments  # position 3, point 9
+    cells[-1] = f"{float(cells[-1]) + shift_mm:.9f}"
+    lines[row - 1] = ",".join(cells)
     path = tmp_path / "moved.csv"
     path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_cli_warns_and_names_the_files_row_when_the_readings_do_not_fit(tmp_path, capsys):
+    """The reading on the file's row 86 (position 3, point 9; the header is row 1) moved by
+    0.2 mm: the table still prints, then the warning naming row 86; --json has fit.ok
+    false and the w-test's verdict."""
+    path = _edited(tmp_path, 86, 0.2)
     assert main(["estimate", "rotary_axis", str(path), "--trials", "200"]) == 0
     out = capsys.readouterr().out
     assert "EX0C" in out and "WARNING: the readings do not fit the model" in out
-    assert "row 40 z_mm" in out
+    assert "the w-test names row 86 z_mm" in out and "worst readings: row 86 z_mm" in out
     assert main(["estimate", "rotary_axis", str(path), "--trials", "200", "--json"]) == 0
     fit = json.loads(capsys.readouterr().out)["fit"]
-    assert fit["ok"] is False and fit["worst"][0]["row"] == 40
+    assert fit["ok"] is False and fit["w_ok"] is False and fit["worst"][0]["row"] == 86
+    assert abs(fit["w_max"]) > fit["w_critical"]
     assert main(["estimate", "rotary_axis", str(path), "--fit-alpha", "2"]) == 2
+
+
+def test_rows_count_comment_lines_as_a_spreadsheet_does(tmp_path):
+    """Two comment lines on top put the header on row 3 and the moved reading on row 88,
+    as the reader's own error messages count them."""
+    from mtplan.evaluation.readings import read_measurement
+
+    proc = get("rotary_axis")
+    m = read_measurement(proc, _edited(tmp_path, 88, 0.2, comments=2))
+    fc = fit_check(proc, m.setup, m.readings, origin=m.origin)
+    assert fc.worst[0]["row"] == 88 and fc.worst[0]["column"] == "z_mm"
+
+
+def test_a_passing_check_still_names_its_worst_reading(capsys):
+    """The unedited example: no evidence of misfit, never "the readings fit the model", and
+    the largest |w| with its row, which is the row of the largest |z| in --json."""
+    path = EXAMPLES / "rotary_axis_readings.csv"
+    assert main(["estimate", "rotary_axis", str(path), "--trials", "200", "--json"]) == 0
+    fit = json.loads(capsys.readouterr().out)["fit"]
+    assert fit["ok"] is True
+    assert main(["estimate", "rotary_axis", str(path), "--trials", "200"]) == 0
+    out = capsys.readouterr().out
+    assert "no evidence of misfit" in out and "the readings fit the model" not in out
+    assert f"largest |w| {abs(fit['w_max']):.2f} at row {fit['worst'][0]['row']} z_mm" in out
+
+
+def test_the_significance_level_is_split_between_the_two_tests(clean):
+    """ok is both tests at their shares of alpha; the w limit is Bonferroni's; p_overall is
+    the smallest alpha that flags; w_share 0 is the chi-square alone."""
+    from scipy import stats
+
+    from mtplan.evaluation.fitcheck import W_SHARE, w_limit
+
+    proc, setup, readings, fc = clean("rotary_axis")
+    assert fc.alpha_chi2 == pytest.approx((1 - W_SHARE) * ALPHA)
+    assert fc.alpha_w == pytest.approx(W_SHARE * ALPHA)
+    n = int(np.sum(np.isfinite(fc.z)))
+    assert fc.n_tested == n and fc.w_max == fc.worst[0]["z"] == fc.z[np.nanargmax(np.abs(fc.z))]
+    assert fc.w_critical == pytest.approx(stats.norm.isf(fc.alpha_w / (2 * n)), rel=1e-12)
+    assert w_limit(0.005, 150) == pytest.approx(4.1494, abs=1e-4)
+    assert fc.p_w == pytest.approx(min(1, 2 * n * stats.norm.sf(abs(fc.w_max))))
+    assert fc.ok == (fc.chi2_ok and fc.w_ok) == (fc.p_overall >= ALPHA)
+    for alpha in (fc.p_overall * 0.99, min(fc.p_overall * 1.01, 0.999)):
+        assert fit_check(proc, setup, readings, alpha=alpha).ok == (alpha <= fc.p_overall)
+    chi_only = fit_check(proc, setup, readings, w_share=0.0)
+    assert chi_only.ok == (fc.p_value >= ALPHA) and chi_only.w_ok is None
+    assert "the w-test not made" in chi_only.summary()
+    none_listed = fit_check(proc, setup, readings, n_worst=0)
+    assert none_listed.worst == [] and none_listed.w_at in none_listed.summary()
+
+
+def test_one_reading_at_twice_its_detectable_bias_is_flagged_by_the_w_test_alone(clean):
+    """A reading moved by 2 MDB (Baarda's minimal detectable bias at 80 % power, about 10
+    times its scatter on rotary_axis, about 10 um): its w moves by 2 (w_critical + 0.84)
+    (the model is linear in a reading's size to 1e-3 at this size), the chi-square
+    of 146 degrees of freedom may still pass, the w-test flags it and names its row."""
+    proc, setup, readings, fc = clean("rotary_axis")
+    keys, y = _flat(proc, readings)
+    i = 84  # position 3, point 9: the file's row 86
+    y = y.copy()
+    y[i] += 2 * fc.mdb[i]
+    out = fit_check(proc, setup, _unflat(readings, keys, y))
+    assert out.z[i] - fc.z[i] == pytest.approx(2 * (fc.w_critical + 0.8416), rel=1e-3)
+    assert out.w_ok is False and out.ok is False and out.worst[0]["row"] == 86
+    assert "w-test names row 86" in out.warning()
+    assert 4 < fc.mdb[i] / fc.scatter[i] < 7
 
 
 def test_posterior_evaluation_carries_the_fit_and_a_free_noise_takes_one_dof():
@@ -209,3 +287,22 @@ def test_posterior_evaluation_carries_the_fit_and_a_free_noise_takes_one_dof():
     assert res.to_dict()["fit"]["ok"] is not None
     free = fit_check(proc, setup, readings, noise="free")
     assert free.dof == fixed.dof - 1 and free.ok is not None
+
+
+def test_the_docs_examples_are_what_the_check_prints():
+    """docs/fit_check.md prints a passing check and a warning (rotary_axis, seed 3, the
+    reading on row 86 moved by 10 um) and the chi-square's p-value alone: they are what the
+    code prints now (the doc's line wraps aside)."""
+    doc = " ".join((Path(__file__).resolve().parents[2] / "docs" / "fit_check.md")
+                   .read_text(encoding="utf-8").split())
+    proc = get("rotary_axis")
+    setup = proc.Setup()
+    readings = proc.simulate(setup, proc.Truth(), 1, rng=3)
+    passed = fit_check(proc, setup, readings)
+    keys, y = _flat(proc, readings)
+    y = y.copy()
+    y[84] += 0.010
+    failed = fit_check(proc, setup, _unflat(readings, keys, y))
+    assert " ".join(passed.summary().split()) in doc
+    assert " ".join(failed.warning().split()) in doc
+    assert f"The chi-square alone passes these readings (p = {failed.p_value:.2g})" in doc

@@ -58,8 +58,9 @@ def register(sub) -> None:
     p.add_argument("--allow-unconverged", action="store_true",
                    help="posterior: report an unconverged posterior (flagged) instead of failing")
     p.add_argument("--fit-alpha", type=float, default=0.01, metavar="ALPHA",
-                   help="significance level of the fit check: the readings do not fit the model "
-                        "when its p-value is below ALPHA (default 0.01)")
+                   help="significance level of the fit check, split between its chi-square "
+                        "test and the largest |w| (Bonferroni over the readings): the readings "
+                        "do not fit the model when either fails (default 0.01)")
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.add_argument("--out", metavar="FILE", help="also write the table to FILE (CSV)")
     p.set_defaults(func=cmd_estimate, truth=None)
@@ -155,7 +156,7 @@ def _print_result(result, source) -> None:
     for m in doc["measurands"]:
         if m["reason"]:
             print(f"{m['name']}: {m['reason']}")
-    if result.fit is not None:
+    if result.fit is not None:  # the worst reading and its row, passed or not
         print(result.fit.warning() or result.fit.summary())
     if method == "posterior":
         post = result.details

@@ -11,16 +11,20 @@ def register(sub) -> None:
     """Add the ``validate`` sub-command to the parser's sub-parsers `sub`."""
     p = sub.add_parser(
         "validate", help="measured results against reference values: E_n, coverage, verdict",
-        description="Compare 'mtplan estimate --json' results with calibrated reference values "
-                    "(E_n = (y - y_ref) / sqrt(U^2 + U_ref^2), U = 2 u): the share with "
-                    "|E_n| <= 1 against the nominal 95.45 %% with its binomial interval, and "
-                    "a verdict: consistent, uncertainty too small or too large.")
+        description="Compare 'mtplan estimate --json' results with calibrated reference values: "
+                    "E_n = (y - y_ref) / sqrt(U^2 + U_ref^2) with U from each result's own "
+                    "coverage interval, the share with |E_n| <= 1 against that coverage, and "
+                    "the generalised chi-square of the comparisons with their covariance "
+                    "(shared reference values, correlated measurands); a verdict: consistent, "
+                    "uncertainty too small or too large, each at 95 %% confidence. See "
+                    "docs/validate.md.")
     p.add_argument("files", nargs="+", metavar="FILE",
                    help="RESULTS.json ... (estimate --json outputs), then REFERENCES.csv unless "
                         "--references is given")
     p.add_argument("--references", metavar="REFS.csv",
                    help="reference values: columns procedure, measurand, value, U (k = 2), unit "
-                        "and optionally result (the results file's name without .json)")
+                        "and optionally result (the results file's name without .json; without "
+                        "it the value is shared by every result of the procedure)")
     p.add_argument("--figure", metavar="FILE.png", help="write the E_n figure (PNG)")
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.set_defaults(func=cmd_validate)
@@ -47,16 +51,14 @@ def cmd_validate(args) -> int:
     if args.json:
         print(json.dumps(v.to_dict(), indent=1))
         return 0
-    rows = [[c.result, f"{c.procedure} {c.measurand}", c.unit, f"{c.value:.4g}", f"{c.U:.2g}",
-             f"{c.reference:.4g}", f"{c.U_reference:.2g}", f"{c.en:+.2f}"]
-            for c in v.comparisons]
-    print_table(["result", "measurand", "unit", "value", "U", "reference", "U_ref", "E_n"], rows)
+    rows = [[c.result, f"{c.procedure} {c.measurand}", c.unit, f"{c.value:.4g}",
+             f"{c.U:.2g} ({100 * c.coverage:.4g} %)", f"{c.reference:.4g}",
+             f"{c.U_reference:.2g}", f"{c.en:+.2f}"] for c in v.comparisons]
+    print_table(["result", "measurand", "unit", "value", "U (its interval)", "reference",
+                 "U_ref (k=2)", "E_n"], rows)
     print()
     for name, g in [*v.by_measurand.items(), ("all", v.overall)]:
-        print(f"{name}: {g.inside}/{g.n} with |E_n| <= 1 ({100 * g.share:.0f} %, 95 % interval "
-              f"[{100 * g.interval[0]:.0f}, {100 * g.interval[1]:.0f}] %; nominal "
-              f"{100 * g.nominal:.2f} %), sum (2 E_n)^2 = {g.dispersion:.3g} (95 % range "
-              f"[{g.dispersion_limits[0]:.3g}, {g.dispersion_limits[1]:.3g}]): {g.verdict}")
+        print(f"{name}: {g.text()}")
     print(f"verdict: {v.overall.verdict}")
     for note in v.notes:
         print(f"note: {note}")

@@ -1,8 +1,10 @@
-"""Do the readings fit the model? A chi-square test of every measured evaluation.
+"""Is there evidence that the readings do not fit the model? Chi-square and data snooping.
 
 A stated uncertainty holds only for readings that the forward model and its error
 budget explain. :func:`fit_check` tests that, whichever way the uncertainty is
-evaluated (``mc`` or ``posterior``):
+evaluated (``mc`` or ``posterior``), with two tests that share the stated significance
+level ``alpha`` (``alpha_chi2 = (1 - W_SHARE) alpha``, ``alpha_w = W_SHARE alpha``, so
+that a clean set of readings is flagged with probability at most ``alpha``):
 
 1. The generalised least-squares fit of every free parameter (the measurands' and
    the pose parameters', ``procedure.posterior_fields``) and of the error-source
@@ -10,22 +12,28 @@ evaluated (``mc`` or ``posterior``):
    priors, one pseudo-reading each), weighted by the readings' covariance under the
    whole error budget: the same fit and the same covariance the posterior starts
    from (:mod:`mtplan.evaluation.posterior`, :mod:`mtplan.fitting.budget`).
-2. The residuals at that fit, whitened by the covariance: their squared norm (with
-   the nuisance elements' prior terms) is chi-square distributed with
-   ``dof = readings - fitted parameters`` degrees of freedom when the readings fit
-   the model (each nuisance element adds one pseudo-reading and one parameter, so
+2. The global test: the residuals at that fit, whitened by the covariance: their
+   squared norm (with the nuisance elements' prior terms) is chi-square distributed
+   with ``dof = readings - fitted parameters`` degrees of freedom when the readings
+   fit the model (each nuisance element adds one pseudo-reading and one parameter, so
    it leaves the count alone; parameters the readings do not determine are not
-   counted; a free noise takes one more). The p-value is its upper tail.
-3. Each reading's standardised residual (Baarda's w-test): the generalised residual
-   ``(C^-1 r)_i`` over its standard deviation under the fit, ``sqrt(P_ii)`` with
-   ``P = C^-1 - C^-1 J (J^T C^-1 J)^-1 J^T C^-1``. It is standard normal for a reading
-   that fits, and the largest for a single reading that does not. The worst are
-   named by their row in the readings file (1 = the first data row under the
-   header; comment and blank lines are not counted) and column.
+   counted; a free noise takes one more). Its p-value is the upper tail; it fails
+   when ``p < alpha_chi2``. It sees misfits spread over many readings.
+3. Data snooping (Baarda): each reading's standardised residual, the w-test: the
+   generalised residual ``(C^-1 r)_i`` over its standard deviation under the fit,
+   ``sqrt(P_ii)`` with ``P = C^-1 - C^-1 J (J^T C^-1 J)^-1 J^T C^-1``. It is standard
+   normal for a reading that fits, and the largest for a single reading that does
+   not. The largest ``|w|`` over the ``n`` readings that have one fails when it
+   exceeds the Bonferroni limit ``Phi^-1(1 - alpha_w / (2 n))``. It sees one bad
+   reading, which the chi-square dilutes over all the others.
+
+The worst readings are named, passed or not, by their row in the readings file as a
+spreadsheet counts it (the header is row 1) and their column.
 
 The fit is the generalised least squares, not the evaluation's estimator: an
 estimator that is not efficient leaves larger residuals, which would not follow
-the chi-square distribution. docs/fit_check.md states the method.
+the chi-square distribution. docs/fit_check.md states the method, and per procedure
+what the check cannot see.
 """
 
 from __future__ import annotations
@@ -39,18 +47,32 @@ from mtplan._validate import InvalidInput, Problems
 # the readings' covariance under the error budget: the one place it is imported from
 from mtplan.fitting import Gaussian
 
-__all__ = ["FitCheck", "fit_check", "FIT_ALPHA", "N_WORST"]
+__all__ = ["FitCheck", "fit_check", "FIT_ALPHA", "N_WORST", "W_SHARE", "MDB_POWER",
+           "w_limit"]
 
-#: default significance level: the readings "do not fit" when p < FIT_ALPHA
+#: default significance level of the whole check (both tests together)
 FIT_ALPHA = 0.01
+#: share of the significance level given to the w-test (the rest to the chi-square)
+W_SHARE = 0.5
 #: readings listed in :attr:`FitCheck.worst`
 N_WORST = 5
+#: power at which :attr:`FitCheck.mdb` is stated
+MDB_POWER = 0.8
+_Z_POWER = 0.8416212335729143  # Phi^-1(MDB_POWER)
 _LEVERAGE = 1e-9  # a reading whose residual variance P_ii is below this of (C^-1)_ii has none
+
+
+def w_limit(alpha_w: float, n: int) -> float:
+    """Bonferroni limit of the largest ``|w|`` of `n` standard normal w-tests at `alpha_w`:
+    ``Phi^-1(1 - alpha_w / (2 n))``."""
+    from scipy import stats
+
+    return float(stats.norm.isf(alpha_w / (2 * max(int(n), 1))))
 
 
 @dataclass
 class FitCheck:
-    """The chi-square test of the readings against the model and its error budget.
+    """The chi-square test and the data snooping of the readings against the model.
 
     Attributes
     ----------
@@ -60,14 +82,18 @@ class FitCheck:
     dof : int
         Residual degrees of freedom: readings minus fitted parameters.
     p_value : float or None
-        ``P(chi-square(dof) >= chi2)``; None without residual degrees of freedom.
+        The chi-square test's ``P(chi-square(dof) >= chi2)``; None without residual
+        degrees of freedom.
     ok : bool or None
-        ``p_value >= alpha``; None where the test cannot be made (:attr:`reason`).
+        Both tests pass (:attr:`chi2_ok` and :attr:`w_ok`): no evidence of misfit at
+        ``alpha``; None where the check cannot be made (:attr:`reason`).
     alpha : float
+        Significance level of the whole check.
     worst : list of dict
         The readings with the largest standardised residuals, largest first:
-        ``row`` (data row of the readings file, 1 = the first under the header; None
-        where unknown), ``column``, ``reading`` (the reading array and index) and ``z``.
+        ``row`` (row of the readings file as a spreadsheet counts it, the header being
+        row 1; None where unknown), ``column``, ``reading`` (the reading array and
+        index) and ``z`` (its w-test value).
     reason : str or None
         Why ``ok`` is None.
     n_readings, n_parameters : int
@@ -76,12 +102,36 @@ class FitCheck:
     nuisance : list of str
         Error sources fitted as nuisance parameters (non-linear ones).
     z : array (n_readings,) or None
-        Standardised residual of every used reading (NaN where the fit leaves it none),
-        in the order of the readings' numeric arrays, flattened, missing ones left out.
+        Standardised residual (w) of every used reading (NaN where the fit leaves it
+        none), in the order of the readings' numeric arrays, flattened, missing ones
+        left out.
     scatter : array (n_readings,) or None
         Each reading's own scatter under the budget: the standard deviation of what
         touches it alone (reading noise, repeatability) [its internal unit]; its whole
         standard deviation where nothing touches it alone.
+    alpha_chi2, alpha_w : float
+        The shares of ``alpha`` of the chi-square test and of the w-test.
+    chi2_ok : bool or None
+        ``p_value >= alpha_chi2``.
+    n_tested : int
+        Readings that have a w (residual freedom left by the fit): the Bonferroni count.
+    w_max : float or None
+        The w of the worst reading (signed; ``worst[0]["z"]``); ``w_at`` names it ("row 86
+        z_mm").
+    w_critical : float or None
+        The limit of ``|w_max|``: ``Phi^-1(1 - alpha_w / (2 n_tested))``.
+    p_w : float or None
+        Bonferroni p-value of the largest ``|w|``: ``min(1, 2 n_tested Phi(-|w_max|))``.
+    w_ok : bool or None
+        ``|w_max| <= w_critical`` (equivalently ``p_w >= alpha_w``).
+    p_overall : float or None
+        The smallest ``alpha`` at which the check would flag these readings:
+        ``min(1, p_value / (1 - W_SHARE), p_w / W_SHARE)``; ``ok`` is ``p_overall >= alpha``.
+    mdb : array (n_readings,) or None
+        Baarda's minimal detectable bias of every reading [its internal unit]: the error
+        of that reading alone that the w-test flags with probability ``MDB_POWER``
+        (0.8), ``(w_critical + Phi^-1(0.8)) / sqrt(P_ii)`` (NaN where it has no w). An
+        error smaller than this is likely to pass unseen.
     """
 
     chi2: float | None
@@ -96,40 +146,86 @@ class FitCheck:
     nuisance: list = field(default_factory=list)
     z: np.ndarray | None = field(default=None, repr=False)
     scatter: np.ndarray | None = field(default=None, repr=False)
+    alpha_chi2: float | None = None
+    alpha_w: float | None = None
+    chi2_ok: bool | None = None
+    n_tested: int = 0
+    w_max: float | None = None
+    w_critical: float | None = None
+    p_w: float | None = None
+    w_ok: bool | None = None
+    p_overall: float | None = None
+    mdb: np.ndarray | None = field(default=None, repr=False)
+    w_at: str | None = None
 
     def to_dict(self) -> dict:
         """The ``fit`` object of ``mtplan estimate --json``."""
+        def num(x):
+            return None if x is None else float(x)
+
         return {"chi2": self.chi2, "dof": int(self.dof), "p_value": self.p_value,
                 "ok": self.ok, "alpha": float(self.alpha),
                 "worst": [dict(w) for w in self.worst], "reason": self.reason,
-                "n_readings": int(self.n_readings), "n_parameters": int(self.n_parameters)}
+                "n_readings": int(self.n_readings), "n_parameters": int(self.n_parameters),
+                "alpha_chi2": num(self.alpha_chi2), "chi2_ok": self.chi2_ok,
+                "alpha_w": num(self.alpha_w), "n_tested": int(self.n_tested),
+                "w_max": num(self.w_max), "w_critical": num(self.w_critical),
+                "p_w": num(self.p_w), "w_ok": self.w_ok, "w_at": self.w_at,
+                "p_overall": num(self.p_overall)}
+
+    @staticmethod
+    def _where(w: dict) -> str:
+        return f"row {w['row']} {w['column']}".strip() if w["row"] else w["reading"]
 
     def worst_text(self, count: int = 3) -> str:
         """The worst readings in words: "row 17 z_mm (z = 31.2), ..."."""
-        parts = []
-        for w in self.worst[:count]:
-            where = f"row {w['row']} {w['column']}".strip() if w["row"] else w["reading"]
-            parts.append(f"{where} (z = {w['z']:+.1f})")
-        return ", ".join(parts)
+        return ", ".join(f"{self._where(w)} (z = {w['z']:+.1f})" for w in self.worst[:count])
+
+    def _chi2_text(self) -> str:
+        limit = self.alpha if self.alpha_chi2 is None else self.alpha_chi2
+        sign = ">=" if self.p_value >= limit else "<"
+        return (f"chi-square {self.chi2:.4g} with {self.dof} degrees of freedom, "
+                f"p = {self.p_value:.3g} {sign} {limit:g}")
+
+    def _w_text(self) -> str:
+        if self.w_max is None:
+            return "no reading has a w-test (the fit leaves no reading residual freedom)"
+        if self.w_critical is None:
+            return f"largest |w| {abs(self.w_max):.2f} at {self.w_at} (the w-test not made)"
+        sign = "<=" if self.w_ok else ">"
+        return (f"largest |w| {abs(self.w_max):.2f} at {self.w_at} "
+                f"(w = {self.w_max:+.2f}) {sign} {self.w_critical:.2f}, the limit over "
+                f"{self.n_tested} readings at {self.alpha_w:g}")
 
     def summary(self) -> str:
-        """One line: chi-square, dof, p-value and the outcome."""
+        """One line: both tests, the worst reading and its row, and the outcome."""
         if self.ok is None:
             return f"fit check: not made: {self.reason}"
-        head = (f"fit check: chi-square {self.chi2:.4g} with {self.dof} degrees of freedom, "
-                f"p = {self.p_value:.3g}")
-        if self.ok:
-            return head + f" >= {self.alpha:g}: the readings fit the model"
-        return head + f" < {self.alpha:g}"
+        outcome = ("no evidence of misfit" if self.ok
+                   else "the readings do not fit the model")
+        return (f"fit check at alpha {self.alpha:g}: {outcome} ({self._chi2_text()}; "
+                f"{self._w_text()})")
 
-    def warning(self) -> str | None:
-        """The warning printed under a result whose readings do not fit; None when they do."""
+    def failure_text(self) -> str | None:
+        """Which test failed and why, in words; None when the check passed or was not made."""
         if self.ok is not False:
             return None
-        return (f"WARNING: the readings do not fit the model (chi-square {self.chi2:.4g} with "
-                f"{self.dof} degrees of freedom, p = {self.p_value:.2g} < {self.alpha:g}), so "
-                f"the stated uncertainty is not valid for them; worst readings: "
-                f"{self.worst_text()}")
+        parts = []  # a check built by hand with ok False alone: its chi-square is the reason
+        if self.w_ok is False:
+            parts.append(f"the w-test names {self.w_at} "
+                         f"(w = {self.w_max:+.2f}, beyond {self.w_critical:.2f}, the limit over "
+                         f"{self.n_tested} readings at {self.alpha_w:g})")
+        if self.chi2_ok is False or (not parts and self.chi2 is not None):
+            parts.append(self._chi2_text())
+        return "; ".join(parts)
+
+    def warning(self) -> str | None:
+        """The warning printed under a result whose readings do not fit; None otherwise."""
+        if self.ok is not False:
+            return None
+        return (f"WARNING: the readings do not fit the model at alpha {self.alpha:g}: "
+                f"{self.failure_text()}, so the stated uncertainty is not valid for them; "
+                f"worst readings: {self.worst_text()}")
 
 
 def _not_made(reason: str, alpha: float, n: int = 0) -> FitCheck:
@@ -187,9 +283,9 @@ def _basis(A: np.ndarray) -> np.ndarray:
 
 
 def _statistics(fwd, fit, g: Gaussian, Q: np.ndarray, prior_res: np.ndarray) -> tuple:
-    """(chi2, z per reading) at the fit: the whitened residuals with the nuisance priors'
-    terms, and the w-test of every reading; `Q` (n + q, rank) spans the whitened
-    Jacobian of the fitted parameters with the priors' rows."""
+    """(chi2, z, P_ii) at the fit: the whitened residuals with the nuisance priors'
+    terms, the w-test of every reading and its residual variance; `Q` (n + q, rank) spans
+    the whitened Jacobian of the fitted parameters with the priors' rows."""
     q = prior_res.size
     pred, ok = fwd.predict(fit.theta[None], fit.nuis[None] if q else None)
     if not ok[0]:
@@ -200,8 +296,9 @@ def _statistics(fwd, fit, g: Gaussian, Q: np.ndarray, prior_res: np.ndarray) -> 
     num = _wt(g, w[:, None])[:, 0]  # C^-1 r
     den = cinv - np.sum(_wt(g, Q[:fwd.n]) ** 2, axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        z = np.where(den > _LEVERAGE * cinv, num / np.sqrt(np.abs(den)), np.nan)
-    return chi2, z
+        has = den > _LEVERAGE * cinv
+        z = np.where(has, num / np.sqrt(np.abs(den)), np.nan)
+    return chi2, z, np.where(has, den, np.nan)
 
 
 def _noise_mode(noise):
@@ -215,8 +312,9 @@ def _noise_mode(noise):
 
 
 def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="setup",
-              estimator: str | None = None, origin=None, n_worst: int = N_WORST) -> FitCheck:
-    """Test whether the readings fit the procedure's model and error budget.
+              estimator: str | None = None, origin=None, n_worst: int = N_WORST,
+              w_share: float = W_SHARE) -> FitCheck:
+    """Test the readings against the procedure's model and error budget.
 
     Parameters
     ----------
@@ -226,7 +324,9 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
     readings : dict of str to array
         A batch of one (:func:`mtplan.evaluation.readings.read_readings`).
     alpha : float
-        Significance level: ``ok`` is False when ``p_value < alpha``.
+        Significance level of the whole check: ``ok`` is False when the chi-square's
+        ``p_value < (1 - w_share) alpha`` or the largest ``|w|`` exceeds its Bonferroni
+        limit at ``w_share alpha``.
     noise : "setup", "free" or float
         The noise source's standard deviation, as :func:`sample_posterior` takes it
         ("free": fitted, one more degree of freedom used).
@@ -237,6 +337,8 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
         those of the table ``procedure.readings_frame`` writes.
     n_worst : int
         Readings listed in ``worst``.
+    w_share : float
+        Share of `alpha` given to the w-test, in [0, 1] (0: the chi-square alone).
 
     Returns
     -------
@@ -254,6 +356,7 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
     p_ = Problems(f"fit check {proc.name}")
     p_.number("alpha", alpha, low=0, high=1, low_open=True, high_open=True)
     p_.number("n_worst", n_worst, integer=True, low=0)
+    p_.number("w_share", w_share, low=0, high=1)
     p_.raise_if_any()
     mode, sigma = _noise_mode(noise)
     base = proc.Truth()
@@ -282,7 +385,7 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
                                 f"freedom for the {rank - q} fitted parameters",
                                 n_readings=fwd.n, n_parameters=rank, nuisance=nuisance)
             prior_res = (fit.nuis - pri[:, 0]) / pri[:, 1] if q else np.zeros(0)
-            chi2, z = _statistics(fwd, fit, g, Q, prior_res)
+            chi2, z, pii = _statistics(fwd, fit, g, Q, prior_res)
     except InvalidInput as exc:
         return _not_made("the model cannot be fitted to the readings: "
                          + " ".join(exc.problems), alpha, fwd.n)
@@ -297,11 +400,39 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
     labels = _labels(fwd, {k: np.shape(readings[k])[1:] for k in fwd.keys}, origin)
     order = [i for i in np.argsort(-np.nan_to_num(np.abs(z), nan=-1.0)) if np.isfinite(z[i])]
     worst = [{"row": labels[i][0], "column": labels[i][1], "reading": labels[i][2],
-              "z": float(z[i])} for i in order[:n_worst]]
+              "z": float(z[i])} for i in order[:max(n_worst, 1)]]
+    snoop = _snooping(z, order, pval, alpha, w_share)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mdb = (snoop["w_critical"] + _Z_POWER) / np.sqrt(pii) if snoop["w_critical"] else None
     b = fit.budget
     own = b.D0 if b.Dn is None else b.D0 + fit.sigma**2 * b.Dn
     every = own + np.sum(b.U0**2, axis=1) + (0 if b.Dn is None else fit.sigma**2 * np.sum(
         b.Un**2, axis=1))
-    return FitCheck(chi2=chi2, dof=int(dof), p_value=pval, ok=bool(pval >= alpha), alpha=alpha,
-                    worst=worst, n_readings=fwd.n, n_parameters=rank,
-                    nuisance=nuisance, z=z, scatter=np.sqrt(np.where(own > 0, own, every)))
+    return FitCheck(chi2=chi2, dof=int(dof), p_value=pval, alpha=alpha,
+                    worst=worst[:n_worst], n_readings=fwd.n, n_parameters=rank,
+                    nuisance=nuisance, z=z, scatter=np.sqrt(np.where(own > 0, own, every)),
+                    mdb=mdb, w_at=FitCheck._where(worst[0]) if worst else None, **snoop)
+
+
+def _snooping(z: np.ndarray, order: list, pval: float, alpha: float, w_share: float) -> dict:
+    """The w-test of the largest |w| (Bonferroni over the readings that have one), the
+    chi-square's share of alpha, and the verdict of both: FitCheck's fields."""
+    from scipy import stats
+
+    a_chi2, a_w = (1.0 - w_share) * alpha, w_share * alpha
+    n = len(order)
+    chi2_ok = bool(pval >= a_chi2) if w_share < 1 else True
+    p_chi2 = min(1.0, pval / (1.0 - w_share)) if w_share < 1 else 1.0
+    if n == 0 or w_share == 0:
+        w_max = float(z[order[0]]) if n else None
+        return {"alpha_chi2": a_chi2, "alpha_w": a_w, "chi2_ok": chi2_ok, "n_tested": n,
+                "w_max": w_max, "w_critical": None, "p_w": None, "w_ok": None,
+                "ok": chi2_ok, "p_overall": p_chi2}
+    w_max = float(z[order[0]])
+    p_w = float(min(1.0, 2 * n * stats.norm.sf(abs(w_max))))
+    crit = w_limit(a_w, n)
+    w_ok = bool(abs(w_max) <= crit)
+    p_all = min(1.0, p_w / w_share, p_chi2)
+    return {"alpha_chi2": a_chi2, "alpha_w": a_w, "chi2_ok": chi2_ok, "n_tested": n,
+            "w_max": w_max, "w_critical": crit, "p_w": p_w, "w_ok": w_ok,
+            "ok": chi2_ok and w_ok, "p_overall": float(p_all)}

@@ -122,7 +122,7 @@ class MeasuredResult(ResultDocument):
     The JSON and CSV (:meth:`to_dict`, :meth:`summary`) are exactly what ``mtplan
     estimate`` prints and writes.
     fit : FitCheck or None
-        Whether the readings fit the model and its error budget
+        The fit check of the readings against the model and its error budget
         (:func:`mtplan.evaluation.fitcheck.fit_check`); when ``fit.ok`` is False the
         stated uncertainty is not valid for these readings.
     """

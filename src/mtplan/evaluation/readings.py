@@ -322,7 +322,8 @@ def _nominal_frame(proc, setup):
 
 def _finish(proc, setup, path, df, cols, origin=None) -> dict:
     """Steps 5-7 for the set-up the readings were taken with; `origin` (a dict) receives
-    the file's data row and column of every reading (:func:`_origin`)."""
+    the file's row (as a spreadsheet counts it: the header is row 1) and column of every
+    reading (:func:`_origin`)."""
     frames = _expected_frames(proc, setup)
     frames = [f[[c for c in f.columns if c not in cols.reduced]] for f in frames]
     df = _match_design(proc, path, df, frames, cols.reduced)
@@ -331,9 +332,8 @@ def _finish(proc, setup, path, df, cols, origin=None) -> dict:
     readings = _to_readings(proc, setup, path, df, frames[0], cols.reduced)
     if origin is not None:
         lines = df.attrs.get("lines", list(range(2, len(df) + 2)))
-        rows = np.searchsorted(np.sort(lines), lines) + 1  # data row: 1 under the header
         found = _origin(proc, setup, _typed(df, frames[0]), readings,
-                        _design_columns(frames), rows)
+                        _design_columns(frames), np.asarray(lines, dtype=np.int64))
         origin.update(found or {})
     return readings
 
@@ -352,7 +352,7 @@ def _typed(df, expected):
 
 
 def _origin(proc, setup, df, readings, design, rows) -> dict | None:
-    """Data row (``rows[i]`` for frame row i) and column of every reading: key -> (rows,
+    """File row (``rows[i]`` for frame row i) and column of every reading: key -> (rows,
     columns), arrays shaped like the reading without its batch axis (0 and "" where none).
 
     Found through ``procedure.from_frame`` itself, in 1 + log2(rows) + 1 calls per reading
@@ -405,15 +405,15 @@ def _origin(proc, setup, df, readings, design, rows) -> dict | None:
 def reading_origin(procedure, setup, readings) -> dict | None:
     """Row and column of every reading in the table ``procedure.readings_frame`` writes
     (``mtplan simulate --readings-out``): key -> (rows, columns), arrays shaped like the
-    reading without its batch axis; rows 1-based from the first data row (0: none).
-    None where the procedure's table does not say it (a reading computed from several
-    cells)."""
+    reading without its batch axis; rows counted as a spreadsheet shows the written file
+    (the header is row 1, the first data row 2; 0: none). None where the procedure's
+    table does not say it (a reading computed from several cells)."""
     from mtplan.models import get
 
     proc = get(procedure)
     frame = proc.readings_frame(setup, readings)
     design = _design_columns(_expected_frames(proc, setup))
-    return _origin(proc, setup, frame, readings, design, np.arange(1, len(frame) + 1))
+    return _origin(proc, setup, frame, readings, design, np.arange(2, len(frame) + 2))
 
 
 def read_readings(procedure, setup, path) -> dict:
@@ -466,9 +466,10 @@ class Measurement:
         What was taken from the file, scaled to it, or read with an assumption.
     origin : dict or None
         Where each reading is in the file: key -> (rows, columns), arrays shaped like the
-        reading without its batch axis; a row is the data row, 1 being the first row
-        under the header (comment and blank lines not counted; 0: none). None where the
-        file does not say it (:func:`reading_origin`).
+        reading without its batch axis; a row is the file's row as a spreadsheet counts
+        it (the header is row 1; comment and blank lines are counted, as in the reader's
+        error messages; 0: none). None where the file does not say it
+        (:func:`reading_origin`).
     """
 
     setup: object

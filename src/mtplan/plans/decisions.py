@@ -294,8 +294,7 @@ def fit_verdict(fit) -> tuple[str, str] | None:
     """
     if fit is None or getattr(fit, "ok", None) is not False:
         return None
-    why = (f"chi-square {fit.chi2:.4g} with {fit.dof} degrees of freedom, p = "
-           f"{fit.p_value:.2g} < {fit.alpha:g}: the stated uncertainty is not valid for these "
+    why = (f"{fit.failure_text()}: the stated uncertainty is not valid for these "
            f"readings; worst readings {fit.worst_text()}; find the cause (an outlier, an "
            "effect the set-up's error sources do not have) and measure again")
     return NO_FIT, why
