@@ -222,12 +222,13 @@ class Setup(SetupBase):
         "[1e-6/K] (a scale mounted on steel follows its mounting, 10-11.5e-6/K)", low=0,
         high=100)
     scale_datum_x_mm: float = param(
-        -300.0, doc="x of the X scale's datum (its fixed point, about which it grows) from "
-        "the nominal bore centre [mm]; -300: a bore in the middle of a 600 mm travel whose "
-        "scale is fixed at its end", low=-100_000, high=100_000)
+        0.0, doc="x of the X scale's datum (its fixed point, about which it grows) from "
+        "the nominal bore centre [mm]; state the machine's (e.g. -300: a bore in the middle of "
+        "a 600 mm travel whose scale is fixed at its end); the default 0 puts it at the bore, "
+        "where the scales' growth does not move the centre", low=-100_000, high=100_000)
     scale_datum_y_mm: float = param(
-        -300.0, doc="y of the Y scale's datum from the nominal bore centre [mm]", low=-100_000,
-        high=100_000)
+        0.0, doc="y of the Y scale's datum from the nominal bore centre [mm] (as "
+        "scale_datum_x_mm)", low=-100_000, high=100_000)
     clamp_x_mm: float = param(
         0.0, doc="x of the point about which the part grows (where it is clamped or centred "
         "on the table) from the nominal bore centre [mm]; 0: a ring clamped concentrically",
