@@ -9,26 +9,16 @@ What the page shows is checked against the commands it stands for: ``mtplan line
 from __future__ import annotations
 
 import json
-import socket
 import subprocess
-import sys
-import time
 import tomllib
-import urllib.request
 
 import pytest
 from playwright.sync_api import sync_playwright
 
+from tests.explore.conftest import MTPLAN, start_server
 from tests.reports.conftest import need
 
-MTPLAN = [sys.executable, "-m", "mtplan.cli"]
 TIMEOUT_MS = 60_000  # first evaluations import scipy and numpy on a busy machine
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _cli(*args) -> str:
@@ -39,28 +29,9 @@ def _cli(*args) -> str:
 
 @pytest.fixture(scope="module")
 def server():
-    port = _free_port()
-    proc = subprocess.Popen([*MTPLAN, "explore", "rotary_axis", "--no-browser", "--port",
-                             str(port)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}/"
-    deadline = time.monotonic() + 60
-    while True:
-        try:
-            urllib.request.urlopen(url + "api/procedures", timeout=5).read()
-            break
-        except OSError:
-            if proc.poll() is not None or time.monotonic() > deadline:
-                proc.kill()
-                raise RuntimeError("mtplan explore did not start: "
-                                   + proc.stdout.read().decode(errors="replace")) from None
-            time.sleep(0.3)
-    yield url
-    proc.terminate()
-    try:
-        proc.wait(timeout=10)
-    except subprocess.TimeoutExpired:  # busy computing: stop it
-        proc.kill()
-        proc.wait()
+    s = start_server("rotary_axis")
+    yield s
+    s.stop()
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +48,7 @@ def page(browser, server):
     ctx = browser.new_context(viewport={"width": 1400, "height": 1000}, accept_downloads=True)
     pg = ctx.new_page()
     pg.set_default_timeout(TIMEOUT_MS)
-    pg.goto(server)
+    pg.goto(server.link)
     _settled(pg)
     yield pg
     ctx.close()
@@ -174,7 +145,7 @@ def test_export_is_a_study_that_report_accepts(page, tmp_path):
     # the file loads back into the page with the same set-up
     fresh = page.context.new_page()
     fresh.set_default_timeout(TIMEOUT_MS)
-    fresh.goto(page.url.split("?")[0])
+    fresh.goto(page.url.split("?")[0])  # the cookie holds the token
     _settled(fresh)
     fresh.locator("#load").set_input_files(str(study))
     fresh.wait_for_function("document.querySelector('#f-positions').value === '7'")
@@ -191,7 +162,7 @@ def test_bad_value_is_shown_beside_its_control_and_the_server_goes_on(page, serv
     assert "not evaluated" in page.locator("#status").inner_text()
     _set(page, "incline_deg", "abc")
     assert "incline_deg" in page.locator("#err-incline_deg").inner_text()
-    assert urllib.request.urlopen(server + "api/procedures", timeout=10).status == 200
+    assert server.api("api/procedures")[0] == 200
     _set(page, "positions", 6)
     _set(page, "incline_deg", 20)
     assert page.locator("#err-positions").inner_text() == ""
@@ -237,7 +208,7 @@ def test_every_procedure_loads_and_follows_a_lever(browser, server, name):
     ctx = browser.new_context(viewport={"width": 1400, "height": 1000})
     page = ctx.new_page()
     page.set_default_timeout(120_000)
-    page.goto(f"{server}?d={link}")
+    page.goto(f"{server.link}&d={link}")
     _settled(page)
     assert page.locator("#procedure").input_value() == name
     first = page.locator("table#measurands tbody tr").first.locator("td.U").inner_text()

@@ -27,8 +27,10 @@ range. :func:`study_toml` and :func:`design_from_study` write and read a study f
 from __future__ import annotations
 
 import functools
+import io
 import json
 import math
+import re
 import tomllib
 
 import numpy as np
@@ -40,7 +42,7 @@ from mtplan.models.protocol import UNIT_SUFFIXES, fields_info, make, parse_field
 
 __all__ = ["K", "procedures_info", "procedure_info", "normalise", "setup_of", "evaluate",
            "sensitivity", "study_toml", "design_from_study", "source_fields", "lever_values",
-           "plan_vary"]
+           "plan_vary", "whole"]
 
 #: coverage factor of the U the designer shows and its targets are stated in
 K = 2.0
@@ -105,6 +107,19 @@ def procedures_info() -> list:
 
 
 # --------------------------------------------------------------------------- state
+def whole(value, name: str, *, low: int = 0, high: int | None = None) -> int:
+    """An integer from a number or its text, scientific notation included ('1e6'), in
+    [low, high]; InvalidInput naming `name` otherwise."""
+    allowed = f"a whole number >= {low}" + (f" and <= {high}" if high is not None else "")
+    try:
+        x = float(str(value).strip()) if not isinstance(value, bool) else math.nan
+    except ValueError:
+        x = math.nan
+    if not math.isfinite(x) or x != int(x) or x < low or (high is not None and x > high):
+        raise InvalidInput([f"The '{name}' must be {allowed}. Got {str(value)[:40]!r} instead."])
+    return int(x)
+
+
 def normalise(design: dict | None) -> dict:
     """A design with every key present (defaults filled), unknown keys dropped."""
     d = dict(design or {})
@@ -277,17 +292,51 @@ def _acceptance(tol: dict, u: float) -> dict:
                          f"and {tol.get('upper')!r} instead."}
     if lower is None and upper is None:
         return {}
-    prior = (tol.get("prior") or "").strip() or None
     rule = (tol.get("rule") or "simple").strip()
     try:
+        prior, prior_text = tolerance_prior(tol)
         r = plan_acceptance(lower, upper, u, prior=prior, rule=rule)
     except InvalidInput as exc:
         return {"error": " ".join(exc.problems)}
     out = r.to_dict()
     out["guard_band"] = r.guard_band
     out["rule"] = rule
-    out["prior"] = prior
+    out["prior"] = prior_text
     return out
+
+
+_PRIOR_TEXT = re.compile(r"\s*(normal|gamma)\s*:", flags=re.I)
+
+
+def tolerance_prior(tol: dict):
+    """(prior, its text) of a tolerance row: ``normal:MEAN,SD``, ``gamma:SHAPE,SCALE`` or
+    the content of a CSV file uploaded from the page (``prior_csv``, with ``prior_name``).
+
+    A browser field never names a file on the server: any other text is refused, so the
+    designer never reads a path it is sent.
+    """
+    from mtplan.plans.acceptance import _prior_from_csv, parse_prior
+
+    content = tol.get("prior_csv")
+    if isinstance(content, str) and content.strip():
+        name = str(tol.get("prior_name") or "prior.csv")[:80]
+        try:
+            return _prior_from_csv(io.StringIO(content)), f"{name} (uploaded)"
+        except InvalidInput as exc:
+            raise InvalidInput(_renamed(exc.problems, name)) from None
+    text = str(tol.get("prior") or "").strip()
+    if not text:
+        return None, None
+    if not _PRIOR_TEXT.match(text):
+        raise InvalidInput([f"The 'prior' (population) must be 'normal:MEAN,SD', "
+                            f"'gamma:SHAPE,SCALE' or a CSV file uploaded with its button; the "
+                            f"designer reads no file on the server. Got {text[:60]!r} instead."])
+    return parse_prior(text), text
+
+
+def _renamed(problems, name: str) -> list:
+    """The CSV reader's messages with the uploaded file's name for the in-memory one."""
+    return [re.sub(r"'<_io\.StringIO object at 0x[0-9a-f]+>'", repr(name), m) for m in problems]
 
 
 def evaluate(design: dict) -> dict:
@@ -475,7 +524,7 @@ def study_toml(design: dict, *, title: str | None = None) -> str:
                 entry[key] = float(tol[key])
         if "lower" not in entry and "upper" not in entry:
             continue
-        if (tol.get("prior") or "").strip():
+        if _PRIOR_TEXT.match(str(tol.get("prior") or "")):  # an uploaded CSV stays here
             entry["prior"] = tol["prior"].strip()
         entry["rule"] = (tol.get("rule") or "simple").strip()
         lines += ["", "  [[procedure.acceptance]]"]

@@ -17,6 +17,14 @@ function fmt4(x) {
   if (x === null || x === undefined || !isFinite(x)) return "-";
   return String(Number(Number(x).toPrecision(4)));
 }
+// a number as typed, scientific notation included ("1e6" is 1000000); the text itself when
+// it is not one, so that the server names the field it refuses
+function number(text, empty) {
+  const t = String(text).trim();
+  if (t === "") return empty;
+  const x = Number(t);
+  return Number.isFinite(x) ? x : t;
+}
 function pct(x) { return (x === null || x === undefined) ? "-" : fmt4(100 * x) + " %"; }
 function duration(s) {
   if (!isFinite(s)) return "-";
@@ -37,7 +45,9 @@ async function api(path, body) {
   const opts = body === undefined ? {} : { method: "POST", body: JSON.stringify(body),
                                            headers: { "Content-Type": "application/json" } };
   const r = await fetch(path, opts);
-  const data = await r.json();
+  const text = await r.text();
+  let data;
+  try { data = JSON.parse(text); } catch (e) { data = { error: text.trim() || r.statusText }; }
   if (!r.ok) throw new Error(data.error || r.statusText);
   return data;
 }
@@ -357,12 +367,21 @@ async function sensitivity() {
 }
 
 // ------------------------------------------------------------------ jobs
+async function jobEstimate() {
+  // the time a Monte Carlo of these trials would take, said before it starts
+  try {
+    const e = await api("/api/jobs/estimate", { kind: "confirm", design: state.design });
+    $("job-estimate").textContent = e.fits ? `${e.design.trials} trials: ${e.text}` : e.refusal;
+    $("job-estimate").className = e.fits ? "label" : "err";
+  } catch (e) { $("job-estimate").textContent = e.message; $("job-estimate").className = "err"; }
+}
 async function startJob(kind) {
   if (state.job) await cancelJob();
   let id;
+  $("job-area").scrollIntoView({ block: "nearest" });
   try { id = (await api("/api/jobs", { kind, design: state.design })).id; }
-  catch (e) { $("job-result").replaceChildren(el("span", { class: "err", text: e.message })); return; }
-  state.job = { id, kind };
+  catch (e) { $("job-result").replaceChildren(el("span", { class: "err", id: "job-error", text: e.message })); return; }
+  state.job = { id, kind, changes: state.changes };
   $("job").hidden = false;
   $("job-label").textContent = kind === "confirm" ? "Monte Carlo running" : "Planner searching";
   $("job-progress").removeAttribute("value");
@@ -466,8 +485,8 @@ async function init() {
   await openDesign(design);
   $("procedure").addEventListener("change", () => openDesign(blank($("procedure").value)));
   $("estimator").addEventListener("change", () => { state.design.estimator = $("estimator").value; changed(); });
-  $("seed").addEventListener("change", () => { state.design.seed = parseInt($("seed").value || "0", 10); pushURL(); });
-  $("trials").addEventListener("change", () => { state.design.trials = parseInt($("trials").value || "10000", 10); pushURL(); });
+  $("seed").addEventListener("change", () => { state.design.seed = number($("seed").value, 0); pushURL(); jobEstimate(); });
+  $("trials").addEventListener("change", () => { state.design.trials = number($("trials").value, 10000); pushURL(); jobEstimate(); });
   $("confirm").addEventListener("click", () => startJob("confirm"));
   $("cheapest").addEventListener("click", () => startJob("cheapest"));
   $("job-cancel").addEventListener("click", cancelJob);
