@@ -298,6 +298,19 @@ def create_app(initial: dict | None = None, *, token: str | None = None,
         finally:
             curves[0] -= 1
 
+    checking = [0]
+
+    async def check(request):
+        body = await _body(request)
+        seen(body)
+        if checking[0] >= MAX_CURVES:
+            raise Busy("Other checks are being computed; this one is skipped.")
+        checking[0] += 1
+        try:
+            return _answer(await run_in_threadpool(d.check, body.get("design") or {}))
+        finally:
+            checking[0] -= 1
+
     async def export(request):
         return _answer({"toml": await run_in_threadpool(d.study_toml, await _body(request))})
 
@@ -333,6 +346,7 @@ def create_app(initial: dict | None = None, *, token: str | None = None,
         Route("/api/procedure/{name}", guarded(procedure)),
         Route("/api/evaluate", guarded(evaluate), methods=["POST"]),
         Route("/api/sensitivity", guarded(sensitivity), methods=["POST"]),
+        Route("/api/check", guarded(check), methods=["POST"]),
         Route("/api/export", guarded(export), methods=["POST"]),
         Route("/api/load", guarded(load), methods=["POST"]),
         Route("/api/jobs", guarded(job_start), methods=["POST"]),

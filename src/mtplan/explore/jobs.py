@@ -11,8 +11,6 @@ fit :data:`JOB_BUDGET_S`; at most ``max_running`` jobs run at once (:class:`Busy
 
 from __future__ import annotations
 
-import functools
-import json
 import math
 import multiprocessing
 import secrets
@@ -35,30 +33,6 @@ class Busy(Exception):
     """Refused for now: as many jobs as allowed are running."""
 
 
-@functools.lru_cache(maxsize=128)
-def _trial_seconds(name: str, setup_key: str, estimator: str) -> float:
-    """Seconds per Monte Carlo trial of a set-up, timed on a small block (after one trial
-    that warms the caches; that trial alone when it is already slow)."""
-    from mtplan.evaluation.simulation import _procedure_block
-    from mtplan.models import get
-    from mtplan.models.protocol import make
-    from mtplan.uncertainty.streams import as_seed_sequence
-
-    proc = get(name)
-    setup = make(proc.Setup, json.loads(setup_key), owner=proc.name)
-    truth, active = proc.Truth(), tuple(proc.active_sources(setup))
-    root = as_seed_sequence(0)
-    t = time.perf_counter()
-    _procedure_block(proc, setup, truth, estimator, active, root, 0, 1)
-    one = time.perf_counter() - t
-    if one > 0.25:
-        return one
-    size = 8
-    t = time.perf_counter()
-    _procedure_block(proc, setup, truth, estimator, active, root, 1, size)
-    return (time.perf_counter() - t) / size
-
-
 def _duration(seconds: float) -> str:
     if seconds < 120:
         return f"{seconds:.0f} s"
@@ -77,7 +51,7 @@ def job_cost(kind: str, design: dict, *, budget_s: float = JOB_BUDGET_S) -> dict
     it does not, ``refusal`` (one line naming trials). Raises InvalidInput for a bad kind,
     trials, seed or set-up.
     """
-    from mtplan.explore.design import normalise, plan_vary, setup_of, whole
+    from mtplan.explore.design import normalise, plan_vary, setup_of, trial_seconds, whole
 
     if kind not in _KINDS:
         raise InvalidInput([f"The 'kind' of a job must be one of {', '.join(_KINDS)}. "
@@ -90,7 +64,7 @@ def job_cost(kind: str, design: dict, *, budget_s: float = JOB_BUDGET_S) -> dict
     design = {**design, "trials": trials, "seed": seed}
     proc, setup = setup_of(design)
     est, _ = proc.estimator(design["estimator"])
-    per = _trial_seconds(proc.name, json.dumps(setup.as_dict(), sort_keys=True), est)
+    per = trial_seconds(proc, setup, est)
     runs, n = trials, trials
     if kind == "cheapest":
         vary = plan_vary(proc, design)

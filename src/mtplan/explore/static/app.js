@@ -89,7 +89,9 @@ function unitText(u) {
   return { um: "\u00b5m", urad: "\u00b5rad", um_per_m: "\u00b5m/m", urad_per_m: "\u00b5rad/m",
            um_per_s: "\u00b5m/s", urad_per_s: "\u00b5rad/s", mm_min: "mm/min", per_s: "1/s",
            um_per_h: "\u00b5m/h", ppm_per_h: "ppm/h", um_per_deg: "\u00b5m/\u00b0",
-           urad_per_deg: "\u00b5rad/\u00b0", c: "\u00b0C", deg: "\u00b0" }[u] ?? u;
+           urad_per_deg: "\u00b5rad/\u00b0", c: "\u00b0C", deg: "\u00b0", k_per_m: "K/m",
+           arcsec: "\u2033", mrad: "mrad", nm: "nm", mm: "mm", rad: "rad", ppm: "ppm", s: "s",
+           ms: "ms" }[u] ?? u;
 }
 function label(f) {
   let name = f.name;
@@ -128,6 +130,7 @@ function makeField(f) {
     if (numeric) {
       const step = f.kind === "int" ? 1 : (f.high - f.low) / 500;
       const slider = el("input", { id: "s-" + f.name, type: "range", min: f.low, max: f.high,
+                                   "aria-label": `${label(f)} slider${f.unit ? ` [${unitText(f.unit)}]` : ""}`,
                                    step, value: value === "" ? f.low : value });
       slider.addEventListener("input", () => { box.value = slider.value; setValue(f.name, slider.value, true); });
       box.addEventListener("change", () => { if (isFinite(+box.value)) slider.value = box.value; });
@@ -137,7 +140,8 @@ function makeField(f) {
   }
   input.append(box);
   if (f.source) {
-    const on = el("input", { id: "on-" + f.source, type: "checkbox", title: "switch the source on or off" });
+    const on = el("input", { id: "on-" + f.source, type: "checkbox", title: "switch the source on or off",
+                             "aria-label": `error source ${f.source} on` });
     on.checked = !state.design.off.includes(f.source);
     on.addEventListener("change", () => {
       const off = new Set(state.design.off);
@@ -165,6 +169,7 @@ function buildControls() {
     $(where).append(makeField(f));
     if (f.lever && f.kind !== "bool") {
       const box = el("input", { id: "v-" + f.name, type: "text", value: state.design.vary[f.name] || "",
+                                "aria-label": `${label(f)}: values for the planner to try`,
                                 placeholder: "values to try, e.g. 4,6,8" });
       box.addEventListener("change", () => {
         if (box.value.trim()) state.design.vary[f.name] = box.value; else delete state.design.vary[f.name];
@@ -181,17 +186,24 @@ function buildControls() {
   $("trials").value = state.design.trials ?? 10000;
   buildAcceptance();
 }
-function buildAcceptance() {
+const TOL_LABEL = { lower: "lower tolerance limit", upper: "upper tolerance limit",
+                    prior: "population of machines (normal:MEAN,SD or gamma:SHAPE,SCALE)" };
+function buildAcceptance(measurands) {
+  // one row per measurand of the current set-up (they change with the axis, the sub-machines)
+  measurands = measurands || state.info.measurands;
+  state.accNames = measurands.map((m) => m.name).join(",");
   const body = $("acceptance").querySelector("tbody");
   body.replaceChildren();
-  for (const m of state.info.measurands) {
+  for (const m of measurands) {
     const tol = state.design.tolerances[m.name] || {};
     const inp = (key, cls) => {
       const i = el("input", { id: `tol-${key}-${m.name}`, type: "text", class: cls || "",
+                              "aria-label": `${m.name}: ${TOL_LABEL[key]} [${unitText(m.unit)}]`,
                               value: tol[key] ?? (key === "rule" ? "iso14253" : "") });
       i.addEventListener("change", () => {
         const t = { ...(state.design.tolerances[m.name] || {}) };
         t[key] = i.value;
+        if (key === "prior") { delete t.prior_csv; delete t.prior_name; }
         if (!t.rule) t.rule = "iso14253";
         if ((t.lower ?? "") === "" && (t.upper ?? "") === "") delete state.design.tolerances[m.name];
         else state.design.tolerances[m.name] = t;
@@ -199,7 +211,7 @@ function buildAcceptance() {
       });
       return i;
     };
-    const rule = el("select", { id: `tol-rule-${m.name}` });
+    const rule = el("select", { id: `tol-rule-${m.name}`, "aria-label": `${m.name}: decision rule` });
     for (const r of ["simple", "iso14253", "dobbert", "guard:1", "target-pfa:0.02"])
       rule.append(el("option", { value: r, text: r }));
     rule.value = tol.rule || "iso14253";
@@ -208,17 +220,40 @@ function buildAcceptance() {
       state.design.tolerances[m.name] = t; changed();
     });
     const out = (k) => el("td", { id: `acc-${k}-${m.name}`, text: "-" });
+    // a population from measured values: the file's content is sent, never a path
+    const upload = el("input", { id: `tol-csv-${m.name}`, type: "file", accept: ".csv,text/csv",
+                                 "aria-label": `${m.name}: upload a CSV of measured values as the population` });
+    upload.addEventListener("change", async () => {
+      const f = upload.files[0];
+      if (!f) return;
+      const t = { ...(state.design.tolerances[m.name] || {}), prior_csv: await f.text(),
+                  prior_name: f.name, prior: "" };
+      if (!t.rule) t.rule = "iso14253";
+      state.design.tolerances[m.name] = t;
+      $(`tol-prior-${m.name}`).value = "";
+      $(`tol-prior-${m.name}`).placeholder = f.name;
+      changed();
+    });
+    const csv = el("label", { class: "button small", title: "population from a CSV file of measured values" }, "CSV", upload);
     body.append(el("tr", { id: "acc-" + m.name },
       el("td", { text: `${m.name} [${unitText(m.unit)}]`, title: m.description }),
       el("td", {}, inp("lower")), el("td", {}, inp("upper")),
-      el("td", {}, inp("prior", "prior")), el("td", {}, rule),
+      el("td", { class: "prior-cell" }, inp("prior", "prior"), csv), el("td", {}, rule),
       out("tur"), out("gb"), out("limits"), out("pfa"), out("pfr")));
   }
 }
 
 // ------------------------------------------------------------------ evaluation
+function markJobStale() {
+  const res = $("job-result");
+  if (res.childElementCount && !res.classList.contains("stale")) {  // computed for an earlier set-up
+    res.classList.add("stale");
+    res.prepend(el("div", { class: "stale-note", id: "job-stale", text: "Old: computed for an earlier set-up; run it again for this one." }));
+  }
+}
 function changed() {
   state.changes += 1;
+  markJobStale();
   state.t0 = performance.now();
   pushURL();
   refresh();
@@ -242,6 +277,29 @@ async function refresh() {
   if (asked === state.changes && t0) state.latencies.push(performance.now() - t0);
   document.body.dataset.rendered = String(asked);
   scheduleSensitivity();
+  if (result.ok && result.measurands.some((m) => m.trust === "unchecked" && !/^not checked/.test(m.why))) scheduleCheck();
+}
+function scheduleCheck() {
+  clearTimeout(state.checkTimer);
+  state.checkTimer = setTimeout(checkFirstOrder, 60);
+}
+async function checkFirstOrder() {
+  // the small Monte Carlo that each first-order u is judged against; its marks replace
+  // "being checked" in the cells of the numbers it was asked for
+  const asked = state.changes, r = state.lastResult;
+  if (!r || !r.ok) return;
+  let c;
+  try { c = await api("/api/check", { design: state.design, tab: state.tab, change: asked }); }
+  catch (e) { return; }
+  if (asked !== state.changes || state.lastResult !== r) return;
+  for (const m of r.measurands) {
+    const t = c.trust[m.name];
+    if (!t) continue;
+    Object.assign(m, t);
+    if (t.trust === "no" && m.acceptance) m.acceptance = { error: `u(${m.name}) is not reliable at first order (${t.why}): confirm by Monte Carlo` };
+  }
+  render(r);
+  document.body.dataset.checked = String(asked);
 }
 function render(r) {
   state.lastResult = r;
@@ -254,12 +312,19 @@ function render(r) {
   const tbody = $("measurands").querySelector("tbody");
   if (!r.ok) {
     banner((r.problems || []).join(" ") || "Fix the marked fields: the set-up is not evaluated.");
-    $("status").textContent = "not evaluated: the set-up is refused (see the marked fields)";
+    $("status").textContent = r.refused === "cost"
+      ? "not evaluated: too costly for a live answer (see the message above)"
+      : "not evaluated: the set-up is refused (see the marked fields)";
     $("status").className = "status err";
     tbody.querySelectorAll("td.u, td.U").forEach((c) => { c.textContent = "-"; });
+    if (r.measurand_names && r.measurand_names.map((m) => m.name).join(",") !== state.accNames) buildAcceptance(r.measurand_names);
+    for (const id of ["sens-plot", "budget-plot"]) $(id).classList.add("stale");
+    $("verdict").textContent = "";
     return;
   }
   banner("");
+  $("budget-plot").classList.remove("stale");
+  if (r.measurands.map((m) => m.name).join(",") !== state.accNames) buildAcceptance(r.measurands);
   $("status").textContent = "up to date"; $("status").className = "status";
   $("duration").textContent = duration(r.duration_s);
   $("method").textContent = `${r.method}, estimator ${r.estimator}`;
@@ -273,12 +338,18 @@ function render(r) {
       if (target.value.trim()) state.design.targets[m.name] = target.value; else delete state.design.targets[m.name];
       changed();
     });
-    const cls = m.target === undefined ? "" : (m.U <= m.target ? "meet" : "miss");
-    tbody.append(el("tr", { id: "m-" + m.name, class: cls },
+    // a target is met only by a number that is trusted: never by one first order gets wrong
+    const trusted = m.trust === "ok";
+    const cls = [m.target === undefined ? "" : (!trusted ? "" : (m.U <= m.target ? "meet" : "miss")),
+                 m.trust === "no" ? "untrusted" : (m.trust === "unchecked" ? "unchecked" : "")].join(" ").trim();
+    const shown = (x) => (m.trust === "no" ? "first order not reliable" : fmt3(x));
+    const tip = m.trust === "ok" ? "" : m.why;
+    target.setAttribute("aria-label", `${m.name}: target U (k = 2) [${unitText(m.unit)}]`);
+    tbody.append(el("tr", { id: "m-" + m.name, class: cls, "data-trust": m.trust || "" },
       el("td", { text: m.name, title: m.description }), el("td", { text: unitText(m.unit) }),
-      el("td", { class: "u", text: fmt3(m.u) }), el("td", { class: "U", text: fmt3(m.U) }),
+      el("td", { class: "u", text: shown(m.u), title: tip }), el("td", { class: "U", text: shown(m.U), title: tip }),
       el("td", {}, target, m.target_error ? el("span", { class: "err", text: " " + m.target_error }) : null),
-      el("td", { class: "sources", text: shares || (m.u > 0 ? "" : "u = 0 at first order") })));
+      el("td", { class: "sources", text: m.trust === "no" ? m.why : (shares || (m.u > 0 ? "" : "u = 0 at first order")) })));
     const a = m.acceptance;
     const set = (k, t) => { const c = $(`acc-${k}-${m.name}`); if (c) c.textContent = t; };
     if (a && a.error) { set("tur", a.error); ["gb", "limits", "pfa", "pfr"].forEach((k) => set(k, "")); }
@@ -295,7 +366,7 @@ function renderIdent(id) {
   const box = $("ident");
   const und = id.undetermined.length
     ? el("span", { class: "warn", id: "undetermined", text: "not determined: " + id.undetermined.join(", ") })
-    : el("span", { id: "undetermined", text: "every measurand is determined" });
+    : el("span", { id: "undetermined", text: "every measurand is determined by the readings" });
   box.replaceChildren(
     el("span", { id: "rank", text: `rank ${id.rank} of ${id.n_params} (${id.parameters})` }),
     el("span", { id: "condition", text: "condition number " + (id.condition === null ? "\u221e" : fmt3(id.condition)) }),
@@ -338,14 +409,27 @@ function scheduleSensitivity() {
 async function sensitivity() {
   const field = state.design.lever;
   if (!field || !state.lastResult || !state.lastResult.ok) return;
-  $("lever-name").textContent = field;
+  const lf = state.info.fields.find((f) => f.name === field);
+  $("lever-name").textContent = lf ? label(lf) : field;
   const asked = state.changes;
   let s;
   try { s = await api("/api/sensitivity", { design: state.design, field, tab: state.tab, change: asked }); }
-  catch (e) { $("sens-plot").textContent = "no sensitivity: " + e.message; return; }
+  catch (e) {  // said beside the plot: Plotly's own DOM stays, so the next curve draws
+    $("sens-msg").textContent = "no sensitivity curve: " + e.message;
+    $("sens-plot").classList.add("stale");
+    return;
+  }
   if (s.superseded || asked !== state.changes || !window.Plotly) return;
+  $("sens-msg").textContent = "";
+  $("sens-plot").classList.remove("stale");
   const withTarget = Object.keys(s.targets).filter((n) => n in s.U);
-  const shown = withTarget.length ? withTarget : Object.keys(s.U).slice(0, 8);
+  let shown = withTarget.length ? withTarget : Object.keys(s.U);
+  const unit = s.units[shown[0]];  // one unit on the axis: never um and urad together
+  const other = shown.filter((n) => s.units[n] !== unit);
+  shown = shown.filter((n) => s.units[n] === unit && !(s.untrusted || []).includes(n)).slice(0, 8);
+  $("sens-msg").textContent = [other.length ? `not drawn (other unit): ${other.join(", ")}` : "",
+    (s.untrusted || []).length ? `not drawn (first order not reliable): ${s.untrusted.join(", ")}` : ""].filter(Boolean).join("; ");
+  const lever = state.info.fields.find((f) => f.name === s.field);
   const colours = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf"];
   const traces = [], shapes = [];
   shown.forEach((n, i) => {
@@ -359,8 +443,8 @@ async function sensitivity() {
                                         x1: s.current, line: { color: "#444", width: 1.5, dash: "dot" } });
   Plotly.react("sens-plot", traces, {
     margin: { l: 60, r: 10, t: 10, b: 45 }, height: 300, shapes,
-    xaxis: { title: { text: `${s.field} [${unitText(s.unit) || "1"}] (dotted: current value)` } },
-    yaxis: { title: { text: "U (k = 2)" }, ...logAxis(shown.flatMap((n) => s.U[n])) },
+    xaxis: { title: { text: `${lever ? label(lever) : s.field}${s.unit ? ` [${unitText(s.unit)}]` : ""} (dotted: current value)` } },
+    yaxis: { title: { text: `U (k = 2) [${unitText(unit)}]` }, ...logAxis(shown.flatMap((n) => s.U[n])) },
     legend: { font: { size: 11 } },
   }, { displayModeBar: false, responsive: true });
   $("sens-plot").dataset.field = s.field;
@@ -386,6 +470,7 @@ async function startJob(kind) {
   $("job-label").textContent = kind === "confirm" ? "Monte Carlo running" : "Planner searching";
   $("job-progress").removeAttribute("value");
   $("job-result").replaceChildren();
+  $("job-result").classList.remove("stale");
   pollJob(id);
 }
 async function pollJob(id) {
@@ -399,12 +484,16 @@ async function pollJob(id) {
     setTimeout(() => pollJob(id), 300);
     return;
   }
+  const changedSince = state.job.changes !== state.changes;
   state.job = null;
   $("job").hidden = true;
+  $("job-result").classList.remove("stale");
   if (s.state === "error") $("job-result").replaceChildren(el("span", { class: "err", id: "job-error", text: s.error }));
   else if (s.state === "cancelled") $("job-result").replaceChildren(el("span", { id: "job-cancelled", text: "cancelled" }));
   else if (s.kind === "confirm") showConfirm(s.result);
   else showPlan(s.result);
+  if (changedSince) markJobStale();
+  $("job-result").scrollIntoView({ block: "nearest" });
 }
 async function cancelJob() {
   if (!state.job) return;
