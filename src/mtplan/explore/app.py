@@ -251,6 +251,9 @@ def create_app(initial: dict | None = None, *, token: str | None = None,
     async def procedures(request):
         return _answer({"procedures": d.procedures_info(), "initial": start})
 
+    async def glossary(request):
+        return _answer({"terms": d.glossary()})
+
     async def procedure(request):
         return _answer(d.procedure_info(request.path_params["name"]))
 
@@ -344,6 +347,7 @@ def create_app(initial: dict | None = None, *, token: str | None = None,
         Route("/static/{name}", static),
         Route("/api/procedures", guarded(procedures)),
         Route("/api/procedure/{name}", guarded(procedure)),
+        Route("/api/glossary", guarded(glossary)),
         Route("/api/evaluate", guarded(evaluate), methods=["POST"]),
         Route("/api/sensitivity", guarded(sensitivity), methods=["POST"]),
         Route("/api/check", guarded(check), methods=["POST"]),

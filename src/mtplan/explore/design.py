@@ -32,6 +32,7 @@ import json
 import math
 import re
 import tomllib
+from pathlib import Path
 
 import numpy as np
 
@@ -100,6 +101,32 @@ def procedure_info(name: str) -> dict:
                        for m in proc.measurands(setup)],
         "fields": fields,
     }
+
+
+GLOSSARY = Path(__file__).resolve().parents[3] / "docs" / "glossary.md"
+
+
+@functools.lru_cache(maxsize=1)
+def glossary() -> list:
+    """The rows of the documentation's glossary (``docs/glossary.md``, where the sources
+    are at hand): ``{"names": [...], "meaning": text, "section": heading}``; [] without
+    it. The page explains its codes and terms (EX0C, O1, TUR, PFR) with them."""
+    try:
+        text = GLOSSARY.read_text(encoding="utf-8")
+    except OSError:
+        return []
+    out, section = [], ""
+    for line in text.splitlines():
+        if line.startswith("## "):
+            section = line[3:].strip()
+        cells = [c.strip() for c in line.strip().strip("|").split("|")] if \
+            line.startswith("|") else []
+        if len(cells) != 2 or set(cells[0]) <= set("-") or cells[1] == "meaning":
+            continue
+        names = [n.strip(" `") for n in re.split(r",|\.\.\.|=", cells[0]) if n.strip(" `")]
+        out.append({"names": names, "label": cells[0].replace("`", ""),
+                    "meaning": cells[1].replace("`", ""), "section": section})
+    return out
 
 
 def procedures_info() -> list:
@@ -557,7 +584,34 @@ def _acceptance(tol: dict, u: float) -> dict:
     out["guard_band"] = r.guard_band
     out["rule"] = rule
     out["prior"] = prior_text
+    out["lower"], out["upper"], out["u"] = lower, upper, u
+    if prior is not None and lower is not None and upper is not None:
+        try:
+            out["curve"] = risk_curve(lower, upper, u, prior)
+        except InvalidInput:  # the figures stand; only the curve is left out
+            out["curve"] = None
     return out
+
+
+#: guard bands of the risk curve [multiples of U = K u]
+GUARDS = tuple(0.125 * i for i in range(13))
+
+
+def risk_curve(lower: float, upper: float, u: float, prior) -> dict:
+    """PFA and PFR against the guard band (0 to 1.5 U, in the tolerance's unit): the
+    acceptance figures of the rule ``guard:R`` (a guard band of R U) for each R of
+    :data:`GUARDS` that leaves an acceptance zone."""
+    from mtplan.plans.acceptance import plan_acceptance
+
+    g, pfa, pfr = [], [], []
+    for R in GUARDS:
+        if R * K * u >= (upper - lower) / 2:  # no acceptance zone left
+            break
+        r = plan_acceptance(lower, upper, u, prior=prior, rule=f"guard:{R}")
+        g.append(r.guard_band)
+        pfa.append(r.pfa)
+        pfr.append(r.pfr)
+    return {"guard_band": g, "pfa": pfa, "pfr": pfr}
 
 
 _PRIOR_TEXT = re.compile(r"\s*(normal|gamma)\s*:", flags=re.I)
@@ -634,11 +688,13 @@ def evaluate(design: dict) -> dict:
         out["problems"] = list(exc.problems)
         return out
     trusted = trust(pred["u"], known_spot(proc, setup, est), resolution_steps(proc, setup, est))
+    inputs = source_inputs(proc, setup)
     ms = []
     for m in proc.measurands(setup):
         u = pred["u"][m.name]
         row = {"name": m.name, "unit": m.unit, "description": m.description, "u": u,
-               "U": K * u, "budget": pred["budget"][m.name], **trusted[m.name]}
+               "U": K * u, "budget": pred["budget"][m.name], **trusted[m.name],
+               "budget_table": budget_table(pred["budget"][m.name], u, inputs)}
         if m.name in design["targets"]:
             try:
                 row["target"] = float(design["targets"][m.name])
@@ -659,6 +715,32 @@ def evaluate(design: dict) -> dict:
                identifiability=_identify_cached(proc.name, _geometry_key(proc, setup)),
                setup=_json_setup(setup))
     return out
+
+
+def source_inputs(proc, setup) -> dict:
+    """Source -> (its size, the unit of the field that states it): the input u of the
+    budget table (a source of many elements has this u for each)."""
+    out = {}
+    units = {f["name"]: f["unit"] for f in fields_info(proc.Setup)}
+    for source, field in source_fields(proc).items():
+        v = getattr(setup, field, None)
+        if isinstance(v, int | float) and not isinstance(v, bool):
+            out[source] = (float(v), units.get(field) or "")
+    return out
+
+
+def budget_table(budget: dict, u: float, inputs: dict) -> list:
+    """GUM Workbench's budget rows of one measurand, largest first: the source, its input
+    u and unit, the sensitivity coefficient c = contribution / input u (the source's
+    combined effect per unit of its size), the contribution (u of the measurand from that
+    source alone) and its share of u^2."""
+    rows = []
+    for source, contribution in budget.items():
+        x, unit = inputs.get(source, (None, ""))
+        rows.append({"source": source, "input_u": x, "input_unit": unit,
+                     "c": contribution / x if x else None, "contribution": contribution,
+                     "share": contribution**2 / u**2 if u > 0 else None})
+    return sorted(rows, key=lambda r: -r["contribution"])
 
 
 def _measurand_rows(proc, setup) -> list:

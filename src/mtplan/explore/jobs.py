@@ -19,7 +19,7 @@ import time
 
 from mtplan._validate import InvalidInput
 
-__all__ = ["Jobs", "Busy", "confirm", "cheapest", "job_cost", "JOB_BUDGET_S", "MAX_TRIALS"]
+__all__ = ["Jobs", "Busy", "confirm", "histogram", "cheapest", "job_cost", "JOB_BUDGET_S", "MAX_TRIALS"]
 
 #: the longest a job may be estimated to take [s]; more trials are refused before it starts
 JOB_BUDGET_S = 600.0
@@ -81,6 +81,21 @@ def job_cost(kind: str, design: dict, *, budget_s: float = JOB_BUDGET_S) -> dict
     return out
 
 
+def histogram(values, bins: int = 60) -> dict | None:
+    """Counts of the Monte Carlo values over `bins` equal bins [display unit] (None when
+    the values were not kept or are all equal)."""
+    import numpy as np
+
+    if values is None:
+        return None
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if v.size < 2 or np.ptp(v) == 0:
+        return None
+    counts, edges = np.histogram(v, bins=bins)
+    return {"counts": counts.tolist(), "edges": edges.tolist()}
+
+
 def confirm(design: dict, progress=None) -> dict:
     """Monte Carlo of a design's set-up: what ``mtplan simulate`` gives for the same set-up,
     seed and trials, beside the page's linearised prediction."""
@@ -97,6 +112,7 @@ def confirm(design: dict, progress=None) -> dict:
     for m in doc["measurands"]:
         m["U"] = None if m["u"] is None else K * m["u"]
         m["predicted_u"] = pred.get(m["name"])
+        m["histogram"] = histogram(r.mc.samples(m["name"]))
     doc["findings"] = r.findings()
     return doc
 

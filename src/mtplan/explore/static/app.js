@@ -5,7 +5,8 @@
 const $ = (id) => document.getElementById(id);
 const state = { tab: Math.random().toString(36).slice(2) + Date.now().toString(36), design: null, info: null, procedures: [], changes: 0, sent: 0, rendered: 0,
                 inflight: false, pending: false, t0: 0, latencies: [], job: null,
-                sensTimer: null, lastResult: null };
+                sensTimer: null, lastResult: null, history: [], snapshot: null,
+                scenarios: [], glossary: null };
 window.mtplan = state;  // for tests and the benchmark
 
 // ------------------------------------------------------------------ helpers
@@ -254,6 +255,9 @@ function markJobStale() {
 function changed() {
   state.changes += 1;
   markJobStale();
+  const now = JSON.stringify(state.design);
+  if (state.snapshot && state.snapshot !== now && !state.undoing) state.history.push(state.snapshot);
+  state.snapshot = now; state.undoing = false;
   state.t0 = performance.now();
   pushURL();
   refresh();
@@ -361,6 +365,10 @@ function render(r) {
   }
   renderIdent(r.identifiability);
   renderBudget(r);
+  renderBudgetTable(r);
+  renderRisk(r);
+  verdict(r);
+  renderHelp(r);
 }
 function renderIdent(id) {
   const box = $("ident");
@@ -394,7 +402,7 @@ function renderBudget(r) {
     xaxis: { title: { text: "share of u\u00b2 [%]" }, range: [0, 100], side: "top" },
     yaxis: { autorange: "reversed" },
     legend: { orientation: "h", y: -8 / (h - 58 - 22 * legendRows), yanchor: "top", font: { size: 11 } },
-  }, { displayModeBar: false, responsive: true });
+  }, PLOT_CONFIG("budget"));
 }
 function logAxis(values) {
   // a logarithmic axis where U spans more than a factor 20 over the lever's range
@@ -446,8 +454,191 @@ async function sensitivity() {
     xaxis: { title: { text: `${lever ? label(lever) : s.field}${s.unit ? ` [${unitText(s.unit)}]` : ""} (dotted: current value)` } },
     yaxis: { title: { text: `U (k = 2) [${unitText(unit)}]` }, ...logAxis(shown.flatMap((n) => s.U[n])) },
     legend: { font: { size: 11 } },
-  }, { displayModeBar: false, responsive: true });
+  }, PLOT_CONFIG("sensitivity"));
   $("sens-plot").dataset.field = s.field;
+}
+
+
+// ------------------------------------------------------------------ views
+const PLOT_CONFIG = (name) => ({ displaylogo: false, responsive: true, modeBarButtons: [["toImage"]],
+                                 toImageButtonOptions: { filename: `${state.design.procedure}_${name}`, scale: 2 } });
+function words(p) {
+  // a probability as an engineer says it
+  if (p === null || p === undefined || !isFinite(p)) return "";
+  if (p < 0.001) return "almost none";
+  if (p > 0.85) return "nearly all";
+  if (p > 0.6) return "most";
+  if (p >= 0.4) return "about half";
+  if (p >= 0.3) return "about a third";
+  if (p >= 0.2) return "about a quarter";
+  return `about 1 in ${Math.round(1 / p)}`;
+}
+function verdict(r) {
+  // one line: what the design can decide
+  const parts = [];
+  const bad = r.measurands.filter((m) => m.trust === "no").map((m) => m.name);
+  if (bad.length) parts.push(`first order cannot be trusted for ${bad.join(", ")}: confirm by Monte Carlo`);
+  for (const m of r.measurands) {
+    const a = m.acceptance;
+    if (!a || a.error || a.pfr === null || a.pfr === undefined) continue;
+    parts.push(`${m.name}: PFR ${pct(a.pfr)} at TUR ${fmt3(a.tur)}, so ${words(a.pfr)} of the machines would be rejected although in tolerance` +
+               (a.pfa > 0.001 ? `, and ${words(a.pfa)} accepted although out of it` : ""));
+  }
+  const targeted = r.measurands.filter((m) => m.target !== undefined && m.trust === "ok");
+  if (targeted.length && !parts.length) {
+    const miss = targeted.filter((m) => m.U > m.target);
+    parts.push(miss.length ? `${miss.map((m) => m.name).join(", ")} miss${miss.length === 1 ? "es" : ""} the target U` : "every target U is met");
+  }
+  $("verdict").textContent = parts.length ? "Verdict: " + parts.join("; ") + "." : "";
+}
+function fillSelect(id, names, keep) {
+  const sel = $(id), was = sel.value;
+  if ([...sel.options].map((o) => o.value).join(",") !== names.join(","))
+    sel.replaceChildren(...names.map((n) => el("option", { value: n, text: n })));
+  if (names.includes(keep)) sel.value = keep; else if (names.includes(was)) sel.value = was;
+}
+function renderBudgetTable(r) {
+  fillSelect("budget-of", r.measurands.map((m) => m.name), state.budgetOf);
+  const m = r.measurands.find((x) => x.name === $("budget-of").value) || r.measurands[0];
+  const body = $("budget-table").querySelector("tbody");
+  body.replaceChildren(...(m.budget_table || []).map((b) => el("tr", {},
+    el("td", { text: b.source }),
+    el("td", { text: b.input_u === null ? "-" : `${fmt3(b.input_u)} ${unitText(b.input_unit)}` }),
+    el("td", { text: b.c === null ? "-" : `${fmt3(b.c)} ${unitText(m.unit)}/${unitText(b.input_unit)}` }),
+    el("td", { text: `${fmt3(b.contribution)} ${unitText(m.unit)}` }),
+    el("td", { text: b.share === null ? "-" : pct(b.share) }))));
+  $("budget-table").classList.toggle("stale", m.trust === "no");
+}
+function renderRisk(r) {
+  const names = r.measurands.filter((m) => m.acceptance && !m.acceptance.error && m.acceptance.acceptance_limits).map((m) => m.name);
+  fillSelect("risk-of", names, state.riskOf);
+  const m = r.measurands.find((x) => x.name === $("risk-of").value);
+  if (!m || !window.Plotly) {
+    $("risk-msg").hidden = false;
+    for (const id of ["risk-plot", "zone-plot"]) $(id).classList.add("stale");
+    return;
+  }
+  const a = m.acceptance, unit = unitText(m.unit);
+  for (const id of ["risk-plot", "zone-plot"]) $(id).classList.remove("stale");
+  $("risk-msg").hidden = !!a.curve;
+  if (a.curve) {
+    Plotly.react("risk-plot", [
+      { x: a.curve.guard_band, y: a.curve.pfa.map((p) => 100 * p), name: "PFA", mode: "lines", line: { color: "#d62728" } },
+      { x: a.curve.guard_band, y: a.curve.pfr.map((p) => 100 * p), name: "PFR", mode: "lines", line: { color: "#1f77b4" } },
+      { x: [a.guard_band, a.guard_band], y: [100 * a.pfa, 100 * a.pfr], name: "this design", mode: "markers",
+        marker: { size: 10, color: "#222", symbol: "diamond" } },
+    ], { margin: { l: 55, r: 10, t: 10, b: 45 }, height: 280, legend: { font: { size: 11 } },
+         xaxis: { title: { text: `guard band w [${unit}]` }, rangemode: "tozero" },
+         yaxis: { title: { text: "probability [%]" }, rangemode: "tozero" } }, PLOT_CONFIG("risk"));
+  } else Plotly.purge("risk-plot");
+  // the zones on the measurand's axis: tolerance, acceptance, and U around a value at a limit
+  const lo = a.lower, hi = a.upper, [al, au] = a.acceptance_limits, U = 2 * a.u;
+  const span = (hi - lo) || 1, x0 = lo - 0.25 * span, x1 = hi + 0.25 * span;
+  const band = (xa, xb, y0, y1, color, text) => ({ type: "rect", x0: xa, x1: xb, y0, y1, fillcolor: color, line: { width: 0 }, layer: "below", name: text });
+  Plotly.react("zone-plot", [
+    { x: [(lo + hi) / 2], y: [2.5], mode: "text", text: ["tolerance zone"], showlegend: false, hoverinfo: "skip" },
+    { x: [(al + au) / 2], y: [1.5], mode: "text", text: ["accept"], showlegend: false, hoverinfo: "skip" },
+    { x: [al, au], y: [0.5, 0.5], mode: "markers", marker: { size: 1, color: "#fff" }, showlegend: false, hoverinfo: "skip" },
+  ], { margin: { l: 70, r: 10, t: 10, b: 45 }, height: 280, showlegend: false,
+       shapes: [band(lo, hi, 2, 3, "#cfe8d4", "tolerance"), band(al, au, 1, 2, "#9fd3a9", "acceptance"),
+                band(x0, al, 1, 2, "#f4c7c3", "reject"), band(au, x1, 1, 2, "#f4c7c3", "reject"),
+                band(hi - U, hi + U, 0.1, 0.9, "#c9d7ea", "U at the upper limit"), band(lo - U, lo + U, 0.1, 0.9, "#c9d7ea", "U at the lower limit")],
+       xaxis: { title: { text: `${m.name} [${unit}]` }, range: [x0, x1] },
+       yaxis: { range: [0, 3.2], tickvals: [0.5, 1.5, 2.5], ticktext: ["\u00b1U at limits", "decision", "specification"], fixedrange: true } },
+    PLOT_CONFIG("zones"));
+}
+function renderHistogram(r) {
+  // the Monte Carlo values of one measurand with its tolerance and acceptance limits
+  const ms = r.measurands.filter((m) => m.histogram);
+  if (!ms.length || !window.Plotly) return;
+  const box = el("div", { id: "mc-hist", class: "plot" });
+  const sel = el("select", { id: "mc-hist-of", "aria-label": "Measurand of the Monte Carlo histogram" },
+                 ...ms.map((m) => el("option", { value: m.name, text: m.name })));
+  $("job-result").append(el("h3", {}, "Monte Carlo values of ", sel), box);
+  const draw = () => {
+    const m = ms.find((x) => x.name === sel.value), h = m.histogram, unit = unitText(m.unit);
+    const mids = h.edges.slice(0, -1).map((e, i) => (e + h.edges[i + 1]) / 2);
+    const tol = state.design.tolerances[m.name] || {};
+    const acc = ((state.lastResult && state.lastResult.measurands) || []).find((x) => x.name === m.name);
+    const lim = acc && acc.acceptance && acc.acceptance.acceptance_limits;
+    const shapes = [], line = (x, color, dash) => shapes.push({ type: "line", x0: x, x1: x, yref: "paper", y0: 0, y1: 1, line: { color, dash, width: 2 } });
+    for (const k of ["lower", "upper"]) if (tol[k] !== undefined && tol[k] !== "") line(+tol[k], "#b3261e", "solid");
+    if (lim) { line(lim[0], "#1e7b34", "dash"); line(lim[1], "#1e7b34", "dash"); }
+    Plotly.react(box, [{ type: "bar", x: mids, y: h.counts, marker: { color: "#6d8fb3" }, name: "trials" }],
+      { margin: { l: 55, r: 10, t: 10, b: 45 }, height: 260, bargap: 0, shapes,
+        xaxis: { title: { text: `${m.name} [${unit}] (red: tolerance limits, green dashed: acceptance limits)` } },
+        yaxis: { title: { text: "trials" } } }, PLOT_CONFIG("montecarlo_" + m.name));
+  };
+  sel.addEventListener("change", draw);
+  draw();
+}
+function tableCSV(id) {
+  // a table as shown, inputs by their values
+  const rows = [...$(id).querySelectorAll("tr")].map((tr) => [...tr.children].map((c) => {
+    const i = c.querySelector("input:not([type=file]), select");
+    const t = i ? i.value : c.textContent;
+    return /[",\n]/.test(t) ? `"${t.replace(/"/g, '""')}"` : t;
+  }).join(","));
+  const a = el("a", { href: URL.createObjectURL(new Blob([rows.join("\n") + "\n"], { type: "text/csv" })),
+                      download: `${state.design.procedure}_${id}.csv` });
+  document.body.append(a); a.click(); a.remove();
+}
+function keepScenario() {
+  const r = state.lastResult;
+  if (!r || !r.ok) { banner("Only an evaluated design can be kept as a scenario."); return; }
+  state.scenarios.push({ label: `${state.scenarios.length + 1}: ${state.design.procedure}, ${state.design.estimator}`,
+                         design: JSON.parse(JSON.stringify(state.design)), result: r });
+  renderScenarios();
+}
+function renderScenarios() {
+  const body = $("scenarios").querySelector("tbody");
+  $("scenarios-msg").hidden = state.scenarios.length > 0;
+  if (!state.scenarios.length) { body.replaceChildren(); return; }
+  const names = [...new Set(state.scenarios.flatMap((c) => c.result.measurands.map((m) => `${m.name} [${unitText(m.unit)}]`)))];
+  const cell = (c, n) => {
+    const m = c.result.measurands.find((x) => `${x.name} [${unitText(x.unit)}]` === n);
+    return el("td", { text: !m ? "" : (m.trust === "no" ? "not reliable" : fmt3(m.U)) });
+  };
+  const head = el("tr", {}, el("th", { text: "U (k = 2)" }), ...state.scenarios.map((c, i) => {
+    const open = el("button", { text: "open", title: "make this scenario the page's design" });
+    open.addEventListener("click", () => openDesign(JSON.parse(JSON.stringify(c.design))));
+    const drop = el("button", { text: "\u00d7", title: "remove this scenario", "aria-label": `remove scenario ${i + 1}` });
+    drop.addEventListener("click", () => { state.scenarios.splice(i, 1); renderScenarios(); });
+    return el("th", {}, c.label, " ", open, drop);
+  }));
+  const changes = el("tr", {}, el("td", { text: "set-up changes" }), ...state.scenarios.map((c) =>
+    el("td", { class: "sources", text: Object.entries(c.design.setup).map(([k, v]) => `${k} = ${v}`).join(", ") || "defaults" })));
+  const dur = el("tr", {}, el("td", { text: "duration" }), ...state.scenarios.map((c) => el("td", { text: duration(c.result.duration_s) })));
+  body.replaceChildren(head, changes, dur, ...names.map((n) => el("tr", {}, el("td", { text: n }), ...state.scenarios.map((c) => cell(c, n)))));
+}
+function undo() {
+  const prev = state.history.pop();
+  if (!prev) { banner("Nothing to undo."); return; }
+  state.undoing = true;
+  const design = JSON.parse(prev);
+  if (design.procedure !== state.design.procedure || !state.info) openDesign(design);
+  else { state.design = design; buildControls(); changed(); }
+}
+function renderHelp(r) {
+  // every code and term on the page, with the glossary's words
+  if (!state.glossary) return;
+  const terms = ["u", "U", "TUR", "PFA", "PFR", "A_L", "prior", "O1", "rank", "c_i", "share", "target",
+                 ...r.measurands.map((m) => m.name)];
+  const find = (t) => state.glossary.find((g) => g.names.includes(t) ||
+    g.names.some((n) => /_k$/.test(n) && new RegExp("^" + n.replace(/_k$/, "_\\d+") + "$").test(t)) ||
+    (/_\d+$/.test(t) && g.label.includes(t.replace(/_\d+$/, "_k"))));
+  const seen = new Set(), items = [];
+  for (const t of terms) {
+    const g = find(t);
+    if (!g || seen.has(g.label)) continue;
+    seen.add(g.label);
+    items.push(el("dt", { text: g.label }), el("dd", { text: `${g.meaning} (${g.section})` }));
+  }
+  for (const m of r.measurands) {
+    const g = find(m.name), cell = $("m-" + m.name);
+    if (cell) cell.firstChild.title = (g ? `${g.label}: ${g.meaning}. ` : "") + (m.description || "");
+  }
+  $("help-list").replaceChildren(...items);
 }
 
 // ------------------------------------------------------------------ jobs
@@ -515,6 +706,7 @@ function showConfirm(r) {
     el("div", { id: "mc-summary", text: `Monte Carlo: ${r.trials} trials, seed ${r.seed}, estimator ${r.estimator} (as mtplan simulate)` }),
     el("table", { id: "mc-table" }, el("thead", {}, head), el("tbody", {}, ...rows)),
     ...(r.findings || []).map((f) => el("div", { class: "err", text: f })));
+  renderHistogram(r);
 }
 function showPlan(r) {
   const best = r.best;
@@ -581,6 +773,14 @@ async function init() {
   $("job-cancel").addEventListener("click", cancelJob);
   $("export").addEventListener("click", exportStudy);
   $("reset").addEventListener("click", () => openDesign(blank(state.design.procedure)));
+  $("undo").addEventListener("click", undo);
+  $("keep").addEventListener("click", keepScenario);
+  $("print").addEventListener("click", () => window.print());
+  document.querySelectorAll("button.csv").forEach((b) => b.addEventListener("click", () => tableCSV(b.dataset.table)));
+  $("budget-of").addEventListener("change", () => { state.budgetOf = $("budget-of").value; renderBudgetTable(state.lastResult); });
+  $("risk-of").addEventListener("change", () => { state.riskOf = $("risk-of").value; renderRisk(state.lastResult); });
+  api("/api/glossary").then((g) => { state.glossary = g.terms; if (state.lastResult && state.lastResult.ok) renderHelp(state.lastResult); }).catch(() => {});
+  jobEstimate();
   $("load").addEventListener("change", async () => {
     const f = $("load").files[0]; if (f) await loadStudy(await f.text()); $("load").value = "";
   });
