@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import base64
 import json
+import os
 import shutil
 import socket
 import subprocess
@@ -21,6 +22,10 @@ import urllib.request
 from pathlib import Path
 
 from playwright.sync_api import sync_playwright
+
+#: Debian's Chromium, as the user has it (else the one on the PATH)
+CHROMIUM = ("/usr/bin/chromium" if os.path.exists("/usr/bin/chromium")
+            else shutil.which("chromium"))
 
 HERE = Path(__file__).resolve().parent
 DESIGNS = {
@@ -77,7 +82,7 @@ def main(argv=None) -> int:
     server, link = _start()
     try:
         with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=shutil.which("chromium"),
+            browser = p.chromium.launch(executable_path=CHROMIUM,
                                         args=["--no-sandbox"])
             for name in only:
                 design = DESIGNS[name]

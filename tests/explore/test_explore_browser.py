@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import subprocess
 import tomllib
+from pathlib import Path
 
 import pytest
 from playwright.sync_api import sync_playwright
@@ -36,7 +37,8 @@ def server():
 
 @pytest.fixture(scope="module")
 def browser():
-    exe = need("chromium", "chromium-browser")
+    debian = Path("/usr/bin/chromium")  # Debian's, as the user has it; else the PATH's
+    exe = str(debian) if debian.exists() else need("chromium", "chromium-browser")
     with sync_playwright() as p:
         b = p.chromium.launch(executable_path=exe, args=["--no-sandbox"])
         yield b
@@ -220,4 +222,90 @@ def test_every_procedure_loads_and_follows_a_lever(browser, server, name):
     assert rows.count() >= 3
     assert first != "-" and rows.first.locator("td.U").inner_text() != "-"
     assert f"{field}=" in "".join(page.url) or "d=" in page.url
+    ctx.close()
+
+
+# ------------------------------------------------------------------ the defects of a new user
+def _open(browser, server, design: dict, width: int = 1400):
+    import base64
+
+    link = base64.urlsafe_b64encode(json.dumps(design).encode()).decode().rstrip("=")
+    ctx = browser.new_context(viewport={"width": width, "height": 1000})
+    pg = ctx.new_page()
+    pg.set_default_timeout(120_000)
+    pg.goto(f"{server.link}&d={link}")
+    _settled(pg)
+    return ctx, pg
+
+
+def test_trials_read_scientific_notation(page):
+    page.locator("#trials").fill("1e6")
+    page.locator("#trials").dispatch_event("change")
+    assert page.evaluate("window.mtplan.design.trials") == 1_000_000
+    page.wait_for_function("/1000000|trials/.test(document.querySelector('#job-estimate')"
+                           ".textContent)")
+
+
+def test_acceptance_table_follows_the_measurands(page):
+    page.locator("#f-axis").select_option("A")
+    page.locator("#f-axis").dispatch_event("change")
+    _settled(page)
+    shown = page.evaluate("[...document.querySelectorAll('#measurands tbody tr')]"
+                          ".map((r) => r.id.slice(2))")
+    table = page.evaluate("[...document.querySelectorAll('#acceptance tbody tr')]"
+                          ".map((r) => r.id.slice(4))")
+    assert shown and table == shown and "EY0A" in shown
+
+
+def test_plots_recover_after_a_refusal(page):
+    _set(page, "incline_deg", "abc")  # refused: the plots are marked old, not replaced
+    assert page.locator("#sens-plot.js-plotly-plot").count() == 1
+    _set(page, "range_deg", "100")
+    _set(page, "range_deg", "")  # an optional lever cleared: no curve for it, said beside
+    page.wait_for_function("document.querySelector('#sens-msg').textContent.length > 0 || "
+                           "document.querySelector('#sens-plot').dataset.field === 'range_deg'")
+    _set(page, "incline_deg", "30")
+    page.wait_for_function("document.querySelector('#sens-plot').dataset.field === "
+                           "'incline_deg' && !document.querySelector('#sens-plot')"
+                           ".classList.contains('stale')")
+    assert page.locator("#sens-plot .main-svg").count() >= 1
+
+
+def test_old_results_are_marked_after_a_change(page):
+    page.locator("#trials").fill("200")
+    page.locator("#trials").dispatch_event("change")
+    page.locator("#confirm").click()
+    page.wait_for_selector("#mc-table", timeout=180_000)
+    assert page.locator("#job-stale").count() == 0
+    _set(page, "positions", 9)
+    assert "earlier set-up" in page.locator("#job-stale").inner_text()
+    assert "stale" in page.locator("#job-result").get_attribute("class")
+
+
+def test_a_cell_first_order_gets_wrong_is_marked_and_never_green(browser, server):
+    ctx, pg = _open(browser, server, {"procedure": "line_laser",
+                                      "targets": {"alpha_z": "10", "alpha_y": "1e9"}})
+    row = pg.locator("#m-alpha_z")
+    assert "untrusted" in row.get_attribute("class") and "meet" not in row.get_attribute("class")
+    assert "not reliable" in row.locator("td.U").inner_text()
+    assert pg.evaluate("document.querySelector('#procedure').value") == "line_laser"
+    ctx.close()
+
+
+def test_every_input_has_an_accessible_name(page):
+    missing = page.evaluate("""() => [...document.querySelectorAll('input, select')]
+        .filter((e) => !(e.getAttribute('aria-label') || (e.id && document.querySelector(
+            `label[for="${e.id}"]`)) || e.closest('label')))
+        .map((e) => e.id || e.outerHTML.slice(0, 60))""")
+    assert missing == []
+
+
+def test_phone_width_stacks_and_print_hides_the_buttons(browser, server):
+    ctx, pg = _open(browser, server, {"procedure": "rotary_axis"}, width=390)
+    assert pg.evaluate("document.documentElement.scrollWidth") <= 390
+    assert pg.evaluate("document.querySelector('#results').getBoundingClientRect().width") > 300
+    pg.emulate_media(media="print")
+    assert pg.evaluate("[...document.querySelectorAll('header button')]"
+                       ".every((b) => getComputedStyle(b).display === 'none')")
+    assert pg.locator("#measurands").is_visible()
     ctx.close()

@@ -305,12 +305,22 @@ def create_app(initial: dict | None = None, *, token: str | None = None,
 
     async def check(request):
         body = await _body(request)
-        seen(body)
+        tab, change = seen(body)
         if checking[0] >= MAX_CURVES:
             raise Busy("Other checks are being computed; this one is skipped.")
+
+        def run():  # after the numbers in flight, and not at all for a change overtaken
+            for _ in range(400):
+                if not evaluating[0]:
+                    break
+                time.sleep(0.005)
+            if tab and latest.get(tab, -1) > change:
+                return {"superseded": True}
+            return d.check(body.get("design") or {})
+
         checking[0] += 1
         try:
-            return _answer(await run_in_threadpool(d.check, body.get("design") or {}))
+            return _answer(await run_in_threadpool(run))
         finally:
             checking[0] -= 1
 

@@ -285,7 +285,7 @@ async function refresh() {
 }
 function scheduleCheck() {
   clearTimeout(state.checkTimer);
-  state.checkTimer = setTimeout(checkFirstOrder, 60);
+  state.checkTimer = setTimeout(checkFirstOrder, 300);  // not while a lever is being moved
 }
 async function checkFirstOrder() {
   // the small Monte Carlo that each first-order u is judged against; its marks replace
@@ -295,7 +295,7 @@ async function checkFirstOrder() {
   let c;
   try { c = await api("/api/check", { design: state.design, tab: state.tab, change: asked }); }
   catch (e) { return; }
-  if (asked !== state.changes || state.lastResult !== r) return;
+  if (c.superseded || asked !== state.changes || state.lastResult !== r) return;
   for (const m of r.measurands) {
     const t = c.trust[m.name];
     if (!t) continue;
