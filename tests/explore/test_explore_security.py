@@ -170,9 +170,10 @@ def test_twenty_concurrent_job_starts_run_at_most_the_cap(server):
     started = [r["id"] for s, r in answers if s == 200]
     refused = [r for s, r in answers if s != 200]
     assert 1 <= len(started) <= 2 and len(refused) == 20 - len(started)
-    assert all(s == 429 for s, _ in answers if s != 200)
-    for r in refused:
-        assert "jobs are running" in _one_line(json.dumps(r))
+    assert all(s in (429, 503) for s, _ in answers if s != 200)  # the job cap, or the
+    for r in refused:  # cap on requests in flight: each a plain line
+        assert "running" in _one_line(r if isinstance(r, str) else json.dumps(r)) or \
+            "busy" in r
     assert _children(server) <= 2 + 1  # the jobs (and at most a resource tracker)
     for job in started:
         assert server.api(f"api/jobs/{job}/cancel", {})[1]["state"] == "cancelled"

@@ -206,6 +206,103 @@ def _plotly_js() -> Path | None:
     return path if path.exists() else None
 
 
+def _guarded(fn):
+    """An endpoint whose every failure is one line: 413, 429, 400, 404, or 500 with the
+    details in the server's log (never a traceback to the client)."""
+    async def endpoint(request: Request):
+        try:
+            return await fn(request)
+        except TooLarge as exc:
+            return _answer({"error": str(exc)}, 413)
+        except Busy as exc:
+            return _answer({"error": str(exc)}, 429)
+        except InvalidInput as exc:
+            return _answer({"error": " ".join(exc.problems), "problems": exc.problems}, 400)
+        except KeyError as exc:
+            return _answer({"error": f"unknown {exc.args[0]!r}"}, 404)
+        except Exception as exc:  # one line on the page; the details in the server's log
+            log.exception("%s failed", request.url.path)
+            return _answer({"error": f"{request.url.path} failed ({type(exc).__name__}); "
+                                     "the server's log has the details."}, 500)
+    return endpoint
+
+
+async def _page(request):
+    return FileResponse(STATIC / "index.html", media_type="text/html")
+
+
+async def _static(request):
+    name = request.path_params["name"]
+    if name == "plotly.min.js":
+        path = _plotly_js()
+    else:
+        path = STATIC / name
+        if path.resolve().parent != STATIC or not path.is_file():
+            path = None
+    if path is None:
+        return Response("not found", status_code=404)
+    kind = "text/css" if name.endswith(".css") else "application/javascript"
+    return FileResponse(path, media_type=kind, headers={"Cache-Control": "max-age=3600"})
+
+
+class _Live:
+    """The live requests of the pages: the numbers first; a sensitivity curve and a spot
+    check give way to them (they wait while numbers are computed, and give up for a change
+    that a newer one from the same page has overtaken), and at most MAX_CURVES of each run."""
+
+    def __init__(self):
+        self.latest: dict = {}  # page id -> its latest change
+        self.evaluating = 0  # numbers' requests in flight
+        self.running = {"sensitivity": 0, "check": 0}
+
+    def seen(self, body) -> tuple:
+        tab, change = str(body.get("tab", ""))[:64], d.whole(body.get("change") or 0, "change")
+        if tab and change > self.latest.get(tab, -1):
+            self.latest[tab] = change
+            while len(self.latest) > 1000:
+                self.latest.pop(next(iter(self.latest)))
+        return tab, change
+
+    def overtaken(self, tab: str, change: int) -> bool:
+        """After the numbers in flight (up to 2 s): has a newer change come from the page?"""
+        for _ in range(400):
+            if not self.evaluating:
+                break
+            time.sleep(0.005)
+        return bool(tab) and self.latest.get(tab, -1) > change
+
+    async def evaluate(self, request):
+        body = await _body(request)
+        self.seen(body)
+        self.evaluating += 1
+        try:
+            return _answer(await run_in_threadpool(d.evaluate, body.get("design", body)))
+        finally:
+            self.evaluating -= 1
+
+    async def _behind(self, what: str, request, compute):
+        body = await _body(request)
+        tab, change = self.seen(body)
+        if self.running[what] >= MAX_CURVES:
+            raise Busy(f"{self.running[what]} other {what} requests are being computed; this "
+                       "one is skipped (the numbers are not).")
+        self.running[what] += 1
+        try:
+            return _answer(await run_in_threadpool(compute, body, tab, change))
+        finally:
+            self.running[what] -= 1
+
+    async def sensitivity(self, request):
+        return await self._behind("sensitivity", request, lambda body, tab, change: (
+            d.sensitivity(body.get("design") or {}, body.get("field"),
+                          stop=lambda: self.overtaken(tab, change))))
+
+    async def check(self, request):
+        return await self._behind("check", request, lambda body, tab, change: (
+            {"superseded": True} if self.overtaken(tab, change)
+            else d.check(body.get("design") or {})))
+
+
 def create_app(initial: dict | None = None, *, token: str | None = None,
                max_jobs: int = 2, max_in_flight: int = MAX_IN_FLIGHT) -> Starlette:
     """The application; `initial` is the design a page without one in its URL starts from,
@@ -213,40 +310,7 @@ def create_app(initial: dict | None = None, *, token: str | None = None,
     jobs = Jobs(max_running=max_jobs)
     start = d.normalise(initial) if initial else None
     token = token or secrets.token_urlsafe(24)
-
-    def guarded(fn):
-        async def endpoint(request: Request):
-            try:
-                return await fn(request)
-            except TooLarge as exc:
-                return _answer({"error": str(exc)}, 413)
-            except Busy as exc:
-                return _answer({"error": str(exc)}, 429)
-            except InvalidInput as exc:
-                return _answer({"error": " ".join(exc.problems), "problems": exc.problems}, 400)
-            except KeyError as exc:
-                return _answer({"error": f"unknown {exc.args[0]!r}"}, 404)
-            except Exception as exc:  # one line on the page; the details in the server's log
-                log.exception("%s failed", request.url.path)
-                return _answer({"error": f"{request.url.path} failed ({type(exc).__name__}); "
-                                         "the server's log has the details."}, 500)
-        return endpoint
-
-    async def page(request):
-        return FileResponse(STATIC / "index.html", media_type="text/html")
-
-    async def static(request):
-        name = request.path_params["name"]
-        if name == "plotly.min.js":
-            path = _plotly_js()
-        else:
-            path = STATIC / name
-            if path.resolve().parent != STATIC or not path.is_file():
-                path = None
-        if path is None:
-            return Response("not found", status_code=404)
-        kind = "text/css" if name.endswith(".css") else "application/javascript"
-        return FileResponse(path, media_type=kind, headers={"Cache-Control": "max-age=3600"})
+    live = _Live()
 
     async def procedures(request):
         return _answer({"procedures": d.procedures_info(), "initial": start})
@@ -256,73 +320,6 @@ def create_app(initial: dict | None = None, *, token: str | None = None,
 
     async def procedure(request):
         return _answer(d.procedure_info(request.path_params["name"]))
-
-    latest: dict = {}  # page id -> its latest change (a sensitivity gives way to it)
-
-    def seen(body) -> tuple:
-        tab, change = str(body.get("tab", ""))[:64], d.whole(body.get("change") or 0, "change")
-        if tab and change > latest.get(tab, -1):
-            latest[tab] = change
-            while len(latest) > 1000:
-                latest.pop(next(iter(latest)))
-        return tab, change
-
-    evaluating = [0]  # numbers' requests in flight: a sensitivity gives them the CPU
-
-    async def evaluate(request):
-        body = await _body(request)
-        seen(body)
-        evaluating[0] += 1
-        try:
-            return _answer(await run_in_threadpool(d.evaluate, body.get("design", body)))
-        finally:
-            evaluating[0] -= 1
-
-    curves = [0]  # sensitivity curves being computed
-
-    async def sensitivity(request):
-        body = await _body(request)
-        tab, change = seen(body)
-        if curves[0] >= MAX_CURVES:
-            raise Busy(f"{curves[0]} sensitivity curves are being computed; this one is "
-                       "skipped (the numbers are not).")
-
-        def stop() -> bool:  # before each point: wait (up to 2 s) while numbers are computed
-            for _ in range(400):
-                if not evaluating[0]:
-                    break
-                time.sleep(0.005)
-            return bool(tab) and latest.get(tab, -1) > change
-
-        curves[0] += 1
-        try:
-            return _answer(await run_in_threadpool(
-                d.sensitivity, body.get("design") or {}, body.get("field"), stop=stop))
-        finally:
-            curves[0] -= 1
-
-    checking = [0]
-
-    async def check(request):
-        body = await _body(request)
-        tab, change = seen(body)
-        if checking[0] >= MAX_CURVES:
-            raise Busy("Other checks are being computed; this one is skipped.")
-
-        def run():  # after the numbers in flight, and not at all for a change overtaken
-            for _ in range(400):
-                if not evaluating[0]:
-                    break
-                time.sleep(0.005)
-            if tab and latest.get(tab, -1) > change:
-                return {"superseded": True}
-            return d.check(body.get("design") or {})
-
-        checking[0] += 1
-        try:
-            return _answer(await run_in_threadpool(run))
-        finally:
-            checking[0] -= 1
 
     async def export(request):
         return _answer({"toml": await run_in_threadpool(d.study_toml, await _body(request))})
@@ -353,21 +350,22 @@ def create_app(initial: dict | None = None, *, token: str | None = None,
         return _answer(jobs.cancel(request.path_params["id"]))
 
     routes = [
-        Route("/", page),
-        Route("/static/{name}", static),
-        Route("/api/procedures", guarded(procedures)),
-        Route("/api/procedure/{name}", guarded(procedure)),
-        Route("/api/glossary", guarded(glossary)),
-        Route("/api/evaluate", guarded(evaluate), methods=["POST"]),
-        Route("/api/sensitivity", guarded(sensitivity), methods=["POST"]),
-        Route("/api/check", guarded(check), methods=["POST"]),
-        Route("/api/export", guarded(export), methods=["POST"]),
-        Route("/api/load", guarded(load), methods=["POST"]),
-        Route("/api/jobs", guarded(job_start), methods=["POST"]),
-        Route("/api/jobs/estimate", guarded(job_estimate), methods=["POST"]),
-        Route("/api/jobs/{id}", guarded(job_status)),
-        Route("/api/jobs/{id}/cancel", guarded(job_cancel), methods=["POST"]),
+        Route("/", _page),
+        Route("/static/{name}", _static),
+        Route("/api/procedures", _guarded(procedures)),
+        Route("/api/procedure/{name}", _guarded(procedure)),
+        Route("/api/glossary", _guarded(glossary)),
+        Route("/api/evaluate", _guarded(live.evaluate), methods=["POST"]),
+        Route("/api/sensitivity", _guarded(live.sensitivity), methods=["POST"]),
+        Route("/api/check", _guarded(live.check), methods=["POST"]),
+        Route("/api/export", _guarded(export), methods=["POST"]),
+        Route("/api/load", _guarded(load), methods=["POST"]),
+        Route("/api/jobs", _guarded(job_start), methods=["POST"]),
+        Route("/api/jobs/estimate", _guarded(job_estimate), methods=["POST"]),
+        Route("/api/jobs/{id}", _guarded(job_status)),
+        Route("/api/jobs/{id}/cancel", _guarded(job_cancel), methods=["POST"]),
     ]
+
     @contextlib.asynccontextmanager
     async def lifespan(app):
         yield
