@@ -675,6 +675,9 @@ def evaluate(design: dict) -> dict:
                 if f"'{f}'" in msg or f" {f} " in f" {msg} ":
                     out["field_errors"].setdefault(f, msg)
         return out
+    if not proc.measurands(setup):
+        out["problems"] = [f"This {proc.name} set-up gives no measurand to predict."]
+        return out
     try:
         est, _ = proc.estimator(design["estimator"])
         guard_cost(proc, setup, est)
@@ -822,6 +825,8 @@ def sensitivity(design: dict, field: str | None = None, n: int = 9, *, stop=None
             cost = guard_cost(proc, s, est)
         except InvalidInput:
             continue  # a value the procedure refuses, or beyond the live budget: no point
+        if not proc.measurands(s):
+            continue  # nothing to draw (and nothing for a first-order budget to give)
         if cost["seconds"] > budget and x != now:
             continue
         budget -= cost["seconds"]
