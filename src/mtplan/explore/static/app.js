@@ -506,7 +506,7 @@ function renderBudgetTable(r) {
     el("td", { text: b.input_u === null ? "-" : `${fmt3(b.input_u)} ${unitText(b.input_unit)}` }),
     el("td", { text: b.c === null ? "-" : `${fmt3(b.c)} ${unitText(m.unit)}/${unitText(b.input_unit)}` }),
     el("td", { text: `${fmt3(b.contribution)} ${unitText(m.unit)}` }),
-    el("td", { text: b.share === null ? "-" : pct(b.share) }))));
+    el("td", { text: b.share === null ? "-" : (b.share < 1e-4 ? "< 0.01 %" : pct(b.share)) }))));
   $("budget-table").classList.toggle("stale", m.trust === "no");
 }
 function renderRisk(r) {
