@@ -356,6 +356,8 @@ function render(r) {
       el("td", { class: "sources", text: m.trust === "no" ? m.why : (shares || (m.u > 0 ? "" : "u = 0 at first order")) })));
     const a = m.acceptance;
     const set = (k, t) => { const c = $(`acc-${k}-${m.name}`); if (c) c.textContent = t; };
+    const tur = $(`acc-tur-${m.name}`);
+    if (tur) tur.classList.toggle("errcell", !!(a && a.error));  // wraps: never clipped
     if (a && a.error) { set("tur", a.error); ["gb", "limits", "pfa", "pfr"].forEach((k) => set(k, "")); }
     else if (a && a.acceptance_limits) {
       set("tur", fmt4(a.tur)); set("gb", fmt4(a.guard_band));
