@@ -25,6 +25,10 @@ import urllib.request
 import numpy as np
 from playwright.sync_api import sync_playwright
 
+#: Debian's Chromium, as the user has it (else the one on the PATH)
+CHROMIUM = ("/usr/bin/chromium" if os.path.exists("/usr/bin/chromium")
+            else shutil.which("chromium"))
+
 #: procedure -> (lever, first value, step, starting set-up)
 LEVERS = {
     "rotary_axis": ("incline_deg", 10.0, 2.5, {}),
@@ -38,13 +42,18 @@ LEVERS = {
 
 
 def _start(port):
+    """``mtplan explore`` on `port`: (process, the link it printed with its token)."""
     proc = subprocess.Popen([sys.executable, "-m", "mtplan.cli", "explore", "--no-browser",
-                             "--port", str(port)], stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+                             "--port", str(port)], stdout=subprocess.PIPE,
+                            stderr=subprocess.DEVNULL, text=True)
+    link = proc.stdout.readline().split("serving on ", 1)[1].split()[0]
+    token = link.split("token=", 1)[1]
     for _ in range(200):
         try:
-            urllib.request.urlopen(f"http://127.0.0.1:{port}/api/procedures", timeout=5)
-            return proc
+            urllib.request.urlopen(urllib.request.Request(
+                f"http://127.0.0.1:{port}/api/procedures",
+                headers={"X-Mtplan-Token": token}), timeout=5)
+            return proc, link
         except OSError:
             time.sleep(0.3)
     proc.kill()
@@ -59,10 +68,10 @@ def main(argv=None) -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    server = _start(port)
+    server, link = _start(port)
     try:
         with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=shutil.which("chromium"),
+            browser = p.chromium.launch(executable_path=CHROMIUM,
                                         args=["--no-sandbox"])
             print(f"load average before: {os.getloadavg()}, cores: {os.cpu_count()}")
             for name, (field, start, step, setup) in LEVERS.items():
@@ -70,9 +79,9 @@ def main(argv=None) -> int:
                     continue
                 page = browser.new_page()
                 page.set_default_timeout(300_000)
-                link = base64.urlsafe_b64encode(json.dumps(
+                design = base64.urlsafe_b64encode(json.dumps(
                     {"procedure": name, "setup": setup}).encode()).decode().rstrip("=")
-                page.goto(f"http://127.0.0.1:{port}/?d={link}")
+                page.goto(f"{link}&d={design}")
                 page.wait_for_function("window.mtplan && window.mtplan.rendered > 0")
                 for i in range(args.changes):
                     page.evaluate(f"""() => {{ const b = document.getElementById('f-{field}');

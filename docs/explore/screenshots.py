@@ -1,15 +1,18 @@
 """Screenshots of the designer, one per procedure, for the documentation.
 
-    python docs/explore/screenshots.py        # writes docs/explore/<procedure>.png
+    python docs/explore/screenshots.py [PROC ...]   # docs/explore/<procedure>[_390].png
 
 Each page is opened through its link with a lever moved, a target and a tolerance entered,
-so the plots show the current value, the target line and the acceptance figures.
+so the plots show the current value, the target line and the acceptance figures; at
+1440 px, at 390 px (a phone) and, for rotary_axis, the A4 print view
+(``rotary_axis_print.png``).
 """
 
 from __future__ import annotations
 
 import base64
 import json
+import os
 import shutil
 import socket
 import subprocess
@@ -19,6 +22,10 @@ import urllib.request
 from pathlib import Path
 
 from playwright.sync_api import sync_playwright
+
+#: Debian's Chromium, as the user has it (else the one on the PATH)
+CHROMIUM = ("/usr/bin/chromium" if os.path.exists("/usr/bin/chromium")
+            else shutil.which("chromium"))
 
 HERE = Path(__file__).resolve().parent
 DESIGNS = {
@@ -45,35 +52,62 @@ DESIGNS = {
 }
 
 
-def main() -> int:
+def _start():
+    """``mtplan explore`` on a free port: (process, the link it printed with its token)."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     server = subprocess.Popen([sys.executable, "-m", "mtplan.cli", "explore", "--no-browser",
-                               "--port", str(port)], stdout=subprocess.DEVNULL)
+                               "--port", str(port)], stdout=subprocess.PIPE, text=True)
+    line = server.stdout.readline()  # "mtplan explore: serving on http://...?token=..."
+    link = line.split("serving on ", 1)[1].split()[0]
+    token = link.split("token=", 1)[1]
+    for _ in range(400):
+        try:
+            urllib.request.urlopen(urllib.request.Request(
+                f"http://127.0.0.1:{port}/api/procedures",
+                headers={"X-Mtplan-Token": token}), timeout=5)
+            break
+        except OSError:
+            time.sleep(0.3)
+    return server, link
+
+
+#: (file suffix, viewport width, media): the wide screen, the phone, the A4 print view
+VIEWS = [("", 1440, "screen"), ("_390", 390, "screen"), ("_print", 794, "print")]
+
+
+def main(argv=None) -> int:
+    only = (argv if argv is not None else sys.argv[1:]) or list(DESIGNS)
+    server, link = _start()
     try:
-        for _ in range(200):
-            try:
-                urllib.request.urlopen(f"http://127.0.0.1:{port}/api/procedures", timeout=5)
-                break
-            except OSError:
-                time.sleep(0.3)
         with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=shutil.which("chromium"),
+            browser = p.chromium.launch(executable_path=CHROMIUM,
                                         args=["--no-sandbox"])
-            for name, design in DESIGNS.items():
-                page = browser.new_page(viewport={"width": 1500, "height": 1000})
-                page.set_default_timeout(300_000)
-                link = base64.urlsafe_b64encode(json.dumps(
-                    {"procedure": name, **design}).encode()).decode().rstrip("=")
-                page.goto(f"http://127.0.0.1:{port}/?d={link}")
-                page.wait_for_function("window.mtplan && window.mtplan.rendered > 0 && "
-                                       "!window.mtplan.inflight")
-                page.wait_for_selector("#sens-plot[data-field]")
-                time.sleep(1.0)
-                page.screenshot(path=str(HERE / f"{name}.png"), full_page=True)
-                page.close()
-                print("wrote", HERE / f"{name}.png")
+            for name in only:
+                design = DESIGNS[name]
+                for suffix, width, media in VIEWS:
+                    if media == "print" and name != "rotary_axis":
+                        continue  # one print view: the layout is the same for every one
+                    page = browser.new_page(viewport={"width": width, "height": 1000})
+                    page.set_default_timeout(300_000)
+                    d = base64.urlsafe_b64encode(json.dumps(
+                        {"procedure": name, **design}).encode()).decode().rstrip("=")
+                    page.goto(f"{link}&d={d}")
+                    page.wait_for_function("window.mtplan && window.mtplan.rendered > 0 && "
+                                           "!window.mtplan.inflight")
+                    page.wait_for_function("document.querySelector('#sens-plot').dataset.field"
+                                           " || /^no sensitivity/.test(document."
+                                           "querySelector('#sens-msg').textContent)")
+                    page.wait_for_function("document.body.dataset.checked || !document."
+                                           "querySelector('tr.unchecked')")
+                    time.sleep(1.0)
+                    page.emulate_media(media=media)
+                    time.sleep(0.5)
+                    out = HERE / f"{name}{suffix}.png"
+                    page.screenshot(path=str(out), full_page=True)
+                    page.close()
+                    print("wrote", out)
             browser.close()
     finally:
         server.terminate()

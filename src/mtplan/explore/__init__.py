@@ -29,7 +29,12 @@ def missing_extra() -> list[str]:
 
 def serve(initial: dict | None = None, *, port: int = 8050, open_browser: bool = True,
           log_level: str = "warning") -> None:
-    """Serve the designer on ``127.0.0.1:port`` until interrupted (loopback only)."""
+    """Serve the designer on ``127.0.0.1:port`` until interrupted (loopback only).
+
+    The link printed (and opened) holds this launch's secret token, as Jupyter's does;
+    the page keeps it as a cookie, and nothing but the static files answers without it.
+    """
+    import secrets
     import threading
     import webbrowser
 
@@ -37,11 +42,13 @@ def serve(initial: dict | None = None, *, port: int = 8050, open_browser: bool =
 
     from mtplan.explore.app import create_app
 
-    app = create_app(initial)
+    token = secrets.token_urlsafe(24)
+    app = create_app(initial, token=token)
     config = uvicorn.Config(app, host=HOST, port=port, log_level=log_level, lifespan="on",
-                            timeout_graceful_shutdown=2)
+                            timeout_graceful_shutdown=2, limit_concurrency=64,
+                            server_header=False)
     server = uvicorn.Server(config)
-    url = f"http://{HOST}:{port}/"
+    url = f"http://{HOST}:{port}/?token={token}"
     if open_browser:
         threading.Timer(1.0, webbrowser.open, args=(url,)).start()
     print(f"mtplan explore: serving on {url} (Ctrl+C to stop)", flush=True)

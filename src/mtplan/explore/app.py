@@ -2,32 +2,165 @@
 
 The server holds no design: every request carries the tab's whole design (it lives in
 the page and its URL), so two tabs never share state. Background jobs are kept by an
-unguessable id. Every request that fails answers with its message; none stops the
-server.
+unguessable id. Every request that fails answers with one line naming what it refused;
+none stops the server and no traceback reaches the client.
+
+It defends itself as Jupyter Server does (:class:`Guard`): the Host must be a loopback
+name with the server's port (DNS rebinding), a state-changing request must come from the
+page's own origin and be ``application/json`` (a cross-site form or ``text/plain`` POST
+needs no CORS preflight), every request but the static files carries the per-launch
+token (in the link the command prints, then a cookie), bodies are limited while they
+stream in, and the requests in flight and the running jobs are capped.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hmac
 import json
+import logging
 import math
+import secrets
 import time
-import traceback
 from pathlib import Path
+from urllib.parse import parse_qsl, urlencode, urlsplit
 
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
-from starlette.responses import FileResponse, JSONResponse, Response
+from starlette.datastructures import Headers
+from starlette.responses import FileResponse, JSONResponse, PlainTextResponse, Response
+from starlette.middleware import Middleware
 from starlette.routing import Route
 
 from mtplan._validate import InvalidInput
 from mtplan.explore import design as d
-from mtplan.explore.jobs import Jobs
+from mtplan.explore.jobs import Busy, Jobs, job_cost
 
-__all__ = ["create_app", "STATIC"]
+__all__ = ["create_app", "STATIC", "Guard", "LOOPBACK", "MAX_BODY", "MAX_IN_FLIGHT"]
 
 STATIC = Path(__file__).resolve().parent / "static"
+#: the host names a request to the designer may carry (with the server's port)
+LOOPBACK = ("127.0.0.1", "localhost", "[::1]")
+#: largest request body [bytes]: a design, a study file or a prior CSV's values
+MAX_BODY = 2_000_000
+#: API requests computed at once; more are refused at once (503) rather than queued
+MAX_IN_FLIGHT = 8
+#: sensitivity curves computed at once (each holds a thread for up to 9 predictions)
+MAX_CURVES = 2
+log = logging.getLogger("mtplan.explore")
+
+
+class TooLarge(Exception):
+    """A request body over :data:`MAX_BODY`."""
+
+
+def _plain(status: int, text: str, headers: dict | None = None) -> PlainTextResponse:
+    return PlainTextResponse(text + "\n", status_code=status, headers=headers)
+
+
+def _host_ok(host: str, port: int | None) -> bool:
+    """A loopback name with this server's port (``127.0.0.1:8050``, ``localhost:8050``)."""
+    name, _, p = host.rpartition(":") if not host.endswith("]") else (host, "", "")
+    return name.lower() in LOOPBACK and port is not None and p == str(port)
+
+
+def _origin_ok(origin: str, port: int | None) -> bool:
+    parts = urlsplit(origin)
+    return parts.scheme == "http" and _host_ok(parts.netloc, port)
+
+
+class Guard:
+    """ASGI middleware: the checks of a local server (Jupyter Server's, in order).
+
+    1. Host: a loopback name and this server's port, else 403 (a DNS-rebound name).
+    2. Origin, on every request that is not GET or HEAD: absent (not a browser) or this
+       server's own origin, else 403; the body must be ``application/json``, else 415.
+    3. Token: the per-launch secret, as the ``token`` query of the page's link (answered
+       with a cookie and a redirect to the link without it), the cookie, or the header
+       ``X-Mtplan-Token``; else 403. The static files need none.
+    4. ``Content-Length`` over the body limit: 413 (a body without one is counted as it
+       streams in, :func:`_body`).
+    5. More than `max_in_flight` API requests at once: 503 at once, not a queue.
+    """
+
+    def __init__(self, app, *, token: str, max_body: int = MAX_BODY,
+                 max_in_flight: int = MAX_IN_FLIGHT):
+        self.app, self.token, self.max_body = app, token, max_body
+        self.max_in_flight, self.in_flight = max_in_flight, 0
+
+    def _token_ok(self, value: str | None) -> bool:
+        return bool(value) and hmac.compare_digest(value.encode(), self.token.encode())
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        answer = self._check(scope)
+        if answer is not None:
+            return await answer(scope, receive, send)
+        if not scope["path"].startswith("/api/"):
+            return await self.app(scope, receive, send)
+        if self.in_flight >= self.max_in_flight:
+            return await _plain(503, f"The designer is busy: {self.in_flight} requests are "
+                                     "being computed. Try again in a moment.")(
+                scope, receive, send)
+        self.in_flight += 1
+        try:
+            await self.app(scope, receive, send)
+        finally:
+            self.in_flight -= 1
+
+    def _check(self, scope):
+        headers = Headers(scope=scope)
+        port = (scope.get("server") or (None, None))[1]
+        host = headers.get("host", "")
+        if not _host_ok(host, port):
+            return _plain(403, f"Host {host[:80]!r} refused: the designer answers only "
+                               f"127.0.0.1:{port} or localhost:{port}.")
+        state_changing = scope["method"] not in ("GET", "HEAD")
+        if state_changing:
+            origin = headers.get("origin")
+            if origin is not None and not _origin_ok(origin, port):
+                return _plain(403, f"Origin {origin[:80]!r} refused: requests that change "
+                                   "state come only from the designer's own page.")
+            kind = headers.get("content-type", "").split(";")[0].strip().lower()
+            if kind != "application/json":
+                return _plain(415, f"Content-Type {kind or 'none'!r} refused: the designer "
+                                   "accepts application/json only.")
+        path = scope["path"]
+        if not path.startswith("/static/"):
+            query = dict(parse_qsl(scope.get("query_string", b"").decode("latin-1")))
+            cookie = _cookies(headers).get(self.cookie_name(port))
+            if path == "/" and self._token_ok(query.get("token")):
+                rest = urlencode({k: v for k, v in query.items() if k != "token"})
+                return Response(status_code=303, headers={
+                    "Location": "/" + (f"?{rest}" if rest else ""),
+                    "Set-Cookie": f"{self.cookie_name(port)}={self.token}; Path=/; HttpOnly; "
+                                  "SameSite=Strict"})
+            if not (self._token_ok(cookie) or self._token_ok(headers.get("x-mtplan-token"))):
+                return _plain(403, "Token missing or wrong: open the link that `mtplan "
+                                   "explore` printed (it holds this launch's token).")
+        length = headers.get("content-length")
+        if length is not None:
+            if not length.isdigit():
+                return _plain(400, f"Content-Length {length[:20]!r} is not a number of bytes.")
+            if int(length) > self.max_body:
+                return _plain(413, f"The request body ({int(length)} bytes) is over the "
+                                   f"limit of {self.max_body} bytes.")
+        return None
+
+    @staticmethod
+    def cookie_name(port) -> str:
+        return f"mtplan_token_{port}"  # cookies are per host, not per port
+
+
+def _cookies(headers: Headers) -> dict:
+    out = {}
+    for part in headers.get("cookie", "").split(";"):
+        k, _, v = part.strip().partition("=")
+        if k:
+            out[k] = v
+    return out
 
 
 def _clean(x):
@@ -47,9 +180,16 @@ def _answer(payload, status=200) -> JSONResponse:
     return JSONResponse(_clean(payload), status_code=status)
 
 
-async def _body(request: Request) -> dict:
+async def _body(request: Request, limit: int = MAX_BODY) -> dict:
+    """The request's JSON object, read as it streams in and refused past `limit` bytes."""
+    chunks, size = [], 0
+    async for chunk in request.stream():
+        size += len(chunk)
+        if size > limit:
+            raise TooLarge(f"The request body is over the limit of {limit} bytes.")
+        chunks.append(chunk)
     try:
-        data = json.loads((await request.body()) or b"{}")
+        data = json.loads(b"".join(chunks) or b"{}")
     except ValueError:
         raise InvalidInput(["The request is not JSON."]) from None
     if not isinstance(data, dict):
@@ -66,80 +206,120 @@ def _plotly_js() -> Path | None:
     return path if path.exists() else None
 
 
-def create_app(initial: dict | None = None) -> Starlette:
-    """The application; `initial` is the design a page without one in its URL starts from."""
-    jobs = Jobs()
+def _guarded(fn):
+    """An endpoint whose every failure is one line: 413, 429, 400, 404, or 500 with the
+    details in the server's log (never a traceback to the client)."""
+    async def endpoint(request: Request):
+        try:
+            return await fn(request)
+        except TooLarge as exc:
+            return _answer({"error": str(exc)}, 413)
+        except Busy as exc:
+            return _answer({"error": str(exc)}, 429)
+        except InvalidInput as exc:
+            return _answer({"error": " ".join(exc.problems), "problems": exc.problems}, 400)
+        except KeyError as exc:
+            return _answer({"error": f"unknown {exc.args[0]!r}"}, 404)
+        except Exception as exc:  # one line on the page; the details in the server's log
+            log.exception("%s failed", request.url.path)
+            return _answer({"error": f"{request.url.path} failed ({type(exc).__name__}); "
+                                     "the server's log has the details."}, 500)
+    return endpoint
+
+
+async def _page(request):
+    return FileResponse(STATIC / "index.html", media_type="text/html")
+
+
+async def _static(request):
+    name = request.path_params["name"]
+    if name == "plotly.min.js":
+        path = _plotly_js()
+    else:
+        path = STATIC / name
+        if path.resolve().parent != STATIC or not path.is_file():
+            path = None
+    if path is None:
+        return Response("not found", status_code=404)
+    kind = "text/css" if name.endswith(".css") else "application/javascript"
+    return FileResponse(path, media_type=kind, headers={"Cache-Control": "max-age=3600"})
+
+
+class _Live:
+    """The live requests of the pages: the numbers first; a sensitivity curve and a spot
+    check give way to them (they wait while numbers are computed, and give up for a change
+    that a newer one from the same page has overtaken), and at most MAX_CURVES of each run."""
+
+    def __init__(self):
+        self.latest: dict = {}  # page id -> its latest change
+        self.evaluating = 0  # numbers' requests in flight
+        self.running = {"sensitivity": 0, "check": 0}
+
+    def seen(self, body) -> tuple:
+        tab, change = str(body.get("tab", ""))[:64], d.whole(body.get("change") or 0, "change")
+        if tab and change > self.latest.get(tab, -1):
+            self.latest[tab] = change
+            while len(self.latest) > 1000:
+                self.latest.pop(next(iter(self.latest)))
+        return tab, change
+
+    def overtaken(self, tab: str, change: int) -> bool:
+        """After the numbers in flight (up to 2 s): has a newer change come from the page?"""
+        for _ in range(400):
+            if not self.evaluating:
+                break
+            time.sleep(0.005)
+        return bool(tab) and self.latest.get(tab, -1) > change
+
+    async def evaluate(self, request):
+        body = await _body(request)
+        self.seen(body)
+        self.evaluating += 1
+        try:
+            return _answer(await run_in_threadpool(d.evaluate, body.get("design", body)))
+        finally:
+            self.evaluating -= 1
+
+    async def _behind(self, what: str, request, compute):
+        body = await _body(request)
+        tab, change = self.seen(body)
+        if self.running[what] >= MAX_CURVES:
+            raise Busy(f"{self.running[what]} other {what} requests are being computed; this "
+                       "one is skipped (the numbers are not).")
+        self.running[what] += 1
+        try:
+            return _answer(await run_in_threadpool(compute, body, tab, change))
+        finally:
+            self.running[what] -= 1
+
+    async def sensitivity(self, request):
+        return await self._behind("sensitivity", request, lambda body, tab, change: (
+            d.sensitivity(body.get("design") or {}, body.get("field"),
+                          stop=lambda: self.overtaken(tab, change))))
+
+    async def check(self, request):
+        return await self._behind("check", request, lambda body, tab, change: (
+            {"superseded": True} if self.overtaken(tab, change)
+            else d.check(body.get("design") or {})))
+
+
+def create_app(initial: dict | None = None, *, token: str | None = None,
+               max_jobs: int = 2, max_in_flight: int = MAX_IN_FLIGHT) -> Starlette:
+    """The application; `initial` is the design a page without one in its URL starts from,
+    `token` the launch's secret (a fresh one when None: ``app.state.token``)."""
+    jobs = Jobs(max_running=max_jobs)
     start = d.normalise(initial) if initial else None
-
-    def guarded(fn):
-        async def endpoint(request: Request):
-            try:
-                return await fn(request)
-            except InvalidInput as exc:
-                return _answer({"error": " ".join(exc.problems), "problems": exc.problems}, 400)
-            except KeyError as exc:
-                return _answer({"error": f"unknown {exc.args[0]!r}"}, 404)
-            except Exception as exc:  # shown on the page; the server answers the next one
-                traceback.print_exc()
-                return _answer({"error": f"{type(exc).__name__}: {exc}"}, 500)
-        return endpoint
-
-    async def page(request):
-        return FileResponse(STATIC / "index.html", media_type="text/html")
-
-    async def static(request):
-        name = request.path_params["name"]
-        if name == "plotly.min.js":
-            path = _plotly_js()
-        else:
-            path = STATIC / name
-            if path.resolve().parent != STATIC or not path.is_file():
-                path = None
-        if path is None:
-            return Response("not found", status_code=404)
-        kind = "text/css" if name.endswith(".css") else "application/javascript"
-        return FileResponse(path, media_type=kind, headers={"Cache-Control": "max-age=3600"})
+    token = token or secrets.token_urlsafe(24)
+    live = _Live()
 
     async def procedures(request):
         return _answer({"procedures": d.procedures_info(), "initial": start})
 
+    async def glossary(request):
+        return _answer({"terms": d.glossary()})
+
     async def procedure(request):
         return _answer(d.procedure_info(request.path_params["name"]))
-
-    latest: dict = {}  # page id -> its latest change (a sensitivity gives way to it)
-
-    def seen(body) -> tuple:
-        tab, change = str(body.get("tab", "")), int(body.get("change") or 0)
-        if tab and change > latest.get(tab, -1):
-            latest[tab] = change
-            while len(latest) > 1000:
-                latest.pop(next(iter(latest)))
-        return tab, change
-
-    evaluating = [0]  # numbers' requests in flight: a sensitivity gives them the CPU
-
-    async def evaluate(request):
-        body = await _body(request)
-        seen(body)
-        evaluating[0] += 1
-        try:
-            return _answer(await run_in_threadpool(d.evaluate, body.get("design", body)))
-        finally:
-            evaluating[0] -= 1
-
-    async def sensitivity(request):
-        body = await _body(request)
-        tab, change = seen(body)
-
-        def stop() -> bool:  # before each point: wait (up to 2 s) while numbers are computed
-            for _ in range(400):
-                if not evaluating[0]:
-                    break
-                time.sleep(0.005)
-            return bool(tab) and latest.get(tab, -1) > change
-
-        return _answer(await run_in_threadpool(
-            d.sensitivity, body.get("design") or {}, body.get("field"), stop=stop))
 
     async def export(request):
         return _answer({"toml": await run_in_threadpool(d.study_toml, await _body(request))})
@@ -149,11 +329,19 @@ def create_app(initial: dict | None = None) -> Starlette:
         return _answer({"design": await run_in_threadpool(
             d.design_from_study, str(body.get("toml", "")), body.get("procedure"))})
 
+    async def job_estimate(request):
+        body = await _body(request)
+        return _answer(await run_in_threadpool(
+            job_cost, str(body.get("kind", "confirm")), body.get("design") or {}))
+
     async def job_start(request):
         body = await _body(request)
-        design = d.normalise(body.get("design") or {})
-        d.setup_of(design)  # a refused set-up is said at once, not by the child
-        return _answer({"id": jobs.start(str(body.get("kind")), design)})
+        kind = str(body.get("kind"))
+        jobs.check_room(kind)  # before any work: a refusal costs nothing
+        cost = await run_in_threadpool(job_cost, kind, body.get("design") or {})
+        if not cost["fits"]:
+            raise InvalidInput([cost["refusal"]])
+        return _answer({"id": jobs.start(kind, cost["design"]), "estimate": cost})
 
     async def job_status(request):
         return _answer(jobs.status(request.path_params["id"]))
@@ -162,23 +350,29 @@ def create_app(initial: dict | None = None) -> Starlette:
         return _answer(jobs.cancel(request.path_params["id"]))
 
     routes = [
-        Route("/", page),
-        Route("/static/{name}", static),
-        Route("/api/procedures", guarded(procedures)),
-        Route("/api/procedure/{name}", guarded(procedure)),
-        Route("/api/evaluate", guarded(evaluate), methods=["POST"]),
-        Route("/api/sensitivity", guarded(sensitivity), methods=["POST"]),
-        Route("/api/export", guarded(export), methods=["POST"]),
-        Route("/api/load", guarded(load), methods=["POST"]),
-        Route("/api/jobs", guarded(job_start), methods=["POST"]),
-        Route("/api/jobs/{id}", guarded(job_status)),
-        Route("/api/jobs/{id}/cancel", guarded(job_cancel), methods=["POST"]),
+        Route("/", _page),
+        Route("/static/{name}", _static),
+        Route("/api/procedures", _guarded(procedures)),
+        Route("/api/procedure/{name}", _guarded(procedure)),
+        Route("/api/glossary", _guarded(glossary)),
+        Route("/api/evaluate", _guarded(live.evaluate), methods=["POST"]),
+        Route("/api/sensitivity", _guarded(live.sensitivity), methods=["POST"]),
+        Route("/api/check", _guarded(live.check), methods=["POST"]),
+        Route("/api/export", _guarded(export), methods=["POST"]),
+        Route("/api/load", _guarded(load), methods=["POST"]),
+        Route("/api/jobs", _guarded(job_start), methods=["POST"]),
+        Route("/api/jobs/estimate", _guarded(job_estimate), methods=["POST"]),
+        Route("/api/jobs/{id}", _guarded(job_status)),
+        Route("/api/jobs/{id}/cancel", _guarded(job_cancel), methods=["POST"]),
     ]
+
     @contextlib.asynccontextmanager
     async def lifespan(app):
         yield
         jobs.close()
 
-    app = Starlette(routes=routes, lifespan=lifespan)
+    app = Starlette(routes=routes, lifespan=lifespan, middleware=[
+        Middleware(Guard, token=token, max_in_flight=max_in_flight)])
     app.state.jobs = jobs
+    app.state.token = token
     return app

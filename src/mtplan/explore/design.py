@@ -27,9 +27,12 @@ range. :func:`study_toml` and :func:`design_from_study` write and read a study f
 from __future__ import annotations
 
 import functools
+import io
 import json
 import math
+import re
 import tomllib
+from pathlib import Path
 
 import numpy as np
 
@@ -40,7 +43,8 @@ from mtplan.models.protocol import UNIT_SUFFIXES, fields_info, make, parse_field
 
 __all__ = ["K", "procedures_info", "procedure_info", "normalise", "setup_of", "evaluate",
            "sensitivity", "study_toml", "design_from_study", "source_fields", "lever_values",
-           "plan_vary"]
+           "plan_vary", "whole", "check", "trust", "spot_check", "prediction_cost",
+           "guard_cost", "TooCostly"]
 
 #: coverage factor of the U the designer shows and its targets are stated in
 K = 2.0
@@ -99,12 +103,51 @@ def procedure_info(name: str) -> dict:
     }
 
 
+GLOSSARY = Path(__file__).resolve().parents[3] / "docs" / "glossary.md"
+
+
+@functools.lru_cache(maxsize=1)
+def glossary() -> list:
+    """The rows of the documentation's glossary (``docs/glossary.md``, where the sources
+    are at hand): ``{"names": [...], "meaning": text, "section": heading}``; [] without
+    it. The page explains its codes and terms (EX0C, O1, TUR, PFR) with them."""
+    try:
+        text = GLOSSARY.read_text(encoding="utf-8")
+    except OSError:
+        return []
+    out, section = [], ""
+    for line in text.splitlines():
+        if line.startswith("## "):
+            section = line[3:].strip()
+        cells = [c.strip() for c in line.strip().strip("|").split("|")] if \
+            line.startswith("|") else []
+        if len(cells) != 2 or set(cells[0]) <= set("-") or cells[1] == "meaning":
+            continue
+        names = [n.strip(" `") for n in re.split(r",|\.\.\.|=", cells[0]) if n.strip(" `")]
+        out.append({"names": names, "label": cells[0].replace("`", ""),
+                    "meaning": cells[1].replace("`", ""), "section": section})
+    return out
+
+
 def procedures_info() -> list:
     """Name and title of every registered procedure."""
     return [{"name": p.name, "title": p.title} for p in registry().values()]
 
 
 # --------------------------------------------------------------------------- state
+def whole(value, name: str, *, low: int = 0, high: int | None = None) -> int:
+    """An integer from a number or its text, scientific notation included ('1e6'), in
+    [low, high]; InvalidInput naming `name` otherwise."""
+    allowed = f"a whole number >= {low}" + (f" and <= {high}" if high is not None else "")
+    try:
+        x = float(str(value).strip()) if not isinstance(value, bool) else math.nan
+    except ValueError:
+        x = math.nan
+    if not math.isfinite(x) or x != int(x) or x < low or (high is not None and x > high):
+        raise InvalidInput([f"The '{name}' must be {allowed}. Got {str(value)[:40]!r} instead."])
+    return int(x)
+
+
 def normalise(design: dict | None) -> dict:
     """A design with every key present (defaults filled), unknown keys dropped."""
     d = dict(design or {})
@@ -116,7 +159,7 @@ def normalise(design: dict | None) -> dict:
         "procedure": proc.name,
         "setup": {str(k): ("" if v is None else str(v)) for k, v in (d.get("setup") or {}).items()},
         "off": [str(s) for s in d.get("off") or []],
-        "estimator": d.get("estimator") or proc.default_estimator,
+        "estimator": d.get("estimator") or proc.estimator(None)[0],  # the command line's
         "tolerances": {str(k): dict(v) for k, v in (d.get("tolerances") or {}).items()
                        if isinstance(v, dict)},
         "targets": {str(k): v for k, v in (d.get("targets") or {}).items()
@@ -184,6 +227,260 @@ def _setup_key(setup) -> str:
 def predict(proc, setup, estimator) -> dict:
     """Cached :func:`_predict` (a set-up seen before answers at once)."""
     return _predict_cached(proc.name, _setup_key(setup), estimator)
+
+
+# --------------------------------------------------------------------------- cost guard
+#: the most memory [bytes] and time [s] a live prediction may be estimated to take; a
+#: set-up beyond either is refused with the estimate, before anything is computed
+LIVE_MEMORY = 1.5e9
+LIVE_SECONDS = 2.0
+#: the longest a sensitivity curve may be estimated to take [s] (fewer points beyond)
+CURVE_SECONDS = 3.0
+
+
+class TooCostly(InvalidInput):
+    """A live computation refused from its estimated cost (carries the estimate)."""
+
+    def __init__(self, message: str, cost: dict):
+        super().__init__([message])
+        self.cost = cost
+
+
+@functools.lru_cache(maxsize=64)
+def _closed_form(name: str, estimator: str) -> tuple:
+    """(path, seconds per reading) of a procedure's estimator: which first-order path it
+    takes, asked once of its hooks at the default set-up (a closed form is a property of
+    the estimator, not of the size), and what the prediction and the identifiability took
+    there per reading (their cost grows with the readings).
+
+    Paths: 'own' (the procedure's own ``first_order_budget``), 'chain' (the generic chain
+    of :mod:`mtplan.models.first_order` as its budget: the readings' effects of every
+    input), 'sensitivities' (``first_order_sensitivities``, then the GUM product) or
+    'generic' (differentiation through forward model and estimator)."""
+    import time
+
+    proc = get(name)
+    setup = proc.Setup()
+    path = "generic"
+    with one_blas_thread():
+        t = time.perf_counter()
+        if proc.first_order_budget is not None and \
+                proc.first_order_budget(setup, estimator=estimator) is not None:
+            chain = getattr(proc.first_order_budget, "__module__", "") == \
+                "mtplan.models.first_order"
+            path = "chain" if chain else "own"
+        elif proc.first_order_sensitivities is not None and proc.first_order_sensitivities(
+                setup, proc.Truth(), estimator=estimator, sources=None) is not None:
+            path = "sensitivities"
+        if path != "generic":
+            identify(proc, setup)
+        seconds = time.perf_counter() - t
+    return path, seconds / max(_readings(name, _setup_key(setup)), 1)
+
+
+def prediction_cost(proc, setup, estimator: str) -> dict:
+    """Estimated memory [bytes] and time [s] of the live first-order prediction, from the
+    set-up alone (its sources' elements n, measurands m, one timed block of trials):
+
+    - 'own': the procedure's own closed-form budget, small;
+    - 'chain': the readings' effect of every input, r x n, 8 r n bytes (twice, in flight);
+    - 'sensitivities': the GUM product holds the inputs' n x n covariance, 8 n^2 bytes;
+    - 'generic': that too, and 2 n evaluations of forward model and estimator.
+    """
+    n = int(sum(src.size for src in proc.active_sources(setup).values()))
+    m = len(proc.measurands(setup))
+    r = _readings(proc.name, _setup_key(setup))
+    path, per_reading = _closed_form(proc.name, estimator)
+    seconds = per_reading * r
+    if path in ("own", "chain"):
+        return {"path": path, "inputs": n, "readings": r, "seconds": seconds,
+                "bytes": 16.0 * r * n if path == "chain" else 8.0 * (m + r) * m}
+    memory = 8.0 * n * n + 16.0 * (m + r) * n
+    if path == "generic" and 8.0 * n * n <= LIVE_MEMORY:  # not timed when refused anyway
+        seconds = 2.0 * n * trial_seconds(proc, setup, estimator)
+    return {"path": path, "inputs": n, "readings": r, "bytes": memory, "seconds": seconds}
+
+
+@functools.lru_cache(maxsize=256)
+def _readings(name: str, setup_key: str) -> int:
+    """Number of readings of a set-up (one noise-free measurement)."""
+    proc = get(name)
+    setup = make(proc.Setup, json.loads(setup_key), owner=proc.name)
+    out = proc.forward(setup, proc.Truth(), proc.zero_errors(setup, 1))
+    return int(sum(np.size(v) for v in out.values()))
+
+
+def guard_cost(proc, setup, estimator: str) -> dict:
+    """The cost of a live prediction, or TooCostly with a plain message."""
+    cost = prediction_cost(proc, setup, estimator)
+    what = (f"The first-order prediction of this {proc.name} set-up ({estimator} estimator, "
+            f"{cost['readings']} readings, {cost['inputs']} error inputs)")
+    if cost["bytes"] > LIVE_MEMORY:
+        raise TooCostly(f"{what} would need about {cost['bytes'] / 2**30:.3g} GiB of memory, "
+                        f"more than the {LIVE_MEMORY / 2**30:.3g} GiB a live answer may use: "
+                        "make the set-up smaller, or confirm it by Monte Carlo.", cost)
+    if cost["seconds"] > LIVE_SECONDS:
+        minutes = cost["seconds"] / 60
+        took = f"{minutes:.0f} min" if minutes >= 1.5 else f"{cost['seconds']:.0f} s"
+        raise TooCostly(f"{what} would take about {took} here, more than a live answer may: "
+                        "make the set-up smaller (fewer readings), or confirm it by Monte "
+                        "Carlo.", cost)
+    return cost
+
+
+# --------------------------------------------------------------------------- trust
+#: trials of the spot check that tests each first-order u against a small Monte Carlo
+SPOT_TRIALS = 200
+#: fewest trials a spot check may have to judge (fewer: the cells stay "not checked")
+SPOT_MIN_TRIALS = 40
+#: a cell shown as trusted is within this factor of the Monte Carlo ...
+TRUST_FACTOR = 1.5
+#: ... with this many standard errors of the spot check's u to spare: a first-order u is
+#: trusted where the check's u lies within TRUST_FACTOR / (1 + z / sqrt(2 (n - 1))) of it
+#: (1.33 with 200 trials, 1.19 with 40)
+TRUST_Z = 2.5
+#: the longest a spot check may take [s] and the most memory its block may hold [bytes]
+SPOT_BUDGET_S = 4.0
+SPOT_MEMORY = 256e6
+_SPOT_SEED = 20240605
+_spots: dict = {}  # (procedure, set-up key, estimator) -> spot check, newest last
+
+
+def trial_seconds(proc, setup, estimator: str) -> float:
+    """Seconds per Monte Carlo trial of a set-up (cached per set-up)."""
+    return _trial_seconds(proc.name, _setup_key(setup), estimator)
+
+
+@functools.lru_cache(maxsize=128)
+def _trial_seconds(name: str, setup_key: str, estimator: str) -> float:
+    """Timed on a block of two trials after one that warms the caches (that one alone
+    when it is already slow)."""
+    import time
+
+    from mtplan.evaluation.simulation import _procedure_block
+    from mtplan.uncertainty.streams import as_seed_sequence
+
+    proc = get(name)
+    setup = make(proc.Setup, json.loads(setup_key), owner=proc.name)
+    truth, active = proc.Truth(), tuple(proc.active_sources(setup))
+    root = as_seed_sequence(0)
+    t = time.perf_counter()
+    with one_blas_thread():
+        _procedure_block(proc, setup, truth, estimator, active, root, 0, 1)
+        one = time.perf_counter() - t  # with the one-off costs (caches, imports)
+        if one > 10.0:  # a trial of seconds: a second one would not tell more
+            return one
+        t = time.perf_counter()
+        _procedure_block(proc, setup, truth, estimator, active, root, 1, 2)
+    return (time.perf_counter() - t) / 2
+
+
+def spot_check(proc, setup, estimator: str) -> dict:
+    """A small Monte Carlo of the set-up (:data:`SPOT_TRIALS` trials, a fixed seed) that
+    the first-order u of every measurand is judged against; cached per set-up.
+
+    Returns ``{"trials": n, "u": {measurand: u}}`` [display unit], with ``trials`` 0 and
+    ``reason`` where the check would exceed its time or memory budget. A quantised
+    estimator's measurand that never left its step is given ``step / sqrt(12)`` as
+    ``mtplan simulate`` states it.
+    """
+    key = (proc.name, _setup_key(setup), estimator)
+    if key in _spots:
+        return _spots[key]
+    from mtplan.evaluation.simulation import _procedure_block
+    from mtplan.uncertainty.streams import as_seed_sequence
+
+    floats = sum(src.size for src in proc.active_sources(setup).values())
+    per = trial_seconds(proc, setup, estimator)
+    n = int(min(SPOT_TRIALS, SPOT_BUDGET_S / max(per, 1e-9), SPOT_MEMORY / (80.0 * floats + 1)))
+    if n < SPOT_MIN_TRIALS:
+        out = {"trials": 0, "reason": f"a check by {SPOT_MIN_TRIALS} Monte Carlo trials would "
+                                      f"take about {SPOT_MIN_TRIALS * per:.2g} s"}
+    else:
+        with one_blas_thread():
+            est = _procedure_block(proc, setup, proc.Truth(), estimator,
+                                   tuple(proc.active_sources(setup)),
+                                   as_seed_sequence(_SPOT_SEED), 0, n)
+        steps = proc.resolution(setup, estimator) if proc.resolution is not None else {}
+        u = {}
+        for m in proc.measurands(setup):
+            a = np.asarray(est[m.name], dtype=float)
+            spread = float(np.std(a, ddof=1)) if np.all(np.isfinite(a)) else math.inf
+            if spread == 0.0 and steps.get(m.name):
+                spread = steps[m.name] * m.scale / math.sqrt(12.0)
+            u[m.name] = spread
+        out = {"trials": n, "u": u, "steps": {m.name: steps[m.name] * m.scale
+                                             for m in proc.measurands(setup)
+                                             if steps.get(m.name)}}
+    _spots[key] = out
+    while len(_spots) > 512:
+        _spots.pop(next(iter(_spots)))
+    return out
+
+
+def resolution_steps(proc, setup, estimator: str) -> dict:
+    """Measurand -> the step [display unit] its estimator's values come in (a quantised
+    estimator, the procedure's ``resolution`` hook); {} for a continuous one."""
+    if proc.resolution is None:
+        return {}
+    steps = proc.resolution(setup, estimator) or {}
+    return {m.name: steps[m.name] * m.scale for m in proc.measurands(setup) if steps.get(m.name)}
+
+
+def known_spot(proc, setup, estimator: str) -> dict | None:
+    """The spot check of a set-up when it has been made, else None (never computes)."""
+    return _spots.get((proc.name, _setup_key(setup), estimator))
+
+
+def trust_ratio(trials: int) -> float:
+    """The factor within which a spot check of `trials` trials must find first order."""
+    return TRUST_FACTOR / (1 + TRUST_Z / math.sqrt(2 * (trials - 1)))
+
+
+def trust(pred_u: dict, spot: dict | None, steps: dict | None = None) -> dict:
+    """Measurand -> ``{"trust": "ok" | "no" | "unchecked", "why": text, "mc_u": u}``.
+
+    First order is not trusted where it gives u = 0 while the Monte Carlo does not (a
+    measurand the linearisation is blind to, or a quantised one), where the estimator's
+    values come in steps larger than u, or where the spot check's u differs from it by
+    more than :func:`trust_ratio`. Until the check is made the cells are "unchecked".
+    `steps` (measurand -> step [display unit], :func:`resolution_steps`) judge before it.
+    """
+    out = {}
+    for name, u in pred_u.items():
+        step = (steps or {}).get(name)
+        if step and step > u:
+            out[name] = {"trust": "no", "mc_u": None, "why": f"the estimator's values come in "
+                                                           f"steps of {step:.3g}, more than u"}
+            continue
+        if u <= 0 and not (spot and spot.get("trials")):
+            out[name] = {"trust": "no", "mc_u": None, "why": "u = 0 at first order: the "
+                         "linearisation does not see it; confirm by Monte Carlo"}
+            continue
+        if spot is None:
+            out[name] = {"trust": "unchecked", "why": "being checked against a small Monte "
+                                                      "Carlo", "mc_u": None}
+            continue
+        if not spot.get("trials"):
+            out[name] = {"trust": "unchecked", "mc_u": None,
+                         "why": f"not checked: {spot.get('reason')}; confirm by Monte Carlo"}
+            continue
+        mc = spot["u"].get(name)
+        step = spot.get("steps", {}).get(name)
+        n = spot["trials"]
+        why = None
+        if mc is None or not math.isfinite(mc):
+            why = f"the estimator fails in some of {n} Monte Carlo trials"
+        elif step and step > u:
+            why = f"the estimator's values come in steps of {step:.3g}, more than u"
+        elif u <= 0:
+            why = (None if mc == 0 else
+                   f"u = 0 at first order, {mc:.3g} by {n} Monte Carlo trials")
+        elif not 1 / trust_ratio(n) <= mc / u <= trust_ratio(n):
+            why = f"{n} Monte Carlo trials give u = {mc:.3g}, {mc / u:.2g} times first order"
+        out[name] = ({"trust": "ok", "why": f"agrees with {n} Monte Carlo trials", "mc_u": mc}
+                     if why is None else {"trust": "no", "why": why, "mc_u": mc})
+    return out
 
 
 @functools.lru_cache(maxsize=256)
@@ -258,17 +555,78 @@ def _acceptance(tol: dict, u: float) -> dict:
                          f"and {tol.get('upper')!r} instead."}
     if lower is None and upper is None:
         return {}
-    prior = (tol.get("prior") or "").strip() or None
     rule = (tol.get("rule") or "simple").strip()
     try:
+        prior, prior_text = tolerance_prior(tol)
         r = plan_acceptance(lower, upper, u, prior=prior, rule=rule)
     except InvalidInput as exc:
         return {"error": " ".join(exc.problems)}
     out = r.to_dict()
     out["guard_band"] = r.guard_band
     out["rule"] = rule
-    out["prior"] = prior
+    out["prior"] = prior_text
+    out["lower"], out["upper"], out["u"] = lower, upper, u
+    if prior is not None and lower is not None and upper is not None:
+        try:
+            out["curve"] = risk_curve(lower, upper, u, prior)
+        except InvalidInput:  # the figures stand; only the curve is left out
+            out["curve"] = None
     return out
+
+
+#: guard bands of the risk curve [multiples of U = K u]
+GUARDS = tuple(0.125 * i for i in range(13))
+
+
+def risk_curve(lower: float, upper: float, u: float, prior) -> dict:
+    """PFA and PFR against the guard band (0 to 1.5 U, in the tolerance's unit): the
+    acceptance figures of the rule ``guard:R`` (a guard band of R U) for each R of
+    :data:`GUARDS` that leaves an acceptance zone."""
+    from mtplan.plans.acceptance import plan_acceptance
+
+    g, pfa, pfr = [], [], []
+    for R in GUARDS:
+        if R * K * u >= (upper - lower) / 2:  # no acceptance zone left
+            break
+        r = plan_acceptance(lower, upper, u, prior=prior, rule=f"guard:{R}")
+        g.append(r.guard_band)
+        pfa.append(r.pfa)
+        pfr.append(r.pfr)
+    return {"guard_band": g, "pfa": pfa, "pfr": pfr}
+
+
+_PRIOR_TEXT = re.compile(r"\s*(normal|gamma)\s*:", flags=re.I)
+
+
+def tolerance_prior(tol: dict):
+    """(prior, its text) of a tolerance row: ``normal:MEAN,SD``, ``gamma:SHAPE,SCALE`` or
+    the content of a CSV file uploaded from the page (``prior_csv``, with ``prior_name``).
+
+    A browser field never names a file on the server: any other text is refused, so the
+    designer never reads a path it is sent.
+    """
+    from mtplan.plans.acceptance import _prior_from_csv, parse_prior
+
+    content = tol.get("prior_csv")
+    if isinstance(content, str) and content.strip():
+        name = str(tol.get("prior_name") or "prior.csv")[:80]
+        try:
+            return _prior_from_csv(io.StringIO(content)), f"{name} (uploaded)"
+        except InvalidInput as exc:
+            raise InvalidInput(_renamed(exc.problems, name)) from None
+    text = str(tol.get("prior") or "").strip()
+    if not text:
+        return None, None
+    if not _PRIOR_TEXT.match(text):
+        raise InvalidInput([f"The 'prior' (population) must be 'normal:MEAN,SD', "
+                            f"'gamma:SHAPE,SCALE' or a CSV file uploaded with its button; the "
+                            f"designer reads no file on the server. Got {text[:60]!r} instead."])
+    return parse_prior(text), text
+
+
+def _renamed(problems, name: str) -> list:
+    """The CSV reader's messages with the uploaded file's name for the in-memory one."""
+    return [re.sub(r"'<_io\.StringIO object at 0x[0-9a-f]+>'", repr(name), m) for m in problems]
 
 
 def evaluate(design: dict) -> dict:
@@ -298,17 +656,29 @@ def evaluate(design: dict) -> dict:
                 if f"'{f}'" in msg or f" {f} " in f" {msg} ":
                     out["field_errors"].setdefault(f, msg)
         return out
+    if not proc.measurands(setup):
+        out["problems"] = [f"This {proc.name} set-up gives no measurand to predict."]
+        return out
     try:
         est, _ = proc.estimator(design["estimator"])
+        guard_cost(proc, setup, est)
         pred = predict(proc, setup, est)
+    except TooCostly as exc:
+        out["problems"] = list(exc.problems)
+        out["refused"] = "cost"
+        out["measurand_names"] = _measurand_rows(proc, setup)
+        return out
     except InvalidInput as exc:
         out["problems"] = list(exc.problems)
         return out
+    trusted = trust(pred["u"], known_spot(proc, setup, est), resolution_steps(proc, setup, est))
+    inputs = source_inputs(proc, setup)
     ms = []
     for m in proc.measurands(setup):
         u = pred["u"][m.name]
         row = {"name": m.name, "unit": m.unit, "description": m.description, "u": u,
-               "U": K * u, "budget": pred["budget"][m.name]}
+               "U": K * u, "budget": pred["budget"][m.name], **trusted[m.name],
+               "budget_table": budget_table(pred["budget"][m.name], u, inputs)}
         if m.name in design["targets"]:
             try:
                 row["target"] = float(design["targets"][m.name])
@@ -317,14 +687,61 @@ def evaluate(design: dict) -> dict:
                                        f"{design['targets'][m.name]!r} instead.")
         tol = design["tolerances"].get(m.name)
         if tol:
-            row["acceptance"] = _acceptance(tol, u) if u > 0 else {
-                "error": f"u({m.name}) = 0: no acceptance figures without an uncertainty"}
+            if row["trust"] == "no":
+                row["acceptance"] = {"error": f"u({m.name}) is not reliable at first order "
+                                              f"({row['why']}): confirm by Monte Carlo"}
+            else:
+                row["acceptance"] = _acceptance(tol, u) if u > 0 else {
+                    "error": f"u({m.name}) = 0: no acceptance figures without an uncertainty"}
         ms.append(row)
     out.update(ok=True, measurands=ms, duration_s=float(proc.duration(setup)),
                method=pred["method"], estimator=est,
                identifiability=_identify_cached(proc.name, _geometry_key(proc, setup)),
                setup=_json_setup(setup))
     return out
+
+
+def source_inputs(proc, setup) -> dict:
+    """Source -> (its size, the unit of the field that states it): the input u of the
+    budget table (a source of many elements has this u for each)."""
+    out = {}
+    units = {f["name"]: f["unit"] for f in fields_info(proc.Setup)}
+    for source, field in source_fields(proc).items():
+        v = getattr(setup, field, None)
+        if isinstance(v, int | float) and not isinstance(v, bool):
+            out[source] = (float(v), units.get(field) or "")
+    return out
+
+
+def budget_table(budget: dict, u: float, inputs: dict) -> list:
+    """GUM Workbench's budget rows of one measurand, largest first: the source, its input
+    u and unit, the sensitivity coefficient c = contribution / input u (the source's
+    combined effect per unit of its size), the contribution (u of the measurand from that
+    source alone) and its share of u^2."""
+    rows = []
+    for source, contribution in budget.items():
+        x, unit = inputs.get(source, (None, ""))
+        rows.append({"source": source, "input_u": x, "input_unit": unit,
+                     "c": contribution / x if x else None, "contribution": contribution,
+                     "share": contribution**2 / u**2 if u > 0 else None})
+    return sorted(rows, key=lambda r: -r["contribution"])
+
+
+def _measurand_rows(proc, setup) -> list:
+    return [{"name": m.name, "unit": m.unit, "description": m.description}
+            for m in proc.measurands(setup)]
+
+
+def check(design: dict) -> dict:
+    """The spot check of a design's first-order numbers: ``{"trust": {measurand: ...}}``
+    (:func:`trust`), computed once per set-up (the page asks after the numbers)."""
+    design = normalise(design)
+    proc, setup = setup_of(design)
+    est, _ = proc.estimator(design["estimator"])
+    guard_cost(proc, setup, est)
+    pred = predict(proc, setup, est)
+    return {"trust": trust(pred["u"], spot_check(proc, setup, est),
+                           resolution_steps(proc, setup, est))}
 
 
 def _json_setup(setup) -> dict:
@@ -358,6 +775,10 @@ def lever_values(proc, setup, field: str, n: int = 9) -> list:
     return vals
 
 
+def _num(v):
+    return float(v) if isinstance(v, float) else v
+
+
 def sensitivity(design: dict, field: str | None = None, n: int = 9, *, stop=None) -> dict:
     """U (k = 2) of every measurand over a lever's range, the current value marked.
 
@@ -369,20 +790,34 @@ def sensitivity(design: dict, field: str | None = None, n: int = 9, *, stop=None
     proc, setup = setup_of(design)
     field = field or design["lever"]
     est, _ = proc.estimator(design["estimator"])
-    xs, curves = [], {}
-    for x in lever_values(proc, setup, field, n):
+    guard_cost(proc, setup, est)
+    spot = known_spot(proc, setup, est)
+    untrusted = sorted(k for k, v in trust(predict(proc, setup, est)["u"], spot,
+                                           resolution_steps(proc, setup, est)).items()
+                       if v["trust"] == "no")
+    now = _num(getattr(setup, field))
+    budget, points = CURVE_SECONDS, {}
+    # nearest the current value first: where the budget runs out, the far ends are left
+    for x in sorted(lever_values(proc, setup, field, n), key=lambda v: abs(v - now)):
         if stop is not None and stop():
             return {"field": field, "superseded": True}
         try:
             s = setup.replace(**{field: x})
+            cost = guard_cost(proc, s, est)
         except InvalidInput:
-            continue  # a value the procedure refuses with the other fields: no point
-        pred = predict(proc, s, est)
-        xs.append(x)
-        for name, u in pred["u"].items():
+            continue  # a value the procedure refuses, or beyond the live budget: no point
+        if not proc.measurands(s):
+            continue  # nothing to draw (and nothing for a first-order budget to give)
+        if cost["seconds"] > budget and x != now:
+            continue
+        budget -= cost["seconds"]
+        points[x] = predict(proc, s, est)["u"]
+    xs, curves = sorted(points), {}
+    for x in xs:
+        for name, u in points[x].items():
             curves.setdefault(name, []).append(K * u)
     info = next(f for f in fields_info(proc.Setup) if f["name"] == field)
-    return {"field": field, "unit": info["unit"], "x": xs, "U": curves,
+    return {"field": field, "unit": info["unit"], "x": xs, "U": curves, "untrusted": untrusted,
             "current": _json_value(getattr(setup, field)),
             "units": {m.name: m.unit for m in proc.measurands(setup)},
             "targets": {k: v for k, v in design["targets"].items()}}
@@ -456,7 +891,7 @@ def study_toml(design: dict, *, title: str | None = None) -> str:
                 entry[key] = float(tol[key])
         if "lower" not in entry and "upper" not in entry:
             continue
-        if (tol.get("prior") or "").strip():
+        if _PRIOR_TEXT.match(str(tol.get("prior") or "")):  # an uploaded CSV stays here
             entry["prior"] = tol["prior"].strip()
         entry["rule"] = (tol.get("rule") or "simple").strip()
         lines += ["", "  [[procedure.acceptance]]"]

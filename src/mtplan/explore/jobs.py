@@ -3,10 +3,15 @@
 Each job runs in its own process (``spawn``), so the page and the server stay
 responsive while it computes and a cancel ends it at once. The child reports
 progress (trials done) and its result through a pipe; the server polls it.
+
+A job is checked before any process is spawned (:func:`job_cost`): its kind, trials and
+seed, its set-up, and its time, estimated from one small block of trials timed here, must
+fit :data:`JOB_BUDGET_S`; at most ``max_running`` jobs run at once (:class:`Busy` beyond).
 """
 
 from __future__ import annotations
 
+import math
 import multiprocessing
 import secrets
 import threading
@@ -14,7 +19,81 @@ import time
 
 from mtplan._validate import InvalidInput
 
-__all__ = ["Jobs", "confirm", "cheapest"]
+__all__ = ["Jobs", "Busy", "confirm", "histogram", "cheapest", "job_cost", "JOB_BUDGET_S", "MAX_TRIALS"]
+
+#: the longest a job may be estimated to take [s]; more trials are refused before it starts
+JOB_BUDGET_S = 600.0
+#: the most trials a job may ask for, whatever its speed
+MAX_TRIALS = 10**7
+#: trials of the planner's confirmations (it caps the trials it is given at this)
+PLAN_TRIALS = 5000
+
+
+class Busy(Exception):
+    """Refused for now: as many jobs as allowed are running."""
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def job_cost(kind: str, design: dict, *, budget_s: float = JOB_BUDGET_S) -> dict:
+    """Check a job and estimate its time before it starts.
+
+    Returns
+    -------
+    dict with ``design`` (normalised, trials and seed as integers), ``seconds`` (the
+    estimate), ``per_trial_s``, ``max_trials`` (what fits the budget), ``fits`` and, when
+    it does not, ``refusal`` (one line naming trials). Raises InvalidInput for a bad kind,
+    trials, seed or set-up.
+    """
+    from mtplan.explore.design import normalise, plan_vary, setup_of, trial_seconds, whole
+
+    if kind not in _KINDS:
+        raise InvalidInput([f"The 'kind' of a job must be one of {', '.join(_KINDS)}. "
+                            f"Got {kind[:40]!r} instead."])
+    if not isinstance(design, dict):
+        raise InvalidInput(["The 'design' of a job must be a JSON object."])
+    design = normalise(design)
+    trials = whole(design["trials"], "trials", low=2, high=MAX_TRIALS)
+    seed = whole(design["seed"], "seed", low=0, high=2**63 - 1)
+    design = {**design, "trials": trials, "seed": seed}
+    proc, setup = setup_of(design)
+    est, _ = proc.estimator(design["estimator"])
+    per = trial_seconds(proc, setup, est)
+    runs, n = trials, trials
+    if kind == "cheapest":
+        vary = plan_vary(proc, design)
+        n = min(trials, PLAN_TRIALS)
+        runs = n * (1 + math.prod(len(v) for v in vary.values()) // 8) if vary else n
+    seconds = 1.0 + per * runs
+    max_trials = int(max(budget_s - 1.0, 0) / max(per * runs / n, 1e-9))
+    out = {"design": design, "seconds": seconds, "per_trial_s": per, "fits": seconds <= budget_s,
+           "max_trials": min(max_trials, MAX_TRIALS), "text": f"about {_duration(seconds)}"}
+    if not out["fits"]:
+        out["refusal"] = (f"trials: {trials} would take about {_duration(seconds)} here "
+                          f"({per * 1e3:.3g} ms a trial); a job may take "
+                          f"{_duration(budget_s)}, so at most {out['max_trials']} trials.")
+    return out
+
+
+def histogram(values, bins: int = 60) -> dict | None:
+    """Counts of the Monte Carlo values over `bins` equal bins [display unit] (None when
+    the values were not kept or are all equal)."""
+    import numpy as np
+
+    if values is None:
+        return None
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if v.size < 2 or np.ptp(v) == 0:
+        return None
+    counts, edges = np.histogram(v, bins=bins)
+    return {"counts": counts.tolist(), "edges": edges.tolist()}
 
 
 def confirm(design: dict, progress=None) -> dict:
@@ -33,6 +112,7 @@ def confirm(design: dict, progress=None) -> dict:
     for m in doc["measurands"]:
         m["U"] = None if m["u"] is None else K * m["u"]
         m["predicted_u"] = pred.get(m["name"])
+        m["histogram"] = histogram(r.mc.samples(m["name"]))
     doc["findings"] = r.findings()
     return doc
 
@@ -67,8 +147,15 @@ def _child(kind: str, design: dict, conn) -> None:  # pragma: no cover - in a ch
         conn.send(("done", _KINDS[kind](design, progress)))
     except InvalidInput as exc:
         conn.send(("error", " ".join(exc.problems)))
-    except Exception as exc:  # the page shows it; the server goes on
-        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    except MemoryError:
+        conn.send(("error", "the computation ran out of memory; use fewer trials or a "
+                            "smaller set-up"))
+    except Exception as exc:  # one line on the page; the server goes on
+        import traceback
+
+        traceback.print_exc()  # the server's log
+        conn.send(("error", f"the computation failed ({type(exc).__name__}); the server's "
+                            "log has the details"))
     finally:
         conn.close()
 
@@ -76,21 +163,44 @@ def _child(kind: str, design: dict, conn) -> None:  # pragma: no cover - in a ch
 class Jobs:
     """The running and finished jobs of a server, by unguessable id (a tab sees its own)."""
 
-    def __init__(self, keep: int = 64):
+    def __init__(self, keep: int = 64, max_running: int = 2):
         self._jobs: dict[str, dict] = {}
         self._lock = threading.Lock()
         self._ctx = multiprocessing.get_context("spawn")
         self._keep = keep
+        self.max_running = max_running
+
+    def running(self) -> int:
+        """Jobs still running (finished ones are collected first)."""
+        with self._lock:
+            for job in self._jobs.values():
+                self._drain(job)
+            return sum(j["state"] == "running" for j in self._jobs.values())
+
+    def check_room(self, kind: str) -> None:
+        """InvalidInput for an unknown kind, Busy when no more jobs may run now."""
+        if kind not in _KINDS:
+            raise InvalidInput([f"The 'kind' of a job must be one of {', '.join(_KINDS)}. "
+                                f"Got {kind[:40]!r} instead."])
+        if self.running() >= self.max_running:
+            raise Busy(f"{self.max_running} jobs are running, the most at once; cancel one or "
+                       "wait for it to finish.")
 
     def start(self, kind: str, design: dict) -> str:
-        if kind not in _KINDS:
-            raise InvalidInput([f"No job {kind!r}; the jobs are {', '.join(_KINDS)}."])
-        parent, child = self._ctx.Pipe(duplex=False)
-        proc = self._ctx.Process(target=_child, args=(kind, design, child), daemon=True)
-        proc.start()
-        child.close()
-        job_id = secrets.token_urlsafe(12)
-        with self._lock:
+        """Spawn a checked job (:func:`job_cost`); Busy when the cap is reached."""
+        with self._lock:  # the count and the new entry together: no two starts slip past
+            for job in self._jobs.values():
+                self._drain(job)
+            if sum(j["state"] == "running" for j in self._jobs.values()) >= self.max_running:
+                raise Busy(f"{self.max_running} jobs are running, the most at once; cancel "
+                           "one or wait for it to finish.")
+            if kind not in _KINDS:
+                raise InvalidInput([f"No job {kind!r}; the jobs are {', '.join(_KINDS)}."])
+            parent, child = self._ctx.Pipe(duplex=False)
+            proc = self._ctx.Process(target=_child, args=(kind, design, child), daemon=True)
+            proc.start()
+            child.close()
+            job_id = secrets.token_urlsafe(12)
             self._jobs[job_id] = {"kind": kind, "process": proc, "conn": parent,
                                   "state": "running", "done": 0, "total": None,
                                   "start": time.monotonic(), "result": None, "error": None}

@@ -5,7 +5,8 @@
 const $ = (id) => document.getElementById(id);
 const state = { tab: Math.random().toString(36).slice(2) + Date.now().toString(36), design: null, info: null, procedures: [], changes: 0, sent: 0, rendered: 0,
                 inflight: false, pending: false, t0: 0, latencies: [], job: null,
-                sensTimer: null, lastResult: null };
+                sensTimer: null, lastResult: null, history: [], snapshot: null,
+                scenarios: [], glossary: null };
 window.mtplan = state;  // for tests and the benchmark
 
 // ------------------------------------------------------------------ helpers
@@ -16,6 +17,14 @@ function fmt3(x) {
 function fmt4(x) {
   if (x === null || x === undefined || !isFinite(x)) return "-";
   return String(Number(Number(x).toPrecision(4)));
+}
+// a number as typed, scientific notation included ("1e6" is 1000000); the text itself when
+// it is not one, so that the server names the field it refuses
+function number(text, empty) {
+  const t = String(text).trim();
+  if (t === "") return empty;
+  const x = Number(t);
+  return Number.isFinite(x) ? x : t;
 }
 function pct(x) { return (x === null || x === undefined) ? "-" : fmt4(100 * x) + " %"; }
 function duration(s) {
@@ -37,7 +46,9 @@ async function api(path, body) {
   const opts = body === undefined ? {} : { method: "POST", body: JSON.stringify(body),
                                            headers: { "Content-Type": "application/json" } };
   const r = await fetch(path, opts);
-  const data = await r.json();
+  const text = await r.text();
+  let data;
+  try { data = JSON.parse(text); } catch (e) { data = { error: text.trim() || r.statusText }; }
   if (!r.ok) throw new Error(data.error || r.statusText);
   return data;
 }
@@ -79,7 +90,9 @@ function unitText(u) {
   return { um: "\u00b5m", urad: "\u00b5rad", um_per_m: "\u00b5m/m", urad_per_m: "\u00b5rad/m",
            um_per_s: "\u00b5m/s", urad_per_s: "\u00b5rad/s", mm_min: "mm/min", per_s: "1/s",
            um_per_h: "\u00b5m/h", ppm_per_h: "ppm/h", um_per_deg: "\u00b5m/\u00b0",
-           urad_per_deg: "\u00b5rad/\u00b0", c: "\u00b0C", deg: "\u00b0" }[u] ?? u;
+           urad_per_deg: "\u00b5rad/\u00b0", c: "\u00b0C", deg: "\u00b0", k_per_m: "K/m",
+           arcsec: "\u2033", mrad: "mrad", nm: "nm", mm: "mm", rad: "rad", ppm: "ppm", s: "s",
+           ms: "ms" }[u] ?? u;
 }
 function label(f) {
   let name = f.name;
@@ -118,6 +131,7 @@ function makeField(f) {
     if (numeric) {
       const step = f.kind === "int" ? 1 : (f.high - f.low) / 500;
       const slider = el("input", { id: "s-" + f.name, type: "range", min: f.low, max: f.high,
+                                   "aria-label": `${label(f)} slider${f.unit ? ` [${unitText(f.unit)}]` : ""}`,
                                    step, value: value === "" ? f.low : value });
       slider.addEventListener("input", () => { box.value = slider.value; setValue(f.name, slider.value, true); });
       box.addEventListener("change", () => { if (isFinite(+box.value)) slider.value = box.value; });
@@ -127,7 +141,8 @@ function makeField(f) {
   }
   input.append(box);
   if (f.source) {
-    const on = el("input", { id: "on-" + f.source, type: "checkbox", title: "switch the source on or off" });
+    const on = el("input", { id: "on-" + f.source, type: "checkbox", title: "switch the source on or off",
+                             "aria-label": `error source ${f.source} on` });
     on.checked = !state.design.off.includes(f.source);
     on.addEventListener("change", () => {
       const off = new Set(state.design.off);
@@ -155,6 +170,7 @@ function buildControls() {
     $(where).append(makeField(f));
     if (f.lever && f.kind !== "bool") {
       const box = el("input", { id: "v-" + f.name, type: "text", value: state.design.vary[f.name] || "",
+                                "aria-label": `${label(f)}: values for the planner to try`,
                                 placeholder: "values to try, e.g. 4,6,8" });
       box.addEventListener("change", () => {
         if (box.value.trim()) state.design.vary[f.name] = box.value; else delete state.design.vary[f.name];
@@ -171,17 +187,24 @@ function buildControls() {
   $("trials").value = state.design.trials ?? 10000;
   buildAcceptance();
 }
-function buildAcceptance() {
+const TOL_LABEL = { lower: "lower tolerance limit", upper: "upper tolerance limit",
+                    prior: "population of machines (normal:MEAN,SD or gamma:SHAPE,SCALE)" };
+function buildAcceptance(measurands) {
+  // one row per measurand of the current set-up (they change with the axis, the sub-machines)
+  measurands = measurands || state.info.measurands;
+  state.accNames = measurands.map((m) => m.name).join(",");
   const body = $("acceptance").querySelector("tbody");
   body.replaceChildren();
-  for (const m of state.info.measurands) {
+  for (const m of measurands) {
     const tol = state.design.tolerances[m.name] || {};
     const inp = (key, cls) => {
       const i = el("input", { id: `tol-${key}-${m.name}`, type: "text", class: cls || "",
+                              "aria-label": `${m.name}: ${TOL_LABEL[key]} [${unitText(m.unit)}]`,
                               value: tol[key] ?? (key === "rule" ? "iso14253" : "") });
       i.addEventListener("change", () => {
         const t = { ...(state.design.tolerances[m.name] || {}) };
         t[key] = i.value;
+        if (key === "prior") { delete t.prior_csv; delete t.prior_name; }
         if (!t.rule) t.rule = "iso14253";
         if ((t.lower ?? "") === "" && (t.upper ?? "") === "") delete state.design.tolerances[m.name];
         else state.design.tolerances[m.name] = t;
@@ -189,7 +212,7 @@ function buildAcceptance() {
       });
       return i;
     };
-    const rule = el("select", { id: `tol-rule-${m.name}` });
+    const rule = el("select", { id: `tol-rule-${m.name}`, "aria-label": `${m.name}: decision rule` });
     for (const r of ["simple", "iso14253", "dobbert", "guard:1", "target-pfa:0.02"])
       rule.append(el("option", { value: r, text: r }));
     rule.value = tol.rule || "iso14253";
@@ -198,17 +221,43 @@ function buildAcceptance() {
       state.design.tolerances[m.name] = t; changed();
     });
     const out = (k) => el("td", { id: `acc-${k}-${m.name}`, text: "-" });
+    // a population from measured values: the file's content is sent, never a path
+    const upload = el("input", { id: `tol-csv-${m.name}`, type: "file", accept: ".csv,text/csv",
+                                 "aria-label": `${m.name}: upload a CSV of measured values as the population` });
+    upload.addEventListener("change", async () => {
+      const f = upload.files[0];
+      if (!f) return;
+      const t = { ...(state.design.tolerances[m.name] || {}), prior_csv: await f.text(),
+                  prior_name: f.name, prior: "" };
+      if (!t.rule) t.rule = "iso14253";
+      state.design.tolerances[m.name] = t;
+      $(`tol-prior-${m.name}`).value = "";
+      $(`tol-prior-${m.name}`).placeholder = f.name;
+      changed();
+    });
+    const csv = el("label", { class: "button small", title: "population from a CSV file of measured values" }, "CSV", upload);
     body.append(el("tr", { id: "acc-" + m.name },
       el("td", { text: `${m.name} [${unitText(m.unit)}]`, title: m.description }),
       el("td", {}, inp("lower")), el("td", {}, inp("upper")),
-      el("td", {}, inp("prior", "prior")), el("td", {}, rule),
+      el("td", { class: "prior-cell" }, inp("prior", "prior"), csv), el("td", {}, rule),
       out("tur"), out("gb"), out("limits"), out("pfa"), out("pfr")));
   }
 }
 
 // ------------------------------------------------------------------ evaluation
+function markJobStale() {
+  const res = $("job-result");
+  if (res.childElementCount && !res.classList.contains("stale")) {  // computed for an earlier set-up
+    res.classList.add("stale");
+    res.prepend(el("div", { class: "stale-note", id: "job-stale", text: "Old: computed for an earlier set-up; run it again for this one." }));
+  }
+}
 function changed() {
   state.changes += 1;
+  markJobStale();
+  const now = JSON.stringify(state.design);
+  if (state.snapshot && state.snapshot !== now && !state.undoing) state.history.push(state.snapshot);
+  state.snapshot = now; state.undoing = false;
   state.t0 = performance.now();
   pushURL();
   refresh();
@@ -232,6 +281,29 @@ async function refresh() {
   if (asked === state.changes && t0) state.latencies.push(performance.now() - t0);
   document.body.dataset.rendered = String(asked);
   scheduleSensitivity();
+  if (result.ok && result.measurands.some((m) => m.trust === "unchecked" && !/^not checked/.test(m.why))) scheduleCheck();
+}
+function scheduleCheck() {
+  clearTimeout(state.checkTimer);
+  state.checkTimer = setTimeout(checkFirstOrder, 300);  // not while a lever is being moved
+}
+async function checkFirstOrder() {
+  // the small Monte Carlo that each first-order u is judged against; its marks replace
+  // "being checked" in the cells of the numbers it was asked for
+  const asked = state.changes, r = state.lastResult;
+  if (!r || !r.ok) return;
+  let c;
+  try { c = await api("/api/check", { design: state.design, tab: state.tab, change: asked }); }
+  catch (e) { return; }
+  if (c.superseded || asked !== state.changes || state.lastResult !== r) return;
+  for (const m of r.measurands) {
+    const t = c.trust[m.name];
+    if (!t) continue;
+    Object.assign(m, t);
+    if (t.trust === "no" && m.acceptance) m.acceptance = { error: `u(${m.name}) is not reliable at first order (${t.why}): confirm by Monte Carlo` };
+  }
+  render(r);
+  document.body.dataset.checked = String(asked);
 }
 function render(r) {
   state.lastResult = r;
@@ -244,12 +316,19 @@ function render(r) {
   const tbody = $("measurands").querySelector("tbody");
   if (!r.ok) {
     banner((r.problems || []).join(" ") || "Fix the marked fields: the set-up is not evaluated.");
-    $("status").textContent = "not evaluated: the set-up is refused (see the marked fields)";
+    $("status").textContent = r.refused === "cost"
+      ? "not evaluated: too costly for a live answer (see the message above)"
+      : "not evaluated: the set-up is refused (see the marked fields)";
     $("status").className = "status err";
     tbody.querySelectorAll("td.u, td.U").forEach((c) => { c.textContent = "-"; });
+    if (r.measurand_names && r.measurand_names.map((m) => m.name).join(",") !== state.accNames) buildAcceptance(r.measurand_names);
+    for (const id of ["sens-plot", "budget-plot"]) $(id).classList.add("stale");
+    $("verdict").textContent = "";
     return;
   }
   banner("");
+  $("budget-plot").classList.remove("stale");
+  if (r.measurands.map((m) => m.name).join(",") !== state.accNames) buildAcceptance(r.measurands);
   $("status").textContent = "up to date"; $("status").className = "status";
   $("duration").textContent = duration(r.duration_s);
   $("method").textContent = `${r.method}, estimator ${r.estimator}`;
@@ -263,14 +342,22 @@ function render(r) {
       if (target.value.trim()) state.design.targets[m.name] = target.value; else delete state.design.targets[m.name];
       changed();
     });
-    const cls = m.target === undefined ? "" : (m.U <= m.target ? "meet" : "miss");
-    tbody.append(el("tr", { id: "m-" + m.name, class: cls },
+    // a target is met only by a number that is trusted: never by one first order gets wrong
+    const trusted = m.trust === "ok";
+    const cls = [m.target === undefined ? "" : (!trusted ? "" : (m.U <= m.target ? "meet" : "miss")),
+                 m.trust === "no" ? "untrusted" : (m.trust === "unchecked" ? "unchecked" : "")].join(" ").trim();
+    const shown = (x) => (m.trust === "no" ? "first order not reliable" : fmt3(x));
+    const tip = m.trust === "ok" ? "" : m.why;
+    target.setAttribute("aria-label", `${m.name}: target U (k = 2) [${unitText(m.unit)}]`);
+    tbody.append(el("tr", { id: "m-" + m.name, class: cls, "data-trust": m.trust || "" },
       el("td", { text: m.name, title: m.description }), el("td", { text: unitText(m.unit) }),
-      el("td", { class: "u", text: fmt3(m.u) }), el("td", { class: "U", text: fmt3(m.U) }),
+      el("td", { class: "u", text: shown(m.u), title: tip }), el("td", { class: "U", text: shown(m.U), title: tip }),
       el("td", {}, target, m.target_error ? el("span", { class: "err", text: " " + m.target_error }) : null),
-      el("td", { class: "sources", text: shares || (m.u > 0 ? "" : "u = 0 at first order") })));
+      el("td", { class: "sources", text: m.trust === "no" ? m.why : (shares || (m.u > 0 ? "" : "u = 0 at first order")) })));
     const a = m.acceptance;
     const set = (k, t) => { const c = $(`acc-${k}-${m.name}`); if (c) c.textContent = t; };
+    const tur = $(`acc-tur-${m.name}`);
+    if (tur) tur.classList.toggle("errcell", !!(a && a.error));  // wraps: never clipped
     if (a && a.error) { set("tur", a.error); ["gb", "limits", "pfa", "pfr"].forEach((k) => set(k, "")); }
     else if (a && a.acceptance_limits) {
       set("tur", fmt4(a.tur)); set("gb", fmt4(a.guard_band));
@@ -280,12 +367,16 @@ function render(r) {
   }
   renderIdent(r.identifiability);
   renderBudget(r);
+  renderBudgetTable(r);
+  renderRisk(r);
+  verdict(r);
+  renderHelp(r);
 }
 function renderIdent(id) {
   const box = $("ident");
   const und = id.undetermined.length
     ? el("span", { class: "warn", id: "undetermined", text: "not determined: " + id.undetermined.join(", ") })
-    : el("span", { id: "undetermined", text: "every measurand is determined" });
+    : el("span", { id: "undetermined", text: "every measurand is determined by the readings" });
   box.replaceChildren(
     el("span", { id: "rank", text: `rank ${id.rank} of ${id.n_params} (${id.parameters})` }),
     el("span", { id: "condition", text: "condition number " + (id.condition === null ? "\u221e" : fmt3(id.condition)) }),
@@ -313,7 +404,7 @@ function renderBudget(r) {
     xaxis: { title: { text: "share of u\u00b2 [%]" }, range: [0, 100], side: "top" },
     yaxis: { autorange: "reversed" },
     legend: { orientation: "h", y: -8 / (h - 58 - 22 * legendRows), yanchor: "top", font: { size: 11 } },
-  }, { displayModeBar: false, responsive: true });
+  }, PLOT_CONFIG("budget"));
 }
 function logAxis(values) {
   // a logarithmic axis where U spans more than a factor 20 over the lever's range
@@ -328,14 +419,27 @@ function scheduleSensitivity() {
 async function sensitivity() {
   const field = state.design.lever;
   if (!field || !state.lastResult || !state.lastResult.ok) return;
-  $("lever-name").textContent = field;
+  const lf = state.info.fields.find((f) => f.name === field);
+  $("lever-name").textContent = lf ? label(lf) : field;
   const asked = state.changes;
   let s;
   try { s = await api("/api/sensitivity", { design: state.design, field, tab: state.tab, change: asked }); }
-  catch (e) { $("sens-plot").textContent = "no sensitivity: " + e.message; return; }
+  catch (e) {  // said beside the plot: Plotly's own DOM stays, so the next curve draws
+    $("sens-msg").textContent = "no sensitivity curve: " + e.message;
+    $("sens-plot").classList.add("stale");
+    return;
+  }
   if (s.superseded || asked !== state.changes || !window.Plotly) return;
+  $("sens-msg").textContent = "";
+  $("sens-plot").classList.remove("stale");
   const withTarget = Object.keys(s.targets).filter((n) => n in s.U);
-  const shown = withTarget.length ? withTarget : Object.keys(s.U).slice(0, 8);
+  let shown = withTarget.length ? withTarget : Object.keys(s.U);
+  const unit = s.units[shown[0]];  // one unit on the axis: never um and urad together
+  const other = shown.filter((n) => s.units[n] !== unit);
+  shown = shown.filter((n) => s.units[n] === unit && !(s.untrusted || []).includes(n)).slice(0, 8);
+  $("sens-msg").textContent = [other.length ? `not drawn (other unit): ${other.join(", ")}` : "",
+    (s.untrusted || []).length ? `not drawn (first order not reliable): ${s.untrusted.join(", ")}` : ""].filter(Boolean).join("; ");
+  const lever = state.info.fields.find((f) => f.name === s.field);
   const colours = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf"];
   const traces = [], shapes = [];
   shown.forEach((n, i) => {
@@ -349,24 +453,217 @@ async function sensitivity() {
                                         x1: s.current, line: { color: "#444", width: 1.5, dash: "dot" } });
   Plotly.react("sens-plot", traces, {
     margin: { l: 60, r: 10, t: 10, b: 45 }, height: 300, shapes,
-    xaxis: { title: { text: `${s.field} [${unitText(s.unit) || "1"}] (dotted: current value)` } },
-    yaxis: { title: { text: "U (k = 2)" }, ...logAxis(shown.flatMap((n) => s.U[n])) },
+    xaxis: { title: { text: `${lever ? label(lever) : s.field}${s.unit ? ` [${unitText(s.unit)}]` : ""} (dotted: current value)` } },
+    yaxis: { title: { text: `U (k = 2) [${unitText(unit)}]` }, ...logAxis(shown.flatMap((n) => s.U[n])) },
     legend: { font: { size: 11 } },
-  }, { displayModeBar: false, responsive: true });
+  }, PLOT_CONFIG("sensitivity"));
   $("sens-plot").dataset.field = s.field;
 }
 
+
+// ------------------------------------------------------------------ views
+const PLOT_CONFIG = (name) => ({ displaylogo: false, responsive: true, modeBarButtons: [["toImage"]],
+                                 toImageButtonOptions: { filename: `${state.design.procedure}_${name}`, scale: 2 } });
+function words(p) {
+  // a probability as an engineer says it
+  if (p === null || p === undefined || !isFinite(p)) return "";
+  if (p < 0.001) return "almost none";
+  if (p > 0.85) return "nearly all";
+  if (p > 0.6) return "most";
+  if (p >= 0.4) return "about half";
+  if (p >= 0.3) return "about a third";
+  if (p >= 0.2) return "about a quarter";
+  return `about 1 in ${Math.round(1 / p)}`;
+}
+function verdict(r) {
+  // one line: what the design can decide
+  const parts = [];
+  const bad = r.measurands.filter((m) => m.trust === "no").map((m) => m.name);
+  if (bad.length) parts.push(`first order cannot be trusted for ${bad.join(", ")}: confirm by Monte Carlo`);
+  for (const m of r.measurands) {
+    const a = m.acceptance;
+    if (!a || a.error || a.pfr === null || a.pfr === undefined) continue;
+    parts.push(`${m.name}: PFR ${pct(a.pfr)} at TUR ${fmt3(a.tur)}, so ${words(a.pfr)} of the machines would be rejected although in tolerance` +
+               (a.pfa > 0.001 ? `, and ${words(a.pfa)} accepted although out of it` : ""));
+  }
+  const targeted = r.measurands.filter((m) => m.target !== undefined && m.trust === "ok");
+  if (targeted.length && !parts.length) {
+    const miss = targeted.filter((m) => m.U > m.target);
+    parts.push(miss.length ? `${miss.map((m) => m.name).join(", ")} miss${miss.length === 1 ? "es" : ""} the target U` : "every target U is met");
+  }
+  $("verdict").textContent = parts.length ? "Verdict: " + parts.join("; ") + "." : "";
+}
+function fillSelect(id, names, keep) {
+  const sel = $(id), was = sel.value;
+  if ([...sel.options].map((o) => o.value).join(",") !== names.join(","))
+    sel.replaceChildren(...names.map((n) => el("option", { value: n, text: n })));
+  if (names.includes(keep)) sel.value = keep; else if (names.includes(was)) sel.value = was;
+}
+function renderBudgetTable(r) {
+  fillSelect("budget-of", r.measurands.map((m) => m.name), state.budgetOf);
+  const m = r.measurands.find((x) => x.name === $("budget-of").value) || r.measurands[0];
+  const body = $("budget-table").querySelector("tbody");
+  body.replaceChildren(...(m.budget_table || []).map((b) => el("tr", {},
+    el("td", { text: b.source }),
+    el("td", { text: b.input_u === null ? "-" : `${fmt3(b.input_u)} ${unitText(b.input_unit)}` }),
+    el("td", { text: b.c === null ? "-" : `${fmt3(b.c)} ${unitText(m.unit)}/${unitText(b.input_unit)}` }),
+    el("td", { text: `${fmt3(b.contribution)} ${unitText(m.unit)}` }),
+    el("td", { text: b.share === null ? "-" : (b.share < 1e-4 ? "< 0.01 %" : pct(b.share)) }))));
+  $("budget-table").classList.toggle("stale", m.trust === "no");
+}
+function renderRisk(r) {
+  const names = r.measurands.filter((m) => m.acceptance && !m.acceptance.error && m.acceptance.acceptance_limits).map((m) => m.name);
+  fillSelect("risk-of", names, state.riskOf);
+  const m = r.measurands.find((x) => x.name === $("risk-of").value);
+  if (!m || !window.Plotly) {
+    $("risk-msg").hidden = false;
+    for (const id of ["risk-plot", "zone-plot"]) $(id).classList.add("stale");
+    return;
+  }
+  const a = m.acceptance, unit = unitText(m.unit);
+  for (const id of ["risk-plot", "zone-plot"]) $(id).classList.remove("stale");
+  $("risk-msg").hidden = !!a.curve;
+  if (a.curve) {
+    Plotly.react("risk-plot", [
+      { x: a.curve.guard_band, y: a.curve.pfa.map((p) => 100 * p), name: "PFA", mode: "lines", line: { color: "#d62728" } },
+      { x: a.curve.guard_band, y: a.curve.pfr.map((p) => 100 * p), name: "PFR", mode: "lines", line: { color: "#1f77b4" } },
+      { x: [a.guard_band, a.guard_band], y: [100 * a.pfa, 100 * a.pfr], name: "this design", mode: "markers",
+        marker: { size: 10, color: "#222", symbol: "diamond" } },
+    ], { margin: { l: 55, r: 10, t: 10, b: 45 }, height: 280, legend: { font: { size: 11 } },
+         xaxis: { title: { text: `guard band w [${unit}]` }, rangemode: "tozero" },
+         yaxis: { title: { text: "probability [%]" }, rangemode: "tozero" } }, PLOT_CONFIG("risk"));
+  } else Plotly.purge("risk-plot");
+  // the zones on the measurand's axis: tolerance, acceptance, and U around a value at a limit
+  const lo = a.lower, hi = a.upper, [al, au] = a.acceptance_limits, U = 2 * a.u;
+  const span = (hi - lo) || 1, x0 = lo - 0.25 * span, x1 = hi + 0.25 * span;
+  const band = (xa, xb, y0, y1, color, text) => ({ type: "rect", x0: xa, x1: xb, y0, y1, fillcolor: color, line: { width: 0 }, layer: "below", name: text });
+  Plotly.react("zone-plot", [
+    { x: [(lo + hi) / 2], y: [2.5], mode: "text", text: ["tolerance zone"], showlegend: false, hoverinfo: "skip" },
+    { x: [(al + au) / 2], y: [1.5], mode: "text", text: ["accept"], showlegend: false, hoverinfo: "skip" },
+    { x: [al, au], y: [0.5, 0.5], mode: "markers", marker: { size: 1, color: "#fff" }, showlegend: false, hoverinfo: "skip" },
+  ], { margin: { l: 70, r: 10, t: 10, b: 45 }, height: 280, showlegend: false,
+       shapes: [band(lo, hi, 2, 3, "#cfe8d4", "tolerance"), band(al, au, 1, 2, "#9fd3a9", "acceptance"),
+                band(x0, al, 1, 2, "#f4c7c3", "reject"), band(au, x1, 1, 2, "#f4c7c3", "reject"),
+                band(hi - U, hi + U, 0.1, 0.9, "#c9d7ea", "U at the upper limit"), band(lo - U, lo + U, 0.1, 0.9, "#c9d7ea", "U at the lower limit")],
+       xaxis: { title: { text: `${m.name} [${unit}]` }, range: [x0, x1] },
+       yaxis: { range: [0, 3.2], tickvals: [0.5, 1.5, 2.5], ticktext: ["\u00b1U at limits", "decision", "specification"], fixedrange: true } },
+    PLOT_CONFIG("zones"));
+}
+function renderHistogram(r) {
+  // the Monte Carlo values of one measurand with its tolerance and acceptance limits
+  const ms = r.measurands.filter((m) => m.histogram);
+  if (!ms.length || !window.Plotly) return;
+  const box = el("div", { id: "mc-hist", class: "plot" });
+  const sel = el("select", { id: "mc-hist-of", "aria-label": "Measurand of the Monte Carlo histogram" },
+                 ...ms.map((m) => el("option", { value: m.name, text: m.name })));
+  $("job-result").append(el("h3", {}, "Monte Carlo values of ", sel), box);
+  const draw = () => {
+    const m = ms.find((x) => x.name === sel.value), h = m.histogram, unit = unitText(m.unit);
+    const mids = h.edges.slice(0, -1).map((e, i) => (e + h.edges[i + 1]) / 2);
+    const tol = state.design.tolerances[m.name] || {};
+    const acc = ((state.lastResult && state.lastResult.measurands) || []).find((x) => x.name === m.name);
+    const lim = acc && acc.acceptance && acc.acceptance.acceptance_limits;
+    const shapes = [], line = (x, color, dash) => shapes.push({ type: "line", x0: x, x1: x, yref: "paper", y0: 0, y1: 1, line: { color, dash, width: 2 } });
+    for (const k of ["lower", "upper"]) if (tol[k] !== undefined && tol[k] !== "") line(+tol[k], "#b3261e", "solid");
+    if (lim) { line(lim[0], "#1e7b34", "dash"); line(lim[1], "#1e7b34", "dash"); }
+    Plotly.react(box, [{ type: "bar", x: mids, y: h.counts, marker: { color: "#6d8fb3" }, name: "trials" }],
+      { margin: { l: 55, r: 10, t: 10, b: 45 }, height: 260, bargap: 0, shapes,
+        xaxis: { title: { text: `${m.name} [${unit}] (red: tolerance limits, green dashed: acceptance limits)` } },
+        yaxis: { title: { text: "trials" } } }, PLOT_CONFIG("montecarlo_" + m.name));
+  };
+  sel.addEventListener("change", draw);
+  draw();
+}
+function tableCSV(id) {
+  // a table as shown, inputs by their values
+  const rows = [...$(id).querySelectorAll("tr")].map((tr) => [...tr.children].map((c) => {
+    const i = c.querySelector("input:not([type=file]), select");
+    const t = i ? i.value : c.textContent;
+    return /[",\n]/.test(t) ? `"${t.replace(/"/g, '""')}"` : t;
+  }).join(","));
+  const a = el("a", { href: URL.createObjectURL(new Blob([rows.join("\n") + "\n"], { type: "text/csv" })),
+                      download: `${state.design.procedure}_${id}.csv` });
+  document.body.append(a); a.click(); a.remove();
+}
+function keepScenario() {
+  const r = state.lastResult;
+  if (!r || !r.ok) { banner("Only an evaluated design can be kept as a scenario."); return; }
+  state.scenarios.push({ label: `${state.scenarios.length + 1}: ${state.design.procedure}, ${state.design.estimator}`,
+                         design: JSON.parse(JSON.stringify(state.design)), result: r });
+  renderScenarios();
+}
+function renderScenarios() {
+  const body = $("scenarios").querySelector("tbody");
+  $("scenarios-msg").hidden = state.scenarios.length > 0;
+  if (!state.scenarios.length) { body.replaceChildren(); return; }
+  const names = [...new Set(state.scenarios.flatMap((c) => c.result.measurands.map((m) => `${m.name} [${unitText(m.unit)}]`)))];
+  const cell = (c, n) => {
+    const m = c.result.measurands.find((x) => `${x.name} [${unitText(x.unit)}]` === n);
+    return el("td", { text: !m ? "" : (m.trust === "no" ? "not reliable" : fmt3(m.U)) });
+  };
+  const head = el("tr", {}, el("th", { text: "U (k = 2)" }), ...state.scenarios.map((c, i) => {
+    const open = el("button", { text: "open", title: "make this scenario the page's design" });
+    open.addEventListener("click", () => openDesign(JSON.parse(JSON.stringify(c.design))));
+    const drop = el("button", { text: "\u00d7", title: "remove this scenario", "aria-label": `remove scenario ${i + 1}` });
+    drop.addEventListener("click", () => { state.scenarios.splice(i, 1); renderScenarios(); });
+    return el("th", {}, c.label, " ", open, drop);
+  }));
+  const changes = el("tr", {}, el("td", { text: "set-up changes" }), ...state.scenarios.map((c) =>
+    el("td", { class: "sources", text: Object.entries(c.design.setup).map(([k, v]) => `${k} = ${v}`).join(", ") || "defaults" })));
+  const dur = el("tr", {}, el("td", { text: "duration" }), ...state.scenarios.map((c) => el("td", { text: duration(c.result.duration_s) })));
+  body.replaceChildren(head, changes, dur, ...names.map((n) => el("tr", {}, el("td", { text: n }), ...state.scenarios.map((c) => cell(c, n)))));
+}
+function undo() {
+  const prev = state.history.pop();
+  if (!prev) { banner("Nothing to undo."); return; }
+  state.undoing = true;
+  const design = JSON.parse(prev);
+  if (design.procedure !== state.design.procedure || !state.info) openDesign(design);
+  else { state.design = design; buildControls(); changed(); }
+}
+function renderHelp(r) {
+  // every code and term on the page, with the glossary's words
+  if (!state.glossary) return;
+  const terms = ["u", "U", "TUR", "PFA", "PFR", "A_L", "prior", "O1", "rank", "c_i", "share", "target",
+                 ...r.measurands.map((m) => m.name)];
+  const find = (t) => state.glossary.find((g) => g.names.includes(t) ||
+    g.names.some((n) => /_k$/.test(n) && new RegExp("^" + n.replace(/_k$/, "_\\d+") + "$").test(t)) ||
+    (/_\d+$/.test(t) && g.label.includes(t.replace(/_\d+$/, "_k"))));
+  const seen = new Set(), items = [];
+  for (const t of terms) {
+    const g = find(t);
+    if (!g || seen.has(g.label)) continue;
+    seen.add(g.label);
+    items.push(el("dt", { text: g.label }), el("dd", { text: `${g.meaning} (${g.section})` }));
+  }
+  for (const m of r.measurands) {
+    const g = find(m.name), cell = $("m-" + m.name);
+    if (cell) cell.firstChild.title = (g ? `${g.label}: ${g.meaning}. ` : "") + (m.description || "");
+  }
+  $("help-list").replaceChildren(...items);
+}
+
 // ------------------------------------------------------------------ jobs
+async function jobEstimate() {
+  // the time a Monte Carlo of these trials would take, said before it starts
+  try {
+    const e = await api("/api/jobs/estimate", { kind: "confirm", design: state.design });
+    $("job-estimate").textContent = e.fits ? `${e.design.trials} trials: ${e.text}` : e.refusal;
+    $("job-estimate").className = e.fits ? "label" : "err";
+  } catch (e) { $("job-estimate").textContent = e.message; $("job-estimate").className = "err"; }
+}
 async function startJob(kind) {
   if (state.job) await cancelJob();
   let id;
+  $("job-area").scrollIntoView({ block: "nearest" });
   try { id = (await api("/api/jobs", { kind, design: state.design })).id; }
-  catch (e) { $("job-result").replaceChildren(el("span", { class: "err", text: e.message })); return; }
-  state.job = { id, kind };
+  catch (e) { $("job-result").replaceChildren(el("span", { class: "err", id: "job-error", text: e.message })); return; }
+  state.job = { id, kind, changes: state.changes };
   $("job").hidden = false;
   $("job-label").textContent = kind === "confirm" ? "Monte Carlo running" : "Planner searching";
   $("job-progress").removeAttribute("value");
   $("job-result").replaceChildren();
+  $("job-result").classList.remove("stale");
   pollJob(id);
 }
 async function pollJob(id) {
@@ -380,12 +677,16 @@ async function pollJob(id) {
     setTimeout(() => pollJob(id), 300);
     return;
   }
+  const changedSince = state.job.changes !== state.changes;
   state.job = null;
   $("job").hidden = true;
+  $("job-result").classList.remove("stale");
   if (s.state === "error") $("job-result").replaceChildren(el("span", { class: "err", id: "job-error", text: s.error }));
   else if (s.state === "cancelled") $("job-result").replaceChildren(el("span", { id: "job-cancelled", text: "cancelled" }));
   else if (s.kind === "confirm") showConfirm(s.result);
   else showPlan(s.result);
+  if (changedSince) markJobStale();
+  $("job-result").scrollIntoView({ block: "nearest" });
 }
 async function cancelJob() {
   if (!state.job) return;
@@ -407,6 +708,7 @@ function showConfirm(r) {
     el("div", { id: "mc-summary", text: `Monte Carlo: ${r.trials} trials, seed ${r.seed}, estimator ${r.estimator} (as mtplan simulate)` }),
     el("table", { id: "mc-table" }, el("thead", {}, head), el("tbody", {}, ...rows)),
     ...(r.findings || []).map((f) => el("div", { class: "err", text: f })));
+  renderHistogram(r);
 }
 function showPlan(r) {
   const best = r.best;
@@ -466,13 +768,21 @@ async function init() {
   await openDesign(design);
   $("procedure").addEventListener("change", () => openDesign(blank($("procedure").value)));
   $("estimator").addEventListener("change", () => { state.design.estimator = $("estimator").value; changed(); });
-  $("seed").addEventListener("change", () => { state.design.seed = parseInt($("seed").value || "0", 10); pushURL(); });
-  $("trials").addEventListener("change", () => { state.design.trials = parseInt($("trials").value || "10000", 10); pushURL(); });
+  $("seed").addEventListener("change", () => { state.design.seed = number($("seed").value, 0); pushURL(); jobEstimate(); });
+  $("trials").addEventListener("change", () => { state.design.trials = number($("trials").value, 10000); pushURL(); jobEstimate(); });
   $("confirm").addEventListener("click", () => startJob("confirm"));
   $("cheapest").addEventListener("click", () => startJob("cheapest"));
   $("job-cancel").addEventListener("click", cancelJob);
   $("export").addEventListener("click", exportStudy);
   $("reset").addEventListener("click", () => openDesign(blank(state.design.procedure)));
+  $("undo").addEventListener("click", undo);
+  $("keep").addEventListener("click", keepScenario);
+  $("print").addEventListener("click", () => window.print());
+  document.querySelectorAll("button.csv").forEach((b) => b.addEventListener("click", () => tableCSV(b.dataset.table)));
+  $("budget-of").addEventListener("change", () => { state.budgetOf = $("budget-of").value; renderBudgetTable(state.lastResult); });
+  $("risk-of").addEventListener("change", () => { state.riskOf = $("risk-of").value; renderRisk(state.lastResult); });
+  api("/api/glossary").then((g) => { state.glossary = g.terms; if (state.lastResult && state.lastResult.ok) renderHelp(state.lastResult); }).catch(() => {});
+  jobEstimate();
   $("load").addEventListener("change", async () => {
     const f = $("load").files[0]; if (f) await loadStudy(await f.text()); $("load").value = "";
   });
