@@ -248,56 +248,56 @@ class TooCostly(InvalidInput):
 
 @functools.lru_cache(maxsize=64)
 def _closed_form(name: str, estimator: str) -> tuple:
-    """(path, seconds per reading) of a procedure's estimator: which first-order path it
-    takes, asked once of its hooks at the default set-up (a closed form is a property of
-    the estimator, not of the size), and what the prediction and the identifiability took
-    there per reading (their cost grows with the readings).
+    """(path, seconds per reading) of a procedure's estimator: which path the first-order
+    service (:func:`mtplan.evaluation.first_order.first_order`) takes for it, asked once of
+    the procedure's derivative hook at the default set-up (a closed form is a property of
+    the estimator, not of the size), and, for a closed form, what the prediction and the
+    identifiability took there per reading (their cost grows with the readings).
 
-    Paths: 'own' (the procedure's own ``first_order_budget``), 'chain' (the generic chain
-    of :mod:`mtplan.models.first_order` as its budget: the readings' effects of every
-    input), 'sensitivities' (``first_order_sensitivities``, then the GUM product) or
-    'generic' (differentiation through forward model and estimator)."""
+    Paths: 'sensitivities' (the procedure's closed-form sensitivities) or 'chain' (the
+    service's chain rule through forward model and estimator, timed per set-up by
+    :func:`prediction_cost`, never run here: at a large default it takes minutes)."""
     import time
+
+    from mtplan.evaluation.first_order import first_order
 
     proc = get(name)
     setup = proc.Setup()
-    path = "generic"
+    hook = proc.first_order_sensitivities
+    if hook is None or hook(setup, proc.Truth(), estimator=estimator, sources=None) is None:
+        return "chain", 0.0
     with one_blas_thread():
         t = time.perf_counter()
-        if proc.first_order_budget is not None and \
-                proc.first_order_budget(setup, estimator=estimator) is not None:
-            chain = getattr(proc.first_order_budget, "__module__", "") == \
-                "mtplan.models.first_order"
-            path = "chain" if chain else "own"
-        elif proc.first_order_sensitivities is not None and proc.first_order_sensitivities(
-                setup, proc.Truth(), estimator=estimator, sources=None) is not None:
-            path = "sensitivities"
-        if path != "generic":
-            identify(proc, setup)
+        first_order(proc, setup, estimator=estimator).u()
+        identify(proc, setup)
         seconds = time.perf_counter() - t
-    return path, seconds / max(_readings(name, _setup_key(setup)), 1)
+    return "sensitivities", seconds / max(_readings(name, _setup_key(setup)), 1)
 
 
 def prediction_cost(proc, setup, estimator: str) -> dict:
     """Estimated memory [bytes] and time [s] of the live first-order prediction, from the
-    set-up alone (its sources' elements n, measurands m, one timed block of trials):
+    set-up alone (its sources' elements n, readings r, measurands m, one timed block of
+    trials), along the first-order service's paths:
 
-    - 'own': the procedure's own closed-form budget, small;
-    - 'chain': the readings' effect of every input, r x n, 8 r n bytes (twice, in flight);
-    - 'sensitivities': the GUM product holds the inputs' n x n covariance, 8 n^2 bytes;
-    - 'generic': that too, and 2 n evaluations of forward model and estimator.
+    - 'sensitivities': the closed form (the procedure's linear maps: the m x n sensitivities
+      and r x m maps), its time per reading learnt at the default set-up;
+    - 'chain' with up to ``WHOLE_MAX`` elements: the whole chain differentiated at once,
+      4 n + 1 runs of forward model and estimator;
+    - 'chain' above: the readings' effect of every element, 8 r n bytes (twice, in flight),
+      and the estimator's map, 2 r + 1 runs of the estimator.
     """
+    from mtplan.evaluation.first_order import WHOLE_MAX
+
     n = int(sum(src.size for src in proc.active_sources(setup).values()))
     m = len(proc.measurands(setup))
     r = _readings(proc.name, _setup_key(setup))
     path, per_reading = _closed_form(proc.name, estimator)
-    seconds = per_reading * r
-    if path in ("own", "chain"):
-        return {"path": path, "inputs": n, "readings": r, "seconds": seconds,
-                "bytes": 16.0 * r * n if path == "chain" else 8.0 * (m + r) * m}
-    memory = 8.0 * n * n + 16.0 * (m + r) * n
-    if path == "generic" and 8.0 * n * n <= LIVE_MEMORY:  # not timed when refused anyway
-        seconds = 2.0 * n * trial_seconds(proc, setup, estimator)
+    if path == "sensitivities":
+        return {"path": path, "inputs": n, "readings": r, "seconds": per_reading * r,
+                "bytes": 8.0 * (m + r) * m + 8.0 * m * n}
+    runs = 4 * n + 1 if n <= WHOLE_MAX else 2 * r + 1
+    memory = 8.0 * runs * (r + m) if n <= WHOLE_MAX else 16.0 * r * n
+    seconds = runs * trial_seconds(proc, setup, estimator) if memory <= LIVE_MEMORY else 0.0
     return {"path": path, "inputs": n, "readings": r, "bytes": memory, "seconds": seconds}
 
 
