@@ -45,7 +45,7 @@ def _before_the_service(proc, setup, estimator) -> dict:
     from mtplan.explore import design
 
     n_el = sum(src.size for src in proc.active_sources(setup).values())
-    hook = proc.first_order_sensitivities
+    hook = proc.capabilities.first_order_sensitivities
     closed = hook is not None and hook(setup, proc.Truth(), estimator=estimator) is not None
     whole_rtol = 1e-9 if closed or n_el <= 256 else 1e-5
     chain_hooks = proc.first_order_budget is not None and \

@@ -67,7 +67,7 @@ def truth_parameters(proc, truth, fields=None) -> list[Param]:
             every += [Param(f"{info['name']}[{i}]", info["name"], i, *args)
                       for i in range(len(value))]
     if fields is None:
-        fields = tuple(proc.posterior_fields) or None
+        fields = None
     if fields is None:
         return every
     wanted = (fields,) if isinstance(fields, str) else tuple(fields)
@@ -299,7 +299,7 @@ class Forward:
 
     def structure(self, truth, name: str):
         """The procedure's colouring of source `name` at `truth`
-        (``Procedure.source_structure``), on the used readings; None without one."""
+        (``Procedure.capabilities.source_structure``), on the used readings; None without one."""
         hook = getattr(self.proc, "source_structure", None)
         plan = None if hook is None else hook(self.setup, truth, name)
         if plan is None:

@@ -234,7 +234,7 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
         The estimator whose estimate starts the fit.
     origin : dict, optional
         Row and column of every reading in the file (``Measurement.origin``); default:
-        those of the table ``procedure.readings_frame`` writes.
+        those of the table ``procedure.readings.frame`` writes.
     n_worst : int
         Readings listed in ``worst``.
 

@@ -213,7 +213,7 @@ def identify(proc, setup) -> dict:
     from mtplan.plans.identifiability import identifiability
     from mtplan.plans.planner import readings_jacobian
 
-    own = proc.identifiability_report
+    own = proc.capabilities.identifiability_report
     names = [m.name for m in proc.measurands(setup)]
     if own is not None:
         rep = own(setup)
