@@ -5,7 +5,7 @@ budget explain. :func:`fit_check` tests that, whichever way the uncertainty is
 evaluated (``mc`` or ``posterior``):
 
 1. The generalised least-squares fit of every free parameter (the measurands' and
-   the pose parameters', ``procedure.posterior_fields``) and of the error-source
+   the pose parameters', every float Truth field) and of the error-source
    elements the posterior samples as nuisance (their set-up distributions as
    priors, one pseudo-reading each), weighted by the readings' covariance under the
    whole error budget: the same fit and the same covariance the posterior starts

@@ -10,7 +10,7 @@ parameters with the set-up's distributions as priors. Which source went where is
 in :attr:`PosteriorResult.budget`; docs/posterior.md says it per procedure.
 
 The free parameters ``theta`` are Truth fields and elements of tuple fields
-(``procedure.posterior_fields``, else all of them); the measurands follow from
+(those asked for, else all of them); the measurands follow from
 ``procedure.true_values(setup, truth(theta))``. The noise source's standard
 deviation is the set-up's (default), a given number, or free (log-uniform prior).
 
@@ -869,8 +869,7 @@ def sample_posterior(
     readings : dict of str to array
         A batch of one (leading axis 1), as ``procedure.readings.from_frame`` returns.
     fields : iterable of str, optional
-        Free Truth fields or tuple elements (``"wrist_dx_um[1]"``); default
-        ``procedure.posterior_fields``, else all of them.
+        Free Truth fields or tuple elements (``"wrist_dx_um[1]"``); default all of them.
     noise : "setup", "free" or float
         The noise source's standard deviation: the set-up's (default; None means the
         same), free (log-uniform prior; refused with fewer than 3 residual degrees of
