@@ -16,21 +16,27 @@ A procedure module (``mtplan/models/<name>.py``) defines a module-level
 - ``forward(setup, truth, errors) -> readings``: the deterministic forward model;
   ``errors`` maps every source name to an array of shape ``(n, *source.shape)``;
   ``readings`` is a dict of batch-first arrays (leading axis = trials).
-- ``estimators``: name -> ``estimate(setup, readings) -> dict[measurand, (n,) array]``
-  in internal units (mm, rad). The patent's method is named ``patent`` (or the patent's
-  own name) and is always present.
+- ``estimators``: name -> :class:`Estimator`, a record of the function
+  ``estimate(setup, readings) -> dict[measurand, (n,) array]`` in internal units (mm, rad),
+  its plain ``description`` (the reports quote it), whether it is ``exact`` without noise
+  and, for a quantised estimator, its ``resolution``. The patent's method is named
+  ``patent`` (or the patent's own name) and is always present; the first is the default.
 - ``true_values(setup, truth) -> dict[measurand, float]`` in internal units.
 - ``duration(setup) -> float``: machine time of the test [s].
-- ``readings_frame(setup, readings) -> DataFrame`` and ``from_frame(setup, df) -> readings``:
-  the tidy CSV format of measured data (batch of one), and back.
-- optional ``setup_from_frame(df) -> dict[field, Implied]``: the set-up fields a measured
-  readings table determines (counts, positions, angles, lattice, radius), each with the
-  tolerance within which a value the user states agrees with the file (:class:`Implied`).
-- optional analysis hooks, each a field of :class:`Procedure` whose default None selects
-  the generic analysis: ``identifiability_report``, ``report_extras``, ``identifiability``,
-  ``observability`` and one derivative hook, ``first_order_sensitivities`` (the closed
-  form of the first-order sensitivities, from which the first-order service derives u
-  and the budget for every caller; see the fields' comments).
+- ``readings``: a :class:`ReadingsFormat`, ``frame(setup, readings) -> DataFrame`` and
+  ``from_frame(setup, df) -> readings`` (the tidy CSV format of measured data, batch of one,
+  and back), and optionally ``setup_from_frame(df) -> dict[field, Implied]`` (the set-up
+  fields a measured table determines, each with the tolerance within which a value the
+  user states agrees with the file, :class:`Implied`), ``optional_columns``, ``limits``
+  and ``noise_source``.
+- ``description`` and ``levers`` (the set-up fields an engineer chooses).
+- ``capabilities``: a :class:`Capabilities` record, what the procedure offers beyond its
+  model as data with generic defaults (as scikit-learn's estimator tags): the Monte Carlo
+  ``block_size``, ``truth_from_estimate`` and its batched form, ``source_structure``, the
+  analysis hooks ``identifiability_report``, ``report_extras``, ``identifiability`` and
+  ``observability``, and one derivative hook, ``first_order_sensitivities`` (the closed
+  form of the first-order sensitivities, from which the first-order service derives u and
+  the budget for every caller). Each default (None) selects the generic analysis.
 
 The :class:`Procedure` record is the whole contract: the planner, the study and the
 reports use only its fields, never a function looked up by name in a procedure's module.
