@@ -783,8 +783,9 @@ class Procedure:
                  f"Got {type(setup).__name__} instead."]
             )
 
-    def estimator(self, name: str | None) -> tuple[str, Callable]:
-        """(name, function) of an estimator, the default one when `name` is None."""
+    def estimator(self, name: str | None) -> tuple[str, Estimator]:
+        """(name, record) of an estimator, the default one when `name` is None; the record
+        is called as the function."""
         name = name or self.default_estimator
         if name not in self.estimators:
             raise InvalidInput(
