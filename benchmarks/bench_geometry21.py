@@ -53,7 +53,8 @@ def main(trials: int = 2048) -> None:
     proc = dataclasses.replace(P, estimators={**P.estimators, "joint_former": _former_joint})
     setup = g21.Setup()
     n_read = g21._geometry(setup).plane.size * 2
-    print(f"geometry21 default set-up: {n_read} readings per trial, block_size {P.capabilities.block_size}, "
+    print(f"geometry21 default set-up: {n_read} readings per trial, "
+          f"block_size {P.capabilities.block_size}, "
           f"sources: {', '.join(P.active_sources(setup))}")
     t0 = time.perf_counter()
     g21._joint_ident(setup), g21._patent_design(setup)

@@ -16,7 +16,8 @@ from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertain
 
 P = g21.PROCEDURE
 #: the procedure without its closed-form sensitivities: the generic GUM linearisation
-GENERIC = dataclasses.replace(P, capabilities=dataclasses.replace(P.capabilities, first_order_sensitivities=None))
+GENERIC = dataclasses.replace(P, capabilities=dataclasses.replace(
+    P.capabilities, first_order_sensitivities=None))
 SMALL = dict(poly_order=2, line_points=5, line_repeats=1, circle_points=12)
 
 
@@ -523,7 +524,8 @@ def test_readings_with_heads_round_trip_and_old_tables_still_read():
         P.readings.from_frame(setup, frame.drop(columns="head"))
     one = g21.Setup(**SMALL)
     old = P.readings.frame(one, P.simulate(one, draws=1, rng=2)).drop(columns="head")
-    np.testing.assert_array_equal(P.readings.from_frame(one, old)["plate_mm"][0], old[["u_mm", "v_mm"]])
+    np.testing.assert_array_equal(P.readings.from_frame(one, old)["plate_mm"][0],
+                                  old[["u_mm", "v_mm"]])
 
 
 def test_the_shipped_readings_are_read():

@@ -297,7 +297,7 @@ class Forward:
 
     def structure(self, truth, name: str):
         """The procedure's colouring of source `name` at `truth`
-        (``Procedure.capabilities.source_structure``), on the used readings; None without one."""
+        (``Capabilities.source_structure``), on the used readings; None without one."""
         hook = getattr(self.proc, "source_structure", None)
         plan = None if hook is None else hook(self.setup, truth, name)
         if plan is None:

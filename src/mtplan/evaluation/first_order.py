@@ -11,7 +11,7 @@ they give the same numbers.
 
 The sensitivities come from one of two places:
 
-- the procedure's derivative hook, ``Procedure.capabilities.first_order_sensitivities`` (as
+- the procedure's derivative hook, ``Capabilities.first_order_sensitivities`` (as
   astropy.modeling's ``fit_deriv``), where it declares one and it answers for the
   estimator: a closed form through the estimator's linear map (geometry21, line_laser);
 - otherwise the chain rule, forward model then estimator, by finite differences. With up

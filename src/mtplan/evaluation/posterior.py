@@ -396,7 +396,8 @@ def _fit_start(fwd, theta0, mode, sigma, notes) -> _Fit:
     """Budget at the start, generalised least squares, the budget again where it moved."""
     setup_sd = None
     if fwd.proc.readings.noise_source is not None:
-        setup_sd = float(np.max(np.asarray(fwd.sources[fwd.proc.readings.noise_source].distribution.std)))
+        noise = fwd.sources[fwd.proc.readings.noise_source]
+        setup_sd = float(np.max(np.asarray(noise.distribution.std)))
     names = fwd.builder.names
     fit = None
     for _ in range(2):

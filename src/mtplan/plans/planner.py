@@ -199,8 +199,8 @@ def _possible_measurands(proc, setups) -> tuple[dict, list]:
     Also each candidate's own list."""
     names = {}
     if proc.capabilities.identifiability_report is not None:
-        names.update(dict.fromkeys(proc.capabilities.identifiability_report(setups[0]).get("functions", {}),
-                                   ""))
+        own = proc.capabilities.identifiability_report(setups[0])
+        names.update(dict.fromkeys(own.get("functions", {}), ""))
     listed = []
     for s in setups:
         ms = proc.measurands(s)

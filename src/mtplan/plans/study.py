@@ -1192,7 +1192,8 @@ def _extras(proc, ps):
     """Procedure-specific material for the report: the procedure's ``report_extras(setup,
     truth) -> dict`` (data only; the reports draw it), with its per-estimator
     ``identifiability`` and its ``observability`` where it declares them."""
-    extras = dict(proc.capabilities.report_extras(ps.setup, ps.truth)) if proc.capabilities.report_extras else {}
+    hook = proc.capabilities.report_extras
+    extras = dict(hook(ps.setup, ps.truth)) if hook else {}
     # what the patent's method cannot see: per-estimator identifiability or observability
     if proc.capabilities.identifiability is not None and "identifiability" not in extras:
         extras["identifiability"] = {est: proc.capabilities.identifiability(ps.setup, est)

@@ -639,7 +639,7 @@ def sources(setup) -> dict:
 
 
 def source_structure(setup, truth, name: str):
-    """The facets' colouring (:attr:`mtplan.models.protocol.Procedure.capabilities.source_structure`):
+    """The facets' colouring (:attr:`mtplan.models.protocol.Capabilities.source_structure`):
     colour k holds facet k of every pocket. A reading depends only on the facets of the
     pocket its hit lies in (:func:`height_map`: ``offsets`` of that pocket alone; pockets
     are 0.6 mm of land apart, a facet error moves micrometres), and no two scanned
