@@ -53,7 +53,8 @@ def main(trials: int = 2048) -> None:
     proc = dataclasses.replace(P, estimators={**P.estimators, "joint_former": _former_joint})
     setup = g21.Setup()
     n_read = g21._geometry(setup).plane.size * 2
-    print(f"geometry21 default set-up: {n_read} readings per trial, block_size {P.block_size}, "
+    print(f"geometry21 default set-up: {n_read} readings per trial, "
+          f"block_size {P.capabilities.block_size}, "
           f"sources: {', '.join(P.active_sources(setup))}")
     t0 = time.perf_counter()
     g21._joint_ident(setup), g21._patent_design(setup)
@@ -61,7 +62,7 @@ def main(trials: int = 2048) -> None:
     rng = np.random.default_rng(0)
     t_draw = _time(lambda: rng.standard_normal((trials, n_read)))
     print(f"numpy alone, {trials} x {n_read} normal variates: {t_draw:.3f} s")
-    b = P.block_size
+    b = P.capabilities.block_size
     errors = P.draw_errors(setup, b, np.random.SeedSequence(1))
     t_fw = _time(lambda: P.forward(setup, P.Truth(), errors)) / b
     readings = P.forward(setup, P.Truth(), errors)

@@ -39,7 +39,7 @@ def main(trials: int = 20_000) -> None:
     proc, setup = ll.PROCEDURE, ll.Setup()
     per_trial = 3 * setup.lines * setup.points_per_line
     print(f"line_laser default set-up: {per_trial} readings per trial, "
-          f"block_size {proc.block_size}")
+          f"block_size {proc.capabilities.block_size}")
     t0 = time.perf_counter()
     np.random.default_rng(0).standard_normal((trials, per_trial))
     t_draw = time.perf_counter() - t0
@@ -49,7 +49,7 @@ def main(trials: int = 20_000) -> None:
         simulate_uncertainty(proc, setup, estimator=est, trials=trials, rng=1, progress=False)
         t = time.perf_counter() - t0
         print(f"{est:>13}: {trials / t:8.0f} trials/s ({t:.1f} s), {t / t_draw:.1f} x the draws")
-    n = proc.block_size
+    n = proc.capabilities.block_size
     seq = np.random.SeedSequence(1)
     t0 = time.perf_counter()
     errors = proc.draw_errors(setup, n, seq)

@@ -70,7 +70,7 @@ def main() -> None:
     t_noise = best(lambda: rng.standard_normal((n, P, M)), args.repeat)
     t_all = best(lambda: rng.standard_normal(n_all), args.repeat)
     print(f"rotary_axis, axis {args.axis}: {P} positions x {M} points = {P * M} readings/trial, "
-          f"{n} trials, block {proc.block_size}, best of {args.repeat}")
+          f"{n} trials, block {proc.capabilities.block_size}, best of {args.repeat}")
     print(f"numpy standard_normal, one per reading ({n * P * M:.3g}):   {t_noise * 1e3:8.1f} ms")
     print(f"numpy standard_normal, all source draws ({n_all:.3g}): {t_all * 1e3:8.1f} ms")
 
@@ -84,7 +84,7 @@ def main() -> None:
                   + ("" if only else f", {t / base:5.2f}x all-source draw"))
 
     # where the time goes, per block of the procedure's block size, scaled to n trials
-    b = proc.block_size
+    b = proc.capabilities.block_size
     seq = block_sequence(as_seed_sequence(1), 0)
     truth = proc.Truth()
     t_draw = best(lambda: proc.draw_errors(setup, b, seq), args.repeat)

@@ -53,12 +53,12 @@ def speed(trials: int) -> None:
     t_np = best(lambda: rng.standard_normal((trials, n_var)), repeat=5)
     print(f"tracker_frame default set-up: {setup.n_submachines} sub-machines, "
           f"{tf._n_points(setup)} tracker points, {n_var} error variates per trial, "
-          f"block {proc.block_size}")
+          f"block {proc.capabilities.block_size}")
     print(f"simulate_uncertainty, {trials} trials: {t_mc:.3f} s = {trials / t_mc:,.0f} trials/s")
     print(f"numpy alone, {trials} x {n_var} normal variates: {t_np:.3f} s")
     print(f"ratio: {t_mc / t_np:.1f}")
 
-    n = proc.block_size
+    n = proc.capabilities.block_size
     seq = np.random.SeedSequence(1)
     t_draw = best(lambda: proc.draw_errors(setup, n, seq))
     errors = proc.draw_errors(setup, n, seq)

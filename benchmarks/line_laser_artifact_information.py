@@ -77,7 +77,7 @@ def linearised_u(setup, extra=()) -> np.ndarray:
                     for h, e in zip(STEPS, np.eye(len(FIELDS)))], axis=1)
     cols = []
     for name, src in PROC.sources(setup).items():
-        if name == PROC.noise_source or not src.active:
+        if name == PROC.readings.noise_source or not src.active:
             continue
         sd = float(np.max(src.distribution.std))
         for k in range(src.size):

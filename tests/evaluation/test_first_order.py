@@ -87,9 +87,10 @@ def test_derivative_hook_is_used_and_std_and_budget_follow_from_it():
     assert "closed-form" in plain.method
 
     def doubled(*args, **kw):
-        return 2.0 * proc.first_order_sensitivities(*args, **kw)
+        return 2.0 * proc.capabilities.first_order_sensitivities(*args, **kw)
 
-    twice = fo.first_order(dataclasses.replace(proc, first_order_sensitivities=doubled), setup)
+    twice = fo.first_order(dataclasses.replace(proc, capabilities=dataclasses.replace(
+        proc.capabilities, first_order_sensitivities=doubled)), setup)
     np.testing.assert_allclose(twice.std, 2.0 * plain.std, rtol=1e-12)
     np.testing.assert_allclose(twice.variance_by_source(), 4.0 * plain.variance_by_source(),
                                rtol=1e-12)

@@ -23,7 +23,7 @@ SETUP = PROC.Setup()
 def _write(tmp_path, proc=PROC, setup=SETUP, seed=1, name="r.csv"):
     readings = proc.simulate(setup, proc.Truth(), 1, rng=seed)
     path = tmp_path / name
-    proc.readings_frame(setup, readings).to_csv(path, index=False)
+    proc.readings.frame(setup, readings).to_csv(path, index=False)
     return path, readings
 
 
@@ -225,7 +225,7 @@ def test_round_trip_every_procedure(tmp_path, name):
     path, readings = _write(tmp_path, proc, setup, seed=2024)
     got = read_readings(proc, setup, path)
     assert set(got) == set(readings)
-    estimator = proc.exact_estimators[0] if proc.exact_estimators else None
+    estimator = proc.exact_names[0] if proc.exact_names else None
     # 200 trials give u to 5 % (1/sqrt(2 n)): the 4 u below is a 3.8-4.2 sigma check, while
     # an estimate that misses the truth (a wrong column, unit or sign) is off by far more
     res = estimate_measured(proc, setup, got, estimator=estimator, uncertainty="mc",
@@ -261,7 +261,7 @@ def test_the_slopes_first_try_in_one_batch_is_each_measurand_alone(name, estimat
         for (value, true), sign in zip(batch[i], (1.0, -1.0), strict=True):
             moved = dict(est)
             moved[m.name] += sign * step[i] / m.scale
-            t = proc.truth_from_estimate(setup, moved)
+            t = proc.capabilities.truth_from_estimate(setup, moved)
             alone = proc.estimate(setup, proc.forward(setup, t, zero), estimator)[m.name]
             assert true == pytest.approx(float(proc.true_values(setup, t)[m.name]), abs=0)
             assert value == pytest.approx(float(np.asarray(alone).reshape(-1)[0]),

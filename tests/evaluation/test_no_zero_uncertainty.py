@@ -57,7 +57,7 @@ def test_the_quantised_patent_alpha_z_states_its_step():
     setup = proc.Setup()
     res = simulate_uncertainty(proc, setup, estimator="patent", trials=24, rng=2,
                                progress=False)
-    step = proc.resolution(setup, "patent")["alpha_z"] * 1e6  # urad
+    step = proc.estimators["patent"].steps(setup)["alpha_z"] * 1e6  # urad
     i = [m.name for m in res.measurands].index("alpha_z")
     assert res.mc.std[i] == pytest.approx(step / math.sqrt(12), rel=1e-12)
     assert res.mc.high[i] - res.mc.low[i] == pytest.approx(0.95 * step, rel=1e-12)

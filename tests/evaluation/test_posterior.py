@@ -173,7 +173,8 @@ def test_user_prior_and_bad_arguments():
         sample_posterior(PROC, SETUP, r, noise=-1.0)
     with pytest.raises(InvalidInput, match="noise"):
         sample_posterior(PROC, SETUP, r, noise={"z_mm": SIGMA})
-    no_noise = dataclasses.replace(PROC, noise_source=None)
+    no_noise = dataclasses.replace(PROC, readings=dataclasses.replace(
+        PROC.readings, noise_source=None))
     with pytest.raises(InvalidInput, match="names no noise source"):
         sample_posterior(no_noise, SETUP, r, noise="free")
 

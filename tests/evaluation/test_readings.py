@@ -177,7 +177,7 @@ def test_the_file_gives_back_the_setup_it_was_taken_with(tmp_path, name, fields)
     proc = registry()[name]
     setup = proc.setup(**fields)
     path = tmp_path / "r.csv"
-    proc.readings_frame(setup, proc.simulate(setup, proc.Truth(), 1, rng=3)).to_csv(
+    proc.readings.frame(setup, proc.simulate(setup, proc.Truth(), 1, rng=3)).to_csv(
         path, index=False)
     m = read_measurement(proc, path)
     for k, v in fields.items():
@@ -206,7 +206,7 @@ def test_contradicting_design_fields_are_named_all_at_once(tmp_path):
     proc = registry()["rotary_axis"]
     path = tmp_path / "r.csv"
     setup = proc.Setup()
-    proc.readings_frame(setup, proc.simulate(setup, proc.Truth(), 1, rng=1)).to_csv(
+    proc.readings.frame(setup, proc.simulate(setup, proc.Truth(), 1, rng=1)).to_csv(
         path, index=False)
     with pytest.raises(InvalidInput) as exc:
         read_measurement(proc, path, {"axis": "A", "range_deg": "180", "lattice_nx": "4"})

@@ -386,24 +386,24 @@ def test_duration_grows_with_the_points():
 def test_frame_without_point_column_and_bad_frames():
     setup = P.Setup()
     readings = P.simulate(setup, draws=1, rng=1)
-    frame = P.readings_frame(setup, readings)
+    frame = P.readings.frame(setup, readings)
     shuffled = frame.iloc[::-1].reset_index(drop=True)
-    back = P.from_frame(setup, shuffled)
+    back = P.readings.from_frame(setup, shuffled)
     np.testing.assert_array_equal(back["x_mm"], readings["x_mm"])
     only = frame[frame["point"].str.startswith("d")][["x_mm", "y_mm"]]
-    est = P.display_estimate(setup, P.from_frame(setup, only), "geometric")
+    est = P.display_estimate(setup, P.readings.from_frame(setup, only), "geometric")
     ref = P.display_estimate(setup, readings, "geometric")
     np.testing.assert_array_equal(est["centre_x"], ref["centre_x"])
     with pytest.raises(InvalidInput, match="'y_mm'"):
-        P.from_frame(setup, frame.drop(columns="y_mm"))
+        P.readings.from_frame(setup, frame.drop(columns="y_mm"))
     bad = frame.copy()
     bad.loc[3, "x_mm"] = np.nan
     with pytest.raises(InvalidInput, match=r"rows \[3\]"):
-        P.from_frame(setup, bad)
+        P.readings.from_frame(setup, bad)
     with pytest.raises(InvalidInput, match="d3"):
-        P.from_frame(setup, frame.iloc[:-1])
+        P.readings.from_frame(setup, frame.iloc[:-1])
     with pytest.raises(InvalidInput, match="n_points=3"):
-        P.from_frame(setup, pd.DataFrame({"x_mm": [1.0, 2.0], "y_mm": [0.0, 1.0]}))
+        P.readings.from_frame(setup, pd.DataFrame({"x_mm": [1.0, 2.0], "y_mm": [0.0, 1.0]}))
 
 
 def test_fit_points_refuses_bad_points():

@@ -16,7 +16,8 @@ from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertain
 
 P = g21.PROCEDURE
 #: the procedure without its closed-form sensitivities: the generic GUM linearisation
-GENERIC = dataclasses.replace(P, first_order_sensitivities=None)
+GENERIC = dataclasses.replace(P, capabilities=dataclasses.replace(
+    P.capabilities, first_order_sensitivities=None))
 SMALL = dict(poly_order=2, line_points=5, line_repeats=1, circle_points=12)
 
 
@@ -152,13 +153,13 @@ def test_refusals_say_why():
 
 def test_from_frame_names_bad_column_and_row():
     setup = g21.Setup(**SMALL)
-    df = P.readings_frame(setup, P.simulate(setup, draws=1, rng=1))
+    df = P.readings.frame(setup, P.simulate(setup, draws=1, rng=1))
     with pytest.raises(InvalidInput, match="u_mm"):
-        P.from_frame(setup, df.drop(columns="u_mm"))
+        P.readings.from_frame(setup, df.drop(columns="u_mm"))
     bad = df.copy()
     bad.loc[7, "v_mm"] = np.nan
     with pytest.raises(InvalidInput, match="row 7"):
-        P.from_frame(setup, bad)
+        P.readings.from_frame(setup, bad)
 
 
 def test_duration_counts_three_setups_and_moves():
@@ -520,13 +521,14 @@ def test_resizing_a_source_reuses_the_geometry_and_reweights_the_fit():
 # ----------------------------------------------------------------- readings and the plan
 def test_readings_with_heads_round_trip_and_old_tables_still_read():
     setup = g21.Setup(**ALL21_SMALL)
-    frame = P.readings_frame(setup, P.simulate(setup, draws=1, rng=2))
+    frame = P.readings.frame(setup, P.simulate(setup, draws=1, rng=2))
     assert "head" in frame and frame["head"].max() == 2
     with pytest.raises(InvalidInput, match="'head' column"):
-        P.from_frame(setup, frame.drop(columns="head"))
+        P.readings.from_frame(setup, frame.drop(columns="head"))
     one = g21.Setup(**SMALL)
-    old = P.readings_frame(one, P.simulate(one, draws=1, rng=2)).drop(columns="head")
-    np.testing.assert_array_equal(P.from_frame(one, old)["plate_mm"][0], old[["u_mm", "v_mm"]])
+    old = P.readings.frame(one, P.simulate(one, draws=1, rng=2)).drop(columns="head")
+    np.testing.assert_array_equal(P.readings.from_frame(one, old)["plate_mm"][0],
+                                  old[["u_mm", "v_mm"]])
 
 
 def test_the_shipped_readings_are_read():

@@ -25,7 +25,8 @@ from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertain
 PROC = ll.PROCEDURE
 SETUP = ll.Setup()
 #: the procedure without its closed-form sensitivities: the generic linearisation
-GENERIC = dataclasses.replace(PROC, first_order_sensitivities=None)
+GENERIC = dataclasses.replace(PROC, capabilities=dataclasses.replace(
+    PROC.capabilities, first_order_sensitivities=None))
 
 
 def _noise_free(setup, truth, n=1):
@@ -248,7 +249,7 @@ def test_linearity_alone_gives_u_alpha_y_of_the_linearity_over_w():
                               progress=False)
     assert mc.mc.std[1] == pytest.approx(u_pred, rel=4 / math.sqrt(2 * (n - 1)))
     # alpha_z never leaves its whole row: simulate states the rounding, step / sqrt(12)
-    step = PROC.resolution(SETUP, "patent")["alpha_z"] * 1e6
+    step = PROC.estimators["patent"].steps(SETUP)["alpha_z"] * 1e6
     assert mc.mc.std[0] == pytest.approx(step / math.sqrt(12), rel=1e-12)
     assert mc.mc.high[0] - mc.mc.low[0] == pytest.approx(0.95 * step, rel=1e-12)
     assert mc.mc.std[2] < 1e-6
@@ -540,26 +541,26 @@ def test_default_scan_makes_the_patent_alpha_y_independent_of_the_artifact_posit
 # --------------------------------------------------------------------------- data format
 def test_frame_round_trip_and_bad_frames():
     readings = PROC.simulate(SETUP, draws=2, rng=1)
-    frame = PROC.readings_frame(SETUP, readings)
+    frame = PROC.readings.frame(SETUP, readings)
     assert list(frame.columns) == ["scan", "line", "point", "x_mm", "y_mm", "z_mm"]
-    back = PROC.from_frame(SETUP, frame.sample(frac=1.0, random_state=0))  # any row order
+    back = PROC.readings.from_frame(SETUP, frame.sample(frac=1.0, random_state=0))  # any row order
     np.testing.assert_array_equal(back["z_mm"][0], readings["z_mm"][0])
     bad = frame.copy()
     bad.loc[5, "z_mm"] = np.nan
     with pytest.raises(InvalidInput, match="z_mm"):
-        PROC.from_frame(SETUP, bad)
+        PROC.readings.from_frame(SETUP, bad)
     with pytest.raises(InvalidInput, match="y_mm"):
-        PROC.from_frame(SETUP, frame.drop(columns="y_mm"))
+        PROC.readings.from_frame(SETUP, frame.drop(columns="y_mm"))
     dup = frame.copy()
     dup.loc[1, "point"] = 0
     with pytest.raises(InvalidInput, match="once"):
-        PROC.from_frame(SETUP, dup)
+        PROC.readings.from_frame(SETUP, dup)
     moved = frame.copy()
     moved["x_mm"] += 0.01
     with pytest.raises(InvalidInput, match="x_mm"):
-        PROC.from_frame(SETUP, moved)
+        PROC.readings.from_frame(SETUP, moved)
     with pytest.raises(InvalidInput, match="rows"):
-        PROC.from_frame(SETUP, frame.iloc[:-1])
+        PROC.readings.from_frame(SETUP, frame.iloc[:-1])
     assert isinstance(frame, pd.DataFrame)
 
 
@@ -662,7 +663,8 @@ def test_linearize_uses_the_closed_form_with_the_generic_numbers(estimator, setu
     def off(*args, **kw):
         return ll.sensitivities(*args, **kw) * 1.001
 
-    bad = dataclasses.replace(PROC, first_order_sensitivities=off)
+    bad = dataclasses.replace(PROC, capabilities=dataclasses.replace(
+        PROC.capabilities, first_order_sensitivities=off))
     with pytest.raises(AssertionError):
         _same_linearisation(linearize_procedure(bad, setup, estimator=estimator,
                                                 sources=only), gum)

@@ -417,12 +417,12 @@ def test_wrong_readings_shape_is_refused():
 # --------------------------------------------------------------------------- data
 def _frame():
     setup = PROC.Setup()
-    return setup, PROC.readings_frame(setup, PROC.simulate(setup, draws=2, rng=1))
+    return setup, PROC.readings.frame(setup, PROC.simulate(setup, draws=2, rng=1))
 
 
 def test_from_frame_accepts_any_row_order():
     setup, df = _frame()
-    back = PROC.from_frame(setup, df.sample(frac=1.0, random_state=0))
+    back = PROC.readings.from_frame(setup, df.sample(frac=1.0, random_state=0))
     np.testing.assert_array_equal(back["z_mm"][0].ravel(), df["z_mm"].to_numpy())
 
 
@@ -440,19 +440,19 @@ def test_from_frame_accepts_any_row_order():
 def test_from_frame_names_what_is_wrong(edit, message):
     setup, df = _frame()
     with pytest.raises(InvalidInput, match=message):
-        PROC.from_frame(setup, edit(df))
+        PROC.readings.from_frame(setup, edit(df))
 
 
 def test_combined_readings_carry_the_axis_and_round_trip():
     setup = PROC.setup(axis="CA")
-    df = PROC.readings_frame(setup, PROC.simulate(setup, draws=1, rng=2))
+    df = PROC.readings.frame(setup, PROC.simulate(setup, draws=1, rng=2))
     nc, M = len(setup.axis_angles("C")), setup.n_points
     assert df["axis"].tolist() == ["C"] * nc * M + ["A"] * (setup.n_positions - nc) * M
-    back = PROC.from_frame(setup, df.sample(frac=1.0, random_state=3))
+    back = PROC.readings.from_frame(setup, df.sample(frac=1.0, random_state=3))
     np.testing.assert_array_equal(back["z_mm"][0].ravel(), df["z_mm"].to_numpy())
-    PROC.from_frame(setup, df.drop(columns="axis"))  # the axis column is a check only
+    PROC.readings.from_frame(setup, df.drop(columns="axis"))  # the axis column is a check only
     with pytest.raises(InvalidInput, match="'axis'.*row 0 holds 'A'"):
-        PROC.from_frame(setup, df.assign(axis=df["axis"].where(df.index != 0, "A")))
+        PROC.readings.from_frame(setup, df.assign(axis=df["axis"].where(df.index != 0, "A")))
 
 
 def test_schedule_and_duration():

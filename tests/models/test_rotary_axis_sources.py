@@ -237,12 +237,12 @@ def test_reversal_readings_round_trip_and_the_file_says_so():
 
     setup = PROC.setup(axis="A", sensor_reversal=True)
     readings = PROC.simulate(setup, draws=1, rng=3)
-    df = PROC.readings_frame(setup, readings)
+    df = PROC.readings.frame(setup, readings)
     assert len(df) == 2 * setup.n_positions * setup.n_points
-    back = PROC.from_frame(setup, df.sample(frac=1.0, random_state=1))
+    back = PROC.readings.from_frame(setup, df.sample(frac=1.0, random_state=1))
     np.testing.assert_array_equal(back["z_mm"], readings["z_mm"])
     implied = ra.setup_from_frame(df)
     assert implied["sensor_reversal"].value is True and implied["lattice_nx"].value == 5
-    once = PROC.readings_frame(PROC.setup(axis="A"), PROC.simulate(PROC.setup(axis="A"), rng=3))
+    once = PROC.readings.frame(PROC.setup(axis="A"), PROC.simulate(PROC.setup(axis="A"), rng=3))
     assert ra.setup_from_frame(once)["sensor_reversal"].value is False
     assert set(ra.schedule(setup)["sensor_deg"]) == {0.0, 180.0}

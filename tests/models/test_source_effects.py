@@ -189,7 +189,7 @@ def test_a_source_alone_moves_only_its_measurands(capsys, proc, setup, source, m
     still = p.display_estimate(s, p.forward(s, p.Truth(), p.zero_errors(s, 1)), estimator)
     # a quantised estimator (line_laser's patent alpha_z) that never leaves its step states
     # u = step / sqrt(12): the spread of its trials is 0 all the same
-    steps = p.resolution(s, estimator or p.default_estimator) if p.resolution else {}
+    steps = p.estimators[estimator or p.default_estimator].steps(s)
     for m in (m for m in doc["measurands"] if m["determinable"]):
         u = m["u"]
         if m["name"] in steps:

@@ -435,7 +435,7 @@ def test_duration_grows_with_points_and_submachines():
 def test_truth_from_estimate_reproduces_the_estimate(changes):
     setup = PROC.Setup(**changes)
     est = PROC.estimate(setup, PROC.simulate(setup, draws=1, rng=9))
-    tv = PROC.true_values(setup, PROC.truth_from_estimate(setup, est))
+    tv = PROC.true_values(setup, PROC.capabilities.truth_from_estimate(setup, est))
     for m in PROC.measurands(setup):
         assert (tv[m.name] - est[m.name][0]) * m.scale == pytest.approx(0.0, abs=1e-6), m.name
 
@@ -446,9 +446,10 @@ def test_truths_from_estimates_are_truth_from_estimate_row_by_row(changes):
     truth_from_estimate (bit for bit), and its measurands those of the row."""
     setup = PROC.Setup(**changes)
     est = PROC.estimate(setup, PROC.simulate(setup, draws=3, rng=5))
-    rows = PROC.forward(setup, PROC.truths_from_estimates(setup, est), PROC.zero_errors(setup, 3))
+    rows = PROC.forward(setup, PROC.capabilities.truths_from_estimates(setup, est),
+                        PROC.zero_errors(setup, 3))
     for i in range(3):
-        one = PROC.truth_from_estimate(setup, {k: v[i:i + 1] for k, v in est.items()})
+        one = PROC.capabilities.truth_from_estimate(setup, {k: v[i:i + 1] for k, v in est.items()})
         r = PROC.forward(setup, one, PROC.zero_errors(setup, 1))
         for k, v in r.items():
             np.testing.assert_array_equal(rows[k][i], v[0])
@@ -470,7 +471,8 @@ def test_readings_jacobian_in_one_run_is_the_step_by_step_one(changes):
 
     setup = PROC.Setup(**changes)
     j, names = readings_jacobian(PROC, setup)
-    step_by_step = dataclasses.replace(PROC, truths_from_estimates=None)
+    step_by_step = dataclasses.replace(PROC, capabilities=dataclasses.replace(
+        PROC.capabilities, truths_from_estimates=None))
     get_ = mtplan.models.get
     try:  # readings_jacobian looks its procedure up: hand it the one without the hook
         mtplan.models.get = lambda p: p if p is step_by_step else get_(p)

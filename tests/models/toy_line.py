@@ -12,7 +12,16 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from mtplan.models import Measurand, Procedure, SetupBase, Source, param
+from mtplan.models import (
+    Capabilities,
+    Estimator,
+    Measurand,
+    Procedure,
+    ReadingsFormat,
+    SetupBase,
+    Source,
+    param,
+)
 from mtplan.uncertainty import Normal, Rectangular
 
 
@@ -93,13 +102,10 @@ PROCEDURE = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators={"least_squares": estimate_ls},
+    estimators={"least_squares": Estimator(estimate_ls, exact=True)},
     true_values=true_values,
     duration=duration,
-    readings_frame=readings_frame,
-    from_frame=from_frame,
-    exact_estimators=("least_squares",),
-    block_size=2000,
-    noise_source="probe_noise",
+    readings=ReadingsFormat(readings_frame, from_frame, noise_source="probe_noise"),
     levers=("n_points", "length_mm"),
+    capabilities=Capabilities(block_size=2000),
 )

@@ -20,7 +20,7 @@ def _case(proc) -> tuple[str, str]:
     ``resolution`` step) has a linearised u of 0: the planner predicts that it meets any
     target, and only the Monte Carlo confirmation refuses, with another message."""
     setup = proc.Setup()
-    steps = proc.resolution(setup, proc.default_estimator) if proc.resolution else {}
+    steps = proc.estimators[proc.default_estimator].steps(setup)
     measurand = next(m.name for m in proc.measurands(setup) if m.name not in steps)
     fields = {info["name"]: info for info in fields_info(proc.Setup)}
     for info in (fields[lever] for lever in proc.levers):

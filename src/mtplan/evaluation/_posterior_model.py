@@ -52,7 +52,7 @@ class Param:
 
 def truth_parameters(proc, truth, fields=None) -> list[Param]:
     """The free parameters: `fields` (names of fields or of elements ``field[i]``), else
-    ``proc.posterior_fields``, else every float field and every element of a tuple field."""
+    every float field and every element of a tuple field."""
     from mtplan.models.protocol import fields_info
 
     every = []
@@ -66,8 +66,6 @@ def truth_parameters(proc, truth, fields=None) -> list[Param]:
         elif info["kind"] == "tuple" and info["element"] is float and value is not None:
             every += [Param(f"{info['name']}[{i}]", info["name"], i, *args)
                       for i in range(len(value))]
-    if fields is None:
-        fields = tuple(proc.posterior_fields) or None
     if fields is None:
         return every
     wanted = (fields,) if isinstance(fields, str) else tuple(fields)
@@ -299,7 +297,7 @@ class Forward:
 
     def structure(self, truth, name: str):
         """The procedure's colouring of source `name` at `truth`
-        (``Procedure.source_structure``), on the used readings; None without one."""
+        (``Capabilities.source_structure``), on the used readings; None without one."""
         hook = getattr(self.proc, "source_structure", None)
         plan = None if hook is None else hook(self.setup, truth, name)
         if plan is None:

@@ -7,7 +7,7 @@ level ``alpha`` (``alpha_chi2 = (1 - W_SHARE) alpha``, ``alpha_w = W_SHARE alpha
 that a clean set of readings is flagged with probability at most ``alpha``):
 
 1. The generalised least-squares fit of every free parameter (the measurands' and
-   the pose parameters', ``procedure.posterior_fields``) and of the error-source
+   the pose parameters', every float Truth field) and of the error-source
    elements the posterior samples as nuisance (their set-up distributions as
    priors, one pseudo-reading each), weighted by the readings' covariance under the
    whole error budget: the same fit and the same covariance the posterior starts
@@ -334,7 +334,7 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
         The estimator whose estimate starts the fit.
     origin : dict, optional
         Row and column of every reading in the file (``Measurement.origin``); default:
-        those of the table ``procedure.readings_frame`` writes.
+        those of the table ``procedure.readings.frame`` writes.
     n_worst : int
         Readings listed in ``worst``.
     w_share : float

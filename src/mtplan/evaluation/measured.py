@@ -216,7 +216,7 @@ _BEST: dict = {}
 def _best_estimator_cached(proc, setup) -> tuple[tuple[str, float], ...]:
     """The exact estimators, best first, each with its geometric mean of u relative to the
     best's; computed once per set-up."""
-    key = (proc.name, tuple(proc.exact_estimators), setup)
+    key = (proc.name, tuple(proc.exact_names), setup)
     if key not in _BEST:
         if len(_BEST) > 64:
             _BEST.clear()
@@ -227,7 +227,7 @@ def _best_estimator_cached(proc, setup) -> tuple[tuple[str, float], ...]:
 def _choose_estimator(proc, setup) -> tuple[tuple[str, float], ...]:
     from mtplan.evaluation.simulation import simulate_uncertainty
 
-    candidates = list(proc.exact_estimators) or [proc.default_estimator]
+    candidates = list(proc.exact_names) or [proc.default_estimator]
     if len(candidates) == 1:
         return ((candidates[0], 1.0),)
 
@@ -307,7 +307,7 @@ def _observes(proc, setup, est_name, est_internal, step):
     moves alone (derived from the others, as rotary_axis's ac_offset from the two axis
     lines) gets slope 1 and is listed in the second return value: it follows the estimate
     as the measurands it derives from do."""
-    if proc.truth_from_estimate is None:
+    if proc.capabilities.truth_from_estimate is None:
         return None, []
     measurands = proc.measurands(setup)
     slopes = np.full(len(measurands), np.nan)
@@ -348,7 +348,7 @@ def _moved(proc, setup, est_internal, m, delta, zero):
     est = dict(est_internal)
     est[m.name] = est[m.name] + delta / m.scale
     try:
-        truth = proc.truth_from_estimate(setup, est)
+        truth = proc.capabilities.truth_from_estimate(setup, est)
         true = float(np.asarray(proc.true_values(setup, truth)[m.name]).reshape(-1)[0])
         return true, proc.forward(setup, truth, zero)
     except (InvalidInput, ValueError, ArithmeticError):
@@ -519,13 +519,13 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
 
     measurands = tuple(proc.measurands(setup))
     finite = np.isfinite(estimate)
-    if proc.truth_from_estimate is not None and finite.all():
-        truth = proc.truth_from_estimate(setup, est_internal)
+    if proc.capabilities.truth_from_estimate is not None and finite.all():
+        truth = proc.capabilities.truth_from_estimate(setup, est_internal)
     else:
         truth = proc.Truth()
         notes.append(f"the Monte Carlo ran at the default truth of the procedure ({proc.title}), "
                      "not at the "
-                     "estimate" + ("" if proc.truth_from_estimate is None else
+                     "estimate" + ("" if proc.capabilities.truth_from_estimate is None else
                                    " (the estimate is not finite)"))
     truth, sources, why = condition_on_readings(proc, setup, readings, truth)
     notes += [why] if why else []
@@ -634,7 +634,7 @@ def estimate_measured(
         measurand; the patent's estimator stays available by its name.
     uncertainty : {"mc", "posterior"}
         ``"mc"``: Monte Carlo of the set-up's error sources around the estimate (at
-        ``procedure.truth_from_estimate(setup, estimate)`` when the procedure has that
+        ``procedure.capabilities.truth_from_estimate(setup, estimate)`` when the procedure has that
         hook, else its default truth, noted); the value is the estimate corrected for
         the estimator's bias there, with the interval around it. A measurand the
         estimator cannot give (no Monte Carlo spread, or a noise-free estimate that

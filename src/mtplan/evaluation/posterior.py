@@ -10,7 +10,7 @@ parameters with the set-up's distributions as priors. Which source went where is
 in :attr:`PosteriorResult.budget`; docs/posterior.md says it per procedure.
 
 The free parameters ``theta`` are Truth fields and elements of tuple fields
-(``procedure.posterior_fields``, else all of them); the measurands follow from
+(those asked for, else all of them); the measurands follow from
 ``procedure.true_values(setup, truth(theta))``. The noise source's standard
 deviation is the set-up's (default), a given number, or free (log-uniform prior).
 
@@ -242,7 +242,7 @@ def _check_arguments(proc, setup, readings, noise, opts: dict):
     if opts["max_seconds"] is not None:
         p.number("max_seconds", opts["max_seconds"], low=0, low_open=True)
     if not isinstance(readings, Mapping) or not readings:
-        p.add("readings", readings, "a dict of reading arrays (procedure.from_frame)")
+        p.add("readings", readings, "a dict of reading arrays (procedure.readings.from_frame)")
     allowed = ("None, 'setup' (every source at the set-up's size), 'free' (the noise source's "
                "size free) or a number > 0 (the noise source's standard deviation)")
     mode, sigma = "setup", None
@@ -254,7 +254,7 @@ def _check_arguments(proc, setup, readings, noise, opts: dict):
         p.add("noise", noise, allowed)
     elif p.number("noise", noise, low=0, low_open=True):
         mode, sigma = "known", float(noise)
-    if mode != "setup" and proc.noise_source is None:
+    if mode != "setup" and proc.readings.noise_source is None:
         p.add_text(f"The 'noise' parameter of sample_posterior must be 'setup' for {proc.name}: "
                    f"it names no noise source whose size could be given or left free (got "
                    f"{noise!r}); its readings' noise is the set-up's error sources")
@@ -271,14 +271,14 @@ def _initial_theta(proc, setup, readings, builder, start, estimator, notes) -> n
                                 f"free parameters are {builder.names}."])
         return np.array([float(start.get(p.name, v)) for p, v in
                          zip(builder.params, builder.values, strict=True)])
-    if proc.truth_from_estimate is None:
+    if proc.capabilities.truth_from_estimate is None:
         return builder.values.copy()
-    if estimator is None and proc.exact_estimators:  # one that sees every measurand
-        estimator = proc.exact_estimators[0]
+    if estimator is None and proc.exact_names:  # one that sees every measurand
+        estimator = proc.exact_names[0]
     try:
         est = proc.estimate(setup, readings, estimator)
         est = {k: float(np.asarray(v).reshape(-1)[0]) for k, v in est.items()}
-        t0 = proc.truth_from_estimate(setup, est)
+        t0 = proc.capabilities.truth_from_estimate(setup, est)
         return np.array([builder.value_of(t0, p) for p in builder.params])
     except DOMAIN_ERRORS as exc:
         notes.append(f"start: the estimator failed ({exc}); started from the default truth")
@@ -395,8 +395,9 @@ def _start(fwd, theta0, mode, sigma, notes) -> _Fit:
 def _fit_start(fwd, theta0, mode, sigma, notes) -> _Fit:
     """Budget at the start, generalised least squares, the budget again where it moved."""
     setup_sd = None
-    if fwd.proc.noise_source is not None:
-        setup_sd = float(np.max(np.asarray(fwd.sources[fwd.proc.noise_source].distribution.std)))
+    if fwd.proc.readings.noise_source is not None:
+        noise = fwd.sources[fwd.proc.readings.noise_source]
+        setup_sd = float(np.max(np.asarray(noise.distribution.std)))
     names = fwd.builder.names
     fit = None
     for _ in range(2):
@@ -598,7 +599,7 @@ def _identify(fwd, fit: _Fit, notes) -> _Space:
     free = fit.budget.Dn is not None
     if free:
         _check_noise_dof(fwd, fit, len(cols))
-        ns = proc.noise_source
+        ns = proc.readings.noise_source
         names.append(f"sigma_{ns}")
         units[f"sigma_{ns}"] = _internal_unit(fwd.setup, ns)
         info = fit.budget.gaussian().fisher_log_sigma(fit.sigma)
@@ -618,7 +619,7 @@ def _check_noise_dof(fwd, fit: _Fit, n_sampled: int) -> None:
         return
     from mtplan.models.protocol import fields_info
 
-    ns = proc.noise_source
+    ns = proc.readings.noise_source
     fld = next((i["name"] for i in fields_info(type(fwd.setup)) if i["name"].startswith(ns + "_")),
                ns)
     raise InvalidInput([
@@ -781,7 +782,7 @@ def _result(fwd, fit: _Fit, space: _Space, logpost, run, diag, *, mode, root, n_
     proc = fwd.proc
     units = {m.name: m.unit for m in fwd.measurands} | space.units
     start = dict(zip(space.names, _natural(space.center[None], space)[0].tolist(), strict=True))
-    ns = proc.noise_source
+    ns = proc.readings.noise_source
     sigma = fit.sigma if fit.sigma is not None else (
         float(np.max(np.asarray(fwd.sources[ns].distribution.std))) if ns else None)
     seed = root.entropy if isinstance(root.entropy, int) else list(root.entropy)
@@ -867,10 +868,9 @@ def sample_posterior(
         The set-up the readings were taken with; its error sources (sizes and
         distributions) are the likelihood's error budget.
     readings : dict of str to array
-        A batch of one (leading axis 1), as ``procedure.from_frame`` returns.
+        A batch of one (leading axis 1), as ``procedure.readings.from_frame`` returns.
     fields : iterable of str, optional
-        Free Truth fields or tuple elements (``"wrist_dx_um[1]"``); default
-        ``procedure.posterior_fields``, else all of them.
+        Free Truth fields or tuple elements (``"wrist_dx_um[1]"``); default all of them.
     noise : "setup", "free" or float
         The noise source's standard deviation: the set-up's (default; None means the
         same), free (log-uniform prior; refused with fewer than 3 residual degrees of

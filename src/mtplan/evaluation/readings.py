@@ -1,6 +1,6 @@
 """Measured readings files: read and check them, and complete the set-up they imply.
 
-The readings format of each procedure is what ``procedure.readings_frame`` writes
+The readings format of each procedure is what ``procedure.readings.frame`` writes
 (``mtplan simulate PROC --readings-out FILE.csv``): a tidy CSV, units in the column
 names, one reading per row. Reading one goes in steps, each a function below:
 
@@ -14,12 +14,12 @@ names, one reading per row. Reading one goes in steps, each a function below:
 3. the cells (:func:`_parse_cells`): numbers where numbers belong, no NaN, no
    repeated row;
 4. the set-up (:func:`_complete_setup`, only in :func:`read_measurement`): the fields
-   the file determines (``procedure.setup_from_frame``) fill in what the user did not
+   the file determines (``procedure.readings.setup_from_frame``) fill in what the user did not
    state; a stated value that contradicts the file is refused;
 5. the design (:func:`_match_design`): the set-up's number of readings and its
    positions, angles and indices, in any row order;
 6. the instrument's range (:func:`_check_limits`);
-7. the readings (:func:`_to_readings`): ``procedure.from_frame``.
+7. the readings (:func:`_to_readings`): ``procedure.readings.from_frame``.
 
 Every refusal is one :class:`InvalidInput` sentence naming the file and the row (as a
 spreadsheet shows it: the header is row 1) or the column.
@@ -128,7 +128,7 @@ def _match_columns(proc, path, header, expected) -> _Columns:
                 if name != c.lower():
                     notes.append(f"column {c!r} names no unit: read as {name} (millimetres)")
                 break
-    reduced = [c for c in proc.optional_columns if c not in source]
+    reduced = [c for c in proc.readings.optional_columns if c not in source]
     names = [c for c in columns if c not in reduced]
     missing = [c for c in names if c not in source]
     extra = [c for c in header if c not in source.values()]
@@ -201,8 +201,8 @@ def _nominal_truth(proc, setup):
 def _expected_frames(proc, setup):
     """Frames of a noise-free nominal measurement, a noisy one and a perturbed truth one."""
     truth = _nominal_truth(proc, setup)
-    frames = [proc.readings_frame(setup, proc.forward(setup, truth, proc.zero_errors(setup, 1))),
-              proc.readings_frame(setup, proc.simulate(setup, truth, 1, rng=12345))]
+    frames = [proc.readings.frame(setup, proc.forward(setup, truth, proc.zero_errors(setup, 1))),
+              proc.readings.frame(setup, proc.simulate(setup, truth, 1, rng=12345))]
     changes = {}
     for f in dataclasses.fields(truth):
         v = getattr(truth, f.name)
@@ -210,7 +210,7 @@ def _expected_frames(proc, setup):
             changes[f.name] = v * 1.01 + 1e-4
     try:
         other = dataclasses.replace(truth, **changes)
-        frames.append(proc.readings_frame(setup, proc.forward(setup, other,
+        frames.append(proc.readings.frame(setup, proc.forward(setup, other,
                                                               proc.zero_errors(setup, 1))))
     except (InvalidInput, ValueError, TypeError, ArithmeticError):
         pass
@@ -271,11 +271,11 @@ def _match_design(proc, path, df, frames, reduced):
 
 # --------------------------------------------------------------------------- 6. the range
 def _check_limits(proc, setup, path, df) -> None:
-    """Readings outside the instrument's range (``procedure.reading_limits``) are refused."""
-    if proc.reading_limits is None:
+    """Readings outside the instrument's range (``procedure.readings.limits``) are refused."""
+    if proc.readings.limits is None:
         return
     lines = df.attrs.get("lines", list(range(2, len(df) + 2)))
-    for c, (lo, hi, what) in proc.reading_limits(setup).items():
+    for c, (lo, hi, what) in proc.readings.limits(setup).items():
         v = df[c].to_numpy(dtype=float)
         lo = np.broadcast_to(np.asarray(lo, dtype=float), v.shape)
         hi = np.broadcast_to(np.asarray(hi, dtype=float), v.shape)
@@ -289,10 +289,10 @@ def _check_limits(proc, setup, path, df) -> None:
 
 # --------------------------------------------------------------------------- 7. the readings
 def _to_readings(proc, setup, path, df, expected, reduced) -> dict:
-    """``procedure.from_frame`` with its refusals named after the file."""
+    """``procedure.readings.from_frame`` with its refusals named after the file."""
     df = _typed(df, expected)
     try:
-        readings = proc.from_frame(setup, df)
+        readings = proc.readings.from_frame(setup, df)
     except InvalidInput as exc:
         _fail(path, " ".join(exc.problems))
     except KeyError as exc:
@@ -317,7 +317,7 @@ def _table(proc, setup, path):
 
 
 def _nominal_frame(proc, setup):
-    return proc.readings_frame(setup, proc.forward(setup, proc.Truth(), proc.zero_errors(setup, 1)))
+    return proc.readings.frame(setup, proc.forward(setup, proc.Truth(), proc.zero_errors(setup, 1)))
 
 
 def _finish(proc, setup, path, df, cols, origin=None) -> dict:
@@ -355,7 +355,7 @@ def _origin(proc, setup, df, readings, design, rows) -> dict | None:
     """File row (``rows[i]`` for frame row i) and column of every reading: key -> (rows,
     columns), arrays shaped like the reading without its batch axis (0 and "" where none).
 
-    Found through ``procedure.from_frame`` itself, in 1 + log2(rows) + 1 calls per reading
+    Found through ``procedure.readings.from_frame`` itself, in 1 + log2(rows) + 1 calls per reading
     column: the cells of the rows whose index has bit b set are nudged, and the readings
     that move spell out, bit by bit, the row they come from; a last call nudges a random
     half of the rows and checks that exactly their readings move. None where a reading
@@ -374,7 +374,7 @@ def _origin(proc, setup, df, readings, design, rows) -> dict | None:
         f = df.copy()
         v = f[column].to_numpy(dtype=float)
         f[column] = np.where(mask, v + 1e-7 * (np.abs(v) + 1.0), v)
-        r = proc.from_frame(setup, f)
+        r = proc.readings.from_frame(setup, f)
         return {k: np.asarray(r[k], dtype=float).reshape(base[k].shape) != base[k] for k in keys}
 
     columns = [c for c in df.columns if c not in design and df[c].dtype.kind in "fiu"]
@@ -403,7 +403,7 @@ def _origin(proc, setup, df, readings, design, rows) -> dict | None:
 
 
 def reading_origin(procedure, setup, readings) -> dict | None:
-    """Row and column of every reading in the table ``procedure.readings_frame`` writes
+    """Row and column of every reading in the table ``procedure.readings.frame`` writes
     (``mtplan simulate --readings-out``): key -> (rows, columns), arrays shaped like the
     reading without its batch axis; rows counted as a spreadsheet shows the written file
     (the header is row 1, the first data row 2; 0: none). None where the procedure's
@@ -411,7 +411,7 @@ def reading_origin(procedure, setup, readings) -> dict | None:
     from mtplan.models import get
 
     proc = get(procedure)
-    frame = proc.readings_frame(setup, readings)
+    frame = proc.readings.frame(setup, readings)
     design = _design_columns(_expected_frames(proc, setup))
     return _origin(proc, setup, frame, readings, design, np.arange(2, len(frame) + 2))
 
@@ -426,12 +426,12 @@ def read_readings(procedure, setup, path) -> dict:
         The set-up the readings were taken with (positions, counts). To complete a
         set-up from the file instead, use :func:`read_measurement`.
     path : str or Path
-        CSV in the format of ``procedure.readings_frame``.
+        CSV in the format of ``procedure.readings.frame``.
 
     Returns
     -------
     dict of str to array
-        As ``procedure.from_frame`` returns (leading axis 1).
+        As ``procedure.readings.from_frame`` returns (leading axis 1).
 
     Raises
     ------
@@ -457,7 +457,7 @@ class Measurement:
     setup : the procedure's Setup
         The stated fields, completed by those the file determines.
     readings : dict of str to array
-        A batch of one, as ``procedure.from_frame`` returns.
+        A batch of one, as ``procedure.readings.from_frame`` returns.
     from_file : dict
         Fields whose value comes from the file (field -> value).
     defaults : tuple of str
@@ -546,7 +546,7 @@ def _complete_setup(proc, given, implied, path):
 def read_measurement(procedure, path, values=None) -> Measurement:
     """Read a readings CSV and the set-up it was taken with.
 
-    The fields the file determines (``procedure.setup_from_frame``: counts, positions,
+    The fields the file determines (``procedure.readings.setup_from_frame``: counts, positions,
     angles, lattice, a bore's radius) need not be stated; stated ones (`values`) must
     agree with the file within the procedure's tolerance. The rest keep their defaults.
 
@@ -554,7 +554,7 @@ def read_measurement(procedure, path, values=None) -> Measurement:
     ----------
     procedure : str or Procedure
     path : str or Path
-        CSV in the format of ``procedure.readings_frame`` (or a reduced format the
+        CSV in the format of ``procedure.readings.frame`` (or a reduced format the
         procedure accepts, such as circle_centre's bare ``x_mm, y_mm`` points).
     values : mapping of str to value, optional
         Set-up fields the user states (strings from the command line are parsed).
@@ -578,9 +578,9 @@ def read_measurement(procedure, path, values=None) -> Measurement:
     nominal = proc.Setup()
     df, cols = _table(proc, nominal, path)
     implied = {}
-    if proc.setup_from_frame is not None:
+    if proc.readings.setup_from_frame is not None:
         try:
-            implied = proc.setup_from_frame(df)
+            implied = proc.readings.setup_from_frame(df)
         except InvalidInput as exc:
             _fail(path, " ".join(exc.problems))
     setup, from_file, kept, notes = _complete_setup(proc, given, implied, path)

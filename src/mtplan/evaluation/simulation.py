@@ -155,10 +155,10 @@ def undetermined_measurands(proc, setup) -> dict:
     What the readings determine does not depend on the estimator, so the hook is asked
     for its first exact estimator's table (the cheapest: the data's own view). The unit
     is the suffix of the measurand's Truth field (``EAX_urad``)."""
-    if proc.identifiability is None:
+    if proc.capabilities.identifiability is None:
         return {}
-    estimator = proc.exact_estimators[0] if proc.exact_estimators else proc.default_estimator
-    table = proc.identifiability(setup, estimator)
+    estimator = proc.exact_names[0] if proc.exact_names else proc.default_estimator
+    table = proc.capabilities.identifiability(setup, estimator)
     listed = {m.name for m in proc.measurands(setup)}
     units = dict(f.name.rsplit("_", 1) for f in fields(proc.Truth) if "_" in f.name)
     out = {}
@@ -368,7 +368,7 @@ def _quantised(proc, setup, estimator, measurands, mc) -> dict:
     interval is the mean +- coverage * q / 2, never u = 0 (`mc` is changed in place). A
     zero width without a stated step (a source that does not act, with --sources) stays,
     and :meth:`ProcedureResult.findings` names it."""
-    steps = proc.resolution(setup, estimator) if proc.resolution is not None else {}
+    steps = proc.estimators[estimator].steps(setup)
     out = {}
     for i, m in enumerate(measurands):
         q = steps.get(m.name)
@@ -430,8 +430,8 @@ def simulate_uncertainty(
     root = as_seed_sequence(rng)
     measurands = tuple(proc.measurands(setup))
     if digits is not None and block_size is None:
-        block_size = proc.block_size
-    block_size = block_size or min(proc.block_size, max(trials or 0, 2))
+        block_size = proc.capabilities.block_size
+    block_size = block_size or min(proc.capabilities.block_size, max(trials or 0, 2))
     check_memory(proc, setup, truth, est_name, tuple(active), block_size=block_size,
                  n_jobs=n_jobs, trials=trials if digits is None else max_trials)
     mc = run_blocks(
@@ -480,12 +480,12 @@ def simulate_readings(procedure, setup=None, truth=None, *, rng=None, sources=No
 
     Returns
     -------
-    DataFrame in the procedure's readings format (``procedure.readings_frame``), which
+    DataFrame in the procedure's readings format (``procedure.readings.frame``), which
     ``mtplan estimate`` reads back.
     """
     proc, setup, truth = _resolve(procedure, setup, truth)
     readings = proc.simulate(setup, truth, 1, rng=rng, sources=sources)
-    return proc.readings_frame(setup, readings)
+    return proc.readings.frame(setup, readings)
 
 
 def linearize_procedure(

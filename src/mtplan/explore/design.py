@@ -263,7 +263,7 @@ def _closed_form(name: str, estimator: str) -> tuple:
 
     proc = get(name)
     setup = proc.Setup()
-    hook = proc.first_order_sensitivities
+    hook = proc.capabilities.first_order_sensitivities
     if hook is None or hook(setup, proc.Truth(), estimator=estimator, sources=None) is None:
         return "chain", 0.0
     with one_blas_thread():
@@ -401,7 +401,7 @@ def spot_check(proc, setup, estimator: str) -> dict:
             est = _procedure_block(proc, setup, proc.Truth(), estimator,
                                    tuple(proc.active_sources(setup)),
                                    as_seed_sequence(_SPOT_SEED), 0, n)
-        steps = proc.resolution(setup, estimator) if proc.resolution is not None else {}
+        steps = proc.estimators[estimator].steps(setup)
         u = {}
         for m in proc.measurands(setup):
             a = np.asarray(est[m.name], dtype=float)
@@ -420,10 +420,8 @@ def spot_check(proc, setup, estimator: str) -> dict:
 
 def resolution_steps(proc, setup, estimator: str) -> dict:
     """Measurand -> the step [display unit] its estimator's values come in (a quantised
-    estimator, the procedure's ``resolution`` hook); {} for a continuous one."""
-    if proc.resolution is None:
-        return {}
-    steps = proc.resolution(setup, estimator) or {}
+    estimator, its record's ``resolution``); {} for a continuous one."""
+    steps = proc.estimators[estimator].steps(setup) or {}
     return {m.name: steps[m.name] * m.scale for m in proc.measurands(setup) if steps.get(m.name)}
 
 
@@ -509,7 +507,7 @@ def identify(proc, setup) -> dict:
     from mtplan.plans.identifiability import identifiability
     from mtplan.plans.planner import readings_jacobian
 
-    own = proc.identifiability_report
+    own = proc.capabilities.identifiability_report
     names = [m.name for m in proc.measurands(setup)]
     if own is not None:
         rep = own(setup)

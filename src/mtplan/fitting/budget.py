@@ -28,7 +28,7 @@ the shift of the readings' mean, added to the prediction). Then, per source:
   point, which is free) is left out: in the linear case the measurands' posterior
   is exactly the same with or without it.
 
-The noise source (``procedure.noise_source``) may instead have a given standard
+The noise source (``procedure.readings.noise_source``) may instead have a given standard
 deviation or a free one (Jeffreys prior): then ``C(sigma) = sigma^2 C_n + C_0`` is
 diagonalised once (generalised eigenproblem, or a thin SVD above ``DENSE_MAX``
 readings), so that every walker's ``sigma`` costs ``n`` more operations.
@@ -407,7 +407,7 @@ def error_budget(fwd, truth, noise: str, sigma, J, G, names) -> Budget:
     f0 = fwd.at(truth, fwd.errors(1))[0]
     active = proc.active_sources(fwd.setup)
     how = {k: "off (size 0)" for k in fwd.sources if k not in active}
-    ns = proc.noise_source
+    ns = proc.readings.noise_source
     std = {k: np.asarray(s.distribution.std, dtype=float) for k, s in active.items()}
     if noise in ("known", "free"):
         setup_sd = float(np.max(np.asarray(fwd.sources[ns].distribution.std)))

@@ -28,9 +28,19 @@ import pkgutil
 from importlib.metadata import EntryPoint, entry_points
 
 from mtplan._validate import InvalidInput
-from mtplan.models.protocol import Measurand, Procedure, SetupBase, Source, param
+from mtplan.models.protocol import (
+    Capabilities,
+    Estimator,
+    Measurand,
+    Procedure,
+    ReadingsFormat,
+    SetupBase,
+    Source,
+    param,
+)
 
-__all__ = ["Measurand", "Procedure", "SetupBase", "Source", "param", "registry", "get", "broken",
+__all__ = ["Capabilities", "Estimator", "Measurand", "Procedure", "ReadingsFormat", "SetupBase",
+           "Source", "param", "registry", "get", "broken",
            "ENTRY_POINT_GROUP"]
 
 #: the entry-point group through which installed packages register procedures

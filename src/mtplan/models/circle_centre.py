@@ -133,7 +133,16 @@ from mtplan._validate import InvalidInput, Problems
 from mtplan.fitting import gls_step
 from mtplan.fitting.circle import geometric_fit, kasa_fit, three_point_circle
 from mtplan.models import _temperature as temperature
-from mtplan.models.protocol import Measurand, Procedure, SetupBase, Source, param
+from mtplan.models.protocol import (
+    Capabilities,
+    Estimator,
+    Measurand,
+    Procedure,
+    ReadingsFormat,
+    SetupBase,
+    Source,
+    param,
+)
 from mtplan.uncertainty import Normal, Rectangular
 
 __all__ = [
@@ -1395,24 +1404,19 @@ PROCEDURE = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators=ESTIMATORS,
+    estimators={name: Estimator(fn, exact=True) for name, fn in ESTIMATORS.items()},
     true_values=true_values,
     duration=duration,
-    readings_frame=readings_frame,
-    from_frame=from_frame,
     description=(
         "A touch probe, lowered anywhere into a bore of known nominal radius, probes -y and "
         "+y, plans three points 120 deg apart reached on helper arcs tangent to the radii, "
         "and computes the centre from them (circle-centre patent). Compares the three-point formula with "
         "algebraic and geometric least-squares circles through n points over any spread."
     ),
-    exact_estimators=("three_point", "kasa", "geometric", "gls"),
-    block_size=2000,
-    optional_columns=("point",),
-    truth_from_estimate=truth_from_estimate,
-    noise_source="probe_noise",
     levers=tuple("n_points spread_deg free_test_mm miss_tolerance_mm feed_mm_min "
                  "probe_feed_mm_min clearance_mm dwell_s".split()),
-    setup_from_frame=setup_from_frame,
-    report_extras=report_extras,
+    readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
+                            optional_columns=("point",), noise_source="probe_noise"),
+    capabilities=Capabilities(block_size=2000, truth_from_estimate=truth_from_estimate,
+                              report_extras=report_extras),
 )

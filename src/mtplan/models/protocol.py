@@ -16,21 +16,27 @@ A procedure module (``mtplan/models/<name>.py``) defines a module-level
 - ``forward(setup, truth, errors) -> readings``: the deterministic forward model;
   ``errors`` maps every source name to an array of shape ``(n, *source.shape)``;
   ``readings`` is a dict of batch-first arrays (leading axis = trials).
-- ``estimators``: name -> ``estimate(setup, readings) -> dict[measurand, (n,) array]``
-  in internal units (mm, rad). The patent's method is named ``patent`` (or the patent's
-  own name) and is always present.
+- ``estimators``: name -> :class:`Estimator`, a record of the function
+  ``estimate(setup, readings) -> dict[measurand, (n,) array]`` in internal units (mm, rad),
+  its plain ``description`` (the reports quote it), whether it is ``exact`` without noise
+  and, for a quantised estimator, its ``resolution``. The patent's method is named
+  ``patent`` (or the patent's own name) and is always present; the first is the default.
 - ``true_values(setup, truth) -> dict[measurand, float]`` in internal units.
 - ``duration(setup) -> float``: machine time of the test [s].
-- ``readings_frame(setup, readings) -> DataFrame`` and ``from_frame(setup, df) -> readings``:
-  the tidy CSV format of measured data (batch of one), and back.
-- optional ``setup_from_frame(df) -> dict[field, Implied]``: the set-up fields a measured
-  readings table determines (counts, positions, angles, lattice, radius), each with the
-  tolerance within which a value the user states agrees with the file (:class:`Implied`).
-- optional analysis hooks, each a field of :class:`Procedure` whose default None selects
-  the generic analysis: ``identifiability_report``, ``report_extras``, ``identifiability``,
-  ``observability`` and one derivative hook, ``first_order_sensitivities`` (the closed
-  form of the first-order sensitivities, from which the first-order service derives u
-  and the budget for every caller; see the fields' comments).
+- ``readings``: a :class:`ReadingsFormat`, ``frame(setup, readings) -> DataFrame`` and
+  ``from_frame(setup, df) -> readings`` (the tidy CSV format of measured data, batch of one,
+  and back), and optionally ``setup_from_frame(df) -> dict[field, Implied]`` (the set-up
+  fields a measured table determines, each with the tolerance within which a value the
+  user states agrees with the file, :class:`Implied`), ``optional_columns``, ``limits``
+  and ``noise_source``.
+- ``description`` and ``levers`` (the set-up fields an engineer chooses).
+- ``capabilities``: a :class:`Capabilities` record, what the procedure offers beyond its
+  model as data with generic defaults (as scikit-learn's estimator tags): the Monte Carlo
+  ``block_size``, ``truth_from_estimate`` and its batched form, ``source_structure``, the
+  analysis hooks ``identifiability_report``, ``report_extras``, ``identifiability`` and
+  ``observability``, and one derivative hook, ``first_order_sensitivities`` (the closed
+  form of the first-order sensitivities, from which the first-order service derives u and
+  the budget for every caller). Each default (None) selects the generic analysis.
 
 The :class:`Procedure` record is the whole contract: the planner, the study and the
 reports use only its fields, never a function looked up by name in a procedure's module.
@@ -44,6 +50,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import re
 import types
 import typing
 from collections.abc import Callable, Mapping
@@ -68,6 +75,9 @@ __all__ = [
     "frame_columns",
     "parse_fields",
     "Implied",
+    "Estimator",
+    "ReadingsFormat",
+    "Capabilities",
     "Procedure",
 ]
 
@@ -559,11 +569,174 @@ def frame_columns(df, columns, owner: str, *, numeric=None, problems: Problems |
 Readings = dict
 
 
+def _plain_summary(function) -> str:
+    """The first paragraph of `function`'s docstring as plain prose: one line, without reST
+    markup and without the return value's units and shape ("" without a docstring)."""
+    doc = " ".join((getattr(function, "__doc__", None) or "").strip().split("\n\n")[0].split())
+    if not doc:
+        return ""
+    doc = re.sub(r":\w+:`~?([^`]+)`", r"\1", doc).replace("``", "")
+    doc = re.sub(r";?\s*(measurands\s*)?\[mm, rad\],?\s*\(n,\)\.?", ".", doc)
+    return doc.rstrip(" .;") + "."
+
+
+@dataclass(frozen=True)
+class Estimator:
+    """An estimator of a procedure: its function and what the documents say of it.
+
+    Calling the record calls the function: ``estimator(setup, readings) ->
+    {measurand: (n,) array}`` in internal units (mm, rad).
+
+    Parameters
+    ----------
+    function : callable
+        ``function(setup, readings) -> dict[measurand, (n,) array]``.
+    description : str
+        Plain English for the documents (the reports quote it); default: the first
+        paragraph of the function's docstring, without markup.
+    exact : bool
+        Recovers the truth exactly from noise-free readings at the default set-up (checked
+        by :func:`mtplan.testing.check_procedure`).
+    resolution : callable or None
+        ``resolution(setup) -> {measurand: step}``: the steps [internal unit] in which the
+        estimator's values come (a quantised estimator): where its Monte Carlo interval has
+        zero width, ``simulate`` states u = step / sqrt(12). None: continuous values.
+    """
+
+    function: Callable
+    description: str = ""
+    exact: bool = False
+    resolution: Callable | None = None
+
+    def __post_init__(self):
+        if not callable(self.function):
+            raise TypeError(f"The 'function' parameter of Estimator must be callable. Got "
+                            f"{type(self.function).__name__} instead.")
+        if not self.description:
+            object.__setattr__(self, "description", _plain_summary(self.function))
+        # the function's docstring stays readable through the record (``help``, reports)
+        object.__setattr__(self, "__doc__", getattr(self.function, "__doc__", None))
+
+    def __call__(self, setup, readings) -> dict:
+        return self.function(setup, readings)
+
+    def steps(self, setup) -> dict:
+        """``resolution(setup)``, or {} for an estimator whose values are continuous."""
+        return {} if self.resolution is None else dict(self.resolution(setup))
+
+
+@dataclass(frozen=True)
+class ReadingsFormat:
+    """How a procedure's readings are written to and read from a tidy table (CSV).
+
+    Parameters
+    ----------
+    frame : callable
+        ``frame(setup, readings) -> DataFrame``: the tidy table of a batch of one.
+    from_frame : callable
+        ``from_frame(setup, df) -> readings``: the table back to readings (batch of one),
+        in any row order; refuses a bad table with :class:`InvalidInput`.
+    setup_from_frame : callable or None
+        ``setup_from_frame(df) -> {field: Implied}``: the set-up fields a measured table
+        determines (``df`` as read from the file: numeric columns as floats, rows in the
+        file's order, optional columns possibly absent). None: the table implies nothing.
+    optional_columns : tuple of str
+        Columns a measured file may leave out (``from_frame`` copes without them).
+    limits : callable or None
+        ``limits(setup) -> {column: (low, high, what)}``: the instrument's range per row of
+        the table (arrays or scalars); measured values outside are refused, naming the row,
+        the value and ``what`` range it left. None: no range.
+    noise_source : str or None
+        The error source whose spread is the readings' noise in the likelihood (posterior,
+        fit checks). None: the procedure has no single noise source.
+    """
+
+    frame: Callable
+    from_frame: Callable
+    setup_from_frame: Callable | None = None
+    optional_columns: tuple = ()
+    limits: Callable | None = None
+    noise_source: str | None = None
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What a procedure offers beyond its model, as data with generic defaults (as
+    scikit-learn's estimator tags). Every field is optional; its default selects the
+    generic analysis named with it.
+
+    Parameters
+    ----------
+    block_size : int
+        Monte Carlo block size (trials); smaller for procedures with many readings.
+    truth_from_estimate : callable or None
+        ``truth_from_estimate(setup, estimate) -> Truth``: the Truth whose measurands equal
+        an estimate (internal units; nuisance fields at their defaults), for Monte Carlo
+        around a measured result and as a posterior start. None: the study runs at the
+        stated truth and the posterior is not available.
+    truths_from_estimates : callable or None
+        ``truths_from_estimates(setup, estimates) -> Truth``: ``truth_from_estimate`` for many
+        estimates at once, `estimates` mapping each measurand to an array (m,); the Truth's
+        float fields are arrays (m,), which ``forward`` takes as one truth per batch row. The
+        readings' sensitivities to the measurands are then one forward run
+        (``plans.planner.readings_jacobian``). None: one run per step of each measurand.
+    source_structure : callable or None
+        ``source_structure(setup, truth, name) -> (colours, owners)`` or None: for a source
+        of many elements that each move a few readings (an artifact's facets), a colouring of
+        its elements: those of one colour never move a common reading, and ``owners``
+        (colours, readings) names the element of each colour each reading of ``forward``
+        (flattened) depends on, -1 for none. The source's effects then take two forward rows
+        per colour instead of two per element (``fitting.source_effects``). None: NaN
+        probes, then element by element.
+    identifiability_report : callable or None
+        ``identifiability_report(setup) -> dict``: the procedure's own rank analysis of its
+        full model, with ``rank``, ``parameters``, ``readings``, ``condition_number``,
+        ``singular_values`` and ``null_space`` (a list of dicts parameter -> weight), and
+        optionally ``jacobian``, ``scale``, ``names``, ``rank_tol`` and ``functions`` (the
+        measurands as functions of its parameters, by name). None: the sensitivities of the
+        readings to the measurands (or truth fields) are analysed (``plans.identifiability``).
+    report_extras : callable or None
+        ``report_extras(setup, truth) -> dict``: procedure-specific data for the report (a
+        figure's path, uncertainty bands); plain data, the reports draw it. None: no extras.
+    identifiability : callable or None
+        ``identifiability(setup, estimator) -> DataFrame`` indexed by every measurand the
+        procedure can report, with ``listed`` (a measurand at this set-up), ``status``
+        ('identified', 'unidentifiable', 'no effect', ...) and ``confounded_with``. None:
+        every measurand is listed at every set-up.
+    observability : callable or None
+        ``observability(setup) -> {estimator: {measurand: ...}}``: which measurands each
+        estimator can observe at the set-up, with their limits; shown in the report (unless
+        ``report_extras`` already gives ``observability``). None: not shown.
+    first_order_sensitivities : callable or None
+        ``first_order_sensitivities(setup, truth, *, estimator, sources) -> jacobian``: the
+        derivative hook (as astropy.modeling's ``fit_deriv``), the closed form of the
+        measurands' sensitivity [display unit per internal unit] to every element of every
+        active source (columns: the active sources in order, each one's elements flattened)
+        at the sources' means. The first-order service (``mtplan.evaluation.first_order``)
+        takes it for the planner, the designer and ``mtplan linearize`` alike. None (or the
+        hook returning None for an estimator it does not map): the chain rule through the
+        forward model and the estimator. It takes the estimator's name rather than living on
+        each :class:`Estimator` because the closed forms share one model linearisation
+        between a procedure's estimators.
+    """
+
+    block_size: int = 10_000
+    truth_from_estimate: Callable | None = None
+    truths_from_estimates: Callable | None = None
+    source_structure: Callable | None = None
+    identifiability_report: Callable | None = None
+    report_extras: Callable | None = None
+    identifiability: Callable | None = None
+    observability: Callable | None = None
+    first_order_sensitivities: Callable | None = None
+
+
 @dataclass(frozen=True)
 class Procedure:
     """A registered measurement procedure: forward model, estimators and metadata.
 
-    See the module docstring for the meaning of each callable.
+    See the module docstring for the meaning of each field; :class:`Estimator`,
+    :class:`ReadingsFormat` and :class:`Capabilities` hold the rest of the contract.
     """
 
     name: str
@@ -573,93 +746,29 @@ class Procedure:
     measurands: Callable
     sources: Callable
     forward: Callable
-    estimators: Mapping[str, Callable]
+    #: name -> :class:`Estimator` (a bare function is taken as ``Estimator(function)``);
+    #: the first is the default
+    estimators: Mapping[str, Estimator]
     true_values: Callable
     duration: Callable
-    readings_frame: Callable
-    from_frame: Callable
+    readings: ReadingsFormat
     description: str = ""
-    #: estimators that recover the truth exactly from noise-free readings at the
-    #: default set-up (checked by the conformance suite)
-    exact_estimators: tuple = ()
-    #: Monte Carlo block size (trials); smaller for procedures with many readings
-    block_size: int = 10_000
-    #: optional ``truth_from_estimate(setup, estimate) -> Truth``: the Truth whose
-    #: measurands equal an estimate (internal units; nuisance fields at their
-    #: defaults), for Monte Carlo around a measured result and as a posterior start
-    truth_from_estimate: Callable | None = None
-    #: optional ``truths_from_estimates(setup, estimates) -> Truth``: ``truth_from_estimate``
-    #: for many estimates at once, `estimates` mapping each measurand to an array (m,); the
-    #: Truth's float fields are arrays (m,), which ``forward`` takes as one truth per batch
-    #: row. The readings' sensitivities to the measurands are then one forward run
-    #: (``plans.planner.readings_jacobian``); None: one run per step of each measurand
-    truths_from_estimates: Callable | None = None
-    #: Truth fields that are free parameters of a posterior (default: every float field)
-    posterior_fields: tuple = ()
-    #: the error source whose spread is the readings' noise in the likelihood
-    noise_source: str | None = None
-    #: readings columns a measured file may leave out (``from_frame`` copes without them)
-    optional_columns: tuple = ()
-    #: optional ``reading_limits(setup) -> {column: (low, high, what)}``: the instrument's
-    #: range per row of ``readings_frame`` (arrays or scalars); measured values outside are
-    #: refused, naming the row, the value and ``what`` range it left
-    reading_limits: Callable | None = None
     #: the set-up fields an engineer chooses when planning the test (counts, geometry and
     #: order of the test, dwell, feed): the levers advice may name; every other field is
     #: a property of the machine, the workpiece or the instrument, named as what dominates
     levers: tuple = ()
-    #: optional ``setup_from_frame(df) -> {field: Implied}``: the set-up fields a measured
-    #: readings table determines (``df`` as read from the file: numeric columns as floats,
-    #: rows in the file's order, optional columns possibly absent)
-    setup_from_frame: Callable | None = None
-    #: optional ``resolution(setup, estimator) -> {measurand: step}``: the steps [internal
-    #: unit] in which an estimator's values come (a quantised estimator): where its Monte
-    #: Carlo interval has zero width, ``simulate`` states u = step / sqrt(12)
-    resolution: Callable | None = None
-    #: optional ``source_structure(setup, truth, name) -> (colours, owners)`` or None: for a
-    #: source of many elements that each move a few readings (an artifact's facets), a
-    #: colouring of its elements: those of one colour never move a common reading, and
-    #: ``owners`` (colours, readings) names the element of each colour each reading of
-    #: ``forward`` (flattened) depends on, -1 for none. The source's effects in the
-    #: readings' covariance then take two forward rows per colour instead of two per
-    #: element (``fitting.source_effects``, the posterior's budget). None: NaN probes, then
-    #: element by element
-    source_structure: Callable | None = None
+    #: what the procedure offers beyond its model; the defaults select the generic analyses
+    capabilities: Capabilities = Capabilities()
 
-    # ----------------------------------------------------------------- analysis hooks
-    # What the planner, the study and the reports ask a procedure beyond its model. Each
-    # is optional; None (the default) means the generic analysis named with it is used.
-    #: optional ``identifiability_report(setup) -> dict``: the procedure's own rank
-    #: analysis of its full model, with ``rank``, ``parameters``, ``readings``,
-    #: ``condition_number``, ``singular_values`` and ``null_space`` (a list of dicts
-    #: parameter -> weight), and optionally ``jacobian``, ``scale``, ``names``,
-    #: ``rank_tol`` and ``functions`` (the measurands as functions of its parameters, by
-    #: name). None: the sensitivities of the readings to the measurands (or truth fields)
-    #: are analysed (``plans.identifiability``)
-    identifiability_report: Callable | None = None
-    #: optional ``report_extras(setup, truth) -> dict``: procedure-specific data for the
-    #: report (a figure's path, uncertainty bands); plain data, the reports draw it.
-    #: None: no extras
-    report_extras: Callable | None = None
-    #: optional ``identifiability(setup, estimator) -> DataFrame`` indexed by every measurand
-    #: the procedure can report, with ``listed`` (a measurand at this set-up), ``status``
-    #: ('identified', 'unidentifiable', 'no effect', ...) and ``confounded_with``: every
-    #: command lists the measurands a set-up leaves out, with the reason
-    identifiability: Callable | None = None
-    #: optional ``observability(setup) -> {estimator: {measurand: ...}}``: which measurands
-    #: each estimator can observe at the set-up, with their limits; shown in the report
-    #: (unless ``report_extras`` already gives ``observability``). None: not shown
-    observability: Callable | None = None
-    #: optional ``first_order_sensitivities(setup, truth, *, estimator, sources) ->
-    #: jacobian``: the derivative hook (as astropy.modeling's ``fit_deriv``), the closed form
-    #: of the measurands' sensitivity [display unit per internal unit] to every element of
-    #: every active source (columns: the active sources in order, each one's elements
-    #: flattened) at the sources' means. The first-order service
-    #: (``mtplan.evaluation.first_order``) takes it for the planner, the designer and
-    #: ``mtplan linearize`` alike, and derives u and the budget by source from it and the
-    #: sources' standard deviations. None (or the hook returning None for an estimator it
-    #: does not map): the chain rule through the forward model and the estimator
-    first_order_sensitivities: Callable | None = None
+    def __post_init__(self):
+        object.__setattr__(self, "estimators", {
+            k: v if isinstance(v, Estimator) else Estimator(v)
+            for k, v in self.estimators.items()})
+
+    @property
+    def exact_names(self) -> tuple:
+        """Names of the estimators that are exact without noise, in order."""
+        return tuple(k for k, e in self.estimators.items() if e.exact)
 
     # ----------------------------------------------------------------- helpers
     @property
@@ -681,8 +790,9 @@ class Procedure:
                  f"Got {type(setup).__name__} instead."]
             )
 
-    def estimator(self, name: str | None) -> tuple[str, Callable]:
-        """(name, function) of an estimator, the default one when `name` is None."""
+    def estimator(self, name: str | None) -> tuple[str, Estimator]:
+        """(name, record) of an estimator, the default one when `name` is None; the record
+        is called as the function."""
         name = name or self.default_estimator
         if name not in self.estimators:
             raise InvalidInput(

@@ -163,8 +163,11 @@ from mtplan._parallel import one_blas_thread
 from mtplan.fitting.effects import secant_effects
 from mtplan.models import _temperature as temperature
 from mtplan.models.protocol import (
+    Capabilities,
+    Estimator,
     Measurand,
     Procedure,
+    ReadingsFormat,
     SetupBase,
     Source,
     frame_columns,
@@ -1476,22 +1479,20 @@ PROCEDURE = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators={"patent": estimate_patent, "angles": estimate_angles, "home": estimate_home,
-                "gls": estimate_gls},
+    estimators={"patent": Estimator(estimate_patent, exact=True),
+                "angles": Estimator(estimate_angles, exact=True),
+                "home": Estimator(estimate_home, exact=True),
+                "gls": Estimator(estimate_gls, exact=True)},
     true_values=true_values,
     duration=duration,
-    readings_frame=readings_frame,
-    from_frame=from_frame,
     description=(
         "Laser-tracker calibration of the frames of the AC-head sub-machines of a gantry "
         "(CN106078359A): lines along the travels, 3D circles round A and C, the common "
         "perpendicular of A and C, origin at the pivot length along C, longest travel kept."),
-    exact_estimators=("patent", "angles", "home", "gls"),
-    block_size=4000,
-    truth_from_estimate=truth_from_estimate,
-    truths_from_estimates=truths_from_estimates,
     levers=tuple("reflector_offset_mm travel_x_mm travel_y_mm travel_z_mm "
                  "points_per_axis c_arc_deg a_arc_deg points_per_arc tracker_distance_mm "
                  "tracker_height_mm dwell_s linear_feed_mm_min".split()),
-    setup_from_frame=setup_from_frame,
+    readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame),
+    capabilities=Capabilities(block_size=4000, truth_from_estimate=truth_from_estimate,
+                              truths_from_estimates=truths_from_estimates),
 )

@@ -198,9 +198,9 @@ def _possible_measurands(proc, setups) -> tuple[dict, list]:
     functions), those the procedure could report at some set-up; in the procedure's order.
     Also each candidate's own list."""
     names = {}
-    if proc.identifiability_report is not None:
-        names.update(dict.fromkeys(proc.identifiability_report(setups[0]).get("functions", {}),
-                                   ""))
+    if proc.capabilities.identifiability_report is not None:
+        own = proc.capabilities.identifiability_report(setups[0])
+        names.update(dict.fromkeys(own.get("functions", {}), ""))
     listed = []
     for s in setups:
         ms = proc.measurands(s)
@@ -560,21 +560,21 @@ def readings_jacobian(procedure, setup=None, truth=None, *, wrt: str | None = No
     truth = proc.Truth() if truth is None else truth
     zero = proc.zero_errors(setup, 1)
     if wrt is None:
-        wrt = "measurands" if proc.truth_from_estimate is not None else "truth"
+        wrt = "measurands" if proc.capabilities.truth_from_estimate is not None else "truth"
 
     def flat(t):
         r = proc.forward(setup, t, zero)
         return np.concatenate([np.asarray(v, dtype=float).ravel() for v in r.values()])
 
     cols, names = [], []
-    if wrt == "measurands" and proc.truths_from_estimates is not None:
+    if wrt == "measurands" and proc.capabilities.truths_from_estimates is not None:
         # every step of every measurand as one batch row: one truth per row, one forward run
         base = proc.true_values(setup, truth)
         names = list(base)
         h = np.array([max(abs(v) * 1e-6, 1e-9) for v in base.values()])
         step = np.concatenate([np.diag(h), -np.diag(h)])  # (2 p, p): up rows, then down
         rows = np.array(list(base.values()), dtype=float)[None, :] + step
-        r = proc.forward(setup, proc.truths_from_estimates(
+        r = proc.forward(setup, proc.capabilities.truths_from_estimates(
             setup, {n: rows[:, j] for j, n in enumerate(names)}),
             proc.zero_errors(setup, rows.shape[0]))
         f = np.concatenate([np.asarray(v, dtype=float).reshape(rows.shape[0], -1)
@@ -585,8 +585,8 @@ def readings_jacobian(procedure, setup=None, truth=None, *, wrt: str | None = No
         base = proc.true_values(setup, truth)
         for name, v in base.items():
             h = max(abs(v) * 1e-6, 1e-9)
-            up = proc.truth_from_estimate(setup, {**base, name: v + h})
-            down = proc.truth_from_estimate(setup, {**base, name: v - h})
+            up = proc.capabilities.truth_from_estimate(setup, {**base, name: v + h})
+            down = proc.capabilities.truth_from_estimate(setup, {**base, name: v - h})
             cols.append((flat(up) - flat(down)) / (2 * h))
             names.append(name)
     else:
@@ -622,8 +622,8 @@ def design_identifiability(procedure, setup=None, truth=None) -> dict:
 
     proc = get(procedure)
     setup = proc.Setup() if setup is None else setup
-    if proc.identifiability_report is not None:
-        rep = proc.identifiability_report(setup)
+    if proc.capabilities.identifiability_report is not None:
+        rep = proc.capabilities.identifiability_report(setup)
         if "jacobian" in rep:  # the model's own Jacobian: the generic analysis, with the
             # measurands as functions of its parameters (geometry21's 21 error functions)
             gen = identifiability(rep["jacobian"], scale=rep["scale"], names=rep["names"],

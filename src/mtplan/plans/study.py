@@ -1173,8 +1173,8 @@ def _identifiability(proc, ps):
     from mtplan.plans.identifiability import identifiability, observability_indices
     from mtplan.plans.planner import readings_jacobian
 
-    if proc.identifiability_report is not None:
-        rep = proc.identifiability_report(ps.setup)
+    if proc.capabilities.identifiability_report is not None:
+        rep = proc.capabilities.identifiability_report(ps.setup)
         sv = np.asarray(rep["singular_values"], dtype=float)
         nulls = [" ".join(f"{w:+.2f} {k}" for k, w in list(d.items())[:6])
                  + (" ..." if len(d) > 6 else "") for d in rep["null_space"]]
@@ -1192,13 +1192,14 @@ def _extras(proc, ps):
     """Procedure-specific material for the report: the procedure's ``report_extras(setup,
     truth) -> dict`` (data only; the reports draw it), with its per-estimator
     ``identifiability`` and its ``observability`` where it declares them."""
-    extras = dict(proc.report_extras(ps.setup, ps.truth)) if proc.report_extras else {}
+    hook = proc.capabilities.report_extras
+    extras = dict(hook(ps.setup, ps.truth)) if hook else {}
     # what the patent's method cannot see: per-estimator identifiability or observability
-    if proc.identifiability is not None and "identifiability" not in extras:
-        extras["identifiability"] = {est: proc.identifiability(ps.setup, est)
+    if proc.capabilities.identifiability is not None and "identifiability" not in extras:
+        extras["identifiability"] = {est: proc.capabilities.identifiability(ps.setup, est)
                                      for est in ps.estimators}
-    if proc.observability is not None and "observability" not in extras:
-        extras["observability"] = proc.observability(ps.setup)
+    if proc.capabilities.observability is not None and "observability" not in extras:
+        extras["observability"] = proc.capabilities.observability(ps.setup)
     return extras
 
 

@@ -338,8 +338,9 @@ def _check_memory(proc, setups, truth, estimators, sources, options, n_jobs) -> 
     from mtplan.evaluation.simulation import check_memory
 
     largest = max(setups, key=lambda s: sum(src.size for src in proc.sources(s).values()))
-    block = min(proc.block_size, max(options["trials"] or 0, 2)) if options["digits"] is None \
-        else proc.block_size
+    block = proc.capabilities.block_size
+    if options["digits"] is None:
+        block = min(block, max(options["trials"] or 0, 2))
     check_memory(proc, largest, truth, estimators[0],
                  tuple(proc.active_sources(largest, sources)), block_size=block, n_jobs=n_jobs,
                  trials=options["trials"])

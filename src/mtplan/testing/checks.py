@@ -130,11 +130,11 @@ def check_noise_free_recovery(proc: Procedure) -> None:
     """Every exact estimator recovers the true values from noise-free readings to
     :data:`NOISE_FREE_ATOL`."""
     setup = proc.Setup()
-    _expect(proc.exact_estimators, "name the estimators that are exact without noise "
-                                   "(exact_estimators)")
+    _expect(proc.exact_names, "mark the estimators that are exact without noise "
+                              "(Estimator(..., exact=True))")
     readings = proc.forward(setup, proc.Truth(), proc.zero_errors(setup, 2))
     truth = proc.display_truth(setup)
-    for est in proc.exact_estimators:
+    for est in proc.exact_names:
         out = proc.display_estimate(setup, readings, est)
         for name, value in truth.items():
             np.testing.assert_allclose(out[name], value, rtol=0, atol=NOISE_FREE_ATOL,
@@ -158,14 +158,15 @@ def check_seed_and_n_jobs_invariance(proc: Procedure) -> None:
 
 
 def check_readings_round_trip(proc: Procedure) -> None:
-    """One measurement's readings go through ``readings_frame`` and ``from_frame`` unchanged,
+    """One measurement's readings go through ``readings.frame`` and ``readings.from_frame``
+    unchanged,
     and estimate the same."""
     setup = proc.Setup()
     readings = proc.simulate(setup, draws=3, rng=2)
-    frame = proc.readings_frame(setup, readings)
-    _expect(len(frame) > 0, "readings_frame gives an empty table")
-    _expect(frame.notna().all().all(), "readings_frame leaves empty cells")
-    back = proc.from_frame(setup, frame)
+    frame = proc.readings.frame(setup, readings)
+    _expect(len(frame) > 0, "readings.frame gives an empty table")
+    _expect(frame.notna().all().all(), "readings.frame leaves empty cells")
+    back = proc.readings.from_frame(setup, frame)
     _expect(set(back) == set(readings),
             f"from_frame gives {sorted(back)}, simulate gave {sorted(readings)}")
     for key, value in back.items():

@@ -149,7 +149,16 @@ from mtplan.fitting import central_jacobian
 from mtplan.fitting.linear import gls_pinv, restricted_pinv, \
     truncated_pinv
 from mtplan.models.kinematics import chain, polyval, rotate_inverse
-from mtplan.models.protocol import Measurand, Procedure, SetupBase, Source, param
+from mtplan.models.protocol import (
+    Capabilities,
+    Estimator,
+    Measurand,
+    Procedure,
+    ReadingsFormat,
+    SetupBase,
+    Source,
+    param,
+)
 from mtplan.uncertainty.distributions import Normal, Rectangular
 
 __all__ = [
@@ -1425,22 +1434,17 @@ PROCEDURE = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators=ESTIMATORS,
+    estimators={name: Estimator(fn, exact=name == "joint") for name, fn in ESTIMATORS.items()},
     true_values=true_values,
     duration=duration,
-    readings_frame=readings_frame,
-    from_frame=from_frame,
     description=__doc__.split("\n\n")[0] if __doc__ else "",
-    exact_estimators=("joint",),
-    block_size=128,
-    optional_columns=("head",),
     levers=tuple("poly_order line_length_mm line_repeats line_points circle_radius_mm "
                  "circle_points circle_arc_deg head_offset_mm head_lateral_mm "
                  "xy_plane_z_mm xz_plane_y_mm yz_plane_x_mm feed_mm_min xy_extra_heads_mm "
                  "xz_extra_heads_mm yz_extra_heads_mm extra_head_tests".split()),
-    setup_from_frame=setup_from_frame,
-    identifiability_report=identifiability_report,
-    report_extras=report_extras,
-    identifiability=identifiability,
-    first_order_sensitivities=sensitivities,
+    readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
+                            optional_columns=("head",)),
+    capabilities=Capabilities(block_size=128, identifiability_report=identifiability_report,
+                              report_extras=report_extras, identifiability=identifiability,
+                              first_order_sensitivities=sensitivities),
 )

@@ -1,4 +1,4 @@
-"""geometry21's reading of a measured table's set-up (``Procedure.setup_from_frame``);
+"""geometry21's reading of a measured table's set-up (``ReadingsFormat.setup_from_frame``);
 re-exported by :mod:`mtplan.models.geometry21`."""
 
 from __future__ import annotations

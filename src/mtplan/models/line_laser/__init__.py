@@ -196,8 +196,11 @@ import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
 from mtplan.models.protocol import (
+    Capabilities,
+    Estimator,
     Measurand,
     Procedure,
+    ReadingsFormat,
     SetupBase,
     Source,
     frame_columns,
@@ -636,7 +639,7 @@ def sources(setup) -> dict:
 
 
 def source_structure(setup, truth, name: str):
-    """The facets' colouring (:attr:`mtplan.models.protocol.Procedure.source_structure`):
+    """The facets' colouring (:attr:`mtplan.models.protocol.Capabilities.source_structure`):
     colour k holds facet k of every pocket. A reading depends only on the facets of the
     pocket its hit lies in (:func:`height_map`: ``offsets`` of that pocket alone; pockets
     are 0.6 mm of land apart, a facet error moves micrometres), and no two scanned
@@ -1328,12 +1331,12 @@ PROCEDURE = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators={"patent": estimate_patent, "registration": estimate_registration,
-                "pattern": estimate_pattern},
+    estimators={"patent": Estimator(estimate_patent,
+                                    resolution=functools.partial(resolution, estimator="patent")),
+                "registration": Estimator(estimate_registration, exact=True),
+                "pattern": Estimator(estimate_pattern, exact=True)},
     true_values=true_values,
     duration=duration,
-    readings_frame=readings_frame,
-    from_frame=from_frame,
     description=(
         "Three scans of a hexagonal-cell artifact (base, shifted by w in X, raised by h in Z) "
         "give the sensor's mounting angles about Z, Y and X. The patent's estimator quantises "
@@ -1341,16 +1344,12 @@ PROCEDURE = Procedure(
         "of alpha_x; the registration estimator fits sub-step translations between the scans "
         "and the rotation exactly."
     ),
-    exact_estimators=("registration", "pattern"),
-    block_size=128,
-    truth_from_estimate=truth_from_estimate,
-    noise_source="sensor_noise",
-    reading_limits=reading_limits,
     levers=tuple("points_per_line step_mm lines shift_fraction raise_mm max_shift_rows "
                  "scan_feed_mm_min rapid_mm_min settle_s".split()),
-    setup_from_frame=setup_from_frame,
-    resolution=resolution,
-    observability=observability,
-    first_order_sensitivities=sensitivities,
-    source_structure=source_structure,
+    readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
+                            limits=reading_limits, noise_source="sensor_noise"),
+    capabilities=Capabilities(block_size=128, truth_from_estimate=truth_from_estimate,
+                              observability=observability,
+                              first_order_sensitivities=sensitivities,
+                              source_structure=source_structure),
 )

@@ -464,7 +464,7 @@ def _pattern_gain(setup, ref: tuple) -> np.ndarray:
     jac = central_jacobian(lambda rows: _predict(setup, rows), theta, _FIT_STEPS,
                            low=low, high=high)
     others = [k for k, src in sources(setup).items()
-              if k != _procedure().noise_source and src.active]
+              if k != _procedure().readings.noise_source and src.active]
     fine = tuple(k for k in others if k not in _COARSE_SOURCES)
     coarse = tuple(k for k in others if k in _COARSE_SOURCES)
     D, U = _source_effects(setup, ref, fine)

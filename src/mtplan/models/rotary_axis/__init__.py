@@ -232,8 +232,11 @@ import pandas as pd
 from mtplan._validate import Problems
 from mtplan.fitting.fit3d import common_perpendicular
 from mtplan.models.protocol import (
+    Capabilities,
+    Estimator,
     Measurand,
     Procedure,
+    ReadingsFormat,
     SetupBase,
     Source,
     param,
@@ -1424,11 +1427,9 @@ PROCEDURE = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators=ESTIMATORS,
+    estimators={name: Estimator(fn, exact=True) for name, fn in ESTIMATORS.items()},
     true_values=true_values,
     duration=duration,
-    readings_frame=readings_frame,
-    from_frame=from_frame,
     description=(
         "A point laser on the Z slide reads a lattice on an inclined plane at n >= 3 positions "
         "of the rotary axis; the planes' least-squares intersection is a point on the axis and "
@@ -1436,14 +1437,11 @@ PROCEDURE = Procedure(
         "C axis (EX0C, EY0C, EA0C, EB0C) or the A axis (EY0A, EZ0A, EB0A, EC0A); with axis "
         "CA both, the offset and squareness of C to A and the error of a machining pose."
     ),
-    exact_estimators=("patent", "joint", "gls", "angles"),
-    block_size=2000,
-    truth_from_estimate=truth_from_estimate,
-    noise_source="probe_noise",
-    reading_limits=reading_limits,
     levers=tuple("incline_deg incline_azimuth_deg positions range_deg angles_deg a_order "
                  "c_angles_deg lattice_nx lattice_ny lattice_size_mm lattice_offset_x_mm "
                  "lattice_offset_y_mm artifact_height_mm z_follows_surface sensor_reversal "
                  "dwell_s feed_mm_min".split()),
-    setup_from_frame=setup_from_frame,
+    readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
+                            limits=reading_limits, noise_source="probe_noise"),
+    capabilities=Capabilities(block_size=2000, truth_from_estimate=truth_from_estimate),
 )
