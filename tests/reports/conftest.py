@@ -47,6 +47,7 @@ traceability = "PTB via DAkkS D-K-99999"
 [header]
 document = "DOC-<b>1</b>"
 revision = "B"
+plan_date = 2023-12-20
 customer = "Customer & <i>Co</i>"
 machine_serial = "SN-42"
 date = 2024-01-02

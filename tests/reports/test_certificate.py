@@ -9,6 +9,7 @@ import copy
 import json
 import re
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -31,15 +32,19 @@ def _flat(pages) -> str:
 
 # ------------------------------------------------------------------ plan and report
 def test_plan_has_number_and_fingerprint_and_report_cites_both(small_report):
-    from mtplan.plans.agreement import fingerprint
+    from mtplan.plans.agreement import fingerprint, signed_content
 
     plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
-    assert plan["fingerprint"] == fingerprint(plan["rules"])
+    assert plan["fingerprint"] == fingerprint(signed_content(plan))
+    assert len(plan["fingerprint"]) == 64
+    # everything the parties sign is under the fingerprint
+    assert {"document", "revision", "issued", "parties", "conditions", "rules"} <= set(plan)
+    assert plan["parties"]["customer"] == "Customer & <i>Co</i>"
     assert plan["document"] == "DOC-<b>1</b>-PLAN"
     plan_text = _flat(_pages(small_report / "plan.pdf"))
     assert plan["document"] in plan_text and plan["fingerprint"] in plan_text
     cover = " ".join(_pages(small_report / "report.pdf")[0].split())
-    assert plan["document"] in cover and plan["fingerprint"][:16] in cover
+    assert plan["document"] in cover and plan["fingerprint"] in cover  # all 64 digits
 
 
 def test_plan_only_then_report_against_it(small_study_file, tmp_path, capsys):
@@ -59,7 +64,7 @@ def test_plan_only_then_report_against_it(small_study_file, tmp_path, capsys):
     out = capsys.readouterr().out
     assert str(report_dir / "report.pdf") in out and "plan.pdf" not in out
     text = _flat(_pages(report_dir / "report.pdf"))
-    assert plan["fingerprint"][:16] in text
+    assert plan["fingerprint"] in text
     assert "Deviations from the test plan, additions and exclusions: • none" in text
     verdicts = pd.read_csv(report_dir / "results" / "verdicts.csv").set_index("measurand")
     assert verdicts.loc["centre_x", "verdict"] == "does not conform"
@@ -110,8 +115,167 @@ def test_unchanged_study_passes_and_an_edited_plan_is_refused(small_study_file, 
     plan["rules"][0]["guard_band"] *= 2
     edited = tmp_path / "plan.json"
     edited.write_text(json.dumps(plan), encoding="utf-8")
-    with pytest.raises(InvalidInput, match="do not match its fingerprint"):
+    with pytest.raises(InvalidInput, match="does not match its fingerprint"):
         read_plan(edited)
+
+
+def _cli(argv, capsys) -> tuple[int, str]:
+    from mtplan.cli import main
+
+    code = main([str(a) for a in argv])
+    return code, capsys.readouterr().err.strip()
+
+
+@pytest.mark.parametrize("field, value", [("issued", "2023-12-01"), ("revision", "C"),
+                                          ("parties", {"customer": "Someone else"})])
+def test_an_edited_plan_fails_its_fingerprint_and_is_refused(small_study_file, small_report,
+                                                             tmp_path, capsys, field, value):
+    """The fingerprint covers the issue date, the revision and the parties, not only the
+    rules: a plan.json edited in any of them is refused in one line that prints the full
+    fingerprint, and no report is written."""
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    plan[field] = value
+    edited = tmp_path / "plan.json"
+    edited.write_text(json.dumps(plan), encoding="utf-8")
+    code, err = _cli(["report", small_study_file, "--out", tmp_path / "out", "--plan", edited],
+                     capsys)
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert "does not match its fingerprint" in err and plan["fingerprint"] in err
+    assert not (tmp_path / "out" / "report.pdf").exists()
+
+
+def _plan_issued(small_report, tmp_path, issued) -> Path:
+    """The small study's plan as if issued on ``issued`` (fingerprint renewed: a genuine
+    plan of that date)."""
+    from mtplan.plans.agreement import fingerprint, signed_content
+
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    plan["issued"] = issued
+    plan["fingerprint"] = fingerprint(signed_content(plan))
+    path = tmp_path / "late-plan.json"
+    path.write_text(json.dumps(plan), encoding="utf-8")
+    return path
+
+
+def test_a_plan_issued_after_the_test_is_refused(small_study_file, small_report, tmp_path,
+                                                 capsys):
+    late = _plan_issued(small_report, tmp_path, "2024-01-15")  # the test: 2024-01-02
+    code, err = _cli(["report", small_study_file, "--out", tmp_path / "out", "--plan", late],
+                     capsys)
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert "issued on 2024-01-15, after the test on 2024-01-02" in err
+    assert "late_plan" in err
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+    # the same study stating its own late plan date is refused too
+    text = small_study_file.read_text(encoding="utf-8")
+    dated = tmp_path / "dated.toml"
+    dated.write_text(text.replace("plan_date = 2023-12-20", "plan_date = 2024-02-01", 1),
+                     encoding="utf-8")
+    code, err = _cli(["report", dated, "--out", tmp_path / "out2"], capsys)
+    assert code == 2 and "after the test on 2024-01-02" in err, err
+
+
+def test_a_late_plan_the_study_accepts_is_a_deviation(small_study_file, small_report,
+                                                      tmp_path, capsys):
+    late = _plan_issued(small_report, tmp_path, "2024-01-15")
+    text = small_study_file.read_text(encoding="utf-8")
+    accepted = tmp_path / "accepted.toml"
+    accepted.write_text(text.replace(
+        'revision = "B"', 'revision = "B"\nlate_plan = "accepted by the customer, letter of '
+        '2024-01-16"', 1), encoding="utf-8")
+    code, err = _cli(["report", accepted, "--out", tmp_path / "out", "--plan", late], capsys)
+    assert code == 0, err
+    text = _flat(_pages(tmp_path / "out" / "report.pdf"))
+    assert ("The test plan DOC-<b>1</b>-PLAN was issued on 2024-01-15, after the test on "
+            "2024-01-02; accepted as recorded in the study: accepted by the customer, letter "
+            "of 2024-01-16.") in text
+
+
+@pytest.mark.parametrize("due, agreement, state", [
+    ("calibration_due = 2023-12-31", "", "expired"),
+    ("", "", "no due date"),
+    ("calibration_due = 2023-12-31", 'customer_agreement = "e-mail of 2024-01-02"', "agreed"),
+])
+def test_an_instrument_not_valid_on_the_test_date(small_study_file, small_result,
+                                                  small_report, tmp_path, due, agreement,
+                                                  state):
+    """An expired or missing calibration is a deviation, and the tests that used the
+    instrument get no statement of conformity unless the study records the customer's
+    agreement (then the deviation says so and the verdicts stand)."""
+    from mtplan.plans.agreement import NO_INSTRUMENT
+    from mtplan.plans.study import load_study
+    from mtplan.reports import write_report
+
+    text = small_study_file.read_text(encoding="utf-8")
+    text = text.replace("calibration_due = 2025-08-15", due + "\n" + agreement, 1)
+    path = tmp_path / "study.toml"
+    path.write_text(text, encoding="utf-8")
+    result = copy.deepcopy(small_result)
+    result.study = load_study(path)
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    write_report(result, tmp_path / "out", plan)
+    pdf = _flat(_pages(tmp_path / "out" / "report.pdf"))
+    verdicts = pd.read_csv(tmp_path / "out" / "results" / "verdicts.csv")
+    if state == "agreed":
+        assert ("Touch probe (serial TP-0042): its calibration ran out on 2023-12-31, before "
+                "the test on 2024-01-02; used for") in pdf
+        assert "customer's agreement recorded in the study: e-mail of 2024-01-02" in pdf
+        assert NO_INSTRUMENT not in set(verdicts["verdict"])
+        return
+    why = ("its calibration ran out on 2023-12-31, before the test on 2024-01-02"
+           if state == "expired" else "its calibration states no due date")
+    assert f"Touch probe (serial TP-0042): {why}; no statement of conformity is made" in pdf
+    assert set(verdicts["verdict"]) == {NO_INSTRUMENT}
+    assert ("EXPIRED" if state == "expired" else "MISSING") in pdf
+    assert "Overall result: no decision" in pdf
+
+
+def test_certificates_named_as_what_they_are(small_study_file, tmp_path):
+    """A verification is called a verification, each certificate accredited or not, and
+    the traceability is stated as declared by a named party."""
+    from mtplan.plans.study import load_study
+    from mtplan.reports.certificate import _instruments
+
+    text = small_study_file.read_text(encoding="utf-8").replace(
+        'certificate = "CAL-2024-0815"', 'certificate = "CAL-2024-0815"\nkind = '
+        '"verification"\naccredited = false\ndeclared_by = "the maker"', 1)
+    path = tmp_path / "v.toml"
+    path.write_text(text, encoding="utf-8")
+    row = _instruments(load_study(path))[0]
+    assert row[2] == "verification CAL-2024-0815 (not accredited)"
+    assert row[5] == "PTB via DAkkS D-K-99999 (as declared by the maker)"
+
+
+def test_an_estimator_changed_against_the_plan_is_a_deviation(small_study_file, small_report,
+                                                              tmp_path, capsys):
+    """The estimator is part of the method: readings evaluated with another estimator than
+    the plan's are a deviation, phrased in the document's units (µm, never um)."""
+    text = small_study_file.read_text(encoding="utf-8")
+    changed = tmp_path / "estimator.toml"
+    changed.write_text(text.replace('uncertainty = "mc"\n  trials = 300',
+                                    'uncertainty = "mc"\n  trials = 300\n  estimator = '
+                                    '"kasa"', 1), encoding="utf-8")
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    assert {r["estimator"] for r in plan["rules"]} == {"three_point"}
+    code, err = _cli(["report", changed, "--out", tmp_path / "out", "--plan",
+                      small_report / "plan.json"], capsys)
+    assert code == 0, err
+    pdf = _flat(_pages(tmp_path / "out" / "report.pdf"))
+    assert ("decided with the kasa estimator, not the three_point estimator the plan agreed "
+            "(a change of method): centre_x (U ") in pdf
+    start = pdf.index("Deviations from the test plan")
+    deviations = pdf[start:pdf.index("Glossary", start)]
+    assert not re.search(r"\bum\b", deviations) and "µm" in deviations
+
+
+def test_the_fit_check_is_in_the_report_and_in_measured_csv(small_result, small_report):
+    fit = small_result.outcomes[0].measured.fit
+    measured = pd.read_csv(small_report / "results" / "measured.csv")
+    assert {"fit_chi2", "fit_dof", "fit_p", "fit_ok", "fit_worst"} <= set(measured.columns)
+    assert np.allclose(measured["fit_chi2"], fit.chi2) and (measured["fit_dof"] == fit.dof).all()
+    text = _flat(_pages(small_report / "report.pdf"))
+    assert "Fit check of each test's readings" in text
+    assert f"{fit.chi2:.1f}" in text and f"{fit.p_value:.2g}" in text
 
 
 def test_readings_that_do_not_fit_get_no_verdict(small_result, small_report):
@@ -469,7 +633,7 @@ def test_results_table_names_wrap_at_most_twice(small_result, small_report):
     apply_plan(result, plan)
     doc = build_report(result, plan)
     results = next(s for s in doc.sections if s.anchor == "results")
-    (table,) = [b for b in results.blocks if isinstance(b, Table)]
+    table = next(b for b in results.blocks if isinstance(b, Table))  # then the fit check
     _register_fonts()
     size = _table_size(table, 470.0)
     width = column_widths(table, 470.0, size)[1] - 2 * _PAD - 1

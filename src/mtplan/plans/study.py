@@ -72,7 +72,8 @@ __all__ = ["Study", "ProcedureStudy", "StudyResult", "HEADER_KEYS", "load_study"
 HEADER_KEYS = ("document", "revision", "plan_document", "plan_date", "customer",
                "customer_address", "machine_maker", "machine_type", "machine_serial",
                "item_condition", "location", "operator", "date", "issue_date",
-               "ambient_temperature_c", "prepared_by", "checked_by", "approved_by")
+               "ambient_temperature_c", "prepared_by", "checked_by", "approved_by",
+               "late_plan")
 _DATE_KEYS = {"date", "issue_date", "plan_date"}
 _TOP_KEYS = {"title", "subtitle", "customer", "machine", "author", "header", "seed", "digits",
              "trials", "max_trials", "coverage", "procedure", "simulated", "laboratory",
@@ -94,7 +95,11 @@ UNHONOURED_STANDARDS = {
                 "'position', 'nominal' and 'diameter')",
 }
 _INSTRUMENT_KEYS = {"name", "serial", "certificate", "calibration_due", "traceability",
-                    "used_in"}
+                    "used_in", "kind", "accredited", "declared_by", "customer_agreement"}
+#: what an instrument's certificate records: a calibration (a relation to a reference,
+#: VIM 2.39) or a verification (conformity to a specification, VIM 2.44: ISO 10360-10's
+#: tests of a laser tracker, a maker's check)
+INSTRUMENT_KINDS = ("calibration", "verification")
 _PROC_KEYS = {"name", "label", "setup", "truth", "estimators", "sweep", "plan", "acceptance",
               "readings", "as_left", "trials", "digits", "max_trials", "budget", "budget_trials",
               "notes", "standards"}
@@ -333,13 +338,27 @@ def _certificate(data, header, problems) -> dict:
         if due is not None and not isinstance(due, datetime.date):
             problems.append(f"{at} 'calibration_due' must be a date (2025-06-30). Got {due!r} "
                             "instead.")
+        kind = inst.get("kind", "calibration")
+        if kind not in INSTRUMENT_KINDS:
+            problems.append(f"{at} 'kind' must be one of {', '.join(INSTRUMENT_KINDS)}. Got "
+                            f"{kind!r} instead.")
+        accredited = inst.get("accredited")
+        if accredited is not None and not isinstance(accredited, bool):
+            problems.append(f"{at} 'accredited' must be true or false (the certificate issued "
+                            f"under an accreditation or not). Got {accredited!r} instead.")
+            accredited = None
+        for key in ("declared_by", "customer_agreement"):
+            if key in inst and not (isinstance(inst[key], str) and inst[key].strip()):
+                problems.append(f"{at} {key!r} must be text. Got {inst[key]!r} instead.")
         used = inst.get("used_in", [])
         if not (isinstance(used, list) and all(isinstance(x, str) for x in used)):
             problems.append(f"{at} 'used_in' must be a list of procedure names. Got {used!r} "
                             "instead.")
             used = []
-        shown.append({**{k: str(v) for k, v in inst.items() if k != "used_in"},
-                      "used_in": list(used)})
+        shown.append({**{k: str(v) for k, v in inst.items()
+                         if k not in ("used_in", "accredited")},
+                      "used_in": list(used), "accredited": accredited,
+                      "kind": kind if kind in INSTRUMENT_KINDS else "calibration"})
     simulated = data.get("simulated", False)
     if not isinstance(simulated, bool):
         problems.append(f"The study's 'simulated' must be true or false. Got {simulated!r} "

@@ -20,6 +20,7 @@ from mtplan.reports.labels import duration_text, fmt, fmt_u, prior_text, toleran
 from mtplan.reports.model import Document, Figure, Section, Table
 from mtplan.reports.wording import (
     GLOSSARY,
+    customer_words,
     measurand_name,
     method_citation,
     population_text,
@@ -30,6 +31,7 @@ from mtplan.reports.wording import (
 )
 
 __all__ = ["build_report", "build_plan", "overall_result", "final_verdicts", "measured_frame",
+           "fit_summary",
            "RESULTS_RELATE", "END_MARK"]
 
 RESULTS_RELATE = ("The results relate only to the item tested, in the condition and under "
@@ -68,13 +70,31 @@ def _methods(result) -> list:
     return rows
 
 
+def _certificate_text(inst) -> str:
+    """The certificate as what it is: a calibration or a verification, accredited or not."""
+    what = inst.get("kind", "calibration")
+    accredited = inst.get("accredited")
+    how = ("accredited" if accredited else "not accredited" if accredited is False
+           else "accreditation not stated")
+    return f"{what} {inst['certificate']} ({how})"
+
+
 def _instruments(study, procedure: str | None = None) -> list:
+    from mtplan.plans.agreement import instrument_findings
+
+    status = instrument_findings(study)[0]
+    state = {"valid": "valid", "expired": "EXPIRED", "no due date": "MISSING",
+             "not checked": "not checked (no test date)"}
     rows = []
-    for inst in study.instruments:
+    for inst, st in zip(study.instruments, status, strict=True):
         if procedure is not None and inst["used_in"] and procedure not in inst["used_in"]:
             continue
-        rows.append([inst["name"], inst["serial"], inst["certificate"],
-                     inst.get("calibration_due", "-"), inst.get("traceability", "-")])
+        shown = state[st["state"]] + ("; customer agreed" if st["agreed"] and
+                                      st["state"] != "valid" else "")
+        rows.append([inst["name"], inst["serial"], _certificate_text(inst),
+                     inst.get("calibration_due", "-"), shown,
+                     f"{inst.get('traceability', 'not stated')} (as declared by "
+                     f"{inst.get('declared_by', 'the certificate issuer')})"])
     return rows
 
 
@@ -82,9 +102,11 @@ def _instrument_table(study) -> Table | None:
     rows = _instruments(study)
     if not rows:
         return None
-    return Table("Instruments used: each calibrated, its certificate valid on the date of the "
-                 "test.", ["instrument", "serial number", "calibration certificate",
-                           "calibration due", "traceability"], rows)
+    date = study.header.get("date", "not stated")
+    return Table(f"Instruments used, each certificate's due date against the date of the "
+                 f"test ({date}); a verification (conformity to a specification) is not a "
+                 "calibration.", ["instrument", "serial number", "certificate",
+                                  "due", "on the test date", "traceability"], rows)
 
 
 def _issue_date(study) -> str:
@@ -294,6 +316,39 @@ def _probability_lines(verdicts, when="") -> list:
     return out
 
 
+def fit_summary(fit) -> dict:
+    """The fit check of one evaluation as the documents show it: ``chi2``, ``dof``, ``p``,
+    ``worst`` (the worst readings in words), ``ok`` (True, False or None: not made) and
+    ``outcome`` in words. Read defensively: a check may lack any of these."""
+    if fit is None:
+        return {"chi2": None, "dof": None, "p": None, "worst": "", "ok": None,
+                "outcome": "not made: no fit check for this evaluation"}
+    p = getattr(fit, "p_value", getattr(fit, "p", None))
+    ok = getattr(fit, "ok", None)
+    worst = fit.worst_text() if hasattr(fit, "worst_text") and getattr(fit, "worst", None) \
+        else ""
+    alpha = getattr(fit, "alpha", 0.01)
+    outcome = ("the readings fit the model (p >= {a:g})" if ok else
+               "the readings do NOT fit the model (p < {a:g}): no decision" if ok is False else
+               "not made: " + str(getattr(fit, "reason", "") or "no reason given"))
+    return {"chi2": getattr(fit, "chi2", None), "dof": getattr(fit, "dof", None), "p": p,
+            "worst": worst, "ok": ok, "outcome": outcome.format(a=alpha)}
+
+
+def _fit_rows(result) -> list:
+    rows = []
+    for k, o in enumerate(result.outcomes, start=1):
+        for m, state in ((o.measured, ""), (getattr(o, "as_left", None), " as left")):
+            if m is None:
+                continue
+            f = fit_summary(getattr(m, "fit", None))
+            rows.append([f"{k}{state}", "-" if f["chi2"] is None else f"{f['chi2']:.1f}",
+                         "-" if f["dof"] is None else str(f["dof"]),
+                         "-" if f["p"] is None else f"{f['p']:.2g}", f["worst"] or "-",
+                         f["outcome"]])
+    return rows
+
+
 def _results_section(result) -> Section:
     from mtplan.reports import figures as figs
 
@@ -337,6 +392,15 @@ def _results_section(result) -> Section:
                                    " as left")
         if lines:
             sec.blocks += ["Probability of conformity as left:", lines]
+    fits = _fit_rows(result)
+    if fits:
+        sec.blocks.append(Table("Fit check of each test's readings (chi-square of the "
+                                "readings against the model and its error budget): the "
+                                "achieved U holds only where they fit; a test whose readings "
+                                "do not fit gets no decision. Worst readings: row and column "
+                                "of the readings file, z the standardised residual.",
+                                ["test", "chi-square", "dof", "p", "worst readings",
+                                 "outcome"], fits, grow=4, size=7.0))
     untoleranced = sum(len(o.measured.measurands) for o in result.outcomes
                        if o.measured is not None) - sum(
         len(o.verdicts) for o in result.outcomes if o.measured is not None)
@@ -374,9 +438,10 @@ def _conditions_section(result) -> Section:
     table = _instrument_table(study)
     if table is not None:
         blocks.append(table)
-        blocks.append("Traceability: every instrument is calibrated against standards "
-                      "traceable to the SI through the national metrology institute named "
-                      "in its traceability column.")
+        blocks.append("Traceability: as declared by the party named in each row, on the "
+                      "certificate cited; the laboratory has checked each certificate's due "
+                      "date against the date of the test, not the declared chain itself. An "
+                      "instrument not valid on the test date is a deviation (below).")
     else:
         blocks.append("No instruments are named in the study: the traceability of these "
                       "results cannot be stated.")
@@ -385,7 +450,7 @@ def _conditions_section(result) -> Section:
 
 def _deviations_section(deviations) -> Section:
     blocks = ["Deviations from the test plan, additions and exclusions:"]
-    blocks.append(list(deviations) if deviations else ["none"])
+    blocks.append([customer_words(d) for d in deviations] if deviations else ["none"])
     return Section("Deviations from the plan", blocks=blocks, anchor="deviations")
 
 
@@ -406,6 +471,7 @@ def measured_frame(result):
         if m is None:
             continue
         det = getattr(m, "determinable", None)
+        fit = fit_summary(getattr(m, "fit", None))
         for j, q in enumerate(m.measurands):
             ok = det is None or bool(det[j])
             u = float(m.std[j]) if ok else math.nan
@@ -416,10 +482,12 @@ def measured_frame(result):
                          "U": 2 * u, "low": float(m.low[j]) if ok else math.nan,
                          "high": float(m.high[j]) if ok else math.nan,
                          "estimator": m.estimator, "uncertainty": m.uncertainty,
-                         "determinable": ok})
+                         "determinable": ok, "fit_chi2": fit["chi2"], "fit_dof": fit["dof"],
+                         "fit_p": fit["p"], "fit_ok": fit["ok"], "fit_worst": fit["worst"]})
     return pd.DataFrame(rows, columns=["procedure", "test", "state", "measurand", "description",
                                        "unit", "value", "u", "k", "U", "low", "high",
-                                       "estimator", "uncertainty", "determinable"])
+                                       "estimator", "uncertainty", "determinable", "fit_chi2",
+                                       "fit_dof", "fit_p", "fit_ok", "fit_worst"])
 
 
 def _measured_appendix(k, o) -> Section:
@@ -462,13 +530,13 @@ def _cover_meta(result, plan, kind) -> dict:
         meta["title"] = "Test report (certificate of the acceptance test)"
         meta["report number"] = f"{doc_no}" + (f", revision {h['revision']}"
                                                if h.get("revision") else "")
-        meta["test plan"] = (f"{plan['document']}, issued {plan['issued']}; rules "
-                             f"fingerprint SHA-256 {plan['fingerprint'][:16]}")
+        meta["test plan"] = f"{plan['document']}, issued {plan['issued']}"
+        meta["plan fingerprint (SHA-256)"] = plan["fingerprint"]
     else:
         meta["title"] = "Test plan (to be agreed before the test)"
         meta["plan number"] = plan["document"] + (f", revision {plan['revision']}"
                                                   if plan.get("revision") else "")
-        meta["rules fingerprint (SHA-256)"] = plan["fingerprint"]
+        meta["plan fingerprint (SHA-256)"] = plan["fingerprint"]
     meta["laboratory"] = _lab(study)
     meta["laboratory address"] = lab.get("address", "not stated in the study")
     if lab.get("accreditation"):
@@ -508,7 +576,8 @@ def _document(result, plan, kind, sections, csv) -> Document:
     doc.flow = kind == "report"
     doc.statement = RESULTS_RELATE if kind == "report" else (
         "The decision rules, guard bands and risks below are agreed before the test; the test "
-        "report will apply exactly these rules (their fingerprint is cited on it).")
+        "report will apply exactly these rules. The fingerprint covers the number, revision, "
+        "issue date, parties, conditions and rules: the report cites it in full.")
     return doc
 
 

@@ -15,7 +15,7 @@ from xml.sax.saxutils import escape
 
 from mtplan._io import atomic_write, output_problem
 from mtplan._validate import InvalidInput
-from mtplan.plans.agreement import FIT_NO_DECISION
+from mtplan.plans.agreement import FIT_NO_DECISION, NO_INSTRUMENT
 from mtplan.reports.model import Document, Figure, Section, Table
 from mtplan.reports.wording import VERDICT_SHORT
 
@@ -28,7 +28,7 @@ _PAD = 3.0   # table cell padding, each side [pt]
 #: verdict -> the class (HTML) and colour (PDF) it is shown in
 VERDICT_CLASS = {"conforms": "ok", "does not conform": "bad",
                  "inside the guard band: no decision": "warn", "not determinable": "nd",
-                 FIT_NO_DECISION: "warn",
+                 FIT_NO_DECISION: "warn", NO_INSTRUMENT: "nd",
                  "not measured": "nd"}
 VERDICT_CLASS.update({short: VERDICT_CLASS[full] for full, short in VERDICT_SHORT.items()})
 _VERDICT_COLOUR = {"ok": "#1b5e20", "bad": "#b3261e", "warn": "#8a5a00", "nd": "#555555"}
@@ -465,8 +465,12 @@ def write_report(result, out_dir, plan=None, *, plan_only: bool = False,
         if problem:
             raise InvalidInput([f"The report folder cannot be written: {problem}."])
     written, deviations = {}, []
+    if not plan_only:  # a late plan is refused before anything is written
+        dated = plan if plan is not None else agreement.issue_plan(result)
+        if plan is not None or result.study.header.get("plan_date"):
+            deviations += agreement.check_dates(result.study, dated)
     if plan is None and not plan_only and n_jobs != 1:
-        return _write_both(result, out, agreement.issue_plan(result), n_jobs)
+        return _write_both(result, out, agreement.issue_plan(result), n_jobs, deviations)
     if plan is None:
         plan = agreement.issue_plan(result)
         plan_doc = build_plan(result, plan)
@@ -477,7 +481,7 @@ def write_report(result, out_dir, plan=None, *, plan_only: bool = False,
         written["pdf"], written["html"] = written["plan_pdf"], written["plan_html"]
         if plan_only:
             return written
-        deviations.append(_same_run(plan))
+        deviations.insert(0, _same_run(plan))
     deviations += agreement.apply_plan(result, plan)
     written.update(_write_doc(build_report(result, plan, deviations), out, "report"))
     written["pdf"], written["html"] = written["report_pdf"], written["report_html"]
@@ -489,18 +493,20 @@ def _same_run(plan) -> str:
             "agreed before the test.")
 
 
-def _document(result, plan, out: Path, kind: str) -> dict:
-    """Build, render and write the plan (``kind`` "plan") or the report decided with it."""
+def _document(result, plan, out: Path, kind: str, dated=()) -> dict:
+    """Build, render and write the plan (``kind`` "plan") or the report decided with it
+    (``dated``: the deviations of the plan's date, :func:`~mtplan.plans.agreement.
+    check_dates`)."""
     from mtplan.plans import agreement
     from mtplan.reports.certificate import build_plan, build_report
 
     if kind == "plan":
         return _write_doc(build_plan(result, plan), out, "plan")
-    deviations = [_same_run(plan)] + agreement.apply_plan(result, plan)
+    deviations = [_same_run(plan), *dated] + agreement.apply_plan(result, plan)
     return _write_doc(build_report(result, plan, deviations), out, "report")
 
 
-def _write_both(result, out: Path, plan: dict, n_jobs: int) -> dict:
+def _write_both(result, out: Path, plan: dict, n_jobs: int, dated=()) -> dict:
     """The plan and the report of one run, drawn on ``n_jobs`` worker processes: the whole
     report is a task (its process decides its own copy of ``result`` with the plan, as the
     serial path does after the plan was written), each test's part of the plan (its
@@ -520,7 +526,8 @@ def _write_both(result, out: Path, plan: dict, n_jobs: int) -> dict:
         json.dump(plan, fh, indent=1)
     # the pool the study ran on, when it ran here: its workers are started already
     executor = stage_executor(max(effective_jobs(n_jobs), 2))
-    report = executor.submit(_document, result, plan, out, "report")  # the longest task
+    report = executor.submit(_document, result, plan, out, "report",  # the longest task
+                             list(dated))
     if result.then is not None:  # drawn on the study's workers as each test was complete
         parts = result.then
     else:

@@ -112,7 +112,9 @@ def rules_text(verdicts) -> list:
 #: CSV and the rules)
 VERDICT_SHORT = {"inside the guard band: no decision": "no decision (guard band)",
                  "no decision: the readings do not fit the model":
-                     "no decision (readings do not fit)"}
+                     "no decision (readings do not fit)",
+                 "no statement: an instrument was not calibrated on the test date":
+                     "no statement (instrument)"}
 
 
 def verdict_short(verdict: str) -> str:
