@@ -38,6 +38,11 @@ machine_temperature_c = 21.0
 part_temperature_c = 20.7
 warm_up = "45 min axis cycling"
 compensation = false
+[requirements]
+temperature_c = [19.5, 21.5]
+compensation = false
+adjustment = "the builder may adjust once"
+retests = 1
 [[instrument]]
 name = "Touch probe"
 serial = "TP-0042"

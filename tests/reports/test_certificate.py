@@ -67,7 +67,7 @@ def test_plan_only_then_report_against_it(small_study_file, tmp_path, capsys):
     assert plan["fingerprint"] in text
     assert "Deviations from the test plan, additions and exclusions: • none" in text
     verdicts = pd.read_csv(report_dir / "results" / "verdicts.csv").set_index("measurand")
-    assert verdicts.loc["centre_x", "verdict"] == "does not conform"
+    assert verdicts.loc["centre_x", "verdict"] == "fail"
 
 
 def test_report_applies_the_plans_guard_bands(small_report):
@@ -227,7 +227,7 @@ def test_an_instrument_not_valid_on_the_test_date(small_study_file, small_result
     assert f"Touch probe (serial TP-0042): {why}; no statement of conformity is made" in pdf
     assert set(verdicts["verdict"]) == {NO_INSTRUMENT}
     assert ("EXPIRED" if state == "expired" else "MISSING") in pdf
-    assert "Overall result: no decision" in pdf
+    assert "Overall result for machine SN-42 (test 1): no decision" in pdf
 
 
 def test_certificates_named_as_what_they_are(small_study_file, tmp_path):
@@ -305,7 +305,8 @@ def test_every_page_identified_numbered_and_watermarked(small_report):
             flat = " ".join(page.split())
             assert f"page {i} of {n}" in flat, (name, i)
             assert "DOC-<b>1</b>" in flat, (name, i)
-            assert "SIMULATED READINGS" in flat, (name, i)
+            # the plan uses no readings: no readings stamp on it
+            assert ("SIMULATED READINGS" in flat) == (name == "report"), (name, i)
     last = " ".join(_pages(small_report / "report.pdf")[-1].split())
     assert "End of report" in last
 
@@ -331,10 +332,15 @@ def test_conditions_and_instruments_come_from_the_study(small_report):
 
 def test_glossary_and_plain_names(small_report):
     text = _flat(_pages(small_report / "report.pdf"))
-    for term in ("Glossary", "TUR", "PFA", "PFR", "guard band w", "O1-O5", "three_point",
-                 "kasa"):
+    for term in ("Glossary", "guard band w", "three_point", "kasa",
+                 "pass, conditional pass, conditional fail, fail"):
         assert term in text, term
     assert "X of the bore centre from its nominal position (centre_x)" in text
+    # each document's glossary defines only the terms it uses: the observability indices
+    # are the plan's, not the report's
+    assert "O1-O5" not in text
+    assert "O1-O5" in _flat(_pages(small_report / "plan.pdf"))
+    assert "no decision (guard band)" not in text
 
 
 def test_customer_words(small_report):
@@ -388,9 +394,15 @@ def test_demo_probabilities_agree_with_the_intervals(demo_report):
 # ------------------------------------------------------------------ the demo
 def test_demo_overall_result_and_the_c_axis_action(demo_report):
     report, _ = demo_report
-    page = " ".join(_pages(report / "report.pdf")[1].split())
-    assert page.replace(WATERMARK, "").lstrip().startswith("Overall result and actions")
-    assert "Overall result: not accepted: EX0C." in page
+    page = " ".join(" ".join(_pages(report / "report.pdf")[:2]).split())
+    # the overall result follows the cover at once (the box on page 1 states it first)
+    assert "Overall result and actions" in page.split("Contents")[0]
+    assert ("Overall result for machine DEMO-5AX-0001 (tests 1, 2, 3, 4): not accepted: "
+            "EX0C.") in page
+    cover = " ".join(_pages(report / "report.pdf")[0].split())
+    assert "Overall result Machine DEMO-5AX-0001 (tests 1, 2, 3, 4): NOT ACCEPTED: fail EX0C" \
+        in cover
+    assert "Machine DEMO-GTY-0002 (test 5):" in cover
     assert "Adjust the x position of the C axis at the reference height (EX0C)" in page
     assert "re-test test 1 (C axis location from an inclined plane)" in page
     assert "EC0Y" in page  # no decision, with the lever or repeats that would decide it
@@ -587,6 +599,21 @@ def test_values_cut_at_a_bound_or_not_resolved_are_warned():
     assert "physical bound 0" in lines[0] and "not resolved" in lines[1]
     cut, _ = value_warnings([("alpha_x", 1000.0, 16014.0, 0.0, 46610.0)], resolution=False)
     assert len(cut) == 1 and "bound" in cut[0]
+    # EZX: U is larger than the value, but the printed interval excludes zero: it differs
+    # from zero, decided by the interval the reader sees
+    assert value_warnings([("EZX", -0.48, 0.30, -0.96, -0.01)]) == ([], set())
+    assert value_warnings([("EZX", -0.48, 0.30, -0.96, 0.01)])[1] == {"EZX"}
+
+
+def test_value_and_U_rounded_together_and_an_asymmetric_interval_marked():
+    """centre_y -201.14 with U 1.7 is printed -201.1; an interval that is not value ± U is
+    marked and explained."""
+    from mtplan.reports.certificate import _asymmetric_mark
+    from mtplan.reports.labels import fmt, fmt_u
+
+    assert (fmt(-201.14, 2 * 0.85), fmt_u(2 * 0.85)) == ("-201.1", "1.7")
+    assert _asymmetric_mark(-14.5, 14.0, -27.6, -1.3) == " †"   # origin_y_1
+    assert _asymmetric_mark(-14.5, 14.0, -28.5, -0.5) == ""
 
 
 def test_the_simulation_table_warns_where_an_estimator_is_cut_or_blind():
@@ -649,3 +676,26 @@ def test_coinciding_path_points_share_one_label(captured_figures):
     (fig,) = captured_figures
     labels = sorted(t.get_text() for t in fig.axes[0].texts)
     assert labels == ["p1 = d3", "p2"]
+
+
+def test_the_plan_states_the_agreement(small_report):
+    """The plan as a contract, checked on the rendered PDF: numeric acceptance limits, the
+    rule in ILAC-G8 words, the burden of proof, the overall rule, the required conditions,
+    the clauses, the duration, the machine map and the three signatures."""
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    assert plan["conditions"]["temperature_c"] == [19.5, 21.5]
+    text = _flat(_pages(small_report / "plan.pdf"))
+    agreement = text[text.index("The agreement Parties:"):text.index("Contents")]
+    rule = next(r for r in plan["rules"] if r["measurand"] == "centre_x")
+    for item in ("Acceptance limits per measurand", "tolerance source",
+                 "conditional pass (inside the tolerance) or conditional fail (outside it)",
+                 "Burden of proof (ISO 14253-1)", "Overall acceptance rule, per machine",
+                 "19.5 to 21.5 °C", "On a fail or a conditional result: the builder may adjust "
+                 "once.", "Re-tests allowed after an adjustment: 1.", "Total duration",
+                 "SN-42", "mtplan procedure circle_centre", "ISO/IEC 17025 7.8.2.2"):
+        assert item in agreement, item
+    assert f"{rule['acceptance_upper']:.1f}"[:3] in agreement
+    cover = " ".join(_pages(small_report / "plan.pdf")[0].split())
+    for party in ("agreed for the laboratory", "agreed for the customer",
+                  "agreed for the machine builder"):
+        assert party in cover, party

@@ -37,7 +37,8 @@ from mtplan._validate import InvalidInput
 
 __all__ = ["PLAN_FORMAT", "declared_rules", "fingerprint", "signed_content", "parties",
            "issue_plan", "read_plan", "check_study", "check_dates", "instrument_findings",
-           "apply_plan", "p_conform_measured", "FIT_NO_DECISION", "NO_INSTRUMENT"]
+           "apply_plan", "p_conform_measured", "FIT_NO_DECISION", "NO_INSTRUMENT",
+           "LARGER_U_NO_DECISION"]
 
 PLAN_FORMAT = "mtplan-test-plan-2"
 #: the verdict of a toleranced measurand whose readings do not fit the model
@@ -58,6 +59,7 @@ def declared_rules(study) -> list[dict]:
                         "lower": a.get("lower"), "upper": a.get("upper"),
                         "rule": str(a.get("rule", "simple")), "prior": a.get("prior"),
                         "population_source": a.get("population_source", ""),
+                        "tolerance_source": a.get("tolerance_source", ""),
                         "coverage": study.coverage})
             if "position" in a:  # a diameter zone (ISO 1101): what it is a zone of
                 out[-1].update({"position": list(a["position"]),
@@ -184,7 +186,8 @@ def check_study(study, plan) -> None:
             raise InvalidInput([f"The study tolerances {key[2]} of {key[0]} ({key[1]}), "
                                 f"which plan {number} does not; issue a new plan."])
         p = planned[key]
-        for name in (*_DECLARED, "population_source", "coverage", "position", "nominal"):
+        for name in (*_DECLARED, "population_source", "tolerance_source", "coverage",
+                     "position", "nominal"):
             if r.get(name) != p.get(name):
                 raise InvalidInput([f"{key[0]} {key[2]} {name}: plan {number} says "
                                     f"{p.get(name)!r}, the study {r.get(name)!r}; the rules "
@@ -319,7 +322,8 @@ def apply_plan(result, plan) -> list[str]:
         for verdicts, measured, when in ((o.verdicts, o.measured, ""),
                                          (getattr(o, "as_left_verdicts", []),
                                           getattr(o, "as_left", None), " as left")):
-            deviations += _apply(verdicts, measured, planned, when)
+            deviations += _apply(verdicts, measured, planned, when,
+                                 plan.get("conditions", {}).get("larger_u"))
             if o.spec.name in blocked:
                 for v in verdicts:
                     if v.measured is not None:
@@ -351,7 +355,12 @@ def _estimator_deviations(verdicts, planned) -> list[str]:
     return out
 
 
-def _apply(verdicts, measured, planned, when) -> list[str]:
+#: the verdict of a measurand whose achieved U exceeds the agreed one where the plan's
+#: clause says so (``larger_u = "no decision"``)
+LARGER_U_NO_DECISION = "no decision: the achieved U exceeds the agreed U"
+
+
+def _apply(verdicts, measured, planned, when, larger_u=None) -> list[str]:
     """:func:`apply_plan` for the verdicts of one evaluation of a test's readings."""
     from mtplan._numbers import fmt, fmt_u, unit
     from mtplan.plans.decisions import NOT_DETERMINABLE, NOT_MEASURED, decide, fit_verdict
@@ -383,8 +392,19 @@ def _apply(verdicts, measured, planned, when) -> list[str]:
             continue
         v.verdict = decide(v.measured, v.lower, v.upper, v.guard_band)
         if v.measured_u is not None and v.measured_u > 1.1 * v.u:
-            deviations.append(f"{v.measurand}{when}: the measurement's U "
-                              f"({fmt_u(2 * v.measured_u)} {unit(v.unit)}) exceeds the "
-                              f"plan's predicted U ({fmt_u(2 * v.u)} {unit(v.unit)}) that "
-                              "set the guard band.")
+            line = (f"{v.measurand}{when}: the measurement's U ({fmt_u(2 * v.measured_u)} "
+                    f"{unit(v.unit)}) exceeds the plan's predicted U ({fmt_u(2 * v.u)} "
+                    f"{unit(v.unit)}) that set the guard band by more than 10 %")
+            if larger_u == "widen":
+                wider = v.guard_band * v.measured_u / v.u
+                v.guard_band = wider
+                v.acceptance_limits = (None if v.lower is None else v.lower + wider,
+                                       None if v.upper is None else v.upper - wider)
+                v.verdict = decide(v.measured, v.lower, v.upper, wider)
+                line += (f"; as the plan agreed, the guard band is widened to "
+                         f"{fmt(wider, v.measured_u / 5)} {unit(v.unit)}")
+            elif larger_u == "no decision":
+                v.verdict, v.reason = LARGER_U_NO_DECISION, line
+                line += "; as the plan agreed, no decision is made on it"
+            deviations.append(line + ".")
     return deviations

@@ -15,7 +15,7 @@ from xml.sax.saxutils import escape
 
 from mtplan._io import atomic_write, output_problem
 from mtplan._validate import InvalidInput
-from mtplan.plans.agreement import FIT_NO_DECISION, NO_INSTRUMENT
+from mtplan.plans.agreement import FIT_NO_DECISION, LARGER_U_NO_DECISION, NO_INSTRUMENT
 from mtplan.reports.model import Document, Figure, Section, Table
 from mtplan.reports.wording import VERDICT_SHORT
 
@@ -26,9 +26,9 @@ _FONT = "DejaVuSans"
 _SIZE = 7.5  # table text [pt]
 _PAD = 3.0   # table cell padding, each side [pt]
 #: verdict -> the class (HTML) and colour (PDF) it is shown in
-VERDICT_CLASS = {"conforms": "ok", "does not conform": "bad",
-                 "inside the guard band: no decision": "warn", "not determinable": "nd",
-                 FIT_NO_DECISION: "warn", NO_INSTRUMENT: "nd",
+VERDICT_CLASS = {"pass": "ok", "fail": "bad", "conditional pass": "warn",
+                 "conditional fail": "warn", "not determinable": "nd",
+                 FIT_NO_DECISION: "warn", NO_INSTRUMENT: "nd", LARGER_U_NO_DECISION: "warn",
                  "not measured": "nd"}
 VERDICT_CLASS.update({short: VERDICT_CLASS[full] for full, short in VERDICT_SHORT.items()})
 _VERDICT_COLOUR = {"ok": "#1b5e20", "bad": "#b3261e", "warn": "#8a5a00", "nd": "#555555"}
@@ -204,7 +204,7 @@ def _table_flowables(t: Table, width: float, st: dict, row_height: float | None 
         ("TOPPADDING", (0, 0), (-1, -1), 1.5), ("BOTTOMPADDING", (0, 0), (-1, -1), 1.5),
     ]))
     head = [Paragraph(escape(t.caption), st["caption"]), tbl]
-    if len(t.rows) <= 8:  # a short table is not split from its caption or over two pages
+    if len(t.rows) <= 8 or t.keep:  # not split from its caption or over two pages
         return [KeepTogether(head), Spacer(1, 8)]
     return head + [Spacer(1, 8)]
 
@@ -269,26 +269,51 @@ def _cover_flowables(doc: Document, width: float, st: dict) -> list:
     out = [Spacer(1, 0.6 * cm), Paragraph(escape(doc.title), st["title"])]
     if doc.subtitle:
         out.append(Paragraph(escape(doc.subtitle), st["subtitle"]))
+    if doc.box:
+        out.append(_box_flowable(doc.box, width, st))
     rows = [[k, v] for k, v in doc.meta.items()]
     out += _table_flowables(Table(doc.title.split(" (")[0], ["item", "value"], rows), width, st)
+    methods = []
     if doc.methods:
-        out += _table_flowables(Table("Methods: the source method of each test and the "
-                                      "standards applied", ["test", "method", "standards"],
-                                      [list(r) for r in doc.methods]), width, st)
+        methods += _table_flowables(Table("Methods: the source method of each test and the "
+                                          "standards applied", ["test", "method", "standards"],
+                                          [list(r) for r in doc.methods]), width, st)
     if doc.standards:
-        out += _table_flowables(Table("Standards applied", ["test", "standards"],
-                                      [list(r) for r in doc.standards]), width, st)
+        methods += _table_flowables(Table("Standards applied", ["test", "standards"],
+                                          [list(r) for r in doc.standards]), width, st)
+    if not doc.box:  # a boxed result takes the room: the sign-off stays on page 1
+        out += methods
     if doc.statement:
         out.append(Paragraph(escape(doc.statement), st["body"]))
     sign = [[role, name or "", "", ""] for role, name in doc.signoff]
     out += _table_flowables(Table("Sign-off", ["", "name", "date", "signature"], sign),
                             width, st, row_height=0.9 * cm)
+    if doc.box:
+        out += methods
     out.append(Paragraph(
         f"Uncertainty evaluated after JCGM 101 (GUM Supplement 1) with mtplan "
-        f"{escape(doc.provenance['versions'].get('mtplan', ''))}; every number is traceable "
-        "to the study file, the readings files and the random seed named in the provenance.",
+        f"{escape(doc.provenance['versions'].get('mtplan', ''))}; every number can be "
+        f"reproduced from {escape(doc.inputs)} named in the provenance (a record of the "
+        "calculation, not metrological traceability, which the instruments' certificates "
+        "carry).",
         st["caption"]))
     return out
+
+
+def _box_flowable(lines, width: float, st: dict):
+    """The lines of the overall result in a framed box (page 1)."""
+    from reportlab.platypus import Paragraph
+    from reportlab.platypus import Table as RLTable
+
+    cells = [[Paragraph("<b>Overall result</b>", st["body"])]]
+    cells += [[Paragraph(f"<b>{escape(line)}</b>", st["body"])] for line in lines]
+    box = RLTable(cells, colWidths=[width])
+    box.setStyle([("FONT", (0, 0), (-1, -1), _FONT, 9),
+                  ("BOX", (0, 0), (-1, -1), 1.4, "#222222"),
+                  ("BACKGROUND", (0, 0), (-1, -1), "#f3f3f3"),
+                  ("TOPPADDING", (0, 0), (-1, -1), 2), ("BOTTOMPADDING", (0, 0), (-1, -1), 2)])
+    box.spaceAfter = 8
+    return box
 
 
 def _doc_template(buf, doc: Document):
@@ -379,7 +404,8 @@ def render_pdf(doc: Document) -> bytes:
 
     st = _styles()
     width = A4[0] - 4 * cm - 12  # the frame pads 6 pt on each side
-    story = _cover_flowables(doc, width, st) + [PageBreak()]
+    # a report flows on after its cover's methods (no half-empty page 2)
+    story = _cover_flowables(doc, width, st) + [Spacer(1, 14) if doc.flow else PageBreak()]
     toc = TableOfContents()
     toc.levelStyles = st["toc"]
     toc.tableStyle = TableStyle([("FONT", (0, 0), (-1, -1), _FONT, 9),
