@@ -333,7 +333,7 @@ def test_conditions_and_instruments_come_from_the_study(small_report):
 def test_glossary_and_plain_names(small_report):
     text = _flat(_pages(small_report / "report.pdf"))
     for term in ("Glossary", "guard band w", "three_point", "kasa",
-                 "pass, conditional pass, conditional fail, fail"):
+                 "the outcomes of ILAC-G8:09/2019"):
         assert term in text, term
     assert "X of the bore centre from its nominal position (centre_x)" in text
     # each document's glossary defines only the terms it uses: the observability indices
@@ -699,3 +699,28 @@ def test_the_plan_states_the_agreement(small_report):
     for party in ("agreed for the laboratory", "agreed for the customer",
                   "agreed for the machine builder"):
         assert party in cover, party
+
+
+@pytest.mark.parametrize("clause", ["widen", "no decision", None])
+def test_the_clause_for_an_achieved_U_larger_than_agreed(small_result, small_report, clause):
+    """An achieved U more than 10 % above the agreed one: the plan's clause widens the guard
+    band in proportion, or withholds the decision; without a clause only a deviation."""
+    from mtplan.plans.agreement import LARGER_U_NO_DECISION, apply_plan
+
+    result = copy.deepcopy(small_result)
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    plan["conditions"] = {"larger_u": clause} if clause else {}
+    rule = next(r for r in plan["rules"] if r["measurand"] == "centre_y")
+    for v in result.outcomes[0].verdicts:
+        if v.measurand == "centre_y":
+            v.measured_u = 3 * rule["u_planned"]
+    deviations = apply_plan(result, plan)
+    v = next(v for v in result.verdicts if v.measurand == "centre_y")
+    assert any(d.startswith("centre_y: the measurement's U") for d in deviations)
+    if clause == "widen":
+        assert v.guard_band == pytest.approx(3 * rule["guard_band"])
+        assert "widened" in " ".join(deviations)
+    elif clause == "no decision":
+        assert v.verdict == LARGER_U_NO_DECISION
+    else:
+        assert v.guard_band == rule["guard_band"] and v.verdict == "pass"
