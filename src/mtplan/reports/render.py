@@ -413,9 +413,16 @@ def render_pdf(doc: Document) -> bytes:
                                  ("RIGHTPADDING", (0, 0), (-1, -1), 0),
                                  ("LEFTPADDING", (0, 0), (-1, -1), 0)])
     body, appendix = doc.body, doc.appendix
+
+    def headed(sec) -> list:  # a heading never ends a page: it is kept with what follows
+        from reportlab.platypus import KeepTogether
+
+        blocks = _block_flowables(sec.blocks, width, st)
+        return [KeepTogether([Paragraph(escape(sec.title), st["h1"])] + blocks[:1])] + \
+            blocks[1:]
+
     for i, sec in enumerate(body):
-        story += [Paragraph(escape(sec.title), st["h1"])]
-        story += _block_flowables(sec.blocks, width, st)
+        story += headed(sec)
         if i == 0:  # the summary first, then the contents
             story += [PageBreak(), Paragraph("Contents", st["toc_head"]), toc, PageBreak()]
         elif not doc.flow or i == len(body) - 1:
@@ -423,8 +430,7 @@ def render_pdf(doc: Document) -> bytes:
         else:
             story.append(Spacer(1, 14))
     for i, sec in enumerate(appendix):
-        story += [Paragraph(escape(sec.title), st["h1"])]
-        story += _block_flowables(sec.blocks, width, st)
+        story += headed(sec)
         if i < len(appendix) - 1:
             story.append(PageBreak())
     if doc.end_mark:
