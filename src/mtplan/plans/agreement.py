@@ -60,6 +60,7 @@ def declared_rules(study) -> list[dict]:
                         "rule": str(a.get("rule", "simple")), "prior": a.get("prior"),
                         "population_source": a.get("population_source", ""),
                         "tolerance_source": a.get("tolerance_source", ""),
+                        "frame": a.get("frame", ""),
                         "coverage": study.coverage})
             if "position" in a:  # a diameter zone (ISO 1101): what it is a zone of
                 out[-1].update({"position": list(a["position"]),
@@ -186,7 +187,7 @@ def check_study(study, plan) -> None:
             raise InvalidInput([f"The study tolerances {key[2]} of {key[0]} ({key[1]}), "
                                 f"which plan {number} does not; issue a new plan."])
         p = planned[key]
-        for name in (*_DECLARED, "population_source", "tolerance_source", "coverage",
+        for name in (*_DECLARED, "population_source", "tolerance_source", "frame", "coverage",
                      "position", "nominal"):
             if r.get(name) != p.get(name):
                 raise InvalidInput([f"{key[0]} {key[2]} {name}: plan {number} says "

@@ -123,11 +123,12 @@ _PROC_KEYS = {"name", "label", "setup", "truth", "estimators", "sweep", "plan", 
 _SWEEP_KEYS = {"vary", "trials", "estimators"}
 _PLAN_KEYS = {"targets", "vary", "k", "estimator", "trials"}
 _ACCEPT_KEYS = {"measurand", "lower", "upper", "prior", "rule", "measured", "tolerance_source",
+                "frame",
                 "population_source"}
 #: a position tolerance as a diameter zone (ISO 1101): the deviation 2 sqrt(dx^2 + dy^2) of
 #: two coordinate measurands from their nominal within the zone's diameter (their unit)
 _POSITION_KEYS = {"measurand", "position", "nominal", "diameter", "prior", "rule",
-                  "tolerance_source",
+                  "tolerance_source", "frame",
                   "population_source"}
 _READ_KEYS = {"file", "uncertainty", "estimator", "trials", "options", "allow_unconverged"}
 #: readings taken again after an adjustment, evaluated as the readings are
@@ -591,7 +592,7 @@ def _acceptance(tables, measurands, path, where, problems) -> list:
         elif name in seen:
             problems.append(f"{at} repeats measurand {name!r}; one tolerance per measurand.")
         seen.add(name)
-        for key in ("population_source", "tolerance_source"):
+        for key in ("population_source", "tolerance_source", "frame"):
             source = acc.get(key)
             if source is not None and not isinstance(source, str):
                 problems.append(f"{at} {key!r} must be text. Got {source!r} instead.")

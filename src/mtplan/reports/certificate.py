@@ -811,12 +811,29 @@ def _pct(p) -> str:
     return "-" if p is None else percent(p)
 
 
+def _not_adopted(o) -> list:
+    """The swept set-up changes that lower U beyond the Monte Carlo error at no extra
+    machine time, which the plan does not adopt, with the reason."""
+    better = [e for e in o.levers if e.significant and math.isfinite(e.u_base)
+              and e.duration_best_s <= e.duration_base_s and e.best_value != e.base_value]
+    if not better:
+        return []
+    items = [f"{field_value(e.field, e.best_value)} ({e.measurand}: U {fmt_u(2 * e.u_best)} "
+             f"instead of "
+             f"{fmt_u(2 * e.u_base)} {unit(e.unit)} in the same sweep, "
+             f"{duration_text(e.duration_best_s)})" for e in better]
+    return [f"Found better at no extra machine time, not adopted: {'; '.join(items)}. The plan "
+            "agrees the study's set-up as stated; adopting one of these needs the study changed "
+            "and the plan issued again, which the parties may agree before the test."]
+
+
 def _plan_test(k, o, plan, study) -> Section:
     from mtplan.reports.document import setup_sentence
 
     blocks = [f"Set-up: {setup_sentence(o)}. Estimator: {o.recommended}. Duration (machine "
               f"time): {duration_text(o.duration_s)}. Method: {method_citation(o.spec.name)}; "
               f"standards: {', '.join(o.spec.standards) or 'none named'}."]
+    blocks += _not_adopted(o)
     inst = _instruments(study, o.spec.name)
     blocks.append("Instruments: " + ("; ".join(f"{r[0]} (serial {r[1]}, certificate {r[2]})"
                                                for r in inst) if inst else
@@ -1019,6 +1036,12 @@ def _agreement_section(result, plan) -> Section:
                         ["measurand", "unit", "tolerance", "acceptance limits", "w",
                          "U predicted", "± (MC)", "tolerance source"], limits, grow=7,
                         size=7.0))
+    frames: dict = {}
+    for r in plan["rules"]:
+        frames.setdefault(r.get("frame") or "not stated in the study", []).append(r["measurand"])
+    blocks += ["Sign convention and reference frame of each measurand (a correction's sign "
+               "depends on it):", [f"{', '.join(names)}: {text}" for text, names in
+                                   frames.items()]]
     blocks += rules_text(result.verdicts)
     blocks += [BURDEN_OF_PROOF, OVERALL_RULE]
     req = study.requirements
