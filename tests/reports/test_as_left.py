@@ -172,7 +172,7 @@ def bore(tmp_path_factory):
 
 
 def test_position_zone_is_decided_from_the_samples(bore):
-    from mtplan.plans.decisions import CONDITIONAL_PASS, CONDITIONAL_FAIL
+    from mtplan.plans.decisions import CONDITIONAL_FAIL, CONDITIONAL_PASS
 
     result, _ = bore
     (o,) = result.outcomes
@@ -183,7 +183,8 @@ def test_position_zone_is_decided_from_the_samples(bore):
     # zone of 800 um, within the guard band (U about 8 um)
     assert v.measured == pytest.approx(2 * math.hypot(x, y), rel=1e-12)
     assert v.upper == 800.0 and v.lower is None
-    assert v.measured_low < 800.0 < v.measured_high and v.verdict in (CONDITIONAL_PASS, CONDITIONAL_FAIL)
+    assert v.measured_low < 800.0 < v.measured_high
+    assert v.verdict in (CONDITIONAL_PASS, CONDITIONAL_FAIL)
     assert 0 < v.p_conform < 0.5 and v.p_conform == v.p_conform_samples
     # far from nominal P is nearly normal: u is twice the coordinates' radial u (the
     # standard deviation of a standard deviation of 300 samples: 4 % at 1 sigma)

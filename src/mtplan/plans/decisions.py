@@ -33,8 +33,9 @@ import numpy as np
 
 from mtplan._validate import InvalidInput
 
-__all__ = ["K", "VERDICTS", "PASS", "CONDITIONAL_PASS", "CONDITIONAL_FAIL", "FAIL", "Verdict", "LeverEffect", "SummaryRow", "recommend_estimator",
-           "key_measurands", "conformity", "position_verdict", "decide", "fit_verdict", "lever_effects", "dominant_sources",
+__all__ = ["K", "VERDICTS", "PASS", "CONDITIONAL_PASS", "CONDITIONAL_FAIL", "FAIL", "Verdict",
+           "LeverEffect", "SummaryRow", "recommend_estimator", "key_measurands", "conformity",
+           "position_verdict", "decide", "fit_verdict", "lever_effects", "dominant_sources",
            "estimator_comparison", "u_targets", "shown_setup", "summary_rows",
            "RANDOM_ON_REPEAT", "random_share", "repeats_needed", "repeated_U"]
 

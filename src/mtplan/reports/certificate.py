@@ -1021,9 +1021,10 @@ def _agreement_section(result, plan) -> Section:
         # to the decimal of the standard error's first significant digit (fmt keeps two
         # significant digits of its second argument)
         step = 10 * se if se else (r["u_planned"] / 5 if r.get("u_planned") else None)
+        lo, hi = (None if r[k] is None else fmt(r[k], step)
+                  for k in ("acceptance_lower", "acceptance_upper"))
         acc = ("-" if r.get("guard_band") is None else
-               f"[{fmt(r['acceptance_lower'], step) if r['acceptance_lower'] is not None else '-∞'}"
-               f", {fmt(r['acceptance_upper'], step) if r['acceptance_upper'] is not None else '∞'}]")
+               f"[{'-∞' if lo is None else lo}, {'∞' if hi is None else hi}]")
         limits.append([r["measurand"], u, tolerance_text(r["lower"], r["upper"]), acc,
                        "-" if r.get("guard_band") is None else fmt(r["guard_band"], step),
                        "-" if r.get("u_planned") is None else fmt(2 * r["u_planned"], step),

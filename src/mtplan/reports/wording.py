@@ -6,9 +6,9 @@ from __future__ import annotations
 import math
 
 __all__ = ["METHOD_SOURCES", "method_citation", "customer_words", "measurand_name",
-           "probability_text", "rule_wording", "rules_text", "population_text", "value_warnings", "VERDICT_SHORT", "verdict_short",
-           "BURDEN_OF_PROOF", "OVERALL_RULE",
-           "GLOSSARY"]
+           "probability_text", "rule_wording", "rules_text", "population_text",
+           "value_warnings", "VERDICT_SHORT", "verdict_short", "BURDEN_OF_PROOF",
+           "OVERALL_RULE", "GLOSSARY"]
 
 #: the source method of each procedure: (patent number or "", title in English)
 METHOD_SOURCES = {
