@@ -789,10 +789,11 @@ def _plan_rows(o, plan) -> list:
     for v in o.verdicts:
         r = rules[(v.procedure, v.label, v.measurand)]
         u = unit(v.unit)
-        w = "-" if r["guard_band"] is None else fmt(r["guard_band"], r["u_planned"] / 5)
+        step = _agreed_step(o, r)
+        w = "-" if r["guard_band"] is None else fmt(r["guard_band"], step)
         rows.append([measurand_name(v.description, v.measurand), u,
                      tolerance_text(v.lower, v.upper, zone=v.zone),
-                     "-" if r["u_planned"] is None else fmt_u(2 * r["u_planned"]),
+                     "-" if r["u_planned"] is None else fmt(2 * r["u_planned"], step),
                      "-" if r["tur"] is None else f"{r['tur']:.1f}", w,
                      _pct(r["pfa"]), _pct(r["pfr"])])
     for name in o.key:
@@ -950,6 +951,16 @@ def _mc_error(o, rule) -> float | None:
     return 2 * rule["u_planned"] / math.sqrt(2 * (n - 1)) if n > 1 else None
 
 
+def _agreed_step(o, rule) -> float | None:
+    """The resolution the agreed U, w and limits are printed to: the decimal of their Monte
+    Carlo standard error's first significant digit (:func:`fmt` keeps two significant
+    digits of its second argument, hence 10 times the error)."""
+    se = _mc_error(o, rule)
+    if se:
+        return 10 * se
+    return rule["u_planned"] / 5 if rule.get("u_planned") else None
+
+
 def _requirement_rows(req) -> list:
     from mtplan.plans.study import REQUIREMENT_KEYS
 
@@ -1018,9 +1029,7 @@ def _agreement_section(result, plan) -> Section:
     for r in plan["rules"]:
         u = unit(r.get("unit", ""))
         se = _mc_error(by_label.get(r["test"]), r)
-        # to the decimal of the standard error's first significant digit (fmt keeps two
-        # significant digits of its second argument)
-        step = 10 * se if se else (r["u_planned"] / 5 if r.get("u_planned") else None)
+        step = _agreed_step(by_label.get(r["test"]), r)
         lo, hi = (None if r[k] is None else fmt(r[k], step)
                   for k in ("acceptance_lower", "acceptance_upper"))
         acc = ("-" if r.get("guard_band") is None else
