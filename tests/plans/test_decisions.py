@@ -16,12 +16,14 @@ from mtplan.plans import decisions as d
 @pytest.mark.parametrize("value, lower, upper, w, verdict", [
     (0.0, -10, 10, 2.5, d.CONFORMS),
     (7.5, -10, 10, 2.5, d.CONFORMS),            # on the acceptance limit
-    (7.6, -10, 10, 2.5, d.NO_DECISION),
-    (12.5, -10, 10, 2.5, d.NO_DECISION),        # on the widened limit
+    (7.6, -10, 10, 2.5, d.CONDITIONAL_PASS),
+    (10.0, -10, 10, 2.5, d.CONDITIONAL_PASS),   # on the tolerance limit
+    (10.1, -10, 10, 2.5, d.CONDITIONAL_FAIL),
+    (12.5, -10, 10, 2.5, d.CONDITIONAL_FAIL),   # on the widened limit
     (12.6, -10, 10, 2.5, d.DOES_NOT_CONFORM),
     (-12.6, -10, 10, 2.5, d.DOES_NOT_CONFORM),
     (10.1, -10, 10, 0.0, d.DOES_NOT_CONFORM),   # simple acceptance decides everything
-    (9.9, None, 10, 1.0, d.NO_DECISION),        # one-sided
+    (9.9, None, 10, 1.0, d.CONDITIONAL_PASS),   # one-sided
     (-1e9, None, 10, 1.0, d.CONFORMS),
 ])
 def test_decide_zones(value, lower, upper, w, verdict):
@@ -132,3 +134,24 @@ def test_readings_that_do_not_fit_get_no_decision_with_why():
     for ok in (True, None):  # a passed check, or one that could not be made, decides as usual
         measured.fit = FitCheck(chi2=1.0, dof=1, p_value=0.3, ok=ok)
         assert d.conformity("p", "T", specs[:1], result, measured)[0].verdict == d.CONFORMS
+
+
+def test_repeats_average_only_the_random_share_of_the_budget():
+    """EC0Y's case: 82 % of u^2 is the grid plate's own error, which repeats do not
+    average: no number of repeats reaches a U of 10.7 from 13.6, two give about 13.0."""
+    import pandas as pd
+
+    budget = pd.DataFrame({"output": ["EC0Y"] * 3 + ["EXX"],
+                           "input": ["grid_error", "encoder_noise", "repeatability",
+                                     "grid_error"],
+                           "share": [0.82, 0.10, 0.08, 1.0]})
+    share, top, top_share = d.random_share(budget, "EC0Y")
+    assert share == pytest.approx(0.18) and top == "grid_error"
+    assert top_share == pytest.approx(0.82)
+    assert d.repeats_needed(13.6, 10.7, share) is None
+    assert d.repeated_U(13.6, share, 2) == pytest.approx(13.0, abs=0.05)
+    # all random: the square-root law; a target already met needs one test
+    assert d.repeats_needed(10.0, 5.0, 1.0) == 4
+    assert d.repeats_needed(10.0, 12.0, 0.5) == 1
+    assert d.repeats_needed(10.0, 9.0, 0.5) == 2  # 10 sqrt(0.5 + 0.25) = 8.66
+    assert d.random_share(budget, "nothing") is None

@@ -38,6 +38,11 @@ machine_temperature_c = 21.0
 part_temperature_c = 20.7
 warm_up = "45 min axis cycling"
 compensation = false
+[requirements]
+temperature_c = [19.5, 21.5]
+compensation = false
+adjustment = "the builder may adjust once"
+retests = 1
 [[instrument]]
 name = "Touch probe"
 serial = "TP-0042"
@@ -47,6 +52,7 @@ traceability = "PTB via DAkkS D-K-99999"
 [header]
 document = "DOC-<b>1</b>"
 revision = "B"
+plan_date = 2023-12-20
 customer = "Customer & <i>Co</i>"
 machine_serial = "SN-42"
 date = 2024-01-02

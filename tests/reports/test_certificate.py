@@ -9,6 +9,7 @@ import copy
 import json
 import re
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -31,15 +32,19 @@ def _flat(pages) -> str:
 
 # ------------------------------------------------------------------ plan and report
 def test_plan_has_number_and_fingerprint_and_report_cites_both(small_report):
-    from mtplan.plans.agreement import fingerprint
+    from mtplan.plans.agreement import fingerprint, signed_content
 
     plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
-    assert plan["fingerprint"] == fingerprint(plan["rules"])
+    assert plan["fingerprint"] == fingerprint(signed_content(plan))
+    assert len(plan["fingerprint"]) == 64
+    # everything the parties sign is under the fingerprint
+    assert {"document", "revision", "issued", "parties", "conditions", "rules"} <= set(plan)
+    assert plan["parties"]["customer"] == "Customer & <i>Co</i>"
     assert plan["document"] == "DOC-<b>1</b>-PLAN"
     plan_text = _flat(_pages(small_report / "plan.pdf"))
     assert plan["document"] in plan_text and plan["fingerprint"] in plan_text
     cover = " ".join(_pages(small_report / "report.pdf")[0].split())
-    assert plan["document"] in cover and plan["fingerprint"][:16] in cover
+    assert plan["document"] in cover and plan["fingerprint"] in cover  # all 64 digits
 
 
 def test_plan_only_then_report_against_it(small_study_file, tmp_path, capsys):
@@ -59,10 +64,10 @@ def test_plan_only_then_report_against_it(small_study_file, tmp_path, capsys):
     out = capsys.readouterr().out
     assert str(report_dir / "report.pdf") in out and "plan.pdf" not in out
     text = _flat(_pages(report_dir / "report.pdf"))
-    assert plan["fingerprint"][:16] in text
+    assert plan["fingerprint"] in text
     assert "Deviations from the test plan, additions and exclusions: • none" in text
     verdicts = pd.read_csv(report_dir / "results" / "verdicts.csv").set_index("measurand")
-    assert verdicts.loc["centre_x", "verdict"] == "does not conform"
+    assert verdicts.loc["centre_x", "verdict"] == "fail"
 
 
 def test_report_applies_the_plans_guard_bands(small_report):
@@ -110,8 +115,167 @@ def test_unchanged_study_passes_and_an_edited_plan_is_refused(small_study_file, 
     plan["rules"][0]["guard_band"] *= 2
     edited = tmp_path / "plan.json"
     edited.write_text(json.dumps(plan), encoding="utf-8")
-    with pytest.raises(InvalidInput, match="do not match its fingerprint"):
+    with pytest.raises(InvalidInput, match="does not match its fingerprint"):
         read_plan(edited)
+
+
+def _cli(argv, capsys) -> tuple[int, str]:
+    from mtplan.cli import main
+
+    code = main([str(a) for a in argv])
+    return code, capsys.readouterr().err.strip()
+
+
+@pytest.mark.parametrize("field, value", [("issued", "2023-12-01"), ("revision", "C"),
+                                          ("parties", {"customer": "Someone else"})])
+def test_an_edited_plan_fails_its_fingerprint_and_is_refused(small_study_file, small_report,
+                                                             tmp_path, capsys, field, value):
+    """The fingerprint covers the issue date, the revision and the parties, not only the
+    rules: a plan.json edited in any of them is refused in one line that prints the full
+    fingerprint, and no report is written."""
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    plan[field] = value
+    edited = tmp_path / "plan.json"
+    edited.write_text(json.dumps(plan), encoding="utf-8")
+    code, err = _cli(["report", small_study_file, "--out", tmp_path / "out", "--plan", edited],
+                     capsys)
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert "does not match its fingerprint" in err and plan["fingerprint"] in err
+    assert not (tmp_path / "out" / "report.pdf").exists()
+
+
+def _plan_issued(small_report, tmp_path, issued) -> Path:
+    """The small study's plan as if issued on ``issued`` (fingerprint renewed: a genuine
+    plan of that date)."""
+    from mtplan.plans.agreement import fingerprint, signed_content
+
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    plan["issued"] = issued
+    plan["fingerprint"] = fingerprint(signed_content(plan))
+    path = tmp_path / "late-plan.json"
+    path.write_text(json.dumps(plan), encoding="utf-8")
+    return path
+
+
+def test_a_plan_issued_after_the_test_is_refused(small_study_file, small_report, tmp_path,
+                                                 capsys):
+    late = _plan_issued(small_report, tmp_path, "2024-01-15")  # the test: 2024-01-02
+    code, err = _cli(["report", small_study_file, "--out", tmp_path / "out", "--plan", late],
+                     capsys)
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert "issued on 2024-01-15, after the test on 2024-01-02" in err
+    assert "late_plan" in err
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+    # the same study stating its own late plan date is refused too
+    text = small_study_file.read_text(encoding="utf-8")
+    dated = tmp_path / "dated.toml"
+    dated.write_text(text.replace("plan_date = 2023-12-20", "plan_date = 2024-02-01", 1),
+                     encoding="utf-8")
+    code, err = _cli(["report", dated, "--out", tmp_path / "out2"], capsys)
+    assert code == 2 and "after the test on 2024-01-02" in err, err
+
+
+def test_a_late_plan_the_study_accepts_is_a_deviation(small_study_file, small_report,
+                                                      tmp_path, capsys):
+    late = _plan_issued(small_report, tmp_path, "2024-01-15")
+    text = small_study_file.read_text(encoding="utf-8")
+    accepted = tmp_path / "accepted.toml"
+    accepted.write_text(text.replace(
+        'revision = "B"', 'revision = "B"\nlate_plan = "accepted by the customer, letter of '
+        '2024-01-16"', 1), encoding="utf-8")
+    code, err = _cli(["report", accepted, "--out", tmp_path / "out", "--plan", late], capsys)
+    assert code == 0, err
+    text = _flat(_pages(tmp_path / "out" / "report.pdf"))
+    assert ("The test plan DOC-<b>1</b>-PLAN was issued on 2024-01-15, after the test on "
+            "2024-01-02; accepted as recorded in the study: accepted by the customer, letter "
+            "of 2024-01-16.") in text
+
+
+@pytest.mark.parametrize("due, agreement, state", [
+    ("calibration_due = 2023-12-31", "", "expired"),
+    ("", "", "no due date"),
+    ("calibration_due = 2023-12-31", 'customer_agreement = "e-mail of 2024-01-02"', "agreed"),
+])
+def test_an_instrument_not_valid_on_the_test_date(small_study_file, small_result,
+                                                  small_report, tmp_path, due, agreement,
+                                                  state):
+    """An expired or missing calibration is a deviation, and the tests that used the
+    instrument get no statement of conformity unless the study records the customer's
+    agreement (then the deviation says so and the verdicts stand)."""
+    from mtplan.plans.agreement import NO_INSTRUMENT
+    from mtplan.plans.study import load_study
+    from mtplan.reports import write_report
+
+    text = small_study_file.read_text(encoding="utf-8")
+    text = text.replace("calibration_due = 2025-08-15", due + "\n" + agreement, 1)
+    path = tmp_path / "study.toml"
+    path.write_text(text, encoding="utf-8")
+    result = copy.deepcopy(small_result)
+    result.study = load_study(path)
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    write_report(result, tmp_path / "out", plan)
+    pdf = _flat(_pages(tmp_path / "out" / "report.pdf"))
+    verdicts = pd.read_csv(tmp_path / "out" / "results" / "verdicts.csv")
+    if state == "agreed":
+        assert ("Touch probe (serial TP-0042): its calibration ran out on 2023-12-31, before "
+                "the test on 2024-01-02; used for") in pdf
+        assert "customer's agreement recorded in the study: e-mail of 2024-01-02" in pdf
+        assert NO_INSTRUMENT not in set(verdicts["verdict"])
+        return
+    why = ("its calibration ran out on 2023-12-31, before the test on 2024-01-02"
+           if state == "expired" else "its calibration states no due date")
+    assert f"Touch probe (serial TP-0042): {why}; no statement of conformity is made" in pdf
+    assert set(verdicts["verdict"]) == {NO_INSTRUMENT}
+    assert ("EXPIRED" if state == "expired" else "MISSING") in pdf
+    assert "Overall result for machine SN-42 (test 1): no decision" in pdf
+
+
+def test_certificates_named_as_what_they_are(small_study_file, tmp_path):
+    """A verification is called a verification, each certificate accredited or not, and
+    the traceability is stated as declared by a named party."""
+    from mtplan.plans.study import load_study
+    from mtplan.reports.certificate import _instruments
+
+    text = small_study_file.read_text(encoding="utf-8").replace(
+        'certificate = "CAL-2024-0815"', 'certificate = "CAL-2024-0815"\nkind = '
+        '"verification"\naccredited = false\ndeclared_by = "the maker"', 1)
+    path = tmp_path / "v.toml"
+    path.write_text(text, encoding="utf-8")
+    row = _instruments(load_study(path))[0]
+    assert row[2] == "verification CAL-2024-0815 (not accredited)"
+    assert row[5] == "PTB via DAkkS D-K-99999 (as declared by the maker)"
+
+
+def test_an_estimator_changed_against_the_plan_is_a_deviation(small_study_file, small_report,
+                                                              tmp_path, capsys):
+    """The estimator is part of the method: readings evaluated with another estimator than
+    the plan's are a deviation, phrased in the document's units (µm, never um)."""
+    text = small_study_file.read_text(encoding="utf-8")
+    changed = tmp_path / "estimator.toml"
+    changed.write_text(text.replace('uncertainty = "mc"\n  trials = 300',
+                                    'uncertainty = "mc"\n  trials = 300\n  estimator = '
+                                    '"kasa"', 1), encoding="utf-8")
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    assert {r["estimator"] for r in plan["rules"]} == {"three_point"}
+    code, err = _cli(["report", changed, "--out", tmp_path / "out", "--plan",
+                      small_report / "plan.json"], capsys)
+    assert code == 0, err
+    pdf = _flat(_pages(tmp_path / "out" / "report.pdf"))
+    assert ("decided with the kasa estimator, not the three_point estimator the plan agreed "
+            "(a change of method): centre_x (U ") in pdf
+    start = pdf.index("Deviations from the test plan")
+    deviations = pdf[start:pdf.index("Glossary", start)]
+    assert not re.search(r"\bum\b", deviations) and "µm" in deviations
+
+
+def test_the_fit_check_is_in_the_report_and_in_measured_csv(small_result, small_report):
+    fit = small_result.outcomes[0].measured.fit
+    measured = pd.read_csv(small_report / "results" / "measured.csv")
+    assert {"fit_chi2", "fit_dof", "fit_p", "fit_ok", "fit_worst"} <= set(measured.columns)
+    assert np.allclose(measured["fit_chi2"], fit.chi2) and (measured["fit_dof"] == fit.dof).all()
+    text = _flat(_pages(small_report / "report.pdf"))
+    assert "Fit check of each test's readings" in text
+    assert f"{fit.chi2:.1f}" in text and f"{fit.p_value:.2g}" in text
 
 
 def test_readings_that_do_not_fit_get_no_verdict(small_result, small_report):
@@ -141,7 +305,8 @@ def test_every_page_identified_numbered_and_watermarked(small_report):
             flat = " ".join(page.split())
             assert f"page {i} of {n}" in flat, (name, i)
             assert "DOC-<b>1</b>" in flat, (name, i)
-            assert "SIMULATED READINGS" in flat, (name, i)
+            # the plan uses no readings: no readings stamp on it
+            assert ("SIMULATED READINGS" in flat) == (name == "report"), (name, i)
     last = " ".join(_pages(small_report / "report.pdf")[-1].split())
     assert "End of report" in last
 
@@ -167,10 +332,15 @@ def test_conditions_and_instruments_come_from_the_study(small_report):
 
 def test_glossary_and_plain_names(small_report):
     text = _flat(_pages(small_report / "report.pdf"))
-    for term in ("Glossary", "TUR", "PFA", "PFR", "guard band w", "O1-O5", "three_point",
-                 "kasa"):
+    for term in ("Glossary", "guard band w", "three_point", "kasa",
+                 "the outcomes of ILAC-G8:09/2019"):
         assert term in text, term
     assert "X of the bore centre from its nominal position (centre_x)" in text
+    # each document's glossary defines only the terms it uses: the observability indices
+    # are the plan's, not the report's
+    assert "O1-O5" not in text
+    assert "O1-O5" in _flat(_pages(small_report / "plan.pdf"))
+    assert "no decision (guard band)" not in text
 
 
 def test_customer_words(small_report):
@@ -224,9 +394,15 @@ def test_demo_probabilities_agree_with_the_intervals(demo_report):
 # ------------------------------------------------------------------ the demo
 def test_demo_overall_result_and_the_c_axis_action(demo_report):
     report, _ = demo_report
-    page = " ".join(_pages(report / "report.pdf")[1].split())
-    assert page.replace(WATERMARK, "").lstrip().startswith("Overall result and actions")
-    assert "Overall result: not accepted: EX0C." in page
+    page = " ".join(" ".join(_pages(report / "report.pdf")[:2]).split())
+    # the overall result follows the cover at once (the box on page 1 states it first)
+    assert "Overall result and actions" in page.split("Contents")[0]
+    assert ("Overall result for machine DEMO-5AX-0001 (tests 1, 2, 3, 4): not accepted: "
+            "EX0C.") in page
+    cover = " ".join(_pages(report / "report.pdf")[0].split())
+    assert "Overall result Machine DEMO-5AX-0001 (tests 1, 2, 3, 4): NOT ACCEPTED: fail EX0C" \
+        in cover
+    assert "Machine DEMO-GTY-0002 (test 5):" in cover
     assert "Adjust the x position of the C axis at the reference height (EX0C)" in page
     assert "re-test test 1 (C axis location from an inclined plane)" in page
     assert "EC0Y" in page  # no decision, with the lever or repeats that would decide it
@@ -423,6 +599,21 @@ def test_values_cut_at_a_bound_or_not_resolved_are_warned():
     assert "physical bound 0" in lines[0] and "not resolved" in lines[1]
     cut, _ = value_warnings([("alpha_x", 1000.0, 16014.0, 0.0, 46610.0)], resolution=False)
     assert len(cut) == 1 and "bound" in cut[0]
+    # EZX: U is larger than the value, but the printed interval excludes zero: it differs
+    # from zero, decided by the interval the reader sees
+    assert value_warnings([("EZX", -0.48, 0.30, -0.96, -0.01)]) == ([], set())
+    assert value_warnings([("EZX", -0.48, 0.30, -0.96, 0.01)])[1] == {"EZX"}
+
+
+def test_value_and_U_rounded_together_and_an_asymmetric_interval_marked():
+    """centre_y -201.14 with U 1.7 is printed -201.1; an interval that is not value ± U is
+    marked and explained."""
+    from mtplan.reports.certificate import _asymmetric_mark
+    from mtplan.reports.labels import fmt, fmt_u
+
+    assert (fmt(-201.14, 2 * 0.85), fmt_u(2 * 0.85)) == ("-201.1", "1.7")
+    assert _asymmetric_mark(-14.5, 14.0, -27.6, -1.3) == " †"   # origin_y_1
+    assert _asymmetric_mark(-14.5, 14.0, -28.5, -0.5) == ""
 
 
 def test_the_simulation_table_warns_where_an_estimator_is_cut_or_blind():
@@ -469,7 +660,7 @@ def test_results_table_names_wrap_at_most_twice(small_result, small_report):
     apply_plan(result, plan)
     doc = build_report(result, plan)
     results = next(s for s in doc.sections if s.anchor == "results")
-    (table,) = [b for b in results.blocks if isinstance(b, Table)]
+    table = next(b for b in results.blocks if isinstance(b, Table))  # then the fit check
     _register_fonts()
     size = _table_size(table, 470.0)
     width = column_widths(table, 470.0, size)[1] - 2 * _PAD - 1
@@ -485,3 +676,51 @@ def test_coinciding_path_points_share_one_label(captured_figures):
     (fig,) = captured_figures
     labels = sorted(t.get_text() for t in fig.axes[0].texts)
     assert labels == ["p1 = d3", "p2"]
+
+
+def test_the_plan_states_the_agreement(small_report):
+    """The plan as a contract, checked on the rendered PDF: numeric acceptance limits, the
+    rule in ILAC-G8 words, the burden of proof, the overall rule, the required conditions,
+    the clauses, the duration, the machine map and the three signatures."""
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    assert plan["conditions"]["temperature_c"] == [19.5, 21.5]
+    text = _flat(_pages(small_report / "plan.pdf"))
+    agreement = text[text.index("The agreement Parties:"):text.index("Contents")]
+    rule = next(r for r in plan["rules"] if r["measurand"] == "centre_x")
+    for item in ("Acceptance limits per measurand", "tolerance source",
+                 "conditional pass (inside the tolerance) or conditional fail (outside it)",
+                 "Burden of proof (ISO 14253-1)", "Overall acceptance rule, per machine",
+                 "19.5 to 21.5 °C", "On a fail or a conditional result: the builder may adjust "
+                 "once.", "Re-tests allowed after an adjustment: 1.", "Total duration",
+                 "SN-42", "mtplan procedure circle_centre", "ISO/IEC 17025 7.8.2.2"):
+        assert item in agreement, item
+    assert f"{rule['acceptance_upper']:.1f}"[:3] in agreement
+    cover = " ".join(_pages(small_report / "plan.pdf")[0].split())
+    for party in ("agreed for the laboratory", "agreed for the customer",
+                  "agreed for the machine builder"):
+        assert party in cover, party
+
+
+@pytest.mark.parametrize("clause", ["widen", "no decision", None])
+def test_the_clause_for_an_achieved_U_larger_than_agreed(small_result, small_report, clause):
+    """An achieved U more than 10 % above the agreed one: the plan's clause widens the guard
+    band in proportion, or withholds the decision; without a clause only a deviation."""
+    from mtplan.plans.agreement import LARGER_U_NO_DECISION, apply_plan
+
+    result = copy.deepcopy(small_result)
+    plan = json.loads((small_report / "plan.json").read_text(encoding="utf-8"))
+    plan["conditions"] = {"larger_u": clause} if clause else {}
+    rule = next(r for r in plan["rules"] if r["measurand"] == "centre_y")
+    for v in result.outcomes[0].verdicts:
+        if v.measurand == "centre_y":
+            v.measured_u = 3 * rule["u_planned"]
+    deviations = apply_plan(result, plan)
+    v = next(v for v in result.verdicts if v.measurand == "centre_y")
+    assert any(d.startswith("centre_y: the measurement's U") for d in deviations)
+    if clause == "widen":
+        assert v.guard_band == pytest.approx(3 * rule["guard_band"])
+        assert "widened" in " ".join(deviations)
+    elif clause == "no decision":
+        assert v.verdict == LARGER_U_NO_DECISION
+    else:
+        assert v.guard_band == rule["guard_band"] and v.verdict == "pass"

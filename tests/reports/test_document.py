@@ -68,15 +68,17 @@ def _header_words(doc) -> set[str]:
 # ------------------------------------------------------------------ the small study
 def test_overall_result_follows_the_cover(small_report):
     pages = pdf_pages(small_report / "report.pdf")
-    assert pages[1].replace(WATERMARK, "").lstrip().startswith("Overall result and actions")
-    assert "Overall result: not accepted: centre_x." in pages[1]
-    assert "Adjust the x of the bore centre" in " ".join(pages[1].split())
+    first = " ".join(" ".join(pages[:2]).replace(WATERMARK, "").split()).split("Contents")[0]
+    assert "Overall result and actions" in first
+    assert "Overall result for machine SN-42 (test 1): not accepted: centre_x." in first
+    assert "Machine SN-42 (test 1): NOT ACCEPTED: fail centre_x" in " ".join(pages[0].split())
+    assert "Adjust the x of the bore centre" in first
 
 
 def test_verdicts_csv(small_report):
     v = pd.read_csv(small_report / "results" / "verdicts.csv").set_index("measurand")
-    assert v.loc["centre_x", "verdict"] == "does not conform"  # about 350 um, tolerance +-20
-    assert v.loc["centre_y", "verdict"] == "conforms"          # about -200 um, tolerance +-400
+    assert v.loc["centre_x", "verdict"] == "fail"             # about 350 um, tolerance +-20
+    assert v.loc["centre_y", "verdict"] == "pass"              # about -200 um, tolerance +-400
     assert v.loc["centre_x", "measured"] > v.loc["centre_x", "upper"] + v.loc["centre_x",
                                                                               "guard_band"]
     assert v.loc["centre_x", "acceptance_upper"] == pytest.approx(
@@ -89,8 +91,8 @@ def test_verdicts_csv(small_report):
 
 def test_verdict_in_html(small_report):
     page = (small_report / "report.html").read_text(encoding="utf-8")
-    assert '<span class="v-bad">does not conform</span>' in page
-    assert '<span class="v-ok">conforms</span>' in page
+    assert '<span class="v-bad">fail</span>' in page
+    assert '<span class="v-ok">pass</span>' in page
     assert page.index('id="overall"') < page.index('id="results"')
 
 
@@ -119,8 +121,9 @@ def test_fonts_embedded_and_outline(small_report):
     assert_fonts_embedded(pdf)
     assert_has_outline(pdf, ["Overall result and actions", "Contents", "Results as found",
                              "Glossary", "Provenance"])
-    assert_has_outline(small_report / "plan.pdf", ["Tests and decision rules",
-                                                   "What the simulation shows", "Glossary"])
+    assert_has_outline(small_report / "plan.pdf", [
+        "The agreement", "Annex: tests and decision rules (technical study)",
+        "What the simulation shows", "Glossary"])
 
 
 def test_fonts_embedded_and_outline_read_without_a_viewer(small_report):

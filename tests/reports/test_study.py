@@ -135,3 +135,33 @@ def test_a_standard_the_procedure_does_not_honour_is_not_cited(standard):
     problems = problems_of({"procedure": [{"name": "circle_centre",
                                            "standards": ["ISO 10360-5:2020", standard]}]})
     assert len(problems) == 1 and standard in problems[0] and "requires" in problems[0]
+
+
+def test_agreement_keys_checked_at_once():
+    """The plan's requirements, the instruments' certificates and a test's machine are
+    validated with the rest of the study, every problem at once."""
+    data = {
+        "requirements": {"temperature_c": [22, 19], "retests": -1, "larger_u": "ignore",
+                         "compensation": "yes", "humidity": 50},
+        "instrument": [{"name": "P", "serial": "1", "certificate": "C", "kind": "guess",
+                        "accredited": "maybe"}],
+        "procedure": [{"name": "circle_centre", "machine": 42,
+                       "acceptance": [{"measurand": "centre_x", "lower": -5, "upper": 5,
+                                       "tolerance_source": 7}]}],
+    }
+    text = "\n".join(problems_of(data))
+    for needle in ("'temperature_c' must be a band", "'retests' must be an integer >= 0",
+                   "'larger_u' must be one of 'widen', 'no decision'",
+                   "'compensation' must be true or false", "'humidity'",
+                   "'kind' must be one of calibration, verification",
+                   "'accredited' must be true or false", "'machine' must be the serial",
+                   "'tolerance_source' must be text"):
+        assert needle in text, needle
+    good = load_study({**data, "requirements": {"temperature_c": [19, 22], "larger_u": "widen"},
+                       "instrument": [{"name": "P", "serial": "1", "certificate": "C",
+                                       "kind": "verification", "accredited": False}],
+                       "procedure": [{"name": "circle_centre", "machine": "SN 1"}]})
+    assert good.requirements == {"temperature_c": [19.0, 22.0], "larger_u": "widen"}
+    assert good.instruments[0]["kind"] == "verification"
+    assert good.instruments[0]["accredited"] is False
+    assert good.procedures[0].machine == "SN 1"

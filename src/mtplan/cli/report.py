@@ -59,6 +59,10 @@ def _report(study_path, out, jobs, progress, command, plan_path=None, plan_only=
     if plan_path is not None:  # refused before anything is computed
         plan = agreement.read_plan(plan_path)
         agreement.check_study(study, plan)
+        agreement.check_dates(study, plan)
+    elif not plan_only and study.header.get("plan_date"):  # the plan of this run, dated
+        agreement.check_dates(study, {"issued": study.header["plan_date"],
+                                      "document": study.header.get("plan_document", "")})
     # with workers and both documents to write, each test's figures of the plan are drawn
     # as soon as the test is complete, beside the other tests' stages
     early = PLAN_PARTS if jobs != 1 and plan is None and not plan_only else None

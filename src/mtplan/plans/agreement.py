@@ -13,6 +13,14 @@ parties to agree when the default rule is left. The workflow:
    population or coverage is refused with one line naming it), then evaluates the readings
    and decides with the plan's own guard bands (:func:`apply_plan`).
 
+What the documents state is checked, not only printed: the fingerprint covers everything
+the parties sign (number, revision, issue date, parties, rules with their limits, the
+required conditions), so an edited ``plan.json`` is refused; a plan issued after the test
+is refused unless the study records that the customer accepts it (:func:`check_dates`);
+an instrument whose calibration had run out, or has no due date, is a deviation and the
+tests that used it get no statement of conformity unless the customer agreed
+(:func:`instrument_findings`); an estimator other than the plan's is a deviation.
+
 Without ``--plan`` (and in ``mtplan demo``) the plan is issued and applied in the same run;
 the report says so among its deviations from the plan.
 """
@@ -27,12 +35,17 @@ from pathlib import Path
 
 from mtplan._validate import InvalidInput
 
-__all__ = ["PLAN_FORMAT", "declared_rules", "fingerprint", "issue_plan", "read_plan",
-           "check_study", "apply_plan", "p_conform_measured", "FIT_NO_DECISION"]
+__all__ = ["PLAN_FORMAT", "declared_rules", "fingerprint", "signed_content", "parties",
+           "issue_plan", "read_plan", "check_study", "check_dates", "instrument_findings",
+           "apply_plan", "p_conform_measured", "FIT_NO_DECISION", "NO_INSTRUMENT",
+           "LARGER_U_NO_DECISION"]
 
-PLAN_FORMAT = "mtplan-test-plan-1"
+PLAN_FORMAT = "mtplan-test-plan-2"
 #: the verdict of a toleranced measurand whose readings do not fit the model
 FIT_NO_DECISION = "no decision: the readings do not fit the model"
+#: the verdict of a toleranced measurand measured with an instrument that was not calibrated
+#: (or verified) on the date of the test, without the customer's agreement
+NO_INSTRUMENT = "no statement: an instrument was not calibrated on the test date"
 _DECLARED = ("lower", "upper", "rule", "prior")
 
 
@@ -46,6 +59,8 @@ def declared_rules(study) -> list[dict]:
                         "lower": a.get("lower"), "upper": a.get("upper"),
                         "rule": str(a.get("rule", "simple")), "prior": a.get("prior"),
                         "population_source": a.get("population_source", ""),
+                        "tolerance_source": a.get("tolerance_source", ""),
+                        "frame": a.get("frame", ""),
                         "coverage": study.coverage})
             if "position" in a:  # a diameter zone (ISO 1101): what it is a zone of
                 out[-1].update({"position": list(a["position"]),
@@ -53,10 +68,25 @@ def declared_rules(study) -> list[dict]:
     return out
 
 
-def fingerprint(rules: list[dict]) -> str:
-    """SHA-256 (hex) of the rules as canonical JSON (keys sorted, no spaces)."""
-    text = json.dumps(rules, sort_keys=True, separators=(",", ":"), allow_nan=True)
+def fingerprint(content) -> str:
+    """SHA-256 (hex, 64 digits) of ``content`` as canonical JSON (keys sorted, no spaces):
+    of a plan, everything the parties sign (:func:`signed_content`)."""
+    text = json.dumps(content, sort_keys=True, separators=(",", ":"), allow_nan=True)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def signed_content(plan: dict) -> dict:
+    """What the parties sign: the whole plan but its fingerprint (number, revision, issue
+    date, parties, required conditions, rules with their limits and guard bands)."""
+    return {k: v for k, v in plan.items() if k != "fingerprint"}
+
+
+def parties(study) -> dict:
+    """The parties who sign the plan: the laboratory, the customer and the machine
+    builder, as the study names them ("" where it does not)."""
+    h = study.header
+    return {"laboratory": study.laboratory.get("name", ""),
+            "customer": h.get("customer", ""), "machine_builder": h.get("machine_maker", "")}
 
 
 def _plan_number(study) -> str:
@@ -87,10 +117,13 @@ def issue_plan(result) -> dict:
                       else v.verdict})
         rules.append(fixed)
     header = study.header
-    return {"format": PLAN_FORMAT, "document": _plan_number(study),
+    plan = {"format": PLAN_FORMAT, "document": _plan_number(study),
             "revision": header.get("revision", ""),
             "issued": header.get("plan_date") or datetime.date.today().isoformat(),
-            "study_title": study.title, "rules": rules, "fingerprint": fingerprint(rules)}
+            "study_title": study.title, "parties": parties(study),
+            "conditions": dict(getattr(study, "requirements", {}) or {}), "rules": rules}
+    plan["fingerprint"] = fingerprint(plan)
+    return plan
 
 
 def _num(x):
@@ -113,10 +146,11 @@ def read_plan(path) -> dict:
     if not isinstance(plan, dict) or plan.get("format") != PLAN_FORMAT:
         raise InvalidInput([f"{where}: not a plan written by mtplan (format must be "
                             f"{PLAN_FORMAT!r})."])
-    if fingerprint(plan.get("rules", [])) != plan.get("fingerprint"):
-        raise InvalidInput([f"{where}: its rules do not match its fingerprint "
-                            f"{str(plan.get('fingerprint'))[:16]}: the file was changed "
-                            "after it was issued."])
+    if fingerprint(signed_content(plan)) != plan.get("fingerprint"):
+        raise InvalidInput([f"{where}: its content (number, revision, issue date, parties, "
+                            "conditions or rules) does not match its fingerprint "
+                            f"{plan.get('fingerprint')}: the file was changed after it was "
+                            "issued."])
     return plan
 
 
@@ -129,6 +163,19 @@ def check_study(study, plan) -> None:
         One problem: the measurand and field, the plan's value and the study's.
     """
     number = plan.get("document", "the plan")
+    for role, name in parties(study).items():
+        agreed = plan.get("parties", {}).get(role, "")
+        if name != agreed:
+            raise InvalidInput([f"The study names {name!r} as the "
+                                f"{role.replace('_', ' ')}, plan {number} {agreed!r}: the "
+                                "parties who signed cannot change after the test (issue a "
+                                "new plan)."])
+    required = dict(getattr(study, "requirements", {}) or {})
+    if required != plan.get("conditions", {}):
+        raise InvalidInput([f"The study's required conditions differ from those of plan "
+                            f"{number} ({plan.get('conditions', {})!r}); the conditions "
+                            "agreed before the test cannot change after it (issue a new "
+                            "plan)."])
     planned = {(r["procedure"], r["test"], r["measurand"]): r for r in plan["rules"]}
     stated = {(r["procedure"], r["test"], r["measurand"]): r for r in declared_rules(study)}
     for key in planned:
@@ -140,12 +187,103 @@ def check_study(study, plan) -> None:
             raise InvalidInput([f"The study tolerances {key[2]} of {key[0]} ({key[1]}), "
                                 f"which plan {number} does not; issue a new plan."])
         p = planned[key]
-        for name in (*_DECLARED, "population_source", "coverage", "position", "nominal"):
+        for name in (*_DECLARED, "population_source", "tolerance_source", "frame", "coverage",
+                     "position", "nominal"):
             if r.get(name) != p.get(name):
                 raise InvalidInput([f"{key[0]} {key[2]} {name}: plan {number} says "
                                     f"{p.get(name)!r}, the study {r.get(name)!r}; the rules "
                                     "agreed before the test cannot change after it (issue a "
                                     "new plan)."])
+
+
+def _date(text):
+    try:
+        return datetime.date.fromisoformat(str(text)[:10])
+    except ValueError:
+        return None
+
+
+def check_dates(study, plan) -> list[str]:
+    """The plan's issue date against the date of the test (ISO/IEC 17025 7.1.3: the
+    decision rule is agreed before the test).
+
+    Returns
+    -------
+    list of str
+        The deviation of a plan issued after the test that the study explicitly accepts
+        (its header's ``late_plan``: who accepted it, when and why); else empty.
+
+    Raises
+    ------
+    InvalidInput
+        A plan issued after the test that the study does not accept (one line).
+    """
+    issued, tested = _date(plan.get("issued")), _date(study.header.get("date"))
+    if issued is None or tested is None or issued <= tested:
+        return []
+    number = plan.get("document") or "of this study"
+    accepted = study.header.get("late_plan")
+    if not accepted:
+        raise InvalidInput([f"Plan {number} was issued on {issued}, after the test on "
+                            f"{tested}: a decision rule must be agreed before the test "
+                            "(ISO/IEC 17025 7.1.3); issue the report without this plan, or "
+                            "record who accepted the late plan in the study's header "
+                            "'late_plan'."])
+    return [f"The test plan {number} was issued on {issued}, after the test on {tested}; "
+            f"accepted as recorded in the study: {accepted}."]
+
+
+def instrument_findings(study) -> tuple[list[dict], list[str], dict]:
+    """Each instrument's calibration (or verification) against the date of the test.
+
+    Returns
+    -------
+    status : list of dict
+        Per instrument (study order): ``name``, ``serial``, ``state`` ("valid", "expired",
+        "no due date" or "not checked": no test date), ``due`` and ``agreed`` (the
+        customer's agreement the study records, or "").
+    deviations : list of str
+        One per instrument not valid on the test date.
+    blocked : dict
+        ``{procedure: reason}``: the tests that used an instrument not valid on the test
+        date without the customer's agreement; they get no statement of conformity.
+    """
+    tested = _date(study.header.get("date"))
+    status, deviations, blocked = [], [], {}
+    for inst in study.instruments:
+        due = _date(inst.get("calibration_due", "")) if inst.get("calibration_due") else None
+        what = inst.get("kind", "calibration")
+        if tested is None:
+            state = "not checked"
+        elif due is None:
+            state = "no due date"
+        elif due < tested:
+            state = "expired"
+        else:
+            state = "valid"
+        agreed = inst.get("customer_agreement", "")
+        status.append({"name": inst["name"], "serial": inst["serial"], "state": state,
+                       "due": "" if due is None else due.isoformat(), "agreed": agreed})
+        if state == "valid":
+            continue
+        ident = f"{inst['name']} (serial {inst['serial']})"
+        if state == "not checked":
+            deviations.append(f"{ident}: the date of the test is not stated, so its {what} "
+                              "could not be checked against it.")
+            continue
+        why = (f"its {what} ran out on {due}, before the test on {tested}" if state ==
+               "expired" else f"its {what} states no due date")
+        used = inst.get("used_in") or [ps.name for ps in study.procedures]
+        labels = ", ".join(ps.label for ps in study.procedures if ps.name in used)
+        if agreed:
+            deviations.append(f"{ident}: {why}; used for {labels} with the customer's "
+                              f"agreement recorded in the study: {agreed}.")
+            continue
+        deviations.append(f"{ident}: {why}; no statement of conformity is made on the tests "
+                          f"that used it ({labels}).")
+        for name in used:
+            blocked.setdefault(name, f"{ident}: {why}")
+    return status, deviations, blocked
 
 
 def p_conform_measured(value, u, lower, upper) -> float | None:
@@ -180,21 +318,56 @@ def apply_plan(result, plan) -> list[str]:
         the predicted one, a guard band the study would now compute differently).
     """
     planned = {(r["procedure"], r["test"], r["measurand"]): r for r in plan["rules"]}
-    deviations = []
+    _, deviations, blocked = instrument_findings(result.study)
     for o in result.outcomes:
         for verdicts, measured, when in ((o.verdicts, o.measured, ""),
                                          (getattr(o, "as_left_verdicts", []),
                                           getattr(o, "as_left", None), " as left")):
-            deviations += _apply(verdicts, measured, planned, when)
+            deviations += _apply(verdicts, measured, planned, when,
+                                 plan.get("conditions", {}).get("larger_u"))
+            if o.spec.name in blocked:
+                for v in verdicts:
+                    if v.measured is not None:
+                        v.verdict, v.reason = NO_INSTRUMENT, blocked[o.spec.name]
     return deviations
 
 
-def _apply(verdicts, measured, planned, when) -> list[str]:
+def _estimator_deviations(verdicts, planned) -> list[str]:
+    """One line per test whose measurands were decided with another estimator than the one
+    the plan agreed (the estimator is part of the method)."""
+    from mtplan._numbers import fmt_u, unit
+
+    def u_text(w):
+        r = planned[(w.procedure, w.label, w.measurand)]
+        achieved = "-" if w.measured_u is None else fmt_u(2 * w.measured_u)
+        agreed = "-" if r.get("u_planned") is None else fmt_u(2 * r["u_planned"])
+        return f"{w.measurand} (U {achieved} {unit(w.unit)}; plan's U {agreed} {unit(w.unit)})"
+
+    out, seen = [], set()
+    for v in verdicts:
+        agreed = planned[(v.procedure, v.label, v.measurand)].get("estimator")
+        if not agreed or v.estimator == agreed or (v.label, v.estimator) in seen:
+            continue
+        seen.add((v.label, v.estimator))
+        names = ", ".join(u_text(w) for w in verdicts if w.estimator == v.estimator)
+        out.append(f"{v.label}: decided with the {v.estimator} estimator, not the {agreed} "
+                   f"estimator the plan agreed (a change of method): {names}; the plan's "
+                   "guard bands are applied.")
+    return out
+
+
+#: the verdict of a measurand whose achieved U exceeds the agreed one where the plan's
+#: clause says so (``larger_u = "no decision"``)
+LARGER_U_NO_DECISION = "no decision: the achieved U exceeds the agreed U"
+
+
+def _apply(verdicts, measured, planned, when, larger_u=None) -> list[str]:
     """:func:`apply_plan` for the verdicts of one evaluation of a test's readings."""
+    from mtplan._numbers import fmt, fmt_u, unit
     from mtplan.plans.decisions import NOT_DETERMINABLE, NOT_MEASURED, decide, fit_verdict
 
     misfit = None if measured is None else fit_verdict(measured.fit)
-    deviations = []
+    deviations = [] if when else _estimator_deviations(verdicts, planned)
     for v in verdicts:
         r = planned[(v.procedure, v.label, v.measurand)]
         if v.p_conform_population is None:  # once: apply_plan may run again
@@ -204,9 +377,10 @@ def _apply(verdicts, measured, planned, when) -> list[str]:
             continue
         if not math.isclose(r["guard_band"], v.guard_band, rel_tol=1e-9,
                             abs_tol=1e-12) and not when:
+            step = r["u_planned"] / 5 if r["u_planned"] else None
             deviations.append(f"{v.measurand}: this run's planned set-up gives a guard band "
-                              f"of {v.guard_band:.4g} {v.unit}; the plan's "
-                              f"{r['guard_band']:.4g} {v.unit} is applied.")
+                              f"of {fmt(v.guard_band, step)} {unit(v.unit)}; the plan's "
+                              f"{fmt(r['guard_band'], step)} {unit(v.unit)} is applied.")
         v.u, v.guard_band = r["u_planned"], r["guard_band"]
         v.acceptance_limits = (r["acceptance_lower"], r["acceptance_upper"])
         v.pfa, v.pfr, v.tur = r["pfa"], r["pfr"], r["tur"]
@@ -219,8 +393,19 @@ def _apply(verdicts, measured, planned, when) -> list[str]:
             continue
         v.verdict = decide(v.measured, v.lower, v.upper, v.guard_band)
         if v.measured_u is not None and v.measured_u > 1.1 * v.u:
-            deviations.append(f"{v.measurand}{when}: the measurement's U "
-                              f"({2 * v.measured_u:.3g} {v.unit}) exceeds the plan's "
-                              f"predicted U ({2 * v.u:.3g} {v.unit}) that set the guard "
-                              "band.")
+            line = (f"{v.measurand}{when}: the measurement's U ({fmt_u(2 * v.measured_u)} "
+                    f"{unit(v.unit)}) exceeds the plan's predicted U ({fmt_u(2 * v.u)} "
+                    f"{unit(v.unit)}) that set the guard band by more than 10 %")
+            if larger_u == "widen":
+                wider = v.guard_band * v.measured_u / v.u
+                v.guard_band = wider
+                v.acceptance_limits = (None if v.lower is None else v.lower + wider,
+                                       None if v.upper is None else v.upper - wider)
+                v.verdict = decide(v.measured, v.lower, v.upper, wider)
+                line += (f"; as the plan agreed, the guard band is widened to "
+                         f"{fmt(wider, v.measured_u / 5)} {unit(v.unit)}")
+            elif larger_u == "no decision":
+                v.verdict, v.reason = LARGER_U_NO_DECISION, line
+                line += "; as the plan agreed, no decision is made on it"
+            deviations.append(line + ".")
     return deviations

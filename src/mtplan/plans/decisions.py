@@ -13,9 +13,11 @@
   summary and ``results/verdicts.csv``.
 
 Verdicts follow ISO 14253-1's zones with the rule's guard band ``w`` on both sides of each
-tolerance limit: the measured value *conforms* inside the tolerance reduced by ``w``, *does
-not conform* outside the tolerance widened by ``w``, and between the two no decision can be
-made ("inside the guard band"). With ``w = 0`` (simple acceptance) every value is decided.
+tolerance limit, in the words of ILAC-G8:09/2019 4.2.3 that the plan agrees: *pass* inside
+the tolerance reduced by ``w``, *fail* outside the tolerance widened by ``w``, and in the
+guard band *conditional pass* (the value inside the tolerance) or *conditional fail* (outside
+it): neither party has proved its case there (ISO 14253-1: the supplier proves conformity,
+the customer non-conformity). With ``w = 0`` (simple acceptance) every value passes or fails.
 A measured value whose readings do not fit the model (its fit check failed,
 :func:`fit_verdict`) gets no decision at all: its uncertainty is not valid.
 The acceptance limits are those of the plan (set before measuring, from the planned set-up's
@@ -31,19 +33,26 @@ import numpy as np
 
 from mtplan._validate import InvalidInput
 
-__all__ = ["K", "VERDICTS", "Verdict", "LeverEffect", "SummaryRow", "recommend_estimator",
-           "key_measurands", "conformity", "position_verdict", "decide", "fit_verdict", "lever_effects", "dominant_sources",
-           "estimator_comparison", "u_targets", "shown_setup", "summary_rows"]
+__all__ = ["K", "VERDICTS", "PASS", "CONDITIONAL_PASS", "CONDITIONAL_FAIL", "FAIL", "Verdict",
+           "LeverEffect", "SummaryRow", "recommend_estimator", "key_measurands", "conformity",
+           "position_verdict", "decide", "fit_verdict", "lever_effects", "dominant_sources",
+           "estimator_comparison", "u_targets", "shown_setup", "summary_rows",
+           "RANDOM_ON_REPEAT", "random_share", "repeats_needed", "repeated_U"]
 
 #: coverage factor of the expanded uncertainty U = k u (ISO 14253-1, JCGM 106)
 K = 2.0
-CONFORMS = "conforms"
-DOES_NOT_CONFORM = "does not conform"
-NO_DECISION = "inside the guard band: no decision"
+#: the four outcomes of ILAC-G8:09/2019 4.2.3 with a guard band (pass and fail alone
+#: with simple acceptance)
+PASS = "pass"
+CONDITIONAL_PASS = "conditional pass"
+CONDITIONAL_FAIL = "conditional fail"
+FAIL = "fail"
+CONFORMS, DOES_NOT_CONFORM = PASS, FAIL  # the older names
 NOT_DETERMINABLE = "not determinable"
 NOT_MEASURED = "not measured"
 NO_FIT = "no decision: the readings do not fit the model"
-VERDICTS = (CONFORMS, DOES_NOT_CONFORM, NO_DECISION, NOT_DETERMINABLE, NOT_MEASURED, NO_FIT)
+VERDICTS = (PASS, CONDITIONAL_PASS, CONDITIONAL_FAIL, FAIL, NOT_DETERMINABLE, NOT_MEASURED,
+            NO_FIT)
 
 
 @dataclass
@@ -274,14 +283,14 @@ def estimator_comparison(results: dict, *, ratio: float = 1.2) -> dict:
 
 # ----------------------------------------------------------------------- conformity
 def decide(value: float, lower, upper, guard: float) -> str:
-    """The ISO 14253-1 zone of a measured value (see the module notes)."""
+    """The ISO 14253-1 zone of a measured value in ILAC-G8 words (see the module notes)."""
     lo = -math.inf if lower is None else float(lower)
     hi = math.inf if upper is None else float(upper)
     if lo + guard <= value <= hi - guard:
-        return CONFORMS
+        return PASS
     if value < lo - guard or value > hi + guard:
-        return DOES_NOT_CONFORM
-    return NO_DECISION
+        return FAIL
+    return CONDITIONAL_PASS if lo <= value <= hi else CONDITIONAL_FAIL
 
 
 def fit_verdict(fit) -> tuple[str, str] | None:
@@ -574,6 +583,53 @@ def dominant_sources(budget, levers, fields, *, share: float = 0.5) -> list:
         out.append({"source": source, "field": f, "lever": f in levers,
                     "measurands": [(r.output, float(r.share)) for r in group.itertuples()]})
     return sorted(out, key=lambda d: -max(s for _, s in d["measurands"]))
+
+
+# ----------------------------------------------------------------------- repeats
+#: error sources drawn anew at every reading (their names contain one of these): an
+#: average of repeated tests of the same set-up, not re-mounted, reduces their share of
+#: u^2 by the number of repeats; every other source (an instrument's or artefact's own
+#: error, the mounting, the thermal state) stays the same in every repeat
+RANDOM_ON_REPEAT = ("noise", "repeatability", "pretravel_variation")
+
+
+def random_share(budget, measurand: str) -> tuple[float, str, float] | None:
+    """(share of u^2 that repeats average, the largest other source, its share) of one
+    measurand from the study's budget (columns ``input``, ``output``, ``share``); None
+    without a budget row for it."""
+    if budget is None or not len(budget):
+        return None
+    rows = budget[budget["output"] == measurand]
+    if not len(rows):
+        return None
+    total = float(rows["share"].sum())
+    if not total > 0:
+        return None
+    random = rows["input"].astype(str).map(lambda n: any(w in n for w in RANDOM_ON_REPEAT))
+    fixed = rows[~random].sort_values("share", ascending=False)
+    top = (str(fixed["input"].iloc[0]), float(fixed["share"].iloc[0]) / total) if len(fixed) \
+        else ("", 0.0)
+    return float(rows.loc[random, "share"].sum()) / total, top[0], top[1]
+
+
+def repeats_needed(U: float, needed: float, share: float, *, limit: int = 50) -> int | None:
+    """The fewest repeats n whose average reaches ``U_n = U sqrt(1 - r + r / n) < needed``
+    with ``r`` the random ``share`` of u^2; None where no number up to ``limit`` does (the
+    share that repeats leave, ``1 - r``, alone exceeds it)."""
+    if not (U > 0 and needed > 0):
+        return None
+    ratio = (needed / U) ** 2
+    if ratio > 1:
+        return 1
+    if ratio <= 1 - share or share <= 0:
+        return None
+    n = math.ceil(share / (ratio - (1 - share)) - 1e-12)
+    return n if n <= limit else None
+
+
+def repeated_U(U: float, share: float, n: int) -> float:
+    """The expanded uncertainty of an average of ``n`` repeats (see :func:`repeats_needed`)."""
+    return U * math.sqrt(1 - share + share / n)
 
 
 # ----------------------------------------------------------------------- summary

@@ -72,12 +72,30 @@ __all__ = ["Study", "ProcedureStudy", "StudyResult", "HEADER_KEYS", "load_study"
 HEADER_KEYS = ("document", "revision", "plan_document", "plan_date", "customer",
                "customer_address", "machine_maker", "machine_type", "machine_serial",
                "item_condition", "location", "operator", "date", "issue_date",
-               "ambient_temperature_c", "prepared_by", "checked_by", "approved_by")
+               "ambient_temperature_c", "prepared_by", "checked_by", "approved_by",
+               "late_plan")
 _DATE_KEYS = {"date", "issue_date", "plan_date"}
 _TOP_KEYS = {"title", "subtitle", "customer", "machine", "author", "header", "seed", "digits",
              "trials", "max_trials", "coverage", "procedure", "simulated", "laboratory",
-             "conditions", "instrument"}
+             "conditions", "instrument", "requirements"}
 _LAB_KEYS = {"name", "address", "accreditation"}
+#: the clause for an achieved U more than 10 % above the agreed one: the guard band widened
+#: in proportion (w times U achieved / U agreed), or no decision on that measurand
+LARGER_U = ("widen", "no decision")
+#: what the plan requires and agrees before the test (the contract's clauses): key ->
+#: (label, kind); kinds: band [low, high] in degC, number, bool, int, text
+REQUIREMENT_KEYS = {
+    "temperature_c": ("ambient temperature during the test [°C]", "band"),
+    "gradient_c_per_h": ("largest temperature change [°C/h]", "number"),
+    "warm_up": ("warm-up before the test", "text"),
+    "compensation": ("machine's error compensation", "bool"),
+    "outside": ("outside a required condition", "text"),
+    "adjustment": ("on a fail or a conditional result: adjustment", "text"),
+    "retests": ("re-tests allowed after an adjustment", "int"),
+    "as_left": ("results after an adjustment", "text"),
+    "larger_u": ("achieved U more than 10 % above the agreed U", "choice"),
+    "schedule": ("schedule", "text"),
+}
 #: the test conditions (ISO 230-1 6, ISO 230-2 5.1): key -> (label, kind)
 CONDITION_KEYS = {"ambient_temperature_c": ("ambient temperature", "temperature"),
                   "machine_temperature_c": ("machine temperature", "temperature"),
@@ -94,17 +112,23 @@ UNHONOURED_STANDARDS = {
                 "'position', 'nominal' and 'diameter')",
 }
 _INSTRUMENT_KEYS = {"name", "serial", "certificate", "calibration_due", "traceability",
-                    "used_in"}
+                    "used_in", "kind", "accredited", "declared_by", "customer_agreement"}
+#: what an instrument's certificate records: a calibration (a relation to a reference,
+#: VIM 2.39) or a verification (conformity to a specification, VIM 2.44: ISO 10360-10's
+#: tests of a laser tracker, a maker's check)
+INSTRUMENT_KINDS = ("calibration", "verification")
 _PROC_KEYS = {"name", "label", "setup", "truth", "estimators", "sweep", "plan", "acceptance",
               "readings", "as_left", "trials", "digits", "max_trials", "budget", "budget_trials",
-              "notes", "standards"}
+              "notes", "standards", "machine"}
 _SWEEP_KEYS = {"vary", "trials", "estimators"}
 _PLAN_KEYS = {"targets", "vary", "k", "estimator", "trials"}
-_ACCEPT_KEYS = {"measurand", "lower", "upper", "prior", "rule", "measured",
+_ACCEPT_KEYS = {"measurand", "lower", "upper", "prior", "rule", "measured", "tolerance_source",
+                "frame",
                 "population_source"}
 #: a position tolerance as a diameter zone (ISO 1101): the deviation 2 sqrt(dx^2 + dy^2) of
 #: two coordinate measurands from their nominal within the zone's diameter (their unit)
 _POSITION_KEYS = {"measurand", "position", "nominal", "diameter", "prior", "rule",
+                  "tolerance_source", "frame",
                   "population_source"}
 _READ_KEYS = {"file", "uncertainty", "estimator", "trials", "options", "allow_unconverged"}
 #: readings taken again after an adjustment, evaluated as the readings are
@@ -160,6 +184,7 @@ class ProcedureStudy:
     budget_trials: int = 2000
     notes: str = ""
     standards: list = field(default_factory=list)     # standards the test follows
+    machine: str = ""                  # serial of the machine the test is run on ("": the one)
 
 
 @dataclass
@@ -179,6 +204,7 @@ class Study:
     conditions: dict = field(default_factory=dict)    # CONDITION_KEYS -> value (those given)
     instruments: list = field(default_factory=list)   # dicts: _INSTRUMENT_KEYS
     simulated: bool = False                           # readings simulated, not measured
+    requirements: dict = field(default_factory=dict)  # REQUIREMENT_KEYS -> value (those given)
 
 
 def load_study(source) -> Study:
@@ -333,20 +359,68 @@ def _certificate(data, header, problems) -> dict:
         if due is not None and not isinstance(due, datetime.date):
             problems.append(f"{at} 'calibration_due' must be a date (2025-06-30). Got {due!r} "
                             "instead.")
+        kind = inst.get("kind", "calibration")
+        if kind not in INSTRUMENT_KINDS:
+            problems.append(f"{at} 'kind' must be one of {', '.join(INSTRUMENT_KINDS)}. Got "
+                            f"{kind!r} instead.")
+        accredited = inst.get("accredited")
+        if accredited is not None and not isinstance(accredited, bool):
+            problems.append(f"{at} 'accredited' must be true or false (the certificate issued "
+                            f"under an accreditation or not). Got {accredited!r} instead.")
+            accredited = None
+        for key in ("declared_by", "customer_agreement"):
+            if key in inst and not (isinstance(inst[key], str) and inst[key].strip()):
+                problems.append(f"{at} {key!r} must be text. Got {inst[key]!r} instead.")
         used = inst.get("used_in", [])
         if not (isinstance(used, list) and all(isinstance(x, str) for x in used)):
             problems.append(f"{at} 'used_in' must be a list of procedure names. Got {used!r} "
                             "instead.")
             used = []
-        shown.append({**{k: str(v) for k, v in inst.items() if k != "used_in"},
-                      "used_in": list(used)})
+        shown.append({**{k: str(v) for k, v in inst.items()
+                         if k not in ("used_in", "accredited")},
+                      "used_in": list(used), "accredited": accredited,
+                      "kind": kind if kind in INSTRUMENT_KINDS else "calibration"})
+    req = data.get("requirements", {})
+    if not isinstance(req, dict):
+        problems.append("The study's 'requirements' must be a table.")
+        req = {}
+    _unknown(problems, "The study's requirements", req, set(REQUIREMENT_KEYS))
+    requirements = {}
+    for key, value in req.items():
+        kind = REQUIREMENT_KEYS.get(key, (None, None))[1]
+        number = isinstance(value, int | float) and not isinstance(value, bool)
+        if kind == "band" and not (isinstance(value, list) and len(value) == 2
+                                   and all(isinstance(x, int | float)
+                                           and not isinstance(x, bool) for x in value)
+                                   and value[0] < value[1]):
+            problems.append(f"The study's requirements {key!r} must be a band [low, high] of "
+                            f"two numbers, low < high. Got {value!r} instead.")
+        elif kind == "number" and not (number and value > 0):
+            problems.append(f"The study's requirements {key!r} must be a number > 0. Got "
+                            f"{value!r} instead.")
+        elif kind == "int" and not (isinstance(value, int) and not isinstance(value, bool)
+                                    and value >= 0):
+            problems.append(f"The study's requirements {key!r} must be an integer >= 0. Got "
+                            f"{value!r} instead.")
+        elif kind == "bool" and not isinstance(value, bool):
+            problems.append(f"The study's requirements {key!r} must be true or false. Got "
+                            f"{value!r} instead.")
+        elif kind == "text" and not isinstance(value, str):
+            problems.append(f"The study's requirements {key!r} must be text. Got {value!r} "
+                            "instead.")
+        elif kind == "choice" and value not in LARGER_U:
+            problems.append(f"The study's requirements {key!r} must be one of "
+                            f"{', '.join(map(repr, LARGER_U))}. Got {value!r} instead.")
+        elif kind is not None:
+            requirements[key] = ([float(x) for x in value] if kind == "band" else
+                                 float(value) if kind == "number" else value)
     simulated = data.get("simulated", False)
     if not isinstance(simulated, bool):
         problems.append(f"The study's 'simulated' must be true or false. Got {simulated!r} "
                         "instead.")
         simulated = False
     return {"laboratory": {k: str(v) for k, v in lab.items()}, "conditions": conditions,
-            "instruments": shown, "simulated": simulated}
+            "instruments": shown, "simulated": simulated, "requirements": requirements}
 
 
 def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
@@ -402,6 +476,11 @@ def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
         problems.append(f"{where} 'standards' must be a list of texts. Got {standards!r} "
                         "instead.")
         standards = []
+    machine = entry.get("machine", "")
+    if not isinstance(machine, str):
+        problems.append(f"{where} 'machine' must be the serial number (text) of the machine "
+                        f"the test is run on. Got {machine!r} instead.")
+        machine = ""
     positioned = any("position" in a for a in acceptance)
     for cited in standards:
         for std, needs in UNHONOURED_STANDARDS.items():
@@ -418,7 +497,8 @@ def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
                           digits=entry.get("digits"),
                           max_trials=entry.get("max_trials"), budget=entry.get("budget", "gum"),
                           budget_trials=entry.get("budget_trials", 2000),
-                          notes=str(entry.get("notes", "")), standards=list(standards))
+                          notes=str(entry.get("notes", "")), standards=list(standards),
+                          machine=machine.strip())
 
 
 def _estimators(proc, estimators, where, problems) -> list:
@@ -512,9 +592,10 @@ def _acceptance(tables, measurands, path, where, problems) -> list:
         elif name in seen:
             problems.append(f"{at} repeats measurand {name!r}; one tolerance per measurand.")
         seen.add(name)
-        source = acc.get("population_source")
-        if source is not None and not isinstance(source, str):
-            problems.append(f"{at} 'population_source' must be text. Got {source!r} instead.")
+        for key in ("population_source", "tolerance_source", "frame"):
+            source = acc.get(key)
+            if source is not None and not isinstance(source, str):
+                problems.append(f"{at} {key!r} must be text. Got {source!r} instead.")
         for key in ("lower", "upper", "measured"):
             v = acc.get(key)
             if v is not None and not (isinstance(v, int | float) and not isinstance(v, bool)

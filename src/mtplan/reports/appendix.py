@@ -64,17 +64,29 @@ def procedure_section(k, outcome, measured: bool = True) -> tuple[Section, dict]
 def provenance_section(prov: dict, document: str = "report") -> Section:
     """Software, command, seed, study and, in a report, the readings files. A test plan
     (``document="plan"``) is agreed before measuring: it names no readings."""
+    from pathlib import PurePath
+
     plan = document == "plan"
+    study = PurePath(str(prov["study_file"]))
+
+    def relative(path) -> str:  # a file named relative to the study's folder, never absolute
+        try:
+            return PurePath(str(path)).relative_to(study.parent).as_posix()
+        except ValueError:
+            return PurePath(str(path)).name
+
     rows = [[f"date of the {document}", prov["date"]], ["command", prov.get("command", "-")],
             ["mtplan git commit", prov.get("git_commit") or "not known (not run from a "
                                                              "git checkout)"],
-            ["study file", prov["study_file"]], ["study SHA-256", prov["study_sha256"]]]
+            ["study file", study.name], ["study SHA-256", prov["study_sha256"]]]
     for label, path, digest in [] if plan else prov.get("readings", []):
-        rows += [[f"readings of {label}", path], [f"readings SHA-256 of {label}", digest]]
+        rows += [[f"readings of {label}", relative(path)],
+                 [f"readings SHA-256 of {label}", digest]]
     rows += [["seed", str(prov["seed"])], ["Python", prov["python"]]]
     rows += [[k, v] for k, v in prov["versions"].items()]
     if prov.get("cached"):  # the numbers of an earlier run with the same inputs and code
-        rows.append(["study result", f"read from {prov['cached']}, stored by an earlier run "
+        rows.append(["study result", f"read from the cache file "
+                     f"{PurePath(str(prov['cached'])).name}, stored by an earlier run "
                      "of the same study, readings, mtplan code and numeric packages"])
     return Section("Provenance", anchor="provenance", appendix=True,
                    blocks=[Table("Software, command, seed and study" if plan else

@@ -16,10 +16,19 @@ import dataclasses
 import datetime
 import math
 
-from mtplan.reports.labels import duration_text, fmt, fmt_u, prior_text, tolerance_text, unit
+from mtplan.reports.labels import (
+    duration_text,
+    field_value,
+    fmt,
+    fmt_u,
+    prior_text,
+    tolerance_text,
+    unit,
+)
 from mtplan.reports.model import Document, Figure, Section, Table
 from mtplan.reports.wording import (
     GLOSSARY,
+    customer_words,
     measurand_name,
     method_citation,
     population_text,
@@ -30,6 +39,7 @@ from mtplan.reports.wording import (
 )
 
 __all__ = ["build_report", "build_plan", "overall_result", "final_verdicts", "measured_frame",
+           "fit_summary", "machines", "machine_results", "result_box",
            "RESULTS_RELATE", "END_MARK"]
 
 RESULTS_RELATE = ("The results relate only to the item tested, in the condition and under "
@@ -68,13 +78,31 @@ def _methods(result) -> list:
     return rows
 
 
+def _certificate_text(inst) -> str:
+    """The certificate as what it is: a calibration or a verification, accredited or not."""
+    what = inst.get("kind", "calibration")
+    accredited = inst.get("accredited")
+    how = ("accredited" if accredited else "not accredited" if accredited is False
+           else "accreditation not stated")
+    return f"{what} {inst['certificate']} ({how})"
+
+
 def _instruments(study, procedure: str | None = None) -> list:
+    from mtplan.plans.agreement import instrument_findings
+
+    status = instrument_findings(study)[0]
+    state = {"valid": "valid", "expired": "EXPIRED", "no due date": "MISSING",
+             "not checked": "not checked (no test date)"}
     rows = []
-    for inst in study.instruments:
+    for inst, st in zip(study.instruments, status, strict=True):
         if procedure is not None and inst["used_in"] and procedure not in inst["used_in"]:
             continue
-        rows.append([inst["name"], inst["serial"], inst["certificate"],
-                     inst.get("calibration_due", "-"), inst.get("traceability", "-")])
+        shown = state[st["state"]] + ("; customer agreed" if st["agreed"] and
+                                      st["state"] != "valid" else "")
+        rows.append([inst["name"], inst["serial"], _certificate_text(inst),
+                     inst.get("calibration_due", "-"), shown,
+                     f"{inst.get('traceability', 'not stated')} (as declared by "
+                     f"{inst.get('declared_by', 'the certificate issuer')})"])
     return rows
 
 
@@ -82,9 +110,11 @@ def _instrument_table(study) -> Table | None:
     rows = _instruments(study)
     if not rows:
         return None
-    return Table("Instruments used: each calibrated, its certificate valid on the date of the "
-                 "test.", ["instrument", "serial number", "calibration certificate",
-                           "calibration due", "traceability"], rows)
+    date = study.header.get("date", "not stated")
+    return Table(f"Instruments used, each certificate's due date against the date of the "
+                 f"test ({date}); a verification (conformity to a specification) is not a "
+                 "calibration.", ["instrument", "serial number", "certificate",
+                                  "due", "on the test date", "traceability"], rows)
 
 
 def _issue_date(study) -> str:
@@ -110,21 +140,69 @@ def final_verdicts(result) -> list:
     return out
 
 
-def overall_result(result) -> tuple[str, list, list]:
-    """(result, deciding measurands, undecided measurands): "not accepted" when any
-    toleranced measurand does not conform (those decide), else "no decision" when any has
-    no verdict (those decide), else "accepted". Results as left replace those as found
-    (:func:`final_verdicts`)."""
-    from mtplan.plans.decisions import CONFORMS, DOES_NOT_CONFORM
+def _combine(verdicts) -> tuple[str, list, list]:
+    """(result, deciding, undecided) of some verdicts by the overall acceptance rule
+    (:data:`~mtplan.reports.wording.OVERALL_RULE`)."""
+    from mtplan.plans.decisions import FAIL, PASS
 
-    verdicts = final_verdicts(result)
-    failed = [v for v in verdicts if v.verdict == DOES_NOT_CONFORM]
-    open_ = [v for v in verdicts if v.verdict not in (CONFORMS, DOES_NOT_CONFORM)]
+    failed = [v for v in verdicts if v.verdict == FAIL]
+    open_ = [v for v in verdicts if v.verdict not in (PASS, FAIL)]
     if failed:
         return "not accepted", failed, open_
     if open_:
         return "no decision", open_, []
     return ("accepted" if verdicts else "no decision"), [], []
+
+
+def overall_result(result) -> tuple[str, list, list]:
+    """(result, deciding measurands, undecided measurands) over every machine: "not
+    accepted" when any toleranced measurand fails (those decide), else "no decision" when
+    any has no pass (those decide), else "accepted". Results as left replace those as found
+    (:func:`final_verdicts`)."""
+    return _combine(final_verdicts(result))
+
+
+def machines(result) -> list:
+    """(machine, test numbers) in the order of the tests: the serial each test names
+    (``machine`` of its procedure), else the header's ``machine_serial``."""
+    default = result.study.header.get("machine_serial", "")
+    out: dict = {}
+    for k, o in enumerate(result.outcomes, start=1):
+        serial = getattr(o.spec, "machine", "") or default
+        out.setdefault(f"machine {serial}" if serial else "the machine tested", []).append(k)
+    return list(out.items())
+
+
+def machine_results(result) -> list:
+    """(machine, test numbers, result, deciding, undecided) per machine, by the overall
+    acceptance rule applied to the final verdicts of its tests."""
+    final = final_verdicts(result)
+    out = []
+    for machine, tests in machines(result):
+        labels = {result.outcomes[k - 1].spec.label for k in tests}
+        names = {result.outcomes[k - 1].spec.name for k in tests}
+        own = [v for v in final if v.label in labels and v.procedure in names]
+        out.append((machine, tests, *_combine(own)))
+    return out
+
+
+def _tests_text(tests) -> str:
+    return ("test " if len(tests) == 1 else "tests ") + ", ".join(map(str, tests))
+
+
+def result_box(result) -> list:
+    """The overall result per machine as the box on page 1 shows it."""
+    lines = []
+    for machine, tests, outcome, deciding, undecided in machine_results(result):
+        why = ""
+        if deciding or undecided:
+            by = {}
+            for v in deciding + undecided:
+                by.setdefault(v.verdict, []).append(v.measurand)
+            why = ": " + "; ".join(f"{verdict_short(w)} {', '.join(n)}" for w, n in by.items())
+        lines.append(f"{machine[:1].upper()}{machine[1:]} ({_tests_text(tests)}): "
+                     f"{outcome.upper()}{why}.")
+    return lines
 
 
 def _needed_u(v) -> float | None:
@@ -157,12 +235,62 @@ def _lever_for(o, v, needed) -> str:
             cand = (float(getattr(r, "duration_s", math.nan)), f, getattr(r, f), 2 * r.u)
             if best is None or cand[0] < best[0]:
                 best = cand
+    plan = o.plan if not isinstance(o.plan, str) else None
+    column = f"u_{v.measurand}"
+    if plan is not None and getattr(plan, "table", None) is not None \
+            and column in plan.table:  # the planner's candidates: k times the linearised u
+        t = plan.table
+        ok = t[(2 * t[column] / plan.k <= needed) & (t[column] > 0)]
+        if len(ok):
+            r = ok.loc[ok["duration_s"].idxmin()]
+            fields = [f for f in plan.table.columns if f in docs]
+            cand = (float(r["duration_s"]), None,
+                    ", ".join(field_value(f, r[f]) for f in fields), 2 * r[column] / plan.k)
+            if best is None or cand[0] < best[0]:
+                best = cand
     if best is None:
         return ""
+    if best[1] is None:
+        return (f"the planner's cheapest set-up that reaches it: {best[2]} (predicted U "
+                f"{fmt_u(best[3])} {unit(v.unit)}, {duration_text(best[0])}), agreed in a "
+                "revised plan, and re-test")
     label = field_label(best[1], docs.get(best[1], "")).split(" [")[0]
     value = f"{best[2]:g}" if isinstance(best[2], float) else str(best[2])
-    return (f"set {label} to {value} (predicted U {fmt_u(best[3])} {unit(v.unit)} < "
-            f"{fmt_u(needed)} {unit(v.unit)}, agreed in a revised plan) and re-test")
+    return (f"set {label} to {value} (predicted U {fmt_u(best[3])} {unit(v.unit)}, below "
+            f"{_below(needed)} {unit(v.unit)}, agreed in a revised plan) and re-test")
+
+
+def _below(x: float) -> str:
+    """An upper bound to three significant digits, rounded down (never "below 11" for
+    10.7)."""
+    if not (x > 0 and math.isfinite(x)):
+        return fmt_u(x)
+    decimals = max(0, 2 - math.floor(math.log10(x)))
+    step = 10.0 ** -decimals
+    return f"{math.floor(x / step + 1e-9) * step:.{decimals}f}"
+
+
+def _repeats_text(o, v, needed) -> str:
+    """What repeating the test and averaging does, from the budget's random share of u^2."""
+    from mtplan.plans.decisions import random_share, repeated_U, repeats_needed
+
+    found = random_share(o.budget, v.measurand)
+    U = 2 * v.u
+    if found is None:
+        return "the budget does not say which part of u² repeats would average"
+    share, top, top_share = found
+    n = repeats_needed(U, needed, share)
+    split = (f"{100 * share:.0f} % of u² is random from reading to reading (averaged by "
+             f"repeats), {100 * top_share:.0f} % is {top.replace('_', ' ')}, which repeats "
+             "do not average")
+    if n is not None:
+        return (f"{split}: the average of {n} repeats gives U "
+                f"{fmt_u(repeated_U(U, share, n))} {unit(v.unit)}, agreed in a revised plan")
+    two = repeated_U(U, share, 2)
+    floor = U * math.sqrt(max(1 - share, 0.0))
+    return (f"{split}: two repeats give U {fmt_u(two)} {unit(v.unit)} and no number of "
+            f"repeats goes below {fmt_u(floor)} {unit(v.unit)}; a smaller "
+            f"{top.replace('_', ' ')} (a better instrument or artefact) is what can")
 
 
 def _actions(result, failed, open_) -> list:
@@ -171,7 +299,7 @@ def _actions(result, failed, open_) -> list:
     for v in failed:
         k, o = by_proc[v.procedure]
         u = unit(v.unit)
-        res = v.measured_u
+        res = _U(v)
         target = 0.0 if v.lower is not None and v.upper is not None and v.lower < 0 < v.upper \
             else ((v.lower or 0) + (v.upper or 0)) / 2
         out.append(f"Adjust the {measurand_name(v.description, v.measurand)[:1].lower()}"
@@ -194,28 +322,31 @@ def _actions(result, failed, open_) -> list:
                        + f"; repeat test {k} ({o.spec.label}).")
             continue
         lever = _lever_for(o, v, needed)
-        reps = math.ceil((2 * v.u / needed) ** 2) if needed > 0 else None
-        how = lever or (f"no swept set-up reaches it: repeat the test {reps} times and "
-                        "average (U falls with the square root of the repeats), agreed in a "
-                        "revised plan" if reps else "no set-up can decide it")
-        out.append(f"{name}: no decision (inside the guard band). A decision needs a "
-                   f"predicted U below {fmt_u(needed)} {unit(v.unit)} (now "
+        how = lever or ("no swept or planned set-up of the study reaches it; "
+                        + _repeats_text(o, v, needed) if needed > 0 else
+                        "no set-up can decide it")
+        out.append(f"{name}: {v.verdict} (inside the guard band). A pass or a fail needs a "
+                   f"predicted U below {_below(needed)} {unit(v.unit)} (now "
                    f"{fmt_u(2 * v.u)}): {how}.")
     return out
 
 
 def _overall_section(result) -> Section:
+    from mtplan.reports.wording import BURDEN_OF_PROOF, OVERALL_RULE
+
     outcome, deciding, undecided = overall_result(result)
-    codes = ", ".join(v.measurand for v in deciding)
-    head = f"Overall result: {outcome}" + (f": {codes}" if codes else "") + "."
-    blocks = [head]
-    if undecided:
-        blocks.append("Also without a decision: " + ", ".join(
-            f"{v.measurand} ({v.verdict})" for v in undecided) + ".")
+    blocks = []
+    for machine, tests, m_outcome, m_deciding, m_undecided in machine_results(result):
+        codes = ", ".join(v.measurand for v in m_deciding)
+        blocks.append(f"Overall result for {machine} ({_tests_text(tests)}): "
+                      f"{m_outcome}" + (f": {codes}" if codes else "") + ".")
+        if m_undecided:
+            blocks.append("Also without a pass: " + ", ".join(
+                f"{v.measurand} ({verdict_short(v.verdict)})" for v in m_undecided) + ".")
     final = final_verdicts(result)
-    n_ok = sum(v.verdict == "conforms" for v in final)
-    blocks.append(f"{n_ok} of {len(final)} toleranced measurands conform to the rules of the "
-                  "test plan.")
+    n_ok = sum(v.verdict == "pass" for v in final)
+    blocks.append(f"{n_ok} of {len(final)} toleranced measurands pass by the rules of the "
+                  f"test plan. {OVERALL_RULE} {BURDEN_OF_PROOF}")
     left = [f"test {k} ({o.spec.label}" + (f"; adjusted: {o.spec.as_left['adjustment']}"
                                             if o.spec.as_left.get("adjustment") else "") + ")"
             for k, o in enumerate(result.outcomes, start=1) if o.as_left_verdicts]
@@ -225,16 +356,23 @@ def _overall_section(result) -> Section:
                       "for the other tests.")
     actions = _actions(result, deciding if outcome == "not accepted" else [],
                        undecided if outcome == "not accepted" else deciding)
+    author = (result.study.header.get("prepared_by") or _lab(result.study))
     if actions:
-        blocks += ["Actions required:", actions]
+        blocks += [f"Opinions and interpretations (ISO/IEC 17025 7.8.7), by {author}, not "
+                   "part of the results: the actions that would follow.", actions]
     else:
         blocks.append("No action required.")
     return Section("Overall result and actions", blocks=blocks, anchor="overall")
 
 
 # ----------------------------------------------------------------------- results
+def _U(v):
+    """The printed U of a measured value (k = 2): values are rounded to its decimal."""
+    return None if v.measured_u is None else 2 * v.measured_u
+
+
 def _interval(v) -> str:
-    res = v.measured_u
+    res = _U(v)
     return ("-" if v.measured_low is None else
             f"[{fmt(v.measured_low, res)}, {fmt(v.measured_high, res)}]")
 
@@ -242,14 +380,33 @@ def _interval(v) -> str:
 def _result_rows(k, o) -> list:
     rows = []
     for v in o.verdicts:
-        res = v.measured_u
+        res = _U(v)
         measured = "-" if v.measured is None else fmt(v.measured, res)
-        achieved = "-" if res is None else fmt_u(2 * res)
+        measured += _asymmetric_mark(v.measured, res, v.measured_low, v.measured_high)
+        achieved = "-" if res is None else fmt_u(res)
         rows.append([str(k), measurand_name(v.description, v.measurand),
                      tolerance_text(v.lower, v.upper, v.unit, v.zone), measured,
                      f"{achieved} ({fmt_u(2 * v.u)})", _interval(v),
                      probability_text(v.p_conform), _verdict_word(v)])
     return rows
+
+
+#: the note under a table whose values carry :func:`_asymmetric_mark`
+ASYMMETRIC_NOTE = ("†: the 95 % interval is not value ± U: it is the interval of the "
+                   "values' own distribution (Monte Carlo or posterior, JCGM 101 7.7), "
+                   "which is asymmetric or centred away from the bias-corrected value; U is "
+                   "2u of the same distribution.")
+
+
+def _asymmetric_mark(value, U, low, high) -> str:
+    """"†" where an end of the printed interval differs from value ± U by more than 5 % of
+    U (:data:`ASYMMETRIC_NOTE`; a normal distribution's 1.96 u against U = 2 u is 2 %),
+    else ""."""
+    if value is None or U is None or low is None or high is None or not U > 0:
+        return ""
+    if abs((value - U) - low) > 0.05 * U or abs((value + U) - high) > 0.05 * U:
+        return " †"
+    return ""
 
 
 def _value_text(v) -> str:
@@ -258,7 +415,7 @@ def _value_text(v) -> str:
         return "-"
     if v.measured_u is None:
         return fmt(v.measured)
-    return f"{fmt(v.measured, v.measured_u)} ± {fmt_u(2 * v.measured_u)}"
+    return f"{fmt(v.measured, _U(v))} ± {fmt_u(_U(v))}"
 
 
 def _as_left_rows(k, o) -> list:
@@ -294,6 +451,38 @@ def _probability_lines(verdicts, when="") -> list:
     return out
 
 
+def fit_summary(fit) -> dict:
+    """The fit check of one evaluation as the documents show it: ``chi2``, ``dof``, ``p``,
+    ``worst`` (the worst readings in words), ``ok`` (True, False or None: not made) and
+    ``outcome`` in words. Read defensively: a check may lack any of these."""
+    if fit is None:
+        return {"chi2": None, "dof": None, "p": None, "worst": "", "ok": None,
+                "outcome": "not made: no fit check for this evaluation", "alpha": None}
+    p = getattr(fit, "p_value", getattr(fit, "p", None))
+    ok = getattr(fit, "ok", None)
+    worst = fit.worst_text() if hasattr(fit, "worst_text") and getattr(fit, "worst", None) \
+        else ""
+    alpha = getattr(fit, "alpha", 0.01)
+    outcome = ("fits" if ok else "does NOT fit: no decision" if ok is False else
+               "not made: " + str(getattr(fit, "reason", "") or "no reason given"))
+    return {"chi2": getattr(fit, "chi2", None), "dof": getattr(fit, "dof", None), "p": p,
+            "worst": worst, "ok": ok, "outcome": outcome, "alpha": alpha}
+
+
+def _fit_rows(result) -> list:
+    rows = []
+    for k, o in enumerate(result.outcomes, start=1):
+        for m, state in ((o.measured, ""), (getattr(o, "as_left", None), " as left")):
+            if m is None:
+                continue
+            f = fit_summary(getattr(m, "fit", None))
+            rows.append([f"{k}{state}", "-" if f["chi2"] is None else f"{f['chi2']:.1f}",
+                         "-" if f["dof"] is None else str(f["dof"]),
+                         "-" if f["p"] is None else f"{f['p']:.2g}", f["worst"] or "-",
+                         f["outcome"]])
+    return rows
+
+
 def _results_section(result) -> Section:
     from mtplan.reports import figures as figs
 
@@ -320,6 +509,8 @@ def _results_section(result) -> Section:
                                  "U achieved (predicted)", "95 % interval",
                                  "probability of conformity", "verdict"], rows,
                                 grow=1, size=7.0))
+        if any("†" in row[3] for row in rows):
+            sec.blocks.append(ASYMMETRIC_NOTE)
         sec.blocks += rules_text(result.verdicts)
         lines = _probability_lines(result.verdicts)
         if lines:
@@ -337,6 +528,19 @@ def _results_section(result) -> Section:
                                    " as left")
         if lines:
             sec.blocks += ["Probability of conformity as left:", lines]
+    from mtplan.evaluation.fitcheck import FIT_ALPHA
+
+    fits = _fit_rows(result)
+    if fits:
+        sec.blocks.append(Table("Fit check of each test's readings (chi-square of the "
+                                "readings against the model and its error budget): the "
+                                "achieved U holds only where they fit; a test whose readings "
+                                f"do not fit (p below {FIT_ALPHA:g}) gets no decision. Worst "
+                                "readings: "
+                                "row and column of the readings file, z the standardised "
+                                "residual.",
+                                ["test", "chi-square", "dof", "p", "worst readings",
+                                 "outcome"], fits, grow=4, size=7.0))
     untoleranced = sum(len(o.measured.measurands) for o in result.outcomes
                        if o.measured is not None) - sum(
         len(o.verdicts) for o in result.outcomes if o.measured is not None)
@@ -374,25 +578,55 @@ def _conditions_section(result) -> Section:
     table = _instrument_table(study)
     if table is not None:
         blocks.append(table)
-        blocks.append("Traceability: every instrument is calibrated against standards "
-                      "traceable to the SI through the national metrology institute named "
-                      "in its traceability column.")
+        blocks.append("Traceability: as declared by the party named in each row, on the "
+                      "certificate cited; the laboratory has checked each certificate's due "
+                      "date against the date of the test, not the declared chain itself. An "
+                      "instrument not valid on the test date is a deviation (below).")
     else:
         blocks.append("No instruments are named in the study: the traceability of these "
                       "results cannot be stated.")
+    blocks.append(SUPPLIED)
     return Section("Test conditions and instruments", blocks=blocks, anchor="conditions")
 
 
 def _deviations_section(deviations) -> Section:
     blocks = ["Deviations from the test plan, additions and exclusions:"]
-    blocks.append(list(deviations) if deviations else ["none"])
+    blocks.append([customer_words(d) for d in deviations] if deviations else ["none"])
     return Section("Deviations from the plan", blocks=blocks, anchor="deviations")
 
 
-def _glossary_section() -> Section:
+def _words(blocks) -> str:
+    """Every text of some blocks (paragraphs, lists, tables, sub-sections), lower case."""
+    out = []
+    for b in blocks:
+        if isinstance(b, str):
+            out.append(b)
+        elif isinstance(b, list):
+            out.append(_words(b))
+        elif isinstance(b, Table):
+            out += [b.caption, " ".join(map(str, b.header))]
+            out += [" ".join(map(str, row)) for row in b.rows]
+        elif isinstance(b, Section):
+            out += [b.title, _words(b.blocks)]
+        elif isinstance(b, Figure):
+            out.append(b.caption)
+    return " ".join(out).lower()
+
+
+def _glossary_section(sections=None) -> Section:
+    """The glossary of the terms that ``sections`` use (each term's words, split at "/"
+    and ","), or of every term."""
+    rows = GLOSSARY
+    if sections is not None:
+        import re
+
+        text = _words(sections)
+        rows = [row for row in GLOSSARY
+                if any(re.search(rf"(?<![a-z]){re.escape(t.strip().lower())}(?![a-z])", text)
+                       for t in re.split(r"[/,]", row[0]) if t.strip())]
     return Section("Glossary", anchor="glossary", blocks=[Table("Terms used in this document.",
-                                                                ["term", "meaning"],
-                                                                GLOSSARY)])
+                                                                ["term", "meaning"], rows,
+                                                                keep=True)])
 
 
 def measured_frame(result):
@@ -406,6 +640,7 @@ def measured_frame(result):
         if m is None:
             continue
         det = getattr(m, "determinable", None)
+        fit = fit_summary(getattr(m, "fit", None))
         for j, q in enumerate(m.measurands):
             ok = det is None or bool(det[j])
             u = float(m.std[j]) if ok else math.nan
@@ -416,10 +651,12 @@ def measured_frame(result):
                          "U": 2 * u, "low": float(m.low[j]) if ok else math.nan,
                          "high": float(m.high[j]) if ok else math.nan,
                          "estimator": m.estimator, "uncertainty": m.uncertainty,
-                         "determinable": ok})
+                         "determinable": ok, "fit_chi2": fit["chi2"], "fit_dof": fit["dof"],
+                         "fit_p": fit["p"], "fit_ok": fit["ok"], "fit_worst": fit["worst"]})
     return pd.DataFrame(rows, columns=["procedure", "test", "state", "measurand", "description",
                                        "unit", "value", "u", "k", "U", "low", "high",
-                                       "estimator", "uncertainty", "determinable"])
+                                       "estimator", "uncertainty", "determinable", "fit_chi2",
+                                       "fit_dof", "fit_p", "fit_ok", "fit_worst"])
 
 
 def _measured_appendix(k, o) -> Section:
@@ -435,8 +672,10 @@ def _measured_appendix(k, o) -> Section:
             items.append((q.name, float(m.value[j]), u, float(m.low[j]), float(m.high[j])))
         rows.append([measurand_name(q.description, q.name),
                      unit(q.unit),
-                     fmt(m.value[j], u) if ok else "n/d", fmt_u(2 * u) if ok else "n/d",
-                     f"[{fmt(m.low[j], u)}, {fmt(m.high[j], u)}]" if ok else "-"])
+                     (fmt(m.value[j], 2 * u) + _asymmetric_mark(m.value[j], 2 * u, m.low[j],
+                                                                m.high[j])) if ok else "n/d",
+                     fmt_u(2 * u) if ok else "n/d",
+                     f"[{fmt(m.low[j], 2 * u)}, {fmt(m.high[j], 2 * u)}]" if ok else "-"])
     sec = Section(f"A{k}. {o.spec.label}: every measured quantity", anchor=f"m{k}",
                   appendix=True)
     warnings, flagged = value_warnings(items)
@@ -446,6 +685,8 @@ def _measured_appendix(k, o) -> Section:
                             + ("; *: read with care (below)." if warnings else "."),
                             ["measurand", "unit", "measured", "U (k = 2)", "95 % interval"],
                             rows, grow=0))
+    if any("†" in row[2] for row in rows):
+        sec.blocks.append(ASYMMETRIC_NOTE)
     if warnings:
         sec.blocks += ["* Read these values with care:", warnings]
     sec.blocks += measured_blocks(m, warn=False)
@@ -462,13 +703,13 @@ def _cover_meta(result, plan, kind) -> dict:
         meta["title"] = "Test report (certificate of the acceptance test)"
         meta["report number"] = f"{doc_no}" + (f", revision {h['revision']}"
                                                if h.get("revision") else "")
-        meta["test plan"] = (f"{plan['document']}, issued {plan['issued']}; rules "
-                             f"fingerprint SHA-256 {plan['fingerprint'][:16]}")
+        meta["test plan"] = f"{plan['document']}, issued {plan['issued']}"
+        meta["plan fingerprint (SHA-256)"] = plan["fingerprint"]
     else:
         meta["title"] = "Test plan (to be agreed before the test)"
         meta["plan number"] = plan["document"] + (f", revision {plan['revision']}"
                                                   if plan.get("revision") else "")
-        meta["rules fingerprint (SHA-256)"] = plan["fingerprint"]
+        meta["plan fingerprint (SHA-256)"] = plan["fingerprint"]
     meta["laboratory"] = _lab(study)
     meta["laboratory address"] = lab.get("address", "not stated in the study")
     if lab.get("accreditation"):
@@ -497,18 +738,25 @@ def _document(result, plan, kind, sections, csv) -> Document:
                 ("checked", study.header.get("checked_by", "")),
                 ("authorised", study.header.get("approved_by", ""))] if kind == "report" else
                [("agreed for the laboratory", study.header.get("approved_by", "")),
-                ("agreed for the customer", "")])
+                ("agreed for the customer", ""), ("agreed for the machine builder", "")])
     doc = Document(title=title, subtitle=study.title, meta=meta,
                    provenance=result.provenance, sections=sections, csv=csv,
                    signoff=signoff, standards=[])
     doc.methods = _methods(result)
+    doc.box = result_box(result) if kind == "report" else []
     doc.identification = f"{number} - {title.split(' (')[0]}"
-    doc.watermark = WATERMARK if study.simulated else ""
+    # a plan uses no readings: no readings stamp, and its numbers come from the study alone
+    doc.watermark = WATERMARK if study.simulated and kind == "report" else ""
+    if kind != "report":
+        doc.inputs = "the study file and the random seed (the plan uses no readings)"
     doc.end_mark = END_MARK if kind == "report" else "End of test plan"
     doc.flow = kind == "report"
     doc.statement = RESULTS_RELATE if kind == "report" else (
-        "The decision rules, guard bands and risks below are agreed before the test; the test "
-        "report will apply exactly these rules (their fingerprint is cited on it).")
+        "The agreement (its first section) is what the parties sign before the test: the "
+        "acceptance limits, decision rules, conditions and clauses; the test report will "
+        "apply exactly these. The sections after it are the technical study behind them, a "
+        "non-binding annex. The fingerprint covers the number, revision, issue date, parties, "
+        "conditions and rules: the report cites it in full.")
     return doc
 
 
@@ -520,11 +768,12 @@ def build_report(result, plan, deviations=()) -> Document:
     from mtplan.reports.document import covariance_frames, verdict_frames
 
     sections = [_overall_section(result), _results_section(result),
-                _conditions_section(result), _deviations_section(deviations),
-                _glossary_section()]
+                _conditions_section(result),
+                _deviations_section(list(deviations) + exclusions(result))]
     for k, o in enumerate(result.outcomes, start=1):
         if o.measured is not None:
             sections.append(_measured_appendix(k, o))
+    sections.insert(4, _glossary_section(sections))  # the terms the whole report uses
     sections.append(provenance_section(result.provenance))
     csv = verdict_frames(result)
     csv["measured"] = measured_frame(result)
@@ -540,10 +789,11 @@ def _plan_rows(o, plan) -> list:
     for v in o.verdicts:
         r = rules[(v.procedure, v.label, v.measurand)]
         u = unit(v.unit)
-        w = "-" if r["guard_band"] is None else fmt(r["guard_band"], r["u_planned"] / 5)
+        step = _agreed_step(o, r)
+        w = "-" if r["guard_band"] is None else fmt(r["guard_band"], step)
         rows.append([measurand_name(v.description, v.measurand), u,
                      tolerance_text(v.lower, v.upper, zone=v.zone),
-                     "-" if r["u_planned"] is None else fmt_u(2 * r["u_planned"]),
+                     "-" if r["u_planned"] is None else fmt(2 * r["u_planned"], step),
                      "-" if r["tur"] is None else f"{r['tur']:.1f}", w,
                      _pct(r["pfa"]), _pct(r["pfr"])])
     for name in o.key:
@@ -562,12 +812,29 @@ def _pct(p) -> str:
     return "-" if p is None else percent(p)
 
 
+def _not_adopted(o) -> list:
+    """The swept set-up changes that lower U beyond the Monte Carlo error at no extra
+    machine time, which the plan does not adopt, with the reason."""
+    better = [e for e in o.levers if e.significant and math.isfinite(e.u_base)
+              and e.duration_best_s <= e.duration_base_s and e.best_value != e.base_value]
+    if not better:
+        return []
+    items = [f"{field_value(e.field, e.best_value)} ({e.measurand}: U {fmt_u(2 * e.u_best)} "
+             f"instead of "
+             f"{fmt_u(2 * e.u_base)} {unit(e.unit)} in the same sweep, "
+             f"{duration_text(e.duration_best_s)})" for e in better]
+    return [f"Found better at no extra machine time, not adopted: {'; '.join(items)}. The plan "
+            "agrees the study's set-up as stated; adopting one of these needs the study changed "
+            "and the plan issued again, which the parties may agree before the test."]
+
+
 def _plan_test(k, o, plan, study) -> Section:
     from mtplan.reports.document import setup_sentence
 
     blocks = [f"Set-up: {setup_sentence(o)}. Estimator: {o.recommended}. Duration (machine "
               f"time): {duration_text(o.duration_s)}. Method: {method_citation(o.spec.name)}; "
               f"standards: {', '.join(o.spec.standards) or 'none named'}."]
+    blocks += _not_adopted(o)
     inst = _instruments(study, o.spec.name)
     blocks.append("Instruments: " + ("; ".join(f"{r[0]} (serial {r[1]}, certificate {r[2]})"
                                                for r in inst) if inst else
@@ -618,6 +885,189 @@ def plan_appendix(k, o) -> tuple:
 PLAN_PARTS = (plan_body, plan_appendix)
 
 
+#: ISO/IEC 17025 7.8.2.2: data supplied by the customer or a third party, marked as such
+SUPPLIED = ("Data marked \u201ccustomer-supplied\u201d (tolerances and their sources, the "
+            "populations of items behind the risks, certificates of instruments the laboratory "
+            "did not calibrate) is supplied by the customer or a third party; the laboratory "
+            "is not responsible for it, and the results and risks that depend on it can be "
+            "affected by it (ISO/IEC 17025 7.8.2.2).")
+
+
+def method_id(o, version: str) -> str:
+    """The method of a test identified by procedure and version: "mtplan procedure
+    rotary_axis, mtplan 1.2, patent estimator"."""
+    return f"mtplan procedure {o.spec.name} (mtplan {version}), {o.recommended} estimator"
+
+
+def _not_listed(o) -> list:
+    """(name, why) of each error the procedure defines that the set-up does not determine,
+    from its identifiability table (``extras["identifiability"]``: per estimator a table
+    with ``status``, ``listed`` and ``confounded_with``)."""
+    tables = (o.extras or {}).get("identifiability")
+    table = tables.get(o.recommended, next(iter(tables.values()), None)) \
+        if isinstance(tables, dict) and tables else None
+    if table is None or not {"listed", "status"} <= set(getattr(table, "columns", ())):
+        return []
+    out = []
+    for name, row in table[~table["listed"].astype(bool)].iterrows():
+        status = str(row["status"])
+        if status == "no effect":
+            why = "no effect on any reading at this set-up"
+        elif str(row.get("confounded_with", "")):
+            why = ("the same effect on the readings as "
+                   f"{str(row['confounded_with']).replace('mounting', 'the mounting')}")
+        else:
+            why = f"{status} at this set-up"
+        out.append((str(name), why))
+    return out
+
+
+def exclusions(result) -> list:
+    """One line per test whose set-up does not determine errors its procedure defines:
+    which, and why (its identifiability analysis)."""
+    out = []
+    for k, o in enumerate(result.outcomes, start=1):
+        missing = _not_listed(o)
+        if not missing:
+            continue
+        whys: dict = {}
+        for name, why in missing:
+            whys.setdefault(why, []).append(name)
+        out.append(f"Test {k} ({o.spec.label}): {', '.join(n for n, _ in missing)} are not "
+                   "reported, since the readings of this set-up do not determine them "
+                   "(identifiability analysis, in the plan's annex): "
+                   + "; ".join(f"{', '.join(names)}: {why}" for why, names in whys.items())
+                   + ".")
+    return out
+
+
+def _mc_error(o, rule) -> float | None:
+    """The Monte Carlo standard error of the agreed U = 2u [unit]: 2u / sqrt(2 (N - 1))
+    from the N trials of the estimator the plan agreed."""
+    if o is None or not rule.get("u_planned"):
+        return None
+    r = o.results.get(rule.get("estimator")) or o.results.get(o.recommended)
+    n = int(getattr(getattr(r, "mc", None), "trials", 0) or 0)
+    return 2 * rule["u_planned"] / math.sqrt(2 * (n - 1)) if n > 1 else None
+
+
+def _agreed_step(o, rule) -> float | None:
+    """The resolution the agreed U, w and limits are printed to: the decimal of their Monte
+    Carlo standard error's first significant digit (:func:`fmt` keeps two significant
+    digits of its second argument, hence 10 times the error)."""
+    se = _mc_error(o, rule)
+    if se:
+        return 10 * se
+    return rule["u_planned"] / 5 if rule.get("u_planned") else None
+
+
+def _requirement_rows(req) -> list:
+    from mtplan.plans.study import REQUIREMENT_KEYS
+
+    rows = []
+    for key, (label, kind) in REQUIREMENT_KEYS.items():
+        if key not in req or key in ("outside", "adjustment", "retests", "as_left",
+                                     "larger_u", "schedule"):
+            continue
+        value = req[key]
+        shown = (f"{value[0]:g} to {value[1]:g} °C" if kind == "band" else
+                 ("on" if value else "off") if kind == "bool" else
+                 f"at most {value:g}" if kind == "number" else str(value))
+        rows.append([label, shown])
+    return rows
+
+
+def _clauses(req) -> list:
+    """The clauses for what happens outside the conditions, on a fail or a conditional
+    result, and on a larger U than agreed."""
+    larger = {"widen": "the guard band of that measurand is widened in proportion (w times "
+                       "U achieved / U agreed)",
+              "no decision": "no decision is made on that measurand"}
+    out = []
+    if req.get("outside"):
+        out.append(f"Outside a required condition: {req['outside']}.")
+    if req.get("adjustment"):
+        out.append(f"On a fail or a conditional result: {req['adjustment']}.")
+    if "retests" in req:
+        out.append(f"Re-tests allowed after an adjustment: {req['retests']}.")
+    if req.get("as_left"):
+        out.append(f"As left: {req['as_left']}.")
+    if req.get("larger_u"):
+        out.append("Achieved U more than 10 % above the agreed U: "
+                   f"{larger[req['larger_u']]}.")
+    return out or ["No clause for a fail, a conditional result or a larger U is stated in the "
+                   "study: the parties settle it after the test."]
+
+
+def _agreement_section(result, plan) -> Section:
+    """The contract: parties, item and tests, acceptance limits, rules, burden of proof,
+    overall rule, required conditions, clauses, duration, exclusions, supplied data."""
+    from mtplan.reports.wording import BURDEN_OF_PROOF, OVERALL_RULE
+
+    study = result.study
+    p = plan.get("parties", {})
+    version = result.provenance.get("versions", {}).get("mtplan", "")
+    blocks = [f"Parties: the laboratory {p.get('laboratory') or 'not stated'}; the customer "
+              f"{p.get('customer') or 'not stated'}; the machine builder "
+              f"{p.get('machine_builder') or 'not stated'}. Each signs this plan on its cover "
+              "before the test; the report will apply exactly what is agreed here."]
+    serial = {k: m.removeprefix("machine ") for m, tests in machines(result) for k in tests}
+    rows = [[str(k), o.spec.label, serial[k], method_id(o, version),
+             ", ".join(o.spec.standards) or "-", duration_text(o.duration_s)]
+            for k, o in enumerate(result.outcomes, start=1)]
+    blocks.append(Table("Tests, the machine each is run on (serial number), the method "
+                        "(procedure and version) and the machine time.",
+                        ["test", "title", "machine", "method", "standards", "duration"],
+                        rows, grow=1, size=7.0))
+    total = sum(o.duration_s for o in result.outcomes if math.isfinite(o.duration_s))
+    schedule = study.requirements.get("schedule")
+    blocks.append(f"Total duration (machine time): {duration_text(total)}; date of the test: "
+                  f"{study.header.get('date', 'not stated')}"
+                  + (f"; schedule: {schedule}" if schedule else "") + ".")
+    limits = []
+    by_label = {o.spec.label: o for o in result.outcomes}
+    for r in plan["rules"]:
+        u = unit(r.get("unit", ""))
+        se = _mc_error(by_label.get(r["test"]), r)
+        step = _agreed_step(by_label.get(r["test"]), r)
+        lo, hi = (None if r[k] is None else fmt(r[k], step)
+                  for k in ("acceptance_lower", "acceptance_upper"))
+        acc = ("-" if r.get("guard_band") is None else
+               f"[{'-∞' if lo is None else lo}, {'∞' if hi is None else hi}]")
+        limits.append([r["measurand"], u, tolerance_text(r["lower"], r["upper"]), acc,
+                       "-" if r.get("guard_band") is None else fmt(r["guard_band"], step),
+                       "-" if r.get("u_planned") is None else fmt(2 * r["u_planned"], step),
+                       fmt_u(se) if se else "-",
+                       r.get("tolerance_source") or "not stated"])
+    blocks.append(Table("Acceptance limits per measurand: a pass needs the measured value "
+                        "within them (the tolerance reduced by the guard band w); U predicted "
+                        "at k = 2, with the standard error of its Monte Carlo (GUM 7.2.6: "
+                        "printed to the digits it supports, as w and the limits).",
+                        ["measurand", "unit", "tolerance", "acceptance limits", "w",
+                         "U predicted", "± (MC)", "tolerance source"], limits, grow=7,
+                        size=7.0))
+    frames: dict = {}
+    for r in plan["rules"]:
+        frames.setdefault(r.get("frame") or "not stated in the study", []).append(r["measurand"])
+    blocks += ["Sign convention and reference frame of each measurand (a correction's sign "
+               "depends on it):", [f"{', '.join(names)}: {text}" for text, names in
+                                   frames.items()]]
+    blocks += rules_text(result.verdicts)
+    blocks += [BURDEN_OF_PROOF, OVERALL_RULE]
+    req = study.requirements
+    rows = _requirement_rows(req)
+    if rows:
+        blocks.append(Table("Required test conditions (ISO 230-1 6.1), recorded in the report.",
+                            ["condition", "required"], rows))
+    else:
+        blocks.append("No required test conditions are stated in the study.")
+    blocks += ["Clauses agreed for what happens after the test:", _clauses(req)]
+    excluded = exclusions(result)
+    blocks += (["Exclusions:", excluded] if excluded else ["Exclusions: none."])
+    blocks.append(SUPPLIED)
+    return Section("The agreement", anchor="agreement", blocks=blocks)
+
+
 def build_plan(result, plan, parts=None) -> Document:
     """The test plan of a computed study (its readings, if any, are not used). ``parts``:
     :func:`plan_parts` of each test, in test order, where they were drawn already."""
@@ -627,17 +1077,19 @@ def build_plan(result, plan, parts=None) -> Document:
     if parts is None:
         parts = [plan_parts(k, o) for k, o in enumerate(result.outcomes, start=1)]
     study = result.study
-    rules = Section("Tests and decision rules", anchor="rules", blocks=[
+    rules = Section("Annex: tests and decision rules (technical study)", anchor="rules",
+                    blocks=[
         "What each test measures, how, with which instruments and how long, the uncertainty "
         "it is predicted to reach and the decision rule both parties agree before measuring "
         f"(coverage {study.coverage:.0%}, k = 2)."])
     rules.blocks += [_plan_test(k, o, plan, study)
                      for k, o in enumerate(result.outcomes, start=1)]
-    sections = [rules, methods_section(result), _glossary_section()]
+    sections = [_agreement_section(result, plan), rules, methods_section(result)]
     sections += [body for body, _ in parts]
     csv = {}
     for _, (sec, frames) in parts:
         sections.append(sec)
         csv.update(frames)
+    sections.insert(3, _glossary_section(sections))  # the terms the whole plan uses
     sections.append(appendix.provenance_section(result.provenance, document="plan"))
     return _document(result, plan, "plan", sections, csv)

@@ -23,6 +23,7 @@ from mtplan.reports.labels import (
     unit,
 )
 from mtplan.reports.model import Document, Figure, Section, Table
+from mtplan.reports.wording import probability_text
 
 __all__ = ["Document", "Section", "Table", "Figure", "methods_section", "test_section",
            "setup_sentence", "verdict_frames", "covariance_frames", "fmt", "fmt_u"]
@@ -42,6 +43,11 @@ def verdict_frames(result) -> dict:
                "measured_source", "p_conform", "p_conform_population", "population_source",
                "verdict", "reason"]
     verdicts = pd.DataFrame([v.row() for v in result.verdicts], columns=columns)
+    # the probabilities as the PDF states them: never certain ("> 99.9 %" is 0.999 here,
+    # not 1.0), with the printed text beside them
+    for name in ("p_conform", "p_conform_population"):
+        verdicts[f"{name}_text"] = [probability_text(p) for p in verdicts[name]]
+        verdicts[name] = verdicts[name].clip(lower=0.001, upper=0.999)
     return {"verdicts": verdicts, "summary": pd.DataFrame(rows)}
 
 

@@ -255,7 +255,7 @@ def acceptance_figure(verdicts: list) -> bytes:
     rows = math.ceil(n / cols)
     fig = _figure(2.45 * cols + 0.2, 1.3 * rows + 0.55)
     axes = fig.subplots(rows, cols, squeeze=False)
-    zone = {"conforms": "#2e7d32", "does not conform": "#b3261e"}
+    zone = {"pass": "#2e7d32", "fail": "#b3261e"}
     for k, v in enumerate(verdicts):
         ax = axes[k // cols][k % cols]
         lo = v.lower if v.lower is not None else None
@@ -305,7 +305,7 @@ def acceptance_figure(verdicts: list) -> bytes:
                Patch(color="#b3261e", alpha=0.2), Line2D([], [], color="k", lw=1.1),
                Line2D([], [], color="#555555", lw=1.0),
                Line2D([], [], marker="o", color="#444444", lw=1.6)]
-    labels = ["conforms", "guard band: no decision", "does not conform", "tolerance",
+    labels = ["pass", "guard band: conditional pass / fail", "fail", "tolerance",
               "population (prior)", "measured, 95 % interval"]
     fig.legend(handles, labels, fontsize=7, loc="outside lower center", ncol=3, frameon=False)
     return _png(fig)

@@ -8,29 +8,11 @@ from __future__ import annotations
 import math
 import re
 
+from mtplan._numbers import fmt, fmt_u, unit
 from mtplan.models.protocol import split_unit
 
 __all__ = ["unit", "split_field", "field_label", "field_value", "estimator_text", "fmt",
            "fmt_u", "tolerance_text", "duration_text", "percent", "prior_text"]
-
-_UNIT_TEXT = {"um": "µm", "urad": "µrad", "nm": "nm", "mm": "mm", "rad": "rad",
-              "mrad": "mrad", "deg": "deg", "arcsec": "arcsec", "ppm": "ppm", "s": "s",
-              "c": "°C", "1": "", "m": "m", "min": "min", "per": "/", "ms": "ms", "h": "h"}
-
-
-def unit(name: str) -> str:
-    """A unit as printed: ``um`` -> µm, ``um_per_m`` -> µm/m, ``mm_min`` -> mm/min."""
-    if name in _UNIT_TEXT:
-        return _UNIT_TEXT[name]
-    if name == "per_s":
-        return "1/s"
-    if "_per_" in name:
-        a, b = name.split("_per_", 1)
-        return f"{unit(a)}/{unit(b)}"
-    if name == "mm_min":
-        return "mm/min"
-    return name
-
 
 def split_field(name: str) -> tuple[str, str]:
     """(base, unit suffix) of a set-up field name; the suffix is "" when it has none."""
@@ -67,41 +49,6 @@ def estimator_text(function) -> str:
     doc = re.sub(r":\w+:`~?([^`]+)`", r"\1", doc).replace("``", "")
     doc = re.sub(r";?\s*(measurands\s*)?\[mm, rad\],?\s*\(n,\)\.?", ".", doc)
     return doc.rstrip(" .;") + "."
-
-
-def fmt(value, u=None) -> str:
-    """`value` rounded to the resolution its uncertainty `u` supports (two significant
-    digits of u); four significant digits without one; "n/d" for NaN (not determined).
-    The one number format of the reports and the command line."""
-    if value is None:
-        return "-"
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        return str(value)
-    if not math.isfinite(value):
-        return "n/d" if math.isnan(value) else str(value)
-    if u is None or not (math.isfinite(u) and u > 0):
-        return _no_minus_zero(f"{value:.4g}")
-    decimals = max(0, 1 - math.floor(math.log10(u)))
-    return _no_minus_zero(f"{value:.{min(decimals, 9)}f}")
-
-
-def _no_minus_zero(text: str) -> str:
-    """"-0.00" -> "0.00": a value that rounds to zero has no sign."""
-    return text[1:] if text.startswith("-") and not text.strip("-0.") else text
-
-
-def fmt_u(u) -> str:
-    """An uncertainty to two significant digits ("n/d" when not determinable)."""
-    if u is None:
-        return "-"
-    if not math.isfinite(u):
-        return "n/d"
-    if u == 0:
-        return "0"
-    decimals = max(0, 1 - math.floor(math.log10(abs(u))))
-    return f"{u:.{min(decimals, 9)}f}"
 
 
 def tolerance_text(lower, upper, unit_name: str = "", zone=None) -> str:

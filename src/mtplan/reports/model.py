@@ -26,6 +26,7 @@ class Table:
     rows: list
     grow: int | None = None
     size: float | None = None
+    keep: bool = False  # never split over two pages (a glossary: no page of a few rows)
 
     def __post_init__(self):
         # a value that rounds to zero is printed without a sign ("-0.00" reads as negative)
@@ -74,6 +75,9 @@ class Document:
     end_mark: str = ""         # the last line of the document
     statement: str = ""        # the cover's statement (results relate only to ...)
     flow: bool = False         # body sections after the first follow without a page break
+    box: list = field(default_factory=list)  # lines boxed on page 1 (the overall result)
+    #: what the numbers can be reproduced from (the cover's closing line)
+    inputs: str = "the study file, the readings files and the random seed"
 
     @property
     def body(self) -> list:

@@ -15,7 +15,7 @@ from xml.sax.saxutils import escape
 
 from mtplan._io import atomic_write, output_problem
 from mtplan._validate import InvalidInput
-from mtplan.plans.agreement import FIT_NO_DECISION
+from mtplan.plans.agreement import FIT_NO_DECISION, LARGER_U_NO_DECISION, NO_INSTRUMENT
 from mtplan.reports.model import Document, Figure, Section, Table
 from mtplan.reports.wording import VERDICT_SHORT
 
@@ -26,9 +26,9 @@ _FONT = "DejaVuSans"
 _SIZE = 7.5  # table text [pt]
 _PAD = 3.0   # table cell padding, each side [pt]
 #: verdict -> the class (HTML) and colour (PDF) it is shown in
-VERDICT_CLASS = {"conforms": "ok", "does not conform": "bad",
-                 "inside the guard band: no decision": "warn", "not determinable": "nd",
-                 FIT_NO_DECISION: "warn",
+VERDICT_CLASS = {"pass": "ok", "fail": "bad", "conditional pass": "warn",
+                 "conditional fail": "warn", "not determinable": "nd",
+                 FIT_NO_DECISION: "warn", NO_INSTRUMENT: "nd", LARGER_U_NO_DECISION: "warn",
                  "not measured": "nd"}
 VERDICT_CLASS.update({short: VERDICT_CLASS[full] for full, short in VERDICT_SHORT.items()})
 _VERDICT_COLOUR = {"ok": "#1b5e20", "bad": "#b3261e", "warn": "#8a5a00", "nd": "#555555"}
@@ -204,7 +204,7 @@ def _table_flowables(t: Table, width: float, st: dict, row_height: float | None 
         ("TOPPADDING", (0, 0), (-1, -1), 1.5), ("BOTTOMPADDING", (0, 0), (-1, -1), 1.5),
     ]))
     head = [Paragraph(escape(t.caption), st["caption"]), tbl]
-    if len(t.rows) <= 8:  # a short table is not split from its caption or over two pages
+    if len(t.rows) <= 8 or t.keep:  # not split from its caption or over two pages
         return [KeepTogether(head), Spacer(1, 8)]
     return head + [Spacer(1, 8)]
 
@@ -269,26 +269,51 @@ def _cover_flowables(doc: Document, width: float, st: dict) -> list:
     out = [Spacer(1, 0.6 * cm), Paragraph(escape(doc.title), st["title"])]
     if doc.subtitle:
         out.append(Paragraph(escape(doc.subtitle), st["subtitle"]))
+    if doc.box:
+        out.append(_box_flowable(doc.box, width, st))
     rows = [[k, v] for k, v in doc.meta.items()]
     out += _table_flowables(Table(doc.title.split(" (")[0], ["item", "value"], rows), width, st)
+    methods = []
     if doc.methods:
-        out += _table_flowables(Table("Methods: the source method of each test and the "
-                                      "standards applied", ["test", "method", "standards"],
-                                      [list(r) for r in doc.methods]), width, st)
+        methods += _table_flowables(Table("Methods: the source method of each test and the "
+                                          "standards applied", ["test", "method", "standards"],
+                                          [list(r) for r in doc.methods]), width, st)
     if doc.standards:
-        out += _table_flowables(Table("Standards applied", ["test", "standards"],
-                                      [list(r) for r in doc.standards]), width, st)
+        methods += _table_flowables(Table("Standards applied", ["test", "standards"],
+                                          [list(r) for r in doc.standards]), width, st)
+    if not doc.box:  # a boxed result takes the room: the sign-off stays on page 1
+        out += methods
     if doc.statement:
         out.append(Paragraph(escape(doc.statement), st["body"]))
     sign = [[role, name or "", "", ""] for role, name in doc.signoff]
     out += _table_flowables(Table("Sign-off", ["", "name", "date", "signature"], sign),
                             width, st, row_height=0.9 * cm)
+    if doc.box:
+        out += methods
     out.append(Paragraph(
         f"Uncertainty evaluated after JCGM 101 (GUM Supplement 1) with mtplan "
-        f"{escape(doc.provenance['versions'].get('mtplan', ''))}; every number is traceable "
-        "to the study file, the readings files and the random seed named in the provenance.",
+        f"{escape(doc.provenance['versions'].get('mtplan', ''))}; every number can be "
+        f"reproduced from {escape(doc.inputs)} named in the provenance (a record of the "
+        "calculation, not metrological traceability, which the instruments' certificates "
+        "carry).",
         st["caption"]))
     return out
+
+
+def _box_flowable(lines, width: float, st: dict):
+    """The lines of the overall result in a framed box (page 1)."""
+    from reportlab.platypus import Paragraph
+    from reportlab.platypus import Table as RLTable
+
+    cells = [[Paragraph("<b>Overall result</b>", st["body"])]]
+    cells += [[Paragraph(f"<b>{escape(line)}</b>", st["body"])] for line in lines]
+    box = RLTable(cells, colWidths=[width])
+    box.setStyle([("FONT", (0, 0), (-1, -1), _FONT, 9),
+                  ("BOX", (0, 0), (-1, -1), 1.4, "#222222"),
+                  ("BACKGROUND", (0, 0), (-1, -1), "#f3f3f3"),
+                  ("TOPPADDING", (0, 0), (-1, -1), 2), ("BOTTOMPADDING", (0, 0), (-1, -1), 2)])
+    box.spaceAfter = 8
+    return box
 
 
 def _doc_template(buf, doc: Document):
@@ -379,7 +404,8 @@ def render_pdf(doc: Document) -> bytes:
 
     st = _styles()
     width = A4[0] - 4 * cm - 12  # the frame pads 6 pt on each side
-    story = _cover_flowables(doc, width, st) + [PageBreak()]
+    # a report flows on after its cover's methods (no half-empty page 2)
+    story = _cover_flowables(doc, width, st) + [Spacer(1, 14) if doc.flow else PageBreak()]
     toc = TableOfContents()
     toc.levelStyles = st["toc"]
     toc.tableStyle = TableStyle([("FONT", (0, 0), (-1, -1), _FONT, 9),
@@ -387,9 +413,16 @@ def render_pdf(doc: Document) -> bytes:
                                  ("RIGHTPADDING", (0, 0), (-1, -1), 0),
                                  ("LEFTPADDING", (0, 0), (-1, -1), 0)])
     body, appendix = doc.body, doc.appendix
+
+    def headed(sec) -> list:  # a heading never ends a page: it is kept with what follows
+        from reportlab.platypus import KeepTogether
+
+        blocks = _block_flowables(sec.blocks, width, st)
+        return [KeepTogether([Paragraph(escape(sec.title), st["h1"])] + blocks[:1])] + \
+            blocks[1:]
+
     for i, sec in enumerate(body):
-        story += [Paragraph(escape(sec.title), st["h1"])]
-        story += _block_flowables(sec.blocks, width, st)
+        story += headed(sec)
         if i == 0:  # the summary first, then the contents
             story += [PageBreak(), Paragraph("Contents", st["toc_head"]), toc, PageBreak()]
         elif not doc.flow or i == len(body) - 1:
@@ -397,8 +430,7 @@ def render_pdf(doc: Document) -> bytes:
         else:
             story.append(Spacer(1, 14))
     for i, sec in enumerate(appendix):
-        story += [Paragraph(escape(sec.title), st["h1"])]
-        story += _block_flowables(sec.blocks, width, st)
+        story += headed(sec)
         if i < len(appendix) - 1:
             story.append(PageBreak())
     if doc.end_mark:
@@ -465,8 +497,12 @@ def write_report(result, out_dir, plan=None, *, plan_only: bool = False,
         if problem:
             raise InvalidInput([f"The report folder cannot be written: {problem}."])
     written, deviations = {}, []
+    if not plan_only:  # a late plan is refused before anything is written
+        dated = plan if plan is not None else agreement.issue_plan(result)
+        if plan is not None or result.study.header.get("plan_date"):
+            deviations += agreement.check_dates(result.study, dated)
     if plan is None and not plan_only and n_jobs != 1:
-        return _write_both(result, out, agreement.issue_plan(result), n_jobs)
+        return _write_both(result, out, agreement.issue_plan(result), n_jobs, deviations)
     if plan is None:
         plan = agreement.issue_plan(result)
         plan_doc = build_plan(result, plan)
@@ -477,7 +513,7 @@ def write_report(result, out_dir, plan=None, *, plan_only: bool = False,
         written["pdf"], written["html"] = written["plan_pdf"], written["plan_html"]
         if plan_only:
             return written
-        deviations.append(_same_run(plan))
+        deviations.insert(0, _same_run(plan))
     deviations += agreement.apply_plan(result, plan)
     written.update(_write_doc(build_report(result, plan, deviations), out, "report"))
     written["pdf"], written["html"] = written["report_pdf"], written["report_html"]
@@ -489,18 +525,20 @@ def _same_run(plan) -> str:
             "agreed before the test.")
 
 
-def _document(result, plan, out: Path, kind: str) -> dict:
-    """Build, render and write the plan (``kind`` "plan") or the report decided with it."""
+def _document(result, plan, out: Path, kind: str, dated=()) -> dict:
+    """Build, render and write the plan (``kind`` "plan") or the report decided with it
+    (``dated``: the deviations of the plan's date, :func:`~mtplan.plans.agreement.
+    check_dates`)."""
     from mtplan.plans import agreement
     from mtplan.reports.certificate import build_plan, build_report
 
     if kind == "plan":
         return _write_doc(build_plan(result, plan), out, "plan")
-    deviations = [_same_run(plan)] + agreement.apply_plan(result, plan)
+    deviations = [_same_run(plan), *dated] + agreement.apply_plan(result, plan)
     return _write_doc(build_report(result, plan, deviations), out, "report")
 
 
-def _write_both(result, out: Path, plan: dict, n_jobs: int) -> dict:
+def _write_both(result, out: Path, plan: dict, n_jobs: int, dated=()) -> dict:
     """The plan and the report of one run, drawn on ``n_jobs`` worker processes: the whole
     report is a task (its process decides its own copy of ``result`` with the plan, as the
     serial path does after the plan was written), each test's part of the plan (its
@@ -520,7 +558,8 @@ def _write_both(result, out: Path, plan: dict, n_jobs: int) -> dict:
         json.dump(plan, fh, indent=1)
     # the pool the study ran on, when it ran here: its workers are started already
     executor = stage_executor(max(effective_jobs(n_jobs), 2))
-    report = executor.submit(_document, result, plan, out, "report")  # the longest task
+    report = executor.submit(_document, result, plan, out, "report",  # the longest task
+                             list(dated))
     if result.then is not None:  # drawn on the study's workers as each test was complete
         parts = result.then
     else:

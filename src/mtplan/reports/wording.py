@@ -6,8 +6,9 @@ from __future__ import annotations
 import math
 
 __all__ = ["METHOD_SOURCES", "method_citation", "customer_words", "measurand_name",
-           "probability_text", "rule_wording", "rules_text", "population_text", "value_warnings", "VERDICT_SHORT", "verdict_short",
-           "GLOSSARY"]
+           "probability_text", "rule_wording", "rules_text", "population_text",
+           "value_warnings", "VERDICT_SHORT", "verdict_short", "BURDEN_OF_PROOF",
+           "OVERALL_RULE", "GLOSSARY"]
 
 #: the source method of each procedure: (patent number or "", title in English)
 METHOD_SOURCES = {
@@ -95,8 +96,25 @@ def rule_wording(rule: str, guard_band: float) -> str:
            "target-pfa": f"w set for a global false-accept risk of {value}",
            "dobbert": "w from Dobbert's managed guard band"}.get(kind, kind)
     return (f"non-binary with guard band (ILAC-G8 4.2.3; {how}, U predicted): pass within "
-            "the tolerance reduced by w; fail beyond the tolerance widened by w; in between "
-            "no decision (conditional pass inside the tolerance, conditional fail outside it)")
+            "the tolerance reduced by w; fail beyond the tolerance widened by w; in the guard "
+            "band conditional pass (inside the tolerance) or conditional fail (outside it)")
+
+
+#: who carries the uncertainty (ISO 14253-1:2017 5), as both documents state it
+BURDEN_OF_PROOF = (
+    "Burden of proof (ISO 14253-1): the machine builder (supplier) proves conformity, so the "
+    "uncertainty counts against a pass: a pass needs the measured value inside the tolerance "
+    "reduced by the guard band w; the customer proves non-conformity, so a fail needs it "
+    "beyond the tolerance widened by w. In the guard band (conditional pass, conditional "
+    "fail) neither party has proved its case. With simple acceptance (w = 0) both share the "
+    "risk at the limit.")
+
+#: how the verdicts of one machine combine into its overall result, as both documents state it
+OVERALL_RULE = (
+    "Overall acceptance rule, per machine: accepted when every toleranced measurand of its "
+    "tests passes; not accepted when any fails; otherwise (a conditional pass or conditional "
+    "fail, or a measurand without a decision, and no fail) no decision, and the clause for a "
+    "conditional result applies.")
 
 
 def rules_text(verdicts) -> list:
@@ -110,9 +128,11 @@ def rules_text(verdicts) -> list:
 
 #: a verdict as a table column or a panel title shows it (the full wording stays in the
 #: CSV and the rules)
-VERDICT_SHORT = {"inside the guard band: no decision": "no decision (guard band)",
-                 "no decision: the readings do not fit the model":
-                     "no decision (readings do not fit)"}
+VERDICT_SHORT = {"no decision: the readings do not fit the model":
+                     "no decision (readings do not fit)",
+                 "no statement: an instrument was not calibrated on the test date":
+                     "no statement (instrument)",
+                 "no decision: the achieved U exceeds the agreed U": "no decision (U too large)"}
 
 
 def verdict_short(verdict: str) -> str:
@@ -128,8 +148,8 @@ def value_warnings(items, *, bound: bool = True, resolution: bool = True) -> tup
     - An interval that ends exactly at zero while the value does not: the estimator
       cannot pass that physical bound (an angle from an arccos), so the value and u are
       pushed away from it and the interval is cut by it: not a valid result.
-    - U = 2u at least the value's size: the value is not resolved (it does not differ
-      from zero).
+    - The interval [low, high] holds zero (value ± 2u where no interval is given): the
+      value is not resolved (it does not differ from zero), decided by the interval printed.
     """
     check_bound, at_bound, unresolved = bound, [], []
     for label, value, u, low, high in items:
@@ -140,7 +160,10 @@ def value_warnings(items, *, bound: bool = True, resolution: bool = True) -> tup
         if check_bound and any(end is not None and math.isfinite(end)
                                and abs(end) <= 1e-9 * scale for end in (low, high)):
             at_bound.append(label)
-        if resolution and 2 * u >= abs(value):
+        # decided by the interval printed beside it where there is one, else by value ± U
+        inside = (low <= 0 <= high if low is not None and high is not None
+                  and math.isfinite(low) and math.isfinite(high) else 2 * u >= abs(value))
+        if resolution and inside:
             unresolved.append(label)
     out = []
     if at_bound:
@@ -148,8 +171,8 @@ def value_warnings(items, *, bound: bool = True, resolution: bool = True) -> tup
                    "the estimator cannot pass: the value and u are pushed away from it and "
                    "the interval is cut by it; not a valid result.")
     if unresolved:
-        out.append(f"{', '.join(unresolved)}: U (k = 2) is at least the value's size: the "
-                   "value is not resolved (it does not differ from zero).")
+        out.append(f"{', '.join(unresolved)}: the 95 % interval includes zero: the value is "
+                   "not resolved (it does not differ from zero).")
     return out, set(at_bound) | set(unresolved)
 
 
@@ -164,16 +187,21 @@ GLOSSARY = [
     ["PFA", "probability of false accept: the global risk (JCGM 106 9.5) that an item of the "
             "stated population is accepted although it does not conform"],
     ["PFR", "probability of false reject: the global risk that an item of the stated "
-            "population is rejected although it conforms"],
+            "population that conforms gets no pass (a conditional pass, conditional fail or "
+            "fail)"],
     ["probability of conformity", "the probability that the true value lies within the "
                                   "tolerance, given the measured value and its U "
                                   "(JCGM 106 7.4); from the measurement alone unless "
                                   "stated otherwise"],
     ["population", "the distribution of the true values over the items of this kind (the "
                    "prior of the risks), with the source the study states"],
-    ["pass / fail / no decision", "ILAC-G8 4.2.3: pass (conforms) within the acceptance "
-                                  "limits, fail (does not conform) beyond the tolerance "
-                                  "widened by w, no decision in between"],
+    ["pass, conditional pass, conditional fail, fail", "the outcomes of ILAC-G8:09/2019 "
+     "4.2.3 agreed in the test plan: pass within the acceptance limits (the tolerance reduced "
+     "by w), fail beyond the tolerance widened by w; in the guard band a conditional pass "
+     "(the value inside the tolerance) or a conditional fail (outside it)"],
+    ["no decision", "this tool's words, not ILAC-G8's: no statement of conformity is made "
+                    "(the readings do not fit the model, an instrument was not valid on the "
+                    "test date, or a machine's verdicts are conditional)"],
     ["O1-O5", "observability indices of a set-up from the singular values s1 >= ... >= sL "
               "of the readings' scaled sensitivity matrix over m poses: O1 their geometric "
               "mean over the square root of m, O2 = sL/s1 (inverse condition number), O3 = sL "
