@@ -104,6 +104,7 @@ def test_a_hook_of_the_wrong_shape_is_refused_naming_it():
     from mtplan._validate import InvalidInput
 
     proc = registry()["geometry21"]
-    bad = dataclasses.replace(proc, first_order_sensitivities=lambda *a, **k: np.zeros((1, 1)))
+    bad = dataclasses.replace(proc, capabilities=dataclasses.replace(
+        proc.capabilities, first_order_sensitivities=lambda *a, **k: np.zeros((1, 1))))
     with pytest.raises(InvalidInput, match="first_order_sensitivities hook of geometry21"):
         fo.first_order(bad, proc.Setup())

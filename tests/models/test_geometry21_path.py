@@ -23,7 +23,10 @@ def test_denser_lines_do_not_raise_u_ebx():
     line_points went from 11 to 41, which the true covariance cannot do: more readings of the
     same path never lose information. In millimetres it does not grow (first order, the
     joint fit's own weights; every source)."""
-    u = {n: P.first_order_std(P.setup(line_points=n))["EBX"] for n in (11, 21, 41)}
+    from mtplan.evaluation.first_order import first_order
+
+    u = {n: first_order(P, P.setup(line_points=n), estimator="joint").u()["EBX"]
+         for n in (11, 21, 41)}
     assert u[21] <= u[11] * (1 + 1e-3) and u[41] <= u[21] * (1 + 1e-3), u
 
 

@@ -139,25 +139,36 @@ CASES = [
     ("circle_centre", {}, "tip_radius", {"radius"}),
     ("circle_centre", {"estimator": "geometric"}, "tip_radius", {"radius"}),
     # the part grows about its clamping point (the bore's centre by default); the scales
-    # read every length short about their datum, 300 mm off per axis: the radius, and the
-    # centre by the strain times its offset from the datum (micrometres)
-    ("circle_centre", {}, "part_temperature_halfwidth", {"radius", "centre_x", "centre_y"}),
+    # read every length short about their datum (the bore's centre by default: the radius
+    # only); with the datum 300 mm off per axis, the centre too, by the strain times its
+    # offset from the datum (micrometres)
+    ("circle_centre", {}, "part_temperature_halfwidth", {"radius"}),
+    # (the scales' strain moves the centre by its 2 nm of second-order alias even so)
     ("circle_centre", {}, "scale_temperature_halfwidth", {"radius", "centre_x", "centre_y"}),
-    ("circle_centre", {"estimator": "geometric"}, "part_temperature_halfwidth",
+    ("circle_centre", {"scale_datum_x_mm": -300, "scale_datum_y_mm": -300},
+     "part_temperature_halfwidth", {"radius", "centre_x", "centre_y"}),
+    ("circle_centre", {"scale_datum_x_mm": -300, "scale_datum_y_mm": -300},
+     "scale_temperature_halfwidth", {"radius", "centre_x", "centre_y"}),
+    ("circle_centre", {"estimator": "geometric", "scale_datum_x_mm": -300,
+                       "scale_datum_y_mm": -300}, "part_temperature_halfwidth",
      {"radius", "centre_x", "centre_y"}),
-    ("circle_centre", {"estimator": "geometric"}, "scale_temperature_halfwidth",
+    ("circle_centre", {"estimator": "geometric", "scale_datum_x_mm": -300,
+                       "scale_datum_y_mm": -300}, "scale_temperature_halfwidth",
      {"radius", "centre_x", "centre_y"}),
     # measured temperatures (corrected to 20 degC): the thermometers' errors and the
     # expansion coefficients' (times the 5 K the result was corrected by); the part
-    # clamped 200 mm off the bore so that its growth moves the centre as well
+    # clamped 200 mm off the bore and the scales' datum 300 mm off, so that the growths
+    # move the centre as well
     ("circle_centre", {"part_temperature_c": 25, "scale_temperature_c": 25, "clamp_x_mm": -200,
                        "clamp_y_mm": -200}, "part_temperature_u",
      {"radius", "centre_x", "centre_y"}),
-    ("circle_centre", {"part_temperature_c": 25, "scale_temperature_c": 25},
+    ("circle_centre", {"part_temperature_c": 25, "scale_temperature_c": 25,
+                       "scale_datum_x_mm": -300, "scale_datum_y_mm": -300},
      "scale_temperature_u", {"radius", "centre_x", "centre_y"}),
     ("circle_centre", {"part_temperature_c": 25, "scale_temperature_c": 25, "clamp_x_mm": -200,
                        "clamp_y_mm": -200}, "expansion_u", {"radius", "centre_x", "centre_y"}),
-    ("circle_centre", {"part_temperature_c": 25, "scale_temperature_c": 25},
+    ("circle_centre", {"part_temperature_c": 25, "scale_temperature_c": 25,
+                       "scale_datum_x_mm": -300, "scale_datum_y_mm": -300},
      "scale_expansion_u", {"radius", "centre_x", "centre_y"}),
 ]
 
