@@ -93,7 +93,10 @@ def _header(path):
 
 
 def _from_examples():
-    readings = sorted(EXAMPLES.glob("*_readings.csv"))
+    from mtplan.models import registry
+
+    readings = sorted(p for p in EXAMPLES.glob("*_readings.csv")
+                      if p.name.removesuffix("_readings.csv") in registry())
     found = []
     for path in sorted(p for p in EXAMPLES.iterdir() if p.suffix in (".toml", ".csv")):
         lines = _header(path)
@@ -142,7 +145,8 @@ def _run(argv, folder):
 
 def _serve_once(argv):
     """``explore``: the command as written plus ``--no-browser --port P`` (a free loopback
-    port) in its own process, until its page answers; then it is stopped."""
+    port) in its own process, until the page of the link it prints (with this launch's
+    token) answers; then it is stopped."""
     import socket
     import subprocess
     import sys
@@ -156,9 +160,14 @@ def _serve_once(argv):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     status, deadline = "no answer within 120 s", time.monotonic() + 120
     try:
-        while time.monotonic() < deadline and proc.poll() is None:
+        line = proc.stdout.readline()  # "mtplan explore: serving on http://...?token=... "
+        found = re.search(r"(http://127\.0\.0\.1:\d+/\?token=\S+)", line)
+        if found is None:
+            status = f"no link printed: {line.strip()!r}"
+        while found and time.monotonic() < deadline and proc.poll() is None:
             try:
-                with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=5) as page:
+                opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor())
+                with opener.open(found.group(1), timeout=5) as page:
                     status = 0 if page.status == 200 else f"HTTP {page.status}"
                     break
             except OSError:
