@@ -248,15 +248,16 @@ class TooCostly(InvalidInput):
 
 @functools.lru_cache(maxsize=64)
 def _closed_form(name: str, estimator: str) -> tuple:
-    """(path, seconds per reading) of a procedure's estimator: which path the first-order
-    service (:func:`mtplan.evaluation.first_order.first_order`) takes for it, asked once of
-    the procedure's derivative hook at the default set-up (a closed form is a property of
-    the estimator, not of the size), and, for a closed form, what the prediction and the
+    """(path, seconds per reading or None) of a procedure's estimator: which path the
+    first-order service (:func:`mtplan.evaluation.first_order.first_order`) takes for it,
+    asked once of the procedure's derivative hook at the default set-up (a closed form is a
+    property of the estimator, not of the size), and what the prediction and the
     identifiability took there per reading (their cost grows with the readings).
 
     Paths: 'sensitivities' (the procedure's closed-form sensitivities) or 'chain' (the
-    service's chain rule through forward model and estimator, timed per set-up by
-    :func:`prediction_cost`, never run here: at a large default it takes minutes)."""
+    service's chain rule through forward model and estimator; not timed, None, where its
+    estimate at the default set-up is over :data:`CHAIN_PROBE_SECONDS`: line_laser's
+    registration at the full scan takes minutes)."""
     import time
 
     from mtplan.evaluation.first_order import first_order
@@ -264,14 +265,40 @@ def _closed_form(name: str, estimator: str) -> tuple:
     proc = get(name)
     setup = proc.Setup()
     hook = proc.capabilities.first_order_sensitivities
+    path = "sensitivities"
     if hook is None or hook(setup, proc.Truth(), estimator=estimator, sources=None) is None:
-        return "chain", 0.0
+        # the chain rule at the default set-up: timed when its estimate from single runs
+        # (which overstates a batched run many times) allows, else never run here
+        path = "chain"
+        if _chain_estimate(proc, setup, estimator)["seconds"] > CHAIN_PROBE_SECONDS:
+            return path, None
     with one_blas_thread():
         t = time.perf_counter()
         first_order(proc, setup, estimator=estimator).u()
         identify(proc, setup)
         seconds = time.perf_counter() - t
-    return "sensitivities", seconds / max(_readings(name, _setup_key(setup)), 1)
+    return path, seconds / max(_readings(name, _setup_key(setup)), 1)
+
+
+#: the chain rule is timed at a procedure's default set-up when its estimate from single
+#: runs is at most this [s]
+CHAIN_PROBE_SECONDS = 60.0
+
+
+def _chain_estimate(proc, setup, estimator: str) -> dict:
+    """Memory [bytes] and time [s] of the chain rule from the set-up's size and the time of
+    single runs: up to ``WHOLE_MAX`` elements the whole chain, 4 n + 1 runs of forward model
+    and estimator; above, the readings' effect of every element (8 r n bytes, twice in
+    flight) and the estimator's map, 2 r + 1 runs of the estimator."""
+    from mtplan.evaluation.first_order import WHOLE_MAX
+
+    n = int(sum(src.size for src in proc.active_sources(setup).values()))
+    m = len(proc.measurands(setup))
+    r = _readings(proc.name, _setup_key(setup))
+    runs = 4 * n + 1 if n <= WHOLE_MAX else 2 * r + 1
+    memory = 8.0 * runs * (r + m) if n <= WHOLE_MAX else 16.0 * r * n
+    seconds = runs * trial_seconds(proc, setup, estimator) if memory <= LIVE_MEMORY else 0.0
+    return {"bytes": memory, "seconds": seconds}
 
 
 def prediction_cost(proc, setup, estimator: str) -> dict:
@@ -281,13 +308,9 @@ def prediction_cost(proc, setup, estimator: str) -> dict:
 
     - 'sensitivities': the closed form (the procedure's linear maps: the m x n sensitivities
       and r x m maps), its time per reading learnt at the default set-up;
-    - 'chain' with up to ``WHOLE_MAX`` elements: the whole chain differentiated at once,
-      4 n + 1 runs of forward model and estimator;
-    - 'chain' above: the readings' effect of every element, 8 r n bytes (twice, in flight),
-      and the estimator's map, 2 r + 1 runs of the estimator.
+    - 'chain': :func:`_chain_estimate`'s memory, and its time per reading learnt at the
+      default set-up where that was timed (else the estimate from single runs).
     """
-    from mtplan.evaluation.first_order import WHOLE_MAX
-
     n = int(sum(src.size for src in proc.active_sources(setup).values()))
     m = len(proc.measurands(setup))
     r = _readings(proc.name, _setup_key(setup))
@@ -295,10 +318,10 @@ def prediction_cost(proc, setup, estimator: str) -> dict:
     if path == "sensitivities":
         return {"path": path, "inputs": n, "readings": r, "seconds": per_reading * r,
                 "bytes": 8.0 * (m + r) * m + 8.0 * m * n}
-    runs = 4 * n + 1 if n <= WHOLE_MAX else 2 * r + 1
-    memory = 8.0 * runs * (r + m) if n <= WHOLE_MAX else 16.0 * r * n
-    seconds = runs * trial_seconds(proc, setup, estimator) if memory <= LIVE_MEMORY else 0.0
-    return {"path": path, "inputs": n, "readings": r, "bytes": memory, "seconds": seconds}
+    chain = _chain_estimate(proc, setup, estimator)
+    seconds = chain["seconds"] if per_reading is None else per_reading * r
+    return {"path": path, "inputs": n, "readings": r, "bytes": chain["bytes"],
+            "seconds": seconds}
 
 
 @functools.lru_cache(maxsize=256)
