@@ -92,7 +92,7 @@ def adjusted(tmp_path_factory):
                  "sensor_reversal=true", "--truth",
                  "EX0C_um=2", "--trials", "1", "--seed", "12", "--readings-out",
                  str(folder / "left.csv")]) == 0
-    study = _study(folder, ROTARY.format(found=(EXAMPLES / "rotary_axis_readings.csv")
+    study = _study(folder, ROTARY.format(found=(EXAMPLES / "demo_rotary_axis_reversed.csv")
                                          .as_posix(), as_left=AS_LEFT))
     return _decided(study)
 
@@ -115,7 +115,7 @@ def test_as_left_decides_the_overall_result(adjusted):
 def test_without_as_left_the_result_stays_not_accepted(tmp_path):
     from mtplan.reports.certificate import overall_result
 
-    study = _study(tmp_path, ROTARY.format(found=(EXAMPLES / "rotary_axis_readings.csv")
+    study = _study(tmp_path, ROTARY.format(found=(EXAMPLES / "demo_rotary_axis_reversed.csv")
                                            .as_posix(), as_left=""))
     result, _ = _decided(study)
     assert not result.outcomes[0].as_left_verdicts
@@ -144,7 +144,7 @@ def test_certificate_shows_as_found_and_as_left_side_by_side(adjusted):
 
 
 def test_as_left_is_validated(tmp_path):
-    found = (EXAMPLES / "rotary_axis_readings.csv").as_posix()
+    found = (EXAMPLES / "demo_rotary_axis_reversed.csv").as_posix()
     bad = ROTARY.format(found=found, as_left='  [procedure.as_left]\n  file = "nope.csv"\n'
                         '  when = "later"\n')
     with pytest.raises(InvalidInput) as exc:
@@ -155,7 +155,7 @@ def test_as_left_is_validated(tmp_path):
     no_readings = ROTARY.format(found=found, as_left=AS_LEFT).replace(
         f'  [procedure.readings]\n  file = "{found}"\n  uncertainty = "mc"\n  trials = 300\n',
         "")
-    (tmp_path / "left.csv").write_text((EXAMPLES / "rotary_axis_readings.csv").read_text())
+    (tmp_path / "left.csv").write_text((EXAMPLES / "demo_rotary_axis_reversed.csv").read_text())
     with pytest.raises(InvalidInput, match=r"'as_left' needs the readings as found"):
         _study(tmp_path, no_readings)
 

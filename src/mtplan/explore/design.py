@@ -248,11 +248,12 @@ class TooCostly(InvalidInput):
 
 @functools.lru_cache(maxsize=64)
 def _closed_form(name: str, estimator: str) -> tuple:
-    """(path, seconds per reading or None) of a procedure's estimator: which path the
+    """(path, factor or None) of a procedure's estimator: which path the
     first-order service (:func:`mtplan.evaluation.first_order.first_order`) takes for it,
     asked once of the procedure's derivative hook at the default set-up (a closed form is a
     property of the estimator, not of the size), and what the prediction and the
-    identifiability took there per reading (their cost grows with the readings).
+    identifiability took there: per reading for a closed form (its cost grows with the
+    readings), over :func:`_chain_estimate`'s estimate for the chain rule.
 
     Paths: 'sensitivities' (the procedure's closed-form sensitivities) or 'chain' (the
     service's chain rule through forward model and estimator; not timed, None, where its
@@ -270,13 +271,16 @@ def _closed_form(name: str, estimator: str) -> tuple:
         # the chain rule at the default set-up: timed when its estimate from single runs
         # (which overstates a batched run many times) allows, else never run here
         path = "chain"
-        if _chain_estimate(proc, setup, estimator)["seconds"] > CHAIN_PROBE_SECONDS:
+        estimate = _chain_estimate(proc, setup, estimator)["seconds"]
+        if estimate > CHAIN_PROBE_SECONDS:
             return path, None
     with one_blas_thread():
         t = time.perf_counter()
         first_order(proc, setup, estimator=estimator).u()
         identify(proc, setup)
         seconds = time.perf_counter() - t
+    if path == "chain":  # the measured time over the estimate: scales the estimate elsewhere
+        return path, seconds / max(estimate, 1e-9)
     return path, seconds / max(_readings(name, _setup_key(setup)), 1)
 
 
@@ -308,8 +312,9 @@ def prediction_cost(proc, setup, estimator: str) -> dict:
 
     - 'sensitivities': the closed form (the procedure's linear maps: the m x n sensitivities
       and r x m maps), its time per reading learnt at the default set-up;
-    - 'chain': :func:`_chain_estimate`'s memory, and its time per reading learnt at the
-      default set-up where that was timed (else the estimate from single runs).
+    - 'chain': :func:`_chain_estimate`'s memory and time, the time scaled by what the
+      chain rule took at the default set-up over that estimate there, where it was timed
+      (never below 1/20 of the estimate).
     """
     n = int(sum(src.size for src in proc.active_sources(setup).values()))
     m = len(proc.measurands(setup))
@@ -318,8 +323,8 @@ def prediction_cost(proc, setup, estimator: str) -> dict:
     if path == "sensitivities":
         return {"path": path, "inputs": n, "readings": r, "seconds": per_reading * r,
                 "bytes": 8.0 * (m + r) * m + 8.0 * m * n}
-    chain = _chain_estimate(proc, setup, estimator)
-    seconds = chain["seconds"] if per_reading is None else per_reading * r
+    chain = _chain_estimate(proc, setup, estimator)  # its growth with n and r, not linear
+    seconds = chain["seconds"] * (1.0 if per_reading is None else max(per_reading, 0.05))
     return {"path": path, "inputs": n, "readings": r, "bytes": chain["bytes"],
             "seconds": seconds}
 
