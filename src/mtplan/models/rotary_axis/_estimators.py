@@ -202,16 +202,16 @@ def _joint_fit(setup: Setup, coef: np.ndarray, *, max_iter: int = 30, rtol: floa
     standard uncertainty for readings of unit variance (1e-9 of it: 1e-6 of the
     uncertainty at 1 um noise), plus 1e-14 [mm, rad] for round-off.
 
-    `weights` (P, 3, 3) weight each position's plane coefficients (default: the lattice's
-    normal matrix, i.e. independent reading noise of equal variance).
+    `weights` (3P, 3P) weight all plane coefficients (default: each position's lattice
+    normal matrix on the block diagonal, i.e. independent reading noise of equal variance).
 
     Returns
     -------
     par : array (n, 6), phi : array (n, P), station : array (n,), converged : bool array (n,)
     """
     g = _plan(setup)
-    W = np.broadcast_to(g.gram, (g.theta.size, 3, 3)) if weights is None else weights
-    w_full = _block_weight(W)
+    w_full = (_block_weight(np.broadcast_to(g.gram, (g.theta.size, 3, 3))) if weights is None
+              else weights)
     par, phi, station = _joint_start(setup, coef)
     n, P = phi.shape
     done = np.zeros(n, dtype=bool)
@@ -278,14 +278,33 @@ def _joint_measurands(setup: Setup, par, phi, station, ok) -> dict[str, np.ndarr
             a1: -par[:, 3], a2: par[:, 2]}
 
 
+#: a source whose effect on the plane coefficients lies in the span of the tied fit's
+#: Jacobian to within this share of its size is taken up by the fit's parameters (the
+#: artifact's pose and height, the spot's offset, the sensor's zero and scale: their
+#: secants leave that span by 1e-12-4e-4; the nearest source that does not, flatness,
+#: by 9e-3)
+_ABSORBED = 1e-3
+
+
 @functools.lru_cache(maxsize=16)
 def _gls_weights(setup: Setup) -> np.ndarray:
-    """Inverse covariance (P, 3, 3) of each position's plane coefficients under every active
-    error source of the set-up (:func:`mtplan.fitting.source_effects` through forward model
-    and plane fit, at the default truth; exact, since both stages are linear in the errors)."""
-    # the per-position sources only: a per-test error (flatness, scale, drift, the
-    # artifact's pose) is shared by every position, which a block-diagonal weight cannot
-    # say (the artifact's pose is taken up exactly by the fit's free cone and pierce point)
+    """Inverse covariance (3P, 3P) of all plane coefficients under the set-up's active error
+    sources (:func:`mtplan.fitting.source_effects` through forward model and plane fit, at
+    the default truth; exact where both stages are linear in the errors).
+
+    The whole covariance, not only each position's block: the errors shared between
+    positions (the sensor's angle influence, which on an A axis grows with each position's
+    tilt; flatness, the slides' slope and bow, drift) correlate the positions, and a
+    weight that leaves that out cannot tell their pattern from a shift of the axis, so
+    the estimate is honest but not efficient (A: u(EZ0A) 43.9 um block-diagonal, 13.0 um
+    with the whole covariance, the posterior's 12.9).
+
+    A source whose effect lies in the span of the fit's Jacobian (:data:`_ABSORBED`) is
+    left out: for a linear model, covariance ``X S X^T`` added to the readings' does not
+    move the generalised least-squares estimate, and its directions, weighted almost to
+    zero, would leave Gauss-Newton a large residual there (the artifact's 5 mrad tilt),
+    on which it does not converge.
+    """
     src, truth = sources(setup), Truth()
 
     def planes_of(errors):
@@ -294,15 +313,38 @@ def _gls_weights(setup: Setup) -> np.ndarray:
 
     model = SourceModel(NAME, src, planes_of,
                         lambda m: {k: np.zeros((m, *v.shape)) for k, v in src.items()})
-    D, U = source_effects(model, [k for k, v in src.items() if v.active and k in _POSITION_AXIS])
-    P = _plan(setup).theta.size
-    cov = (np.diag(D) + U @ U.T).reshape(P, 3, P, 3)
-    blocks = np.stack([cov[p, :, p, :] for p in range(P)])  # (P, 3, 3)
-    weights = np.linalg.inv(blocks)
+    basis = _fit_span(setup, planes_of(model.errors(1)).reshape(1, -1, 3))
+    D, cols = np.zeros(basis.shape[0]), []
+    for name in (k for k, v in src.items() if v.active):
+        d, u = source_effects(model, [name])
+        size = np.linalg.norm(u, axis=0).max(initial=0.0)
+        if not np.any(d) and (size == 0 or np.linalg.norm(
+                u - basis @ (basis.T @ u), axis=0).max() <= _ABSORBED * size):
+            continue
+        D, cols = D + d, cols + [u]
+    U = np.hstack(cols) if cols else np.zeros((D.size, 0))
+    weight = np.linalg.inv(np.diag(D) + U @ U.T)
+    weight = 0.5 * (weight + weight.T)
     # a common factor does not move the minimum; scaling to the noise-only weights keeps
     # the fit's convergence test (relative to unit-variance uncertainties) meaningful
     gram = _plan(setup).gram
-    return weights * (P * np.trace(gram) / np.trace(weights, axis1=1, axis2=2).sum())
+    return weight * (weight.shape[0] // 3 * np.trace(gram) / np.trace(weight))
+
+
+def _fit_span(setup: Setup, coef: np.ndarray) -> np.ndarray:
+    """Orthonormal basis (3P, 7) of the span of the tied fit's Jacobian at the plane
+    coefficients `coef` (1, P, 3) of noise-free readings (a subspace of the joint fit's,
+    whose azimuths are free)."""
+    par6, phi, station = _joint_start(setup, coef)
+    d = phi - _plan(setup).theta
+    par = np.column_stack([par6, np.arctan2(np.sin(d).mean(axis=1), np.cos(d).mean(axis=1))])
+    jac = np.empty((coef[0].size, _ANGLES_STEPS.size))
+    for j, step in enumerate(_ANGLES_STEPS):
+        dp = np.zeros(_ANGLES_STEPS.size)
+        dp[j] = step
+        jac[:, j] = ((_angles_model(setup, par + dp, station)
+                      - _angles_model(setup, par - dp, station)) / (2 * step)).ravel()
+    return np.linalg.qr(jac)[0]
 
 
 def estimate_gls(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
@@ -352,7 +394,6 @@ def _angles_fit(setup: Setup, coef: np.ndarray, weights: np.ndarray, *, max_iter
     d = phi - theta
     par = np.column_stack([par6, np.arctan2(np.sin(d).mean(axis=1), np.cos(d).mean(axis=1))])
     done = np.zeros(len(par), dtype=bool)
-    w_full = _block_weight(weights)
     for _ in range(max_iter):
         todo = np.flatnonzero(~done)
         if todo.size == 0:
@@ -367,7 +408,7 @@ def _angles_fit(setup: Setup, coef: np.ndarray, weights: np.ndarray, *, max_iter
                            - _angles_model(setup, pa - d, st)) / (2 * step)
         k = len(todo)
         step, a_inv = gls_step(jac.reshape(k, -1, _ANGLES_STEPS.size), r.reshape(k, -1),
-                               weight=w_full)
+                               weight=weights)
         par[todo] = pa + step
         small = np.all(np.abs(step) <= rtol * np.sqrt(np.abs(np.diagonal(a_inv, axis1=1, axis2=2)))
                        + 1e-14, axis=1)
