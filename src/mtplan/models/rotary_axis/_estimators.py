@@ -196,7 +196,7 @@ def _block_weight(weights: np.ndarray) -> np.ndarray:
 def _joint_fit(setup: Setup, coef: np.ndarray, *, max_iter: int = 30, rtol: float = 1e-9,
                weights: np.ndarray | None = None):
     """Gauss-Newton on the batch over the six line parameters and every position's azimuth
-    (:func:`mtplan.fitting.gls_step`, the positions' weights on the block diagonal).
+    (:func:`mtplan.fitting.gls_step`).
 
     A trial has converged when every step is below `rtol` times the parameter's
     standard uncertainty for readings of unit variance (1e-9 of it: 1e-6 of the
@@ -350,14 +350,13 @@ def _fit_span(setup: Setup, coef: np.ndarray) -> np.ndarray:
 def estimate_gls(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
     """The joint fit weighted by the set-up's whole error budget (generalised least squares).
 
-    Like :func:`estimate_joint`, but each position's plane coefficients are weighted by the
-    inverse of their covariance under every active per-position error source (reading
-    noise, X/Y/Z positioning, error motions, angular positioning), computed once per
-    set-up by the law of propagation. The joint fit's own weighting assumes independent
+    Like :func:`estimate_joint`, but all plane coefficients are weighted by the inverse of
+    their covariance under the set-up's active error sources, between positions too
+    (:func:`_gls_weights`), computed once per set-up by the law of propagation: one
+    (3P, 3P) matrix for every trial. The joint fit's own weighting assumes independent
     reading noise only, which makes it worse than the patent's method when the per-position
-    errors dominate; the weighting restores the balance. Correlations between positions
-    (flatness, scale, drift, the artifact's pose) are left out of the weight
-    (block-diagonal).
+    errors dominate, and no weight that leaves the positions' correlations out can tell
+    the angle influence's pattern over an A arc from a shift of the axis.
     """
     return _each_axis(setup, readings, _gls_axis)
 
@@ -380,7 +379,8 @@ def _angles_model(setup: Setup, par: np.ndarray, station: np.ndarray) -> np.ndar
 def _angles_fit(setup: Setup, coef: np.ndarray, weights: np.ndarray, *, max_iter: int = 30,
                 rtol: float = 1e-9):
     """Gauss-Newton on the batch for the seven parameters of the tied fit (7 x 7 per trial,
-    :func:`mtplan.fitting.gls_step` with the positions' weights on the block diagonal).
+    :func:`mtplan.fitting.gls_step` with the weight `weights` (3P, 3P) of all plane
+    coefficients).
 
     Started from the patent's line, with phi0 the circular mean of the planes' azimuths
     less their commanded angles; converged as :func:`_joint_fit`.
@@ -422,8 +422,8 @@ def estimate_angles(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
     Like :func:`estimate_gls`, but the azimuth of position p's plane normal about the
     axis is ``phi0 + theta_p``: ``theta_p`` the commanded angle (the rotary encoder's),
     ``phi0`` one free common zero. The angular positioning error moves each azimuth off
-    ``phi0 + theta_p``; it enters the weight (each position's plane-coefficient
-    covariance, with the other per-position sources). Seven parameters per axis in
+    ``phi0 + theta_p``; it enters the weight (the plane coefficients' covariance, with
+    the other sources). Seven parameters per axis in
     place of 6 + positions: the direction of the axis is better determined, as long as
     the encoder is as good as ``angular_positioning_arcsec`` says (see the module
     docstring for the figures and the price). Arguments and result as
