@@ -10,9 +10,10 @@ from mtplan._validate import InvalidInput
 from mtplan.fitting import SourceModel, gls_step, source_effects
 from mtplan.models.rotary_axis import (
     _NAMES,
-    _POSITION_AXIS,
     NAME,
+    _combined,
     _each_axis,
+    _parts,
     _plan,
     forward,
     Setup,
@@ -332,19 +333,16 @@ def _gls_weights(setup: Setup) -> np.ndarray:
 
 
 def _fit_span(setup: Setup, coef: np.ndarray) -> np.ndarray:
-    """Orthonormal basis (3P, 7) of the span of the tied fit's Jacobian at the plane
+    """Orthonormal basis (3P, 7 x axes) of the span of the tied fit's Jacobian at the plane
     coefficients `coef` (1, P, 3) of noise-free readings (a subspace of the joint fit's,
     whose azimuths are free)."""
-    par6, phi, station = _joint_start(setup, coef)
-    d = phi - _plan(setup).theta
-    par = np.column_stack([par6, np.arctan2(np.sin(d).mean(axis=1), np.cos(d).mean(axis=1))])
-    jac = np.empty((coef[0].size, _ANGLES_STEPS.size))
-    for j, step in enumerate(_ANGLES_STEPS):
-        dp = np.zeros(_ANGLES_STEPS.size)
-        dp[j] = step
-        jac[:, j] = ((_angles_model(setup, par + dp, station)
-                      - _angles_model(setup, par - dp, station)) / (2 * step)).ravel()
-    return np.linalg.qr(jac)[0]
+    jac = np.zeros((*coef.shape[1:], 0))
+    for part, sl in _parts(setup):
+        par, station = _angles_start(part, coef[:, sl])
+        block = np.zeros((*coef.shape[1:], _ANGLES_STEPS.size))
+        block[sl] = _angles_jacobian(part, par, station)[0]
+        jac = np.concatenate([jac, block], axis=-1)
+    return np.linalg.qr(jac.reshape(coef[0].size, -1))[0]
 
 
 def estimate_gls(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
@@ -376,44 +374,64 @@ def _angles_model(setup: Setup, par: np.ndarray, station: np.ndarray) -> np.ndar
     return _joint_model(setup, par[:, :6], par[:, 6:7] + _plan(setup).theta, station)
 
 
+def _angles_start(setup: Setup, coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start of the tied fit of one axis from the patent's line, phi0 the circular mean of
+    the planes' azimuths less their commanded angles: par (n, 7), station (n,)."""
+    par6, phi, station = _joint_start(setup, coef)
+    d = phi - _plan(setup).theta
+    phi0 = np.arctan2(np.sin(d).mean(axis=1), np.cos(d).mean(axis=1))
+    return np.column_stack([par6, phi0]), station
+
+
+def _angles_jacobian(setup: Setup, par: np.ndarray, station: np.ndarray) -> np.ndarray:
+    """Central-difference Jacobian (n, P, 3, 7) of one axis's plane coefficients."""
+    jac = np.empty((len(par), _plan(setup).theta.size, 3, _ANGLES_STEPS.size))
+    for j, step in enumerate(_ANGLES_STEPS):
+        d = np.zeros(_ANGLES_STEPS.size)
+        d[j] = step
+        jac[..., j] = (_angles_model(setup, par + d, station)
+                       - _angles_model(setup, par - d, station)) / (2 * step)
+    return jac
+
+
 def _angles_fit(setup: Setup, coef: np.ndarray, weights: np.ndarray, *, max_iter: int = 30,
                 rtol: float = 1e-9):
-    """Gauss-Newton on the batch for the seven parameters of the tied fit (7 x 7 per trial,
-    :func:`mtplan.fitting.gls_step` with the weight `weights` (3P, 3P) of all plane
-    coefficients).
+    """Gauss-Newton on the batch for the seven parameters of the tied fit of every axis of
+    the test (7 x 7 per trial and axis, one system for the whole test with the weight
+    `weights` (3P, 3P) of all plane coefficients, :func:`mtplan.fitting.gls_step`): on a CA
+    test the two axes are fitted at once, so that the errors both parts share (the angle
+    influence, the slides' slope and bow, the sensor's zero) weigh in both.
 
-    Started from the patent's line, with phi0 the circular mean of the planes' azimuths
-    less their commanded angles; converged as :func:`_joint_fit`.
+    Each axis started by :func:`_angles_start`; converged as :func:`_joint_fit`.
 
     Returns
     -------
-    par : array (n, 7), station : array (n,), converged : bool array (n,)
+    list of (part, par (n, 7), station (n,)) per axis; converged : bool array (n,)
     """
-    theta = _plan(setup).theta
-    par6, phi, station = _joint_start(setup, coef)
-    d = phi - theta
-    par = np.column_stack([par6, np.arctan2(np.sin(d).mean(axis=1), np.cos(d).mean(axis=1))])
+    parts = _parts(setup)
+    k7 = _ANGLES_STEPS.size
+    starts = [_angles_start(part, coef[:, sl]) for part, sl in parts]
+    par = np.hstack([p for p, _ in starts])  # (n, 7 x axes)
     done = np.zeros(len(par), dtype=bool)
     for _ in range(max_iter):
         todo = np.flatnonzero(~done)
         if todo.size == 0:
             break
-        pa, st = par[todo], station[todo]
-        r = coef[todo] - _angles_model(setup, pa, st)  # (k, P, 3)
-        jac = np.empty((*r.shape, _ANGLES_STEPS.size))
-        for j, step in enumerate(_ANGLES_STEPS):
-            d = np.zeros(_ANGLES_STEPS.size)
-            d[j] = step
-            jac[..., j] = (_angles_model(setup, pa + d, st)
-                           - _angles_model(setup, pa - d, st)) / (2 * step)
         k = len(todo)
-        step, a_inv = gls_step(jac.reshape(k, -1, _ANGLES_STEPS.size), r.reshape(k, -1),
+        r = np.empty((k, *coef.shape[1:]))
+        jac = np.zeros((k, *coef.shape[1:], par.shape[1]))  # axis i moves its planes only
+        for i, (part, sl) in enumerate(parts):
+            pa, st = par[todo, k7 * i:k7 * (i + 1)], starts[i][1][todo]
+            r[:, sl] = coef[todo, sl] - _angles_model(part, pa, st)
+            jac[:, sl, :, k7 * i:k7 * (i + 1)] = _angles_jacobian(part, pa, st)
+        step, a_inv = gls_step(jac.reshape(k, -1, par.shape[1]), r.reshape(k, -1),
                                weight=weights)
-        par[todo] = pa + step
+        par[todo] += step
         small = np.all(np.abs(step) <= rtol * np.sqrt(np.abs(np.diagonal(a_inv, axis1=1, axis2=2)))
                        + 1e-14, axis=1)
         done[todo[small]] = True
-    return par, station, done
+    return [(part, par[:, k7 * i:k7 * (i + 1)], starts[i][1])
+            for i, (part, _) in enumerate(parts)], done
 
 
 def estimate_angles(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
@@ -429,9 +447,11 @@ def estimate_angles(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
     docstring for the figures and the price). Arguments and result as
     :func:`estimate_joint` (NaN where the iteration did not converge).
     """
-    return _each_axis(setup, readings, _angles_axis)
-
-
-def _angles_axis(setup: Setup, z: np.ndarray) -> dict[str, np.ndarray]:
-    par, station, ok = _angles_fit(setup, _planes(setup, z), _gls_weights(setup))
-    return _joint_measurands(setup, par[:, :6], None, station, ok)
+    z = _check_readings(setup, readings)
+    fits, ok = _angles_fit(setup, _planes(setup, z), _gls_weights(setup))
+    out = {}
+    for part, par, station in fits:
+        out.update(_joint_measurands(part, par[:, :6], None, station, ok))
+    if setup.axis == "CA":
+        out.update(_combined(setup, out))
+    return out
