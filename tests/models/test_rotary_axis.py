@@ -314,7 +314,9 @@ def test_drift_runs_over_the_whole_time_line():
 def test_combined_test_is_the_c_test_then_the_a_test():
     # with every source but the drift (which depends on the time line), the CA readings
     # are the C test's and the A test's with the errors of their positions; so are the
-    # eight location errors estimated from them
+    # eight location errors estimated from them by every estimator but `angles`, which
+    # fits both axes at once, weighted with the errors the parts share (the sensor's angle
+    # influence, the slides' slope and bow: test_angles_fits_both_axes_of_ca_at_once)
     setup = PROC.setup(axis="CA", thermal_drift_um_per_s=0.0)
     n, nc = 20, len(setup.axis_angles("C"))
     errors = PROC.draw_errors(setup, n, np.random.SeedSequence(8))
@@ -327,11 +329,37 @@ def test_combined_test_is_the_c_test_then_the_a_test():
                     else v) for k, v in errors.items()}
         z_single = PROC.forward(single, PROC.Truth(), part)["z_mm"]
         np.testing.assert_array_equal(z[:, sl], z_single)
-        for est in PROC.estimators:
+        for est in (e for e in PROC.estimators if e != "angles"):
             both = PROC.estimate(setup, {"z_mm": z}, est)
             alone = PROC.estimate(single, {"z_mm": z_single}, est)
             for name in alone:
                 np.testing.assert_allclose(both[name], alone[name], rtol=0, atol=1e-12)
+
+
+def test_angles_fits_both_axes_of_ca_at_once():
+    # the shared errors inform both parts: the CA fit's u of the A axis's position is below
+    # the A test's alone (GUM: EZ0A 11.0 against 13.0 um), and with only per-position
+    # errors (no shared ones) the CA fit is the two single-axis fits
+    from mtplan.evaluation.simulation import linearize_result
+
+    def u(setup, name):
+        r = linearize_result(PROC, setup, estimator="angles")
+        return float(r.u[[m.name for m in r.measurands].index(name)])
+
+    assert u(PROC.setup(axis="CA"), "EZ0A") < 0.9 * u(PROC.setup(axis="A"), "EZ0A")
+    shared = dict(thermal_drift_um_per_s=0.0, flatness_um=0.0, sensor_scale_ppm=0.0,
+                  spot_offset_u_um=0.0, sensor_zero_u_um=0.0, xy_slope_halfwidth_urad=0.0,
+                  xy_straightness_halfwidth_um=0.0, angle_influence_halfwidth_ppm=0.0,
+                  angular_positioning_arcsec=0.0, sensor_linearity_halfwidth_ppm=0.0,
+                  reversal_halfwidth_arcsec=0.0)
+    setup = PROC.setup(axis="CA", **shared)
+    nc = len(setup.axis_angles("C"))
+    z = PROC.simulate(setup, PROC.Truth(), 20, rng=8)["z_mm"]
+    both = PROC.estimate(setup, {"z_mm": z}, "angles")
+    for axis, sl in (("C", slice(0, nc)), ("A", slice(nc, None))):
+        alone = PROC.estimate(PROC.setup(axis=axis, **shared), {"z_mm": z[:, sl]}, "angles")
+        for name in alone:
+            np.testing.assert_allclose(both[name], alone[name], rtol=0, atol=1e-9)
 
 
 def test_combined_measurands_by_an_independent_route():

@@ -168,10 +168,11 @@ a 6 x 6 system per trial; Jacobian by central differences). It is the maximum-li
 estimate for independent Gaussian reading errors. With 3 positions both estimators are
 the exact solution of the same equations and coincide.
 
-``gls``: the same fit with each position's plane coefficients weighted by the inverse of
-their covariance under every active error source of the set-up (computed once per set-up
-by the law of propagation through forward model and plane fit; block-diagonal, so the
-errors shared between positions, flatness, scale and drift, are left out of the weight).
+``gls``: the same fit with all plane coefficients weighted by the inverse of their
+covariance under every active error source of the set-up (computed once per set-up by the
+law of propagation through forward model and plane fit; the whole covariance, between
+positions too, but for the sources the fit's parameters take up: see ``_gls_weights``).
+The figures below are those of the block-diagonal weight of earlier versions.
 
 What the Monte Carlo shows (4000 trials, default sizes; benchmarks and the tests hold
 the figures): for the C axis the patent method is efficient, its standard deviations

@@ -10,9 +10,10 @@ from mtplan._validate import InvalidInput
 from mtplan.fitting import SourceModel, gls_step, source_effects
 from mtplan.models.rotary_axis import (
     _NAMES,
-    _POSITION_AXIS,
     NAME,
+    _combined,
     _each_axis,
+    _parts,
     _plan,
     forward,
     Setup,
@@ -196,22 +197,22 @@ def _block_weight(weights: np.ndarray) -> np.ndarray:
 def _joint_fit(setup: Setup, coef: np.ndarray, *, max_iter: int = 30, rtol: float = 1e-9,
                weights: np.ndarray | None = None):
     """Gauss-Newton on the batch over the six line parameters and every position's azimuth
-    (:func:`mtplan.fitting.gls_step`, the positions' weights on the block diagonal).
+    (:func:`mtplan.fitting.gls_step`).
 
     A trial has converged when every step is below `rtol` times the parameter's
     standard uncertainty for readings of unit variance (1e-9 of it: 1e-6 of the
     uncertainty at 1 um noise), plus 1e-14 [mm, rad] for round-off.
 
-    `weights` (P, 3, 3) weight each position's plane coefficients (default: the lattice's
-    normal matrix, i.e. independent reading noise of equal variance).
+    `weights` (3P, 3P) weight all plane coefficients (default: each position's lattice
+    normal matrix on the block diagonal, i.e. independent reading noise of equal variance).
 
     Returns
     -------
     par : array (n, 6), phi : array (n, P), station : array (n,), converged : bool array (n,)
     """
     g = _plan(setup)
-    W = np.broadcast_to(g.gram, (g.theta.size, 3, 3)) if weights is None else weights
-    w_full = _block_weight(W)
+    w_full = (_block_weight(np.broadcast_to(g.gram, (g.theta.size, 3, 3))) if weights is None
+              else weights)
     par, phi, station = _joint_start(setup, coef)
     n, P = phi.shape
     done = np.zeros(n, dtype=bool)
@@ -278,14 +279,33 @@ def _joint_measurands(setup: Setup, par, phi, station, ok) -> dict[str, np.ndarr
             a1: -par[:, 3], a2: par[:, 2]}
 
 
+#: a source whose effect on the plane coefficients lies in the span of the tied fit's
+#: Jacobian to within this share of its size is taken up by the fit's parameters (the
+#: artifact's pose and height, the spot's offset, the sensor's zero and scale: their
+#: secants leave that span by 1e-12-4e-4; the nearest source that does not, flatness,
+#: by 9e-3)
+_ABSORBED = 1e-3
+
+
 @functools.lru_cache(maxsize=16)
 def _gls_weights(setup: Setup) -> np.ndarray:
-    """Inverse covariance (P, 3, 3) of each position's plane coefficients under every active
-    error source of the set-up (:func:`mtplan.fitting.source_effects` through forward model
-    and plane fit, at the default truth; exact, since both stages are linear in the errors)."""
-    # the per-position sources only: a per-test error (flatness, scale, drift, the
-    # artifact's pose) is shared by every position, which a block-diagonal weight cannot
-    # say (the artifact's pose is taken up exactly by the fit's free cone and pierce point)
+    """Inverse covariance (3P, 3P) of all plane coefficients under the set-up's active error
+    sources (:func:`mtplan.fitting.source_effects` through forward model and plane fit, at
+    the default truth; exact where both stages are linear in the errors).
+
+    The whole covariance, not only each position's block: the errors shared between
+    positions (the sensor's angle influence, which on an A axis grows with each position's
+    tilt; flatness, the slides' slope and bow, drift) correlate the positions, and a
+    weight that leaves that out cannot tell their pattern from a shift of the axis, so
+    the estimate is honest but not efficient (A: u(EZ0A) 43.9 um block-diagonal, 13.0 um
+    with the whole covariance, the posterior's 12.9).
+
+    A source whose effect lies in the span of the fit's Jacobian (:data:`_ABSORBED`) is
+    left out: for a linear model, covariance ``X S X^T`` added to the readings' does not
+    move the generalised least-squares estimate, and its directions, weighted almost to
+    zero, would leave Gauss-Newton a large residual there (the artifact's 5 mrad tilt),
+    on which it does not converge.
+    """
     src, truth = sources(setup), Truth()
 
     def planes_of(errors):
@@ -294,28 +314,47 @@ def _gls_weights(setup: Setup) -> np.ndarray:
 
     model = SourceModel(NAME, src, planes_of,
                         lambda m: {k: np.zeros((m, *v.shape)) for k, v in src.items()})
-    D, U = source_effects(model, [k for k, v in src.items() if v.active and k in _POSITION_AXIS])
-    P = _plan(setup).theta.size
-    cov = (np.diag(D) + U @ U.T).reshape(P, 3, P, 3)
-    blocks = np.stack([cov[p, :, p, :] for p in range(P)])  # (P, 3, 3)
-    weights = np.linalg.inv(blocks)
+    basis = _fit_span(setup, planes_of(model.errors(1)).reshape(1, -1, 3))
+    D, cols = np.zeros(basis.shape[0]), []
+    for name in (k for k, v in src.items() if v.active):
+        d, u = source_effects(model, [name])
+        size = np.linalg.norm(u, axis=0).max(initial=0.0)
+        if not np.any(d) and (size == 0 or np.linalg.norm(
+                u - basis @ (basis.T @ u), axis=0).max() <= _ABSORBED * size):
+            continue
+        D, cols = D + d, cols + [u]
+    U = np.hstack(cols) if cols else np.zeros((D.size, 0))
+    weight = np.linalg.inv(np.diag(D) + U @ U.T)
+    weight = 0.5 * (weight + weight.T)
     # a common factor does not move the minimum; scaling to the noise-only weights keeps
     # the fit's convergence test (relative to unit-variance uncertainties) meaningful
     gram = _plan(setup).gram
-    return weights * (P * np.trace(gram) / np.trace(weights, axis1=1, axis2=2).sum())
+    return weight * (weight.shape[0] // 3 * np.trace(gram) / np.trace(weight))
+
+
+def _fit_span(setup: Setup, coef: np.ndarray) -> np.ndarray:
+    """Orthonormal basis (3P, 7 x axes) of the span of the tied fit's Jacobian at the plane
+    coefficients `coef` (1, P, 3) of noise-free readings (a subspace of the joint fit's,
+    whose azimuths are free)."""
+    jac = np.zeros((*coef.shape[1:], 0))
+    for part, sl in _parts(setup):
+        par, station = _angles_start(part, coef[:, sl])
+        block = np.zeros((*coef.shape[1:], _ANGLES_STEPS.size))
+        block[sl] = _angles_jacobian(part, par, station)[0]
+        jac = np.concatenate([jac, block], axis=-1)
+    return np.linalg.qr(jac.reshape(coef[0].size, -1))[0]
 
 
 def estimate_gls(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
     """The joint fit weighted by the set-up's whole error budget (generalised least squares).
 
-    Like :func:`estimate_joint`, but each position's plane coefficients are weighted by the
-    inverse of their covariance under every active per-position error source (reading
-    noise, X/Y/Z positioning, error motions, angular positioning), computed once per
-    set-up by the law of propagation. The joint fit's own weighting assumes independent
+    Like :func:`estimate_joint`, but all plane coefficients are weighted by the inverse of
+    their covariance under the set-up's active error sources, between positions too
+    (:func:`_gls_weights`), computed once per set-up by the law of propagation: one
+    (3P, 3P) matrix for every trial. The joint fit's own weighting assumes independent
     reading noise only, which makes it worse than the patent's method when the per-position
-    errors dominate; the weighting restores the balance. Correlations between positions
-    (flatness, scale, drift, the artifact's pose) are left out of the weight
-    (block-diagonal).
+    errors dominate, and no weight that leaves the positions' correlations out can tell
+    the angle influence's pattern over an A arc from a shift of the axis.
     """
     return _each_axis(setup, readings, _gls_axis)
 
@@ -335,44 +374,64 @@ def _angles_model(setup: Setup, par: np.ndarray, station: np.ndarray) -> np.ndar
     return _joint_model(setup, par[:, :6], par[:, 6:7] + _plan(setup).theta, station)
 
 
+def _angles_start(setup: Setup, coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start of the tied fit of one axis from the patent's line, phi0 the circular mean of
+    the planes' azimuths less their commanded angles: par (n, 7), station (n,)."""
+    par6, phi, station = _joint_start(setup, coef)
+    d = phi - _plan(setup).theta
+    phi0 = np.arctan2(np.sin(d).mean(axis=1), np.cos(d).mean(axis=1))
+    return np.column_stack([par6, phi0]), station
+
+
+def _angles_jacobian(setup: Setup, par: np.ndarray, station: np.ndarray) -> np.ndarray:
+    """Central-difference Jacobian (n, P, 3, 7) of one axis's plane coefficients."""
+    jac = np.empty((len(par), _plan(setup).theta.size, 3, _ANGLES_STEPS.size))
+    for j, step in enumerate(_ANGLES_STEPS):
+        d = np.zeros(_ANGLES_STEPS.size)
+        d[j] = step
+        jac[..., j] = (_angles_model(setup, par + d, station)
+                       - _angles_model(setup, par - d, station)) / (2 * step)
+    return jac
+
+
 def _angles_fit(setup: Setup, coef: np.ndarray, weights: np.ndarray, *, max_iter: int = 30,
                 rtol: float = 1e-9):
-    """Gauss-Newton on the batch for the seven parameters of the tied fit (7 x 7 per trial,
-    :func:`mtplan.fitting.gls_step` with the positions' weights on the block diagonal).
+    """Gauss-Newton on the batch for the seven parameters of the tied fit of every axis of
+    the test (7 x 7 per trial and axis, one system for the whole test with the weight
+    `weights` (3P, 3P) of all plane coefficients, :func:`mtplan.fitting.gls_step`): on a CA
+    test the two axes are fitted at once, so that the errors both parts share (the angle
+    influence, the slides' slope and bow, the sensor's zero) weigh in both.
 
-    Started from the patent's line, with phi0 the circular mean of the planes' azimuths
-    less their commanded angles; converged as :func:`_joint_fit`.
+    Each axis started by :func:`_angles_start`; converged as :func:`_joint_fit`.
 
     Returns
     -------
-    par : array (n, 7), station : array (n,), converged : bool array (n,)
+    list of (part, par (n, 7), station (n,)) per axis; converged : bool array (n,)
     """
-    theta = _plan(setup).theta
-    par6, phi, station = _joint_start(setup, coef)
-    d = phi - theta
-    par = np.column_stack([par6, np.arctan2(np.sin(d).mean(axis=1), np.cos(d).mean(axis=1))])
+    parts = _parts(setup)
+    k7 = _ANGLES_STEPS.size
+    starts = [_angles_start(part, coef[:, sl]) for part, sl in parts]
+    par = np.hstack([p for p, _ in starts])  # (n, 7 x axes)
     done = np.zeros(len(par), dtype=bool)
-    w_full = _block_weight(weights)
     for _ in range(max_iter):
         todo = np.flatnonzero(~done)
         if todo.size == 0:
             break
-        pa, st = par[todo], station[todo]
-        r = coef[todo] - _angles_model(setup, pa, st)  # (k, P, 3)
-        jac = np.empty((*r.shape, _ANGLES_STEPS.size))
-        for j, step in enumerate(_ANGLES_STEPS):
-            d = np.zeros(_ANGLES_STEPS.size)
-            d[j] = step
-            jac[..., j] = (_angles_model(setup, pa + d, st)
-                           - _angles_model(setup, pa - d, st)) / (2 * step)
         k = len(todo)
-        step, a_inv = gls_step(jac.reshape(k, -1, _ANGLES_STEPS.size), r.reshape(k, -1),
-                               weight=w_full)
-        par[todo] = pa + step
+        r = np.empty((k, *coef.shape[1:]))
+        jac = np.zeros((k, *coef.shape[1:], par.shape[1]))  # axis i moves its planes only
+        for i, (part, sl) in enumerate(parts):
+            pa, st = par[todo, k7 * i:k7 * (i + 1)], starts[i][1][todo]
+            r[:, sl] = coef[todo, sl] - _angles_model(part, pa, st)
+            jac[:, sl, :, k7 * i:k7 * (i + 1)] = _angles_jacobian(part, pa, st)
+        step, a_inv = gls_step(jac.reshape(k, -1, par.shape[1]), r.reshape(k, -1),
+                               weight=weights)
+        par[todo] += step
         small = np.all(np.abs(step) <= rtol * np.sqrt(np.abs(np.diagonal(a_inv, axis1=1, axis2=2)))
                        + 1e-14, axis=1)
         done[todo[small]] = True
-    return par, station, done
+    return [(part, par[:, k7 * i:k7 * (i + 1)], starts[i][1])
+            for i, (part, _) in enumerate(parts)], done
 
 
 def estimate_angles(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
@@ -381,16 +440,18 @@ def estimate_angles(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
     Like :func:`estimate_gls`, but the azimuth of position p's plane normal about the
     axis is ``phi0 + theta_p``: ``theta_p`` the commanded angle (the rotary encoder's),
     ``phi0`` one free common zero. The angular positioning error moves each azimuth off
-    ``phi0 + theta_p``; it enters the weight (each position's plane-coefficient
-    covariance, with the other per-position sources). Seven parameters per axis in
+    ``phi0 + theta_p``; it enters the weight (the plane coefficients' covariance, with
+    the other sources). Seven parameters per axis in
     place of 6 + positions: the direction of the axis is better determined, as long as
     the encoder is as good as ``angular_positioning_arcsec`` says (see the module
     docstring for the figures and the price). Arguments and result as
     :func:`estimate_joint` (NaN where the iteration did not converge).
     """
-    return _each_axis(setup, readings, _angles_axis)
-
-
-def _angles_axis(setup: Setup, z: np.ndarray) -> dict[str, np.ndarray]:
-    par, station, ok = _angles_fit(setup, _planes(setup, z), _gls_weights(setup))
-    return _joint_measurands(setup, par[:, :6], None, station, ok)
+    z = _check_readings(setup, readings)
+    fits, ok = _angles_fit(setup, _planes(setup, z), _gls_weights(setup))
+    out = {}
+    for part, par, station in fits:
+        out.update(_joint_measurands(part, par[:, :6], None, station, ok))
+    if setup.axis == "CA":
+        out.update(_combined(setup, out))
+    return out
