@@ -1,5 +1,5 @@
-"""geometry21's reading of a measured table's set-up (``ReadingsFormat.setup_from_frame``);
-re-exported by :mod:`mtplan.models.geometry21`."""
+"""geometry21's readings I/O: one measurement as a table of plate readings, the table read
+back, and the set-up a measured table implies (``ReadingsFormat.setup_from_frame``)."""
 
 from __future__ import annotations
 

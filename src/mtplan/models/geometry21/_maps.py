@@ -1,14 +1,12 @@
-"""geometry21's first-order maps in closed form: the readings' Jacobian at zero error and
-the patent estimator's derivative with respect to the readings.
+"""geometry21's first-order maps in closed form: the patent estimator's derivative with
+respect to the readings, and the readings' response to each error source's elements.
 
-Both were central differences of the exact chains (the Jacobian: 2 evaluations of the
-kinematic chain per parameter; the patent's map: 2 evaluations of its two steps per
-reading), which took most of a first-order budget's time. Here they are the chain rule
-of the same chains, exact to rounding; the tests hold them to the central differences
-(relative 1e-6 of each map's largest entry, the differences' own truncation and rounding
-error being about 1e-8).
+The patent's map was central differences of its two steps (2 evaluations per reading),
+which took most of a first-order budget's time; here it is the chain rule of the same
+steps, exact to rounding, and the tests hold it to the central differences (relative 1e-6
+of its largest entry, the differences' own truncation and rounding error being about
+1e-8). The readings' Jacobian at zero error is :mod:`._jacobian`'s.
 """
-
 from __future__ import annotations
 
 import numpy as np

@@ -146,7 +146,7 @@ def sources(setup: Setup) -> dict:
 
 
 def _features(errors: dict) -> np.ndarray | None:
-    """The 15 per-trial features of :func:`_feature_patterns`, or None when all are zero."""
+    """The 15 per-trial features of :func:`._layout._feature_patterns`, or None when all are zero."""
     t = errors["servo_lag"]
     f = np.concatenate([errors["thermal_growth"], errors["thermal_drift"], errors["reversal"],
                         t, t * t], axis=1)
@@ -199,7 +199,7 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
 @functools.lru_cache(maxsize=8)
 def forward_matrix(setup: Setup, truth: Truth) -> np.ndarray:
     """The truth's head positions in the plates' frames and the 15 feature patterns of
-    :func:`_feature_patterns`, stacked (16, 3M): ``[1, features] @ it`` is every reading's
+    :func:`._layout._feature_patterns`, stacked (16, 3M): ``[1, features] @ it`` is every reading's
     plate-frame position."""
     geo = geometry(setup)
     coefs = {k: (pw, c[None, :]) for k, (pw, c) in truth_coefficients(truth).items()}
