@@ -39,7 +39,7 @@ def _time(fn, repeat=3):
 
 def _former_joint(setup, readings):
     """The joint estimator before the batch-shared linearisation."""
-    return g21._measure(setup, g21._theta_joint_per_trial(setup, readings))
+    return g21.measure(setup, g21.theta_joint_per_trial(setup, readings))
 
 
 def _rate(proc, setup, est, trials, truth=None):
@@ -52,12 +52,12 @@ def _rate(proc, setup, est, trials, truth=None):
 def main(trials: int = 2048) -> None:
     proc = dataclasses.replace(P, estimators={**P.estimators, "joint_former": _former_joint})
     setup = g21.Setup()
-    n_read = g21._geometry(setup).plane.size * 2
+    n_read = g21.geometry(setup).plane.size * 2
     print(f"geometry21 default set-up: {n_read} readings per trial, "
           f"block_size {P.capabilities.block_size}, "
           f"sources: {', '.join(P.active_sources(setup))}")
     t0 = time.perf_counter()
-    g21._joint_ident(setup), g21._patent_design(setup)
+    g21.joint_ident(setup), g21.patent_design(setup)
     print(f"set-up precomputation (Jacobian, SVD, pseudo-inverses): {time.perf_counter() - t0:.2f} s")
     rng = np.random.default_rng(0)
     t_draw = _time(lambda: rng.standard_normal((trials, n_read)))
@@ -78,7 +78,7 @@ def main(trials: int = 2048) -> None:
         cfg = tomllib.load(fh)
     all21 = P.setup(cfg["setup"])
     truth = P.truth(cfg["truth"])
-    m = g21._geometry(all21).plane.size * 2
+    m = g21.geometry(all21).plane.size * 2
     rate, dt = _rate(P, all21, "joint", trials, truth)
     print(f"all-21 set-up ({ALL21.name}: {m} readings per trial, "
           f"{len(P.measurands(all21))} measurands): joint {rate:.0f} trials/s ({dt:.2f} s)")

@@ -31,10 +31,11 @@ import math
 import numpy as np
 
 from mtplan.models import line_laser as ll
+from mtplan.models.line_laser import _estimators as ll_estimators
 
 PROC = ll.PROCEDURE
-FIELDS = ll._FIT_FIELDS
-STEPS = ll._FIT_STEPS
+FIELDS = ll_estimators._FIT_FIELDS
+STEPS = ll_estimators._FIT_STEPS
 _HEIGHT_MAP = ll.height_map
 
 
@@ -56,18 +57,18 @@ def _perturbed(setup, pert):
 
 
 def _readings(setup, theta, pert=None, errors=None):
-    ll._NOMINAL.clear()
-    ll._FACET_OF.clear()
+    ll.NOMINAL.clear()
+    ll.FACET_OF.clear()
     if pert:
         ll.height_map = _perturbed(setup, pert)
     try:
         errors = errors if errors is not None else PROC.zero_errors(setup, 1)
-        truth = ll._truth_rows(theta[None, :])
+        truth = ll_estimators._truth_rows(theta[None, :])
         return ll.forward(setup, truth, errors)["z_mm"].ravel()
     finally:
         ll.height_map = _HEIGHT_MAP
-        ll._NOMINAL.clear()
-        ll._FACET_OF.clear()
+        ll.NOMINAL.clear()
+        ll.FACET_OF.clear()
 
 
 def linearised_u(setup, extra=()) -> np.ndarray:

@@ -10,6 +10,7 @@ import pytest
 
 from mtplan._validate import InvalidInput
 from mtplan.models import geometry21 as g21
+from mtplan.models.geometry21 import _estimators as g21_estimators
 from mtplan.models.kinematics import rotate, rotate_inverse, rotation_matrix
 from mtplan.evaluation.first_order import first_order
 from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
@@ -33,11 +34,11 @@ def test_rotate_matches_matrix_and_inverse():
 
 def test_zero_errors_give_nominal_readings():
     setup = g21.Setup()
-    zero = {k: () for k in g21.NAMES if g21._KIND[k] != "sq"}
-    truth = g21.Truth(**{f"{k}_{'urad' if g21._KIND[k] == 'ang' else 'um'}": v
+    zero = {k: () for k in g21.NAMES if g21.KIND[k] != "sq"}
+    truth = g21.Truth(**{f"{k}_{'urad' if g21.KIND[k] == 'ang' else 'um'}": v
                          for k, v in zero.items()}, EC0Y_urad=0, EB0Z_urad=0, EA0Z_urad=0)
     r = P.forward(setup, truth, P.zero_errors(setup, 1))["plate_mm"][0]
-    np.testing.assert_allclose(r, g21._geometry(setup).local, atol=1e-12)
+    np.testing.assert_allclose(r, g21.geometry(setup).local, atol=1e-12)
 
 
 #: the patent's set-up (one head) and one extra YZ head with another tool length and an arm
@@ -56,13 +57,13 @@ ONE_HEAD, YZ_HEAD = {}, dict(SMALL, yz_extra_heads_mm=(200, 60, 0))
 ])
 def test_jacobian_is_the_first_order_lever_arm(setup, name, plane, comp, lever):
     """The numerical first-order expansion (used for Q) equals eps x lever arm."""
-    ji = g21._joint_ident(g21.Setup(**setup))
+    ji = g21.joint_ident(g21.Setup(**setup))
     geo = ji["geo"]
     col = geo.layout[name][1].start  # power 1
     sel = geo.plane == plane
     j = ji["jac"].reshape(-1, 2, geo.n_par)[sel, comp, col]
     c = geo.cmd[sel]
-    np.testing.assert_allclose(j, lever(geo.hvec[sel], c) * c[:, g21._AXIS[name]], atol=1e-6)
+    np.testing.assert_allclose(j, lever(geo.hvec[sel], c) * c[:, g21.AXIS[name]], atol=1e-6)
 
 
 # ----------------------------------------------------------------- identifiability
@@ -214,19 +215,19 @@ def _all21_truth(order=2):
     t = g21.Truth(**g21.HIDDEN_ANGULAR)
     cut = {}
     for name in g21.NAMES:
-        if g21._KIND[name] != "sq":
-            field = f"{name}_{'urad' if g21._KIND[name] == 'ang' else 'um'}"
-            keep = order if g21._KIND[name] != "str" else order - 1
+        if g21.KIND[name] != "sq":
+            field = f"{name}_{'urad' if g21.KIND[name] == 'ang' else 'um'}"
+            keep = order if g21.KIND[name] != "str" else order - 1
             cut[field] = getattr(t, field)[:keep]
     return t.replace(**cut)
 
 
 def test_extra_heads_follow_the_plate_path():
     setup = g21.Setup(**ALL21_SMALL)
-    geo = g21._geometry(setup)
+    geo = g21.geometry(setup)
     zero = P.zero_errors(setup, 1)
-    flat = g21.Truth(**{f"{k}_{'urad' if g21._KIND[k] == 'ang' else 'um'}": ()
-                        for k in g21.NAMES if g21._KIND[k] != "sq"},
+    flat = g21.Truth(**{f"{k}_{'urad' if g21.KIND[k] == 'ang' else 'um'}": ()
+                        for k in g21.NAMES if g21.KIND[k] != "sq"},
                      EC0Y_urad=0, EB0Z_urad=0, EA0Z_urad=0)
     r = P.forward(setup, flat, zero)["plate_mm"][0]
     np.testing.assert_allclose(r, geo.local, atol=1e-12)  # every head reads the same path
@@ -298,7 +299,7 @@ def test_duration_adds_head_changes_and_their_program():
     v = base.feed_mm_min / 60
     lines = 2 * base.line_repeats * 2 * base.line_length_mm
     assert P.duration(more) == pytest.approx(P.duration(base) + 2 * (base.head_change_s + lines / v))
-    t = g21._geometry(more).time_s
+    t = g21.geometry(more).time_s
     assert np.all(np.diff(t) >= 0) and t[-1] <= P.duration(more)
 
 
@@ -320,7 +321,7 @@ def _one(setup, **sources):
 
 def test_reversal_shifts_each_direction_by_half_the_value():
     setup = g21.Setup(**SMALL)
-    geo = g21._geometry(setup)
+    geo = g21.geometry(setup)
     d = _one(setup, reversal=[2e-3, 0, 0])  # B_x = 2 um
     xline = (geo.plane == 0) & (geo.test == 0)
     fwd, bwd = xline & (geo.pass_ % 2 == 0), xline & (geo.pass_ % 2 == 1)
@@ -331,7 +332,7 @@ def test_reversal_shifts_each_direction_by_half_the_value():
 
 def test_servo_lag_shrinks_and_distorts_the_circle():
     setup = g21.Setup(**SMALL)
-    geo = g21._geometry(setup)
+    geo = g21.geometry(setup)
     circ = (geo.plane == 0) & (geo.test == 2)
     er = geo.local[circ] / setup.circle_radius_mm
     v, R, T = setup.feed_mm_min / 60, setup.circle_radius_mm, 0.03
@@ -348,7 +349,7 @@ def test_servo_lag_shrinks_and_distorts_the_circle():
 
 def test_thermal_drift_and_growth_follow_the_schedule():
     setup = g21.Setup(**SMALL)
-    geo = g21._geometry(setup)
+    geo = g21.geometry(setup)
     hours = geo.time_s / 3600
     d = _one(setup, thermal_drift=[3e-3, 0, 0])  # 3 um/h along x
     xy = geo.plane == 0
@@ -370,19 +371,19 @@ def test_shared_linearisation_matches_the_trial_by_trial_solution(monkeypatch):
     per trial: within 1 % of the batch's spread (or 1e-3 of a typical error)."""
     setup = g21.Setup()
     readings = P.simulate(setup, draws=64, rng=4)
-    shared = g21._theta_joint(setup, readings, 8)
-    monkeypatch.setattr(g21, "_SHARED_MIN", 10**9)
-    exact = g21._theta_joint(setup, readings, 8)
-    s = g21._scales(g21._geometry(setup))
-    allowed = np.maximum(g21._SHARED_TOL * s, g21._SHARED_SPREAD * exact.std(axis=0))
+    shared = g21.theta_joint(setup, readings, 8)
+    monkeypatch.setattr(g21_estimators, "SHARED_MIN", 10**9)
+    exact = g21.theta_joint(setup, readings, 8)
+    s = g21.parameter_scales(g21.geometry(setup))
+    allowed = np.maximum(g21.SHARED_TOL * s, g21.SHARED_SPREAD * exact.std(axis=0))
     # the largest of 64 x 60 differences: with the repeatability correlated along the path
     # it reaches 1.07 of that at this seed (EA0Z[0]), 0.4-0.8 at seeds 1-3
     assert np.all(np.abs(shared - exact) <= 1.5 * allowed)
     # the former estimator (chord iterations in the readings' frame) differs by less than
     # 2 % of the spread: another weighting of the same least squares
-    former = g21._theta_joint_per_trial(setup, readings)
+    former = g21.theta_joint_per_trial(setup, readings)
     m = [g21.NAMES.index(n) for n in (mm.name for mm in P.measurands(setup))]
-    g = g21._joint_ident(setup)["g"][m]
+    g = g21.joint_ident(setup)["g"][m]
     dev = np.abs((shared - former) @ g.T) / (former @ g.T).std(axis=0)
     assert dev.max() < 0.02
 
@@ -390,13 +391,13 @@ def test_shared_linearisation_matches_the_trial_by_trial_solution(monkeypatch):
 def test_shared_linearisation_falls_back_when_the_check_fails(monkeypatch):
     setup = g21.Setup(**SMALL)
     readings = P.simulate(setup, draws=16, rng=5)
-    monkeypatch.setattr(g21, "_SHARED_MIN", 10**9)
-    exact = g21._theta_joint(setup, readings, 8)
-    monkeypatch.setattr(g21, "_SHARED_MIN", 8)
-    monkeypatch.setattr(g21, "_SHARED_TOL", -1.0)  # no neglected term is small enough
-    monkeypatch.setattr(g21, "_SHARED_SPREAD", -1.0)
-    s = g21._scales(g21._geometry(setup))
-    np.testing.assert_allclose(g21._theta_joint(setup, readings, 8) / s, exact / s, rtol=0,
+    monkeypatch.setattr(g21_estimators, "SHARED_MIN", 10**9)
+    exact = g21.theta_joint(setup, readings, 8)
+    monkeypatch.setattr(g21_estimators, "SHARED_MIN", 8)
+    monkeypatch.setattr(g21_estimators, "SHARED_TOL", -1.0)  # no neglected term is small enough
+    monkeypatch.setattr(g21_estimators, "SHARED_SPREAD", -1.0)
+    s = g21.parameter_scales(g21.geometry(setup))
+    np.testing.assert_allclose(g21.theta_joint(setup, readings, 8) / s, exact / s, rtol=0,
                                atol=1e-5)
 
 
@@ -462,16 +463,17 @@ def test_closed_form_maps_are_the_central_differences(kw):
     the central differences of the exact chains they replace (those differ from the true
     derivative by ~1e-8 of the largest entry: truncation and rounding), to 1e-6."""
     from mtplan.fitting.linear import response
-    from mtplan.models.geometry21._maps import patent_map, zero_jacobian
+    from mtplan.models.geometry21._jacobian import zero_jacobian
+    from mtplan.models.geometry21._maps import patent_map
 
     setup = g21.Setup(**kw)
-    geo = g21._geometry(setup)
-    r0, fd = g21._jacobian(geo, np.zeros(geo.n_par), g21._scales(geo))
+    geo = g21.geometry(setup)
+    r0, fd = g21.model_jacobian(geo, np.zeros(geo.n_par), g21.parameter_scales(geo))
     jac = zero_jacobian(geo)
     assert np.abs(jac - fd).max() <= 1e-6 * np.abs(fd).max()
     assert not np.any(jac[:, np.abs(fd).max(axis=0) == 0])  # no effect stays exactly none
     rt = P.forward(setup, g21.Truth(), P.zero_errors(setup, 1))["plate_mm"].reshape(-1)
-    fd = response(lambda r: g21._theta_patent(setup, {"plate_mm": r.reshape(len(r), -1, 2)}),
+    fd = response(lambda r: g21.theta_patent(setup, {"plate_mm": r.reshape(len(r), -1, 2)}),
                   rt, 1e-6) / 1e-6
     dev = np.abs(patent_map(setup, rt) - fd) / np.abs(fd).max(axis=1, keepdims=True).clip(1e-300)
     assert dev.max() <= 1e-6
@@ -487,7 +489,7 @@ def test_closed_form_source_response_is_the_central_differences(kw):
     from mtplan.models.geometry21._maps import source_readings_map
 
     setup, truth = g21.Setup(**kw), g21.Truth()
-    names = tuple(n for n in P.active_sources(setup, None) if n not in g21._WHITE)
+    names = tuple(n for n in P.active_sources(setup, None) if n not in g21.WHITE)
     srcs = g21.sources(setup)
     fd = source_response(lambda e: P.forward(setup, truth, e)["plate_mm"].reshape(
         len(e["reversal"]), -1), lambda m: P.zero_errors(setup, m), srcs, names)
@@ -505,17 +507,18 @@ def test_resizing_a_source_reuses_the_geometry_and_reweights_the_fit():
     """What depends on the geometry only is computed once for every size of the sources;
     the joint fit's weights (encoder noise against the path-correlated repeatability) are
     the resized set-up's own."""
-    from mtplan.fitting.linear import filter_whitening
+    from mtplan.fitting.linear import filter_whitening, gls_pinv
 
     base = g21.Setup(**SMALL, path_residual_um=0.0)
     noisy = g21.Setup(**SMALL, encoder_noise_um=0.5, reversal_um=0, path_residual_um=0.0)
-    assert g21._geometry(noisy) is g21._geometry(base)
-    assert g21._joint_ident(noisy)["jac"] is g21._joint_ident(base)["jac"]
-    w = filter_whitening(g21._repeatability_filter(noisy), 0.5 / 0.3, 2)
-    ji = g21._joint_ident(noisy)
-    direct = g21.gls_pinv(ji["jac"], ji["scale"], ji["vt"], ji["rank"], g21._free(ji["geo"]), w)
+    assert g21.geometry(noisy) is g21.geometry(base)
+    assert g21.joint_ident(noisy)["jac"] is g21.joint_ident(base)["jac"]
+    w = filter_whitening(g21.repeatability_filter(noisy), 0.5 / 0.3, 2)
+    ji = g21.joint_ident(noisy)
+    direct = gls_pinv(ji["jac"], ji["scale"], ji["vt"], ji["rank"],
+                      g21.mounting_mask(ji["geo"]), w)
     np.testing.assert_allclose(ji["pinv"], direct, rtol=0, atol=1e-12 * np.abs(direct).max())
-    assert not np.allclose(ji["pinv"], g21._joint_ident(base)["pinv"])
+    assert not np.allclose(ji["pinv"], g21.joint_ident(base)["pinv"])
 
 
 # ----------------------------------------------------------------- readings and the plan
@@ -540,7 +543,7 @@ def test_the_shipped_readings_are_read():
     for path in (root / "examples" / "geometry21_readings.csv",
                  root / "src" / "mtplan" / "examples" / "geometry21_readings.csv"):
         r = read_readings(P, g21.Setup(), path)
-        assert r["plate_mm"].shape == (1, g21._geometry(g21.Setup()).plane.size, 2)
+        assert r["plate_mm"].shape == (1, g21.geometry(g21.Setup()).plane.size, 2)
 
 
 def test_plan_finds_the_head_positions_that_determine_all_21():
@@ -569,22 +572,22 @@ def test_joint_weights_the_readings_by_their_ar1_covariance():
     from mtplan.fitting.linear import truncated_pinv
 
     setup = g21.Setup(**SMALL)
-    ji = g21._joint_ident(setup)
+    ji = g21.joint_ident(setup)
     geo, jac, s = ji["geo"], ji["jac"], ji["scale"]
-    ols = truncated_pinv(jac, s, g21._free(geo), rank_tol=g21._RANK_TOL)[0]
+    ols = truncated_pinv(jac, s, g21.mounting_mask(geo), rank_tol=g21.RANK_TOL)[0]
     resp = ji["g"] @ ji["pinv"] @ jac  # what the map makes of noise-free readings
     np.testing.assert_allclose(resp, ji["g"] @ ols @ jac, atol=1e-9 * np.abs(resp).max())
-    f = g21._repeatability_filter(setup).toarray()
+    f = g21.repeatability_filter(setup).toarray()
     per = (setup.repeatability_um * 1e-3) ** 2 * f @ f.T \
         + (setup.encoder_noise_um * 1e-3) ** 2 * np.eye(f.shape[0])
     cov = np.kron(per, np.eye(2))
-    basis = g21._residual_basis(g21._sizeless(setup))  # the repeatable path residual too
+    basis = g21.residual_basis(g21.sizeless(setup))  # the repeatable path residual too
     cov = cov + (setup.path_residual_um * 1e-3) ** 2 * basis @ basis.T
     var = {k: np.diag(ji["g"] @ a @ cov @ a.T @ ji["g"].T) for k, a in
            (("gls", ji["pinv"]), ("ols", ols))}
     assert np.all(var["gls"] <= var["ols"] * (1 + 1e-9))
     assert np.any(var["gls"] < 0.9 * var["ols"])
     white = g21.Setup(**SMALL, repeatability_correlation_mm=0.0, path_residual_um=0.0)
-    np.testing.assert_array_equal(g21._joint_ident(white)["pinv"],
-                                  truncated_pinv(g21._joint_ident(white)["jac"], s, g21._free(geo),
-                                                 rank_tol=g21._RANK_TOL)[0])
+    np.testing.assert_array_equal(g21.joint_ident(white)["pinv"],
+                                  truncated_pinv(g21.joint_ident(white)["jac"], s,
+                                                 g21.mounting_mask(geo), rank_tol=g21.RANK_TOL)[0])

@@ -35,7 +35,7 @@ def test_the_correlation_is_the_same_per_millimetre_at_every_spacing():
     the filter's covariance F F^T along one line pass."""
     for n, k in ((11, 1), (41, 4)):  # 10 mm apart: neighbours at 11 points, 4 apart at 41
         setup = P.setup(line_points=n)
-        f = g21._repeatability_filter(setup).toarray()
+        f = g21.repeatability_filter(setup).toarray()
         c = (f @ f.T)[:n, :n]
         assert c[0, 0] == pytest.approx(1.0)
         assert c[3 * k, 4 * k] == pytest.approx(math.exp(-10.0 / 50.0), rel=1e-12)
@@ -47,8 +47,8 @@ def test_the_path_residual_is_the_same_in_every_pass_and_a_function_of_position(
     reading by the field's value at the reading's x, and readings 5 mm apart correlate by
     about exp(-1) (the field's correlation length)."""
     setup = P.setup(line_repeats=2)
-    geo = g21._geometry(setup)
-    basis = g21._residual_basis(g21._sizeless(setup)).reshape(geo.plane.size, 2, 3, 3, -1)
+    geo = g21.geometry(setup)
+    basis = g21.residual_basis(g21.sizeless(setup)).reshape(geo.plane.size, 2, 3, 3, -1)
     xy = geo.plane == 0
     x_along_y = basis[xy, 1, 0, 1]  # (readings, knots): X's deviation along y on v
     assert np.abs(basis[xy, 0, 0, 1]).max() == 0.0  # nothing on u

@@ -43,21 +43,21 @@ def test_trace_is_the_exact_first_intersection():
                        ("squareness_xy", 1e-3), ("squareness_zy", 1e-3), ("drift", 2e-3),
                        ("facet_position", 5e-3)):
         errors[name] = rng.normal(0, size, errors[name].shape)
-    disp = ll._displacements(SETUP, errors)
+    disp = ll.displacements(SETUP, errors)
     facets = errors["facet_position"]
-    t = ll._trace(SETUP, truth, disp, facets).ravel()
-    _, d, _, _ = ll._frames(SETUP, truth)
-    ox, oy, oz = (a.ravel() for a in ll._origins(SETUP, truth, disp))
+    t = ll.trace(SETUP, truth, disp, facets).ravel()
+    _, d, _, _ = ll.frames(SETUP, truth)
+    ox, oy, oz = (a.ravel() for a in ll.origins(SETUP, truth, disp))
     rays = ox.size // m
     rows = np.arange(ox.size) // rays
     # the hit lies on the surface with its facets moved ...
     z, _, _ = ll.height_map(SETUP, ox + t * d[0], oy + t * d[1], offsets=facets, rows=rows)
     np.testing.assert_allclose(oz + t * d[2], z, rtol=0, atol=1e-12)
     # ... and equals a full Newton solve from the land plane for every ray
-    full = ll._newton(SETUP, ox, oy, oz, d, -oz / d[2], np.arange(ox.size), rays, facets)
+    full = ll.newton(SETUP, ox, oy, oz, d, -oz / d[2], np.arange(ox.size), rays, facets)
     np.testing.assert_allclose(t, full, rtol=0, atol=1e-12)
     # the facets did move the heights: by up to tan(25 deg) x 5 um x a few sigma
-    plain = ll._trace(SETUP, truth, disp).ravel()
+    plain = ll.trace(SETUP, truth, disp).ravel()
     assert 5e-3 < np.abs(t - plain).max() < 0.1
 
 
@@ -66,12 +66,12 @@ def test_facet_errors_repeat_only_beyond_the_scanned_window():
     than the window), even at the Truth's largest rotation."""
     for rz in (8.0, 100.0, -100.0):
         truth = ll.Truth(artifact_rz_mrad=rz)
-        _, x, y, _, _, _, _ = ll._nominal(SETUP, truth)
-        dx, dy, _ = ll._lattice_local(SETUP, x, y)
+        _, x, y, _, _, _, _ = ll.nominal_trace(SETUP, truth)
+        dx, dy, _ = ll.lattice_local(SETUP, x, y)
         centres = np.unique(np.round(np.stack([x - dx, y - dy], axis=1), 6), axis=0)
-        ids = ll._lattice_local(SETUP, centres[:, 0], centres[:, 1])[2]
+        ids = ll.lattice_local(SETUP, centres[:, 0], centres[:, 1])[2]
         assert np.unique(ids).size == len(centres), rz
-    assert ll.facet_count(SETUP) == 6 * np.prod(ll._facet_layout(SETUP)) // 2
+    assert ll.facet_count(SETUP) == 6 * np.prod(ll.facet_layout(SETUP)) // 2
 
 
 @pytest.mark.parametrize("ref", [(0.0,) * 8, (1.2, -0.5, 3.0, 0.4, -0.7, 80.0, 1.0, -1.5)])
@@ -121,10 +121,10 @@ def test_land_heights_follow_the_exact_raise_relation():
     truth = ll.Truth()
     z = _noise_free(SETUP, truth)["z_mm"][0]
     r = ll.sensor_rotation(1.5e-3, -2e-3, 1e-3)
-    q = ll._rz(8e-3) @ ll._ry(-0.2e-3) @ ll._rx(0.3e-3)
+    q = ll.rot_z(8e-3) @ ll.rot_y(-0.2e-3) @ ll.rot_x(0.3e-3)
     normal = q[:, 2]
     expected = SETUP.raise_mm * normal[2] / (normal @ r[:, 2])
-    _, _, _, height, _, _, _ = ll._nominal(SETUP, truth)
+    _, _, _, height, _, _, _ = ll.nominal_trace(SETUP, truth)
     on_land = (height == 0.0).reshape(3, SETUP.lines, SETUP.points_per_line)
     both = on_land[1] & on_land[2]
     assert both.sum() > 100
@@ -135,9 +135,9 @@ def _raise_split(setup, truth):
     """Scans 2 and 3 noise-free: (height change z2 - z3, its per-plane prediction
     h (n . a)/(n . d), rays whose hits stay on one plane, rays on the flat parts)."""
     z = _noise_free(setup, truth)["z_mm"][0]
-    _, d, q, _ = ll._frames(setup, truth)
+    _, d, q, _ = ll.frames(setup, truth)
     a = q.T @ np.array([0.0, 0.0, 1.0])  # the raise, in the artifact's frame
-    _, _, _, _, gx, gy, _ = ll._nominal(setup, truth)
+    _, _, _, _, gx, gy, _ = ll.nominal_trace(setup, truth)
     gx = gx.reshape(3, setup.lines, setup.points_per_line)
     gy = gy.reshape(3, setup.lines, setup.points_per_line)
     normal = np.stack([-gx[1], -gy[1], np.ones_like(gx[1])], axis=-1)
@@ -164,7 +164,7 @@ def test_patent_alpha_x_reads_the_balance_of_the_facets():
     default (40 lines, beta 0.6) they left -16 nm and the estimate was 0."""
     truth = ll.Truth()
     h = SETUP.raise_mm
-    _, d, q, _ = ll._frames(SETUP, truth)
+    _, d, q, _ = ll.frames(SETUP, truth)
     a = q.T @ np.array([0.0, 0.0, 1.0])
     for setup, facets_nm, estimate in ((SETUP, 55.8, 7578.1),
                                        (SETUP.replace(lines=40, shift_fraction=0.6), -15.7, 0.0)):
@@ -187,8 +187,8 @@ def _one_source(name, value, setup=SETUP, truth=None):
     return PROC.forward(setup, truth or ll.Truth(), errors)
 
 
-_T = ll._scan_times(SETUP)
-_W, _H = ll._shift(SETUP), SETUP.raise_mm
+_T = ll.scan_times(SETUP)
+_W, _H = ll.x_shift(SETUP), SETUP.raise_mm
 
 
 @pytest.mark.parametrize(
@@ -236,8 +236,8 @@ def test_linearity_alone_gives_u_alpha_y_of_the_linearity_over_w():
     alpha_x (same x_l in scans 2 and 3) do not move."""
     n = 300
     big_l, w, pts = SETUP.linearity_um * 1e-3, _W, SETUP.points_per_line
-    k = round(w / ll._pitch(SETUP))
-    assert k * ll._pitch(SETUP) == pytest.approx(w, abs=1e-12)
+    k = round(w / ll.pitch(SETUP))
+    assert k * ll.pitch(SETUP) == pytest.approx(w, abs=1e-12)
     xi = np.linspace(-1.0, 1.0, pts)
     basis = np.stack([math.sqrt(2 * deg + 1) * np.polynomial.legendre.legval(xi, np.eye(5)[deg])
                       for deg in (2, 3, 4)])
@@ -316,7 +316,7 @@ def test_registration_is_blind_to_positioning_errors_of_w_and_h():
 
 # --------------------------------------------------------------------------- patent traps
 def test_patent_alpha_z_is_quantised_to_dy_over_w():
-    w, dy = ll._shift(SETUP), SETUP.step_mm
+    w, dy = ll.x_shift(SETUP), SETUP.step_mm
     quantum = math.atan(dy / w)
     errors = []
     for az in np.linspace(-8.0, 8.0, 9):
@@ -337,7 +337,7 @@ def test_patent_alpha_z_switches_half_way_between_steps_wherever_the_artifact_li
     # the nearest whole row shift, as the seed means: alpha_z switches from step k to k+1
     # at (k + 1/2) steps (to 0.05 step), whatever the artifact's Y position; the noise-free
     # readings of a fine sweep of alpha_z in one batch (array-valued truth fields)
-    w, dy = ll._shift(SETUP), SETUP.step_mm
+    w, dy = ll.x_shift(SETUP), SETUP.step_mm
     step = math.atan(dy / w)
     az = np.linspace(-1.9, 1.9, 153) * step  # 0.025 step apart
     base = dataclasses.replace(ll.Truth(), artifact_y_mm=artifact_y)
@@ -361,7 +361,7 @@ def test_patent_alpha_x_is_sign_blind_and_absorbs_alpha_y(ax, ay):
     height difference unchanged, so arccos(h/h') must give the same number for both
     signs; its size is that of arccos(cos ax cos ay) ~ sqrt(ax^2 + ay^2) (to the few
     per cent that the facets add), while the registration returns the signed alpha_x."""
-    base = dict(alpha_z_mrad=0.0, alpha_y_mrad=ay, artifact_x_mm=ll._shift(SETUP),
+    base = dict(alpha_z_mrad=0.0, alpha_y_mrad=ay, artifact_x_mm=ll.x_shift(SETUP),
                 artifact_y_mm=0.0, artifact_rz_mrad=0.0, artifact_tilt_x_mrad=0.0,
                 artifact_tilt_y_mrad=0.0)
     res = {}
@@ -419,7 +419,7 @@ def test_unworkable_setups_are_refused(values, field):
 
 def test_observability_flags():
     obs = ll.observability(SETUP)
-    w, dy = ll._shift(SETUP), SETUP.step_mm
+    w, dy = ll.x_shift(SETUP), SETUP.step_mm
     assert obs["patent"]["alpha_z"].quantum_urad == pytest.approx(math.atan(dy / w) * 1e6)
     assert obs["patent"]["alpha_x"].signed is False
     assert "|alpha_x|" in obs["patent"]["alpha_x"].reason
@@ -464,7 +464,7 @@ def test_monte_carlo_std_matches_gum_for_the_trigger_offsets():
     np.testing.assert_allclose(mc.mc.std, u, rtol=tol)
     # alpha_z ~ (e_y2 - e_y1)/w and alpha_x ~ -(e_y3 - e_y2)/h: first-order sizes
     s = SETUP.trigger_y_um * 1e-3 * math.sqrt(2)
-    assert u[0] == pytest.approx(s / ll._shift(SETUP) * 1e6, rel=0.05)
+    assert u[0] == pytest.approx(s / ll.x_shift(SETUP) * 1e6, rel=0.05)
     assert u[2] == pytest.approx(s / SETUP.raise_mm * 1e6, rel=0.05)
 
 

@@ -70,9 +70,9 @@ def _noise_free(setup, truth=None, **errors):
 # --------------------------------------------------------------------------- forward model
 def _reference_heights(setup, truth, dtheta, tilt, radial, axial):
     """Heights by an independent route: scipy rotations and a ray-plane intersection."""
-    g = ra._plan(setup)
-    frame = ra._FRAMES[setup.axis]
-    point, u = ra._true_line(setup, truth)
+    g = ra.plan(setup)
+    frame = ra.FRAMES[setup.axis]
+    point, u = ra.true_line(setup, truth)
     out = np.empty((setup.n_positions, setup.n_points))
     for k, theta in enumerate(g.theta):
         rot = Rotation.from_rotvec(u * (theta + dtheta[k]))
@@ -109,7 +109,7 @@ def test_nominal_readings_are_the_commanded_surface():
     setup = PROC.Setup()
     zero = PROC.truth(EX0C_um=0, EY0C_um=0, EA0C_urad=0, EB0C_urad=0)
     z = _noise_free(setup, zero)["z_mm"][0]
-    np.testing.assert_allclose(z, ra._plan(setup).z_cmd, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(z, ra.plan(setup).z_cmd, rtol=0, atol=1e-12)
 
 
 def test_sensor_sees_only_the_residual_when_z_follows():
@@ -124,7 +124,7 @@ def test_sensor_sees_only_the_residual_when_z_follows():
         if follow:
             assert diff < limit
         else:
-            span = np.ptp(ra._plan(setup).xy[0, :, 0]) * math.tan(math.radians(setup.incline_deg))
+            span = np.ptp(ra.plan(setup).xy[0, :, 0]) * math.tan(math.radians(setup.incline_deg))
             assert diff > 0.1 * span / 2 * 0.9
 
 
@@ -146,7 +146,7 @@ def test_axis_line_is_the_true_line():
     setup = PROC.setup(axis="A", reference_height_mm=25.0)
     truth = PROC.Truth()
     point, direction = ra.axis_line(setup, _noise_free(setup, truth), estimator="joint")
-    p_true, u_true = ra._true_line(setup, truth)
+    p_true, u_true = ra.true_line(setup, truth)
     np.testing.assert_allclose(point[0], p_true, atol=1e-12)
     np.testing.assert_allclose(direction[0], u_true, atol=1e-15)
 
@@ -324,8 +324,8 @@ def test_combined_test_is_the_c_test_then_the_a_test():
     for axis, sl in (("C", slice(0, nc)), ("A", slice(nc, None))):
         single = PROC.setup(axis=axis, thermal_drift_um_per_s=0.0)
         row = 0 if axis == "C" else 1  # the per-axis errors: the C row, then the A row
-        part = {k: (v[(slice(None),) * ra._POSITION_AXIS[k] + (sl,)]
-                    if k in ra._POSITION_AXIS else v[:, row:row + 1] if k in ra._AXIS_ROWS
+        part = {k: (v[(slice(None),) * ra.POSITION_AXIS[k] + (sl,)]
+                    if k in ra.POSITION_AXIS else v[:, row:row + 1] if k in ra.AXIS_ROWS
                     else v) for k, v in errors.items()}
         z_single = PROC.forward(single, PROC.Truth(), part)["z_mm"]
         np.testing.assert_array_equal(z[:, sl], z_single)
@@ -369,8 +369,8 @@ def test_combined_measurands_by_an_independent_route():
                        pose_point_mm=(-80.0, 120.0, 60.0))
     truth = PROC.truth(**BIG_TRUTH)
     tv = PROC.true_values(setup, truth)
-    pc, uc = ra._true_line(ra._part(setup, "C"), truth)
-    pa, ua = ra._true_line(ra._part(setup, "A"), truth)
+    pc, uc = ra.true_line(ra.axis_part(setup, "C"), truth)
+    pa, ua = ra.true_line(ra.axis_part(setup, "A"), truth)
     p = np.array(setup.pose_point_mm)
     q = pc + Rotation.from_rotvec(uc * math.radians(200.0)).apply(p - pc)
     actual = pa + Rotation.from_rotvec(ua * math.radians(-30.0)).apply(q - pa)
@@ -400,7 +400,7 @@ def test_axis_line_of_each_part_of_a_combined_test():
     readings = _noise_free(setup, truth)
     for axis in ("C", "A"):
         point, direction = ra.axis_line(setup, readings, axis=axis)
-        p_true, u_true = ra._true_line(ra._part(setup, axis), truth)
+        p_true, u_true = ra.true_line(ra.axis_part(setup, axis), truth)
         np.testing.assert_allclose(point[0], p_true, atol=1e-9)
         np.testing.assert_allclose(direction[0], u_true, atol=1e-12)
     with pytest.raises(InvalidInput, match="'axis'"):

@@ -112,9 +112,9 @@ def test_angle_influence_bound_follows_the_data_sheet_at_the_actual_tilt():
     from mtplan.models import rotary_axis as ra
 
     setup = PROC.setup(axis="A")
-    tau, _ = ra._tilts(setup)
+    tau, _ = ra.tilts(setup)
     np.testing.assert_allclose(tau, [48.4, 35.5, 24.8, 20.0, 24.8, 35.5, 48.4], atol=0.05)
-    bound = ra._plan(setup).tilt_bound  # [mm] for the default 10 mm range
+    bound = ra.plan(setup).tilt_bound  # [mm] for the default 10 mm range
     expected = 10.0 * np.interp(tau, [0, 5, 15, 30, 60], [0, 0.0012, 0.002, 0.005, 0.011])
     np.testing.assert_allclose(bound * THIRD * 3 / 5000e-6 * 5000e-6, expected, rtol=1e-12)
     # every sign of the three parts stays within the bound at every position, and the

@@ -1,7 +1,7 @@
 """geometry21's first-order uncertainty, identifiability and report extras.
 
 Built on the shared machinery (:mod:`mtplan.fitting.linear`): the joint model's
-Jacobian at zero error (:func:`~mtplan.models.geometry21._joint_ident`), its null space
+Jacobian at zero error (:func:`~mtplan.models.geometry21.joint_ident`), its null space
 and each estimator's first-order map from readings and error sources to the estimated
 coefficients. Every public name here is re-exported by :mod:`mtplan.models.geometry21`.
 """
@@ -22,29 +22,24 @@ from mtplan.fitting.linear import (
     source_response,
     source_variances,
 )
-from mtplan.models.geometry21 import (
-    _AXIS,
-    _KIND,
-    _RANK_TOL,
-    _WHITE,
+from mtplan.models.geometry21._estimators import check_estimator, estimate_theta
+from mtplan.models.geometry21._layout import Geometry, geometry
+from mtplan.models.geometry21._maps import patent_map, source_readings_map
+from mtplan.models.geometry21._model import RANK_TOL, joint_ident, param_names
+from mtplan.models.geometry21._path import repeatability_filter
+from mtplan.models.geometry21._physics import forward, measurands, sources
+from mtplan.models.geometry21._record import MODEL
+from mtplan.models.geometry21._setup import (
+    AXIS,
+    KIND,
     NAMES,
+    WHITE,
     Setup,
     Truth,
-    _check_estimator,
-    _estimate_theta,
-    _Geometry,
-    _geometry,
-    _joint_ident,
-    _param_names,
-    _repeatability_filter,
-    _rows,
-    _sizeless,
-    _truth_coefficients,
-    forward,
-    measurands,
-    sources,
+    sizeless,
+    truth_coefficients,
+    truth_rows,
 )
-from mtplan.models.geometry21._maps import patent_map, source_readings_map
 
 
 def _one_blas_thread(fn):
@@ -59,22 +54,15 @@ def _one_blas_thread(fn):
     return run
 
 
-def _procedure():
-    """geometry21's Procedure record (defined after this module is imported)."""
-    from mtplan.models.geometry21 import PROCEDURE
-
-    return PROCEDURE
-
-
 @functools.lru_cache(maxsize=8)
 def _patent_response(setup: Setup) -> np.ndarray:
     """B (n_par, n_par): the patent's estimated parameters' first-order response to the
     true ones (its derivative at the noise-free readings times the Jacobian)."""
-    ji = _joint_ident(setup)
+    ji = joint_ident(setup)
     return patent_map(setup, ji["r0"]) @ ji["jac"]
 
 
-def _owners(geo: _Geometry) -> np.ndarray:
+def _owners(geo: Geometry) -> np.ndarray:
     """The function (or "mounting") each parameter belongs to."""
     owner = np.empty(geo.n_par, dtype=object)
     for name, (_, sl) in geo.layout.items():
@@ -85,7 +73,7 @@ def _owners(geo: _Geometry) -> np.ndarray:
 
 def _unit(name: str) -> float:
     """Display factor of an error function: urad for angles, um for lengths."""
-    return 1e6 if _KIND[name] in ("ang", "sq") else 1e3
+    return 1e6 if KIND[name] in ("ang", "sq") else 1e3
 
 
 def identifiability(setup: Setup | None = None, estimator: str = "joint") -> pd.DataFrame:
@@ -108,8 +96,8 @@ def identifiability(setup: Setup | None = None, estimator: str = "joint") -> pd.
     :func:`mtplan.fitting.linear.function_status`.
     """
     setup = Setup() if setup is None else setup
-    _check_estimator(estimator)
-    ji = _joint_ident(setup)
+    check_estimator(estimator)
+    ji = joint_ident(setup)
     geo = ji["geo"]
     bmat = _patent_response(setup) if estimator == "patent" else None
     rows = function_status(
@@ -141,8 +129,8 @@ def identifiability_report(setup: Setup | None = None) -> dict:
     21 measurands as a linear function of the parameters, name -> row) and ``rank_tol``.
     """
     setup = Setup() if setup is None else setup
-    ji = _joint_ident(setup)
-    names = _param_names(ji["geo"])
+    ji = joint_ident(setup)
+    names = param_names(ji["geo"])
     sv = ji["sv"]
     null = null_space_table(ji["null"], names)
     return {
@@ -157,7 +145,7 @@ def identifiability_report(setup: Setup | None = None) -> dict:
         "scale": ji["scale"],
         "names": names,
         "functions": dict(zip(NAMES, ji["g"])),
-        "rank_tol": _RANK_TOL,
+        "rank_tol": RANK_TOL,
     }
 
 
@@ -172,15 +160,15 @@ def _source_factors(setup: Setup, estimator: str, truth: Truth | None, only) -> 
     the estimator: the joint fits' whole, the patent's derivative at the readings of the
     sources' means."""
     truth = Truth() if truth is None else truth
-    active = _procedure().active_sources(setup, only)
+    active = MODEL.active_sources(setup, only)
     srcs = sources(setup)
     resp = _source_response(setup, truth, estimator,
-                            tuple(n for n in active if n not in _WHITE))
+                            tuple(n for n in active if n not in WHITE))
     out, pos = {}, 0
     for name, src in active.items():
-        if name in _WHITE:
+        if name in WHITE:
             out[name] = _linear_map(setup, estimator, truth) * float(src.distribution.std)
-            f = _repeatability_filter(setup) if name == "repeatability" else None
+            f = repeatability_filter(setup) if name == "repeatability" else None
             if f is not None:  # correlated along the path: the map times the filter
                 a = out[name].reshape(out[name].shape[0], -1, 2)
                 out[name] = np.stack([(f.T @ a[:, :, c].T).T for c in range(2)],
@@ -195,29 +183,29 @@ def _source_factors(setup: Setup, estimator: str, truth: Truth | None, only) -> 
 def _linear_map(setup: Setup, estimator: str, truth: Truth) -> np.ndarray:
     """A (n_par, 2M): first-order map from the readings to the estimated parameters."""
     if estimator != "patent":
-        return _joint_ident(setup)["pinv"]
-    return _patent_linear_map(_sizeless(setup), truth)  # the same for every size
+        return joint_ident(setup)["pinv"]
+    return _patent_linear_map(sizeless(setup), truth)  # the same for every size
 
 
 @functools.lru_cache(maxsize=8)
 def _patent_linear_map(key: Setup, truth: Truth) -> np.ndarray:
-    return patent_map(key, forward(key, truth, _procedure().zero_errors(key, 1))["plate_mm"])
+    return patent_map(key, forward(key, truth, MODEL.zero_errors(key, 1))["plate_mm"])
 
 
 @functools.lru_cache(maxsize=8)
 def _source_response(setup: Setup, truth: Truth, estimator: str, names: tuple) -> np.ndarray:
     def zero(m):
-        return _procedure().zero_errors(setup, m)
+        return MODEL.zero_errors(setup, m)
 
     if estimator != "patent":
         return source_response(
-            lambda errors: _estimate_theta(setup, forward(setup, truth, errors), estimator),
+            lambda errors: estimate_theta(setup, forward(setup, truth, errors), estimator),
             zero, sources(setup), names)
     srcs = sources(setup)
     at_mean = zero(1)
     for name in names:
         at_mean[name][...] = srcs[name].distribution.mean
-    if _rows(truth) is None:
+    if truth_rows(truth) is None:
         readings = source_readings_map(setup, truth, names)
     else:  # one truth per row: through the forward model
         readings = source_response(lambda errors: forward(setup, truth, errors)["plate_mm"]
@@ -246,18 +234,18 @@ def coefficient_covariance(setup: Setup | None = None, *, estimator: str = "join
     cov : array (n_coef, n_coef) [internal units squared]
     """
     setup = Setup() if setup is None else setup
-    _check_estimator(estimator)
-    geo = _geometry(setup)
+    check_estimator(estimator)
+    geo = geometry(setup)
     cov = np.zeros((geo.n_coef, geo.n_coef))
     for f in _source_factors(setup, estimator, truth, sources).values():
         fc = f[: geo.n_coef]
         cov += fc @ fc.T
-    return _param_names(geo)[: geo.n_coef], cov
+    return param_names(geo)[: geo.n_coef], cov
 
 
 def _measurand_variances(setup: Setup, estimator: str, truth: Truth | None, only) -> dict:
     """source -> {measurand: first-order variance [display unit^2]} of the listed ones."""
-    ji = _joint_ident(setup)
+    ji = joint_ident(setup)
     ms = measurands(setup)
     g = np.array([ji["g"][NAMES.index(m.name)] * m.scale for m in ms]).reshape(len(ms), -1)
     var = source_variances(g, _source_factors(setup, estimator, truth, only))
@@ -282,7 +270,7 @@ def budget(setup: Setup | None = None, *, estimator: str = "joint",
     the measurand's variance; the sources are independent, so the shares add to 1).
     """
     setup = Setup() if setup is None else setup
-    _check_estimator(estimator)
+    check_estimator(estimator)
     var = _measurand_variances(setup, estimator, truth, None)
     rows = []
     for m in measurands(setup):
@@ -309,11 +297,11 @@ def sensitivities(setup: Setup, truth: Truth | None = None, *, estimator: str = 
     have one column per element (then the generic chain rule).
     """
     truth = Truth() if truth is None else truth
-    _check_estimator(estimator)
-    active = _procedure().active_sources(setup, sources)
+    check_estimator(estimator)
+    active = MODEL.active_sources(setup, sources)
     factors = _source_factors(setup, estimator, truth, sources)
     ms = measurands(setup)
-    g = np.array([_joint_ident(setup)["g"][NAMES.index(m.name)] * m.scale
+    g = np.array([joint_ident(setup)["g"][NAMES.index(m.name)] * m.scale
                   for m in ms]).reshape(len(ms), -1)
     cols = []
     for name, src in active.items():
@@ -332,12 +320,12 @@ def first_order_std(setup: Setup, truth: Truth | None = None, *, estimator: str 
                     sources=None) -> dict:
     """First-order standard uncertainty of each listed measurand [display unit] (see
     :func:`budget`), from the same factors as :func:`sensitivities`."""
-    _check_estimator(estimator)
+    check_estimator(estimator)
     var = _measurand_variances(setup, estimator, truth, sources)
     return {m.name: math.sqrt(sum(v[m.name] for v in var.values())) for m in measurands(setup)}
 
 
-def _travel(geo: _Geometry, axis: int) -> tuple[float, float]:
+def _travel(geo: Geometry, axis: int) -> tuple[float, float]:
     """Range of an axis's commanded position over every reading [mm]: where the plates read
     its errors (the lines and circles, and the fixed coordinates of the plates and heads:
     the YZ plate reads X's errors at its x, 120 mm in the patent)."""
@@ -382,26 +370,26 @@ def error_functions(setup: Setup | None = None, readings: dict | None = None, *,
     :func:`identifiability`). Squareness errors are constants: one row at position 0.
     """
     setup = Setup() if setup is None else setup
-    _check_estimator(estimator)
+    check_estimator(estimator)
     p = Problems("error_functions")
     p.number("positions", positions, low=2, integer=True)
     if travel is not None and not (len(travel) == 2 and travel[0] < travel[1]):
         p.add("travel", travel, "a pair (low, high) with low < high [mm]")
     p.raise_if_any()
-    ji = _joint_ident(setup)
+    ji = joint_ident(setup)
     geo, s, null = ji["geo"], ji["scale"], ji["null"]
     _, cov = coefficient_covariance(setup, estimator=estimator, truth=truth, sources=sources)
     status = identifiability(setup, estimator)["status"]
-    theta = None if readings is None else _estimate_theta(setup, readings, estimator)[0]
-    tcoef = None if truth is None else _truth_coefficients(truth)
+    theta = None if readings is None else estimate_theta(setup, readings, estimator)[0]
+    tcoef = None if truth is None else truth_coefficients(truth)
     rows = []
     for name in NAMES:
         powers, sl = geo.layout[name]
-        scale = 1e6 if _KIND[name] in ("ang", "sq") else 1e3
-        if _KIND[name] == "sq":
+        scale = 1e6 if KIND[name] in ("ang", "sq") else 1e3
+        if KIND[name] == "sq":
             pts = np.array([0.0])
         else:
-            lo, hi = travel if travel is not None else _travel(geo, _AXIS[name])
+            lo, hi = travel if travel is not None else _travel(geo, AXIS[name])
             pts = np.linspace(lo, hi, int(positions))
         for x in pts:
             b = np.zeros(geo.n_par)
@@ -416,7 +404,7 @@ def error_functions(setup: Setup | None = None, readings: dict | None = None, *,
             else:
                 tp, tc = tcoef[name]
                 true = float(np.sum(tc * x ** np.array(tp))) * scale
-            rows.append((name, "urad" if scale == 1e6 else "um", _KIND[name], "XYZ"[_AXIS[name]],
+            rows.append((name, "urad" if scale == 1e6 else "um", KIND[name], "XYZ"[AXIS[name]],
                          float(x), est, true, math.sqrt(max(var, 0.0)) * scale if ok else math.inf,
                          status[name]))
     return pd.DataFrame(rows, columns=["function", "unit", "kind", "axis", "position_mm",
@@ -452,7 +440,7 @@ def noise_free_table(setup: Setup | None = None, *, scales=(1.0, 10.0, 100.0),
     """
     setup = Setup() if setup is None else setup
     base = Truth() if truth is None else truth
-    proc = _procedure()
+    proc = MODEL
     rows = []
     for sc in scales:
         tr = base.replace(angular_scale=float(sc) * base.angular_scale)

@@ -1,124 +1,34 @@
-"""geometry21's first-order maps in closed form: the readings' Jacobian at zero error and
-the patent estimator's derivative with respect to the readings.
+"""geometry21's first-order maps in closed form: the patent estimator's derivative with
+respect to the readings, and the readings' response to each error source's elements.
 
-Both were central differences of the exact chains (the Jacobian: 2 evaluations of the
-kinematic chain per parameter; the patent's map: 2 evaluations of its two steps per
-reading), which took most of a first-order budget's time. Here they are the chain rule
-of the same chains, exact to rounding; the tests hold them to the central differences
-(relative 1e-6 of each map's largest entry, the differences' own truncation and rounding
-error being about 1e-8).
+The patent's map was central differences of its two steps (2 evaluations per reading),
+which took most of a first-order budget's time; here it is the chain rule of the same
+steps, exact to rounding, and the tests hold it to the central differences (relative 1e-6
+of its largest entry, the differences' own truncation and rounding error being about
+1e-8). The readings' Jacobian at zero error is :mod:`._jacobian`'s.
 """
-
 from __future__ import annotations
 
 import numpy as np
 
-from mtplan.models.geometry21 import (
-    _AXIS,
-    _KIND,
-    NAMES,
-    Setup,
-    _forward_matrix,
-    _Geometry,
-    _geometry,
-    _grid_basis,
-    _patent_design,
-    _plane_slices,
-    _readings_matrix,
-    _residual_basis,
-    _sizeless,
-    sources,
-)
-
-
-def _cross(axis: int, v: np.ndarray) -> np.ndarray:
-    """e_axis x v for vectors v (M, 3): the first-order motion of v under a small rotation
-    about that axis."""
-    out = np.zeros_like(v)
-    b, c = (axis + 1) % 3, (axis + 2) % 3
-    out[:, c] = v[:, b]
-    out[:, b] = -v[:, c]
-    return out
-
-
-def _value_effects(geo: _Geometry) -> dict:
-    """Function name -> (M, 3) machine-frame first-order motion of each reading's head
-    position per unit of the function's value there (:func:`mtplan.models.kinematics.chain`
-    at zero error: translations add; angular errors of Z act on the head's lever (h - f),
-    of Y on it plus z e_z, of X on that plus y e_y; the squareness tilts the axis directions)."""
-    m = geo.plane.size
-    x, y, z = geo.cmd.T
-    hv = geo.hvec - geo.ref
-    p_z = hv.copy()
-    p_z[:, 2] += z
-    p_y = p_z.copy()
-    p_y[:, 1] += y
-    lever = {"Z": hv, "Y": p_z, "X": p_y}
-    eye = np.eye(3)
-    out = {}
-    for name in NAMES:
-        kind = _KIND[name]
-        if kind == "sq":
-            e = np.zeros((m, 3))
-            if name == "EC0Y":  # d_y = (-sin c, cos c, 0)
-                e[:, 0] = -y
-            elif name == "EB0Z":  # d_z = (sin b cos a, -sin a, cos b cos a)
-                e[:, 0] = z
-            else:  # EA0Z
-                e[:, 1] = -z
-        elif kind == "ang":  # E[ABC]U: rotation about x, y, z of axis U
-            e = _cross("ABC".index(name[1]), lever[name[2]])
-        else:  # E[XYZ]U: translation along x, y, z
-            e = np.broadcast_to(eye["XYZ".index(name[1])], (m, 3))
-        out[name] = e
-    return out
-
-
-def zero_jacobian(geo: _Geometry) -> np.ndarray:
-    """J (2M, P): the readings' first-order response to every parameter at zero error
-    (coefficients, then each plate's offset u, v and rotation, then the extra heads'
-    settings), the same layout as ``_predict``'s readings flattened."""
-    m = geo.plane.size
-    loc = np.empty((m, 3))
-    for k in range(3):  # the nominal head positions in each plate's frame
-        sel = geo.plane == k
-        loc[sel] = (geo.cmd[sel] + geo.hvec[sel] - geo.origin[k]) @ geo.basis[k]
-    jac = np.zeros((m, 2, geo.n_par))
-    effects = _value_effects(geo)
-    for name in NAMES:
-        powers, sl = geo.layout[name]
-        e = effects[name]
-        uv = np.empty((m, 2))
-        for k in range(3):
-            sel = geo.plane == k
-            uv[sel] = e[sel] @ geo.basis[k][:, :2]
-        u = geo.cmd[:, _AXIS[name]]
-        for j, pw in zip(range(sl.start, sl.stop), powers, strict=True):
-            jac[:, :, j] = uv * (u**pw)[:, None] if pw else uv
-    nc = geo.n_coef
-    for k in range(3):
-        sel = geo.plane == k
-        jac[sel, 0, nc + 3 * k] = -1.0  # offset: the reading is loc - offset
-        jac[sel, 1, nc + 3 * k + 1] = -1.0
-        jac[sel, 0, nc + 3 * k + 2] = loc[sel, 1]  # rotation c: Rz(-c) loc
-        jac[sel, 1, nc + 3 * k + 2] = -loc[sel, 0]
-    for e, (_k, sl) in enumerate(geo.xslices):  # an extra head's setting adds
-        jac[sl, 0, nc + 9 + 2 * e] = 1.0
-        jac[sl, 1, nc + 10 + 2 * e] = 1.0
-    return jac.reshape(2 * m, geo.n_par)
-
+from mtplan.models.geometry21._layout import geometry, grid_basis, plane_slices
+from mtplan.models.geometry21._model import readings_matrix
+from mtplan.models.geometry21._patent import patent_design
+from mtplan.models.geometry21._path import residual_basis
+from mtplan.models.geometry21._physics import forward_matrix, sources
+from mtplan.models.geometry21._setup import Setup, sizeless
 
 def patent_map(setup: Setup, readings: np.ndarray) -> np.ndarray:
-    """A (P, 2M): the derivative of the patent's stepwise estimate (``_theta_patent``) with
-    respect to the readings, at `readings` (2M,) (flattened as ``_readings_matrix``).
+    """A (P, 2M): the derivative of the patent's stepwise estimate (``theta_patent``) with
+    respect to the readings, at `readings` (2M,) (flattened as ``readings_matrix``).
 
     Step 1 is linear; step 2 brings each reading back to the nominal plate frame with the
     step-1 mounting (a rotation by phi and a shift) and takes the circles' radii, less the
     step-1 errors' first-order effect: its derivative is the direct one plus the mounting's
     and the step-1 errors', through the step-1 map."""
-    pd_ = _patent_design(setup)
+    pd_ = patent_design(setup)
     geo = pd_["geo"]
-    r = _readings_matrix(setup, {"plate_mm": np.asarray(readings, float).reshape(1, -1, 2)})[0]
+    r = readings_matrix(setup, {"plate_mm": np.asarray(readings, float).reshape(1, -1, 2)})[0]
     n2 = r.size
     lin1 = np.zeros((geo.n_par, n2))  # step 1, with its overwrites in the same order
     for pl in pd_["planes"]:
@@ -167,22 +77,22 @@ def source_readings_map(setup: Setup, truth, names) -> np.ndarray:
     their patterns (the servo's square by twice the mean following time); a plate's tilt
     and rotation turn the mean head position (``Rinv`` to first order: ``-e x loc``)."""
     srcs = sources(setup)
-    geo = _geometry(setup)
+    geo = geometry(setup)
     m = geo.plane.size
     feat = np.concatenate([np.zeros(9), np.full(3, srcs["servo_lag"].distribution.mean)])
     feat = np.concatenate([feat, feat[9:] ** 2])
     feat[6:9] = srcs["reversal"].distribution.mean
-    base = _forward_matrix(setup, truth)
+    base = forward_matrix(setup, truth)
     loc = (np.concatenate([[1.0], feat]) @ base).reshape(m, 3)
     pattern = geo.pattern[:, :, :2]  # (15, M, 2): plate-frame u, v per unit feature
-    planes = _plane_slices(geo)
+    planes = plane_slices(geo)
     cols = []
     for name in names:
         sd = float(srcs[name].distribution.std)
         shape = srcs[name].shape
         out = np.zeros((int(np.prod(shape, dtype=np.int64)), m, 2))
         if name == "grid_error":
-            basis = _grid_basis(geo)
+            basis = grid_basis(geo)
             for j, (k, c, p) in enumerate(np.ndindex(*shape)):
                 out[j, planes[k], c] = basis[planes[k], p]
         elif name == "plate_offset":
@@ -192,7 +102,7 @@ def source_readings_map(setup: Setup, truth, names) -> np.ndarray:
             for j, (e, c) in enumerate(np.ndindex(*shape)):
                 out[j, geo.xslices[e][1], c] = 1.0
         elif name == "path_residual":
-            out[:] = _residual_basis(_sizeless(setup)).T.reshape(-1, m, 2)
+            out[:] = residual_basis(sizeless(setup)).T.reshape(-1, m, 2)
         elif name == "plate_tilt":
             for k, sl in enumerate(planes):
                 lu, lv, ln = loc[sl].T

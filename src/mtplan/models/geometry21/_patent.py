@@ -9,24 +9,15 @@ import functools
 
 import numpy as np
 
-from mtplan.models.geometry21 import (
-    _KIND,
-    _STEP1,
-    NAMES,
-    PLANES,
-    Setup,
-    _joint_ident,
-    _readings_matrix,
-    _sizeless,
-    _tpinv,
-)
+from mtplan.models.geometry21._model import joint_ident, readings_matrix, tpinv
+from mtplan.models.geometry21._setup import KIND, NAMES, PLANES, STEP1, Setup, sizeless
 
 
 @functools.lru_cache(maxsize=8)
-def _patent_design(setup: Setup) -> dict:
-    if (key := _sizeless(setup)) != setup:  # the geometry's, for every size of the sources
-        return _patent_design(key)
-    ji = _joint_ident(setup)
+def patent_design(setup: Setup) -> dict:
+    if (key := sizeless(setup)) != setup:  # the geometry's, for every size of the sources
+        return patent_design(key)
+    ji = joint_ident(setup)
     geo, jac, s = ji["geo"], ji["jac"], ji["scale"]
     m = geo.plane.size
     j3 = jac.reshape(m, 2, geo.n_par)
@@ -34,7 +25,7 @@ def _patent_design(setup: Setup) -> dict:
     def cols(names):
         return np.concatenate([np.arange(geo.n_par)[geo.layout[n][1]] for n in names])
 
-    c1_all = cols([n for pl in _STEP1.values() for n in pl])
+    c1_all = cols([n for pl in STEP1.values() for n in pl])
     planes = []
     for k, (pl, a, b, _c) in enumerate(PLANES):
         A, B = "XYZ"[a], "XYZ"[b]
@@ -43,7 +34,7 @@ def _patent_design(setup: Setup) -> dict:
         c1 = np.concatenate([cols(fit), geo.n_coef + 3 * k + np.arange(3)])
         lines = np.flatnonzero((geo.plane == k) & (geo.test < 2) & (geo.head == 0))
         rows = (2 * lines[:, None] + np.arange(2)).ravel()
-        a1, rank1, _, _ = _tpinv(jac[np.ix_(rows, c1)], s[c1])
+        a1, rank1, _, _ = tpinv(jac[np.ix_(rows, c1)], s[c1])
         circ = np.flatnonzero((geo.plane == k) & (geo.test == 2))
         er = geo.local[circ] / setup.circle_radius_mm  # (Mc, 2) radial unit vectors
         jrad = np.einsum("mc,mcp->mp", er, j3[circ])  # first-order radial model (Mc, P)
@@ -52,7 +43,7 @@ def _patent_design(setup: Setup) -> dict:
         more = np.any((geo.plane == k) & (geo.head > 0))
         xlines = np.flatnonzero((geo.plane == k) & (geo.test < 2) & ((geo.head > 0) | more))
         jlin = j3[xlines].reshape(-1, geo.n_par)  # extra heads' lines, both components
-        keep = np.isin(c1, cols(_STEP1[pl]))
+        keep = np.isin(c1, cols(STEP1[pl]))
         planes.append(dict(rows=rows, c1=c1, a1=a1, keep=keep, circ=circ, xlines=xlines,
                            q1=np.concatenate([jrad, jlin])[:, c1_all],
                            q2=np.concatenate([jrad, jlin]), rank1=rank1,
@@ -64,18 +55,18 @@ def _patent_design(setup: Setup) -> dict:
     # the plate's fixed coordinate), which step 2 subtracts again with the step-1 errors
     mounts = [geo.n_coef + 3 * k + j for k in range(3) if np.any((geo.plane == k) & (geo.head > 0))
               for j in range(3)]
-    c2 = np.concatenate([cols([n for n in NAMES if _KIND[n] == "ang"]), mounts,
+    c2 = np.concatenate([cols([n for n in NAMES if KIND[n] == "ang"]), mounts,
                          np.arange(geo.n_coef + 9, geo.n_par)]).astype(int)
     q2 = np.concatenate([pl["q2"][:, c2] for pl in planes])
-    a2, rank2, _, _ = _tpinv(q2, s[c2])
+    a2, rank2, _, _ = tpinv(q2, s[c2])
     return {"geo": geo, "planes": planes, "c1_all": c1_all, "c2": c2, "a2": a2, "rank2": rank2,
             "r0": ji["r0"]}
 
 
-def _theta_patent(setup: Setup, readings: dict) -> np.ndarray:
-    pd_ = _patent_design(setup)
+def theta_patent(setup: Setup, readings: dict) -> np.ndarray:
+    pd_ = patent_design(setup)
     geo = pd_["geo"]
-    r = _readings_matrix(setup, readings)
+    r = readings_matrix(setup, readings)
     dr = r - pd_["r0"]
     n = r.shape[0]
     theta = np.zeros((n, geo.n_par))

@@ -15,11 +15,12 @@ import math
 import numpy as np
 
 from mtplan.fitting.linear import filter_whitening
-from mtplan.models.geometry21 import Setup, _Geometry, _geometry, _sizeless
+from mtplan.models.geometry21._layout import Geometry, geometry
+from mtplan.models.geometry21._setup import Setup, sizeless
 
 
 @functools.lru_cache(maxsize=8)
-def _repeatability_filter(setup: Setup):
+def repeatability_filter(setup: Setup):
     """The AR(1) filter of the repeatability along each pass, a sparse lower-triangular
     matrix (M, M) from innovations to path deviations (None when the length is 0).
 
@@ -31,7 +32,7 @@ def _repeatability_filter(setup: Setup):
     length = setup.repeatability_correlation_mm
     if length <= 0:
         return None
-    return _ar1_filter(_pass_lengths(_sizeless(setup)), length)
+    return _ar1_filter(_pass_lengths(sizeless(setup)), length)
 
 
 @functools.lru_cache(maxsize=16)
@@ -39,7 +40,7 @@ def _pass_lengths(key: Setup) -> tuple:
     """(number of readings, their spacing along the path [mm]) of each pass (contiguous
     readings of one plane, head, test and pass), in order: all the filter depends on
     besides the correlation length."""
-    geo = _geometry(key)
+    geo = geometry(key)
     keys = np.stack([geo.plane, geo.head, geo.test, geo.pass_], axis=1)
     start = np.ones(len(keys), dtype=bool)
     start[1:] = np.any(keys[1:] != keys[:-1], axis=1)
@@ -81,7 +82,7 @@ RESIDUAL_KNOT_MM = 2.5
 RESIDUAL_CORRELATION_MM = 5.0
 
 
-def _residual_knots(geo: _Geometry) -> tuple[float, int]:
+def residual_knots(geo: Geometry) -> tuple[float, int]:
     """(first knot [mm], number of knots) of the residual's grid: every axis's commanded
     positions lie between the second and the last but one."""
     lo, hi = float(geo.cmd.min()), float(geo.cmd.max())
@@ -90,7 +91,7 @@ def _residual_knots(geo: _Geometry) -> tuple[float, int]:
 
 
 @functools.lru_cache(maxsize=8)
-def _residual_basis(key: Setup) -> np.ndarray:
+def residual_basis(key: Setup) -> np.ndarray:
     """(2M, 3 x 3 x K): each reading's plate-frame (u, v) per unit innovation of the path
     residual (axis, direction of the deviation, knot), in the source's order.
 
@@ -98,8 +99,8 @@ def _residual_basis(key: Setup) -> np.ndarray:
     ``RESIDUAL_KNOT_MM`` apart (correlation exp(-d / RESIDUAL_CORRELATION_MM), unit variance,
     :func:`_ar1_filter` of the innovations), linearly interpolated at the axis's commanded
     position; the deviation's direction is taken into the plate's frame."""
-    geo = _geometry(key)
-    first, k = _residual_knots(geo)
+    geo = geometry(key)
+    first, k = residual_knots(geo)
     f = _ar1_filter(((k, RESIDUAL_KNOT_MM),), RESIDUAL_CORRELATION_MM).toarray()
     t = (geo.cmd - first) / RESIDUAL_KNOT_MM  # (M, axis) in knots
     i = np.floor(t).astype(int)
@@ -114,7 +115,7 @@ def _residual_basis(key: Setup) -> np.ndarray:
     return np.einsum("mdc,amk->mcadk", rows, field).reshape(2 * m, -1)
 
 
-def _reading_whitener(setup: Setup):
+def reading_whitener(setup: Setup):
     """Whitening (2M, 2M) of the readings' scatter that the joint fit weighs: encoder noise,
     the AR(1) repeatability (:func:`mtplan.fitting.linear.filter_whitening`) and the path
     residual that every pass repeats (a low-rank term, :class:`_LowRank`); None where all is
@@ -123,15 +124,15 @@ def _reading_whitener(setup: Setup):
     linear in time no longer cancel exactly (0.03 um in EXX, 0.08 urad in EAY at the
     defaults); weighting the CW pass as the CCW one reversed would, at 13 % more u in EBX,
     ECX, EAY."""
-    ratios = _weight_ratios(setup)
-    return None if ratios is None else _whitening(_sizeless(setup), *ratios)
+    ratios = weight_ratios(setup)
+    return None if ratios is None else whitening(sizeless(setup), *ratios)
 
 
-def _weight_ratios(setup: Setup) -> tuple | None:
+def weight_ratios(setup: Setup) -> tuple | None:
     """What the joint fit's weights depend on besides the geometry: (the encoder noise over
     the repeatability, or None where the repeatability is white; the path residual's
     coefficients' standard deviation over the same unit); None for equal weights."""
-    correlated = _repeatability_filter(setup) is not None and setup.repeatability_um > 0
+    correlated = repeatability_filter(setup) is not None and setup.repeatability_um > 0
     unit = setup.repeatability_um if correlated else math.hypot(setup.encoder_noise_um,
                                                                 setup.repeatability_um)
     residual = setup.path_residual_um
@@ -141,17 +142,17 @@ def _weight_ratios(setup: Setup) -> tuple | None:
 
 
 @functools.lru_cache(maxsize=8)
-def _whitening(key: Setup, noise_ratio: float | None, residual_ratio: float):
-    """The whitening of :func:`_reading_whitener` for the geometry of `key` (in units of the
+def whitening(key: Setup, noise_ratio: float | None, residual_ratio: float):
+    """The whitening of :func:`reading_whitener` for the geometry of `key` (in units of the
     repeatability's variance, or of the white scatter's where it is white)."""
     import scipy.sparse as sp
 
     if noise_ratio is None:
-        w = sp.identity(2 * _geometry(key).plane.size, format="csr")
+        w = sp.identity(2 * geometry(key).plane.size, format="csr")
     else:
         w = _whitener(_pass_lengths(key), key.repeatability_correlation_mm, noise_ratio)
     if residual_ratio > 0:
-        w = _LowRank(w, residual_ratio * _residual_basis(key))
+        w = _LowRank(w, residual_ratio * residual_basis(key))
     return w
 
 

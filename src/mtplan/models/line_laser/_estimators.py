@@ -13,26 +13,21 @@ import numpy as np
 
 from mtplan._validate import InvalidInput
 from mtplan.fitting import Gaussian, SourceModel, central_jacobian, gls_gain, source_effects
-from mtplan.models.line_laser import (
-    _SQ3,
-    _TOL_FLOOR,
-    _angles_from_rotation,
-    _grid_u,
-    _grid_y,
-    _pitch,
-    _registration_check,
-    _shift,
-    forward,
+from mtplan.models.line_laser._artifact import (
+    angles_from_rotation as _angles_from_rotation,
+    grid_u as _grid_u,
+    grid_y as _grid_y,
     height_map,
-    source_structure,
-    sources,
-    Truth,
+    pitch as _pitch,
+    x_shift as _shift,
 )
+from mtplan.models.line_laser._physics import forward, source_structure, sources, true_values
+from mtplan.models.line_laser._setup import SQ3 as _SQ3, TOL_FLOOR as _TOL_FLOOR, Truth
 
 
 def _procedure():
     """line_laser's Procedure record (defined after this module is imported)."""
-    from mtplan.models.line_laser import PROCEDURE
+    from mtplan.models.line_laser._record import MODEL as PROCEDURE
 
     return PROCEDURE
 
@@ -405,6 +400,36 @@ def _registration_uncached(setup, z) -> dict:
         rot[finite] = _kabsch(a_vecs[finite], b_vecs[finite])
     az, ay, ax = _angles_from_rotation(rot)
     return {"alpha_z": az, "alpha_y": ay, "alpha_x": ax}
+
+
+@functools.lru_cache(maxsize=64)
+def _registration_check(setup) -> tuple[bool, str]:
+    """Whether the registration works at `setup`: the facets must be resolved (three
+    samples across), and on the noise-free data of the default truth the fit must be
+    well conditioned and recover the angles."""
+    p, dy = _pitch(setup), setup.step_mm
+    facet = setup.cell_depth_mm / math.tan(math.radians(setup.facet_angle_deg))
+    if facet < 3 * max(p, dy):
+        return False, (
+            f"the facets ({facet:.3g} mm wide) are narrower than three samples "
+            f"(3 x {max(p, dy):.3g} mm): the registration has no sloped surface to work on; "
+            f"use more points per line, a finer step or shallower facets")
+    truth = Truth()
+    try:
+        z = forward(setup, truth, _procedure().zero_errors(setup, 1))["z_mm"]
+    except InvalidInput as exc:
+        return False, f"the default truth cannot be scanned at this set-up ({exc})"
+    est = _registration_core(setup, z)
+    err = max(abs(float(est[k][0]) - v) for k, v in true_values(setup, truth).items())
+    if not err < 1e-9:
+        return False, (
+            "too few planar samples on the facets (a narrow scan, few points per line or "
+            "few lines): on noise-free data of the default truth the registration's normal "
+            "equations are singular or it misses the angles; scan more lines or use more "
+            "points per line")
+    return True, ("sub-step least-squares registration of the sloped facets, exact rotation "
+                  "fit; the raise shifts the pattern by -h*tan(alpha_x) along Y, which gives "
+                  "the sign")
 
 
 # --------------------------------------------------------------------------- pattern

@@ -38,18 +38,7 @@ import math
 
 import numpy as np
 
-from mtplan.models.line_laser import (
-    _FACET_OF,
-    _frames,
-    _linearity_basis,
-    _nominal,
-    _pitch,
-    _scan_times,
-    _shift,
-    Truth,
-    measurands,
-    sources,
-)
+from mtplan.models.line_laser._artifact import pitch as _pitch, x_shift as _shift
 from mtplan.models.line_laser._estimators import (
     _FIT_FIELDS,
     _FIT_STEPS,
@@ -62,6 +51,15 @@ from mtplan.models.line_laser._estimators import (
     _registration_check,
     _row_search,
 )
+from mtplan.models.line_laser._physics import (
+    FACET_OF as _FACET_OF,
+    frames as _frames,
+    linearity_basis as _linearity_basis,
+    measurands,
+    nominal_trace as _nominal,
+    scan_times as _scan_times,
+)
+from mtplan.models.line_laser._setup import Truth
 
 #: estimators whose linear map is written out here (the registration's is not)
 MAPPED = ("patent", "pattern")
@@ -184,7 +182,8 @@ def sensitivities(setup, truth=None, *, estimator: str = "patent", sources=None)
     estimator whose map is not written out (``registration``) or a source whose effect
     does not have one column per element: then the generic chain rule.
     """
-    from mtplan.models.line_laser import PROCEDURE, forward
+    from mtplan.models.line_laser._physics import forward
+    from mtplan.models.line_laser._record import MODEL as PROCEDURE
 
     truth = Truth() if truth is None else truth
     if estimator not in MAPPED:

@@ -8,18 +8,13 @@ import numpy as np
 
 from mtplan._validate import InvalidInput
 from mtplan.fitting import SourceModel, gls_step, source_effects
-from mtplan.models.rotary_axis import (
-    _NAMES,
-    NAME,
-    _combined,
-    _each_axis,
-    _parts,
-    _plan,
-    forward,
-    Setup,
-    sources,
-    Truth,
+from mtplan.models.rotary_axis._axes import (
+    axis_parts as _parts,
+    combined as _combined,
 )
+from mtplan.models.rotary_axis._layout import NAMES as _NAMES, plan as _plan
+from mtplan.models.rotary_axis._physics import forward, sources
+from mtplan.models.rotary_axis._setup import NAME, Setup, Truth
 
 
 # --------------------------------------------------------------------------- estimators
@@ -45,6 +40,17 @@ def _pass_mean(setup: Setup, z: np.ndarray) -> np.ndarray:
         return z
     n, P, _ = z.shape
     return z.reshape(n, P, setup.n_passes, setup.n_points).mean(axis=2)
+
+
+def _each_axis(setup: Setup, readings: dict, estimate_axis) -> dict[str, np.ndarray]:
+    """Run a single-axis estimator on each axis's positions; add CA's derived measurands."""
+    z = _check_readings(setup, readings)
+    out = {}
+    for part, sl in _parts(setup):
+        out.update(estimate_axis(part, z[:, sl]))
+    if setup.axis == "CA":
+        out.update(_combined(setup, out))
+    return out
 
 
 def _planes(setup: Setup, z: np.ndarray) -> np.ndarray:

@@ -10,16 +10,10 @@ import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
 from mtplan.models.protocol import frame_columns
-from mtplan.models.rotary_axis import (
-    NAME,
-    Setup,
-    Truth,
-    _plan,
-    _position_axes,
-    forward,
-    sources,
-)
 from mtplan.models.rotary_axis._estimators import _check_readings
+from mtplan.models.rotary_axis._layout import plan, position_axes
+from mtplan.models.rotary_axis._physics import forward, sources
+from mtplan.models.rotary_axis._setup import NAME, Setup, Truth
 
 _COLUMNS = ("position", "angle_deg", "point", "x_mm", "y_mm", "z_mm")
 
@@ -35,10 +29,10 @@ def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
     schedule has the sensor's orientation as ``sensor_deg``.)
     """
     z = _check_readings(setup, readings, passes=True)[0]
-    g = _plan(setup)
+    g = plan(setup)
     P, M = z.shape
     return pd.DataFrame({
-        "axis": np.repeat(_position_axes(setup), M),
+        "axis": np.repeat(position_axes(setup), M),
         "position": np.repeat(np.arange(P), M),
         "angle_deg": np.repeat(setup.angles(), M),
         "point": np.tile(np.arange(M), P),
@@ -84,7 +78,7 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict[str, np.ndarray]:
         p.add_text(f"The {NAME} reading of position {k // M}, point {k % M} {what}")
         p.raise_if_any()
     order = np.argsort(flat, kind="stable")
-    g = _plan(setup)
+    g = plan(setup)
     checks = (("angle_deg", np.repeat(setup.angles(), M), 1e-6),
               ("x_mm", g.xy[..., 0].ravel(), 1e-3), ("y_mm", g.xy[..., 1].ravel(), 1e-3))
     for col, expected, tol in checks:
@@ -97,7 +91,7 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict[str, np.ndarray]:
                        f"has {expected[bad[0]]!r}")
     if "axis" in df.columns:
         got = df["axis"].astype(str).str.strip().str.upper().to_numpy()[order]
-        expected = np.repeat(_position_axes(setup), M)
+        expected = np.repeat(position_axes(setup), M)
         bad = np.flatnonzero(got != expected)
         if bad.size:
             row = int(order[bad[0]])
