@@ -243,7 +243,7 @@ def correct_mc(proc, setup, readings, estimator, truth0, r, *, value, u, low, hi
         ``u``, ``low``, ``high``, ``u_correction``, ``u_correction_mc``,
         ``u_correction_truth``, ``covariance`` (arrays, display units) and ``notes``.
     """
-    from scipy import stats
+    from scipy import special
 
     value, u = np.asarray(value, dtype=float), np.asarray(u, dtype=float)
     trials = int(r.mc.trials)
@@ -255,7 +255,7 @@ def correct_mc(proc, setup, readings, estimator, truth0, r, *, value, u, low, hi
     # a heavy-tailed measurand is not corrected (its interval is the result): no correction,
     # no correction's uncertainty (a bias from a few hundred trials of such errors is noise)
     u_c = np.where(bad, np.nan, np.where(heavy, 0.0, np.hypot(se, nuis)))
-    k = stats.norm.ppf(0.5 + coverage / 2)
+    k = special.ndtri(0.5 + coverage / 2)  # scipy.stats' norm.ppf, without importing it
     notes = []
     if why is not None:
         notes.append(f"the bias correction's dependence on the truth is not in u: {why}")
