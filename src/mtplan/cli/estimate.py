@@ -40,7 +40,7 @@ def register(sub) -> None:
                    help="mc: Monte Carlo around the estimate (default); posterior: emcee")
     p.add_argument("--trials", type=count, metavar="N",
                    help="Monte Carlo trials (default: the first-order u and interval where a "
-                        "Monte Carlo of 1000 trials validates them, else 10000 trials)")
+                        "Monte Carlo of 256 to 2048 trials validates them, else 10000 trials)")
     p.add_argument("--seed", type=int, metavar="S", help="random seed (default 0)")
     p.add_argument("--jobs", type=workers, default=min(os.cpu_count() or 1, 4), metavar="J",
                    help="mc: parallel workers of the Monte Carlo (default: the machine's "

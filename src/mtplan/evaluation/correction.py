@@ -188,7 +188,8 @@ def correction_spread(proc, setup, readings, estimator, truth0, *, heavy, rng, s
     draws, trials : int
         Truths drawn (:func:`laplace_truths`) and Monte Carlo trials at each.
     n_jobs : int
-        Workers of each Monte Carlo (the numbers do not depend on it).
+        Workers over which the truths' Monte Carlos are spread, one Monte Carlo per worker
+        at a time (the numbers do not depend on it).
 
     Returns
     -------
@@ -197,7 +198,7 @@ def correction_spread(proc, setup, readings, estimator, truth0, *, heavy, rng, s
     reason : str or None
         Why none was drawn.
     """
-    from mtplan.evaluation.simulation import simulate_uncertainty
+    from mtplan._parallel import effective_jobs, ordered_map
 
     n = len(proc.measurands(setup))
     if draws < 1:
@@ -206,23 +207,33 @@ def correction_spread(proc, setup, readings, estimator, truth0, *, heavy, rng, s
     if not truths:
         return np.zeros((0, n)), why
     heavy = np.asarray(heavy, dtype=bool)
-
-    def bias(truth):
-        r = simulate_uncertainty(proc, setup, truth, estimator=estimator, sources=sources,
-                                 trials=trials, rng=rng, progress=False, n_jobs=n_jobs)
-        middle = 0.5 * (r.mc.low + r.mc.high)
-        return np.where(heavy, middle, r.mc.mean) - r.true
-
-    b0 = bias(truth0)
-    d = []
-    for truth in truths:
-        try:
-            d.append(bias(truth) - b0)
-        except (InvalidInput, ValueError, ArithmeticError):
-            continue  # an estimator that fails at a drawn truth: that draw is left out
+    # one Monte Carlo per truth, each in one process, the truths spread over the workers
+    # (a Monte Carlo of a few dozen trials is one block: within it there is nothing to share)
+    tasks = ((proc, setup, t, estimator, sources, trials, rng, heavy, k > 0)
+             for k, t in enumerate([truth0, *truths]))
+    b0, *rest = ordered_map(_bias, tasks, n_jobs=min(effective_jobs(n_jobs), len(truths) + 1))
+    d = [b - b0 for b in rest if b is not None]
     if not d:
         return np.zeros((0, n)), "the estimator failed at every drawn truth"
     return np.array(d), None
+
+
+def _bias(proc, setup, truth, estimator, sources, trials, rng, heavy, tolerant):
+    """The estimator's bias at `truth` [display units] (:func:`correction_spread`): the
+    mean error of a Monte Carlo of `trials` trials, the middle of its interval for the
+    `heavy` measurands; None where the estimator fails there and `tolerant` (a drawn truth
+    is then left out)."""
+    from mtplan.evaluation.simulation import simulate_uncertainty
+
+    try:
+        r = simulate_uncertainty(proc, setup, truth, estimator=estimator, sources=sources,
+                                 trials=trials, rng=rng, progress=False, n_jobs=1)
+    except (InvalidInput, ValueError, ArithmeticError):
+        if tolerant:
+            return None
+        raise
+    middle = 0.5 * (r.mc.low + r.mc.high)
+    return np.where(heavy, middle, r.mc.mean) - r.true
 
 
 def correct_mc(proc, setup, readings, estimator, truth0, r, *, value, u, low, high, heavy,
@@ -243,7 +254,7 @@ def correct_mc(proc, setup, readings, estimator, truth0, r, *, value, u, low, hi
         ``u``, ``low``, ``high``, ``u_correction``, ``u_correction_mc``,
         ``u_correction_truth``, ``covariance`` (arrays, display units) and ``notes``.
     """
-    from scipy import stats
+    from scipy import special
 
     value, u = np.asarray(value, dtype=float), np.asarray(u, dtype=float)
     trials = int(r.mc.trials)
@@ -255,7 +266,7 @@ def correct_mc(proc, setup, readings, estimator, truth0, r, *, value, u, low, hi
     # a heavy-tailed measurand is not corrected (its interval is the result): no correction,
     # no correction's uncertainty (a bias from a few hundred trials of such errors is noise)
     u_c = np.where(bad, np.nan, np.where(heavy, 0.0, np.hypot(se, nuis)))
-    k = stats.norm.ppf(0.5 + coverage / 2)
+    k = special.ndtri(0.5 + coverage / 2)  # scipy.stats' norm.ppf, without importing it
     notes = []
     if why is not None:
         notes.append(f"the bias correction's dependence on the truth is not in u: {why}")

@@ -65,9 +65,9 @@ _LEVERAGE = 1e-9  # a reading whose residual variance P_ii is below this of (C^-
 def w_limit(alpha_w: float, n: int) -> float:
     """Bonferroni limit of the largest ``|w|`` of `n` standard normal w-tests at `alpha_w`:
     ``Phi^-1(1 - alpha_w / (2 n))``."""
-    from scipy import stats
+    from scipy import special  # scipy.stats' norm.isf, without importing scipy.stats
 
-    return float(stats.norm.isf(alpha_w / (2 * max(int(n), 1))))
+    return float(-special.ndtri(alpha_w / (2 * max(int(n), 1))))
 
 
 @dataclass
@@ -389,9 +389,9 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
     except InvalidInput as exc:
         return _not_made("the model cannot be fitted to the readings: "
                          + " ".join(exc.problems), alpha, fwd.n)
-    from scipy import stats
+    from scipy import special
 
-    pval = float(stats.chi2.sf(chi2, dof))
+    pval = float(special.chdtrc(dof, chi2))  # scipy.stats' chi2.sf
     if origin is None:
         try:
             origin = reading_origin(proc, setup, readings)
@@ -417,7 +417,7 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
 def _snooping(z: np.ndarray, order: list, pval: float, alpha: float, w_share: float) -> dict:
     """The w-test of the largest |w| (Bonferroni over the readings that have one), the
     chi-square's share of alpha, and the verdict of both: FitCheck's fields."""
-    from scipy import stats
+    from scipy import special
 
     a_chi2, a_w = (1.0 - w_share) * alpha, w_share * alpha
     n = len(order)
@@ -429,7 +429,7 @@ def _snooping(z: np.ndarray, order: list, pval: float, alpha: float, w_share: fl
                 "w_max": w_max, "w_critical": None, "p_w": None, "w_ok": None,
                 "ok": chi2_ok, "p_overall": p_chi2}
     w_max = float(z[order[0]])
-    p_w = float(min(1.0, 2 * n * stats.norm.sf(abs(w_max))))
+    p_w = float(min(1.0, 2 * n * special.ndtr(-abs(w_max))))
     crit = w_limit(a_w, n)
     w_ok = bool(abs(w_max) <= crit)
     p_all = min(1.0, p_w / w_share, p_chi2)

@@ -32,19 +32,38 @@ UNCERTAINTY_METHODS = ("mc", "posterior")
 #: Monte Carlo trials per candidate when the best estimator of a set-up is chosen
 PILOT_TRIALS = 400
 #: ``mc`` without a trial count: the trials of the Monte Carlo that validates the first-order
-#: (GUM) result, tried in turn until one validates it, and of the full Monte Carlo that
-#: replaces it where none does
-VALIDATION_TRIALS = (1_000, 2_000)
+#: (GUM) result, tried in turn until one validates it (each extends the one before: none
+#: of its trials is run again), and of the full Monte Carlo that replaces it where none does
+VALIDATION_TRIALS = (256, 512, 1_024, 2_048)
 FULL_TRIALS = 10_000
-#: the first-order u and interval are validated when the Monte Carlo's u and each end of its
-#: interval lie within this many of their own standard errors of them (JCGM 101 8.2, with
-#: the tolerance the Monte Carlo resolves) ...
+#: trials per block of the validating Monte Carlos, at most (the procedure's own block
+#: size where smaller): the blocks a longer run shares with a shorter one
+VALIDATION_BLOCK = 256
+#: draws of the first-order model against which the normal interval is checked (no
+#: forward model or estimator runs for them: the draws and one product)
+LINEAR_TRIALS = 2_048
+#: the first-order u and interval are validated when the Monte Carlo shows them within
+#: their tolerance at this many of its standard errors (JCGM 101 8.2, with the tolerance
+#: the Monte Carlo resolves) ...
 VALIDATION_SE = 3.0
-#: ... and that tolerance of u is at most this fraction of it (else the Monte Carlo cannot
-#: confirm first order to the digits shown, and the full Monte Carlo runs)
-VALIDATION_U_MAX = 0.12
+#: ... the tolerance of u, relative: the Monte Carlo's u (the first-order model as its
+#: control variate) within this of first order's, the margin and VALIDATION_SE of its
+#: standard errors together
+VALIDATION_U_TOL = 0.05
 #: an estimator "follows" a measurand when its noise-free response to it is 1 within this
 SLOPE_TOL = 0.5
+
+
+def _normal_quantile(p):
+    """The standard normal distribution's quantile at `p` (scipy.stats' ``norm.ppf``, bit for
+    bit, without the second it takes to import scipy.stats)."""
+    from scipy import special
+
+    return float(special.ndtri(p))
+
+
+def _normal_pdf(z: float) -> float:
+    return math.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
 
 
 # --------------------------------------------------------------------------- estimate
@@ -390,12 +409,10 @@ def _tails(r, coverage):
     """(heavy, robust, k): which measurands' Monte Carlo errors are heavy-tailed (their mean
     outside the coverage interval, or their standard deviation over three times the spread
     the interval implies), the interval's half-width over the normal coverage factor, k."""
-    from scipy import stats
-
     std = np.asarray(r.mc.std, dtype=float)
     err_mean = np.asarray(r.mc.mean - r.true, dtype=float)
     err_low, err_high = np.asarray(r.mc.low - r.true), np.asarray(r.mc.high - r.true)
-    k = stats.norm.ppf(0.5 + coverage / 2)
+    k = _normal_quantile(0.5 + coverage / 2)
     robust = (err_high - err_low) / (2 * k)
     inside = (err_low <= err_mean) & (err_mean <= err_high)
     return ~inside | (std > 3 * robust), robust, k
@@ -450,64 +467,153 @@ def _first_order(proc, setup, truth, est_name, sources):
                 f"{FULL_TRIALS} trials gave u and the intervals")
 
 
-def _validated_first_order(proc, setup, gum, r, coverage):
+def _familywise_se(checks: int) -> float:
+    """Standard errors within which each of `checks` independent normal checks must lie so
+    that all of them pass together as often as one check at :data:`VALIDATION_SE` does
+    (Bonferroni): 3 for one check, 3.5 for nine, 4 for sixty."""
+    alpha = math.erfc(VALIDATION_SE / math.sqrt(2.0))
+    return -_normal_quantile(alpha / (2.0 * max(int(checks), 1)))
+
+
+def _end_se(coverage: float) -> tuple[float, float]:
+    """(z, s): the normal coverage factor and the standard error of a coverage interval's
+    end from M draws, ``s u / sqrt(M)`` (``sqrt(p (1 - p)) / phi(z_p)``, normal)."""
+    p = (1.0 - coverage) / 2
+    z = -_normal_quantile(p)
+    return z, math.sqrt(p * (1 - p)) / _normal_pdf(z)
+
+
+def _linear_model_checks(proc, setup, gum, linear, coverage) -> list[str]:
+    """The measurands whose first-order model's own draws `linear` (K, n_measurands)
+    (:func:`~mtplan.evaluation.simulation.linear_trials`) refuse the first-order u or
+    normal interval, each with why: the draws' standard deviation off ``u_fo`` or an end
+    of their coverage interval off ``+-z u_fo`` by more than the standard errors K draws
+    resolve (:func:`_familywise_se` over every check). A non-normal output (rotary_axis's
+    EX0C, dominated by rectangular inputs: its 95 % interval is about +-1.74 u) fails here
+    before any Monte Carlo of the estimator runs."""
+    from mtplan.uncertainty.montecarlo import coverage_interval
+
+    u_fo = np.asarray(gum.std, dtype=float)
+    k = linear.shape[0]
+    z, s_end = _end_se(coverage)
+    c = _familywise_se(3 * int(np.sum(u_fo > 0)))
+    out = []
+    for i, m in enumerate(proc.measurands(setup)):
+        if not u_fo[i] > 0:
+            continue
+        x = linear[:, i]
+        dev = x - x.mean()
+        kurt = float(np.mean(dev**4) / max(np.mean(dev**2) ** 2, 1e-300))
+        ratio = float(np.std(x, ddof=1)) / u_fo[i]
+        off_u = abs(ratio - 1.0) / math.sqrt(max(kurt - 1.0, 1e-12) / (4.0 * k))
+        lo, hi = coverage_interval(x, coverage)
+        ends = np.array([lo, hi]) / u_fo[i]
+        off_end = float(np.max(np.abs(ends - [-z, z]))) / (s_end / math.sqrt(k))
+        if off_u > c or off_end > c:
+            out.append(f"{m.name} (its first-order model's {k} draws: u / first order "
+                       f"{ratio:.3g}, interval [{ends[0]:.3g}, {ends[1]:.3g}] u against "
+                       f"+-{z:.3g} u)")
+    return out
+
+
+def _validated_first_order(proc, setup, gum, r, coverage, linear):
     """(`gum` or None, note): the first-order (GUM) u and interval of `gum` (a
     :class:`~mtplan.evaluation.first_order.FirstOrder`) where the Monte Carlo `r` at the same
     truth validates them after JCGM 101 8.2, to the tolerance its trials resolve.
 
-    Validated when every measurand the Monte Carlo resolves (finite, non-zero spread, not
-    heavy-tailed) has its Monte Carlo u within :data:`VALIDATION_SE` standard errors of the
-    first-order u (the relative standard error of a standard deviation from M trials,
-    ``sqrt((kurtosis - 1) / 4M)``, with the trials' own kurtosis; that tolerance at most
-    :data:`VALIDATION_U_MAX`) and each end of its coverage interval within as many standard
-    errors of a quantile (``sqrt(p (1 - p) / M) / phi(z_p)`` u, normal) of the first-order
-    interval's end, both centred on the Monte Carlo's mean error. A first-order u of 0 where
-    the Monte Carlo spreads (a quantised or non-linear estimator) is never validated.
+    `linear` (M, n_measurands), M the trials of `r` or more: the first-order model's
+    output in the trials of `r` (:func:`~mtplan.evaluation.simulation.linear_trials`),
+    paired with them. Every measurand the Monte Carlo resolves (finite, non-zero spread,
+    not heavy-tailed) must pass two checks:
+
+    - u: the Monte Carlo's variance with the first-order model as its control variate,
+      ``u_fo^2 + s_y^2 - s_L^2`` over the paired trials (only the estimator's departure
+      from first order is left to sample: its standard error is a small part of a plain
+      Monte Carlo's), its root within :data:`VALIDATION_U_TOL` of ``u_fo``, the margin and
+      :data:`VALIDATION_SE` of its standard errors together;
+    - each end of the Monte Carlo's coverage interval, about its mean, within the standard
+      errors of a quantile from its trials (``sqrt(p (1 - p) / M) / phi(z_p)`` u,
+      :func:`_familywise_se` over every end) of the paired first-order outputs' end. That
+      those are the normal interval's is checked once, on many more of them
+      (:func:`_linear_model_checks`).
+
+    A first-order u of 0 where the Monte Carlo spreads (a quantised or non-linear
+    estimator) is never validated.
     """
-    from scipy import stats
+    from mtplan.uncertainty.montecarlo import coverage_interval
 
     m = int(r.mc.trials)
+    lin_all = np.asarray(linear, dtype=float)[:m]
     u_mc = np.asarray(r.mc.std, dtype=float)
     u_fo = np.asarray(gum.std, dtype=float)
-    err_mean = np.asarray(r.mc.mean - r.true, dtype=float)
-    err_low, err_high = np.asarray(r.mc.low - r.true), np.asarray(r.mc.high - r.true)
-    p = (1.0 - coverage) / 2
-    z = stats.norm.ppf(1.0 - p)
-    se_end = math.sqrt(p * (1 - p) / m) / stats.norm.pdf(z)
+    z, s_end = _end_se(coverage)
     resolved = np.isfinite(u_mc) & (u_mc > 0) & ~_tails(r, coverage)[0]
+    c = _familywise_se(2 * int(resolved.sum()))
     names = [mm.name for mm in proc.measurands(setup)]
-    kurtosis = np.full(len(names), 3.0)  # normal, where the trials were not kept
+    ratio, margin = np.full(len(names), np.nan), np.full(len(names), np.inf)
+    d_end = np.full(len(names), np.inf)
     for i, n in enumerate(names):
-        x = r.mc.samples(n)
-        if x is not None and resolved[i]:
-            dev = np.asarray(x, dtype=float) - float(np.mean(x))
-            kurtosis[i] = float(np.mean(dev**4) / np.mean(dev**2) ** 2)
-    tol_u = VALIDATION_SE * np.sqrt(np.maximum(kurtosis - 1.0, 0.0) / (4.0 * m))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ratio = u_mc / u_fo
-        d_end = np.maximum(np.abs(err_mean - z * u_fo - err_low),
-                           np.abs(err_mean + z * u_fo - err_high)) / (se_end * u_fo)
-    ok = ((u_fo > 0) & (np.abs(ratio - 1.0) <= tol_u) & (tol_u <= VALIDATION_U_MAX)
-          & (d_end <= VALIDATION_SE))
+        y = r.mc.samples(n)
+        if y is None or not resolved[i] or not u_fo[i] > 0:
+            continue
+        y, lin = np.asarray(y, dtype=float), lin_all[:, i]
+        a = (y - y.mean()) ** 2 - (lin - lin.mean()) ** 2
+        ratio[i] = math.sqrt(max(u_fo[i] ** 2 + a.sum() / (m - 1), 0.0)) / u_fo[i]
+        se = float(a.std(ddof=1)) / math.sqrt(m) / (2 * u_fo[i] ** 2 * max(ratio[i], 1e-3))
+        margin[i] = abs(ratio[i] - 1.0) + VALIDATION_SE * se
+        ends_y = np.array(coverage_interval(y, coverage)) - y.mean()
+        ends_l = np.array(coverage_interval(lin, coverage)) - lin.mean()
+        d_end[i] = float(np.max(np.abs(ends_y - ends_l))) / (s_end * u_fo[i] / math.sqrt(m))
+    ok = (u_fo > 0) & (margin <= VALIDATION_U_TOL) & (d_end <= c)
     failed = [n for n, res, good in zip(names, resolved, ok, strict=True) if res and not good]
     if not resolved.any():
         return None, (f"first order not validated (the {m}-trial Monte Carlo resolves no "
                       f"measurand); a Monte Carlo of {FULL_TRIALS} trials gave u and the "
                       "intervals")
     if failed:
-        shown = ", ".join(f"{n} (u Monte Carlo / first order {q:.3g}, an interval end "
-                          f"{e:.1f} standard errors off the normal one's)"
-                          for n, q, e, res, good in zip(names, ratio, d_end, resolved, ok,
-                                                        strict=True) if res and not good)
-        return None, (f"first order not validated by Monte Carlos of "
-                      f"{' or '.join(map(str, VALIDATION_TRIALS))} trials (at {m}: {shown}); a "
-                      f"Monte Carlo of {FULL_TRIALS} trials gave u and the intervals")
-    worst = float(np.nanmax(np.where(resolved, np.abs(ratio - 1.0), np.nan)))
+        shown = ", ".join(f"{n} (u Monte Carlo / first order {q:.3g}, within {100 * g:.1f} % "
+                          f"at {VALIDATION_SE:g} standard errors; an interval end {e:.1f} "
+                          "standard errors off the first-order model's)"
+                          for n, q, g, e, res, good in zip(names, ratio, margin, d_end, resolved,
+                                                           ok, strict=True) if res and not good)
+        return None, (f"first order not validated by Monte Carlos of up to {m} trials "
+                      f"({shown}); a Monte Carlo of {FULL_TRIALS} trials gave u and the "
+                      "intervals")
+    worst = float(np.nanmax(np.where(resolved, margin, np.nan)))
     return gum, (f"u and the intervals are first order (GUM law of propagation at the "
-                 f"Monte Carlo's truth), validated by a Monte Carlo of {m} trials (JCGM 101 8.2: its u "
-                 f"within {100 * worst:.1f} % of first order, its u and interval ends within "
-                 f"{VALIDATION_SE:g} of their standard errors), which also gave the bias "
-                 "correction; --trials N runs a Monte Carlo of N trials instead")
+                 f"Monte Carlo's truth), validated by a Monte Carlo of {m} trials (JCGM 101 "
+                 f"8.2, the first-order model as its control variate: its u within "
+                 f"{100 * worst:.1f} % of first order at {VALIDATION_SE:g} standard errors, its "
+                 f"interval ends within {c:.2g} standard errors of the first-order model's, "
+                 f"whose {LINEAR_TRIALS} own draws agree with the normal interval), which also "
+                 "gave the bias correction; --trials N runs a Monte Carlo of N trials instead")
+
+
+def _validating_runs(proc, setup, truth, est_name, sources, gum, *, coverage, root, progress,
+                     n_jobs):
+    """(result of the last Monte Carlo or None, validated first order or None, note): the
+    first-order model's own draws checked (:func:`_linear_model_checks`), then Monte Carlos
+    of :data:`VALIDATION_TRIALS` trials in turn, each one extending the last (blocks of at
+    most :data:`VALIDATION_BLOCK` trials, none run twice), until one validates `gum`
+    (:func:`_validated_first_order`)."""
+    from mtplan.evaluation.simulation import linear_trials, simulate_uncertainty
+
+    block = min(proc.capabilities.block_size, VALIDATION_BLOCK)
+    linear = linear_trials(proc, setup, gum, sources=sources, rng=root,
+                           trials=max(LINEAR_TRIALS, *VALIDATION_TRIALS), block_size=block)
+    refused = _linear_model_checks(proc, setup, gum, linear[:LINEAR_TRIALS], coverage)
+    if refused:
+        return None, None, (f"first order not validated: {', '.join(refused)}; a Monte Carlo "
+                            f"of {FULL_TRIALS} trials gave u and the intervals")
+    cache: dict = {}
+    for m in VALIDATION_TRIALS:
+        r = simulate_uncertainty(proc, setup, truth, estimator=est_name, sources=sources,
+                                 trials=m, coverage=coverage, rng=root, progress=progress,
+                                 n_jobs=n_jobs, block_size=block, cache=cache)
+        first_order, verdict = _validated_first_order(proc, setup, gum, r, coverage, linear)
+        if first_order is not None:
+            break
+    return r, first_order, verdict
 
 
 def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trials, coverage,
@@ -532,15 +638,12 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
     first_order = None
     if trials is None:  # the first-order result where a short Monte Carlo validates it
         gum = _first_order(proc, setup, truth, est_name, sources)
-        for m in VALIDATION_TRIALS if not isinstance(gum, str) else ():
-            r = simulate_uncertainty(proc, setup, truth, estimator=est_name, sources=sources,
-                                     trials=m, coverage=coverage, rng=root, progress=progress,
-                                     n_jobs=n_jobs)
-            first_order, verdict = _validated_first_order(proc, setup, gum, r, coverage)
-            if first_order is not None:
-                break
+        if isinstance(gum, str):
+            verdict = gum
         else:
-            verdict = gum if isinstance(gum, str) else verdict
+            r, first_order, verdict = _validating_runs(
+                proc, setup, truth, est_name, sources, gum, coverage=coverage, root=root,
+                progress=progress, n_jobs=n_jobs)
         notes.append(verdict)
         if first_order is None:
             r = simulate_uncertainty(proc, setup, truth, estimator=est_name, sources=sources,
@@ -553,10 +656,8 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
     value, correction, std, low, high = _corrected(r, estimate, [m.name for m in measurands],
                                                    notes, coverage)
     if first_order is not None:  # u and the interval from first order, the bias from the MC
-        from scipy import stats
-
         std = first_order.std.copy()
-        half = stats.norm.ppf(0.5 + coverage / 2) * std
+        half = _normal_quantile(0.5 + coverage / 2) * std
         low, high = value - half, value + half
     slopes = None
     if finite.all():  # over two robust standard deviations (the interval's half width / 2)
@@ -643,9 +744,10 @@ def estimate_measured(
         budget (:func:`mtplan.evaluation.posterior.sample_posterior`).
     trials : int or None
         Monte Carlo trials (``"mc"``). None: the first-order (GUM) u and interval at the
-        estimate where a Monte Carlo of 1000 (then 2000, :data:`VALIDATION_TRIALS`) trials
-        validates them (JCGM 101 8.2; that Monte Carlo gives the bias correction), else a
-        Monte Carlo of :data:`FULL_TRIALS` trials; a note says which.
+        estimate where a Monte Carlo of 256 to 2048 trials (:data:`VALIDATION_TRIALS`, each
+        extending the last), with the first-order model as its control variate, validates
+        them (JCGM 101 8.2, :func:`_validated_first_order`; that Monte Carlo gives the bias
+        correction), else a Monte Carlo of :data:`FULL_TRIALS` trials; a note says which.
     coverage : float
     rng : None, int, SeedSequence or Generator
     noise, max_seconds, allow_unconverged, posterior_options

@@ -22,7 +22,8 @@ from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
 from mtplan.uncertainty.gum import GUMResult, _coverage_factor
 from mtplan.uncertainty.montecarlo import MCResult, check_run_options, run_blocks
 
-__all__ = ["ProcedureResult", "LinearizedResult", "simulate_uncertainty", "linearize_procedure",
+__all__ = ["ProcedureResult", "LinearizedResult", "simulate_uncertainty", "linear_trials",
+           "linearize_procedure",
            "linearize_result", "source_budget", "check_memory", "MEASURAND_KEYS",
            "measurand_rows", "undetermined_measurands", "ResultDocument", "simulate_readings"]
 
@@ -55,6 +56,39 @@ def _procedure_block(proc, setup, truth, estimator, only, root, index, size):
     errors = proc.draw_errors(setup, size, seq, only)
     readings = proc.forward(setup, truth, errors)
     return _measure(proc, setup, readings, estimator)
+
+
+def linear_trials(proc, setup, fo, *, sources=None, rng=None, trials: int,
+                  block_size: int) -> np.ndarray:
+    """The first-order model's output in each trial of a Monte Carlo (a control variate).
+
+    Trial t of :func:`simulate_uncertainty` with the same `sources`, `rng` and
+    `block_size` draws the error elements ``e_t``; its first-order output is
+    ``J (e_t - E[e])`` with ``J`` the sensitivities of `fo`
+    (:class:`~mtplan.evaluation.first_order.FirstOrder`, taken for the same sources). The
+    draws are made again here, block by block from the same streams, so trial t here and
+    there are one pair: the difference of the two outputs is the estimator's departure
+    from first order in that trial, free of the draws' own scatter. No forward model and
+    no estimator run: this costs the draws and one product.
+
+    Returns
+    -------
+    array (trials, n_measurands) [display units]; its expectation is 0 and its covariance
+    ``fo.cov``.
+    """
+    from mtplan.fitting.effects import element_moments
+
+    active = proc.active_sources(setup, sources)
+    means = {name: element_moments(src)[0] for name, src in active.items()}
+    root = as_seed_sequence(rng)
+    out = []
+    for i, start in enumerate(range(0, trials, block_size)):
+        size = min(block_size, trials - start)
+        errors = proc.draw_errors(setup, size, block_sequence(root, i), sources)
+        dev = np.hstack([np.asarray(errors[k], dtype=float).reshape(size, -1) - m
+                         for k, m in means.items()]) if means else np.zeros((size, 0))
+        out.append(dev @ fo.sensitivity.T)
+    return np.vstack(out) if out else np.zeros((0, len(fo.measurands)))
 
 
 # --------------------------------------------------------------------------- one schema
@@ -398,6 +432,7 @@ def simulate_uncertainty(
     block_size: int | None = None,
     max_trials: int = 10**7,
     progress: bool | None = None,
+    cache: dict | None = None,
 ) -> ProcedureResult:
     """Monte Carlo uncertainty of a procedure's set-up.
 
@@ -413,6 +448,11 @@ def simulate_uncertainty(
         As for :func:`mtplan.uncertainty.propagate` (default 10**4 trials).
     block_size : int, optional
         Trials per block (default: the procedure's ``block_size``).
+    cache : dict, optional
+        Blocks kept between runs at the same set-up, truth, estimator, sources and seed
+        (:func:`mtplan.uncertainty.montecarlo.run_blocks`): a longer run in blocks of the
+        same `block_size` runs only the blocks a shorter one did not, with the same result
+        as without the cache. A dict of one such run's; a fixed trial count only.
 
     Returns
     -------
@@ -449,6 +489,7 @@ def simulate_uncertainty(
         max_trials=max_trials,
         progress=progress,
         label=proc.name,
+        cache=cache,
     )
     quantised = _quantised(proc, setup, est_name, measurands, mc)
     tv = proc.display_truth(setup, truth)

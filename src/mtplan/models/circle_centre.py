@@ -1341,7 +1341,7 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     whose random sources are too small to give that scatter at 99.9 % confidence is
     raised so that they give ``s``.
     """
-    from scipy.stats import chi2
+    from scipy import special
 
     from mtplan.models.protocol import Implied
 
@@ -1384,7 +1384,7 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
         d = Setup()
         other = ((d.stage_repeatability_um * 1e-3) ** 2 + (d.pretravel_variation_um * 1e-3) ** 2 / 2
                  + (d.roundness_um * 1e-3 / (2 * math.sqrt(2))) ** 2)
-        s_low = s * math.sqrt((n - 3) / chi2.ppf(0.999, n - 3))
+        s_low = s * math.sqrt((n - 3) / (2 * special.gammaincinv((n - 3) / 2, 0.999)))
         need = math.sqrt(max(s * s - other, 0.0)) * 1e3
         need_low = math.sqrt(max(s_low * s_low - other, 0.0)) * 1e3
         high = next(f.metadata["high"] for f in dataclasses.fields(Setup)

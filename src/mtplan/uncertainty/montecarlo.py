@@ -297,6 +297,18 @@ class _Accumulator:
         return self.comoment / max(self.n - 1, 1)
 
 
+def _cached_blocks(block_fn, block_args, root, sizes, cache, *, n_jobs, backend):
+    """The outputs of blocks ``0 .. len(sizes) - 1`` in order: those in `cache` (keyed by
+    ``(index, size)``) as they are, the others run (in parallel as :func:`ordered_map`
+    runs them) and put there."""
+    todo = [(i, n) for i, n in enumerate(sizes) if (i, n) not in cache]
+    tasks = ((*block_args, root, i, n) for i, n in todo)
+    for key, out in zip(todo, ordered_map(block_fn, tasks, n_jobs=n_jobs, backend=backend),
+                        strict=True):
+        cache[key] = out
+    return (cache[(i, n)] for i, n in enumerate(sizes))
+
+
 def _block_summary(x: np.ndarray, p: float, kind: str) -> np.ndarray:
     """(4, k): mean, std, low, high of one block."""
     k = x.shape[1]
@@ -342,12 +354,19 @@ def run_blocks(
     keep: int = 2 * 10**6,
     progress: bool | None = None,
     label: str = "Monte Carlo",
+    cache: dict | None = None,
 ) -> MCResult:
     """Run ``block_fn(*block_args, root, index, size)`` over blocks and join the results.
 
     `block_fn` must return a dict of output name -> array of shape (size,), the
     same names in the same order for every block. This is the one driver behind
     :func:`propagate` and the procedures' Monte Carlo.
+
+    `cache` (a fixed trial count only): a dict the caller keeps between runs of the same
+    `block_fn`, `block_args` and `root`, keyed by ``(index, size)``. A block found there
+    is not run again, and each block run is put there: a run of more trials in blocks of
+    the same size repeats none of a shorter run's work, and gives exactly what it gives
+    without the cache (block i draws from stream i whoever computed it).
     """
     p = coverage
     adaptive = digits is not None
@@ -377,11 +396,16 @@ def run_blocks(
     # workers) over the cores, so each block runs single-threaded, as joblib's workers do.
     with one_blas_thread(), \
             parallel_session(n_jobs, backend, scheduler) as session:
-        tasks = ((*block_args, root, i, sizes(i)) for i in range(n_blocks_max))
         chunk = jobs if adaptive else None
-        for i, out in enumerate(
-            ordered_map(block_fn, tasks, n_jobs=session["n_jobs"], backend=backend, chunk=chunk)
-        ):
+        if cache is None or adaptive:
+            tasks = ((*block_args, root, i, sizes(i)) for i in range(n_blocks_max))
+            outs = ordered_map(block_fn, tasks, n_jobs=session["n_jobs"], backend=backend,
+                               chunk=chunk)
+        else:
+            outs = _cached_blocks(block_fn, block_args, root, [sizes(i) for i in
+                                                              range(n_blocks_max)],
+                                  cache, n_jobs=session["n_jobs"], backend=backend)
+        for i, out in enumerate(outs):
             if names is None:
                 names = tuple(out)
                 acc = _Accumulator(names, keep)
