@@ -120,15 +120,15 @@ def test_the_warm_example_covers_the_truth_only_when_corrected(capsys):
 @pytest.mark.parametrize("changes", [
     {"part_temperature_c": 20.0, "scale_temperature_c": 20.0},
     {"part_temperature_c": 25.0, "scale_temperature_c": 25.0, "scale_datum_x_mm": 0.0,
-     "scale_datum_y_mm": 0.0}])
+     "scale_datum_y_mm": 0.0},
+    {"part_temperature_c": 25.0, "scale_temperature_c": 25.0, "scale_datum_x_mm": -300.0,
+     "scale_datum_y_mm": -300.0}])
 def test_the_thermometers_sources_have_their_place_in_the_posterior(changes):
     """With both temperatures measured the thermometers' sources (and, 5 K off 20 degC, the
     expansion coefficients') are in the posterior's covariance, and its u agrees with the mc
     u within 0.85-1.15 widened by four standard errors of the ratio (0.058 at 4000 trials
-    and the posterior's effective sample size), as for every procedure. (With the scales'
-    datum 300 mm off and a measured temperature other than 20 degC the posterior's budget
-    takes every source as absorbed by start_x at its second least-squares point and
-    refuses: not solved yet.)"""
+    and the posterior's effective sample size), as for every procedure, with the scales'
+    datum at the bore or 300 mm off it."""
     from mtplan.evaluation.measured import estimate_measured, read_readings
 
     setup = P.setup(changes)
@@ -140,5 +140,30 @@ def test_the_thermometers_sources_have_their_place_in_the_posterior(changes):
     held += ("expansion_u", "scale_expansion_u") if changes["part_temperature_c"] != 20 else ()
     for name in held:
         assert how[name] in ("covariance", "nuisance"), (name, how[name])
+    ratio = post.std / mc.std
+    assert np.all((0.85 - 0.058 <= ratio) & (ratio <= 1.15 + 0.058)), ratio
+
+
+@pytest.mark.parametrize("changes, seed", [
+    ({"n_points": 6}, 4),
+    ({"n_points": 4, "part_temperature_c": 25.0, "scale_temperature_c": 25.0}, 2)])
+def test_a_far_datum_with_more_points_keeps_the_fit_check_and_the_posterior(changes, seed):
+    """The scales' datum 300 mm off the bore per axis and four or more points (where the
+    least squares once ran away to a chi-square of 1e11: a start off the readings' branch
+    of the planned path, and an element whose only effect was round-off taken for a
+    reading's own scatter): the fit check's chi-square is that of clean readings (p above
+    0.001 for these seeded readings, chi-square per degree of freedom below 3) and the
+    posterior's u agrees with the mc u within 0.85-1.15 widened by four standard errors of
+    the ratio (0.058 at 4000 trials). The seeds are readings that broke it (a chi-square of
+    8e11, and a covariance refused as singular)."""
+    from mtplan.evaluation.measured import estimate_measured
+
+    setup = P.setup({"scale_datum_x_mm": -300.0, "scale_datum_y_mm": -300.0, **changes})
+    readings = P.simulate(setup, cc.Truth(), 1, rng=seed)
+    post = estimate_measured(P, setup, readings, uncertainty="posterior", rng=0)
+    mc = estimate_measured(P, setup, readings, trials=4000, rng=0)
+    fit = post.fit
+    assert fit.ok is not None and fit.p_value > 1e-3 and fit.chi2 / fit.dof < 3, fit.summary()
+    assert mc.fit.chi2 == pytest.approx(fit.chi2, rel=1e-6)
     ratio = post.std / mc.std
     assert np.all((0.85 - 0.058 <= ratio) & (ratio <= 1.15 + 0.058)), ratio

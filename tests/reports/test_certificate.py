@@ -275,7 +275,10 @@ def test_the_fit_check_is_in_the_report_and_in_measured_csv(small_result, small_
     assert np.allclose(measured["fit_chi2"], fit.chi2) and (measured["fit_dof"] == fit.dof).all()
     text = _flat(_pages(small_report / "report.pdf"))
     assert "Fit check of each test's readings" in text
-    assert f"{fit.chi2:.1f}" in text and f"{fit.p_value:.2g}" in text
+    # p: the smallest alpha at which the check flags the readings (both tests), which the
+    # caption's "p below alpha: no decision" reads
+    assert f"{fit.chi2:.1f}" in text and f"{fit.p_overall:.2g}" in text
+    assert np.allclose(measured["fit_p"], fit.p_overall)
 
 
 def test_readings_that_do_not_fit_get_no_verdict(small_result, small_report):

@@ -57,10 +57,11 @@ def register(sub) -> None:
                    help="posterior: time budget of the sampling (default: none)")
     p.add_argument("--allow-unconverged", action="store_true",
                    help="posterior: report an unconverged posterior (flagged) instead of failing")
-    p.add_argument("--fit-alpha", type=float, default=0.01, metavar="ALPHA",
+    p.add_argument("--fit-alpha", type=float, default=None, metavar="ALPHA",
                    help="significance level of the fit check, split between its chi-square "
-                        "test and the largest |w| (Bonferroni over the readings): the readings "
-                        "do not fit the model when either fails (default 0.01)")
+                        "test (a fifth) and the largest |w| (four fifths, Bonferroni over the "
+                        "readings): the readings do not fit the model when either fails "
+                        "(default 0.05)")
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.add_argument("--out", metavar="FILE", help="also write the table to FILE (CSV)")
     p.set_defaults(func=cmd_estimate, truth=None)
@@ -68,6 +69,7 @@ def register(sub) -> None:
 
 def cmd_estimate(args) -> int:
     """Read the readings, estimate, print; exit status 2 with one line on bad input."""
+    from mtplan.evaluation.fitcheck import FIT_ALPHA
     from mtplan.evaluation.measured import FULL_TRIALS, estimate_measured, read_measurement
     from mtplan.evaluation.posterior import NotConvergedError, UnconvergedWarning
 
@@ -75,8 +77,9 @@ def cmd_estimate(args) -> int:
     noise = _noise(args.noise)
     if args.max_seconds is not None and not args.max_seconds > 0:
         raise UsageError(f"--max-seconds must be a number > 0, got {args.max_seconds!r}")
-    if not 0 < args.fit_alpha < 1:
-        raise UsageError(f"--fit-alpha must be a number between 0 and 1, got {args.fit_alpha!r}")
+    fit_alpha = FIT_ALPHA if args.fit_alpha is None else args.fit_alpha
+    if not 0 < fit_alpha < 1:
+        raise UsageError(f"--fit-alpha must be a number between 0 and 1, got {fit_alpha!r}")
     config = load_config(args.config)
     proc = procedure_of(args, config)
     if config.get("truth"):
@@ -101,7 +104,7 @@ def cmd_estimate(args) -> int:
                 noise=noise, max_seconds=args.max_seconds,
                 allow_unconverged=args.allow_unconverged,
                 posterior_options={"max_steps": args.max_steps, "progress": None}
-                if method == "posterior" else None, progress=None, fit_alpha=args.fit_alpha,
+                if method == "posterior" else None, progress=None, fit_alpha=fit_alpha,
                 origin=measurement.origin, n_jobs=args.jobs)
     except NotConvergedError as exc:
         print(f"mtplan: error: {exc}", file=sys.stderr)

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
+from mtplan.evaluation.fitcheck import FIT_ALPHA
 from mtplan.evaluation.readings import Measurement, read_measurement, read_readings
 from mtplan.evaluation.simulation import ResultDocument, measurand_rows, undetermined_measurands
 
@@ -714,7 +715,7 @@ def estimate_measured(
     allow_unconverged: bool = False,
     posterior_options: dict | None = None,
     progress: bool | None = False,
-    fit_alpha: float | None = 0.01,
+    fit_alpha: float | None = FIT_ALPHA,
     origin: dict | None = None,
     nuisance_draws: int | None = None,
     n_jobs: int = 1,
@@ -757,7 +758,8 @@ def estimate_measured(
         terminal).
     fit_alpha : float or None
         Significance level of the fit check (:attr:`MeasuredResult.fit`,
-        :func:`mtplan.evaluation.fitcheck.fit_check`); None: no fit check.
+        :func:`mtplan.evaluation.fitcheck.fit_check`; default ``FIT_ALPHA``, 0.05); None:
+        no fit check.
     origin : dict, optional
         Row and column of every reading in its file (``Measurement.origin``), to name
         the worst readings of the fit check.

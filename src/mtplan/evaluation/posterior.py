@@ -279,6 +279,8 @@ def _initial_theta(proc, setup, readings, builder, start, estimator, notes) -> n
         est = proc.estimate(setup, readings, estimator)
         est = {k: float(np.asarray(v).reshape(-1)[0]) for k, v in est.items()}
         t0 = proc.capabilities.truth_from_estimate(setup, est)
+        if proc.capabilities.start_from_readings is not None:
+            t0 = proc.capabilities.start_from_readings(setup, readings, t0)
         return np.array([builder.value_of(t0, p) for p in builder.params])
     except DOMAIN_ERRORS as exc:
         notes.append(f"start: the estimator failed ({exc}); started from the default truth")

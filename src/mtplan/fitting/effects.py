@@ -33,11 +33,14 @@ import numpy as np
 
 from mtplan._validate import InvalidInput
 
-__all__ = ["SUPPORT", "PROBE", "REL_STEP", "Effect", "element_moments", "classify", "Batch",
+__all__ = ["SUPPORT", "ROUNDOFF", "PROBE", "REL_STEP", "Effect", "element_moments", "classify", "Batch",
            "Grouping", "groupings", "probe_rows", "element_of", "find_groups", "grouped_ok",
            "effect", "secant_effects", "reading_effects"]
 
 SUPPORT = 1e-9  # relative size below which an element's effect on a reading is zero
+#: an element's move of a reading below this share of the reading's own size is the
+#: forward model's round-off, no effect (a reading of 250 mm carries about 3e-14 mm of it)
+ROUNDOFF = 1e-12
 PROBE = 32  # sources with at least this many elements are first tried by NaN probes
 #: step of the derivatives, in standard deviations (that of ``mtplan.uncertainty.gum``)
 REL_STEP = 1e-3
@@ -103,14 +106,27 @@ class Effect:
         return float(max(single.max(initial=0.0), multi.max(initial=0.0)))
 
 
+def _above_roundoff(sec: np.ndarray, cur: np.ndarray, f0: np.ndarray | None) -> np.ndarray:
+    """Where a secant or curvature (..., n) is more than the round-off of the readings `f0`
+    (n,) (:data:`ROUNDOFF` of each reading's size): an element whose only "effect" is
+    round-off (a start coordinate that no reading depends on, moved by 14 mm, leaves 1e-14
+    mm on a 249 mm reading) would otherwise count as touching that reading alone, with a
+    variance of 1e-28 mm^2 that then stands for the reading's own scatter."""
+    if f0 is None:
+        return np.ones(np.shape(sec), dtype=bool)
+    floor = ROUNDOFF * np.abs(f0)
+    return (np.abs(sec) > floor) | (np.abs(cur) > floor)
+
+
 def classify(sec: np.ndarray, cur: np.ndarray, owner: np.ndarray, sd: np.ndarray, *,
-             probed: bool) -> Effect:
+             probed: bool, f0: np.ndarray | None = None) -> Effect:
     """One source's :class:`Effect` from rows of secants and curvatures `sec`, `cur`
     (G, n), with `owner` (G, n) the element behind each row's reading (-1: none).
 
     An element's readings are those it owns when `probed` (NaN probes found them), else
-    those it moves by more than :data:`SUPPORT` of its largest secant or curvature. An
-    element with one reading is a term of the diagonal; one with several, a column."""
+    those it moves by more than :data:`SUPPORT` of its largest secant or curvature and by
+    more than the round-off of the readings `f0` (n,) where given. An element with one
+    reading is a term of the diagonal; one with several, a column."""
     n_el, n = sd.size, sec.shape[1]
     g, r = np.nonzero(owner >= 0)
     j = owner[g, r]
@@ -120,7 +136,8 @@ def classify(sec: np.ndarray, cur: np.ndarray, owner: np.ndarray, sd: np.ndarray
     else:
         big = np.zeros(n_el)
         np.maximum.at(big, j, np.maximum(np.abs(s), np.abs(c)))
-        keep = (np.abs(s) > SUPPORT * big[j]) | (np.abs(c) > SUPPORT * big[j])
+        keep = ((np.abs(s) > SUPPORT * big[j]) | (np.abs(c) > SUPPORT * big[j])) & (
+            _above_roundoff(sec, cur, f0)[g, r])
     count = np.bincount(j[keep], minlength=n_el)
     row, s1, c1 = np.full(n_el, -1), np.zeros(n_el), np.zeros(n_el)
     one = keep & (count[j] == 1)
@@ -213,7 +230,7 @@ def _coloured(fwd, truth, name: str, sd: np.ndarray, f0: np.ndarray, shape, colo
     c_idx, _ = np.nonzero(~free)
     if np.any(colours[owners[~free]] != c_idx):
         raise ValueError(f"the colouring of {name!r} names an element in a colour not its own")
-    return classify(sec, cur, owners, sd, probed=False)
+    return classify(sec, cur, owners, sd, probed=False, f0=f0)
 
 
 def effect(fwd, truth, name: str, std, f0: np.ndarray) -> Effect:
@@ -255,7 +272,8 @@ def effect(fwd, truth, name: str, std, f0: np.ndarray) -> Effect:
         step[np.arange(b), idx] = sd[idx]
         sec, cur = _secants(fwd, truth, name, shape, step, f0)
         big = np.maximum(np.abs(sec).max(axis=1), np.abs(cur).max(axis=1))
-        nz = (np.abs(sec) > SUPPORT * big[:, None]) | (np.abs(cur) > SUPPORT * big[:, None])
+        nz = ((np.abs(sec) > SUPPORT * big[:, None]) | (np.abs(cur) > SUPPORT * big[:, None])) & (
+            _above_roundoff(sec, cur, f0))
         count = nz.sum(axis=1)
         one = count == 1
         r = np.argmax(nz, axis=1)

@@ -1292,6 +1292,19 @@ def truth_from_estimate(setup: Setup, estimate: dict) -> Truth:
                  start_x_mm=cx, start_y_mm=cy)
 
 
+def start_from_readings(setup: Setup, readings: dict, truth: Truth) -> Truth:
+    """`truth` with its start point's x where the readings put it: p1 and p2 are probed
+    along -y and +y from the start, so their read x is the start's (the start's y moves no
+    reading and stays). A least squares started from the bore's centre instead starts
+    where the planner's free direction is undefined (p2 at the top of the bore), on another
+    branch of the planned path than the readings', and can run away from there."""
+    px = np.asarray(readings.get("p_x_mm", np.nan), dtype=float).reshape(-1)
+    px = px[np.isfinite(px)]
+    if px.size == 0:
+        return truth
+    return dataclasses.replace(truth, start_x_mm=float(np.mean(px)))
+
+
 def report_extras(setup: Setup, truth: Truth) -> dict:
     """The planned probing path of the nominal measurement, as data for the report's figure.
 
@@ -1418,5 +1431,6 @@ PROCEDURE = Procedure(
     readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
                             optional_columns=("point",), noise_source="probe_noise"),
     capabilities=Capabilities(block_size=2000, truth_from_estimate=truth_from_estimate,
+                              start_from_readings=start_from_readings,
                               report_extras=report_extras),
 )

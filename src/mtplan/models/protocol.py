@@ -32,7 +32,8 @@ A procedure module (``mtplan/models/<name>.py``) defines a module-level
 - ``description`` and ``levers`` (the set-up fields an engineer chooses).
 - ``capabilities``: a :class:`Capabilities` record, what the procedure offers beyond its
   model as data with generic defaults (as scikit-learn's estimator tags): the Monte Carlo
-  ``block_size``, ``truth_from_estimate`` and its batched form, ``source_structure``, the
+  ``block_size``, ``truth_from_estimate`` and its batched form, ``start_from_readings``,
+  ``source_structure``, the
   analysis hooks ``identifiability_report``, ``report_extras``, ``identifiability`` and
   ``observability``, and one derivative hook, ``first_order_sensitivities`` (the closed
   form of the first-order sensitivities, from which the first-order service derives u and
@@ -680,6 +681,13 @@ class Capabilities:
         float fields are arrays (m,), which ``forward`` takes as one truth per batch row. The
         readings' sensitivities to the measurands are then one forward run
         (``plans.planner.readings_jacobian``). None: one run per step of each measurand.
+    start_from_readings : callable or None
+        ``start_from_readings(setup, readings, truth) -> Truth``: `truth` (of
+        ``truth_from_estimate``) with the fields that no measurand depends on but that the
+        readings give directly (circle_centre's start point, whose x is that of the readings
+        p1 and p2) put where the readings put them: the start of the posterior's and the fit
+        check's least squares, which a forward model with branches (a path planned from
+        earlier readings) needs on the readings' branch. None: `truth` as it is.
     source_structure : callable or None
         ``source_structure(setup, truth, name) -> (colours, owners)`` or None: for a source
         of many elements that each move a few readings (an artifact's facets), a colouring of
@@ -723,6 +731,7 @@ class Capabilities:
     block_size: int = 10_000
     truth_from_estimate: Callable | None = None
     truths_from_estimates: Callable | None = None
+    start_from_readings: Callable | None = None
     source_structure: Callable | None = None
     identifiability_report: Callable | None = None
     report_extras: Callable | None = None

@@ -458,7 +458,10 @@ def fit_summary(fit) -> dict:
     if fit is None:
         return {"chi2": None, "dof": None, "p": None, "worst": "", "ok": None,
                 "outcome": "not made: no fit check for this evaluation", "alpha": None}
-    p = getattr(fit, "p_value", getattr(fit, "p", None))
+    # the smallest alpha at which the check flags the readings (chi-square and largest |w|
+    # together), so that "p below alpha: no decision" holds; the chi-square's own p before
+    p = getattr(fit, "p_overall", None)
+    p = getattr(fit, "p_value", getattr(fit, "p", None)) if p is None else p
     ok = getattr(fit, "ok", None)
     worst = fit.worst_text() if hasattr(fit, "worst_text") and getattr(fit, "worst", None) \
         else ""
@@ -535,7 +538,9 @@ def _results_section(result) -> Section:
         sec.blocks.append(Table("Fit check of each test's readings (chi-square of the "
                                 "readings against the model and its error budget): the "
                                 "achieved U holds only where they fit; a test whose readings "
-                                f"do not fit (p below {FIT_ALPHA:g}) gets no decision. Worst "
+                                f"do not fit (p below {FIT_ALPHA:g}) gets no decision; p is "
+                                "the smallest significance level at which the chi-square or "
+                                "the largest standardised residual flags them. Worst "
                                 "readings: "
                                 "row and column of the readings file, z the standardised "
                                 "residual.",
