@@ -311,3 +311,84 @@ def test_phone_width_stacks_and_print_hides_the_buttons(browser, server):
                        ".every((b) => getComputedStyle(b).display === 'none')")
     assert pg.locator("#measurands").is_visible()
     ctx.close()
+
+
+# ------------------------------------------------------------------ help and verdict
+GLOSSARY = Path(__file__).resolve().parents[2] / "docs" / "glossary.md"
+HELP_PAGES = [{"procedure": "rotary_axis"},
+              {"procedure": "geometry21"}, {"procedure": "circle_centre"},
+              {"procedure": "line_laser"}, {"procedure": "tracker_frame"}]
+
+
+@pytest.mark.parametrize("design", HELP_PAGES, ids=[p["procedure"] for p in HELP_PAGES])
+def test_every_code_on_the_page_has_help_in_the_glossarys_or_the_procedures_words(
+        browser, server, design):
+    from mtplan.models import get
+    from mtplan.models.protocol import fields_info
+
+    rows = [[c.strip() for c in line.strip().strip("|").split("|")] for line in
+            GLOSSARY.read_text(encoding="utf-8").replace("`", "").splitlines()
+            if line.startswith("|")]
+    words = {f"{r[0]}: {r[1]}" for r in rows if len(r) == 2}  # each row as the page says it
+    proc = get(design["procedure"])
+    ctx, pg = _open(browser, server, design)
+    pg.wait_for_function("document.querySelectorAll('#help-list dt').length > 0")
+    # every measurand code (both tables): the glossary's row, linked to its help entry
+    codes = pg.evaluate("[...document.querySelectorAll('#measurands .code, #acceptance .code')]"
+                        ".map((a) => [a.textContent, a.title, a.getAttribute('href')])")
+    names = [m.name for m in proc.measurands(proc.Setup(**design.get("setup", {})))]
+    assert sorted({c[0] for c in codes}) == sorted(names)
+    descriptions = {m.name: m.description
+                    for m in proc.measurands(proc.Setup(**design.get("setup", {})))}
+    for code, title, href in codes:
+        assert title.removesuffix(f". {descriptions[code]}") in words, (code, title)
+        assert href and pg.locator(href).count() == 1, code
+    # every lever: its field's own documentation
+    docs = {f["name"]: f["doc"] for f in fields_info(proc.Setup)}
+    for name in proc.levers:
+        assert pg.locator(f"#row-{name}").get_attribute("title").startswith(docs[name]), name
+        assert pg.locator(f"#help-f-{name} + dd").text_content() == docs[name]
+    # every estimator: its record's description
+    for name, est in proc.estimators.items():
+        assert pg.locator(f"#estimator option[value='{name}']").get_attribute("title") == \
+            est.description
+    # every term in the headings (TUR, PFA, PFR, guard band, O1, ...): the glossary's words
+    terms = pg.evaluate("[...document.querySelectorAll('[data-term]')].map((e) => e.title)")
+    assert len(terms) >= 15
+    for title in terms:
+        assert title in words, title
+    # a code's link opens the help at its entry
+    pg.locator("#measurands a.code").first.click()
+    assert pg.evaluate("document.querySelector('#help').open")
+    assert pg.locator("#help-list dt.hit").is_visible()
+    ctx.close()
+
+
+def test_the_verdict_says_plainly_what_a_poor_design_decides(page):
+    from scipy.stats import norm
+
+    from mtplan.plans.acceptance import parse_prior, plan_acceptance
+
+    line = page.locator("#verdict").inner_text()
+    U = _cell(page, "m-EX0C", "U")
+    assert "at a TUR of 4 it decides tolerances of \u00b14 U or wider" in line
+    shown = float(line.split("EX0C \u00b1", 1)[1].split(" \u00b5m")[0])
+    assert shown == pytest.approx(4 * U, rel=0.01)  # (U as shown is rounded to 3 digits)
+    # a tolerance of TUR 1.46, as the issue found: about half the good machines rejected
+    half = round(1.46 * U, 1)
+    sd = float(f"{half / 3:.3g}")  # a population of which about half would be rejected
+    prior = f"normal:0,{sd:g}"
+    for key, value in (("lower", -half), ("upper", half), ("prior", prior)):
+        box = page.locator(f"#tol-{key}-EX0C")
+        box.fill(str(value))
+        box.dispatch_event("change")
+    _settled(page)
+    u = U / 2
+    r = plan_acceptance(-half, half, u, prior=parse_prior(prior), rule="iso14253")
+    good = r.pfr / (norm.cdf(half, scale=sd) - norm.cdf(-half, scale=sd))
+    assert 0.4 <= good < 0.6, good  # the numbers chosen for "about half"
+    line = page.locator("#verdict").inner_text()
+    assert "EX0C cannot be decided well" in line, line
+    assert f"TUR {float(f'{r.tur:.3g}'):g}" in line, line
+    assert "about half of the good machines would be rejected" in line, line
+    assert line.count("\n") == 0
