@@ -86,13 +86,13 @@ function rangeText(f) {
   if (f.optional) t += (t ? "; " : "") + "empty: default";
   return t;
 }
+const UNITS = { um: "\u00b5m", urad: "\u00b5rad", c: "\u00b0C", deg: "\u00b0", k: "K",
+                arcsec: "\u2033", mm_min: "mm/min", per_s: "1/s" };
 function unitText(u) {
-  return { um: "\u00b5m", urad: "\u00b5rad", um_per_m: "\u00b5m/m", urad_per_m: "\u00b5rad/m",
-           um_per_s: "\u00b5m/s", urad_per_s: "\u00b5rad/s", mm_min: "mm/min", per_s: "1/s",
-           um_per_h: "\u00b5m/h", ppm_per_h: "ppm/h", um_per_deg: "\u00b5m/\u00b0",
-           urad_per_deg: "\u00b5rad/\u00b0", c: "\u00b0C", deg: "\u00b0", k_per_m: "K/m",
-           arcsec: "\u2033", mrad: "mrad", nm: "nm", mm: "mm", rad: "rad", ppm: "ppm", s: "s",
-           ms: "ms" }[u] ?? u;
+  // a unit suffix as an engineer writes it: um_per_deg is µm/°, ppm_per_k is ppm/K
+  if (!u) return u;
+  if (u in UNITS) return UNITS[u];
+  return u.split("_per_").map((p) => (p === "per" ? "1" : (UNITS[p] ?? p))).join("/");
 }
 function label(f) {
   let name = f.name;
@@ -541,11 +541,13 @@ function renderRisk(r) {
   const names = r.measurands.filter((m) => m.acceptance && !m.acceptance.error && m.acceptance.acceptance_limits).map((m) => m.name);
   fillSelect("risk-of", names, state.riskOf);
   const m = r.measurands.find((x) => x.name === $("risk-of").value);
+  const area = $("risk-plot").parentElement;  // no empty frames where there is no curve
   if (!m || !window.Plotly) {
     $("risk-msg").hidden = false;
-    for (const id of ["risk-plot", "zone-plot"]) $(id).classList.add("stale");
+    area.hidden = true;
     return;
   }
+  area.hidden = false;
   const a = m.acceptance, unit = unitText(m.unit);
   for (const id of ["risk-plot", "zone-plot"]) $(id).classList.remove("stale");
   $("risk-msg").hidden = !!a.curve;
