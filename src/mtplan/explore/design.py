@@ -311,8 +311,9 @@ def _closed_form(name: str, estimator: str) -> tuple:
 
     Paths: 'sensitivities' (the procedure's closed-form sensitivities) or 'chain' (the
     service's chain rule through forward model and estimator; not timed, None, where its
-    estimate at the default set-up is over :data:`CHAIN_PROBE_SECONDS`: line_laser's
-    registration at the full scan takes minutes)."""
+    estimate at the default set-up is over :data:`CHAIN_PROBE_SECONDS` or its memory over
+    :data:`LIVE_MEMORY`: line_laser's registration at the full scan, 3.7 GiB and minutes,
+    which the probe itself once ran)."""
     import time
 
     from mtplan.evaluation.first_order import first_order
@@ -331,9 +332,10 @@ def _closed_form(name: str, estimator: str) -> tuple:
     if not closed:
         # the chain rule at the default set-up: timed when its estimate from single runs
         # (which overstates a batched run many times) allows, else never run here
-        estimate = _chain_estimate(proc, setup, estimator)["seconds"]
-        if estimate > CHAIN_PROBE_SECONDS:
-            return path, None
+        chain = _chain_estimate(proc, setup, estimator)
+        estimate = chain["seconds"]
+        if estimate > CHAIN_PROBE_SECONDS or chain["bytes"] > LIVE_MEMORY:
+            return path, None  # (beyond the memory a live answer may use: never run here)
     with one_blas_thread():
         t = time.thread_time()
         if not closed:
@@ -474,12 +476,12 @@ def _trial_seconds(name: str, setup_key: str, estimator: str) -> float:
     setup = make(proc.Setup, json.loads(setup_key), owner=proc.name)
     truth, active = proc.Truth(), tuple(proc.active_sources(setup))
     root = as_seed_sequence(0)
-    t = time.thread_time()  # CPU time, as LIVE_SECONDS says
+    t, wall = time.thread_time(), time.perf_counter()  # CPU time, as LIVE_SECONDS says
     with one_blas_thread():
         _procedure_block(proc, setup, truth, estimator, active, root, 0, 1)
         one = time.thread_time() - t  # with the one-off costs (caches, imports)
-        if one > 10.0:  # a trial of seconds: a second one would not tell more
-            return one
+        if one > 1.0 or time.perf_counter() - wall > 2.0:
+            return one  # a trial of a second: more would not tell whether it fits
         t = time.thread_time()
         _procedure_block(proc, setup, truth, estimator, active, root, 1, 2)
     return (time.thread_time() - t) / 2
