@@ -4,9 +4,16 @@ Starts ``mtplan explore`` on a free loopback port, opens each procedure in headl
 Chromium (Debian's, driven by Playwright), moves one lever to a new value each time (so
 no answer comes from the cache) and reads the page's own clock: from the change event to
 the moment the table shows the numbers of that change. Prints p50, p95 and max per
-procedure [ms], and the machine's load average.
+procedure [ms], the server's CPU time per change [ms] (a figure the machine's load
+changes far less than the wall times: on an idle machine a change takes about that plus
+the page's own work) and the machine's load average beside each line.
 
     python benchmarks/bench_explore.py [--changes N]
+
+With ``--end-stops`` it times instead, in this process, what the page asks of the server
+for every slider at each end of its range, alone and with all the others at the same end:
+the numbers (``evaluate``), the spot check and the sensitivity curve, wall and CPU time;
+each should answer within 2 s on an idle machine, with numbers or a plain refusal.
 """
 
 from __future__ import annotations
@@ -60,11 +67,59 @@ def _start(port):
     raise RuntimeError("the server did not start")
 
 
+def _cpu_s(pid: int) -> float:
+    """User and system CPU time of a process [s] (Linux: /proc/PID/stat)."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def end_stops(only=None) -> None:
+    """Every slider's end-stops, alone and together: the slowest answers per procedure."""
+    from mtplan._parallel import one_blas_thread
+    from mtplan._validate import InvalidInput
+    from mtplan.explore import design as d
+
+    blas = one_blas_thread()  # as the server runs
+    print(f"load average before: {os.getloadavg()}, cores: {os.cpu_count()}")
+    for name in LEVERS:
+        if only and name not in only:
+            continue
+        sliders = d.sliders(name)
+        designs = [{f["name"]: str(f[end])} for f in sliders for end in ("low", "high")]
+        designs += [{f["name"]: str(f[end]) for f in sliders} for end in ("low", "high")]
+        worst, refused = {}, 0
+        for setup in designs:
+            design = {"procedure": name, "setup": setup}
+            for what, call in (("evaluate", d.evaluate), ("check", d.check),
+                               ("sensitivity", d.sensitivity)):
+                t, c = time.perf_counter(), time.process_time()
+                try:
+                    r = call(design)
+                except InvalidInput:  # refused (the page shows the one line)
+                    r = {"ok": False}
+                wall, cpu = time.perf_counter() - t, time.process_time() - c
+                worst[what] = max(worst.get(what, (0, 0)), (wall, cpu))
+                if what == "evaluate" and not r.get("ok"):
+                    refused += 1
+                    break  # the page asks nothing more of a refused set-up
+        print(f"{name:14s} {len(designs):3d} end-stop set-ups, {refused} refused; slowest: "
+              + "; ".join(f"{k} {1000 * w:.0f} ms wall, {1000 * c:.0f} ms CPU"
+                          for k, (w, c) in worst.items())
+              + f"  load {os.getloadavg()[0]:.1f}")
+    blas.restore_original_limits()
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--changes", type=int, default=20, help="lever changes per procedure")
     ap.add_argument("--only", nargs="*", help="procedures to time (default all)")
+    ap.add_argument("--end-stops", action="store_true",
+                    help="time every slider's end-stops in this process instead")
     args = ap.parse_args(argv)
+    if args.end_stops:
+        end_stops(args.only)
+        return 0
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -83,15 +138,19 @@ def main(argv=None) -> int:
                     {"procedure": name, "setup": setup}).encode()).decode().rstrip("=")
                 page.goto(f"{link}&d={design}")
                 page.wait_for_function("window.mtplan && window.mtplan.rendered > 0")
+                cpu = _cpu_s(server.pid)
                 for i in range(args.changes):
                     page.evaluate(f"""() => {{ const b = document.getElementById('f-{field}');
                         b.value = '{start + i * step:.6g}';
                         b.dispatchEvent(new Event('change')); }}""")
                     page.wait_for_function("window.mtplan.rendered === window.mtplan.changes "
                                            "&& !window.mtplan.inflight")
+                cpu = (_cpu_s(server.pid) - cpu) / args.changes
                 lat = np.array(page.evaluate("window.mtplan.latencies"))[1:]  # the change ones
-                print(f"{name:14s} {field:18s} n={lat.size:3d}  p50 {np.percentile(lat, 50):7.0f} ms"
-                      f"  p95 {np.percentile(lat, 95):7.0f} ms  max {lat.max():7.0f} ms")
+                print(f"{name:14s} {field:18s} n={lat.size:3d}  p50 {np.percentile(lat, 50):5.0f} ms"
+                      f"  p95 {np.percentile(lat, 95):5.0f} ms  max {lat.max():5.0f} ms"
+                      f"  server CPU {1000 * cpu:4.0f} ms/change"
+                      f"  load {os.getloadavg()[0]:.1f}")
                 page.close()
             print(f"load average after: {os.getloadavg()}")
             browser.close()

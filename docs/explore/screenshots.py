@@ -30,9 +30,9 @@ CHROMIUM = ("/usr/bin/chromium" if os.path.exists("/usr/bin/chromium")
 HERE = Path(__file__).resolve().parent
 DESIGNS = {
     "rotary_axis": {"setup": {"positions": "8", "incline_deg": "25"}, "lever": "incline_deg",
-                    "targets": {"EX0C": "2.5", "EY0C": "2.5"},
-                    "tolerances": {"EX0C": {"lower": "-25", "upper": "25",
-                                            "prior": "normal:0,10", "rule": "iso14253"}}},
+                    "targets": {"EX0C": "40", "EY0C": "8"},
+                    "tolerances": {"EX0C": {"lower": "-150", "upper": "150",
+                                            "prior": "normal:0,60", "rule": "iso14253"}}},
     "circle_centre": {"setup": {"n_points": "6"}, "lever": "spread_deg",
                       "targets": {"centre_x": "4"},
                       "tolerances": {"centre_x": {"lower": "-400", "upper": "400",

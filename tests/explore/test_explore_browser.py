@@ -183,11 +183,21 @@ def test_confirm_by_monte_carlo_matches_simulate_and_cancels(page):
     for m in doc["measurands"]:
         assert float(page.locator(f"#mc-{m['name']} td.mc-u").inner_text()) == \
             float(f"{m['u']:.3g}"), m["name"]
+    # the histogram of the Monte Carlo values, with the measurand's unit on its axis
+    page.wait_for_selector("#mc-hist .main-svg")
+    assert page.evaluate("document.querySelector('#mc-hist').data[0].y.reduce((a, b) => a + b)"
+                         ) == 400
+    assert "[\u00b5m]" in page.evaluate("document.querySelector('#mc-hist').layout.xaxis"
+                                        ".title.text")
     # a long run (within a job's time budget): progress shown, then cancelled
     page.locator("#trials").fill("1e5")
     page.locator("#trials").dispatch_event("change")
     page.locator("#confirm").click()
     page.wait_for_selector("#job:not([hidden])")
+    # the progress shows where the user is looking, not below the screen
+    assert page.evaluate("(() => { const r = document.querySelector('#job')"
+                         ".getBoundingClientRect(); return r.top >= 0 && "
+                         "r.bottom <= window.innerHeight; })()")
     page.locator("#job-cancel").click()
     page.wait_for_selector("#job-cancelled")
     _set(page, "positions", 9)
@@ -311,3 +321,154 @@ def test_phone_width_stacks_and_print_hides_the_buttons(browser, server):
                        ".every((b) => getComputedStyle(b).display === 'none')")
     assert pg.locator("#measurands").is_visible()
     ctx.close()
+
+
+# ------------------------------------------------------------------ help and verdict
+GLOSSARY = Path(__file__).resolve().parents[2] / "docs" / "glossary.md"
+HELP_PAGES = [{"procedure": "rotary_axis"},
+              {"procedure": "geometry21"}, {"procedure": "circle_centre"},
+              {"procedure": "line_laser"}, {"procedure": "tracker_frame"}]
+
+
+@pytest.mark.parametrize("design", HELP_PAGES, ids=[p["procedure"] for p in HELP_PAGES])
+def test_every_code_on_the_page_has_help_in_the_glossarys_or_the_procedures_words(
+        browser, server, design):
+    from mtplan.models import get
+    from mtplan.models.protocol import fields_info
+
+    rows = [[c.strip() for c in line.strip().strip("|").split("|")] for line in
+            GLOSSARY.read_text(encoding="utf-8").replace("`", "").splitlines()
+            if line.startswith("|")]
+    words = {f"{r[0]}: {r[1]}" for r in rows if len(r) == 2}  # each row as the page says it
+    proc = get(design["procedure"])
+    ctx, pg = _open(browser, server, design)
+    pg.wait_for_function("document.querySelectorAll('#help-list dt').length > 0")
+    # every measurand code (both tables): the glossary's row, linked to its help entry
+    codes = pg.evaluate("[...document.querySelectorAll('#measurands .code, #acceptance .code')]"
+                        ".map((a) => [a.textContent, a.title, a.getAttribute('href')])")
+    names = [m.name for m in proc.measurands(proc.Setup(**design.get("setup", {})))]
+    assert sorted({c[0] for c in codes}) == sorted(names)
+    descriptions = {m.name: m.description
+                    for m in proc.measurands(proc.Setup(**design.get("setup", {})))}
+    for code, title, href in codes:
+        assert title.removesuffix(f". {descriptions[code]}") in words, (code, title)
+        assert href and pg.locator(href).count() == 1, code
+    # every lever: its field's own documentation
+    docs = {f["name"]: f["doc"] for f in fields_info(proc.Setup)}
+    for name in proc.levers:
+        assert pg.locator(f"#row-{name}").get_attribute("title").startswith(docs[name]), name
+        assert pg.locator(f"#help-f-{name} + dd").text_content() == docs[name]
+    # every estimator: its record's description
+    # every control's unit as an engineer writes it (um as µm, k_per_m as K/m)
+    units = pg.evaluate("[...document.querySelectorAll('.field .unit')].map((u) => u.textContent)")
+    assert not [u for u in units if "_" in u or u in ("um", "urad", "deg", "c", "k")], units
+    for name, est in proc.estimators.items():
+        assert pg.locator(f"#estimator option[value='{name}']").get_attribute("title") == \
+            est.description
+    # every term in the headings (TUR, PFA, PFR, guard band, O1, ...): the glossary's words
+    terms = pg.evaluate("[...document.querySelectorAll('[data-term]')].map((e) => e.title)")
+    assert len(terms) >= 15
+    for title in terms:
+        assert title in words, title
+    # a code's link opens the help at its entry
+    pg.locator("#measurands a.code").first.click()
+    assert pg.evaluate("document.querySelector('#help').open")
+    assert pg.locator("#help-list dt.hit").is_visible()
+    ctx.close()
+
+
+def test_the_verdict_says_plainly_what_a_poor_design_decides(page):
+    from scipy.stats import norm
+
+    from mtplan.plans.acceptance import parse_prior, plan_acceptance
+
+    line = page.locator("#verdict").inner_text()
+    U = _cell(page, "m-EX0C", "U")
+    assert "at a TUR of 4 it decides tolerances of \u00b14 U or wider" in line
+    shown = float(line.split("EX0C \u00b1", 1)[1].split(" \u00b5m")[0])
+    assert shown == pytest.approx(4 * U, rel=0.01)  # (U as shown is rounded to 3 digits)
+    # a tolerance of TUR 1.46, as the issue found: about half the good machines rejected
+    half = round(1.46 * U, 1)
+    sd = float(f"{half / 3:.3g}")  # a population of which about half would be rejected
+    prior = f"normal:0,{sd:g}"
+    for key, value in (("lower", -half), ("upper", half), ("prior", prior)):
+        box = page.locator(f"#tol-{key}-EX0C")
+        box.fill(str(value))
+        box.dispatch_event("change")
+    _settled(page)
+    u = U / 2
+    r = plan_acceptance(-half, half, u, prior=parse_prior(prior), rule="iso14253")
+    good = r.pfr / (norm.cdf(half, scale=sd) - norm.cdf(-half, scale=sd))
+    assert 0.4 <= good < 0.6, good  # the numbers chosen for "about half"
+    line = page.locator("#verdict").inner_text()
+    assert "EX0C cannot be decided well" in line, line
+    assert f"TUR {float(f'{r.tur:.3g}'):g}" in line, line
+    assert "about half of the good machines would be rejected" in line, line
+    assert line.count("\n") == 0
+
+
+def test_the_views_engineers_expect(page):
+    """Risk curve, zones, GUM budget table, CSV and PNG downloads, scenarios and undo."""
+    _set(page, "positions", 8)
+    U = _cell(page, "m-EX0C", "U")
+    for key, value in (("lower", -2 * U), ("upper", 2 * U), ("prior", f"normal:0,{U:.3g}")):
+        box = page.locator(f"#tol-{key}-EX0C")
+        box.fill(str(value))
+        box.dispatch_event("change")
+    _settled(page)
+    # every column of the tolerance table in view at a desktop width, PFR included
+    assert page.evaluate("document.querySelector('#acceptance').getBoundingClientRect().right"
+                         " <= document.querySelector('#results').getBoundingClientRect().right")
+    # the risk curve: PFA and PFR against the guard band, the design's point on it
+    names = page.evaluate("document.querySelector('#risk-plot').data.map((t) => t.name)")
+    assert names == ["PFA", "PFR", "this design"]
+    assert page.evaluate("document.querySelector('#risk-plot').layout.xaxis.title.text") == \
+        "guard band w [\u00b5m]"
+    gb = float(page.locator("#acc-gb-EX0C").inner_text())
+    assert page.evaluate("document.querySelector('#risk-plot').data[2].x[0]") == \
+        pytest.approx(gb, rel=1e-3)
+    # the zones: tolerance, acceptance and reject bands on the measurand's axis
+    shapes = page.evaluate("document.querySelector('#zone-plot').layout.shapes.map((s) => s.name)")
+    assert {"tolerance", "acceptance", "reject"} <= set(shapes)
+    # the GUM budget table: contribution = c x input u, the shares add to 100 %
+    rows = page.evaluate("""[...document.querySelectorAll('#budget-table tbody tr')].map(
+        (r) => [...r.children].map((c) => c.textContent))""")
+    assert rows and {r[0] for r in rows} <= set(page.evaluate(
+        "window.mtplan.lastResult.measurands[0].budget_table.map((b) => b.source)"))
+    shares = [float(r[4].split()[0]) for r in rows if r[4] not in ("-", "< 0.01 %")]
+    assert sum(shares) == pytest.approx(100, abs=0.5)
+    for r in rows:
+        if r[1] != "-" and r[2] != "-":
+            c, x, contribution = (float(r[k].split()[0]) for k in (2, 1, 3))
+            assert c * x == pytest.approx(contribution, rel=0.02), r
+    # every table as CSV, every plot as PNG
+    with page.expect_download() as dl:
+        page.locator("button.csv[data-table='measurands']").click()
+    text = Path(dl.value.path()).read_text(encoding="utf-8")
+    assert dl.value.suggested_filename == "rotary_axis_measurands.csv"
+    assert text.splitlines()[0].startswith("Measurand,Unit,u,U (k=2)") and "\nEX0C," in text
+    with page.expect_download() as dl:
+        page.locator("#budget-plot .modebar-btn").first.click()
+    assert dl.value.suggested_filename == "rotary_axis_budget.png"
+    assert Path(dl.value.path()).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # two scenarios side by side, then undo back to the first one's set-up
+    page.locator("#keep").click()
+    _set(page, "positions", 12)
+    page.locator("#keep").click()
+    head = page.locator("#scenarios tr").first.locator("th")
+    assert head.count() == 3
+    cells = page.locator("#scenarios tr", has_text="EX0C").locator("td")
+    assert cells.nth(1).inner_text() != cells.nth(2).inner_text()
+    page.locator("#undo").click()
+    _settled(page)
+    assert page.locator("#f-positions").input_value() == "8"
+    assert _cell(page, "m-EX0C", "U") == U
+    # an error in the tolerance table is shown whole, never clipped
+    box = page.locator("#tol-lower-EX0C")
+    box.fill("abc")
+    box.dispatch_event("change")
+    _settled(page)
+    cell = page.locator("#acc-tur-EX0C")
+    assert "number" in cell.inner_text()
+    assert page.evaluate("(() => { const c = document.querySelector('#acc-tur-EX0C'); "
+                         "return c.scrollWidth <= c.clientWidth + 1; })()")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import tomllib
+from pathlib import Path
 
 import pytest
 
@@ -103,3 +104,33 @@ def test_monte_carlo_reports_its_progress_to_a_callable():
     r = simulate_uncertainty("circle_centre", trials=300, rng=1, block_size=100,
                              progress=lambda done, total: seen.append((done, total)))
     assert seen == [(100, 300), (200, 300), (300, 300)] and r.mc.trials == 300
+
+
+GLOSSARY = Path(__file__).resolve().parents[2] / "docs" / "glossary.md"
+#: set-ups that show every measurand code a procedure has (the axes, a third sub-machine)
+VARIANTS = [("rotary_axis", {"axis": "CA"}), ("rotary_axis", {"axis": "A"}),
+            ("tracker_frame", {"n_submachines": 3}), ("geometry21", {}), ("line_laser", {}),
+            ("circle_centre", {})]
+
+
+@pytest.mark.parametrize("name, change", VARIANTS)
+def test_every_measurand_code_has_the_glossarys_words(name, change):
+    from mtplan.explore import design as d
+    from mtplan.models import get
+
+    text = GLOSSARY.read_text(encoding="utf-8").replace("`", "")
+    proc = get(name)
+    for m in proc.measurands(proc.Setup(**change)):
+        row = d.explain(m.name)
+        assert row is not None, m.name
+        assert f"| {row['label']} | {row['meaning']} |" in text, m.name
+        assert d._help(m.name, m.description).startswith(f"{row['label']}: {row['meaning']}")
+
+
+@pytest.mark.parametrize("code", ["TUR", "PFA", "PFR", "w", "A_L", "prior", "O1", "rank",
+                                  "c_i", "share", "target", "u", "U", "simple", "iso14253",
+                                  "dobbert", "guard:1", "target-pfa:0.02", "conditional PFA"])
+def test_every_term_of_the_page_is_in_the_glossary(code):
+    from mtplan.explore import design as d
+
+    assert d.explain(code) is not None

@@ -57,18 +57,6 @@ def test_line_laser_patent_blind_and_far_cells_are_marked_and_never_meet_a_targe
     assert "step" in rows["alpha_z"]["why"] or "u = 0" in rows["alpha_z"]["why"]
 
 
-def _sliders(proc) -> list:
-    """The fields the page draws as sliders (bounded numbers, range of the value's order)."""
-    out = []
-    for f in d.procedure_info(proc.name)["fields"]:
-        if f["kind"] in ("int", "float") and f["low"] is not None and f["high"] is not None \
-                and f["default"] is not None and math.isfinite(f["low"]) and \
-                math.isfinite(f["high"]) and \
-                f["high"] - f["low"] <= 50 * max(abs(f["default"] or 0), 1):
-            out.append(f)
-    return out
-
-
 def _ends(f) -> list:
     return [str(f["low"]), str(f["high"])]
 
@@ -97,8 +85,7 @@ def _answers(design) -> str:
 
 @pytest.mark.parametrize("name", sorted(registry()))
 def test_every_slider_end_stop_answers_with_numbers_or_a_plain_refusal(name):
-    proc = get(name)
-    sliders = _sliders(proc)
+    sliders = d.sliders(name)
     assert sliders
     for f in sliders:
         for end in _ends(f):

@@ -43,6 +43,7 @@ from mtplan.models.protocol import UNIT_SUFFIXES, fields_info, make, parse_field
 
 __all__ = ["K", "procedures_info", "procedure_info", "normalise", "setup_of", "evaluate",
            "sensitivity", "study_toml", "design_from_study", "source_fields", "lever_values",
+           "glossary", "explain", "sliders",
            "plan_vary", "whole", "check", "trust", "spot_check", "prediction_cost",
            "guard_cost", "TooCostly"]
 
@@ -55,6 +56,12 @@ _RULES = ("simple", "iso14253", "dobbert", "guard:", "target-pfa:")
 def source_fields(proc) -> dict:
     """Error source name -> the set-up field that sizes it (``probe_noise`` ->
     ``probe_noise_um``): the field is the source's name followed by a unit suffix."""
+    return dict(_source_fields(proc.name))
+
+
+@functools.lru_cache(maxsize=64)
+def _source_fields(name: str) -> tuple:  # asked several times a change: once per procedure
+    proc = get(name)
     names = list(proc.sources(proc.Setup()))
     out = {}
     for f in fields_info(proc.Setup):
@@ -62,7 +69,7 @@ def source_fields(proc) -> dict:
             rest = f["name"][len(s) + 1:]
             if f["name"].startswith(s + "_") and rest in UNIT_SUFFIXES:
                 out[s] = f["name"]
-    return out
+    return tuple(out.items())
 
 
 def _json_value(v):
@@ -94,13 +101,29 @@ def procedure_info(name: str) -> dict:
             else "",
             "lever": f["name"] in proc.levers,
         })
+        fields[-1]["slider"] = _slider(fields[-1])
     return {
         "name": proc.name, "title": proc.title, "description": proc.description,
         "estimators": list(proc.estimators), "default_estimator": proc.default_estimator,
-        "measurands": [{"name": m.name, "unit": m.unit, "description": m.description}
-                       for m in proc.measurands(setup)],
+        "estimator_help": {k: e.description for k, e in proc.estimators.items()},
+        "measurands": _measurand_rows(proc, setup),
         "fields": fields,
     }
+
+
+def _slider(f: dict) -> bool:
+    """Whether the page draws a field as a slider: a bounded number whose range is of the
+    order of its default (not 0 .. 100000 for a 1 um noise)."""
+    if f["kind"] not in ("int", "float") or f["default"] is None:
+        return False
+    lo, hi = f["low"], f["high"]
+    return lo is not None and hi is not None and math.isfinite(lo) and math.isfinite(hi) \
+        and hi - lo <= 50 * max(abs(f["default"]), 1)
+
+
+def sliders(name: str) -> list:
+    """The fields of a procedure that the page draws as sliders."""
+    return [f for f in procedure_info(name)["fields"] if f["slider"]]
 
 
 GLOSSARY = Path(__file__).resolve().parents[3] / "docs" / "glossary.md"
@@ -124,9 +147,37 @@ def glossary() -> list:
         if len(cells) != 2 or set(cells[0]) <= set("-") or cells[1] == "meaning":
             continue
         names = [n.strip(" `") for n in re.split(r",|\.\.\.|=", cells[0]) if n.strip(" `")]
-        out.append({"names": names, "label": cells[0].replace("`", ""),
-                    "meaning": cells[1].replace("`", ""), "section": section})
+        names += [n.split(": ", 1)[1] for n in names if ": " in n]  # "decision rule: simple"
+        label = cells[0].replace("`", "")
+        out.append({"names": names, "label": label, "meaning": cells[1].replace("`", ""),
+                    "section": section, "anchor": "help-" + re.sub(r"[^A-Za-z0-9]+", "-",
+                                                                   label).strip("-")})
     return out
+
+
+@functools.lru_cache(maxsize=2048)
+def explain(code: str) -> dict | None:
+    """The glossary's row for a code or term shown on the page, or None.
+
+    A row's name matches itself and its placeholders: ``_k`` any number (``origin_x_k``
+    is ``origin_x_2``), and ``:R`` or ``:P`` after a colon any value (``guard:R`` is
+    ``guard:1``).
+    """
+    for row in glossary():
+        for name in row["names"]:
+            pattern = re.escape(name)
+            pattern = re.sub(r"_k$", r"_\\d+", pattern)
+            pattern = re.sub(r":[A-Z]$", r":.+", pattern)
+            if re.fullmatch(pattern, code):
+                return row
+    return None
+
+
+def _help(code: str, description: str = "") -> str:
+    """The page's help for a code: the glossary's words, then the procedure's own."""
+    row = explain(code)
+    words = f"{row['label']}: {row['meaning']}" if row else ""
+    return ". ".join(t for t in (words, description) if t)
 
 
 def procedures_info() -> list:
@@ -231,7 +282,10 @@ def predict(proc, setup, estimator) -> dict:
 
 # --------------------------------------------------------------------------- cost guard
 #: the most memory [bytes] and time [s] a live prediction may be estimated to take; a
-#: set-up beyond either is refused with the estimate, before anything is computed
+#: set-up beyond either is refused with the estimate, before anything is computed. Times
+#: are learnt as the CPU time of the computing thread (BLAS on that one thread): what
+#: the computation takes on an idle machine, so that the same set-up is answered or
+#: refused whatever else the machine is doing
 LIVE_MEMORY = 1.5e9
 LIVE_SECONDS = 2.0
 #: the longest a sensitivity curve may be estimated to take [s] (fewer points beyond)
@@ -252,13 +306,14 @@ def _closed_form(name: str, estimator: str) -> tuple:
     first-order service (:func:`mtplan.evaluation.first_order.first_order`) takes for it,
     asked once of the procedure's derivative hook at the default set-up (a closed form is a
     property of the estimator, not of the size), and what the prediction and the
-    identifiability took there: per reading for a closed form (its cost grows with the
-    readings), over :func:`_chain_estimate`'s estimate for the chain rule.
+    identifiability took there: over the readings to the power :data:`CLOSED_FORM_POWER`
+    for a closed form, over :func:`_chain_estimate`'s estimate for the chain rule.
 
     Paths: 'sensitivities' (the procedure's closed-form sensitivities) or 'chain' (the
     service's chain rule through forward model and estimator; not timed, None, where its
-    estimate at the default set-up is over :data:`CHAIN_PROBE_SECONDS`: line_laser's
-    registration at the full scan takes minutes)."""
+    estimate at the default set-up is over :data:`CHAIN_PROBE_SECONDS` or its memory over
+    :data:`LIVE_MEMORY`: line_laser's registration at the full scan, 3.7 GiB and minutes,
+    which the probe itself once ran)."""
     import time
 
     from mtplan.evaluation.first_order import first_order
@@ -266,22 +321,36 @@ def _closed_form(name: str, estimator: str) -> tuple:
     proc = get(name)
     setup = proc.Setup()
     hook = proc.capabilities.first_order_sensitivities
-    path = "sensitivities"
-    if hook is None or hook(setup, proc.Truth(), estimator=estimator, sources=None) is None:
+    with one_blas_thread():
+        # the hook's first answer is the cold computation (it may keep what it computed:
+        # a prediction timed after it would be a cache's, 12 ms where geometry21 takes 140)
+        t = time.thread_time()  # CPU time, as LIVE_SECONDS says
+        closed = hook is not None and hook(setup, proc.Truth(), estimator=estimator,
+                                           sources=None) is not None
+        seconds = time.thread_time() - t
+    path = "sensitivities" if closed else "chain"
+    if not closed:
         # the chain rule at the default set-up: timed when its estimate from single runs
         # (which overstates a batched run many times) allows, else never run here
-        path = "chain"
-        estimate = _chain_estimate(proc, setup, estimator)["seconds"]
-        if estimate > CHAIN_PROBE_SECONDS:
-            return path, None
+        chain = _chain_estimate(proc, setup, estimator)
+        estimate = chain["seconds"]
+        if estimate > CHAIN_PROBE_SECONDS or chain["bytes"] > LIVE_MEMORY:
+            return path, None  # (beyond the memory a live answer may use: never run here)
     with one_blas_thread():
-        t = time.perf_counter()
-        first_order(proc, setup, estimator=estimator).u()
+        t = time.thread_time()
+        if not closed:
+            first_order(proc, setup, estimator=estimator).u()
         identify(proc, setup)
-        seconds = time.perf_counter() - t
+        seconds += time.thread_time() - t
     if path == "chain":  # the measured time over the estimate: scales the estimate elsewhere
         return path, seconds / max(estimate, 1e-9)
-    return path, seconds / max(_readings(name, _setup_key(setup)), 1)
+    return path, seconds / max(_readings(name, _setup_key(setup)), 1) ** CLOSED_FORM_POWER
+
+
+#: a closed form's time grows as the readings to this power: a little faster than in
+#: proportion, as reading noise brings elements with the readings (geometry21: 15 times the
+#: readings took 22.6 times as long, a power of 1.15)
+CLOSED_FORM_POWER = 1.2
 
 
 #: the chain rule is timed at a procedure's default set-up when its estimate from single
@@ -311,7 +380,8 @@ def prediction_cost(proc, setup, estimator: str) -> dict:
     trials), along the first-order service's paths:
 
     - 'sensitivities': the closed form (the procedure's linear maps: the m x n sensitivities
-      and r x m maps), its time per reading learnt at the default set-up;
+      and r x m maps), its time learnt at the default set-up, grown as the readings to the
+      power :data:`CLOSED_FORM_POWER`;
     - 'chain': :func:`_chain_estimate`'s memory and time, the time scaled by what the
       chain rule took at the default set-up over that estimate there, where it was timed
       (never below 1/20 of the estimate).
@@ -321,7 +391,8 @@ def prediction_cost(proc, setup, estimator: str) -> dict:
     r = _readings(proc.name, _setup_key(setup))
     path, per_reading = _closed_form(proc.name, estimator)
     if path == "sensitivities":
-        return {"path": path, "inputs": n, "readings": r, "seconds": per_reading * r,
+        return {"path": path, "inputs": n, "readings": r,
+                "seconds": per_reading * max(r, 1) ** CLOSED_FORM_POWER,
                 "bytes": 8.0 * (m + r) * m + 8.0 * m * n}
     chain = _chain_estimate(proc, setup, estimator)  # its growth with n and r, not linear
     seconds = chain["seconds"] * (1.0 if per_reading is None else max(per_reading, 0.05))
@@ -375,11 +446,24 @@ _spots: dict = {}  # (procedure, set-up key, estimator) -> spot check, newest la
 
 
 def trial_seconds(proc, setup, estimator: str) -> float:
-    """Seconds per Monte Carlo trial of a set-up (cached per set-up)."""
-    return _trial_seconds(proc.name, _setup_key(setup), estimator)
+    """Seconds per Monte Carlo trial of a set-up, timed once per size: a trial's work is
+    set by the numbers of readings, error elements and measurands, not by the values of
+    angles, radii or source sizes, so moving such a lever reuses the time of a set-up of
+    the same size (the first one timed) instead of running trials again."""
+    key = _setup_key(setup)
+    elements = int(sum(src.size for src in proc.active_sources(setup).values()))
+    size = (_readings(proc.name, key), elements, len(proc.measurands(setup)))
+    sized = (proc.name, size, estimator)
+    if sized not in _timed:
+        while len(_timed) >= 256:
+            _timed.pop(next(iter(_timed)))
+        _timed[sized] = _trial_seconds(proc.name, key, estimator)
+    return _timed[sized]
 
 
-@functools.lru_cache(maxsize=128)
+_timed: dict = {}  # (procedure, (readings, elements, measurands), estimator) -> s per trial
+
+
 def _trial_seconds(name: str, setup_key: str, estimator: str) -> float:
     """Timed on a block of two trials after one that warms the caches (that one alone
     when it is already slow)."""
@@ -392,15 +476,15 @@ def _trial_seconds(name: str, setup_key: str, estimator: str) -> float:
     setup = make(proc.Setup, json.loads(setup_key), owner=proc.name)
     truth, active = proc.Truth(), tuple(proc.active_sources(setup))
     root = as_seed_sequence(0)
-    t = time.perf_counter()
+    t, wall = time.thread_time(), time.perf_counter()  # CPU time, as LIVE_SECONDS says
     with one_blas_thread():
         _procedure_block(proc, setup, truth, estimator, active, root, 0, 1)
-        one = time.perf_counter() - t  # with the one-off costs (caches, imports)
-        if one > 10.0:  # a trial of seconds: a second one would not tell more
-            return one
-        t = time.perf_counter()
+        one = time.thread_time() - t  # with the one-off costs (caches, imports)
+        if one > 1.0 or time.perf_counter() - wall > 2.0:
+            return one  # a trial of a second: more would not tell whether it fits
+        t = time.thread_time()
         _procedure_block(proc, setup, truth, estimator, active, root, 1, 2)
-    return (time.perf_counter() - t) / 2
+    return (time.thread_time() - t) / 2
 
 
 def spot_check(proc, setup, estimator: str) -> dict:
@@ -592,6 +676,7 @@ def _acceptance(tol: dict, u: float) -> dict:
     out["rule"] = rule
     out["prior"] = prior_text
     out["lower"], out["upper"], out["u"] = lower, upper, u
+    out["p_conform"] = r.p_conform_prior  # the share of good machines (for the verdict)
     if prior is not None and lower is not None and upper is not None:
         try:
             out["curve"] = risk_curve(lower, upper, u, prior)
@@ -703,6 +788,7 @@ def evaluate(design: dict) -> dict:
     for m in proc.measurands(setup):
         u = pred["u"][m.name]
         row = {"name": m.name, "unit": m.unit, "description": m.description, "u": u,
+               "help": _help(m.name, m.description), "anchor": _anchor(m.name),
                "U": K * u, "budget": pred["budget"][m.name], **trusted[m.name],
                "budget_table": budget_table(pred["budget"][m.name], u, inputs)}
         if m.name in design["targets"]:
@@ -754,8 +840,14 @@ def budget_table(budget: dict, u: float, inputs: dict) -> list:
 
 
 def _measurand_rows(proc, setup) -> list:
-    return [{"name": m.name, "unit": m.unit, "description": m.description}
+    return [{"name": m.name, "unit": m.unit, "description": m.description,
+             "help": _help(m.name, m.description), "anchor": _anchor(m.name)}
             for m in proc.measurands(setup)]
+
+
+def _anchor(code: str) -> str | None:
+    row = explain(code)
+    return row["anchor"] if row else None
 
 
 def check(design: dict) -> dict:

@@ -86,13 +86,13 @@ function rangeText(f) {
   if (f.optional) t += (t ? "; " : "") + "empty: default";
   return t;
 }
+const UNITS = { um: "\u00b5m", urad: "\u00b5rad", c: "\u00b0C", deg: "\u00b0", k: "K",
+                arcsec: "\u2033", mm_min: "mm/min", per_s: "1/s" };
 function unitText(u) {
-  return { um: "\u00b5m", urad: "\u00b5rad", um_per_m: "\u00b5m/m", urad_per_m: "\u00b5rad/m",
-           um_per_s: "\u00b5m/s", urad_per_s: "\u00b5rad/s", mm_min: "mm/min", per_s: "1/s",
-           um_per_h: "\u00b5m/h", ppm_per_h: "ppm/h", um_per_deg: "\u00b5m/\u00b0",
-           urad_per_deg: "\u00b5rad/\u00b0", c: "\u00b0C", deg: "\u00b0", k_per_m: "K/m",
-           arcsec: "\u2033", mrad: "mrad", nm: "nm", mm: "mm", rad: "rad", ppm: "ppm", s: "s",
-           ms: "ms" }[u] ?? u;
+  // a unit suffix as an engineer writes it: um_per_deg is µm/°, ppm_per_k is ppm/K
+  if (!u) return u;
+  if (u in UNITS) return UNITS[u];
+  return u.split("_per_").map((p) => (p === "per" ? "1" : (UNITS[p] ?? p))).join("/");
 }
 function label(f) {
   let name = f.name;
@@ -106,7 +106,8 @@ function setValue(name, value, lever) {
 }
 function makeField(f) {
   const value = fieldValue(f);
-  const row = el("div", { class: "field", id: "row-" + f.name, title: f.doc });
+  const row = el("div", { class: "field", id: "row-" + f.name,
+                          title: f.source_doc ? `${f.doc} Source: ${f.source_doc}` : f.doc });
   const input = el("span", { class: "input" });
   let box;
   if (f.choices) {
@@ -124,11 +125,7 @@ function makeField(f) {
   } else {
     box = el("input", { id: "f-" + f.name, type: "text", inputmode: "decimal", value,
                         placeholder: f.optional ? "default" : "" });
-    // a slider where the range is of the order of the value (not 0 .. 100000 for a 1 um noise)
-    const scale = Math.max(Math.abs(+f.default || 0), 1);
-    const numeric = f.low !== null && f.high !== null && isFinite(f.low) && isFinite(f.high) &&
-      f.default !== null && (f.high - f.low) <= 50 * scale;
-    if (numeric) {
+    if (f.slider) {  // the server's choice: a range of the order of the value
       const step = f.kind === "int" ? 1 : (f.high - f.low) / 500;
       const slider = el("input", { id: "s-" + f.name, type: "range", min: f.low, max: f.high,
                                    "aria-label": `${label(f)} slider${f.unit ? ` [${unitText(f.unit)}]` : ""}`,
@@ -180,8 +177,10 @@ function buildControls() {
     }
   }
   const est = $("estimator");
-  est.replaceChildren(...info.estimators.map((e) => el("option", { value: e, text: e })));
+  est.replaceChildren(...info.estimators.map((e) => el("option", { value: e, text: e,
+                                                                   title: (info.estimator_help || {})[e] || "" })));
   est.value = state.design.estimator || info.default_estimator;
+  est.title = (info.estimator_help || {})[est.value] || "";
   $("procedure").value = info.name;
   $("seed").value = state.design.seed ?? 0;
   $("trials").value = state.design.trials ?? 10000;
@@ -216,6 +215,7 @@ function buildAcceptance(measurands) {
     for (const r of ["simple", "iso14253", "dobbert", "guard:1", "target-pfa:0.02"])
       rule.append(el("option", { value: r, text: r }));
     rule.value = tol.rule || "iso14253";
+    rule.dataset.term = "simple";  // the glossary's row of the decision rules
     rule.addEventListener("change", () => {
       const t = { ...(state.design.tolerances[m.name] || {}), rule: rule.value };
       state.design.tolerances[m.name] = t; changed();
@@ -237,7 +237,7 @@ function buildAcceptance(measurands) {
     });
     const csv = el("label", { class: "button small", title: "population from a CSV file of measured values" }, "CSV", upload);
     body.append(el("tr", { id: "acc-" + m.name },
-      el("td", { text: `${m.name} [${unitText(m.unit)}]`, title: m.description }),
+      el("td", {}, codeCell(m), ` [${unitText(m.unit)}]`),
       el("td", {}, inp("lower")), el("td", {}, inp("upper")),
       el("td", { class: "prior-cell" }, inp("prior", "prior"), csv), el("td", {}, rule),
       out("tur"), out("gb"), out("limits"), out("pfa"), out("pfr")));
@@ -287,11 +287,17 @@ function scheduleCheck() {
   clearTimeout(state.checkTimer);
   state.checkTimer = setTimeout(checkFirstOrder, 300);  // not while a lever is being moved
 }
+function settled() {
+  // the numbers on the page answer the newest change and none is being computed: only
+  // then do the curve and the spot check start (asked earlier, they take the CPU that the
+  // next numbers need; the render of the newest change asks for them again)
+  return !state.inflight && state.rendered === state.changes;
+}
 async function checkFirstOrder() {
   // the small Monte Carlo that each first-order u is judged against; its marks replace
   // "being checked" in the cells of the numbers it was asked for
   const asked = state.changes, r = state.lastResult;
-  if (!r || !r.ok) return;
+  if (!r || !r.ok || !settled()) return;
   let c;
   try { c = await api("/api/check", { design: state.design, tab: state.tab, change: asked }); }
   catch (e) { return; }
@@ -324,6 +330,7 @@ function render(r) {
     if (r.measurand_names && r.measurand_names.map((m) => m.name).join(",") !== state.accNames) buildAcceptance(r.measurand_names);
     for (const id of ["sens-plot", "budget-plot"]) $(id).classList.add("stale");
     $("verdict").textContent = "";
+    renderHelp(r);
     return;
   }
   banner("");
@@ -350,7 +357,7 @@ function render(r) {
     const tip = m.trust === "ok" ? "" : m.why;
     target.setAttribute("aria-label", `${m.name}: target U (k = 2) [${unitText(m.unit)}]`);
     tbody.append(el("tr", { id: "m-" + m.name, class: cls, "data-trust": m.trust || "" },
-      el("td", { text: m.name, title: m.description }), el("td", { text: unitText(m.unit) }),
+      el("td", {}, codeCell(m)), el("td", { text: unitText(m.unit) }),
       el("td", { class: "u", text: shown(m.u), title: tip }), el("td", { class: "U", text: shown(m.U), title: tip }),
       el("td", {}, target, m.target_error ? el("span", { class: "err", text: " " + m.target_error }) : null),
       el("td", { class: "sources", text: m.trust === "no" ? m.why : (shares || (m.u > 0 ? "" : "u = 0 at first order")) })));
@@ -378,10 +385,9 @@ function renderIdent(id) {
     ? el("span", { class: "warn", id: "undetermined", text: "not determined: " + id.undetermined.join(", ") })
     : el("span", { id: "undetermined", text: "every measurand is determined by the readings" });
   box.replaceChildren(
-    el("span", { id: "rank", text: `rank ${id.rank} of ${id.n_params} (${id.parameters})` }),
-    el("span", { id: "condition", text: "condition number " + (id.condition === null ? "\u221e" : fmt3(id.condition)) }),
-    el("span", { id: "valuation", title: "O1 (Borm and Menq): geometric mean of the scaled singular values per pose; larger is better, 0 when rank deficient",
-                 text: "valuation O1 " + fmt3(id.valuation) }),
+    el("span", { id: "rank", "data-term": "rank", text: `rank ${id.rank} of ${id.n_params} (${id.parameters})` }),
+    el("span", { id: "condition", "data-term": "condition", text: "condition number " + (id.condition === null ? "\u221e" : fmt3(id.condition)) }),
+    el("span", { id: "valuation", "data-term": "O1", text: "valuation O1 " + fmt3(id.valuation) + " (larger is better, 0 when rank deficient)" }),
     und);
 }
 const PALETTE = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
@@ -418,7 +424,7 @@ function scheduleSensitivity() {
 }
 async function sensitivity() {
   const field = state.design.lever;
-  if (!field || !state.lastResult || !state.lastResult.ok) return;
+  if (!field || !state.lastResult || !state.lastResult.ok || !settled()) return;
   const lf = state.info.fields.find((f) => f.name === field);
   $("lever-name").textContent = lf ? label(lf) : field;
   const asked = state.changes;
@@ -475,21 +481,40 @@ function words(p) {
   if (p >= 0.2) return "about a quarter";
   return `about 1 in ${Math.round(1 / p)}`;
 }
+function decision(m) {
+  // what the design decides of one toleranced measurand, and its risks in plain words
+  const a = m.acceptance, share = (p) => (p === null || p === undefined || !isFinite(p) ? null : p);
+  const good = a.p_conform > 0 ? share(a.pfr / a.p_conform) : null, bad = share(a.conditional_pfa);
+  const risks = [];
+  if (good !== null && a.pfr >= 0.01)
+    risks.push(`PFR ${pct(a.pfr)}: ${words(good)} of the good machines would be rejected`);
+  if (bad !== null && bad >= 0.01)
+    risks.push(`PFA ${pct(a.pfa)}: ${words(bad)} of the accepted machines would be out of tolerance`);
+  if (good === null) risks.push("enter a population (prior) for its PFA and PFR");
+  const poor = a.tur < 2 || (good !== null && good >= 0.2) || (bad !== null && bad >= 0.05);
+  const how = poor ? "cannot be decided well" : (a.tur >= 4 && !risks.length ? "is decided well" : "is decided, at the risks stated");
+  return `${m.name} ${how} (TUR ${fmt3(a.tur)}${risks.length ? "; " + risks.join("; ") : ""})`;
+}
 function verdict(r) {
   // one line: what the design can decide
   const parts = [];
+  const und = (r.identifiability && r.identifiability.undetermined) || [];
+  if (und.length) parts.push(`it cannot determine ${und.join(", ")}`);
   const bad = r.measurands.filter((m) => m.trust === "no").map((m) => m.name);
   if (bad.length) parts.push(`first order cannot be trusted for ${bad.join(", ")}: confirm by Monte Carlo`);
-  for (const m of r.measurands) {
-    const a = m.acceptance;
-    if (!a || a.error || a.pfr === null || a.pfr === undefined) continue;
-    parts.push(`${m.name}: PFR ${pct(a.pfr)} at TUR ${fmt3(a.tur)}, so ${words(a.pfr)} of the machines would be rejected although in tolerance` +
-               (a.pfa > 0.001 ? `, and ${words(a.pfa)} accepted although out of it` : ""));
-  }
+  const decided = r.measurands.filter((m) => m.acceptance && !m.acceptance.error && m.acceptance.acceptance_limits);
+  for (const m of decided) parts.push(decision(m));
   const targeted = r.measurands.filter((m) => m.target !== undefined && m.trust === "ok");
-  if (targeted.length && !parts.length) {
+  if (targeted.length) {
     const miss = targeted.filter((m) => m.U > m.target);
     parts.push(miss.length ? `${miss.map((m) => m.name).join(", ")} miss${miss.length === 1 ? "es" : ""} the target U` : "every target U is met");
+  }
+  if (!decided.length) {
+    // what it could decide: a tolerance of +-4 U (TUR 4) or wider
+    const ok = r.measurands.filter((m) => m.trust !== "no" && m.U > 0 && !und.includes(m.name));
+    if (ok.length) parts.push("at a TUR of 4 it decides tolerances of \u00b14 U or wider: " +
+      ok.slice(0, 4).map((m) => `${m.name} \u00b1${fmt3(4 * m.U)} ${unitText(m.unit)}`).join(", ") +
+      (ok.length > 4 ? `, and ${ok.length - 4} more` : "") + " (enter a tolerance for its risks)");
   }
   $("verdict").textContent = parts.length ? "Verdict: " + parts.join("; ") + "." : "";
 }
@@ -503,8 +528,9 @@ function renderBudgetTable(r) {
   fillSelect("budget-of", r.measurands.map((m) => m.name), state.budgetOf);
   const m = r.measurands.find((x) => x.name === $("budget-of").value) || r.measurands[0];
   const body = $("budget-table").querySelector("tbody");
+  const doc = Object.fromEntries(state.info.fields.filter((f) => f.source).map((f) => [f.source, f.source_doc || f.doc]));
   body.replaceChildren(...(m.budget_table || []).map((b) => el("tr", {},
-    el("td", { text: b.source }),
+    el("td", { text: b.source, title: doc[b.source] || "" }),
     el("td", { text: b.input_u === null ? "-" : `${fmt3(b.input_u)} ${unitText(b.input_unit)}` }),
     el("td", { text: b.c === null ? "-" : `${fmt3(b.c)} ${unitText(m.unit)}/${unitText(b.input_unit)}` }),
     el("td", { text: `${fmt3(b.contribution)} ${unitText(m.unit)}` }),
@@ -515,11 +541,13 @@ function renderRisk(r) {
   const names = r.measurands.filter((m) => m.acceptance && !m.acceptance.error && m.acceptance.acceptance_limits).map((m) => m.name);
   fillSelect("risk-of", names, state.riskOf);
   const m = r.measurands.find((x) => x.name === $("risk-of").value);
+  const area = $("risk-plot").parentElement;  // no empty frames where there is no curve
   if (!m || !window.Plotly) {
     $("risk-msg").hidden = false;
-    for (const id of ["risk-plot", "zone-plot"]) $(id).classList.add("stale");
+    area.hidden = true;
     return;
   }
+  area.hidden = false;
   const a = m.acceptance, unit = unitText(m.unit);
   for (const id of ["risk-plot", "zone-plot"]) $(id).classList.remove("stale");
   $("risk-msg").hidden = !!a.curve;
@@ -621,25 +649,60 @@ function undo() {
   if (design.procedure !== state.design.procedure || !state.info) openDesign(design);
   else { state.design = design; buildControls(); changed(); }
 }
+//: the terms of the page's own headings and figures, by their glossary names
+const TERMS = ["u", "U", "target", "share", "c_i", "T_L", "prior", "simple", "TUR", "w", "A_L",
+               "PFA", "PFR", "conditional PFA", "O1", "rank"];
+function term(name) { return (state.glossary || []).find((g) => g.names.includes(name)); }
+function helpText(g) { return `${g.label}: ${g.meaning}`; }
+function applyTerms() {
+  // every heading that names a term says what it means (the glossary's words)
+  document.querySelectorAll("[data-term]").forEach((e) => {
+    const g = term(e.dataset.term);
+    if (g) { e.title = helpText(g); e.classList.add("term"); }
+  });
+}
+function codeCell(m) {
+  // a measurand's code, its help as a tooltip and a link to its entry in the help list
+  const tip = m.help || m.description || "";
+  return m.anchor ? el("a", { class: "code", href: "#" + m.anchor, title: tip, text: m.name })
+                  : el("span", { class: "code", title: tip, text: m.name });
+}
+function openHelp(id) {
+  $("help").open = true;
+  const target = $(id) || $("help");
+  target.scrollIntoView({ block: "center" });
+  document.querySelectorAll("#help-list .hit").forEach((e) => e.classList.remove("hit"));
+  if (target.tagName === "DT") target.classList.add("hit");
+}
 function renderHelp(r) {
-  // every code and term on the page, with the glossary's words
-  if (!state.glossary) return;
-  const terms = ["u", "U", "TUR", "PFA", "PFR", "A_L", "prior", "O1", "rank", "c_i", "share", "target",
-                 ...r.measurands.map((m) => m.name)];
-  const find = (t) => state.glossary.find((g) => g.names.includes(t) ||
-    g.names.some((n) => /_k$/.test(n) && new RegExp("^" + n.replace(/_k$/, "_\\d+") + "$").test(t)) ||
-    (/_\d+$/.test(t) && g.label.includes(t.replace(/_\d+$/, "_k"))));
-  const seen = new Set(), items = [];
-  for (const t of terms) {
-    const g = find(t);
-    if (!g || seen.has(g.label)) continue;
-    seen.add(g.label);
-    items.push(el("dt", { text: g.label }), el("dd", { text: `${g.meaning} (${g.section})` }));
+  // every code and term on the page, in the glossary's words and the procedure's own
+  // (a refused set-up too: its measurands are those of the acceptance table)
+  if (!state.glossary || !state.info) return;
+  const measurands = (r && r.ok ? r.measurands : r && r.measurand_names) || state.info.measurands;
+  applyTerms();
+  const items = [], seen = new Set();
+  const add = (id, label, text) => {
+    if (seen.has(id)) return;
+    seen.add(id);
+    items.push(el("dt", { id, text: label }), el("dd", { text }));
+  };
+  const group = (text) => items.push(el("dt", { class: "group", text }));
+  group("Terms (docs/glossary.md)");
+  for (const t of TERMS) { const g = term(t); if (g) add(g.anchor, g.label, `${g.meaning} (${g.section})`); }
+  group("Measurands of this set-up");
+  for (const m of measurands) {
+    const g = m.anchor && state.glossary.find((x) => x.anchor === m.anchor);
+    if (g) add(g.anchor, g.label, `${g.meaning} (${g.section})`);
+    else add("help-m-" + m.name, m.name, m.description);
   }
-  for (const m of r.measurands) {
-    const g = find(m.name), cell = $("m-" + m.name);
-    if (cell) cell.firstChild.title = (g ? `${g.label}: ${g.meaning}. ` : "") + (m.description || "");
-  }
+  group(`Estimators of ${state.info.name}`);
+  for (const [name, text] of Object.entries(state.info.estimator_help || {})) add("help-est-" + name, name, text);
+  group("The test's levers");
+  for (const f of state.info.fields.filter((x) => x.lever))
+    add("help-f-" + f.name, label(f) + (f.unit ? ` [${unitText(f.unit)}]` : ""), f.doc);
+  group("Error sources");
+  for (const f of state.info.fields.filter((x) => x.source))
+    add("help-s-" + f.source, f.source, f.source_doc || f.doc);
   $("help-list").replaceChildren(...items);
 }
 
@@ -767,7 +830,17 @@ async function init() {
   design = { ...blank(design.procedure || "rotary_axis"), ...design };
   await openDesign(design);
   $("procedure").addEventListener("change", () => openDesign(blank($("procedure").value)));
-  $("estimator").addEventListener("change", () => { state.design.estimator = $("estimator").value; changed(); });
+  $("estimator").addEventListener("change", () => {
+    state.design.estimator = $("estimator").value;
+    $("estimator").title = (state.info.estimator_help || {})[state.design.estimator] || "";
+    changed();
+  });
+  document.addEventListener("click", (e) => {  // a code's link opens its help entry
+    const a = e.target.closest("a[href^='#help']");
+    if (!a) return;
+    e.preventDefault();
+    openHelp(a.getAttribute("href").slice(1));
+  });
   $("seed").addEventListener("change", () => { state.design.seed = number($("seed").value, 0); pushURL(); jobEstimate(); });
   $("trials").addEventListener("change", () => { state.design.trials = number($("trials").value, 10000); pushURL(); jobEstimate(); });
   $("confirm").addEventListener("click", () => startJob("confirm"));
@@ -781,7 +854,7 @@ async function init() {
   document.querySelectorAll("button.csv").forEach((b) => b.addEventListener("click", () => tableCSV(b.dataset.table)));
   $("budget-of").addEventListener("change", () => { state.budgetOf = $("budget-of").value; renderBudgetTable(state.lastResult); });
   $("risk-of").addEventListener("change", () => { state.riskOf = $("risk-of").value; renderRisk(state.lastResult); });
-  api("/api/glossary").then((g) => { state.glossary = g.terms; if (state.lastResult && state.lastResult.ok) renderHelp(state.lastResult); }).catch(() => {});
+  api("/api/glossary").then((g) => { state.glossary = g.terms; renderHelp(state.lastResult); }).catch(() => {});
   jobEstimate();
   $("load").addEventListener("change", async () => {
     const f = $("load").files[0]; if (f) await loadStudy(await f.text()); $("load").value = "";
