@@ -1479,10 +1479,20 @@ PROCEDURE = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators={"patent": Estimator(estimate_patent, exact=True),
-                "angles": Estimator(estimate_angles, exact=True),
-                "home": Estimator(estimate_home, exact=True),
-                "gls": Estimator(estimate_gls, exact=True)},
+    estimators={"patent": Estimator(
+                    estimate_patent, exact=True, description="The source method: lines along "
+                    "the travels, 3D circles, the common perpendicular of the axes, frame by "
+                    "cross products."),
+                "angles": Estimator(
+                    estimate_angles, exact=True, description="The source method, with the A "
+                    "and C circles fitted at the commanded angles."),
+                "home": Estimator(
+                    estimate_home, exact=True, description="The source method, with the "
+                    "circles fitted at the commanded angles and through the home position "
+                    "that every group of points shares."),
+                "gls": Estimator(
+                    estimate_gls, exact=True, description="Generalised least squares (GLS) of "
+                    "the whole forward model to all readings.")},
     true_values=true_values,
     duration=duration,
     description=(

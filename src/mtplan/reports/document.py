@@ -74,15 +74,12 @@ def covariance_frames(result) -> dict:
 # ----------------------------------------------------------------------- methods
 def methods_section(result) -> Section:
     from mtplan.models import get
-    from mtplan.reports.labels import estimator_text
-    from mtplan.reports.wording import customer_words
-
     rows = []
     for o in result.outcomes:
         proc = get(o.spec.name)
         for j, est in enumerate(o.spec.estimators):
             rows.append([o.spec.label if j == 0 else "", est,
-                         customer_words(estimator_text(proc.estimators[est])),
+                         proc.estimators[est].description,
                          "recommended" if est == o.recommended else ""])
     return Section("Methods and estimators", anchor="methods", blocks=[
         "Every test is simulated with its error sources (Monte Carlo, JCGM 101) to give the "

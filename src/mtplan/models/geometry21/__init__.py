@@ -1372,6 +1372,14 @@ def estimate_joint_linear(setup: Setup, readings: dict) -> dict:
 
 ESTIMATORS = {"patent": estimate_patent, "joint": estimate_joint,
               "joint_linear": estimate_joint_linear}
+#: each estimator as the documents describe it (plain words, jargon spelled out)
+_DESCRIPTIONS = {
+    "patent": "The source method's stepwise evaluation: straight lines first, then circles.",
+    "joint": "Least squares of all error coefficients at once, refined by Gauss-Newton "
+             "iteration.",
+    "joint_linear": "Least squares of all error coefficients at once, linearised (one matrix "
+                    "product).",
+}
 
 
 # --------------------------------------------------------------------------- reports
@@ -1434,7 +1442,8 @@ PROCEDURE = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators={name: Estimator(fn, exact=name == "joint") for name, fn in ESTIMATORS.items()},
+    estimators={name: Estimator(fn, description=_DESCRIPTIONS[name], exact=name == "joint")
+                for name, fn in ESTIMATORS.items()},
     true_values=true_values,
     duration=duration,
     description=__doc__.split("\n\n")[0] if __doc__ else "",

@@ -1331,10 +1331,18 @@ PROCEDURE = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators={"patent": Estimator(estimate_patent,
-                                    resolution=functools.partial(resolution, estimator="patent")),
-                "registration": Estimator(estimate_registration, exact=True),
-                "pattern": Estimator(estimate_pattern, exact=True)},
+    estimators={"patent": Estimator(
+                    estimate_patent, description="The source method: whole-row shifts between "
+                    "the scans, mean height differences and arccos(h/h').",
+                    resolution=functools.partial(resolution, estimator="patent")),
+                "registration": Estimator(
+                    estimate_registration, exact=True, description="Least-squares "
+                    "registration of the three scans to each other, then an exact rotation "
+                    "fit."),
+                "pattern": Estimator(
+                    estimate_pattern, exact=True, description="Generalised least squares of "
+                    "the forward model to the artefact's known pattern: angles and artefact "
+                    "pose.")},
     true_values=true_values,
     duration=duration,
     description=(
