@@ -64,9 +64,10 @@ def _lab(study) -> str:
     return lab.get("name", "not stated in the study")
 
 
-def _methods(result) -> list:
-    """(test, method source and the estimator that evaluates it, standards) rows: each
-    source method cited once, each estimator described where it is first named."""
+def _methods(result, estimators: bool = True) -> list:
+    """(test, method source and (``estimators``) the estimator that evaluates it,
+    standards) rows: each source method cited once, each estimator described where it is
+    first named (the plan names and describes them in its agreement, after its cover)."""
     rows = []
     for o in result.outcomes:
         applied = list(o.spec.standards) + ["JCGM 101:2008"]
@@ -75,8 +76,9 @@ def _methods(result) -> list:
             applied.append("ISO 1101:2017")  # a position tolerance as a diameter zone
         if o.verdicts:
             applied += ["ISO 14253-1:2017", "JCGM 106:2012", "ILAC-G8:09/2019"]
-        rows.append([o.spec.label, f"{method_citation(o.spec.name)}; evaluated with the "
-                     f"{agreed_estimator(o)} estimator: {_estimator_words(o)}",
+        how = (f"; evaluated with the {agreed_estimator(o)} estimator: {_estimator_words(o)}"
+               if estimators else "")
+        rows.append([o.spec.label, method_citation(o.spec.name) + how,
                      ", ".join(a.replace(" ", "\u00a0") for a in applied)])
     return rows
 
@@ -745,7 +747,7 @@ def _document(result, plan, kind, sections, csv) -> Document:
     doc = Document(title=title, subtitle=study.title, meta=meta,
                    provenance=result.provenance, sections=sections, csv=csv,
                    signoff=signoff, standards=[])
-    doc.methods = _methods(result)
+    doc.methods = _methods(result, estimators=kind == "report")
     doc.box = result_box(result) if kind == "report" else []
     doc.identification = f"{number} - {title.split(' (')[0]}"
     # a plan uses no readings: no readings stamp, and its numbers come from the study alone
@@ -1099,7 +1101,7 @@ def _agreement_section(result, plan) -> Section:
     blocks.append(Table("Tests, the machine each is run on (serial number), the method "
                         "(procedure and version) and the machine time.",
                         ["test", "title", "machine", "method", "standards", "duration"],
-                        rows, grow=1, size=7.0))
+                        rows, grow=3, size=7.0))
     blocks += ["The estimator of each method, part of the method (readings evaluated with "
                "another are a deviation):",
                [f"test {k}, {agreed_estimator(o)}: {_estimator_words(o)}"
@@ -1123,16 +1125,22 @@ def _agreement_section(result, plan) -> Section:
                        "-" if r.get("guard_band") is None else fmt(r["guard_band"], step),
                        "-" if r.get("u_planned") is None else fmt(2 * r["u_planned"], step),
                        _mc_errors(se, r), r.get("tolerance_source") or "not stated"])
+    # one tolerance source for every measurand is stated once, under the table
+    sources = {row[-1] for row in limits}
+    header = ["measurand", "unit", "tolerance", "acceptance limits", "w", "U predicted",
+              "MC error", "tolerance source"]
+    if len(sources) == 1:
+        limits, header = [row[:-1] for row in limits], header[:-1]
     blocks.append(Table("Acceptance limits per measurand: a pass needs the measured value "
                         "within them (the tolerance reduced by the guard band w). U predicted "
                         f"at k = {K:g}; MC error: the Monte Carlo tolerance of U and of w, the "
                         "standard error of the simulation (JCGM 101 7.9; one value where "
-                        "w = U). U, w "
-                        "and the limits are printed to two significant digits of U, or fewer "
-                        "where the Monte Carlo does not support them (GUM 7.2.6).",
-                        ["measurand", "unit", "tolerance", "acceptance limits", "w",
-                         "U predicted", "MC error", "tolerance source"], limits,
-                        grow=7, size=7.0))
+                        "w = U). U, w and the limits are printed to two significant digits of "
+                        "U, or fewer where the Monte Carlo does not support them (GUM 7.2.6).",
+                        header, limits, grow=len(header) - 1 if len(sources) > 1 else 0,
+                        size=7.0))
+    if len(sources) == 1:
+        blocks.append(f"The tolerance source of every measurand: {sources.pop()}.")
     frames: dict = {}
     for r in plan["rules"]:
         frames.setdefault(r.get("frame") or "not stated in the study", []).append(r["measurand"])

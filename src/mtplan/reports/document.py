@@ -213,7 +213,7 @@ def _test_figure(o) -> Figure | None:
         "drawn. Other levers and all measurands: appendix.",
         figs.lever_figure(ok, effect.field, o.key[:4], units, estimator=effect.estimator,
                           recommended=o.recommended, base=effect.base_value, targets=targets,
-                          xlabel=label, marked=marked, k=K))
+                          xlabel=label, marked=marked, coverage=K))
 
 
 def _target_words(what: str) -> str:
