@@ -19,7 +19,7 @@ trials = 300
 [[procedure]]
 name = "rotary_axis"
 label = "C axis location"
-setup = {{ axis = "C", incline_deg = 20, positions = 6, sensor_range_mm = 2.0, sensor_reversal = true }}
+setup = {{ axis = "C", incline_deg = 30, positions = 6, sensor_range_mm = 2.0, sensor_reversal = true }}
 estimators = ["patent"]
 budget = "mc"
 budget_trials = 100
