@@ -88,7 +88,8 @@ def adjusted(tmp_path_factory):
     from mtplan.cli import main
 
     folder = tmp_path_factory.mktemp("as_left")
-    assert main(["simulate", "rotary_axis", "--set", "sensor_range_mm=2", "--set",
+    assert main(["simulate", "rotary_axis", "--set", "incline_deg=30", "--set",
+                 "sensor_range_mm=2", "--set",
                  "sensor_reversal=true", "--truth",
                  "EX0C_um=2", "--trials", "1", "--seed", "12", "--readings-out",
                  str(folder / "left.csv")]) == 0

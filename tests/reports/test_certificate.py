@@ -445,8 +445,8 @@ def captured_figures(monkeypatch):
 
 
 def test_every_plotted_marker_equals_its_table_value(small_result, captured_figures):
-    """The star of the lever figure is the study's set-up with the recommended estimator,
-    at exactly the u whose U = 2u the test's results table prints."""
+    """The star of the lever figure (drawn at k = 2) is the study's set-up with the
+    recommended estimator, at exactly the U = 2u the test's results table prints."""
     from mtplan.reports.document import test_section
 
     o = small_result.outcomes[0]
@@ -461,8 +461,8 @@ def test_every_plotted_marker_equals_its_table_value(small_result, captured_figu
         for line in ax.get_lines():
             if line.get_marker() == "*":
                 name = ax.get_title()
-                assert line.get_ydata()[0] == pytest.approx(u[name], rel=1e-12)
-                assert 2 * line.get_ydata()[0] == pytest.approx(printed[name], rel=0.05)
+                assert line.get_ydata()[0] == pytest.approx(2 * u[name], rel=1e-12)
+                assert line.get_ydata()[0] == pytest.approx(printed[name], rel=0.05)
                 stars += 1
     assert stars == len([ax for ax in fig.axes if ax.get_visible() and ax.get_title()])
 
