@@ -51,15 +51,26 @@ def test_every_capability_one_procedure_sets_is_explained():
     assert all(callable(globals().get(test)) for test in WHY_NOT_GENERIC.values())
 
 
-def test_estimator_records_quote_their_docstrings():
-    """Each estimator's description is its docstring's first paragraph as the reports word it
-    (the path by which they can read ``description`` instead of parsing docstrings)."""
-    from mtplan.reports.labels import estimator_text
+def test_estimator_records_describe_themselves_in_plain_words():
+    """Each estimator's description is what the reports print (they read ``description``,
+    never the docstring): a sentence without markup, the source method called so (not "the
+    patent"), and a bare function still gets its docstring's first paragraph."""
+    import re
+
+    from mtplan.models.protocol import Estimator
 
     for proc in registry().values():
         for name, est in proc.estimators.items():
-            assert est.description == estimator_text(est.function), (proc.name, name)
+            text = est.description
+            assert text.endswith(".") and "``" not in text and ":func:" not in text, name
+            assert not re.search(r"\bpatent", text, re.I), (proc.name, name, text)
             assert est.__doc__ == est.function.__doc__
+
+    def bare(setup, readings):
+        """A fit of :func:`x` to ``readings``; measurands [mm, rad], (n,).
+
+        More."""
+    assert Estimator(bare).description == "A fit of x to readings."
 
 
 def test_a_bare_function_is_an_estimator_with_the_defaults():

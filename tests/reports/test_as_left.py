@@ -19,7 +19,7 @@ trials = 300
 [[procedure]]
 name = "rotary_axis"
 label = "C axis location"
-setup = {{ axis = "C", incline_deg = 20, positions = 6, sensor_range_mm = 2.0, sensor_reversal = true }}
+setup = {{ axis = "C", incline_deg = 30, positions = 6, sensor_range_mm = 2.0, sensor_reversal = true }}
 estimators = ["patent"]
 budget = "mc"
 budget_trials = 100
@@ -88,7 +88,8 @@ def adjusted(tmp_path_factory):
     from mtplan.cli import main
 
     folder = tmp_path_factory.mktemp("as_left")
-    assert main(["simulate", "rotary_axis", "--set", "sensor_range_mm=2", "--set",
+    assert main(["simulate", "rotary_axis", "--set", "incline_deg=30", "--set",
+                 "sensor_range_mm=2", "--set",
                  "sensor_reversal=true", "--truth",
                  "EX0C_um=2", "--trials", "1", "--seed", "12", "--readings-out",
                  str(folder / "left.csv")]) == 0

@@ -448,8 +448,8 @@ def captured_figures(monkeypatch):
 
 
 def test_every_plotted_marker_equals_its_table_value(small_result, captured_figures):
-    """The star of the lever figure is the study's set-up with the recommended estimator,
-    at exactly the u whose U = 2u the test's results table prints."""
+    """The star of the lever figure (drawn at k = 2) is the study's set-up with the
+    recommended estimator, at exactly the U = 2u the test's results table prints."""
     from mtplan.reports.document import test_section
 
     o = small_result.outcomes[0]
@@ -464,8 +464,8 @@ def test_every_plotted_marker_equals_its_table_value(small_result, captured_figu
         for line in ax.get_lines():
             if line.get_marker() == "*":
                 name = ax.get_title()
-                assert line.get_ydata()[0] == pytest.approx(u[name], rel=1e-12)
-                assert 2 * line.get_ydata()[0] == pytest.approx(printed[name], rel=0.05)
+                assert line.get_ydata()[0] == pytest.approx(2 * u[name], rel=1e-12)
+                assert line.get_ydata()[0] == pytest.approx(printed[name], rel=0.05)
                 stars += 1
     assert stars == len([ax for ax in fig.axes if ax.get_visible() and ax.get_title()])
 
@@ -580,6 +580,29 @@ def test_no_legend_entry_without_its_curve(captured_figures):
     fig, = captured_figures
     labels = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
     assert "kasa (recommended)" in labels and not any("flat" in x for x in labels)
+
+
+def test_a_sweep_figure_at_k_2_labels_every_panel(captured_figures):
+    """Drawn at k = 2, every panel of a sweep is U (k = 2), the star and the target line
+    included (a loop variable once shadowed k: the first panel read "k = 0", the rest u)."""
+    from mtplan.reports import figures
+
+    rows = [{"n": x, "measurand": m, "estimator": "kasa", "u": 1.0 / x, "trials": 200}
+            for x in (3, 6) for m in ("a", "b")]
+    figures.lever_figure(pd.DataFrame(rows), "n", ["a", "b"], {"a": "um", "b": "um"},
+                         estimator="kasa", recommended="kasa", base=3,
+                         targets={"b": (0.25, "u for TUR = 4")}, xlabel="n",
+                         marked={"a": 1 / 3, "b": 1 / 3}, coverage=2.0)
+    fig, = captured_figures
+    panels = [ax for ax in fig.axes if ax.get_visible() and ax.get_title()]
+    assert [ax.get_ylabel() for ax in panels] == ["U (k = 2) [µm]"] * 2
+    for ax in panels:
+        star, = [ln for ln in ax.get_lines() if ln.get_marker() == "*"]
+        assert star.get_ydata()[0] == pytest.approx(2 / 3)
+    assert any(ln.get_ydata()[0] == pytest.approx(0.5) for ln in panels[1].get_lines()
+               if ln.get_linestyle() == "--")
+    labels = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
+    assert "U for TUR = 4" in labels
 
 
 def test_a_value_rounding_to_zero_has_no_sign():

@@ -81,10 +81,22 @@ def _report(study_path, out, jobs, progress, command, plan_path=None, plan_only=
 
 
 def _command(*words) -> str:
-    """The command line as a shell would take it again (for the provenance)."""
+    """The command line as a shell would take it again from the working folder (for the
+    provenance): an absolute path relative to that folder, or by its name where it lies
+    outside it, so that the documents name no local folders."""
     import shlex
 
-    return shlex.join(["mtplan", *(str(w) for w in words)])
+    def shown(word) -> str:
+        text = str(word)
+        if not os.path.isabs(text):
+            return text
+        try:
+            relative = os.path.relpath(text)
+        except ValueError:  # another drive
+            return Path(text).name
+        return Path(text).name if relative.startswith("..") else relative
+
+    return shlex.join(["mtplan", *(shown(w) for w in words)])
 
 
 def cmd_report(args):

@@ -867,6 +867,16 @@ def estimate_gls(setup: Setup, readings: dict, iterations: int = 4) -> dict:
 
 ESTIMATORS = {"three_point": estimate_three_point, "kasa": estimate_kasa,
               "geometric": estimate_geometric, "gls": estimate_gls}
+#: each estimator as the documents describe it (plain words, jargon spelled out)
+_DESCRIPTIONS = {
+    "three_point": "The source method's three-point formula on the three probed distances (with "
+                   "more points, the triple spread best).",
+    "kasa": "Algebraic least-squares circle (Kasa fit) through all measuring points.",
+    "geometric": "Geometric least-squares circle (orthogonal distances) through all measuring "
+                 "points.",
+    "gls": "Circle through every contact, weighted by the set-up's error budget (generalised "
+           "least squares, GLS, of the radial residuals).",
+}
 
 
 def fit_points(x_mm, y_mm, estimator: str = "geometric") -> dict:
@@ -1417,7 +1427,8 @@ PROCEDURE = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators={name: Estimator(fn, exact=True) for name, fn in ESTIMATORS.items()},
+    estimators={name: Estimator(fn, description=_DESCRIPTIONS[name], exact=True)
+                for name, fn in ESTIMATORS.items()},
     true_values=true_values,
     duration=duration,
     description=(

@@ -1064,7 +1064,7 @@ def _estimate(setup: Setup, readings: dict, fit_arcs) -> dict[str, np.ndarray]:
 
 
 def estimate_patent(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
-    """The patent's method: lines, 3D circles, common perpendicular, cross-product frame.
+    """The source method: lines, 3D circles, common perpendicular, cross-product frame.
 
     Parameters
     ----------
@@ -1080,7 +1080,7 @@ def estimate_patent(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
 
 
 def estimate_angles(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
-    """The patent's method, but the A and C circles are fitted with the commanded angles.
+    """The source method, with the A and C circles fitted at the commanded angles.
 
     Each arc is fitted as ``p_i = c + R (cos(theta_i + phi0) e1 + sin(theta_i + phi0)
     e2)`` with the commanded angles theta_i of the set-up (the ``angle_deg`` column of
@@ -1091,8 +1091,8 @@ def estimate_angles(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
 
 
 def estimate_home(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
-    """The patent's method with circles fitted at the commanded angles and through the home
-    position, which every group of points shares.
+    """The source method, with the circles fitted at the commanded angles and through the
+    home position that every group of points shares.
 
     The reflector at home is on every group of points: the middle of each linear
     travel and angle 0 of each arc. The mean of the linear points (symmetric about
@@ -1291,7 +1291,7 @@ def _gls_key(setup: Setup, theta: np.ndarray) -> tuple:
 
 
 def estimate_gls(setup: Setup, readings: dict, *, iterations: int = 30) -> dict[str, np.ndarray]:
-    """Generalised least-squares fit of the whole forward model to all readings.
+    """Generalised least squares (GLS) of the whole forward model to all readings.
 
     The parameters are the head's geometry of every sub-machine (:data:`_GLS_HEAD`) and
     the tracker's pose; the pivot-length error and the A-C angle are held. The weights

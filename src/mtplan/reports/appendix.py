@@ -75,7 +75,8 @@ def provenance_section(prov: dict, document: str = "report") -> Section:
         except ValueError:
             return PurePath(str(path)).name
 
-    rows = [[f"date of the {document}", prov["date"]], ["command", prov.get("command", "-")],
+    rows = [[f"computed on (the {document}'s date of issue is on its cover)", prov["date"]],
+            ["command", prov.get("command", "-")],
             ["mtplan git commit", prov.get("git_commit") or "not known (not run from a "
                                                              "git checkout)"],
             ["study file", study.name], ["study SHA-256", prov["study_sha256"]]]
@@ -243,14 +244,18 @@ def _plan_blocks(plan, vary) -> list:
     if isinstance(plan, str):
         return [Section("Plan", level=2, blocks=[f"No set-up meets the targets: {plan}"])]
     best = plan.best
-    rows = [[n, f"≤ {v:g}", fmt_u(best["predicted"][n]), fmt_u(best["confirmed"][n])]
-            for n, v in plan.targets.items()]
+    from mtplan.plans.decisions import K
+
+    scale = K / plan.k  # the planner's k-scaled u as U at the documents' k
+    rows = [[n, f"≤ {v * scale:g}", fmt_u(scale * best["predicted"][n]),
+             fmt_u(scale * best["confirmed"][n])] for n, v in plan.targets.items()]
     changed = [field_value(f, best["setup"][f]) for f in vary if f in best["setup"]]
     blocks = [Section("Plan: the cheapest set-up meeting the targets", level=2, blocks=[
         f"Recommended by the plan: {', '.join(changed) or 'the base set-up'}; machine time "
         f"{duration_text(best['duration_s'])} (confirmed by Monte Carlo).",
-        Table(f"Targets (k = {plan.k:g}) against the linearised prediction and the Monte Carlo "
-              "confirmation", ["measurand", "target", "predicted", "Monte Carlo"], rows)])]
+        Table(f"Targets for U (k = {K:g}) against the linearised prediction and the Monte "
+              "Carlo confirmation", ["measurand", "U target", "U predicted", "U Monte Carlo"],
+              rows)])]
     from mtplan.plans.planner import pareto_front
 
     front = list(pareto_front(plan.table["duration_s"].to_numpy(), plan.table["worst"].to_numpy()))
@@ -367,17 +372,21 @@ def _posterior_blocks(post) -> list:
     # a free parameter that is a measurand in its field's units (EX0C_um) is listed once
     others = [p for p in post.parameters if p.rsplit("_", 1)[0] not in names]
     return [
-        Table(f"Posterior diagnostics ({state}; {post.chains.shape[0]} ensembles of "
-              f"{post.n_walkers} walkers, {post.n_steps} steps, burn-in {post.discard}, thinned "
-              f"by {post.thin}); tau: integrated autocorrelation time [steps]; R-hat: split "
-              "over ensembles; ESS: effective sample size",
+        Table(f"Posterior diagnostics ({state}): the posterior is sampled by Markov chain "
+              f"Monte Carlo, {post.chains.shape[0]} ensembles of {post.n_walkers} walkers "
+              f"(chains that move together) over {post.n_steps} steps; the first "
+              f"{post.discard} steps (burn-in) are discarded and every {post.thin}. step is "
+              "kept (thinning). tau: integrated autocorrelation time, the steps between "
+              "independent samples; R-hat: the Gelman-Rubin ratio of the spread between "
+              "ensembles to that within them (near 1: they agree); ESS: effective sample "
+              "size, the number of independent samples the chains are worth.",
               ["quantity", "mean", "u", "tau", "R-hat", "ESS"],
               [[n, fmt(post.mean[n], post.std[n]), fmt_u(post.std[n]),
                 f"{post.tau.get(n, float('nan')):.3g}", f"{post.rhat[n]:.4f}",
                 f"{post.ess[n]:.0f}"] for n in names + others]),
         Figure("Posterior of the measurands: pairwise samples and marginal histograms "
                "(corner plot); lines: posterior mean.", figs.corner_figure(samples)),
-        Figure("Walker traces of the free parameters (every walker of the first ensemble; "
-               "grey: discarded burn-in).",
+        Figure("The path of every walker (chain) of the first ensemble through each free "
+               "parameter, step by step (grey: the discarded burn-in).",
                figs.trace_figure({p: post.trace(p)[0] for p in post.parameters},
                                  discard=post.discard))]

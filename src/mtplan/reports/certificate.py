@@ -16,6 +16,7 @@ import dataclasses
 import datetime
 import math
 
+from mtplan.plans.decisions import K
 from mtplan.reports.labels import (
     duration_text,
     field_value,
@@ -63,8 +64,10 @@ def _lab(study) -> str:
     return lab.get("name", "not stated in the study")
 
 
-def _methods(result) -> list:
-    """(test, method source, standards) rows: each source method cited once."""
+def _methods(result, estimators: bool = True) -> list:
+    """(test, method source and (``estimators``) the estimator that evaluates it,
+    standards) rows: each source method cited once, each estimator described where it is
+    first named (the plan names and describes them in its agreement, after its cover)."""
     rows = []
     for o in result.outcomes:
         applied = list(o.spec.standards) + ["JCGM 101:2008"]
@@ -73,7 +76,9 @@ def _methods(result) -> list:
             applied.append("ISO 1101:2017")  # a position tolerance as a diameter zone
         if o.verdicts:
             applied += ["ISO 14253-1:2017", "JCGM 106:2012", "ILAC-G8:09/2019"]
-        rows.append([o.spec.label, method_citation(o.spec.name),
+        how = (f"; evaluated with the {agreed_estimator(o)} estimator: {_estimator_words(o)}"
+               if estimators else "")
+        rows.append([o.spec.label, method_citation(o.spec.name) + how,
                      ", ".join(a.replace(" ", "\u00a0") for a in applied)])
     return rows
 
@@ -747,7 +752,7 @@ def _document(result, plan, kind, sections, csv) -> Document:
     doc = Document(title=title, subtitle=study.title, meta=meta,
                    provenance=result.provenance, sections=sections, csv=csv,
                    signoff=signoff, standards=[])
-    doc.methods = _methods(result)
+    doc.methods = _methods(result, estimators=kind == "report")
     doc.box = result_box(result) if kind == "report" else []
     doc.identification = f"{number} - {title.split(' (')[0]}"
     # a plan uses no readings: no readings stamp, and its numbers come from the study alone
@@ -817,29 +822,81 @@ def _pct(p) -> str:
     return "-" if p is None else percent(p)
 
 
-def _not_adopted(o) -> list:
-    """The swept set-up changes that lower U beyond the Monte Carlo error at no extra
-    machine time, which the plan does not adopt, with the reason."""
-    better = [e for e in o.levers if e.significant and math.isfinite(e.u_base)
-              and e.duration_best_s <= e.duration_base_s and e.best_value != e.base_value]
-    if not better:
-        return []
-    items = [f"{field_value(e.field, e.best_value)} ({e.measurand}: U {fmt_u(2 * e.u_best)} "
-             f"instead of "
-             f"{fmt_u(2 * e.u_base)} {unit(e.unit)} in the same sweep, "
-             f"{duration_text(e.duration_best_s)})" for e in better]
-    return [f"Found better at no extra machine time, not adopted: {'; '.join(items)}. The plan "
-            "agrees the study's set-up as stated; adopting one of these needs the study changed "
-            "and the plan issued again, which the parties may agree before the test."]
+def _set_up_choices(o) -> list:
+    """Per test, what its planning study found better than the agreed set-up, adopted or
+    why not, from the same numbers: the planner's cheapest set-up meeting the targets, and
+    each swept change that lowers U beyond the Monte Carlo error at no extra machine time
+    (not adopted where it raises the U of another measurand of the test)."""
+    from mtplan.reports.document import plan_adopted, plan_targets, setting_text, target_text
+
+    out = []
+    plan = o.plan
+    if plan is not None and not isinstance(plan, str):
+        best = plan.best
+        changed = ", ".join(field_value(f, best["setup"][f]) for f in o.spec.plan.get("vary", {})
+                            if f in best["setup"]) or "the base set-up"
+        if plan_adopted(o):
+            out.append(f"Set-up from the planner: {changed}, the cheapest set-up of its grid "
+                       f"that meets the targets ({target_text(o)}), in "
+                       f"{duration_text(best['duration_s'])}; adopted.")
+        else:
+            index = {m.name: i for i, m in enumerate(o.results[o.recommended].measurands)}
+            units = {m.name: unit(m.unit) for m in o.results[o.recommended].measurands}
+            missed = [f"U({n}) {fmt_u(K * float(o.results[o.recommended].mc.std[index[n]]))} "
+                      f"{units[n]} against {t:g}" for n, t in plan_targets(plan).items()
+                      if n in index and K * float(o.results[o.recommended].mc.std[index[n]]) > t]
+            out.append(f"The planner's cheapest set-up meeting the targets ({target_text(o)}) "
+                       f"is {changed}, in {duration_text(best['duration_s'])}; not adopted: "
+                       "the study fixes the agreed set-up"
+                       + (f", which misses the targets ({'; '.join(missed)}): signing this "
+                          "plan accepts the U agreed below." if missed else
+                          ", which meets the targets as well."))
+    for e in o.levers:
+        if not (e.significant and math.isfinite(e.u_base) and e.best_value != e.base_value
+                and e.duration_best_s <= e.duration_base_s):
+            continue
+        what = (f"{setting_text(o, e.field, e.best_value)} lowers U({e.measurand}) from "
+                f"{fmt_u(K * e.u_base)} to {fmt_u(K * e.u_best)} {unit(e.unit)} at no extra "
+                f"machine time ({duration_text(e.duration_best_s)})")
+        worse = _raised(o, e)
+        if worse:
+            name, before, after, u = worse
+            out.append(f"Considered: {what}; not adopted: it raises U({name}) from "
+                       f"{fmt_u(K * before)} to {fmt_u(K * after)} {u}.")
+        else:
+            out.append(f"Found better: {what}; not adopted, and the study gives no reason "
+                       "(adopting it needs the plan issued again before the test).")
+    return out
+
+
+def _raised(o, e):
+    """(measurand, u before, u after, unit) of the measurand of the test whose u the lever
+    ``e`` raises the most, in proportion, beyond twice the Monte Carlo error of the
+    difference in its sweep; None when it raises none."""
+    _, table = o.sweeps[e.sweep]
+    rows = table[(table["estimator"] == e.estimator) & table["measurand"].isin(o.key)]
+    field = rows[e.field].astype(float)
+    before = rows[field == float(e.base_value)].set_index("measurand")
+    after = rows[field == float(e.best_value)].set_index("measurand")
+    worst, ratio = None, 1.0
+    for name in o.key:
+        if name not in before.index or name not in after.index:
+            continue
+        ub, ua = float(before.at[name, "u"]), float(after.at[name, "u"])
+        se = math.hypot(ub / math.sqrt(2 * (float(before.at[name, "trials"]) - 1)),
+                        ua / math.sqrt(2 * (float(after.at[name, "trials"]) - 1)))
+        if ua - ub > 2 * se and ub > 0 and ua / ub > ratio:
+            worst, ratio = (name, ub, ua, unit(str(before.at[name, "unit"]))), ua / ub
+    return worst
 
 
 def _plan_test(k, o, plan, study) -> Section:
     from mtplan.reports.document import setup_sentence
 
-    blocks = [f"Set-up: {setup_sentence(o)}. Estimator: {o.recommended}. Duration (machine "
+    blocks = [f"Set-up: {setup_sentence(o)}. Estimator: {agreed_estimator(o)}. Duration (machine "
               f"time): {duration_text(o.duration_s)}. Method: {method_citation(o.spec.name)}; "
               f"standards: {', '.join(o.spec.standards) or 'none named'}."]
-    blocks += _not_adopted(o)
+    blocks += _set_up_choices(o)
     inst = _instruments(study, o.spec.name)
     blocks.append("Instruments: " + ("; ".join(f"{r[0]} (serial {r[1]}, certificate {r[2]})"
                                                for r in inst) if inst else
@@ -901,7 +958,13 @@ SUPPLIED = ("Data marked \u201ccustomer-supplied\u201d (tolerances and their sou
 def method_id(o, version: str) -> str:
     """The method of a test identified by procedure and version: "mtplan procedure
     rotary_axis, mtplan 1.2, patent estimator"."""
-    return f"mtplan procedure {o.spec.name} (mtplan {version}), {o.recommended} estimator"
+    return f"mtplan procedure {o.spec.name} (mtplan {version}), {agreed_estimator(o)} estimator"
+
+
+def agreed_estimator(o) -> str:
+    """The estimator the plan agrees for a test: the one its decisions use (the readings'
+    estimator where the study names one), else the recommended one."""
+    return next((v.estimator for v in o.verdicts if v.estimator), o.recommended)
 
 
 def _not_listed(o) -> list:
@@ -956,14 +1019,34 @@ def _mc_error(o, rule) -> float | None:
     return 2 * rule["u_planned"] / math.sqrt(2 * (n - 1)) if n > 1 else None
 
 
+def _mc_errors(se, rule) -> str:
+    """The Monte Carlo standard errors of the agreed U and of w (w's in proportion, as a
+    guard band set from U), one value where they are equal."""
+    if not se:
+        return "-"
+    w, big_u = rule.get("guard_band"), 2 * rule["u_planned"]
+    if w is None or math.isclose(w, big_u, rel_tol=1e-9):
+        return fmt_u(se)
+    return f"{fmt_u(se)}, {fmt_u(se * w / big_u)}"
+
+
 def _agreed_step(o, rule) -> float | None:
-    """The resolution the agreed U, w and limits are printed to: the decimal of their Monte
-    Carlo standard error's first significant digit (:func:`fmt` keeps two significant
-    digits of its second argument, hence 10 times the error)."""
+    """The resolution the agreed U, w and limits are printed to (:func:`fmt` keeps two
+    significant digits of its second argument): two significant digits of U (GUM 7.2.6),
+    or coarser, the decimal of U's Monte Carlo standard error's first significant digit,
+    where the Monte Carlo does not support the second digit of U."""
+    if not rule.get("u_planned"):
+        return None
     se = _mc_error(o, rule)
-    if se:
-        return 10 * se
-    return rule["u_planned"] / 5 if rule.get("u_planned") else None
+    return max(2 * rule["u_planned"], 10 * se if se else 0.0)
+
+
+def _estimator_words(o) -> str:
+    """What the agreed estimator of a test does, as its procedure describes it."""
+    from mtplan.models import get
+
+    est = get(o.spec.name).estimators[agreed_estimator(o)].description
+    return est[:1].lower() + est[1:] if est[1:2].islower() else est
 
 
 def _requirement_rows(req) -> list:
@@ -1023,7 +1106,11 @@ def _agreement_section(result, plan) -> Section:
     blocks.append(Table("Tests, the machine each is run on (serial number), the method "
                         "(procedure and version) and the machine time.",
                         ["test", "title", "machine", "method", "standards", "duration"],
-                        rows, grow=1, size=7.0))
+                        rows, grow=3, size=7.0))
+    blocks += ["The estimator of each method, part of the method (readings evaluated with "
+               "another are a deviation):",
+               [f"test {k}, {agreed_estimator(o)}: {_estimator_words(o)}"
+                for k, o in enumerate(result.outcomes, start=1)]]
     total = sum(o.duration_s for o in result.outcomes if math.isfinite(o.duration_s))
     schedule = study.requirements.get("schedule")
     blocks.append(f"Total duration (machine time): {duration_text(total)}; date of the test: "
@@ -1042,15 +1129,23 @@ def _agreement_section(result, plan) -> Section:
         limits.append([r["measurand"], u, tolerance_text(r["lower"], r["upper"]), acc,
                        "-" if r.get("guard_band") is None else fmt(r["guard_band"], step),
                        "-" if r.get("u_planned") is None else fmt(2 * r["u_planned"], step),
-                       fmt_u(se) if se else "-",
-                       r.get("tolerance_source") or "not stated"])
+                       _mc_errors(se, r), r.get("tolerance_source") or "not stated"])
+    # one tolerance source for every measurand is stated once, under the table
+    sources = {row[-1] for row in limits}
+    header = ["measurand", "unit", "tolerance", "acceptance limits", "w", "U predicted",
+              "MC error", "tolerance source"]
+    if len(sources) == 1:
+        limits, header = [row[:-1] for row in limits], header[:-1]
     blocks.append(Table("Acceptance limits per measurand: a pass needs the measured value "
-                        "within them (the tolerance reduced by the guard band w); U predicted "
-                        "at k = 2, with the standard error of its Monte Carlo (GUM 7.2.6: "
-                        "printed to the digits it supports, as w and the limits).",
-                        ["measurand", "unit", "tolerance", "acceptance limits", "w",
-                         "U predicted", "± (MC)", "tolerance source"], limits, grow=7,
+                        "within them (the tolerance reduced by the guard band w). U predicted "
+                        f"at k = {K:g}; MC error: the Monte Carlo tolerance of U and of w, the "
+                        "standard error of the simulation (JCGM 101 7.9; one value where "
+                        "w = U). U, w and the limits are printed to two significant digits of "
+                        "U, or fewer where the Monte Carlo does not support them (GUM 7.2.6).",
+                        header, limits, grow=len(header) - 1 if len(sources) > 1 else 0,
                         size=7.0))
+    if len(sources) == 1:
+        blocks.append(f"The tolerance source of every measurand: {sources.pop()}.")
     frames: dict = {}
     for r in plan["rules"]:
         frames.setdefault(r.get("frame") or "not stated in the study", []).append(r["measurand"])

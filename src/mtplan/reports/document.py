@@ -12,6 +12,7 @@ study's decisions (:mod:`mtplan.plans.decisions`), rounded to their uncertainty.
 
 from __future__ import annotations
 
+from mtplan.plans.decisions import K
 from mtplan.reports import figures as figs
 from mtplan.reports.labels import (
     duration_text,
@@ -74,15 +75,12 @@ def covariance_frames(result) -> dict:
 # ----------------------------------------------------------------------- methods
 def methods_section(result) -> Section:
     from mtplan.models import get
-    from mtplan.reports.labels import estimator_text
-    from mtplan.reports.wording import customer_words
-
     rows = []
     for o in result.outcomes:
         proc = get(o.spec.name)
         for j, est in enumerate(o.spec.estimators):
             rows.append([o.spec.label if j == 0 else "", est,
-                         customer_words(estimator_text(proc.estimators[est])),
+                         proc.estimators[est].description,
                          "recommended" if est == o.recommended else ""])
     return Section("Methods and estimators", anchor="methods", blocks=[
         "Every test is simulated with its error sources (Monte Carlo, JCGM 101) to give the "
@@ -143,6 +141,17 @@ def setup_sentence(o) -> str:
     return shown or "the default set-up"
 
 
+def setting_text(o, field: str, value) -> str:
+    """A set-up field at a value as the set-up sentence words it: "arc of A covered by the
+    points 90 deg"."""
+    from mtplan.models import get
+    from mtplan.models.protocol import fields_info
+
+    docs = {f["name"]: f["doc"] for f in fields_info(get(o.spec.name).Setup)}
+    label = field_label(field, docs.get(field, "")).split(" [")[0]
+    return f"{label} {_value(value)}" + (f" {unit(_suffix(field))}" if _suffix(field) else "")
+
+
 def _value(v) -> str:
     if isinstance(v, float):
         return f"{v:g}"
@@ -194,17 +203,23 @@ def _test_figure(o) -> Figure | None:
     marked = {m.name: float(first.mc.std[i]) for i, m in enumerate(first.measurands)}
     label = field_label(effect.field, docs.get(effect.field, ""))
     targets = {n: t for n, t in o.targets.items() if n in o.key}
-    what = sorted({t[1] for t in targets.values()})
+    what = sorted({_target_words(t[1]) for t in targets.values()})
     return Figure(
-        f"Standard uncertainty against {label} ({int(ok['trials'].max())} Monte Carlo trials "
-        "per set-up; bars: Monte Carlo error of u); the star is the study's set-up with the "
-        f"{o.recommended} estimator, at the u (U / 2) of the table above"
-        + (f", the dashed line the {' or '.join(what)}" if what else "")
-        + "; u = 0 (an estimator constant over every trial, below its resolution) is not "
+        f"Expanded uncertainty U (k = {K:g}) against {label} ({int(ok['trials'].max())} Monte "
+        "Carlo trials per set-up; bars: Monte Carlo error of U); the star is the study's "
+        f"set-up with the {o.recommended} estimator, at the U of the table above"
+        + (f", the dashed line {' or '.join(what)}" if what else "")
+        + "; U = 0 (an estimator constant over every trial, below its resolution) is not "
         "drawn. Other levers and all measurands: appendix.",
         figs.lever_figure(ok, effect.field, o.key[:4], units, estimator=effect.estimator,
                           recommended=o.recommended, base=effect.base_value, targets=targets,
-                          xlabel=label, marked=marked))
+                          xlabel=label, marked=marked, coverage=K))
+
+
+def _target_words(what: str) -> str:
+    """The dashed line of a sweep figure in words, at the figure's k: "the U for TUR = 4",
+    "the plan's target"."""
+    return "the plan's target" if "plan" in what else "the U for TUR = 4"
 
 
 def _duration_change(before: float, after: float) -> str:
@@ -236,12 +251,13 @@ def _findings(o) -> list[str]:
         u = unit(e.unit)
         if e.u_base == e.u_base:  # the study's value was swept
             notes.append(f"Lever: {label} {_value(e.best_value)} instead of "
-                         f"{_value(e.base_value)} lowers u({e.measurand}) from "
-                         f"{fmt_u(e.u_base)} to {fmt_u(e.u_best)} {u} ({e.gain:.1f} times)"
+                         f"{_value(e.base_value)} lowers U({e.measurand}) from "
+                         f"{fmt_u(K * e.u_base)} to {fmt_u(K * e.u_best)} {u} "
+                         f"({e.gain:.1f} times)"
                          + _duration_change(e.duration_base_s, e.duration_best_s) + ".")
         else:
-            notes.append(f"Lever: {label} {_value(e.best_value)} gives u({e.measurand}) = "
-                         f"{fmt_u(e.u_best)} {u}, {e.gain:.1f} times less than "
+            notes.append(f"Lever: {label} {_value(e.best_value)} gives U({e.measurand}) = "
+                         f"{fmt_u(K * e.u_best)} {u}, {e.gain:.1f} times less than "
                          f"{_value(e.ref_value)} (the study's {_value(e.base_value)} was not "
                          "swept).")
     if o.levers and not significant:
@@ -276,10 +292,36 @@ def _plan_finding(o) -> list[str]:
     best = plan.best
     changed = ", ".join(field_value(f, best["setup"][f]) for f in o.spec.plan.get("vary", {})
                         if f in best["setup"])
-    targets = ", ".join(f"u({n}) ≤ {t:g}" for n, t in plan.targets.items())
-    return [f"Plan: {changed} meets the targets ({targets}, k = {plan.k:g}) in "
+    adopted = " (the agreed set-up)" if plan_adopted(o) else ""
+    return [f"Plan: {changed}{adopted} meets the targets ({target_text(o)}) in "
             f"{duration_text(best['duration_s'])} of machine time (confirmed by Monte "
             "Carlo; appendix)."]
+
+
+def plan_targets(plan) -> dict:
+    """The plan's targets as expanded uncertainties at the documents' k: {measurand: U}
+    (a study may state them at another k, ``[procedure.plan] k``)."""
+    return {n: float(t) * K / plan.k for n, t in plan.targets.items()}
+
+
+def target_text(o) -> str:
+    """"U(centre_x) ≤ 2 µm, U(centre_y) ≤ 2 µm (k = 2)": the plan's targets as the
+    documents print every U."""
+    units = {m.name: unit(m.unit) for m in o.results[o.recommended].measurands}
+    shown = ", ".join(f"U({n}) ≤ {t:g} {units.get(n, '')}".rstrip()
+                      for n, t in plan_targets(o.plan).items())
+    return f"{shown} (k = {K:g})"
+
+
+def plan_adopted(o) -> bool:
+    """Whether the planner's cheapest set-up meeting the targets is the agreed one (the
+    fields the plan varies have the study's values)."""
+    plan = o.plan
+    if plan is None or isinstance(plan, str):
+        return False
+    agreed = o.spec.setup.as_dict()
+    return all(best == agreed.get(f) for f, best in plan.best["setup"].items()
+               if f in o.spec.plan.get("vary", {}))
 
 
 def _estimator_findings(o) -> list[str]:

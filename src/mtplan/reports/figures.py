@@ -176,7 +176,7 @@ def _drawn_legend(axes) -> tuple[list, list]:
 
 def lever_figure(table, field: str, measurands: list, units: dict, *, estimator: str,
                  recommended: str, base, targets: dict, xlabel: str,
-                 marked: dict | None = None) -> bytes:
+                 marked: dict | None = None, coverage: float = 1.0) -> bytes:
     """The customer's sweep: u against one lever for the measurands that matter,
     ``estimator`` drawn strong (the recommended one where the sweep ran it), the other
     estimators hollow and offset, the
@@ -184,7 +184,9 @@ def lever_figure(table, field: str, measurands: list, units: dict, *, estimator:
     dashed line. The y axis starts at zero and ends above the recommended estimator and
     the target; an estimator beyond it is marked "off scale" in the legend. ``marked``
     (measurand -> u) is the study's set-up with the estimator the tables use, starred at
-    exactly the tables' value (without it, the sweep's own point of ``estimator``)."""
+    exactly the tables' value (without it, the sweep's own point of ``estimator``). With
+    ``coverage`` (k) != 1 every u (the sweep's, ``targets``' and ``marked``'s) is drawn as
+    U = k u."""
     from matplotlib.lines import Line2D
 
     import textwrap
@@ -196,6 +198,10 @@ def lever_figure(table, field: str, measurands: list, units: dict, *, estimator:
     fig = _figure(width, 1.9 * rows + 0.6)
     xlabel = "\n".join(textwrap.wrap(xlabel, int(13 * width / cols)))
     axes = fig.subplots(rows, cols, squeeze=False)
+    if coverage != 1:
+        table = table.assign(u=coverage * table["u"])
+        targets = {n: (coverage * t, what) for n, (t, what) in targets.items()}
+        marked = None if marked is None else {n: coverage * v for n, v in marked.items()}
     ests = [estimator] + [e for e in table["estimator"].unique() if e != estimator]
     xs = table[field].astype(float)
     span = float(xs.max() - xs.min()) or 1.0
@@ -225,7 +231,9 @@ def lever_figure(table, field: str, measurands: list, units: dict, *, estimator:
             ax.axhline(targets[name][0], color="#b3261e", lw=1.0, ls="--")
         ax.set_title(name, fontsize=9)
         ax.set_xlabel(xlabel, fontsize=7.5)
-        ax.set_ylabel(f"u [{unit(units[name])}]", fontsize=8)
+        ax.set_ylabel(f"{'u' if coverage == 1 else f'U (k = {coverage:g})'} "
+                      f"[{unit(units[name])}]",
+                      fontsize=8)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
         ax.set_ylim(0, top if top > 0 else 1.0)
@@ -237,7 +245,8 @@ def lever_figure(table, field: str, measurands: list, units: dict, *, estimator:
     handles.append(Line2D([], [], marker="*", ms=10, ls="", color="#222222"))
     labels.append("study set-up" if marked is None else
                   f"study set-up, {recommended} (the tables' value)")
-    shown = {what for name, (_, what) in targets.items() if name in measurands}
+    shown = {what if coverage == 1 else what.replace("u for", "U for")
+             for name, (_, what) in targets.items() if name in measurands}
     if shown:
         handles.append(Line2D([], [], color="#b3261e", lw=1.0, ls="--"))
         labels.append(" / ".join(sorted(shown)))
@@ -325,7 +334,7 @@ def pareto_figure(table, front: list, best: int | None) -> bytes:
                    zorder=5, label="recommended (confirmed by Monte Carlo)")
     ax.axhline(1.0, color="k", lw=0.8, ls="--")
     ax.set_xlabel("duration of the test [min]")
-    ax.set_ylabel("worst u / target")
+    ax.set_ylabel("worst U / target (same k)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     return _png(fig)

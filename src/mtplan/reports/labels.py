@@ -1,5 +1,5 @@
 """Plain words for the document: units as printed (µm, µrad), set-up fields as labels
-(``incline_deg`` -> "incline of the artifact plane [deg]"), estimators explained, and
+(``incline_deg`` -> "incline of the artifact plane [deg]") and
 numbers formatted to their uncertainty. Formatting only: nothing here computes a result.
 """
 
@@ -11,7 +11,7 @@ import re
 from mtplan._numbers import fmt, fmt_u, unit
 from mtplan.models.protocol import split_unit
 
-__all__ = ["unit", "split_field", "field_label", "field_value", "estimator_text", "fmt",
+__all__ = ["unit", "split_field", "field_label", "field_value", "fmt",
            "fmt_u", "tolerance_text", "duration_text", "percent", "prior_text"]
 
 def split_field(name: str) -> tuple[str, str]:
@@ -40,15 +40,6 @@ def field_value(name: str, value) -> str:
     else:
         shown = str(value)
     return f"{base.replace('_', ' ')} {shown}" + (f" {unit(suffix)}" if suffix else "")
-
-
-def estimator_text(function) -> str:
-    """The first sentence of an estimator's docstring, without reST markup or units."""
-    doc = (getattr(function, "__doc__", None) or "").strip().split("\n\n")[0]
-    doc = " ".join(doc.split())
-    doc = re.sub(r":\w+:`~?([^`]+)`", r"\1", doc).replace("``", "")
-    doc = re.sub(r";?\s*(measurands\s*)?\[mm, rad\],?\s*\(n,\)\.?", ".", doc)
-    return doc.rstrip(" .;") + "."
 
 
 def tolerance_text(lower, upper, unit_name: str = "", zone=None) -> str:

@@ -10,31 +10,36 @@ __all__ = ["METHOD_SOURCES", "method_citation", "customer_words", "measurand_nam
            "value_warnings", "VERDICT_SHORT", "verdict_short", "BURDEN_OF_PROOF",
            "OVERALL_RULE", "GLOSSARY"]
 
-#: the source method of each procedure: (patent number or "", title in English)
+#: the source method of each procedure: (patent number or "" where the copies the procedure
+#: was built from state none, title in English, who and when)
 METHOD_SOURCES = {
     "rotary_axis": ("", "Method for measuring direction and spatial position of rotation "
-                        "center of rotating shaft (Chinese patent, filed 2020-06-12)"),
-    "geometry21": ("", "Detection method for geometric motion errors of three-axis numerical "
-                       "control equipment (Chinese patent)"),
+                        "center of rotating shaft", "Chinese patent application, Yang Xiaojun "
+                                                    "et al., filed 2020-06-12"),
+    "geometry21": ("CN101982726", "Detection method for geometric motion errors of three-axis "
+                                  "numerical control equipment",
+                   "Shanghai Jiao Tong University, filed 2010-09-27"),
     "tracker_frame": ("CN106078359A", "Zero point definition and calibration method for a "
                                       "gantry-type multi-spindle drilling combined machine "
-                                      "tool"),
+                                      "tool", ""),
     "circle_centre": ("", "Circle centre measuring and calculating method and device for "
-                          "high-precision circular fitting (Chinese patent)"),
-    "line_laser": ("", "Line laser mounting error angle determination method (Chinese patent, "
-                       "filed 2019-09-03)"),
+                          "high-precision circular fitting", "Chinese patent"),
+    "line_laser": ("", "Line laser mounting error angle determination method",
+                   "Chinese patent application, Dong Zhigang, Kang Renke et al., filed "
+                   "2019-09-03"),
 }
 
 
 def method_citation(procedure: str) -> str:
-    """The source method of a procedure, cited once: its patent number (where the source
-    states it) and title."""
-    number, title = METHOD_SOURCES.get(procedure, ("", ""))
+    """The source method of a procedure, cited once: its patent number and title, or, where
+    the copies it was built from state no number, by title, applicant and date (the test
+    itself is identified by mtplan procedure and version, :func:`method_id`)."""
+    number, title, who = METHOD_SOURCES.get(procedure, ("", "", ""))
     if not title:
         return "no published source method"
     if number:
-        return f"patent {number}, \u201c{title}\u201d"
-    return f"\u201c{title}\u201d (patent number not stated in the available copy)"
+        return f"patent {number}, \u201c{title}\u201d" + (f" ({who})" if who else "")
+    return f"\u201c{title}\u201d ({who}; cited by title)"
 
 
 def customer_words(text: str) -> str:
@@ -48,7 +53,9 @@ def customer_words(text: str) -> str:
     text = re.sub(r"\b([Tt])he patent's\b", r"\1he source method's", text)
     # units as printed: "um" and "urad" stand alone (never inside a field name such as
     # probe_noise_um)
-    return re.sub(r"(?<![A-Za-z_])u(m|rad)(?![A-Za-z_])", "\u00b5\\1", text)
+    text = re.sub(r"(?<![A-Za-z_])u(m|rad)(?![A-Za-z_])", "\u00b5\\1", text)
+    # degrees Celsius and plus-minus as printed
+    return re.sub(r"(?<![A-Za-z_])degC\b", "\u00b0C", text).replace("+-", "\u00b1")
 
 
 def measurand_name(description: str, code: str) -> str:

@@ -218,6 +218,14 @@ def estimate_joint_linear(setup: Setup, readings: dict) -> dict:
 
 ESTIMATORS = {"patent": estimate_patent, "joint": estimate_joint,
               "joint_linear": estimate_joint_linear}
+#: each estimator as the documents describe it (plain words, jargon spelled out)
+DESCRIPTIONS = {
+    "patent": "The source method's stepwise evaluation: straight lines first, then circles.",
+    "joint": "Least squares of all error coefficients at once, refined by Gauss-Newton "
+             "iteration.",
+    "joint_linear": "Least squares of all error coefficients at once, linearised (one matrix "
+                    "product).",
+}
 
 
 # --------------------------------------------------------------------------- reports

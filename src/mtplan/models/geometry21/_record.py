@@ -4,7 +4,7 @@ adds the capabilities those analyses provide."""
 
 from __future__ import annotations
 
-from mtplan.models.geometry21._estimators import ESTIMATORS
+from mtplan.models.geometry21._estimators import DESCRIPTIONS, ESTIMATORS
 from mtplan.models.geometry21._frames import from_frame, readings_frame, setup_from_frame
 from mtplan.models.geometry21._physics import duration, forward, measurands, sources, true_values
 from mtplan.models.geometry21._setup import Setup, Truth
@@ -18,7 +18,8 @@ MODEL = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators={name: Estimator(fn, exact=name == "joint") for name, fn in ESTIMATORS.items()},
+    estimators={name: Estimator(fn, description=DESCRIPTIONS[name], exact=name == "joint")
+                for name, fn in ESTIMATORS.items()},
     true_values=true_values,
     duration=duration,
     levers=tuple("poly_order line_length_mm line_repeats line_points circle_radius_mm "

@@ -243,10 +243,18 @@ __all__ = [
 
 PROCEDURE = dataclasses.replace(
     MODEL,
-    estimators={"patent": Estimator(estimate_patent,
-                                    resolution=functools.partial(resolution, estimator="patent")),
-                "registration": Estimator(estimate_registration, exact=True),
-                "pattern": Estimator(estimate_pattern, exact=True)},
+    estimators={"patent": Estimator(
+                    estimate_patent, description="The source method: whole-row shifts between "
+                    "the scans, mean height differences and arccos(h/h').",
+                    resolution=functools.partial(resolution, estimator="patent")),
+                "registration": Estimator(
+                    estimate_registration, exact=True, description="Least-squares "
+                    "registration of the three scans to each other, then an exact rotation "
+                    "fit."),
+                "pattern": Estimator(
+                    estimate_pattern, exact=True, description="Generalised least squares of "
+                    "the forward model to the artefact's known pattern: angles and artefact "
+                    "pose.")},
     description=(
         "Three scans of a hexagonal-cell artifact (base, shifted by w in X, raised by h in Z) "
         "give the sensor's mounting angles about Z, Y and X. The patent's estimator quantises "

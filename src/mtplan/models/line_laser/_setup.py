@@ -59,8 +59,9 @@ class Setup(SetupBase):
         80, doc="Profiles per scan; the default 80 x 0.05 mm covers one pitch of the cells along "
                 "Y, so every facet is seen whatever the artifact's position", low=5)
     shift_fraction: float = param(
-        0.625, doc="beta: the X shift of scan 2 is w = beta * w0 (the patent: 0.5 to 0.75); "
-                   "beta >= 1 leaves no common part. The default makes w (10 mm) a whole "
+        0.625, doc="X shift of scan 2 per cell width (beta: the shift is w = beta * w0, "
+                   "the patent: 0.5 to 0.75); beta >= 1 leaves no common part. The default "
+                   "makes w (10 mm) a whole "
                    "number of point spacings, so the patent aligns the scans without "
                    "interpolating",
         low=0, high=1, low_open=True, high_open=True)

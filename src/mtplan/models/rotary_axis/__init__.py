@@ -223,7 +223,7 @@ time (19 000 trials/s on the default C set-up, gls 25 000).
 from __future__ import annotations
 
 from mtplan.models.rotary_axis._axes import AXIS_ROWS, POSITION_AXIS, axis_part
-from mtplan.models.rotary_axis._axis_line import ESTIMATORS, axis_line
+from mtplan.models.rotary_axis._axis_line import DESCRIPTIONS, ESTIMATORS, axis_line
 from mtplan.models.rotary_axis._estimators import (
     estimate_angles,
     estimate_gls,
@@ -275,7 +275,8 @@ PROCEDURE = Procedure(
     measurands=measurands,
     sources=sources,
     forward=forward,
-    estimators={name: Estimator(fn, exact=True) for name, fn in ESTIMATORS.items()},
+    estimators={name: Estimator(fn, description=DESCRIPTIONS[name], exact=True)
+                for name, fn in ESTIMATORS.items()},
     true_values=true_values,
     duration=duration,
     description=(

@@ -16,6 +16,16 @@ from mtplan.models.rotary_axis._setup import NAME, Setup
 
 ESTIMATORS = {"patent": estimate_patent, "joint": estimate_joint, "gls": estimate_gls,
               "angles": estimate_angles}
+#: each estimator as the documents describe it (plain words, jargon spelled out)
+DESCRIPTIONS = {
+    "patent": "The source method: a plane fitted to each lattice, the planes' least-squares "
+              "intersection point on the axis, and the axis direction from the plane normals.",
+    "joint": "Least squares of the axis model to all readings at once (maximum likelihood).",
+    "gls": "The joint fit weighted by the set-up's whole error budget (generalised least "
+           "squares, GLS).",
+    "angles": "The weighted joint fit with the planes' directions tied to the commanded "
+              "angles.",
+}
 
 
 def axis_line(setup: Setup, readings: dict, *, estimator: str = "patent", axis: str | None = None):
