@@ -427,3 +427,24 @@ def test_a_subnormal_prior_mean_is_the_limit_of_zero():
     zero = global_risks(0.0, 0.5, 0.01, NormalPrior(0.0, 1), acceptance=(0.0, 0.5))
     assert near.pfa == pytest.approx(zero.pfa, rel=1e-9)
     assert near.pfr == pytest.approx(zero.pfr, rel=1e-9)
+
+
+def test_an_agreed_guard_band_is_the_printed_one_rounded_up():
+    """A plan states w to the digits its U supports; the decision uses that w, rounded up so
+    the acceptance zone is never wider than the rule's (and the consumer's risk no higher)."""
+    from mtplan.plans.acceptance import agreed_resolution
+
+    assert agreed_resolution(3.4167, 10_000) == pytest.approx(0.1)   # U 6.8: two digits
+    assert agreed_resolution(3.4167, 3) == pytest.approx(1.0)        # U's MC error 3.4
+    assert agreed_resolution(0.0493, 2_000) == pytest.approx(0.001)
+    prior = NormalPrior(0.0, 4.0)
+    exact = plan_acceptance(-12, 12, 3.4167, prior=prior, rule="iso14253")
+    step = agreed_resolution(3.4167, 10_000)
+    agreed = plan_acceptance(-12, 12, 3.4167, prior=prior, rule="iso14253", resolution=step)
+    assert agreed.guard_band == 6.9 and exact.guard_band == pytest.approx(6.8334)
+    assert agreed.acceptance_limits == pytest.approx((-5.1, 5.1), abs=1e-12)
+    assert f"{agreed.acceptance_limits[1]:.1f}" == "5.1"
+    assert agreed.pfa < exact.pfa and agreed.pfr > exact.pfr
+    # a w already on the step stays; the simple rule's zero stays zero
+    assert plan_acceptance(-12, 12, 3.4, rule="iso14253", resolution=0.1).guard_band == 6.8
+    assert plan_acceptance(-12, 12, 3.4167, rule="simple", resolution=0.1).guard_band == 0.0

@@ -102,6 +102,7 @@ __all__ = [
     "cm",
     "guard_band",
     "acceptance_limits",
+    "agreed_resolution",
     "global_risks",
     "specific_risk",
     "plan_acceptance",
@@ -896,6 +897,23 @@ def _dobbert_multiplier(t: float) -> float:
     return 1.04 - math.exp(0.38 * math.log(t) - 0.54)
 
 
+def agreed_resolution(u: float, trials: int | None = None) -> float:
+    """The step an agreed U, guard band and acceptance limits are stated to [unit]: the
+    decimal of the second significant digit of U = 2u (GUM 7.2.6), or of the first where
+    a Monte Carlo of `trials` trials does not support the second (its standard error of U,
+    2u / sqrt(2 (N - 1)), over a tenth of that digit's ten)."""
+    big_u = 2.0 * u
+    se = big_u / math.sqrt(2 * (trials - 1)) if trials and trials > 1 else 0.0
+    return 10.0 ** (math.floor(math.log10(max(big_u, 10 * se))) - 1)
+
+
+def _round_up(w: float, step: float) -> float:
+    """`w` rounded up to a multiple of the decimal `step` (float noise of w's own last
+    digits aside), as a float that prints as that decimal."""
+    decimals = max(0, -math.floor(math.log10(step) + 1e-9))
+    return round(math.ceil(w / step - 1e-9) * step, decimals)
+
+
 def _limits(lo, hi, w):
     return (lo + w if np.isfinite(lo) else lo), (hi - w if np.isfinite(hi) else hi)
 
@@ -1056,6 +1074,7 @@ def plan_acceptance(
     prior=None,
     rule="simple",
     measured: float | None = None,
+    resolution: float | None = None,
 ) -> AcceptanceResult:
     """Plan an acceptance decision after JCGM 106 / ISO 14253-1.
 
@@ -1072,6 +1091,11 @@ def plan_acceptance(
         Decision rule (text as for :func:`parse_rule`), default 'simple'.
     measured : float, optional
         A measured value ``y`` [unit], for its specific risk and decision.
+    resolution : float, optional
+        The step [unit] an agreed guard band is stated to (:func:`agreed_resolution`): ``w``
+        is rounded up to a multiple of it, so the acceptance zone is never wider than the
+        rule's, the limits a plan prints are the limits decided with, and the risks are
+        those of the rounded ``w``. Default: ``w`` as the rule gives it.
 
     Returns
     -------
@@ -1094,6 +1118,8 @@ def plan_acceptance(
              "Got None instead."]
         )
     w = _guard(rule, lo, hi, u, prior)
+    if resolution is not None and w > 0:
+        w = _round_up(w, resolution)
     a_lo, a_hi = _limits(lo, hi, w)
     limits = (None if lower is None else float(a_lo), None if upper is None else float(a_hi))
     two = np.isfinite(lo) and np.isfinite(hi)

@@ -383,7 +383,8 @@ def conformity(procedure: str, label: str, specs: list, result, measured=None) -
             continue
         try:
             plan = acc.plan_acceptance(v.lower, v.upper, u, prior=prior,
-                                       rule=acc.parse_rule(rule), measured=y)
+                                       rule=acc.parse_rule(rule), measured=y,
+                                       resolution=acc.agreed_resolution(u, result.mc.trials))
         except InvalidInput as exc:  # a guard band wider than the tolerance: a finding
             v.verdict = NOT_DETERMINABLE
             v.reason = " ".join(exc.problems)
@@ -492,7 +493,8 @@ def position_verdict(procedure, label, spec, result, measured=None) -> Verdict:
         return v
     try:
         plan = acc.plan_acceptance(None, d, u, prior=prior, rule=acc.parse_rule(rule),
-                                   measured=v.measured)
+                                   measured=v.measured,
+                                   resolution=acc.agreed_resolution(u, result.mc.trials))
     except InvalidInput as exc:
         v.verdict, v.reason = NOT_DETERMINABLE, " ".join(exc.problems)
         return v

@@ -1032,13 +1032,17 @@ def _mc_errors(se, rule) -> str:
 
 def _agreed_step(o, rule) -> float | None:
     """The resolution the agreed U, w and limits are printed to (:func:`fmt` keeps two
-    significant digits of its second argument): two significant digits of U (GUM 7.2.6),
-    or coarser, the decimal of U's Monte Carlo standard error's first significant digit,
-    where the Monte Carlo does not support the second digit of U."""
+    significant digits of its second argument): the step the plan rounded w to
+    (:func:`~mtplan.plans.acceptance.agreed_resolution`), so the printed limits are the
+    ones decided with."""
+    from mtplan.plans.acceptance import agreed_resolution
+
     if not rule.get("u_planned"):
         return None
-    se = _mc_error(o, rule)
-    return max(2 * rule["u_planned"], 10 * se if se else 0.0)
+    r = None if o is None else (o.results.get(rule.get("estimator"))
+                                or o.results.get(o.recommended))
+    trials = int(getattr(getattr(r, "mc", None), "trials", 0) or 0)
+    return 10 * agreed_resolution(rule["u_planned"], trials)
 
 
 def _estimator_words(o) -> str:
