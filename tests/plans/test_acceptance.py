@@ -448,3 +448,6 @@ def test_an_agreed_guard_band_is_the_printed_one_rounded_up():
     # a w already on the step stays; the simple rule's zero stays zero
     assert plan_acceptance(-12, 12, 3.4, rule="iso14253", resolution=0.1).guard_band == 6.8
     assert plan_acceptance(-12, 12, 3.4167, rule="simple", resolution=0.1).guard_band == 0.0
+    # a w the rounding takes to half the tolerance leaves no zone: refused, in plain numbers
+    with pytest.raises(InvalidInput, match=r"guard band 400 that leaves no acceptance"):
+        plan_acceptance(-400, 400, 199.19, rule="iso14253", resolution=10.0)

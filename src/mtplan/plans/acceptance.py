@@ -961,15 +961,20 @@ def _guard(rule, lo, hi, u, prior) -> float:
         w = big_u * max(_dobbert_multiplier((hi - lo) / (2 * big_u)), 0.0)
     else:  # target-pfa
         return _target_pfa(rule.value, lo, hi, u, prior)
-    if two_sided and not w < 0.5 * (hi - lo):
+    _check_zone(rule, w, lo, hi, u)
+    return float(w)
+
+
+def _check_zone(rule, w, lo, hi, u) -> None:
+    """Refuse a guard band that leaves no acceptance interval inside a two-sided tolerance."""
+    if np.isfinite(lo) and np.isfinite(hi) and not w < 0.5 * (hi - lo):
         raise InvalidInput(
             [
-                f"The rule '{rule}' gives a guard band {w!r} that leaves no acceptance interval "
-                f"inside the tolerance [{lo!r}, {hi!r}] (u = {u!r}); allowed is a guard band "
-                f"< {0.5 * (hi - lo)!r}."
+                f"The rule '{rule}' gives a guard band {w:.6g} that leaves no acceptance "
+                f"interval inside the tolerance [{lo:.6g}, {hi:.6g}] (u = {u:.4g}); allowed "
+                f"is a guard band < {0.5 * (hi - lo):.6g}."
             ]
         )
-    return float(w)
 
 
 def _target_pfa(target, lo, hi, u, prior) -> float:
@@ -1120,6 +1125,7 @@ def plan_acceptance(
     w = _guard(rule, lo, hi, u, prior)
     if resolution is not None and w > 0:
         w = _round_up(w, resolution)
+        _check_zone(rule, w, lo, hi, u)
     a_lo, a_hi = _limits(lo, hi, w)
     limits = (None if lower is None else float(a_lo), None if upper is None else float(a_hi))
     two = np.isfinite(lo) and np.isfinite(hi)
