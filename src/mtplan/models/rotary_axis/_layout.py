@@ -11,6 +11,8 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
+from mtplan.models.protocol import file_content
+from mtplan.models.rotary_axis._characteristic import bilinear
 from mtplan.models.rotary_axis._setup import (
     Setup,
     incline_normal,
@@ -61,6 +63,12 @@ class Plan(NamedTuple):
     total_time: float  # [s]
     down: np.ndarray  # 1 where a position is approached against the first move, else 0 (P,)
     machine: np.ndarray  # the X/Y motion's Z error per unit term: x, y, bows (4, P, R) [mm]
+    # with sensor_characteristic (else None and an empty index): the characteristic at each
+    # reading's nominal tilt (P, R) [mm], the calibrated points it interpolates from (K,)
+    # (flat indices into the file's grid) and each reading's weight on them (K, P, R)
+    characteristic: np.ndarray | None = None
+    calibration_index: np.ndarray = np.zeros(0, dtype=int)
+    calibration: np.ndarray | None = None
 
 
 def _form_basis(setup: Setup, axis: str, angles: np.ndarray, xy: np.ndarray,
@@ -114,6 +122,36 @@ def tilts(setup: Setup) -> tuple[np.ndarray, np.ndarray]:
                               for a in setup.axes])
     tau = np.degrees(np.arccos(np.clip(normals[:, 2], -1.0, 1.0)))
     return tau, np.arctan2(normals[:, 1], normals[:, 0])
+
+
+def sensor_tilts(setup: Setup) -> tuple[np.ndarray, np.ndarray]:
+    """The nominal surface's tilt in the sensor's frame at every position and pass, its
+    components along the triangulation plane and across it, tau cos phi and tau sin phi
+    (P, passes) [deg]: the sensor turned by 180 deg (the second pass of sensor_reversal)
+    sees both components reversed."""
+    tau, azimuth = tilts(setup)
+    phi = azimuth - math.radians(setup.sensor_azimuth_deg)
+    sign = np.array([1.0, -1.0][:setup.n_passes])
+    return (tau * np.cos(phi))[:, None] * sign, (tau * np.sin(phi))[:, None] * sign
+
+
+def _calibration(setup: Setup):
+    """(characteristic (P, R) [mm], calibrated points (K,), weights (K, P, R)) of the
+    set-up's calibrated characteristic, bilinear at each reading's nominal tilt; (None,
+    empty, None) without one."""
+    ch = file_content(setup, "sensor_characteristic")
+    if ch is None:
+        return None, np.zeros(0, dtype=int), None
+    index, weight = bilinear(ch, *sensor_tilts(setup))  # (P, passes, 4) each
+    points = np.unique(index)
+    P, passes = index.shape[:2]
+    w = np.zeros((points.size, P, passes))
+    p_i, k_i = np.meshgrid(np.arange(P), np.arange(passes), indexing="ij")
+    for c in range(4):
+        np.add.at(w, (np.searchsorted(points, index[..., c]), p_i, k_i), weight[..., c])
+    w = np.repeat(w, setup.n_points, axis=2)  # (K, P, R): every point of a pass alike
+    values = np.tensordot(ch.error.ravel()[points], w, axes=1)
+    return values, points, w
 
 
 def _tilt_bound(tau: np.ndarray) -> np.ndarray:
@@ -199,6 +237,8 @@ def plan(setup: Setup) -> Plan:
         total_time=total,
         down=np.concatenate([_approached_down(setup.axis_angles(a)) for a in setup.axes]),
         machine=_machine_basis(xy),
+        **dict(zip(("characteristic", "calibration_index", "calibration"),
+                   _calibration(setup), strict=True)),
     )
     for arr in out:
         if isinstance(arr, np.ndarray):
