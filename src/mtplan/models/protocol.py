@@ -293,7 +293,8 @@ def resolve_file_fields(cls, values: Mapping, base) -> dict:
 
 @functools.lru_cache(maxsize=32)
 def _read_file(reader, path: str, stamp: tuple):
-    """``reader(path)``, once per file version (`stamp`: its modification time and size)."""
+    """``reader(path)``, once per file version (`stamp`: its absolute path, modification
+    time and size)."""
     return reader(path)
 
 
@@ -307,7 +308,7 @@ def file_content(setup, name: str):
         return None
     reader = next(f.metadata["reader"] for f in dataclasses.fields(setup) if f.name == name)
     st = os.stat(path)
-    return _read_file(reader, os.path.abspath(path), (st.st_mtime_ns, st.st_size))
+    return _read_file(reader, path, (os.path.abspath(path), st.st_mtime_ns, st.st_size))
 
 
 def _check_file(p: "Problems", setup, info) -> None:

@@ -20,6 +20,7 @@ import numpy as np
 from mtplan._validate import InvalidInput
 
 COLUMNS = ("tilt_x_deg", "tilt_y_deg", "error_um", "u_um")
+_SHOWN = 5  # bad rows named per column (then their count)
 
 
 class Characteristic(NamedTuple):
@@ -53,6 +54,7 @@ def read_characteristic(path: str) -> Characteristic:
     problems = []
     cols = [header.index(c) for c in COLUMNS]
     data = np.full((len(rows) - 1, 4), np.nan)
+    bad = {name: [] for name in COLUMNS}
     for i, row in enumerate(rows[1:]):
         for j, (col, name) in enumerate(zip(cols, COLUMNS, strict=True)):
             text = row[col].strip() if col < len(row) else ""
@@ -61,33 +63,23 @@ def read_characteristic(path: str) -> Characteristic:
             except ValueError:
                 value = np.nan
             if not np.isfinite(value) or (name == "u_um" and value < 0):
-                allowed = "a finite number >= 0" if name == "u_um" else "a finite number"
-                problems.append(f"{where}, row {i + 2}, column {name}: must be {allowed}, "
-                                f"got {text!r}.")
+                bad[name].append((i + 2, text))
             data[i, j] = value
+    for name, found in bad.items():  # the first few of each column, and how many in all
+        allowed = "a finite number >= 0" if name == "u_um" else "a finite number"
+        problems += [f"{where}, row {row}, column {name}: must be {allowed}, got {text!r}."
+                     for row, text in found[:_SHOWN]]
+        if len(found) > _SHOWN:
+            problems.append(f"{where}, column {name}: {len(found)} rows in all are not "
+                            f"{allowed}.")
     if len(data) == 0:
         problems.append(f"{where} has no data rows.")
-    if problems:
+    rows_ok = np.all(np.isfinite(data[:, :2]), axis=1)
+    if problems:  # the tilts that are numbers are still checked for repeats
+        _grid_problems(where, data[rows_ok], np.flatnonzero(rows_ok) + 2, problems,
+                       complete=False)
         raise InvalidInput(problems)
-    xs, ys = np.unique(data[:, 0]), np.unique(data[:, 1])
-    for grid, name in ((xs, "tilt_x_deg"), (ys, "tilt_y_deg")):
-        if grid.size < 2:
-            problems.append(f"{where} must calibrate at least two values of {name}; it has "
-                            f"{grid.size}.")
-    ix, iy = np.searchsorted(xs, data[:, 0]), np.searchsorted(ys, data[:, 1])
-    flat = ix * ys.size + iy
-    seen = np.zeros(xs.size * ys.size, dtype=int)
-    np.add.at(seen, flat, 1)
-    for k in np.flatnonzero(seen > 1)[:5]:
-        dup = np.flatnonzero(flat == k) + 2
-        problems.append(f"{where} gives the tilt ({xs[k // ys.size]:g}, {ys[k % ys.size]:g}) deg "
-                        f"more than once (rows {', '.join(map(str, dup))}).")
-    absent = np.flatnonzero(seen == 0)
-    if absent.size:
-        shown = ", ".join(f"({xs[k // ys.size]:g}, {ys[k % ys.size]:g})" for k in absent[:5])
-        problems.append(f"{where} must hold a full grid (every tilt_x_deg with every "
-                        f"tilt_y_deg); {absent.size} tilt(s) are missing: {shown}"
-                        + (" ..." if absent.size > 5 else "") + ".")
+    xs, ys, flat = _grid_problems(where, data, np.arange(len(data)) + 2, problems)
     if problems:
         raise InvalidInput(problems)
     error, u = np.empty(xs.size * ys.size), np.empty(xs.size * ys.size)
@@ -97,6 +89,34 @@ def read_characteristic(path: str) -> Characteristic:
     for arr in out[1:]:
         arr.setflags(write=False)
     return out
+
+
+def _grid_problems(where: str, data: np.ndarray, rows: np.ndarray, problems: list, *,
+                   complete: bool = True):
+    """The grid of the tilts in `data` (columns tilt_x, tilt_y first; `rows` their rows in
+    the file): (tilt_x values, tilt_y values, each row's flat index), recording a tilt given
+    twice and, when `complete`, fewer than two values of a component or a missing tilt."""
+    xs, ys = np.unique(data[:, 0]), np.unique(data[:, 1])
+    for grid, name in ((xs, "tilt_x_deg"), (ys, "tilt_y_deg")):
+        if complete and grid.size < 2:
+            problems.append(f"{where} must calibrate at least two values of {name}; it has "
+                            f"{grid.size}.")
+    ix, iy = np.searchsorted(xs, data[:, 0]), np.searchsorted(ys, data[:, 1])
+    flat = ix * ys.size + iy
+    seen = np.zeros(xs.size * ys.size, dtype=int)
+    np.add.at(seen, flat, 1)
+    for k in np.flatnonzero(seen > 1)[:_SHOWN]:
+        dup = rows[flat == k]
+        problems.append(f"{where} gives the tilt ({xs[k // ys.size]:g}, {ys[k % ys.size]:g}) deg "
+                        f"more than once (rows {', '.join(map(str, dup))}).")
+    absent = np.flatnonzero(seen == 0)
+    if complete and absent.size:
+        shown = ", ".join(f"({xs[k // ys.size]:g}, {ys[k % ys.size]:g})"
+                          for k in absent[:_SHOWN])
+        problems.append(f"{where} must hold a full grid (every tilt_x_deg with every "
+                        f"tilt_y_deg); {absent.size} tilt(s) are missing: {shown}"
+                        + (" ..." if absent.size > _SHOWN else "") + ".")
+    return xs, ys, flat
 
 
 def outside(ch: Characteristic, tx: np.ndarray, ty: np.ndarray) -> np.ndarray:
