@@ -3,7 +3,7 @@ read and checked, every estimator corrects by it, the budget carries its u
 (``angle_calibration_u``) in place of the data sheet's bound, and what that source moves.
 
 The example characteristic (``examples/angle_characteristic.csv``, written by
-``examples/make_angle_characteristic.py``) is a simulated tilt-table calibration of the
+``benchmarks/make_angle_characteristic.py``) is a simulated tilt-table calibration of the
 data-sheet model: c0 = 0.20, c1 = 0.25, c2 = -0.10 of the bound, 0.5 um per point.
 """
 

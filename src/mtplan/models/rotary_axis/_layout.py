@@ -18,7 +18,9 @@ from mtplan.models.rotary_axis._setup import (
     incline_normal,
     lattice,
     nominal_rotations,
+    sensor_tilts,
     serpentine,
+    tilts,
 )
 
 
@@ -112,27 +114,6 @@ def _harmonics(angle: np.ndarray) -> np.ndarray:
 #: bound runs on along its slope (an extrapolation, stated in the field's doc)
 _TILT_TABLE_DEG = np.array([0.0, 5.0, 15.0, 30.0])
 _TILT_TABLE = np.array([0.0, 0.0012, 0.002, 0.005])
-
-
-def tilts(setup: Setup) -> tuple[np.ndarray, np.ndarray]:
-    """Magnitude [deg] and direction from +X [rad] of the nominal surface's tilt under the
-    sensor at every position: the angle of the normal from Z, the fall line's azimuth (P,)."""
-    n0 = incline_normal(setup)
-    normals = np.concatenate([nominal_rotations(a, np.deg2rad(setup.axis_angles(a))) @ n0
-                              for a in setup.axes])
-    tau = np.degrees(np.arccos(np.clip(normals[:, 2], -1.0, 1.0)))
-    return tau, np.arctan2(normals[:, 1], normals[:, 0])
-
-
-def sensor_tilts(setup: Setup) -> tuple[np.ndarray, np.ndarray]:
-    """The nominal surface's tilt in the sensor's frame at every position and pass, its
-    components along the triangulation plane and across it, tau cos phi and tau sin phi
-    (P, passes) [deg]: the sensor turned by 180 deg (the second pass of sensor_reversal)
-    sees both components reversed."""
-    tau, azimuth = tilts(setup)
-    phi = azimuth - math.radians(setup.sensor_azimuth_deg)
-    sign = np.array([1.0, -1.0][:setup.n_passes])
-    return (tau * np.cos(phi))[:, None] * sign, (tau * np.sin(phi))[:, None] * sign
 
 
 def _calibration(setup: Setup):

@@ -307,8 +307,6 @@ class Setup(SetupBase):
 
     def _check_characteristic(self, p: Problems) -> None:
         """Every reading's nominal tilt lies inside the calibrated grid."""
-        from mtplan.models.rotary_axis._layout import sensor_tilts
-
         ch = file_content(self, "sensor_characteristic")
         tx, ty = sensor_tilts(self)
         bad = outside(ch, tx, ty)
@@ -396,6 +394,27 @@ class Truth(SetupBase):
 def incline_normal(setup: Setup) -> np.ndarray:
     i, az = math.radians(setup.incline_deg), math.radians(setup.incline_azimuth_deg)
     return np.array([math.sin(i) * math.cos(az), math.sin(i) * math.sin(az), math.cos(i)])
+
+
+def tilts(setup: Setup) -> tuple[np.ndarray, np.ndarray]:
+    """Magnitude [deg] and direction from +X [rad] of the nominal surface's tilt under the
+    sensor at every position: the angle of the normal from Z, the fall line's azimuth (P,)."""
+    n0 = incline_normal(setup)
+    normals = np.concatenate([nominal_rotations(a, np.deg2rad(setup.axis_angles(a))) @ n0
+                              for a in setup.axes])
+    tau = np.degrees(np.arccos(np.clip(normals[:, 2], -1.0, 1.0)))
+    return tau, np.arctan2(normals[:, 1], normals[:, 0])
+
+
+def sensor_tilts(setup: Setup) -> tuple[np.ndarray, np.ndarray]:
+    """The nominal surface's tilt in the sensor's frame at every position and pass, its
+    components along the triangulation plane and across it, tau cos phi and tau sin phi
+    (P, passes) [deg]: the sensor turned by 180 deg (the second pass of sensor_reversal)
+    sees both components reversed."""
+    tau, azimuth = tilts(setup)
+    phi = azimuth - math.radians(setup.sensor_azimuth_deg)
+    sign = np.array([1.0, -1.0][:setup.n_passes])
+    return (tau * np.cos(phi))[:, None] * sign, (tau * np.sin(phi))[:, None] * sign
 
 
 def nominal_rotations(axis: str, angles: np.ndarray) -> np.ndarray:

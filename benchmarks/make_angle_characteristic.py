@@ -8,7 +8,7 @@ reads it on a grid of tilts from -50 to 50 deg in steps of 5 deg in both compone
 each point with a standard uncertainty of 0.5 um (its reference and repeatability), and
 the file holds its readings: the true error plus a normal error of 0.5 um (seed 32).
 
-    PYTHONPATH=src python examples/make_angle_characteristic.py
+    PYTHONPATH=src python benchmarks/make_angle_characteristic.py
 """
 
 from pathlib import Path
@@ -35,7 +35,8 @@ def main():
     measured = true_error_um(tx, ty) + np.random.default_rng(32).normal(0.0, U_UM, tx.size)
     lines = ["tilt_x_deg,tilt_y_deg,error_um,u_um"]
     lines += [f"{x:g},{y:g},{e:.3f},{U_UM:g}" for x, y, e in zip(tx, ty, measured, strict=True)]
-    atomic_write_text(Path(__file__).parent / "angle_characteristic.csv", "\n".join(lines) + "\n")
+    out = Path(__file__).resolve().parents[1] / "examples" / "angle_characteristic.csv"
+    atomic_write_text(out, "\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":
