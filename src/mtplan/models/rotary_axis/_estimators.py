@@ -322,7 +322,7 @@ def _gls_weights(setup: Setup) -> np.ndarray:
     src, truth = sources(setup), Truth()
 
     def planes_of(errors):
-        z = _pass_mean(setup, forward(setup, truth, errors)["z_mm"])
+        z = _pass_mean(setup, _corrected(setup, forward(setup, truth, errors)["z_mm"]))
         return _planes(setup, z).reshape(z.shape[0], -1)
 
     model = SourceModel(NAME, src, planes_of, lambda m: zero_errors(setup, m))
