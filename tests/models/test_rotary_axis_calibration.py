@@ -204,3 +204,16 @@ def test_a_path_in_a_config_file_is_taken_from_the_config_files_folder(tmp_path,
     assert "angle_calibration_u" in out
     code, _, err = _cli("linearize", "rotary_axis", "--set", "sensor_characteristic=char.csv")
     assert code == 2 and len(err.strip().splitlines()) == 1 and "char.csv" in err
+
+
+def test_a_path_in_a_study_is_taken_from_the_study_files_folder(tmp_path, monkeypatch):
+    from mtplan.plans.study import load_study
+
+    folder = tmp_path / "study"
+    folder.mkdir()
+    _grid_csv(folder / "char.csv", lambda tx, ty: 0.01 * tx)
+    (folder / "s.toml").write_text('title = "t"\n[[procedure]]\nname = "rotary_axis"\n'
+                                   'setup = { sensor_characteristic = "char.csv" }\n')
+    monkeypatch.chdir(tmp_path)
+    setup = load_study(folder / "s.toml").procedures[0].setup
+    assert Path(setup.sensor_characteristic) == folder / "char.csv"
