@@ -134,3 +134,20 @@ def test_every_term_of_the_page_is_in_the_glossary(code):
     from mtplan.explore import design as d
 
     assert d.explain(code) is not None
+
+
+def test_a_file_field_is_never_offered_nor_read():
+    """The page never names a path on the server: a file field (rotary_axis's calibrated
+    characteristic) is left out of the controls, refused in a design beside its name, and
+    refused in a study the page loads."""
+    from mtplan._validate import InvalidInput
+    from mtplan.explore.design import design_from_study, evaluate, procedure_info
+
+    names = [f["name"] for f in procedure_info("rotary_axis")["fields"]]
+    assert "sensor_characteristic" not in names and "angle_calibration_u_um" in names
+    r = evaluate({"procedure": "rotary_axis", "setup": {"sensor_characteristic": "/etc/passwd"}})
+    assert not r["ok"] and "set it in the set-up file" in r["field_errors"]["sensor_characteristic"]
+    text = ('[[procedure]]\nname = "rotary_axis"\n'
+            'setup = { sensor_characteristic = "/etc/passwd" }\n')
+    with pytest.raises(InvalidInput, match="does not read files"):
+        design_from_study(text)

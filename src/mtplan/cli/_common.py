@@ -125,9 +125,16 @@ def check_config(data, path) -> None:
         raise UsageError(f"--config {path}: " + "; ".join(problems) + f" (known: {known})")
 
 
-def setup_values(args, config) -> dict:
-    """The set-up fields stated by ``--config`` [setup] and ``--set`` (which wins)."""
+def setup_values(args, config, proc) -> dict:
+    """The set-up fields of `proc` stated by ``--config`` [setup] and ``--set`` (which wins);
+    a file field's relative path in the config is taken from the config file's folder."""
+    from pathlib import Path
+
+    from mtplan.models.protocol import resolve_file_fields
+
     values = dict(config.get("setup", {}))
+    if values and getattr(args, "config", None):
+        values = resolve_file_fields(proc.Setup, values, Path(args.config).parent)
     values.update(parse_pairs(args.set, "--set"))
     return values
 
@@ -155,7 +162,7 @@ def procedure_and_setup(args, config=None):
     problems = []
     setup = truth = None
     try:
-        setup = make(proc.Setup, setup_values(args, config), owner=proc.name)
+        setup = make(proc.Setup, setup_values(args, config, proc), owner=proc.name)
     except InvalidInput as exc:
         problems += exc.problems
     try:

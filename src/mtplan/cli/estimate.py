@@ -85,7 +85,7 @@ def cmd_estimate(args) -> int:
     if config.get("truth"):
         raise UsageError(f"--config {args.config}: [truth] is for simulations; estimate takes "
                          "the truth from the readings")
-    measurement = read_measurement(proc, args.readings, setup_values(args, config))
+    measurement = read_measurement(proc, args.readings, setup_values(args, config, proc))
     method = args.uncertainty or config.get("uncertainty", "mc")
     if method not in ("mc", "posterior"):
         raise UsageError(f"--uncertainty must be mc or posterior, got {method!r}")

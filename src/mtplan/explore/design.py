@@ -39,7 +39,7 @@ import numpy as np
 from mtplan._parallel import one_blas_thread
 from mtplan._validate import InvalidInput
 from mtplan.models import get, registry
-from mtplan.models.protocol import UNIT_SUFFIXES, fields_info, make, parse_fields
+from mtplan.models.protocol import UNIT_SUFFIXES, fields_info, file_fields, make, parse_fields
 
 __all__ = ["K", "procedures_info", "procedure_info", "normalise", "setup_of", "evaluate",
            "sensitivity", "study_toml", "design_from_study", "source_fields", "lever_values",
@@ -88,6 +88,8 @@ def procedure_info(name: str) -> dict:
     sources = proc.sources(setup)
     fields = []
     for f in fields_info(proc.Setup):
+        if f["file"]:  # a path on this machine: never a browser's (_refuse_files)
+            continue
         kind = f["kind"]
         kind = {float: "float", int: "int", bool: "bool", str: "str"}.get(kind, "tuple")
         fields.append({
@@ -222,8 +224,19 @@ def normalise(design: dict | None) -> dict:
     }
 
 
+def _refuse_files(proc, setup: dict) -> None:
+    """Refuse a design that states a file field: the page never names a path on this
+    machine (such a field is set in a set-up file, for the command line)."""
+    named = [f for f in file_fields(proc.Setup) if str(setup.get(f) or "").strip()]
+    if named:
+        raise InvalidInput([f"The designer does not read files: {', '.join(named)} of "
+                            f"{proc.name} names one; set it in the set-up file (mtplan simulate "
+                            "--config FILE.toml) and leave it out here."])
+
+
 def _values(proc, design) -> dict:
     """The set-up values the design states, with switched-off sources at 0."""
+    _refuse_files(proc, design["setup"])
     values = {k: v for k, v in design["setup"].items() if str(v).strip() != ""}
     fields = source_fields(proc)
     for s in design["off"]:
@@ -235,8 +248,13 @@ def _values(proc, design) -> dict:
 def field_problems(proc, design) -> dict:
     """Field name -> the procedure's own message for each value it refuses alone."""
     infos = {f["name"] for f in fields_info(proc.Setup)}
+    try:
+        values = _values(proc, design)
+    except InvalidInput as exc:  # a file field: named beside itself
+        return {f: " ".join(exc.problems) for f in file_fields(proc.Setup)
+                if str(design["setup"].get(f) or "").strip()}
     out = {}
-    for key, value in _values(proc, design).items():
+    for key, value in values.items():
         if key not in infos:
             out[key] = f"{proc.name} has no field {key!r}"
             continue
@@ -1049,6 +1067,8 @@ def design_from_study(text: str, procedure: str | None = None) -> dict:
     if not entries:
         raise InvalidInput(["The study names no [[procedure]]."])
     e = {k: v for k, v in entries[0].items() if k != "readings"}  # set-ups, not measurements
+    if e.get("name") in registry() and isinstance(e.get("setup"), dict):
+        _refuse_files(get(e["name"]), e["setup"])
     study = load_study({**{k: v for k, v in data.items() if k != "procedure"},
                         "title": data.get("title", "study"), "procedure": [e]})
     ps = study.procedures[0]

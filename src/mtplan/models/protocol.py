@@ -75,6 +75,9 @@ __all__ = [
     "make",
     "frame_columns",
     "parse_fields",
+    "file_fields",
+    "file_content",
+    "resolve_file_fields",
     "Implied",
     "Estimator",
     "ReadingsFormat",
@@ -192,12 +195,21 @@ def param(
     high_open: bool = False,
     choices: tuple | None = None,
     min_len: int | None = None,
+    reader: Callable | None = None,
 ):
     """Declare a set-up (or truth) field with its documentation and allowed range.
 
     The unit is the field name's suffix (``_mm``, ``_um``, ``_deg``, ...). For a
     tuple field (``tuple[float, ...]``) the range applies to every element and
     `min_len` to its length.
+
+    A field with a `reader` is a *file field* (a ``str | None`` path, None: no file): the
+    set-up reads the file on construction with ``reader(path) -> content``, which refuses a
+    bad file with :class:`InvalidInput` listing every problem (naming the file, row and
+    column); the content is then :func:`file_content`. A relative path is taken from the
+    working directory, or from the set-up file that states it (:func:`resolve_file_fields`).
+    Tools that must not open a user's path (the browser designer) leave file fields out
+    (:func:`file_fields`).
     """
     meta = {
         "doc": doc,
@@ -207,6 +219,7 @@ def param(
         "high_open": high_open,
         "choices": choices,
         "min_len": min_len,
+        "reader": reader,
     }
     if isinstance(default, list):
         default = tuple(default)
@@ -254,9 +267,62 @@ def _fields_info(cls) -> tuple:
                 "unit": unit,
                 **{k: f.metadata.get(k) for k in ("doc", "low", "high", "low_open", "high_open",
                                                  "choices", "min_len")},
+                "file": f.metadata.get("reader") is not None,
             }
         )
     return tuple(out)
+
+
+def file_fields(cls) -> tuple[str, ...]:
+    """The names of the file fields of a Setup class (declared with ``param(reader=...)``)."""
+    return tuple(info["name"] for info in _fields_info(cls) if info["file"])
+
+
+def resolve_file_fields(cls, values: Mapping, base) -> dict:
+    """`values` with each file field's relative path taken from the folder `base` (that of
+    the set-up file stating them); other values, absolute paths and empty ones unchanged."""
+    from pathlib import Path
+
+    out = dict(values)
+    for name in file_fields(cls):
+        value = out.get(name)
+        if isinstance(value, str) and value.strip() and value.strip().lower() not in (
+                "none", "default") and not Path(value).is_absolute():
+            out[name] = str(Path(base) / value)
+    return out
+
+
+@functools.lru_cache(maxsize=32)
+def _read_file(reader, path: str, stamp: tuple):
+    """``reader(path)``, once per file version (`stamp`: its absolute path, modification
+    time and size)."""
+    return reader(path)
+
+
+def file_content(setup, name: str):
+    """The content of the file field `name` of `setup` as its reader returns it (None when
+    the field is empty); read once per version of the file."""
+    import os
+
+    path = getattr(setup, name)
+    if path is None:
+        return None
+    reader = next(f.metadata["reader"] for f in dataclasses.fields(setup) if f.name == name)
+    st = os.stat(path)
+    return _read_file(reader, path, (os.path.abspath(path), st.st_mtime_ns, st.st_size))
+
+
+def _check_file(p: "Problems", setup, info) -> None:
+    """Read a file field's file, recording why it cannot be read or what its reader refuses."""
+    path = getattr(setup, info["name"])
+    if path is None or not isinstance(path, str):
+        return
+    try:
+        file_content(setup, info["name"])
+    except InvalidInput as exc:
+        p.items.extend(exc.problems)
+    except OSError as exc:
+        p.add(info["name"], path, f"a readable file ({exc.strerror or exc})")
 
 
 def _describe(info) -> str:
@@ -266,6 +332,8 @@ def _describe(info) -> str:
     )
     if info["choices"]:
         return "one of " + ", ".join(repr(c) for c in info["choices"])
+    if info.get("file"):
+        return "the path of a file" + (" (or empty for none)" if info["optional"] else "")
     bounds = []
     if info["low"] is not None:
         bounds.append(f"{'>' if info['low_open'] else '>='} {info['low']:g}")
@@ -342,6 +410,9 @@ class SetupBase:
             if info["kind"] is int and is_real(value) and float(value).is_integer():
                 object.__setattr__(self, info["name"], int(value))
             _check_value(p, info, getattr(self, info["name"]))
+        for info in infos:
+            if info["file"] and not p:
+                _check_file(p, self, info)
         if not p:
             self._check(p)
         p.raise_if_any()

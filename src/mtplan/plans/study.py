@@ -425,7 +425,7 @@ def _certificate(data, header, problems) -> dict:
 
 def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
     """One ``[[procedure]]`` table, validated; None when it cannot be read at all."""
-    from mtplan.models.protocol import fields_info, make
+    from mtplan.models.protocol import fields_info, make, resolve_file_fields
 
     where = f"procedure #{i + 1}"
     if not isinstance(entry, dict):
@@ -446,8 +446,11 @@ def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
         problems.append(f"{where} 'budget' must be 'gum' or 'mc'. Got {entry.get('budget')!r} "
                         "instead.")
     setup = truth = None
+    stated = entry.get("setup", {})
+    if path is not None and isinstance(stated, dict):  # file fields: from the study's folder
+        stated = resolve_file_fields(proc.Setup, stated, path.parent)
     try:
-        setup = make(proc.Setup, entry.get("setup", {}), owner=f"{where} setup")
+        setup = make(proc.Setup, stated, owner=f"{where} setup")
     except InvalidInput as exc:
         problems += exc.problems
     try:
@@ -466,7 +469,7 @@ def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
         if plan is not None:
             grids.append(("plan", plan.get("vary")))
         for what, vary in grids:
-            problems += _grid_problems(proc, entry.get("setup", {}), vary, fields,
+            problems += _grid_problems(proc, stated, vary, fields,
                                        f"{where} {what}")
     acceptance = _acceptance(entry.get("acceptance"), measurands, path, where, problems)
     readings = _readings(proc, entry.get("readings"), path, where, problems)

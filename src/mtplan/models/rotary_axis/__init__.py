@@ -107,7 +107,12 @@ function of the surface's local tilt in the sensor's frame: a height offset per 
 magnitude tau, phi its direction from the triangulation plane; the even part c0 grows
 with the tilt, the odd part c1 moves a C axis sideways by about ``e / tan(incline)``
 along the triangulation plane, the anisotropy c2; a set-up tilting the surface beyond
-``sensor_max_tilt_deg`` is refused), the artifact's real pose (``artifact_tilt``: normal, no hard bound, since the readings
+``sensor_max_tilt_deg`` is refused; with ``sensor_characteristic``, a calibrated
+characteristic from a tilt table, it is that characteristic instead, which every estimator
+removes at each reading's nominal tilt in the sensor's frame (bilinear between the
+calibrated tilts), plus the calibration's error, ``angle_calibration_u``: one normal
+error per calibrated point, independent between points, carried to the readings by the
+same interpolation; module ``_characteristic``), the artifact's real pose (``artifact_tilt``: normal, no hard bound, since the readings
 determine it; ``artifact_height_error``), and the errors that act one to one: the laser
 spot's lateral offset (``spot_offset_u``) and the sensor's zero (``sensor_zero_u``), the
 X/Y motion's slope and bow in Z, machine-fixed (``xy_slope_halfwidth``,

@@ -13,7 +13,7 @@ from mtplan.models.rotary_axis._axes import (
     combined as _combined,
 )
 from mtplan.models.rotary_axis._layout import NAMES as _NAMES, plan as _plan
-from mtplan.models.rotary_axis._physics import forward, sources
+from mtplan.models.rotary_axis._physics import forward, sources, zero_errors
 from mtplan.models.rotary_axis._setup import NAME, Setup, Truth
 
 
@@ -31,7 +31,14 @@ def _check_readings(setup: Setup, readings, *, passes: bool = False) -> np.ndarr
     if z.ndim != 3 or z.shape[1:] != shape:
         raise InvalidInput([f"The 'readings' parameter of {NAME} must hold 'z_mm' of shape "
                             f"(n, {shape[0]}, {shape[1]}) for this set-up. Got {z.shape} instead."])
-    return z if passes else _pass_mean(setup, z)
+    return z if passes else _pass_mean(setup, _corrected(setup, z))
+
+
+def _corrected(setup: Setup, z: np.ndarray) -> np.ndarray:
+    """The readings less the calibrated characteristic at each reading's nominal tilt
+    (sensor_characteristic), or as they are without one."""
+    c = _plan(setup).characteristic
+    return z if c is None else z - c
 
 
 def _pass_mean(setup: Setup, z: np.ndarray) -> np.ndarray:
@@ -315,11 +322,10 @@ def _gls_weights(setup: Setup) -> np.ndarray:
     src, truth = sources(setup), Truth()
 
     def planes_of(errors):
-        z = _pass_mean(setup, forward(setup, truth, errors)["z_mm"])
+        z = _pass_mean(setup, _corrected(setup, forward(setup, truth, errors)["z_mm"]))
         return _planes(setup, z).reshape(z.shape[0], -1)
 
-    model = SourceModel(NAME, src, planes_of,
-                        lambda m: {k: np.zeros((m, *v.shape)) for k, v in src.items()})
+    model = SourceModel(NAME, src, planes_of, lambda m: zero_errors(setup, m))
     basis = _fit_span(setup, planes_of(model.errors(1)).reshape(1, -1, 3))
     D, cols = np.zeros(basis.shape[0]), []
     for name in (k for k, v in src.items() if v.active):

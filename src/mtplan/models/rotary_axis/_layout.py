@@ -11,12 +11,16 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
+from mtplan.models.protocol import file_content
+from mtplan.models.rotary_axis._characteristic import bilinear
 from mtplan.models.rotary_axis._setup import (
     Setup,
     incline_normal,
     lattice,
     nominal_rotations,
+    sensor_tilts,
     serpentine,
+    tilts,
 )
 
 
@@ -61,6 +65,12 @@ class Plan(NamedTuple):
     total_time: float  # [s]
     down: np.ndarray  # 1 where a position is approached against the first move, else 0 (P,)
     machine: np.ndarray  # the X/Y motion's Z error per unit term: x, y, bows (4, P, R) [mm]
+    # with sensor_characteristic (else None and an empty index): the characteristic at each
+    # reading's nominal tilt (P, R) [mm], the calibrated points it interpolates from (K,)
+    # (flat indices into the file's grid) and each reading's weight on them (K, P, R)
+    characteristic: np.ndarray | None = None
+    calibration_index: np.ndarray = np.zeros(0, dtype=int)
+    calibration: np.ndarray | None = None
 
 
 def _form_basis(setup: Setup, axis: str, angles: np.ndarray, xy: np.ndarray,
@@ -106,14 +116,23 @@ _TILT_TABLE_DEG = np.array([0.0, 5.0, 15.0, 30.0])
 _TILT_TABLE = np.array([0.0, 0.0012, 0.002, 0.005])
 
 
-def tilts(setup: Setup) -> tuple[np.ndarray, np.ndarray]:
-    """Magnitude [deg] and direction from +X [rad] of the nominal surface's tilt under the
-    sensor at every position: the angle of the normal from Z, the fall line's azimuth (P,)."""
-    n0 = incline_normal(setup)
-    normals = np.concatenate([nominal_rotations(a, np.deg2rad(setup.axis_angles(a))) @ n0
-                              for a in setup.axes])
-    tau = np.degrees(np.arccos(np.clip(normals[:, 2], -1.0, 1.0)))
-    return tau, np.arctan2(normals[:, 1], normals[:, 0])
+def _calibration(setup: Setup):
+    """(characteristic (P, R) [mm], calibrated points (K,), weights (K, P, R)) of the
+    set-up's calibrated characteristic, bilinear at each reading's nominal tilt; (None,
+    empty, None) without one."""
+    ch = file_content(setup, "sensor_characteristic")
+    if ch is None:
+        return None, np.zeros(0, dtype=int), None
+    index, weight = bilinear(ch, *sensor_tilts(setup))  # (P, passes, 4) each
+    points = np.unique(index)
+    P, passes = index.shape[:2]
+    w = np.zeros((points.size, P, passes))
+    p_i, k_i = np.meshgrid(np.arange(P), np.arange(passes), indexing="ij")
+    for c in range(4):
+        np.add.at(w, (np.searchsorted(points, index[..., c]), p_i, k_i), weight[..., c])
+    w = np.repeat(w, setup.n_points, axis=2)  # (K, P, R): every point of a pass alike
+    values = np.tensordot(ch.error.ravel()[points], w, axes=1)
+    return values, points, w
 
 
 def _tilt_bound(tau: np.ndarray) -> np.ndarray:
@@ -199,6 +218,8 @@ def plan(setup: Setup) -> Plan:
         total_time=total,
         down=np.concatenate([_approached_down(setup.axis_angles(a)) for a in setup.axes]),
         machine=_machine_basis(xy),
+        **dict(zip(("characteristic", "calibration_index", "calibration"),
+                   _calibration(setup), strict=True)),
     )
     for arr in out:
         if isinstance(arr, np.ndarray):

@@ -19,7 +19,8 @@ from mtplan.models.rotary_axis._layout import (
     rotate_by_vector,
 )
 from mtplan.models.rotary_axis._setup import ARCSEC, UM, URAD, Setup, Truth
-from mtplan.uncertainty.distributions import Arcsine, Normal, Rectangular
+from mtplan.models.protocol import file_content
+from mtplan.uncertainty.distributions import Arcsine, MultivariateNormal, Normal, Rectangular
 
 
 # --------------------------------------------------------------------------- protocol
@@ -62,6 +63,12 @@ def sources(setup: Setup) -> dict[str, Source]:
     sensor_reversal).
     """
     return {**_machine_sources(setup), **_sensor_and_setup_sources(setup)}
+
+
+def zero_errors(setup: Setup, m: int) -> dict[str, np.ndarray]:
+    """Every source's errors at zero for `m` trials, (m, *shape, *event_shape) each."""
+    return {k: np.zeros((m, *v.shape, *v.distribution.event_shape))
+            for k, v in sources(setup).items()}
 
 
 def _machine_sources(setup: Setup) -> dict[str, Source]:
@@ -224,7 +231,8 @@ def _sensor_and_setup_sources(setup: Setup) -> dict[str, Source]:
             "optoNCDT 1750). The gain is sensor_scale. With z_follows_surface the sensor "
             "works about mid-range and this acts on tens of micrometres only."),
         "angle_influence_halfwidth": Source(
-            rect(setup.angle_influence_halfwidth_ppm * 1e-6 / 3), (3,),
+            rect(0.0 if setup.sensor_characteristic is not None
+                 else setup.angle_influence_halfwidth_ppm * 1e-6 / 3), (3,),
             "The sensor's angle influence: a height error of every reading of a position that "
             "depends on the local tilt of the surface in the sensor's frame, magnitude tau "
             "and direction phi (the fall line's azimuth from the triangulation plane), "
@@ -243,8 +251,35 @@ def _sensor_and_setup_sources(setup: Setup) -> dict[str, Source]:
             "angle_influence_halfwidth_ppm. Default 5000 ppm (0.5 %). On a C axis the tilt "
             "is the incline at every position and the odd part moves the axis sideways by "
             "about e / tan(incline); on an A axis the tilt grows with |A| and the even part "
-            "moves EZ0A."),
+            "moves EZ0A. Off (0) when sensor_characteristic gives a calibrated "
+            "characteristic: its u is angle_calibration_u."),
+        "angle_calibration_u": _calibration_source(setup),
     }
+
+
+def _calibration_source(setup: Setup) -> Source:
+    """The calibrated characteristic's error at each calibrated point the set-up's tilts
+    interpolate from: normal, independent between points, std the file's u_um (or
+    angle_calibration_u_um); without a characteristic, off."""
+    text = (
+        "Error of the calibrated angle characteristic (sensor_characteristic) at each "
+        "calibrated tilt the set-up's readings interpolate from, one set per test (one "
+        "calibration): every reading is corrected by the characteristic interpolated "
+        "bilinearly at its nominal tilt, so it carries the same interpolation of these "
+        "errors; readings at one tilt share their error, readings at neighbouring tilts "
+        "share calibrated points. Normal, independent between calibrated points, standard "
+        "deviation each point's u_um from the file (its tilt-table calibration's "
+        "certificate), or angle_calibration_u_um for every point. A share common to every "
+        "point is a zero offset, which sensor_zero_u covers (the zero is set on the machine).")
+    g = plan(setup)
+    points = g.calibration_index
+    if points.size == 0:
+        return Source(Normal(0.0, 0.0), (1,), text)
+    if setup.angle_calibration_u_um is not None:
+        u = np.full(points.size, setup.angle_calibration_u_um * UM)
+    else:
+        u = file_content(setup, "sensor_characteristic").u.ravel()[points]
+    return Source(MultivariateNormal(np.zeros(points.size), np.diag(u * u)), (), text)
 
 
 def true_line(setup: Setup, truth: Truth) -> tuple[np.ndarray, np.ndarray]:
@@ -313,13 +348,19 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict[str, np.ndarray]:
         errors (scale, flatness, drift) are shared by both axes of a CA test; the drift
         runs on over the whole test's time line.
     """
-    times = plan(setup).times
+    g = plan(setup)
     z = []
     for i, (part, sl) in enumerate(axis_parts(setup)):
         errs = {k: (v[(slice(None),) * POSITION_AXIS[k] + (sl,)] if k in POSITION_AXIS
                     else v[:, i] if k in AXIS_ROWS else v) for k, v in errors.items()}
-        z.append(_forward_axis(part, truth, errs, times[sl]))
-    return {"z_mm": z[0] if len(z) == 1 else np.concatenate(z, axis=1)}
+        z.append(_forward_axis(part, truth, errs, g.times[sl]))
+    z = z[0] if len(z) == 1 else np.concatenate(z, axis=1)
+    if g.characteristic is not None:  # the sensor's calibrated characteristic, its error
+        z = z + g.characteristic
+        cal = errors["angle_calibration_u"]  # (n, K) at the calibrated points
+        if np.any(cal):
+            z = z + np.tensordot(cal, g.calibration, axes=1)
+    return {"z_mm": z}
 
 
 def _artifact_pose(g: Plan, tilt, height) -> tuple[np.ndarray, np.ndarray]:

@@ -12,7 +12,7 @@ from mtplan._validate import InvalidInput, Problems
 from mtplan.models.protocol import frame_columns
 from mtplan.models.rotary_axis._estimators import _check_readings
 from mtplan.models.rotary_axis._layout import plan, position_axes
-from mtplan.models.rotary_axis._physics import forward, sources
+from mtplan.models.rotary_axis._physics import forward, zero_errors
 from mtplan.models.rotary_axis._setup import NAME, Setup, Truth
 
 _COLUMNS = ("position", "angle_deg", "point", "x_mm", "y_mm", "z_mm")
@@ -104,8 +104,7 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict[str, np.ndarray]:
 
 def reading_limits(setup: Setup) -> dict:
     """The distance sensor's measuring range around the nominal surface at each point [mm]."""
-    zero = {k: np.zeros((1, *v.shape)) for k, v in sources(setup).items()}
-    nominal = readings_frame(setup, forward(setup, Truth(), zero))
+    nominal = readings_frame(setup, forward(setup, Truth(), zero_errors(setup, 1)))
     half = setup.sensor_range_mm / 2
     return {"z_mm": (nominal["z_mm"].to_numpy() - half, nominal["z_mm"].to_numpy() + half,
                      f"the sensor's measuring range (sensor_range_mm = {setup.sensor_range_mm:g} "

@@ -11,7 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from mtplan._validate import Problems
-from mtplan.models.protocol import SetupBase, param
+from mtplan.models.protocol import SetupBase, file_content, param
+from mtplan.models.rotary_axis._characteristic import outside, read_characteristic
 
 
 NAME = "rotary_axis"
@@ -187,6 +188,23 @@ class Setup(SetupBase):
                                        "table's last row (the A axis's default +-45 deg tilts "
                                        "the 20 deg incline to 48.4 deg)", low=0, high=70,
                                        low_open=True)
+    sensor_characteristic: str | None = param(None, doc="A calibrated angle characteristic "
+                                              "of the sensor (CSV: tilt_x_deg, tilt_y_deg, "
+                                              "error_um, u_um on a full grid of tilts in the "
+                                              "sensor's frame, as a tilt-table calibration "
+                                              "gives it; docs/readings.md). Given, it replaces "
+                                              "the data sheet's bound "
+                                              "(angle_influence_halfwidth_ppm is then unused): "
+                                              "every estimator corrects each reading by it, "
+                                              "interpolated bilinearly at the reading's "
+                                              "nominal tilt, and the budget carries the "
+                                              "calibration's u (angle_calibration_u_um). "
+                                              "Empty: none", reader=read_characteristic)
+    angle_calibration_u_um: float | None = param(None, doc="Standard uncertainty of the "
+                                                 "calibrated characteristic at each of its "
+                                                 "points [um] (empty: each point's u_um from "
+                                                 "the file; 0: taken as exact); used only with "
+                                                 "sensor_characteristic", low=0, high=1000)
     sensor_azimuth_deg: float = param(0.0, doc="Azimuth from +X of the sensor's triangulation "
                                       "plane (its laser and receiver) at spindle orientation 0 "
                                       "[deg]", low=-360, high=360)
@@ -254,6 +272,14 @@ class Setup(SetupBase):
         """Commanded angles of every position in measuring order (C, then A for CA) [deg]."""
         return np.concatenate([self.axis_angles(a) for a in self.axes])
 
+    def notes(self) -> list[str]:
+        """That the sensor's angle influence is a calibrated characteristic, when it is."""
+        if self.sensor_characteristic is None:
+            return []
+        return [f"sensor: the angle influence is the calibrated characteristic "
+                f"{self.sensor_characteristic!r} (its u in the budget as angle_calibration_u); "
+                "the data sheet's bound angle_influence_halfwidth_ppm is not used"]
+
     def _check(self, p: Problems) -> None:
         if self.angles_deg is not None and self.positions is not None \
                 and self.positions != len(self.angles_deg):
@@ -276,6 +302,31 @@ class Setup(SetupBase):
             )
         for axis in self.axes:
             self._check_axis(p, axis, n0)
+        if self.sensor_characteristic is not None and not p:
+            self._check_characteristic(p)
+
+    def _check_characteristic(self, p: Problems) -> None:
+        """Every reading's nominal tilt lies inside the calibrated grid."""
+        ch = file_content(self, "sensor_characteristic")
+        tx, ty = sensor_tilts(self)
+        bad = outside(ch, tx, ty)
+        if np.any(bad):
+            p_i, k = np.argwhere(bad)[0]
+            angle = self.angles()[p_i]
+            p.add("sensor_characteristic", self.sensor_characteristic,
+                  f"a characteristic that covers the set-up's tilts: it is calibrated for "
+                  f"tilt_x from {ch.tilt_x[0]:g} to {ch.tilt_x[-1]:g} deg and tilt_y from "
+                  f"{ch.tilt_y[0]:g} to {ch.tilt_y[-1]:g} deg, and the set-up tilts the "
+                  f"surface to ({tx[p_i, k]:.2f}, {ty[p_i, k]:.2f}) deg at "
+                  f"{self.position_axis(p_i)} = {angle:g} deg"
+                  + (" (sensor at 180 deg)" if k else "") + f"; {int(bad.sum())} of "
+                  f"{bad.size} tilts are outside (reduce incline_deg or the angles, or "
+                  "calibrate further)")
+
+    def position_axis(self, index: int) -> str:
+        """The axis ('C' or 'A') turned at position `index` of the test."""
+        return "C" if self.axis == "CA" and index < len(self.axis_angles("C")) else \
+            self.axes[-1]
 
     def _check_axis(self, p: Problems, axis: str, n0: np.ndarray) -> None:
         """Distinct positions, a readable surface and the sensor's range for one axis."""
@@ -343,6 +394,27 @@ class Truth(SetupBase):
 def incline_normal(setup: Setup) -> np.ndarray:
     i, az = math.radians(setup.incline_deg), math.radians(setup.incline_azimuth_deg)
     return np.array([math.sin(i) * math.cos(az), math.sin(i) * math.sin(az), math.cos(i)])
+
+
+def tilts(setup: Setup) -> tuple[np.ndarray, np.ndarray]:
+    """Magnitude [deg] and direction from +X [rad] of the nominal surface's tilt under the
+    sensor at every position: the angle of the normal from Z, the fall line's azimuth (P,)."""
+    n0 = incline_normal(setup)
+    normals = np.concatenate([nominal_rotations(a, np.deg2rad(setup.axis_angles(a))) @ n0
+                              for a in setup.axes])
+    tau = np.degrees(np.arccos(np.clip(normals[:, 2], -1.0, 1.0)))
+    return tau, np.arctan2(normals[:, 1], normals[:, 0])
+
+
+def sensor_tilts(setup: Setup) -> tuple[np.ndarray, np.ndarray]:
+    """The nominal surface's tilt in the sensor's frame at every position and pass, its
+    components along the triangulation plane and across it, tau cos phi and tau sin phi
+    (P, passes) [deg]: the sensor turned by 180 deg (the second pass of sensor_reversal)
+    sees both components reversed."""
+    tau, azimuth = tilts(setup)
+    phi = azimuth - math.radians(setup.sensor_azimuth_deg)
+    sign = np.array([1.0, -1.0][:setup.n_passes])
+    return (tau * np.cos(phi))[:, None] * sign, (tau * np.sin(phi))[:, None] * sign
 
 
 def nominal_rotations(axis: str, angles: np.ndarray) -> np.ndarray:
