@@ -379,8 +379,12 @@ def run_blocks(
             parallel_session(n_jobs, backend, scheduler) as session:
         tasks = ((*block_args, root, i, sizes(i)) for i in range(n_blocks_max))
         chunk = jobs if adaptive else None
+        # a fixed count in one block runs here: a worker would only add its start and the
+        # pickling of the model (the block draws the same numbers wherever it runs)
+        here = n_blocks_max == 1 and not adaptive and backend != "dask"
         for i, out in enumerate(
-            ordered_map(block_fn, tasks, n_jobs=session["n_jobs"], backend=backend, chunk=chunk)
+            ordered_map(block_fn, tasks, n_jobs=1 if here else session["n_jobs"],
+                        backend=backend, chunk=chunk)
         ):
             if names is None:
                 names = tuple(out)
