@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from mtplan.plans import study as study_module
+from mtplan.plans.study import runner
 from mtplan.plans.study import load_study, run_study
 from mtplan.plans.sweep import sweep
 
@@ -36,14 +36,14 @@ def test_shared_set_ups_run_once_and_give_the_tables_of_sweep_alone(tmp_path, mo
     path.write_text(STUDY, encoding="utf-8")
     study = load_study(path)
     ran = []
-    work = study_module._stage_work
+    work = runner._stage_work
 
     def counted(kind, ps, st, arg):
         if kind == "point":
             ran.append((arg.fields, arg.options, arg.estimators))
         return work(kind, ps, st, arg)
 
-    monkeypatch.setattr(study_module, "_stage_work", counted)
+    monkeypatch.setattr(runner, "_stage_work", counted)
     result = run_study(study, progress=False, readings=False)
     # 3 + 3 + 2 set-ups, the base set-up in the first two at 150 trials: 7 stages, each once;
     # the base set-up's stage evaluates the estimators of both sweeps

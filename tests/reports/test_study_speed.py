@@ -111,24 +111,24 @@ def test_the_cache_returns_the_stored_result_and_any_change_misses_it(small_stud
 
 def test_a_changed_source_file_misses_the_cache(small_study_file, monkeypatch, tmp_path):
     """The key hashes every file of the package: an edited module gives another key."""
-    import mtplan.plans.study as module
+    from mtplan.plans.study import cache as module
 
     study = load_study(small_study_file)
     key = study_cache_key(study)
-    real = module._sha256
+    real = module.file_sha256
     target = module.__file__
 
     def edited(path):
         return "edited" if str(path) == target else real(path)
 
-    monkeypatch.setattr(module, "_sha256", edited)
+    monkeypatch.setattr(module, "file_sha256", edited)
     assert study_cache_key(study) != key
 
 
 def test_the_cache_keeps_only_the_newest_results(tmp_path):
     import os
 
-    from mtplan.plans import study as module
+    from mtplan.plans.study import cache as module
 
     for i in range(module.CACHE_KEEP + 2):
         path = tmp_path / f"study-{i:064x}.pickle"

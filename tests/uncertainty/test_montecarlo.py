@@ -4,6 +4,7 @@ bounded memory, coverage intervals and error handling."""
 from __future__ import annotations
 
 import math
+import os
 import tracemalloc
 
 import numpy as np
@@ -59,6 +60,24 @@ def test_same_seed_same_result_adaptive_threading():
     other = propagate(additive, NORMAL4, n_jobs=2, backend="threading", **kw)
     assert ref.trials == other.trials
     _same(ref, other)
+
+
+RAN_IN: list[int] = []
+
+
+def pid_recorded(a, b):
+    RAN_IN.append(os.getpid())
+    return a + b
+
+
+def test_a_fixed_count_in_one_block_runs_here_whatever_the_workers():
+    """One block gains nothing from a worker (it would only pay for its start and the
+    model's pickling); its numbers are the same wherever it runs."""
+    RAN_IN.clear()
+    kw = dict(trials=1000, rng=5, progress=False)
+    here = propagate(pid_recorded, TWO_INPUTS, n_jobs=2, backend="loky", **kw)
+    assert RAN_IN == [os.getpid()]
+    _same(here, propagate(pid_recorded, TWO_INPUTS, n_jobs=1, **kw))
 
 
 def test_dask_local_cluster_gives_the_same_result():

@@ -45,18 +45,19 @@ RESULT_COLUMNS = ["estimator", "measurand", "unit", "true", "value", "bias", "u"
                   "trials", "converged", "duration_s", "error"]
 
 
-def _canonical(setup) -> str:
+def canonical(setup) -> str:
+    """A set-up's field values as text (sorted JSON): the same text, the same set-up."""
     return json.dumps(setup.as_dict(), sort_keys=True, default=str)
 
 
 def setup_id(setup) -> str:
     """A short stable identifier of a set-up's field values."""
-    return hashlib.sha1(_canonical(setup).encode()).hexdigest()[:12]
+    return hashlib.sha1(canonical(setup).encode()).hexdigest()[:12]
 
 
 def setup_seed(seed: int, setup) -> np.random.SeedSequence:
     """The seed of one set-up in a sweep: the sweep seed and a hash of its fields."""
-    key = zlib.crc32(_canonical(setup).encode())
+    key = zlib.crc32(canonical(setup).encode())
     return np.random.SeedSequence(entropy=int(seed), spawn_key=(key,))
 
 

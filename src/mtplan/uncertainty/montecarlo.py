@@ -397,14 +397,17 @@ def run_blocks(
     with one_blas_thread(), \
             parallel_session(n_jobs, backend, scheduler) as session:
         chunk = jobs if adaptive else None
+        # a fixed count in one block runs here: a worker would only add its start and the
+        # pickling of the model (the block draws the same numbers wherever it runs)
+        here = n_blocks_max == 1 and not adaptive and backend != "dask"
+        workers = 1 if here else session["n_jobs"]
         if cache is None or adaptive:
             tasks = ((*block_args, root, i, sizes(i)) for i in range(n_blocks_max))
-            outs = ordered_map(block_fn, tasks, n_jobs=session["n_jobs"], backend=backend,
-                               chunk=chunk)
+            outs = ordered_map(block_fn, tasks, n_jobs=workers, backend=backend, chunk=chunk)
         else:
             outs = _cached_blocks(block_fn, block_args, root, [sizes(i) for i in
                                                               range(n_blocks_max)],
-                                  cache, n_jobs=session["n_jobs"], backend=backend)
+                                  cache, n_jobs=workers, backend=backend)
         for i, out in enumerate(outs):
             if names is None:
                 names = tuple(out)

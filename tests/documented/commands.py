@@ -1,15 +1,19 @@
-"""Every example and every documented command runs as written.
+"""The documented commands, collected, and how one of them is run.
 
-The commands are collected from the header comments of the files in ``examples/`` and from
-README.md and docs/*.md (fenced and indented code blocks, inline code spans that begin with
-``mtplan``). A span with a placeholder (``PROC``, ``FILE``, ``NAME``, ``...``, ``A|B``,
+The commands are collected from README.md and docs/*.md (fenced and indented code blocks,
+inline code spans that begin with ``mtplan``) and from the header comments of the files in
+``examples/``. A span with a placeholder (``PROC``, ``FILE``, ``NAME``, ``...``, ``A|B``,
 ``[--json]``) is a template, not a command line; a header command with ``PROC`` is run for
-every procedure with an ``examples/PROC_readings.csv``. Each command runs in a scratch folder
-holding a copy of ``examples/`` (so a command that writes there changes nothing), with
-``MTPLAN_MAX_TRIALS`` capping its Monte Carlo trials, in two worker processes that import
-mtplan once. ``mtplan demo`` and ``mtplan report examples/demo.toml`` compute the shipped
-study, which ``tests/reports/test_report.py::test_demo_end_to_end`` runs end to end: here they
-are parsed and their study loaded.
+every procedure with an ``examples/PROC_readings.csv``. A command that several documents
+hold is tested once, with the first of them (README.md, then docs/ in name order, then
+examples/): ``test_readme.py``, ``test_docs.py`` and ``test_examples.py`` each run their
+own, one test per command, so that the test workers share them out.
+
+Each command runs in this process (mtplan imported once) in a scratch folder holding a copy
+of ``examples/`` (so a command that writes there changes nothing), with ``MTPLAN_MAX_TRIALS``
+capping its Monte Carlo trials. ``mtplan demo`` and ``mtplan report examples/demo.toml``
+compute the shipped study, which ``tests/reports/test_report.py::test_demo_end_to_end`` runs
+end to end: here they are parsed and their study loaded.
 """
 
 from __future__ import annotations
@@ -18,17 +22,16 @@ import contextlib
 import glob
 import io
 import json
-import os
 import re
 import shlex
 import shutil
 import traceback
-from concurrent.futures import ProcessPoolExecutor
+from fnmatch import fnmatch
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"
 DOCUMENTS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 #: the trial cap of every command here (the planner's confirmation needs 100)
@@ -119,28 +122,55 @@ def _from_examples():
 
 EXAMPLE_COMMANDS = _from_examples()
 DOCUMENT_COMMANDS = _from_documents()
-COMMANDS = sorted({tuple(argv) for _, argv in EXAMPLE_COMMANDS + DOCUMENT_COMMANDS})
+#: every distinct command -> the first file that documents it
+FIRST_SOURCE = {}
+for _source, _argv in DOCUMENT_COMMANDS + EXAMPLE_COMMANDS:
+    FIRST_SOURCE.setdefault(tuple(_argv), _source)
+COMMANDS = sorted(FIRST_SOURCE)
 
 
-def _run(argv, folder):
-    """One command in-process in `folder`: (status, stdout, stderr)."""
+def documented_first_in(pattern: str) -> list[tuple]:
+    """The commands whose first source (:data:`FIRST_SOURCE`) matches `pattern` (a glob
+    relative to the repository)."""
+    return [argv for argv in COMMANDS if fnmatch(FIRST_SOURCE[argv], pattern)]
+
+
+def command_id(argv) -> str:
+    """A test id: the command line, cut at 70 characters."""
+    return " ".join(argv)[:70]
+
+
+def run(argv, folder: Path):
+    """One command in this process, in `folder` holding a copy of ``examples/``: (status,
+    stdout, stderr). The working folder and the trial cap are this call's only."""
     from mtplan.cli import main
 
-    os.environ["MTPLAN_MAX_TRIALS"] = MAX_TRIALS
-    os.chdir(folder)
-    if argv[0] in SERVER_COMMANDS:
-        return _serve_once(argv)
-    argv = [w for word in argv for w in (sorted(glob.glob(word)) or [word] if "*" in word
-                                         else [word])]  # as the shell expands a pattern
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            code = (_check_study_command(argv) if argv[0] in STUDY_COMMANDS
-                    else main(list(argv)))
-        except Exception:  # noqa: BLE001 - reported by the command's own test
-            code = "exception"
-            err.write(traceback.format_exc())
-    return code, out.getvalue(), err.getvalue()
+    shutil.copytree(EXAMPLES, folder / "examples")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("MTPLAN_MAX_TRIALS", MAX_TRIALS)
+        mp.chdir(folder)
+        if argv[0] in SERVER_COMMANDS:
+            return _serve_once(argv)
+        argv = [w for word in argv for w in (sorted(glob.glob(word)) or [word] if "*" in word
+                                             else [word])]  # as the shell expands a pattern
+        out, err = io.StringIO(), io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                code = (_check_study_command(argv) if argv[0] in STUDY_COMMANDS
+                        else main(list(argv)))
+            except Exception:  # noqa: BLE001 - reported by the command's own test
+                code = "exception"
+                err.write(traceback.format_exc())
+        return code, out.getvalue(), err.getvalue()
+
+
+def check(argv, outcome) -> None:
+    """The command ended with status 0, without a traceback, its ``--json`` output JSON."""
+    code, out, err = outcome
+    assert code == 0, f"mtplan {shlex.join(argv)}: status {code}\n{err[-2000:]}"
+    assert "Traceback" not in err
+    if "--json" in argv:
+        json.loads(out)
 
 
 def _serve_once(argv):
@@ -193,44 +223,3 @@ def _check_study_command(argv) -> int:
     assert study.resolve() == (EXAMPLES / "demo.toml").resolve() or argv[0] == "report"
     load_study(study)
     return 0
-
-
-@pytest.fixture(scope="module")
-def outcomes(tmp_path_factory):
-    """Every command's (status, stdout, stderr), each in its own copy of examples/."""
-    folders = []
-    for i, _ in enumerate(COMMANDS):
-        folder = tmp_path_factory.mktemp(f"cmd{i}")
-        shutil.copytree(EXAMPLES, folder / "examples")
-        folders.append(folder)
-    with ProcessPoolExecutor(max_workers=2) as pool:
-        results = list(pool.map(_run, COMMANDS, folders))
-    return dict(zip(COMMANDS, results, strict=True))
-
-
-def test_the_commands_are_found():
-    """The collection finds what the documents hold (a change of format must not hide them)."""
-    assert len(DOCUMENT_COMMANDS) >= 20
-    headers = {tuple(a) for f, a in EXAMPLE_COMMANDS if f.endswith("geometry21_all21.toml")}
-    assert headers == {("plan", "geometry21", "--config", "examples/geometry21_all21.toml"),
-                       ("simulate", "geometry21", "--config", "examples/geometry21_all21.toml",
-                        "--json")}
-    used = " ".join(" ".join(argv) for argv in COMMANDS)
-    for path in EXAMPLES.iterdir():  # every example file is used by a command
-        assert f"examples/{path.name}" in used, path.name
-
-
-@pytest.mark.parametrize("argv", COMMANDS, ids=[" ".join(a)[:70] for a in COMMANDS])
-def test_documented_command_runs(outcomes, argv):
-    code, out, err = outcomes[argv]
-    assert code == 0, f"mtplan {shlex.join(argv)}: status {code}\n{err[-2000:]}"
-    assert "Traceback" not in err
-    if "--json" in argv:
-        json.loads(out)
-
-
-def test_all21_simulation_lists_every_error(outcomes):
-    argv = ("simulate", "geometry21", "--config", "examples/geometry21_all21.toml", "--json")
-    doc = json.loads(outcomes[argv][1])
-    assert len(doc["measurands"]) == 21
-    assert all(m["determinable"] and m["u"] > 0 for m in doc["measurands"])
