@@ -69,6 +69,7 @@ __all__ = [
     "Source",
     "SetupBase",
     "param",
+    "with_conditions",
     "fields_info",
     "split_unit",
     "shown_with_unit",
@@ -196,6 +197,7 @@ def param(
     choices: tuple | None = None,
     min_len: int | None = None,
     reader: Callable | None = None,
+    condition: str | None = None,
 ):
     """Declare a set-up (or truth) field with its documentation and allowed range.
 
@@ -210,6 +212,11 @@ def param(
     working directory, or from the set-up file that states it (:func:`resolve_file_fields`).
     Tools that must not open a user's path (the browser designer) leave file fields out
     (:func:`file_fields`).
+
+    A field with a `condition` is a measured test condition (a ``float | None``, None: not
+    measured) that a study records once for the whole test in its ``[conditions]`` table
+    under that key: where the set-up leaves the field None, the readings are evaluated with
+    the recorded value (:func:`with_conditions`).
     """
     meta = {
         "doc": doc,
@@ -220,10 +227,21 @@ def param(
         "choices": choices,
         "min_len": min_len,
         "reader": reader,
+        "condition": condition,
     }
     if isinstance(default, list):
         default = tuple(default)
     return dataclasses.field(default=default, metadata=meta)
+
+
+def with_conditions(setup, conditions: dict):
+    """`setup` with each field that declares a ``condition`` and is None (not measured) set
+    to the value the test's `conditions` record under that key; `setup` itself where none
+    applies. The set-up's own value wins: a test may state its own measurement."""
+    changes = {f.name: conditions[f.metadata["condition"]]
+               for f in dataclasses.fields(setup)
+               if f.metadata.get("condition") in conditions and getattr(setup, f.name) is None}
+    return dataclasses.replace(setup, **changes) if changes else setup
 
 
 def _base_type(tp):

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mtplan._validate import InvalidInput
+from mtplan.models.protocol import with_conditions
 from mtplan.plans.study.provenance import provenance
 from mtplan.plans.study.schema import ProcedureStudy, Study
 
@@ -495,8 +496,9 @@ def _run_measured(proc, ps, study, recommended, file=None):
     from mtplan.evaluation import measured
 
     spec = ps.readings
-    readings = measured.read_readings(proc, ps.setup, file or spec["file"])
-    return measured.estimate_measured(proc, ps.setup, readings,
+    setup = with_conditions(ps.setup, study.conditions)
+    readings = measured.read_readings(proc, setup, file or spec["file"])
+    return measured.estimate_measured(proc, setup, readings,
                                       estimator=spec.get("estimator") or recommended,
                                       uncertainty=spec.get("uncertainty", "mc"),
                                       trials=spec.get("trials", 10_000), coverage=study.coverage,

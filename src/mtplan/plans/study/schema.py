@@ -57,6 +57,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from mtplan._validate import InvalidInput
+from mtplan.models.protocol import with_conditions
 
 __all__ = ["Study", "ProcedureStudy", "HEADER_KEYS", "CONDITION_KEYS", "REQUIREMENT_KEYS",
            "LARGER_U", "INSTRUMENT_KINDS", "UNHONOURED_STANDARDS", "load_study"]
@@ -90,9 +91,13 @@ REQUIREMENT_KEYS = {
     "schedule": ("schedule", "text"),
 }
 #: the test conditions (ISO 230-1 6, ISO 230-2 5.1): key -> (label, kind)
+#: a measured temperature that a procedure's set-up field declares as its ``condition``
+#: corrects that procedure's readings (models.protocol.with_conditions)
 CONDITION_KEYS = {"ambient_temperature_c": ("ambient temperature", "temperature"),
                   "machine_temperature_c": ("machine temperature", "temperature"),
                   "part_temperature_c": ("part (artefact) temperature", "temperature"),
+                  "air_gradient_k_per_m": ("vertical gradient of the air's temperature "
+                                           "(K/m, warm air above positive)", "gradient"),
                   "warm_up": ("warm-up before the test", "text"),
                   "compensation": ("machine's error compensation", "bool"),
                   "notes": ("other conditions", "text")}
@@ -230,6 +235,13 @@ def load_study(source) -> Study:
             if used not in names:
                 problems.append(f"instrument #{j + 1} 'used_in' names {used!r}, which is no "
                                 f"procedure of the study ({', '.join(sorted(names))}).")
+    for i, ps in enumerate(out):  # the readings are evaluated at the recorded conditions
+        if ps is not None and ps.setup is not None and ps.readings is not None:
+            try:
+                with_conditions(ps.setup, certificate["conditions"])
+            except InvalidInput as exc:
+                problems += [f"procedure #{i + 1} ({ps.name}) at the study's conditions: {p}"
+                             for p in exc.problems]
     if problems:
         raise InvalidInput(problems)
     meta = {k: str(data[k]) for k in ("subtitle", "customer", "machine", "author") if k in data}
@@ -329,6 +341,11 @@ def _certificate(data, header, problems) -> dict:
                                           and -30 <= value <= 60):
             problems.append(f"The study's conditions {key!r} must be a number from -30 to 60 "
                             f"[degC]. Got {value!r} instead.")
+        elif kind == "gradient" and not (isinstance(value, int | float)
+                                         and not isinstance(value, bool)
+                                         and -10 <= value <= 10):
+            problems.append(f"The study's conditions {key!r} must be a number from -10 to 10 "
+                            f"[K/m]. Got {value!r} instead.")
         elif kind == "bool" and not isinstance(value, bool):
             problems.append(f"The study's conditions {key!r} must be true (on) or false "
                             f"(off). Got {value!r} instead.")
@@ -336,7 +353,7 @@ def _certificate(data, header, problems) -> dict:
             problems.append(f"The study's conditions {key!r} must be text. Got {value!r} "
                             "instead.")
         elif kind is not None:
-            conditions[key] = float(value) if kind == "temperature" else value
+            conditions[key] = float(value) if kind in ("temperature", "gradient") else value
     instruments = data.get("instrument", [])
     if not isinstance(instruments, list) or not all(isinstance(x, dict) for x in instruments):
         problems.append("The study's 'instrument' must be an array of tables ([[instrument]]).")
