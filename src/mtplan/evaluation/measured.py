@@ -831,7 +831,11 @@ def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage
                             trials=trials, coverage=coverage, root=root, seed=seed,
                             notes=notes, progress=progress, draws=nuisance_draws,
                             n_jobs=n_jobs)
-        return _with_fit(result, proc, readings, fit_alpha, noise="setup", origin=origin)
+        # the fit check starts where the readings' least squares that conditioned the Monte
+        # Carlo started (correction's, from the first exact estimator's estimate): the same
+        # generalised least squares, computed once (posterior._start remembers it)
+        return _with_fit(result, proc, readings, fit_alpha, noise="setup", origin=origin,
+                         start=None)
     from mtplan.evaluation.posterior import sample_posterior
 
     start_ok = np.all(np.isfinite(estimate))
@@ -854,14 +858,17 @@ def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage
         high=np.array([post.high[n] for n in names]),
         coverage=float(coverage), seed=seed, details=post,
         covariance=posterior_covariance(post, names), notes=notes), proc, readings,
-        fit_alpha, noise=noise, origin=origin)
+        fit_alpha, noise=noise, origin=origin, start=est_name)
 
 
-def _with_fit(result: MeasuredResult, proc, readings, alpha, *, noise, origin) -> MeasuredResult:
-    """The result with its fit check (:attr:`MeasuredResult.fit`); none when `alpha` is None."""
+def _with_fit(result: MeasuredResult, proc, readings, alpha, *, noise, origin,
+              start: str | None) -> MeasuredResult:
+    """The result with its fit check (:attr:`MeasuredResult.fit`); none when `alpha` is None.
+    `start`: the estimator whose estimate starts the check's least squares (None: the first
+    exact one's), that of the evaluation's own least squares, so that the fit is shared."""
     if alpha is not None:
         from mtplan.evaluation.fitcheck import fit_check
 
         result.fit = fit_check(proc, result.setup, readings, alpha=alpha,
-                               noise=noise, estimator=result.estimator, origin=origin)
+                               noise=noise, estimator=start, origin=origin)
     return result
