@@ -305,3 +305,27 @@ def test_the_docs_examples_are_what_the_check_prints():
     assert (f"(default {FIT_ALPHA:g}, `--fit-alpha`)" in doc and f"`W_SHARE = {W_SHARE:g}`"
             in doc and f"({a_chi2:g} and {a_w:g} at the default" in doc)
     assert f"{w_limit(a_w, 150):.2f} for 150 readings at {a_w:g}" in doc
+
+
+def test_mc_evaluation_shares_its_least_squares_with_the_fit_check(monkeypatch):
+    """The `mc` evaluation's readings least squares (correction's, which conditions the
+    Monte Carlo) and the fit check's are one generalised least squares, fitted once: the
+    check is the one started from the first exact estimator, whichever estimator gave the
+    estimate."""
+    from mtplan.evaluation import correction, posterior
+
+    proc = get("circle_centre")
+    setup = proc.Setup(n_points=6)
+    readings = proc.simulate(setup, proc.Truth(), 1, rng=4)
+    calls = []
+    real = posterior._fit_start
+    monkeypatch.setattr(posterior, "_fit_start", lambda *a: calls.append(1) or real(*a))
+    monkeypatch.setattr(posterior, "_STARTS", {})
+    monkeypatch.setattr(correction, "_CACHE", {})
+    res = estimate_measured(proc, setup, readings, trials=200, rng=0,
+                            estimator=proc.exact_names[-1])
+    assert proc.exact_names[-1] != proc.exact_names[0] and len(calls) == 1
+    alone = fit_check(proc, setup, readings)
+    assert len(calls) == 1
+    assert res.fit.dof == alone.dof and res.fit.chi2 == alone.chi2 and res.fit.ok is not None
+    np.testing.assert_array_equal(res.fit.z, alone.z)

@@ -113,3 +113,20 @@ def test_a_broken_plugin_is_named_and_the_others_work(site, capsys):
     err = capsys.readouterr().err
     assert len(err.splitlines()) == 1 and "names a float" in err
     assert cli.main(["simulate", "toy_line", "--trials", "100"]) == 0
+
+
+def test_a_built_in_procedure_by_name_loads_alone():
+    """``get`` of a built-in procedure before the registry is loaded imports that procedure
+    alone (a command on one procedure does not import the others), and it is the object the
+    registry then holds."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from mtplan.models import get, registry; p = get('circle_centre'); "
+            "others = sorted(m for m in sys.modules if m.split('.')[:2] == ['mtplan', 'models'] "
+            "and m.count('.') >= 2 and m.split('.')[2] in " + repr(sorted(BUILT_IN)) + "); "
+            "print(others); assert registry()['circle_centre'] is p")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=PYPROJECT.parent)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["['mtplan.models.circle_centre']"]

@@ -260,8 +260,15 @@ def _choose_estimator(proc, setup) -> tuple[tuple[str, float], ...]:
         std = np.asarray(r.mc.std, dtype=float)
         return float(np.mean(np.log(std))) if np.all(np.isfinite(std) & (std > 0)) else None
 
-    # a quarter of the pilot first; the estimators within 20 % of the best get the whole
-    # pilot (a clear winner, like line_laser's pattern at 2.9 times, costs a quarter)
+    # a sixteenth of the pilot first: an estimator whose u is less than half every other's
+    # (line_laser's pattern, 2.7 times) is clear there (the standard error of a log u from
+    # 25 trials is 0.15, of a difference of two at most 0.2; log 2 is 3.4 of it); else a
+    # quarter of the pilot, and the estimators within 20 % of the best the whole pilot
+    first = {e: score(e, PILOT_TRIALS // 16) for e in candidates}
+    if None not in first.values():
+        ranked = sorted(first, key=first.get)
+        if first[ranked[1]] - first[ranked[0]] > math.log(2.0):
+            return tuple((e, math.exp(first[e] - first[ranked[0]])) for e in ranked)
     scores = {e: v for e in candidates if (v := score(e, PILOT_TRIALS // 4)) is not None}
     if scores:
         close = [e for e, v in scores.items() if v - min(scores.values()) < math.log(1.2)]
@@ -279,8 +286,9 @@ def best_estimator(procedure, setup) -> str:
     Among the procedure's exact estimators (those that recover every measurand from
     noise-free readings), the one with the smallest geometric mean of the Monte
     Carlo standard uncertainties at this set-up and the default truth
-    (``PILOT_TRIALS`` trials, common random numbers; a quarter of them where one is more
-    than 20 % better than the rest); the procedure's default
+    (``PILOT_TRIALS`` trials, common random numbers; a sixteenth of them where one's is
+    less than half every other's, a quarter where one is more than 20 % better than the
+    rest); the procedure's default
     estimator when it has none.
     """
     from mtplan.models import get
@@ -831,7 +839,11 @@ def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage
                             trials=trials, coverage=coverage, root=root, seed=seed,
                             notes=notes, progress=progress, draws=nuisance_draws,
                             n_jobs=n_jobs)
-        return _with_fit(result, proc, readings, fit_alpha, noise="setup", origin=origin)
+        # the fit check starts where the readings' least squares that conditioned the Monte
+        # Carlo started (correction's, from the first exact estimator's estimate): the same
+        # generalised least squares, computed once (posterior._start remembers it)
+        return _with_fit(result, proc, readings, fit_alpha, noise="setup", origin=origin,
+                         start=None)
     from mtplan.evaluation.posterior import sample_posterior
 
     start_ok = np.all(np.isfinite(estimate))
@@ -854,14 +866,17 @@ def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage
         high=np.array([post.high[n] for n in names]),
         coverage=float(coverage), seed=seed, details=post,
         covariance=posterior_covariance(post, names), notes=notes), proc, readings,
-        fit_alpha, noise=noise, origin=origin)
+        fit_alpha, noise=noise, origin=origin, start=est_name)
 
 
-def _with_fit(result: MeasuredResult, proc, readings, alpha, *, noise, origin) -> MeasuredResult:
-    """The result with its fit check (:attr:`MeasuredResult.fit`); none when `alpha` is None."""
+def _with_fit(result: MeasuredResult, proc, readings, alpha, *, noise, origin,
+              start: str | None) -> MeasuredResult:
+    """The result with its fit check (:attr:`MeasuredResult.fit`); none when `alpha` is None.
+    `start`: the estimator whose estimate starts the check's least squares (None: the first
+    exact one's), that of the evaluation's own least squares, so that the fit is shared."""
     if alpha is not None:
         from mtplan.evaluation.fitcheck import fit_check
 
         result.fit = fit_check(proc, result.setup, readings, alpha=alpha,
-                               noise=noise, estimator=result.estimator, origin=origin)
+                               noise=noise, estimator=start, origin=origin)
     return result

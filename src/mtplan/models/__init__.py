@@ -124,6 +124,12 @@ def get(name) -> Procedure:
     """The procedure called `name` (a Procedure passes through)."""
     if isinstance(name, Procedure):
         return name
+    if _REGISTRY is None:  # a built-in procedure alone, without importing the others
+        point = next((p for p in entry_points(group=ENTRY_POINT_GROUP, name=name)
+                      if _distribution(p) == "mtplan"), None)
+        proc = None if point is None else _load(point, {})[0]
+        if proc is not None:  # the object registry() gives: a built-in is never replaced
+            return proc
     procs = registry()
     if name not in procs:
         reasons = [why for point, why in _BROKEN if point == name]

@@ -125,9 +125,9 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
 from mtplan.fitting import gls_step
@@ -144,6 +144,9 @@ from mtplan.models.protocol import (
     param,
 )
 from mtplan.uncertainty import Normal, Rectangular
+
+if TYPE_CHECKING:  # pandas only where a table is made or read: not in a Monte Carlo's workers
+    import pandas as pd
 
 __all__ = [
     "Setup",
@@ -1241,6 +1244,8 @@ def _labels(n_points: int) -> list[str]:
 
 def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
     """One measurement as a tidy frame: columns ``point`` (p1, p2, d1..dn), ``x_mm``, ``y_mm``."""
+    import pandas as pd
+
     px = np.asarray(readings["p_x_mm"], dtype=float)[0]
     py = np.asarray(readings["p_y_mm"], dtype=float)[0]
     x = np.asarray(readings["x_mm"], dtype=float)[0]
@@ -1256,6 +1261,8 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
     ``point`` column every row is a measuring point d1..dn in order, and p1, p2 (which
     only the acceptance check uses) are taken as unknown (NaN).
     """
+    import pandas as pd
+
     p = Problems("circle_centre data")
     for col in ("x_mm", "y_mm"):
         if col not in df.columns:
@@ -1367,6 +1374,8 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     whose random sources are too small to give that scatter at 99.9 % confidence is
     raised so that they give ``s``.
     """
+    import pandas as pd
+
     from scipy import special
 
     from mtplan.models.protocol import Implied

@@ -475,8 +475,8 @@ class _CallbackBar:
 
 
 def _progress(progress, total, label):
-    if progress is False:
-        return None
+    if progress is False or (progress is None and not sys.stderr.isatty()):
+        return None  # no bar: tqdm (a quarter second of imports) is not loaded
     if callable(progress):
         return _CallbackBar(progress, total)
     try:
@@ -484,7 +484,7 @@ def _progress(progress, total, label):
     except ImportError:  # pragma: no cover
         return None
     return tqdm(total=total, desc=label, unit="trial", unit_scale=True, delay=1.0,
-                file=sys.stderr, leave=False, disable=progress is None and not sys.stderr.isatty())
+                file=sys.stderr, leave=False)
 
 
 def check_run_options(p: Problems, trials, digits, coverage, interval, max_trials=None, block_size=None):

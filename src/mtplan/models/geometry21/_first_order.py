@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from mtplan._parallel import one_blas_thread
 from mtplan._validate import Problems
@@ -40,6 +40,9 @@ from mtplan.models.geometry21._setup import (
     truth_coefficients,
     truth_rows,
 )
+
+if TYPE_CHECKING:  # pandas only where a table is made: not in a Monte Carlo's workers
+    import pandas as pd
 
 
 def _one_blas_thread(fn):
@@ -95,6 +98,8 @@ def identifiability(setup: Setup | None = None, estimator: str = "joint") -> pd.
     a typical error of each confounding function [um or urad]); from
     :func:`mtplan.fitting.linear.function_status`.
     """
+    import pandas as pd
+
     setup = Setup() if setup is None else setup
     check_estimator(estimator)
     ji = joint_ident(setup)
@@ -269,6 +274,8 @@ def budget(setup: Setup | None = None, *, estimator: str = "joint",
     uncertainty due to that source alone, display unit) and ``share`` (its fraction of
     the measurand's variance; the sources are independent, so the shares add to 1).
     """
+    import pandas as pd
+
     setup = Setup() if setup is None else setup
     check_estimator(estimator)
     var = _measurand_variances(setup, estimator, truth, None)
@@ -369,6 +376,8 @@ def error_functions(setup: Setup | None = None, readings: dict | None = None, *,
     ``inf`` where the data do not determine the value, never NaN) and ``status`` (from
     :func:`identifiability`). Squareness errors are constants: one row at position 0.
     """
+    import pandas as pd
+
     setup = Setup() if setup is None else setup
     check_estimator(estimator)
     p = Problems("error_functions")
@@ -438,6 +447,8 @@ def noise_free_table(setup: Setup | None = None, *, scales=(1.0, 10.0, 100.0),
     ``angular_scale``, ``true``, ``error`` (estimate - truth, display unit) and
     ``relative`` (error / true).
     """
+    import pandas as pd
+
     setup = Setup() if setup is None else setup
     base = Truth() if truth is None else truth
     proc = MODEL

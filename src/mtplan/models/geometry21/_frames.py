@@ -3,14 +3,16 @@ back, and the set-up a measured table implies (``ReadingsFormat.setup_from_frame
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import numpy as np
-import pandas as pd
-import pandas as pd
 
 from mtplan._validate import InvalidInput
 from mtplan.models.geometry21._layout import geometry
 from mtplan.models.geometry21._setup import PLANES, TEST_NAMES, Setup
+
+if TYPE_CHECKING:  # pandas only where a table is made or read: not in a Monte Carlo's workers
+    import pandas as pd
 
 
 
@@ -25,6 +27,8 @@ def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
     first and second axis, relative to the plate's nominal origin). Tables without the
     ``head`` column (written before head positions existed) are read as all head 0.
     """
+    import pandas as pd
+
     geo = geometry(setup)
     r = np.asarray(readings["plate_mm"])[0]
     return pd.DataFrame({
@@ -40,6 +44,8 @@ def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
 
 def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
     """Readings (a batch of one) from a table in the format of :func:`readings_frame`."""
+    import pandas as pd
+
     geo = geometry(setup)
     need = ["plane", "test", "pass", "point", "x_mm", "y_mm", "z_mm", "u_mm", "v_mm"]
     missing = [c for c in need if c not in df.columns]
@@ -96,6 +102,8 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     not regular enough to tell, the field is left out and the design check names the
     offending row.
     """
+    import pandas as pd
+
     from mtplan.models.protocol import Implied
 
     tol = 1e-6

@@ -4,13 +4,17 @@ back, the range a reading must lie in, and the set-up a measured table implies.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import pandas as pd
 
 from mtplan._validate import Problems
 from mtplan.models.line_laser._artifact import grid_u, grid_y
 from mtplan.models.line_laser._setup import Setup
 from mtplan.models.protocol import frame_columns
+
+if TYPE_CHECKING:  # pandas only where a table is made or read: not in a Monte Carlo's workers
+    import pandas as pd
 
 
 _COLUMNS = ("scan", "line", "point", "x_mm", "y_mm", "z_mm")
@@ -23,6 +27,8 @@ def readings_frame(setup, readings) -> pd.DataFrame:
     (0..points_per_line-1), ``x_mm`` (position along the laser line), ``y_mm``
     (nominal machine Y of the trigger), ``z_mm`` (reported height).
     """
+    import pandas as pd
+
     z = np.asarray(readings["z_mm"], dtype=float)[0]
     k, j, i = np.meshgrid(np.arange(3), np.arange(setup.lines), np.arange(setup.points_per_line),
                           indexing="ij")
@@ -100,6 +106,8 @@ def setup_from_frame(df: pd.DataFrame) -> dict:
     each within 1e-6 mm. Where the table is not regular enough to tell, the field is left
     out and the design check names the offending row.
     """
+    import pandas as pd
+
     from mtplan.models.protocol import Implied
 
     tol = 1e-6
