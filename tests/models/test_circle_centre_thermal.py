@@ -164,6 +164,8 @@ def test_a_far_datum_with_more_points_keeps_the_fit_check_and_the_posterior(chan
     mc = estimate_measured(P, setup, readings, trials=4000, rng=0)
     fit = post.fit
     assert fit.ok is not None and fit.p_value > 1e-3 and fit.chi2 / fit.dof < 3, fit.summary()
-    assert mc.fit.chi2 == pytest.approx(fit.chi2, rel=1e-6)
+    # the budget is linearised where each least squares starts (the mc evaluation's first
+    # exact estimator, the posterior's own): the two chi-squares agree to that, not to 1e-6
+    assert mc.fit.chi2 == pytest.approx(fit.chi2, rel=1e-4)
     ratio = post.std / mc.std
     assert np.all((0.85 - 0.058 <= ratio) & (ratio <= 1.15 + 0.058)), ratio

@@ -36,7 +36,8 @@ def cmd_procedures(args):
                            for m in proc.measurands(setup)],
             "sources": {k: s.description for k, s in proc.sources(setup).items()},
             "setup": [{k: (list(v) if isinstance(v, tuple) else v) for k, v in f.items()
-                       if k in ("name", "default", "unit", "doc", "low", "high", "choices")}
+                       if k in ("name", "default", "unit", "doc", "low", "high", "choices",
+                                "condition")}
                       for f in fields_info(proc.Setup)],
         })
     if args.json:
@@ -51,6 +52,8 @@ def cmd_procedures(args):
         for f in d["setup"]:
             default = f["default"]
             default = "empty" if default is None else default  # the doc says what it means
-            print(f"    {f['name']} = {default}    {f['doc']}")
+            also = (f"; in a study, [conditions] {f['condition']} fills it when the readings "
+                    "are evaluated" if f.get("condition") else "")
+            print(f"    {f['name']} = {default}    {f['doc']}{also}")
         print()
     return 0

@@ -198,9 +198,8 @@ class Setup(SetupBase):
     part_temperature_c: float | None = param(
         None, doc="Measured temperature of the part [degC] (ISO 1's reference is 20 degC): "
         "the estimates are corrected to 20 degC with it; empty: not measured, the part is "
-        "assumed at 20 degC within +-part_temperature_halfwidth_k and nothing is corrected; "
-        "a study's [conditions] part_temperature_c stands for it when the readings are "
-        "evaluated", low=10, high=40, condition="part_temperature_c")
+        "assumed at 20 degC within +-part_temperature_halfwidth_k and nothing is corrected",
+        low=10, high=40, condition="part_temperature_c")
     part_temperature_u_k: float = param(
         0.2, doc="Standard uncertainty of the measured part temperature (thermometer's "
         "calibration, its contact, one reading standing for the whole part; ISO/TR 16015 "
@@ -218,9 +217,8 @@ class Setup(SetupBase):
     scale_temperature_c: float | None = param(
         None, doc="Measured temperature of the stage's scales (or of the machine structure "
         "that carries them) [degC]; empty: not measured, the scales are taken at the part's "
-        "temperature within +-scale_temperature_halfwidth_k; a study's [conditions] "
-        "machine_temperature_c stands for it when the readings are evaluated", low=10,
-        high=40, condition="machine_temperature_c")
+        "temperature within +-scale_temperature_halfwidth_k", low=10, high=40,
+        condition="machine_temperature_c")
     scale_temperature_u_k: float = param(
         0.2, doc="Standard uncertainty of the measured scale temperature [K]; used when "
         "scale_temperature_c is given", low=0, high=10)

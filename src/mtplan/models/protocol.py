@@ -286,6 +286,7 @@ def _fields_info(cls) -> tuple:
                 **{k: f.metadata.get(k) for k in ("doc", "low", "high", "low_open", "high_open",
                                                  "choices", "min_len")},
                 "file": f.metadata.get("reader") is not None,
+                "condition": f.metadata.get("condition"),
             }
         )
     return tuple(out)

@@ -270,9 +270,8 @@ class Setup(SetupBase):
         None, doc="Measured temperature of the bed and gantry [degC] (the mean of sensors on "
         "the structure): the frames are corrected to 20 degC, the marks' reference "
         "temperature (ISO 1); empty: not measured, the structure is assumed at 20 degC within "
-        "+-structure_temperature_halfwidth_k and nothing is corrected; a study's [conditions] "
-        "machine_temperature_c stands for it when the readings are evaluated", low=10,
-        high=40, condition="machine_temperature_c")
+        "+-structure_temperature_halfwidth_k and nothing is corrected", low=10, high=40,
+        condition="machine_temperature_c")
     structure_temperature_u_k: float = param(
         0.3, doc="Standard uncertainty of the measured structure temperature as the mean "
         "temperature of the bed and gantry [K] (calibrated contact sensors 0.1 K; a weldment "
@@ -291,9 +290,8 @@ class Setup(SetupBase):
         None, doc="Measured vertical gradient of the air's temperature along the beams [K/m], "
         "positive with warm air above (two thermometers at different heights): every "
         "estimator corrects the elevations for the beams' bending; empty: not measured, "
-        "the gradient is taken uniform between 0 and air_gradient_range_k_per_m; a study's "
-        "[conditions] air_gradient_k_per_m stands for it when the readings are evaluated",
-        low=-10, high=10, condition="air_gradient_k_per_m")
+        "the gradient is taken uniform between 0 and air_gradient_range_k_per_m", low=-10,
+        high=10, condition="air_gradient_k_per_m")
     air_gradient_u_k_per_m: float = param(
         0.2, doc="Standard uncertainty of the measured gradient as the mean along the beams "
         "[K/m] (two thermometers of 0.1 K a metre apart, 0.14 K/m, and the gradient's "
