@@ -47,6 +47,9 @@ __all__ = ["Capabilities", "Estimator", "Measurand", "Procedure", "ReadingsForma
 ENTRY_POINT_GROUP = "mtplan.procedures"
 
 _REGISTRY: dict[str, Procedure] | None = None
+#: built-in procedures :func:`get` loaded alone before the registry was (looking an entry
+#: point up reads every installed package's metadata: tens of milliseconds a call)
+_ALONE: dict[str, Procedure] = {}
 #: (entry point's name, why it gave no procedure), from the last :func:`registry` scan
 _BROKEN: list[tuple[str, str]] = []
 
@@ -125,11 +128,14 @@ def get(name) -> Procedure:
     if isinstance(name, Procedure):
         return name
     if _REGISTRY is None:  # a built-in procedure alone, without importing the others
-        point = next((p for p in entry_points(group=ENTRY_POINT_GROUP, name=name)
-                      if _distribution(p) == "mtplan"), None)
-        proc = None if point is None else _load(point, {})[0]
-        if proc is not None:  # the object registry() gives: a built-in is never replaced
-            return proc
+        if name not in _ALONE:
+            point = next((p for p in entry_points(group=ENTRY_POINT_GROUP, name=name)
+                          if _distribution(p) == "mtplan"), None)
+            proc = None if point is None else _load(point, {})[0]
+            if proc is not None:  # the object registry() gives: a built-in is never replaced
+                _ALONE[name] = proc
+        if name in _ALONE:
+            return _ALONE[name]
     procs = registry()
     if name not in procs:
         reasons = [why for point, why in _BROKEN if point == name]
