@@ -326,34 +326,10 @@ def _certificate(data, header, problems) -> dict:
         problems.append("The study's 'laboratory' must be a table.")
         lab = {}
     _unknown(problems, "The study's laboratory", lab, _LAB_KEYS)
-    cond = data.get("conditions", {})
-    if not isinstance(cond, dict):
-        problems.append("The study's 'conditions' must be a table.")
-        cond = {}
-    _unknown(problems, "The study's conditions", cond, set(CONDITION_KEYS))
     conditions = {}
     if "ambient_temperature_c" in header:
         conditions["ambient_temperature_c"] = header["ambient_temperature_c"]
-    for key, value in cond.items():
-        kind = CONDITION_KEYS.get(key, (None, None))[1]
-        if kind == "temperature" and not (isinstance(value, int | float)
-                                          and not isinstance(value, bool)
-                                          and -30 <= value <= 60):
-            problems.append(f"The study's conditions {key!r} must be a number from -30 to 60 "
-                            f"[degC]. Got {value!r} instead.")
-        elif kind == "gradient" and not (isinstance(value, int | float)
-                                         and not isinstance(value, bool)
-                                         and -10 <= value <= 10):
-            problems.append(f"The study's conditions {key!r} must be a number from -10 to 10 "
-                            f"[K/m]. Got {value!r} instead.")
-        elif kind == "bool" and not isinstance(value, bool):
-            problems.append(f"The study's conditions {key!r} must be true (on) or false "
-                            f"(off). Got {value!r} instead.")
-        elif kind == "text" and not isinstance(value, str):
-            problems.append(f"The study's conditions {key!r} must be text. Got {value!r} "
-                            "instead.")
-        elif kind is not None:
-            conditions[key] = float(value) if kind in ("temperature", "gradient") else value
+    conditions.update(_typed_table(data, "conditions", CONDITION_KEYS, problems))
     instruments = data.get("instrument", [])
     if not isinstance(instruments, list) or not all(isinstance(x, dict) for x in instruments):
         problems.append("The study's 'instrument' must be an array of tables ([[instrument]]).")
@@ -390,40 +366,7 @@ def _certificate(data, header, problems) -> dict:
                          if k not in ("used_in", "accredited")},
                       "used_in": list(used), "accredited": accredited,
                       "kind": kind if kind in INSTRUMENT_KINDS else "calibration"})
-    req = data.get("requirements", {})
-    if not isinstance(req, dict):
-        problems.append("The study's 'requirements' must be a table.")
-        req = {}
-    _unknown(problems, "The study's requirements", req, set(REQUIREMENT_KEYS))
-    requirements = {}
-    for key, value in req.items():
-        kind = REQUIREMENT_KEYS.get(key, (None, None))[1]
-        number = isinstance(value, int | float) and not isinstance(value, bool)
-        if kind == "band" and not (isinstance(value, list) and len(value) == 2
-                                   and all(isinstance(x, int | float)
-                                           and not isinstance(x, bool) for x in value)
-                                   and value[0] < value[1]):
-            problems.append(f"The study's requirements {key!r} must be a band [low, high] of "
-                            f"two numbers, low < high. Got {value!r} instead.")
-        elif kind == "number" and not (number and value > 0):
-            problems.append(f"The study's requirements {key!r} must be a number > 0. Got "
-                            f"{value!r} instead.")
-        elif kind == "int" and not (isinstance(value, int) and not isinstance(value, bool)
-                                    and value >= 0):
-            problems.append(f"The study's requirements {key!r} must be an integer >= 0. Got "
-                            f"{value!r} instead.")
-        elif kind == "bool" and not isinstance(value, bool):
-            problems.append(f"The study's requirements {key!r} must be true or false. Got "
-                            f"{value!r} instead.")
-        elif kind == "text" and not isinstance(value, str):
-            problems.append(f"The study's requirements {key!r} must be text. Got {value!r} "
-                            "instead.")
-        elif kind == "choice" and value not in LARGER_U:
-            problems.append(f"The study's requirements {key!r} must be one of "
-                            f"{', '.join(map(repr, LARGER_U))}. Got {value!r} instead.")
-        elif kind is not None:
-            requirements[key] = ([float(x) for x in value] if kind == "band" else
-                                 float(value) if kind == "number" else value)
+    requirements = _typed_table(data, "requirements", REQUIREMENT_KEYS, problems)
     simulated = data.get("simulated", False)
     if not isinstance(simulated, bool):
         problems.append(f"The study's 'simulated' must be true or false. Got {simulated!r} "
@@ -431,6 +374,50 @@ def _certificate(data, header, problems) -> dict:
         simulated = False
     return {"laboratory": {k: str(v) for k, v in lab.items()}, "conditions": conditions,
             "instruments": shown, "simulated": simulated, "requirements": requirements}
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+#: the kinds of a study's typed tables ([conditions], [requirements]): kind -> (test, what is
+#: allowed, the value kept)
+_KINDS = {
+    "temperature": (lambda v: _is_number(v) and -30 <= v <= 60, "a number from -30 to 60 [degC]",
+                    float),
+    "gradient": (lambda v: _is_number(v) and -10 <= v <= 10, "a number from -10 to 10 [K/m]",
+                 float),
+    "band": (lambda v: isinstance(v, list) and len(v) == 2 and all(map(_is_number, v))
+             and v[0] < v[1], "a band [low, high] of two numbers, low < high",
+             lambda v: [float(x) for x in v]),
+    "number": (lambda v: _is_number(v) and v > 0, "a number > 0", float),
+    "int": (lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0,
+            "an integer >= 0", int),
+    "bool": (lambda v: isinstance(v, bool), "true or false", bool),
+    "text": (lambda v: isinstance(v, str), "text", str),
+    "choice": (lambda v: v in LARGER_U, f"one of {', '.join(map(repr, LARGER_U))}", str),
+}
+
+
+def _typed_table(data, name: str, keys: dict, problems) -> dict:
+    """The study's table `name`, each key of `keys` (key -> (label, kind)) checked against
+    its kind (:data:`_KINDS`); every problem at once, unknown keys included."""
+    table = data.get(name, {})
+    if not isinstance(table, dict):
+        problems.append(f"The study's {name!r} must be a table.")
+        return {}
+    _unknown(problems, f"The study's {name}", table, set(keys))
+    out = {}
+    for key, value in table.items():
+        if key not in keys:
+            continue
+        test, allowed, keep = _KINDS[keys[key][1]]
+        if test(value):
+            out[key] = keep(value)
+        else:
+            problems.append(f"The study's {name} {key!r} must be {allowed}. Got {value!r} "
+                            "instead.")
+    return out
 
 
 def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
