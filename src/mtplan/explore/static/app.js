@@ -672,7 +672,8 @@ function openHelp(id) {
   const target = $(id) || $("help");
   target.scrollIntoView({ block: "center" });
   document.querySelectorAll("#help-list .hit").forEach((e) => e.classList.remove("hit"));
-  if (target.tagName === "DT") target.classList.add("hit");
+  state.helpHit = target.tagName === "DT" ? id : null;  // kept when a new result redraws the list
+  if (state.helpHit) target.classList.add("hit");
 }
 function renderHelp(r) {
   // every code and term on the page, in the glossary's words and the procedure's own
@@ -704,6 +705,8 @@ function renderHelp(r) {
   for (const f of state.info.fields.filter((x) => x.source))
     add("help-s-" + f.source, f.source, f.source_doc || f.doc);
   $("help-list").replaceChildren(...items);
+  // the entry the user opened stays marked when a later result redraws the list
+  if (state.helpHit && $(state.helpHit)) $(state.helpHit).classList.add("hit");
 }
 
 // ------------------------------------------------------------------ jobs
