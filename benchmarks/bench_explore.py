@@ -3,10 +3,12 @@
 Starts ``mtplan explore`` on a free loopback port, opens each procedure in headless
 Chromium (Debian's, driven by Playwright), moves one lever to a new value each time (so
 no answer comes from the cache) and reads the page's own clock: from the change event to
-the moment the table shows the numbers of that change. Prints p50, p95 and max per
-procedure [ms], the server's CPU time per change [ms] (a figure the machine's load
-changes far less than the wall times: on an idle machine a change takes about that plus
-the page's own work) and the machine's load average beside each line.
+the moment the table shows the numbers of that change. The budget plot and the link follow
+after that frame; their times, for the changes whose plot was drawn before the next change
+came, are the second line. Prints p50, p95 and max per procedure [ms], the server's CPU
+time per change [ms] (a figure the machine's load changes far less than the wall times: on
+an idle machine a change takes about that plus the page's own work) and the machine's
+load average beside each line.
 
     python benchmarks/bench_explore.py [--changes N]
 
@@ -146,11 +148,16 @@ def main(argv=None) -> int:
                     page.wait_for_function("window.mtplan.rendered === window.mtplan.changes "
                                            "&& !window.mtplan.inflight")
                 cpu = (_cpu_s(server.pid) - cpu) / args.changes
+                page.wait_for_function("window.mtplan.drawn === window.mtplan.rendered")
                 lat = np.array(page.evaluate("window.mtplan.latencies"))[1:]  # the change ones
+                fig = np.array(page.evaluate("window.mtplan.figureLatencies"))[1:]
                 print(f"{name:14s} {field:18s} n={lat.size:3d}  p50 {np.percentile(lat, 50):5.0f} ms"
                       f"  p95 {np.percentile(lat, 95):5.0f} ms  max {lat.max():5.0f} ms"
                       f"  server CPU {1000 * cpu:4.0f} ms/change"
                       f"  load {os.getloadavg()[0]:.1f}")
+                if fig.size:  # the changes whose plot was drawn before the next change
+                    print(f"{'':14s} {'with the figures':18s} n={fig.size:3d}  p50 "
+                          f"{np.percentile(fig, 50):5.0f} ms  p95 {np.percentile(fig, 95):5.0f} ms")
                 page.close()
             print(f"load average after: {os.getloadavg()}")
             browser.close()

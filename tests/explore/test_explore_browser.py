@@ -57,9 +57,10 @@ def page(browser, server):
 
 
 def _settled(pg) -> None:
-    """Wait until the numbers on the page answer the last change."""
+    """Wait until the numbers on the page, then its figures and link, answer the last change."""
     pg.wait_for_function("window.mtplan && window.mtplan.changes > 0 && "
                          "window.mtplan.rendered === window.mtplan.changes && "
+                         "window.mtplan.drawn === window.mtplan.rendered && "
                          "!window.mtplan.inflight")
 
 

@@ -503,6 +503,28 @@ def test_closed_form_source_response_is_the_central_differences(kw):
         pos += k
 
 
+@pytest.mark.parametrize("kw", [{}, dict(SMALL, yz_extra_heads_mm=(100, 60, 0))])
+def test_a_map_through_the_readings_response_never_forms_the_residuals_basis(kw):
+    """A map of the readings times the sources' readings response, the path residual's part
+    from its basis's factors (interpolation onto the knots, then the knots' filter), is the
+    plain product with the formed matrices, to rounding."""
+    from mtplan.models.geometry21._maps import mapped_source_response, source_readings_map
+    from mtplan.models.geometry21._path import residual_basis, residual_response
+
+    setup, truth = g21.Setup(**kw), g21.Truth()
+    names = tuple(n for n in P.active_sources(setup, None) if n not in g21.WHITE)
+    assert "path_residual" in names
+    dense = source_readings_map(setup, truth, names)
+    left = np.random.default_rng(7).normal(size=(5, dense.shape[0]))
+    key = g21.sizeless(setup)
+    direct = left @ residual_basis(key)
+    assert np.abs(residual_response(key, left) - direct).max() <= 1e-12 * np.abs(direct).max()
+    want = left @ dense
+    got = mapped_source_response(setup, truth, names, left)
+    assert got.shape == want.shape
+    assert np.abs(got - want).max() <= 1e-12 * np.abs(want).max()
+
+
 def test_resizing_a_source_reuses_the_geometry_and_reweights_the_fit():
     """What depends on the geometry only is computed once for every size of the sources;
     the joint fit's weights (encoder noise against the path-correlated repeatability) are

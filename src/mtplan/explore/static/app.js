@@ -4,7 +4,7 @@
 
 const $ = (id) => document.getElementById(id);
 const state = { tab: Math.random().toString(36).slice(2) + Date.now().toString(36), design: null, info: null, procedures: [], changes: 0, sent: 0, rendered: 0,
-                inflight: false, pending: false, t0: 0, latencies: [], job: null,
+                inflight: false, pending: false, t0: 0, latencies: [], figureLatencies: [], drawn: 0, job: null,
                 sensTimer: null, lastResult: null, history: [], snapshot: null,
                 scenarios: [], glossary: null };
 window.mtplan = state;  // for tests and the benchmark
@@ -259,8 +259,7 @@ function changed() {
   if (state.snapshot && state.snapshot !== now && !state.undoing) state.history.push(state.snapshot);
   state.snapshot = now; state.undoing = false;
   state.t0 = performance.now();
-  pushURL();
-  refresh();
+  refresh();  // the link follows with the figures, once the numbers are on the screen
 }
 async function refresh() {
   if (state.inflight) { state.pending = true; return; }
@@ -280,6 +279,7 @@ async function refresh() {
   state.rendered = asked;
   if (asked === state.changes && t0) state.latencies.push(performance.now() - t0);
   document.body.dataset.rendered = String(asked);
+  drawFigures(result, asked, t0);
   scheduleSensitivity();
   if (result.ok && result.measurands.some((m) => m.trust === "unchecked" && !/^not checked/.test(m.why))) scheduleCheck();
 }
@@ -373,11 +373,24 @@ function render(r) {
     } else ["tur", "gb", "limits", "pfa", "pfr"].forEach((k) => set(k, "-"));
   }
   renderIdent(r.identifiability);
-  renderBudget(r);
   renderBudgetTable(r);
   renderRisk(r);
   verdict(r);
   renderHelp(r);
+}
+function drawFigures(r, asked, t0) {
+  // The numbers first, then the figures: the budget plot (Plotly, about half the page's work
+  // for a change) and the link are drawn after the frame that shows the numbers, and only
+  // for the newest result (one that a newer change overtakes is never drawn).
+  state.figuresFor = asked;
+  requestAnimationFrame(() => setTimeout(() => {
+    if (state.figuresFor !== asked) return;
+    pushURL();
+    if (r.ok) renderBudget(r);
+    state.drawn = asked;
+    if (asked === state.changes && t0) state.figureLatencies.push(performance.now() - t0);
+    document.body.dataset.drawn = String(asked);
+  }, 0));
 }
 function renderIdent(id) {
   const box = $("ident");

@@ -24,7 +24,7 @@ from mtplan.fitting.linear import (
 )
 from mtplan.models.geometry21._estimators import check_estimator, estimate_theta
 from mtplan.models.geometry21._layout import Geometry, geometry
-from mtplan.models.geometry21._maps import patent_map, source_readings_map
+from mtplan.models.geometry21._maps import mapped_source_response, patent_map
 from mtplan.models.geometry21._model import RANK_TOL, joint_ident, param_names
 from mtplan.models.geometry21._path import repeatability_filter
 from mtplan.models.geometry21._physics import forward, measurands, sources
@@ -210,14 +210,13 @@ def _source_response(setup: Setup, truth: Truth, estimator: str, names: tuple) -
     at_mean = zero(1)
     for name in names:
         at_mean[name][...] = srcs[name].distribution.mean
+    left = patent_map(setup, forward(setup, truth, at_mean)["plate_mm"])
     if truth_rows(truth) is None:
-        readings = source_readings_map(setup, truth, names)
-    else:  # one truth per row: through the forward model
-        readings = source_response(lambda errors: forward(setup, truth, errors)["plate_mm"]
-                                   .reshape(len(errors["reversal"]), -1), zero, srcs, names)
-    if not readings.size:
-        return readings
-    return patent_map(setup, forward(setup, truth, at_mean)["plate_mm"]) @ readings
+        return mapped_source_response(setup, truth, names, left)
+    # one truth per row: the readings' response through the forward model
+    readings = source_response(lambda errors: forward(setup, truth, errors)["plate_mm"]
+                               .reshape(len(errors["reversal"]), -1), zero, srcs, names)
+    return left @ readings
 
 
 def coefficient_covariance(setup: Setup | None = None, *, estimator: str = "joint",

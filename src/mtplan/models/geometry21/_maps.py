@@ -14,7 +14,7 @@ import numpy as np
 from mtplan.models.geometry21._layout import geometry, grid_basis, plane_slices
 from mtplan.models.geometry21._model import readings_matrix
 from mtplan.models.geometry21._patent import patent_design
-from mtplan.models.geometry21._path import residual_basis
+from mtplan.models.geometry21._path import residual_basis, residual_response
 from mtplan.models.geometry21._physics import forward_matrix, sources
 from mtplan.models.geometry21._setup import Setup, sizeless
 
@@ -69,6 +69,20 @@ def patent_map(setup: Setup, readings: np.ndarray) -> np.ndarray:
     return out
 
 
+def mapped_source_response(setup: Setup, truth, names, left: np.ndarray) -> np.ndarray:
+    """``left @ source_readings_map(setup, truth, names)`` for a map `left` (n, 2M) of the
+    readings: the path residual's columns from its basis's factors
+    (:func:`._path.residual_response`), the other sources' through their readings map."""
+    srcs = sources(setup)
+    dense = tuple(name for name in names if name != "path_residual")
+    parts = iter(np.split(left @ source_readings_map(setup, truth, dense), np.cumsum(
+        [int(np.prod(srcs[name].shape, dtype=np.int64)) for name in dense])[:-1], axis=1)
+        if dense else ())
+    cols = [float(srcs[name].distribution.std) * residual_response(sizeless(setup), left)
+            if name == "path_residual" else next(parts) for name in names]
+    return np.concatenate(cols, axis=1) if cols else np.zeros((left.shape[0], 0))
+
+
 def source_readings_map(setup: Setup, truth, names) -> np.ndarray:
     """(2M, K): the readings' first-order response to one standard deviation of each element
     of the named sources (in the order of :func:`mtplan.fitting.linear.source_response`),
@@ -86,33 +100,35 @@ def source_readings_map(setup: Setup, truth, names) -> np.ndarray:
     loc = (np.concatenate([[1.0], feat]) @ base).reshape(m, 3)
     pattern = geo.pattern[:, :, :2]  # (15, M, 2): plate-frame u, v per unit feature
     planes = plane_slices(geo)
-    cols = []
-    for name in names:
-        sd = float(srcs[name].distribution.std)
+    sizes = [int(np.prod(srcs[name].shape, dtype=np.int64)) for name in names]
+    out = np.zeros((m, 2, sum(sizes)))  # reading, component, element: filled in place
+    pos = 0
+    for name, size in zip(names, sizes):
+        block = out[:, :, pos: pos + size]
+        pos += size
         shape = srcs[name].shape
-        out = np.zeros((int(np.prod(shape, dtype=np.int64)), m, 2))
         if name == "grid_error":
             basis = grid_basis(geo)
             for j, (k, c, p) in enumerate(np.ndindex(*shape)):
-                out[j, planes[k], c] = basis[planes[k], p]
+                block[planes[k], c, j] = basis[planes[k], p]
         elif name == "plate_offset":
             for j, (k, c) in enumerate(np.ndindex(*shape)):
-                out[j, planes[k], c] = -1.0
+                block[planes[k], c, j] = -1.0
         elif name == "head_setting":
             for j, (e, c) in enumerate(np.ndindex(*shape)):
-                out[j, geo.xslices[e][1], c] = 1.0
+                block[geo.xslices[e][1], c, j] = 1.0
         elif name == "path_residual":
-            out[:] = residual_basis(sizeless(setup)).T.reshape(-1, m, 2)
+            block[...] = residual_basis(sizeless(setup)).reshape(m, 2, -1)
         elif name == "plate_tilt":
             for k, sl in enumerate(planes):
                 lu, lv, ln = loc[sl].T
-                out[3 * k, sl, 1] = ln  # about u
-                out[3 * k + 1, sl, 0] = -ln  # about v
-                out[3 * k + 2, sl] = np.column_stack([lv, -lu])  # about the normal
+                block[sl, 1, 3 * k] = ln  # about u
+                block[sl, 0, 3 * k + 1] = -ln  # about v
+                block[sl, :, 3 * k + 2] = np.column_stack([lv, -lu])  # about the normal
         else:
             first = {"thermal_growth": 0, "thermal_drift": 3, "reversal": 6, "servo_lag": 9}[name]
-            out[:] = pattern[first: first + 3]
+            block[...] = pattern[first: first + 3].transpose(1, 2, 0)
             if name == "servo_lag":
-                out += 2.0 * feat[9:12, None, None] * pattern[12:15]
-        cols.append(sd * out.reshape(out.shape[0], -1))
-    return np.concatenate(cols).T if cols else np.zeros((2 * m, 0))
+                block += 2.0 * (feat[9:12, None, None] * pattern[12:15]).transpose(1, 2, 0)
+        block *= float(srcs[name].distribution.std)
+    return out.reshape(2 * m, -1)
