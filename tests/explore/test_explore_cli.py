@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
 
@@ -111,6 +115,35 @@ GLOSSARY = Path(__file__).resolve().parents[2] / "docs" / "glossary.md"
 VARIANTS = [("rotary_axis", {"axis": "CA"}), ("rotary_axis", {"axis": "A"}),
             ("tracker_frame", {"n_submachines": 3}), ("geometry21", {}), ("line_laser", {}),
             ("circle_centre", {})]
+
+
+def test_an_installed_mtplan_explains_its_codes_as_a_checkout_does(tmp_path):
+    """Built and installed from its sources (pip, into a folder of its own), the designer
+    reads the glossary that docs/glossary.md is: an install without the checkout beside it
+    still explains EX0C, TUR and the rest."""
+    import shutil
+
+    from tests.packaging import pip_install
+
+    root = GLOSSARY.parents[1]
+    tree = tmp_path / "mtplan-src"  # what a source distribution holds, the links as links
+    (tree / "docs").mkdir(parents=True)
+    for name in ("pyproject.toml", "README.md", "docs/glossary.md"):
+        shutil.copy2(root / name, tree / name)
+    shutil.copytree(root / "src", tree / "src", symlinks=True,
+                    ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
+    site = tmp_path / "site"
+    pip_install(site, tree)
+    code = ("from mtplan.explore import design as d; import json; "
+            "print(json.dumps([d.__file__, len(d.glossary()), d.explain('EX0C')['meaning']]))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(site)}, cwd=tmp_path, timeout=120)
+    assert done.returncode == 0, done.stderr
+    where, rows, meaning = json.loads(done.stdout)
+    assert Path(where).is_relative_to(site)
+    assert not (site / "mtplan" / "explore" / "glossary.md").is_symlink()
+    from mtplan.explore import design as d
+    assert rows == len(d.glossary()) > 20 and meaning == d.explain("EX0C")["meaning"]
 
 
 @pytest.mark.parametrize("name, change", VARIANTS)

@@ -9,8 +9,6 @@ through its installed entry point, as a user's would be.
 
 from __future__ import annotations
 
-import importlib.metadata
-import importlib.util
 import json
 import os
 import re
@@ -21,6 +19,7 @@ from pathlib import Path
 import pytest
 
 import mtplan
+from tests.packaging import pip_install
 from tests.test_layers import LAYERS, _imports, _layer
 
 GUIDE = Path(__file__).resolve().parents[2] / "docs" / "adding_a_procedure.md"
@@ -57,30 +56,6 @@ def _package(folder: Path, pyproject: str, module: str, source: str) -> Path:
     return folder
 
 
-def _builds_here() -> bool:
-    """Whether this environment's setuptools meets the packages' ``setuptools>=68`` and
-    writes wheels (itself from 70.1 on, with the wheel package before)."""
-    try:
-        version = importlib.metadata.version("setuptools")
-    except importlib.metadata.PackageNotFoundError:
-        return False
-    major, minor = (int(part) for part in re.findall(r"\d+", version)[:2])
-    return (major, minor) >= (70, 1) or (major >= 68 and importlib.util.find_spec("wheel"))
-
-
-def _install(site: Path, *packages: Path) -> None:
-    """Build and install `packages` into `site`: pip, without their dependencies (mtplan is
-    the one under test) and, where this environment can build them, offline, without a build
-    environment of its own (else pip fetches setuptools for one)."""
-    if importlib.util.find_spec("pip") is None:
-        pytest.skip("this environment has no pip to install a package with")
-    offline = ["--no-build-isolation", "--no-index"] if _builds_here() else []
-    cmd = [sys.executable, "-m", "pip", "install", "--quiet", "--disable-pip-version-check",
-           "--no-deps", *offline, "--target", str(site), *map(str, packages)]
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr
-
-
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory):
     """(run, folder): the guide's package and the broken one installed; run(*argv) runs
@@ -92,7 +67,7 @@ def installed(tmp_path_factory):
     bad = _package(tmp / "mtplan-broken-line", BROKEN_PYPROJECT, "mtplan_broken_line",
                    "import mtplan_no_such_module  # noqa: F401\n")
     site = tmp / "site"
-    _install(site, good, bad)
+    pip_install(site, good, bad)
     work = tmp / "work"
     work.mkdir()
     # the installed packages first, then the mtplan under test (not another one)

@@ -128,18 +128,17 @@ def sliders(name: str) -> list:
     return [f for f in procedure_info(name)["fields"] if f["slider"]]
 
 
-GLOSSARY = Path(__file__).resolve().parents[3] / "docs" / "glossary.md"
+#: the documentation's glossary (docs/glossary.md), packaged beside this module so that an
+#: installed mtplan explains its codes as a checkout does
+GLOSSARY = Path(__file__).with_name("glossary.md")
 
 
 @functools.lru_cache(maxsize=1)
 def glossary() -> list:
-    """The rows of the documentation's glossary (``docs/glossary.md``, where the sources
-    are at hand): ``{"names": [...], "meaning": text, "section": heading}``; [] without
-    it. The page explains its codes and terms (EX0C, O1, TUR, PFR) with them."""
-    try:
-        text = GLOSSARY.read_text(encoding="utf-8")
-    except OSError:
-        return []
+    """The rows of the documentation's glossary (``docs/glossary.md``, packaged with the
+    designer): ``{"names": [...], "meaning": text, "section": heading}``. The page explains
+    its codes and terms (EX0C, O1, TUR, PFR) with them."""
+    text = GLOSSARY.read_text(encoding="utf-8")
     out, section = [], ""
     for line in text.splitlines():
         if line.startswith("## "):
