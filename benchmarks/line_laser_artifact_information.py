@@ -34,8 +34,8 @@ from mtplan.models import line_laser as ll
 from mtplan.models.line_laser import _estimators as ll_estimators
 
 PROC = ll.PROCEDURE
-FIELDS = ll_estimators._FIT_FIELDS
-STEPS = ll_estimators._FIT_STEPS
+FIELDS = ll_estimators.FIT_FIELDS
+STEPS = ll_estimators.FIT_STEPS
 _HEIGHT_MAP = ll.height_map
 
 

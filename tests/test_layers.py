@@ -101,6 +101,47 @@ def test_no_underscore_module_is_imported_across_packages():
     assert _private_across_packages() == []
 
 
+def _private_names_across_modules() -> list[str]:
+    """Underscore names (not modules) that one mtplan module takes from another: imported
+    by name (``from mtplan.plans.sweep import _grid``) or reached through the module
+    (``posterior._start``). Relative imports count as their absolute module."""
+    files = {_module_name(p): p for p in SRC.rglob("*.py")}
+    bad = []
+    for module, path in files.items():
+        package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        aliases = {}  # name bound to an mtplan module in this file -> that module
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                aliases.update({a.asname: a.name for a in node.names
+                                if a.asname and a.name.startswith("mtplan.")})
+            if not isinstance(node, ast.ImportFrom):
+                continue
+            base = package.split(".")[: len(package.split(".")) - node.level + 1] \
+                if node.level else []
+            target = ".".join(base + ([node.module] if node.module else []))
+            if target.split(".")[0] != "mtplan":
+                continue
+            for a in node.names:
+                if f"{target}.{a.name}" in files:
+                    aliases[a.asname or a.name] = f"{target}.{a.name}"
+                elif a.name.startswith("_") and not a.name.startswith("__"):
+                    bad.append(f"{module} imports {a.name} from {target}")
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) \
+                    and node.value.id in aliases and node.attr.startswith("_") \
+                    and not node.attr.startswith("__") \
+                    and f"{aliases[node.value.id]}.{node.attr}" not in files:
+                bad.append(f"{module} uses {node.value.id}.{node.attr}")
+    return sorted(set(bad))
+
+
+def test_no_private_name_crosses_a_module():
+    """A name one module uses from another is that module's public one; an underscore name
+    is its own module's business (private modules of a package are imported whole)."""
+    assert _private_names_across_modules() == []
+
+
 def test_the_engine_knows_nothing_of_procedures():
     for module, targets in GRAPH.items():
         if _layer(module) == "uncertainty":

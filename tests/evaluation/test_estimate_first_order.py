@@ -148,7 +148,7 @@ def test_a_longer_validation_repeats_no_block():
 
     proc = get("circle_centre")
     setup, runs = proc.Setup(), []
-    real = simulation._procedure_block
+    real = simulation.procedure_block
 
     def counting(*args):
         runs.append(args[-2:])
@@ -157,12 +157,12 @@ def test_a_longer_validation_repeats_no_block():
     cache = {}
     kw = dict(estimator="gls", rng=3, block_size=128)
     try:
-        simulation._procedure_block = counting
+        simulation.procedure_block = counting
         simulation.simulate_uncertainty(proc, setup, None, trials=256, cache=cache, **kw)
         longer = simulation.simulate_uncertainty(proc, setup, None, trials=512, cache=cache,
                                                  **kw)
     finally:
-        simulation._procedure_block = real
+        simulation.procedure_block = real
     assert runs == [(0, 128), (1, 128), (2, 128), (3, 128)]
     alone = simulation.simulate_uncertainty(proc, setup, None, trials=512, **kw)
     np.testing.assert_array_equal(longer.mc.std, alone.mc.std)

@@ -83,6 +83,13 @@ def test_levers_give_linearize_u_and_accept_gives_risks(page):
     u = next(m["u"] for m in doc["measurands"] if m["name"] == "EX0C")
     assert _cell(page, "m-EX0C", "u") == float(f"{u:.3g}")
     assert _cell(page, "m-EX0C", "U") == float(f"{2 * u:.3g}")
+    # the budget plot, drawn after the numbers' frame, is that of the numbers shown
+    drawn = page.evaluate("""() => { const r = window.mtplan.lastResult;
+        const plot = document.getElementById('budget-plot').data;
+        const m = r.measurands.findIndex((x) => x.name === 'EX0C');
+        return plot.map((t) => [t.name, t.x[m], 100 * (r.measurands[m].budget[t.name] || 0) ** 2
+                                / r.measurands[m].u ** 2]); }""")
+    assert drawn and all(x == pytest.approx(want, rel=1e-9) for _, x, want in drawn)
 
     # a tolerance the set-up can decide (U of EX0C is about 35 um with the 10 mm sensor read
     # one way: the odd part of its angle influence)

@@ -139,7 +139,7 @@ def _pfa_criterion(args, measurands):
 
 def _design_search(args, proc, setup, truth):
     """`mtplan plan PROC --optimize FIELD=LO:HI`: continuous search against the grid's best."""
-    from mtplan.plans.planner import _criterion_value, optimize_design
+    from mtplan.plans.planner import criterion_value, optimize_design
     from mtplan.evaluation.simulation import linearize_procedure
 
     free = {}
@@ -159,10 +159,10 @@ def _design_search(args, proc, setup, truth):
            "setup": found["setup"].as_dict()}
     vary = parse_vary(args.vary)
     if vary:  # the best grid point, for comparison
-        from mtplan.plans.sweep import _grid
+        from mtplan.plans.sweep import setup_grid
 
-        values = [(_criterion_value(linearize_procedure(proc, s, truth, estimator=args.estimator),
-                                    args.criterion), s) for s in _grid(proc, setup, vary)]
+        values = [(criterion_value(linearize_procedure(proc, s, truth, estimator=args.estimator),
+                                    args.criterion), s) for s in setup_grid(proc, setup, vary)]
         best_value, best = min(values, key=lambda v: v[0])
         doc["grid_best"] = {"value": best_value, "setup": best.as_dict()}
     if args.json:

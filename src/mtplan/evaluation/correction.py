@@ -82,9 +82,9 @@ def _least_squares(proc, setup, readings):
         try:  # the posterior's start, without its sampling
             fwd = Forward(proc, setup, readings, builder, batch=True)
             with one_blas_thread():
-                theta0 = post._initial_theta(proc, setup, readings, builder, None, None, [])
-                fit = post._start(fwd, theta0, "setup", None, [])
-                space = post._identify(fwd, fit, [])
+                theta0 = post.initial_theta(proc, setup, readings, builder, None, None, [])
+                fit = post.start_fit(fwd, theta0, "setup", None, [])
+                space = post.identify(fwd, fit, [])
         except DOMAIN_ERRORS as exc:
             text = " ".join(exc.problems) if isinstance(exc, InvalidInput) else str(exc)
             _CACHE[key] = (None, f"the readings' least squares failed: {text}")

@@ -296,14 +296,14 @@ def _basis(A: np.ndarray) -> np.ndarray:
     determine, which the fit holds)."""
     from scipy.linalg import qr
 
-    from mtplan.evaluation.posterior import _RANK_TOL
+    from mtplan.evaluation.posterior import RANK_TOL
 
     norms = np.linalg.norm(A, axis=0)
     A = A[:, norms > 0] / norms[norms > 0]
     if A.shape[1] == 0:
         return np.zeros((A.shape[0], 0))
     Q, R, _ = qr(A, mode="economic", pivoting=True)
-    return Q[:, :int(np.sum(np.abs(np.diag(R)) > _RANK_TOL))]
+    return Q[:, :int(np.sum(np.abs(np.diag(R)) > RANK_TOL))]
 
 
 def _statistics(fwd, fit, g: Gaussian, Q: np.ndarray, prior_res: np.ndarray) -> tuple:
@@ -389,10 +389,10 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
     notes: list = []
     try:
         with one_blas_thread():
-            theta0 = post._initial_theta(proc, setup, readings, builder, None, estimator, notes)
-            fit = post._start(fwd, theta0, mode, sigma, notes)
+            theta0 = post.initial_theta(proc, setup, readings, builder, None, estimator, notes)
+            fit = post.start_fit(fwd, theta0, mode, sigma, notes)
             g = fit.budget.gaussian(fit.sigma)
-            pri = post._nuisance_priors(fit.budget)
+            pri = post.nuisance_priors(fit.budget)
             p, q = fit.theta.size, pri.shape[0]
             steps = np.concatenate([builder.steps(fit.theta), 1e-3 * pri[:, 1]])
             J = fwd.jacobian(fit.theta, fit.nuis if q else None, steps)

@@ -841,7 +841,7 @@ def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage
                             n_jobs=n_jobs)
         # the fit check starts where the readings' least squares that conditioned the Monte
         # Carlo started (correction's, from the first exact estimator's estimate): the same
-        # generalised least squares, computed once (posterior._start remembers it)
+        # generalised least squares, computed once (posterior.start_fit remembers it)
         return _with_fit(result, proc, readings, fit_alpha, noise="setup", origin=origin,
                          start=None)
     from mtplan.evaluation.posterior import sample_posterior

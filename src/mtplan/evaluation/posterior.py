@@ -80,7 +80,7 @@ PRIOR_WIDTH = 1000.0  # default prior std in least-squares standard errors
 NOISE_RANGE = 1000.0  # log-uniform noise prior: this factor either side of the start
 NOISE_MODES = ("setup", "free")
 MIN_NOISE_DOF = 3  # a free noise needs this many residual degrees of freedom (finite variance)
-_RANK_TOL = 1e-4  # a parameter whose whitened column lies this close to the others' span (the
+RANK_TOL = 1e-4  # a parameter whose whitened column lies this close to the others' span (the
 # finite differences of an exact model are good to about 1e-6) is held: the readings determine
 # it only together with others; a held direction that moves a measurand refuses that measurand,
 # so holding never understates u. Weakly but truly determined parameters stay sampled.
@@ -262,7 +262,7 @@ def _check_arguments(proc, setup, readings, noise, opts: dict):
     return mode, sigma
 
 
-def _initial_theta(proc, setup, readings, builder, start, estimator, notes) -> np.ndarray:
+def initial_theta(proc, setup, readings, builder, start, estimator, notes) -> np.ndarray:
     """Where the least squares start: `start`, else the estimate's truth, else the base truth."""
     if start is not None:
         unknown = [k for k in start if k not in builder.names]
@@ -299,7 +299,7 @@ class _Fit:
     correction: np.ndarray
 
 
-def _nuisance_priors(budget: Budget):
+def nuisance_priors(budget: Budget):
     """Per nuisance element: (mean, std, low, high) of the set-up's distribution."""
     rows = []
     for _, src in budget.nuisance:
@@ -316,7 +316,7 @@ def _least_squares(fwd, fit: _Fit, free: np.ndarray) -> tuple[np.ndarray, np.nda
     from scipy.optimize import least_squares
 
     b, gauss = fwd.builder, fit.budget.gaussian(fit.sigma)
-    pri = _nuisance_priors(fit.budget)
+    pri = nuisance_priors(fit.budget)
     idx = np.flatnonzero(free)
     p, q = idx.size, pri.shape[0]
     with np.errstate(invalid="ignore"):  # infinite bounds stay infinite
@@ -375,7 +375,7 @@ def _noise_ml(fwd, fit: _Fit) -> float:
 _STARTS: dict = {}
 
 
-def _start(fwd, theta0, mode, sigma, notes) -> _Fit:
+def start_fit(fwd, theta0, mode, sigma, notes) -> _Fit:
     """:func:`_fit_start`, remembered for the same procedure, set-up, readings, parameters,
     start and noise (a pure function of them: the result is the same, only sooner)."""
     b = fwd.builder
@@ -410,9 +410,9 @@ def _fit_start(fwd, theta0, mode, sigma, notes) -> _Fit:
         J, G = fwd.jacobian(theta0), fwd.measurand_gradient(theta0)
         budget = error_budget(fwd, truth, mode, sigma, J, G, names)
         sig = {"known": sigma, "free": setup_sd or 1e-3}.get(mode)
-        nuis0 = _nuisance_priors(budget)[:, 0]
+        nuis0 = nuisance_priors(budget)[:, 0]
         fit = _Fit(budget, theta0.copy(), nuis0, sig, budget.correction)
-        # what the readings do not determine stays where it starts (and is held, _identify)
+        # what the readings do not determine stays where it starts (and is held, identify)
         gw = fit.budget.gaussian(fit.sigma).whiten(J.T).T
         free = np.zeros(J.shape[1], dtype=bool)
         free[_rank_order(gw, np.any(G != 0, axis=0), J.shape[1], 0)[0]] = True
@@ -439,7 +439,7 @@ def _near_bounds(fwd, fit: _Fit) -> list[str]:
     readings, decides, and the result may be pulled by the bound."""
     b, out = fwd.builder, []
     rows = [(p.name, v, p.low, p.high) for p, v in zip(b.params, fit.theta, strict=True)]
-    pri = _nuisance_priors(fit.budget)
+    pri = nuisance_priors(fit.budget)
     labels = [f"{name}[{i}]" if src.size > 1 else name for name, src in fit.budget.nuisance
               for i in range(src.size)]
     rows += [(lab, v, lo, hi) for lab, v, (_, _, lo, hi) in zip(labels, fit.nuis, pri,
@@ -512,7 +512,7 @@ def _rank_order(Jw, relevant, p, q, Jd=None):
             r = m[:, j] / n_ - basis @ (basis.T @ (m[:, j] / n_))
             r -= basis @ (basis.T @ r)
             rs.append(r)
-        if min(float(np.linalg.norm(r)) for r in rs) < _RANK_TOL:
+        if min(float(np.linalg.norm(r)) for r in rs) < RANK_TOL:
             held[j] = _TOGETHER
             continue
         bases = [np.hstack([b, (r / np.linalg.norm(r))[:, None]]) for b, r in zip(bases, rs,
@@ -573,11 +573,11 @@ def _scatter(budget: Budget, sigma) -> np.ndarray:
     return np.sqrt(np.where(var > 0, var, 1.0))
 
 
-def _identify(fwd, fit: _Fit, notes) -> _Space:
+def identify(fwd, fit: _Fit, notes) -> _Space:
     """Hold what the readings do not determine, refuse what cannot be reported, and the
     Laplace approximation of what is sampled."""
     proc, b = fwd.proc, fwd.builder
-    pri = _nuisance_priors(fit.budget)
+    pri = nuisance_priors(fit.budget)
     p, q = fit.theta.size, pri.shape[0]
     steps = np.concatenate([b.steps(fit.theta), 1e-3 * pri[:, 1]])
     J = fwd.jacobian(fit.theta, fit.nuis if q else None, steps)
@@ -640,8 +640,8 @@ class _LogPosterior:
     def __init__(self, fwd, fit: _Fit, space: _Space, priors: Mapping):
         self.fwd, self.fit, self.space = fwd, fit, space
         self.gauss = fit.budget.gaussian()
-        self.pk, self.q = len(space.kept), _nuisance_priors(fit.budget).shape[0]
-        self.nuis = _nuisance_priors(fit.budget)
+        self.pk, self.q = len(space.kept), nuisance_priors(fit.budget).shape[0]
+        self.nuis = nuisance_priors(fit.budget)
         se = np.sqrt(np.clip(np.diag(space.cov)[:self.pk], 1e-300, None))
         self.mu, self.sd = space.center[:self.pk], PRIOR_WIDTH * se
         self.user = [(space.names.index(k), v) for k, v in priors.items()]
@@ -942,9 +942,9 @@ def sample_posterior(
                      "out of the likelihood")
     # one BLAS thread: the matrices are small and many, and threads only wait for each other
     with one_blas_thread():
-        theta0 = _initial_theta(proc, setup, readings, builder, start, estimator, notes)
-        fit = _start(fwd, theta0, mode, sigma, notes)
-        space = _identify(fwd, fit, notes)
+        theta0 = initial_theta(proc, setup, readings, builder, start, estimator, notes)
+        fit = start_fit(fwd, theta0, mode, sigma, notes)
+        space = identify(fwd, fit, notes)
         logpost = _LogPosterior(fwd, fit, space, _check_priors(priors, space.names))
         run, n_walkers = _run(logpost, space, root, opts, proc.name)
         diag = _diagnostics(fwd, logpost, space, run, burn_tau, coverage)

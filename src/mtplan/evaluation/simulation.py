@@ -19,7 +19,7 @@ from mtplan._parallel import check_parallel
 from mtplan.evaluation.first_order import first_order
 from mtplan.models.protocol import Procedure
 from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
-from mtplan.uncertainty.gum import GUMResult, _coverage_factor
+from mtplan.uncertainty.gum import GUMResult, coverage_factor
 from mtplan.uncertainty.montecarlo import MCResult, check_run_options, run_blocks
 
 __all__ = ["ProcedureResult", "LinearizedResult", "simulate_uncertainty", "linear_trials",
@@ -51,7 +51,7 @@ def _measure(proc: Procedure, setup, readings, estimator) -> dict:
     return out
 
 
-def _procedure_block(proc, setup, truth, estimator, only, root, index, size):
+def procedure_block(proc, setup, truth, estimator, only, root, index, size):
     seq = block_sequence(root, index)
     errors = proc.draw_errors(setup, size, seq, only)
     readings = proc.forward(setup, truth, errors)
@@ -344,12 +344,12 @@ def _peak_per_trial(proc, setup, truth, estimator, active) -> float:
     import tracemalloc
 
     root = as_seed_sequence(0)
-    _procedure_block(proc, setup, truth, estimator, active, root, 0, 1)  # warm the caches
+    procedure_block(proc, setup, truth, estimator, active, root, 0, 1)  # warm the caches
     peaks = []
     for size in (1, 3):
         tracemalloc.start()
         try:
-            _procedure_block(proc, setup, truth, estimator, active, root, 0, size)
+            procedure_block(proc, setup, truth, estimator, active, root, 0, size)
             peaks.append(tracemalloc.get_traced_memory()[1])
         finally:
             tracemalloc.stop()
@@ -475,7 +475,7 @@ def simulate_uncertainty(
     check_memory(proc, setup, truth, est_name, tuple(active), block_size=block_size,
                  n_jobs=n_jobs, trials=trials if digits is None else max_trials)
     mc = run_blocks(
-        _procedure_block,
+        procedure_block,
         (proc, setup, truth, est_name, tuple(active)),
         trials=trials,
         digits=digits,
@@ -567,7 +567,7 @@ def linearize_procedure(
         input_cov=cov_in,
         cov=cov,
         dof=dof,
-        k=_coverage_factor(dof, coverage),
+        k=coverage_factor(dof, coverage),
         coverage=coverage,
     )
 

@@ -486,7 +486,7 @@ def _trial_seconds(name: str, setup_key: str, estimator: str) -> float:
     when it is already slow)."""
     import time
 
-    from mtplan.evaluation.simulation import _procedure_block
+    from mtplan.evaluation.simulation import procedure_block
     from mtplan.uncertainty.streams import as_seed_sequence
 
     proc = get(name)
@@ -495,12 +495,12 @@ def _trial_seconds(name: str, setup_key: str, estimator: str) -> float:
     root = as_seed_sequence(0)
     t, wall = time.thread_time(), time.perf_counter()  # CPU time, as LIVE_SECONDS says
     with one_blas_thread():
-        _procedure_block(proc, setup, truth, estimator, active, root, 0, 1)
+        procedure_block(proc, setup, truth, estimator, active, root, 0, 1)
         one = time.thread_time() - t  # with the one-off costs (caches, imports)
         if one > 1.0 or time.perf_counter() - wall > 2.0:
             return one  # a trial of a second: more would not tell whether it fits
         t = time.thread_time()
-        _procedure_block(proc, setup, truth, estimator, active, root, 1, 2)
+        procedure_block(proc, setup, truth, estimator, active, root, 1, 2)
     return (time.thread_time() - t) / 2
 
 
@@ -516,7 +516,7 @@ def spot_check(proc, setup, estimator: str) -> dict:
     key = (proc.name, _setup_key(setup), estimator)
     if key in _spots:
         return _spots[key]
-    from mtplan.evaluation.simulation import _procedure_block
+    from mtplan.evaluation.simulation import procedure_block
     from mtplan.uncertainty.streams import as_seed_sequence
 
     floats = sum(src.size for src in proc.active_sources(setup).values())
@@ -527,7 +527,7 @@ def spot_check(proc, setup, estimator: str) -> dict:
                                       f"take about {SPOT_MIN_TRIALS * per:.2g} s"}
     else:
         with one_blas_thread():
-            est = _procedure_block(proc, setup, proc.Truth(), estimator,
+            est = procedure_block(proc, setup, proc.Truth(), estimator,
                                    tuple(proc.active_sources(setup)),
                                    as_seed_sequence(_SPOT_SEED), 0, n)
         steps = proc.estimators[estimator].steps(setup)
@@ -733,13 +733,13 @@ def tolerance_prior(tol: dict):
     A browser field never names a file on the server: any other text is refused, so the
     designer never reads a path it is sent.
     """
-    from mtplan.plans.acceptance import _prior_from_csv, parse_prior
+    from mtplan.plans.acceptance import prior_from_csv, parse_prior
 
     content = tol.get("prior_csv")
     if isinstance(content, str) and content.strip():
         name = str(tol.get("prior_name") or "prior.csv")[:80]
         try:
-            return _prior_from_csv(io.StringIO(content)), f"{name} (uploaded)"
+            return prior_from_csv(io.StringIO(content)), f"{name} (uploaded)"
         except InvalidInput as exc:
             raise InvalidInput(_renamed(exc.problems, name)) from None
     text = str(tol.get("prior") or "").strip()

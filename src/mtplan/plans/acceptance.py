@@ -601,10 +601,10 @@ def parse_prior(text: str) -> NormalPrior | GammaPrior | EmpiricalPrior:
     path = Path(s)
     if not path.is_file():
         raise _bad_text("prior", text, allowed + " (no such file)")
-    return _prior_from_csv(path)
+    return prior_from_csv(path)
 
 
-def _prior_from_csv(path: Path) -> EmpiricalPrior:
+def prior_from_csv(path: Path) -> EmpiricalPrior:
     """Values of a prior CSV; a cell that is not a finite number is refused, naming its row
     (as a spreadsheet shows it); empty cells are dropped."""
     import math

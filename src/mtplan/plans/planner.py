@@ -164,14 +164,14 @@ def plan(
         target (the message gives the best reachable value of each).
     """
     from mtplan.models import get
-    from mtplan.plans.sweep import _grid
+    from mtplan.plans.sweep import setup_grid
 
     proc = get(procedure)
     base_setup = proc.Setup() if base_setup is None else base_setup
     proc.check_setup(base_setup)
     truth = proc.Truth() if truth is None else truth
     targets = dict(targets or {})
-    setups = _grid(proc, base_setup, dict(vary or {})) if vary else [base_setup]
+    setups = setup_grid(proc, base_setup, dict(vary or {})) if vary else [base_setup]
     units, listed = _possible_measurands(proc, setups)
     names = list(units)
     required = _required(proc, names, determine)
@@ -429,7 +429,7 @@ def _assess(proc, setup, truth, estimator, sources, predict, identify) -> tuple[
 
 
 # --------------------------------------------------------------------------- design search
-def _criterion_value(g, criterion: str) -> float:
+def criterion_value(g, criterion: str) -> float:
     cov = g.cov
     if criterion.startswith("u:"):
         return float(g.std[g.index(criterion[2:])])
@@ -524,7 +524,7 @@ def optimize_design(
             g = linearize_procedure(proc, setup_at(x), truth, estimator=estimator)
         except InvalidInput:
             return 1e300
-        return _criterion_value(g, criterion)
+        return criterion_value(g, criterion)
 
     start = objective(np.array(x0, dtype=float))
     res = minimize(objective, np.array(x0, dtype=float), method="Nelder-Mead", bounds=bounds,

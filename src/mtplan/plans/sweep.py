@@ -127,7 +127,7 @@ def sweep_table(frames) -> "pd.DataFrame":
     return table
 
 
-def _grid(proc, base, vary):
+def setup_grid(proc, base, vary):
     p = Problems(f"sweep {proc.name}")
     infos = {i["name"]: i for i in fields_info(proc.Setup)}
     for key, values in vary.items():
@@ -263,7 +263,7 @@ def sweep_grid(procedure, base_setup=None, vary=None, *, truth=None, estimators=
                                        coverage, interval, seed, n_jobs, backend, scheduler, out)
     if trials is None and digits is None:
         trials = 10**4
-    setups = _grid(proc, base_setup, dict(vary or {}))
+    setups = setup_grid(proc, base_setup, dict(vary or {}))
     options = {"trials": trials, "digits": digits, "coverage": coverage, "interval": interval}
     _check_memory(proc, setups, truth, estimators, sources, options, n_jobs)
     return SimpleNamespace(proc=proc, base_setup=base_setup, truth=truth,

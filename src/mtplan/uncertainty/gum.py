@@ -30,7 +30,7 @@ from mtplan.uncertainty.distributions import Distribution, MultivariateNormal, S
 from mtplan.uncertainty.montecarlo import (
     INTERVALS,
     MCResult,
-    _as_outputs,
+    as_outputs,
     check_inputs,
     numerical_tolerance,
 )
@@ -231,7 +231,7 @@ def sensitivities(
     return f0, jac
 
 
-def _coverage_factor(dof: np.ndarray, p: float) -> np.ndarray:
+def coverage_factor(dof: np.ndarray, p: float) -> np.ndarray:
     from scipy import stats
 
     k = np.full(dof.shape, stats.norm.ppf((1 + p) / 2))
@@ -299,7 +299,7 @@ def linearize(
         for name, (s, n) in slices.items():
             dist = inputs[name]
             kw[name] = points[:, s : s + n] if isinstance(dist, MultivariateNormal) else points[:, s]
-        outs = _as_outputs(model(**kw), points.shape[0])
+        outs = as_outputs(model(**kw), points.shape[0])
         if not out_names:
             out_names.extend(outs)
         return np.column_stack(list(outs.values()))
@@ -317,7 +317,7 @@ def linearize(
         input_cov=cov,
         cov=out_cov,
         dof=nu_eff,
-        k=_coverage_factor(nu_eff, coverage),
+        k=coverage_factor(nu_eff, coverage),
         coverage=coverage,
     )
 

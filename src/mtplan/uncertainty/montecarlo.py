@@ -504,7 +504,7 @@ def check_run_options(p: Problems, trials, digits, coverage, interval, max_trial
 
 
 # --------------------------------------------------------------------------- propagate
-def _as_outputs(out, size: int) -> dict:
+def as_outputs(out, size: int) -> dict:
     if isinstance(out, Mapping):
         items = list(out.items())
     else:
@@ -530,7 +530,7 @@ def _as_outputs(out, size: int) -> dict:
 def _propagate_block(model, inputs, root, index, size):
     seq = block_sequence(root, index)
     values = {name: dist.draw(named_generator(seq, name), size) for name, dist in inputs.items()}
-    return _as_outputs(model(**values), size)
+    return as_outputs(model(**values), size)
 
 
 def check_inputs(p: Problems, model, inputs) -> None:

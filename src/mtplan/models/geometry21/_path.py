@@ -112,8 +112,12 @@ def residual_basis(key: Setup) -> np.ndarray:
     :func:`_ar1_filter` of the innovations), linearly interpolated at the axis's commanded
     position; the deviation's direction is taken into the plate's frame."""
     rows, i, frac, f = _residual_factors(key)
-    frac = frac[:, :, None]
-    field = (1.0 - frac) * f[i] + frac * f[i + 1]  # (M, axis, K): the field per innovation
+    m, k = i.shape[0], f.shape[0]
+    hat = np.zeros((3, m, k))  # the interpolation: each reading from its two knots
+    for a in range(3):
+        hat[a, np.arange(m), i[:, a]] = 1.0 - frac[:, a]
+        hat[a, np.arange(m), i[:, a] + 1] += frac[:, a]
+    field = (hat @ f).transpose(1, 0, 2)  # (M, axis, K): the field per innovation
     # (M, plate component, axis, direction, knot): one product of broadcast factors, laid
     # out in that order so the reshape is a view
     out = np.multiply(rows[:, :, None, :, None], field[:, None, :, None, :], order="C")

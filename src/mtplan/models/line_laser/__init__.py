@@ -96,7 +96,7 @@ Estimators
   facets' edges cross the rows, so its argmax alone switched up to 0.64 step off the
   half-way points, wherever the artifact lay; the overlap's best shift is refined within
   the two row intervals beside it (rows interpolated linearly, the centred sum of squared
-  differences minimised in closed form) and rounded (:func:`_nearest_row`), which puts
+  differences minimised in closed form) and rounded (:func:`._estimators.nearest_row`), which puts
   the switch points at +-1/2 step wherever the artifact lies (tested to 0.05 step).
   ``simulate`` states its u as ``step / sqrt(12)`` (:func:`resolution`), never 0.
 - ``l_y`` is the mean height difference (scan 1 minus scan 2) over the common part

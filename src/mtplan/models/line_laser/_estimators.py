@@ -33,7 +33,7 @@ def _procedure():
 
 
 # --------------------------------------------------------------------------- patent
-def _interp_along_line(setup, z, shift):
+def interp_along_line(setup, z, shift):
     """Values of ``z`` (..., points) at ``x_l + shift``; (values, valid columns)."""
     p = _pitch(setup)
     k = int(math.floor(shift / p))
@@ -47,7 +47,7 @@ def _interp_along_line(setup, z, shift):
     return (1 - f) * z[..., i0] + f * z[..., i1], valid
 
 
-def _row_search(setup, a, b, cols):
+def row_search(setup, a, b, cols):
     """Overlap fraction and mean difference (a - b) for row shifts -n_max..n_max.
 
     ``b`` row j is compared with ``a`` row j - n. Returns arrays (n_trials, 2 n_max + 1).
@@ -75,8 +75,8 @@ def _coarse(setup, a, b, shift):
     -------
     array (n, 3): (du, dy, dt) [mm].
     """
-    moved, cols = _interp_along_line(setup, a, shift)
-    fracs, diffs = _row_search(setup, moved, b, cols)
+    moved, cols = interp_along_line(setup, a, shift)
+    fracs, diffs = row_search(setup, moved, b, cols)
     best = np.argmax(fracs, axis=1)
     out = np.empty((a.shape[0], 3))
     out[:, 0] = -shift
@@ -85,7 +85,7 @@ def _coarse(setup, a, b, shift):
     return out
 
 
-def _nearest_row(setup, a, b, cols, coarse):
+def nearest_row(setup, a, b, cols, coarse):
     """The whole row shift nearest the true one, (n,) int, near the overlap's best `coarse`.
 
     The overlap of binarised scans is a staircase in the true shift: its steps lie where
@@ -140,11 +140,11 @@ def estimate_patent(setup, readings) -> dict:
     """
     z = np.asarray(readings["z_mm"], dtype=float)
     w, h = _shift(setup), setup.raise_mm
-    a, cols = _interp_along_line(setup, z[:, 0], w)  # scan 1 at x_l + w
+    a, cols = interp_along_line(setup, z[:, 0], w)  # scan 1 at x_l + w
     b = z[:, 1]
-    fracs, diffs = _row_search(setup, a, b, cols)
+    fracs, diffs = row_search(setup, a, b, cols)
     best = np.argmax(fracs, axis=1)
-    n1 = _nearest_row(setup, a, b, cols, best - setup.max_shift_rows)
+    n1 = nearest_row(setup, a, b, cols, best - setup.max_shift_rows)
     l_z = n1 * setup.step_mm
     l_y = np.take_along_axis(diffs, (n1 + setup.max_shift_rows)[:, None], axis=1)[:, 0]
     h_prime = (z[:, 1] - z[:, 2]).mean(axis=(1, 2))
@@ -356,7 +356,7 @@ def estimate_registration(setup, readings) -> dict:
     InvalidInput
         Where :func:`observability` says the set-up does not allow it.
     """
-    ok, why = _registration_check(setup)
+    ok, why = registration_check(setup)
     if not ok:
         raise InvalidInput([f"line_laser estimator 'registration' cannot determine the "
                             f"angles at this set-up: {why}"])
@@ -403,7 +403,7 @@ def _registration_uncached(setup, z) -> dict:
 
 
 @functools.lru_cache(maxsize=64)
-def _registration_check(setup) -> tuple[bool, str]:
+def registration_check(setup) -> tuple[bool, str]:
     """Whether the registration works at `setup`: the facets must be resolved (three
     samples across), and on the noise-free data of the default truth the fit must be
     well conditioned and recover the angles."""
@@ -434,23 +434,23 @@ def _registration_check(setup) -> tuple[bool, str]:
 
 # --------------------------------------------------------------------------- pattern
 #: Truth fields the pattern fit estimates: the three angles and the artifact's pose
-_FIT_FIELDS = ("alpha_z_mrad", "alpha_y_mrad", "alpha_x_mrad", "artifact_x_mm", "artifact_y_mm",
+FIT_FIELDS = ("alpha_z_mrad", "alpha_y_mrad", "alpha_x_mrad", "artifact_x_mm", "artifact_y_mm",
                "artifact_rz_mrad", "artifact_tilt_x_mrad", "artifact_tilt_y_mrad")
 #: finite-difference steps of the fit's Jacobian [mrad or mm]: 10 urad, 1 um
-_FIT_STEPS = np.array([1e-2, 1e-2, 1e-2, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2])
+FIT_STEPS = np.array([1e-2, 1e-2, 1e-2, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2])
 #: RMS residual [mm] above which a fit sits in the wrong lattice cell (the pattern's
 #: heights are then off by a good part of the 0.4 mm depth; errors give micrometres)
 _FIT_RMS_MAX = 0.02
 
 
 @functools.lru_cache(maxsize=1)
-def _fit_limits() -> tuple[np.ndarray, np.ndarray]:
+def fit_limits() -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper limits (8,) of the fitted Truth fields (a step stops there)."""
     from mtplan.models.protocol import fields_info
 
     info = {i["name"]: i for i in fields_info(Truth)}
-    return (np.array([info[f]["low"] for f in _FIT_FIELDS], dtype=float),
-            np.array([info[f]["high"] for f in _FIT_FIELDS], dtype=float))
+    return (np.array([info[f]["low"] for f in FIT_FIELDS], dtype=float),
+            np.array([info[f]["high"] for f in FIT_FIELDS], dtype=float))
 
 
 def _truth_rows(theta: np.ndarray) -> Truth:
@@ -459,12 +459,12 @@ def _truth_rows(theta: np.ndarray) -> Truth:
     import copy
 
     t = copy.copy(Truth())
-    for k, name in enumerate(_FIT_FIELDS):
+    for k, name in enumerate(FIT_FIELDS):
         object.__setattr__(t, name, np.ascontiguousarray(theta[:, k]))
     return t
 
 
-def _predict(setup, theta: np.ndarray) -> np.ndarray:
+def predict_profiles(setup, theta: np.ndarray) -> np.ndarray:
     """Error-free readings (n, 3 * lines * points) [mm] for parameter rows (n, 8)."""
     n = theta.shape[0]
     z = forward(setup, _truth_rows(theta), _procedure().zero_errors(setup, n))["z_mm"]
@@ -472,11 +472,11 @@ def _predict(setup, theta: np.ndarray) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=64)
-def _pattern_gain(setup, ref: tuple) -> np.ndarray:
+def pattern_gain(setup, ref: tuple) -> np.ndarray:
     """Gain K (8, readings) of the generalised least squares at the parameters ``ref``.
 
     ``K = (J^T C^-1 J)^-1 J^T C^-1`` (:func:`mtplan.fitting.gls_gain`) with ``J`` the
-    readings' Jacobian (central differences, :data:`_FIT_STEPS`, one-sided at the Truth's
+    readings' Jacobian (central differences, :data:`FIT_STEPS`, one-sided at the Truth's
     limits) and ``C = sigma^2 I + U U^T`` their covariance under every active error
     source of the set-up (:func:`mtplan.fitting.readings_covariance`): ``sigma`` the
     sensor noise, the other sources by the secant effect of each of their elements at
@@ -485,8 +485,8 @@ def _pattern_gain(setup, ref: tuple) -> np.ndarray:
     readings, about 200 columns).
     """
     theta = np.asarray(ref, dtype=float)
-    low, high = _fit_limits()
-    jac = central_jacobian(lambda rows: _predict(setup, rows), theta, _FIT_STEPS,
+    low, high = fit_limits()
+    jac = central_jacobian(lambda rows: predict_profiles(setup, rows), theta, FIT_STEPS,
                            low=low, high=high)
     others = [k for k, src in sources(setup).items()
               if k != _procedure().readings.noise_source and src.active]
@@ -496,7 +496,7 @@ def _pattern_gain(setup, ref: tuple) -> np.ndarray:
     sigma = setup.sensor_noise_um * 1e-3
     if coarse:
         # rounded within the Truth's limits (the coarse grid's points may lie beyond)
-        at = tuple(np.clip(_reference(theta, _COVARIANCE_GRID), low, high).tolist())
+        at = tuple(np.clip(gain_reference(theta, _COVARIANCE_GRID), low, high).tolist())
         big, g_c = _coarse_covariance(setup, at, coarse)
         if not np.any(D) and sigma >= 1e-6 * max(big, float(np.abs(U).max(initial=0.0))):
             return _updated_gain(jac, g_c, U)
@@ -573,7 +573,7 @@ _COARSE_SOURCES = ("facet_position",)
 _COVARIANCE_GRID = _GAIN_GRID * np.array([3.0, 1.0, 3.0, 1.0, 1.0, 1.0, 1.0, 1.0])
 
 
-def _reference(theta: np.ndarray, grid: np.ndarray = _GAIN_GRID) -> tuple:
+def gain_reference(theta: np.ndarray, grid: np.ndarray = _GAIN_GRID) -> tuple:
     """Parameters rounded to `grid` (:data:`_GAIN_GRID`), at which a gain is computed and
     cached."""
     g = np.round(np.asarray(theta, dtype=float) / grid) * grid
@@ -586,7 +586,7 @@ def _residuals(setup, y, theta) -> np.ndarray:
     sensor's range, so a refused batch is split in halves until each row is judged alone
     (a row's residual never depends on the rows beside it)."""
     try:
-        return y - _predict(setup, theta)
+        return y - predict_profiles(setup, theta)
     except InvalidInput:
         if theta.shape[0] == 1:
             return np.full_like(y, np.nan)
@@ -611,7 +611,7 @@ def _pattern_iterate(setup, y, theta, *, iterations=60, relinearise=(12, 24, 36)
     convergence.
     """
     theta = np.array(theta, dtype=float, copy=True)
-    low, high = _fit_limits()
+    low, high = fit_limits()
     refs = np.round((theta if refs is None else refs) / _GAIN_GRID) * _GAIN_GRID
     moves = np.zeros(theta.shape[0], dtype=int)
     active = np.ones(theta.shape[0], dtype=bool)
@@ -630,7 +630,7 @@ def _pattern_iterate(setup, y, theta, *, iterations=60, relinearise=(12, 24, 36)
         step = np.empty((idx.size, theta.shape[1]))
         for g, ref in enumerate(uniq):
             sel = np.flatnonzero(which.ravel() == g)
-            step[sel] = r[sel] @ _pattern_gain(setup, _reference(ref)).T
+            step[sel] = r[sel] @ pattern_gain(setup, gain_reference(ref)).T
         theta[idx] = np.clip(theta[idx] + step, low, high)
         done = np.all(np.abs(step) <= tol, axis=1)
         far = np.any(np.abs(theta[idx] - refs[idx]) > _GAIN_FAR * _GAIN_GRID, axis=1)
@@ -695,9 +695,9 @@ def _pattern_rows(setup, z) -> np.ndarray:
     y = z.reshape(k, -1)
     reg = _registration_core(setup, z)
     angles = np.column_stack([reg[a] for a in ("alpha_z", "alpha_y", "alpha_x")]) * 1e3
-    out = np.full((k, len(_FIT_FIELDS)), np.nan)
+    out = np.full((k, len(FIT_FIELDS)), np.nan)
     todo = np.flatnonzero(np.all(np.isfinite(angles), axis=1))
-    pose = np.array([getattr(Truth(), f) for f in _FIT_FIELDS[3:]])
+    pose = np.array([getattr(Truth(), f) for f in FIT_FIELDS[3:]])
     start = np.column_stack([angles[todo], np.broadcast_to(pose, (todo.size, pose.size))])
     th, rms = _pattern_iterate(setup, y[todo], start)
     hit = rms <= _FIT_RMS_MAX
@@ -744,7 +744,7 @@ def estimate_pattern(setup, readings) -> dict:
     error source. The readings of all three scans are fitted at once over the three
     angles and the artifact's pose (lattice offset, rotation about Z, two tilts), weighted
     by the inverse of their covariance under every active error source of the set-up
-    (:func:`_pattern_gain`), by Gauss-Newton (:func:`_pattern_rows`). Each trial is
+    (:func:`pattern_gain`), by Gauss-Newton (:func:`_pattern_rows`). Each trial is
     fitted from its own data alone (its result does not depend on the other trials of
     the batch); trials whose gains are taken at one rounded point share its matrix
     product. Trials whose fit misses the pattern (an RMS residual above 20 um: the wrong
@@ -753,12 +753,12 @@ def estimate_pattern(setup, readings) -> dict:
     Arguments, result (angles with sign [rad]) and refusal as
     :func:`estimate_registration`, from which it starts.
     """
-    ok, why = _registration_check(setup)
+    ok, why = registration_check(setup)
     if not ok:
         raise InvalidInput([f"line_laser estimator 'pattern' cannot determine the angles at "
                             f"this set-up (it starts from the registration): {why}"])
     z = np.asarray(readings["z_mm"], dtype=float)
-    theta = np.full((z.shape[0], len(_FIT_FIELDS)), np.nan)
+    theta = np.full((z.shape[0], len(FIT_FIELDS)), np.nan)
     rows = np.flatnonzero(np.all(np.isfinite(z.reshape(z.shape[0], -1)), axis=1))
     if rows.size:
         theta[rows] = _pattern_rows(setup, z[rows])

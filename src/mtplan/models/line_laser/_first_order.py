@@ -40,16 +40,16 @@ import numpy as np
 
 from mtplan.models.line_laser._artifact import pitch as _pitch, x_shift as _shift
 from mtplan.models.line_laser._estimators import (
-    _FIT_FIELDS,
-    _FIT_STEPS,
-    _fit_limits,
-    _interp_along_line,
-    _nearest_row,
-    _pattern_gain,
-    _predict,
-    _reference,
-    _registration_check,
-    _row_search,
+    FIT_FIELDS,
+    FIT_STEPS,
+    fit_limits,
+    interp_along_line,
+    nearest_row,
+    pattern_gain,
+    predict_profiles,
+    gain_reference,
+    registration_check,
+    row_search,
 )
 from mtplan.models.line_laser._physics import (
     FACET_OF as _FACET_OF,
@@ -115,17 +115,17 @@ def _patent_map(setup, z) -> np.ndarray:
     lines, pts = setup.lines, setup.points_per_line
     w, h = _shift(setup), setup.raise_mm
     nmax = setup.max_shift_rows
-    a, cols = _interp_along_line(setup, z[None, 0], w)
+    a, cols = interp_along_line(setup, z[None, 0], w)
     b = z[None, 1]
-    fracs, diffs = _row_search(setup, a, b, cols)
+    fracs, diffs = row_search(setup, a, b, cols)
     best = np.argmax(fracs, axis=1)
-    n1 = int(_nearest_row(setup, a, b, cols, best - nmax)[0])
+    n1 = int(nearest_row(setup, a, b, cols, best - nmax)[0])
     l_y = float(diffs[0, n1 + nmax])
     out = np.zeros((3, 3, lines, pts))
     jb = np.arange(max(0, n1), lines + min(0, n1))
     ja = jb - n1
     cols = np.flatnonzero(cols)
-    p = w / _pitch(setup)  # as _interp_along_line
+    p = w / _pitch(setup)  # as interp_along_line
     k = int(math.floor(p))
     f = p - k
     weight = 1.0 / (ja.size * cols.size) / (w * (1.0 + (l_y / w) ** 2))
@@ -147,20 +147,20 @@ def _pattern_map(setup, truth) -> np.ndarray:
     """The pattern fit's linear map (3, readings) [rad per mm]: ``(K J)^-1 K``, angle rows."""
     from mtplan.fitting import central_jacobian
 
-    theta = np.array([getattr(truth, f) for f in _FIT_FIELDS], dtype=float)
-    low, high = _fit_limits()
+    theta = np.array([getattr(truth, f) for f in FIT_FIELDS], dtype=float)
+    low, high = fit_limits()
     # the tangent, not the secant of the fit's own gain: steps of 1 nrad and 0.1 nm move no
     # hit across a kink (its steps of 10 urad and 1 um move hundreds)
-    jac = central_jacobian(lambda rows: _predict(setup, rows), theta, _FIT_STEPS * 1e-4,
+    jac = central_jacobian(lambda rows: predict_profiles(setup, rows), theta, FIT_STEPS * 1e-4,
                            low=low, high=high)
-    gain = _pattern_gain(setup, _reference(theta))
+    gain = pattern_gain(setup, gain_reference(theta))
     return np.linalg.solve(gain @ jac, gain)[:3] * 1e-3  # mrad -> rad
 
 
 def _check_pattern(setup) -> None:
     """Refuse, as the pattern estimator does, a set-up where the registration it starts from
     cannot work."""
-    ok, why = _registration_check(setup)
+    ok, why = registration_check(setup)
     if not ok:
         from mtplan._validate import InvalidInput
 

@@ -8,7 +8,7 @@ import math
 from dataclasses import dataclass
 
 from mtplan.models.line_laser._artifact import pitch, x_shift
-from mtplan.models.line_laser._estimators import _registration_check
+from mtplan.models.line_laser._estimators import registration_check
 from mtplan.models.line_laser._setup import ALPHA_MAX
 
 
@@ -88,7 +88,7 @@ def observability(setup) -> dict:
               "the measuring direction's tilt, +-2 um at 2 mrad, and cancel only as far as "
               "the scan covers them in equal shares"),
     }
-    ok, why = _registration_check(setup)
+    ok, why = registration_check(setup)
     reg = {k: Observability(ok, True, 0.0, 0.0, why) for k in ("alpha_z", "alpha_y", "alpha_x")}
     why_pattern = (why if not ok else
                    "generalised least squares of the forward model on the stated pattern, "

@@ -18,7 +18,7 @@ from mtplan.models.rotary_axis._setup import NAME, Setup, Truth
 
 
 # --------------------------------------------------------------------------- estimators
-def _check_readings(setup: Setup, readings, *, passes: bool = False) -> np.ndarray:
+def check_readings(setup: Setup, readings, *, passes: bool = False) -> np.ndarray:
     """The readings z_mm, (n, P, R); unless `passes`, each lattice point's mean over the
     sensor's orientations (n, P, M): with sensor_reversal the mean of the readings at 0
     and 180 deg, in which the odd errors of the sensor (the spot's lateral offset, the
@@ -51,7 +51,7 @@ def _pass_mean(setup: Setup, z: np.ndarray) -> np.ndarray:
 
 def _each_axis(setup: Setup, readings: dict, estimate_axis) -> dict[str, np.ndarray]:
     """Run a single-axis estimator on each axis's positions; add CA's derived measurands."""
-    z = _check_readings(setup, readings)
+    z = check_readings(setup, readings)
     out = {}
     for part, sl in _parts(setup):
         out.update(estimate_axis(part, z[:, sl]))
@@ -459,7 +459,7 @@ def estimate_angles(setup: Setup, readings: dict) -> dict[str, np.ndarray]:
     docstring for the figures and the price). Arguments and result as
     :func:`estimate_joint` (NaN where the iteration did not converge).
     """
-    z = _check_readings(setup, readings)
+    z = check_readings(setup, readings)
     fits, ok = _angles_fit(setup, _planes(setup, z), _gls_weights(setup))
     out = {}
     for part, par, station in fits:

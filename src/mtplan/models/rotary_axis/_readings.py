@@ -10,7 +10,7 @@ import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
 from mtplan.models.protocol import frame_columns
-from mtplan.models.rotary_axis._estimators import _check_readings
+from mtplan.models.rotary_axis._estimators import check_readings
 from mtplan.models.rotary_axis._layout import plan, position_axes
 from mtplan.models.rotary_axis._physics import forward, zero_errors
 from mtplan.models.rotary_axis._setup import NAME, Setup, Truth
@@ -28,7 +28,7 @@ def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
     ``y_mm`` (commanded lattice point), ``z_mm`` (Z position + sensor value). (The
     schedule has the sensor's orientation as ``sensor_deg``.)
     """
-    z = _check_readings(setup, readings, passes=True)[0]
+    z = check_readings(setup, readings, passes=True)[0]
     g = plan(setup)
     P, M = z.shape
     return pd.DataFrame({
