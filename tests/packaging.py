@@ -12,24 +12,26 @@ from pathlib import Path
 import pytest
 
 
-def builds_here() -> bool:
-    """Whether this environment's setuptools meets the packages' ``setuptools>=68`` and
-    writes wheels (itself from 70.1 on, with the wheel package before)."""
+def builds_here(setuptools: tuple[int, int] = (68, 0)) -> bool:
+    """Whether this environment's setuptools meets a package's build requirement (at least
+    `setuptools`, a version) and writes wheels (itself from 70.1 on, with the wheel package
+    before)."""
     try:
         version = importlib.metadata.version("setuptools")
     except importlib.metadata.PackageNotFoundError:
         return False
-    major, minor = (int(part) for part in re.findall(r"\d+", version)[:2])
-    return (major, minor) >= (70, 1) or (major >= 68 and importlib.util.find_spec("wheel"))
+    have = tuple(int(part) for part in re.findall(r"\d+", version)[:2])
+    return have >= setuptools and (have >= (70, 1) or bool(importlib.util.find_spec("wheel")))
 
 
-def pip_install(site: Path, *packages: Path) -> None:
+def pip_install(site: Path, *packages: Path, setuptools: tuple[int, int] = (68, 0)) -> None:
     """Build and install `packages` into `site`: pip, without their dependencies (mtplan is
-    the one under test) and, where this environment can build them, offline, without a build
-    environment of its own (else pip fetches setuptools for one)."""
+    the one under test) and, where this environment's setuptools builds them (at least
+    `setuptools`, their build requirement), offline, without a build environment of its own
+    (else pip fetches setuptools for one)."""
     if importlib.util.find_spec("pip") is None:
         pytest.skip("this environment has no pip to install a package with")
-    offline = ["--no-build-isolation", "--no-index"] if builds_here() else []
+    offline = ["--no-build-isolation", "--no-index"] if builds_here(setuptools) else []
     cmd = [sys.executable, "-m", "pip", "install", "--quiet", "--disable-pip-version-check",
            "--no-deps", *offline, "--target", str(site), *map(str, packages)]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)

@@ -133,7 +133,7 @@ def test_an_installed_mtplan_explains_its_codes_as_a_checkout_does(tmp_path):
     shutil.copytree(root / "src", tree / "src", symlinks=True,
                     ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
     site = tmp_path / "site"
-    pip_install(site, tree)
+    pip_install(site, tree, setuptools=(77, 0))  # pyproject.toml's build requirement
     code = ("from mtplan.explore import design as d; import json; "
             "print(json.dumps([d.__file__, len(d.glossary()), d.explain('EX0C')['meaning']]))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
