@@ -399,8 +399,8 @@ def _thermal_sources(setup: Setup) -> dict[str, Source]:
             "about their datum by scale_expansion_ppm_per_k (10e-6/K: the coefficient "
             "HEIDENHAIN states for its steel-mounted linear scales), so the radius reads r "
             "(alpha_part - alpha_scale) dT off and the centre alpha_scale dT times its offset "
-            "from the scales' datum (300 mm x 10e-6/K x 1.15 K = 3.5 um per axis at the "
-            "defaults)."),
+            "from the scales' datum (a datum 300 mm away: 300 mm x 10e-6/K x 1.15 K = 3.5 "
+            "um per axis at the default +-2 K; none with the default datum at the bore)."),
         **temperature.temperature_sources(
             setup, "scale_temperature",
             measured="Error of the measured scale temperature [K]; default 0.2 K. The scales "
