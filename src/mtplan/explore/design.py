@@ -1081,7 +1081,7 @@ def design_from_study(text: str, procedure: str | None = None) -> dict:
         "seed": study.seed,
         "trials": ps.trials or study.trials or 10_000,
     }
-    for source, f in source_fields(get(ps.name)).items():  # a source at 0 is switched off
+    for source, f in source_fields(ps.procedure).items():  # a source at 0 is switched off
         if design["setup"].get(f) in ("0", "0.0"):
             design.setdefault("off", []).append(source)
             del design["setup"][f]  # on again at its default size

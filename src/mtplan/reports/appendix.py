@@ -97,10 +97,9 @@ def provenance_section(prov: dict, document: str = "report") -> Section:
 
 # ----------------------------------------------------------------------- tables
 def _setup_table(ps) -> Table:
-    from mtplan.models import get
     from mtplan.models.protocol import fields_info
 
-    proc = get(ps.name)
+    proc = ps.procedure
     docs = {f["name"]: f["doc"] for f in fields_info(proc.Setup)}
     defaults = proc.Setup().as_dict()
     rows = []
@@ -202,11 +201,10 @@ def _panel_names(outcome, limit, csv_name) -> tuple[list, str]:
 
 
 def _sweep_blocks(k, outcome, csv) -> list:
-    from mtplan.models import get
     from mtplan.models.protocol import fields_info
 
     ps = outcome.spec
-    docs = {f["name"]: f["doc"] for f in fields_info(get(ps.name).Setup)}
+    docs = {f["name"]: f["doc"] for f in fields_info(ps.procedure.Setup)}
     units = {m.name: m.unit for m in outcome.results[outcome.recommended].measurands}
     base = ps.setup.as_dict()
     blocks = []

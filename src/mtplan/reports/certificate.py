@@ -222,17 +222,16 @@ def _needed_u(v) -> float | None:
 
 def _lever_for(o, v, needed) -> str:
     """A swept set-up whose predicted U is below ``needed``, in words, or ""."""
-    from mtplan.models import get
     from mtplan.models.protocol import fields_info
     from mtplan.reports.labels import field_label
 
-    docs = {f["name"]: f["doc"] for f in fields_info(get(o.spec.name).Setup)}
+    docs = {f["name"]: f["doc"] for f in fields_info(o.spec.procedure.Setup)}
     best = None
     for spec, table in o.sweeps:
         if isinstance(table, str) or len(spec["vary"]) != 1:
             continue
         f = next(iter(spec["vary"]))
-        if f not in get(o.spec.name).levers:
+        if f not in o.spec.procedure.levers:
             continue
         rows = table[(table["measurand"] == v.measurand) & (table["estimator"] == v.estimator)]
         rows = rows[(2 * rows["u"] <= needed) & (rows["u"] > 0)]
@@ -1047,9 +1046,7 @@ def _agreed_step(o, rule) -> float | None:
 
 def _estimator_words(o) -> str:
     """What the agreed estimator of a test does, as its procedure describes it."""
-    from mtplan.models import get
-
-    est = get(o.spec.name).estimators[agreed_estimator(o)].description
+    est = o.spec.procedure.estimators[agreed_estimator(o)].description
     return est[:1].lower() + est[1:] if est[1:2].islower() else est
 
 

@@ -74,10 +74,9 @@ def covariance_frames(result) -> dict:
 
 # ----------------------------------------------------------------------- methods
 def methods_section(result) -> Section:
-    from mtplan.models import get
     rows = []
     for o in result.outcomes:
-        proc = get(o.spec.name)
+        proc = o.spec.procedure
         for j, est in enumerate(o.spec.estimators):
             rows.append([o.spec.label if j == 0 else "", est,
                          proc.estimators[est].description,
@@ -130,10 +129,9 @@ def _results_table(o) -> Table:
 
 
 def setup_sentence(o) -> str:
-    from mtplan.models import get
     from mtplan.models.protocol import fields_info
 
-    proc = get(o.spec.name)
+    proc = o.spec.procedure
     docs = {f["name"]: f["doc"] for f in fields_info(proc.Setup)}
     shown = ", ".join(f"{field_label(f, docs.get(f, '')).split(' [')[0]} {_value(v)}"
                       f"{' ' + unit(_suffix(f)) if _suffix(f) else ''}"
@@ -144,10 +142,9 @@ def setup_sentence(o) -> str:
 def setting_text(o, field: str, value) -> str:
     """A set-up field at a value as the set-up sentence words it: "arc of A covered by the
     points 90 deg"."""
-    from mtplan.models import get
     from mtplan.models.protocol import fields_info
 
-    docs = {f["name"]: f["doc"] for f in fields_info(get(o.spec.name).Setup)}
+    docs = {f["name"]: f["doc"] for f in fields_info(o.spec.procedure.Setup)}
     label = field_label(field, docs.get(field, "")).split(" [")[0]
     return f"{label} {_value(value)}" + (f" {unit(_suffix(field))}" if _suffix(field) else "")
 
@@ -186,7 +183,6 @@ def test_section(k, o) -> Section:
 def _test_figure(o) -> Figure | None:
     """The sweep of the lever that matters most, with the target u and the study's
     set-up marked; without one, the measured values against their tolerances."""
-    from mtplan.models import get
     from mtplan.models.protocol import fields_info
 
     effect = o.levers[0] if o.levers else None
@@ -196,7 +192,7 @@ def _test_figure(o) -> Figure | None:
         return Figure("Measured values against their tolerances (see 'Conformity decisions').",
                       figs.acceptance_figure(o.verdicts))
     spec, table = o.sweeps[effect.sweep]
-    docs = {f["name"]: f["doc"] for f in fields_info(get(o.spec.name).Setup)}
+    docs = {f["name"]: f["doc"] for f in fields_info(o.spec.procedure.Setup)}
     ok = table[table["error"].astype(str) == ""] if "error" in table else table
     first = o.results[o.recommended]
     units = {m.name: m.unit for m in first.measurands}
@@ -240,10 +236,9 @@ def _source_words(name: str) -> str:
 
 def _findings(o) -> list[str]:
     """What the simulation shows, in sentences an engineer can act on."""
-    from mtplan.models import get
     from mtplan.models.protocol import fields_info
 
-    docs = {f["name"]: f["doc"] for f in fields_info(get(o.spec.name).Setup)}
+    docs = {f["name"]: f["doc"] for f in fields_info(o.spec.procedure.Setup)}
     notes = []
     significant = [e for e in o.levers if e.significant and e.gain > 1.05]
     for e in significant[:2]:

@@ -114,7 +114,7 @@ def run_study(study: Study, *, progress=None, n_jobs: int = 1,
     procs = study.procedures
     # each sweep's grid here; each distinct set-up of a procedure's sweeps one stage, with
     # the estimators of every sweep that holds it (the base set-up is in most of them)
-    grids = {(i, j): _sweep_grid(_model(ps.name), ps, study, sw)
+    grids = {(i, j): _sweep_grid(ps.procedure, ps, study, sw)
              for i, ps in enumerate(procs) for j, sw in enumerate(ps.sweeps)}
     points = _points(grids)
     bar = _bar(progress, _count_steps(study, len(points)))
@@ -174,7 +174,7 @@ def _outcome(i, ps, partial, grids, points, done) -> ProcedureOutcome:
     budget, gum, budget_estimator = done[("budget", i, recommended)]
     plan, identifiability, extras = done[("misc", i, None)]
     outcome = ProcedureOutcome(
-        spec=ps, title=_model(ps.name).title, results=results, gum=gum, budget=budget,
+        spec=ps, title=ps.procedure.title, results=results, gum=gum, budget=budget,
         sweeps=[_sweep_result(ps.sweeps[j], grids[(i, j)], i, points, done)
                 for j in range(len(ps.sweeps))], plan=plan,
         measured=done.get(("readings", i, recommended)), identifiability=identifiability,
@@ -186,14 +186,8 @@ def _outcome(i, ps, partial, grids, points, done) -> ProcedureOutcome:
     if outcome.as_left is not None:
         outcome.as_left_verdicts = decisions.conformity(ps.name, ps.label, ps.acceptance,
                                                         decider, outcome.as_left)
-    _advise(outcome, _model(ps.name), i + 1)
+    _advise(outcome, ps.procedure, i + 1)
     return outcome
-
-
-def _model(name):
-    from mtplan.models import get
-
-    return get(name)
 
 
 #: which ready stage a free worker takes first: the long ones a procedure waits on, then
@@ -273,7 +267,7 @@ def _stage_work(kind, ps, study, arg):
     if kind == "then":
         function, k, outcome = arg
         return function(k, outcome)
-    proc = _model(ps.name)
+    proc = ps.procedure
     if kind == "mc":
         # the procedure's own choice wins over the study's: trials (fixed) or digits
         if ps.trials is not None or ps.digits is not None:

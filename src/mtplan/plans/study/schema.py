@@ -184,6 +184,13 @@ class ProcedureStudy:
     standards: list = field(default_factory=list)     # standards the test follows
     machine: str = ""                  # serial of the machine the test is run on ("": the one)
 
+    @property
+    def procedure(self):
+        """The registered procedure this test runs (:func:`mtplan.models.get` of its name)."""
+        from mtplan.models import get
+
+        return get(self.name)
+
 
 @dataclass
 class Study:
