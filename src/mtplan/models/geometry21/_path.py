@@ -92,14 +92,22 @@ def residual_knots(geo: Geometry) -> tuple[float, int]:
 
 def _residual_factors(key: Setup) -> tuple:
     """The path residual's readings map in factors: (plate-frame rows (M, plate component,
-    direction), the knot below each reading per axis (M, 3), the interpolation weight of the
-    knot above (M, 3), the knots' AR(1) filter (K, K))."""
+    direction), the linear interpolation from the knots per axis (3 sparse (M, K), two
+    knots a reading), the knots' AR(1) filter (K, K))."""
+    import scipy.sparse as sp
+
     geo = geometry(key)
     first, k = residual_knots(geo)
     f = _ar1_filter(((k, RESIDUAL_KNOT_MM),), RESIDUAL_CORRELATION_MM).toarray()
     t = (geo.cmd - first) / RESIDUAL_KNOT_MM  # (M, axis) in knots
     i = np.floor(t).astype(int)
-    return geo.basis[geo.plane][:, :, :2].transpose(0, 2, 1), i, t - i, f
+    frac = t - i
+    m = t.shape[0]
+    readings = np.arange(m).repeat(2)
+    hats = tuple(sp.csc_matrix((np.column_stack([1.0 - frac[:, a], frac[:, a]]).ravel(),
+                                (readings, np.column_stack([i[:, a], i[:, a] + 1]).ravel())),
+                               shape=(m, k)) for a in range(3))
+    return geo.basis[geo.plane][:, :, :2].transpose(0, 2, 1), hats, f
 
 
 @functools.lru_cache(maxsize=8)
@@ -111,13 +119,9 @@ def residual_basis(key: Setup) -> np.ndarray:
     ``RESIDUAL_KNOT_MM`` apart (correlation exp(-d / RESIDUAL_CORRELATION_MM), unit variance,
     :func:`_ar1_filter` of the innovations), linearly interpolated at the axis's commanded
     position; the deviation's direction is taken into the plate's frame."""
-    rows, i, frac, f = _residual_factors(key)
-    m, k = i.shape[0], f.shape[0]
-    hat = np.zeros((3, m, k))  # the interpolation: each reading from its two knots
-    for a in range(3):
-        hat[a, np.arange(m), i[:, a]] = 1.0 - frac[:, a]
-        hat[a, np.arange(m), i[:, a] + 1] += frac[:, a]
-    field = (hat @ f).transpose(1, 0, 2)  # (M, axis, K): the field per innovation
+    rows, hats, f = _residual_factors(key)
+    # (M, axis, K): the field per innovation (the interpolation as a dense product)
+    field = np.stack([hat.toarray() @ f for hat in hats], axis=1)
     # (M, plate component, axis, direction, knot): one product of broadcast factors, laid
     # out in that order so the reshape is a view
     out = np.multiply(rows[:, :, None, :, None], field[:, None, :, None, :], order="C")
@@ -128,23 +132,15 @@ def residual_response(key: Setup, left: np.ndarray) -> np.ndarray:
     """``left @ residual_basis(key)`` for a map `left` (n, 2M) of the readings, from the
     basis's factors, never forming it (2M x 9K, 17 MB at the defaults): the map is taken
     into each reading's deviation directions, gathered onto the knots by the interpolation
-    weights, then through the knots' filter. Equal to the product to rounding (tested)."""
-    import scipy.sparse as sp
-
-    rows, i, frac, f = _residual_factors(key)
-    m, k = i.shape[0], f.shape[0]
-    n = left.shape[0]
+    (its transpose), then through the knots' filter. Equal to the product to rounding
+    (tested)."""
+    rows, hats, f = _residual_factors(key)
+    n, m, k = left.shape[0], rows.shape[0], f.shape[0]
     u, v = left[:, 0::2], left[:, 1::2]  # (n, M) each: the map of each plate component
     q = np.stack([u * rows[:, 0, d] + v * rows[:, 1, d] for d in range(3)], axis=1)
     q = q.reshape(n * 3, m)  # (n x direction, M): the map along each deviation direction
-    knots = np.empty((n, 3, 3, k))  # (n, axis, direction, knot)
-    rows_ = np.arange(m).repeat(2)
-    for a in range(3):  # the interpolation's transpose: each reading onto its two knots
-        hat = sp.csc_matrix((np.column_stack([1.0 - frac[:, a], frac[:, a]]).ravel(),
-                             (rows_, np.column_stack([i[:, a], i[:, a] + 1]).ravel())),
-                            shape=(m, k))
-        knots[:, a] = (q @ hat).reshape(n, 3, k)
-    return (knots @ f).reshape(left.shape[0], -1)
+    knots = np.stack([(q @ hat).reshape(n, 3, k) for hat in hats], axis=1)
+    return (knots @ f).reshape(n, -1)  # (n, axis x direction x knot)
 
 
 def reading_whitener(setup: Setup):
