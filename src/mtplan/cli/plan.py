@@ -162,7 +162,7 @@ def _design_search(args, proc, setup, truth):
         from mtplan.plans.sweep import setup_grid
 
         values = [(criterion_value(linearize_procedure(proc, s, truth, estimator=args.estimator),
-                                    args.criterion), s) for s in setup_grid(proc, setup, vary)]
+                                   args.criterion), s) for s in setup_grid(proc, setup, vary)]
         best_value, best = min(values, key=lambda v: v[0])
         doc["grid_best"] = {"value": best_value, "setup": best.as_dict()}
     if args.json:

@@ -528,8 +528,8 @@ def spot_check(proc, setup, estimator: str) -> dict:
     else:
         with one_blas_thread():
             est = procedure_block(proc, setup, proc.Truth(), estimator,
-                                   tuple(proc.active_sources(setup)),
-                                   as_seed_sequence(_SPOT_SEED), 0, n)
+                                  tuple(proc.active_sources(setup)),
+                                  as_seed_sequence(_SPOT_SEED), 0, n)
         steps = proc.estimators[estimator].steps(setup)
         u = {}
         for m in proc.measurands(setup):
@@ -733,7 +733,7 @@ def tolerance_prior(tol: dict):
     A browser field never names a file on the server: any other text is refused, so the
     designer never reads a path it is sent.
     """
-    from mtplan.plans.acceptance import prior_from_csv, parse_prior
+    from mtplan.plans.acceptance import parse_prior, prior_from_csv
 
     content = tol.get("prior_csv")
     if isinstance(content, str) and content.strip():

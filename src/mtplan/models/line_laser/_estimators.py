@@ -435,7 +435,7 @@ def registration_check(setup) -> tuple[bool, str]:
 # --------------------------------------------------------------------------- pattern
 #: Truth fields the pattern fit estimates: the three angles and the artifact's pose
 FIT_FIELDS = ("alpha_z_mrad", "alpha_y_mrad", "alpha_x_mrad", "artifact_x_mm", "artifact_y_mm",
-               "artifact_rz_mrad", "artifact_tilt_x_mrad", "artifact_tilt_y_mrad")
+              "artifact_rz_mrad", "artifact_tilt_x_mrad", "artifact_tilt_y_mrad")
 #: finite-difference steps of the fit's Jacobian [mrad or mm]: 10 urad, 1 um
 FIT_STEPS = np.array([1e-2, 1e-2, 1e-2, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2])
 #: RMS residual [mm] above which a fit sits in the wrong lattice cell (the pattern's
