@@ -276,6 +276,16 @@ def test_acceptance_table_follows_the_measurands(page):
     assert shown and table == shown and "EY0A" in shown
 
 
+def test_the_sensitivity_frame_says_how_to_fill_it_until_a_lever_is_moved(browser, server):
+    ctx, pg = _open(browser, server, {"procedure": "circle_centre"})
+    msg = pg.locator("#sens-msg")
+    pg.wait_for_function("/^Move a lever/.test(document.querySelector('#sens-msg').textContent)")
+    _set(pg, "spread_deg", 100)
+    pg.wait_for_function("document.querySelector('#sens-plot').dataset.field === 'spread_deg'")
+    assert msg.text_content() == ""
+    ctx.close()
+
+
 def test_plots_recover_after_a_refusal(page):
     page.wait_for_function("document.querySelector('#sens-plot').dataset.field")
     _set(page, "incline_deg", "abc")  # refused: the plots are marked old, not replaced

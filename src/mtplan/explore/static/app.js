@@ -437,7 +437,11 @@ function scheduleSensitivity() {
 }
 async function sensitivity() {
   const field = state.design.lever;
-  if (!field || !state.lastResult || !state.lastResult.ok || !settled()) return;
+  if (!field) {  // none chosen yet: say how, rather than leave an empty frame
+    $("sens-msg").textContent = "Move a lever (its slider or its value) to see U against it over its range.";
+    return;
+  }
+  if (!state.lastResult || !state.lastResult.ok || !settled()) return;
   const lf = state.info.fields.find((f) => f.name === field);
   $("lever-name").textContent = lf ? label(lf) : field;
   const asked = state.changes;
