@@ -537,38 +537,14 @@ def propagate(
     inputs : mapping of str to Distribution
         The input quantities.
     options : RunOptions, optional
-        How the run is made (:class:`~mtplan.uncertainty.options.RunOptions`); any of its
-        fields may also be given as a keyword (``trials=10**5, rng=1``), which replaces the
-        field of `options`:
-    trials : int, optional
-        Fixed number of trials (default 10**6 when `digits` is not given).
-    digits : int, optional
-        Run the adaptive procedure of JCGM 101 7.9 to this many significant digits.
-    coverage : float
-        Coverage probability p of the intervals (default 0.95).
-    interval : {"symmetric", "shortest"}
-        Probabilistically symmetric or shortest coverage interval.
-    rng : None, int, SeedSequence or Generator
-        The seed. The same seed gives bit-identical results for any `n_jobs` and backend.
-    n_jobs : int
-        Worker count (joblib's convention; -1 uses every core).
-    backend : {"loky", "threading", "multiprocessing", "dask", "sequential"}, optional
-        joblib backend; "dask" runs on `scheduler` or on a local Dask cluster.
-    scheduler : str, optional
-        Address of a Dask scheduler for ``backend="dask"``.
-    block_size : int, optional
-        Trials per block (default ``max(100/(1-p), 10**4)`` for the adaptive procedure,
-        JCGM 101 7.9.2, and ``10**5`` for a fixed number of trials).
-    max_trials : int, optional
-        Upper limit of the adaptive procedure (default 10**8; ``converged`` is False if
-        reached).
-    progress : bool or callable, optional
-        Progress bar on stderr (shown after one second; default: when stderr is a terminal);
-        a callable is called as ``progress(done, total)`` after each block (``total`` None
-        for the adaptive procedure).
-    keep : int
-        Model values kept exactly per output (default 2*10**6); beyond that each output
-        switches to a fine histogram, so memory stays bounded by `keep` and the block size.
+        How the run is made (:class:`~mtplan.uncertainty.options.RunOptions`: trials or
+        digits, coverage, interval, rng, n_jobs, backend, scheduler, block_size,
+        max_trials, progress, keep). Any of its fields may be given as a keyword instead
+        (``trials=10**5, rng=1``), which replaces the field of `options`. Here the
+        defaults are 10**6 trials when `digits` is not given; blocks of
+        ``max(100/(1-p), 10**4)`` trials for the adaptive procedure (JCGM 101 7.9.2) and
+        ``10**5`` for a fixed number; at most 10**8 trials (``converged`` is False if
+        reached). The same seed gives bit-identical results for any `n_jobs` and backend.
 
     Returns
     -------
