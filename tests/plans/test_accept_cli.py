@@ -21,7 +21,8 @@ def test_accept_reference_case_json(capsys):
     assert code == 0, err
     doc = json.loads(out)
     assert set(doc) == {"acceptance_limits", "specific_risk", "pfa", "pfr", "conditional_pfa",
-                        "tur", "cm"}
+                        "tur", "cm", "judgement"}
+    assert doc["judgement"]["quality"] == "is decided, at the risks stated"
     assert doc["pfa"] == pytest.approx(0.0189422, abs=5e-8)
     assert doc["pfr"] == pytest.approx(0.0372078, abs=5e-8)
 

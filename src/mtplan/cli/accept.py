@@ -20,11 +20,12 @@ def register(sub) -> None:
 
 
 def cmd_accept(args):
-    from mtplan.plans.acceptance import plan_acceptance
+    from mtplan.plans.acceptance import judgement, plan_acceptance
 
     r = plan_acceptance(args.lower, args.upper, args.u, prior=args.prior, rule=args.rule,
                         measured=args.measured)
     doc = r.to_dict()
+    doc["judgement"] = judgement(r)
     if args.json:
         print(json.dumps(doc, indent=1))
         return 0
@@ -41,6 +42,7 @@ def cmd_accept(args):
     print(f"  false accept (global)    {show(doc['pfa'], True)}")
     print(f"  false reject (global)    {show(doc['pfr'], True)}")
     print(f"  conditional false accept {show(doc['conditional_pfa'], True)}")
+    print(f"  judgement                {doc['judgement']['text']}")
     if args.measured is not None:
         print(f"  measured {args.measured:g}: specific risk {show(doc['specific_risk'], True)}")
     return 0

@@ -106,6 +106,10 @@ __all__ = [
     "global_risks",
     "specific_risk",
     "plan_acceptance",
+    "CURVE_GUARDS",
+    "risk_curve",
+    "zones",
+    "judgement",
 ]
 
 _TAIL = 1e-16  # prior mass neglected beyond the effective support of a quadrature prior
@@ -1156,3 +1160,123 @@ def plan_acceptance(
         p_accept=None if risks is None else risks.p_accept,
         decision=decision,
     )
+
+
+# --------------------------------------------------------------------------------------
+# what a plan is shown with: its risk curve, its zones and a judgement in words
+# --------------------------------------------------------------------------------------
+
+#: guard bands of a risk curve [multiples of U = 2 u]: 0 to 1.5 U
+CURVE_GUARDS = tuple(0.125 * i for i in range(13))
+
+
+def risk_curve(lower: float | None, upper: float | None, u: float, prior, *,
+               guards=CURVE_GUARDS) -> dict:
+    """PFA and PFR against the guard band (JCGM 106 9.5): for each R of `guards` the risks
+    of the guard band ``w = R U`` (``U = 2 u``) placed inside each *finite* limit, as the
+    rule ``guard:R`` places it, so a one-sided tolerance has its curve too. A two-sided
+    curve stops where no acceptance interval is left.
+
+    Returns
+    -------
+    dict with ``guard_band`` [unit], ``pfa`` and ``pfr``, lists of one length.
+    """
+    prior = _as_prior(prior)
+    lo, hi, u = _check("risk_curve", lower, upper, u, prior, need_prior=True)
+    out = {"guard_band": [], "pfa": [], "pfr": []}
+    for r in guards:
+        w = float(r) * 2.0 * u
+        if np.isfinite(lo) and np.isfinite(hi) and not w < 0.5 * (hi - lo):
+            break
+        a_lo, a_hi = _limits(lo, hi, w)
+        risks = _risks(lo, hi, a_lo, a_hi, u, prior)
+        out["guard_band"].append(w)
+        out["pfa"].append(risks.pfa)
+        out["pfr"].append(risks.pfr)
+    return out
+
+
+def zones(result: AcceptanceResult) -> dict:
+    """The zones of ISO 14253-1 on the measured value's axis [unit], None where a zone is
+    unbounded: the specification zone (``tolerance``), the conformance zone
+    (``acceptance``), the non-conformance zones (``reject``: one beyond each specified
+    limit, none on the side a one-sided tolerance leaves open), the uncertainty range
+    ``[T - U, T + U]`` about each specified limit (``uncertainty``), and ``view``, a finite
+    range that shows them all (a quarter of the tolerance beyond two limits; from 6 U
+    inside a single limit to 2 U beyond it)."""
+    lower, upper, big_u = result.lower, result.upper, 2.0 * result.u
+    a_lo, a_hi = result.acceptance_limits
+    reject = ([[None, a_lo]] if lower is not None else []) + \
+        ([[a_hi, None]] if upper is not None else [])
+    if lower is not None and upper is not None:
+        span = upper - lower
+        view = [lower - 0.25 * span, upper + 0.25 * span]
+    elif upper is not None:
+        view = [upper - 6.0 * big_u, upper + 2.0 * big_u]
+    else:
+        view = [lower - 2.0 * big_u, lower + 6.0 * big_u]
+    return {"tolerance": [lower, upper], "acceptance": [a_lo, a_hi], "reject": reject,
+            "uncertainty": [[t - big_u, t + big_u] for t in (lower, upper) if t is not None],
+            "view": view}
+
+
+def _share_words(p: float) -> str:
+    """A share as an engineer says it."""
+    if p < 0.001:
+        return "almost none"
+    if p > 0.85:
+        return "nearly all"
+    if p > 0.6:
+        return "most"
+    if p >= 0.4:
+        return "about half"
+    if p >= 0.3:
+        return "about a third"
+    if p >= 0.2:
+        return "about a quarter"
+    return f"about 1 in {round(1 / p)}"
+
+
+def judgement(result: AcceptanceResult, *, items: str = "items") -> dict:
+    """How well a plan decides, in plain words: one judgement for the designer's verdict,
+    ``mtplan accept`` and the reports.
+
+    - *cannot be decided well*: a two-sided TUR under 2, a fifth or more of the good
+      (conforming) `items` rejected (PFR over the prior's conforming share), or 5 % or more of the
+      accepted ones out of tolerance (the conditional PFA);
+    - *is decided well*: a TUR of 4 or more where there is one (a one-sided tolerance has
+      none, JCGM 106 defines C_m for an interval), a prior, and both shares under 1 %;
+    - else *is decided, at the risks stated*; a one-sided tolerance without a prior is
+      *not judged* (neither a TUR nor risks).
+
+    Returns
+    -------
+    dict with ``quality`` (one of the phrases above), ``risks`` (the shares that matter,
+    in words) and ``text`` (both, as one line without the measurand's name).
+    """
+    r = result
+    good = r.pfr / r.p_conform_prior if r.pfr is not None and r.p_conform_prior else None
+    bad = r.conditional_pfa
+    risks = []
+    if good is not None and r.pfr >= 0.01:
+        risks.append(f"PFR {100 * r.pfr:.4g} %: {_share_words(good)} of the good {items} "
+                     "would be rejected")
+    if bad is not None and bad >= 0.01:
+        risks.append(f"PFA {100 * r.pfa:.4g} %: {_share_words(bad)} of the accepted {items} "
+                     "would be out of tolerance")
+    tur_text = f"TUR {r.tur:.3g}" if r.tur is not None else "one-sided: no TUR"
+    if r.tur is None and r.pfa is None:
+        quality = "is not judged"
+        risks.append("enter a population (prior) for its risks")
+    else:
+        if r.pfa is None:
+            risks.append("enter a population (prior) for its PFA and PFR")
+        poor = (r.tur is not None and r.tur < 2) or (good is not None and good >= 0.2) or \
+            (bad is not None and bad >= 0.05)
+        well = r.pfa is not None and (r.tur is None or r.tur >= 4) and not risks
+        quality = ("cannot be decided well" if poor else "is decided well" if well
+                   else "is decided, at the risks stated")
+        if r.tur is None and not risks:
+            risks.append(f"PFA {100 * r.pfa:.2g} %, PFR {100 * r.pfr:.2g} %")
+    return {"quality": quality, "risks": risks,
+            "text": f"{quality} ({'; '.join([tur_text, *risks])})"}
