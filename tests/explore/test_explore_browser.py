@@ -61,7 +61,9 @@ def _settled(pg) -> None:
     pg.wait_for_function("window.mtplan && window.mtplan.changes > 0 && "
                          "window.mtplan.rendered === window.mtplan.changes && "
                          "window.mtplan.drawn === window.mtplan.rendered && "
-                         "!window.mtplan.inflight")
+                         "!window.mtplan.inflight && !(window.mtplan.lastResult && "
+                         "window.mtplan.lastResult.ok && "
+                         "window.mtplan.lastResult.measurands.some((m) => m.pending))")
 
 
 def _set(pg, field: str, value) -> None:

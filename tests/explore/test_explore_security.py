@@ -154,10 +154,10 @@ def test_a_server_path_in_the_prior_is_never_read(server, tmp_path):
         assert status == 200
         err = r["measurands"][0]["acceptance"]["error"]
         assert "uploaded" in err and "tokeniz" not in err and "EmpiricalPrior" not in err
-    # the same values uploaded as content give the acceptance figures
+    # the same values uploaded as content give the acceptance figures (once u is checked)
     design = {**DESIGN, "tolerances": {"centre_x": {
         "lower": "-20", "upper": "20", "prior_csv": secret.read_text(), "prior_name": "v.csv"}}}
-    status, r = server.api("api/evaluate", {"design": design})
+    status, r = server.api("api/check", {"design": design})
     acc = r["measurands"][0]["acceptance"]
     assert status == 200 and "error" not in acc and acc["pfa"] is not None
 

@@ -300,7 +300,7 @@ class _Live:
     async def check(self, request):
         return await self._behind("check", request, lambda body, tab, change: (
             {"superseded": True} if self.overtaken(tab, change)
-            else d.check(body.get("design") or {})))
+            else d.checked(body.get("design") or {})))
 
 
 def create_app(initial: dict | None = None, *, token: str | None = None,

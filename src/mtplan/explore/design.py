@@ -23,12 +23,12 @@ from mtplan.explore.prediction import (CURVE_SECONDS, LIVE_MEMORY, LIVE_SECONDS,
                                        compute_prediction, guard_cost, identify,
                                        identify_cached, predict, prediction_cost,
                                        trial_seconds)
-from mtplan.explore.results import budget_table, evaluate, source_inputs
+from mtplan.explore.results import budget_table, checked, evaluate, source_inputs
 from mtplan.explore.sensitivity import lever_values, sensitivity
 from mtplan.explore.state import (K, field_problems, normalise, setup_of, source_fields,
                                   whole)
 from mtplan.explore.studies import design_from_study, plan_vary, study_toml
-from mtplan.explore.tolerances import risk_curve, tolerance_prior
+from mtplan.explore.tolerances import acceptance_figures, tolerance_prior
 from mtplan.explore.trust import check, known_spot, resolution_steps, spot_check, trust
 
 __all__ = ["K", "procedures_info", "procedure_info", "normalise", "setup_of", "evaluate",
@@ -38,4 +38,4 @@ __all__ = ["K", "procedures_info", "procedure_info", "normalise", "setup_of", "e
            "resolution_steps", "prediction_cost", "guard_cost", "TooCostly", "predict",
            "compute_prediction", "identify", "identify_cached", "trial_seconds",
            "LIVE_MEMORY", "LIVE_SECONDS", "CURVE_SECONDS", "budget_table", "source_inputs",
-           "risk_curve", "tolerance_prior"]
+           "acceptance_figures", "tolerance_prior", "checked"]

@@ -19,7 +19,8 @@ import time
 
 from mtplan._validate import InvalidInput
 
-__all__ = ["Jobs", "Busy", "confirm", "histogram", "cheapest", "job_cost", "JOB_BUDGET_S", "MAX_TRIALS"]
+__all__ = ["Jobs", "Busy", "confirm", "histogram", "cheapest", "check_first_order", "job_cost",
+           "JOB_BUDGET_S", "MAX_TRIALS"]
 
 #: the longest a job may be estimated to take [s]; more trials are refused before it starts
 JOB_BUDGET_S = 600.0
@@ -68,6 +69,10 @@ def job_cost(kind: str, design: dict, *, budget_s: float = JOB_BUDGET_S) -> dict
     est, _ = proc.estimator(design["estimator"])
     per = trial_seconds(proc, setup, est)
     runs, n = trials, trials
+    if kind == "check":
+        from mtplan.explore.trust import SPOT_TRIALS
+
+        runs = n = SPOT_TRIALS
     if kind == "cheapest":
         vary = plan_vary(proc, design)
         n = min(trials, PLAN_TRIALS)
@@ -140,7 +145,22 @@ def cheapest(design: dict, progress=None) -> dict:
             "tried": int(len(r.table))}
 
 
-_KINDS = {"confirm": confirm, "cheapest": cheapest}
+def check_first_order(design: dict, progress=None) -> dict:
+    """The spot check of a design's first-order numbers where it is too costly for a live
+    answer: the same trials and seed (:func:`mtplan.explore.trust.spot_check`) with a
+    job's time and memory. The server keeps what it finds (:func:`Jobs.status`), so the
+    page's next numbers are checked ones."""
+    from mtplan.explore.state import normalise, setup_key, setup_of
+    from mtplan.explore.trust import spot_check
+
+    design = normalise(design)
+    proc, setup = setup_of(design)
+    est, _ = proc.estimator(design["estimator"])
+    spot = spot_check(proc, setup, est, budget_s=JOB_BUDGET_S)
+    return {"key": [proc.name, setup_key(setup), est], "spot": spot}
+
+
+_KINDS = {"confirm": confirm, "cheapest": cheapest, "check": check_first_order}
 
 
 def _child(kind: str, design: dict, conn) -> None:  # pragma: no cover - in a child process
@@ -238,6 +258,10 @@ class Jobs:
                     job["done"], job["total"] = msg[1], msg[2]
                 elif msg[0] == "done":
                     job["state"], job["result"] = "done", msg[1]
+                    if job["kind"] == "check":  # the live numbers are checked from now on
+                        from mtplan.explore.trust import remember
+
+                        remember(tuple(msg[1]["key"]), msg[1]["spot"])
                 else:
                     job["state"], job["error"] = "error", msg[1]
         except (EOFError, OSError):

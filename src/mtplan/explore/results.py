@@ -10,12 +10,12 @@ from mtplan.explore.info import anchor, help_text, measurand_rows
 from mtplan.explore.prediction import TooCostly, guard_cost, identify_cached, predict
 from mtplan.explore.state import (K, field_problems, json_setup, normalise, setup_of,
                                   source_fields)
-from mtplan.explore.tolerances import acceptance_figures
-from mtplan.explore.trust import known_spot, resolution_steps, trust
+from mtplan.explore.tolerances import acceptance_figures, input_problem
+from mtplan.explore.trust import check, known_spot, resolution_steps, trust
 from mtplan.models import get
 from mtplan.models.protocol import fields_info
 
-__all__ = ["evaluate", "source_inputs", "budget_table"]
+__all__ = ["evaluate", "checked", "withheld", "source_inputs", "budget_table"]
 
 
 def evaluate(design: dict) -> dict:
@@ -76,12 +76,11 @@ def evaluate(design: dict) -> dict:
                 row["target_error"] = (f"The target of {m.name} must be a number. Got "
                                        f"{design['targets'][m.name]!r} instead.")
         tol = design["tolerances"].get(m.name)
-        if tol:
-            if row["trust"] == "no":
-                row["acceptance"] = {"error": f"u({m.name}) is not reliable at first order "
-                                              f"({row['why']}): confirm by Monte Carlo"}
-            else:
-                row["acceptance"] = acceptance_figures(tol, u) if u > 0 else {
+        if tol:  # a row's own mistakes always; decisions only on a checked number
+            problem = input_problem(tol)
+            row["acceptance"] = {"error": problem} if problem else \
+                withheld(m.name, row) if row["trust"] != "ok" else \
+                acceptance_figures(tol, u) if u > 0 else {
                     "error": f"u({m.name}) = 0: no acceptance figures without an uncertainty"}
         ms.append(row)
     out.update(ok=True, measurands=ms, duration_s=float(proc.duration(setup)),
@@ -89,6 +88,25 @@ def evaluate(design: dict) -> dict:
                identifiability=identify_cached(proc, setup),
                setup=json_setup(setup))
     return out
+
+
+def withheld(name: str, row: dict) -> dict:
+    """Why a toleranced measurand gets no TUR, risks, zones or verdict: its u is not a
+    checked number (failed, being checked, or not checked), in words, with what to do."""
+    state = {"no": "failed its check", "unchecked": "is not checked yet" if row.get("pending")
+             else "is not checked"}[row["trust"]]
+    return {"error": f"no decision: u({name}) {state}: {row['todo']}", "withheld": row["trust"]}
+
+
+def checked(design: dict) -> dict:
+    """:func:`evaluate` after the spot check of the design's numbers (:func:`check`): what
+    the page shows once the check is made, failed or too costly included. A design the
+    check refuses (a bad field, beyond the live cost) answers as :func:`evaluate` does."""
+    try:
+        check(design)
+    except InvalidInput:
+        pass  # evaluate says why, beside the fields or in its problems
+    return evaluate(design)
 
 
 def source_inputs(proc, setup) -> dict:

@@ -13,7 +13,7 @@ from mtplan.explore.tolerances import PRIOR_TEXT
 from mtplan.models import get, registry
 from mtplan.models.protocol import parse_fields
 
-__all__ = ["plan_vary", "study_toml", "design_from_study"]
+__all__ = ["plan_vary", "study_toml", "design_from_study", "file_priors"]
 
 
 def _toml_value(v) -> str:
@@ -100,6 +100,18 @@ def _text(v) -> str:
     return str(v)
 
 
+def file_priors(entry: dict) -> list:
+    """The places in a study's [[procedure]] table whose prior is not a stated distribution
+    (a path to a CSV file): 'acceptance #1 prior'."""
+    tables = entry.get("acceptance") or []
+    tables = [tables] if isinstance(tables, dict) else tables
+    if not isinstance(tables, list):
+        return []
+    return [f"acceptance #{j + 1} prior" for j, acc in enumerate(tables)
+            if isinstance(acc, dict) and acc.get("prior") is not None
+            and not PRIOR_TEXT.match(str(acc["prior"]))]
+
+
 def design_from_study(text: str, procedure: str | None = None) -> dict:
     """A design from a study file's text (its first procedure, or the one named).
 
@@ -118,11 +130,23 @@ def design_from_study(text: str, procedure: str | None = None) -> dict:
     entries = data.get("procedure") or []
     if isinstance(entries, dict):
         entries = [entries]
+    if not isinstance(entries, list):
+        raise InvalidInput(["The study's 'procedure' must be a [[procedure]] table."])
     if procedure is not None:
-        entries = [e for e in entries if e.get("name") == procedure] or entries
+        entries = [e for e in entries if isinstance(e, dict) and e.get("name") == procedure] \
+            or entries
     if not entries:
         raise InvalidInput(["The study names no [[procedure]]."])
-    e = {k: v for k, v in entries[0].items() if k != "readings"}  # set-ups, not measurements
+    if not isinstance(entries[0], dict):
+        raise InvalidInput(["The study's 'procedure' must be a [[procedure]] table."])
+    # set-ups, not measurements: the readings and the results as left are not opened
+    e = {k: v for k, v in entries[0].items() if k not in ("readings", "as_left")}
+    named = file_priors(e)
+    if named:  # refused before anything looks at the path: the same answer for any path
+        raise InvalidInput([f"The study names a file on the server as the population "
+                            f"({', '.join(named)}); the designer reads no file on the server: "
+                            "upload the prior's CSV instead (the CSV button of its tolerance "
+                            "row), or state it as normal:MEAN,SD or gamma:SHAPE,SCALE."])
     if e.get("name") in registry() and isinstance(e.get("setup"), dict):
         refuse_files(get(e["name"]), e["setup"])
     study = load_study({**{k: v for k, v in data.items() if k != "procedure"},

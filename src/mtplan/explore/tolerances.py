@@ -7,13 +7,16 @@ import io
 import re
 
 from mtplan._validate import InvalidInput
-from mtplan.explore.state import K
 
-__all__ = ["acceptance_figures", "GUARDS", "risk_curve", "PRIOR_TEXT", "tolerance_prior"]
+__all__ = ["acceptance_figures", "input_problem", "PRIOR_TEXT", "tolerance_prior"]
 
 
 def acceptance_figures(tol: dict, u: float) -> dict:
-    from mtplan.plans.acceptance import plan_acceptance
+    """``mtplan accept``'s figures of a tolerance row for the live u, with what the page
+    shows them with: the risk curve, the zones and the judgement (one-sided tolerances
+    included), all from :mod:`mtplan.plans.acceptance`; ``{"error": text}`` for a row it
+    refuses."""
+    from mtplan.plans import acceptance as acc
 
     def num(key):
         v = tol.get(key)
@@ -31,7 +34,7 @@ def acceptance_figures(tol: dict, u: float) -> dict:
     rule = (tol.get("rule") or "simple").strip()
     try:
         prior, prior_text = tolerance_prior(tol)
-        r = plan_acceptance(lower, upper, u, prior=prior, rule=rule)
+        r = acc.plan_acceptance(lower, upper, u, prior=prior, rule=rule)
     except InvalidInput as exc:
         return {"error": " ".join(exc.problems)}
     out = r.to_dict()
@@ -40,33 +43,33 @@ def acceptance_figures(tol: dict, u: float) -> dict:
     out["prior"] = prior_text
     out["lower"], out["upper"], out["u"] = lower, upper, u
     out["p_conform"] = r.p_conform_prior  # the share of good machines (for the verdict)
-    if prior is not None and lower is not None and upper is not None:
-        try:
-            out["curve"] = risk_curve(lower, upper, u, prior)
-        except InvalidInput:  # the figures stand; only the curve is left out
-            out["curve"] = None
+    out["zones"] = acc.zones(r)
+    out["judgement"] = acc.judgement(r, items="machines")
+    out["curve"] = acc.risk_curve(lower, upper, u, prior) if prior is not None else None
     return out
 
 
-#: guard bands of the risk curve [multiples of U = K u]
-GUARDS = tuple(0.125 * i for i in range(13))
+def input_problem(tol: dict) -> str | None:
+    """What is wrong with a tolerance row as entered, whatever the u (limits that are not
+    numbers, a prior or a rule that is refused), or None: said beside the row even where
+    its u is not a checked number and no figures are given."""
+    from mtplan.plans.acceptance import parse_rule
 
-
-def risk_curve(lower: float, upper: float, u: float, prior) -> dict:
-    """PFA and PFR against the guard band (0 to 1.5 U, in the tolerance's unit): the
-    acceptance figures of the rule ``guard:R`` (a guard band of R U) for each R of
-    :data:`GUARDS` that leaves an acceptance zone."""
-    from mtplan.plans.acceptance import plan_acceptance
-
-    g, pfa, pfr = [], [], []
-    for R in GUARDS:
-        if R * K * u >= (upper - lower) / 2:  # no acceptance zone left
-            break
-        r = plan_acceptance(lower, upper, u, prior=prior, rule=f"guard:{R}")
-        g.append(r.guard_band)
-        pfa.append(r.pfa)
-        pfr.append(r.pfr)
-    return {"guard_band": g, "pfa": pfa, "pfr": pfr}
+    for key in ("lower", "upper"):
+        v = tol.get(key)
+        if v is None or (isinstance(v, str) and not v.strip()):
+            continue
+        try:
+            float(v)
+        except (TypeError, ValueError):
+            return (f"The tolerance limits must be numbers. Got {tol.get('lower')!r} "
+                    f"and {tol.get('upper')!r} instead.")
+    try:
+        tolerance_prior(tol)
+        parse_rule((tol.get("rule") or "simple").strip())
+    except InvalidInput as exc:
+        return " ".join(exc.problems)
+    return None
 
 
 PRIOR_TEXT = re.compile(r"\s*(normal|gamma)\s*:", flags=re.I)

@@ -8,11 +8,12 @@ import math
 import numpy as np
 
 from mtplan._parallel import one_blas_thread
+from mtplan._validate import InvalidInput
 from mtplan.explore.prediction import guard_cost, predict, trial_seconds
 from mtplan.explore.state import normalise, setup_key, setup_of
 
 __all__ = ["SPOT_TRIALS", "SPOT_MIN_TRIALS", "TRUST_FACTOR", "TRUST_Z", "SPOT_BUDGET_S",
-           "SPOT_MEMORY", "spot_check", "resolution_steps", "known_spot", "trust_ratio", "trust", "check"]
+           "SPOT_MEMORY", "spot_check", "remember", "resolution_steps", "known_spot", "trust_ratio", "trust", "check"]
 
 
 #: trials of the spot check that tests each first-order u against a small Monte Carlo
@@ -32,32 +33,51 @@ _SPOT_SEED = 20240605
 _spots: dict = {}  # (procedure, set-up key, estimator) -> spot check, newest last
 
 
-def spot_check(proc, setup, estimator: str) -> dict:
+def spot_check(proc, setup, estimator: str, *, budget_s: float = SPOT_BUDGET_S) -> dict:
     """A small Monte Carlo of the set-up (:data:`SPOT_TRIALS` trials, a fixed seed) that
     the first-order u of every measurand is judged against; cached per set-up.
 
-    Returns ``{"trials": n, "u": {measurand: u}}`` [display unit], with ``trials`` 0 and
-    ``reason`` where the check would exceed its time or memory budget. A quantised
-    estimator's measurand that never left its step is given ``step / sqrt(12)`` as
-    ``mtplan simulate`` states it.
+    Returns ``{"trials": n, "u": {measurand: u}}`` [display unit]; ``trials`` 0 with
+    ``reason`` and ``seconds`` (what a check would take) where it would exceed `budget_s`
+    or, for a live answer, :data:`SPOT_MEMORY`; ``failed`` (the estimator's message: its
+    fits do not converge, for one) where the trials fail, as ``mtplan simulate`` refuses
+    such a set-up. A check job (:func:`mtplan.explore.jobs.check_first_order`) gives a
+    larger `budget_s` and runs its trials in blocks that fit :data:`SPOT_MEMORY`. A
+    quantised estimator's measurand that never left its step is given ``step / sqrt(12)``
+    as ``mtplan simulate`` states it.
     """
     key = (proc.name, setup_key(setup), estimator)
-    if key in _spots:
-        return _spots[key]
+    cached = _spots.get(key)  # (one not made within the live budget is made with more)
+    if cached is not None and (cached.get("trials") or budget_s <= SPOT_BUDGET_S):
+        return cached
     from mtplan.evaluation.simulation import procedure_block
     from mtplan.uncertainty.streams import as_seed_sequence
 
     floats = sum(src.size for src in proc.active_sources(setup).values())
     per = trial_seconds(proc, setup, estimator)
-    n = int(min(SPOT_TRIALS, SPOT_BUDGET_S / max(per, 1e-9), SPOT_MEMORY / (80.0 * floats + 1)))
+    by_time, by_memory = budget_s / max(per, 1e-9), SPOT_MEMORY / (80.0 * floats + 1)
+    live = budget_s <= SPOT_BUDGET_S
+    n = int(min(SPOT_TRIALS, by_time, by_memory if live else math.inf))
     if n < SPOT_MIN_TRIALS:
-        out = {"trials": 0, "reason": f"a check by {SPOT_MIN_TRIALS} Monte Carlo trials would "
-                                      f"take about {SPOT_MIN_TRIALS * per:.2g} s"}
-    else:
+        reason = (f"a check by {SPOT_MIN_TRIALS} Monte Carlo trials would hold about "
+                  f"{SPOT_MIN_TRIALS * 80.0 * floats / 1e6:.0f} MB" if by_memory < by_time
+                  else f"a check by {SPOT_MIN_TRIALS} Monte Carlo trials would take about "
+                       f"{SPOT_MIN_TRIALS * per:.2g} s")
+        out = {"trials": 0, "reason": reason, "seconds": 1.0 + SPOT_TRIALS * per}
+        remember(key, out)
+        return out
+    block = max(1, int(min(n, by_memory)))  # one block live; a job's in memory-sized ones
+    try:
         with one_blas_thread():
-            est = procedure_block(proc, setup, proc.Truth(), estimator,
-                                  tuple(proc.active_sources(setup)),
-                                  as_seed_sequence(_SPOT_SEED), 0, n)
+            parts = [procedure_block(proc, setup, proc.Truth(), estimator,
+                                     tuple(proc.active_sources(setup)),
+                                     as_seed_sequence(_SPOT_SEED), i, min(block, n - i * block))
+                     for i in range(-(-n // block))]
+        est = {m.name: np.concatenate([np.asarray(p[m.name], dtype=float) for p in parts])
+               for m in proc.measurands(setup)}
+    except InvalidInput as exc:  # the estimator refuses the trials (fits that fail)
+        out = {"trials": n, "failed": " ".join(exc.problems)}
+    else:
         steps = proc.estimators[estimator].steps(setup)
         u = {}
         for m in proc.measurands(setup):
@@ -69,10 +89,16 @@ def spot_check(proc, setup, estimator: str) -> dict:
         out = {"trials": n, "u": u, "steps": {m.name: steps[m.name] * m.scale
                                              for m in proc.measurands(setup)
                                              if steps.get(m.name)}}
-    _spots[key] = out
+    remember(key, out)
+    return out
+
+
+def remember(key: tuple, spot: dict) -> None:
+    """Keep a spot check made for (procedure, :func:`setup_key`, estimator): by a live
+    request or by a check job in its own process."""
+    _spots[tuple(key)] = spot
     while len(_spots) > 512:
         _spots.pop(next(iter(_spots)))
-    return out
 
 
 def resolution_steps(proc, setup, estimator: str) -> dict:
@@ -93,32 +119,53 @@ def trust_ratio(trials: int) -> float:
 
 
 def trust(pred_u: dict, spot: dict | None, steps: dict | None = None) -> dict:
-    """Measurand -> ``{"trust": "ok" | "no" | "unchecked", "why": text, "mc_u": u}``.
+    """Measurand -> ``{"trust": state, "why": text, "todo": text, "mc_u": u}``, the state
+    one of three:
 
-    First order is not trusted where it gives u = 0 while the Monte Carlo does not (a
-    measurand the linearisation is blind to, or a quantised one), where the estimator's
-    values come in steps larger than u, or where the spot check's u differs from it by
-    more than :func:`trust_ratio`. Until the check is made the cells are "unchecked".
-    `steps` (measurand -> step [display unit], :func:`resolution_steps`) judge before it.
+    - ``"ok"``, checked: the spot check's u lies within :func:`trust_ratio` of first order;
+    - ``"no"``, failed: first order gives u = 0 while the Monte Carlo does not (a measurand
+      the linearisation is blind to, or a quantised one), the estimator's values come in
+      steps larger than u, the spot check's u differs by more than :func:`trust_ratio`, or
+      the spot check's trials fail (``mtplan simulate`` refuses such a set-up);
+    - ``"unchecked"``, not checked: with ``pending`` True until the spot check is made,
+      False where it is too costly for a live answer (``check_s``: what a check job takes).
+
+    ``why`` says the reason in words, ``todo`` what to do about it (``whole`` True where the
+    reason is the set-up's, the same for every measurand). `steps` (measurand ->
+    step [display unit], :func:`resolution_steps`) judge before the check.
     """
     out = {}
+    confirm = "confirm the set-up by Monte Carlo, whose u is the one to use"
     for name, u in pred_u.items():
         step = (steps or {}).get(name)
+        if spot and spot.get("failed"):
+            out[name] = {"trust": "no", "mc_u": None, "whole": True,  # the set-up's, not a cell's
+                         "why": f"the check by {spot['trials']} Monte Carlo trials failed: "
+                                f"{spot['failed']}",
+                         "todo": "change the set-up as the message says (mtplan simulate "
+                                 "refuses it too), or choose another estimator"}
+            continue
         if step and step > u:
-            out[name] = {"trust": "no", "mc_u": None, "why": f"the estimator's values come in "
-                                                           f"steps of {step:.3g}, more than u"}
+            out[name] = {"trust": "no", "mc_u": None, "todo": confirm,
+                         "why": f"the estimator's values come in steps of {step:.3g}, "
+                                "more than u"}
             continue
         if u <= 0 and not (spot and spot.get("trials")):
-            out[name] = {"trust": "no", "mc_u": None, "why": "u = 0 at first order: the "
-                         "linearisation does not see it; confirm by Monte Carlo"}
+            out[name] = {"trust": "no", "mc_u": None, "todo": confirm,
+                         "why": "u = 0 at first order: the linearisation does not see it"}
             continue
         if spot is None:
-            out[name] = {"trust": "unchecked", "why": "being checked against a small Monte "
-                                                      "Carlo", "mc_u": None}
+            out[name] = {"trust": "unchecked", "pending": True, "mc_u": None,
+                         "why": "being checked against a small Monte Carlo",
+                         "todo": "wait for the check (a second or two)"}
             continue
         if not spot.get("trials"):
-            out[name] = {"trust": "unchecked", "mc_u": None,
-                         "why": f"not checked: {spot.get('reason')}; confirm by Monte Carlo"}
+            out[name] = {"trust": "unchecked", "pending": False, "mc_u": None,
+                         "check_s": spot.get("seconds"),
+                         "why": f"not checked: {spot.get('reason')}, too costly for a live "
+                                "answer",
+                         "todo": f"check it (about {spot.get('seconds', 0):.0f} s in the "
+                                 "background)"}
             continue
         mc = spot["u"].get(name)
         step = spot.get("steps", {}).get(name)
@@ -133,8 +180,10 @@ def trust(pred_u: dict, spot: dict | None, steps: dict | None = None) -> dict:
                    f"u = 0 at first order, {mc:.3g} by {n} Monte Carlo trials")
         elif not 1 / trust_ratio(n) <= mc / u <= trust_ratio(n):
             why = f"{n} Monte Carlo trials give u = {mc:.3g}, {mc / u:.2g} times first order"
-        out[name] = ({"trust": "ok", "why": f"agrees with {n} Monte Carlo trials", "mc_u": mc}
-                     if why is None else {"trust": "no", "why": why, "mc_u": mc})
+        out[name] = ({"trust": "ok", "why": f"agrees with {n} Monte Carlo trials", "mc_u": mc,
+                      "todo": ""}
+                     if why is None else {"trust": "no", "why": why, "mc_u": mc,
+                                          "todo": confirm})
     return out
 
 

@@ -49,7 +49,7 @@ async function api(path, body) {
   const text = await r.text();
   let data;
   try { data = JSON.parse(text); } catch (e) { data = { error: text.trim() || r.statusText }; }
-  if (!r.ok) throw new Error(data.error || r.statusText);
+  if (!r.ok) { const e = new Error(data.error || r.statusText); e.status = r.status; throw e; }
   return data;
 }
 function b64encode(obj) {
@@ -281,7 +281,7 @@ async function refresh() {
   document.body.dataset.rendered = String(asked);
   drawFigures(result, asked, t0);
   scheduleSensitivity();
-  if (result.ok && result.measurands.some((m) => m.trust === "unchecked" && !/^not checked/.test(m.why))) scheduleCheck();
+  if (result.ok && result.measurands.some((m) => m.pending)) scheduleCheck();
 }
 function scheduleCheck() {
   clearTimeout(state.checkTimer);
@@ -294,21 +294,27 @@ function settled() {
   return !state.inflight && state.rendered === state.changes;
 }
 async function checkFirstOrder() {
-  // the small Monte Carlo that each first-order u is judged against; its marks replace
-  // "being checked" in the cells of the numbers it was asked for
+  // the small Monte Carlo that each first-order u is judged against: the server answers
+  // with the numbers as checked (passed, failed, or too costly to check live), and only
+  // checked numbers get acceptance figures and a verdict
   const asked = state.changes, r = state.lastResult;
   if (!r || !r.ok || !settled()) return;
   let c;
   try { c = await api("/api/check", { design: state.design, tab: state.tab, change: asked }); }
-  catch (e) { return; }
-  if (c.superseded || asked !== state.changes || state.lastResult !== r) return;
-  for (const m of r.measurands) {
-    const t = c.trust[m.name];
-    if (!t) continue;
-    Object.assign(m, t);
-    if (t.trust === "no" && m.acceptance) m.acceptance = { error: `u(${m.name}) is not reliable at first order (${t.why}): confirm by Monte Carlo` };
+  catch (e) {  // never swallowed: the cells say that the check failed, and why
+    if (asked !== state.changes || state.lastResult !== r) return;
+    if (e.status === 429 || e.status === 503) { scheduleCheck(); return; }  // busy: asked again
+    for (const m of r.measurands.filter((x) => x.pending)) {
+      Object.assign(m, { trust: "no", pending: false, why: `the check could not be made: ${e.message}`,
+                         todo: "change the set-up, or confirm it by Monte Carlo" });
+      if (m.acceptance) m.acceptance = { error: `no decision: u(${m.name}) failed its check: ${m.todo}`, withheld: "no" };
+    }
+    render(r);
+    document.body.dataset.checked = String(asked);
+    return;
   }
-  render(r);
+  if (c.superseded || asked !== state.changes || state.lastResult !== r) return;
+  render(c);
   document.body.dataset.checked = String(asked);
 }
 function render(r) {
@@ -333,10 +339,14 @@ function render(r) {
     renderHelp(r);
     return;
   }
-  banner("");
+  // a check that failed for the whole set-up is said once, above the numbers
+  const whole = r.measurands.find((m) => m.whole);
+  banner(whole ? `First order failed its check: ${whole.why.replace(/\.$/, "")}; ${whole.todo}.` : "");
   $("budget-plot").classList.remove("stale");
   if (r.measurands.map((m) => m.name).join(",") !== state.accNames) buildAcceptance(r.measurands);
-  $("status").textContent = "up to date"; $("status").className = "status";
+  const pending = r.measurands.some((m) => m.pending);
+  $("status").textContent = pending ? "checking first order against a small Monte Carlo\u2026" : "up to date";
+  $("status").className = pending ? "status busy" : "status";
   $("duration").textContent = duration(r.duration_s);
   $("method").textContent = `${r.method}, estimator ${r.estimator}`;
   tbody.replaceChildren();
@@ -354,21 +364,22 @@ function render(r) {
     const cls = [m.target === undefined ? "" : (!trusted ? "" : (m.U <= m.target ? "meet" : "miss")),
                  m.trust === "no" ? "untrusted" : (m.trust === "unchecked" ? "unchecked" : "")].join(" ").trim();
     const shown = (x) => (m.trust === "no" ? "first order not reliable" : fmt3(x));
-    const tip = m.trust === "ok" ? "" : m.why;
+    const tip = m.trust === "ok" ? "" : `${m.why}; ${m.todo}`;
     target.setAttribute("aria-label", `${m.name}: target U (k = 2) [${unitText(m.unit)}]`);
     tbody.append(el("tr", { id: "m-" + m.name, class: cls, "data-trust": m.trust || "" },
       el("td", {}, codeCell(m)), el("td", { text: unitText(m.unit) }),
       el("td", { class: "u", text: shown(m.u), title: tip }), el("td", { class: "U", text: shown(m.U), title: tip }),
       el("td", {}, target, m.target_error ? el("span", { class: "err", text: " " + m.target_error }) : null),
-      el("td", { class: "sources", text: m.trust === "no" ? m.why : (shares || (m.u > 0 ? "" : "u = 0 at first order")) })));
+      trustNote(m, shares)));
     const a = m.acceptance;
     const set = (k, t) => { const c = $(`acc-${k}-${m.name}`); if (c) c.textContent = t; };
     const tur = $(`acc-tur-${m.name}`);
     if (tur) tur.classList.toggle("errcell", !!(a && a.error));  // wraps: never clipped
     if (a && a.error) { set("tur", a.error); ["gb", "limits", "pfa", "pfr"].forEach((k) => set(k, "")); }
     else if (a && a.acceptance_limits) {
-      set("tur", fmt4(a.tur)); set("gb", fmt4(a.guard_band));
-      set("limits", `[${fmt4(a.acceptance_limits[0])}, ${fmt4(a.acceptance_limits[1])}]`);
+      set("tur", a.tur === null ? "none (one-sided)" : fmt4(a.tur)); set("gb", fmt4(a.guard_band));
+      const [al, au] = a.acceptance_limits;
+      set("limits", al === null ? `\u2264 ${fmt4(au)}` : (au === null ? `\u2265 ${fmt4(al)}` : `[${fmt4(al)}, ${fmt4(au)}]`));
       set("pfa", pct(a.pfa)); set("pfr", pct(a.pfr));
     } else ["tur", "gb", "limits", "pfa", "pfr"].forEach((k) => set(k, "-"));
   }
@@ -377,6 +388,26 @@ function render(r) {
   renderRisk(r);
   verdict(r);
   renderHelp(r);
+}
+function trustNote(m, shares) {
+  // the last cell of a measurand's row: its largest sources when its u is checked (or being
+  // checked); else why it is not, what to do, and the button that checks it where the check
+  // is too costly for a live answer
+  const cell = el("td", { class: "sources", id: "note-" + m.name });
+  if (m.trust === "ok" || m.pending) cell.textContent = shares || (m.u > 0 ? "" : "u = 0 at first order");
+  else if (m.trust === "no") cell.append(el("span", { class: "failed", text: m.whole
+    ? "check failed: the check's Monte Carlo fails for this set-up (the message above says why and what to do)"
+    : `check failed: ${m.why}; ${m.todo}.` }));
+  else {
+    cell.append(el("span", { class: "notchecked", text: `${m.why}. ` }));
+    {
+      const b = el("button", { class: "small", id: "check-" + m.name, text: `Check (about ${duration(m.check_s || 0)})`,
+                               title: "check these numbers by the same small Monte Carlo, in the background" });
+      b.addEventListener("click", () => startJob("check"));
+      cell.append(b);
+    }
+  }
+  return cell;
 }
 function drawFigures(r, asked, t0) {
   // The numbers first, then the figures: the budget plot (Plotly, about half the page's work
@@ -487,30 +518,10 @@ async function sensitivity() {
 // ------------------------------------------------------------------ views
 const PLOT_CONFIG = (name) => ({ displaylogo: false, responsive: true, modeBarButtons: [["toImage"]],
                                  toImageButtonOptions: { filename: `${state.design.procedure}_${name}`, scale: 2 } });
-function words(p) {
-  // a probability as an engineer says it
-  if (p === null || p === undefined || !isFinite(p)) return "";
-  if (p < 0.001) return "almost none";
-  if (p > 0.85) return "nearly all";
-  if (p > 0.6) return "most";
-  if (p >= 0.4) return "about half";
-  if (p >= 0.3) return "about a third";
-  if (p >= 0.2) return "about a quarter";
-  return `about 1 in ${Math.round(1 / p)}`;
-}
 function decision(m) {
-  // what the design decides of one toleranced measurand, and its risks in plain words
-  const a = m.acceptance, share = (p) => (p === null || p === undefined || !isFinite(p) ? null : p);
-  const good = a.p_conform > 0 ? share(a.pfr / a.p_conform) : null, bad = share(a.conditional_pfa);
-  const risks = [];
-  if (good !== null && a.pfr >= 0.01)
-    risks.push(`PFR ${pct(a.pfr)}: ${words(good)} of the good machines would be rejected`);
-  if (bad !== null && bad >= 0.01)
-    risks.push(`PFA ${pct(a.pfa)}: ${words(bad)} of the accepted machines would be out of tolerance`);
-  if (good === null) risks.push("enter a population (prior) for its PFA and PFR");
-  const poor = a.tur < 2 || (good !== null && good >= 0.2) || (bad !== null && bad >= 0.05);
-  const how = poor ? "cannot be decided well" : (a.tur >= 4 && !risks.length ? "is decided well" : "is decided, at the risks stated");
-  return `${m.name} ${how} (TUR ${fmt3(a.tur)}${risks.length ? "; " + risks.join("; ") : ""})`;
+  // what the design decides of one toleranced measurand, and its risks in plain words: the
+  // judgement of mtplan.plans.acceptance (that of `mtplan accept`), one-sided ones included
+  return `${m.name} ${m.acceptance.judgement.text}`;
 }
 function verdict(r) {
   // one line: what the design can decide
@@ -518,8 +529,11 @@ function verdict(r) {
   const und = (r.identifiability && r.identifiability.undetermined) || [];
   if (und.length) parts.push(`it cannot determine ${und.join(", ")}`);
   const bad = r.measurands.filter((m) => m.trust === "no").map((m) => m.name);
-  if (bad.length) parts.push(`first order cannot be trusted for ${bad.join(", ")}: confirm by Monte Carlo`);
-  const decided = r.measurands.filter((m) => m.acceptance && !m.acceptance.error && m.acceptance.acceptance_limits);
+  if (bad.length) parts.push(`first order failed its check for ${bad.join(", ")}`);
+  // no decision on a number that is not checked: say why none is given
+  for (const m of r.measurands.filter((x) => x.acceptance && x.acceptance.withheld))
+    parts.push(`no verdict on ${m.name}: its u ${m.trust === "no" ? "failed its check" : (m.pending ? "is being checked" : "is not checked (" + m.why.replace(/^not checked: /, "") + ")")}`);
+  const decided = r.measurands.filter((m) => m.trust === "ok" && m.acceptance && !m.acceptance.error && m.acceptance.acceptance_limits);
   for (const m of decided) parts.push(decision(m));
   const targeted = r.measurands.filter((m) => m.target !== undefined && m.trust === "ok");
   if (targeted.length) {
@@ -528,7 +542,7 @@ function verdict(r) {
   }
   if (!decided.length) {
     // what it could decide: a tolerance of +-4 U (TUR 4) or wider
-    const ok = r.measurands.filter((m) => m.trust !== "no" && m.U > 0 && !und.includes(m.name));
+    const ok = r.measurands.filter((m) => m.trust === "ok" && m.U > 0 && !und.includes(m.name));
     if (ok.length) parts.push("at a TUR of 4 it decides tolerances of \u00b14 U or wider: " +
       ok.slice(0, 4).map((m) => `${m.name} \u00b1${fmt3(4 * m.U)} ${unitText(m.unit)}`).join(", ") +
       (ok.length > 4 ? `, and ${ok.length - 4} more` : "") + " (enter a tolerance for its risks)");
@@ -578,18 +592,20 @@ function renderRisk(r) {
          xaxis: { title: { text: `guard band w [${unit}]` }, rangemode: "tozero" },
          yaxis: { title: { text: "probability [%]" }, rangemode: "tozero" } }, PLOT_CONFIG("risk"));
   } else Plotly.purge("risk-plot");
-  // the zones on the measurand's axis: tolerance, acceptance, and U around a value at a limit
-  const lo = a.lower, hi = a.upper, [al, au] = a.acceptance_limits, U = 2 * a.u;
-  const span = (hi - lo) || 1, x0 = lo - 0.25 * span, x1 = hi + 0.25 * span;
-  const band = (xa, xb, y0, y1, color, text) => ({ type: "rect", x0: xa, x1: xb, y0, y1, fillcolor: color, line: { width: 0 }, layer: "below", name: text });
+  // the zones of ISO 14253-1 on the measurand's axis (from mtplan.plans.acceptance.zones):
+  // a one-sided tolerance's open side runs to the edge of the view, and is not rejected
+  const z = a.zones, [x0, x1] = z.view, at = (x, end) => (x === null ? end : x);
+  const band = (xa, xb, y0, y1, color, text) => ({ type: "rect", x0: at(xa, x0), x1: at(xb, x1), y0, y1,
+                                                   fillcolor: color, line: { width: 0 }, layer: "below", name: text });
+  const mid = (lim) => (at(lim[0], x0) + at(lim[1], x1)) / 2;
   Plotly.react("zone-plot", [
-    { x: [(lo + hi) / 2], y: [2.5], mode: "text", text: ["tolerance zone"], showlegend: false, hoverinfo: "skip" },
-    { x: [(al + au) / 2], y: [1.5], mode: "text", text: ["accept"], showlegend: false, hoverinfo: "skip" },
-    { x: [al, au], y: [0.5, 0.5], mode: "markers", marker: { size: 1, color: "#fff" }, showlegend: false, hoverinfo: "skip" },
+    { x: [mid(z.tolerance)], y: [2.5], mode: "text", text: ["tolerance zone"], showlegend: false, hoverinfo: "skip" },
+    { x: [mid(z.acceptance)], y: [1.5], mode: "text", text: ["accept"], showlegend: false, hoverinfo: "skip" },
   ], { margin: { l: 70, r: 10, t: 10, b: 45 }, height: 280, showlegend: false,
-       shapes: [band(lo, hi, 2, 3, "#cfe8d4", "tolerance"), band(al, au, 1, 2, "#9fd3a9", "acceptance"),
-                band(x0, al, 1, 2, "#f4c7c3", "reject"), band(au, x1, 1, 2, "#f4c7c3", "reject"),
-                band(hi - U, hi + U, 0.1, 0.9, "#c9d7ea", "U at the upper limit"), band(lo - U, lo + U, 0.1, 0.9, "#c9d7ea", "U at the lower limit")],
+       shapes: [band(z.tolerance[0], z.tolerance[1], 2, 3, "#cfe8d4", "tolerance"),
+                band(z.acceptance[0], z.acceptance[1], 1, 2, "#9fd3a9", "acceptance"),
+                ...z.reject.map(([p, q]) => band(p, q, 1, 2, "#f4c7c3", "reject")),
+                ...z.uncertainty.map(([p, q]) => band(p, q, 0.1, 0.9, "#c9d7ea", "U at a limit"))],
        xaxis: { title: { text: `${m.name} [${unit}]` }, range: [x0, x1] },
        yaxis: { range: [0, 3.2], tickvals: [0.5, 1.5, 2.5], ticktext: ["\u00b1U at limits", "decision", "specification"], fixedrange: true } },
     PLOT_CONFIG("zones"));
@@ -610,7 +626,7 @@ function renderHistogram(r) {
     const lim = acc && acc.acceptance && acc.acceptance.acceptance_limits;
     const shapes = [], line = (x, color, dash) => shapes.push({ type: "line", x0: x, x1: x, yref: "paper", y0: 0, y1: 1, line: { color, dash, width: 2 } });
     for (const k of ["lower", "upper"]) if (tol[k] !== undefined && tol[k] !== "") line(+tol[k], "#b3261e", "solid");
-    if (lim) { line(lim[0], "#1e7b34", "dash"); line(lim[1], "#1e7b34", "dash"); }
+    if (lim) for (const x of lim) if (x !== null) line(x, "#1e7b34", "dash");  // one-sided: one
     Plotly.react(box, [{ type: "bar", x: mids, y: h.counts, marker: { color: "#6d8fb3" }, name: "trials" }],
       { margin: { l: 55, r: 10, t: 10, b: 45 }, height: 260, bargap: 0, shapes,
         xaxis: { title: { text: `${m.name} [${unit}] (red: tolerance limits, green dashed: acceptance limits)` } },
@@ -743,7 +759,7 @@ async function startJob(kind) {
   catch (e) { $("job-result").replaceChildren(el("span", { class: "err", id: "job-error", text: e.message })); return; }
   state.job = { id, kind, changes: state.changes };
   $("job").hidden = false;
-  $("job-label").textContent = kind === "confirm" ? "Monte Carlo running" : "Planner searching";
+  $("job-label").textContent = { confirm: "Monte Carlo running", check: "Checking first order", cheapest: "Planner searching" }[kind];
   $("job-progress").removeAttribute("value");
   $("job-result").replaceChildren();
   $("job-result").classList.remove("stale");
@@ -756,7 +772,7 @@ async function pollJob(id) {
   if (!state.job || state.job.id !== id) return;
   if (s.state === "running") {
     if (s.total) { $("job-progress").value = s.done / s.total; $("job-label").textContent = `Monte Carlo: ${s.done} of ${s.total} trials`; }
-    else $("job-label").textContent = `${state.job.kind === "confirm" ? "Monte Carlo" : "Planner"}: ${s.elapsed_s.toFixed(0)} s`;
+    else $("job-label").textContent = `${{ confirm: "Monte Carlo", check: "Checking first order", cheapest: "Planner" }[state.job.kind]}: ${s.elapsed_s.toFixed(0)} s`;
     setTimeout(() => pollJob(id), 300);
     return;
   }
@@ -767,6 +783,10 @@ async function pollJob(id) {
   if (s.state === "error") $("job-result").replaceChildren(el("span", { class: "err", id: "job-error", text: s.error }));
   else if (s.state === "cancelled") $("job-result").replaceChildren(el("span", { id: "job-cancelled", text: "cancelled" }));
   else if (s.kind === "confirm") showConfirm(s.result);
+  else if (s.kind === "check") {  // the server keeps the check: the numbers again, checked
+    $("job-result").replaceChildren(el("span", { id: "check-done", text: "First order checked: the numbers above are marked by it." }));
+    if (!changedSince) { state.t0 = 0; refresh(); }
+  }
   else showPlan(s.result);
   if (changedSince) markJobStale();
   $("job-result").scrollIntoView({ block: "nearest" });
