@@ -49,6 +49,22 @@ DESIGNS = {
                       "tolerances": {"origin_x_1": {"lower": "-100", "upper": "100",
                                                     "prior": "normal:0,50",
                                                     "rule": "iso14253"}}},
+    # the states of a number and the kinds of tolerance: a check that fails, a check too
+    # costly live (with its button), and one-sided tolerances on either side
+    "tracker_frame_short_arcs": {
+        "procedure": "tracker_frame", "setup": {"a_arc_deg": "3", "c_arc_deg": "5"},
+        "lever": "a_arc_deg",
+        "tolerances": {"origin_y_1": {"lower": "-20000", "upper": "20000",
+                                      "prior": "normal:0,5000", "rule": "iso14253"}}},
+    "line_laser_not_checked": {
+        "procedure": "line_laser", "estimator": "patent", "lever": "raise_mm",
+        "setup": {"points_per_line": "340"},  # a live check would hold over 256 MB
+        "tolerances": {"alpha_y": {"lower": "-400", "upper": "400",
+                                   "prior": "normal:0,100", "rule": "iso14253"}}},
+    "rotary_axis_one_sided": {
+        "procedure": "rotary_axis", "lever": "incline_deg",
+        "tolerances": {"EX0C": {"upper": "100", "prior": "normal:0,30", "rule": "iso14253"},
+                       "EY0C": {"lower": "-60", "prior": "normal:0,30", "rule": "iso14253"}}},
 }
 
 
@@ -99,8 +115,8 @@ def main(argv=None) -> int:
                     page.wait_for_function("document.querySelector('#sens-plot').dataset.field"
                                            " || /^no sensitivity/.test(document."
                                            "querySelector('#sens-msg').textContent)")
-                    page.wait_for_function("document.body.dataset.checked || !document."
-                                           "querySelector('tr.unchecked')")
+                    page.wait_for_function("!window.mtplan.lastResult.ok || !window.mtplan"
+                                           ".lastResult.measurands.some((m) => m.pending)")
                     time.sleep(1.0)
                     page.emulate_media(media=media)
                     time.sleep(0.5)

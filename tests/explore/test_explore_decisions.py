@@ -13,15 +13,8 @@ import json
 
 import pytest
 
-from tests.explore.conftest import start_server
-from tests.explore.test_explore_browser import _cli, _open, _settled, browser  # noqa: F401
-
-
-@pytest.fixture(scope="module")
-def server():
-    s = start_server("tracker_frame")
-    yield s
-    s.stop()
+from tests.explore.test_explore_browser import (  # noqa: F401 (fixtures)
+    _cli, _open, _settled, browser, server)
 
 
 def test_short_arcs_fail_their_check_with_the_reason_and_give_no_verdict(browser, server):

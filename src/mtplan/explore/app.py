@@ -327,7 +327,7 @@ def create_app(initial: dict | None = None, *, token: str | None = None,
     async def load(request):
         body = await _body(request)
         return _answer({"design": await run_in_threadpool(
-            d.design_from_study, str(body.get("toml", "")), body.get("procedure"))})
+            d.design_from_study, body.get("toml", ""), body.get("procedure"))})
 
     async def job_estimate(request):
         body = await _body(request)

@@ -20,7 +20,7 @@ import time
 from mtplan._validate import InvalidInput
 
 __all__ = ["Jobs", "Busy", "confirm", "histogram", "cheapest", "check_first_order", "job_cost",
-           "JOB_BUDGET_S", "MAX_TRIALS"]
+           "JOB_BUDGET_S", "MAX_TRIALS", "planner_inputs"]
 
 #: the longest a job may be estimated to take [s]; more trials are refused before it starts
 JOB_BUDGET_S = 600.0
@@ -74,6 +74,7 @@ def job_cost(kind: str, design: dict, *, budget_s: float = JOB_BUDGET_S) -> dict
 
         runs = n = SPOT_TRIALS
     if kind == "cheapest":
+        planner_inputs(proc, design)  # before any process: the targets and the ranges
         vary = plan_vary(proc, design)
         n = min(trials, PLAN_TRIALS)
         runs = n * (1 + math.prod(len(v) for v in vary.values()) // 8) if vary else n
@@ -86,6 +87,38 @@ def job_cost(kind: str, design: dict, *, budget_s: float = JOB_BUDGET_S) -> dict
                           f"({per * 1e3:.3g} ms a trial); a job may take "
                           f"{_duration(budget_s)}, so at most {out['max_trials']} trials.")
     return out
+
+
+def planner_inputs(proc, design: dict) -> tuple:
+    """(ranges, targets) of the planner's search, or InvalidInput naming each target that
+    is not a positive number or names no measurand, and the ranges' problems."""
+    from mtplan.explore.state import setup_of
+    from mtplan.explore.studies import plan_vary
+
+    _, setup = setup_of(design)
+    names = [m.name for m in proc.measurands(setup)]
+    problems, targets = [], {}
+    for name, v in design["targets"].items():
+        try:
+            x = float(v)
+        except (TypeError, ValueError):
+            x = math.nan
+        if name not in names:
+            problems.append(f"The target {name!r} names no measurand of this set-up "
+                            f"({', '.join(names[:8])}{', ...' if len(names) > 8 else ''}).")
+        elif not (math.isfinite(x) and x > 0):
+            problems.append(f"The target of {name} must be a number > 0 (U, k = 2). Got "
+                            f"{str(v)[:40]!r} instead.")
+        else:
+            targets[name] = x
+    if problems:
+        raise InvalidInput(problems)
+    vary = plan_vary(proc, design)
+    if not vary:
+        raise InvalidInput(["Mark at least one set-up field's range (values to try) to search."])
+    if not targets:
+        raise InvalidInput(["Enter at least one target U (k = 2) to search for."])
+    return vary, targets
 
 
 def histogram(values, bins: int = 60) -> dict | None:
@@ -128,17 +161,11 @@ def confirm(design: dict, progress=None) -> dict:
 def cheapest(design: dict, progress=None) -> dict:
     """The planner over the design's ranges with its U targets: the cheapest set-up."""
     from mtplan.explore.state import K, normalise, setup_of
-    from mtplan.explore.studies import plan_vary
     from mtplan.plans.planner import plan
 
     design = normalise(design)
     proc, setup = setup_of(design)
-    vary = plan_vary(proc, design)
-    targets = {k: float(v) for k, v in design["targets"].items()}
-    if not vary:
-        raise InvalidInput(["Mark at least one set-up field's range (values to try) to search."])
-    if not targets:
-        raise InvalidInput(["Enter at least one target U (k = 2) to search for."])
+    vary, targets = planner_inputs(proc, design)
     r = plan(proc, setup, vary, targets, k=K, estimator=design["estimator"],
              seed=int(design["seed"]), trials=min(int(design["trials"]), 5000))
     return {"best": r.best, "confirmation": r.confirmation, "k": K, "targets": targets,

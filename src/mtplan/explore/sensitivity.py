@@ -51,8 +51,13 @@ def sensitivity(design: dict, field: str | None = None, n: int = 9, *, stop=None
     holds up the numbers of that change.
     """
     design = normalise(design)
+    if field is not None and not isinstance(field, str):
+        raise InvalidInput([f"The 'field' of a sensitivity must be a set-up field's name (text). "
+                            f"Got {str(field)[:40]!r} instead."])
     proc, setup = setup_of(design)
     field = field or design["lever"]
+    if field not in {f["name"] for f in fields_info(proc.Setup)}:
+        raise InvalidInput([f"The lever {str(field)[:40]!r} is no set-up field of {proc.name}."])
     est, _ = proc.estimator(design["estimator"])
     guard_cost(proc, setup, est)
     spot = known_spot(proc, setup, est)

@@ -31,7 +31,7 @@ from mtplan.models import get
 from mtplan.models.protocol import UNIT_SUFFIXES, fields_info, file_fields, make, parse_fields
 
 __all__ = ["K", "source_fields", "json_value", "setup_key", "json_setup", "whole", "normalise",
-           "refuse_files", "field_problems", "setup_of"]
+           "refuse_files", "field_problems", "setup_of", "design_problems"]
 
 
 #: coverage factor of the U the designer shows and its targets are stated in
@@ -86,8 +86,80 @@ def whole(value, name: str, *, low: int = 0, high: int | None = None) -> int:
     return int(x)
 
 
+#: what each key of a design may hold, by JSON type: a refusal names the key and this
+_KEY_KINDS = {
+    "procedure": ((str,), "a procedure's name (text)"),
+    "setup": ((dict,), "an object of set-up field: value"),
+    "off": ((list,), "a list of error source names"),
+    "estimator": ((str,), "an estimator's name (text)"),
+    "tolerances": ((dict,), "an object of measurand: {lower, upper, prior, rule}"),
+    "targets": ((dict,), "an object of measurand: target U (a number)"),
+    "vary": ((dict,), "an object of set-up field: values to try (text such as '4,6,8')"),
+    "lever": ((str,), "a set-up field's name (text)"),
+    "seed": ((int, float, str), "a whole number"),
+    "trials": ((int, float, str), "a whole number"),
+}
+_SCALAR = (str, int, float)
+_TOLERANCE_KEYS = ("lower", "upper", "prior", "rule", "prior_csv", "prior_name")
+
+
+def _kind(v) -> str:
+    return {dict: "an object", list: "a list", str: "text", bool: "true/false"}.get(
+        type(v), "a number" if isinstance(v, int | float) else type(v).__name__)
+
+
+def _shown(v) -> str:
+    return json.dumps(v)[:40] if isinstance(v, dict | list | str | int | float) else repr(v)
+
+
+def design_problems(d) -> list:
+    """What is malformed in a design as sent, each naming its key ('setup', 'tolerances
+    EX0C rule'), all at once: a type that no value of that key has."""
+    if not isinstance(d, dict):
+        return [f"The design must be a JSON object. Got {_kind(d)} ({_shown(d)}) instead."]
+    out = []
+
+    def bad(key, v, allowed):
+        out.append(f"The design's {key!r} must be {allowed}. Got {_kind(v)} ({_shown(v)}) "
+                   "instead.")
+
+    for key, (kinds, allowed) in _KEY_KINDS.items():
+        v = d.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, kinds)):
+            bad(key, v, allowed)
+    if isinstance(d.get("setup"), dict):
+        for k, v in d["setup"].items():
+            if v is not None and not isinstance(v, _SCALAR):
+                bad(f"setup {k}", v, "a value as typed (text, a number or true/false)")
+    if isinstance(d.get("off"), list):
+        for v in d["off"]:
+            if not isinstance(v, str):
+                bad("off", v, "a list of error source names (text)")
+    for key in ("targets", "vary"):
+        for k, v in (d.get(key) if isinstance(d.get(key), dict) else {}).items():
+            if v is not None and (isinstance(v, bool) or not isinstance(v, _SCALAR)):
+                bad(f"{key} {k}", v, "a number or its text")
+    for name, row in (d.get("tolerances") if isinstance(d.get("tolerances"), dict)
+                      else {}).items():
+        if not isinstance(row, dict):
+            bad(f"tolerances {name}", row, "an object of lower, upper, prior and rule")
+            continue
+        for k in _TOLERANCE_KEYS:
+            v = row.get(k)
+            text_only = k not in ("lower", "upper")
+            if v is not None and (isinstance(v, bool) or not isinstance(
+                    v, str if text_only else _SCALAR)):
+                bad(f"tolerances {name} {k}", v, "text" if text_only else "a number or its text")
+    return out
+
+
 def normalise(design: dict | None) -> dict:
-    """A design with every key present (defaults filled), unknown keys dropped."""
+    """A design with every key present (defaults filled), unknown keys dropped;
+    InvalidInput naming each key whose value has a type no design has
+    (:func:`design_problems`)."""
+    problems = design_problems(design if design is not None else {})
+    if problems:
+        raise InvalidInput(problems)
     d = dict(design or {})
     name = d.get("procedure") or "rotary_axis"
     proc = get(name)

@@ -8,7 +8,8 @@ import math
 import tomllib
 
 from mtplan._validate import InvalidInput
-from mtplan.explore.state import K, json_value, normalise, refuse_files, setup_of, source_fields
+from mtplan.explore.state import (K, json_value, normalise, refuse_files, setup_of,
+                                  source_fields, whole)
 from mtplan.explore.tolerances import PRIOR_TEXT
 from mtplan.models import get, registry
 from mtplan.models.protocol import parse_fields
@@ -57,8 +58,8 @@ def study_toml(design: dict, *, title: str | None = None) -> str:
     lines = [
         "# A set-up designed in `mtplan explore`; `mtplan report` computes and writes it.",
         f"title = {_toml_value(title or f'Test plan: {proc.title}')}",
-        f"seed = {int(design['seed'])}",
-        f"trials = {int(design['trials'])}",
+        f"seed = {whole(design['seed'], 'seed', high=2**63 - 1)}",
+        f"trials = {whole(design['trials'], 'trials', low=2)}",
         "",
         "[[procedure]]",
         f"name = {_toml_value(proc.name)}",
@@ -120,6 +121,12 @@ def design_from_study(text: str, procedure: str | None = None) -> dict:
     """
     from mtplan.plans.study import load_study
 
+    if not isinstance(text, str):
+        raise InvalidInput([f"The 'toml' of a study must be the study file's text. Got "
+                            f"{type(text).__name__} instead."])
+    if procedure is not None and not isinstance(procedure, str):
+        raise InvalidInput([f"The 'procedure' of a study to load must be a procedure's name "
+                            f"(text). Got {str(procedure)[:40]!r} instead."])
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
