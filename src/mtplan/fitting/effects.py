@@ -1,6 +1,6 @@
 """How each element of each error source moves each reading: probes and secants, once.
 
-The posterior's likelihood (:mod:`mtplan.fitting.budget`), the readings' covariance of a
+The posterior's likelihood (:mod:`mtplan.fitting.error_model`), the readings' covariance of a
 fit (:func:`mtplan.fitting.source_effects`) and the first-order linearisation service
 (:mod:`mtplan.evaluation.first_order`) all ask the forward model the same question: which
 readings does each element of a source move, and by how much. The answer is found here:
