@@ -40,15 +40,16 @@ def _linearize_numbers(proc, setup, estimator) -> tuple[dict, dict]:
 
 
 @pytest.mark.parametrize("name, estimator", CASES)
-def test_planner_designer_and_linearize_give_the_same_first_order_numbers(name, estimator):
+def test_planner_designer_linearize_and_estimate_give_the_same_first_order_numbers(
+        name, estimator):
     from mtplan.evaluation.measured import _first_order
-    from mtplan.explore.design import _predict
+    from mtplan.explore.prediction import compute_prediction
     from mtplan.plans.planner import _assess
 
     proc = registry()[name]
     setup = setup_of(proc, estimator)
     planner, _ = _assess(proc, setup, None, estimator, None, True, False)
-    designer = _predict(proc, setup, estimator)
+    designer = compute_prediction(proc, setup, estimator)
     lin_u, lin_budget = _linearize_numbers(proc, setup, estimator)
     estimate = _first_order(proc, setup, proc.Truth(), estimator, None)
     estimate_u, estimate_budget = estimate.u(), estimate.by_source()
