@@ -206,11 +206,6 @@ class GUMResult:
                             "share": float(var[i, j] / total[i]) if total[i] > 0 else 0.0}
                       for j, src in enumerate(groups)} for i, out in enumerate(self.names)}
 
-    def budget_std(self) -> dict:
-        """{output: {source: its part of u}} (the set-up designer's view of :meth:`by_source`)."""
-        return {out: {src: part["u"] for src, part in parts.items()}
-                for out, parts in self.by_source().items()}
-
     def budget(self):
         """The uncertainty budget: one row per output and input (or error source).
 
