@@ -1,0 +1,192 @@
+"""Writers of corrections in controllers' formats, behind one small interface.
+
+A format is a :class:`CompensationFormat`: its name, the public document it follows, the
+kinds of correction it can hold, its options and limits, and ``render(correction,
+options) -> {file name: text}``. The built-in formats are listed in :data:`BUILT_IN`; an
+installed package adds one through the entry point group ``mtplan.compensation_formats``
+(a ``CompensationFormat`` instance), as procedures are added.
+
+Every format writes the values of :class:`~mtplan.compensation.model.Correction` rounded to
+its resolution; the predicted residual after compensation (:func:`residual`) includes that
+rounding, which is known exactly once the file is written.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from importlib.metadata import entry_points
+
+import numpy as np
+
+from mtplan._validate import InvalidInput
+from mtplan.compensation.model import Correction
+
+__all__ = ["FormatOption", "CompensationFormat", "ENTRY_POINT_GROUP", "available_formats",
+           "get_format", "residual", "Residual"]
+
+ENTRY_POINT_GROUP = "mtplan.compensation_formats"
+
+#: two-sided 95 % factor of the normal distribution
+_Z95 = 1.959963984540054
+
+
+@dataclass(frozen=True)
+class FormatOption:
+    """An option of a format (``--option NAME=VALUE``): its default, what it means and the
+    values it allows (``parse(text) -> value``, raising ValueError with the allowed values)."""
+
+    name: str
+    default: object
+    doc: str
+    parse: Callable[[str], object] = str
+
+
+@dataclass(frozen=True)
+class CompensationFormat:
+    """A controller's format for corrections.
+
+    Parameters
+    ----------
+    name : str
+        The name ``mtplan compensate --format`` takes.
+    title : str
+        One line: the controller and the table or entry.
+    source : str
+        The public document whose layout, names, units and limits the writer follows.
+    kinds : tuple of str
+        The correction kinds it can hold (:attr:`CorrectionModel.kind`); ``("*",)`` for all.
+    render : callable
+        ``render(correction, options) -> {file name: text}``: the files, written together
+        or not at all. Raises :class:`InvalidInput` where the correction exceeds the
+        format's documented limits, naming them.
+    options : tuple of FormatOption
+    resolution : callable
+        ``resolution(correction, options) -> array``: the step [display unit] in which each
+        term's value is written (0: written to full precision).
+    """
+
+    name: str
+    title: str
+    source: str
+    kinds: tuple
+    render: Callable
+    options: tuple = ()
+    resolution: Callable = field(default=lambda correction, options:
+                                 np.zeros(len(correction.names)))
+
+    def holds(self, correction: Correction) -> bool:
+        return "*" in self.kinds or correction.kind in self.kinds
+
+    def parse_options(self, given: Mapping[str, str]) -> dict:
+        """The format's options from ``NAME=VALUE`` texts, defaults for the rest; every
+        problem at once."""
+        known = {o.name: o for o in self.options}
+        problems, out = [], {o.name: o.default for o in self.options}
+        for key, text in given.items():
+            if key not in known:
+                allowed = ", ".join(known) or "none"
+                problems.append(f"format {self.name!r} has no option {key!r} (its options: "
+                                f"{allowed})")
+                continue
+            try:
+                out[key] = known[key].parse(text)
+            except ValueError as exc:
+                problems.append(f"option {key!r} of format {self.name!r}: {exc}")
+        if problems:
+            raise InvalidInput(problems)
+        return out
+
+    def write_files(self, correction: Correction, options: Mapping) -> dict:
+        """``{file name: text}`` of `correction`, refused where the format cannot hold it."""
+        if not self.holds(correction):
+            raise InvalidInput([f"format {self.name!r} holds {', '.join(self.kinds)} "
+                                f"corrections; {correction.procedure}'s result is a "
+                                f"{correction.kind} correction (formats that hold it: "
+                                f"{', '.join(f.name for f in available_formats().values() if f.holds(correction))})"])
+        return self.render(correction, options)
+
+
+def _built_in() -> dict:
+    from mtplan.compensation import fanuc, isg, neutral
+
+    return {f.name: f for f in (neutral.FORMAT, isg.FORMAT, fanuc.FORMAT)}
+
+
+def available_formats() -> dict:
+    """Every format by name: the built-in ones, then those of installed packages
+    (entry point group ``mtplan.compensation_formats``)."""
+    out = _built_in()
+    for point in entry_points(group=ENTRY_POINT_GROUP):
+        if point.name in out:
+            continue
+        fmt = point.load()
+        if not isinstance(fmt, CompensationFormat):
+            raise InvalidInput([f"entry point {point.name!r} of {ENTRY_POINT_GROUP} is not a "
+                                "CompensationFormat"])
+        out[point.name] = fmt
+    return out
+
+
+def get_format(name: str) -> CompensationFormat:
+    formats = available_formats()
+    if name not in formats:
+        raise InvalidInput([f"unknown format {name!r}: one of {', '.join(formats)}"])
+    return formats[name]
+
+
+@dataclass(frozen=True)
+class Residual:
+    """The error that remains of each corrected term once the written correction is
+    applied, predicted from the result's state of knowledge: ``mean`` (the rounding of the
+    written value, known exactly) and ``u`` (the result's standard uncertainty), with the
+    95 % interval ``low``, ``high`` [display unit]."""
+
+    names: tuple
+    units: tuple
+    mean: np.ndarray
+    u: np.ndarray
+
+    @property
+    def low(self) -> np.ndarray:
+        return self.mean - _Z95 * self.u
+
+    @property
+    def high(self) -> np.ndarray:
+        return self.mean + _Z95 * self.u
+
+    def rows(self) -> list[dict]:
+        return [{"term": n, "unit": un, "residual_mean": float(m), "residual_u": float(u),
+                 "residual_low": float(lo), "residual_high": float(hi)}
+                for n, un, m, u, lo, hi in zip(self.names, self.units, self.mean, self.u,
+                                               self.low, self.high)]
+
+
+def rounded(value: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """`value` rounded to `step` (unchanged where the step is 0)."""
+    value, step = np.asarray(value, float), np.asarray(step, float)
+    safe = np.where(step > 0, step, 1.0)
+    return np.where(step > 0, np.round(value / safe) * safe, value)
+
+
+def residual(correction: Correction, step=None) -> Residual:
+    """The residual after compensation of each term.
+
+    The true error is ``estimate + e`` with ``e`` the measurement's error, whose state of
+    knowledge is normal with the result's covariance; the controller removes the written
+    value ``w = round(estimate, step)``. What remains is ``estimate - w + e``: normal, mean
+    ``estimate - w`` (the rounding), standard deviation u of the estimate. It does not
+    include what the measurement cannot see (a repeatable error between the measured
+    points, the temperature at which the machine is used); docs/compensation.md lists
+    what each procedure's residual leaves out.
+    """
+    step = np.zeros(len(correction.names)) if step is None else np.asarray(step, float)
+    written = rounded(correction.value, step)
+    return Residual(correction.names, correction.units, correction.value - written,
+                    correction.u)
+
+
+def decimals(step_mm: float) -> int:
+    """Decimal places that show a step [mm] exactly (0.001 -> 3)."""
+    return max(0, -int(math.floor(math.log10(step_mm) + 1e-9)))

@@ -1,0 +1,165 @@
+"""Corrections: what a controller takes, from a measured result, with its uncertainty.
+
+A procedure states its :class:`~mtplan.models.correction.CorrectionModel`: what is corrected, in which frame, with which
+sign, and each corrected quantity (a :class:`CorrectionTerm`) as a linear function of the
+procedure's measurands. :func:`correction` applies the model to a measured result (the
+``mtplan estimate --json`` document): the values and their covariance follow exactly from
+the measurands' through that linear map, so the written U is the measurement's own.
+
+Writers for controllers' formats (:mod:`mtplan.compensation.formats`) read only the
+:class:`Correction` record, never the procedure.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mtplan._validate import InvalidInput
+from mtplan.models.correction import CorrectionModel
+
+__all__ = ["Correction", "correction", "read_result"]
+
+#: display unit -> factor from the internal unit (mm, rad) for the units corrections use
+_FACTOR = {"um": 1e3, "mm": 1.0, "urad": 1e6, "rad": 1.0, "1": 1.0}
+
+
+@dataclass(frozen=True)
+class Correction:
+    """A correction with its uncertainty: what ``mtplan compensate`` writes.
+
+    ``value`` [display units] and ``covariance`` [unit_i x unit_j] of the terms in order;
+    ``U`` is ``k`` times the standard uncertainty (k = 2). ``source`` names the result it
+    came from (procedure, estimator, seed, the measured file's name).
+    """
+
+    procedure: str
+    kind: str
+    frame: str
+    sign: str
+    names: tuple
+    units: tuple
+    descriptions: tuple
+    value: np.ndarray
+    covariance: np.ndarray
+    setup: Mapping = field(default_factory=dict)
+    source: Mapping = field(default_factory=dict)
+    k: float = 2.0
+
+    @property
+    def u(self) -> np.ndarray:
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+    @property
+    def U(self) -> np.ndarray:
+        return self.k * self.u
+
+    def internal(self, name: str) -> tuple[float, float]:
+        """(value, U) of term `name` in internal units (mm, rad)."""
+        i = self.names.index(name)
+        f = _FACTOR[self.units[i]]
+        return float(self.value[i]) / f, float(self.U[i]) / f
+
+    def rows(self) -> list[dict]:
+        """One plain dict per term: the neutral table's rows."""
+        return [{"procedure": self.procedure, "term": n, "unit": un,
+                 "value": float(v), "U": float(U), "k": self.k, "description": d}
+                for n, un, d, v, U in zip(self.names, self.units, self.descriptions,
+                                          self.value, self.U)]
+
+
+def read_result(path) -> dict:
+    """The ``mtplan estimate --json`` document at `path`, checked for what a correction
+    needs: a procedure, measurands with values, and their covariance."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InvalidInput([f"result file {str(path)!r}: no such file"]) from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InvalidInput([f"result file {str(path)!r} is not a JSON document ({exc})"]) \
+            from None
+    problems = []
+    if not isinstance(doc, dict) or not isinstance(doc.get("procedure"), str) \
+            or not isinstance(doc.get("measurands"), list):
+        raise InvalidInput([f"result file {str(path)!r} is not the output of 'mtplan estimate "
+                            "--json' (a procedure and its measurands)"])
+    cov = doc.get("covariance")
+    if not isinstance(cov, dict) or not {"names", "units", "matrix"} <= set(cov):
+        problems.append(f"result file {str(path)!r} has no covariance of its measurands: a "
+                        "correction's uncertainty needs it (write the result with 'mtplan "
+                        "estimate --json')")
+    if not isinstance(doc.get("setup"), dict):
+        problems.append(f"result file {str(path)!r} has no set-up")
+    if problems:
+        raise InvalidInput(problems)
+    doc = dict(doc)
+    doc.setdefault("file", path.name)
+    return doc
+
+
+def correction(model: CorrectionModel, doc: Mapping, *, procedure: str) -> Correction:
+    """The correction that `model` makes of a measured result `doc` (``estimate --json``).
+
+    Values are the weighted sums of the measurands' values (bias-corrected, as the result
+    states them); the covariance is ``A C A^T`` with ``A`` the weights and ``C`` the
+    result's covariance: exact, since every term is linear in the measurands.
+
+    Raises
+    ------
+    InvalidInput
+        The result is another procedure's, the procedure states no correction, or a
+        measurand a term needs has no value or no covariance.
+    """
+    if doc.get("procedure") != procedure:
+        raise InvalidInput([f"the result is of procedure {doc.get('procedure')!r}, not "
+                            f"{procedure!r}"])
+    terms = tuple(model.terms(doc.get("setup") or {}))
+    if not model.kind or not terms:
+        raise InvalidInput([f"procedure {procedure!r} states no correction a controller "
+                            "takes"])
+    cov_doc = doc["covariance"]
+    names = list(cov_doc["names"])
+    values = {m["name"]: m for m in doc["measurands"]}
+    C = np.array([[np.nan if v is None else float(v) for v in row]
+                  for row in cov_doc["matrix"]], dtype=float).reshape(len(names), len(names))
+    A = np.zeros((len(terms), len(names)))
+    problems = []
+    for i, term in enumerate(terms):
+        for m, w in term.weights.items():
+            if m not in names or m not in values:
+                problems.append(f"term {term.name!r} needs measurand {m!r}, which the result "
+                                "does not hold")
+                continue
+            A[i, names.index(m)] = w
+    if problems:
+        raise InvalidInput(problems)
+    used = np.any(A != 0, axis=0)
+    x = np.array([values[n]["value"] if values.get(n, {}).get("value") is not None
+                  else np.nan for n in names], dtype=float)
+    bad = [n for n, ok in zip(names, np.isfinite(x) | ~used) if not ok]
+    sub = C[np.ix_(used, used)]
+    if bad or not np.all(np.isfinite(sub)):
+        missing = bad or [n for j, n in enumerate(np.array(names)[used])
+                          if not np.all(np.isfinite(sub[j]))]
+        raise InvalidInput([f"measurand {n!r} has no value or no covariance in the result "
+                            "(not determined at its set-up): no correction is written from it"
+                            for n in missing])
+    xs = np.where(used, x, 0.0)
+    Cs = np.where(np.outer(used, used), C, 0.0)
+    value = A @ xs
+    cov = A @ Cs @ A.T
+    if not np.all(np.isfinite(value)) or not all(math.isfinite(v) for v in np.diag(cov)):
+        raise InvalidInput(["the result's values or covariance are not finite"])
+    return Correction(
+        procedure=procedure, kind=model.kind, frame=model.frame, sign=model.sign,
+        names=tuple(t.name for t in terms), units=tuple(t.unit for t in terms),
+        descriptions=tuple(t.description for t in terms), value=value,
+        covariance=0.5 * (cov + cov.T), setup=dict(doc.get("setup") or {}),
+        source={k: doc.get(k) for k in ("procedure", "estimator", "uncertainty", "seed",
+                                        "file")})

@@ -1,0 +1,70 @@
+"""The correction model a procedure states: what is corrected, in which frame, with which sign.
+
+Part of the procedure contract (:class:`~mtplan.models.protocol.Procedure`'s ``correction``):
+each corrected quantity is a linear function of the procedure's measurands, so the
+correction's covariance follows exactly from the result's (:mod:`mtplan.compensation`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+__all__ = ["CorrectionTerm", "CorrectionModel", "NO_CORRECTION"]
+
+
+@dataclass(frozen=True)
+class CorrectionTerm:
+    """One corrected quantity: ``value = sum(weight * measurand)`` in `unit`.
+
+    Parameters
+    ----------
+    name : str
+        The quantity's name in the neutral table: the ISO 230-1 / ISO 230-7 name where one
+        exists (``EX0C``), otherwise a plain one (``work_offset_x``).
+    weights : mapping of str to float
+        Measurand name -> weight [term unit per measurand unit].
+    unit : str
+        Display unit of the value and its U (um or urad).
+    description : str
+        What the controller entry is, in plain words.
+    """
+
+    name: str
+    weights: Mapping[str, float]
+    unit: str
+    description: str
+
+
+def _no_terms(setup: Mapping) -> tuple:
+    return ()
+
+
+@dataclass(frozen=True)
+class CorrectionModel:
+    """How a procedure's result becomes a correction a controller takes.
+
+    Parameters
+    ----------
+    kind : str
+        What is corrected: ``kinematic location`` (a rotary axis's place in the kinematic
+        model), ``work offset``, ``frame``, ``sensor rotation``; "" when the procedure
+        states no correction.
+    frame : str
+        The frame the values are expressed in, in words.
+    sign : str
+        The sign convention: what a positive value means and what the controller does
+        with it, in words.
+    terms : callable
+        ``terms(setup) -> tuple of CorrectionTerm``: the corrected quantities at the
+        result's set-up (a dict of its fields as the result document holds them).
+    """
+
+    kind: str = ""
+    frame: str = ""
+    sign: str = ""
+    terms: Callable[[Mapping], tuple] = _no_terms
+
+
+#: the model of a procedure that states no correction (``mtplan compensate`` refuses it)
+NO_CORRECTION = CorrectionModel()
