@@ -3,17 +3,19 @@ uncertainty, and the residual predicted after them.
 
 - :mod:`mtplan.compensation.model`: :class:`Correction` and :func:`correction`, a procedure's
   correction model (:class:`mtplan.models.correction.CorrectionModel`) applied to a result;
-- :mod:`mtplan.compensation.formats`: the writers' interface, the registry (entry point group
-  ``mtplan.compensation_formats``) and the predicted residual after compensation;
+- :mod:`mtplan.compensation.formats`: the writers' interface and the predicted residual after
+  compensation; :mod:`mtplan.compensation.registry`: the formats by name (entry point group
+  ``mtplan.compensation_formats``);
 - one module per built-in format: :mod:`~mtplan.compensation.neutral`,
   :mod:`~mtplan.compensation.isg`, :mod:`~mtplan.compensation.fanuc`.
 """
 
 from __future__ import annotations
 
-from mtplan.compensation.formats import (CompensationFormat, FormatOption, Residual,
-                                         available_formats, get_format, residual)
+from mtplan._validate import InvalidInput
+from mtplan.compensation.formats import CompensationFormat, FormatOption, Residual, residual
 from mtplan.compensation.model import Correction, correction, read_result
+from mtplan.compensation.registry import available_formats, get_format
 
 __all__ = ["Correction", "correction", "read_result", "CompensationFormat", "FormatOption",
            "Residual", "available_formats", "get_format", "residual", "compensate"]
@@ -46,6 +48,11 @@ def compensate(result, format: str = "neutral", options=None):
     proc = models.get(doc["procedure"])
     corr = correction(proc.correction, doc, procedure=proc.name)
     files = get_format("neutral").write_files(corr, {})
+    if not fmt.holds(corr):
+        able = [f.name for f in available_formats().values() if f.holds(corr)]
+        raise InvalidInput([f"format {fmt.name!r} holds {', '.join(fmt.kinds)} corrections; "
+                            f"{corr.procedure}'s result is a {corr.kind} correction (formats "
+                            f"that hold it: {', '.join(able)})"])
     if fmt.name != "neutral":
         files.update(fmt.write_files(corr, opts))
     return files, corr, residual(corr, fmt.resolution(corr, opts))

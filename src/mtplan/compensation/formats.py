@@ -1,10 +1,10 @@
-"""Writers of corrections in controllers' formats, behind one small interface.
+"""The interface of a writer of corrections in a controller's format, and the residual.
 
 A format is a :class:`CompensationFormat`: its name, the public document it follows, the
 kinds of correction it can hold, its options and limits, and ``render(correction,
-options) -> {file name: text}``. The built-in formats are listed in :data:`BUILT_IN`; an
-installed package adds one through the entry point group ``mtplan.compensation_formats``
-(a ``CompensationFormat`` instance), as procedures are added.
+options) -> {file name: text}``. The registry (:mod:`mtplan.compensation.registry`) holds
+the built-in formats and those that installed packages add through the entry point group
+``mtplan.compensation_formats`` (a ``CompensationFormat`` instance), as procedures are added.
 
 Every format writes the values of :class:`~mtplan.compensation.model.Correction` rounded to
 its resolution; the predicted residual after compensation (:func:`residual`) includes that
@@ -16,17 +16,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 
 import numpy as np
 
 from mtplan._validate import InvalidInput
 from mtplan.compensation.model import Correction
 
-__all__ = ["FormatOption", "CompensationFormat", "ENTRY_POINT_GROUP", "available_formats",
-           "get_format", "residual", "Residual"]
-
-ENTRY_POINT_GROUP = "mtplan.compensation_formats"
+__all__ = ["FormatOption", "CompensationFormat", "residual", "Residual", "rounded", "decimals"]
 
 #: two-sided 95 % factor of the normal distribution
 _Z95 = 1.959963984540054
@@ -103,37 +99,8 @@ class CompensationFormat:
         if not self.holds(correction):
             raise InvalidInput([f"format {self.name!r} holds {', '.join(self.kinds)} "
                                 f"corrections; {correction.procedure}'s result is a "
-                                f"{correction.kind} correction (formats that hold it: "
-                                f"{', '.join(f.name for f in available_formats().values() if f.holds(correction))})"])
+                                f"{correction.kind} correction"])
         return self.render(correction, options)
-
-
-def _built_in() -> dict:
-    from mtplan.compensation import fanuc, isg, neutral
-
-    return {f.name: f for f in (neutral.FORMAT, isg.FORMAT, fanuc.FORMAT)}
-
-
-def available_formats() -> dict:
-    """Every format by name: the built-in ones, then those of installed packages
-    (entry point group ``mtplan.compensation_formats``)."""
-    out = _built_in()
-    for point in entry_points(group=ENTRY_POINT_GROUP):
-        if point.name in out:
-            continue
-        fmt = point.load()
-        if not isinstance(fmt, CompensationFormat):
-            raise InvalidInput([f"entry point {point.name!r} of {ENTRY_POINT_GROUP} is not a "
-                                "CompensationFormat"])
-        out[point.name] = fmt
-    return out
-
-
-def get_format(name: str) -> CompensationFormat:
-    formats = available_formats()
-    if name not in formats:
-        raise InvalidInput([f"unknown format {name!r}: one of {', '.join(formats)}"])
-    return formats[name]
 
 
 @dataclass(frozen=True)

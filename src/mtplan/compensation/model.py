@@ -1,8 +1,9 @@
 """Corrections: what a controller takes, from a measured result, with its uncertainty.
 
-A procedure states its :class:`~mtplan.models.correction.CorrectionModel`: what is corrected, in which frame, with which
-sign, and each corrected quantity (a :class:`CorrectionTerm`) as a linear function of the
-procedure's measurands. :func:`correction` applies the model to a measured result (the
+A procedure states its :class:`~mtplan.models.correction.CorrectionModel`: what is
+corrected, in which frame, with which sign, and each corrected quantity (a
+:class:`~mtplan.models.correction.CorrectionTerm`) as a linear function of the procedure's
+measurands. :func:`correction` applies the model to a measured result (the
 ``mtplan estimate --json`` document): the values and their covariance follow exactly from
 the measurands' through that linear map, so the written U is the measurement's own.
 
