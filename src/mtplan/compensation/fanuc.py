@@ -19,14 +19,15 @@ __all__ = ["FORMAT"]
 _AXIS = {"work_offset_x": "X", "work_offset_y": "Y", "work_offset_z": "Z"}
 
 
-def _offset(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if not 1 <= n <= 6:
-        raise ValueError(f"must be a whole number 1 to 6 (G54 to G59). Got {text!r} instead.")
-    return n
+def _whole(low: int, high: int, what: str):
+    """A parser of a whole number low..high, refusing others with `what` they stand for."""
+    def parse(text: str) -> int:
+        n = int(text) if text.strip().lstrip("+").isdigit() else low - 1
+        if not low <= n <= high:
+            raise ValueError(f"must be a whole number {low} to {high} ({what}). Got {text!r} "
+                             "instead.")
+        return n
+    return parse
 
 
 def _increment(text: str) -> float:
@@ -34,16 +35,6 @@ def _increment(text: str) -> float:
     if text not in steps:
         raise ValueError(f"must be 0.001 (IS-B) or 0.0001 (IS-C) mm. Got {text!r} instead.")
     return steps[text]
-
-
-def _program(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if not 1 <= n <= 9999:
-        raise ValueError(f"must be a program number 1 to 9999. Got {text!r} instead.")
-    return n
 
 
 def _step(correction, options) -> np.ndarray:
@@ -85,9 +76,11 @@ FORMAT = CompensationFormat(
            "(G91) input",
     kinds=("work offset",),
     render=_render,
-    options=(FormatOption("offset", 1, "work offset 1-6 (G54-G59)", _offset),
+    options=(FormatOption("offset", 1, "work offset 1-6 (G54-G59)",
+                          _whole(1, 6, "G54 to G59")),
              FormatOption("increment_mm", 0.001, "the control's input increment: 0.001 (IS-B) "
                           "or 0.0001 (IS-C)", _increment),
-             FormatOption("program", 9001, "program number O1-O9999", _program)),
+             FormatOption("program", 9001, "program number O1-O9999",
+                          _whole(1, 9999, "a program number"))),
     resolution=_step,
 )
