@@ -53,7 +53,7 @@ def cmd_compensate(args) -> int:
     print(f"{correction.procedure}: {correction.kind} correction ({correction.sign})")
     for n, unit, v, U, lo, hi in zip(correction.names, correction.units, correction.value,
                                      correction.U, res.low, res.high):
-        print(f"  {n:<{width}}  {v:+10.4g} {unit:<4}  U {U:8.2g}   residual after "
-              f"(95 %): {lo:+.2g} to {hi:+.2g} {unit}")
+        print(f"  {n:<{width}}  {v:+10.4g} {unit:<4}  U {U:<8.3g}  residual after it (95 %): "
+              f"{lo:+.3g} to {hi:+.3g} {unit}")
     print("wrote " + ", ".join(f"{args.out}/{name}" for name in files))
     return 0
