@@ -83,6 +83,13 @@ def test_a_combined_term_takes_the_covariance_through_its_weights():
     assert corr.covariance[0, 0] == pytest.approx(C[i, i] + C[j, j] + 2 * C[i, j], rel=1e-12)
     assert corr.covariance[1, 1] == pytest.approx(0.25 * C[k, k], rel=1e-12)
     assert corr.covariance[0, 1] == pytest.approx(0.5 * (C[i, k] + C[j, k]), rel=1e-12)
+    # a sum has no interval of its own in the result: its residual is normal
+    res = residual(corr)
+    assert res.how[0] == "normal, 1.96 u" and np.isnan(corr.interval[0]).all()
+    assert res.high[0] == pytest.approx(1.959963984540054 * np.sqrt(corr.covariance[0, 0]))
+    # a scaled measurand keeps its interval, scaled
+    a_low, a_high = next(m["interval"] for m in doc["measurands"] if m["name"] == "EA0C")
+    np.testing.assert_allclose(corr.interval[1], [0.5 * a_low, 0.5 * a_high])
 
 
 @pytest.mark.parametrize("procedure", ["rotary_axis", "line_laser"])
@@ -96,9 +103,15 @@ def test_neutral_table_round_trips(procedure):
         assert float(table[name]["U"]) == pytest.approx(2 * np.sqrt(corr.covariance[i, i]))
         assert table[name]["sign"] == corr.sign and table[name]["frame"] == corr.frame
     np.testing.assert_array_equal(doc["covariance"]["matrix"], corr.covariance)
-    # written at full precision: the predicted residual is centred, 1.96 u wide
-    np.testing.assert_array_equal(res.mean, 0.0)
-    np.testing.assert_allclose(res.high, 1.959963984540054 * corr.u)
+    # written at full precision: the residual's interval is the result's own, less the value
+    measured = {m["name"]: m for m in json.loads(
+        (EXAMPLES / f"{procedure}_result.json").read_text())["measurands"]}
+    for i, name in enumerate(corr.names):
+        low, high = measured[name]["interval"]
+        assert res.low[i] == pytest.approx(low - corr.value[i], abs=1e-12)
+        assert res.high[i] == pytest.approx(high - corr.value[i], abs=1e-12)
+        assert float(table[name]["residual_low"]) == res.low[i]
+    assert set(res.how) == {"the result's 95 % interval"}
 
 
 def test_isg_csv_reads_back_to_the_location_errors():

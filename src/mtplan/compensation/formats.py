@@ -106,28 +106,22 @@ class CompensationFormat:
 @dataclass(frozen=True)
 class Residual:
     """The error that remains of each corrected term once the written correction is
-    applied, predicted from the result's state of knowledge: ``mean`` (the rounding of the
-    written value, known exactly) and ``u`` (the result's standard uncertainty), with the
-    95 % interval ``low``, ``high`` [display unit]."""
+    applied, predicted from the result's state of knowledge: its 95 % interval ``low``,
+    ``high`` [display unit], ``how`` it was formed per term, and ``shift`` (the rounding of
+    the written value, known exactly)."""
 
     names: tuple
     units: tuple
-    mean: np.ndarray
-    u: np.ndarray
-
-    @property
-    def low(self) -> np.ndarray:
-        return self.mean - _Z95 * self.u
-
-    @property
-    def high(self) -> np.ndarray:
-        return self.mean + _Z95 * self.u
+    low: np.ndarray
+    high: np.ndarray
+    shift: np.ndarray
+    how: tuple
 
     def rows(self) -> list[dict]:
-        return [{"term": n, "unit": un, "residual_mean": float(m), "residual_u": float(u),
-                 "residual_low": float(lo), "residual_high": float(hi)}
-                for n, un, m, u, lo, hi in zip(self.names, self.units, self.mean, self.u,
-                                               self.low, self.high)]
+        return [{"term": n, "unit": un, "residual_low": float(lo), "residual_high": float(hi),
+                 "rounding": float(sh), "how": how}
+                for n, un, lo, hi, sh, how in zip(self.names, self.units, self.low, self.high,
+                                                 self.shift, self.how)]
 
 
 def rounded(value: np.ndarray, step: np.ndarray) -> np.ndarray:
@@ -138,20 +132,26 @@ def rounded(value: np.ndarray, step: np.ndarray) -> np.ndarray:
 
 
 def residual(correction: Correction, step=None) -> Residual:
-    """The residual after compensation of each term.
+    """The residual after compensation of each term, with its 95 % interval.
 
-    The true error is ``estimate + e`` with ``e`` the measurement's error, whose state of
-    knowledge is normal with the result's covariance; the controller removes the written
-    value ``w = round(estimate, step)``. What remains is ``estimate - w + e``: normal, mean
-    ``estimate - w`` (the rounding), standard deviation u of the estimate. It does not
-    include what the measurement cannot see (a repeatable error between the measured
-    points, the temperature at which the machine is used); docs/compensation.md lists
-    what each procedure's residual leaves out.
+    The controller removes the written value ``w = round(estimate, step)``; what remains of
+    the true error is ``true - w``. Where the result states the term's 95 % coverage
+    interval (a term that scales one measurand: the Monte Carlo's own interval, whatever
+    its shape), the residual's interval is that interval less ``w``; where a term combines
+    measurands, it is normal with the term's covariance, ``estimate - w +- 1.96 u``. It
+    does not include what the measurement cannot see (a repeatable error between the
+    measured points, the temperature at which the machine is used): docs/compensation.md
+    lists what each procedure's residual leaves out.
     """
     step = np.zeros(len(correction.names)) if step is None else np.asarray(step, float)
     written = rounded(correction.value, step)
-    return Residual(correction.names, correction.units, correction.value - written,
-                    correction.u)
+    shift = correction.value - written
+    normal = np.stack([shift - _Z95 * correction.u, shift + _Z95 * correction.u], axis=1)
+    stated = np.isfinite(correction.interval).all(axis=1) if correction.interval.size else \
+        np.zeros(len(correction.names), bool)
+    bounds = np.where(stated[:, None], correction.interval - written[:, None], normal)
+    how = tuple("the result's 95 % interval" if ok else "normal, 1.96 u" for ok in stated)
+    return Residual(correction.names, correction.units, bounds[:, 0], bounds[:, 1], shift, how)
 
 
 def decimals(step_mm: float) -> int:

@@ -51,6 +51,10 @@ class Correction:
     setup: Mapping = field(default_factory=dict)
     source: Mapping = field(default_factory=dict)
     k: float = 2.0
+    #: (terms, 2): each term's 95 % coverage interval where the result states one for the
+    #: single measurand it scales (the Monte Carlo's own, not +-2u: a location error's
+    #: distribution is often far from normal); NaN where the term combines measurands
+    interval: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))
 
     @property
     def u(self) -> np.ndarray:
@@ -68,10 +72,12 @@ class Correction:
 
     def rows(self) -> list[dict]:
         """One plain dict per term: the neutral table's rows."""
-        return [{"procedure": self.procedure, "term": n, "unit": un,
-                 "value": float(v), "U": float(U), "k": self.k, "description": d}
-                for n, un, d, v, U in zip(self.names, self.units, self.descriptions,
-                                          self.value, self.U)]
+        return [{"procedure": self.procedure, "term": n, "unit": un, "value": float(v),
+                 "u": float(u), "U": float(U), "k": self.k, "interval_low": float(lo),
+                 "interval_high": float(hi), "description": d}
+                for n, un, d, v, u, U, (lo, hi) in zip(self.names, self.units,
+                                                      self.descriptions, self.value, self.u,
+                                                      self.U, self.interval)]
 
 
 def read_result(path) -> dict:
@@ -155,12 +161,18 @@ def correction(model: CorrectionModel, doc: Mapping, *, procedure: str) -> Corre
     Cs = np.where(np.outer(used, used), C, 0.0)
     value = A @ xs
     cov = A @ Cs @ A.T
+    interval = np.full((len(terms), 2), np.nan)
+    for i, row in enumerate(A):
+        (cols,) = np.nonzero(row)
+        m = values.get(names[cols[0]], {}) if cols.size == 1 else {}
+        if m.get("interval") and m.get("coverage") == 0.95 and None not in m["interval"]:
+            interval[i] = np.sort(row[cols[0]] * np.asarray(m["interval"], dtype=float))
     if not np.all(np.isfinite(value)) or not all(math.isfinite(v) for v in np.diag(cov)):
         raise InvalidInput(["the result's values or covariance are not finite"])
     return Correction(
         procedure=procedure, kind=model.kind, frame=model.frame, sign=model.sign,
         names=tuple(t.name for t in terms), units=tuple(t.unit for t in terms),
         descriptions=tuple(t.description for t in terms), value=value,
-        covariance=0.5 * (cov + cov.T), setup=dict(doc.get("setup") or {}),
+        covariance=0.5 * (cov + cov.T), interval=interval, setup=dict(doc.get("setup") or {}),
         source={k: doc.get(k) for k in ("procedure", "estimator", "uncertainty", "seed",
                                         "file")})
