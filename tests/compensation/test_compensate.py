@@ -73,7 +73,7 @@ def test_a_combined_term_takes_the_covariance_through_its_weights():
     from mtplan.models.correction import CorrectionModel, CorrectionTerm
 
     doc = _doc("rotary_axis")
-    model = CorrectionModel("kinematic location", "f", "s", lambda setup: (
+    model = CorrectionModel("kinematic location", "f", "s", lambda setup, names: (
         CorrectionTerm("sum", {"EX0C": 1.0, "EY0C": 1.0}, "um", "x + y"),
         CorrectionTerm("half", {"EA0C": 0.5}, "urad", "a / 2")))
     corr = correction(model, doc, procedure="rotary_axis")

@@ -143,14 +143,19 @@ def residual(correction: Correction, step=None) -> Residual:
     measured points, the temperature at which the machine is used): docs/compensation.md
     lists what each procedure's residual leaves out.
     """
-    step = np.zeros(len(correction.names)) if step is None else np.asarray(step, float)
+    n = len(correction.names)
+    step = np.zeros(n) if step is None else np.asarray(step, float)
     written = rounded(correction.value, step)
     shift = correction.value - written
-    normal = np.stack([shift - _Z95 * correction.u, shift + _Z95 * correction.u], axis=1)
-    stated = np.isfinite(correction.interval).all(axis=1) if correction.interval.size else \
-        np.zeros(len(correction.names), bool)
+    unseen = correction.unseen_u if correction.unseen_u.size else np.zeros(n)
+    total = np.sqrt(correction.u ** 2 + unseen ** 2)
+    normal = np.stack([shift - _Z95 * total, shift + _Z95 * total], axis=1)
+    stated = (np.isfinite(correction.interval).all(axis=1) if correction.interval.size
+              else np.zeros(n, bool)) & (unseen == 0)
     bounds = np.where(stated[:, None], correction.interval - written[:, None], normal)
-    how = tuple("the result's 95 % interval" if ok else "normal, 1.96 u" for ok in stated)
+    how = tuple("the result's 95 % interval" if ok else
+                "normal, 1.96 u with what the test cannot see" if us > 0 else "normal, 1.96 u"
+                for ok, us in zip(stated, unseen))
     return Residual(correction.names, correction.units, bounds[:, 0], bounds[:, 1], shift, how)
 
 

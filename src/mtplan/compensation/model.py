@@ -55,6 +55,12 @@ class Correction:
     #: single measurand it scales (the Monte Carlo's own, not +-2u: a location error's
     #: distribution is often far from normal); NaN where the term combines measurands
     interval: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))
+    #: per term: ``(axis, position [mm])`` of a table point, ``()`` for a constant
+    arguments: tuple = ()
+    #: per term: the standard uncertainty of what the test cannot see, and what it is
+    unseen_u: np.ndarray = field(default_factory=lambda: np.empty(0))
+    unseen: tuple = ()
+    extrapolated: tuple = ()
 
     @property
     def u(self) -> np.ndarray:
@@ -72,12 +78,20 @@ class Correction:
 
     def rows(self) -> list[dict]:
         """One plain dict per term: the neutral table's rows."""
-        return [{"procedure": self.procedure, "term": n, "unit": un, "value": float(v),
-                 "u": float(u), "U": float(U), "k": self.k, "interval_low": float(lo),
-                 "interval_high": float(hi), "description": d}
-                for n, un, d, v, u, U, (lo, hi) in zip(self.names, self.units,
-                                                      self.descriptions, self.value, self.u,
-                                                      self.U, self.interval)]
+        return [{"procedure": self.procedure, "term": n, "unit": un,
+                 "axis": arg[0] if arg else "", "position": float(arg[1]) if arg else None,
+                 "extrapolated": ex, "value": float(v), "u": float(u), "U": float(U),
+                 "k": self.k, "interval_low": float(lo), "interval_high": float(hi),
+                 "unseen_u": float(us), "unseen": ut, "description": d}
+                for n, un, d, v, u, U, (lo, hi), arg, ex, us, ut in zip(
+                    self.names, self.units, self.descriptions, self.value, self.u, self.U,
+                    self.interval, self.arguments, self.extrapolated, self.unseen_u,
+                    self.unseen)]
+
+    @property
+    def table(self) -> bool:
+        """Some term is a point of a table along an axis."""
+        return any(self.arguments)
 
 
 def read_result(path) -> dict:
@@ -126,7 +140,8 @@ def correction(model: CorrectionModel, doc: Mapping, *, procedure: str) -> Corre
     if doc.get("procedure") != procedure:
         raise InvalidInput([f"the result is of procedure {doc.get('procedure')!r}, not "
                             f"{procedure!r}"])
-    terms = tuple(model.terms(doc.get("setup") or {}))
+    held = tuple(m.get("name") for m in doc["measurands"] if m.get("value") is not None)
+    terms = tuple(model.terms(doc.get("setup") or {}, held))
     if not model.kind or not terms:
         raise InvalidInput([f"procedure {procedure!r} states no correction a controller "
                             "takes"])
@@ -146,7 +161,7 @@ def correction(model: CorrectionModel, doc: Mapping, *, procedure: str) -> Corre
             A[i, names.index(m)] = w
     if problems:
         raise InvalidInput(problems)
-    used = np.any(A != 0, axis=0)
+    used = np.any(A != 0, axis=0)  # a term without weights is zero by definition (u = 0)
     x = np.array([values[n]["value"] if values.get(n, {}).get("value") is not None
                   else np.nan for n in names], dtype=float)
     bad = [n for n, ok in zip(names, np.isfinite(x) | ~used) if not ok]
@@ -173,6 +188,11 @@ def correction(model: CorrectionModel, doc: Mapping, *, procedure: str) -> Corre
         procedure=procedure, kind=model.kind, frame=model.frame, sign=model.sign,
         names=tuple(t.name for t in terms), units=tuple(t.unit for t in terms),
         descriptions=tuple(t.description for t in terms), value=value,
-        covariance=0.5 * (cov + cov.T), interval=interval, setup=dict(doc.get("setup") or {}),
+        covariance=0.5 * (cov + cov.T), interval=interval,
+        arguments=tuple(tuple(t.argument) for t in terms),
+        unseen_u=np.array([float(t.unseen_u) for t in terms]),
+        unseen=tuple(t.unseen for t in terms),
+        extrapolated=tuple(bool(t.extrapolated) for t in terms),
+        setup=dict(doc.get("setup") or {}),
         source={k: doc.get(k) for k in ("procedure", "estimator", "uncertainty", "seed",
                                         "file")})

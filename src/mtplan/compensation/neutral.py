@@ -22,9 +22,9 @@ def _plain(value):
 
 __all__ = ["FORMAT", "COLUMNS"]
 
-COLUMNS = ("procedure", "term", "unit", "value", "u", "U", "k", "interval_low",
-           "interval_high", "residual_low", "residual_high", "kind", "frame", "sign",
-           "description")
+COLUMNS = ("procedure", "term", "unit", "axis", "position", "extrapolated", "value", "u", "U",
+           "k", "interval_low", "interval_high", "unseen_u", "residual_low", "residual_high",
+           "kind", "frame", "sign", "unseen", "description")
 
 
 def _render(correction, options) -> dict:
@@ -43,8 +43,10 @@ def _render(correction, options) -> dict:
     doc = {"procedure": correction.procedure, "kind": correction.kind,
            "frame": correction.frame, "sign": correction.sign, "k": correction.k,
            "source": dict(correction.source),
-           "terms": [{k: row[k] for k in ("term", "unit", "value", "u", "U", "interval_low",
-                                          "interval_high", "description")} for row in rows],
+           "terms": [{k: row[k] for k in ("term", "unit", "axis", "position", "extrapolated",
+                                          "value", "u", "U", "interval_low", "interval_high",
+                                          "unseen_u", "unseen", "description")}
+                     for row in rows],
            "covariance": {"names": list(correction.names), "units": list(correction.units),
                           "matrix": np.asarray(correction.covariance).tolist()},
            "residual_after_compensation": {

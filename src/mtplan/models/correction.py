@@ -28,15 +28,30 @@ class CorrectionTerm:
         Display unit of the value and its U (um or urad).
     description : str
         What the controller entry is, in plain words.
+    argument : tuple
+        ``(axis, position [mm])`` for a value of an error that is a function of position
+        (a compensation table's point); ``()`` for a constant.
+    unseen_u : float
+        Standard uncertainty [unit] of what stays after the correction although the test
+        cannot see it (a machine's repeatable short-wave deviation between the table's
+        points); 0 where nothing is stated. Part of the predicted residual.
+    unseen : str
+        What ``unseen_u`` is, in words.
+    extrapolated : bool
+        The position lies outside the measured travel.
     """
 
     name: str
     weights: Mapping[str, float]
     unit: str
     description: str
+    argument: tuple = ()
+    unseen_u: float = 0.0
+    unseen: str = ""
+    extrapolated: bool = False
 
 
-def _no_terms(setup: Mapping) -> tuple:
+def _no_terms(setup: Mapping, names: tuple) -> tuple:
     return ()
 
 
@@ -56,14 +71,16 @@ class CorrectionModel:
         The sign convention: what a positive value means and what the controller does
         with it, in words.
     terms : callable
-        ``terms(setup) -> tuple of CorrectionTerm``: the corrected quantities at the
-        result's set-up (a dict of its fields as the result document holds them).
+        ``terms(setup, names) -> tuple of CorrectionTerm``: the corrected quantities at the
+        result's set-up (a dict of its fields as the result document holds them), given
+        the names of the measurands the result holds (a function the test does not
+        determine is not corrected).
     """
 
     kind: str = ""
     frame: str = ""
     sign: str = ""
-    terms: Callable[[Mapping], tuple] = _no_terms
+    terms: Callable[[Mapping, tuple], tuple] = _no_terms
 
 
 #: the model of a procedure that states no correction (``mtplan compensate`` refuses it)

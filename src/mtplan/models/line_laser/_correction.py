@@ -9,7 +9,7 @@ _TERMS = (("alpha_z", "mounting angle about Z (applied first)"),
           ("alpha_x", "mounting angle about X (applied last)"))
 
 
-def _terms(setup) -> tuple:
+def _terms(setup, names) -> tuple:
     return tuple(CorrectionTerm(name, {name: 1.0}, "urad", text) for name, text in _TERMS)
 
 

@@ -17,7 +17,7 @@ _TERMS = {
 }
 
 
-def _terms(setup) -> tuple:
+def _terms(setup, names) -> tuple:
     axes = "CA" if setup.get("axis") == "CA" else str(setup.get("axis", "C"))
     return tuple(CorrectionTerm(name, {name: 1.0}, unit, text)
                  for axis in axes for name, unit, text in _TERMS.get(axis, ()))

@@ -1,0 +1,51 @@
+"""geometry21's correction: the component errors along each axis's travel as compensation
+tables, the squareness errors as the linear axes' location errors."""
+
+from __future__ import annotations
+
+from mtplan.models.correction import CorrectionModel, CorrectionTerm
+from mtplan.models.geometry21._setup import FUNCTIONS, describe
+
+_ALONG = ("along_x_mm", "along_y_mm", "along_z_mm")
+
+
+def _terms(setup, names) -> tuple:
+    held = set(names)
+    half = float(setup.get("line_length_mm", 100.0)) / 2
+    residual_um = float(setup.get("path_residual_um", 0.0))
+    out = []
+    for axis, field in enumerate(_ALONG):
+        for u in setup.get(field) or ():
+            u = float(u)
+            for name, kind, ax, _ in FUNCTIONS:
+                if ax != axis or kind == "sq":
+                    continue
+                key = f"{name}@{u:g}"
+                if u != 0 and key not in held:
+                    continue  # not determined by the test: not corrected
+                length = kind in ("pos", "str")
+                out.append(CorrectionTerm(
+                    key, {key: 1.0} if u != 0 else {}, "um" if length else "urad",
+                    f"{describe(name)} at {'xyz'[axis]} = {u:+g} mm"
+                    + (" (zero by the definition of the reference)" if u == 0 else ""),
+                    argument=("XYZ"[axis], u),
+                    unseen_u=residual_um if length else 0.0,
+                    unseen="the machine's repeatable short-wave path deviation beyond the "
+                           "error polynomials (path_residual_um, RMS): no table of these "
+                           "points removes it" if length and residual_um else "",
+                    extrapolated=abs(u) > half * (1 + 1e-12)))
+    for name, kind, *_ in FUNCTIONS:
+        if kind == "sq" and name in held:
+            out.append(CorrectionTerm(name, {name: 1.0}, "urad", describe(name)))
+    return tuple(out)
+
+
+CORRECTION = CorrectionModel(
+    kind="component errors",
+    frame="machine coordinates, zero at the plate centre (the errors' reference point); the "
+          "errors of the tool relative to the workpiece at the functional point "
+          "(reference_tool_mm), ISO 230-1",
+    sign="ISO 230-1 errors: actual minus nominal position or orientation; a volumetric "
+         "compensation takes them as errors and removes them",
+    terms=_terms,
+)
