@@ -158,8 +158,21 @@ def test_a_bad_option_names_the_option_and_the_allowed_values(capsys, tmp_path):
     assert not (tmp_path / "c").exists()
 
 
-def test_a_procedure_without_a_correction_model_is_refused(capsys, tmp_path):
+def test_a_procedure_without_a_correction_model_is_refused():
+    import dataclasses
+
+    from mtplan._validate import InvalidInput
+    from mtplan.models.correction import NO_CORRECTION
+
+    with pytest.raises(InvalidInput, match="states no correction"):
+        correction(NO_CORRECTION, _doc("rotary_axis"), procedure="rotary_axis")
+    assert dataclasses.fields(models.get("rotary_axis"))  # the default is NO_CORRECTION:
+    assert [f.default for f in dataclasses.fields(type(models.get("rotary_axis")))
+            if f.name == "correction"] == [NO_CORRECTION]
+
+
+def test_a_table_needs_positions_along_the_travel(capsys, tmp_path):
     code, out, err = run(capsys, "compensate", EXAMPLES / "geometry21_result.json",
                          "--out", tmp_path / "c")
-    assert code == 2 and "states no correction" in err
+    assert code == 2 and "--along X=START:STOP:STEP" in err
     assert not (tmp_path / "c").exists()

@@ -3,6 +3,7 @@ tables, the squareness errors as the linear axes' location errors."""
 
 from __future__ import annotations
 
+from mtplan._validate import InvalidInput
 from mtplan.models.correction import CorrectionModel, CorrectionTerm
 from mtplan.models.geometry21._setup import FUNCTIONS, describe
 
@@ -10,6 +11,10 @@ _ALONG = ("along_x_mm", "along_y_mm", "along_z_mm")
 
 
 def _terms(setup, names) -> tuple:
+    if not any(setup.get(field) for field in _ALONG):
+        raise InvalidInput(["the result states the component errors at no positions along "
+                            "the travel: estimate with --along X=START:STOP:STEP (and Y, Z), "
+                            "e.g. --along X=-50:50:5, to write their tables"])
     held = set(names)
     half = float(setup.get("line_length_mm", 100.0)) / 2
     residual_um = float(setup.get("path_residual_um", 0.0))
