@@ -176,3 +176,107 @@ def test_a_table_needs_positions_along_the_travel(capsys, tmp_path):
                          "--out", tmp_path / "c")
     assert code == 2 and "--along X=START:STOP:STEP" in err
     assert not (tmp_path / "c").exists()
+
+
+# --------------------------------------------------------------------------- frames, offsets
+def read_siemens_frames(text: str) -> tuple[int, np.ndarray, np.ndarray]:
+    """(n, T [mm], R) of a '$P_UIFR[n]=CTRANS(X,..,Y,..,Z,..):CROT(Z,c,Y,b,X,a)' line: the
+    frame approaches a programmed p at T + R p, R = Rz(c) Ry(b) Rx(a) (RPY, degrees)."""
+    line = next(x for x in text.splitlines() if x.startswith("$P_UIFR"))
+    n = int(re.search(r"\[(\d+)\]", line)[1])
+    trans = dict(re.findall(r"([XYZ]),(-?[\d.]+)", line.split(":CROT")[0]))
+    rot = dict(re.findall(r"([XYZ]),(-?[\d.]+)", line.split(":CROT")[1]))
+    a, b, c = (np.radians(float(rot[k])) for k in "XYZ")
+    rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+    rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
+    return n, np.array([float(trans[k]) for k in "XYZ"]), rz @ ry @ rx
+
+
+def test_siemens_frames_run_global_coordinates_on_each_sub_machine():
+    """10^4 random global points: the written frame puts each where the measured pose of
+    the sub-machine says it is in the sub-machine's coordinates, to 0.01 um."""
+    doc = _doc("tracker_frame")
+    files, corr, _ = compensate(doc, "siemens-frame", {"frame": "3"})
+    value = {m["name"]: m["value"] for m in doc["measurands"]}
+    setup = doc["setup"]
+    rng = np.random.default_rng(7)
+    points = rng.uniform(-4000, 4000, size=(10_000, 3))
+    for k in range(1, setup["n_submachines"] + 1):
+        n, T, R = read_siemens_frames(files[f"frame_submachine_{k}.spf"])
+        assert n == 3
+        y_k = (k - 1 - (setup["n_submachines"] - 1) / 2) * setup["submachine_spacing_mm"]
+        t = np.array([0.0, y_k, setup["origin_height_mm"]]) + 1e-3 * np.array(
+            [value[f"origin_{ax}_{k}"] for ax in "xyz"])
+        a, b, c = (1e-6 * value[f"rot_{ax}_{k}"] for ax in "xyz")
+        R_k = (np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
+               @ np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+               @ np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]]))
+        expected = (points - t) @ R_k  # R_k^T (p - t), row-wise
+        written = T + points @ R.T
+        assert np.max(np.abs(written - expected)) < 1e-5  # mm: 0.01 um
+
+
+def test_fanuc_work_offset_adds_the_centre_rounded_to_the_increment():
+    for increment, places in (("0.001", 3), ("0.0001", 4)):
+        files, corr, res = compensate(EXAMPLES / "circle_centre_result.json", "fanuc-g10",
+                                      {"offset": "2", "increment_mm": increment})
+        text = files["work_offset_G55.nc"]
+        p, values, incremental = read_fanuc_g10(text)
+        assert p == 2 and incremental and text.startswith("%\nO9001")
+        step = float(increment)
+        for axis, name in (("X", "work_offset_x"), ("Y", "work_offset_y")):
+            value = corr.value[corr.names.index(name)] * 1e-3
+            assert abs(values[axis] - value) <= step / 2 + 1e-12
+            # the rounding is known, and it shifts the residual's interval
+            i = corr.names.index(name)
+            assert res.shift[i] == pytest.approx((value - values[axis]) * 1e3, abs=1e-9)
+        assert re.search(rf"X-?\d+\.\d{{{places}}} ", text)
+
+
+# --------------------------------------------------------------------------- tables
+def read_isg_tables(text: str) -> dict:
+    """{function: (positions [mm], values [mm or rad])} of an ISG_CSV file's component-error
+    blocks ('#' separates blocks; the first column of a block is its argument)."""
+    out = {}
+    for block in text.split("\n#\n"):
+        rows = [line.split("//")[0].split() for line in block.splitlines()]
+        rows = [r for r in rows if r]
+        header, records = rows[0], np.array(rows[1:], dtype=float)
+        if header[0] in "XYZ":
+            for j, name in enumerate(header[1:], start=1):
+                out[name] = (records[:, 0], records[:, j])
+    return out
+
+
+def test_isg_tables_read_back_with_linear_interpolation_to_the_estimated_functions():
+    """The table of the estimate at every 1 mm, read back and interpolated linearly (the
+    kernel's GRID mode) at 10^4 random positions inside the travel, equals the estimated
+    polynomials to 0.01 um (0.01 urad for the angles)."""
+    from mtplan.evaluation.readings import read_measurement
+    from mtplan.models.geometry21 import coefficients
+
+    proc = models.get("geometry21")
+    grid = ",".join(str(u) for u in range(-50, 51))
+    meas = read_measurement(proc, EXAMPLES.parent / "geometry21_readings.csv",
+                            {"along_x_mm": grid, "along_y_mm": grid, "along_z_mm": grid})
+    est = proc.estimate(meas.setup, meas.readings, "joint")
+    ms = proc.measurands(meas.setup)
+    doc = {"procedure": "geometry21", "estimator": "joint", "setup": meas.setup.as_dict(),
+           "measurands": [{"name": m.name, "unit": m.unit, "value": float(est[m.name][0]) *
+                           m.scale, "u": 1.0} for m in ms],
+           "covariance": {"names": [m.name for m in ms], "units": [m.unit for m in ms],
+                          "matrix": np.eye(len(ms)).tolist()}}
+    files, corr, _ = compensate(doc, "isg-csv")
+    tables = read_isg_tables(files["volcomp_tables.csv"])
+    coefs = coefficients(meas.setup, meas.readings, estimator="joint")
+    u = np.random.default_rng(3).uniform(-50, 50, 10_000)
+    checked = 0
+    for name, (pos, values) in tables.items():
+        powers, c = coefs[name]
+        exact = np.sum(c[0][None, :] * u[:, None] ** np.array(powers), axis=1)
+        scale = 1e3 if name[1] in "XYZ" else 1e6  # mm -> um, rad -> urad
+        assert np.max(np.abs(np.interp(u, pos, values) - exact)) * scale < 0.01, name
+        checked += 1
+    assert checked == 15 - 3  # the determined component errors (the squarenesses apart)
+    assert "C0Y B0Z A0Z" in files["volcomp_tables.csv"]

@@ -61,6 +61,8 @@ class Correction:
     unseen_u: np.ndarray = field(default_factory=lambda: np.empty(0))
     unseen: tuple = ()
     extrapolated: tuple = ()
+    #: per term: the nominal value [mm, rad] it is the deviation from (0: none stated)
+    nominal: np.ndarray = field(default_factory=lambda: np.empty(0))
 
     @property
     def u(self) -> np.ndarray:
@@ -193,6 +195,8 @@ def correction(model: CorrectionModel, doc: Mapping, *, procedure: str) -> Corre
         unseen_u=np.array([float(t.unseen_u) for t in terms]),
         unseen=tuple(t.unseen for t in terms),
         extrapolated=tuple(bool(t.extrapolated) for t in terms),
+        nominal=np.array([float(model.nominal(doc.get("setup") or {}).get(t.name, 0.0))
+                          for t in terms]),
         setup=dict(doc.get("setup") or {}),
         source={k: doc.get(k) for k in ("procedure", "estimator", "uncertainty", "seed",
                                         "file")})

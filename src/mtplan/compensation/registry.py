@@ -7,7 +7,7 @@ from __future__ import annotations
 from importlib.metadata import entry_points
 
 from mtplan._validate import InvalidInput
-from mtplan.compensation import fanuc, isg, neutral
+from mtplan.compensation import fanuc, isg, neutral, siemens
 from mtplan.compensation.formats import CompensationFormat
 
 __all__ = ["ENTRY_POINT_GROUP", "available_formats", "get_format"]
@@ -16,7 +16,7 @@ ENTRY_POINT_GROUP = "mtplan.compensation_formats"
 
 
 def _built_in() -> dict:
-    return {f.name: f for f in (neutral.FORMAT, isg.FORMAT, fanuc.FORMAT)}
+    return {f.name: f for f in (neutral.FORMAT, isg.FORMAT, fanuc.FORMAT, siemens.FORMAT)}
 
 
 def available_formats() -> dict:

@@ -55,6 +55,10 @@ def _no_terms(setup: Mapping, names: tuple) -> tuple:
     return ()
 
 
+def _no_nominal(setup: Mapping) -> dict:
+    return {}
+
+
 @dataclass(frozen=True)
 class CorrectionModel:
     """How a procedure's result becomes a correction a controller takes.
@@ -75,12 +79,17 @@ class CorrectionModel:
         result's set-up (a dict of its fields as the result document holds them), given
         the names of the measurands the result holds (a function the test does not
         determine is not corrected).
+    nominal : callable
+        ``nominal(setup) -> {term: value}``: the nominal value [internal unit: mm, rad] a
+        term is the deviation from, where a controller's entry is absolute (a frame's
+        nominal origin); terms it leaves out are deviations from zero.
     """
 
     kind: str = ""
     frame: str = ""
     sign: str = ""
     terms: Callable[[Mapping, tuple], tuple] = _no_terms
+    nominal: Callable[[Mapping], dict] = _no_nominal
 
 
 #: the model of a procedure that states no correction (``mtplan compensate`` refuses it)

@@ -16,6 +16,7 @@ def _terms(setup, names) -> tuple:
                             "the travel: estimate with --along X=START:STOP:STEP (and Y, Z), "
                             "e.g. --along X=-50:50:5, to write their tables"])
     held = set(names)
+    determined = {n.split("@")[0] for n in held if "@" in n}
     half = float(setup.get("line_length_mm", 100.0)) / 2
     residual_um = float(setup.get("path_residual_um", 0.0))
     out = []
@@ -26,7 +27,7 @@ def _terms(setup, names) -> tuple:
                 if ax != axis or kind == "sq":
                     continue
                 key = f"{name}@{u:g}"
-                if u != 0 and key not in held:
+                if name not in determined or (u != 0 and key not in held):
                     continue  # not determined by the test: not corrected
                 length = kind in ("pos", "str")
                 out.append(CorrectionTerm(
