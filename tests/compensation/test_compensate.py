@@ -172,8 +172,12 @@ def test_a_procedure_without_a_correction_model_is_refused():
 
 
 def test_a_table_needs_positions_along_the_travel(capsys, tmp_path):
-    code, out, err = run(capsys, "compensate", EXAMPLES / "geometry21_result.json",
-                         "--out", tmp_path / "c")
+    doc = _doc("geometry21")
+    doc["setup"].update(along_x_mm=[], along_y_mm=[], along_z_mm=[])
+    doc["measurands"] = [m for m in doc["measurands"] if "@" not in m["name"]]
+    path = tmp_path / "g.json"
+    path.write_text(json.dumps(doc))
+    code, out, err = run(capsys, "compensate", path, "--out", tmp_path / "c")
     assert code == 2 and "--along X=START:STOP:STEP" in err
     assert not (tmp_path / "c").exists()
 
