@@ -143,7 +143,8 @@ def correction(model: CorrectionModel, doc: Mapping, *, procedure: str) -> Corre
         raise InvalidInput([f"the result is of procedure {doc.get('procedure')!r}, not "
                             f"{procedure!r}"])
     held = tuple(m.get("name") for m in doc["measurands"] if m.get("value") is not None)
-    terms = tuple(model.terms(doc.get("setup") or {}, held))
+    setup = doc.get("setup") or {}
+    terms = tuple(model.terms(setup, held))
     if not model.kind or not terms:
         raise InvalidInput([f"procedure {procedure!r} states no correction a controller "
                             "takes"])
@@ -192,8 +193,10 @@ def correction(model: CorrectionModel, doc: Mapping, *, procedure: str) -> Corre
         descriptions=tuple(t.description for t in terms), value=value,
         covariance=0.5 * (cov + cov.T), interval=interval,
         arguments=tuple(tuple(t.argument) for t in terms),
-        unseen_u=np.array([float(t.unseen_u) for t in terms]),
-        unseen=tuple(t.unseen for t in terms),
+        unseen_u=np.array([math.sqrt(sum((w * model.unseen_of(setup, m)[0]) ** 2
+                                          for m, w in t.weights.items())) for t in terms]),
+        unseen=tuple("; ".join(sorted({model.unseen_of(setup, m)[1] for m in t.weights}
+                                      - {""})) for t in terms),
         extrapolated=tuple(bool(t.extrapolated) for t in terms),
         nominal=np.array([float(model.nominal(doc.get("setup") or {}).get(t.name, 0.0))
                           for t in terms]),

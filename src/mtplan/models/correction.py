@@ -31,12 +31,6 @@ class CorrectionTerm:
     argument : tuple
         ``(axis, position [mm])`` for a value of an error that is a function of position
         (a compensation table's point); ``()`` for a constant.
-    unseen_u : float
-        Standard uncertainty [unit] of what stays after the correction although the test
-        cannot see it (a machine's repeatable short-wave deviation between the table's
-        points); 0 where nothing is stated. Part of the predicted residual.
-    unseen : str
-        What ``unseen_u`` is, in words.
     extrapolated : bool
         The position lies outside the measured travel.
     """
@@ -46,8 +40,6 @@ class CorrectionTerm:
     unit: str
     description: str
     argument: tuple = ()
-    unseen_u: float = 0.0
-    unseen: str = ""
     extrapolated: bool = False
 
 
@@ -56,6 +48,10 @@ def _no_terms(setup: Mapping, names: tuple) -> tuple:
 
 
 def _no_nominal(setup: Mapping) -> dict:
+    return {}
+
+
+def _nothing_unseen(setup: Mapping) -> dict:
     return {}
 
 
@@ -83,6 +79,13 @@ class CorrectionModel:
         ``nominal(setup) -> {term: value}``: the nominal value [internal unit: mm, rad] a
         term is the deviation from, where a controller's entry is absolute (a frame's
         nominal origin); terms it leaves out are deviations from zero.
+    unseen : callable
+        ``unseen(setup) -> {measurand or function: (u, what)}``: the standard uncertainty
+        [the measurand's display unit] of what stays after a correction of that measurand
+        although the test cannot see it (a machine's repeatable short-wave deviation
+        between a table's points), and what it is in words; a function's name (``EXX``)
+        stands for all its measurands (``EXX``, ``EXX@-50``, ...). Part of the residual
+        predicted after compensation, and of a plan's residual target.
     """
 
     kind: str = ""
@@ -90,6 +93,12 @@ class CorrectionModel:
     sign: str = ""
     terms: Callable[[Mapping, tuple], tuple] = _no_terms
     nominal: Callable[[Mapping], dict] = _no_nominal
+    unseen: Callable[[Mapping], dict] = _nothing_unseen
+
+    def unseen_of(self, setup: Mapping, measurand: str) -> tuple[float, str]:
+        """(u, what) that stays unseen after correcting `measurand` ((0, "") for none)."""
+        table = self.unseen(setup)
+        return table.get(measurand, table.get(measurand.split("@")[0], (0.0, "")))
 
 
 #: the model of a procedure that states no correction (``mtplan compensate`` refuses it)

@@ -18,7 +18,6 @@ def _terms(setup, names) -> tuple:
     held = set(names)
     determined = {n.split("@")[0] for n in held if "@" in n}
     half = float(setup.get("line_length_mm", 100.0)) / 2
-    residual_um = float(setup.get("path_residual_um", 0.0))
     out = []
     for axis, field in enumerate(_ALONG):
         for u in setup.get(field) or ():
@@ -34,16 +33,19 @@ def _terms(setup, names) -> tuple:
                     key, {key: 1.0} if u != 0 else {}, "um" if length else "urad",
                     f"{describe(name)} at {'xyz'[axis]} = {u:+g} mm"
                     + (" (zero by the definition of the reference)" if u == 0 else ""),
-                    argument=("XYZ"[axis], u),
-                    unseen_u=residual_um if length else 0.0,
-                    unseen="the machine's repeatable short-wave path deviation beyond the "
-                           "error polynomials (path_residual_um, RMS): no table of these "
-                           "points removes it" if length and residual_um else "",
-                    extrapolated=abs(u) > half * (1 + 1e-12)))
+                    argument=("XYZ"[axis], u), extrapolated=abs(u) > half * (1 + 1e-12)))
     for name, kind, *_ in FUNCTIONS:
         if kind == "sq" and name in held:
             out.append(CorrectionTerm(name, {name: 1.0}, "urad", describe(name)))
     return tuple(out)
+
+
+def _unseen(setup) -> dict:
+    """The path residual stays after any table of the translations' errors."""
+    u = float(setup.get("path_residual_um", 0.0))
+    what = ("the machine's repeatable short-wave path deviation beyond the error "
+            "polynomials (path_residual_um, RMS): no table through these points removes it")
+    return {name: (u, what) for name, kind, *_ in FUNCTIONS if kind in ("pos", "str") and u}
 
 
 CORRECTION = CorrectionModel(
@@ -54,4 +56,5 @@ CORRECTION = CorrectionModel(
     sign="ISO 230-1 errors: actual minus nominal position or orientation; a volumetric "
          "compensation takes them as errors and removes them",
     terms=_terms,
+    unseen=_unseen,
 )
