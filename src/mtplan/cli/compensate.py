@@ -25,6 +25,9 @@ def register(sub) -> None:
                    help="an option of the format (e.g. offset=2 for fanuc-g10); repeatable")
     p.add_argument("--out", default="compensation", metavar="FOLDER",
                    help="folder to write into (default: compensation)")
+    p.add_argument("--json", action="store_true",
+                   help="print the neutral table's JSON document on stdout (the files are "
+                        "written all the same)")
     p.add_argument("--list", action="store_true",
                    help="list the formats, what each holds and its source, and exit")
     p.set_defaults(func=cmd_compensate)
@@ -49,6 +52,9 @@ def cmd_compensate(args) -> int:
     files, correction, res = compensate(args.result, args.format, options)
     for name, text in files.items():  # all rendered before any is written
         atomic_write_text(f"{args.out}/{name}", text)
+    if args.json:
+        print(files["correction.json"], end="")
+        return 0
     width = max(len(n) for n in correction.names)
     print(f"{correction.procedure}: {correction.kind} correction ({correction.sign})")
     for n, unit, v, U, lo, hi in zip(correction.names, correction.units, correction.value,
