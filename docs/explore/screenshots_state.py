@@ -94,6 +94,9 @@ def main() -> int:
                     box = page.locator("#scenarios .scenario-name").last
                     box.fill(name)
                     box.dispatch_event("change")
+                # naming the last one scrolled its table sideways: show it from its start
+                page.evaluate("document.querySelectorAll('#scenarios, #scenarios ~ *, "
+                              ".table-wrap').forEach((e) => { e.scrollLeft = 0; })")
                 time.sleep(0.5)
                 out = HERE / f"scenarios{suffix}.png"
                 head = page.locator("h2", has_text="Scenarios side by side")
