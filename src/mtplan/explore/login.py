@@ -17,6 +17,7 @@ checks as every state-changing request (Host, Origin, content type, body size).
 from __future__ import annotations
 
 import hmac
+from pathlib import Path
 from urllib.parse import parse_qsl, quote, urlencode, urlsplit
 
 __all__ = ["LOGIN", "SECURITY_HEADERS", "login_endpoint", "login_location", "login_page",
@@ -24,6 +25,8 @@ __all__ = ["LOGIN", "SECURITY_HEADERS", "login_endpoint", "login_location", "log
 
 #: the login page's path (it and the static files are all that answer without a token)
 LOGIN = "/login"
+#: the login page itself, a static file beside the designer's page
+PAGE = Path(__file__).resolve().parent / "static" / "login.html"
 #: what every page of the designer's own forbids: framing by another site, referrers
 SECURITY_HEADERS = {"Cache-Control": "no-store", "X-Frame-Options": "DENY",
                     "Content-Security-Policy": "frame-ancestors 'none'",
@@ -78,10 +81,7 @@ async def login_page(request):
     """GET /login: the static page that asks for the token (it reads ``next`` itself)."""
     from starlette.responses import FileResponse
 
-    from mtplan.explore.app import STATIC
-
-    return FileResponse(STATIC / "login.html", media_type="text/html",
-                        headers=SECURITY_HEADERS)
+    return FileResponse(PAGE, media_type="text/html", headers=SECURITY_HEADERS)
 
 
 def login_endpoint(token: str, cookie_name):
