@@ -121,15 +121,23 @@ def _instrument_changes(planned, used, number) -> list[str]:
     per instrument the study adds, and per field changed of one both name."""
     was = {i["serial"]: i for i in planned}
     now = {i["serial"]: i for i in used}
+    gone = {i["name"]: s for s, i in was.items() if s not in now}
     out = []
-    for serial, inst in was.items():
-        if serial not in now:
-            out.append(f"Instrument {inst['name']} (serial {serial}), agreed in plan {number}, "
-                       "is not among the instruments of the study (replaced or not used).")
+    for serial, inst in now.items():
+        if serial in was:
+            continue
+        if inst["name"] in gone:  # the same instrument, another item of it
+            old = gone.pop(inst["name"])
+            out.append(f"Instrument {inst['name']}: serial {serial} used, plan {number} agrees "
+                       f"serial {old} (replaced).")
+        else:
+            out.append(f"Instrument {inst['name']} (serial {serial}) is not in plan {number}: "
+                       "used besides the agreed instruments.")
+    for name, serial in gone.items():
+        out.append(f"Instrument {name} (serial {serial}), agreed in plan {number}, is not among "
+                   "the instruments of the study (not used).")
     for serial, inst in now.items():
         if serial not in was:
-            out.append(f"Instrument {inst['name']} (serial {serial}) is not in plan {number}: "
-                       "used instead of or besides the agreed instruments.")
             continue
         changed = [f"{key.replace('_', ' ')} {_shown(was[serial].get(key))} in the plan, "
                    f"{_shown(inst.get(key))} in the study"
