@@ -92,8 +92,8 @@ def test_conditions_outside_the_agreement_or_not_recorded(small_study_file, smal
     clause = ("Clause applied: “Outside a required condition: the test stops until the "
               "condition is back”, which keeps no verdict; no statement of conformity is made "
               "on test 1.")
-    for line in ("Test condition ambient temperature (lowest to highest): required 19.5 to 21.5 °C; recorded 20.2 "
-                 "to 23.5 °C (outside the agreement).",
+    for line in ("Test condition ambient temperature (lowest to highest): required 19.5 to "
+                 "21.5 °C; recorded 20.2 to 23.5 °C (outside the agreement).",
                  "Test condition ambient temperature change: required at most 0.5 °C/h; "
                  "recorded 0.9 °C/h (outside the agreement).",
                  "Test condition warm-up: required at least 30 min; recorded 5 min; 45 min axis "
@@ -155,8 +155,9 @@ def _cli(capsys, *argv) -> tuple[int, str]:
 
 
 @pytest.mark.parametrize("old, new, missing", [
-    ("date = 2024-01-02\n", "", "The study records no the date of the test"),
-    ('time = "09:00-10:30"\n', "", "no the time of test 1"),
+    ("date = 2024-01-02\n", "",
+     "The study does not record the date of the test ([header] date)"),
+    ('time = "09:00-10:30"\n', "", "does not record the time of test 1"),
 ])
 def test_a_report_under_a_plan_needs_the_date_and_time(small_study_file, small_report,
                                                        tmp_path, capsys, old, new, missing):
@@ -219,3 +220,37 @@ def test_the_demo_records_its_conditions_inside_the_agreement():
     assert all(f.state == WITHIN and f.how for f in findings), findings
     assert deviations == [] and blocked == {}
     assert all(ps.time for ps in study.procedures)
+
+
+def test_a_condition_per_machine_affects_that_machines_tests_only():
+    """Compensation agreed on for both machines, recorded off on the gantry: the gantry's
+    test gets no statement, the other machine's tests keep theirs."""
+    import dataclasses
+
+    from mtplan.cli.report import demo_study_path
+    from mtplan.plans.conditions import OUTSIDE, check_conditions
+    from mtplan.plans.study import load_study
+
+    study = load_study(demo_study_path())
+    off = {"DEMO-5AX-0001": True, "DEMO-GTY-0002": False}
+    altered = dataclasses.replace(study, conditions={**study.conditions, "compensation": off})
+    findings, deviations, blocked = check_conditions(altered, study.requirements)
+    assert [(f.machine, f.state) for f in findings if f.state != "within"] == [
+        ("DEMO-GTY-0002", OUTSIDE)]
+    assert [label for _, label in blocked] == [study.procedures[4].label]
+    assert deviations == [
+        "Test condition machine's error compensation on machine DEMO-GTY-0002: required on; "
+        "recorded off (outside the agreement). Clause applied: “Outside a required "
+        f"condition: {study.requirements['outside']}”, which keeps no verdict; no statement "
+        "of conformity is made on test 5."]
+
+
+def test_a_test_on_a_machine_the_cover_does_not_name_is_refused(small_study_file, tmp_path):
+    from mtplan._validate import InvalidInput
+    from mtplan.plans.study import load_study
+
+    path = _altered(small_study_file, tmp_path,
+                    ('time = "09:00-10:30"', 'time = "09:00-10:30"\nmachine = "SN-99"'))
+    with pytest.raises(InvalidInput, match="'machine' 'SN-99' is not among the header's "
+                                           r"'machine_serial' \(SN-42\)"):
+        load_study(path)

@@ -245,9 +245,9 @@ def require_dates(study) -> None:
         missing.append(f"the time of test{'s' if len(untimed) > 1 else ''} "
                        f"{', '.join(untimed)} ([[procedure]] time, \"08:30-09:40\")")
     if missing:
-        raise InvalidInput([f"The study records no {' and no '.join(missing)}: a report under "
-                            "a plan checks the plan's date and each instrument's calibration "
-                            "against them."])
+        raise InvalidInput([f"The study does not record {' or '.join(missing)}: a report "
+                            "under a plan checks the plan's date and each instrument's "
+                            "calibration against them."])
 
 
 def check_dates(study, plan) -> list[str]:
