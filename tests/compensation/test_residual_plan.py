@@ -60,3 +60,14 @@ def test_the_plans_set_up_meets_the_residual_target_in_a_closed_loop():
     residual = true["centre_x"] - estimate["centre_x"]  # the neutral table: no rounding
     spread = 2 * np.std(residual)
     assert spread <= target * (1 + 3 / math.sqrt(2 * 4000))
+
+
+def test_a_study_plan_takes_a_residual_target():
+    from mtplan.plans.study import load_study
+
+    study = {"title": "t", "procedure": [{"name": "circle_centre", "plan": {
+        "targets": {"residual:centre_x": 2.0}, "vary": {"n_points": [3, 4]}}}]}
+    assert load_study(study).procedures[0].plan["targets"] == {"residual:centre_x": 2.0}
+    study["procedure"][0]["plan"]["targets"] = {"residual:centre_z": 2.0}
+    with pytest.raises(InvalidInput, match="'residual:centre_z', which is no measurand"):
+        load_study(study)
