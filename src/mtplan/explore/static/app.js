@@ -385,6 +385,7 @@ function render(r) {
   renderBudgetTable(r);
   renderRisk(r);
   verdict(r);
+  renderSpecific(r);
   renderHelp(r);
   renderReport(r);
 }
@@ -879,6 +880,7 @@ async function init() {
   $("budget-of").addEventListener("change", () => { state.budgetOf = $("budget-of").value; renderBudgetTable(state.lastResult); });
   $("risk-of").addEventListener("change", () => { state.riskOf = $("risk-of").value; renderRisk(state.lastResult); });
   api("/api/glossary").then((g) => { state.glossary = g.terms; renderHelp(state.lastResult); }).catch(() => {});
+  specificInit();
   state.scenarios = loadScenarios();
   renderScenarios();
   $("load").addEventListener("change", async () => {
