@@ -100,7 +100,7 @@ _KEY_KINDS = {
     "trials": ((int, float, str), "a whole number"),
 }
 _SCALAR = (str, int, float)
-_TOLERANCE_KEYS = ("lower", "upper", "prior", "rule", "prior_csv", "prior_name")
+_TOLERANCE_KEYS = ("lower", "upper", "measured", "prior", "rule", "prior_csv", "prior_name")
 
 
 def _kind(v) -> str:
@@ -146,7 +146,7 @@ def design_problems(d) -> list:
             continue
         for k in _TOLERANCE_KEYS:
             v = row.get(k)
-            text_only = k not in ("lower", "upper")
+            text_only = k not in ("lower", "upper", "measured")
             if v is not None and (isinstance(v, bool) or not isinstance(
                     v, str if text_only else _SCALAR)):
                 bad(f"tolerances {name} {k}", v, "text" if text_only else "a number or its text")

@@ -31,13 +31,19 @@ def acceptance_figures(tol: dict, u: float) -> dict:
                          f"and {tol.get('upper')!r} instead."}
     if lower is None and upper is None:
         return {}
+    try:  # a value measured on a machine: its specific risk (JCGM 106: 1 - p_c) and decision
+        measured = num("measured")
+    except (TypeError, ValueError):
+        return {"error": f"The 'measured' value must be a number. Got {tol.get('measured')!r} "
+                         "instead."}
     rule = (tol.get("rule") or "simple").strip()
     try:
         prior, prior_text = tolerance_prior(tol)
-        r = acc.plan_acceptance(lower, upper, u, prior=prior, rule=rule)
+        r = acc.plan_acceptance(lower, upper, u, prior=prior, rule=rule, measured=measured)
     except InvalidInput as exc:
         return {"error": " ".join(exc.problems)}
     out = r.to_dict()
+    out["measured"], out["decision"] = measured, r.decision
     out["guard_band"] = r.guard_band
     out["rule"] = rule
     out["prior"] = prior_text
@@ -55,14 +61,16 @@ def input_problem(tol: dict) -> str | None:
     its u is not a checked number and no figures are given."""
     from mtplan.plans.acceptance import parse_rule
 
-    for key in ("lower", "upper"):
+    for key in ("lower", "upper", "measured"):
         v = tol.get(key)
         if v is None or (isinstance(v, str) and not v.strip()):
             continue
         try:
             float(v)
         except (TypeError, ValueError):
-            return (f"The tolerance limits must be numbers. Got {tol.get('lower')!r} "
+            return (f"The 'measured' value must be a number. Got {v!r} instead."
+                    if key == "measured" else
+                    f"The tolerance limits must be numbers. Got {tol.get('lower')!r} "
                     f"and {tol.get('upper')!r} instead.")
     try:
         tolerance_prior(tol)

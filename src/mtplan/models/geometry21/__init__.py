@@ -147,11 +147,9 @@ from mtplan.models.geometry21._estimators import (
     theta_joint_per_trial,
 )
 from mtplan.models.geometry21._first_order import (
-    budget,
     coefficient_covariance,
     error_bands,
     error_functions,
-    first_order_std,
     identifiability,
     identifiability_report,
     noise_free_table,
@@ -169,6 +167,7 @@ from mtplan.models.geometry21._model import (
 from mtplan.models.geometry21._patent import patent_design, theta_patent
 from mtplan.models.geometry21._path import repeatability_filter, residual_basis
 from mtplan.models.geometry21._physics import sources
+from mtplan.models.geometry21._correction import CORRECTION
 from mtplan.models.geometry21._record import MODEL
 from mtplan.models.geometry21._setup import (
     AXIS,
@@ -195,8 +194,6 @@ __all__ = [
     "coefficient_covariance",
     "error_bands",
     "error_functions",
-    "budget",
-    "first_order_std",
     "noise_free_table",
 ]
 
@@ -206,4 +203,5 @@ PROCEDURE = dataclasses.replace(
     capabilities=Capabilities(block_size=128, identifiability_report=identifiability_report,
                               report_extras=report_extras, identifiability=identifiability,
                               first_order_sensitivities=sensitivities),
+    correction=CORRECTION,
 )
