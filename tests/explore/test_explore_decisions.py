@@ -13,8 +13,7 @@ import json
 
 import pytest
 
-from tests.explore.test_explore_browser import (  # noqa: F401 (fixtures)
-    _cli, _open, _settled, browser, server)
+from tests.explore.test_explore_browser import _cli, _open, _settled, server  # noqa: F401
 
 
 def test_short_arcs_fail_their_check_with_the_reason_and_give_no_verdict(browser, server):

@@ -75,7 +75,8 @@ def test_the_print_is_one_a4_page_with_every_setting_and_source_state(browser, s
         pg.wait_for_function("window.mtplan && window.mtplan.changes > 0 && "
                              "window.mtplan.rendered === window.mtplan.changes && "
                              "window.mtplan.lastResult && window.mtplan.lastResult.ok && "
-                             "!window.mtplan.inflight")
+                             "!window.mtplan.inflight && !window.mtplan.lastResult"
+                             ".measurands.some((m) => m.pending)")  # the check made
         link = pg.evaluate("designLink()")
         verdict = pg.locator("#verdict").inner_text()
         pdf = tmp_path / f"{name}.pdf"

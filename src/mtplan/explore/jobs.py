@@ -53,6 +53,7 @@ def job_cost(kind: str, design: dict, *, budget_s: float = JOB_BUDGET_S) -> dict
     trials, seed or set-up.
     """
     from mtplan.explore.prediction import trial_seconds
+    from mtplan.explore.size import JOB_SIZE, size_problem
     from mtplan.explore.state import normalise, setup_of, whole
     from mtplan.explore.studies import plan_vary
 
@@ -67,6 +68,9 @@ def job_cost(kind: str, design: dict, *, budget_s: float = JOB_BUDGET_S) -> dict
     design = {**design, "trials": trials, "seed": seed}
     proc, setup = setup_of(design)
     est, _ = proc.estimator(design["estimator"])
+    _, problem = size_problem(proc, setup.as_dict(), limit=JOB_SIZE, what="a job's trial")
+    if problem:  # before a trial is timed: one trial of it would hold gigabytes
+        raise InvalidInput([problem])
     per = trial_seconds(proc, setup, est)
     runs, n = trials, trials
     if kind == "check":

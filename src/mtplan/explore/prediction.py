@@ -12,6 +12,7 @@ import numpy as np
 
 from mtplan._parallel import one_blas_thread
 from mtplan._validate import InvalidInput
+from mtplan.explore.size import size_problem
 from mtplan.explore.state import setup_key, source_fields
 from mtplan.models import get
 from mtplan.models.protocol import make
@@ -171,7 +172,13 @@ def _readings(name: str, key: str) -> int:
 
 
 def guard_cost(proc, setup, estimator: str) -> dict:
-    """The cost of a live prediction, or TooCostly with a plain message."""
+    """The cost of a live prediction, or TooCostly with a plain message: first from the
+    set-up's size estimated from its count fields alone (:mod:`mtplan.explore.size`, no
+    model run), then from the prediction's own estimate."""
+    size, problem = size_problem(proc, setup.as_dict())
+    if problem:
+        raise TooCostly(f"{problem} Make the set-up smaller, or confirm it by Monte Carlo.",
+                        {"bytes": None, "seconds": None, **size})
     cost = prediction_cost(proc, setup, estimator)
     what = (f"The first-order prediction of this {proc.name} set-up ({estimator} estimator, "
             f"{cost['readings']} readings, {cost['inputs']} error inputs)")

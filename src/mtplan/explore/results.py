@@ -8,6 +8,7 @@ from __future__ import annotations
 from mtplan._validate import InvalidInput
 from mtplan.explore.info import anchor, help_text, measurand_rows
 from mtplan.explore.prediction import TooCostly, guard_cost, identify_cached, predict
+from mtplan.explore.size import size_problem
 from mtplan.explore.state import (K, field_problems, json_setup, normalise, setup_of,
                                   source_fields)
 from mtplan.explore.tolerances import acceptance_figures, input_problem
@@ -44,6 +45,11 @@ def evaluate(design: dict) -> dict:
             for f in infos:
                 if f"'{f}'" in msg or f" {f} " in f" {msg} ":
                     out["field_errors"].setdefault(f, msg)
+        return out
+    _, too_large = size_problem(proc, setup.as_dict())  # before anything is built
+    if too_large:
+        out.update(problems=[f"{too_large} Make the set-up smaller, or confirm it by Monte "
+                             "Carlo."], refused="cost")
         return out
     if not proc.measurands(setup):
         out["problems"] = [f"This {proc.name} set-up gives no measurand to predict."]

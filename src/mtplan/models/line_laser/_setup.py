@@ -35,7 +35,8 @@ class Setup(SetupBase):
         16.0, doc="Width of the laser line w0 (a 15-25 mm class profile sensor)",
         low=0, low_open=True)
     points_per_line: int = param(
-        65, doc="Points reported along the line (decimated from the sensor's 800-3200)", low=5)
+        65, doc="Points reported along the line (decimated from the sensor's 800-3200)", low=5,
+        high=3200)
     range_mm: float = param(
         8.0, doc="Measuring range of the sensor in height (e.g. +-4 mm)", low=0, low_open=True)
     sensor_noise_um: float = param(
@@ -57,7 +58,7 @@ class Setup(SetupBase):
         low=0, low_open=True)
     lines: int = param(
         80, doc="Profiles per scan; the default 80 x 0.05 mm covers one pitch of the cells along "
-                "Y, so every facet is seen whatever the artifact's position", low=5)
+                "Y, so every facet is seen whatever the artifact's position", low=5, high=20000)
     shift_fraction: float = param(
         0.625, doc="X shift of scan 2 per cell width (beta: the shift is w = beta * w0, "
                    "the patent: 0.5 to 0.75); beta >= 1 leaves no common part. The default "
@@ -68,7 +69,7 @@ class Setup(SetupBase):
     raise_mm: float = param(2.0, doc="Raise h of scan 3 in +Z (within the range)",
                             low=0, low_open=True)
     max_shift_rows: int = param(5, doc="n_max: row shifts searched by the patent's overlap",
-                                low=1)
+                                low=1, high=10000)
     # artifact
     cell_size_mm: float = param(4.0, doc="Pitch of the hexagonal cells (centre to centre)",
                                 low=0, low_open=True)
