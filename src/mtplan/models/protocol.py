@@ -69,7 +69,6 @@ __all__ = [
     "Source",
     "SetupBase",
     "param",
-    "OWNERS",
     "with_conditions",
     "fields_info",
     "split_unit",
@@ -187,10 +186,6 @@ class Source:
 
 
 # --------------------------------------------------------------------------- fields
-#: who carries an error source (:func:`param`'s ``owner``)
-OWNERS = ("machine", "instrument", "artefact", "workpiece", "method", "environment")
-
-
 def param(
     default,
     *,
@@ -203,7 +198,6 @@ def param(
     min_len: int | None = None,
     reader: Callable | None = None,
     condition: str | None = None,
-    owner: str | None = None,
 ):
     """Declare a set-up (or truth) field with its documentation and allowed range.
 
@@ -223,16 +217,7 @@ def param(
     measured) that a study records once for the whole test in its ``[conditions]`` table
     under that key: where the set-up leaves the field None, the readings are evaluated with
     the recorded value (:func:`with_conditions`).
-
-    A field that sizes an error source names the source's `owner` (:data:`OWNERS`): who
-    carries that error and so who can reduce it (the machine's own error, the instrument's
-    or its calibration's, the artefact's, the workpiece's, the method's set-up, the
-    environment's). Advice phrases an action by it: a calibration for an instrument, never
-    a set-up.
     """
-    if owner is not None and owner not in OWNERS:
-        raise ValueError(f"The 'owner' parameter of param must be one of {', '.join(OWNERS)}. "
-                         f"Got {owner!r} instead.")
     meta = {
         "doc": doc,
         "low": low,
@@ -243,7 +228,6 @@ def param(
         "min_len": min_len,
         "reader": reader,
         "condition": condition,
-        "owner": owner,
     }
     if isinstance(default, list):
         default = tuple(default)
@@ -303,7 +287,6 @@ def _fields_info(cls) -> tuple:
                                                  "choices", "min_len")},
                 "file": f.metadata.get("reader") is not None,
                 "condition": f.metadata.get("condition"),
-                "owner": f.metadata.get("owner"),
             }
         )
     return tuple(out)
