@@ -66,9 +66,13 @@ def _lab(study) -> str:
 
 
 def _methods(result, estimators: bool = True) -> list:
+    from mtplan.reports.accreditation import lab_procedure_text
+
     """(test, method source and (``estimators``) the estimator that evaluates it,
     standards) rows: each source method cited once, each estimator described where it is
     first named (the plan names and describes them in its agreement, after its cover)."""
+    from mtplan.reports.accreditation import lab_procedure_text
+
     rows = []
     for o in result.outcomes:
         applied = list(o.spec.standards) + ["JCGM 101:2008"]
@@ -77,8 +81,9 @@ def _methods(result, estimators: bool = True) -> list:
             applied.append("ISO 1101:2017")  # a position tolerance as a diameter zone
         if o.verdicts:
             applied += ["ISO 14253-1:2017", "JCGM 106:2012", "ILAC-G8:09/2019"]
-        how = (f"; evaluated with the {agreed_estimator(o)} estimator: {_estimator_words(o)}"
-               if estimators else "")
+        how = (f"; evaluated with the {agreed_estimator(o)} estimator: "
+               f"{_estimator_words(o).rstrip('.')}" if estimators else "")
+        how += "; " + lab_procedure_text(result.study.laboratory, o.spec.name)
         rows.append([o.spec.label, method_citation(o.spec.name) + how,
                      ", ".join(a.replace(" ", "\u00a0") for a in applied)])
     return rows
@@ -369,7 +374,8 @@ def _results_section(result) -> Section:
                          "As left: test " + ", ".join(map(str, adjusted)) + " was measured "
                          "again after an adjustment and decided by the same rules (below); "
                          "the other tests were not adjusted."))
-    from mtplan.reports.results import ZONES, rounding_sentence, verdict_table
+    from mtplan.reports.results import (DEFAULT_TRUTH_NOTE, ZONES, rounding_sentence,
+                                        verdict_table)
 
     tests = []
     for k, o in enumerate(result.outcomes, start=1):
@@ -381,7 +387,12 @@ def _results_section(result) -> Section:
         sec.blocks.append(table)
         if any("†" in row[5] for row in table.rows):
             sec.blocks.append(ASYMMETRIC_NOTE)
-        sec.blocks += [ZONES, rounding_sentence(result)]
+        if any("‡" in row[6] for row in table.rows):
+            sec.blocks.append(DEFAULT_TRUTH_NOTE)
+        from mtplan.reports.accreditation import uncertainty_statement
+
+        sec.blocks += [ZONES, rounding_sentence(result),
+                       uncertainty_statement(result.study.coverage)]
         sec.blocks += rules_text(result.verdicts)
         lines = _probability_lines(result.verdicts)
         if lines:
@@ -413,7 +424,7 @@ def _results_section(result) -> Section:
                                 "row and column of the readings file, z the standardised "
                                 "residual.",
                                 ["test", "chi-square", "dof", "p", "worst readings",
-                                 "outcome"], fits, grow=4, size=7.0))
+                                 "outcome"], fits, grow=4, size=7.0, whole=(3,)))
     untoleranced = sum(len(o.measured.measurands) for o in result.outcomes
                        if o.measured is not None) - sum(
         len(o.verdicts) for o in result.outcomes if o.measured is not None)
@@ -588,8 +599,9 @@ def _cover_meta(result, plan, kind) -> dict:
         meta["plan fingerprint (SHA-256)"] = plan["fingerprint"]
     meta["laboratory"] = _lab(study)
     meta["laboratory address"] = lab.get("address", "not stated in the study")
-    if lab.get("accreditation"):
-        meta["accreditation"] = lab["accreditation"]
+    from mtplan.reports.accreditation import accreditation_text, signatory_text
+
+    meta["accreditation"] = accreditation_text(lab)
     meta["place of the test"] = h.get("location", "not stated")
     meta["customer"] = h.get("customer", "not stated")
     if h.get("customer_address"):
@@ -600,6 +612,7 @@ def _cover_meta(result, plan, kind) -> dict:
     if kind == "report":
         meta["date of issue"] = _issue_date(study)
         meta["authorised by"] = h.get("approved_by") or "not yet authorised (see sign-off)"
+        meta["signatory (name and function)"] = signatory_text(lab)
     else:
         meta["date of issue"] = plan["issued"]
     return meta
@@ -633,7 +646,10 @@ def _document(result, plan, kind, sections, csv) -> Document:
         doc.inputs = "the study file and the random seed (the plan uses no readings)"
     doc.end_mark = END_MARK if kind == "report" else "End of test plan"
     doc.flow = kind == "report"
-    doc.statement = RESULTS_RELATE if kind == "report" else (
+    from mtplan.reports.accreditation import ilac_p8_text
+
+    p8 = ilac_p8_text(study.laboratory)
+    doc.statement = RESULTS_RELATE + (" " + p8 if p8 else "") if kind == "report" else (
         "The agreement (its first section) is what the parties sign before the test: the "
         "acceptance limits, decision rules, conditions and clauses; the test report will "
         "apply exactly these. The sections after it are the technical study behind them, a "

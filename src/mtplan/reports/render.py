@@ -429,8 +429,9 @@ def render_pdf(doc: Document) -> bytes:
     for i, sec in enumerate(body):
         story += headed(sec)
         if i == 0 and doc.flow:  # the summary first, then the contents, flowing on
-            story += [Spacer(1, 14), Paragraph("Contents", st["toc_head"]), toc,
-                      Spacer(1, 14)]
+            # the contents whole on one page: about 9 cm for the sections of a report
+            story += [Spacer(1, 14), CondPageBreak(10 * cm),
+                      Paragraph("Contents", st["toc_head"]), toc, Spacer(1, 14)]
         elif i == 0:
             story += [PageBreak(), Paragraph("Contents", st["toc_head"]), toc, PageBreak()]
         elif not doc.flow or i == len(body) - 1:

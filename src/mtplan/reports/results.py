@@ -15,7 +15,7 @@ from mtplan.reports.model import Table
 from mtplan.reports.wording import measurand_name, verdict_short
 
 __all__ = ["verdict_rows", "verdict_table", "rounding_sentence", "ZONES", "limit_text",
-           "w_step"]
+           "w_step", "at_default_truth", "DEFAULT_TRUTH_NOTE"]
 
 #: the zones a verdict names, as the report states them under its table
 ZONES = ("The verdict is the zone of ISO 14253-1 the measured value lies in: pass within "
@@ -53,6 +53,21 @@ def limit_text(v, step) -> str:
             f"{'∞' if hi is None else _at(hi, step)}]")
 
 
+#: the note under a table whose U achieved carries :func:`at_default_truth`'s mark
+DEFAULT_TRUTH_NOTE = ("‡: U achieved from a Monte Carlo at the procedure's default truth, not "
+                      "at the estimate (the procedure cannot set its truth from an estimate): "
+                      "it is the set-up's U, close to the prediction by construction, and not "
+                      "evaluated at the measured machine.")
+
+
+def at_default_truth(o) -> bool:
+    """Whether a test's U achieved came from a Monte Carlo at the procedure's default truth
+    (a Monte Carlo evaluation of a procedure without ``truth_from_estimate``)."""
+    m = o.measured
+    return (m is not None and getattr(m, "uncertainty", "") == "mc"
+            and o.spec.procedure.capabilities.truth_from_estimate is None)
+
+
 def verdict_rows(k, o) -> list:
     """One row per toleranced measurand of test ``k``."""
     from mtplan.reports.certificate import _asymmetric_mark as asymmetric_mark
@@ -66,9 +81,11 @@ def verdict_rows(k, o) -> list:
         achieved = "-" if res is None else fmt_u(res)
         w = "-" if v.guard_band is None or v.guard_band != v.guard_band else \
             _at(v.guard_band, step)
+        mark = " ‡" if res is not None and at_default_truth(o) else ""
         rows.append([str(k), measurand_name(v.description, v.measurand),
                      tolerance_text(v.lower, v.upper, v.unit, v.zone), limit_text(v, step), w,
-                     measured, f"{achieved} ({fmt_u(2 * v.u)})", verdict_short(v.verdict)])
+                     measured, f"{achieved}{mark} ({fmt_u(2 * v.u)})",
+                     verdict_short(v.verdict)])
     return rows
 
 
@@ -94,7 +111,7 @@ def rounding_sentence(result) -> str:
     for o, v in pairs:
         w, big_u = _at(v.guard_band, w_step(o, v)), fmt_u(2 * v.u)
         if w != big_u:
-            example = (f" ({v.measurand}: U predicted {2 * v.u:.3g} is printed {big_u}, w "
+            example = (f" ({v.measurand}: U predicted {2 * v.u:.4g} is printed {big_u}, w "
                        f"{w})")
             break
     return ("How w was rounded: the rule gives w (w = U predicted for the ISO 14253-1 rule); "
