@@ -27,6 +27,8 @@ from mtplan.reports.labels import (
     unit,
 )
 from mtplan.reports.model import Document, Figure, Section, Table
+from mtplan.reports.results import ASYMMETRIC_NOTE
+from mtplan.reports.results import asymmetric_mark as _asymmetric_mark
 from mtplan.reports.wording import (
     GLOSSARY,
     customer_words,
@@ -262,24 +264,6 @@ def _interval(v) -> str:
     res = _U(v)
     return ("-" if v.measured_low is None else
             f"[{fmt(v.measured_low, res)}, {fmt(v.measured_high, res)}]")
-
-
-#: the note under a table whose values carry :func:`_asymmetric_mark`
-ASYMMETRIC_NOTE = ("†: the 95 % interval is not value ± U: it is the interval of the "
-                   "values' own distribution (Monte Carlo or posterior, JCGM 101 7.7), "
-                   "which is asymmetric or centred away from the bias-corrected value; U is "
-                   "2u of the same distribution.")
-
-
-def _asymmetric_mark(value, U, low, high) -> str:
-    """"†" where an end of the printed interval differs from value ± U by more than 5 % of
-    U (:data:`ASYMMETRIC_NOTE`; a normal distribution's 1.96 u against U = 2 u is 2 %),
-    else ""."""
-    if value is None or U is None or low is None or high is None or not U > 0:
-        return ""
-    if abs((value - U) - low) > 0.05 * U or abs((value + U) - high) > 0.05 * U:
-        return " †"
-    return ""
 
 
 def _value_text(v) -> str:

@@ -429,15 +429,15 @@ def render_pdf(doc: Document) -> bytes:
     for i, sec in enumerate(body):
         story += headed(sec)
         if i == 0 and doc.flow:  # the summary first, then the contents, flowing on
-            # the contents whole on one page: about 9 cm for the sections of a report
-            story += [Spacer(1, 14), CondPageBreak(10 * cm),
+            # the contents whole on one page (a report's take about 13 cm)
+            story += [Spacer(1, 14), CondPageBreak(15 * cm),
                       Paragraph("Contents", st["toc_head"]), toc, Spacer(1, 14)]
         elif i == 0:
-            story += [PageBreak(), Paragraph("Contents", st["toc_head"]), toc, PageBreak()]
+            story += [new_page, Paragraph("Contents", st["toc_head"]), toc, PageBreak()]
         elif not doc.flow or i == len(body) - 1:
             story.append(new_page)
         else:
-            story.append(Spacer(1, 14))
+            pass  # the next heading's own space before it (a spacer at a page's foot made a blank page)
     for i, sec in enumerate(appendix):
         story += headed(sec)
         if i < len(appendix) - 1:

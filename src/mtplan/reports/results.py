@@ -15,7 +15,8 @@ from mtplan.reports.model import Table
 from mtplan.reports.wording import measurand_name, verdict_short
 
 __all__ = ["verdict_rows", "verdict_table", "rounding_sentence", "ZONES", "limit_text",
-           "w_step", "at_default_truth", "DEFAULT_TRUTH_NOTE"]
+           "w_step", "at_default_truth", "DEFAULT_TRUTH_NOTE", "ASYMMETRIC_NOTE",
+           "asymmetric_mark"]
 
 #: the zones a verdict names, as the report states them under its table
 ZONES = ("The verdict is the zone of ISO 14253-1 the measured value lies in: pass within "
@@ -23,6 +24,24 @@ ZONES = ("The verdict is the zone of ISO 14253-1 the measured value lies in: pas
          "tolerance limit (the guard band inside the tolerance); conditional fail between the "
          "tolerance limit and the tolerance widened by w; fail beyond that. A value exactly "
          "on a limit lies inside it.")
+
+
+#: the note under a table whose values carry :func:`asymmetric_mark`
+ASYMMETRIC_NOTE = ("†: the 95 % interval is not value ± U: it is the interval of the "
+                   "values' own distribution (Monte Carlo or posterior, JCGM 101 7.7), "
+                   "which is asymmetric or centred away from the bias-corrected value; U is "
+                   "2u of the same distribution.")
+
+
+def asymmetric_mark(value, U, low, high) -> str:
+    """"†" where an end of the printed interval differs from value ± U by more than 5 % of
+    U (:data:`ASYMMETRIC_NOTE`; a normal distribution's 1.96 u against U = 2 u is 2 %),
+    else ""."""
+    if value is None or U is None or low is None or high is None or not U > 0:
+        return ""
+    if abs((value - U) - low) > 0.05 * U or abs((value + U) - high) > 0.05 * U:
+        return " †"
+    return ""
 
 
 def w_step(o, v) -> float | None:
@@ -70,8 +89,6 @@ def at_default_truth(o) -> bool:
 
 def verdict_rows(k, o) -> list:
     """One row per toleranced measurand of test ``k``."""
-    from mtplan.reports.certificate import _asymmetric_mark as asymmetric_mark
-
     rows = []
     for v in o.verdicts:
         step = w_step(o, v)
