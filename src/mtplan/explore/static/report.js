@@ -75,6 +75,10 @@ function renderReport(r) {
           if (a.error || !a.acceptance_limits) return [...stated, a.error || "no figures", "", "", "", ""];
           return [...stated, fmt4(a.tur), fmt4(a.guard_band), `[${fmt4(a.acceptance_limits[0])}, ${fmt4(a.acceptance_limits[1])}]`, pct(a.pfa), pct(a.pfr)];
         })));
+      for (const m of tol) {  // a value measured on a machine: its specific risk and decision
+        const t = state.design.tolerances[m.name] || {};
+        if ((t.measured ?? "") !== "") parts.push(el("p", { class: "report-specific", text: "Specific risk: " + specificText(m, t) + "." }));
+      }
     }
     const m = r.measurands.find((x) => x.name === (state.budgetOf || $("budget-of").value)) || r.measurands[0];
     const rows = (m.budget_table || []).filter((b) => b.share === null || b.share >= 1e-3);
