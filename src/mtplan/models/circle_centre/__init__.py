@@ -154,6 +154,8 @@ from mtplan.models.circle_centre._readings import from_frame, readings_frame, se
 from mtplan.models.circle_centre._setup import Setup, Truth
 from mtplan.models.protocol import Capabilities, Estimator, Procedure, ReadingsFormat
 
+from mtplan.models.circle_centre._correction import CORRECTION
+
 __all__ = [
     "Setup",
     "Truth",
@@ -197,4 +199,5 @@ PROCEDURE = Procedure(
     capabilities=Capabilities(block_size=2000, truth_from_estimate=truth_from_estimate,
                               start_from_readings=start_from_readings,
                               report_extras=report_extras),
+    correction=CORRECTION,
 )

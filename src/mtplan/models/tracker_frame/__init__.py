@@ -168,6 +168,8 @@ from mtplan.models.tracker_frame._setup import (
     Truth,
 )
 
+from mtplan.models.tracker_frame._correction import CORRECTION
+
 __all__ = [
     "PROCEDURE",
     "Setup",
@@ -219,4 +221,5 @@ PROCEDURE = Procedure(
     readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame),
     capabilities=Capabilities(block_size=4000, truth_from_estimate=truth_from_estimate,
                               truths_from_estimates=truths_from_estimates),
+    correction=CORRECTION,
 )

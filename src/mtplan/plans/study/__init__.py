@@ -17,6 +17,8 @@ document a customer receives. Four modules do its four jobs:
 from mtplan.plans.study.cache import CACHE_KEEP, run_study_cached, study_cache_key
 from mtplan.plans.study.runner import ProcedureOutcome, StudyResult, run_study
 from mtplan.plans.study.schema import (
+    CONDITION_CHECKS,
+    CONDITION_EFFECTS,
     CONDITION_KEYS,
     HEADER_KEYS,
     INSTRUMENT_KINDS,
@@ -26,6 +28,7 @@ from mtplan.plans.study.schema import (
     ProcedureStudy,
     Study,
     load_study,
+    machine_serials,
 )
 
 __all__ = ["Study", "ProcedureStudy", "StudyResult", "HEADER_KEYS", "load_study", "run_study",
