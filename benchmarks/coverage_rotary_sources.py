@@ -148,6 +148,7 @@ def main(argv=None):
     ap.add_argument("--out", default=None)
     ap.add_argument("--family", default="own", choices=["own", "odd", "tau2", "flat"])
     ap.add_argument("--amplitude", type=float, default=1.0)
+    ap.add_argument("--first-seed", type=int, default=2000)
     args = ap.parse_args(argv)
     proc = get("rotary_axis")
     fields = dict(kv.split("=", 1) for kv in args.set)
@@ -156,8 +157,10 @@ def main(argv=None):
         setup = proc.setup({**fields, "axis": axis})
         t0 = time.perf_counter()
         for k in range(args.replicates):
-            rows += _replicate(proc, setup, 2000 + k, args.trials, args.family, args.amplitude)
-        print(f"axis {axis}, family {args.family}: {args.replicates} replicates in {time.perf_counter() - t0:.0f} s "
+            rows += _replicate(proc, setup, args.first_seed + k, args.trials, args.family,
+                               args.amplitude)
+        print(f"axis {axis}, family {args.family}: {args.replicates} replicates in "
+              f"{time.perf_counter() - t0:.0f} s "
               f"(sources: {', '.join(proc.active_sources(setup))})", flush=True)
     df = pd.DataFrame(rows)
     df["covered"] = (df["low"] <= df["true"]) & (df["true"] <= df["high"])

@@ -45,8 +45,9 @@ def test_draws_stay_within_the_bound_and_each_part_reaches_it(values):
     tau, azimuth = tilts(setup)
     phi = azimuth - np.radians(setup.sensor_azimuth_deg)
     sign = plan(setup).sensor_sign
-    for part, shape in enumerate([np.ones_like(phi)[:, None] + 0 * sign,
-                                  np.cos(phi)[:, None] * sign, np.cos(2 * phi)[:, None] + 0 * sign]):
+    shapes = [np.ones_like(phi)[:, None] + 0 * sign, np.cos(phi)[:, None] * sign,
+              np.cos(2 * phi)[:, None] + 0 * sign]
+    for part, shape in enumerate(shapes):
         e = _influence(setup, np.outer(np.ones(k), INFLUENCE_PARTS[part] * BOUND)[None])[0]
         np.testing.assert_allclose(e, bound * shape, rtol=1e-9, atol=1e-15)
 
@@ -71,8 +72,25 @@ def test_the_weight_is_the_covariance_of_the_draws():
     n = 4000
     err = PROC.zero_errors(setup, n)
     s = src["angle_influence_halfwidth"]
-    err["angle_influence_halfwidth"] = s.distribution.draw(np.random.default_rng(11), (n, *s.shape))
+    err["angle_influence_halfwidth"] = s.distribution.draw(np.random.default_rng(11),
+                                                           (n, *s.shape))
     x = planes(err) - planes(PROC.zero_errors(setup, 1))
     sample = x.T @ x / n  # the mean is zero by symmetry
     se = np.sqrt((np.outer(np.diag(cov), np.diag(cov)) + cov**2) / n)
     assert np.all(np.abs(sample - cov) <= 5 * se + 1e-9 * cov.diagonal().max())
+
+
+def test_a_tilt_beyond_the_data_sheet_is_noted_in_every_output():
+    # the data sheet's table ends at 30 deg; the default A test tilts the surface to 48.4
+    # deg, where the bound is the last row's slope run on: the set-up says so, and the
+    # linearisation's notes carry it (simulate's findings and estimate's notes start from
+    # the set-up's notes)
+    from mtplan.evaluation.simulation import linearize_result
+
+    note = PROC.setup(axis="A").notes()
+    assert len(note) == 1 and "48.4 deg" in note[0] and "A = -45 deg" in note[0]
+    assert "extrapolated" in note[0] and "8672 ppm" in note[0]
+    assert note[0] in linearize_result(PROC, PROC.setup(axis="A"), estimator="patent").notes
+    assert PROC.setup(axis="C").notes() == []
+    assert PROC.setup(axis="A", range_deg=30.0).notes() == []  # 25.6 deg: inside the table
+    assert PROC.setup(axis="A", angle_influence_halfwidth_ppm=0.0).notes() == []

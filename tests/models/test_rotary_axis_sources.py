@@ -192,8 +192,9 @@ def test_the_whole_budget_weight_does_not_assume_the_data_sheets_shape(estimator
 
     setup = PROC.setup(axis="A")
     base = _estimate(setup, estimator)["EZ0A"][0]
-    moved = [_estimate(setup, estimator, angle_influence_halfwidth=_parts(setup, *np.eye(3)[k] * THIRD))
-             ["EZ0A"][0] - base for k in range(3)]
+    moved = [_estimate(setup, estimator,
+                       angle_influence_halfwidth=_parts(setup, *np.eye(3)[k] * THIRD))["EZ0A"][0]
+             - base for k in range(3)]
     np.testing.assert_allclose(moved, [-33.50, 3.26, 68.95], atol=0.05)
     knots = influence_knots(tilts(setup)[0])
     square = (knots / knots[-1]) ** 2 * _tilt_bound(knots[-1:]) / _tilt_bound(knots)

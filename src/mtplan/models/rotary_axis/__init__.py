@@ -109,7 +109,8 @@ the four corner shapes ``(1 +- cos phi)(1 +- cos 2 phi) / 4``, each element arcs
 within the bound, so that every draw stays within it and the even part, the odd part
 (which moves a C axis sideways by about ``e / tan(incline)`` along the triangulation
 plane) and the anisotropy each reach the whole bound; the weights and the budget take
-only the covariance of these draws (module ``_layout``, ``influence_basis``); a set-up tilting the surface beyond
+only the covariance of these draws (module ``_layout``, ``influence_basis``); a set-up
+tilting the surface beyond
 ``sensor_max_tilt_deg`` is refused; with ``sensor_characteristic``, a calibrated
 characteristic from a tilt table, it is that characteristic instead, which every estimator
 removes at each reading's nominal tilt in the sensor's frame (bilinear between the

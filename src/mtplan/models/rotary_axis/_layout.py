@@ -18,6 +18,8 @@ from mtplan.models.rotary_axis._setup import (
     incline_normal,
     lattice,
     nominal_rotations,
+    TILT_TABLE,
+    TILT_TABLE_DEG,
     sensor_tilts,
     serpentine,
     tilts,
@@ -110,12 +112,7 @@ def _harmonics(angle: np.ndarray) -> np.ndarray:
     return np.stack([np.cos(angle), np.sin(angle), np.cos(2 * angle), np.sin(2 * angle)])
 
 
-#: the angle influence's bound [fraction of the range] against the surface's tilt [deg]:
-#: laser triangulation on diffuse surfaces (Micro-Epsilon optoNCDT 1700/2300 operating
-#: instructions: typ. 0.12-0.2 % at 5-15 deg, 0.5 % at 15-30 deg); beyond the last row the
-#: bound runs on along its slope (an extrapolation, stated in the field's doc)
-_TILT_TABLE_DEG = np.array([0.0, 5.0, 15.0, 30.0])
-_TILT_TABLE = np.array([0.0, 0.0012, 0.002, 0.005])
+_TILT_TABLE_DEG, _TILT_TABLE = np.array(TILT_TABLE_DEG), np.array(TILT_TABLE)
 
 
 def _calibration(setup: Setup):
