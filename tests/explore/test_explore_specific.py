@@ -1,6 +1,7 @@
 """The specific risk of a value measured on a machine, in the designer: the probability
 that the measurand is outside its tolerance given the measured value and the design's u
-(JCGM 106), and the rule's decision for it, as ``mtplan accept --measured`` gives them."""
+(JCGM 106), and the rule's decision for it, as ``mtplan accept --measured`` gives them;
+and, on the same page, the picture of the measuring positions."""
 
 from __future__ import annotations
 
@@ -55,6 +56,11 @@ def test_a_measured_value_gets_the_specific_risk_mtplan_accept_gives(browser, se
         # the value is part of the design: in its link and in the print
         assert pg.evaluate("window.mtplan.design.tolerances.EX0C.measured") == "5"
         assert "Specific risk: P(EX0C outside" in pg.locator("#report").inner_text()
+        # the picture of the measuring positions: every reading of the 8 positions' lattice
+        pg.wait_for_function("document.getElementById('positions-plot').dataset.points")
+        assert pg.locator("#positions-plot").get_attribute("data-points") == str(8 * 25)
+        status, answer = server.api("api/positions", {"design": "rotary_axis"})
+        assert status == 400 and "'design'" in answer["error"]
         pg.fill("#specific-value", "abc")
         pg.dispatch_event("#specific-value", "change")
         pg.wait_for_function(settled)

@@ -289,6 +289,7 @@ async function refresh() {
   drawFigures(result, asked, t0);
   scheduleSensitivity();
   scheduleEstimate();
+  schedulePositions();
   if (result.ok && result.measurands.some((m) => m.trust === "unchecked" && !/^not checked/.test(m.why))) scheduleCheck();
 }
 function scheduleCheck() {
