@@ -70,7 +70,8 @@ def _band(req, rec) -> tuple[str, str]:
     one = rec.get("ambient_temperature_c")
     outside = any(x is not None and not low <= x <= high for x in (lo, hi, one))
     if lo is not None and hi is not None:
-        return (OUTSIDE if outside else WITHIN), f"{lo:.1f} to {hi:.1f} °C"
+        log = f" ({rec['temperature_log']})" if rec.get("temperature_log") else ""
+        return (OUTSIDE if outside else WITHIN), f"{lo:.1f} to {hi:.1f} °C{log}"
     parts = [f"lowest {lo:.1f} °C" if lo is not None else "",
              f"highest {hi:.1f} °C" if hi is not None else "",
              f"one reading of {one:.1f} °C" if one is not None else ""]

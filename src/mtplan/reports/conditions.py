@@ -10,7 +10,7 @@ from mtplan.reports.model import Table
 __all__ = ["condition_blocks"]
 
 #: the recorded keys each check reads (shown in its row, not again as a recorded condition)
-_READS = {"temperature": ("temperature_min_c", "temperature_max_c"),
+_READS = {"temperature": ("temperature_min_c", "temperature_max_c", "temperature_log"),
           "temperature_change": ("temperature_change_c_per_h",),
           "warm_up": ("warm_up", "warm_up_min"),
           "compensation": ("compensation",), "controller": ("controller",)}

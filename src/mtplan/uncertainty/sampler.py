@@ -31,6 +31,7 @@ import functools
 import math
 import sys
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -427,7 +428,6 @@ def run_ensembles(
     label : str
         Name shown by the progress bar.
     """
-    import time
 
     import emcee
 

@@ -109,6 +109,7 @@ CONDITION_KEYS = {"ambient_temperature_c": ("ambient temperature", "temperature"
                                         "temperature"),
                   "temperature_change_c_per_h": ("largest ambient temperature change [°C/h]",
                                                  "rate"),
+                  "temperature_log": ("log of the ambient temperature", "text"),
                   "warm_up": ("warm-up before the test", "text"),
                   "warm_up_min": ("warm-up [min]", "minutes"),
                   "compensation": ("machine's error compensation", "per_machine_bool"),
@@ -266,6 +267,7 @@ def load_study(source) -> Study:
             if used not in names:
                 problems.append(f"instrument #{j + 1} 'used_in' names {used!r}, which is no "
                                 f"procedure of the study ({', '.join(sorted(names))}).")
+    _temperature_log(certificate["conditions"], path, problems)
     problems += _machine_problems(header, certificate, out)
     for i, ps in enumerate(out):  # the readings are evaluated at the recorded conditions
         if ps is not None and ps.setup is not None and ps.readings is not None:
@@ -319,6 +321,31 @@ def _machine_problems(header, certificate, procedures) -> list[str]:
         problems.append(f"The study's conditions 'temperature_min_c' ({low:g}) must not exceed "
                         f"'temperature_max_c' ({high:g}).")
     return problems
+
+
+def _temperature_log(conditions, path, problems) -> None:
+    """``[conditions] temperature_log``: a CSV log of the ambient temperature (relative to
+    the study file) read into the lowest and highest temperature and the largest change
+    per hour (:func:`~mtplan.plans.study.temperature_log.read_temperature_log`), which the
+    study then may not state as well."""
+    from mtplan.plans.study.temperature_log import read_temperature_log
+
+    name = conditions.get("temperature_log")
+    if name is None:
+        return
+    stated = [k for k in ("temperature_min_c", "temperature_max_c",
+                          "temperature_change_c_per_h") if k in conditions]
+    if stated:
+        problems.append(f"The study's conditions state {', '.join(stated)} and a "
+                        "'temperature_log': give one or the other.")
+        return
+    log = Path(name)
+    if not log.is_absolute() and path is not None:
+        log = path.parent / log
+    try:
+        conditions.update(read_temperature_log(log))
+    except InvalidInput as exc:
+        problems += exc.problems
 
 
 def _time(problems, where, value) -> str:
