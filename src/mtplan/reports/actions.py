@@ -184,6 +184,7 @@ def _budget_text(o, v, needed, study, lever: str = "") -> str:
 def actions(result, failed, open_) -> list:
     """One action per measurand that fails (``failed``) or has no pass (``open_``)."""
     from mtplan.plans.agreement import NO_INSTRUMENT
+    from mtplan.plans.conditions import NO_CONDITION
 
     by_proc = {o.spec.name: (k, o) for k, o in enumerate(result.outcomes, start=1)}
     out = []
@@ -208,6 +209,11 @@ def actions(result, failed, open_) -> list:
                        f"(calibration): calibrate {_instruments(result.study, o.spec.name)}, "
                        f"or have the customer agree in writing, and repeat test {k} "
                        f"({o.spec.label}); no set-up replaces a valid calibration.")
+            continue
+        if v.verdict == NO_CONDITION:
+            out.append(f"{name}: no statement of conformity ({v.reason}). Action "
+                       f"(conditions): repeat test {k} ({o.spec.label}) under the conditions "
+                       "the plan agreed; no set-up replaces them.")
             continue
         if v.verdict.startswith("no decision: the readings"):
             out.append(f"{name}: the readings do not fit the model; find the cause (set-up, "
