@@ -584,10 +584,11 @@ def linearize_result(procedure, setup=None, truth=None, *, estimator: str | None
                             coverage=coverage)
     est_name, _ = proc.estimator(estimator)
     measurands = tuple(proc.measurands(setup))
-    notes = [f"{m.name}: u = 0: the {est_name} estimator does not move with any error source "
-             f"at first order (it is quantised or blind to {m.name}, or no source moves it), "
-             "so the law of propagation cannot give its uncertainty"
-             for m, u in zip(measurands, g.std, strict=True) if not u > 0]
+    notes = list(setup.notes()) if hasattr(setup, "notes") else []  # the set-up's own first
+    notes += [f"{m.name}: u = 0: the {est_name} estimator does not move with any error source "
+              f"at first order (it is quantised or blind to {m.name}, or no source moves it), "
+              "so the law of propagation cannot give its uncertainty"
+              for m, u in zip(measurands, g.std, strict=True) if not u > 0]
     return LinearizedResult(procedure=proc.name, estimator=est_name, setup=setup,
                             measurands=measurands, gum=g, notes=notes,
                             undetermined=undetermined_measurands(proc, setup))
