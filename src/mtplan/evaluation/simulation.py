@@ -10,12 +10,18 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import tracemalloc
 from dataclasses import dataclass, field, fields
+from typing import NamedTuple
 
 import numpy as np
 
+from mtplan._parallel import effective_jobs
 from mtplan._validate import InvalidInput, Problems
+from mtplan.evaluation.covariance import covariance_doc
 from mtplan.evaluation.first_order import first_order
+from mtplan.fitting.effects import element_moments
+from mtplan.models import get
 from mtplan.models.protocol import Procedure
 from mtplan.uncertainty.gum import GUMResult
 from mtplan.uncertainty.montecarlo import MCResult, run_blocks
@@ -25,12 +31,11 @@ from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
 __all__ = ["ProcedureResult", "LinearizedResult", "simulate_uncertainty", "linear_trials",
            "linearize_procedure",
            "linearize_result", "source_budget", "check_memory", "MEASURAND_KEYS",
-           "measurand_rows", "undetermined_measurands", "ResultDocument", "simulate_readings"]
+           "measurand_rows", "Reported", "undetermined_measurands", "ResultDocument",
+           "simulate_readings"]
 
 
 def _resolve(procedure, setup, truth):
-    from mtplan.models import get
-
     proc = get(procedure)
     setup = proc.Setup() if setup is None else setup
     proc.check_setup(setup)
@@ -77,8 +82,6 @@ def linear_trials(proc, setup, fo, *, sources=None, rng=None, trials: int,
     array (trials, n_measurands) [display units]; its expectation is 0 and its covariance
     ``fo.cov``.
     """
-    from mtplan.fitting.effects import element_moments
-
     active = proc.active_sources(setup, sources)
     means = {name: element_moments(src)[0] for name, src in active.items()}
     root = as_seed_sequence(rng)
@@ -107,8 +110,20 @@ def _num(x):
     return x if np.isfinite(x) else None
 
 
-def measurand_rows(measurands, *, value, u, low, high, coverage, determinable=None,
-                   reasons=None, undetermined=None, extra=None) -> list[dict]:
+class Reported(NamedTuple):
+    """What a result reports of its measurands: arrays over them of the ``value``, ``u`` and
+    the interval's ``low`` and ``high`` ends [display unit], and the interval's ``coverage``
+    probability."""
+
+    value: np.ndarray
+    u: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    coverage: float
+
+
+def measurand_rows(measurands, reported: Reported, *, determinable=None, reasons=None,
+                   undetermined=None, extra=None) -> list[dict]:
     """One dict per measurand in the common schema (:data:`MEASURAND_KEYS`), then ``extra``.
 
     ``extra`` maps a key to an array over the measurands (``true``, ``bias``,
@@ -116,6 +131,7 @@ def measurand_rows(measurands, *, value, u, low, high, coverage, determinable=No
     and its reason; ``undetermined`` ({name: (unit, reason)}) lists the measurands the
     procedure can report that this set-up does not determine at all, after the others.
     """
+    value, u, low, high, coverage = reported
     reasons = reasons or {}
     rows = []
     for i, m in enumerate(measurands):
@@ -309,8 +325,9 @@ class ProcedureResult(ResultDocument):
                 "interval_kind": self.mc.interval, "duration_s": float(self.duration_s)}
 
     def _rows(self) -> list[dict]:
-        return measurand_rows(self.measurands, value=self.mc.mean, u=self.mc.std,
-                              low=self.mc.low, high=self.mc.high, coverage=self.mc.coverage,
+        mc = self.mc
+        return measurand_rows(self.measurands,
+                              Reported(mc.mean, mc.std, mc.low, mc.high, mc.coverage),
                               undetermined=self.undetermined,
                               extra={"true": self.true, "bias": self.bias})
 
@@ -318,8 +335,6 @@ class ProcedureResult(ResultDocument):
         """The ``--json`` document of ``mtplan simulate``: the common schema, then the
         ``covariance`` of the Monte Carlo estimates
         (:func:`mtplan.evaluation.covariance.covariance_doc`)."""
-        from mtplan.evaluation.covariance import covariance_doc
-
         doc = super().to_dict()
         doc["covariance"] = covariance_doc(self.measurands, self.mc.cov)
         return doc
@@ -342,8 +357,6 @@ def _available_memory() -> int | None:
 
 def _peak_per_trial(proc, setup, truth, estimator, active) -> float:
     """Measured memory of one more trial in a block [bytes] (tracemalloc over 1 and 3)."""
-    import tracemalloc
-
     root = as_seed_sequence(0)
     procedure_block(proc, setup, truth, estimator, active, root, 0, 1)  # warm the caches
     peaks = []
@@ -371,8 +384,6 @@ def check_memory(proc, setup, truth, estimator, active, *, block_size: int, n_jo
     InvalidInput
         With the estimate, the memory available and what to change.
     """
-    from mtplan._parallel import effective_jobs
-
     available = _available_memory()
     if not available:
         return
@@ -573,8 +584,9 @@ class LinearizedResult(ResultDocument):
 
     def _rows(self) -> list[dict]:
         g = self.gum
-        rows = measurand_rows(self.measurands, value=g.value, u=g.std, low=g.low, high=g.high,
-                              coverage=g.coverage, undetermined=self.undetermined)
+        rows = measurand_rows(self.measurands, Reported(g.value, g.std, g.low, g.high,
+                                                        g.coverage),
+                              undetermined=self.undetermined)
         by_source = g.by_source()
         for row in rows:
             row["budget"] = by_source.get(row["name"], {})
@@ -589,10 +601,11 @@ def linearize_result(procedure, setup=None, truth=None, *, estimator: str | None
                             coverage=coverage)
     est_name, _ = proc.estimator(estimator)
     measurands = tuple(proc.measurands(setup))
-    notes = [f"{m.name}: u = 0: the {est_name} estimator does not move with any error source "
-             f"at first order (it is quantised or blind to {m.name}, or no source moves it), "
-             "so the law of propagation cannot give its uncertainty"
-             for m, u in zip(measurands, g.std, strict=True) if not u > 0]
+    notes = list(setup.notes()) if hasattr(setup, "notes") else []  # the set-up's own first
+    notes += [f"{m.name}: u = 0: the {est_name} estimator does not move with any error source "
+              f"at first order (it is quantised or blind to {m.name}, or no source moves it), "
+              "so the law of propagation cannot give its uncertainty"
+              for m, u in zip(measurands, g.std, strict=True) if not u > 0]
     return LinearizedResult(procedure=proc.name, estimator=est_name, setup=setup,
                             measurands=measurands, gum=g, notes=notes,
                             undetermined=undetermined_measurands(proc, setup))

@@ -10,7 +10,7 @@ from mtplan.reports.model import Table
 __all__ = ["condition_blocks"]
 
 #: the recorded keys each check reads (shown in its row, not again as a recorded condition)
-_READS = {"temperature": ("temperature_min_c", "temperature_max_c"),
+_READS = {"temperature": ("temperature_min_c", "temperature_max_c", "temperature_log"),
           "temperature_change": ("temperature_change_c_per_h",),
           "warm_up": ("warm_up", "warm_up_min"),
           "compensation": ("compensation",), "controller": ("controller",)}
@@ -38,7 +38,9 @@ def condition_blocks(study, required: dict) -> list:
     from mtplan.plans.study import CONDITION_KEYS
 
     findings = check_conditions(study, required)[0]
-    rows = [[f.label + (f" (machine {f.machine})" if f.machine else ""), f.required,
+    rows = [[f.label + (f" (machine {f.machine})" if f.machine else "")
+             + (f" (test{'s' if len(f.tests) > 1 else ''} {', '.join(map(str, f.tests))})"
+                if f.tests else ""), f.required,
              f.recorded, f.how or "not stated", _FINDING[f.state]] for f in findings]
     shown = {key for f in findings for key in _READS[f.check]}
     how = study.conditions.get("how", {})

@@ -289,6 +289,7 @@ async function refresh() {
   drawFigures(result, asked, t0);
   scheduleSensitivity();
   scheduleEstimate();
+  schedulePositions();
   if (result.ok && result.measurands.some((m) => m.pending)) scheduleCheck();
 }
 function scheduleCheck() {
@@ -345,7 +346,7 @@ function render(r) {
     for (const id of ["sens-plot", "budget-plot"]) $(id).classList.add("stale");
     $("verdict").textContent = "";
     renderHelp(r);
-    renderReport(r);
+    scheduleReport();
     return;
   }
   // a check that failed for the whole set-up is said once, above the numbers
@@ -398,7 +399,7 @@ function render(r) {
   verdict(r);
   renderSpecific(r);
   renderHelp(r);
-  renderReport(r);
+  scheduleReport();
 }
 function trustNote(m, shares) {
   // the last cell of a measurand's row: its largest sources when its u is checked (or being

@@ -72,6 +72,8 @@ function renderReport(r) {
         tol.map((m) => {
           const a = m.acceptance, t = state.design.tolerances[m.name] || {};
           const stated = [m.name, t.lower || "-", t.upper || "-", t.prior_name || t.prior || "-", t.rule || ""];
+          // figures only on a number checked against its Monte Carlo
+          if (m.trust !== "ok") return [...stated, `no figures: u is ${checkWords(m)}`, "", "", "", ""];
           if (a.error || !a.acceptance_limits) return [...stated, a.error || "no figures", "", "", "", ""];
           const [al, au] = a.acceptance_limits;  // a one-sided tolerance: no TUR, one limit
           return [...stated, a.tur === null ? "none (one-sided)" : fmt4(a.tur), fmt4(a.guard_band),
@@ -98,5 +100,11 @@ function renderReport(r) {
   parts.push(el("p", { class: "link" }, "Design link (opens this design in `mtplan explore`; the token is asked for): ",
                 el("a", { href: link, id: "report-link", text: link })));
   box.replaceChildren(...parts);
+}
+function scheduleReport() {
+  // after the numbers are on the screen (the lever's clock stops there), for the newest
+  // result only; printing asks for it again
+  clearTimeout(state.reportTimer);
+  state.reportTimer = setTimeout(() => renderReport(state.lastResult), 0);
 }
 window.addEventListener("beforeprint", () => renderReport(state.lastResult));

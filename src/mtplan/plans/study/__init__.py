@@ -11,7 +11,10 @@ document a customer receives. Four modules do its four jobs:
   into a :class:`StudyResult` that the reports render without computing anything;
 - :mod:`~mtplan.plans.study.cache`: :func:`run_study_cached` keeps results under
   :func:`study_cache_key`, the hash of everything they depend on;
-- :mod:`~mtplan.plans.study.provenance`: what a result's numbers came from.
+- :mod:`~mtplan.plans.study.provenance`: what a result's numbers came from;
+
+and :mod:`~mtplan.plans.study.temperature_log` reads a log of the ambient temperature that
+``[conditions]`` names.
 """
 
 from mtplan.plans.study.cache import CACHE_KEEP, run_study_cached, study_cache_key
