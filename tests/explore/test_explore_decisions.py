@@ -67,16 +67,23 @@ def test_a_cell_not_checked_gets_no_verdict_until_its_check_is_run(browser, serv
 
 def test_one_sided_tolerances_on_both_sides_are_judged_as_mtplan_accept_judges_them(
         browser, server):
-    tol = {"EX0C": {"upper": "100", "prior": "normal:0,30", "rule": "iso14253"},
-           "EY0C": {"lower": "-60", "prior": "normal:0,30", "rule": "iso14253"}}
+    from mtplan.explore import design as d
+
+    # limits at 5 U with a population of 1.5 U: decided at their risks whatever the model's
+    # u (a missing TUR once compared as less than 2: "cannot be decided well (TUR -)")
+    big_u = {m["name"]: m["U"] for m in d.evaluate({"procedure": "rotary_axis"})["measurands"]}
+    tol = {"EX0C": {"upper": f"{5 * big_u['EX0C']:.0f}",
+                    "prior": f"normal:0,{1.5 * big_u['EX0C']:.0f}", "rule": "iso14253"},
+           "EY0C": {"lower": f"{-5 * big_u['EY0C']:.0f}",
+                    "prior": f"normal:0,{1.5 * big_u['EY0C']:.0f}", "rule": "iso14253"}}
     ctx, pg = _open(browser, server, {"procedure": "rotary_axis", "tolerances": tol})
     verdict = pg.locator("#verdict").inner_text()
     for name, side in (("EX0C", "upper"), ("EY0C", "lower")):
         u = pg.evaluate(f"window.mtplan.lastResult.measurands.find((m) => m.name === "
                         f"'{name}').u")
         acc = json.loads(_cli("accept", f"--{side}", tol[name][side], "--u", repr(u),
-                              "--prior", "normal:0,30", "--rule", "iso14253", "--json"))
-        assert acc["tur"] is None
+                              "--prior", tol[name]["prior"], "--rule", "iso14253", "--json"))
+        assert acc["tur"] is None and acc["judgement"]["quality"] != "cannot be decided well"
         assert pg.locator(f"#acc-tur-{name}").inner_text() == "none (one-sided)"
         for key in ("pfa", "pfr"):
             shown = pg.locator(f"#acc-{key}-{name}").inner_text()
@@ -98,7 +105,7 @@ def test_one_sided_tolerances_on_both_sides_are_judged_as_mtplan_accept_judges_t
         if side == "upper":
             assert bands["acceptance"] == pytest.approx((view[0], limit))
             assert bands["reject"] == pytest.approx((limit, view[1]))
-            assert bands["tolerance"] == pytest.approx((view[0], 100))
+            assert bands["tolerance"] == pytest.approx((view[0], float(tol[name][side])))
         else:
             assert bands["acceptance"] == pytest.approx((limit, view[1]))
             assert bands["reject"] == pytest.approx((view[0], limit))
