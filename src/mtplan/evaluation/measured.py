@@ -335,7 +335,7 @@ def _observes(proc, setup, est_name, est_internal, step):
     moves alone (derived from the others, as rotary_axis's ac_offset from the two axis
     lines) gets slope 1 and is listed in the second return value: it follows the estimate
     as the measurands it derives from do."""
-    if proc.capabilities.truth_from_estimate is None:
+    if not proc.capabilities.builds_truths:
         return None, []
     measurands = proc.measurands(setup)
     slopes = np.full(len(measurands), np.nan)
@@ -634,14 +634,14 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
 
     measurands = tuple(proc.measurands(setup))
     finite = np.isfinite(estimate)
-    if proc.capabilities.truth_from_estimate is not None and finite.all():
+    if proc.capabilities.builds_truths and finite.all():
         truth = proc.capabilities.truth_from_estimate(setup, est_internal)
     else:
         truth = proc.Truth()
         notes.append(f"the Monte Carlo ran at the default truth of the procedure ({proc.title}), "
                      "not at the "
-                     "estimate" + ("" if proc.capabilities.truth_from_estimate is None else
-                                   " (the estimate is not finite)"))
+                     "estimate" + (" (the estimate is not finite)"
+                                   if proc.capabilities.builds_truths else ""))
     truth, sources, why = condition_on_readings(proc, setup, readings, truth)
     notes += [why] if why else []
     first_order = None
@@ -744,8 +744,8 @@ def estimate_measured(
         measurand; the patent's estimator stays available by its name.
     uncertainty : {"mc", "posterior"}
         ``"mc"``: Monte Carlo of the set-up's error sources around the estimate (at
-        ``procedure.capabilities.truth_from_estimate(setup, estimate)`` when the procedure has that
-        hook, else its default truth, noted); the value is the estimate corrected for
+        ``procedure.capabilities.truth_from_estimate(setup, estimate)`` when the procedure builds
+        truths, else its default truth, noted); the value is the estimate corrected for
         the estimator's bias there, with the interval around it. A measurand the
         estimator cannot give (no Monte Carlo spread, or a noise-free estimate that
         does not follow the measurand) is "not determinable", with the reason.

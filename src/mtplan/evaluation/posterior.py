@@ -271,16 +271,15 @@ def initial_theta(proc, setup, readings, builder, start, estimator, notes) -> np
                                 f"free parameters are {builder.names}."])
         return np.array([float(start.get(p.name, v)) for p, v in
                          zip(builder.params, builder.values, strict=True)])
-    if proc.capabilities.truth_from_estimate is None:
+    if not proc.capabilities.builds_truths:
         return builder.values.copy()
     if estimator is None and proc.exact_names:  # one that sees every measurand
         estimator = proc.exact_names[0]
     try:
         est = proc.estimate(setup, readings, estimator)
         est = {k: float(np.asarray(v).reshape(-1)[0]) for k, v in est.items()}
-        t0 = proc.capabilities.truth_from_estimate(setup, est)
-        if proc.capabilities.start_from_readings is not None:
-            t0 = proc.capabilities.start_from_readings(setup, readings, t0)
+        t0 = proc.capabilities.start_from_readings(
+            setup, readings, proc.capabilities.truth_from_estimate(setup, est))
         return np.array([builder.value_of(t0, p) for p in builder.params])
     except DOMAIN_ERRORS as exc:
         notes.append(f"start: the estimator failed ({exc}); started from the default truth")

@@ -184,13 +184,12 @@ class ResultDocument:
 
 def undetermined_measurands(proc, setup) -> dict:
     """{name: (unit, reason)}: the measurands `proc` can report that `setup` does not
-    determine at all, from the procedure's ``identifiability`` hook ({} without one).
+    determine at all, from the procedure's ``identifiability`` table ({} from the generic
+    default's empty table).
 
     What the readings determine does not depend on the estimator, so the hook is asked
     for its first exact estimator's table (the cheapest: the data's own view). The unit
     is the suffix of the measurand's Truth field (``EAX_urad``)."""
-    if proc.capabilities.identifiability is None:
-        return {}
     estimator = proc.exact_names[0] if proc.exact_names else proc.default_estimator
     table = proc.capabilities.identifiability(setup, estimator)
     listed = {m.name for m in proc.measurands(setup)}
