@@ -24,6 +24,7 @@ from mtplan._validate import InvalidInput, Problems
 from mtplan.evaluation.fitcheck import FIT_ALPHA
 from mtplan.evaluation.readings import Measurement, read_measurement, read_readings
 from mtplan.evaluation.simulation import ResultDocument, measurand_rows, undetermined_measurands
+from mtplan.models.protocol import Procedure
 
 __all__ = ["read_readings", "read_measurement", "Measurement", "estimate_measured",
            "best_estimator", "MeasuredResult", "UNCERTAINTY_METHODS", "SOURCE_KINDS",
@@ -147,7 +148,8 @@ class MeasuredResult(ResultDocument):
         stated uncertainty is not valid for these readings.
     """
 
-    procedure: str
+    #: the procedure itself (its ``name`` is what the JSON and the documents print)
+    procedure: Procedure
     estimator: str
     uncertainty: str
     setup: object
@@ -207,7 +209,7 @@ class MeasuredResult(ResultDocument):
         return source_kinds(self.details.budget) if self.uncertainty == "posterior" else {}
 
     def _head(self) -> dict:
-        doc = {"procedure": self.procedure, "estimator": self.estimator,
+        doc = {"procedure": self.procedure.name, "estimator": self.estimator,
                "uncertainty": self.uncertainty, "setup": self.setup.as_dict(),
                "seed": self.seed,
                "setup_from_file": {k: list(v) if isinstance(v, tuple) else v
@@ -701,7 +703,7 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
                    cov=None if first_order is None else first_order.cov, n_jobs=n_jobs)
     notes += c["notes"]
     return MeasuredResult(
-        procedure=proc.name, estimator=est_name, uncertainty="mc", setup=setup,
+        procedure=proc, estimator=est_name, uncertainty="mc", setup=setup,
         measurands=measurands, estimate=estimate, value=value, std=c["u"], low=c["low"],
         high=c["high"], coverage=float(coverage), seed=seed, details=r,
         bias_correction=correction, bias_correction_u=c["u_correction"],
@@ -858,7 +860,7 @@ def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage
     from mtplan.evaluation.covariance import posterior_covariance
 
     return _with_fit(MeasuredResult(
-        procedure=proc.name, estimator=est_name, uncertainty="posterior", setup=setup,
+        procedure=proc, estimator=est_name, uncertainty="posterior", setup=setup,
         measurands=measurands, estimate=estimate,
         value=np.array([post.mean[n] for n in names]),
         std=np.array([post.std[n] for n in names]),

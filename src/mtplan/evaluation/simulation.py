@@ -242,7 +242,8 @@ class ProcedureResult(ResultDocument):
     ``determinable``, ``reason``, ``true`` and ``bias``.
     """
 
-    procedure: str
+    #: the procedure itself (its ``name`` is what the JSON and the documents print)
+    procedure: Procedure
     estimator: str
     setup: object
     truth: object
@@ -300,7 +301,7 @@ class ProcedureResult(ResultDocument):
 
     def _head(self) -> dict:
         seed = self.mc.seed
-        return {"procedure": self.procedure, "estimator": self.estimator,
+        return {"procedure": self.procedure.name, "estimator": self.estimator,
                 "setup": self.setup.as_dict(),
                 "seed": int(seed) if isinstance(seed, int | np.integer) else list(seed),
                 "trials": int(self.mc.trials), "sources": list(self.sources),
@@ -493,7 +494,7 @@ def simulate_uncertainty(
     quantised = _quantised(proc, setup, est_name, measurands, mc)
     tv = proc.display_truth(setup, truth)
     return ProcedureResult(
-        procedure=proc.name,
+        procedure=proc,
         estimator=est_name,
         setup=setup,
         truth=truth,
@@ -592,7 +593,8 @@ class LinearizedResult(ResultDocument):
     budget (:meth:`GUMResult.budget`).
     """
 
-    procedure: str
+    #: the procedure itself (its ``name`` is what the JSON and the documents print)
+    procedure: Procedure
     estimator: str
     setup: object
     measurands: tuple
@@ -614,7 +616,7 @@ class LinearizedResult(ResultDocument):
                  for j, src in enumerate(groups)} for i in range(len(self.measurands))]
 
     def _head(self) -> dict:
-        return {"procedure": self.procedure, "estimator": self.estimator,
+        return {"procedure": self.procedure.name, "estimator": self.estimator,
                 "setup": self.setup.as_dict(), "k": float(self.gum.k[0])
                 if len(self.gum.k) else None}
 
@@ -641,7 +643,7 @@ def linearize_result(procedure, setup=None, truth=None, *, estimator: str | None
              f"at first order (it is quantised or blind to {m.name}, or no source moves it), "
              "so the law of propagation cannot give its uncertainty"
              for m, u in zip(measurands, g.std, strict=True) if not u > 0]
-    return LinearizedResult(procedure=proc.name, estimator=est_name, setup=setup,
+    return LinearizedResult(procedure=proc, estimator=est_name, setup=setup,
                             measurands=measurands, gum=g, notes=notes,
                             undetermined=undetermined_measurands(proc, setup))
 
