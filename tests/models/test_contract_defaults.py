@@ -149,6 +149,12 @@ def test_every_capability_is_a_method_with_a_generic_body():
         rotary.generic("no_such")
 
 
+def test_a_record_without_estimators_is_refused():
+    """A Procedure is whole when made: none is built without estimators to complete later."""
+    with pytest.raises(ValueError, match="'estimators' parameter of Procedure 'toy_line'"):
+        dataclasses.replace(toy_line.PROCEDURE, estimators={})
+
+
 def test_the_source_method_is_checked_and_cited_by_the_procedure():
     """The source method is one of the estimators and is cited; a procedure that names an
     estimator it lacks, or cites nothing, is told so."""

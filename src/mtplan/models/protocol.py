@@ -358,6 +358,9 @@ class Procedure:
     source_method: SourceMethod = SourceMethod()
 
     def __post_init__(self):
+        if not self.estimators:  # a record is whole when made: no estimators to add later
+            raise ValueError(f"The 'estimators' parameter of Procedure {self.name!r} must name "
+                             f"at least one estimator. Got {dict(self.estimators)!r} instead.")
         object.__setattr__(self, "estimators", {
             k: v if isinstance(v, Estimator) else Estimator(v)
             for k, v in self.estimators.items()})

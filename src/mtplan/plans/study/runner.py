@@ -386,7 +386,6 @@ def _sweep_result(sw, grid, i, points, done):
 
 def _advise(outcome, proc, k) -> None:
     """The summary rows, the levers ranked, the dominant sources and the targets."""
-    from mtplan.models.protocol import fields_info
     from mtplan.plans import decisions
 
     ps = outcome.spec
@@ -400,7 +399,8 @@ def _advise(outcome, proc, k) -> None:
     outcome.levers = decisions.lever_effects(proc.levers, ps.setup, outcome.sweeps, outcome.key,
                                              outcome.recommended)
     outcome.dominant = decisions.dominant_sources(
-        outcome.budget, proc.levers, [f["name"] for f in fields_info(proc.Setup)])
+        outcome.budget, proc.levers,
+        {name: src.field for name, src in proc.sources(ps.setup).items()})
     outcome.comparison = decisions.estimator_comparison(outcome.results)
     outcome.targets = decisions.u_targets(ps.plan, outcome.verdicts)
 
