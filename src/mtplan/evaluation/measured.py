@@ -467,7 +467,7 @@ def _corrected(r, estimate, names, notes, coverage):
 
 
 def _first_order(proc, setup, truth, est_name, sources):
-    """The first-order propagation (:class:`~mtplan.evaluation.first_order.FirstOrder`) of
+    """The first-order propagation (:func:`~mtplan.evaluation.first_order.first_order`) of
     the estimator at `truth`, or why there is none."""
     from mtplan.evaluation.first_order import first_order
 
@@ -529,7 +529,7 @@ def _linear_model_checks(proc, setup, gum, linear, coverage) -> list[str]:
 
 def _validated_first_order(proc, setup, gum, r, coverage, linear):
     """(`gum` or None, note): the first-order (GUM) u and interval of `gum` (a
-    :class:`~mtplan.evaluation.first_order.FirstOrder`) where the Monte Carlo `r` at the same
+    :class:`~mtplan.uncertainty.gum.GUMResult`) where the Monte Carlo `r` at the same
     truth validates them after JCGM 101 8.2, to the tolerance its trials resolve.
 
     `linear` (M, n_measurands), M the trials of `r` or more: the first-order model's

@@ -17,7 +17,7 @@ import numpy as np
 from mtplan._validate import InvalidInput, Problems
 from mtplan.evaluation.first_order import first_order
 from mtplan.models.protocol import Procedure
-from mtplan.uncertainty.gum import GUMResult, coverage_factor
+from mtplan.uncertainty.gum import GUMResult
 from mtplan.uncertainty.montecarlo import MCResult, run_blocks
 from mtplan.uncertainty.options import RunOptions
 from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
@@ -65,7 +65,8 @@ def linear_trials(proc, setup, fo, *, sources=None, rng=None, trials: int,
     Trial t of :func:`simulate_uncertainty` with the same `sources`, `rng` and
     `block_size` draws the error elements ``e_t``; its first-order output is
     ``J (e_t - E[e])`` with ``J`` the sensitivities of `fo`
-    (:class:`~mtplan.evaluation.first_order.FirstOrder`, taken for the same sources). The
+    (:func:`~mtplan.evaluation.first_order.first_order`'s result, taken for the same
+    sources). The
     draws are made again here, block by block from the same streams, so trial t here and
     there are one pair: the difference of the two outputs is the estimator's departure
     from first order in that trial, free of the draws' own scatter. No forward model and
@@ -88,7 +89,7 @@ def linear_trials(proc, setup, fo, *, sources=None, rng=None, trials: int,
         dev = np.hstack([np.asarray(errors[k], dtype=float).reshape(size, -1) - m
                          for k, m in means.items()]) if means else np.zeros((size, 0))
         out.append(dev @ fo.sensitivity.T)
-    return np.vstack(out) if out else np.zeros((0, len(fo.measurands)))
+    return np.vstack(out) if out else np.zeros((0, len(fo.names)))
 
 
 # --------------------------------------------------------------------------- one schema
@@ -522,32 +523,13 @@ def linearize_procedure(
     in the budget); the model is forward model + estimator, linearised at the
     sources' means (zero error), by the first-order service
     (:func:`mtplan.evaluation.first_order.first_order`, which the planner and the
-    designer call too). With an efficient estimator and Gaussian sources this is also
-    the Cramer-Rao (Fisher) prediction of the set-up.
+    designer call too): its result as it is, the procedure named or given. With an
+    efficient estimator and Gaussian sources this is also the Cramer-Rao (Fisher)
+    prediction of the set-up.
     """
     proc, setup, truth = _resolve(procedure, setup, truth)
-    p = Problems(f"linearize {proc.name}")
-    p.number("coverage", coverage, low=0, high=1, low_open=True, high_open=True)
-    p.raise_if_any()
-    fo = first_order(proc, setup, truth, estimator=estimator, sources=sources)
-    u = fo.input_std
-    jac = fo.sensitivity
-    measurands = fo.measurands
-    cov_in = np.diag(u**2)
-    cov = (jac * u**2) @ jac.T
-    dof = np.full(len(measurands), np.inf)
-    return GUMResult(
-        names=fo.names,
-        inputs=fo.inputs,
-        groups=fo.groups,
-        value=fo.value,
-        sensitivity=jac,
-        input_cov=cov_in,
-        cov=cov,
-        dof=dof,
-        k=coverage_factor(dof, coverage),
-        coverage=coverage,
-    )
+    return first_order(proc, setup, truth, estimator=estimator, sources=sources,
+                       coverage=coverage)
 
 
 @dataclass
@@ -585,14 +567,6 @@ class LinearizedResult(ResultDocument):
     def u(self) -> np.ndarray:
         return self.gum.std
 
-    def budget_shares(self) -> list[dict]:
-        """Per measurand, {source: {"u": its part of u, "share": its share of u^2}}."""
-        groups, var = self.gum.group_variance()
-        cov = self.gum.cov
-        return [{src: {"u": float(np.sqrt(var[i, j])),
-                       "share": float(var[i, j] / cov[i, i]) if cov[i, i] > 0 else 0.0}
-                 for j, src in enumerate(groups)} for i in range(len(self.measurands))]
-
     def _head(self) -> dict:
         return {"procedure": self.procedure.name, "estimator": self.estimator,
                 "setup": self.setup.as_dict(), "k": float(self.gum.k[0])
@@ -602,10 +576,9 @@ class LinearizedResult(ResultDocument):
         g = self.gum
         rows = measurand_rows(self.measurands, value=g.value, u=g.std, low=g.low, high=g.high,
                               coverage=g.coverage, undetermined=self.undetermined)
-        for row, budget in zip(rows, self.budget_shares(), strict=False):
-            row["budget"] = budget
-        for row in rows[len(self.measurands):]:
-            row["budget"] = {}
+        by_source = g.by_source()
+        for row in rows:
+            row["budget"] = by_source.get(row["name"], {})
         return rows
 
 
@@ -628,12 +601,14 @@ def linearize_result(procedure, setup=None, truth=None, *, estimator: str | None
 
 def source_budget(procedure, setup=None, truth=None, *, estimator=None, options=None,
                   **option_overrides):
-    """Monte Carlo budget: the standard uncertainty due to each error source alone.
+    """The budget by Monte Carlo: the standard uncertainty due to each error source alone.
 
-    Returns a DataFrame with one row per measurand and source: ``std`` (that source
-    alone) and ``share`` (its variance over the sum of the single-source variances).
-    Sources draw from their own streams, so the runs share random numbers. `options` as
-    for :func:`simulate_uncertainty` (default 10**4 trials, no progress bar).
+    Returns the budget table (as :meth:`~mtplan.uncertainty.gum.GUMResult.budget`): one row
+    per measurand (``output``) and source (``input``), its ``contribution`` (the measurand's
+    standard deviation with that source alone) and ``share`` (its variance over the sum of
+    the single-source variances); ``u_input`` and ``sensitivity`` are NaN (a Monte Carlo has
+    neither). Sources draw from their own streams, so the runs share random numbers.
+    `options` as for :func:`simulate_uncertainty` (default 10**4 trials, no progress bar).
     """
     import pandas as pd
 
@@ -645,8 +620,10 @@ def source_budget(procedure, setup=None, truth=None, *, estimator=None, options=
         r = simulate_uncertainty(proc, setup, truth, estimator=estimator, sources=[name],
                                  options=options)
         for i, m in enumerate(r.measurands):
-            rows.append((m.name, m.unit, name, float(r.mc.std[i])))
-    df = pd.DataFrame(rows, columns=["measurand", "unit", "source", "std"])
-    var = df["std"] ** 2
-    df["share"] = var / var.groupby(df["measurand"]).transform("sum").where(lambda s: s > 0, 1.0)
-    return df
+            rows.append((m.name, name, float(r.mc.std[i])))
+    df = pd.DataFrame(rows, columns=["output", "input", "contribution"])
+    var = df["contribution"] ** 2
+    share = var / var.groupby(df["output"]).transform("sum").where(lambda s: s > 0, 1.0)
+    return pd.DataFrame({"output": df["output"], "input": df["input"], "u_input": np.nan,
+                         "sensitivity": np.nan, "contribution": df["contribution"],
+                         "share": share})

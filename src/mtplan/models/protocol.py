@@ -61,6 +61,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
+from mtplan.models.correction import NO_CORRECTION, CorrectionModel
 from mtplan.models.fields import (
     UNIT_SUFFIXES,
     UNITS,
@@ -356,6 +357,9 @@ class Procedure:
     capabilities: Capabilities = Capabilities()
     #: the published method the procedure implements: its estimator and its citation
     source_method: SourceMethod = SourceMethod()
+    #: how a measured result becomes the correction a controller takes (``mtplan
+    #: compensate``); the default states none
+    correction: CorrectionModel = NO_CORRECTION
 
     def __post_init__(self):
         if not self.estimators:  # a record is whole when made: no estimators to add later

@@ -566,24 +566,11 @@ def _results_section(result) -> Section:
     return sec
 
 
-def _conditions_section(result) -> Section:
-    from mtplan.plans.study import CONDITION_KEYS
+def _conditions_section(result, plan) -> Section:
+    from mtplan.reports.conditions import condition_blocks
 
     study = result.study
-    rows = []
-    for key, (label, kind) in CONDITION_KEYS.items():
-        value = study.conditions.get(key)
-        if value is None:
-            shown = "not recorded"
-        elif kind == "temperature":
-            shown = f"{value:.1f} °C"
-        elif kind == "bool":
-            shown = "on" if value else "off"
-        else:
-            shown = str(value)
-        rows.append([label, shown])
-    blocks = [Table("Test conditions (ISO 230-1 6.1: temperatures, warm-up, compensation).",
-                    ["condition", "value"], rows)]
+    blocks = condition_blocks(study, plan.get("conditions", {}))
     table = _instrument_table(study)
     if table is not None:
         blocks.append(table)
@@ -765,7 +752,8 @@ def _document(result, plan, kind, sections, csv) -> Document:
         "acceptance limits, decision rules, conditions and clauses; the test report will "
         "apply exactly these. The sections after it are the technical study behind them, a "
         "non-binding annex. The fingerprint covers the number, revision, issue date, parties, "
-        "conditions and rules: the report cites it in full.")
+        "conditions, rules, the item, the tests with their machines and set-ups, the "
+        "instruments and the method's version: the report cites it in full.")
     return doc
 
 
@@ -777,7 +765,7 @@ def build_report(result, plan, deviations=()) -> Document:
     from mtplan.reports.document import covariance_frames, verdict_frames
 
     sections = [_overall_section(result), _results_section(result),
-                _conditions_section(result),
+                _conditions_section(result, plan),
                 _deviations_section(list(deviations) + exclusions(result))]
     for k, o in enumerate(result.outcomes, start=1):
         if o.measured is not None:
@@ -1056,13 +1044,18 @@ def _requirement_rows(req) -> list:
     rows = []
     for key, (label, kind) in REQUIREMENT_KEYS.items():
         if key not in req or key in ("outside", "adjustment", "retests", "as_left",
-                                     "larger_u", "schedule"):
+                                     "larger_u", "schedule", "outside_effect"):
             continue
         value = req[key]
-        shown = (f"{value[0]:g} to {value[1]:g} °C" if kind == "band" else
-                 ("on" if value else "off") if kind == "bool" else
-                 f"at most {value:g}" if kind == "number" else str(value))
-        rows.append([label, shown])
+
+        def shown(value, kind=kind):
+            if isinstance(value, dict):  # per machine serial number
+                return "; ".join(f"machine {k}: {shown(v)}" for k, v in value.items())
+            return (f"{value[0]:g} to {value[1]:g} °C" if kind == "band" else
+                    ("on" if value else "off") if isinstance(value, bool) else
+                    f"at least {value:g} min" if kind == "minutes" else
+                    f"at most {value:g}" if kind == "number" else str(value))
+        rows.append([label, shown(value)])
     return rows
 
 
@@ -1075,6 +1068,12 @@ def _clauses(req) -> list:
     out = []
     if req.get("outside"):
         out.append(f"Outside a required condition: {req['outside']}.")
+    kept = [k for k, v in req.get("outside_effect", {}).items() if v == "verdicts stand"]
+    if _requirement_rows(req):
+        out.append("A required condition outside its band or not recorded removes the statements "
+                   "of conformity of the tests run under it"
+                   + (f", except for {', '.join(kept)}, whose verdicts stand." if kept
+                      else "."))
     if req.get("adjustment"):
         out.append(f"On a fail or a conditional result: {req['adjustment']}.")
     if "retests" in req:

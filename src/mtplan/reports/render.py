@@ -16,6 +16,7 @@ from xml.sax.saxutils import escape
 from mtplan._io import atomic_write, output_problem
 from mtplan._validate import InvalidInput
 from mtplan.plans.agreement import FIT_NO_DECISION, LARGER_U_NO_DECISION, NO_INSTRUMENT
+from mtplan.plans.conditions import NO_CONDITION
 from mtplan.reports.model import Document, Figure, Section, Table
 from mtplan.reports.wording import VERDICT_SHORT
 
@@ -29,6 +30,7 @@ _PAD = 3.0   # table cell padding, each side [pt]
 VERDICT_CLASS = {"pass": "ok", "fail": "bad", "conditional pass": "warn",
                  "conditional fail": "warn", "not determinable": "nd",
                  FIT_NO_DECISION: "warn", NO_INSTRUMENT: "nd", LARGER_U_NO_DECISION: "warn",
+                 NO_CONDITION: "nd",
                  "not measured": "nd"}
 VERDICT_CLASS.update({short: VERDICT_CLASS[full] for full, short in VERDICT_SHORT.items()})
 _VERDICT_COLOUR = {"ok": "#1b5e20", "bad": "#b3261e", "warn": "#8a5a00", "nd": "#555555"}

@@ -123,7 +123,9 @@ VERDICT_SHORT = {"no decision: the readings do not fit the model":
                      "no decision (readings do not fit)",
                  "no statement: an instrument was not calibrated on the test date":
                      "no statement (instrument)",
-                 "no decision: the achieved U exceeds the agreed U": "no decision (U too large)"}
+                 "no decision: the achieved U exceeds the agreed U": "no decision (U too large)",
+                 "no statement: a test condition was outside the agreement or not recorded":
+                     "no statement (conditions)"}
 
 
 def verdict_short(verdict: str) -> str:

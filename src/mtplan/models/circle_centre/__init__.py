@@ -160,6 +160,8 @@ from mtplan.models.protocol import (
     SourceMethod,
 )
 
+from mtplan.models.circle_centre._correction import CORRECTION
+
 __all__ = [
     "Setup",
     "Truth",
@@ -213,4 +215,5 @@ PROCEDURE = Procedure(
     source_method=SourceMethod(
         "three_point", "Circle centre measuring and calculating method and device for "
         "high-precision circular fitting", who="Chinese patent"),
+    correction=CORRECTION,
 )

@@ -147,11 +147,9 @@ from mtplan.models.geometry21._estimators import (
     theta_joint_per_trial,
 )
 from mtplan.models.geometry21._first_order import (
-    budget,
     coefficient_covariance,
     error_bands,
     error_functions,
-    first_order_std,
     identifiability,
     identifiability_report,
     noise_free_table,
@@ -168,6 +166,7 @@ from mtplan.models.geometry21._model import (
 )
 from mtplan.models.geometry21._patent import patent_design, theta_patent
 from mtplan.models.geometry21._path import repeatability_filter, residual_basis
+from mtplan.models.geometry21._correction import CORRECTION
 from mtplan.models.geometry21._physics import (
     duration,
     forward,
@@ -207,8 +206,6 @@ __all__ = [
     "coefficient_covariance",
     "error_bands",
     "error_functions",
-    "budget",
-    "first_order_std",
     "noise_free_table",
 ]
 
@@ -249,4 +246,5 @@ PROCEDURE = Procedure(
         "patent", "Detection method for geometric motion errors of three-axis numerical "
         "control equipment", "patent CN101982726",
         "Shanghai Jiao Tong University, filed 2010-09-27"),
+    correction=CORRECTION,
 )

@@ -242,6 +242,8 @@ from mtplan.models.protocol import (
     SourceMethod,
 )
 
+from mtplan.models.line_laser._correction import CORRECTION
+
 __all__ = [
     "Setup",
     "Truth",
@@ -281,6 +283,7 @@ PROCEDURE = Procedure(
     duration=duration,
     readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
                             limits=reading_limits, noise_source=NOISE_SOURCE),
+    correction=CORRECTION,
     estimators={"patent": Estimator(
                     estimate_patent, description="The source method: whole-row shifts between "
                     "the scans, mean height differences and arccos(h/h').",

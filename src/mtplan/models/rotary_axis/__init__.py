@@ -259,6 +259,8 @@ from mtplan.models.protocol import (
     SourceMethod,
 )
 
+from mtplan.models.rotary_axis._correction import CORRECTION
+
 __all__ = [
     "Setup",
     "Truth",
@@ -314,4 +316,5 @@ PROCEDURE = Procedure(
         "patent", "Method for measuring direction and spatial position of rotation center of "
         "rotating shaft", who="Chinese patent application, Yang Xiaojun et al., filed "
         "2020-06-12"),
+    correction=CORRECTION,
 )

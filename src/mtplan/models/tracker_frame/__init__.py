@@ -174,6 +174,8 @@ from mtplan.models.tracker_frame._setup import (
     Truth,
 )
 
+from mtplan.models.tracker_frame._correction import CORRECTION
+
 __all__ = [
     "PROCEDURE",
     "Setup",
@@ -235,4 +237,5 @@ PROCEDURE = Procedure(
     source_method=SourceMethod(
         "patent", "Zero point definition and calibration method for a gantry-type "
         "multi-spindle drilling combined machine tool", "patent CN106078359A"),
+    correction=CORRECTION,
 )

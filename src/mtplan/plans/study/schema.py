@@ -60,7 +60,8 @@ from mtplan._validate import InvalidInput
 from mtplan.models.protocol import with_conditions
 
 __all__ = ["Study", "ProcedureStudy", "HEADER_KEYS", "CONDITION_KEYS", "REQUIREMENT_KEYS",
-           "LARGER_U", "INSTRUMENT_KINDS", "UNHONOURED_STANDARDS", "load_study"]
+           "CONDITION_CHECKS", "CONDITION_EFFECTS", "LARGER_U", "INSTRUMENT_KINDS",
+           "UNHONOURED_STANDARDS", "load_study", "machine_serials"]
 
 #: the document header's keys, in the order the cover shows them
 HEADER_KEYS = ("document", "revision", "plan_document", "plan_date", "customer",
@@ -82,8 +83,12 @@ REQUIREMENT_KEYS = {
     "temperature_c": ("ambient temperature during the test [°C]", "band"),
     "gradient_c_per_h": ("largest temperature change [°C/h]", "number"),
     "warm_up": ("warm-up before the test", "text"),
-    "compensation": ("machine's error compensation", "bool"),
+    "warm_up_min": ("shortest warm-up [min]", "minutes"),
+    "compensation": ("machine's error compensation", "per_machine_bool"),
+    "controller": ("controller and its compensation tables' version", "per_machine_text"),
     "outside": ("outside a required condition", "text"),
+    "outside_effect": ("effect of a condition outside the agreement, or not recorded, on "
+                       "the statements of conformity", "effect"),
     "adjustment": ("on a fail or a conditional result: adjustment", "text"),
     "retests": ("re-tests allowed after an adjustment", "int"),
     "as_left": ("results after an adjustment", "text"),
@@ -98,9 +103,28 @@ CONDITION_KEYS = {"ambient_temperature_c": ("ambient temperature", "temperature"
                   "part_temperature_c": ("part (artefact) temperature", "temperature"),
                   "air_gradient_k_per_m": ("vertical gradient of the air's temperature "
                                            "(K/m, warm air above positive)", "gradient"),
+                  "temperature_min_c": ("lowest ambient temperature during the test",
+                                        "temperature"),
+                  "temperature_max_c": ("highest ambient temperature during the test",
+                                        "temperature"),
+                  "temperature_change_c_per_h": ("largest ambient temperature change [°C/h]",
+                                                 "rate"),
+                  "temperature_log": ("log of the ambient temperature", "text"),
                   "warm_up": ("warm-up before the test", "text"),
-                  "compensation": ("machine's error compensation", "bool"),
+                  "warm_up_min": ("warm-up [min]", "minutes"),
+                  "compensation": ("machine's error compensation", "per_machine_bool"),
+                  "controller": ("controller and its compensation tables' version",
+                                 "per_machine_text"),
+                  "how": ("how each condition was measured", "how"),
                   "notes": ("other conditions", "text")}
+#: the recorded conditions compared with the plan's (mtplan.plans.conditions), each named in
+#: [conditions] how = {...} with how it was measured, and in [requirements] outside_effect
+CONDITION_CHECKS = ("temperature", "temperature_change", "warm_up", "compensation",
+                    "controller")
+#: what a condition outside the agreement, or not recorded, does to the statements of
+#: conformity of the tests run under it ([requirements] outside_effect): none is made (the
+#: default), or the verdicts stand
+CONDITION_EFFECTS = ("no statement", "verdicts stand")
 #: standards a study may not cite because no procedure computes what they require
 #: ("honoured or not cited"): standard -> what it requires
 UNHONOURED_STANDARDS = {
@@ -117,7 +141,7 @@ _INSTRUMENT_KEYS = {"name", "serial", "certificate", "calibration_due", "traceab
 INSTRUMENT_KINDS = ("calibration", "verification")
 _PROC_KEYS = {"name", "label", "setup", "truth", "estimators", "sweep", "plan", "acceptance",
               "readings", "as_left", "trials", "digits", "max_trials", "budget", "budget_trials",
-              "notes", "standards", "machine"}
+              "notes", "standards", "machine", "time"}
 _SWEEP_KEYS = {"vary", "trials", "estimators"}
 _PLAN_KEYS = {"targets", "vary", "k", "estimator", "trials"}
 _ACCEPT_KEYS = {"measurand", "lower", "upper", "prior", "rule", "measured", "tolerance_source",
@@ -183,6 +207,7 @@ class ProcedureStudy:
     notes: str = ""
     standards: list = field(default_factory=list)     # standards the test follows
     machine: str = ""                  # serial of the machine the test is run on ("": the one)
+    time: str = ""                     # time of the test on the test date ("08:30-09:40")
 
     @property
     def procedure(self):
@@ -242,6 +267,8 @@ def load_study(source) -> Study:
             if used not in names:
                 problems.append(f"instrument #{j + 1} 'used_in' names {used!r}, which is no "
                                 f"procedure of the study ({', '.join(sorted(names))}).")
+    _temperature_log(certificate["conditions"], path, problems)
+    problems += _machine_problems(header, certificate, out)
     for i, ps in enumerate(out):  # the readings are evaluated at the recorded conditions
         if ps is not None and ps.setup is not None and ps.readings is not None:
             try:
@@ -255,6 +282,87 @@ def load_study(source) -> Study:
     return Study(title=str(data.get("title", "mtplan study")), path=path,
                  digest=hashlib.sha256(raw).hexdigest(), meta=meta, procedures=out,
                  header=header, **certificate, **top)
+
+
+def machine_serials(header, procedures) -> list[str]:
+    """The serial numbers of the machines a study tests: the header's ``machine_serial``
+    (several separated by commas or semicolons) and each test's ``machine``, in order."""
+    import re
+
+    out = [s.strip() for s in re.split(r"[,;]", header.get("machine_serial", "")) if s.strip()]
+    out += [ps.machine for ps in procedures if ps is not None and ps.machine]
+    return list(dict.fromkeys(out))
+
+
+def _machine_problems(header, certificate, procedures) -> list[str]:
+    """A test's machine that the cover does not name, conditions or requirements stated per
+    machine for a serial no test is run on, and a lowest temperature above the highest."""
+    problems = []
+    named = machine_serials(header, [])
+    for i, ps in enumerate(procedures):
+        if ps is not None and named and ps.machine and ps.machine not in named:
+            problems.append(f"procedure #{i + 1} ({ps.name}) 'machine' {ps.machine!r} is not "
+                            f"among the header's 'machine_serial' ({', '.join(named)}): the "
+                            "cover names the items tested.")
+        elif ps is not None and len(named) > 1 and not ps.machine:
+            problems.append(f"procedure #{i + 1} ({ps.name}) needs 'machine': the header names "
+                            f"several machines ({', '.join(named)}).")
+    serials = machine_serials(header, procedures)
+    for table in ("conditions", "requirements"):
+        for key in ("compensation", "controller"):
+            value = certificate[table].get(key)
+            if isinstance(value, dict):
+                for serial in sorted(set(value) - set(serials)):
+                    problems.append(f"The study's {table} {key!r} names machine {serial!r}, "
+                                    f"which no test is run on ({', '.join(serials) or 'none'}).")
+    low = certificate["conditions"].get("temperature_min_c")
+    high = certificate["conditions"].get("temperature_max_c")
+    if low is not None and high is not None and low > high:
+        problems.append(f"The study's conditions 'temperature_min_c' ({low:g}) must not exceed "
+                        f"'temperature_max_c' ({high:g}).")
+    return problems
+
+
+def _temperature_log(conditions, path, problems) -> None:
+    """``[conditions] temperature_log``: a CSV log of the ambient temperature (relative to
+    the study file) read into the lowest and highest temperature and the largest change
+    per hour (:func:`~mtplan.plans.study.temperature_log.read_temperature_log`), which the
+    study then may not state as well."""
+    from mtplan.plans.study.temperature_log import read_temperature_log
+
+    name = conditions.get("temperature_log")
+    if name is None:
+        return
+    stated = [k for k in ("temperature_min_c", "temperature_max_c",
+                          "temperature_change_c_per_h") if k in conditions]
+    if stated:
+        problems.append(f"The study's conditions state {', '.join(stated)} and a "
+                        "'temperature_log': give one or the other.")
+        return
+    log = Path(name)
+    if not log.is_absolute() and path is not None:
+        log = path.parent / log
+    try:
+        conditions.update(read_temperature_log(log))
+    except InvalidInput as exc:
+        problems += exc.problems
+
+
+def _time(problems, where, value) -> str:
+    """A test's time on the test date: a TOML time (08:30:00) or text "08:30" or
+    "08:30-09:40"; "" when not given."""
+    import re
+
+    if value is None:
+        return ""
+    if isinstance(value, datetime.time):
+        return value.strftime("%H:%M")
+    clock = r"([01]\d|2[0-3]):[0-5]\d"
+    if isinstance(value, str) and re.fullmatch(rf"{clock}(-{clock})?", value.strip()):
+        return value.strip()
+    problems.append(f"{where} 'time' must be the time of the test on the test date, "
+                    f"\"08:30\" or \"08:30-09:40\" (24 h). Got {value!r} instead.")
+    return ""
 
 
 def _read(source):
@@ -403,7 +511,36 @@ _KINDS = {
     "bool": (lambda v: isinstance(v, bool), "true or false", bool),
     "text": (lambda v: isinstance(v, str), "text", str),
     "choice": (lambda v: v in LARGER_U, f"one of {', '.join(map(repr, LARGER_U))}", str),
+    "rate": (lambda v: _is_number(v) and 0 <= v <= 100, "a number from 0 to 100 [°C/h]",
+             float),
+    "minutes": (lambda v: _is_number(v) and 0 <= v <= 10_000, "a number of minutes from 0 "
+                "to 10000", float),
+    "per_machine_bool": (lambda v: isinstance(v, bool) or _per_machine(v, bool),
+                         "true or false, or a table of them by machine serial number",
+                         lambda v: v if isinstance(v, bool) else dict(v)),
+    "per_machine_text": (lambda v: _text(v) or _per_machine(v, str),
+                         "text, or a table of texts by machine serial number",
+                         lambda v: v.strip() if isinstance(v, str) else
+                         {k: x.strip() for k, x in v.items()}),
+    "how": (lambda v: isinstance(v, dict) and set(v) <= set(CONDITION_CHECKS)
+            and all(map(_text, v.values())),
+            f"a table of texts naming some of {', '.join(CONDITION_CHECKS)}", dict),
+    "effect": (lambda v: isinstance(v, dict) and set(v) <= set(CONDITION_CHECKS)
+               and all(x in CONDITION_EFFECTS for x in v.values()),
+               f"a table naming some of {', '.join(CONDITION_CHECKS)}, each one of "
+               f"{', '.join(map(repr, CONDITION_EFFECTS))}", dict),
 }
+
+
+def _text(value) -> bool:
+    return isinstance(value, str) and bool(value.strip())
+
+
+def _per_machine(value, kind) -> bool:
+    """A table of values of ``kind`` by machine serial number."""
+    return (isinstance(value, dict) and bool(value)
+            and all(isinstance(x, kind) and (kind is not str or x.strip())
+                    for x in value.values()))
 
 
 def _typed_table(data, name: str, keys: dict, problems) -> dict:
@@ -505,7 +642,8 @@ def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
                           max_trials=entry.get("max_trials"), budget=entry.get("budget", "gum"),
                           budget_trials=entry.get("budget_trials", 2000),
                           notes=str(entry.get("notes", "")), standards=list(standards),
-                          machine=machine.strip())
+                          machine=machine.strip(),
+                          time=_time(problems, where, entry.get("time")))
 
 
 def _estimators(proc, estimators, where, problems) -> list:
@@ -555,9 +693,9 @@ def _plan(plan, fields, measurands, where, problems) -> dict | None:
         if f not in fields:
             problems.append(f"{where} plan varies {f!r}, which is no set-up field.")
     for m in plan.get("targets", {}):
-        if m not in measurands:
+        if m.removeprefix("residual:") not in measurands:  # residual: after compensation
             problems.append(f"{where} plan targets {m!r}, which is no measurand "
-                            f"({', '.join(sorted(measurands))}).")
+                            f"({', '.join(sorted(measurands))}), nor residual: one.")
     if not plan.get("targets"):
         problems.append(f"{where} plan needs a 'targets' table.")
     return plan
