@@ -13,8 +13,12 @@ from mtplan.models import Procedure, registry
 from mtplan.models.protocol import fields_info
 
 
-def test_procedure_has_at_most_15_fields():
-    assert len(dataclasses.fields(Procedure)) <= 15
+def test_procedure_has_at_most_16_fields():
+    """The record stays small: what is optional lives in its records with defaults (the
+    capabilities' methods, the readings format), not as more fields here. 16: the model's
+    ten, description and levers, capabilities, and two records the documents and the
+    controller read (the source method's citation, the correction model)."""
+    assert len(dataclasses.fields(Procedure)) <= 16
 
 
 def _setters() -> dict[str, set]:
