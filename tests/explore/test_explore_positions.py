@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mtplan.explore.positions import MAX_POINTS, measuring_positions, positions_of_frame
+from mtplan.explore.positions import (MAX_POINTS, _positions, measuring_positions,
+                                     positions_of_frame)
+from mtplan.explore.state import source_fields
 from mtplan.models import get
 
 
@@ -44,5 +46,10 @@ def test_a_trackers_readings_become_points_about_it_and_a_plane_stays_a_plane():
 def test_a_large_table_is_drawn_evenly_thinned_and_a_table_without_coordinates_refused():
     p = measuring_positions({"procedure": "line_laser"})  # 15 600 readings
     assert p["n"] > MAX_POINTS and len(p["x"]) == MAX_POINTS and set(p["group"]) == {"1", "2", "3"}
+    # a source resized: the same noise-free readings, not computed again
+    hits = _positions.cache_info().hits
+    field = next(iter(source_fields(get("line_laser")).values()))
+    assert measuring_positions({"procedure": "line_laser", "setup": {field: "0.5"}}) == p
+    assert _positions.cache_info().hits == hits + 1
     with pytest.raises(ValueError, match="no coordinates"):
         positions_of_frame(_frame("tracker_frame")[["point", "group"]])

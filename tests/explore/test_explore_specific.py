@@ -34,7 +34,8 @@ def test_a_measured_value_gets_the_specific_risk_mtplan_accept_gives(browser, se
         pg.set_default_timeout(TIMEOUT_MS)
         pg.goto(f"{server.link}&d={d}")
         settled = ("window.mtplan && window.mtplan.changes > 0 && !window.mtplan.inflight && "
-                   "window.mtplan.rendered === window.mtplan.changes")
+                   "window.mtplan.rendered === window.mtplan.changes && "
+                   "window.mtplan.lastResult.measurands.every((m) => m.trust === 'ok')")
         pg.wait_for_function(settled)
         assert pg.locator("#specific").is_visible()
         for y, decision in (("48", "rejects"), ("5", "accepts")):
@@ -64,6 +65,8 @@ def test_a_measured_value_gets_the_specific_risk_mtplan_accept_gives(browser, se
         pg.fill("#specific-value", "abc")
         pg.dispatch_event("#specific-value", "change")
         pg.wait_for_function(settled)
+        pg.wait_for_function("/'measured'/.test(document.getElementById('specific-out')"
+                             ".textContent)")
         assert "'measured'" in pg.locator("#specific-out").inner_text()
     finally:
         ctx.close()

@@ -10,12 +10,17 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import tracemalloc
 from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from mtplan._parallel import effective_jobs
 from mtplan._validate import InvalidInput, Problems
+from mtplan.evaluation.covariance import covariance_doc
 from mtplan.evaluation.first_order import first_order
+from mtplan.fitting.effects import element_moments
+from mtplan.models import get
 from mtplan.models.protocol import Procedure
 from mtplan.uncertainty.gum import GUMResult
 from mtplan.uncertainty.montecarlo import MCResult, run_blocks
@@ -29,8 +34,6 @@ __all__ = ["ProcedureResult", "LinearizedResult", "simulate_uncertainty", "linea
 
 
 def _resolve(procedure, setup, truth):
-    from mtplan.models import get
-
     proc = get(procedure)
     setup = proc.Setup() if setup is None else setup
     proc.check_setup(setup)
@@ -77,8 +80,6 @@ def linear_trials(proc, setup, fo, *, sources=None, rng=None, trials: int,
     array (trials, n_measurands) [display units]; its expectation is 0 and its covariance
     ``fo.cov``.
     """
-    from mtplan.fitting.effects import element_moments
-
     active = proc.active_sources(setup, sources)
     means = {name: element_moments(src)[0] for name, src in active.items()}
     root = as_seed_sequence(rng)
@@ -318,8 +319,6 @@ class ProcedureResult(ResultDocument):
         """The ``--json`` document of ``mtplan simulate``: the common schema, then the
         ``covariance`` of the Monte Carlo estimates
         (:func:`mtplan.evaluation.covariance.covariance_doc`)."""
-        from mtplan.evaluation.covariance import covariance_doc
-
         doc = super().to_dict()
         doc["covariance"] = covariance_doc(self.measurands, self.mc.cov)
         return doc
@@ -342,8 +341,6 @@ def _available_memory() -> int | None:
 
 def _peak_per_trial(proc, setup, truth, estimator, active) -> float:
     """Measured memory of one more trial in a block [bytes] (tracemalloc over 1 and 3)."""
-    import tracemalloc
-
     root = as_seed_sequence(0)
     procedure_block(proc, setup, truth, estimator, active, root, 0, 1)  # warm the caches
     peaks = []
@@ -371,8 +368,6 @@ def check_memory(proc, setup, truth, estimator, active, *, block_size: int, n_jo
     InvalidInput
         With the estimate, the memory available and what to change.
     """
-    from mtplan._parallel import effective_jobs
-
     available = _available_memory()
     if not available:
         return
@@ -590,10 +585,11 @@ def linearize_result(procedure, setup=None, truth=None, *, estimator: str | None
                             coverage=coverage)
     est_name, _ = proc.estimator(estimator)
     measurands = tuple(proc.measurands(setup))
-    notes = [f"{m.name}: u = 0: the {est_name} estimator does not move with any error source "
-             f"at first order (it is quantised or blind to {m.name}, or no source moves it), "
-             "so the law of propagation cannot give its uncertainty"
-             for m, u in zip(measurands, g.std, strict=True) if not u > 0]
+    notes = list(setup.notes()) if hasattr(setup, "notes") else []  # the set-up's own first
+    notes += [f"{m.name}: u = 0: the {est_name} estimator does not move with any error source "
+              f"at first order (it is quantised or blind to {m.name}, or no source moves it), "
+              "so the law of propagation cannot give its uncertainty"
+              for m, u in zip(measurands, g.std, strict=True) if not u > 0]
     return LinearizedResult(procedure=proc, estimator=est_name, setup=setup,
                             measurands=measurands, gum=g, notes=notes,
                             undetermined=undetermined_measurands(proc, setup))

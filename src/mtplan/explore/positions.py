@@ -25,7 +25,7 @@ import json
 import numpy as np
 
 from mtplan.explore.prediction import guard_cost
-from mtplan.explore.state import normalise, setup_key, setup_of
+from mtplan.explore.state import normalise, setup_of, source_fields
 from mtplan.models import get
 from mtplan.models.protocol import make
 
@@ -103,9 +103,13 @@ def _positions(name: str, key: str) -> dict:
 def measuring_positions(design: dict) -> dict:
     """The measuring positions of a design's set-up (:func:`positions_of_frame`), once the
     set-up passes the live cost guard (its forward model is then affordable); cached per
-    set-up. Raises InvalidInput for a refused or too costly set-up."""
+    set-up without its sources' sizes. Raises InvalidInput for a refused or too costly set-up."""
     design = normalise(design)
     proc, setup = setup_of(design)
     est, _ = proc.estimator(design["estimator"])
     guard_cost(proc, setup, est)
-    return {"procedure": proc.name, **_positions(proc.name, setup_key(setup))}
+    # the noise-free readings do not depend on the sources' sizes: resizing one reuses them
+    sized = set(source_fields(proc).values())
+    key = json.dumps({k: v for k, v in setup.as_dict().items() if k not in sized},
+                     sort_keys=True)
+    return {"procedure": proc.name, **_positions(proc.name, key)}

@@ -18,6 +18,9 @@ model from parameters and error sources to readings).
   fits' covariance and the first-order linearisation.
 - :mod:`~mtplan.fitting.linear`: rank-truncated pseudo-inverses with a convention for
   the null space, and which functions of the parameters the readings determine.
+
+Imports: at module level; a function imports a module itself only where that saves a real
+cost (scipy, pandas), as in :mod:`mtplan.uncertainty`.
 """
 
 from mtplan.fitting.error_model import (

@@ -16,14 +16,22 @@ Targets bound the standard uncertainty (``k=1``) or the expanded uncertainty
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from mtplan._parallel import check_parallel, ordered_map, parallel_session
 from mtplan._validate import InvalidInput, Problems
+from mtplan.evaluation.first_order import first_order
+from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
+from mtplan.models import get
 from mtplan.models.protocol import fields_info, make
+from mtplan.plans.identifiability import identifiability, observability_indices
+from mtplan.plans.sweep import setup_grid
+from mtplan.uncertainty.montecarlo import ModelError
 
 __all__ = ["PlanResult", "plan", "pareto_front", "optimize_design", "readings_jacobian",
            "design_identifiability", "parse_target", "PfaCriterion", "RESIDUAL", "target_u"]
@@ -184,9 +192,6 @@ def plan(
         For targets naming unknown measurands, and when no candidate can meet a
         target (the message gives the best reachable value of each).
     """
-    from mtplan.models import get
-    from mtplan.plans.sweep import setup_grid
-
     proc = get(procedure)
     base_setup = proc.Setup() if base_setup is None else base_setup
     proc.check_setup(base_setup)
@@ -246,8 +251,6 @@ def _required(proc, names, determine) -> tuple:
 def _check_plan(proc, names, targets, criterion, k, confirm, trials, n_jobs, backend,
                 required=()):
     """Every problem of the plan's arguments at once."""
-    from mtplan._parallel import check_parallel
-
     p = Problems(f"plan {proc.name}")
     if not targets and criterion is None and not required:
         p.add_text("plan needs at least one target NAME<=VALUE")
@@ -273,8 +276,6 @@ def _screen(proc, setups, truth, estimator, sources, targets, k, criterion, iden
     candidate does not determine), worst target ratio, identifiability and feasibility,
     one row per set-up. A candidate that misses a required measurand is not linearised."""
     import pandas as pd
-
-    from mtplan._parallel import ordered_map, parallel_session
 
     names = [m.name for m in proc.measurands(setups[0])] if names is None else names
     if listed is None:
@@ -350,9 +351,6 @@ def _confirm(proc, setups, table, candidates, truth, estimator, sources, targets
              trials, seed):
     """Monte Carlo of the cheapest feasible candidates until one meets every target:
     (best candidate, the confirmation record of each tried)."""
-    from mtplan.evaluation.simulation import simulate_uncertainty
-    from mtplan.uncertainty.montecarlo import ModelError
-
     confirmation = []
     for j in candidates:
         s = setups[j]
@@ -452,8 +450,6 @@ def _candidate(row, setup, names, targets) -> dict:
 def _assess(proc, setup, truth, estimator, sources, predict, identify) -> tuple[dict, dict]:
     """One candidate's linearised uncertainties (when `predict`) and identifiability
     (when `identify`)."""
-    from mtplan.evaluation.first_order import first_order
-
     u = first_order(proc, setup, truth, estimator=estimator, sources=sources).u() if predict \
         else {}
     return u, design_identifiability(proc, setup, truth) if identify else {}
@@ -504,9 +500,6 @@ def optimize_design(
     (at the base set-up) and ``evaluations``.
     """
     from scipy.optimize import minimize
-
-    from mtplan.models import get
-    from mtplan.evaluation.simulation import linearize_procedure
 
     proc = get(procedure)
     base_setup = proc.Setup() if base_setup is None else base_setup
@@ -583,10 +576,6 @@ def readings_jacobian(procedure, setup=None, truth=None, *, wrt: str | None = No
     1e-6 of each value's magnitude (at least 1e-9); every step of every measurand in one
     forward run where the procedure batches truths (``Capabilities.batches_truths``).
     """
-    import dataclasses
-
-    from mtplan.models import get
-
     proc = get(procedure)
     setup = proc.Setup() if setup is None else setup
     truth = proc.Truth() if truth is None else truth
@@ -649,9 +638,6 @@ def design_identifiability(procedure, setup=None, truth=None) -> dict:
     the readings determine) where the module's report gives its Jacobian and the
     measurands as functions of its parameters.
     """
-    from mtplan.models import get
-    from mtplan.plans.identifiability import identifiability, observability_indices
-
     proc = get(procedure)
     setup = proc.Setup() if setup is None else setup
     rep = proc.capabilities.identifiability_report(setup)

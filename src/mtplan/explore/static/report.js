@@ -72,6 +72,8 @@ function renderReport(r) {
         tol.map((m) => {
           const a = m.acceptance, t = state.design.tolerances[m.name] || {};
           const stated = [m.name, t.lower || "-", t.upper || "-", t.prior_name || t.prior || "-", t.rule || ""];
+          // figures only on a number checked against its Monte Carlo
+          if (m.trust !== "ok") return [...stated, `no figures: u is ${checkWords(m)}`, "", "", "", ""];
           if (a.error || !a.acceptance_limits) return [...stated, a.error || "no figures", "", "", "", ""];
           return [...stated, fmt4(a.tur), fmt4(a.guard_band), `[${fmt4(a.acceptance_limits[0])}, ${fmt4(a.acceptance_limits[1])}]`, pct(a.pfa), pct(a.pfr)];
         })));

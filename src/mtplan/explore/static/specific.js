@@ -27,6 +27,7 @@ function specificText(m, tol) {
   // the specific risk of the measured value in words
   const a = m.acceptance;
   if ((tol.measured ?? "") === "") return "enter a value measured on a machine for its risk of being out of tolerance";
+  if (m.trust !== "ok") return `no specific risk until u(${m.name}) is checked against its Monte Carlo (${checkWords(m)})`;
   if (!a || a.error) return "no specific risk: " + ((a && a.error) || `u(${m.name}) gives no acceptance figures`);
   if (a.specific_risk === null || a.specific_risk === undefined) return "no specific risk for this value";
   const y = `${fmt4(a.measured)} ${unitText(m.unit)}`;

@@ -25,6 +25,13 @@ _DEFAULT_RANGE = {"C": 360.0, "A": 90.0}
 _MAX_SLOPE_DEG = 70.0
 #: smallest |X component| of the incline's normal for the A axis (below: X unobservable)
 _MIN_NORMAL_X = 0.01
+#: the angle influence's bound [fraction of the range] against the surface's tilt [deg]:
+#: laser triangulation on diffuse surfaces (Micro-Epsilon optoNCDT 1700/2300 operating
+#: instructions: typ. 0.12-0.2 % at 5-15 deg, 0.5 % at 15-30 deg); beyond the last row the
+#: bound runs on along its slope (an extrapolation, stated in the field's doc and in the
+#: set-up's notes)
+TILT_TABLE_DEG = (0.0, 5.0, 15.0, 30.0)
+TILT_TABLE = (0.0, 0.0012, 0.002, 0.005)
 
 
 # --------------------------------------------------------------------------- set-up
@@ -273,12 +280,29 @@ class Setup(SetupBase):
         return np.concatenate([self.axis_angles(a) for a in self.axes])
 
     def notes(self) -> list[str]:
-        """That the sensor's angle influence is a calibrated characteristic, when it is."""
+        """That the sensor's angle influence is a calibrated characteristic, when it is; or
+        that the set-up tilts the surface beyond the data sheet's last row, where its bound
+        is extrapolated."""
         if self.sensor_characteristic is None:
-            return []
+            return self._extrapolation_note()
         return [f"sensor: the angle influence is the calibrated characteristic "
                 f"{self.sensor_characteristic!r} (its u in the budget as angle_calibration_u); "
                 "the data sheet's bound angle_influence_halfwidth_ppm is not used"]
+
+    def _extrapolation_note(self) -> list[str]:
+        """The steepest tilt beyond the data sheet's table, and the rule that bounds it."""
+        tau = tilts(self)[0]
+        i = int(np.argmax(tau))
+        if tau[i] <= TILT_TABLE_DEG[-1] or self.angle_influence_halfwidth_ppm == 0:
+            return []
+        slope = (TILT_TABLE[-1] - TILT_TABLE[-2]) / (TILT_TABLE_DEG[-1] - TILT_TABLE_DEG[-2])
+        bound = (TILT_TABLE[-1] + slope * (tau[i] - TILT_TABLE_DEG[-1])) / TILT_TABLE[-1]
+        ppm = self.angle_influence_halfwidth_ppm
+        return [f"sensor: the surface tilts to {tau[i]:.1f} deg under the sensor at "
+                f"{self.position_axis(i)} = {self.angles()[i]:g} deg, beyond the data sheet's "
+                f"last row ({TILT_TABLE_DEG[-1]:g} deg): the angle influence's bound there is "
+                f"extrapolated along the last row's slope, {ppm * bound:.0f} ppm of the range "
+                f"against {ppm:g} ppm at {TILT_TABLE_DEG[-1]:g} deg"]
 
     def _check(self, p: Problems) -> None:
         if self.angles_deg is not None and self.positions is not None \
