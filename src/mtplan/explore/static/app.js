@@ -340,7 +340,7 @@ function render(r) {
     for (const id of ["sens-plot", "budget-plot"]) $(id).classList.add("stale");
     $("verdict").textContent = "";
     renderHelp(r);
-    renderReport(r);
+    scheduleReport();
     return;
   }
   banner("");
@@ -388,7 +388,7 @@ function render(r) {
   verdict(r);
   renderSpecific(r);
   renderHelp(r);
-  renderReport(r);
+  scheduleReport();
 }
 function drawFigures(r, asked, t0) {
   // The numbers first, then the figures: the budget plot (Plotly, about half the page's work

@@ -99,4 +99,10 @@ function renderReport(r) {
                 el("a", { href: link, id: "report-link", text: link })));
   box.replaceChildren(...parts);
 }
+function scheduleReport() {
+  // after the numbers are on the screen (the lever's clock stops there), for the newest
+  // result only; printing asks for it again
+  clearTimeout(state.reportTimer);
+  state.reportTimer = setTimeout(() => renderReport(state.lastResult), 0);
+}
 window.addEventListener("beforeprint", () => renderReport(state.lastResult));
