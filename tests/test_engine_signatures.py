@@ -26,8 +26,6 @@ NOT_YET = {
     "mtplan.evaluation.fitcheck.fit_check": 9,
     "mtplan.evaluation.measured.estimate_measured": 17,
     "mtplan.evaluation.posterior.sample_posterior": 24,
-    "mtplan.evaluation.simulation.measurand_rows": 10,
-    "mtplan.plans.planner.plan": 16,
 }
 
 

@@ -174,7 +174,9 @@ def test_monte_carlo_agrees_with_linearisation(axis, estimator):
     rtol = np.full(len(gum.std), tol)
     # CA's ac_offset: the Monte Carlo's u is 11-13 % above the GUM's since the sensor's
     # angle influence spans every shape within its bound (1.66 against 1.49 um, patent):
-    # a second-order effect not yet traced; held to 15 % so that a larger gap shows
+    # about the same extra variance (0.6 um^2) shows in EY0A, where it is 1 % of u^2, so
+    # a second-order coupling of the influence's large effect on the A part into EY0A, seen
+    # in ac_offset where the spot's offset cancels; held to 15 % so that a larger gap shows
     names = [m.name for m in PROC.measurands(setup)]
     if "ac_offset" in names:
         rtol[names.index("ac_offset")] = 0.15

@@ -397,7 +397,7 @@ def test_demo_probabilities_agree_with_the_intervals(demo_report):
 # ------------------------------------------------------------------ the demo
 def test_demo_overall_result_and_the_c_axis_action(demo_report):
     report, _ = demo_report
-    page = " ".join(" ".join(_pages(report / "report.pdf")[:2]).split())
+    page = " ".join(" ".join(_pages(report / "report.pdf")[:3]).split())
     # the overall result follows the cover at once (the box on page 1 states it first)
     assert "Overall result and actions" in page.split("Contents")[0]
     assert ("Overall result for machine DEMO-5AX-0001 (tests 1, 2, 3, 4): not accepted: "

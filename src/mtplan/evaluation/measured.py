@@ -23,7 +23,12 @@ import numpy as np
 from mtplan._validate import InvalidInput, Problems
 from mtplan.evaluation.fitcheck import FIT_ALPHA
 from mtplan.evaluation.readings import Measurement, read_measurement, read_readings
-from mtplan.evaluation.simulation import ResultDocument, measurand_rows, undetermined_measurands
+from mtplan.evaluation.simulation import (
+    Reported,
+    ResultDocument,
+    measurand_rows,
+    undetermined_measurands,
+)
 
 __all__ = ["read_readings", "read_measurement", "Measurement", "estimate_measured",
            "best_estimator", "MeasuredResult", "UNCERTAINTY_METHODS", "SOURCE_KINDS",
@@ -221,8 +226,8 @@ class MeasuredResult(ResultDocument):
         return doc
 
     def _rows(self) -> list[dict]:
-        return measurand_rows(self.measurands, value=self.value, u=self.std, low=self.low,
-                              high=self.high, coverage=self.coverage,
+        return measurand_rows(self.measurands, Reported(self.value, self.std, self.low,
+                                                        self.high, self.coverage),
                               determinable=self.determinable, reasons=self.reasons,
                               undetermined=self.undetermined,
                               extra={"estimate": self.estimate,

@@ -12,6 +12,7 @@ import dataclasses
 import os
 import tracemalloc
 from dataclasses import dataclass, field, fields
+from typing import NamedTuple
 
 import numpy as np
 
@@ -30,7 +31,8 @@ from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
 __all__ = ["ProcedureResult", "LinearizedResult", "simulate_uncertainty", "linear_trials",
            "linearize_procedure",
            "linearize_result", "source_budget", "check_memory", "MEASURAND_KEYS",
-           "measurand_rows", "undetermined_measurands", "ResultDocument", "simulate_readings"]
+           "measurand_rows", "Reported", "undetermined_measurands", "ResultDocument",
+           "simulate_readings"]
 
 
 def _resolve(procedure, setup, truth):
@@ -108,8 +110,20 @@ def _num(x):
     return x if np.isfinite(x) else None
 
 
-def measurand_rows(measurands, *, value, u, low, high, coverage, determinable=None,
-                   reasons=None, undetermined=None, extra=None) -> list[dict]:
+class Reported(NamedTuple):
+    """What a result reports of its measurands: arrays over them of the ``value``, ``u`` and
+    the interval's ``low`` and ``high`` ends [display unit], and the interval's ``coverage``
+    probability."""
+
+    value: np.ndarray
+    u: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    coverage: float
+
+
+def measurand_rows(measurands, reported: Reported, *, determinable=None, reasons=None,
+                   undetermined=None, extra=None) -> list[dict]:
     """One dict per measurand in the common schema (:data:`MEASURAND_KEYS`), then ``extra``.
 
     ``extra`` maps a key to an array over the measurands (``true``, ``bias``,
@@ -117,6 +131,7 @@ def measurand_rows(measurands, *, value, u, low, high, coverage, determinable=No
     and its reason; ``undetermined`` ({name: (unit, reason)}) lists the measurands the
     procedure can report that this set-up does not determine at all, after the others.
     """
+    value, u, low, high, coverage = reported
     reasons = reasons or {}
     rows = []
     for i, m in enumerate(measurands):
@@ -310,8 +325,9 @@ class ProcedureResult(ResultDocument):
                 "interval_kind": self.mc.interval, "duration_s": float(self.duration_s)}
 
     def _rows(self) -> list[dict]:
-        return measurand_rows(self.measurands, value=self.mc.mean, u=self.mc.std,
-                              low=self.mc.low, high=self.mc.high, coverage=self.mc.coverage,
+        mc = self.mc
+        return measurand_rows(self.measurands,
+                              Reported(mc.mean, mc.std, mc.low, mc.high, mc.coverage),
                               undetermined=self.undetermined,
                               extra={"true": self.true, "bias": self.bias})
 
@@ -568,8 +584,9 @@ class LinearizedResult(ResultDocument):
 
     def _rows(self) -> list[dict]:
         g = self.gum
-        rows = measurand_rows(self.measurands, value=g.value, u=g.std, low=g.low, high=g.high,
-                              coverage=g.coverage, undetermined=self.undetermined)
+        rows = measurand_rows(self.measurands, Reported(g.value, g.std, g.low, g.high,
+                                                        g.coverage),
+                              undetermined=self.undetermined)
         by_source = g.by_source()
         for row in rows:
             row["budget"] = by_source.get(row["name"], {})

@@ -41,6 +41,7 @@ __all__ = [
     "split_unit",
     "shown_with_unit",
     "param",
+    "OWNERS",
     "with_conditions",
     "fields_info",
     "file_fields",
@@ -91,6 +92,10 @@ def shown_with_unit(name: str, value) -> str:
 
 
 
+#: who carries an error source (:func:`param`'s ``owner``)
+OWNERS = ("machine", "instrument", "artefact", "workpiece", "method", "environment")
+
+
 def param(
     default,
     *,
@@ -103,6 +108,7 @@ def param(
     min_len: int | None = None,
     reader: Callable | None = None,
     condition: str | None = None,
+    owner: str | None = None,
 ):
     """Declare a set-up (or truth) field with its documentation and allowed range.
 
@@ -122,7 +128,16 @@ def param(
     measured) that a study records once for the whole test in its ``[conditions]`` table
     under that key: where the set-up leaves the field None, the readings are evaluated with
     the recorded value (:func:`with_conditions`).
+
+    A field that sizes an error source names the source's `owner` (:data:`OWNERS`): who
+    carries that error and so who can reduce it (the machine's own error, the instrument's
+    or its calibration's, the artefact's, the workpiece's, the method's set-up, the
+    environment's). Advice phrases an action by it: a calibration for an instrument, never
+    a set-up.
     """
+    if owner is not None and owner not in OWNERS:
+        raise ValueError(f"The 'owner' parameter of param must be one of {', '.join(OWNERS)}. "
+                         f"Got {owner!r} instead.")
     meta = {
         "doc": doc,
         "low": low,
@@ -133,6 +148,7 @@ def param(
         "min_len": min_len,
         "reader": reader,
         "condition": condition,
+        "owner": owner,
     }
     if isinstance(default, list):
         default = tuple(default)
@@ -192,6 +208,7 @@ def _fields_info(cls) -> tuple:
                                                  "choices", "min_len")},
                 "file": f.metadata.get("reader") is not None,
                 "condition": f.metadata.get("condition"),
+                "owner": f.metadata.get("owner"),
             }
         )
     return tuple(out)

@@ -56,6 +56,8 @@ FIT_NO_DECISION = "no decision: the readings do not fit the model"
 #: (or verified) on the date of the test, without the customer's agreement
 NO_INSTRUMENT = "no statement: an instrument was not calibrated on the test date"
 _DECLARED = ("lower", "upper", "rule", "prior")
+#: the verdicts that state conformity or non-conformity (ILAC-G8 4.2.3)
+STATEMENTS = ("pass", "conditional pass", "conditional fail", "fail")
 
 
 def declared_rules(study) -> list[dict]:
@@ -383,6 +385,9 @@ def apply_plan(result, plan) -> list[str]:
                     if key in block and v.measured is not None and v.verdict not in (
                             NO_INSTRUMENT, NO_CONDITION):
                         v.verdict, v.reason = verdict, block[key]
+            for v in verdicts:  # no probability of conformity where no statement is made
+                if v.verdict not in STATEMENTS:
+                    v.p_conform = None
     return deviations
 
 

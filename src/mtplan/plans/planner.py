@@ -32,9 +32,11 @@ from mtplan.models.protocol import fields_info, make
 from mtplan.plans.identifiability import identifiability, observability_indices
 from mtplan.plans.sweep import setup_grid
 from mtplan.uncertainty.montecarlo import ModelError
+from mtplan.uncertainty.options import Options
 
-__all__ = ["PlanResult", "plan", "pareto_front", "optimize_design", "readings_jacobian",
-           "design_identifiability", "parse_target", "PfaCriterion", "RESIDUAL", "target_u"]
+__all__ = ["PlanResult", "PlanOptions", "plan", "pareto_front", "optimize_design",
+           "readings_jacobian", "design_identifiability", "parse_target", "PfaCriterion",
+           "RESIDUAL", "target_u"]
 
 
 #: a target on the residual after compensation: ``residual:EXX<=2``
@@ -133,44 +135,21 @@ def _setup_fields(setup) -> dict:
     return setup.as_dict()
 
 
-def plan(
-    procedure,
-    base_setup=None,
-    vary: Mapping[str, Sequence] | None = None,
-    targets: Mapping[str, float] | None = None,
-    *,
-    k: float = 1.0,
-    truth=None,
-    estimator: str | None = None,
-    sources=None,
-    confirm: int = 5,
-    trials: int = 5000,
-    seed: int = 0,
-    n_jobs: int = 1,
-    backend: str | None = None,
-    criterion=None,
-    identify: bool = True,
-    determine=None,
-) -> PlanResult:
-    """The set-up of least duration whose uncertainty meets every target.
+@dataclass(frozen=True)
+class PlanOptions(Options):
+    """How :func:`plan` judges and confirms its candidates (frozen: change one with
+    :meth:`replace`).
 
-    Parameters
+    Attributes
     ----------
-    procedure : str or Procedure
-    base_setup : Setup, optional
-    vary : mapping of field to values
-        Candidate grid (the Cartesian product); empty means the base set-up alone.
-    targets : mapping of measurand name to value
-        Upper bounds for ``k u`` [display unit of each measurand].
     k : float
         Coverage factor of the targets (1: standard uncertainty).
-    truth, estimator, sources
-        As for :func:`mtplan.evaluation.simulation.simulate_uncertainty`.
     confirm : int
         Largest number of candidates checked by Monte Carlo before giving up.
     trials : int
         Monte Carlo trials of each confirmation.
     seed : int
+        The confirmations' seed.
     n_jobs, backend
         Parallel screening of the candidates.
     criterion : callable, optional
@@ -185,6 +164,48 @@ def plan(
         only if it lists every one; ``"all"`` means every measurand the procedure can
         report (geometry21: the 21 errors). Targets may name measurands that only some
         candidates determine.
+    """
+
+    k: float = 1.0
+    confirm: int = 5
+    trials: int = 5000
+    seed: int = 0
+    n_jobs: int = 1
+    backend: str | None = None
+    criterion: object = None
+    identify: bool = True
+    determine: object = None
+
+    WHAT = "plan option"
+
+
+def plan(
+    procedure,
+    base_setup=None,
+    vary: Mapping[str, Sequence] | None = None,
+    targets: Mapping[str, float] | None = None,
+    *,
+    truth=None,
+    estimator: str | None = None,
+    sources=None,
+    **options,
+) -> PlanResult:
+    """The set-up of least duration whose uncertainty meets every target.
+
+    Parameters
+    ----------
+    procedure : str or Procedure
+    base_setup : Setup, optional
+    vary : mapping of field to values
+        Candidate grid (the Cartesian product); empty means the base set-up alone.
+    targets : mapping of measurand name to value
+        Upper bounds for ``k u`` [display unit of each measurand].
+    truth, estimator, sources
+        As for :func:`mtplan.evaluation.simulation.simulate_uncertainty`.
+    **options
+        ``options=`` a :class:`PlanOptions` (the coverage factor ``k``, ``confirm``,
+        ``trials``, ``seed``, ``n_jobs``, ``backend``, ``criterion``, ``identify``,
+        ``determine``), and any of its fields as keywords, which replace the record's.
 
     Raises
     ------
@@ -192,6 +213,9 @@ def plan(
         For targets naming unknown measurands, and when no candidate can meet a
         target (the message gives the best reachable value of each).
     """
+    o = PlanOptions.of(options.pop("options", None), **options)
+    k, confirm, trials, seed, criterion = o.k, o.confirm, o.trials, o.seed, o.criterion
+    n_jobs, backend, identify, determine = o.n_jobs, o.backend, o.identify, o.determine
     proc = get(procedure)
     base_setup = proc.Setup() if base_setup is None else base_setup
     proc.check_setup(base_setup)

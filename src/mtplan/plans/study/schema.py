@@ -74,6 +74,59 @@ _TOP_KEYS = {"title", "subtitle", "customer", "machine", "author", "header", "se
              "trials", "max_trials", "coverage", "procedure", "simulated", "laboratory",
              "conditions", "instrument", "requirements"}
 _LAB_KEYS = {"name", "address", "accreditation"}
+
+
+# --- what an accredited certificate states (ISO/IEC 17025 7.2.2, 7.8.2.1; ILAC-P8) --------
+#: [laboratory] keys: whether the report is issued under an accreditation (``accredited``,
+#: true or false; ``accreditation`` then names the body and number), who signs it and in
+#: which function, and per procedure of the study (all are non-standard methods, ISO/IEC
+#: 17025 7.2.2) the laboratory's procedure identifier and its validation reference
+#: (``[laboratory.procedures] NAME = { id = "...", validation = "..." }``)
+ACCREDITATION_KEYS = {"accredited", "signatory", "signatory_function", "procedures"}
+_LAB_PROCEDURE_KEYS = {"id", "validation"}
+
+
+def _accreditation(lab: dict, problems) -> dict:
+    """The [laboratory] table with its accreditation keys checked: ``accredited`` a bool,
+    ``signatory`` and ``signatory_function`` text, ``procedures`` a table of
+    ``{id, validation}`` tables; every other key kept as text."""
+    out = {k: str(v) for k, v in lab.items() if k not in ACCREDITATION_KEYS}
+    accredited = lab.get("accredited")
+    if accredited is not None and not isinstance(accredited, bool):
+        problems.append("The study's laboratory 'accredited' must be true or false (the report "
+                        f"issued under an accreditation or not). Got {accredited!r} instead.")
+    elif accredited is not None:
+        out["accredited"] = accredited
+        if accredited and not str(lab.get("accreditation", "")).strip():
+            problems.append("The study's laboratory 'accredited' is true: 'accreditation' must "
+                            "name the accreditation body and number (ILAC-P8).")
+    for key in ("signatory", "signatory_function"):
+        if key in lab and not (isinstance(lab[key], str) and lab[key].strip()):
+            problems.append(f"The study's laboratory {key!r} must be text. Got {lab[key]!r} "
+                            "instead.")
+        elif key in lab:
+            out[key] = lab[key].strip()
+    procedures = lab.get("procedures", {})
+    if not isinstance(procedures, dict):
+        problems.append("The study's laboratory 'procedures' must be a table of {id, "
+                        f"validation}} tables per procedure. Got {procedures!r} instead.")
+        procedures = {}
+    out["procedures"] = {}
+    for name, entry in procedures.items():
+        where = f"The study's laboratory procedures {name!r}"
+        if not isinstance(entry, dict):
+            problems.append(f"{where} must be a table {{ id = \"...\", validation = \"...\" }}. "
+                            f"Got {entry!r} instead.")
+            continue
+        _unknown(problems, where, entry, _LAB_PROCEDURE_KEYS)
+        bad = [k for k in _LAB_PROCEDURE_KEYS if k in entry
+               and not (isinstance(entry[k], str) and entry[k].strip())]
+        for k in bad:
+            problems.append(f"{where} {k!r} must be text. Got {entry[k]!r} instead.")
+        out["procedures"][str(name)] = {k: entry[k].strip() for k in _LAB_PROCEDURE_KEYS
+                                        if k in entry and k not in bad}
+    return out
+# --- end of the accreditation keys --------------------------------------------------------
 #: the clause for an achieved U more than 10 % above the agreed one: the guard band widened
 #: in proportion (w times U achieved / U agreed), or no decision on that measurand
 LARGER_U = ("widen", "no decision")
@@ -230,7 +283,7 @@ class Study:
     procedures: list
     max_trials: int = 200_000
     header: dict = field(default_factory=dict)        # HEADER_KEYS -> value (those given)
-    laboratory: dict = field(default_factory=dict)    # name, address, accreditation
+    laboratory: dict = field(default_factory=dict)    # name, address, ACCREDITATION_KEYS
     conditions: dict = field(default_factory=dict)    # CONDITION_KEYS -> value (those given)
     instruments: list = field(default_factory=list)   # dicts: _INSTRUMENT_KEYS
     simulated: bool = False                           # readings simulated, not measured
@@ -267,6 +320,9 @@ def load_study(source) -> Study:
             if used not in names:
                 problems.append(f"instrument #{j + 1} 'used_in' names {used!r}, which is no "
                                 f"procedure of the study ({', '.join(sorted(names))}).")
+    problems += [f"The study's laboratory procedures names {name!r}, which is no procedure of "
+                 f"the study ({', '.join(sorted(names))})."
+                 for name in certificate["laboratory"]["procedures"] if name not in names]
     _temperature_log(certificate["conditions"], path, problems)
     problems += _machine_problems(header, certificate, out)
     for i, ps in enumerate(out):  # the readings are evaluated at the recorded conditions
@@ -440,7 +496,7 @@ def _certificate(data, header, problems) -> dict:
     if not isinstance(lab, dict):
         problems.append("The study's 'laboratory' must be a table.")
         lab = {}
-    _unknown(problems, "The study's laboratory", lab, _LAB_KEYS)
+    _unknown(problems, "The study's laboratory", lab, _LAB_KEYS | ACCREDITATION_KEYS)
     conditions = {}
     if "ambient_temperature_c" in header:
         conditions["ambient_temperature_c"] = header["ambient_temperature_c"]
@@ -487,7 +543,7 @@ def _certificate(data, header, problems) -> dict:
         problems.append(f"The study's 'simulated' must be true or false. Got {simulated!r} "
                         "instead.")
         simulated = False
-    return {"laboratory": {k: str(v) for k, v in lab.items()}, "conditions": conditions,
+    return {"laboratory": _accreditation(lab, problems), "conditions": conditions,
             "instruments": shown, "simulated": simulated, "requirements": requirements}
 
 
