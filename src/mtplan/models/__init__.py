@@ -36,11 +36,12 @@ from mtplan.models.protocol import (
     ReadingsFormat,
     SetupBase,
     Source,
+    SourceMethod,
     param,
 )
 
 __all__ = ["Capabilities", "Estimator", "Measurand", "Procedure", "ReadingsFormat", "SetupBase",
-           "Source", "param", "registry", "get", "broken",
+           "Source", "SourceMethod", "param", "registry", "get", "broken",
            "ENTRY_POINT_GROUP"]
 
 #: the entry-point group through which installed packages register procedures
