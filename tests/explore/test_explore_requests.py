@@ -72,8 +72,9 @@ def test_a_server_path_is_refused_unread_the_same_whether_it_exists(server, path
         else:
             body = {"design": _design(path, where), "field": "incline_deg"}
         status, answer = server.api(f"api/{endpoint}", body)
-        text = json.dumps(answer).replace(path, "PATH")
-        assert SECRET not in text and "No such file" not in text and "exist" not in text
+        # (a refusal quotes at most the path's first 60 characters)
+        text = json.dumps(answer).replace(path, "PATH").replace(path[:60], "PATH")
+        assert SECRET not in text and "No such file" not in text and "not exist" not in text
         answers.append((status, text))
     assert answers[0] == answers[1], answers
     status, text = answers[0]
