@@ -13,7 +13,6 @@ row by row.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 from dataclasses import dataclass
 
@@ -57,14 +56,14 @@ def truth_parameters(proc, truth, fields=None) -> list[Param]:
 
     every = []
     for info in fields_info(type(truth)):
-        lo = -np.inf if info["low"] is None else float(info["low"])
-        hi = np.inf if info["high"] is None else float(info["high"])
-        args = (info["unit"], lo, hi, bool(info["low_open"]), bool(info["high_open"]))
-        value = getattr(truth, info["name"])
-        if info["kind"] is float and not info["optional"]:
-            every.append(Param(info["name"], info["name"], None, *args))
-        elif info["kind"] == "tuple" and info["element"] is float and value is not None:
-            every += [Param(f"{info['name']}[{i}]", info["name"], i, *args)
+        lo = -np.inf if info.low is None else float(info.low)
+        hi = np.inf if info.high is None else float(info.high)
+        args = (info.unit, lo, hi, bool(info.low_open), bool(info.high_open))
+        value = getattr(truth, info.name)
+        if info.kind is float and not info.optional:
+            every.append(Param(info.name, info.name, None, *args))
+        elif info.kind == "tuple" and info.element is float and value is not None:
+            every += [Param(f"{info.name}[{i}]", info.name, i, *args)
                       for i in range(len(value))]
     if fields is None:
         return every
@@ -84,8 +83,8 @@ class _Reader:
     """Stands in for a Truth and records which attributes its ``_check`` reads."""
 
     def __init__(self, base):
-        object.__setattr__(self, "_base", base)
-        object.__setattr__(self, "read", set())
+        self._base = base
+        self.read = set()
 
     def __getattr__(self, name):
         self.read.add(name)
@@ -150,21 +149,21 @@ class TruthBuilder:
         return ok
 
     def _assign(self, values) -> object:
-        """A copy of the base with `values` (one per parameter: floats or arrays) set."""
-        t = copy.copy(self.base)
-        tuples = {}
+        """The base with `values` (one per parameter: floats or arrays (m,)) set: a batch of
+        truths (``Truth.batch``; of one where the values are floats), checked by
+        :meth:`valid` and :meth:`cross_valid` rather than field by field."""
+        changes, tuples = {}, {}
         for p, v in zip(self.params, values, strict=True):
             if p.index is None:
-                object.__setattr__(t, p.field, v)
+                changes[p.field] = v
             else:
                 tuples.setdefault(p.field, {})[p.index] = v
         for name, items in tuples.items():
             old = getattr(self.base, name)
             shape = np.shape(next(iter(items.values())))
-            new = [items.get(i, np.full(shape, float(x)) if shape else float(x))
-                   for i, x in enumerate(old)]
-            object.__setattr__(t, name, tuple(new))
-        return t
+            changes[name] = tuple(items.get(i, np.full(shape, float(x)) if shape else float(x))
+                                  for i, x in enumerate(old))
+        return type(self.base).batch(self.base, **changes)
 
     def cross_valid(self, theta: np.ndarray) -> np.ndarray:
         """Mask of rows that pass the Truth's cross-field rules (all True without rules)."""

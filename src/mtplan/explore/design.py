@@ -66,9 +66,9 @@ def _source_fields(name: str) -> tuple:  # asked several times a change: once pe
     out = {}
     for f in fields_info(proc.Setup):
         for s in names:
-            rest = f["name"][len(s) + 1:]
-            if f["name"].startswith(s + "_") and rest in UNIT_SUFFIXES:
-                out[s] = f["name"]
+            rest = f.name[len(s) + 1:]
+            if f.name.startswith(s + "_") and rest in UNIT_SUFFIXES:
+                out[s] = f.name
     return tuple(out.items())
 
 
@@ -88,20 +88,20 @@ def procedure_info(name: str) -> dict:
     sources = proc.sources(setup)
     fields = []
     for f in fields_info(proc.Setup):
-        if f["file"]:  # a path on this machine: never a browser's (_refuse_files)
+        if f.file:  # a path on this machine: never a browser's (_refuse_files)
             continue
-        kind = f["kind"]
+        kind = f.kind
         kind = {float: "float", int: "int", bool: "bool", str: "str"}.get(kind, "tuple")
         fields.append({
-            "name": f["name"], "kind": kind, "unit": f["unit"], "doc": f["doc"] or "",
-            "default": _json_value(f["default"]), "low": f["low"], "high": f["high"],
-            "low_open": f["low_open"], "high_open": f["high_open"],
-            "choices": list(f["choices"]) if f["choices"] else None,
-            "optional": f["optional"], "min_len": f["min_len"],
-            "source": by_field.get(f["name"]),
-            "source_doc": sources[by_field[f["name"]]].description if f["name"] in by_field
+            "name": f.name, "kind": kind, "unit": f.unit, "doc": f.doc or "",
+            "default": _json_value(f.default), "low": f.low, "high": f.high,
+            "low_open": f.low_open, "high_open": f.high_open,
+            "choices": list(f.choices) if f.choices else None,
+            "optional": f.optional, "min_len": f.min_len,
+            "source": by_field.get(f.name),
+            "source_doc": sources[by_field[f.name]].description if f.name in by_field
             else "",
-            "lever": f["name"] in proc.levers,
+            "lever": f.name in proc.levers,
         })
         fields[-1]["slider"] = _slider(fields[-1])
     return {
@@ -246,7 +246,7 @@ def _values(proc, design) -> dict:
 
 def field_problems(proc, design) -> dict:
     """Field name -> the procedure's own message for each value it refuses alone."""
-    infos = {f["name"] for f in fields_info(proc.Setup)}
+    infos = {f.name for f in fields_info(proc.Setup)}
     try:
         values = _values(proc, design)
     except InvalidInput as exc:  # a file field: named beside itself
@@ -778,7 +778,7 @@ def evaluate(design: dict) -> dict:
         proc, setup = setup_of(design)
     except InvalidInput as exc:
         out["problems"] = list(exc.problems)
-        infos = [f["name"] for f in fields_info(proc.Setup)]
+        infos = [f.name for f in fields_info(proc.Setup)]
         for msg in exc.problems:  # a rule between fields: beside each field it names
             for f in infos:
                 if f"'{f}'" in msg or f" {f} " in f" {msg} ":
@@ -834,7 +834,7 @@ def source_inputs(proc, setup) -> dict:
     """Source -> (its size, the unit of the field that states it): the input u of the
     budget table (a source of many elements has this u for each)."""
     out = {}
-    units = {f["name"]: f["unit"] for f in fields_info(proc.Setup)}
+    units = {f.name: f.unit for f in fields_info(proc.Setup)}
     for source, field in source_fields(proc).items():
         v = getattr(setup, field, None)
         if isinstance(v, int | float) and not isinstance(v, bool):
@@ -886,22 +886,22 @@ def _json_setup(setup) -> dict:
 # --------------------------------------------------------------------------- sensitivity
 def lever_values(proc, setup, field: str, n: int = 9) -> list:
     """Values of a numeric field over its range around the current value (n at most)."""
-    info = next(f for f in fields_info(proc.Setup) if f["name"] == field)
+    info = next(f for f in fields_info(proc.Setup) if f.name == field)
     v = getattr(setup, field)
-    kind = info["kind"]
+    kind = info.kind
     if kind not in (int, float) or v is None:
         raise InvalidInput([f"The lever {field!r} of {proc.name} is not a number; a "
                             "sensitivity needs a numeric field."])
-    lo, hi = info["low"], info["high"]
+    lo, hi = info.low, info.high
     v = float(v)
     a = lo if lo is not None else (0.0 if v >= 0 else 4 * v)
     b = hi if hi is not None else max(4 * abs(v), 1.0)
     # keep the plot around the current value: at most x0.25 .. x4 on ratio-scale fields
     if lo is not None and lo >= 0 and v > 0:
         a, b = max(a, v / 4), min(b, v * 4)
-    if info["low_open"] and a == lo:
+    if info.low_open and a == lo:
         a = a + (b - a) / (4 * n)
-    if info["high_open"] and b == hi:
+    if info.high_open and b == hi:
         b = b - (b - a) / (4 * n)
     if kind is int:
         vals = sorted(set(int(round(x)) for x in np.linspace(a, b, n)) | {int(v)})
@@ -951,8 +951,8 @@ def sensitivity(design: dict, field: str | None = None, n: int = 9, *, stop=None
     for x in xs:
         for name, u in points[x].items():
             curves.setdefault(name, []).append(K * u)
-    info = next(f for f in fields_info(proc.Setup) if f["name"] == field)
-    return {"field": field, "unit": info["unit"], "x": xs, "U": curves, "untrusted": untrusted,
+    info = next(f for f in fields_info(proc.Setup) if f.name == field)
+    return {"field": field, "unit": info.unit, "x": xs, "U": curves, "untrusted": untrusted,
             "current": _json_value(getattr(setup, field)),
             "units": {m.name: m.unit for m in proc.measurands(setup)},
             "targets": {k: v for k, v in design["targets"].items()}}

@@ -225,7 +225,7 @@ def _lever_for(o, v, needed) -> str:
     from mtplan.models.protocol import fields_info
     from mtplan.reports.labels import field_label
 
-    docs = {f["name"]: f["doc"] for f in fields_info(o.spec.procedure.Setup)}
+    docs = {f.name: f.doc for f in fields_info(o.spec.procedure.Setup)}
     best = None
     for spec, table in o.sweeps:
         if isinstance(table, str) or len(spec["vary"]) != 1:

@@ -80,7 +80,7 @@ def _source_fields(name: str, fields) -> list[str]:
 
 def check_sources_are_named_after_setup_fields(proc: Procedure) -> None:
     """Every error source ``s`` is sized by a set-up field ``s_<unit>`` and described."""
-    fields = {f["name"] for f in fields_info(proc.Setup)}
+    fields = {f.name for f in fields_info(proc.Setup)}
     sources = proc.sources(proc.Setup())
     _expect(sources, "a procedure without error sources has nothing to simulate")
     for name, src in sources.items():
@@ -91,7 +91,7 @@ def check_sources_are_named_after_setup_fields(proc: Procedure) -> None:
 def check_switching_a_source_off_through_its_field(proc: Procedure) -> None:
     """Setting a source's field to 0 switches that source off."""
     setup = proc.Setup()
-    fields = {f["name"] for f in fields_info(proc.Setup)}
+    fields = {f.name for f in fields_info(proc.Setup)}
     for name in proc.active_sources(setup):
         field = _source_fields(name, fields)[0]
         off = make(proc.Setup, {field: 0}, base=setup, owner=proc.name)
@@ -101,7 +101,7 @@ def check_switching_a_source_off_through_its_field(proc: Procedure) -> None:
 def check_levers(proc: Procedure) -> None:
     """The levers (the fields an engineer chooses) are set-up fields, and none sizes an error
     source (that is a property of the machine, the workpiece or the instrument)."""
-    fields = {f["name"] for f in fields_info(proc.Setup)}
+    fields = {f.name for f in fields_info(proc.Setup)}
     _expect(proc.levers, "the procedure names no levers (the set-up fields a planner may vary)")
     unknown = set(proc.levers) - fields
     _expect(not unknown, f"levers that are no set-up field: {sorted(unknown)}")
@@ -198,24 +198,24 @@ def check_unknown_field_and_estimator_are_refused(proc: Procedure) -> None:
 
 def numeric_fields(proc: Procedure) -> list[dict]:
     """The set-up fields (``fields_info`` records) that hold a number."""
-    return [f for f in fields_info(proc.Setup) if f["kind"] in (int, float)]
+    return [f for f in fields_info(proc.Setup) if f.kind in (int, float)]
 
 
 def bad_values(info) -> list:
     """Values the set-up field described by `info` (from ``fields_info``) must refuse."""
-    bad = [math.nan, "abc"] if info["optional"] else [math.nan, math.inf, -math.inf, "abc", None]
-    if info["low"] is not None:
-        bad.append(info["low"] - (1 if info["kind"] is int else 1e-3 * max(abs(info["low"]), 1)))
-    if info["high"] is not None:
-        bad.append(info["high"] + (1 if info["kind"] is int else 1e-3 * max(abs(info["high"]), 1)))
-    if info["kind"] is int:
+    bad = [math.nan, "abc"] if info.optional else [math.nan, math.inf, -math.inf, "abc", None]
+    if info.low is not None:
+        bad.append(info.low - (1 if info.kind is int else 1e-3 * max(abs(info.low), 1)))
+    if info.high is not None:
+        bad.append(info.high + (1 if info.kind is int else 1e-3 * max(abs(info.high), 1)))
+    if info.kind is int:
         bad.append(2.5)
     return bad
 
 
 def check_all_problems_reported_at_once(proc: Procedure) -> None:
     """Several bad fields are refused together, each named."""
-    fields = [f["name"] for f in numeric_fields(proc)[:3]]
+    fields = [f.name for f in numeric_fields(proc)[:3]]
     with _refused("fields that are no number", *fields) as caught:
         make(proc.Setup, {f: "not-a-number" for f in fields}, owner=proc.name)
     problems = caught[0].problems
@@ -228,8 +228,8 @@ def check_bad_setup_values_name_the_field(proc: Procedure) -> None:
     past a bound, a fraction for a count) is refused, naming the field."""
     for info in numeric_fields(proc):
         for value in bad_values(info):
-            with _refused(f"{info['name']}={value!r}", info["name"]):
-                proc.Setup(**{info["name"]: value})
+            with _refused(f"{info.name}={value!r}", info.name):
+                proc.Setup(**{info.name: value})
 
 
 #: every check, in the order they are worth reading; each takes the Procedure

@@ -400,7 +400,7 @@ def _advise(outcome, proc, k) -> None:
     outcome.levers = decisions.lever_effects(proc.levers, ps.setup, outcome.sweeps, outcome.key,
                                              outcome.recommended)
     outcome.dominant = decisions.dominant_sources(
-        outcome.budget, proc.levers, [f["name"] for f in fields_info(proc.Setup)])
+        outcome.budget, proc.levers, [f.name for f in fields_info(proc.Setup)])
     outcome.comparison = decisions.estimator_comparison(outcome.results)
     outcome.targets = decisions.u_targets(ps.plan, outcome.verdicts)
 
