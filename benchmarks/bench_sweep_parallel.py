@@ -108,7 +108,7 @@ def timed(out: Path, trials: int, **parallel) -> tuple[float, float]:
     out.unlink(missing_ok=True)
     out.with_name(out.name + ".sweep.json").unlink(missing_ok=True)
     c0, t0 = _cpu_seconds(), time.perf_counter()
-    sweep("rotary_axis", vary=VARY, trials=trials, seed=1, progress=False, out=out, **parallel)
+    sweep("rotary_axis", vary=VARY, trials=trials, rng=1, progress=False, out=out, **parallel)
     return time.perf_counter() - t0, _cpu_seconds() - c0
 
 

@@ -29,6 +29,8 @@ import numpy as np
 
 from mtplan.models import get
 from mtplan.models import tracker_frame as tf
+from mtplan.models.tracker_frame import _estimators as tf_estimators
+from mtplan.models.tracker_frame import _layout as tf_layout
 from mtplan.fitting.fit3d import fit_circle_3d, fit_circle_3d_angles, fit_line_3d
 from mtplan.evaluation.simulation import simulate_uncertainty
 
@@ -52,7 +54,7 @@ def speed(trials: int) -> None:
     rng = np.random.default_rng(1)
     t_np = best(lambda: rng.standard_normal((trials, n_var)), repeat=5)
     print(f"tracker_frame default set-up: {setup.n_submachines} sub-machines, "
-          f"{tf._n_points(setup)} tracker points, {n_var} error variates per trial, "
+          f"{tf_layout.n_points(setup)} tracker points, {n_var} error variates per trial, "
           f"block {proc.capabilities.block_size}")
     print(f"simulate_uncertainty, {trials} trials: {t_mc:.3f} s = {trials / t_mc:,.0f} trials/s")
     print(f"numpy alone, {trials} x {n_var} normal variates: {t_np:.3f} s")
@@ -69,13 +71,13 @@ def speed(trials: int) -> None:
     t_est_ang = best(lambda: tf.estimate_angles(setup, readings))
 
     def stage_reg():
-        xyz = tf._cartesian(readings)
-        rot, t = tf._register(setup, xyz[:, :4])
+        xyz = tf_estimators._cartesian(readings)
+        rot, t = tf_estimators._register(setup, xyz[:, :4])
         return np.einsum("nij,npj->npi", rot, xyz) + t[:, None, :]
 
     t_reg = best(stage_reg)
     glob = stage_reg()
-    sl = tf._slices(setup)
+    sl = tf_layout.slices(setup)
     k_all = range(1, setup.n_submachines + 1)
     t_lin = best(lambda: [fit_line_3d(glob[:, sl[(g, k)]]) for k in k_all for g in "XYZ"])
     t_circ = best(lambda: [fit_circle_3d(glob[:, sl[(g, k)]]) for k in k_all for g in "CA"])
@@ -91,7 +93,7 @@ def speed(trials: int) -> None:
           f"(up to {iters} Levenberg-Marquardt iterations)")
     rest = t_est - t_reg - t_lin - t_circ
     print(f"    rest                                {rest * 1e3:6.1f} ms")
-    th = {g: np.radians(tf._arc_angles(arc, setup.points_per_arc))
+    th = {g: np.radians(tf_layout.arc_angles(arc, setup.points_per_arc))
           for g, arc in (("C", setup.c_arc_deg), ("A", setup.a_arc_deg))}
     t_circ_ang = best(lambda: [fit_circle_3d_angles(glob[:, sl[(g, k)]], th[g])
                                for k in k_all for g in "CA"])

@@ -228,15 +228,6 @@ def test_the_fitting_machinery_knows_no_procedure():
             assert not bad, f"{module} imports {bad}"
 
 
-MAX_MODULE_LINES = 1500
-
-
-def test_no_module_too_long_to_find_ones_way_in():
-    long = {_module_name(p): n for p in SRC.rglob("*.py")
-            if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_MODULE_LINES}
-    assert not long, f"modules over {MAX_MODULE_LINES} lines: {long}"
-
-
 def test_no_merge_conflict_markers_in_the_sources_and_documents():
     """A merge must not leave its conflict markers in a file users read or run."""
     root = SRC.parent

@@ -14,6 +14,8 @@ import pytest
 
 from mtplan._validate import InvalidInput
 from mtplan.models import circle_centre as cc
+from mtplan.models.circle_centre import _estimators as cc_estimators
+from mtplan.models.circle_centre import _physics as cc_physics
 from mtplan.evaluation.first_order import first_order
 from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 from tests.models.first_order_check import assert_chain_rule_is_the_linearisation as _assert_chain_rule_is_the_linearisation  # noqa: E501
@@ -187,7 +189,7 @@ def test_contact_lies_on_the_lobed_wall():
     origin = rng.uniform(-20, 20, (n, k, 2))
     ang = rng.uniform(0, 2 * np.pi, (n, k))
     direction = np.stack([np.cos(ang), np.sin(ang)], axis=-1)
-    q, normal = cc._contact(origin, direction, centre, radius, form, 3)
+    q, normal = cc_physics._contact(origin, direction, centre, radius, form, 3)
     rel = q - centre[:, None, :]
     phi = np.arctan2(rel[..., 1], rel[..., 0])
     rho = 100.0 + form[:, :1] * np.cos(3 * phi) + form[:, 1:] * np.sin(3 * phi)
@@ -434,7 +436,7 @@ def test_gls_weights_are_the_forward_models_radial_covariance(changes):
     setup = P.setup(start_scatter_mm=0.0, **changes)
     truth = P.truth(start_x_mm=-60.0, start_y_mm=30.0)
     readings = P.simulate(setup, truth, draws=n_trials, rng=11)
-    pts, approach, has_p = cc._contacts(readings)
+    pts, approach, has_p = cc_estimators._contacts(readings)
     assert has_p.all()
     centre = np.array([truth.centre_x_mm, truth.centre_y_mm])
     r = setup.bore_radius_mm + truth.radius_deviation_mm
@@ -443,7 +445,7 @@ def test_gls_weights_are_the_forward_models_radial_covariance(changes):
     u = diff / np.linalg.norm(diff, axis=-1, keepdims=True)
     empirical = np.cov(e, rowvar=False)
     # the contacts' directions barely move from trial to trial: the mean covariance
-    analytic = cc._radial_covariance(setup, u, approach, np.full(n_trials, r),
+    analytic = cc_estimators._radial_covariance(setup, u, approach, np.full(n_trials, r),
                                      np.broadcast_to(centre, (n_trials, 2))).mean(axis=0)
     sd = np.sqrt(np.diag(analytic))
     se = np.sqrt((np.outer(sd, sd) ** 2 + analytic**2) / n_trials)

@@ -18,6 +18,10 @@ import pytest
 from mtplan._validate import InvalidInput
 from mtplan.models import get
 from mtplan.models import tracker_frame as tf
+from mtplan.models.tracker_frame import _estimators as tf_estimators
+from mtplan.models.tracker_frame import _geometry as tf_geometry
+from mtplan.models.tracker_frame import _layout as tf_layout
+from mtplan.models.tracker_frame import _physics as tf_physics
 from mtplan.fitting.fit3d import circle_residuals, fit_circle_3d
 from mtplan.evaluation.first_order import first_order
 from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
@@ -48,7 +52,7 @@ def test_forward_marks_match_hand_computed_spherical_coordinates():
     truth = PROC.Truth(tracker_tilt_x_urad=0.0, tracker_tilt_y_urad=0.0, tracker_yaw_deg=30.0)
     r = _noise_free(setup, truth)
     tracker = np.array([-setup.tracker_distance_mm, 0.0, setup.tracker_height_mm])
-    for i, mark in enumerate(tf._marks(setup)):
+    for i, mark in enumerate(tf_layout.bed_marks(setup)):
         v = mark - tracker
         assert r["distance_mm"][0, i] == pytest.approx(np.linalg.norm(v), abs=1e-9)
         az = math.atan2(v[1], v[0]) - math.radians(30.0)
@@ -61,9 +65,9 @@ def test_forward_marks_match_hand_computed_spherical_coordinates():
 def test_forward_geometry_of_the_machine_points():
     setup = PROC.Setup()
     truth = PROC.Truth()
-    pts = tf._machine_points(setup, truth)
-    sl = tf._slices(setup)
-    h = tf._head(setup, truth, 0)
+    pts = tf_physics._machine_points(setup, truth)
+    sl = tf_layout.slices(setup)
+    h = tf_physics._head(setup, truth, 0)
     # linear travel: evenly spaced along the true X direction, total length = travel
     x = pts[sl[("X", 1)].start - 4: sl[("X", 1)].stop - 4]
     steps = np.diff(x, axis=0)
@@ -111,14 +115,14 @@ def test_rotary_positioning_error_moves_the_reflector_round_the_axis():
     q = setup.points_per_arc
     err = np.zeros((1, 2 * setup.n_submachines * q))
     err[0, q + 2] = 1e-3  # sub-machine 1, A arc, third point
-    moved = tf._machine_points(setup, truth, err)[0]
-    base = tf._machine_points(setup, truth)
+    moved = tf_physics._machine_points(setup, truth, err)[0]
+    base = tf_physics._machine_points(setup, truth)
     changed = np.flatnonzero(np.any(moved != base, axis=1))
-    sl = tf._slices(setup)
+    sl = tf_layout.slices(setup)
     assert changed.tolist() == [sl[("A", 1)].start + 2 - 4]
-    h = tf._head(setup, truth, 0)
-    a_ang = np.radians(tf._arc_angles(setup.a_arc_deg, q)[2]) + 1e-3
-    expect = h.a_point + tf._rot(h.a_dir, a_ang) @ (h.reflector - h.a_point)
+    h = tf_physics._head(setup, truth, 0)
+    a_ang = np.radians(tf_layout.arc_angles(setup.a_arc_deg, q)[2]) + 1e-3
+    expect = h.a_point + tf_geometry.rot(h.a_dir, a_ang) @ (h.reflector - h.a_point)
     np.testing.assert_allclose(moved[changed[0]], expect, atol=1e-12)
     assert PROC.sources(setup)["rotary_positioning"].distribution.std == pytest.approx(
         5 * math.pi / 648000)
@@ -140,10 +144,11 @@ def test_new_sources_enter_readings_as_specified():
     np.testing.assert_allclose(r["elevation_rad"][0] - el0, 3e-3 / d0, rtol=1e-7)
     errs = PROC.zero_errors(setup, 1)
     errs["thermal_drift"][0] = (0.0, 0.0, 1e-5)  # 10 nm/s up
-    times, total = tf._times(setup)
+    times, total = tf_layout.reading_times(setup)
     assert total == PROC.duration(setup) and np.all(np.diff(times) > 0)
-    moved = tf._cartesian(PROC.forward(setup, truth, errs)) - tf._cartesian(base)
-    r_tr, _ = tf._tracker_pose(setup, truth)
+    cartesian = tf_estimators._cartesian
+    moved = cartesian(PROC.forward(setup, truth, errs)) - cartesian(base)
+    r_tr, _ = tf_physics._tracker_pose(setup, truth)
     np.testing.assert_allclose(moved[0] @ r_tr.T, np.outer(1e-5 * times, [0, 0, 1]), atol=1e-9)
 
 
@@ -157,9 +162,9 @@ def test_straightness_is_orthogonal_to_the_reference_line():
         setup = PROC.Setup(points_per_axis=points, n_submachines=1)
         coef = np.zeros((1, 1, 3, 2, 3))
         coef[0, 0, 0, 0, 1] = 1e-3  # X travel, first direction across, P3, 1 um
-        start = tf._slices(setup)[("X", 1)].start - 4
-        dev = tf._straightness(setup, truth, coef)[0, start:start + points]
-        pos = tf._linear_positions(setup)["X"]
+        start = tf_layout.slices(setup)[("X", 1)].start - 4
+        dev = tf_physics._straightness(setup, truth, coef)[0, start:start + points]
+        pos = tf_layout.linear_positions(setup)["X"]
         slope[points] = np.linalg.norm(np.polyfit(pos, dev, 1)[0])
     assert slope[2] == pytest.approx(1e-3 / 500.0, rel=1e-9)
     assert slope[1000] < 1e-2 * slope[2]
@@ -302,8 +307,8 @@ def test_rotary_positioning_error_leaves_patent_alone(estimator):
 
 def _registered_points(setup, readings):
     """Machine points (n, points - 4, 3) in the global frame, as the estimators see them."""
-    xyz = tf._cartesian(readings)
-    rot, t = tf._register(setup, xyz[:, :4])
+    xyz = tf_estimators._cartesian(readings)
+    rot, t = tf_estimators._register(setup, xyz[:, :4])
     return (np.einsum("nij,npj->npi", rot, xyz) + t[:, None, :])[:, 4:]
 
 
@@ -316,10 +321,10 @@ def test_systematic_angle_error_moves_the_frame_consistently_within_a_trial():
     # The limits are a factor of 3 or more from the values at this seed and set-up.
     setup = PROC.Setup(a_arc_deg=20.0, transverse_per_length_um_per_m=5.0)
     truth = PROC.Truth()
-    true_pts = tf._machine_points(setup, truth)
+    true_pts = tf_physics._machine_points(setup, truth)
     tv = PROC.true_values(setup, truth)
-    sl = {g: slice(tf._slices(setup)[(g, 1)].start - 4, tf._slices(setup)[(g, 1)].stop - 4)
-          for g in "CA"}
+    groups = tf_layout.slices(setup)
+    sl = {g: slice(groups[(g, 1)].start - 4, groups[(g, 1)].stop - 4) for g in "CA"}
     n = 300
     out = {}
     for source in ("angular_systematic", "transverse_per_length"):
@@ -376,7 +381,7 @@ def test_parallel_fitted_axes_refused_by_the_estimator():
     # measured data whose "A arc" went round C: the fitted A and C lines coincide
     setup = PROC.Setup()
     r = _noise_free(setup, PROC.Truth())
-    sl = tf._slices(setup)
+    sl = tf_layout.slices(setup)
     for key in r:
         r[key][:, sl[("A", 2)]] = r[key][:, sl[("C", 2)]]
     with pytest.raises(InvalidInput, match="sub-machine 2 are parallel"):
@@ -388,7 +393,7 @@ def test_readings_frame_round_trip_in_any_row_order():
     setup = PROC.Setup(n_submachines=3)
     r = PROC.simulate(setup, draws=2, rng=5)
     df = tf.readings_frame(setup, r)
-    assert len(df) == tf._n_points(setup)
+    assert len(df) == tf_layout.n_points(setup)
     assert {"group", "submachine", "index", "position_mm", "angle_deg", "distance_mm",
             "azimuth_rad", "elevation_rad"} <= set(df.columns)
     back = tf.from_frame(setup, df.sample(frac=1.0, random_state=1))
@@ -498,7 +503,8 @@ def test_fits_shared_by_identical_rows_give_each_rows_estimate(estimator, monkey
     readings = {k: rows[:, i * p:(i + 1) * p] for i, k in enumerate(tf.READING_COLUMNS)}
     shared = PROC.estimators[estimator](setup, readings)
     calls = []
-    monkeypatch.setattr(tf, "_on_distinct", lambda fit, pts: calls.append(1) or fit(pts))
+    monkeypatch.setattr(tf_estimators, "_on_distinct",
+                        lambda fit, pts: calls.append(1) or fit(pts))
     whole = PROC.estimators[estimator](setup, readings)
     assert calls
     for k, v in whole.items():
@@ -519,9 +525,9 @@ def test_fits_are_shared_only_by_identical_rows():
     pts = np.arange(4 * 7 * 3, dtype=float).reshape(4, 7, 3)
     pts[3] = pts[0]
     pts[3, 2, 1] += 1e-9  # alike but for one number: its own fit
-    assert tf._on_distinct(fit, pts)[0].tolist() == pts.sum(axis=(1, 2)).tolist()
+    assert tf_estimators._on_distinct(fit, pts)[0].tolist() == pts.sum(axis=(1, 2)).tolist()
     rows = pts[[0, 1, 0, 0, 1, 0, 3]]
-    got = tf._on_distinct(fit, rows)
+    got = tf_estimators._on_distinct(fit, rows)
     assert seen == [4, 3]  # none alike: the batch whole; then each distinct row once
     np.testing.assert_array_equal(got[0], rows.sum(axis=(1, 2)))
     assert got[1] == 7
@@ -544,20 +550,21 @@ def test_reflector_fixture_moves_the_reflector_in_the_heads_directions():
     zero = np.zeros((1, 2 * setup.n_submachines * q))
     fixture = np.zeros((1, setup.n_submachines, 3))
     fixture[0, 0] = (0.05, -0.02, 0.03)
-    moved = tf._machine_points(setup, truth, zero, fixture)[0]
-    h = tf._head(setup, truth, 0)
+    moved = tf_physics._machine_points(setup, truth, zero, fixture)[0]
+    h = tf_physics._head(setup, truth, 0)
     shift = 0.05 * h.perp - 0.02 * h.c_dir + 0.03 * np.cross(h.perp, h.c_dir)
-    moved_head = tf._Head(**{**h.__dict__, "reflector": h.reflector + shift})
-    sl = tf._slices(setup)
-    lin = tf._linear_positions(setup)["Y"]
+    moved_head = tf_physics._Head(**{**h.__dict__, "reflector": h.reflector + shift})
+    sl = tf_layout.slices(setup)
+    lin = tf_layout.linear_positions(setup)["Y"]
     s = sl[("Y", 1)]
     np.testing.assert_allclose(moved[s.start - 4:s.stop - 4],
                                moved_head.reflector + lin[:, None] * h.axes[1], atol=1e-12)
-    a_ang = np.radians(tf._arc_angles(setup.a_arc_deg, q))
+    a_ang = np.radians(tf_layout.arc_angles(setup.a_arc_deg, q))
     s = sl[("A", 1)]
-    expect = h.a_point + tf._mv(tf._rot(h.a_dir, a_ang), moved_head.reflector - h.a_point)
+    expect = h.a_point + tf_geometry.mv(tf_geometry.rot(h.a_dir, a_ang),
+                                        moved_head.reflector - h.a_point)
     np.testing.assert_allclose(moved[s.start - 4:s.stop - 4], expect, atol=1e-12)
-    base = tf._machine_points(setup, truth)
+    base = tf_physics._machine_points(setup, truth)
     s = sl[("X", 2)]
     np.testing.assert_array_equal(moved[s.start - 4:], base[s.start - 4:])  # sub-machine 2
     src = PROC.sources(setup)["reflector_fixture"]
@@ -665,14 +672,15 @@ def test_gls_covariance_from_grouped_rows_is_the_budgets(changes):
     setup = PROC.setup(changes)
     other = ("test", str(changes))  # groups kept for another set-up: used where they fit
     secant_effects(SourceModel(PROC.name, tf.sources(PROC.Setup(straightness_um=0.0)),
-                               lambda e: tf._gls_vector(tf.forward(
+                               lambda e: tf_estimators._gls_vector(tf.forward(
                                    PROC.Setup(straightness_um=0.0), tf.Truth(), e)),
                                lambda m: PROC.zero_errors(PROC.Setup(straightness_um=0.0), m)),
                    key=other)
     for seed, key in ((1, None), (2, ("test", setup)), (3, ("test", setup)), (4, other)):
-        theta = tf._gls_start(setup, PROC.simulate(setup, draws=1, rng=seed))[1][None, :]
-        model = SourceModel(PROC.name, tf.sources(setup), lambda e, th=theta: tf._gls_vector(
-            tf.forward(setup, tf._gls_truth(setup, tf.Truth(), np.repeat(
+        est = tf_estimators
+        theta = est._gls_start(setup, PROC.simulate(setup, draws=1, rng=seed))[1][None, :]
+        model = SourceModel(PROC.name, tf.sources(setup), lambda e, th=theta: est._gls_vector(
+            tf.forward(setup, est._gls_truth(setup, tf.Truth(), np.repeat(
                 th, len(e["air_refraction"]), 0)), e)), lambda m: PROC.zero_errors(setup, m))
         for want, got in zip(source_effects(model), secant_effects(model, key=key),
                              strict=True):

@@ -18,6 +18,7 @@ import pytest
 import mtplan
 from mtplan import cli
 from mtplan.models import tracker_frame as tf
+from mtplan.models.tracker_frame import _layout as tf_layout
 
 P = tf.PROCEDURE
 EXAMPLES = Path(mtplan.__file__).parent / "examples"
@@ -59,7 +60,7 @@ def test_structure_sources_move_the_origins_by_their_strain_times_the_distance(n
     leaves the directions (to 1e-3 relative: second order)."""
     setup = P.setup(WARM)
     got = _moved(setup, name, value)
-    nominal = tf._nominal_origins(setup)
+    nominal = tf_layout.nominal_origins(setup)
     truth = P.display_truth(setup)
     for k in range(1, setup.n_submachines + 1):
         for i, ax in enumerate("xyz"):

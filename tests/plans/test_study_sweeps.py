@@ -55,6 +55,6 @@ def test_shared_set_ups_run_once_and_give_the_tables_of_sweep_alone(tmp_path, mo
     for sw, table in result.outcomes[0].sweeps:
         alone = sweep(ps.name, ps.setup, sw["vary"], truth=ps.truth,
                       estimators=sw.get("estimators", ps.estimators), trials=sw["trials"],
-                      seed=study.seed, progress=False)
+                      rng=study.seed, progress=False)
         pd.testing.assert_frame_equal(table, alone, check_exact=True)
         assert table.attrs["notes"] == []

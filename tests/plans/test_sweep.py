@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_tidy_table_one_row_per_setup_and_measurand():
-    df = sweep(P, vary=VARY, trials=2000, seed=3)
+    df = sweep(P, vary=VARY, trials=2000, rng=3)
     assert len(df) == 3 * 2 * 2
     assert set(RESULT_COLUMNS) <= set(df.columns)
     assert {"n_points", "probe_noise_um", "length_mm", "setup_id", "point"} <= set(df.columns)
@@ -40,18 +40,18 @@ def test_tidy_table_one_row_per_setup_and_measurand():
 
 
 def test_rows_do_not_depend_on_the_grid_or_on_n_jobs():
-    full = sweep(P, vary=VARY, trials=1000, seed=5)
-    part = sweep(P, vary={"n_points": [5], "probe_noise_um": [2.0]}, trials=1000, seed=5)
+    full = sweep(P, vary=VARY, trials=1000, rng=5)
+    part = sweep(P, vary={"n_points": [5], "probe_noise_um": [2.0]}, trials=1000, rng=5)
     row = full[(full.n_points == 5) & (full.probe_noise_um == 2.0)].reset_index(drop=True)
     np.testing.assert_array_equal(row["u"], part["u"])
-    par = sweep(P, vary=VARY, trials=1000, seed=5, n_jobs=2, backend="loky")
+    par = sweep(P, vary=VARY, trials=1000, rng=5, n_jobs=2, backend="loky")
     pd.testing.assert_frame_equal(full, par)
 
 
 def test_dask_backend_gives_the_same_table():
     import distributed  # noqa: F401 - the test extras hold it: missing is a failure, not a skip
-    a = sweep(P, vary={"n_points": [3, 5]}, trials=500, seed=2)
-    b = sweep(P, vary={"n_points": [3, 5]}, trials=500, seed=2, n_jobs=2, backend="dask")
+    a = sweep(P, vary={"n_points": [3, 5]}, trials=500, rng=2)
+    b = sweep(P, vary={"n_points": [3, 5]}, trials=500, rng=2, n_jobs=2, backend="dask")
     pd.testing.assert_frame_equal(a, b)
 
 
@@ -88,7 +88,7 @@ def test_a_journal_finished_out_of_order_is_put_in_grid_order(tmp_path):
 
 
 def test_estimators_share_random_numbers_and_all_expands():
-    df = sweep(P, vary={"n_points": [4]}, trials=500, seed=1, estimators="all")
+    df = sweep(P, vary={"n_points": [4]}, trials=500, rng=1, estimators="all")
     assert set(df["estimator"]) == set(P.estimators)
 
 
@@ -106,24 +106,24 @@ def test_bad_grid_lists_every_problem():
 @pytest.mark.parametrize("suffix", [".csv", ".parquet"])
 def test_rerun_with_a_complete_file_recomputes_nothing(tmp_path, suffix):
     out = tmp_path / f"s{suffix}"
-    a = sweep(P, vary=VARY, trials=500, seed=4, out=out)
+    a = sweep(P, vary=VARY, trials=500, rng=4, out=out)
     mtime = out.stat().st_mtime_ns
-    b = sweep(P, vary=VARY, trials=500, seed=4, out=out)
+    b = sweep(P, vary=VARY, trials=500, rng=4, out=out)
     pd.testing.assert_frame_equal(a, b)
     if suffix == ".csv":
         assert out.stat().st_mtime_ns == mtime
     with pytest.raises(InvalidInput, match="different sweep"):
-        sweep(P, vary=VARY, trials=500, seed=5, out=out)
+        sweep(P, vary=VARY, trials=500, rng=5, out=out)
 
 
 def test_a_line_cut_off_mid_write_is_dropped_and_recomputed(tmp_path):
     out = tmp_path / "s.csv"
-    ref = sweep(P, vary=VARY, trials=500, seed=6, out=tmp_path / "ref.csv")
-    sweep(P, vary={"n_points": [3, 5, 9], "probe_noise_um": [0.5, 2.0]}, trials=500, seed=6, out=out)
+    ref = sweep(P, vary=VARY, trials=500, rng=6, out=tmp_path / "ref.csv")
+    sweep(P, vary={"n_points": [3, 5, 9], "probe_noise_um": [0.5, 2.0]}, trials=500, rng=6, out=out)
     lines = out.read_text().splitlines(keepends=True)
     # keep the header, the first set-up whole, half of the second and a cut line
     out.write_text("".join(lines[:4]) + lines[4][:10])
-    again = sweep(P, vary=VARY, trials=500, seed=6, out=out)
+    again = sweep(P, vary=VARY, trials=500, rng=6, out=out)
     pd.testing.assert_frame_equal(again, ref)
     text = out.read_text()
     assert text == (tmp_path / "ref.csv").read_text() or len(pd.read_csv(out)) == len(ref)
@@ -135,7 +135,7 @@ SCRIPT = textwrap.dedent(
     sys.path.insert(0, {root!r})
     from tests.models import toy_line
     from mtplan.plans.sweep import sweep
-    sweep(toy_line.PROCEDURE, vary={vary!r}, trials={trials}, seed=9, out=sys.argv[1])
+    sweep(toy_line.PROCEDURE, vary={vary!r}, trials={trials}, rng=9, out=sys.argv[1])
     """
 )
 
@@ -163,8 +163,8 @@ def test_killed_sweep_resumes_to_the_same_table(tmp_path):
             proc.kill()
     partial = pd.read_csv(out)
     assert 0 < partial["setup_id"].nunique() < 6
-    resumed = sweep(P, vary=vary, trials=trials, seed=9, out=out)
-    clean = sweep(P, vary=vary, trials=trials, seed=9, out=tmp_path / "clean.csv")
+    resumed = sweep(P, vary=vary, trials=trials, rng=9, out=out)
+    clean = sweep(P, vary=vary, trials=trials, rng=9, out=tmp_path / "clean.csv")
     pd.testing.assert_frame_equal(resumed, clean)
     assert resumed.groupby("setup_id").size().eq(2).all()
 
@@ -180,7 +180,7 @@ def test_a_setup_an_estimator_cannot_evaluate_is_recorded_not_fatal(tmp_path):
 
     proc = dataclasses.replace(P, estimators={"least_squares": toy_line.estimate_ls,
                                               "fragile": fragile})
-    df = sweep(proc, vary={"n_points": [3, 5]}, trials=200, seed=1, estimators="all",
+    df = sweep(proc, vary={"n_points": [3, 5]}, trials=200, rng=1, estimators="all",
                out=tmp_path / "s.csv")
     bad = df[(df.estimator == "fragile") & (df.n_points == 3)]
     assert len(bad) == 2 and bad["u"].isna().all()

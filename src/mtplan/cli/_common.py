@@ -230,6 +230,11 @@ def capped_trials(trials, default=None):
 
 
 def run_options(args, config):
+    """The run options of a command (:class:`~mtplan.uncertainty.options.RunOptions`): the
+    command line's over the configuration file's; a trials cap (``MTPLAN_MAX_TRIALS``)
+    turns an adaptive run into a fixed one at the cap."""
+    from mtplan.uncertainty.options import RunOptions
+
     trials = args.trials if args.trials is not None else config.get("trials")
     digits = args.digits if args.digits is not None else config.get("digits")
     if trials is not None and digits is not None and args.trials is None and args.digits is not None:
@@ -239,16 +244,9 @@ def run_options(args, config):
     seed = args.seed if args.seed is not None else config.get("seed", 0)
     if trials_cap() is not None and digits is not None:  # adaptive runs stop at the cap
         trials, digits = trials_cap(), None
-    return {
-        "trials": capped_trials(trials, None if digits is not None else 10_000),
-        "digits": digits,
-        "coverage": args.coverage,
-        "interval": args.interval,
-        "rng": seed,
-        "n_jobs": args.jobs,
-        "backend": args.backend,
-        "scheduler": args.scheduler,
-    }
+    return RunOptions(trials=capped_trials(trials, None if digits is not None else 10_000),
+                      digits=digits, coverage=args.coverage, interval=args.interval, rng=seed,
+                      n_jobs=args.jobs, backend=args.backend, scheduler=args.scheduler)
 
 
 def print_table(header, rows, file=None):

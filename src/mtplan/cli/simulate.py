@@ -36,24 +36,24 @@ def cmd_simulate(args):
     opts = run_options(args, config)
     estimator = args.estimator or config.get("estimator")
     sources = parse_sources(args, config)
-    one = opts["trials"] == 1 and opts["digits"] is None
+    one = opts.trials == 1 and opts.digits is None
     if one and not args.readings_out:
         raise UsageError("--trials 1 gives no uncertainty; it is for writing one simulated "
                          "measurement with --readings-out (use at least 2 trials otherwise)")
     frame = None
     if args.readings_out:
-        frame = simulate_readings(proc, setup, truth, rng=opts["rng"], sources=sources)
+        frame = simulate_readings(proc, setup, truth, rng=opts.rng, sources=sources)
     result = None
     if not one:
         result = simulate_uncertainty(proc, setup, truth, estimator=estimator, sources=sources,
-                                      progress=None, **opts)
+                                      options=opts)
     if args.out and result is not None:  # first: a failure here leaves no readings file behind
         write_out(args.out, result.summary().to_csv())
     if frame is not None:
         _write_readings(frame, args.readings_out)
     if result is None:
         print(f"wrote one simulated {proc.name} measurement to {args.readings_out} (seed "
-              f"{opts['rng']}); 'mtplan estimate {proc.name} {args.readings_out}' gives its "
+              f"{opts.rng}); 'mtplan estimate {proc.name} {args.readings_out}' gives its "
               "measurands with their uncertainty", file=sys.stderr)
         return 0
     if args.json:

@@ -34,10 +34,7 @@ def cmd_sweep(args):
     est = args.estimator or config.get("estimator")
     estimators = None if est is None else ("all" if est == "all" else est.split(","))
     table = sweep(proc, setup, vary, truth=truth, estimators=estimators,
-                  sources=parse_sources(args, config), trials=opts["trials"], digits=opts["digits"],
-                  coverage=opts["coverage"], interval=opts["interval"], seed=opts["rng"],
-                  n_jobs=opts["n_jobs"], backend=opts["backend"], scheduler=opts["scheduler"],
-                  out=args.out, progress=None)
+                  sources=parse_sources(args, config), out=args.out, options=opts)
     if args.json:
         print(table.to_json(orient="records"))
         return 0

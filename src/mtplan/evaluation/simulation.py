@@ -15,12 +15,12 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
-from mtplan._parallel import check_parallel
 from mtplan.evaluation.first_order import first_order
 from mtplan.models.protocol import Procedure
-from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
 from mtplan.uncertainty.gum import GUMResult, coverage_factor
-from mtplan.uncertainty.montecarlo import MCResult, check_run_options, run_blocks
+from mtplan.uncertainty.montecarlo import MCResult, run_blocks
+from mtplan.uncertainty.options import RunOptions
+from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
 
 __all__ = ["ProcedureResult", "LinearizedResult", "simulate_uncertainty", "linear_trials",
            "linearize_procedure",
@@ -421,18 +421,9 @@ def simulate_uncertainty(
     *,
     estimator: str | None = None,
     sources=None,
-    trials: int | None = None,
-    digits: int | None = None,
-    coverage: float = 0.95,
-    interval: str = "symmetric",
-    rng=None,
-    n_jobs: int = 1,
-    backend: str | None = None,
-    scheduler: str | None = None,
-    block_size: int | None = None,
-    max_trials: int = 10**7,
-    progress: bool | None = None,
+    options: RunOptions | None = None,
     cache: dict | None = None,
+    **option_overrides,
 ) -> ProcedureResult:
     """Monte Carlo uncertainty of a procedure's set-up.
 
@@ -444,10 +435,11 @@ def simulate_uncertainty(
     estimator : str, optional (the procedure's default estimator)
     sources : iterable of str, optional
         Simulate with only these error sources.
-    trials, digits, coverage, interval, rng, n_jobs, backend, scheduler, max_trials, progress
-        As for :func:`mtplan.uncertainty.propagate` (default 10**4 trials).
-    block_size : int, optional
-        Trials per block (default: the procedure's ``block_size``).
+    options : RunOptions, optional
+        How the run is made, as for :func:`mtplan.uncertainty.propagate`
+        (:class:`~mtplan.uncertainty.options.RunOptions`; default 10**4 trials, at most
+        10**7 for the adaptive procedure, blocks of the procedure's ``block_size``). Any
+        of its fields may be given as a keyword instead (``trials=1500, rng=4``).
     cache : dict, optional
         Blocks kept between runs at the same set-up, truth, estimator, sources and seed
         (:func:`mtplan.uncertainty.montecarlo.run_blocks`): a longer run in blocks of the
@@ -458,39 +450,25 @@ def simulate_uncertainty(
     -------
     ProcedureResult
     """
+    options = RunOptions.of(options, **option_overrides)
     proc, setup, truth = _resolve(procedure, setup, truth)
     p = Problems(f"simulate {proc.name}")
-    check_run_options(p, trials, digits, coverage, interval, max_trials, block_size)
-    check_parallel(p, n_jobs, backend, scheduler)
+    options.check(p)
     p.raise_if_any()
     est_name, _ = proc.estimator(estimator)
     active = proc.active_sources(setup, sources)
-    if trials is None and digits is None:
-        trials = 10**4
-    root = as_seed_sequence(rng)
+    options = options.fixed(10**4).replace(rng=as_seed_sequence(options.rng))
+    trials, digits, block_size = options.trials, options.digits, options.block_size
+    max_trials = 10**7 if options.max_trials is None else options.max_trials
     measurands = tuple(proc.measurands(setup))
     if digits is not None and block_size is None:
         block_size = proc.capabilities.block_size
     block_size = block_size or min(proc.capabilities.block_size, max(trials or 0, 2))
     check_memory(proc, setup, truth, est_name, tuple(active), block_size=block_size,
-                 n_jobs=n_jobs, trials=trials if digits is None else max_trials)
-    mc = run_blocks(
-        procedure_block,
-        (proc, setup, truth, est_name, tuple(active)),
-        trials=trials,
-        digits=digits,
-        coverage=coverage,
-        interval=interval,
-        root=root,
-        n_jobs=n_jobs,
-        backend=backend,
-        scheduler=scheduler,
-        block_size=block_size,
-        max_trials=max_trials,
-        progress=progress,
-        label=proc.name,
-        cache=cache,
-    )
+                 n_jobs=options.n_jobs, trials=trials if digits is None else max_trials)
+    mc = run_blocks(procedure_block, (proc, setup, truth, est_name, tuple(active)),
+                    options.replace(block_size=block_size, max_trials=max_trials),
+                    label=proc.name, cache=cache)
     quantised = _quantised(proc, setup, est_name, measurands, mc)
     tv = proc.display_truth(setup, truth)
     return ProcedureResult(
@@ -647,26 +625,27 @@ def linearize_result(procedure, setup=None, truth=None, *, estimator: str | None
                             undetermined=undetermined_measurands(proc, setup))
 
 
-def source_budget(procedure, setup=None, truth=None, *, estimator=None, trials=10**4, rng=None,
-                  n_jobs=1, backend=None):
+def source_budget(procedure, setup=None, truth=None, *, estimator=None, options=None,
+                  **option_overrides):
     """Monte Carlo budget: the standard uncertainty due to each error source alone.
 
     Returns a DataFrame with one row per measurand and source: ``std`` (that source
     alone) and ``share`` (its variance over the sum of the single-source variances).
-    Sources draw from their own streams, so the runs share random numbers.
+    Sources draw from their own streams, so the runs share random numbers. `options` as
+    for :func:`simulate_uncertainty` (default 10**4 trials, no progress bar).
     """
     import pandas as pd
 
+    options = RunOptions.of(RunOptions(progress=False) if options is None else options,
+                            **option_overrides)
     proc, setup, truth = _resolve(procedure, setup, truth)
     rows = []
     for name in proc.active_sources(setup):
         r = simulate_uncertainty(proc, setup, truth, estimator=estimator, sources=[name],
-                                 trials=trials, rng=rng, n_jobs=n_jobs, backend=backend,
-                                 progress=False)
+                                 options=options)
         for i, m in enumerate(r.measurands):
             rows.append((m.name, m.unit, name, float(r.mc.std[i])))
     df = pd.DataFrame(rows, columns=["measurand", "unit", "source", "std"])
     var = df["std"] ** 2
     df["share"] = var / var.groupby(df["measurand"]).transform("sum").where(lambda s: s > 0, 1.0)
     return df
-

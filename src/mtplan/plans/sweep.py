@@ -34,10 +34,10 @@ from pathlib import Path
 import numpy as np
 
 from mtplan._io import atomic_write, output_problem
-from mtplan._parallel import check_parallel, effective_jobs, ordered_map, parallel_session
+from mtplan._parallel import effective_jobs, ordered_map, parallel_session
 from mtplan._validate import InvalidInput, Problems
 from mtplan.models.protocol import fields_info, make
-from mtplan.uncertainty.montecarlo import check_run_options
+from mtplan.uncertainty.options import RunOptions
 
 __all__ = ["sweep", "setup_seed", "RESULT_COLUMNS"]
 
@@ -159,16 +159,8 @@ def sweep(
     truth=None,
     estimators=None,
     sources=None,
-    trials: int | None = None,
-    digits: int | None = None,
-    coverage: float = 0.95,
-    interval: str = "symmetric",
-    seed: int = 0,
-    n_jobs: int = 1,
-    backend: str | None = None,
-    scheduler: str | None = None,
     out=None,
-    progress: bool | None = None,
+    **options,
 ):
     """Monte Carlo uncertainty over a grid of set-ups.
 
@@ -185,16 +177,20 @@ def sweep(
         procedure's default estimator).
     sources : list of str, optional
         Simulate with only these error sources.
-    trials, digits, coverage, interval
-        Monte Carlo options per set-up (default 10**4 trials).
-    seed : int
-        Sweep seed; each set-up's seed derives from it and the set-up's fields.
-    n_jobs, backend, scheduler
-        Parallel execution over set-ups (joblib; "dask" for a Dask cluster).
     out : str or Path, optional
         CSV or Parquet file written as the sweep goes; a rerun resumes it.
-    progress : bool, optional
-        Progress bar on stderr (after one second; default: when stderr is a terminal).
+    **options
+        The run options (:class:`~mtplan.uncertainty.options.RunOptions`): ``options=``
+        a record, and any of its fields as keywords, which replace the record's:
+
+        - ``trials``, ``digits``, ``coverage``, ``interval``, ``block_size``,
+          ``max_trials``: each set-up's Monte Carlo (default 10**4 trials);
+        - ``rng``: the sweep seed, an int (default 0); each set-up's seed derives from it
+          and the set-up's fields;
+        - ``n_jobs``, ``backend``, ``scheduler``: parallel execution over set-ups
+          (joblib; "dask" for a Dask cluster);
+        - ``progress``: progress bar on stderr (after one second; default: when stderr
+          is a terminal).
 
     Returns
     -------
@@ -207,11 +203,11 @@ def sweep(
     import pandas as pd
 
     g = sweep_grid(procedure, base_setup, vary, truth=truth, estimators=estimators,
-                   sources=sources, trials=trials, digits=digits, coverage=coverage,
-                   interval=interval, seed=seed, n_jobs=n_jobs, backend=backend,
-                   scheduler=scheduler, out=out)
+                   sources=sources, out=out, **options)
     proc, base_setup, truth, estimators = g.proc, g.base_setup, g.truth, g.estimators
-    fmt, setups, options = g.fmt, g.setups, g.options
+    fmt, setups, options, seed = g.fmt, g.setups, g.options, g.seed
+    n_jobs, backend, scheduler = g.run.n_jobs, g.run.backend, g.run.scheduler
+    progress = g.run.progress
     signature = _signature(proc, base_setup, truth, vary, estimators, sources, options, seed)
     done, journal, notes = pd.DataFrame(), None, []
     with parallel_session(n_jobs, backend, scheduler) as session:  # a bad scheduler: no file
@@ -245,38 +241,46 @@ def sweep(
 
 
 def sweep_grid(procedure, base_setup=None, vary=None, *, truth=None, estimators=None,
-               sources=None, trials=None, digits=None, coverage=0.95, interval="symmetric",
-               seed=0, n_jobs=1, backend=None, scheduler=None, out=None):
+               sources=None, out=None, **options):
     """A sweep's arguments checked (every problem at once) and its grid: a namespace of
     ``proc``, ``base_setup``, ``truth``, ``estimators`` (names), ``fmt`` (of ``out``),
-    ``setups`` (grid order) and ``options`` (of each set-up's Monte Carlo). Arguments as
-    :func:`sweep`; a grid whose largest set-up would not fit in memory is refused."""
+    ``setups`` (grid order), ``run`` (the :class:`~mtplan.uncertainty.options.RunOptions`),
+    ``seed`` (the sweep seed) and ``options`` (of each set-up's Monte Carlo, a dict).
+    Arguments as :func:`sweep`; a grid whose largest set-up would not fit in memory is
+    refused."""
     from types import SimpleNamespace
 
     from mtplan.models import get
 
+    run = RunOptions.of(options.pop("options", None), **options)
     proc = get(procedure)
     base_setup = proc.Setup() if base_setup is None else base_setup
     proc.check_setup(base_setup)
     truth = proc.Truth() if truth is None else truth
-    estimators, fmt = _check_arguments(proc, base_setup, estimators, sources, trials, digits,
-                                       coverage, interval, seed, n_jobs, backend, scheduler, out)
-    if trials is None and digits is None:
-        trials = 10**4
+    estimators, fmt = _check_arguments(proc, base_setup, estimators, sources, run, out)
+    run = run.fixed(10**4)
     setups = setup_grid(proc, base_setup, dict(vary or {}))
-    options = {"trials": trials, "digits": digits, "coverage": coverage, "interval": interval}
-    _check_memory(proc, setups, truth, estimators, sources, options, n_jobs)
+    options = {"trials": run.trials, "digits": run.digits, "coverage": run.coverage,
+               "interval": run.interval}
+    # only when given, so that a sweep without them keeps the record it always had
+    options.update({k: getattr(run, k) for k in ("block_size", "max_trials")
+                    if getattr(run, k) is not None})
+    _check_memory(proc, setups, truth, estimators, sources, options, run.n_jobs)
     return SimpleNamespace(proc=proc, base_setup=base_setup, truth=truth,
-                           estimators=estimators, fmt=fmt, setups=setups, options=options)
+                           estimators=estimators, fmt=fmt, setups=setups, options=options,
+                           run=run, seed=_seed(run.rng))
 
 
-def _check_arguments(proc, base_setup, estimators, sources, trials, digits, coverage, interval,
-                     seed, n_jobs, backend, scheduler, out) -> tuple[list, str | None]:
+def _seed(rng) -> int:
+    """The sweep seed (checked by :func:`_check_arguments`): an int, 0 by default."""
+    return 0 if rng is None else int(rng)
+
+
+def _check_arguments(proc, base_setup, estimators, sources, run, out) -> tuple[list, str | None]:
     """Every problem of the sweep's arguments at once; (estimator names, output format)."""
     p = Problems(f"sweep {proc.name}")
-    check_run_options(p, trials, digits, coverage, interval)
-    check_parallel(p, n_jobs, backend, scheduler)
-    p.number("seed", seed, integer=True, low=0)
+    run.check(p)
+    p.number("seed", 0 if run.rng is None else run.rng, integer=True, low=0)
     if estimators is None:
         estimators = [proc.default_estimator]
     elif estimators == "all":
@@ -339,8 +343,8 @@ def _check_memory(proc, setups, truth, estimators, sources, options, n_jobs) -> 
     from mtplan.evaluation.simulation import check_memory
 
     largest = max(setups, key=lambda s: sum(src.size for src in proc.sources(s).values()))
-    block = proc.capabilities.block_size
-    if options["digits"] is None:
+    block = options.get("block_size") or proc.capabilities.block_size
+    if options["digits"] is None and not options.get("block_size"):
         block = min(block, max(options["trials"] or 0, 2))
     check_memory(proc, largest, truth, estimators[0],
                  tuple(proc.active_sources(largest, sources)), block_size=block, n_jobs=n_jobs,

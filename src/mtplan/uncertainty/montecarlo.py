@@ -32,18 +32,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mtplan._parallel import check_parallel, effective_jobs, ordered_map, parallel_session
+from mtplan._parallel import effective_jobs, one_blas_thread, ordered_map, parallel_session
 from mtplan._validate import InvalidInput, Problems
-from mtplan.uncertainty.streams import as_seed_sequence, block_sequence, named_generator
 from mtplan.uncertainty.distributions import Distribution
+from mtplan.uncertainty.options import INTERVALS, MAX_TRIALS, RunOptions, check_run_options
+from mtplan.uncertainty.streams import as_seed_sequence, block_sequence, named_generator
 
 __all__ = ["MCResult", "ModelError", "propagate", "run_blocks", "numerical_tolerance",
-           "coverage_interval"]
+           "coverage_interval", "RunOptions", "INTERVALS", "MAX_TRIALS"]
 
-INTERVALS = ("symmetric", "shortest")
-#: the most trials one run may ask for: 10**9 trials of a procedure take hours to days;
-#: ``digits`` stops as soon as the result is stable
-MAX_TRIALS = 10**9
 _HIST_BINS = 2**18
 
 
@@ -340,19 +337,8 @@ def _stable(stats: list[np.ndarray], u_all: np.ndarray, digits: int) -> bool:
 def run_blocks(
     block_fn: Callable[[int, int], dict],
     block_args: tuple,
+    options: RunOptions,
     *,
-    trials: int | None,
-    digits: int | None,
-    coverage: float,
-    interval: str,
-    root: np.random.SeedSequence,
-    n_jobs: int = 1,
-    backend: str | None = None,
-    scheduler: str | None = None,
-    block_size: int | None = None,
-    max_trials: int = 10**8,
-    keep: int = 2 * 10**6,
-    progress: bool | None = None,
     label: str = "Monte Carlo",
     cache: dict | None = None,
 ) -> MCResult:
@@ -360,7 +346,9 @@ def run_blocks(
 
     `block_fn` must return a dict of output name -> array of shape (size,), the
     same names in the same order for every block. This is the one driver behind
-    :func:`propagate` and the procedures' Monte Carlo.
+    :func:`propagate` and the procedures' Monte Carlo, run as `options` say (checked by the
+    caller; ``options.rng`` is made the root ``SeedSequence`` once, here; ``max_trials``
+    None is 10**8, ``block_size`` None the default below).
 
     `cache` (a fixed trial count only): a dict the caller keeps between runs of the same
     `block_fn`, `block_args` and `root`, keyed by ``(index, size)``. A block found there
@@ -368,7 +356,10 @@ def run_blocks(
     the same size repeats none of a shorter run's work, and gives exactly what it gives
     without the cache (block i draws from stream i whoever computed it).
     """
-    p = coverage
+    root = as_seed_sequence(options.rng)
+    trials, digits, p, interval = options.trials, options.digits, options.coverage, options.interval
+    n_jobs, backend, block_size = options.n_jobs, options.backend, options.block_size
+    max_trials = 10**8 if options.max_trials is None else options.max_trials
     adaptive = digits is not None
     if block_size is None:
         # JCGM 101 7.9.2 for the adaptive procedure; larger blocks for a fixed count
@@ -384,18 +375,16 @@ def run_blocks(
             return block_size
         return min(block_size, trials - i * block_size)
 
-    bar = _progress(progress, None if adaptive else trials, label)
+    bar = _progress(options.progress, None if adaptive else trials, label)
     acc = None
     names = None
     stats: list[np.ndarray] = []
     converged = not adaptive
     jobs = max(effective_jobs(n_jobs), 1)
-    from mtplan._parallel import one_blas_thread
-
     # Blocks do many small matrix products: BLAS threads only fight each other (and the
     # workers) over the cores, so each block runs single-threaded, as joblib's workers do.
     with one_blas_thread(), \
-            parallel_session(n_jobs, backend, scheduler) as session:
+            parallel_session(n_jobs, backend, options.scheduler) as session:
         chunk = jobs if adaptive else None
         # a fixed count in one block runs here: a worker would only add its start and the
         # pickling of the model (the block draws the same numbers wherever it runs)
@@ -411,7 +400,7 @@ def run_blocks(
         for i, out in enumerate(outs):
             if names is None:
                 names = tuple(out)
-                acc = _Accumulator(names, keep)
+                acc = _Accumulator(names, options.keep)
             elif tuple(out) != names:
                 raise ModelError(f"Block {i} returned outputs {tuple(out)}, expected {names}.")
             x = np.column_stack([out[n] for n in names])
@@ -487,22 +476,6 @@ def _progress(progress, total, label):
                 file=sys.stderr, leave=False)
 
 
-def check_run_options(p: Problems, trials, digits, coverage, interval, max_trials=None, block_size=None):
-    """Record problems with the common Monte Carlo options."""
-    if trials is not None and digits is not None:
-        p.add_text("Give either 'trials' or 'digits', not both")
-    if trials is not None:
-        p.number("trials", trials, integer=True, low=2, high=MAX_TRIALS)
-    if digits is not None:
-        p.number("digits", digits, integer=True, low=1, high=6)
-    p.number("coverage", coverage, low=0, high=1, low_open=True, high_open=True)
-    p.choice("interval", interval, INTERVALS)
-    if max_trials is not None:
-        p.number("max_trials", max_trials, integer=True, low=2)
-    if block_size is not None:
-        p.number("block_size", block_size, integer=True, low=2)
-
-
 # --------------------------------------------------------------------------- propagate
 def as_outputs(out, size: int) -> dict:
     if isinstance(out, Mapping):
@@ -550,18 +523,8 @@ def propagate(
     model: Callable,
     inputs: Mapping[str, Distribution],
     *,
-    trials: int | None = None,
-    digits: int | None = None,
-    coverage: float = 0.95,
-    interval: str = "symmetric",
-    rng=None,
-    n_jobs: int = 1,
-    backend: str | None = None,
-    scheduler: str | None = None,
-    block_size: int | None = None,
-    max_trials: int = 10**8,
-    progress: bool | None = None,
-    keep: int = 2 * 10**6,
+    options: RunOptions | None = None,
+    **option_overrides,
 ) -> MCResult:
     """Propagate distributions through a vectorised model by Monte Carlo (JCGM 101).
 
@@ -573,65 +536,27 @@ def propagate(
         arrays keyed by output name.
     inputs : mapping of str to Distribution
         The input quantities.
-    trials : int, optional
-        Fixed number of trials (default 10**6 when `digits` is not given).
-    digits : int, optional
-        Run the adaptive procedure of JCGM 101 7.9 to this many significant digits.
-    coverage : float
-        Coverage probability p of the intervals (default 0.95).
-    interval : {"symmetric", "shortest"}
-        Probabilistically symmetric or shortest coverage interval.
-    rng : None, int, SeedSequence or Generator
-        The seed. The same seed gives bit-identical results for any `n_jobs` and backend.
-    n_jobs : int
-        Worker count (joblib's convention; -1 uses every core).
-    backend : {"loky", "threading", "multiprocessing", "dask", "sequential"}, optional
-        joblib backend; "dask" runs on `scheduler` or on a local Dask cluster.
-    scheduler : str, optional
-        Address of a Dask scheduler for ``backend="dask"``.
-    block_size : int, optional
-        Trials per block (default ``max(100/(1-p), 10**4)`` for the adaptive procedure,
-        JCGM 101 7.9.2, and ``10**5`` for a fixed number of trials).
-    max_trials : int
-        Upper limit of the adaptive procedure (``converged`` is False if reached).
-    progress : bool or callable, optional
-        Progress bar on stderr (shown after one second; default: when stderr is a terminal);
-        a callable is called as ``progress(done, total)`` after each block (``total`` None
-        for the adaptive procedure).
-    keep : int
-        Model values kept exactly per output (default 2*10**6); beyond that each output
-        switches to a fine histogram, so memory stays bounded by `keep` and the block size.
+    options : RunOptions, optional
+        How the run is made (:class:`~mtplan.uncertainty.options.RunOptions`: trials or
+        digits, coverage, interval, rng, n_jobs, backend, scheduler, block_size,
+        max_trials, progress, keep). Any of its fields may be given as a keyword instead
+        (``trials=10**5, rng=1``), which replaces the field of `options`. Here the
+        defaults are 10**6 trials when `digits` is not given; blocks of
+        ``max(100/(1-p), 10**4)`` trials for the adaptive procedure (JCGM 101 7.9.2) and
+        ``10**5`` for a fixed number; at most 10**8 trials (``converged`` is False if
+        reached). The same seed gives bit-identical results for any `n_jobs` and backend.
 
     Returns
     -------
     MCResult
     """
+    options = RunOptions.of(options, **option_overrides)
     p = Problems("propagate")
     check_inputs(p, model, inputs)
-    check_run_options(p, trials, digits, coverage, interval, max_trials, block_size)
-    check_parallel(p, n_jobs, backend, scheduler)
-    p.number("keep", keep, integer=True, low=1)
+    options.check(p)
     p.raise_if_any()
-    if trials is None and digits is None:
-        trials = 10**6
-    root = as_seed_sequence(rng)
-    return run_blocks(
-        _propagate_block,
-        (model, dict(inputs)),
-        trials=trials,
-        digits=digits,
-        coverage=coverage,
-        interval=interval,
-        root=root,
-        n_jobs=n_jobs,
-        backend=backend,
-        scheduler=scheduler,
-        block_size=block_size,
-        max_trials=max_trials,
-        keep=int(keep),
-        progress=progress,
-        label="propagate",
-    )
+    return run_blocks(_propagate_block, (model, dict(inputs)), options.fixed(10**6),
+                      label="propagate")
 
 
 __all__ += ["check_run_options", "check_inputs", "InvalidInput"]

@@ -359,7 +359,7 @@ def _sweep_grid(proc, ps, study, sw):
     try:
         g = sweep_grid(proc, ps.setup, sw["vary"], truth=ps.truth,
                        estimators=sw.get("estimators", ps.estimators),
-                       trials=sw.get("trials", 2000), seed=study.seed)
+                       trials=sw.get("trials", 2000), rng=study.seed)
     except InvalidInput as exc:
         return " ".join(exc.problems)
     return _Grid(g.setups, g.estimators, g.options)
