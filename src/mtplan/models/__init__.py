@@ -33,15 +33,15 @@ from mtplan.models.protocol import (
     Estimator,
     Measurand,
     Procedure,
+    Readings,
     ReadingsFormat,
     SetupBase,
     Source,
     param,
 )
 
-__all__ = ["Capabilities", "Estimator", "Measurand", "Procedure", "ReadingsFormat", "SetupBase",
-           "Source", "param", "registry", "get", "broken",
-           "ENTRY_POINT_GROUP"]
+__all__ = ["Capabilities", "Estimator", "Measurand", "Procedure", "Readings", "ReadingsFormat",
+           "SetupBase", "Source", "param", "registry", "get", "broken", "ENTRY_POINT_GROUP"]
 
 #: the entry-point group through which installed packages register procedures
 ENTRY_POINT_GROUP = "mtplan.procedures"

@@ -15,7 +15,7 @@ A procedure module (``mtplan/models/<name>.py``) defines a module-level
   into ``(trials, *shape)`` in internal units (mm, rad).
 - ``forward(setup, truth, errors) -> readings``: the deterministic forward model;
   ``errors`` maps every source name to an array of shape ``(n, *source.shape)``;
-  ``readings`` is a dict of batch-first arrays (leading axis = trials).
+  ``readings`` is a :class:`Readings` of batch-first arrays (leading axis = trials).
 - ``estimators``: name -> :class:`Estimator`, a record of the function
   ``estimate(setup, readings) -> dict[measurand, (n,) array]`` in internal units (mm, rad),
   its plain ``description`` (the reports quote it), whether it is ``exact`` without noise
