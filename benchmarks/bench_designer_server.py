@@ -50,7 +50,7 @@ def main(argv=None) -> int:
         for i in range(1, args.changes + 1):
             value = f"{start + i * step:.6g}"
             proc, setup = d.setup_of(d.normalise({"procedure": name, "setup": {field: value}}))
-            pred, *t = _timed(d._predict, proc, setup, proc.default_estimator)
+            pred, *t = _timed(d.compute_prediction, proc, setup, proc.default_estimator)
             times["predict"].append(t)
             times["identify"].append(_timed(d.identify, proc, setup)[1:])
             other = {"procedure": name, "setup": {field: f"{start + (i + 0.5) * step:.6g}"}}

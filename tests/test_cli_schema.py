@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pandas as pd
@@ -28,6 +29,10 @@ COMMANDS = {
     "plan": (["plan", "circle_centre", "--vary", "n_points=3,4", "--target", "centre_x<=5",
               "--trials", "100", "--confirm", "1"], False),
     "accept": (["accept", "--u", "1", "--lower", "-5", "--upper", "5"], False),
+    "compensate": (["compensate", str(ROOT / "examples" / "compensation" /
+                                      "rotary_axis_result.json"),
+                    "--out", str(Path(tempfile.gettempdir()) / "mtplan-schema-compensation")],
+                   False),
     "validate": (["validate", *map(str, sorted((ROOT / "examples" / "validate_results").glob("*.json"))),
                   "--references", str(ROOT / "examples" / "validate_references.csv")], False),
 }

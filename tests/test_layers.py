@@ -4,7 +4,8 @@ Layers, lowest first: the shared utilities (``mtplan``, ``mtplan._validate``, ``
 ``_parallel``), ``uncertainty`` (the generic engine), ``fitting`` (the readings'
 covariance, the generalised least-squares fitter and the fit check every procedure
 shares), ``models`` (the procedures), ``evaluation`` (a procedure's set-up uncertainty
-and measured data), ``testing`` (the conformance checks of a procedure), ``plans``,
+and measured data), ``testing`` (the conformance checks of a procedure), ``compensation``
+(corrections for a controller from measured results), ``plans``,
 ``reports``, ``explore`` (the optional designer), ``cli``. Every ``import`` counts, also those
 inside functions.
 """
@@ -17,8 +18,8 @@ from pathlib import Path
 import pytest
 
 SRC = Path(__file__).resolve().parent.parent / "src"
-LAYERS = ("base", "uncertainty", "fitting", "models", "evaluation", "testing", "plans", "reports",
-          "explore", "cli")
+LAYERS = ("base", "uncertainty", "fitting", "models", "evaluation", "testing", "compensation",
+          "plans", "reports", "explore", "cli")
 
 
 def _module_name(path: Path) -> str:

@@ -4,8 +4,7 @@
 
 Each page is opened through its link with a lever moved, a target and a tolerance entered,
 so the plots show the current value, the target line and the acceptance figures; at
-1440 px, at 390 px (a phone) and, for rotary_axis, the A4 print view
-(``rotary_axis_print.png``).
+1440 px and at 390 px (a phone). The print and the state views: ``screenshots_state.py``.
 """
 
 from __future__ import annotations
@@ -73,8 +72,9 @@ def _start():
     return server, link
 
 
-#: (file suffix, viewport width, media): the wide screen, the phone, the A4 print view
-VIEWS = [("", 1440, "screen"), ("_390", 390, "screen"), ("_print", 794, "print")]
+#: (file suffix, viewport width, media): the wide screen, the phone (the print, a PDF of
+#: one A4 page: screenshots_state.py)
+VIEWS = [("", 1440, "screen"), ("_390", 390, "screen")]
 
 
 def main(argv=None) -> int:
@@ -87,8 +87,6 @@ def main(argv=None) -> int:
             for name in only:
                 design = DESIGNS[name]
                 for suffix, width, media in VIEWS:
-                    if media == "print" and name != "rotary_axis":
-                        continue  # one print view: the layout is the same for every one
                     page = browser.new_page(viewport={"width": width, "height": 1000})
                     page.set_default_timeout(300_000)
                     d = base64.urlsafe_b64encode(json.dumps(

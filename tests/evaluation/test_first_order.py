@@ -40,13 +40,13 @@ def _linearize_numbers(proc, setup, estimator) -> tuple[dict, dict]:
 
 @pytest.mark.parametrize("name, estimator", CASES)
 def test_planner_designer_and_linearize_give_the_same_first_order_numbers(name, estimator):
-    from mtplan.explore.design import _predict
+    from mtplan.explore.prediction import compute_prediction
     from mtplan.plans.planner import _assess
 
     proc = registry()[name]
     setup = setup_of(proc, estimator)
     planner, _ = _assess(proc, setup, None, estimator, None, True, False)
-    designer = _predict(proc, setup, estimator)
+    designer = compute_prediction(proc, setup, estimator)
     lin_u, lin_budget = _linearize_numbers(proc, setup, estimator)
     names = [m.name for m in proc.measurands(setup)]
     assert list(planner) == list(designer["u"]) == list(lin_u) == names

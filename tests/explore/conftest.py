@@ -12,6 +12,9 @@ import threading
 import time
 import urllib.request
 from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
 
 MTPLAN = [sys.executable, "-m", "mtplan.cli"]
 
@@ -55,9 +58,10 @@ class Server:
             self.proc.wait()
 
 
-def start_server(*args: str, timeout: float = 120) -> Server:
-    """Start ``mtplan explore ARGS --no-browser`` and wait until it answers."""
-    port = free_port()
+def start_server(*args: str, timeout: float = 120, port: int | None = None) -> Server:
+    """Start ``mtplan explore ARGS --no-browser`` (on `port`, else a free one) and wait
+    until it answers."""
+    port = port or free_port()
     proc = subprocess.Popen([*MTPLAN, "explore", *args, "--no-browser", "--port", str(port)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: queue.Queue = queue.Queue()
@@ -93,3 +97,18 @@ def start_server(*args: str, timeout: float = 120) -> Server:
             server.stop()
             raise RuntimeError("mtplan explore did not answer: " + "".join(output))
         time.sleep(0.3)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Headless Chromium through Playwright: Debian's, as the user has it (else the PATH's)."""
+    from playwright.sync_api import sync_playwright
+
+    from tests.reports.conftest import need
+
+    debian = Path("/usr/bin/chromium")
+    exe = str(debian) if debian.exists() else need("chromium", "chromium-browser")
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=exe, args=["--no-sandbox"])
+        yield b
+        b.close()

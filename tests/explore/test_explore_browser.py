@@ -14,10 +14,8 @@ import tomllib
 from pathlib import Path
 
 import pytest
-from playwright.sync_api import sync_playwright
 
 from tests.explore.conftest import MTPLAN, start_server
-from tests.reports.conftest import need
 
 TIMEOUT_MS = 60_000  # first evaluations import scipy and numpy on a busy machine
 
@@ -33,16 +31,6 @@ def server():
     s = start_server("rotary_axis")
     yield s
     s.stop()
-
-
-@pytest.fixture(scope="module")
-def browser():
-    debian = Path("/usr/bin/chromium")  # Debian's, as the user has it; else the PATH's
-    exe = str(debian) if debian.exists() else need("chromium", "chromium-browser")
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=exe, args=["--no-sandbox"])
-        yield b
-        b.close()
 
 
 @pytest.fixture
@@ -337,7 +325,8 @@ def test_phone_width_stacks_and_print_hides_the_buttons(browser, server):
     pg.emulate_media(media="print")
     assert pg.evaluate("[...document.querySelectorAll('header button')]"
                        ".every((b) => getComputedStyle(b).display === 'none')")
-    assert pg.locator("#measurands").is_visible()
+    assert pg.locator("#report-measurands").is_visible()  # the one-page report, no controls
+    assert not pg.locator("#measurands").is_visible()
     ctx.close()
 
 

@@ -80,8 +80,8 @@ def test_identifiability_reused_across_source_sizes_is_the_fresh_one(name, chang
 
     proc = get(name)
     setup = proc.Setup().replace(**change)
-    d._identify_cached(name, d._geometry_key(proc, proc.Setup()))  # cached at the defaults
-    assert d._identify_cached(name, d._geometry_key(proc, setup)) == d.identify(proc, setup)
+    d.identify_cached(proc, proc.Setup())  # cached at the defaults
+    assert d.identify_cached(proc, setup) == d.identify(proc, setup)
 
 
 def test_cheapest_set_up_is_the_planners_answer_over_the_marked_ranges():
@@ -157,7 +157,7 @@ def test_every_measurand_code_has_the_glossarys_words(name, change):
         row = d.explain(m.name)
         assert row is not None, m.name
         assert f"| {row['label']} | {row['meaning']} |" in text, m.name
-        assert d._help(m.name, m.description).startswith(f"{row['label']}: {row['meaning']}")
+        assert d.help_text(m.name, m.description).startswith(f"{row['label']}: {row['meaning']}")
 
 
 @pytest.mark.parametrize("code", ["TUR", "PFA", "PFR", "w", "A_L", "prior", "O1", "rank",

@@ -23,7 +23,7 @@ __all__ = ["main", "build_parser", "COMMANDS"]
 
 #: The command modules, in the order ``mtplan --help`` lists them.
 COMMANDS = ("procedures", "simulate", "linearize", "sweep", "estimate", "plan", "accept",
-            "report", "validate", "explore")
+            "report", "validate", "compensate", "explore")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -136,7 +136,33 @@ def setup_values(args, config, proc) -> dict:
     if values and getattr(args, "config", None):
         values = resolve_file_fields(proc.Setup, values, Path(args.config).parent)
     values.update(parse_pairs(args.set, "--set"))
+    values.update(along_values(getattr(args, "along", None), proc))
     return values
+
+
+def along_values(items, proc) -> dict:
+    """``--along AXIS=START:STOP:STEP`` -> {``along_<axis>_mm``: "p1,p2,..."}: the positions
+    [mm] at which a procedure whose set-up has that field states its errors along AXIS
+    (START to STOP inclusive, every STEP)."""
+    import math
+
+    out = {}
+    for axis, text in parse_pairs(items, "--along").items():
+        field = f"along_{axis.lower()}_mm"
+        if field not in getattr(proc.Setup, "__dataclass_fields__", {}):
+            raise UsageError(f"--along {axis}: {proc.name} states no errors along {axis!r} "
+                             f"(its set-up has no field {field})")
+        try:
+            start, stop, step = (float(v) for v in text.split(":"))
+        except ValueError:
+            start = stop = step = math.nan
+        n = (stop - start) / step + 1 if step > 0 and stop >= start else math.nan
+        if not (math.isfinite(n) and n <= 2001):
+            raise UsageError(f"--along {axis}={text}: expected START:STOP:STEP [mm] with STEP "
+                             "> 0, STOP >= START and at most 2001 positions")
+        out[field] = ",".join(f"{round(start + i * step, 9):g}"
+                              for i in range(int(math.floor(n + 1e-9))))
+    return out
 
 
 def procedure_of(args, config):

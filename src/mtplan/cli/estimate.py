@@ -33,6 +33,10 @@ def register(sub) -> None:
     p.add_argument("--set", action="append", metavar="FIELD=VALUE",
                    help="set-up field (repeatable); fields the readings determine (counts, "
                         "positions, angles, radius) need not be given, and must agree")
+    p.add_argument("--along", action="append", metavar="AXIS=START:STOP:STEP",
+                   help="also state the errors that are functions of position at these "
+                        "positions along AXIS [mm], each a measurand with its uncertainty "
+                        "(geometry21: --along X=-50:50:5; repeatable; for a compensation table)")
     p.add_argument("--estimator", metavar="NAME",
                    help="estimator (default: the best one that observes every measurand; the "
                         "patent's method by its name)")

@@ -24,7 +24,8 @@ def cmd_explore(args):
         raise UsageError(f"explore needs the optional packages {', '.join(missing)}: {INSTALL}")
     if not 0 < args.port < 65536:
         raise UsageError(f"--port must be from 1 to 65535, got {args.port}")
-    from mtplan.explore.design import design_from_study, normalise
+    from mtplan.explore.state import normalise
+    from mtplan.explore.studies import design_from_study
     from mtplan.models import get
 
     initial = {"procedure": get(args.procedure).name} if args.procedure else {}

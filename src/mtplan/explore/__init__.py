@@ -5,7 +5,12 @@ of a procedure is a control and the predicted uncertainty, duration, identifiabi
 acceptance figures follow each change. Optional: ``pip install 'mtplan[explore]'``
 (Starlette and Uvicorn for the server, Plotly's JavaScript for the plots).
 
-- :mod:`mtplan.explore.design`: the state and what the page shows, as pure functions;
+- the services, as pure functions: :mod:`~mtplan.explore.state` (a design and its set-up),
+  :mod:`~mtplan.explore.info` (controls and help), :mod:`~mtplan.explore.prediction`
+  (first order, identifiability, cost guard), :mod:`~mtplan.explore.trust` (the spot
+  check), :mod:`~mtplan.explore.tolerances`, :mod:`~mtplan.explore.results` (what the page
+  shows), :mod:`~mtplan.explore.sensitivity`, :mod:`~mtplan.explore.studies`; gathered in
+  :mod:`mtplan.explore.design`;
 - :mod:`mtplan.explore.jobs`: Monte Carlo confirmation and the planner in the background;
 - :mod:`mtplan.explore.app`: the web application (imports the extra's packages).
 """

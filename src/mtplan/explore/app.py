@@ -36,6 +36,8 @@ from starlette.routing import Route
 from mtplan._validate import InvalidInput
 from mtplan.explore import design as d
 from mtplan.explore.jobs import Busy, Jobs, job_cost
+from mtplan.explore.login import (LOGIN, login_endpoint, login_location, login_page,
+                                  token_cookie, wants_page)
 
 __all__ = ["create_app", "STATIC", "Guard", "LOOPBACK", "MAX_BODY", "MAX_IN_FLIGHT"]
 
@@ -78,7 +80,9 @@ class Guard:
        server's own origin, else 403; the body must be ``application/json``, else 415.
     3. Token: the per-launch secret, as the ``token`` query of the page's link (answered
        with a cookie and a redirect to the link without it), the cookie, or the header
-       ``X-Mtplan-Token``; else 403. The static files need none.
+       ``X-Mtplan-Token``; else 403, or, for a browser asking for the page, a redirect
+       to the login page that keeps the link (:mod:`mtplan.explore.login`). The static
+       files and the login page need none.
     4. ``Content-Length`` over the body limit: 413 (a body without one is counted as it
        streams in, :func:`_body`).
     5. More than `max_in_flight` API requests at once: 503 at once, not a queue.
@@ -128,16 +132,19 @@ class Guard:
                 return _plain(415, f"Content-Type {kind or 'none'!r} refused: the designer "
                                    "accepts application/json only.")
         path = scope["path"]
-        if not path.startswith("/static/"):
-            query = dict(parse_qsl(scope.get("query_string", b"").decode("latin-1")))
+        if not path.startswith("/static/") and path != LOGIN:
+            raw = scope.get("query_string", b"").decode("latin-1")
+            query = dict(parse_qsl(raw))
             cookie = _cookies(headers).get(self.cookie_name(port))
             if path == "/" and self._token_ok(query.get("token")):
                 rest = urlencode({k: v for k, v in query.items() if k != "token"})
                 return Response(status_code=303, headers={
                     "Location": "/" + (f"?{rest}" if rest else ""),
-                    "Set-Cookie": f"{self.cookie_name(port)}={self.token}; Path=/; HttpOnly; "
-                                  "SameSite=Strict"})
+                    "Set-Cookie": token_cookie(self.cookie_name(port), self.token)})
             if not (self._token_ok(cookie) or self._token_ok(headers.get("x-mtplan-token"))):
+                if wants_page(scope["method"], path, headers.get("accept", "")):
+                    # a saved design link after a restart: ask for the token, keep the link
+                    return Response(status_code=303, headers={"Location": login_location(raw)})
                 return _plain(403, "Token missing or wrong: open the link that `mtplan "
                                    "explore` printed (it holds this launch's token).")
         length = headers.get("content-length")
@@ -352,6 +359,8 @@ def create_app(initial: dict | None = None, *, token: str | None = None,
     routes = [
         Route("/", _page),
         Route("/static/{name}", _static),
+        Route(LOGIN, login_page),
+        Route(LOGIN, login_endpoint(token, Guard.cookie_name), methods=["POST"]),
         Route("/api/procedures", _guarded(procedures)),
         Route("/api/procedure/{name}", _guarded(procedure)),
         Route("/api/glossary", _guarded(glossary)),

@@ -51,7 +51,9 @@ def job_cost(kind: str, design: dict, *, budget_s: float = JOB_BUDGET_S) -> dict
     it does not, ``refusal`` (one line naming trials). Raises InvalidInput for a bad kind,
     trials, seed or set-up.
     """
-    from mtplan.explore.design import normalise, plan_vary, setup_of, trial_seconds, whole
+    from mtplan.explore.prediction import trial_seconds
+    from mtplan.explore.state import normalise, setup_of, whole
+    from mtplan.explore.studies import plan_vary
 
     if kind not in _KINDS:
         raise InvalidInput([f"The 'kind' of a job must be one of {', '.join(_KINDS)}. "
@@ -100,7 +102,8 @@ def confirm(design: dict, progress=None) -> dict:
     """Monte Carlo of a design's set-up: what ``mtplan simulate`` gives for the same set-up,
     seed and trials, beside the page's linearised prediction."""
     from mtplan.evaluation.simulation import simulate_uncertainty
-    from mtplan.explore.design import K, normalise, predict, setup_of
+    from mtplan.explore.prediction import predict
+    from mtplan.explore.state import K, normalise, setup_of
 
     design = normalise(design)
     proc, setup = setup_of(design)
@@ -119,7 +122,8 @@ def confirm(design: dict, progress=None) -> dict:
 
 def cheapest(design: dict, progress=None) -> dict:
     """The planner over the design's ranges with its U targets: the cheapest set-up."""
-    from mtplan.explore.design import K, normalise, plan_vary, setup_of
+    from mtplan.explore.state import K, normalise, setup_of
+    from mtplan.explore.studies import plan_vary
     from mtplan.plans.planner import plan
 
     design = normalise(design)

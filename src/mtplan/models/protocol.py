@@ -59,6 +59,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
+from mtplan.models.correction import NO_CORRECTION, CorrectionModel
 from mtplan.models.fields import (
     UNIT_SUFFIXES,
     UNITS,
@@ -407,6 +408,9 @@ class Procedure:
     levers: tuple = ()
     #: what the procedure offers beyond its model; the defaults select the generic analyses
     capabilities: Capabilities = Capabilities()
+    #: how a measured result becomes the correction a controller takes (``mtplan
+    #: compensate``); the default states none
+    correction: CorrectionModel = NO_CORRECTION
 
     def __post_init__(self):
         object.__setattr__(self, "estimators", {

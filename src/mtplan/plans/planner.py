@@ -26,11 +26,31 @@ from mtplan._validate import InvalidInput, Problems
 from mtplan.models.protocol import fields_info, make
 
 __all__ = ["PlanResult", "plan", "pareto_front", "optimize_design", "readings_jacobian",
-           "design_identifiability", "parse_target", "PfaCriterion"]
+           "design_identifiability", "parse_target", "PfaCriterion", "RESIDUAL", "target_u"]
+
+
+#: a target on the residual after compensation: ``residual:EXX<=2``
+RESIDUAL = "residual:"
+
+
+def target_u(proc, setup, name: str, u: Mapping[str, float]) -> float:
+    """The standard uncertainty a target bounds: the measurand's (`u`: its standard
+    uncertainty by name [display unit]), or for ``residual:M`` that of the error left after
+    the machine is compensated with M's estimate: M's u and what the test cannot see of it
+    (the procedure's correction model, ``unseen_of``) in quadrature. NaN where the set-up
+    does not determine the measurand."""
+    measurand = name.removeprefix(RESIDUAL)
+    if measurand not in u:
+        return math.nan
+    if name == measurand:
+        return float(u[measurand])
+    unseen = proc.correction.unseen_of(setup.as_dict(), measurand)[0]
+    return math.hypot(float(u[measurand]), unseen)
 
 
 def parse_target(text: str) -> tuple[str, float]:
-    """Parse ``NAME<=VALUE`` (or ``NAME=VALUE``) into (name, value)."""
+    """Parse ``NAME<=VALUE`` (or ``NAME=VALUE``) into (name, value); NAME may be
+    ``residual:M`` (the error left after compensating M, :func:`target_u`)."""
     for sep in ("<=", "="):
         name, found, value = text.partition(sep)
         if found:
@@ -42,7 +62,8 @@ def parse_target(text: str) -> tuple[str, float]:
                 return name.strip(), v
             break
     raise InvalidInput([f"A target must read NAME<=VALUE with a value > 0 in the measurand's "
-                        f"unit (e.g. EX0C<=2). Got {text!r} instead."])
+                        f"unit (e.g. EX0C<=2, or residual:EX0C<=2 for the error left after "
+                        f"compensation). Got {text!r} instead."])
 
 
 def pareto_front(cost: np.ndarray, value: np.ndarray) -> np.ndarray:
@@ -233,9 +254,13 @@ def _check_plan(proc, names, targets, criterion, k, confirm, trials, n_jobs, bac
     if not targets and criterion is None and not required:
         p.add_text("plan needs at least one target NAME<=VALUE")
     for name, value in targets.items():
-        if name not in names:
+        measurand = name.removeprefix(RESIDUAL)
+        if measurand not in names:
             p.add_text(f"The target {name!r} names no measurand of {proc.name}; its measurands "
                        f"are: {', '.join(names)}")
+        elif name != measurand and not proc.correction.kind:
+            p.add_text(f"The target {name!r} bounds a residual after compensation, but "
+                       f"{proc.name} states no correction a controller takes")
         p.number(f"targets[{name!r}]", value, low=0, low_open=True)
     p.number("k", k, low=0, low_open=True)
     p.number("confirm", confirm, integer=True, low=1)
@@ -267,7 +292,10 @@ def _screen(proc, setups, truth, estimator, sources, targets, k, criterion, iden
         row = {"candidate": i, **_flat(_setup_fields(s)), "duration_s": float(proc.duration(s))}
         for name in names:
             row[f"u_{name}"] = k * u[name] if name in u else math.nan
-        ratios = [k * u[n] / v if n in u else math.inf for n, v in targets.items()]
+        for name in targets:
+            row[f"u_{name}"] = k * target_u(proc, s, name, u)
+        ratios = [row[f"u_{n}"] / v if math.isfinite(row[f"u_{n}"]) else math.inf
+                  for n, v in targets.items()]
         if missing[i]:
             ratios.append(math.inf)
         row["worst"] = max(ratios) if ratios else 0.0
@@ -305,8 +333,9 @@ def _unreachable(units, table, targets, vary, criterion, required=()) -> list[st
         reach = table.loc[j, f"u_{n}"]
         if reach > v:
             where = ", ".join(f"{f}={table.loc[j, f]}" for f in (vary or {}))
-            msgs.append(f"The target {n}<={v:g} {units[n]} cannot be met: the best reachable "
-                        f"value is {reach:.3g} {units[n]}" + (f" (at {where})" if where else ""))
+            unit = units[n.removeprefix(RESIDUAL)]
+            msgs.append(f"The target {n}<={v:g} {unit} cannot be met: the best reachable "
+                        f"value is {reach:.3g} {unit}" + (f" (at {where})" if where else ""))
     if not msgs and criterion is not None and hasattr(criterion, "explain"):
         us = [{n: float(table.loc[j, f"u_{n}"]) for n in names
                if math.isfinite(table.loc[j, f"u_{n}"])} for j in table.index]
@@ -330,6 +359,7 @@ def _confirm(proc, setups, table, candidates, truth, estimator, sources, targets
     for j in candidates:
         s = setups[j]
         names = [m.name for m in proc.measurands(s)]
+        names += [n for n in targets if n not in names]  # residual targets
         try:
             r = simulate_uncertainty(proc, s, truth, estimator=estimator, sources=sources,
                                      trials=trials, rng=seed, progress=False)
@@ -338,7 +368,9 @@ def _confirm(proc, setups, table, candidates, truth, estimator, sources, targets
                                  "duration_s": float(table.loc[j, "duration_s"]),
                                  "met": False, "error": str(exc)})
             continue
-        mc_u = {m.name: k * float(r.mc.std[i]) for i, m in enumerate(r.measurands)}
+        mc_std = {m.name: float(r.mc.std[i]) for i, m in enumerate(r.measurands)}
+        mc_u = {m: k * v for m, v in mc_std.items()}
+        mc_u.update({n: k * target_u(proc, s, n, mc_std) for n in targets if n not in mc_u})
         met = all(mc_u[n] <= v for n, v in targets.items()) and (
             criterion is None or bool(criterion(mc_u)))
         confirmation.append({
@@ -405,6 +437,7 @@ _IDENT = ("rank", "n_params", "condition", "O1", "O2", "O3", "O4", "O5")
 
 
 def _candidate(row, setup, names, targets) -> dict:
+    names = [*names, *(n for n in targets if n not in names)]  # residual targets
     out = {
         "candidate": int(row["candidate"]),
         "setup": setup.as_dict(),

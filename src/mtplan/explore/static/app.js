@@ -47,6 +47,7 @@ async function api(path, body) {
                                            headers: { "Content-Type": "application/json" } };
   const r = await fetch(path, opts);
   const text = await r.text();
+  if (r.status === 403 && /^Token missing/.test(text)) toLogin();  // the server was started again
   let data;
   try { data = JSON.parse(text); } catch (e) { data = { error: text.trim() || r.statusText }; }
   if (!r.ok) throw new Error(data.error || r.statusText);
@@ -60,6 +61,11 @@ function b64encode(obj) {
 function b64decode(text) {
   const s = atob(text.replace(/-/g, "+").replace(/_/g, "/"));
   return JSON.parse(new TextDecoder().decode(Uint8Array.from(s, (c) => c.charCodeAt(0))));
+}
+function toLogin() {
+  // the launch's token is no longer this server's: ask for it, and come back to this design
+  if (state.design) pushURL();
+  location.assign("/login?next=" + encodeURIComponent(location.pathname + location.search));
 }
 function banner(text) { const b = $("banner"); b.textContent = text || ""; b.hidden = !text; }
 function pushURL() {
@@ -259,6 +265,7 @@ function changed() {
   if (state.snapshot && state.snapshot !== now && !state.undoing) state.history.push(state.snapshot);
   state.snapshot = now; state.undoing = false;
   state.t0 = performance.now();
+  estimateOld();
   refresh();  // the link follows with the figures, once the numbers are on the screen
 }
 async function refresh() {
@@ -281,6 +288,7 @@ async function refresh() {
   document.body.dataset.rendered = String(asked);
   drawFigures(result, asked, t0);
   scheduleSensitivity();
+  scheduleEstimate();
   if (result.ok && result.measurands.some((m) => m.trust === "unchecked" && !/^not checked/.test(m.why))) scheduleCheck();
 }
 function scheduleCheck() {
@@ -331,6 +339,7 @@ function render(r) {
     for (const id of ["sens-plot", "budget-plot"]) $(id).classList.add("stale");
     $("verdict").textContent = "";
     renderHelp(r);
+    renderReport(r);
     return;
   }
   banner("");
@@ -377,6 +386,7 @@ function render(r) {
   renderRisk(r);
   verdict(r);
   renderHelp(r);
+  renderReport(r);
 }
 function drawFigures(r, asked, t0) {
   // The numbers first, then the figures: the budget plot (Plotly, about half the page's work
@@ -630,34 +640,6 @@ function tableCSV(id) {
                       download: `${state.design.procedure}_${id}.csv` });
   document.body.append(a); a.click(); a.remove();
 }
-function keepScenario() {
-  const r = state.lastResult;
-  if (!r || !r.ok) { banner("Only an evaluated design can be kept as a scenario."); return; }
-  state.scenarios.push({ label: `${state.scenarios.length + 1}: ${state.design.procedure}, ${state.design.estimator}`,
-                         design: JSON.parse(JSON.stringify(state.design)), result: r });
-  renderScenarios();
-}
-function renderScenarios() {
-  const body = $("scenarios").querySelector("tbody");
-  $("scenarios-msg").hidden = state.scenarios.length > 0;
-  if (!state.scenarios.length) { body.replaceChildren(); return; }
-  const names = [...new Set(state.scenarios.flatMap((c) => c.result.measurands.map((m) => `${m.name} [${unitText(m.unit)}]`)))];
-  const cell = (c, n) => {
-    const m = c.result.measurands.find((x) => `${x.name} [${unitText(x.unit)}]` === n);
-    return el("td", { text: !m ? "" : (m.trust === "no" ? "not reliable" : fmt3(m.U)) });
-  };
-  const head = el("tr", {}, el("th", { text: "U (k = 2)" }), ...state.scenarios.map((c, i) => {
-    const open = el("button", { text: "open", title: "make this scenario the page's design" });
-    open.addEventListener("click", () => openDesign(JSON.parse(JSON.stringify(c.design))));
-    const drop = el("button", { text: "\u00d7", title: "remove this scenario", "aria-label": `remove scenario ${i + 1}` });
-    drop.addEventListener("click", () => { state.scenarios.splice(i, 1); renderScenarios(); });
-    return el("th", {}, c.label, " ", open, drop);
-  }));
-  const changes = el("tr", {}, el("td", { text: "set-up changes" }), ...state.scenarios.map((c) =>
-    el("td", { class: "sources", text: Object.entries(c.design.setup).map(([k, v]) => `${k} = ${v}`).join(", ") || "defaults" })));
-  const dur = el("tr", {}, el("td", { text: "duration" }), ...state.scenarios.map((c) => el("td", { text: duration(c.result.duration_s) })));
-  body.replaceChildren(head, changes, dur, ...names.map((n) => el("tr", {}, el("td", { text: n }), ...state.scenarios.map((c) => cell(c, n)))));
-}
 function undo() {
   const prev = state.history.pop();
   if (!prev) { banner("Nothing to undo."); return; }
@@ -727,13 +709,35 @@ function renderHelp(r) {
 }
 
 // ------------------------------------------------------------------ jobs
+function estimateOld() {
+  // the time said is that of the design shown, never of an earlier one
+  state.estimates = (state.estimates || 0) + 1;
+  $("job-estimate").textContent = "estimating the Monte Carlo's time\u2026";
+  $("job-estimate").className = "label";
+  delete $("job-estimate").dataset.design;
+}
+function scheduleEstimate() {
+  clearTimeout(state.estimateTimer);
+  state.estimateTimer = setTimeout(() => {
+    if (!settled()) return;  // the render of the newest change asks again
+    const r = state.lastResult;
+    if (r && r.ok) jobEstimate();
+    else { estimateOld(); $("job-estimate").textContent = "no Monte Carlo time: the set-up is not evaluated"; }
+  }, 250);
+}
 async function jobEstimate() {
-  // the time a Monte Carlo of these trials would take, said before it starts
+  // the time a Monte Carlo of these trials would take, said before it starts; after every
+  // change of the set-up, the seed or the trials (an answer overtaken by a change is dropped)
+  const asked = (state.estimates = (state.estimates || 0) + 1), design = JSON.stringify(state.design);
+  let text, cls;
   try {
     const e = await api("/api/jobs/estimate", { kind: "confirm", design: state.design });
-    $("job-estimate").textContent = e.fits ? `${e.design.trials} trials: ${e.text}` : e.refusal;
-    $("job-estimate").className = e.fits ? "label" : "err";
-  } catch (e) { $("job-estimate").textContent = e.message; $("job-estimate").className = "err"; }
+    [text, cls] = e.fits ? [`${e.design.trials} trials: ${e.text}`, "label"] : [e.refusal, "err"];
+  } catch (e) { [text, cls] = [e.message, "err"]; }
+  if (asked !== state.estimates) return;
+  $("job-estimate").textContent = text;
+  $("job-estimate").className = cls;
+  $("job-estimate").dataset.design = design;
 }
 async function startJob(kind) {
   if (state.job) await cancelJob();
@@ -861,8 +865,8 @@ async function init() {
     e.preventDefault();
     openHelp(a.getAttribute("href").slice(1));
   });
-  $("seed").addEventListener("change", () => { state.design.seed = number($("seed").value, 0); pushURL(); jobEstimate(); });
-  $("trials").addEventListener("change", () => { state.design.trials = number($("trials").value, 10000); pushURL(); jobEstimate(); });
+  $("seed").addEventListener("change", () => { state.design.seed = number($("seed").value, 0); pushURL(); renderReport(state.lastResult); jobEstimate(); });
+  $("trials").addEventListener("change", () => { state.design.trials = number($("trials").value, 10000); pushURL(); renderReport(state.lastResult); jobEstimate(); });
   $("confirm").addEventListener("click", () => startJob("confirm"));
   $("cheapest").addEventListener("click", () => startJob("cheapest"));
   $("job-cancel").addEventListener("click", cancelJob);
@@ -875,7 +879,8 @@ async function init() {
   $("budget-of").addEventListener("change", () => { state.budgetOf = $("budget-of").value; renderBudgetTable(state.lastResult); });
   $("risk-of").addEventListener("change", () => { state.riskOf = $("risk-of").value; renderRisk(state.lastResult); });
   api("/api/glossary").then((g) => { state.glossary = g.terms; renderHelp(state.lastResult); }).catch(() => {});
-  jobEstimate();
+  state.scenarios = loadScenarios();
+  renderScenarios();
   $("load").addEventListener("change", async () => {
     const f = $("load").files[0]; if (f) await loadStudy(await f.text()); $("load").value = "";
   });

@@ -80,16 +80,17 @@ Forward model (:func:`forward`, batch-first)
 - Temperature (ISO 1: dimensions at 20 degC). The part grows about its clamping point
   (``clamp_x_mm``, ``clamp_y_mm``) by ``alpha_part dT_part``; the stage's scales grow
   about their datum (``scale_datum_x_mm``, ``scale_datum_y_mm``, the fixed point about
-  which real scales grow) by ``alpha_scale dT_scale`` and read lengths from the datum
-  that much short; the stage's scale and squareness errors act about the same datum
-  (``actual = D + M (read - D)``). A measured temperature (``part_temperature_c``,
-  ``scale_temperature_c``) is corrected for by every estimator (:func:`_to_20c`, exact for
-  a circle), leaving its thermometer's error (``*_temperature_u``) and the expansion
-  coefficients' (``expansion_u``, ``scale_expansion_u``) as sources; one not measured is
-  a zero-mean rectangular half-width (``*_temperature_halfwidth``), uncorrected, and the
-  set-up's notes say so. Unmeasured scales follow the part's actual temperature within
-  their half-width. The sources are the actual temperatures minus the reference ones the
-  estimators correct with, so zero errors give the truth exactly.
+  which real scales grow) by ``alpha_scale dT_scale`` and read lengths from the datum that
+  much short; the stage's scale and squareness errors act about the same datum (``actual =
+  D + M (read - D)``). A measured temperature (``part_temperature_c``,
+  ``scale_temperature_c``) is corrected for by every estimator
+  (:func:`._estimators._to_20c`, exact for a circle), leaving its thermometer's error
+  (``*_temperature_u``) and the expansion coefficients' (``expansion_u``,
+  ``scale_expansion_u``) as sources; one not measured is a zero-mean rectangular
+  half-width (``*_temperature_halfwidth``), uncorrected, and the set-up's notes say so.
+  Unmeasured scales follow the part's actual temperature within their half-width. The
+  sources are the actual temperatures minus the reference ones the estimators correct
+  with, so zero errors give the truth exactly.
 - p1 and p2 are probed along -y and +y with the same probe model; the planner uses
   the read values, so their errors move the targets.
 
@@ -153,6 +154,8 @@ from mtplan.models.circle_centre._readings import from_frame, readings_frame, se
 from mtplan.models.circle_centre._setup import Setup, Truth
 from mtplan.models.protocol import Capabilities, Estimator, Procedure, ReadingsFormat
 
+from mtplan.models.circle_centre._correction import CORRECTION
+
 __all__ = [
     "Setup",
     "Truth",
@@ -196,4 +199,5 @@ PROCEDURE = Procedure(
     capabilities=Capabilities(block_size=2000, truth_from_estimate=truth_from_estimate,
                               start_from_readings=start_from_readings,
                               report_extras=report_extras),
+    correction=CORRECTION,
 )

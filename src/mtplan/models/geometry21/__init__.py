@@ -169,6 +169,7 @@ from mtplan.models.geometry21._model import (
 from mtplan.models.geometry21._patent import patent_design, theta_patent
 from mtplan.models.geometry21._path import repeatability_filter, residual_basis
 from mtplan.models.geometry21._physics import sources
+from mtplan.models.geometry21._correction import CORRECTION
 from mtplan.models.geometry21._record import MODEL
 from mtplan.models.geometry21._setup import (
     AXIS,
@@ -206,4 +207,5 @@ PROCEDURE = dataclasses.replace(
     capabilities=Capabilities(block_size=128, identifiability_report=identifiability_report,
                               report_extras=report_extras, identifiability=identifiability,
                               first_order_sensitivities=sensitivities),
+    correction=CORRECTION,
 )

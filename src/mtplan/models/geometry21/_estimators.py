@@ -22,8 +22,8 @@ from mtplan.models.geometry21._model import (
 )
 from mtplan.models.geometry21._patent import theta_patent
 from mtplan.models.geometry21._path import reading_whitener
-from mtplan.models.geometry21._physics import measurands
-from mtplan.models.geometry21._setup import NAMES, Setup
+from mtplan.models.geometry21._physics import measurand_map
+from mtplan.models.geometry21._setup import Setup
 
 
 _GN_ITERATIONS = 8
@@ -195,10 +195,9 @@ def estimate_theta(setup: Setup, readings: dict, estimator: str) -> np.ndarray:
 
 
 def measure(setup: Setup, theta: np.ndarray) -> dict:
-    ji = joint_ident(setup)
-    listed = {m.name for m in measurands(setup)}
-    vals = theta @ ji["g"].T
-    return {name: vals[:, i] for i, name in enumerate(NAMES) if name in listed}
+    ms, g = measurand_map(setup)
+    vals = theta @ g.T
+    return {m.name: vals[:, i] for i, m in enumerate(ms)}
 
 
 def estimate_patent(setup: Setup, readings: dict) -> dict:

@@ -27,7 +27,7 @@ from mtplan.models.geometry21._layout import Geometry, geometry
 from mtplan.models.geometry21._maps import mapped_source_response, patent_map
 from mtplan.models.geometry21._model import RANK_TOL, joint_ident, param_names
 from mtplan.models.geometry21._path import repeatability_filter
-from mtplan.models.geometry21._physics import forward, measurands, sources
+from mtplan.models.geometry21._physics import forward, measurand_map, measurands, sources
 from mtplan.models.geometry21._record import MODEL
 from mtplan.models.geometry21._setup import (
     AXIS,
@@ -249,9 +249,8 @@ def coefficient_covariance(setup: Setup | None = None, *, estimator: str = "join
 
 def _measurand_variances(setup: Setup, estimator: str, truth: Truth | None, only) -> dict:
     """source -> {measurand: first-order variance [display unit^2]} of the listed ones."""
-    ji = joint_ident(setup)
-    ms = measurands(setup)
-    g = np.array([ji["g"][NAMES.index(m.name)] * m.scale for m in ms]).reshape(len(ms), -1)
+    ms, g = measurand_map(setup)
+    g = g * np.array([m.scale for m in ms])[:, None]
     var = source_variances(g, _source_factors(setup, estimator, truth, only))
     return {name: dict(zip((m.name for m in ms), v)) for name, v in var.items()}
 
@@ -306,9 +305,8 @@ def sensitivities(setup: Setup, truth: Truth | None = None, *, estimator: str = 
     check_estimator(estimator)
     active = MODEL.active_sources(setup, sources)
     factors = _source_factors(setup, estimator, truth, sources)
-    ms = measurands(setup)
-    g = np.array([joint_ident(setup)["g"][NAMES.index(m.name)] * m.scale
-                  for m in ms]).reshape(len(ms), -1)
+    ms, g = measurand_map(setup)
+    g = g * np.array([m.scale for m in ms])[:, None]
     cols = []
     for name, src in active.items():
         shape = (*src.shape, *src.distribution.event_shape)

@@ -19,14 +19,15 @@ from mtplan.models.geometry21._layout import (
 from mtplan.models.geometry21._model import joint_ident
 from mtplan.models.geometry21._path import repeatability_filter, residual_basis, residual_knots
 from mtplan.models.geometry21._setup import (
-    DESCR,
+    ALONG,
+    AXIS,
     FUNCTIONS,
     GRID_POWERS,
     KIND,
-    ROT,
     SERVO_MISMATCH,
     Setup,
     Truth,
+    describe,
     sizeless,
     truth_coefficients,
     truth_rows,
@@ -37,18 +38,55 @@ from mtplan.uncertainty.distributions import Normal, Rectangular
 
 # --------------------------------------------------------------------------- protocol
 def measurands(setup: Setup) -> tuple[Measurand, ...]:
-    """The measurands the data determine at this set-up (see :func:`identifiability`)."""
+    """The measurands the data determine at this set-up (see :func:`identifiability`): each
+    function at +line_length/2, then each component error at the set-up's positions along
+    its axis (``along_x_mm`` ...), named ``EXX@-50`` (EXX at x = -50 mm)."""
+    return measurand_map(setup)[0]
+
+
+def along_positions(setup: Setup) -> list[tuple[str, float]]:
+    """(function, position [mm]) of every measurand along the travel, in order: each axis's
+    positions, and at each the axis's determined component errors in ISO 230-1 order. The
+    machine coordinates' zero is left out: each error function is zero there by the
+    definition of its reference (ISO 230-1), so it has no uncertainty to state."""
     ident = joint_ident(setup)
     out = []
-    for name, kind, axis, comp in FUNCTIONS:
+    for axis, field in enumerate(ALONG):
+        for u in getattr(setup, field):
+            if u == 0:  # every function is zero there by its definition: nothing to state
+                continue
+            out += [(name, float(u)) for name, kind, ax, _ in FUNCTIONS
+                    if ax == axis and kind != "sq" and ident["estimable"][name]]
+    return out
+
+
+def measurand_map(setup: Setup) -> tuple[tuple[Measurand, ...], np.ndarray]:
+    """(measurands, g (q, n_par)): every measurand is ``g @ theta`` [mm, rad], theta the
+    error coefficients and mountings of :func:`._layout.geometry`."""
+    ident = joint_ident(setup)
+    geo = geometry(setup)
+    half = setup.line_length_mm / 2
+    out, rows = [], []
+    for i, (name, kind, axis, comp) in enumerate(FUNCTIONS):
         if not ident["estimable"][name]:
             continue
         unit = "urad" if kind in ("ang", "sq") else "um"
-        text = DESCR[kind].format(ax="XYZ"[axis], comp="XYZ"[comp], rot=ROT[comp])
+        text = describe(name)
         if kind != "sq":
-            text += f", at {'xyz'[axis]} = +{setup.line_length_mm / 2:g} mm"
+            text += f", at {'xyz'[axis]} = +{half:g} mm"
         out.append(Measurand(name, unit, text))
-    return tuple(out)
+        rows.append(ident["g"][i])
+    for name, u in along_positions(setup):
+        kind, axis = KIND[name], AXIS[name]
+        text = describe(name) + f", at {'xyz'[axis]} = {u:+g} mm"
+        if abs(u) > half * (1 + 1e-12):
+            text += " (extrapolated: outside the measured travel)"
+        out.append(Measurand(f"{name}@{u:g}", "urad" if kind == "ang" else "um", text))
+        powers, sl = geo.layout[name]
+        row = np.zeros(geo.n_par)
+        row[sl] = [u**k for k in powers]
+        rows.append(row)
+    return tuple(out), np.array(rows).reshape(len(out), geo.n_par)
 
 
 def sources(setup: Setup) -> dict:
@@ -208,12 +246,16 @@ def forward_matrix(setup: Setup, truth: Truth) -> np.ndarray:
 
 
 def true_values(setup: Setup, truth: Truth) -> dict:
-    """Each listed measurand's true value (function at u = +line_length/2) [mm or rad]."""
+    """Each listed measurand's true value (function at u = +line_length/2, and at the
+    positions along the travel) [mm or rad]."""
     u = setup.line_length_mm / 2
     coefs = truth_coefficients(truth)
     listed = {m.name for m in measurands(setup)}
     out = {name: (np.sum(c * u ** np.array(pw), axis=-1) if KIND[name] != "sq" else c[..., 0])
            for name, (pw, c) in coefs.items() if name in listed}
+    for name, at in along_positions(setup):
+        pw, c = coefs[name]
+        out[f"{name}@{at:g}"] = np.sum(c * at ** np.array(pw), axis=-1)
     return {k: float(v) if np.ndim(v) == 0 else v for k, v in out.items()}  # arrays: batch rows
 
 

@@ -66,6 +66,24 @@ def _heads_field(plane: str, doc_extra: str):
                  low=-1000, high=1000)
 
 
+def describe(name: str) -> str:
+    """What error function `name` is, in words ("positioning error of the X axis")."""
+    _, kind, axis, comp = FUNCTIONS[NAMES.index(name)]
+    return DESCR[kind].format(ax="XYZ"[axis], comp="XYZ"[comp], rot=ROT[comp])
+
+
+def _along_field(axis: str):
+    return param((), doc=f"Positions along {axis} [mm] at which {axis}'s component errors are "
+                 "also stated, each a measurand of its own (EXX@-50 is EXX at x = -50 mm): the "
+                 "errors along the travel, with their uncertainty and covariance, for a "
+                 "compensation table; outside the measured travel (+-line_length_mm / 2) "
+                 "they are extrapolated, and marked so", low=-5000, high=5000)
+
+
+#: the set-up fields that state the functions at more positions (:func:`along_positions`)
+ALONG = ("along_x_mm", "along_y_mm", "along_z_mm")
+
+
 @dataclass(frozen=True)
 class Setup(SetupBase):
     """Set-up of the 2D grid-encoder test of the 21 geometric errors."""
@@ -96,6 +114,9 @@ class Setup(SetupBase):
     yz_extra_heads_mm: tuple[float, ...] = _heads_field(
         "YZ", "A lateral X arm (the plate's normal) shows EBY, ECY, EBZ, ECZ and, at "
         "poly_order + 1 distinct arms, EAX; another tool length shows EAZ.")
+    along_x_mm: tuple[float, ...] = _along_field("X")
+    along_y_mm: tuple[float, ...] = _along_field("Y")
+    along_z_mm: tuple[float, ...] = _along_field("Z")
     extra_head_tests: str = param("all", doc="Tests repeated at the extra head positions: "
                                   "'all' (lines and circle) or 'lines'", choices=("all", "lines"))
     xy_plane_z_mm: float = param(0.0, doc="Z of the XY plate set-up", low=-1000, high=1000)
@@ -150,6 +171,10 @@ class Setup(SetupBase):
             p.add("circle_points", self.circle_points,
                   f"an int >= 2 * poly_order + 4 = {2 * self.poly_order + 4} (the circle's "
                   "least-squares fit needs more readings than unknowns)")
+        for name in ALONG:
+            v = getattr(self, name)
+            if len(set(v)) != len(v) or len(v) > 2001:
+                p.add(name, v, "distinct positions, at most 2001")
         for pl in ("xy", "xz", "yz"):
             name = f"{pl}_extra_heads_mm"
             v = np.asarray(getattr(self, name), dtype=float)
@@ -173,8 +198,9 @@ _SIZES = ("encoder_noise_um", "grid_error_um", "plate_offset_mm", "plate_tilt_ur
 
 @functools.lru_cache(maxsize=64)
 def sizeless(setup: Setup) -> Setup:
-    """The set-up with every error source at its default size."""
-    return setup.replace(**{f: Setup.__dataclass_fields__[f].default for f in _SIZES})
+    """The set-up with every error source at its default size and no positions along the
+    travel (neither changes the test's geometry)."""
+    return setup.replace(**{f: Setup.__dataclass_fields__[f].default for f in _SIZES + ALONG})
 
 
 def extra_heads(setup: Setup) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

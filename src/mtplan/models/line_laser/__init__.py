@@ -227,6 +227,8 @@ from mtplan.models.line_laser._record import MODEL
 from mtplan.models.line_laser._setup import Setup, Truth
 from mtplan.models.protocol import Capabilities, Estimator
 
+from mtplan.models.line_laser._correction import CORRECTION
+
 __all__ = [
     "Setup",
     "Truth",
@@ -243,6 +245,7 @@ __all__ = [
 
 PROCEDURE = dataclasses.replace(
     MODEL,
+    correction=CORRECTION,
     estimators={"patent": Estimator(
                     estimate_patent, description="The source method: whole-row shifts between "
                     "the scans, mean height differences and arccos(h/h').",

@@ -253,6 +253,8 @@ from mtplan.models.rotary_axis._readings import (
 from mtplan.models.rotary_axis._setup import NAME, Setup, Truth
 from mtplan.models.protocol import Capabilities, Estimator, Procedure, ReadingsFormat
 
+from mtplan.models.rotary_axis._correction import CORRECTION
+
 __all__ = [
     "Setup",
     "Truth",
@@ -298,4 +300,5 @@ PROCEDURE = Procedure(
     readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
                             limits=reading_limits, noise_source="probe_noise"),
     capabilities=Capabilities(block_size=2000, truth_from_estimate=truth_from_estimate),
+    correction=CORRECTION,
 )

@@ -74,17 +74,16 @@ Estimators
   18.4 um and u(origin_y_1) from 8.2 to 7.7 um (4000 trials).
 - ``gls``: the generalised least-squares (maximum-likelihood) fit of the whole forward
   model to all readings. Parameters: the 14 head fields of each sub-machine
-  (:data:`_GLS_HEAD`) and the tracker's position, yaw and tilts; the pivot-length
-  error and the A-C angle are held (the readings do not determine them, the posterior
-  holds them too). Weights: the inverse covariance of the readings under every active
-  source, each source element's secant effect at +-1 sd (:func:`_gls_gain`).
-  Gauss-Newton from the ``home`` estimate (first trial; tracker pose from the
-  registration) with one gain for the whole batch, re-taken once at the batch median;
-  the measurands are the construction applied to the fitted geometry. It uses what
-  the posterior uses, so it is as efficient (u(posterior) / u(mc) 0.98-1.02 on the
-  example readings, against 0.88-0.92 for ``home``'s origins) and the default by
-  the smallest-geometric-mean rule. About 5 times slower than ``home`` (about 5 000
-  trials/s).
+  (:data:`._estimators._GLS_HEAD`) and the tracker's position, yaw and tilts; the
+  pivot-length error and the A-C angle are held (the readings do not determine them, the
+  posterior holds them too). Weights: the inverse covariance of the readings under every
+  active source, each source element's secant effect at +-1 sd
+  (:func:`._estimators._gls_gain`). Gauss-Newton from the ``home`` estimate (first trial;
+  tracker pose from the registration) with one gain for the whole batch, re-taken once at
+  the batch median; the measurands are the construction applied to the fitted geometry. It
+  uses what the posterior uses, so it is as efficient (u(posterior) / u(mc) 0.98-1.02 on
+  the example readings, against 0.88-0.92 for ``home``'s origins) and the default by the
+  smallest-geometric-mean rule. About 5 times slower than ``home`` (about 5 000 trials/s).
 
 Decisions where the patent is silent or leaves a choice
 -------------------------------------------------------------------
@@ -118,10 +117,11 @@ Decisions where the patent is silent or leaves a choice
 - **Temperatures.** The structure stands expanded about the marks' centroid by its
   temperature minus 20 degC; the air's vertical gradient bends every beam (warm air above:
   a signed mean). Measured (``structure_temperature_c``, ``air_gradient_k_per_m``), every
-  estimator corrects both (:func:`_corrected_readings`, the registered points shrunk back
-  about the centroid; ``gls`` through its forward model), and the thermometers' and the
-  expansion coefficient's errors are sources. Not measured, they are a zero-mean half-width
-  and a range from 0 (signed mean), uncorrected; the set-up's notes say so.
+  estimator corrects both (:func:`._estimators._corrected_readings`, the registered points
+  shrunk back about the centroid; ``gls`` through its forward model), and the
+  thermometers' and the expansion coefficient's errors are sources. Not measured, they are
+  a zero-mean half-width and a range from 0 (signed mean), uncorrected; the set-up's notes
+  say so.
 
 Degenerate set-ups are refused by the Setup and Truth checks: a zero travel (no
 direction), a zero arc (all arc points at one angle: no circle, no axis), fewer
@@ -167,6 +167,8 @@ from mtplan.models.tracker_frame._setup import (
     Setup,
     Truth,
 )
+
+from mtplan.models.tracker_frame._correction import CORRECTION
 
 __all__ = [
     "PROCEDURE",
@@ -219,4 +221,5 @@ PROCEDURE = Procedure(
     readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame),
     capabilities=Capabilities(block_size=4000, truth_from_estimate=truth_from_estimate,
                               truths_from_estimates=truths_from_estimates),
+    correction=CORRECTION,
 )

@@ -555,9 +555,9 @@ def _plan(plan, fields, measurands, where, problems) -> dict | None:
         if f not in fields:
             problems.append(f"{where} plan varies {f!r}, which is no set-up field.")
     for m in plan.get("targets", {}):
-        if m not in measurands:
+        if m.removeprefix("residual:") not in measurands:  # residual: after compensation
             problems.append(f"{where} plan targets {m!r}, which is no measurand "
-                            f"({', '.join(sorted(measurands))}).")
+                            f"({', '.join(sorted(measurands))}), nor residual: one.")
     if not plan.get("targets"):
         problems.append(f"{where} plan needs a 'targets' table.")
     return plan

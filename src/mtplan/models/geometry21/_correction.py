@@ -1,0 +1,60 @@
+"""geometry21's correction: the component errors along each axis's travel as compensation
+tables, the squareness errors as the linear axes' location errors."""
+
+from __future__ import annotations
+
+from mtplan._validate import InvalidInput
+from mtplan.models.correction import CorrectionModel, CorrectionTerm
+from mtplan.models.geometry21._setup import FUNCTIONS, describe
+
+_ALONG = ("along_x_mm", "along_y_mm", "along_z_mm")
+
+
+def _terms(setup, names) -> tuple:
+    if not any(setup.get(field) for field in _ALONG):
+        raise InvalidInput(["the result states the component errors at no positions along "
+                            "the travel: estimate with --along X=START:STOP:STEP (and Y, Z), "
+                            "e.g. --along X=-50:50:5, to write their tables"])
+    held = set(names)
+    determined = {n.split("@")[0] for n in held if "@" in n}
+    half = float(setup.get("line_length_mm", 100.0)) / 2
+    out = []
+    for axis, field in enumerate(_ALONG):
+        for u in setup.get(field) or ():
+            u = float(u)
+            for name, kind, ax, _ in FUNCTIONS:
+                if ax != axis or kind == "sq":
+                    continue
+                key = f"{name}@{u:g}"
+                if name not in determined or (u != 0 and key not in held):
+                    continue  # not determined by the test: not corrected
+                length = kind in ("pos", "str")
+                out.append(CorrectionTerm(
+                    key, {key: 1.0} if u != 0 else {}, "um" if length else "urad",
+                    f"{describe(name)} at {'xyz'[axis]} = {u:+g} mm"
+                    + (" (zero by the definition of the reference)" if u == 0 else ""),
+                    argument=("XYZ"[axis], u), extrapolated=abs(u) > half * (1 + 1e-12)))
+    for name, kind, *_ in FUNCTIONS:
+        if kind == "sq" and name in held:
+            out.append(CorrectionTerm(name, {name: 1.0}, "urad", describe(name)))
+    return tuple(out)
+
+
+def _unseen(setup) -> dict:
+    """The path residual stays after any table of the translations' errors."""
+    u = float(setup.get("path_residual_um", 0.0))
+    what = ("the machine's repeatable short-wave path deviation beyond the error "
+            "polynomials (path_residual_um, RMS): no table through these points removes it")
+    return {name: (u, what) for name, kind, *_ in FUNCTIONS if kind in ("pos", "str") and u}
+
+
+CORRECTION = CorrectionModel(
+    kind="component errors",
+    frame="machine coordinates, zero at the plate centre (the errors' reference point); the "
+          "errors of the tool relative to the workpiece at the functional point "
+          "(reference_tool_mm), ISO 230-1",
+    sign="ISO 230-1 errors: actual minus nominal position or orientation; a volumetric "
+         "compensation takes them as errors and removes them",
+    terms=_terms,
+    unseen=_unseen,
+)
