@@ -148,10 +148,9 @@ class TruthBuilder:
         ok &= np.all(np.where(self.high_open, theta < self.high, theta <= self.high), axis=1)
         return ok
 
-    def _assign(self, values) -> object:
-        """The base with `values` (one per parameter: floats or arrays (m,)) set: a batch of
-        truths (``Truth.batch``; of one where the values are floats), checked by
-        :meth:`valid` and :meth:`cross_valid` rather than field by field."""
+    def _changes(self, values) -> dict:
+        """The fields of the base that `values` (one per parameter: floats or arrays (m,))
+        change: field -> value (a tuple field whole, its other elements as in the base)."""
         changes, tuples = {}, {}
         for p, v in zip(self.params, values, strict=True):
             if p.index is None:
@@ -163,7 +162,13 @@ class TruthBuilder:
             shape = np.shape(next(iter(items.values())))
             changes[name] = tuple(items.get(i, np.full(shape, float(x)) if shape else float(x))
                                   for i, x in enumerate(old))
-        return type(self.base).batch(self.base, **changes)
+        return changes
+
+    def _assign(self, values) -> object:
+        """The base with `values` set, as a batch of truths (``Truth.batch``; of one where
+        the values are floats): checked by :meth:`valid` and :meth:`cross_valid` rather
+        than field by field (the Truth's own rules run on it as they would on a Truth)."""
+        return type(self.base).batch(self.base, **self._changes(values))
 
     def cross_valid(self, theta: np.ndarray) -> np.ndarray:
         """Mask of rows that pass the Truth's cross-field rules (all True without rules)."""
@@ -192,7 +197,10 @@ class TruthBuilder:
         row = np.asarray(row, dtype=float)
         if not (self.valid(row[None])[0] and self.cross_valid(row[None])[0]):
             return None
-        return self._assign([float(v) for v in row])
+        try:
+            return self.checked_replace(row)
+        except InvalidInput:
+            return None
 
     def batch(self, theta: np.ndarray):
         """One Truth for all rows of `theta` (m, n_params): fields as arrays (m,)."""
@@ -201,8 +209,7 @@ class TruthBuilder:
 
     def checked_replace(self, row):
         """The Truth of one row through ``dataclasses.replace`` (full validation)."""
-        t = self._assign([float(v) for v in row])
-        return dataclasses.replace(t)
+        return dataclasses.replace(self.base, **self._changes([float(v) for v in row]))
 
 
 class Forward:

@@ -51,9 +51,9 @@ def _source_fields(name: str) -> tuple:  # asked several times a change: once pe
     out = {}
     for f in fields_info(proc.Setup):
         for s in names:
-            rest = f["name"][len(s) + 1:]
-            if f["name"].startswith(s + "_") and rest in UNIT_SUFFIXES:
-                out[s] = f["name"]
+            rest = f.name[len(s) + 1:]
+            if f.name.startswith(s + "_") and rest in UNIT_SUFFIXES:
+                out[s] = f.name
     return tuple(out.items())
 
 
@@ -132,7 +132,7 @@ def _values(proc, design) -> dict:
 
 def field_problems(proc, design) -> dict:
     """Field name -> the procedure's own message for each value it refuses alone."""
-    infos = {f["name"] for f in fields_info(proc.Setup)}
+    infos = {f.name for f in fields_info(proc.Setup)}
     try:
         values = _values(proc, design)
     except InvalidInput as exc:  # a file field: named beside itself
