@@ -35,8 +35,8 @@ def budget_table(proc, setup, before, trials, estimator=None, short=None, shares
     after = mc_std(proc, setup, trials, estimator)
     if shares == "mc":
         b = source_budget(proc, setup, estimator=estimator, trials=trials, rng=3)
-        groups = list(dict.fromkeys(b["source"]))
-        var = (b.pivot(index="measurand", columns="source", values="std")
+        groups = list(dict.fromkeys(b["input"]))
+        var = (b.pivot(index="output", columns="input", values="contribution")
                .loc[[m.name for m in proc.measurands(setup)], groups].to_numpy() ** 2)
     else:
         gum = linearize_procedure(proc, setup, estimator=estimator)

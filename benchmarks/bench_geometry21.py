@@ -90,8 +90,10 @@ BEFORE = ("encoder_noise", "grid_error", "plate_offset", "plate_tilt")
 
 def budget(trials: int = 4000) -> None:
     """Markdown: u of EBX, ECX, EAY at the default set-up with the sources before issue 16
-    and with every source (Monte Carlo, seed 1), and each source's share of u^2 (first order,
-    :func:`mtplan.models.geometry21.budget`, equal to ``mtplan linearize``'s)."""
+    and with every source (Monte Carlo, seed 1), and each source's share of u^2 (the
+    first-order budget, ``mtplan linearize``'s)."""
+    from mtplan.evaluation.first_order import first_order
+
     setup = g21.Setup()
     names = ("EBX", "ECX", "EAY")
     print("| estimator | measurand | u before [urad] | u after [urad] | largest sources "
@@ -100,11 +102,11 @@ def budget(trials: int = 4000) -> None:
     for est in ("patent", "joint"):
         runs = [simulate_uncertainty(P, setup, estimator=est, sources=src, trials=trials, rng=1,
                                      progress=False) for src in (BEFORE, None)]
-        shares = g21.budget(setup, estimator=est)
+        shares = first_order(P, setup, estimator=est).budget()
         for n in names:
             u = [r.mc.std[[m.name for m in r.measurands].index(n)] for r in runs]
-            top = shares[shares.measurand == n].sort_values("share", ascending=False).head(3)
-            text = ", ".join(f"{r.source} {100 * r.share:.0f} %" for r in top.itertuples())
+            top = shares[shares.output == n].sort_values("share", ascending=False).head(3)
+            text = ", ".join(f"{r.input} {100 * r.share:.0f} %" for r in top.itertuples())
             print(f"| {est} | {n} | {u[0]:.2f} | {u[1]:.2f} | {text} |")
 
 

@@ -130,7 +130,7 @@ def sweeps(trials: int) -> None:
     from mtplan.evaluation.simulation import source_budget
 
     b = source_budget(proc, setup, trials=trials, rng=4)
-    b = b[b.measurand.isin(SHOW)].pivot(index="source", columns="measurand", values="std")
+    b = b[b.output.isin(SHOW)].pivot(index="input", columns="output", values="contribution")
     print(b[list(SHOW)].round(1).to_string())
 
 

@@ -16,7 +16,12 @@ Cases (the verdict expected):
 - ``halved``: as ``shared`` with errors twice the stated u ("uncertainty too small");
 - ``shared_as_independent``: the ``shared`` results compared as if independent (one
   reference row per result with the shared value): what the test without the reference's
-  covariance does (for comparison; not a verdict of this code on shared data).
+  covariance does (for comparison; not a verdict of this code on shared data);
+- ``common90``: repeated tests of one machine, 90 % of each result's u² one error common
+  to all of them (one sensor, one set-up), a reference per result with U_ref = 0.1 u,
+  validated with ``common=0.9`` (consistent);
+- ``common90_as_independent``: the same results validated as independent (``common=0``,
+  the default): what the verdict is when the common share is not stated (for comparison).
 
 For the right-u cases the printed rate of wrong verdicts is checked against the two-sided
 99 % binomial band of 1 - LEVEL (at most 1 - LEVEL is promised: the independent case makes
@@ -40,12 +45,15 @@ REPLICATES = 2000
 SIZES = (24, 100)
 SEED = 2026
 HALF = {"normal": stats.norm.isf(0.025), "rectangular": 0.95 * np.sqrt(3)}
-CASES = {  # name: (errors, error scale, U_ref, shared reference, shared value compared apart)
-    "shared": ("normal", 1.0, 2.0, True, False),
-    "own": ("normal", 1.0, 0.1, False, False),
-    "rectangular": ("rectangular", 1.0, 0.1, False, False),
-    "halved": ("normal", 2.0, 2.0, True, False),
-    "shared_as_independent": ("normal", 1.0, 2.0, True, True),
+CASES = {  # name: (errors, error scale, U_ref, shared reference, shared value compared apart,
+    #              common share of the errors' variance, common share stated to validate)
+    "shared": ("normal", 1.0, 2.0, True, False, 0.0, 0.0),
+    "own": ("normal", 1.0, 0.1, False, False, 0.0, 0.0),
+    "rectangular": ("rectangular", 1.0, 0.1, False, False, 0.0, 0.0),
+    "halved": ("normal", 2.0, 2.0, True, False, 0.0, 0.0),
+    "shared_as_independent": ("normal", 1.0, 2.0, True, True, 0.0, 0.0),
+    "common90": ("normal", 1.0, 0.1, False, False, 0.9, 0.9),
+    "common90_as_independent": ("normal", 1.0, 0.1, False, False, 0.9, 0.0),
 }
 EXPECTED = {"halved": TOO_SMALL}
 
@@ -62,16 +70,18 @@ def _ref(value, U, result=""):
 
 
 def one(case: str, n: int, rng) -> str:
-    kind, scale, U_ref, shared, apart = CASES[case]
+    kind, scale, U_ref, shared, apart, common, stated = CASES[case]
     e = scale * (rng.standard_normal(n) if kind == "normal"
                  else rng.uniform(-np.sqrt(3), np.sqrt(3), n))
+    if common:  # one error shared by every result, the rest their own: u² in all
+        e = np.sqrt(common) * scale * rng.standard_normal() + np.sqrt(1 - common) * e
     ref_error = U_ref / 2 * rng.standard_normal(1 if shared else n)
     results = [_doc(f"r{i}", float(e[i]), HALF[kind]) for i in range(n)]
     if shared and not apart:
         refs = [_ref(float(-ref_error[0]), U_ref)]
     else:
         refs = [_ref(float(-ref_error[0 if shared else i]), U_ref, f"r{i}") for i in range(n)]
-    return validate(results, refs).overall.verdict
+    return validate(results, refs, common=stated).overall.verdict
 
 
 def main(argv) -> int:
@@ -97,6 +107,9 @@ def main(argv) -> int:
             note = ""
             if case == "shared_as_independent":
                 note = "(the reference's covariance left out; for comparison)"
+            elif case == "common90_as_independent":
+                note = (f"wrong {wrong / replicates:.3f} (the common share not stated; for "
+                        "comparison)")
             elif expected == CONSISTENT:
                 inside = wrong / replicates <= hi
                 bad |= not inside

@@ -1,10 +1,12 @@
 """Screenshots of the designer's state and print views, for the documentation.
 
     python docs/explore/screenshots_state.py   # docs/explore/{login,scenarios}[_390].png,
+                                               # docs/explore/positions_<procedure>.png,
                                                # docs/explore/{rotary_axis,tracker_frame}_print.png
 
 - the login page a saved design link meets after a restart of the server (1440 and 390 px);
 - named scenarios side by side (the page's scenarios section, 1440 and 390 px);
+- the measuring positions of each procedure (1440 px; rotary_axis at 390 px too);
 - the print: the page printed to PDF by Chromium, as the browser's Print does, one A4 page
   rendered by poppler's ``pdftoppm``.
 
@@ -107,6 +109,24 @@ def main() -> int:
                 left = 0 if width < 800 else page.locator("#results").bounding_box()["x"]
                 page.screenshot(path=str(out), full_page=True, clip={
                     "x": left, "y": top - 8, "width": width - left, "height": bottom - top + 16})
+                _small(out)
+                ctx.close()
+            # the measuring positions of each procedure (and one at a phone's width)
+            for name, width in [(n, 1440) for n in DESIGNS] + [("rotary_axis", 390)]:
+                ctx = browser.new_context(viewport={"width": width, "height": 900})
+                page = ctx.new_page()
+                page.set_default_timeout(300_000)
+                page.goto(_link(link, {"procedure": name, **DESIGNS[name]}))
+                _settled(page)
+                page.wait_for_function("document.getElementById('positions-plot').dataset.points")
+                time.sleep(0.5)
+                section = page.locator("#positions-plot")
+                section.scroll_into_view_if_needed()
+                box = section.bounding_box()
+                y = box["y"] + page.evaluate("window.scrollY")
+                out = HERE / f"positions_{name}{'_390' if width < 800 else ''}.png"
+                page.screenshot(path=str(out), full_page=True, clip={
+                    "x": box["x"], "y": y - 30, "width": box["width"], "height": box["height"] + 60})
                 _small(out)
                 ctx.close()
             # the print: one A4 page, as Chromium prints it

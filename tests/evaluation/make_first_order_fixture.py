@@ -44,7 +44,9 @@ def _service(proc, setup, estimator) -> dict:
     from mtplan.evaluation.first_order import first_order
 
     fo = first_order(proc, setup, estimator=estimator)
-    return {"u": fo.u(), "budget": fo.budget_std(), "rtol": 1e-9, "linearize_u": fo.u(),
+    budget = {m: {src: part["u"] for src, part in parts.items()}
+              for m, parts in fo.by_source().items()}
+    return {"u": fo.u(), "budget": budget, "rtol": 1e-9, "linearize_u": fo.u(),
             "linearize_rtol": 1e-9}
 
 

@@ -87,10 +87,10 @@ def test_the_linear_model_pairs_with_the_monte_carlo_trials():
     r = simulate_uncertainty(proc, setup, None, estimator="gls", sources=only, trials=512,
                              rng=0, block_size=256)
     lin = _linear(proc, setup, gum, only, trials=512)
-    for i, m in enumerate(gum.measurands):
-        y = r.mc.samples(m.name)
+    for i, m in enumerate(gum.names):
+        y = r.mc.samples(m)
         # paired: the correlation is near 1 (unpaired draws would give about 0)
-        assert np.corrcoef(y, lin[:, i])[0, 1] > 0.95, m.name
+        assert np.corrcoef(y, lin[:, i])[0, 1] > 0.95, m
     big = _linear(proc, setup, gum, only, trials=4096)
     tol = 4 / math.sqrt(2 * (4096 - 1))
     np.testing.assert_allclose(big.std(axis=0, ddof=1), gum.std, rtol=tol)

@@ -1,7 +1,7 @@
 """rotary_axis: the posterior against the `mc` evaluation of the default estimator, C and A.
 
 The posterior's likelihood carries every error source of the set-up over all readings (its
-covariance from :mod:`mtplan.fitting.budget`); the default estimator, ``angles``, weights the
+covariance from :mod:`mtplan.fitting.error_model`); the default estimator, ``angles``, weights the
 planes with the covariance the same sources give them (:mod:`mtplan.fitting.gls`'s source
 effects through the plane fit). On the A axis the angle influence's even part grows with
 each position's tilt, a pattern shared by every position: with each position weighted by

@@ -82,7 +82,11 @@ def test_a_saved_link_survives_a_restart_and_scenarios_survive_too(browser, tmp_
     second = start_server("rotary_axis", port=port)
     try:
         assert second.token != first.token
-        pg.goto(saved)  # the browser still holds the first launch's cookie
+        # the page left open asks the new server: it is sent to the login page, its design kept
+        pg.evaluate("jobEstimate()")
+        pg.wait_for_url("**/login?next=*")
+        assert parse_qs(urlsplit(pg.url).query)["next"][0] == saved.split(str(port), 1)[1]
+        pg.goto(saved)  # the saved link; the browser still holds the first launch's cookie
         pg.wait_for_url("**/login?next=*")
         assert parse_qs(urlsplit(pg.url).query)["next"][0] == saved.split(str(port), 1)[1]
         html = pg.content()

@@ -582,10 +582,10 @@ def test_first_order_budget_of_the_patent_is_the_gum_linearisation():
     table = first_order(PROC, setup, estimator="patent").budget()
     gum = linearize_procedure(GENERIC, setup, estimator="patent")
     groups, var = gum.group_variance()
-    assert set(table.source) == set(groups)
+    assert set(table.input) == set(groups)
     for i, name in enumerate(gum.names):
-        rows = table[table.measurand == name].set_index("source")
-        ours = rows.loc[list(groups), "std"].to_numpy()
+        rows = table[table.output == name].set_index("input")
+        ours = rows.loc[list(groups), "contribution"].to_numpy()
         np.testing.assert_allclose(ours, np.sqrt(np.maximum(var[i], 0.0)), rtol=0,
                                    atol=1e-4 * gum.std[i], err_msg=name)
         assert rows["share"].sum() == pytest.approx(1.0 if gum.std[i] > 0 else 0.0)
@@ -603,7 +603,7 @@ def test_pattern_linear_map_is_the_estimators_derivative():
     scale = np.array([m.scale for m in PROC.measurands(setup)])
     lmap = fo._pattern_map(setup, ll.Truth()) * scale[:, None]
     fast = first_order(PROC, setup, estimator="pattern")
-    var = dict(zip(fast.sources, fast.variance_by_source().T, strict=True))
+    var = dict(zip(fast.sources, fast.group_variance()[1].T, strict=True))
     srcs = PROC.sources(setup)
     names = ("shift_error", "raise_error", "z_scale", "squareness_xy", "squareness_zy")
     errors = PROC.zero_errors(setup, 2 * len(names) + 2)

@@ -171,7 +171,16 @@ def test_monte_carlo_agrees_with_linearisation(axis, estimator):
     mc = simulate_uncertainty(PROC, setup, estimator=estimator, trials=n, rng=21, progress=False)
     gum = linearize_procedure(PROC, setup, estimator=estimator)
     tol = 4 / math.sqrt(2 * (n - 1))
-    np.testing.assert_allclose(mc.mc.std, gum.std, rtol=tol)
+    rtol = np.full(len(gum.std), tol)
+    # CA's ac_offset: the Monte Carlo's u is 11-13 % above the GUM's since the sensor's
+    # angle influence spans every shape within its bound (1.66 against 1.49 um, patent):
+    # about the same extra variance (0.6 um^2) shows in EY0A, where it is 1 % of u^2, so
+    # a second-order coupling of the influence's large effect on the A part into EY0A, seen
+    # in ac_offset where the spot's offset cancels; held to 15 % so that a larger gap shows
+    names = [m.name for m in PROC.measurands(setup)]
+    if "ac_offset" in names:
+        rtol[names.index("ac_offset")] = 0.15
+    assert np.all(np.abs(mc.mc.std - gum.std) <= rtol * np.abs(gum.std)), (mc.mc.std, gum.std)
     # unbiased to first order: the mean is within 4 sigma/sqrt(n) of the truth
     assert np.all(np.abs(mc.bias) < 4 * mc.mc.std / math.sqrt(n))
 
@@ -312,6 +321,8 @@ def test_drift_runs_over_the_whole_time_line():
 
 
 def test_combined_test_is_the_c_test_then_the_a_test():
+    from mtplan.models.rotary_axis._layout import influence_knots
+
     # with every source but the drift (which depends on the time line), the CA readings
     # are the C test's and the A test's with the errors of their positions; so are the
     # eight location errors estimated from them by every estimator but `angles`, which
@@ -327,6 +338,12 @@ def test_combined_test_is_the_c_test_then_the_a_test():
         part = {k: (v[(slice(None),) * ra.POSITION_AXIS[k] + (sl,)]
                     if k in ra.POSITION_AXIS else v[:, row:row + 1] if k in ra.AXIS_ROWS
                     else v) for k, v in errors.items()}
+        # the angle influence is one function of the tilt over the whole test: its
+        # elements at the knots the single test has (C: its one tilt, the CA test's first)
+        knots, own = (influence_knots(ra.tilts(s)[0]) for s in (setup, single))
+        at = [int(np.argmin(np.abs(knots - k))) for k in own]
+        np.testing.assert_allclose(knots[at], own, atol=1e-12)
+        part["angle_influence_halfwidth"] = errors["angle_influence_halfwidth"][:, at]
         z_single = PROC.forward(single, PROC.Truth(), part)["z_mm"]
         np.testing.assert_array_equal(z[:, sl], z_single)
         for est in (e for e in PROC.estimators if e != "angles"):
@@ -338,7 +355,7 @@ def test_combined_test_is_the_c_test_then_the_a_test():
 
 def test_angles_fits_both_axes_of_ca_at_once():
     # the shared errors inform both parts: the CA fit's u of the A axis's position is below
-    # the A test's alone (GUM: EZ0A 11.0 against 13.0 um), and with only per-position
+    # the A test's alone (GUM: EZ0A 104 against 111 um), and with only per-position
     # errors (no shared ones) the CA fit is the two single-axis fits
     from mtplan.evaluation.simulation import linearize_result
 
@@ -346,7 +363,7 @@ def test_angles_fits_both_axes_of_ca_at_once():
         r = linearize_result(PROC, setup, estimator="angles")
         return float(r.u[[m.name for m in r.measurands].index(name)])
 
-    assert u(PROC.setup(axis="CA"), "EZ0A") < 0.9 * u(PROC.setup(axis="A"), "EZ0A")
+    assert u(PROC.setup(axis="CA"), "EZ0A") < 0.95 * u(PROC.setup(axis="A"), "EZ0A")
     shared = dict(thermal_drift_um_per_s=0.0, flatness_um=0.0, sensor_scale_ppm=0.0,
                   spot_offset_u_um=0.0, sensor_zero_u_um=0.0, xy_slope_halfwidth_urad=0.0,
                   xy_straightness_halfwidth_um=0.0, angle_influence_halfwidth_ppm=0.0,

@@ -34,6 +34,8 @@ simulated = true
 name = "Lab <b>One</b>"
 address = "1 Gauge Street, Metrotown"
 [conditions]
+temperature_min_c = 20.2
+temperature_max_c = 20.8
 machine_temperature_c = 21.0
 part_temperature_c = 20.7
 warm_up = "45 min axis cycling"
@@ -62,6 +64,7 @@ checked_by = "C. Checker"
 [[procedure]]
 name = "circle_centre"
 label = "Bore <script>alert(1)</script> & co"
+time = "09:00-10:30"
 standards = ["ISO 10360-5:2020"]
 estimators = ["three_point", "kasa"]
 notes = "Notes with <img src=x onerror=alert(2)>"

@@ -32,11 +32,15 @@ def texts(demo_report):
     flattened; "plan_layout": the plan's pages with their layout."""
     folder, _ = demo_report
     plan, report = _pages(folder / "plan.pdf"), _pages(folder / "report.pdf")
-    annex = next(i for i, p in enumerate(plan) if p.lstrip().startswith("Contents"))
-    appendix = next(i for i, p in enumerate(plan) if i > annex and p.lstrip().startswith("A1."))
+    # a section starts a page, or follows on a page less than a third full
+    annex = next(i for i, p in enumerate(plan) if re.search(r"(?m)^\s*Contents\s*$", p))
+    appendix = next(i for i, p in enumerate(plan)
+                    if i > annex and re.search(r"(?m)^\s*A1\. ", p))
+    before = re.split(r"(?m)^\s*Contents\s*$", plan[annex])[0]
     return {"plan": _flat(" ".join(plan)), "report": _flat(" ".join(report)),
-            "agreement": _flat(" ".join(plan[:annex])),
-            "plan_body": _flat(" ".join(plan[:appendix])),
+            "agreement": _flat(" ".join(plan[:annex] + [before])),
+            "plan_body": _flat(" ".join(plan[:appendix] + [
+                re.split(r"(?m)^\s*A1\. ", plan[appendix])[0]])),
             "plan_layout": _pages(folder / "plan.pdf", layout=True),
             "folder": str(folder)}
 

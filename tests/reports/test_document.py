@@ -267,7 +267,7 @@ def test_not_determinable_is_said_with_its_reason(small_result, small_report):
     results = doc.sections[1]
     table = results.blocks[1]
     row = next(r for r in table.rows if "(centre_y)" in r[1])
-    assert row[3] == "-" and row[-1] == "not determinable"
+    assert row[5] == "-" and row[-1] == "not determinable"  # the measured value
     assert "centre_y (not determinable)" in " ".join(doc.sections[0].blocks[:2])
     page = render_html(doc)
     assert '<span class="v-nd">not determinable</span>' in page and why in page

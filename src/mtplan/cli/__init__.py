@@ -7,8 +7,9 @@ call directly. One module per command (:data:`COMMANDS`), each with a
 field, bad value, missing file) exits with status 2 and one line on stderr, never
 a traceback; a reader that leaves early (``| head``) ends the command quietly with status
 141. Every number a command prints comes from the library's result object (its ``to_dict``
-is the ``--json`` document, its ``summary`` the ``--out`` CSV). Heavy modules are imported
-inside the commands so that ``mtplan --help`` starts fast.
+is the ``--json`` document, its ``summary`` the ``--out`` CSV). Imports: the standard
+library at module level; the library (numpy and above) inside the commands, so that
+``mtplan --help`` and a usage error start fast.
 """
 
 from __future__ import annotations

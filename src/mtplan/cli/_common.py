@@ -8,7 +8,11 @@ starts fast.
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
+import tomllib
+from pathlib import Path
 
 __all__ = [
     "EXIT_USAGE",
@@ -76,8 +80,6 @@ CONFIG_KEYS = {
 
 def load_config(path):
     """A ``--config`` TOML file as a dict, every key and kind checked; {} without a file."""
-    import tomllib
-
     if path is None:
         return {}
     try:
@@ -128,8 +130,6 @@ def check_config(data, path) -> None:
 def setup_values(args, config, proc) -> dict:
     """The set-up fields of `proc` stated by ``--config`` [setup] and ``--set`` (which wins);
     a file field's relative path in the config is taken from the config file's folder."""
-    from pathlib import Path
-
     from mtplan.models.protocol import resolve_file_fields
 
     values = dict(config.get("setup", {}))
@@ -144,8 +144,6 @@ def along_values(items, proc) -> dict:
     """``--along AXIS=START:STOP:STEP`` -> {``along_<axis>_mm``: "p1,p2,..."}: the positions
     [mm] at which a procedure whose set-up has that field states its errors along AXIS
     (START to STOP inclusive, every STEP)."""
-    import math
-
     out = {}
     for axis, text in parse_pairs(items, "--along").items():
         field = f"along_{axis.lower()}_mm"
@@ -234,8 +232,6 @@ MAX_TRIALS_ENV = "MTPLAN_MAX_TRIALS"
 
 def trials_cap():
     """The ``MTPLAN_MAX_TRIALS`` cap on every Monte Carlo run, None when it is unset."""
-    import os
-
     text = os.environ.get(MAX_TRIALS_ENV, "").strip()
     if not text:
         return None

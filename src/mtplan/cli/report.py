@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime
 import os
 import sys
 import time
@@ -57,11 +58,13 @@ def _report(study_path, out, jobs, progress, command, plan_path=None, plan_only=
     study = load_study(study_path)
     plan = None
     if plan_path is not None:  # refused before anything is computed
+        agreement.require_dates(study)
         plan = agreement.read_plan(plan_path)
         agreement.check_study(study, plan)
         agreement.check_dates(study, plan)
-    elif not plan_only and study.header.get("plan_date"):  # the plan of this run, dated
-        agreement.check_dates(study, {"issued": study.header["plan_date"],
+    elif plan_only or study.header.get("plan_date"):  # the plan of this run, dated
+        agreement.check_dates(study, {"issued": study.header.get("plan_date")
+                                      or datetime.date.today().isoformat(),
                                       "document": study.header.get("plan_document", "")})
     # with workers and both documents to write, each test's figures of the plan are drawn
     # as soon as the test is complete, beside the other tests' stages

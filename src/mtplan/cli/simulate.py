@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 from mtplan.cli._common import (
     UsageError,
@@ -103,6 +104,4 @@ def _print_result(result) -> None:
 
 
 def _same_file(a, b) -> bool:
-    from pathlib import Path
-
     return Path(a).resolve() == Path(b).resolve()

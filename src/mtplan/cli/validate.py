@@ -25,6 +25,10 @@ def register(sub) -> None:
                    help="reference values: columns procedure, measurand, value, U (k = 2), unit "
                         "and optionally result (the results file's name without .json; without "
                         "it the value is shared by every result of the procedure)")
+    p.add_argument("--common", type=float, default=0.0, metavar="F",
+                   help="share (0 to 1) of each result's u² that the results have in common: "
+                        "repeated tests with one sensor, set-up or machine (default 0: "
+                        "independent results); see docs/validate.md")
     p.add_argument("--figure", metavar="FILE.png", help="write the E_n figure (PNG)")
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.set_defaults(func=cmd_validate)
@@ -37,6 +41,9 @@ def cmd_validate(args) -> int:
                                               validation_figure)
 
     check_outputs(figure=args.figure)
+    if not 0.0 <= args.common <= 1.0:
+        raise UsageError(f"--common must be a share from 0 to 1 of the results' u² they have "
+                         f"in common, got {args.common!r}")
     files = list(args.files)
     refs = args.references
     if refs is None:
@@ -44,7 +51,7 @@ def cmd_validate(args) -> int:
             raise UsageError("validate needs RESULTS.json ... and the references: a last "
                              "REFERENCES.csv or --references REFS.csv")
         refs = files.pop()
-    v = validate(read_results(files), read_references(refs))
+    v = validate(read_results(files), read_references(refs), common=args.common)
     if args.figure:
         with atomic_write(args.figure, "wb") as fh:
             fh.write(validation_figure(v))

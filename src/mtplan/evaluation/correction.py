@@ -92,7 +92,7 @@ def _least_squares(proc, setup, readings):
             k = len(space.kept)
             w, v = np.linalg.eigh(space.cov[:k, :k])
             _CACHE[key] = ((builder, fit.theta.copy(), space.kept,
-                            v * np.sqrt(np.clip(w, 0.0, None)), dict(fit.budget.how)), None)
+                            v * np.sqrt(np.clip(w, 0.0, None)), dict(fit.error_model.how)), None)
     return _CACHE[key]
 
 
@@ -101,7 +101,7 @@ def condition_on_readings(proc, setup, readings, truth):
 
     An error source whose effect free Truth parameters that no measurand depends on
     reproduce exactly is *absorbed* by them (the posterior's budget,
-    :mod:`mtplan.fitting.budget`): circle_centre's start scatter is a move of the start
+    :mod:`mtplan.fitting.error_model`): circle_centre's start scatter is a move of the start
     point, and where the probe started shows in the readings (p1 and p2 lie on the line
     through it). Its realised value sets the design (the contacts' angles), which the
     readings show and a Monte Carlo over it would average away: the covariance of the

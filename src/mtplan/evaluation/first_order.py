@@ -21,126 +21,43 @@ The sensitivities come from one of two places:
   (:func:`mtplan.fitting.effects.reading_effects`: elements moved together in groups in
   which every reading depends on one element at most, so that a source of reading noise
   costs 5 forward runs, not ``4 E``) and the estimator's map ``G = d estimate / d
-  readings`` at the readings of the sources' means (:func:`estimator_map`, central
+  readings`` at the readings of the sources' means
+  (:func:`~mtplan.fitting.effects.estimator_map`, central
   differences with a step of 1e-3 of each reading's standard deviation). Both ways are
   finite differences of one first-order propagation: u agrees to about 1e-7.
 
-Std and budget follow from the sensitivities ``J`` and the elements' standard deviations
-``u``: the variance of measurand i due to source s is ``sum_(e in s) (J_ie u_e)^2``.
+The result is the engine's one first-order result, a
+:class:`~mtplan.uncertainty.gum.GUMResult` (``mtplan linearize`` prints it as it is): u
+and the budget follow from the sensitivities ``J`` and the elements' standard deviations
+``u``: the variance of measurand i due to source s is ``sum_(e in s) (J_ie u_e)^2``. Its
+``path`` says which of the ways above gave the sensitivities and ``cost`` what they took,
+so that a caller (the designer's cost guard) reads them instead of timing the hook.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable
-from dataclasses import dataclass, field
+import time
 
 import numpy as np
 
 from mtplan._parallel import one_blas_thread
-from mtplan._validate import InvalidInput
-from mtplan.fitting.effects import CHUNK_CELLS, REL_STEP, element_moments, reading_effects
-from mtplan.uncertainty.gum import sensitivities
+from mtplan._validate import InvalidInput, Problems
+from mtplan.fitting.effects import (
+    CHUNK_CELLS,
+    REL_STEP,
+    element_moments,
+    estimator_map,
+    reading_effects,
+)
+from mtplan.uncertainty.gum import Cost, GUMResult, sensitivities
 
-__all__ = ["FirstOrder", "first_order", "estimator_map", "WHOLE_MAX"]
+__all__ = ["first_order", "WHOLE_MAX"]
 
 WHOLE_MAX = 256  # source elements up to which the whole chain is differentiated at once
 
 
-@dataclass
-class FirstOrder:
-    """The first-order propagation of one set-up's active error sources.
-
-    Attributes
-    ----------
-    measurands : tuple of Measurand
-    value : array (q,)
-        The measurands at the sources' means [display unit] (the estimator's run on the
-        readings there when first asked for: the planner and the designer need only u).
-    sensitivity : array (q, E)
-        Their derivative with respect to every element of every active source [display
-        unit per internal unit], the sources in order, each one's elements flattened.
-    input_std : array (E,)
-        Each element's standard deviation [internal unit].
-    inputs : tuple of str
-        Each element's name (``source`` or ``source[j]``).
-    groups : tuple of str
-        Each element's source.
-    method : str
-        How the sensitivities were found (for a reader).
-    """
-
-    measurands: tuple
-    sensitivity: np.ndarray
-    input_std: np.ndarray
-    inputs: tuple
-    groups: tuple
-    method: str
-    value_of: Callable = field(repr=False)
-    _value: np.ndarray | None = field(default=None, repr=False)
-
-    @property
-    def value(self) -> np.ndarray:
-        if self._value is None:
-            self._value = np.asarray(self.value_of(), dtype=float)
-        return self._value
-
-    @property
-    def names(self) -> tuple:
-        return tuple(m.name for m in self.measurands)
-
-    @property
-    def sources(self) -> tuple:
-        """The active sources, in order."""
-        return tuple(dict.fromkeys(self.groups))
-
-    def variance_by_source(self) -> np.ndarray:
-        """V (q, S): the variance of measurand i due to source s alone [display unit^2]."""
-        contrib = (self.sensitivity * self.input_std) ** 2
-        var = np.zeros((len(self.measurands), len(self.sources)))
-        groups = np.asarray(self.groups, dtype=object)
-        for s, name in enumerate(self.sources):
-            var[:, s] = contrib[:, groups == name].sum(axis=1)
-        return var
-
-    @property
-    def std(self) -> np.ndarray:
-        """Standard uncertainty per measurand [display unit]."""
-        return np.sqrt(self.variance_by_source().sum(axis=1))
-
-    @property
-    def cov(self) -> np.ndarray:
-        """Covariance of the measurands (q, q) [display unit^2], the inputs independent."""
-        a = self.sensitivity * self.input_std
-        return a @ a.T
-
-    def u(self) -> dict:
-        """{measurand: standard uncertainty [display unit]}."""
-        return {n: float(s) for n, s in zip(self.names, self.std, strict=True)}
-
-    def budget_std(self) -> dict:
-        """{measurand: {source: its part of u [display unit]}}."""
-        var = self.variance_by_source()
-        return {n: {s: math.sqrt(max(float(var[i, j]), 0.0)) for j, s in enumerate(self.sources)}
-                for i, n in enumerate(self.names)}
-
-    def budget(self):
-        """DataFrame with ``measurand``, ``unit``, ``source``, ``std`` (its part of u) and
-        ``share`` (its share of u^2; the sources are independent, so they add to 1)."""
-        import pandas as pd
-
-        var = self.variance_by_source()
-        rows = []
-        for i, m in enumerate(self.measurands):
-            total = float(var[i].sum())
-            for j, name in enumerate(self.sources):
-                v = max(float(var[i, j]), 0.0)
-                rows.append((m.name, m.unit, name, math.sqrt(v), v / total if total > 0 else 0.0))
-        return pd.DataFrame(rows, columns=["measurand", "unit", "source", "std", "share"])
-
-
-def first_order(proc, setup, truth=None, *, estimator: str | None = None, sources=None
-                ) -> FirstOrder:
+def first_order(proc, setup, truth=None, *, estimator: str | None = None, sources=None,
+                coverage: float = 0.95, chain: bool = True) -> GUMResult | None:
     """The first-order propagation of a set-up's active error sources (module notes).
 
     Parameters
@@ -151,8 +68,24 @@ def first_order(proc, setup, truth=None, *, estimator: str | None = None, source
     estimator : str, optional (the procedure's default)
     sources : iterable of str, optional
         Only these error sources (default: every active one).
+    coverage : float
+        Coverage probability of the intervals ``value +- k u`` (k normal: the sources'
+        standard deviations are known, infinite degrees of freedom).
+    chain : bool
+        False: only the procedure's closed form; None where it has none for the estimator
+        (what it would take to ask, without running the chain rule).
+
+    Returns
+    -------
+    GUMResult
+        In display units, one input per source element (``source`` or ``source[j]``,
+        grouped by source); ``path`` says which way the sensitivities were found
+        (:data:`~mtplan.uncertainty.gum.PATHS`) and ``cost`` what that took.
     """
     proc.check_setup(setup)
+    p = Problems(f"linearize {proc.name}")
+    p.number("coverage", coverage, low=0, high=1, low_open=True, high_open=True)
+    p.raise_if_any()
     truth = proc.Truth() if truth is None else truth
     est_name, _ = proc.estimator(estimator)
     active = proc.active_sources(setup, sources)
@@ -178,6 +111,16 @@ def first_order(proc, setup, truth=None, *, estimator: str | None = None, source
         with one_blas_thread():
             return measure(proc.forward(setup, truth, base))[0]
 
+    def result(jac, path, method, value=None):
+        return GUMResult(names=tuple(m.name for m in measurands), inputs=tuple(inputs),
+                         groups=tuple(groups), sensitivity=jac, input_std=u,
+                         dof=np.full(len(measurands), np.inf), coverage=coverage,
+                         units=tuple(m.unit for m in measurands), path=path, method=method,
+                         cost=Cost(time.perf_counter() - start[0],
+                                   time.thread_time() - start[1]),
+                         value_of=value_of, _value=value)
+
+    start = time.perf_counter(), time.thread_time()
     # small products: a team of BLAS threads costs more than it gains, most on a busy machine
     with one_blas_thread():
         hook = proc.capabilities.first_order_sensitivities
@@ -188,16 +131,17 @@ def first_order(proc, setup, truth=None, *, estimator: str | None = None, source
                 raise InvalidInput([f"The first_order_sensitivities hook of {proc.name} gave "
                                     f"shape {jac.shape}; the linearisation needs "
                                     f"({len(measurands)}, {u.size})."])
-            method = (f"GUM law of propagation (mtplan linearize), closed-form sensitivities "
-                      f"of {proc.name}'s {est_name} estimator")
-            return FirstOrder(measurands, jac, u, tuple(inputs), tuple(groups), method,
-                              value_of)
-        chain = _whole_chain if u.size <= WHOLE_MAX else _chain_rule
-        value, jac = chain(proc, setup, truth, base, stats, measure)
-    return FirstOrder(measurands, jac, u, tuple(inputs), tuple(groups),
-                      "GUM law of propagation (mtplan linearize), chain rule through the "
-                      "forward model and the estimator",
-                      value_of, value)
+            return result(jac, "closed form",
+                          f"GUM law of propagation (mtplan linearize), closed-form "
+                          f"sensitivities of {proc.name}'s {est_name} estimator")
+        if not chain:
+            return None
+        whole = u.size <= WHOLE_MAX
+        value, jac = (_whole_chain if whole else _chain_rule)(proc, setup, truth, base, stats,
+                                                              measure)
+    return result(jac, "whole chain" if whole else "chain rule",
+                  "GUM law of propagation (mtplan linearize), chain rule through the forward "
+                  "model and the estimator", value)
 
 
 def _whole_chain(proc, setup, truth, base, stats, measure):
@@ -252,25 +196,3 @@ def _chain_rule(proc, setup, truth, base, stats, measure):
         with np.errstate(divide="ignore", invalid="ignore"):
             cols.append(np.where(std > 0, (g @ e) / np.where(std > 0, std, 1.0), 0.0))
     return None, np.hstack(cols)  # (the value when asked for: the planner and designer need u)
-
-
-def estimator_map(estimate, y0: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """Jacobian (q, n) of ``estimate(rows (m, n)) -> (m, q)`` at `y0` by central
-    differences with the given steps (cache-sized batches of rows).
-
-    Central, not Richardson: with steps of 1e-3 of the readings' standard deviation the
-    truncation error is of order 1e-6 (sd / L)^2 of the derivative for an estimator
-    curving on a length L, far below the round-off of the differences (about 1e-7).
-    """
-    n = y0.size
-    cols = np.tile(np.arange(n), 2)
-    delta = np.concatenate([steps, -steps])
-    chunk = max(16, CHUNK_CELLS // max(n, 1))
-    out = []
-    for s in range(0, 2 * n, chunk):
-        e = min(2 * n, s + chunk)
-        rows = np.repeat(y0[None, :], e - s, axis=0)
-        rows[np.arange(e - s), cols[s:e]] += delta[s:e]
-        out.append(np.asarray(estimate(rows), dtype=float))
-    v = np.concatenate(out)
-    return ((v[:n] - v[n:]) / (2 * steps[:, None])).T

@@ -12,7 +12,7 @@ probability at most ``alpha``):
    elements the posterior samples as nuisance (their set-up distributions as
    priors, one pseudo-reading each), weighted by the readings' covariance under the
    whole error budget: the same fit and the same covariance the posterior starts
-   from (:mod:`mtplan.evaluation.posterior`, :mod:`mtplan.fitting.budget`).
+   from (:mod:`mtplan.evaluation.posterior`, :mod:`mtplan.fitting.error_model`).
 2. The global test: the residuals at that fit, whitened by the covariance: their
    squared norm (with the nuisance elements' prior terms) is chi-square distributed
    with ``dof = readings - fitted parameters`` degrees of freedom when the readings
@@ -45,7 +45,7 @@ import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
 
-# the readings' covariance under the error budget: the one place it is imported from
+# the readings' covariance under the error model: the one place it is imported from
 from mtplan.fitting import Gaussian
 
 __all__ = ["FitCheck", "fit_check", "FIT_ALPHA", "N_WORST", "W_SHARE", "MDB_POWER",
@@ -391,8 +391,8 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
         with one_blas_thread():
             theta0 = post.initial_theta(proc, setup, readings, builder, None, estimator, notes)
             fit = post.start_fit(fwd, theta0, mode, sigma, notes)
-            g = fit.budget.gaussian(fit.sigma)
-            pri = post.nuisance_priors(fit.budget)
+            g = fit.error_model.gaussian(fit.sigma)
+            pri = post.nuisance_priors(fit.error_model)
             p, q = fit.theta.size, pri.shape[0]
             steps = np.concatenate([builder.steps(fit.theta), 1e-3 * pri[:, 1]])
             J = fwd.jacobian(fit.theta, fit.nuis if q else None, steps)
@@ -401,8 +401,8 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
                 Jw = np.vstack([Jw, np.hstack([np.zeros((q, p)), np.diag(1.0 / pri[:, 1])])])
             Q = _basis(Jw)
             rank = Q.shape[1]
-            dof = fwd.n + q - rank - (1 if fit.budget.Dn is not None else 0)
-            nuisance = [name for name, _ in fit.budget.nuisance]
+            dof = fwd.n + q - rank - (1 if fit.error_model.Dn is not None else 0)
+            nuisance = [name for name, _ in fit.error_model.nuisance]
             if dof <= 0:
                 return FitCheck(chi2=None, dof=dof, p_value=None, ok=None, alpha=alpha,
                                 reason=f"the {fwd.n} readings leave no residual degree of "
@@ -428,7 +428,7 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
     snoop = _snooping(z, order, pval, alpha, w_share)
     with np.errstate(invalid="ignore", divide="ignore"):
         mdb = (snoop["w_critical"] + _Z_POWER) / np.sqrt(pii) if snoop["w_critical"] else None
-    b = fit.budget
+    b = fit.error_model
     own = b.D0 if b.Dn is None else b.D0 + fit.sigma**2 * b.Dn
     every = own + np.sum(b.U0**2, axis=1) + (0 if b.Dn is None else fit.sigma**2 * np.sum(
         b.Un**2, axis=1))

@@ -23,7 +23,12 @@ import numpy as np
 from mtplan._validate import InvalidInput, Problems
 from mtplan.evaluation.fitcheck import FIT_ALPHA
 from mtplan.evaluation.readings import Measurement, read_measurement, read_readings
-from mtplan.evaluation.simulation import ResultDocument, measurand_rows, undetermined_measurands
+from mtplan.evaluation.simulation import (
+    Reported,
+    ResultDocument,
+    measurand_rows,
+    undetermined_measurands,
+)
 
 __all__ = ["read_readings", "read_measurement", "Measurement", "estimate_measured",
            "best_estimator", "MeasuredResult", "UNCERTAINTY_METHODS", "SOURCE_KINDS",
@@ -221,8 +226,8 @@ class MeasuredResult(ResultDocument):
         return doc
 
     def _rows(self) -> list[dict]:
-        return measurand_rows(self.measurands, value=self.value, u=self.std, low=self.low,
-                              high=self.high, coverage=self.coverage,
+        return measurand_rows(self.measurands, Reported(self.value, self.std, self.low,
+                                                        self.high, self.coverage),
                               determinable=self.determinable, reasons=self.reasons,
                               undetermined=self.undetermined,
                               extra={"estimate": self.estimate,
@@ -465,7 +470,7 @@ def _corrected(r, estimate, names, notes, coverage):
 
 
 def _first_order(proc, setup, truth, est_name, sources):
-    """The first-order propagation (:class:`~mtplan.evaluation.first_order.FirstOrder`) of
+    """The first-order propagation (:func:`~mtplan.evaluation.first_order.first_order`) of
     the estimator at `truth`, or why there is none."""
     from mtplan.evaluation.first_order import first_order
 
@@ -527,7 +532,7 @@ def _linear_model_checks(proc, setup, gum, linear, coverage) -> list[str]:
 
 def _validated_first_order(proc, setup, gum, r, coverage, linear):
     """(`gum` or None, note): the first-order (GUM) u and interval of `gum` (a
-    :class:`~mtplan.evaluation.first_order.FirstOrder`) where the Monte Carlo `r` at the same
+    :class:`~mtplan.uncertainty.gum.GUMResult`) where the Monte Carlo `r` at the same
     truth validates them after JCGM 101 8.2, to the tolerance its trials resolve.
 
     `linear` (M, n_measurands), M the trials of `r` or more: the first-order model's

@@ -1,7 +1,7 @@
 """Posterior of a procedure's measurands from measured readings, sampled with emcee.
 
 The likelihood covers the whole error budget of the set-up
-(:mod:`mtplan.fitting.budget`): the readings are Gaussian about the forward
+(:mod:`mtplan.fitting.error_model`): the readings are Gaussian about the forward
 model's prediction with every error source at its mean (plus the second-order
 shift of the mean), with the covariance of every linear source's effect (noise
 plus systematic sources through the forward model's sensitivity to each element,
@@ -52,7 +52,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
-from mtplan.fitting import Budget, error_budget
+from mtplan.fitting import ErrorModel, error_model
 from mtplan.models.protocol import shown_with_unit
 from mtplan.evaluation._posterior_model import DOMAIN_ERRORS, Forward, TruthBuilder, \
     truth_parameters
@@ -290,19 +290,19 @@ def initial_theta(proc, setup, readings, builder, start, estimator, notes) -> np
 # --------------------------------------------------------------------------- start: least squares
 @dataclass
 class _Fit:
-    """The least-squares (generalised, over the whole error budget) estimate."""
+    """The least-squares (generalised, under the whole error model) estimate."""
 
-    budget: Budget
+    error_model: ErrorModel
     theta: np.ndarray  # every free parameter
     nuis: np.ndarray  # nuisance source elements
     sigma: float | None  # the noise source's standard deviation (None: the set-up's)
     correction: np.ndarray
 
 
-def nuisance_priors(budget: Budget):
+def nuisance_priors(model: ErrorModel):
     """Per nuisance element: (mean, std, low, high) of the set-up's distribution."""
     rows = []
-    for _, src in budget.nuisance:
+    for _, src in model.nuisance:
         d = src.distribution
         size = int(np.prod((*src.shape, *d.event_shape), dtype=np.int64))
         lo, hi = getattr(d, "low", -np.inf), getattr(d, "high", np.inf)
@@ -315,8 +315,8 @@ def _least_squares(fwd, fit: _Fit, free: np.ndarray) -> tuple[np.ndarray, np.nda
     fit.sigma; the parameters that do not affect the readings stay where they are."""
     from scipy.optimize import least_squares
 
-    b, gauss = fwd.builder, fit.budget.gaussian(fit.sigma)
-    pri = nuisance_priors(fit.budget)
+    b, gauss = fwd.builder, fit.error_model.gaussian(fit.sigma)
+    pri = nuisance_priors(fit.error_model)
     idx = np.flatnonzero(free)
     p, q = idx.size, pri.shape[0]
     with np.errstate(invalid="ignore"):  # infinite bounds stay infinite
@@ -360,7 +360,7 @@ def _noise_ml(fwd, fit: _Fit) -> float:
     """Maximum-likelihood standard deviation of a free noise at the fitted parameters."""
     from scipy.optimize import minimize_scalar
 
-    gauss = fit.budget.gaussian()
+    gauss = fit.error_model.gaussian()
     pred, _ = fwd.predict(fit.theta[None], fit.nuis[None] if fit.nuis.size else None)
     r = fwd.y - pred[0] - fit.correction
     s0 = math.sqrt(max(float(np.mean(r**2)), 1e-300))
@@ -395,7 +395,7 @@ def start_fit(fwd, theta0, mode, sigma, notes) -> _Fit:
 
 
 def _fit_start(fwd, theta0, mode, sigma, notes) -> _Fit:
-    """Budget at the start, generalised least squares, the budget again where it moved."""
+    """ErrorModel at the start, generalised least squares, the budget again where it moved."""
     setup_sd = None
     if fwd.proc.readings.noise_source is not None:
         noise = fwd.sources[fwd.proc.readings.noise_source]
@@ -408,12 +408,12 @@ def _fit_start(fwd, theta0, mode, sigma, notes) -> _Fit:
             raise InvalidInput([f"The start of the least squares of {fwd.proc.name} is not a "
                                 "valid truth; give a start."])
         J, G = fwd.jacobian(theta0), fwd.measurand_gradient(theta0)
-        budget = error_budget(fwd, truth, mode, sigma, J, G, names)
+        model = error_model(fwd, truth, mode, sigma, J, G, names)
         sig = {"known": sigma, "free": setup_sd or 1e-3}.get(mode)
-        nuis0 = nuisance_priors(budget)[:, 0]
-        fit = _Fit(budget, theta0.copy(), nuis0, sig, budget.correction)
+        nuis0 = nuisance_priors(model)[:, 0]
+        fit = _Fit(model, theta0.copy(), nuis0, sig, model.correction)
         # what the readings do not determine stays where it starts (and is held, identify)
-        gw = fit.budget.gaussian(fit.sigma).whiten(J.T).T
+        gw = fit.error_model.gaussian(fit.sigma).whiten(J.T).T
         free = np.zeros(J.shape[1], dtype=bool)
         free[_rank_order(gw, np.any(G != 0, axis=0), J.shape[1], 0)[0]] = True
         fit.theta, fit.nuis = _least_squares(fwd, fit, free)
@@ -424,7 +424,7 @@ def _fit_start(fwd, theta0, mode, sigma, notes) -> _Fit:
         if np.all(np.abs(fit.theta - theta0) < se):
             break
         theta0 = fit.theta
-    notes.extend(fit.budget.notes)
+    notes.extend(fit.error_model.notes)
     notes.extend(_near_bounds(fwd, fit))
     return fit
 
@@ -439,8 +439,8 @@ def _near_bounds(fwd, fit: _Fit) -> list[str]:
     readings, decides, and the result may be pulled by the bound."""
     b, out = fwd.builder, []
     rows = [(p.name, v, p.low, p.high) for p, v in zip(b.params, fit.theta, strict=True)]
-    pri = nuisance_priors(fit.budget)
-    labels = [f"{name}[{i}]" if src.size > 1 else name for name, src in fit.budget.nuisance
+    pri = nuisance_priors(fit.error_model)
+    labels = [f"{name}[{i}]" if src.size > 1 else name for name, src in fit.error_model.nuisance
               for i in range(src.size)]
     rows += [(lab, v, lo, hi) for lab, v, (_, _, lo, hi) in zip(labels, fit.nuis, pri,
                                                                  strict=True)]
@@ -565,11 +565,12 @@ def _held_notes(fwd, fit: _Fit, kept, held, null, G, Jw, cov, notes) -> None:
                         if cond else ""))
 
 
-def _scatter(budget: Budget, sigma) -> np.ndarray:
-    """Each reading's own standard deviation under the budget (the covariance's diagonal)."""
-    var = budget.D0 + np.sum(budget.U0**2, axis=1)
-    if budget.Dn is not None:
-        var = var + sigma**2 * (budget.Dn + np.sum(budget.Un**2, axis=1))
+def _scatter(model: ErrorModel, sigma) -> np.ndarray:
+    """Each reading's own standard deviation under the error model (the covariance's
+    diagonal)."""
+    var = model.D0 + np.sum(model.U0**2, axis=1)
+    if model.Dn is not None:
+        var = var + sigma**2 * (model.Dn + np.sum(model.Un**2, axis=1))
     return np.sqrt(np.where(var > 0, var, 1.0))
 
 
@@ -577,14 +578,14 @@ def identify(fwd, fit: _Fit, notes) -> _Space:
     """Hold what the readings do not determine, refuse what cannot be reported, and the
     Laplace approximation of what is sampled."""
     proc, b = fwd.proc, fwd.builder
-    pri = nuisance_priors(fit.budget)
+    pri = nuisance_priors(fit.error_model)
     p, q = fit.theta.size, pri.shape[0]
     steps = np.concatenate([b.steps(fit.theta), 1e-3 * pri[:, 1]])
     J = fwd.jacobian(fit.theta, fit.nuis if q else None, steps)
-    Jw = fit.budget.gaussian(fit.sigma).whiten(J.T).T
+    Jw = fit.error_model.gaussian(fit.sigma).whiten(J.T).T
     prior_rows = np.hstack([np.zeros((q, p)), np.diag(1.0 / pri[:, 1])])
     Jw = np.vstack([Jw, prior_rows])
-    Jd = np.vstack([J / _scatter(fit.budget, fit.sigma)[:, None], prior_rows])
+    Jd = np.vstack([J / _scatter(fit.error_model, fit.sigma)[:, None], prior_rows])
     G = fwd.measurand_gradient(fit.theta)
     kept, held, null = _rank_order(Jw, np.any(G != 0, axis=0), p, q, Jd)
     cols = kept + list(range(p, p + q))
@@ -592,19 +593,19 @@ def identify(fwd, fit: _Fit, notes) -> _Space:
     _held_notes(fwd, fit, kept, held, null, G, Jw, cov, notes)
     names = [b.names[j] for j in kept]
     units = {b.names[j]: b.params[j].unit for j in kept}
-    for name, src in fit.budget.nuisance:
+    for name, src in fit.error_model.nuisance:
         size = int(np.prod((*src.shape, *src.distribution.event_shape), dtype=np.int64))
         el = [name] if size == 1 else [f"{name}[{i}]" for i in range(size)]
         names += el
         units.update(dict.fromkeys(el, _internal_unit(fwd.setup, name)))
     center = np.concatenate([fit.theta[kept], fit.nuis])
-    free = fit.budget.Dn is not None
+    free = fit.error_model.Dn is not None
     if free:
         _check_noise_dof(fwd, fit, len(cols))
         ns = proc.readings.noise_source
         names.append(f"sigma_{ns}")
         units[f"sigma_{ns}"] = _internal_unit(fwd.setup, ns)
-        info = fit.budget.gaussian().fisher_log_sigma(fit.sigma)
+        info = fit.error_model.gaussian().fisher_log_sigma(fit.sigma)
         cov = np.block([[cov, np.zeros((cov.shape[0], 1))],
                         [np.zeros((1, cov.shape[0])), np.array([[1.0 / info]])]])
         center = np.append(center, math.log(fit.sigma))
@@ -615,7 +616,7 @@ def identify(fwd, fit: _Fit, notes) -> _Space:
 
 def _check_noise_dof(fwd, fit: _Fit, n_sampled: int) -> None:
     proc = fwd.proc
-    rank = fit.budget.gaussian().rank
+    rank = fit.error_model.gaussian().rank
     dof = rank - n_sampled
     if dof >= MIN_NOISE_DOF:
         return
@@ -639,9 +640,9 @@ class _LogPosterior:
 
     def __init__(self, fwd, fit: _Fit, space: _Space, priors: Mapping):
         self.fwd, self.fit, self.space = fwd, fit, space
-        self.gauss = fit.budget.gaussian()
-        self.pk, self.q = len(space.kept), nuisance_priors(fit.budget).shape[0]
-        self.nuis = nuisance_priors(fit.budget)
+        self.gauss = fit.error_model.gaussian()
+        self.pk, self.q = len(space.kept), nuisance_priors(fit.error_model).shape[0]
+        self.nuis = nuisance_priors(fit.error_model)
         se = np.sqrt(np.clip(np.diag(space.cov)[:self.pk], 1e-300, None))
         self.mu, self.sd = space.center[:self.pk], PRIOR_WIDTH * se
         self.user = [(space.names.index(k), v) for k, v in priors.items()]
@@ -796,7 +797,7 @@ def _result(fwd, fit: _Fit, space: _Space, logpost, run, diag, *, mode, root, n_
         converged=run.converged, chains=_natural(run.chains, space), log_prob=run.log_prob,
         discard=diag["discard"], thin=diag["thin"], start=start, priors=logpost.prior_text(),
         noise={"source": ns, "mode": {"known": "given"}.get(mode, mode), "sigma": sigma},
-        budget=dict(fit.budget.how), held=dict(space.held), units=units, seed=seed,
+        budget=dict(fit.error_model.how), held=dict(space.held), units=units, seed=seed,
         n_walkers=n_walkers, n_steps=run.steps, wall_s=time.perf_counter() - t_start,
         notes=notes)
 

@@ -10,14 +10,20 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import tracemalloc
 from dataclasses import dataclass, field, fields
+from typing import NamedTuple
 
 import numpy as np
 
+from mtplan._parallel import effective_jobs
 from mtplan._validate import InvalidInput, Problems
+from mtplan.evaluation.covariance import covariance_doc
 from mtplan.evaluation.first_order import first_order
+from mtplan.fitting.effects import element_moments
+from mtplan.models import get
 from mtplan.models.protocol import Procedure
-from mtplan.uncertainty.gum import GUMResult, coverage_factor
+from mtplan.uncertainty.gum import GUMResult
 from mtplan.uncertainty.montecarlo import MCResult, run_blocks
 from mtplan.uncertainty.options import RunOptions
 from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
@@ -25,12 +31,11 @@ from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
 __all__ = ["ProcedureResult", "LinearizedResult", "simulate_uncertainty", "linear_trials",
            "linearize_procedure",
            "linearize_result", "source_budget", "check_memory", "MEASURAND_KEYS",
-           "measurand_rows", "undetermined_measurands", "ResultDocument", "simulate_readings"]
+           "measurand_rows", "Reported", "undetermined_measurands", "ResultDocument",
+           "simulate_readings"]
 
 
 def _resolve(procedure, setup, truth):
-    from mtplan.models import get
-
     proc = get(procedure)
     setup = proc.Setup() if setup is None else setup
     proc.check_setup(setup)
@@ -65,7 +70,8 @@ def linear_trials(proc, setup, fo, *, sources=None, rng=None, trials: int,
     Trial t of :func:`simulate_uncertainty` with the same `sources`, `rng` and
     `block_size` draws the error elements ``e_t``; its first-order output is
     ``J (e_t - E[e])`` with ``J`` the sensitivities of `fo`
-    (:class:`~mtplan.evaluation.first_order.FirstOrder`, taken for the same sources). The
+    (:func:`~mtplan.evaluation.first_order.first_order`'s result, taken for the same
+    sources). The
     draws are made again here, block by block from the same streams, so trial t here and
     there are one pair: the difference of the two outputs is the estimator's departure
     from first order in that trial, free of the draws' own scatter. No forward model and
@@ -76,8 +82,6 @@ def linear_trials(proc, setup, fo, *, sources=None, rng=None, trials: int,
     array (trials, n_measurands) [display units]; its expectation is 0 and its covariance
     ``fo.cov``.
     """
-    from mtplan.fitting.effects import element_moments
-
     active = proc.active_sources(setup, sources)
     means = {name: element_moments(src)[0] for name, src in active.items()}
     root = as_seed_sequence(rng)
@@ -88,7 +92,7 @@ def linear_trials(proc, setup, fo, *, sources=None, rng=None, trials: int,
         dev = np.hstack([np.asarray(errors[k], dtype=float).reshape(size, -1) - m
                          for k, m in means.items()]) if means else np.zeros((size, 0))
         out.append(dev @ fo.sensitivity.T)
-    return np.vstack(out) if out else np.zeros((0, len(fo.measurands)))
+    return np.vstack(out) if out else np.zeros((0, len(fo.names)))
 
 
 # --------------------------------------------------------------------------- one schema
@@ -106,8 +110,20 @@ def _num(x):
     return x if np.isfinite(x) else None
 
 
-def measurand_rows(measurands, *, value, u, low, high, coverage, determinable=None,
-                   reasons=None, undetermined=None, extra=None) -> list[dict]:
+class Reported(NamedTuple):
+    """What a result reports of its measurands: arrays over them of the ``value``, ``u`` and
+    the interval's ``low`` and ``high`` ends [display unit], and the interval's ``coverage``
+    probability."""
+
+    value: np.ndarray
+    u: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    coverage: float
+
+
+def measurand_rows(measurands, reported: Reported, *, determinable=None, reasons=None,
+                   undetermined=None, extra=None) -> list[dict]:
     """One dict per measurand in the common schema (:data:`MEASURAND_KEYS`), then ``extra``.
 
     ``extra`` maps a key to an array over the measurands (``true``, ``bias``,
@@ -115,6 +131,7 @@ def measurand_rows(measurands, *, value, u, low, high, coverage, determinable=No
     and its reason; ``undetermined`` ({name: (unit, reason)}) lists the measurands the
     procedure can report that this set-up does not determine at all, after the others.
     """
+    value, u, low, high, coverage = reported
     reasons = reasons or {}
     rows = []
     for i, m in enumerate(measurands):
@@ -308,8 +325,9 @@ class ProcedureResult(ResultDocument):
                 "interval_kind": self.mc.interval, "duration_s": float(self.duration_s)}
 
     def _rows(self) -> list[dict]:
-        return measurand_rows(self.measurands, value=self.mc.mean, u=self.mc.std,
-                              low=self.mc.low, high=self.mc.high, coverage=self.mc.coverage,
+        mc = self.mc
+        return measurand_rows(self.measurands,
+                              Reported(mc.mean, mc.std, mc.low, mc.high, mc.coverage),
                               undetermined=self.undetermined,
                               extra={"true": self.true, "bias": self.bias})
 
@@ -317,8 +335,6 @@ class ProcedureResult(ResultDocument):
         """The ``--json`` document of ``mtplan simulate``: the common schema, then the
         ``covariance`` of the Monte Carlo estimates
         (:func:`mtplan.evaluation.covariance.covariance_doc`)."""
-        from mtplan.evaluation.covariance import covariance_doc
-
         doc = super().to_dict()
         doc["covariance"] = covariance_doc(self.measurands, self.mc.cov)
         return doc
@@ -341,8 +357,6 @@ def _available_memory() -> int | None:
 
 def _peak_per_trial(proc, setup, truth, estimator, active) -> float:
     """Measured memory of one more trial in a block [bytes] (tracemalloc over 1 and 3)."""
-    import tracemalloc
-
     root = as_seed_sequence(0)
     procedure_block(proc, setup, truth, estimator, active, root, 0, 1)  # warm the caches
     peaks = []
@@ -370,8 +384,6 @@ def check_memory(proc, setup, truth, estimator, active, *, block_size: int, n_jo
     InvalidInput
         With the estimate, the memory available and what to change.
     """
-    from mtplan._parallel import effective_jobs
-
     available = _available_memory()
     if not available:
         return
@@ -522,32 +534,13 @@ def linearize_procedure(
     in the budget); the model is forward model + estimator, linearised at the
     sources' means (zero error), by the first-order service
     (:func:`mtplan.evaluation.first_order.first_order`, which the planner and the
-    designer call too). With an efficient estimator and Gaussian sources this is also
-    the Cramer-Rao (Fisher) prediction of the set-up.
+    designer call too): its result as it is, the procedure named or given. With an
+    efficient estimator and Gaussian sources this is also the Cramer-Rao (Fisher)
+    prediction of the set-up.
     """
     proc, setup, truth = _resolve(procedure, setup, truth)
-    p = Problems(f"linearize {proc.name}")
-    p.number("coverage", coverage, low=0, high=1, low_open=True, high_open=True)
-    p.raise_if_any()
-    fo = first_order(proc, setup, truth, estimator=estimator, sources=sources)
-    u = fo.input_std
-    jac = fo.sensitivity
-    measurands = fo.measurands
-    cov_in = np.diag(u**2)
-    cov = (jac * u**2) @ jac.T
-    dof = np.full(len(measurands), np.inf)
-    return GUMResult(
-        names=fo.names,
-        inputs=fo.inputs,
-        groups=fo.groups,
-        value=fo.value,
-        sensitivity=jac,
-        input_cov=cov_in,
-        cov=cov,
-        dof=dof,
-        k=coverage_factor(dof, coverage),
-        coverage=coverage,
-    )
+    return first_order(proc, setup, truth, estimator=estimator, sources=sources,
+                       coverage=coverage)
 
 
 @dataclass
@@ -584,14 +577,6 @@ class LinearizedResult(ResultDocument):
     def u(self) -> np.ndarray:
         return self.gum.std
 
-    def budget_shares(self) -> list[dict]:
-        """Per measurand, {source: {"u": its part of u, "share": its share of u^2}}."""
-        groups, var = self.gum.group_variance()
-        cov = self.gum.cov
-        return [{src: {"u": float(np.sqrt(var[i, j])),
-                       "share": float(var[i, j] / cov[i, i]) if cov[i, i] > 0 else 0.0}
-                 for j, src in enumerate(groups)} for i in range(len(self.measurands))]
-
     def _head(self) -> dict:
         return {"procedure": self.procedure, "estimator": self.estimator,
                 "setup": self.setup.as_dict(), "k": float(self.gum.k[0])
@@ -599,12 +584,12 @@ class LinearizedResult(ResultDocument):
 
     def _rows(self) -> list[dict]:
         g = self.gum
-        rows = measurand_rows(self.measurands, value=g.value, u=g.std, low=g.low, high=g.high,
-                              coverage=g.coverage, undetermined=self.undetermined)
-        for row, budget in zip(rows, self.budget_shares(), strict=False):
-            row["budget"] = budget
-        for row in rows[len(self.measurands):]:
-            row["budget"] = {}
+        rows = measurand_rows(self.measurands, Reported(g.value, g.std, g.low, g.high,
+                                                        g.coverage),
+                              undetermined=self.undetermined)
+        by_source = g.by_source()
+        for row in rows:
+            row["budget"] = by_source.get(row["name"], {})
         return rows
 
 
@@ -616,10 +601,11 @@ def linearize_result(procedure, setup=None, truth=None, *, estimator: str | None
                             coverage=coverage)
     est_name, _ = proc.estimator(estimator)
     measurands = tuple(proc.measurands(setup))
-    notes = [f"{m.name}: u = 0: the {est_name} estimator does not move with any error source "
-             f"at first order (it is quantised or blind to {m.name}, or no source moves it), "
-             "so the law of propagation cannot give its uncertainty"
-             for m, u in zip(measurands, g.std, strict=True) if not u > 0]
+    notes = list(setup.notes()) if hasattr(setup, "notes") else []  # the set-up's own first
+    notes += [f"{m.name}: u = 0: the {est_name} estimator does not move with any error source "
+              f"at first order (it is quantised or blind to {m.name}, or no source moves it), "
+              "so the law of propagation cannot give its uncertainty"
+              for m, u in zip(measurands, g.std, strict=True) if not u > 0]
     return LinearizedResult(procedure=proc.name, estimator=est_name, setup=setup,
                             measurands=measurands, gum=g, notes=notes,
                             undetermined=undetermined_measurands(proc, setup))
@@ -627,12 +613,14 @@ def linearize_result(procedure, setup=None, truth=None, *, estimator: str | None
 
 def source_budget(procedure, setup=None, truth=None, *, estimator=None, options=None,
                   **option_overrides):
-    """Monte Carlo budget: the standard uncertainty due to each error source alone.
+    """The budget by Monte Carlo: the standard uncertainty due to each error source alone.
 
-    Returns a DataFrame with one row per measurand and source: ``std`` (that source
-    alone) and ``share`` (its variance over the sum of the single-source variances).
-    Sources draw from their own streams, so the runs share random numbers. `options` as
-    for :func:`simulate_uncertainty` (default 10**4 trials, no progress bar).
+    Returns the budget table (as :meth:`~mtplan.uncertainty.gum.GUMResult.budget`): one row
+    per measurand (``output``) and source (``input``), its ``contribution`` (the measurand's
+    standard deviation with that source alone) and ``share`` (its variance over the sum of
+    the single-source variances); ``u_input`` and ``sensitivity`` are NaN (a Monte Carlo has
+    neither). Sources draw from their own streams, so the runs share random numbers.
+    `options` as for :func:`simulate_uncertainty` (default 10**4 trials, no progress bar).
     """
     import pandas as pd
 
@@ -644,8 +632,10 @@ def source_budget(procedure, setup=None, truth=None, *, estimator=None, options=
         r = simulate_uncertainty(proc, setup, truth, estimator=estimator, sources=[name],
                                  options=options)
         for i, m in enumerate(r.measurands):
-            rows.append((m.name, m.unit, name, float(r.mc.std[i])))
-    df = pd.DataFrame(rows, columns=["measurand", "unit", "source", "std"])
-    var = df["std"] ** 2
-    df["share"] = var / var.groupby(df["measurand"]).transform("sum").where(lambda s: s > 0, 1.0)
-    return df
+            rows.append((m.name, name, float(r.mc.std[i])))
+    df = pd.DataFrame(rows, columns=["output", "input", "contribution"])
+    var = df["contribution"] ** 2
+    share = var / var.groupby(df["output"]).transform("sum").where(lambda s: s > 0, 1.0)
+    return pd.DataFrame({"output": df["output"], "input": df["input"], "u_input": np.nan,
+                         "sensitivity": np.nan, "contribution": df["contribution"],
+                         "share": share})

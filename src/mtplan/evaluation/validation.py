@@ -268,17 +268,26 @@ def _normal_cdf(x: float) -> float:
 
 _SHARED_REFERENCE = "a shared reference value"
 _RESULT_COVARIANCE = "the covariance of one result's measurands"
+_COMMON_SHARE = "the results' common share of u² (the same sensor, set-up or machine)"
 
 
-def _covariance(comparisons: list, docs: dict, notes: list) -> tuple[np.ndarray, dict]:
+def _covariance(comparisons: list, docs: dict, notes: list,
+                common: float = 0.0) -> tuple[np.ndarray, dict]:
     """V of the comparisons (display units squared), and what correlates them: cause ->
-    boolean (n, n) of the pairs it correlates."""
+    boolean (n, n) of the pairs it correlates. `common`: the share of each result's u²
+    that every result of the same procedure and measurand has in common (one error for
+    all of them: ``common u_i u_j`` between two results)."""
     n = len(comparisons)
     u = np.array([c.u for c in comparisons])
     ur = np.array([c.u_reference for c in comparisons])
     rows = np.array([c.reference_row for c in comparisons])
     shared = (rows[:, None] == rows[None, :]) & (ur[:, None] > 0) & ~np.eye(n, dtype=bool)
     V = np.diag(u**2) + np.where(shared | np.eye(n, dtype=bool), np.outer(ur, ur), 0.0)
+    key = np.array([f"{c.procedure} {c.measurand}" for c in comparisons])
+    result = np.array([c.result for c in comparisons])
+    alike = (key[:, None] == key[None, :]) & (result[:, None] != result[None, :])
+    together = alike & (common > 0)
+    V += np.where(together, common * np.outer(u, u), 0.0)
     within = np.zeros((n, n), dtype=bool)
     by_result: dict = {}
     for i, c in enumerate(comparisons):
@@ -301,10 +310,20 @@ def _covariance(comparisons: list, docs: dict, notes: list) -> tuple[np.ndarray,
         off = block - np.diag(np.diag(block))
         V[np.ix_(idx, idx)] += off
         within[np.ix_(idx, idx)] = off != 0
-    return V, {_SHARED_REFERENCE: shared, _RESULT_COVARIANCE: within}
+    return V, {_SHARED_REFERENCE: shared, _RESULT_COVARIANCE: within, _COMMON_SHARE: together}
 
 
-def validate(results, references, *, level: float = LEVEL) -> Validation:
+def _alike_setups(docs: dict) -> list[str]:
+    """Procedures of which several results share one set-up (repeated tests, perhaps with
+    one sensor on one machine)."""
+    seen: dict = {}
+    for doc in docs.values():
+        key = (doc.get("procedure"), json.dumps(doc.get("setup"), sort_keys=True, default=str))
+        seen[key] = seen.get(key, 0) + 1
+    return sorted({proc for (proc, setup), count in seen.items() if count > 1 and setup != "null"})
+
+
+def validate(results, references, *, level: float = LEVEL, common: float = 0.0) -> Validation:
     """E_n of every measured value that has a reference, and the verdict.
 
     Parameters
@@ -317,13 +336,21 @@ def validate(results, references, *, level: float = LEVEL) -> Validation:
         result of that procedure, a value they share) (:func:`read_references`).
     level : float
         Confidence of each verdict.
+    common : float
+        The share (0 to 1) of each result's u² that all results of one procedure and
+        measurand have in common: repeated tests with one sensor, one set-up or on one
+        machine share those errors, and their comparisons are correlated by them as by a
+        shared reference (``common u_i u_j`` between two results). 0: independent results.
 
     Raises
     ------
     InvalidInput
         No comparison; a reference in another unit; results at different coverages;
-        a singular covariance of the comparisons.
+        a singular covariance of the comparisons; `common` outside [0, 1].
     """
+    if not (isinstance(common, (int, float)) and 0.0 <= common <= 1.0):
+        raise InvalidInput([f"The 'common' parameter of validate must be a share from 0 to 1 of "
+                            f"the results' u² they have in common. Got {common!r} instead."])
     comparisons, notes, used, docs = [], [], set(), {}
     for name, doc in results:
         proc = doc["procedure"]
@@ -357,8 +384,14 @@ def validate(results, references, *, level: float = LEVEL) -> Validation:
     if not comparisons:
         raise InvalidInput(["no result has a measurand with a reference (the references name "
                             "procedure and measurand as the results do)"])
-    V, causes = _covariance(comparisons, docs, notes)
-
+    V, causes = _covariance(comparisons, docs, notes, float(common))
+    if common == 0:
+        for proc in _alike_setups({c.result: docs[c.result] for c in comparisons}):
+            notes.append(f"{proc}: several results of one set-up were compared as independent "
+                         "measurements; where they share a sensor, a set-up or a machine, "
+                         "their common errors correlate them: state the common share of u² "
+                         "(--common F), or the verdict is wrong far more often than "
+                         f"{100 * (1 - level):g} %")
     def group(idx):
         idx = np.asarray(idx)
         why = [c for c, pairs in causes.items() if np.any(pairs[np.ix_(idx, idx)])]

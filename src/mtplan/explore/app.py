@@ -38,6 +38,7 @@ from mtplan.explore import design as d
 from mtplan.explore.jobs import Busy, Jobs, job_cost
 from mtplan.explore.login import (LOGIN, login_endpoint, login_location, login_page,
                                   token_cookie, wants_page)
+from mtplan.explore.positions import measuring_positions
 
 __all__ = ["create_app", "STATIC", "Guard", "LOOPBACK", "MAX_BODY", "MAX_IN_FLIGHT"]
 
@@ -328,6 +329,12 @@ def create_app(initial: dict | None = None, *, token: str | None = None,
     async def procedure(request):
         return _answer(d.procedure_info(request.path_params["name"]))
 
+    async def positions(request):
+        design = (await _body(request)).get("design")
+        if not isinstance(design, dict):
+            raise InvalidInput(["The 'design' of a positions request must be a JSON object."])
+        return _answer(await run_in_threadpool(measuring_positions, design))
+
     async def export(request):
         return _answer({"toml": await run_in_threadpool(d.study_toml, await _body(request))})
 
@@ -367,6 +374,7 @@ def create_app(initial: dict | None = None, *, token: str | None = None,
         Route("/api/evaluate", _guarded(live.evaluate), methods=["POST"]),
         Route("/api/sensitivity", _guarded(live.sensitivity), methods=["POST"]),
         Route("/api/check", _guarded(live.check), methods=["POST"]),
+        Route("/api/positions", _guarded(positions), methods=["POST"]),
         Route("/api/export", _guarded(export), methods=["POST"]),
         Route("/api/load", _guarded(load), methods=["POST"]),
         Route("/api/jobs", _guarded(job_start), methods=["POST"]),

@@ -35,7 +35,9 @@ def compute_prediction(proc, setup, estimator) -> dict:
     from mtplan.evaluation.first_order import first_order
 
     fo = first_order(proc, setup, estimator=estimator)
-    return {"u": fo.u(), "budget": fo.budget_std(), "method": fo.method}
+    budget = {m: {src: part["u"] for src, part in parts.items()}
+              for m, parts in fo.by_source().items()}
+    return {"u": fo.u(), "budget": budget, "method": fo.method}
 
 
 def predict(proc, setup, estimator) -> dict:
@@ -82,15 +84,12 @@ def _closed_form(name: str, estimator: str) -> tuple:
 
     proc = get(name)
     setup = proc.Setup()
-    hook = proc.capabilities.first_order_sensitivities
-    with one_blas_thread():
-        # the hook's first answer is the cold computation (it may keep what it computed:
-        # a prediction timed after it would be a cache's, 12 ms where geometry21 takes 140)
-        t = time.thread_time()  # CPU time, as LIVE_SECONDS says
-        closed = hook is not None and hook(setup, proc.Truth(), estimator=estimator,
-                                           sources=None) is not None
-        seconds = time.thread_time() - t
-    path = "sensitivities" if closed else "chain"
+    # the service's closed form alone (no chain rule run); its first answer is the cold
+    # computation (it may keep what it computed: a prediction timed after it would be a
+    # cache's, 12 ms where geometry21 takes 140), its cost the CPU time, as LIVE_SECONDS says
+    closed = first_order(proc, setup, estimator=estimator, chain=False)
+    seconds = closed.cost.cpu_seconds if closed is not None else 0.0
+    path = "sensitivities" if closed is not None else "chain"
     if not closed:
         # the chain rule at the default set-up: timed when its estimate from single runs
         # (which overstates a batched run many times) allows, else never run here
@@ -98,10 +97,10 @@ def _closed_form(name: str, estimator: str) -> tuple:
         estimate = chain["seconds"]
         if estimate > CHAIN_PROBE_SECONDS or chain["bytes"] > LIVE_MEMORY:
             return path, None  # (beyond the memory a live answer may use: never run here)
+    if closed is None:
+        seconds += first_order(proc, setup, estimator=estimator).cost.cpu_seconds
     with one_blas_thread():
         t = time.thread_time()
-        if not closed:
-            first_order(proc, setup, estimator=estimator).u()
         identify(proc, setup)
         seconds += time.thread_time() - t
     if path == "chain":  # the measured time over the estimate: scales the estimate elsewhere

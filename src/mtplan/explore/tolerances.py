@@ -28,13 +28,19 @@ def acceptance_figures(tol: dict, u: float) -> dict:
                          f"and {tol.get('upper')!r} instead."}
     if lower is None and upper is None:
         return {}
+    try:  # a value measured on a machine: its specific risk (JCGM 106: 1 - p_c) and decision
+        measured = num("measured")
+    except (TypeError, ValueError):
+        return {"error": f"The 'measured' value must be a number. Got {tol.get('measured')!r} "
+                         "instead."}
     rule = (tol.get("rule") or "simple").strip()
     try:
         prior, prior_text = tolerance_prior(tol)
-        r = plan_acceptance(lower, upper, u, prior=prior, rule=rule)
+        r = plan_acceptance(lower, upper, u, prior=prior, rule=rule, measured=measured)
     except InvalidInput as exc:
         return {"error": " ".join(exc.problems)}
     out = r.to_dict()
+    out["measured"], out["decision"] = measured, r.decision
     out["guard_band"] = r.guard_band
     out["rule"] = rule
     out["prior"] = prior_text

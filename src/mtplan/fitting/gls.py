@@ -10,7 +10,7 @@ parameters:
   model itself (each element of each source set to plus and minus one standard
   deviation: half the difference is its secant effect, a column of ``U``, or a term
   of ``D`` where it touches one reading alone). The same secants as the posterior's
-  likelihood (:func:`mtplan.fitting.error_budget`), through the same code.
+  likelihood (:func:`mtplan.fitting.error_model`), through the same code.
 - :func:`central_jacobian`: the readings' Jacobian over the parameters by central
   differences, all columns one batched call, one-sided at a parameter's limit.
 - :func:`gls_gain`: the gain ``K = (J^T C^-1 J)^-1 J^T C^-1`` of the linearised fit.
@@ -35,7 +35,7 @@ from typing import NamedTuple
 import numpy as np
 
 from mtplan._validate import InvalidInput
-from mtplan.fitting.budget import Budget, Gaussian
+from mtplan.fitting.error_model import ErrorModel, Gaussian
 from mtplan.fitting.effects import effect
 
 __all__ = ["SourceModel", "source_effects", "readings_covariance", "central_jacobian",
@@ -138,7 +138,7 @@ def readings_covariance(model: SourceModel, names=None, *, floor=None) -> Gaussi
     -------
     Gaussian
         ``C = diag(D) + U U^T`` factored (dense, Cholesky, up to
-        :data:`~mtplan.fitting.budget.DENSE_MAX` readings; above, diagonal plus low rank,
+        :data:`~mtplan.fitting.error_model.DENSE_MAX` readings; above, diagonal plus low rank,
         Woodbury): ``whiten``, ``inverse_times``, ``loglike``.
     """
     D, U = source_effects(model, names)
@@ -150,7 +150,7 @@ def readings_covariance(model: SourceModel, names=None, *, floor=None) -> Gaussi
 def _as_gaussian(covariance, sigma=None) -> Gaussian:
     if isinstance(covariance, Gaussian):
         return covariance
-    if isinstance(covariance, Budget):
+    if isinstance(covariance, ErrorModel):
         return covariance.gaussian(sigma)
     if isinstance(covariance, tuple) and len(covariance) == 2:
         return Gaussian.known(np.asarray(covariance[0], dtype=float),
@@ -160,7 +160,7 @@ def _as_gaussian(covariance, sigma=None) -> Gaussian:
         return Gaussian.known(cov, np.zeros((cov.size, 0)))
     if cov.ndim == 2 and cov.shape[0] == cov.shape[1]:
         return Gaussian.dense(cov)
-    raise InvalidInput(["The covariance given to the fit must be a Gaussian, a Budget, a pair "
+    raise InvalidInput(["The covariance given to the fit must be a Gaussian, a ErrorModel, a pair "
                         "(D, U), variances (n,) or a matrix (n, n). Got an array of shape "
                         f"{cov.shape} instead."])
 
@@ -191,7 +191,7 @@ def gls_gain(jacobian: np.ndarray, covariance) -> np.ndarray:
     Parameters
     ----------
     jacobian : array (n, p)
-    covariance : Gaussian, Budget, (D, U), variances (n,) or matrix (n, n)
+    covariance : Gaussian, ErrorModel, (D, U), variances (n,) or matrix (n, n)
     """
     g = _as_gaussian(covariance)
     jt = np.asarray(jacobian, dtype=float).T
@@ -347,15 +347,15 @@ def whitened_residuals(residuals, covariance, *, n_params: int = 0,
     ----------
     residuals : array (n,) or (m, n)
         Readings minus the fitted prediction (the same units as the covariance).
-    covariance : Gaussian, Budget, (D, U), variances (n,) or matrix (n, n)
-        The readings' covariance: a :class:`~mtplan.fitting.budget.Gaussian` from
-        :func:`readings_covariance` or ``Budget.gaussian()``, a
-        :class:`~mtplan.fitting.budget.Budget` (a free noise at `sigma`), a pair
+    covariance : Gaussian, ErrorModel, (D, U), variances (n,) or matrix (n, n)
+        The readings' covariance: a :class:`~mtplan.fitting.error_model.Gaussian` from
+        :func:`readings_covariance` or ``ErrorModel.gaussian()``, a
+        :class:`~mtplan.fitting.error_model.ErrorModel` (a free noise at `sigma`), a pair
         ``(D, U)`` with ``C = diag(D) + U U^T``, independent variances, or a dense matrix.
     n_params : int
         Parameters the fit determined (the Jacobian's rank).
     sigma : float, optional
-        The noise's standard deviation, for a :class:`Budget` whose noise is free.
+        The noise's standard deviation, for a :class:`ErrorModel` whose noise is free.
 
     Returns
     -------
@@ -366,7 +366,7 @@ def whitened_residuals(residuals, covariance, *, n_params: int = 0,
     g = _as_gaussian(covariance, sigma)
     if g.free:
         raise InvalidInput(["whitened_residuals needs the noise's standard deviation when the "
-                            "budget leaves it free: pass sigma."])
+                            "error model leaves it free: pass sigma."])
     if r.shape[1] != g.n:
         raise InvalidInput([f"The residuals hold {r.shape[1]} readings but the covariance is "
                             f"of {g.n}."])

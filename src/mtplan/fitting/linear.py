@@ -1,4 +1,4 @@
-"""Linear least squares of rank-deficient models, and first-order propagation through a fit.
+"""Linear least squares of rank-deficient models.
 
 A model whose readings do not determine every parameter (a plate that can take up an
 axis's roll, a function with no lever arm) has a Jacobian of lower rank than its
@@ -11,21 +11,19 @@ parameters. Here:
 - :func:`function_status`: which linear functions of the parameters the readings
   determine, which parameters share the null space with them, and (for an estimator
   that is not the least-squares one) which true parameters bias them at first order.
-- :func:`response` and :func:`source_response`: an estimator's first-order response
-  to its readings or to each element of the error sources, by central differences over
-  one batch; :func:`source_variances` turns them into each source's share of the
-  variance of linear functions of the estimate (a first-order uncertainty budget).
+
+The first-order responses by finite differences (an estimator's to its readings or to
+the error sources) are :mod:`mtplan.fitting.effects`'s.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
 __all__ = ["truncated_pinv", "null_convention", "restricted_pinv", "filter_whitening",
-           "gls_pinv", "function_status",
-           "null_space_table", "response", "source_response", "source_variances"]
+           "gls_pinv", "function_status", "null_space_table"]
 
 
 # --------------------------------------------------------------------------- pseudo-inverse
@@ -228,87 +226,3 @@ def null_space_table(null: np.ndarray, names: Sequence[str], tol: float = 1e-3) 
         v = v / np.abs(v).max()
         out.append({names[j]: float(v[j]) for j in np.flatnonzero(np.abs(v) > tol)})
     return out
-
-
-# --------------------------------------------------------------------------- first order
-def response(estimate: Callable, x0: np.ndarray, directions: np.ndarray, *,
-             chunk: int = 512) -> np.ndarray:
-    """First-order response (q, k) of a batch estimator along `directions`.
-
-    ``estimate(rows (m, n)) -> (m, q)`` is evaluated at ``x0 +- directions[j]`` (central
-    differences, the step being the direction itself), `chunk` directions at a time;
-    column j is ``(estimate(x0 + d_j) - estimate(x0 - d_j)) / 2``.
-
-    Parameters
-    ----------
-    x0 : array (n,)
-    directions : array (k, n), or a float h
-        A float stands for ``h`` times each unit vector (k = n: the derivative times h
-        with respect to every input, never formed as an (n, n) array).
-    """
-    x0 = np.asarray(x0, dtype=float)
-    unit = np.ndim(directions) == 0
-    k = x0.size if unit else directions.shape[0]
-    out = []
-    for start in range(0, k, chunk):
-        if unit:
-            idx = np.arange(start, min(k, start + chunk))
-            d = np.zeros((idx.size, x0.size))
-            d[np.arange(idx.size), idx] = directions
-        else:
-            d = directions[start:start + chunk]
-        th = np.asarray(estimate(np.concatenate([x0 + d, x0 - d])), dtype=float)
-        out.append(((th[: len(d)] - th[len(d):]) / 2).T)
-    return np.hstack(out) if out else np.zeros((0, 0))
-
-
-def source_response(estimate: Callable, errors: Callable, sources: Mapping, names: Sequence[str],
-                    *, rel_step: float = 0.01) -> np.ndarray:
-    """An estimate's first-order response to one standard deviation of each element of the
-    named sources (as the GUM linearisation does, about the sources' means; central
-    differences with a step of `rel_step` of the standard deviation, every element in one
-    batch).
-
-    Parameters
-    ----------
-    estimate : callable
-        ``estimate(errors) -> (m, q)``: the estimate from readings simulated with error
-        rows ``errors``.
-    errors : callable
-        ``errors(m) -> dict``: fresh error rows of every source, zero.
-    sources : dict of str to Source
-    names : sequence of str
-
-    Returns
-    -------
-    array (q, K): K the named sources' elements, in order.
-    """
-    elems = [(name, idx) for name in names for idx in np.ndindex(*sources[name].shape)]
-    k = len(elems)
-    if not k:
-        return np.zeros((0, 0))
-    err = errors(2 * k)
-    for name in names:
-        err[name][...] = sources[name].distribution.mean
-    for j, (name, idx) in enumerate(elems):
-        h = rel_step * float(sources[name].distribution.std)
-        err[name][(2 * j, *idx)] += h
-        err[name][(2 * j + 1, *idx)] -= h
-    th = np.asarray(estimate(err), dtype=float)
-    return ((th[0::2] - th[1::2]) / (2 * rel_step)).T
-
-
-def source_variances(g: np.ndarray, factors: Mapping[str, np.ndarray]) -> dict:
-    """First-order variance of each linear function ``g[i] @ theta`` from each source.
-
-    Parameters
-    ----------
-    g : array (m, p)
-    factors : dict of str to array (p, K)
-        Per source, F with ``cov(theta) = F F^T`` (independent sources).
-
-    Returns
-    -------
-    dict of source to array (m,).
-    """
-    return {name: np.sum((g @ f) ** 2, axis=1) for name, f in factors.items()}

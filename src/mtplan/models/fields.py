@@ -41,6 +41,7 @@ __all__ = [
     "split_unit",
     "shown_with_unit",
     "param",
+    "OWNERS",
     "with_conditions",
     "fields_info",
     "file_fields",
@@ -93,6 +94,10 @@ def shown_with_unit(name: str, value) -> str:
 
 
 
+#: who carries an error source (:func:`param`'s ``owner``)
+OWNERS = ("machine", "instrument", "artefact", "workpiece", "method", "environment")
+
+
 def param(
     default,
     *,
@@ -105,6 +110,7 @@ def param(
     min_len: int | None = None,
     reader: Callable | None = None,
     condition: str | None = None,
+    owner: str | None = None,
 ):
     """Declare a set-up (or truth) field with its documentation and allowed range.
 
@@ -124,7 +130,16 @@ def param(
     measured) that a study records once for the whole test in its ``[conditions]`` table
     under that key: where the set-up leaves the field None, the readings are evaluated with
     the recorded value (:func:`with_conditions`).
+
+    A field that sizes an error source names the source's `owner` (:data:`OWNERS`): who
+    carries that error and so who can reduce it (the machine's own error, the instrument's
+    or its calibration's, the artefact's, the workpiece's, the method's set-up, the
+    environment's). Advice phrases an action by it: a calibration for an instrument, never
+    a set-up.
     """
+    if owner is not None and owner not in OWNERS:
+        raise ValueError(f"The 'owner' parameter of param must be one of {', '.join(OWNERS)}. "
+                         f"Got {owner!r} instead.")
     meta = {
         "doc": doc,
         "low": low,
@@ -135,6 +150,7 @@ def param(
         "min_len": min_len,
         "reader": reader,
         "condition": condition,
+        "owner": owner,
     }
     if isinstance(default, list):
         default = tuple(default)
@@ -198,6 +214,9 @@ class FieldInfo:
     condition : str or None
         The key of the test condition a study records for this field
         (:func:`with_conditions`).
+    owner : str or None
+        Who carries the error source the field sizes (one of :data:`OWNERS`), None for a
+        field that sizes none.
     """
 
     name: str
@@ -215,6 +234,7 @@ class FieldInfo:
     min_len: int | None = None
     file: bool = False
     condition: str | None = None
+    owner: str | None = None
 
 
 def fields_info(cls) -> tuple[FieldInfo, ...]:
@@ -242,7 +262,7 @@ def _fields_info(cls) -> tuple[FieldInfo, ...]:
             low_open=bool(f.metadata.get("low_open")),
             high_open=bool(f.metadata.get("high_open")),
             file=f.metadata.get("reader") is not None,
-            condition=f.metadata.get("condition")))
+            condition=f.metadata.get("condition"), owner=f.metadata.get("owner")))
     return tuple(out)
 
 

@@ -15,11 +15,19 @@ parties to agree when the default rule is left. The workflow:
 
 What the documents state is checked, not only printed: the fingerprint covers everything
 the parties sign (number, revision, issue date, parties, rules with their limits, the
-required conditions), so an edited ``plan.json`` is refused; a plan issued after the test
-is refused unless the study records that the customer accepts it (:func:`check_dates`);
-an instrument whose calibration had run out, or has no due date, is a deviation and the
+required conditions, and the terms of :mod:`mtplan.plans.terms`: the item, the tests and
+their machines, set-ups and standards, the instruments, the method's version), so an
+edited ``plan.json`` is refused; a study that moves a test to another machine is refused
+and one that changes a set-up or an instrument lists each change as a deviation; a
+report under a plan needs the date of the test and the time of each test
+(:func:`require_dates`); a plan issued after the test is refused unless the study records
+that the customer accepts it (:func:`check_dates`); an instrument whose calibration had
+run out, has no due date or cannot be checked against a test date is a deviation and the
 tests that used it get no statement of conformity unless the customer agreed
-(:func:`instrument_findings`); an estimator other than the plan's is a deviation.
+(:func:`instrument_findings`); a required condition outside the agreement or not recorded
+is a deviation that removes the statements of conformity of the tests run under it
+unless the plan's clause keeps them (:mod:`mtplan.plans.conditions`); an estimator other
+than the plan's is a deviation.
 
 Without ``--plan`` (and in ``mtplan demo``) the plan is issued and applied in the same run;
 the report says so among its deviations from the plan.
@@ -36,17 +44,20 @@ from pathlib import Path
 from mtplan._validate import InvalidInput
 
 __all__ = ["PLAN_FORMAT", "declared_rules", "fingerprint", "signed_content", "parties",
-           "issue_plan", "read_plan", "check_study", "check_dates", "instrument_findings",
+           "issue_plan", "read_plan", "check_study", "check_dates", "require_dates",
+           "instrument_findings",
            "apply_plan", "p_conform_measured", "FIT_NO_DECISION", "NO_INSTRUMENT",
            "LARGER_U_NO_DECISION"]
 
-PLAN_FORMAT = "mtplan-test-plan-2"
+PLAN_FORMAT = "mtplan-test-plan-3"
 #: the verdict of a toleranced measurand whose readings do not fit the model
 FIT_NO_DECISION = "no decision: the readings do not fit the model"
 #: the verdict of a toleranced measurand measured with an instrument that was not calibrated
 #: (or verified) on the date of the test, without the customer's agreement
 NO_INSTRUMENT = "no statement: an instrument was not calibrated on the test date"
 _DECLARED = ("lower", "upper", "rule", "prior")
+#: the verdicts that state conformity or non-conformity (ILAC-G8 4.2.3)
+STATEMENTS = ("pass", "conditional pass", "conditional fail", "fail")
 
 
 def declared_rules(study) -> list[dict]:
@@ -77,7 +88,9 @@ def fingerprint(content) -> str:
 
 def signed_content(plan: dict) -> dict:
     """What the parties sign: the whole plan but its fingerprint (number, revision, issue
-    date, parties, required conditions, rules with their limits and guard bands)."""
+    date, time of computation, parties, required conditions, rules with their limits and
+    guard bands, and the terms: item, tests, machines, set-ups, instruments, method
+    version)."""
     return {k: v for k, v in plan.items() if k != "fingerprint"}
 
 
@@ -99,7 +112,11 @@ def _plan_number(study) -> str:
 def issue_plan(result) -> dict:
     """The plan of a computed study: its declared rules with the guard band, acceptance
     limits, predicted uncertainty and risks each one fixes, a document number and the
-    fingerprint of the rules. Numbers are the planned set-up's (no readings used)."""
+    fingerprint of the rules and terms (:func:`~mtplan.plans.terms.agreed_terms`), and when
+    it was computed (``computed``: the study's computation, UTC). Numbers are the planned
+    set-up's (no readings used)."""
+    from mtplan.plans.terms import agreed_terms
+
     study = result.study
     verdicts = {(v.procedure, v.label, v.measurand): v for v in result.verdicts}
     rules = []
@@ -120,8 +137,10 @@ def issue_plan(result) -> dict:
     plan = {"format": PLAN_FORMAT, "document": _plan_number(study),
             "revision": header.get("revision", ""),
             "issued": header.get("plan_date") or datetime.date.today().isoformat(),
+            "computed": (result.provenance or {}).get("date", ""),
             "study_title": study.title, "parties": parties(study),
-            "conditions": dict(getattr(study, "requirements", {}) or {}), "rules": rules}
+            "conditions": dict(getattr(study, "requirements", {}) or {}), "rules": rules,
+            **agreed_terms(study)}
     plan["fingerprint"] = fingerprint(plan)
     return plan
 
@@ -148,21 +167,29 @@ def read_plan(path) -> dict:
                             f"{PLAN_FORMAT!r})."])
     if fingerprint(signed_content(plan)) != plan.get("fingerprint"):
         raise InvalidInput([f"{where}: its content (number, revision, issue date, parties, "
-                            "conditions or rules) does not match its fingerprint "
+                            "conditions, rules, tests, machines, set-ups or instruments) "
+                            "does not match its fingerprint "
                             f"{plan.get('fingerprint')}: the file was changed after it was "
                             "issued."])
     return plan
 
 
 def check_study(study, plan) -> None:
-    """Refuse a study whose rules differ from the plan's, naming the first difference.
+    """Refuse a study whose parties, conditions, rules, item, tests or machines differ
+    from the plan's, naming the first difference (set-ups and instruments that differ are
+    deviations: :func:`apply_plan`).
 
     Raises
     ------
     InvalidInput
-        One problem: the measurand and field, the plan's value and the study's.
+        One problem: what differs, the plan's value and the study's.
     """
+    from mtplan.plans.terms import compare_terms
+
     number = plan.get("document", "the plan")
+    refusals = compare_terms(study, plan)[0]
+    if refusals:
+        raise InvalidInput(refusals[:1])
     for role, name in parties(study).items():
         agreed = plan.get("parties", {}).get(role, "")
         if name != agreed:
@@ -201,6 +228,28 @@ def _date(text):
         return datetime.date.fromisoformat(str(text)[:10])
     except ValueError:
         return None
+
+
+def require_dates(study) -> None:
+    """A report under a plan needs the date of the test (``[header] date``) and the time
+    of each test (``[[procedure]] time``): every date check (the plan's issue date, the
+    instruments' due dates) depends on them.
+
+    Raises
+    ------
+    InvalidInput
+        One line naming what is missing.
+    """
+    missing = [] if _date(study.header.get("date")) else ["the date of the test ([header] "
+                                                          "date)"]
+    untimed = [str(k) for k, ps in enumerate(study.procedures, start=1) if not ps.time]
+    if untimed:
+        missing.append(f"the time of test{'s' if len(untimed) > 1 else ''} "
+                       f"{', '.join(untimed)} ([[procedure]] time, \"08:30-09:40\")")
+    if missing:
+        raise InvalidInput([f"The study does not record {' or '.join(missing)}: a report "
+                            "under a plan checks the plan's date and each instrument's "
+                            "calibration against them."])
 
 
 def check_dates(study, plan) -> list[str]:
@@ -246,7 +295,8 @@ def instrument_findings(study) -> tuple[list[dict], list[str], dict]:
         One per instrument not valid on the test date.
     blocked : dict
         ``{procedure: reason}``: the tests that used an instrument not valid on the test
-        date without the customer's agreement; they get no statement of conformity.
+        date, or whose validity could not be checked (no test date), without the
+        customer's agreement; they get no statement of conformity.
     """
     tested = _date(study.header.get("date"))
     status, deviations, blocked = [], [], {}
@@ -267,12 +317,10 @@ def instrument_findings(study) -> tuple[list[dict], list[str], dict]:
         if state == "valid":
             continue
         ident = f"{inst['name']} (serial {inst['serial']})"
-        if state == "not checked":
-            deviations.append(f"{ident}: the date of the test is not stated, so its {what} "
-                              "could not be checked against it.")
-            continue
         why = (f"its {what} ran out on {due}, before the test on {tested}" if state ==
-               "expired" else f"its {what} states no due date")
+               "expired" else f"its {what} states no due date" if state == "no due date"
+               else f"the date of the test is not stated, so its {what} could not be checked "
+                    "against it")
         used = inst.get("used_in") or [ps.name for ps in study.procedures]
         labels = ", ".join(ps.label for ps in study.procedures if ps.name in used)
         if agreed:
@@ -317,18 +365,29 @@ def apply_plan(result, plan) -> list[str]:
         The deviations from the plan found on the way (a measurement whose own U exceeds
         the predicted one, a guard band the study would now compute differently).
     """
+    from mtplan.plans.conditions import NO_CONDITION, check_conditions
+    from mtplan.plans.terms import compare_terms
+
     planned = {(r["procedure"], r["test"], r["measurand"]): r for r in plan["rules"]}
     _, deviations, blocked = instrument_findings(result.study)
+    _, conditions, unconditioned = check_conditions(result.study, plan.get("conditions", {}))
+    deviations += conditions + compare_terms(result.study, plan)[1]
     for o in result.outcomes:
         for verdicts, measured, when in ((o.verdicts, o.measured, ""),
                                          (getattr(o, "as_left_verdicts", []),
                                           getattr(o, "as_left", None), " as left")):
             deviations += _apply(verdicts, measured, planned, when,
                                  plan.get("conditions", {}).get("larger_u"))
-            if o.spec.name in blocked:
+            for block, key, verdict in ((blocked, o.spec.name, NO_INSTRUMENT),
+                                        (unconditioned, (o.spec.name, o.spec.label),
+                                         NO_CONDITION)):
                 for v in verdicts:
-                    if v.measured is not None:
-                        v.verdict, v.reason = NO_INSTRUMENT, blocked[o.spec.name]
+                    if key in block and v.measured is not None and v.verdict not in (
+                            NO_INSTRUMENT, NO_CONDITION):
+                        v.verdict, v.reason = verdict, block[key]
+            for v in verdicts:  # no probability of conformity where no statement is made
+                if v.verdict not in STATEMENTS:
+                    v.p_conform = None
     return deviations
 
 

@@ -16,17 +16,27 @@ Targets bound the standard uncertainty (``k=1``) or the expanded uncertainty
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from mtplan._parallel import check_parallel, ordered_map, parallel_session
 from mtplan._validate import InvalidInput, Problems
+from mtplan.evaluation.first_order import first_order
+from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
+from mtplan.models import get
 from mtplan.models.protocol import fields_info, make
+from mtplan.plans.identifiability import identifiability, observability_indices
+from mtplan.plans.sweep import setup_grid
+from mtplan.uncertainty.montecarlo import ModelError
+from mtplan.uncertainty.options import Options
 
-__all__ = ["PlanResult", "plan", "pareto_front", "optimize_design", "readings_jacobian",
-           "design_identifiability", "parse_target", "PfaCriterion", "RESIDUAL", "target_u"]
+__all__ = ["PlanResult", "PlanOptions", "plan", "pareto_front", "optimize_design",
+           "readings_jacobian", "design_identifiability", "parse_target", "PfaCriterion",
+           "RESIDUAL", "target_u"]
 
 
 #: a target on the residual after compensation: ``residual:EXX<=2``
@@ -125,44 +135,21 @@ def _setup_fields(setup) -> dict:
     return setup.as_dict()
 
 
-def plan(
-    procedure,
-    base_setup=None,
-    vary: Mapping[str, Sequence] | None = None,
-    targets: Mapping[str, float] | None = None,
-    *,
-    k: float = 1.0,
-    truth=None,
-    estimator: str | None = None,
-    sources=None,
-    confirm: int = 5,
-    trials: int = 5000,
-    seed: int = 0,
-    n_jobs: int = 1,
-    backend: str | None = None,
-    criterion=None,
-    identify: bool = True,
-    determine=None,
-) -> PlanResult:
-    """The set-up of least duration whose uncertainty meets every target.
+@dataclass(frozen=True)
+class PlanOptions(Options):
+    """How :func:`plan` judges and confirms its candidates (frozen: change one with
+    :meth:`replace`).
 
-    Parameters
+    Attributes
     ----------
-    procedure : str or Procedure
-    base_setup : Setup, optional
-    vary : mapping of field to values
-        Candidate grid (the Cartesian product); empty means the base set-up alone.
-    targets : mapping of measurand name to value
-        Upper bounds for ``k u`` [display unit of each measurand].
     k : float
         Coverage factor of the targets (1: standard uncertainty).
-    truth, estimator, sources
-        As for :func:`mtplan.evaluation.simulation.simulate_uncertainty`.
     confirm : int
         Largest number of candidates checked by Monte Carlo before giving up.
     trials : int
         Monte Carlo trials of each confirmation.
     seed : int
+        The confirmations' seed.
     n_jobs, backend
         Parallel screening of the candidates.
     criterion : callable, optional
@@ -177,6 +164,48 @@ def plan(
         only if it lists every one; ``"all"`` means every measurand the procedure can
         report (geometry21: the 21 errors). Targets may name measurands that only some
         candidates determine.
+    """
+
+    k: float = 1.0
+    confirm: int = 5
+    trials: int = 5000
+    seed: int = 0
+    n_jobs: int = 1
+    backend: str | None = None
+    criterion: object = None
+    identify: bool = True
+    determine: object = None
+
+    WHAT = "plan option"
+
+
+def plan(
+    procedure,
+    base_setup=None,
+    vary: Mapping[str, Sequence] | None = None,
+    targets: Mapping[str, float] | None = None,
+    *,
+    truth=None,
+    estimator: str | None = None,
+    sources=None,
+    **options,
+) -> PlanResult:
+    """The set-up of least duration whose uncertainty meets every target.
+
+    Parameters
+    ----------
+    procedure : str or Procedure
+    base_setup : Setup, optional
+    vary : mapping of field to values
+        Candidate grid (the Cartesian product); empty means the base set-up alone.
+    targets : mapping of measurand name to value
+        Upper bounds for ``k u`` [display unit of each measurand].
+    truth, estimator, sources
+        As for :func:`mtplan.evaluation.simulation.simulate_uncertainty`.
+    **options
+        ``options=`` a :class:`PlanOptions` (the coverage factor ``k``, ``confirm``,
+        ``trials``, ``seed``, ``n_jobs``, ``backend``, ``criterion``, ``identify``,
+        ``determine``), and any of its fields as keywords, which replace the record's.
 
     Raises
     ------
@@ -184,9 +213,9 @@ def plan(
         For targets naming unknown measurands, and when no candidate can meet a
         target (the message gives the best reachable value of each).
     """
-    from mtplan.models import get
-    from mtplan.plans.sweep import setup_grid
-
+    o = PlanOptions.of(options.pop("options", None), **options)
+    k, confirm, trials, seed, criterion = o.k, o.confirm, o.trials, o.seed, o.criterion
+    n_jobs, backend, identify, determine = o.n_jobs, o.backend, o.identify, o.determine
     proc = get(procedure)
     base_setup = proc.Setup() if base_setup is None else base_setup
     proc.check_setup(base_setup)
@@ -248,8 +277,6 @@ def _required(proc, names, determine) -> tuple:
 def _check_plan(proc, names, targets, criterion, k, confirm, trials, n_jobs, backend,
                 required=()):
     """Every problem of the plan's arguments at once."""
-    from mtplan._parallel import check_parallel
-
     p = Problems(f"plan {proc.name}")
     if not targets and criterion is None and not required:
         p.add_text("plan needs at least one target NAME<=VALUE")
@@ -275,8 +302,6 @@ def _screen(proc, setups, truth, estimator, sources, targets, k, criterion, iden
     candidate does not determine), worst target ratio, identifiability and feasibility,
     one row per set-up. A candidate that misses a required measurand is not linearised."""
     import pandas as pd
-
-    from mtplan._parallel import ordered_map, parallel_session
 
     names = [m.name for m in proc.measurands(setups[0])] if names is None else names
     if listed is None:
@@ -352,9 +377,6 @@ def _confirm(proc, setups, table, candidates, truth, estimator, sources, targets
              trials, seed):
     """Monte Carlo of the cheapest feasible candidates until one meets every target:
     (best candidate, the confirmation record of each tried)."""
-    from mtplan.evaluation.simulation import simulate_uncertainty
-    from mtplan.uncertainty.montecarlo import ModelError
-
     confirmation = []
     for j in candidates:
         s = setups[j]
@@ -454,8 +476,6 @@ def _candidate(row, setup, names, targets) -> dict:
 def _assess(proc, setup, truth, estimator, sources, predict, identify) -> tuple[dict, dict]:
     """One candidate's linearised uncertainties (when `predict`) and identifiability
     (when `identify`)."""
-    from mtplan.evaluation.first_order import first_order
-
     u = first_order(proc, setup, truth, estimator=estimator, sources=sources).u() if predict \
         else {}
     return u, design_identifiability(proc, setup, truth) if identify else {}
@@ -506,9 +526,6 @@ def optimize_design(
     (at the base set-up) and ``evaluations``.
     """
     from scipy.optimize import minimize
-
-    from mtplan.models import get
-    from mtplan.evaluation.simulation import linearize_procedure
 
     proc = get(procedure)
     base_setup = proc.Setup() if base_setup is None else base_setup
@@ -584,10 +601,6 @@ def readings_jacobian(procedure, setup=None, truth=None, *, wrt: str | None = No
     1e-6 of each value's magnitude (at least 1e-9); every step of every measurand in one
     forward run where the procedure declares ``truths_from_estimates``.
     """
-    import dataclasses
-
-    from mtplan.models import get
-
     proc = get(procedure)
     setup = proc.Setup() if setup is None else setup
     truth = proc.Truth() if truth is None else truth
@@ -650,9 +663,6 @@ def design_identifiability(procedure, setup=None, truth=None) -> dict:
     the readings determine) where the module's report gives its Jacobian and the
     measurands as functions of its parameters.
     """
-    from mtplan.models import get
-    from mtplan.plans.identifiability import identifiability, observability_indices
-
     proc = get(procedure)
     setup = proc.Setup() if setup is None else setup
     if proc.capabilities.identifiability_report is not None:

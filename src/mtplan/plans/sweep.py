@@ -22,7 +22,9 @@ whatever ``n_jobs`` and the backend.
 
 from __future__ import annotations
 
+import csv
 import hashlib
+import io
 import itertools
 import json
 import os
@@ -30,13 +32,17 @@ import sys
 import zlib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
 from mtplan._io import atomic_write, output_problem
 from mtplan._parallel import effective_jobs, ordered_map, parallel_session
 from mtplan._validate import InvalidInput, Problems
+from mtplan.evaluation.simulation import check_memory, simulate_uncertainty
+from mtplan.models import get
 from mtplan.models.protocol import fields_info, make
+from mtplan.uncertainty.montecarlo import ModelError
 from mtplan.uncertainty.options import RunOptions
 
 __all__ = ["sweep", "setup_seed", "RESULT_COLUMNS"]
@@ -75,9 +81,6 @@ def point_rows(proc, setup, truth, estimator, sources, options, seed, point=0) -
     estimators), so that a study can compute each once and share it between its sweeps.
     An estimator that cannot evaluate the set-up gives rows with NaN and the reason in
     ``error``."""
-    from mtplan.uncertainty.montecarlo import ModelError
-    from mtplan.evaluation.simulation import simulate_uncertainty
-
     fields = {k: (",".join(f"{x:g}" for x in v) if isinstance(v, list) else v)
               for k, v in setup.as_dict().items()}
     true = proc.display_truth(setup, truth)
@@ -248,10 +251,6 @@ def sweep_grid(procedure, base_setup=None, vary=None, *, truth=None, estimators=
     ``seed`` (the sweep seed) and ``options`` (of each set-up's Monte Carlo, a dict).
     Arguments as :func:`sweep`; a grid whose largest set-up would not fit in memory is
     refused."""
-    from types import SimpleNamespace
-
-    from mtplan.models import get
-
     run = RunOptions.of(options.pop("options", None), **options)
     proc = get(procedure)
     base_setup = proc.Setup() if base_setup is None else base_setup
@@ -340,8 +339,6 @@ def _run(tasks, journal, n_rows, bar, n_jobs, backend) -> list:
 
 def _check_memory(proc, setups, truth, estimators, sources, options, n_jobs) -> None:
     """Refuse, before any set-up runs, a grid whose largest set-up would exceed memory."""
-    from mtplan.evaluation.simulation import check_memory
-
     largest = max(setups, key=lambda s: sum(src.size for src in proc.sources(s).values()))
     block = options.get("block_size") or proc.capabilities.block_size
     if options["digits"] is None and not options.get("block_size"):
@@ -406,9 +403,8 @@ def _resume(out: Path, journal: Path, fmt: str, signature: dict, notes: list):
 
 
 def _read_journal(journal: Path, rewrite: bool = True):
-    import io
-
     import pandas as pd
+
 
     full = journal.read_text(encoding="utf-8")
     text = full[: full.rfind("\n") + 1]  # drop a line cut off by a kill
@@ -448,9 +444,6 @@ def _csv_records(text: str) -> list[str]:
 def _order_journal(journal: Path) -> None:
     """Rewrite the journal (atomically) with its set-ups in grid order, each record's bytes
     as written, when the workers finished them in another order."""
-    import csv
-    import io
-
     header, *records = _csv_records(journal.read_text(encoding="utf-8"))
     column = next(csv.reader([header])).index("point")
     points = [int(next(csv.reader(io.StringIO(r)))[column]) for r in records]

@@ -10,7 +10,8 @@ from __future__ import annotations
 from mtplan.reports import figures as figs
 from mtplan.reports.model import Figure, Section, Table
 from mtplan.reports.wording import customer_words, value_warnings
-from mtplan.reports.labels import duration_text, field_label, field_value, fmt, fmt_u, unit
+from mtplan.reports.labels import duration_text, field_label, field_value, fmt, fmt_u, \
+    plain_fields, unit
 
 __all__ = ["procedure_section", "provenance_section", "measured_blocks"]
 
@@ -350,7 +351,10 @@ def measured_blocks(measured, warn: bool = True) -> list:
     for row in rows:
         row[0] += " *" if row[0] in flagged else ""
     text += [f"* {w}" for w in warnings]
-    text += [customer_words(str(x)) for x in measured.notes]
+    setup_cls = type(getattr(measured, "setup", None))
+    words = (customer_words if not hasattr(setup_cls, "__dataclass_fields__") else
+             lambda x: customer_words(plain_fields(x, setup_cls)))
+    text += [words(str(x)) for x in measured.notes]
     blocks = [Section("Measured data", level=2, blocks=text + [
         Table("Measurands from the readings (estimate: the estimator's value; correction: "
               "the bias correction added; value: the reported value, the posterior mean for "
@@ -373,8 +377,9 @@ def _posterior_blocks(post) -> list:
         Table(f"Posterior diagnostics ({state}): the posterior is sampled by Markov chain "
               f"Monte Carlo, {post.chains.shape[0]} ensembles of {post.n_walkers} walkers "
               f"(chains that move together) over {post.n_steps} steps; the first "
-              f"{post.discard} steps (burn-in) are discarded and every {post.thin}. step is "
-              "kept (thinning). tau: integrated autocorrelation time, the steps between "
+              f"{post.discard} steps (burn-in) are discarded and "
+              + ("every step is kept (no thinning)" if post.thin == 1 else
+                 f"one step in {post.thin} is kept (thinning)") + ". tau: integrated autocorrelation time, the steps between "
               "independent samples; R-hat: the Gelman-Rubin ratio of the spread between "
               "ensembles to that within them (near 1: they agree); ESS: effective sample "
               "size, the number of independent samples the chains are worth.",

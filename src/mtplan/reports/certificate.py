@@ -27,12 +27,15 @@ from mtplan.reports.labels import (
     unit,
 )
 from mtplan.reports.model import Document, Figure, Section, Table
+from mtplan.reports.results import ASYMMETRIC_NOTE
+from mtplan.reports.results import asymmetric_mark as _asymmetric_mark
 from mtplan.reports.wording import (
     GLOSSARY,
     customer_words,
     measurand_name,
     method_citation,
     population_text,
+    p_text,
     probability_text,
     rules_text,
     value_warnings,
@@ -65,9 +68,13 @@ def _lab(study) -> str:
 
 
 def _methods(result, estimators: bool = True) -> list:
+    from mtplan.reports.accreditation import lab_procedure_text
+
     """(test, method source and (``estimators``) the estimator that evaluates it,
     standards) rows: each source method cited once, each estimator described where it is
     first named (the plan names and describes them in its agreement, after its cover)."""
+    from mtplan.reports.accreditation import lab_procedure_text
+
     rows = []
     for o in result.outcomes:
         applied = list(o.spec.standards) + ["JCGM 101:2008"]
@@ -76,8 +83,9 @@ def _methods(result, estimators: bool = True) -> list:
             applied.append("ISO 1101:2017")  # a position tolerance as a diameter zone
         if o.verdicts:
             applied += ["ISO 14253-1:2017", "JCGM 106:2012", "ILAC-G8:09/2019"]
-        how = (f"; evaluated with the {agreed_estimator(o)} estimator: {_estimator_words(o)}"
-               if estimators else "")
+        how = (f"; evaluated with the {agreed_estimator(o)} estimator: "
+               f"{_estimator_words(o).rstrip('.')}" if estimators else "")
+        how += "; " + lab_procedure_text(result.study.laboratory, o.spec.name)
         rows.append([o.spec.label, method_citation(o.spec.name) + how,
                      ", ".join(a.replace(" ", "\u00a0") for a in applied)])
     return rows
@@ -210,131 +218,6 @@ def result_box(result) -> list:
     return lines
 
 
-def _needed_u(v) -> float | None:
-    """The predicted U that would decide a value inside the guard band: the distance of
-    the measured value to the nearest tolerance limit, over the rule's w / U."""
-    if v.measured is None or not (v.u and v.guard_band):
-        return None
-    limits = [x for x in (v.lower, v.upper) if x is not None]
-    gap = min(abs(v.measured - x) for x in limits)
-    return gap * (2 * v.u) / v.guard_band
-
-
-def _lever_for(o, v, needed) -> str:
-    """A swept set-up whose predicted U is below ``needed``, in words, or ""."""
-    from mtplan.models.protocol import fields_info
-    from mtplan.reports.labels import field_label
-
-    docs = {f.name: f.doc for f in fields_info(o.spec.procedure.Setup)}
-    best = None
-    for spec, table in o.sweeps:
-        if isinstance(table, str) or len(spec["vary"]) != 1:
-            continue
-        f = next(iter(spec["vary"]))
-        if f not in o.spec.procedure.levers:
-            continue
-        rows = table[(table["measurand"] == v.measurand) & (table["estimator"] == v.estimator)]
-        rows = rows[(2 * rows["u"] <= needed) & (rows["u"] > 0)]
-        for r in rows.itertuples():
-            cand = (float(getattr(r, "duration_s", math.nan)), f, getattr(r, f), 2 * r.u)
-            if best is None or cand[0] < best[0]:
-                best = cand
-    plan = o.plan if not isinstance(o.plan, str) else None
-    column = f"u_{v.measurand}"
-    if plan is not None and getattr(plan, "table", None) is not None \
-            and column in plan.table:  # the planner's candidates: k times the linearised u
-        t = plan.table
-        ok = t[(2 * t[column] / plan.k <= needed) & (t[column] > 0)]
-        if len(ok):
-            r = ok.loc[ok["duration_s"].idxmin()]
-            fields = [f for f in plan.table.columns if f in docs]
-            cand = (float(r["duration_s"]), None,
-                    ", ".join(field_value(f, r[f]) for f in fields), 2 * r[column] / plan.k)
-            if best is None or cand[0] < best[0]:
-                best = cand
-    if best is None:
-        return ""
-    if best[1] is None:
-        return (f"the planner's cheapest set-up that reaches it: {best[2]} (predicted U "
-                f"{fmt_u(best[3])} {unit(v.unit)}, {duration_text(best[0])}), agreed in a "
-                "revised plan, and re-test")
-    label = field_label(best[1], docs.get(best[1], "")).split(" [")[0]
-    value = f"{best[2]:g}" if isinstance(best[2], float) else str(best[2])
-    return (f"set {label} to {value} (predicted U {fmt_u(best[3])} {unit(v.unit)}, below "
-            f"{_below(needed)} {unit(v.unit)}, agreed in a revised plan) and re-test")
-
-
-def _below(x: float) -> str:
-    """An upper bound to three significant digits, rounded down (never "below 11" for
-    10.7)."""
-    if not (x > 0 and math.isfinite(x)):
-        return fmt_u(x)
-    decimals = max(0, 2 - math.floor(math.log10(x)))
-    step = 10.0 ** -decimals
-    return f"{math.floor(x / step + 1e-9) * step:.{decimals}f}"
-
-
-def _repeats_text(o, v, needed) -> str:
-    """What repeating the test and averaging does, from the budget's random share of u^2."""
-    from mtplan.plans.decisions import random_share, repeated_U, repeats_needed
-
-    found = random_share(o.budget, v.measurand)
-    U = 2 * v.u
-    if found is None:
-        return "the budget does not say which part of u² repeats would average"
-    share, top, top_share = found
-    n = repeats_needed(U, needed, share)
-    split = (f"{100 * share:.0f} % of u² is random from reading to reading (averaged by "
-             f"repeats), {100 * top_share:.0f} % is {top.replace('_', ' ')}, which repeats "
-             "do not average")
-    if n is not None:
-        return (f"{split}: the average of {n} repeats gives U "
-                f"{fmt_u(repeated_U(U, share, n))} {unit(v.unit)}, agreed in a revised plan")
-    two = repeated_U(U, share, 2)
-    floor = U * math.sqrt(max(1 - share, 0.0))
-    return (f"{split}: two repeats give U {fmt_u(two)} {unit(v.unit)} and no number of "
-            f"repeats goes below {fmt_u(floor)} {unit(v.unit)}; a smaller "
-            f"{top.replace('_', ' ')} (a better instrument or artefact) is what can")
-
-
-def _actions(result, failed, open_) -> list:
-    by_proc = {o.spec.name: (k, o) for k, o in enumerate(result.outcomes, start=1)}
-    out = []
-    for v in failed:
-        k, o = by_proc[v.procedure]
-        u = unit(v.unit)
-        res = _U(v)
-        target = 0.0 if v.lower is not None and v.upper is not None and v.lower < 0 < v.upper \
-            else ((v.lower or 0) + (v.upper or 0)) / 2
-        out.append(f"Adjust the {measurand_name(v.description, v.measurand)[:1].lower()}"
-                   f"{measurand_name(v.description, v.measurand)[1:]}: measured "
-                   f"{fmt(v.measured, res)} {u} against the tolerance "
-                   f"{tolerance_text(v.lower, v.upper, v.unit)}; correct it by about "
-                   f"{fmt(target - v.measured, res)} {u} (for a machine axis: its location in "
-                   "the control's kinematic model or the mechanical alignment), then re-test "
-                   f"test {k} ({o.spec.label}) and report the result as left.")
-    for v in open_:
-        k, o = by_proc[v.procedure]
-        name = measurand_name(v.description, v.measurand)
-        if v.verdict.startswith("no decision: the readings"):
-            out.append(f"{name}: the readings do not fit the model; find the cause (set-up, "
-                       f"instrument, machine state) and repeat test {k} ({o.spec.label}).")
-            continue
-        needed = _needed_u(v)
-        if needed is None:
-            out.append(f"{name}: {v.verdict}" + (f" ({v.reason})" if v.reason else "")
-                       + f"; repeat test {k} ({o.spec.label}).")
-            continue
-        lever = _lever_for(o, v, needed)
-        how = lever or ("no swept or planned set-up of the study reaches it; "
-                        + _repeats_text(o, v, needed) if needed > 0 else
-                        "no set-up can decide it")
-        out.append(f"{name}: {v.verdict} (inside the guard band). A pass or a fail needs a "
-                   f"predicted U below {_below(needed)} {unit(v.unit)} (now "
-                   f"{fmt_u(2 * v.u)}): {how}.")
-    return out
-
-
 def _overall_section(result) -> Section:
     from mtplan.reports.wording import BURDEN_OF_PROOF, OVERALL_RULE
 
@@ -358,8 +241,10 @@ def _overall_section(result) -> Section:
         blocks.append("The overall result uses the results as left (measured again after "
                       "an adjustment) for " + "; ".join(left) + ", and the results as found "
                       "for the other tests.")
-    actions = _actions(result, deciding if outcome == "not accepted" else [],
-                       undecided if outcome == "not accepted" else deciding)
+    from mtplan.reports.actions import actions as actions_for
+
+    actions = actions_for(result, deciding if outcome == "not accepted" else [],
+                          undecided if outcome == "not accepted" else deciding)
     author = (result.study.header.get("prepared_by") or _lab(result.study))
     if actions:
         blocks += [f"Opinions and interpretations (ISO/IEC 17025 7.8.7), by {author}, not "
@@ -379,38 +264,6 @@ def _interval(v) -> str:
     res = _U(v)
     return ("-" if v.measured_low is None else
             f"[{fmt(v.measured_low, res)}, {fmt(v.measured_high, res)}]")
-
-
-def _result_rows(k, o) -> list:
-    rows = []
-    for v in o.verdicts:
-        res = _U(v)
-        measured = "-" if v.measured is None else fmt(v.measured, res)
-        measured += _asymmetric_mark(v.measured, res, v.measured_low, v.measured_high)
-        achieved = "-" if res is None else fmt_u(res)
-        rows.append([str(k), measurand_name(v.description, v.measurand),
-                     tolerance_text(v.lower, v.upper, v.unit, v.zone), measured,
-                     f"{achieved} ({fmt_u(2 * v.u)})", _interval(v),
-                     probability_text(v.p_conform), _verdict_word(v)])
-    return rows
-
-
-#: the note under a table whose values carry :func:`_asymmetric_mark`
-ASYMMETRIC_NOTE = ("†: the 95 % interval is not value ± U: it is the interval of the "
-                   "values' own distribution (Monte Carlo or posterior, JCGM 101 7.7), "
-                   "which is asymmetric or centred away from the bias-corrected value; U is "
-                   "2u of the same distribution.")
-
-
-def _asymmetric_mark(value, U, low, high) -> str:
-    """"†" where an end of the printed interval differs from value ± U by more than 5 % of
-    U (:data:`ASYMMETRIC_NOTE`; a normal distribution's 1.96 u against U = 2 u is 2 %),
-    else ""."""
-    if value is None or U is None or low is None or high is None or not U > 0:
-        return ""
-    if abs((value - U) - low) > 0.05 * U or abs((value + U) - high) > 0.05 * U:
-        return " †"
-    return ""
 
 
 def _value_text(v) -> str:
@@ -445,7 +298,8 @@ def _probability_lines(verdicts, when="") -> list:
             continue
         alone = ("from the measurement's own samples" if v.p_conform_samples is not None
                  else "from the measurement alone")
-        line = f"{v.measurand}{when}: {probability_text(v.p_conform)} {alone}"
+        line = (f"{v.measurand}{when}: 95 % interval {_interval(v)} {unit(v.unit)}; "
+                f"{probability_text(v.p_conform)} {alone}")
         if v.p_conform_population is not None and v.prior is not None:
             line += (f"; {probability_text(v.p_conform_population)} with the population "
                      f"{population_text(prior_text(v.prior, v.unit), v.population_source)}")
@@ -485,7 +339,7 @@ def _fit_rows(result) -> list:
             f = fit_summary(getattr(m, "fit", None))
             rows.append([f"{k}{state}", "-" if f["chi2"] is None else f"{f['chi2']:.1f}",
                          "-" if f["dof"] is None else str(f["dof"]),
-                         "-" if f["p"] is None else f"{f['p']:.2g}", f["worst"] or "-",
+                         p_text(f["p"]), f["worst"] or "-",
                          f["outcome"]])
     return rows
 
@@ -504,20 +358,25 @@ def _results_section(result) -> Section:
                          "As left: test " + ", ".join(map(str, adjusted)) + " was measured "
                          "again after an adjustment and decided by the same rules (below); "
                          "the other tests were not adjusted."))
-    rows, tests = [], []
+    from mtplan.reports.results import (DEFAULT_TRUTH_NOTE, ZONES, rounding_sentence,
+                                        verdict_table)
+
+    tests = []
     for k, o in enumerate(result.outcomes, start=1):
         if o.verdicts:
-            rows += _result_rows(k, o)
             how = _EVALUATION.get(getattr(o.measured, "uncertainty", None), "no readings")
             tests.append(f"{k}: {o.spec.label} ({o.verdicts[0].estimator} estimator; {how})")
-    if rows:
-        sec.blocks.append(Table("Results as found. Tests: " + "; ".join(tests) + ".",
-                                ["test", "measurand", "tolerance", "measured",
-                                 "U achieved (predicted)", "95 % interval",
-                                 "probability of conformity", "verdict"], rows,
-                                grow=1, size=7.0))
-        if any("†" in row[3] for row in rows):
+    if tests:
+        table = verdict_table(result, tests)
+        sec.blocks.append(table)
+        if any("†" in row[5] for row in table.rows):
             sec.blocks.append(ASYMMETRIC_NOTE)
+        if any("‡" in row[6] for row in table.rows):
+            sec.blocks.append(DEFAULT_TRUTH_NOTE)
+        from mtplan.reports.accreditation import uncertainty_statement
+
+        sec.blocks += [ZONES, rounding_sentence(result),
+                       uncertainty_statement(result.study.coverage)]
         sec.blocks += rules_text(result.verdicts)
         lines = _probability_lines(result.verdicts)
         if lines:
@@ -549,7 +408,7 @@ def _results_section(result) -> Section:
                                 "row and column of the readings file, z the standardised "
                                 "residual.",
                                 ["test", "chi-square", "dof", "p", "worst readings",
-                                 "outcome"], fits, grow=4, size=7.0))
+                                 "outcome"], fits, grow=4, size=7.0, whole=(3,)))
     untoleranced = sum(len(o.measured.measurands) for o in result.outcomes
                        if o.measured is not None) - sum(
         len(o.verdicts) for o in result.outcomes if o.measured is not None)
@@ -559,31 +418,19 @@ def _results_section(result) -> Section:
                           "and in results/measured.csv.")
     if result.verdicts:
         sec.blocks.append(Figure("Measured values as found (dot, 95 % interval) against the "
-                                 "tolerance (black lines), the guard bands (amber: no "
-                                 "decision), the zones of conformity (green) and "
-                                 "non-conformity (red).",
+                                 "tolerance (black lines): the acceptance zone (green: "
+                                 "pass), the guard bands (amber: conditional pass inside "
+                                 "the tolerance, conditional fail outside it) and the zones "
+                                 "beyond the tolerance widened by w (red: fail).",
                                  figs.acceptance_figure(result.verdicts)))
     return sec
 
 
-def _conditions_section(result) -> Section:
-    from mtplan.plans.study import CONDITION_KEYS
+def _conditions_section(result, plan) -> Section:
+    from mtplan.reports.conditions import condition_blocks
 
     study = result.study
-    rows = []
-    for key, (label, kind) in CONDITION_KEYS.items():
-        value = study.conditions.get(key)
-        if value is None:
-            shown = "not recorded"
-        elif kind == "temperature":
-            shown = f"{value:.1f} °C"
-        elif kind == "bool":
-            shown = "on" if value else "off"
-        else:
-            shown = str(value)
-        rows.append([label, shown])
-    blocks = [Table("Test conditions (ISO 230-1 6.1: temperatures, warm-up, compensation).",
-                    ["condition", "value"], rows)]
+    blocks = condition_blocks(study, plan.get("conditions", {}))
     table = _instrument_table(study)
     if table is not None:
         blocks.append(table)
@@ -661,11 +508,13 @@ def measured_frame(result):
                          "high": float(m.high[j]) if ok else math.nan,
                          "estimator": m.estimator, "uncertainty": m.uncertainty,
                          "determinable": ok, "fit_chi2": fit["chi2"], "fit_dof": fit["dof"],
-                         "fit_p": fit["p"], "fit_ok": fit["ok"], "fit_worst": fit["worst"]})
+                         "fit_p": fit["p"], "fit_p_text": p_text(fit["p"]),
+                         "fit_ok": fit["ok"], "fit_worst": fit["worst"]})
     return pd.DataFrame(rows, columns=["procedure", "test", "state", "measurand", "description",
                                        "unit", "value", "u", "k", "U", "low", "high",
                                        "estimator", "uncertainty", "determinable", "fit_chi2",
-                                       "fit_dof", "fit_p", "fit_ok", "fit_worst"])
+                                       "fit_dof", "fit_p", "fit_p_text", "fit_ok",
+                                       "fit_worst"])
 
 
 def _measured_appendix(k, o) -> Section:
@@ -721,8 +570,9 @@ def _cover_meta(result, plan, kind) -> dict:
         meta["plan fingerprint (SHA-256)"] = plan["fingerprint"]
     meta["laboratory"] = _lab(study)
     meta["laboratory address"] = lab.get("address", "not stated in the study")
-    if lab.get("accreditation"):
-        meta["accreditation"] = lab["accreditation"]
+    from mtplan.reports.accreditation import accreditation_text, signatory_text
+
+    meta["accreditation"] = accreditation_text(lab)
     meta["place of the test"] = h.get("location", "not stated")
     meta["customer"] = h.get("customer", "not stated")
     if h.get("customer_address"):
@@ -733,6 +583,7 @@ def _cover_meta(result, plan, kind) -> dict:
     if kind == "report":
         meta["date of issue"] = _issue_date(study)
         meta["authorised by"] = h.get("approved_by") or "not yet authorised (see sign-off)"
+        meta["signatory (name and function)"] = signatory_text(lab)
     else:
         meta["date of issue"] = plan["issued"]
     return meta
@@ -752,7 +603,13 @@ def _document(result, plan, kind, sections, csv) -> Document:
                    provenance=result.provenance, sections=sections, csv=csv,
                    signoff=signoff, standards=[])
     doc.methods = _methods(result, estimators=kind == "report")
-    doc.box = result_box(result) if kind == "report" else []
+    if kind == "report":
+        doc.box = result_box(result)
+    else:  # what the parties should know before they sign
+        from mtplan.reports.actions import signing_lines, signing_title
+
+        doc.box = signing_lines(result)
+        doc.box_title = signing_title()
     doc.identification = f"{number} - {title.split(' (')[0]}"
     # a plan uses no readings: no readings stamp, and its numbers come from the study alone
     doc.watermark = WATERMARK if study.simulated and kind == "report" else ""
@@ -760,12 +617,16 @@ def _document(result, plan, kind, sections, csv) -> Document:
         doc.inputs = "the study file and the random seed (the plan uses no readings)"
     doc.end_mark = END_MARK if kind == "report" else "End of test plan"
     doc.flow = kind == "report"
-    doc.statement = RESULTS_RELATE if kind == "report" else (
+    from mtplan.reports.accreditation import ilac_p8_text
+
+    p8 = ilac_p8_text(study.laboratory)
+    doc.statement = RESULTS_RELATE + (" " + p8 if p8 else "") if kind == "report" else (
         "The agreement (its first section) is what the parties sign before the test: the "
         "acceptance limits, decision rules, conditions and clauses; the test report will "
         "apply exactly these. The sections after it are the technical study behind them, a "
         "non-binding annex. The fingerprint covers the number, revision, issue date, parties, "
-        "conditions and rules: the report cites it in full.")
+        "conditions, rules, the item, the tests with their machines and set-ups, the "
+        "instruments and the method's version: the report cites it in full.")
     return doc
 
 
@@ -777,7 +638,7 @@ def build_report(result, plan, deviations=()) -> Document:
     from mtplan.reports.document import covariance_frames, verdict_frames
 
     sections = [_overall_section(result), _results_section(result),
-                _conditions_section(result),
+                _conditions_section(result, plan),
                 _deviations_section(list(deviations) + exclusions(result))]
     for k, o in enumerate(result.outcomes, start=1):
         if o.measured is not None:
@@ -826,7 +687,8 @@ def _set_up_choices(o) -> list:
     why not, from the same numbers: the planner's cheapest set-up meeting the targets, and
     each swept change that lowers U beyond the Monte Carlo error at no extra machine time
     (not adopted where it raises the U of another measurand of the test)."""
-    from mtplan.reports.document import plan_adopted, plan_targets, setting_text, target_text
+    from mtplan.reports.document import (lever_U, plan_adopted, plan_targets, setting_text,
+                                         target_text)
 
     out = []
     plan = o.plan
@@ -854,8 +716,9 @@ def _set_up_choices(o) -> list:
         if not (e.significant and math.isfinite(e.u_base) and e.best_value != e.base_value
                 and e.duration_best_s <= e.duration_base_s):
             continue
+        before, after = lever_U(o, e)
         what = (f"{setting_text(o, e.field, e.best_value)} lowers U({e.measurand}) from "
-                f"{fmt_u(K * e.u_base)} to {fmt_u(K * e.u_best)} {unit(e.unit)} at no extra "
+                f"{fmt_u(before)} to {fmt_u(after)} {unit(e.unit)} at no extra "
                 f"machine time ({duration_text(e.duration_best_s)})")
         worse = _raised(o, e)
         if worse:
@@ -1056,13 +919,18 @@ def _requirement_rows(req) -> list:
     rows = []
     for key, (label, kind) in REQUIREMENT_KEYS.items():
         if key not in req or key in ("outside", "adjustment", "retests", "as_left",
-                                     "larger_u", "schedule"):
+                                     "larger_u", "schedule", "outside_effect"):
             continue
         value = req[key]
-        shown = (f"{value[0]:g} to {value[1]:g} °C" if kind == "band" else
-                 ("on" if value else "off") if kind == "bool" else
-                 f"at most {value:g}" if kind == "number" else str(value))
-        rows.append([label, shown])
+
+        def shown(value, kind=kind):
+            if isinstance(value, dict):  # per machine serial number
+                return "; ".join(f"machine {k}: {shown(v)}" for k, v in value.items())
+            return (f"{value[0]:g} to {value[1]:g} °C" if kind == "band" else
+                    ("on" if value else "off") if isinstance(value, bool) else
+                    f"at least {value:g} min" if kind == "minutes" else
+                    f"at most {value:g}" if kind == "number" else str(value))
+        rows.append([label, shown(value)])
     return rows
 
 
@@ -1075,6 +943,12 @@ def _clauses(req) -> list:
     out = []
     if req.get("outside"):
         out.append(f"Outside a required condition: {req['outside']}.")
+    kept = [k for k, v in req.get("outside_effect", {}).items() if v == "verdicts stand"]
+    if _requirement_rows(req):
+        out.append("A required condition outside its band or not recorded removes the statements "
+                   "of conformity of the tests run under it"
+                   + (f", except for {', '.join(kept)}, whose verdicts stand." if kept
+                      else "."))
     if req.get("adjustment"):
         out.append(f"On a fail or a conditional result: {req['adjustment']}.")
     if "retests" in req:
@@ -1147,6 +1021,13 @@ def _agreement_section(result, plan) -> Section:
                         size=7.0))
     if len(sources) == 1:
         blocks.append(f"The tolerance source of every measurand: {sources.pop()}.")
+    from mtplan.reports.actions import signing_lines, signing_title
+    from mtplan.reports.results import rounding_sentence
+
+    blocks.append(rounding_sentence(result))
+    warned = signing_lines(result)
+    blocks += [f"{signing_title()}:", warned] if warned else [
+        f"{signing_title()}: none."]
     frames: dict = {}
     for r in plan["rules"]:
         frames.setdefault(r.get("frame") or "not stated in the study", []).append(r["measurand"])

@@ -150,11 +150,9 @@ def setting_text(o, field: str, value) -> str:
 
 
 def _value(v) -> str:
-    if isinstance(v, float):
-        return f"{v:g}"
-    if isinstance(v, list | tuple):
-        return ", ".join(_value(x) for x in v)
-    return str(v)
+    from mtplan.reports.labels import value_text
+
+    return value_text(v)
 
 
 def _suffix(name) -> str:
@@ -234,6 +232,19 @@ def _source_words(name: str) -> str:
     return words[:1].upper() + words[1:]
 
 
+def lever_U(o, e) -> tuple[float, float]:  # noqa: N802
+    """(U at the agreed set-up, U at the lever's best value) of a lever effect, quoted
+    from the same computation as the test's table: the table's U, and that U times the
+    sweep's ratio u_best / u_base (the sweep runs fewer trials than the table, so its own
+    U at the agreed value differs from the table's by its Monte Carlo error)."""
+    r = o.results[o.recommended] if e.estimator not in o.results else o.results[e.estimator]
+    index = {m.name: i for i, m in enumerate(r.measurands)}
+    if e.measurand not in index or not (e.u_base == e.u_base and e.u_base > 0):
+        return K * e.u_base, K * e.u_best
+    u = float(r.mc.std[index[e.measurand]])
+    return K * u, K * u * e.u_best / e.u_base
+
+
 def _findings(o) -> list[str]:
     """What the simulation shows, in sentences an engineer can act on."""
     from mtplan.models.protocol import fields_info
@@ -245,9 +256,10 @@ def _findings(o) -> list[str]:
         label = field_label(e.field, docs.get(e.field, "")).split(" [")[0]
         u = unit(e.unit)
         if e.u_base == e.u_base:  # the study's value was swept
+            before, after = lever_U(o, e)
             notes.append(f"Lever: {label} {_value(e.best_value)} instead of "
                          f"{_value(e.base_value)} lowers U({e.measurand}) from "
-                         f"{fmt_u(K * e.u_base)} to {fmt_u(K * e.u_best)} {u} "
+                         f"{fmt_u(before)} to {fmt_u(after)} {u} "
                          f"({e.gain:.1f} times)"
                          + _duration_change(e.duration_base_s, e.duration_best_s) + ".")
         else:

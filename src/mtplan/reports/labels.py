@@ -11,7 +11,7 @@ import re
 from mtplan._numbers import fmt, fmt_u, unit
 from mtplan.models.protocol import split_unit
 
-__all__ = ["unit", "split_field", "field_label", "field_value", "fmt",
+__all__ = ["unit", "split_field", "field_label", "field_value", "plain_fields", "value_text", "fmt",
            "fmt_u", "tolerance_text", "duration_text", "percent", "prior_text"]
 
 def split_field(name: str) -> tuple[str, str]:
@@ -30,15 +30,41 @@ def field_label(name: str, doc: str = "") -> str:
     return f"{words} [{unit(suffix)}]" if suffix else words
 
 
+def plain_fields(text: str, setup_cls) -> str:
+    """``text`` with every set-up field name of ``setup_cls`` (``air_gradient_k_per_m``)
+    and every error source named after one (``start_scatter``) in plain words, by the
+    field's declared label (:func:`field_label`, without its unit): a document never
+    prints an identifier."""
+    from mtplan.models.protocol import fields_info
+
+    names = {}
+    for f in fields_info(setup_cls):
+        label = field_label(f.name, f.doc or "").split(" [")[0]
+        names[f.name] = label
+        names.setdefault(split_field(f.name)[0], label)
+    for name in sorted(names, key=len, reverse=True):
+        if "_" in name:
+            text = re.sub(rf"(?<![A-Za-z0-9_]){re.escape(name)}(?![A-Za-z0-9_])",
+                          names[name], text)
+    return text
+
+
+def value_text(value) -> str:
+    """A set-up value as a document prints it: yes/no for a switch, 20 for 20.0, lists
+    joined by commas."""
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, list | tuple):
+        return ", ".join(value_text(x) for x in value)
+    if isinstance(value, float):
+        return f"{value:g}"
+    return str(value)
+
+
 def field_value(name: str, value) -> str:
     """``incline_deg = 20`` -> "incline 20 deg"; lists joined by commas."""
     base, suffix = split_field(name)
-    if isinstance(value, list | tuple):
-        shown = ", ".join(f"{x:g}" if isinstance(x, float) else str(x) for x in value)
-    elif isinstance(value, float):
-        shown = f"{value:g}"
-    else:
-        shown = str(value)
+    shown = value_text(value)
     return f"{base.replace('_', ' ')} {shown}" + (f" {unit(suffix)}" if suffix else "")
 
 

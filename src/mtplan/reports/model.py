@@ -19,7 +19,8 @@ _NEGATIVE_ZERO = re.compile(r"^[-−]0(\.0+)?$")
 @dataclass
 class Table:
     """A table; ``grow``: the column (a long plain name) that gets the PDF's spare width
-    first, so it wraps least; ``size``: the largest font size [pt] the PDF may use."""
+    first, so it wraps least; ``size``: the largest font size [pt] the PDF may use;
+    ``whole``: the columns whose cells are never wrapped (a verdict on one line)."""
 
     caption: str
     header: list
@@ -27,6 +28,7 @@ class Table:
     grow: int | None = None
     size: float | None = None
     keep: bool = False  # never split over two pages (a glossary: no page of a few rows)
+    whole: tuple = ()
 
     def __post_init__(self):
         # a value that rounds to zero is printed without a sign ("-0.00" reads as negative)
@@ -76,6 +78,7 @@ class Document:
     statement: str = ""        # the cover's statement (results relate only to ...)
     flow: bool = False         # body sections after the first follow without a page break
     box: list = field(default_factory=list)  # lines boxed on page 1 (the overall result)
+    box_title: str = "Overall result"          # the box's heading
     #: what the numbers can be reproduced from (the cover's closing line)
     inputs: str = "the study file, the readings files and the random seed"
 

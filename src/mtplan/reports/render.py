@@ -16,6 +16,7 @@ from xml.sax.saxutils import escape
 from mtplan._io import atomic_write, output_problem
 from mtplan._validate import InvalidInput
 from mtplan.plans.agreement import FIT_NO_DECISION, LARGER_U_NO_DECISION, NO_INSTRUMENT
+from mtplan.plans.conditions import NO_CONDITION
 from mtplan.reports.model import Document, Figure, Section, Table
 from mtplan.reports.wording import VERDICT_SHORT
 
@@ -29,6 +30,7 @@ _PAD = 3.0   # table cell padding, each side [pt]
 VERDICT_CLASS = {"pass": "ok", "fail": "bad", "conditional pass": "warn",
                  "conditional fail": "warn", "not determinable": "nd",
                  FIT_NO_DECISION: "warn", NO_INSTRUMENT: "nd", LARGER_U_NO_DECISION: "warn",
+                 NO_CONDITION: "nd",
                  "not measured": "nd"}
 VERDICT_CLASS.update({short: VERDICT_CLASS[full] for full, short in VERDICT_SHORT.items()})
 _VERDICT_COLOUR = {"ok": "#1b5e20", "bad": "#b3261e", "warn": "#8a5a00", "nd": "#555555"}
@@ -150,6 +152,8 @@ def _column_needs(t: Table, size: float, cap: float) -> tuple[list, list]:
         low = max(w_head, w_word) + pad
         if numeric:
             low = max(low, max(w_cells) + pad)
+        if j in t.whole:  # bold where it is a verdict
+            low = max([low] + [stringWidth(c, f + "-Bold", size) + pad for c in cells])
         least.append(low)
         want.append(max(low, min(max(w_cells), 330.0) + pad))
     return least, want
@@ -270,7 +274,7 @@ def _cover_flowables(doc: Document, width: float, st: dict) -> list:
     if doc.subtitle:
         out.append(Paragraph(escape(doc.subtitle), st["subtitle"]))
     if doc.box:
-        out.append(_box_flowable(doc.box, width, st))
+        out.append(_box_flowable(doc.box, width, st, doc.box_title))
     rows = [[k, v] for k, v in doc.meta.items()]
     out += _table_flowables(Table(doc.title.split(" (")[0], ["item", "value"], rows), width, st)
     methods = []
@@ -300,12 +304,12 @@ def _cover_flowables(doc: Document, width: float, st: dict) -> list:
     return out
 
 
-def _box_flowable(lines, width: float, st: dict):
-    """The lines of the overall result in a framed box (page 1)."""
+def _box_flowable(lines, width: float, st: dict, title: str = "Overall result"):
+    """The lines of the overall result (or the plan's warnings) in a framed box (page 1)."""
     from reportlab.platypus import Paragraph
     from reportlab.platypus import Table as RLTable
 
-    cells = [[Paragraph("<b>Overall result</b>", st["body"])]]
+    cells = [[Paragraph(f"<b>{escape(title)}</b>", st["body"])]]
     cells += [[Paragraph(f"<b>{escape(line)}</b>", st["body"])] for line in lines]
     box = RLTable(cells, colWidths=[width])
     box.setStyle([("FONT", (0, 0), (-1, -1), _FONT, 9),
@@ -399,7 +403,7 @@ def render_pdf(doc: Document) -> bytes:
     from reportlab import rl_config
     from reportlab.lib.pagesizes import A4
     from reportlab.lib.units import cm
-    from reportlab.platypus import PageBreak, Paragraph, Spacer, TableStyle
+    from reportlab.platypus import CondPageBreak, PageBreak, Paragraph, Spacer, TableStyle
     from reportlab.platypus.tableofcontents import TableOfContents
 
     st = _styles()
@@ -421,18 +425,25 @@ def render_pdf(doc: Document) -> bytes:
         return [KeepTogether([Paragraph(escape(sec.title), st["h1"])] + blocks[:1])] + \
             blocks[1:]
 
+    # a section starts a new page unless the page it ends on is less than a third full:
+    # no page under a third full but the last of a section
+    new_page = CondPageBreak((A4[1] - 3.8 * cm - 12) * 2 / 3)
     for i, sec in enumerate(body):
         story += headed(sec)
-        if i == 0:  # the summary first, then the contents
-            story += [PageBreak(), Paragraph("Contents", st["toc_head"]), toc, PageBreak()]
+        if i == 0 and doc.flow:  # the summary first, then the contents, flowing on
+            # the contents whole on one page (a report's take about 13 cm)
+            story += [Spacer(1, 14), CondPageBreak(15 * cm),
+                      Paragraph("Contents", st["toc_head"]), toc, Spacer(1, 14)]
+        elif i == 0:
+            story += [new_page, Paragraph("Contents", st["toc_head"]), toc, PageBreak()]
         elif not doc.flow or i == len(body) - 1:
-            story.append(PageBreak())
+            story.append(new_page)
         else:
-            story.append(Spacer(1, 14))
+            pass  # the next heading's own space before it (a spacer at a page's foot made a blank page)
     for i, sec in enumerate(appendix):
         story += headed(sec)
         if i < len(appendix) - 1:
-            story.append(PageBreak())
+            story.append(new_page)
     if doc.end_mark:
         story.append(Paragraph(f"<b>\u2014 {escape(doc.end_mark)} \u2014</b>", st["end"]))
     buf = io.BytesIO()

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 __all__ = ["METHOD_SOURCES", "method_citation", "customer_words", "measurand_name",
-           "probability_text", "rule_wording", "rules_text", "population_text",
+           "probability_text", "p_text", "rule_wording", "rules_text", "population_text",
            "value_warnings", "VERDICT_SHORT", "verdict_short", "BURDEN_OF_PROOF",
            "OVERALL_RULE", "GLOSSARY"]
 
@@ -85,6 +85,18 @@ def probability_text(p, low=None, high=None, lower=None, upper=None) -> str:
     return f"{x:.0f} %" if x >= 10 else f"{x:.1f} %"
 
 
+def p_text(p) -> str:
+    """A p-value with the precision it has: "< 0.001", "0.042", "0.42", "> 0.99" (a
+    p-value clipped at 1 by a Bonferroni bound is "> 0.99", never "1"); "-" for none."""
+    if p is None or not math.isfinite(p):
+        return "-"
+    if p < 0.001:
+        return "< 0.001"
+    if p > 0.99:
+        return "> 0.99"
+    return f"{p:.2g}" if p < 0.1 else f"{p:.2f}"
+
+
 def population_text(prior_words: str, source: str) -> str:
     """The population of items a risk assumes, with its stated source."""
     if not prior_words:
@@ -98,8 +110,9 @@ def rule_wording(rule: str, guard_band: float) -> str:
     if kind == "simple" or not guard_band:
         return ("simple acceptance (ILAC-G8 4.2.1, binary, no guard band): pass if the "
                 "measured value lies within the tolerance, fail otherwise")
-    how = {"iso14253": "w = U, the ISO 14253-1 default rule",
-           "guard": f"w = {value or '1'} U",
+    how = {"iso14253": "w = U, the ISO 14253-1 default rule, rounded up to the last printed "
+                       "digit of U (so w may read one digit above U)",
+           "guard": f"w = {value or '1'} U, rounded up to the last printed digit of U",
            "target-pfa": f"w set for a global false-accept risk of {value}",
            "dobbert": "w from Dobbert's managed guard band"}.get(kind, kind)
     return (f"non-binary with guard band (ILAC-G8 4.2.3; {how}, U predicted): pass within "
@@ -139,7 +152,9 @@ VERDICT_SHORT = {"no decision: the readings do not fit the model":
                      "no decision (readings do not fit)",
                  "no statement: an instrument was not calibrated on the test date":
                      "no statement (instrument)",
-                 "no decision: the achieved U exceeds the agreed U": "no decision (U too large)"}
+                 "no decision: the achieved U exceeds the agreed U": "no decision (U too large)",
+                 "no statement: a test condition was outside the agreement or not recorded":
+                     "no statement (conditions)"}
 
 
 def verdict_short(verdict: str) -> str:

@@ -1,4 +1,10 @@
-"""The uncertainty engine: distributions, Monte Carlo (JCGM 101), GUM law of propagation."""
+"""The uncertainty engine: distributions, Monte Carlo (JCGM 101), GUM law of propagation.
+
+Imports: at module level, in every module of the package; a function imports a module
+itself only where that saves a real cost (scipy, pandas, emcee, tqdm: loaded where a
+coverage factor, a table, a sampler or a progress bar is made, never in a Monte Carlo's
+workers). ``tests/test_import_policy.py`` keeps it so.
+"""
 
 from mtplan.uncertainty.distributions import (
     Arcsine,
@@ -12,6 +18,7 @@ from mtplan.uncertainty.distributions import (
     Trapezoidal,
     Triangular,
 )
+from mtplan.uncertainty.gum import GUMResult, linearize, validate
 from mtplan.uncertainty.montecarlo import MCResult, ModelError, coverage_interval, propagate
 
 __all__ = [
@@ -33,11 +40,3 @@ __all__ = [
     "validate",
     "GUMResult",
 ]
-
-
-def __getattr__(name):
-    if name in ("linearize", "validate", "GUMResult"):
-        from mtplan.uncertainty import gum
-
-        return getattr(gum, name)
-    raise AttributeError(name)

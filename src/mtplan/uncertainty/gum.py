@@ -20,8 +20,9 @@ when some input has finite degrees of freedom.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -35,48 +36,102 @@ from mtplan.uncertainty.montecarlo import (
     numerical_tolerance,
 )
 
-__all__ = ["GUMResult", "linearize", "validate", "sensitivities", "ValidationResult"]
+__all__ = ["GUMResult", "Cost", "PATHS", "linearize", "validate", "sensitivities",
+           "ValidationResult"]
 
 _REL_STEP = 1e-3
 
 
-@dataclass
+#: How a propagation found its sensitivities (``GUMResult.path``): the procedure's closed
+#: form (its derivative hook), the whole chain (model, or forward model and estimator, by
+#: Richardson central differences per input), or the chain rule (the readings' effects
+#: times the estimator's map, :mod:`mtplan.evaluation.first_order`).
+PATHS = ("closed form", "whole chain", "chain rule")
+
+
+@dataclass(frozen=True)
+class Cost:
+    """What finding a propagation's sensitivities took: ``seconds`` of wall time and
+    ``cpu_seconds`` of the computing thread's CPU time (what it takes on an idle machine,
+    whatever else the machine is doing)."""
+
+    seconds: float
+    cpu_seconds: float
+
+
+@dataclass(eq=False)
 class GUMResult:
-    """Result of the GUM law of propagation.
+    """Result of the GUM law of propagation (first order): the one result of every
+    linearisation, of a generic model (:func:`linearize`) and of a procedure's set-up
+    (:func:`mtplan.evaluation.first_order.first_order`).
 
     Attributes
     ----------
     names : tuple of str
-        Output names.
+        Output (measurand) names.
     inputs : tuple of str
         Input component names (``name`` or ``name[j]`` for vector inputs).
     groups : tuple of str
         For each input component, the input (or error source) it belongs to.
-    value : array (n_outputs,)
-        Model value at the input estimates.
     sensitivity : array (n_outputs, n_components)
         Sensitivity coefficients c_ij = df_i/dx_j.
-    input_cov : array (n_components, n_components)
-        Covariance of the input components.
-    cov : array (n_outputs, n_outputs)
-        Covariance of the outputs, C V C^T.
+    input_std : array (n_components,)
+        Standard uncertainty of each input component.
+    input_cov : array (n_components, n_components), optional
+        Covariance of the input components where they correlate (None: independent, the
+        covariance is ``diag(input_std**2)``, never formed).
     dof : array (n_outputs,)
         Welch-Satterthwaite effective degrees of freedom (inf when all inputs are exact).
-    k : array (n_outputs,)
-        Coverage factor for `coverage`.
     coverage : float
+        Coverage probability of the interval ``value +- k u``.
+    units : tuple of str
+        Each output's unit ("" where the model does not say).
+    path : str
+        How the sensitivities were found, one of :data:`PATHS`; ``method`` says it in
+        words for a reader.
+    cost : Cost
+        What finding them took.
+    value : array (n_outputs,)
+        Model value at the input estimates (where the propagation did not need it, taken
+        when first asked for, from ``value_of``).
     """
 
     names: tuple
     inputs: tuple
     groups: tuple
-    value: np.ndarray
     sensitivity: np.ndarray
-    input_cov: np.ndarray
-    cov: np.ndarray
+    input_std: np.ndarray
     dof: np.ndarray
-    k: np.ndarray
-    coverage: float
+    coverage: float = 0.95
+    input_cov: np.ndarray | None = None
+    units: tuple = ()
+    path: str = "whole chain"
+    method: str = "GUM law of propagation"
+    cost: Cost = field(default_factory=lambda: Cost(0.0, 0.0))
+    value_of: Callable | None = field(default=None, repr=False)
+    _value: np.ndarray | None = field(default=None, repr=False)
+    _cov: np.ndarray | None = field(default=None, init=False, repr=False)
+    _k: np.ndarray | None = field(default=None, init=False, repr=False)
+
+    @property
+    def value(self) -> np.ndarray:
+        if self._value is None:
+            self._value = np.asarray(self.value_of(), dtype=float)
+        return self._value
+
+    @property
+    def mean(self) -> np.ndarray:
+        """The estimate y = f(x) (alias of ``value``, to match :class:`MCResult`)."""
+        return self.value
+
+    @property
+    def cov(self) -> np.ndarray:
+        """Covariance of the outputs (n_outputs, n_outputs), C V C^T."""
+        if self._cov is None:
+            c = self.sensitivity
+            self._cov = (c @ self.input_cov @ c.T if self.input_cov is not None
+                         else (c * self.input_std**2) @ c.T)
+        return self._cov
 
     @property
     def std(self) -> np.ndarray:
@@ -84,9 +139,11 @@ class GUMResult:
         return np.sqrt(np.diag(self.cov))
 
     @property
-    def mean(self) -> np.ndarray:
-        """The estimate y = f(x) (alias of ``value``, to match :class:`MCResult`)."""
-        return self.value
+    def k(self) -> np.ndarray:
+        """Coverage factor per output for `coverage` (normal, or Student's t at ``dof``)."""
+        if self._k is None:
+            self._k = coverage_factor(self.dof, self.coverage)
+        return self._k
 
     @property
     def low(self) -> np.ndarray:
@@ -96,11 +153,20 @@ class GUMResult:
     def high(self) -> np.ndarray:
         return self.value + self.k * self.std
 
+    @property
+    def sources(self) -> tuple:
+        """The inputs (error sources) the components belong to, in order."""
+        return tuple(dict.fromkeys(self.groups))
+
     def index(self, name: str) -> int:
         try:
             return self.names.index(name)
         except ValueError:
             raise KeyError(f"No output named {name!r}; outputs are {', '.join(self.names)}") from None
+
+    def u(self) -> dict:
+        """{output: standard uncertainty}."""
+        return {n: float(s) for n, s in zip(self.names, self.std, strict=True)}
 
     def summary(self):
         """DataFrame indexed by output: mean, std, low, high, k, dof."""
@@ -114,21 +180,34 @@ class GUMResult:
 
     def group_variance(self) -> tuple[tuple, np.ndarray]:
         """(groups, V) with V[i, g] the variance of output i due to group g alone."""
-        groups = tuple(dict.fromkeys(self.groups))
+        groups = self.sources
         gidx = np.array([groups.index(g) for g in self.groups])
         var = np.zeros((len(self.names), len(groups)))
         for g in range(len(groups)):
             sel = np.flatnonzero(gidx == g)
             if sel[-1] - sel[0] + 1 == sel.size:  # a run of inputs: views, no copy
                 run = slice(sel[0], sel[-1] + 1)
-                c, v = self.sensitivity[:, run], self.input_cov[run, run]
+                c = self.sensitivity[:, run]
+                v = None if self.input_cov is None else self.input_cov[run, run]
+                u2 = self.input_std[run] ** 2
             else:
-                c, v = self.sensitivity[:, sel], self.input_cov[np.ix_(sel, sel)]
-            var[:, g] = ((c @ v) * c).sum(axis=1)
+                c = self.sensitivity[:, sel]
+                v = None if self.input_cov is None else self.input_cov[np.ix_(sel, sel)]
+                u2 = self.input_std[sel] ** 2
+            var[:, g] = (((c @ v) if v is not None else c * u2) * c).sum(axis=1)
         return groups, var
 
+    def by_source(self) -> dict:
+        """{output: {source: {"u": its part of u, "share": its share of u^2}}}: the
+        budget (:meth:`budget`) as plain numbers, keyed by output and source."""
+        groups, var = self.group_variance()
+        total = np.diag(self.cov)
+        return {out: {src: {"u": float(np.sqrt(max(var[i, j], 0.0))),
+                            "share": float(var[i, j] / total[i]) if total[i] > 0 else 0.0}
+                      for j, src in enumerate(groups)} for i, out in enumerate(self.names)}
+
     def budget(self):
-        """Uncertainty budget: one row per output and input (or error source).
+        """The uncertainty budget: one row per output and input (or error source).
 
         Columns: ``output``, ``input``, ``u_input`` (root of the group's summed input
         variance), ``sensitivity`` (for scalar inputs; NaN for groups), ``contribution``
@@ -144,10 +223,12 @@ class GUMResult:
         for i, out in enumerate(self.names):
             for g, name in enumerate(groups):
                 sel = np.flatnonzero(gidx == g)
-                u_in = math.sqrt(float(np.trace(self.input_cov[np.ix_(sel, sel)])))
+                u_in = math.sqrt(float(np.trace(self.input_cov[np.ix_(sel, sel)]))
+                                 if self.input_cov is not None
+                                 else float(np.sum(self.input_std[sel] ** 2)))
                 sens = float(self.sensitivity[i, sel[0]]) if sel.size == 1 else math.nan
                 share = var[i, g] / total[i] if total[i] > 0 else 0.0
-                rows.append((out, name, u_in, sens, math.sqrt(var[i, g]), share))
+                rows.append((out, name, u_in, sens, math.sqrt(max(var[i, g], 0.0)), share))
         return pd.DataFrame(
             rows, columns=["output", "input", "u_input", "sensitivity", "contribution", "share"]
         )
@@ -305,20 +386,23 @@ def linearize(
         return np.column_stack(list(outs.values()))
 
     u = np.sqrt(np.diag(cov))
+    start = time.perf_counter(), time.thread_time()
     f0, jac = sensitivities(evaluate, x, u)
-    out_cov = jac @ cov @ jac.T
-    nu_eff = welch_satterthwaite(jac, u, nus)
+    cost = Cost(time.perf_counter() - start[0], time.thread_time() - start[1])
     return GUMResult(
         names=tuple(out_names),
         inputs=names,
         groups=groups,
-        value=f0,
         sensitivity=jac,
+        input_std=u,
         input_cov=cov,
-        cov=out_cov,
-        dof=nu_eff,
-        k=coverage_factor(nu_eff, coverage),
+        dof=welch_satterthwaite(jac, u, nus),
         coverage=coverage,
+        units=("",) * len(out_names),
+        path="whole chain",
+        method="GUM law of propagation, sensitivities by Richardson central differences",
+        cost=cost,
+        _value=f0,
     )
 
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from mtplan._parallel import check_parallel
 from mtplan._validate import Problems
 
-__all__ = ["RunOptions", "INTERVALS", "MAX_TRIALS", "check_run_options"]
+__all__ = ["RunOptions", "Options", "INTERVALS", "MAX_TRIALS", "check_run_options"]
 
 INTERVALS = ("symmetric", "shortest")
 #: the most trials one run may ask for: 10**9 trials of a procedure take hours to days;
@@ -26,8 +26,43 @@ INTERVALS = ("symmetric", "shortest")
 MAX_TRIALS = 10**9
 
 
+class Options:
+    """What an options record (a frozen dataclass) shares: made from another with keyword
+    changes (:meth:`of`, :meth:`replace`), an unknown name refused naming the fields."""
+
+    #: what the record's fields are called in a message
+    WHAT = "option"
+
+    @classmethod
+    def of(cls, options=None, /, **overrides):
+        """`options` (default: the defaults) with the named fields replaced.
+
+        Raises
+        ------
+        TypeError
+            For `options` of another type, or a keyword that names no field.
+        """
+        if options is None:
+            options = cls()
+        elif not isinstance(options, cls):
+            raise TypeError(f"The 'options' parameter must be a {cls.__name__}. Got "
+                            f"{type(options).__name__} instead.")
+        if not overrides:
+            return options
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = [k for k in overrides if k not in names]
+        if unknown:
+            raise TypeError(f"Unknown {cls.WHAT}(s) {', '.join(map(repr, unknown))}; the "
+                            f"{cls.WHAT}s are: {', '.join(sorted(names))}.")
+        return dataclasses.replace(options, **overrides)
+
+    def replace(self, **changes):
+        """A copy with the named fields changed."""
+        return type(self).of(self, **changes)
+
+
 @dataclass(frozen=True)
-class RunOptions:
+class RunOptions(Options):
     """The options of one Monte Carlo run (frozen: change one with :meth:`replace`).
 
     Attributes
@@ -74,32 +109,7 @@ class RunOptions:
     progress: object = None
     keep: int = 2 * 10**6
 
-    @classmethod
-    def of(cls, options: RunOptions | None = None, /, **overrides) -> RunOptions:
-        """`options` (default: the defaults) with the named fields replaced.
-
-        Raises
-        ------
-        TypeError
-            For `options` that is not a RunOptions, or a keyword that names no field.
-        """
-        if options is None:
-            options = cls()
-        elif not isinstance(options, cls):
-            raise TypeError(f"The 'options' parameter must be a RunOptions. Got "
-                            f"{type(options).__name__} instead.")
-        if not overrides:
-            return options
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = [k for k in overrides if k not in names]
-        if unknown:
-            raise TypeError(f"Unknown run option(s) {', '.join(map(repr, unknown))}; the run "
-                            f"options are: {', '.join(sorted(names))}.")
-        return dataclasses.replace(options, **overrides)
-
-    def replace(self, **changes) -> RunOptions:
-        """A copy with the named fields changed."""
-        return RunOptions.of(self, **changes)
+    WHAT = "run option"
 
     def fixed(self, trials: int) -> RunOptions:
         """These options with `trials` filled in where neither trials nor digits is given."""

@@ -31,12 +31,14 @@ import functools
 import math
 import sys
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from mtplan._validate import InvalidInput
+from mtplan.uncertainty.options import Options
 from mtplan.uncertainty.streams import block_sequence
 
 __all__ = [
@@ -44,6 +46,7 @@ __all__ = [
     "UnconvergedWarning",
     "EnsembleRun",
     "run_ensembles",
+    "SamplerOptions",
     "independence_move",
     "random_walk_move",
     "mixed_moves",
@@ -378,24 +381,56 @@ def mixed_moves(center, cov, *, weight: float = 0.8, inflate: float = 1.0):
             (random_walk_move(step), 1.0 - float(weight))]
 
 
+@dataclass(frozen=True)
+class SamplerOptions(Options):
+    """How :func:`run_ensembles` runs and when it stops (frozen: change one with
+    :meth:`replace`).
+
+    Attributes
+    ----------
+    n_walkers, n_ensembles, max_steps : int
+        Walkers per ensemble, independent ensembles (>= 2 for R-hat), steps per ensemble
+        at the most.
+    check_every : int, optional
+        Steps between convergence checks; default: 25, then a tenth of the chain so far
+        (checks soon for fast-mixing chains, rarely for long ones).
+    n_tau, tau_rtol, rhat_max, burn_tau : float
+        Convergence: chain longer than `n_tau` tau (the largest over the ensembles), the
+        relative change of the ensembles' mean tau between checks below `tau_rtol`, split
+        R-hat (after `burn_tau` tau of burn-in) below `rhat_max`.
+    max_seconds : float, optional
+        Wall-clock budget; checked after every ensemble's share of a check interval.
+    progress : bool or callable(steps, tau_max, rhat_max), optional
+        True: a tqdm bar on stderr (labelled `label`); a callable is called after
+        every check.
+    label : str
+        Name shown by the progress bar.
+    """
+
+    n_walkers: int = 16
+    n_ensembles: int = 4
+    max_steps: int = 20_000
+    check_every: int | None = None
+    n_tau: float = 50.0
+    tau_rtol: float = 0.05
+    rhat_max: float = 1.01
+    burn_tau: float = 3.0
+    max_seconds: float | None = None
+    progress: object = None
+    label: str = "sampler"
+
+    WHAT = "sampler option"
+
+
 def run_ensembles(
     log_prob: Callable[[np.ndarray], np.ndarray],
     center: np.ndarray,
     ball: np.ndarray,
     *,
     root: np.random.SeedSequence,
-    n_walkers: int,
-    n_ensembles: int = 4,
-    max_steps: int = 20_000,
-    check_every: int | None = None,
-    n_tau: float = 50.0,
-    tau_rtol: float = 0.05,
-    rhat_max: float = 1.01,
-    burn_tau: float = 3.0,
-    max_seconds: float | None = None,
     moves=None,
-    progress: bool | Callable[[int, float, float], None] | None = None,
-    label: str = "sampler",
+    options: SamplerOptions | None = None,
+    **option_overrides,
 ) -> EnsembleRun:
     """Run independent emcee ensembles until converged, the step budget or the time budget.
 
@@ -409,26 +444,16 @@ def run_ensembles(
         ``center + ball @ N(0, I)`` (a factor of the start covariance).
     root : SeedSequence
         Ensemble ``e`` uses child ``e`` (:func:`mtplan.uncertainty.streams.block_sequence`).
-    n_walkers, n_ensembles, max_steps : int
-    check_every : int, optional
-        Steps between convergence checks; default: 25, then a tenth of the chain so far
-        (checks soon for fast-mixing chains, rarely for long ones).
-    n_tau, tau_rtol, rhat_max, burn_tau : float
-        Convergence: chain longer than `n_tau` tau (the largest over the ensembles), the
-        relative change of the ensembles' mean tau between checks below `tau_rtol`, split
-        R-hat (after `burn_tau` tau of burn-in) below `rhat_max`.
-    max_seconds : float, optional
-        Wall-clock budget; checked after every ensemble's share of a check interval.
     moves : emcee move(s), optional
         Default: emcee's stretch move (see :func:`mixed_moves`).
-    progress : bool or callable(steps, tau_max, rhat_max), optional
-        True: a tqdm bar on stderr (labelled `label`); a callable is called after
-        every check.
-    label : str
-        Name shown by the progress bar.
+    options : SamplerOptions, optional
+        Walkers, ensembles, when to stop, progress (:class:`SamplerOptions`); any of its
+        fields may be given as a keyword instead (``n_walkers=8, max_steps=2000``).
     """
-    import time
-
+    o = SamplerOptions.of(options, **option_overrides)
+    n_walkers, n_ensembles, max_steps = o.n_walkers, o.n_ensembles, o.max_steps
+    check_every, n_tau, tau_rtol, rhat_max = o.check_every, o.n_tau, o.tau_rtol, o.rhat_max
+    burn_tau, max_seconds = o.burn_tau, o.max_seconds
     import emcee
 
     t0 = time.perf_counter()
@@ -441,7 +466,7 @@ def run_ensembles(
         samplers.append(emcee.EnsembleSampler(n_walkers, ndim, functools.partial(pool.call, e),
                                               vectorize=True, moves=moves))
         states.append(_start_state(log_prob, center, factor, n_walkers, block_sequence(root, e)))
-    bar = _bar(progress, label, int(max_steps))
+    bar = _bar(o.progress, o.label, int(max_steps))
     steps, tau_prev, converged, stopped = 0, None, False, "max_steps"
     tau_all = np.full((n_ensembles, ndim), np.inf)
     rhat = np.full(ndim, np.inf)

@@ -289,6 +289,7 @@ async function refresh() {
   drawFigures(result, asked, t0);
   scheduleSensitivity();
   scheduleEstimate();
+  schedulePositions();
   if (result.ok && result.measurands.some((m) => m.trust === "unchecked" && !/^not checked/.test(m.why))) scheduleCheck();
 }
 function scheduleCheck() {
@@ -339,7 +340,7 @@ function render(r) {
     for (const id of ["sens-plot", "budget-plot"]) $(id).classList.add("stale");
     $("verdict").textContent = "";
     renderHelp(r);
-    renderReport(r);
+    scheduleReport();
     return;
   }
   banner("");
@@ -385,8 +386,9 @@ function render(r) {
   renderBudgetTable(r);
   renderRisk(r);
   verdict(r);
+  renderSpecific(r);
   renderHelp(r);
-  renderReport(r);
+  scheduleReport();
 }
 function drawFigures(r, asked, t0) {
   // The numbers first, then the figures: the budget plot (Plotly, about half the page's work
@@ -879,6 +881,7 @@ async function init() {
   $("budget-of").addEventListener("change", () => { state.budgetOf = $("budget-of").value; renderBudgetTable(state.lastResult); });
   $("risk-of").addEventListener("change", () => { state.riskOf = $("risk-of").value; renderRisk(state.lastResult); });
   api("/api/glossary").then((g) => { state.glossary = g.terms; renderHelp(state.lastResult); }).catch(() => {});
+  specificInit();
   state.scenarios = loadScenarios();
   renderScenarios();
   $("load").addEventListener("change", async () => {

@@ -72,9 +72,15 @@ function renderReport(r) {
         tol.map((m) => {
           const a = m.acceptance, t = state.design.tolerances[m.name] || {};
           const stated = [m.name, t.lower || "-", t.upper || "-", t.prior_name || t.prior || "-", t.rule || ""];
+          // figures only on a number checked against its Monte Carlo
+          if (m.trust !== "ok") return [...stated, `no figures: u is ${checkWords(m)}`, "", "", "", ""];
           if (a.error || !a.acceptance_limits) return [...stated, a.error || "no figures", "", "", "", ""];
           return [...stated, fmt4(a.tur), fmt4(a.guard_band), `[${fmt4(a.acceptance_limits[0])}, ${fmt4(a.acceptance_limits[1])}]`, pct(a.pfa), pct(a.pfr)];
         })));
+      for (const m of tol) {  // a value measured on a machine: its specific risk and decision
+        const t = state.design.tolerances[m.name] || {};
+        if ((t.measured ?? "") !== "") parts.push(el("p", { class: "report-specific", text: "Specific risk: " + specificText(m, t) + "." }));
+      }
     }
     const m = r.measurands.find((x) => x.name === (state.budgetOf || $("budget-of").value)) || r.measurands[0];
     const rows = (m.budget_table || []).filter((b) => b.share === null || b.share >= 1e-3);
@@ -92,5 +98,11 @@ function renderReport(r) {
   parts.push(el("p", { class: "link" }, "Design link (opens this design in `mtplan explore`; the token is asked for): ",
                 el("a", { href: link, id: "report-link", text: link })));
   box.replaceChildren(...parts);
+}
+function scheduleReport() {
+  // after the numbers are on the screen (the lever's clock stops there), for the newest
+  // result only; printing asks for it again
+  clearTimeout(state.reportTimer);
+  state.reportTimer = setTimeout(() => renderReport(state.lastResult), 0);
 }
 window.addEventListener("beforeprint", () => renderReport(state.lastResult));

@@ -27,24 +27,27 @@ class Setup(SetupBase):
     spread_deg: float = param(360.0, doc="Arc the points cover; 360 = full circle, equally "
                               "spaced; less: end points included", low=1, high=360)
     probe_noise_um: float = param(0.5, doc="Probe trigger noise along the approach (std)", low=0,
-                                  high=1000)
+                                  high=1000, owner="instrument")
     pretravel_variation_um: float = param(1.0, doc="RMS amplitude of the three-lobed pre-travel "
-                                          "variation with approach direction", low=0, high=1000)
+                                          "variation with approach direction", low=0, high=1000,
+                                          owner="instrument")
     tangential_slip_um_per_deg: float = param(0.2, doc="Mean tangential slip per degree between "
-                                              "approach and wall normal", low=0, high=1000)
+                                              "approach and wall normal", low=0, high=1000,
+                                              owner="instrument")
     roundness_um: float = param(5.0, doc="Form error of the bore (RMS peak-to-valley of one "
-                                "lobed harmonic)", low=0, high=10_000)
+                                "lobed harmonic)", low=0, high=10_000, owner="workpiece")
     lobes: int = param(2, doc="Lobes of the form error (2 = oval)", low=2, high=100)
     scale_error_ppm: float = param(5.0, doc="Stage scale error per axis (rectangular half-width)",
-                                   low=0, high=10_000)
+                                   low=0, high=10_000, owner="machine")
     squareness_urad: float = param(10.0, doc="Stage X-Y squareness error (rectangular "
-                                   "half-width)", low=0, high=100_000)
+                                   "half-width)", low=0, high=100_000, owner="machine")
     stage_repeatability_um: float = param(0.5, doc="Stage positioning repeatability per axis "
-                                          "and reading (std)", low=0, high=1000)
+                                          "and reading (std)", low=0, high=1000, owner="machine")
     tip_radius_um: float = param(0.5, doc="Standard deviation of the error of the probe's "
                                  "calibrated effective tip radius, one per test (the radius is "
                                  "calibrated on a setting ring whose diameter is known to about "
-                                 "1 um, ISO 1938-1 / DIN 2250-1 setting rings)", low=0, high=1000)
+                                 "1 um, ISO 1938-1 / DIN 2250-1 setting rings)", low=0, high=1000,
+                                 owner="instrument")
     part_temperature_c: float | None = param(
         None, doc="Measured temperature of the part [degC] (ISO 1's reference is 20 degC): "
         "the estimates are corrected to 20 degC with it; empty: not measured, the part is "
@@ -53,17 +56,18 @@ class Setup(SetupBase):
     part_temperature_u_k: float = param(
         0.2, doc="Standard uncertainty of the measured part temperature (thermometer's "
         "calibration, its contact, one reading standing for the whole part; ISO/TR 16015 "
-        "names these) [K]; used when part_temperature_c is given", low=0, high=10)
+        "names these) [K]; used when part_temperature_c is given", low=0, high=10,
+        owner="instrument")
     part_temperature_halfwidth_k: float = param(
         2.0, doc="Half-width of the (rectangular) deviation of the part's temperature from "
         "20 degC when it is not measured [K] (a workshop held at 20 +- 2 degC)", low=0,
-        high=50)
+        high=50, owner="environment")
     expansion_ppm_per_k: float = param(11.5, doc="Linear thermal expansion coefficient of the "
                                        "workpiece [1e-6/K]; 11.5: steel", low=0, high=100)
     expansion_u_ppm_per_k: float = param(
         1.0, doc="Standard uncertainty of the workpiece's expansion coefficient [1e-6/K] "
         "(steels span 10.5-12.5e-6/K: ISO/TR 16015 advises about 1e-6/K for a material "
-        "known by its kind only)", low=0, high=100)
+        "known by its kind only)", low=0, high=100, owner="workpiece")
     scale_temperature_c: float | None = param(
         None, doc="Measured temperature of the stage's scales (or of the machine structure "
         "that carries them) [degC]; empty: not measured, the scales are taken at the part's "
@@ -71,11 +75,12 @@ class Setup(SetupBase):
         condition="machine_temperature_c")
     scale_temperature_u_k: float = param(
         0.2, doc="Standard uncertainty of the measured scale temperature [K]; used when "
-        "scale_temperature_c is given", low=0, high=10)
+        "scale_temperature_c is given", low=0, high=10, owner="instrument")
     scale_temperature_halfwidth_k: float = param(
         1.0, doc="Half-width of the (rectangular) difference of the scales' temperature from "
         "the part's when it is not measured [K] (0 when part and machine share one "
-        "temperature; larger for a part that arrives warmer or colder)", low=0, high=50)
+        "temperature; larger for a part that arrives warmer or colder)", low=0, high=50,
+        owner="environment")
     scale_expansion_ppm_per_k: float = param(10.0, doc="Linear thermal expansion coefficient of "
                                              "the stage's scales [1e-6/K]; 10: steel-mounted "
                                              "glass or steel scales (about 0 for glass-ceramic "
@@ -83,7 +88,7 @@ class Setup(SetupBase):
     scale_expansion_u_ppm_per_k: float = param(
         0.5, doc="Standard uncertainty of the scales' effective expansion coefficient "
         "[1e-6/K] (a scale mounted on steel follows its mounting, 10-11.5e-6/K)", low=0,
-        high=100)
+        high=100, owner="machine")
     scale_datum_x_mm: float = param(
         0.0, doc="x of the X scale's datum (its fixed point, about which it grows) from "
         "the nominal bore centre [mm]; state the machine's (e.g. -300: a bore in the middle of "
@@ -101,7 +106,7 @@ class Setup(SetupBase):
         low=-100_000, high=100_000)
     start_scatter_mm: float = param(25.0, doc="Half-width per axis of the uniform scatter of "
                                     "the start point about the truth's start", low=0,
-                                    high=10_000)
+                                    high=10_000, owner="method")
     free_test_mm: float = param(0.01, doc="Trial displacement at p2 that finds the free "
                                 "direction", low=0, high=100, low_open=True)
     miss_tolerance_mm: float = param(0.05, doc="Accepted miss between d_n and p1 per axis",

@@ -147,11 +147,9 @@ from mtplan.models.geometry21._estimators import (
     theta_joint_per_trial,
 )
 from mtplan.models.geometry21._first_order import (
-    budget,
     coefficient_covariance,
     error_bands,
     error_functions,
-    first_order_std,
     identifiability,
     identifiability_report,
     noise_free_table,
@@ -196,8 +194,6 @@ __all__ = [
     "coefficient_covariance",
     "error_bands",
     "error_functions",
-    "budget",
-    "first_order_std",
     "noise_free_table",
 ]
 

@@ -16,12 +16,8 @@ import numpy as np
 
 from mtplan._parallel import one_blas_thread
 from mtplan._validate import Problems
-from mtplan.fitting.linear import (
-    function_status,
-    null_space_table,
-    source_response,
-    source_variances,
-)
+from mtplan.fitting.effects import source_response
+from mtplan.fitting.linear import function_status, null_space_table
 from mtplan.models.geometry21._estimators import check_estimator, estimate_theta
 from mtplan.models.geometry21._layout import Geometry, geometry
 from mtplan.models.geometry21._maps import mapped_source_response, patent_map
@@ -161,7 +157,7 @@ def _source_factors(setup: Setup, estimator: str, truth: Truth | None, only) -> 
     map from the readings (the joint fits' pseudo-inverse, their derivative to within
     ~1e-4 relative at realistic errors; the patent's derivative at the truth's noise-free
     readings, :func:`mtplan.models.geometry21._maps.patent_map`); the others element by
-    element through the forward model (:func:`mtplan.fitting.linear.source_response`) and
+    element through the forward model (:func:`mtplan.fitting.effects.source_response`) and
     the estimator: the joint fits' whole, the patent's derivative at the readings of the
     sources' means."""
     truth = Truth() if truth is None else truth
@@ -247,45 +243,6 @@ def coefficient_covariance(setup: Setup | None = None, *, estimator: str = "join
     return param_names(geo)[: geo.n_coef], cov
 
 
-def _measurand_variances(setup: Setup, estimator: str, truth: Truth | None, only) -> dict:
-    """source -> {measurand: first-order variance [display unit^2]} of the listed ones."""
-    ms, g = measurand_map(setup)
-    g = g * np.array([m.scale for m in ms])[:, None]
-    var = source_variances(g, _source_factors(setup, estimator, truth, only))
-    return {name: dict(zip((m.name for m in ms), v)) for name, v in var.items()}
-
-
-@_one_blas_thread
-def budget(setup: Setup | None = None, *, estimator: str = "joint",
-           truth: Truth | None = None) -> pd.DataFrame:
-    """First-order uncertainty budget of the listed measurands, by error source.
-
-    The same first-order propagation as
-    :func:`mtplan.evaluation.simulation.linearize_procedure` (forward model and estimator
-    linearised about the sources' means), through the estimator's linear map instead of
-    differentiating the whole chain per input: seconds instead of minutes for the
-    set-ups with head positions.
-
-    Returns
-    -------
-    DataFrame with columns ``measurand``, ``unit``, ``source``, ``std`` (the standard
-    uncertainty due to that source alone, display unit) and ``share`` (its fraction of
-    the measurand's variance; the sources are independent, so the shares add to 1).
-    """
-    import pandas as pd
-
-    setup = Setup() if setup is None else setup
-    check_estimator(estimator)
-    var = _measurand_variances(setup, estimator, truth, None)
-    rows = []
-    for m in measurands(setup):
-        total = sum(v[m.name] for v in var.values())
-        for name, v in var.items():
-            rows.append((m.name, m.unit, name, math.sqrt(v[m.name]),
-                         v[m.name] / total if total > 0 else 0.0))
-    return pd.DataFrame(rows, columns=["measurand", "unit", "source", "std", "share"])
-
-
 @_one_blas_thread
 def sensitivities(setup: Setup, truth: Truth | None = None, *, estimator: str = "joint",
                   sources=None):
@@ -296,7 +253,7 @@ def sensitivities(setup: Setup, truth: Truth | None = None, *, estimator: str = 
     ``first_order_sensitivities``.
 
     The same first-order propagation as the generic chain rule, through the estimator's
-    linear map (:func:`budget`'s factors, per unit of each element) instead of
+    linear map (the sources' factors, per unit of each element) instead of
     differentiating the forward model and the estimator per element: a second instead of
     a quarter of a minute at the default set-up. None where a source's factor does not
     have one column per element (then the generic chain rule).
@@ -317,16 +274,6 @@ def sensitivities(setup: Setup, truth: Truth | None = None, *, estimator: str = 
         with np.errstate(divide="ignore", invalid="ignore"):
             cols.append(np.where(std > 0, (g @ factors[name]) / std, 0.0))
     return np.hstack(cols) if cols else np.zeros((len(ms), 0))
-
-
-@_one_blas_thread
-def first_order_std(setup: Setup, truth: Truth | None = None, *, estimator: str = "joint",
-                    sources=None) -> dict:
-    """First-order standard uncertainty of each listed measurand [display unit] (see
-    :func:`budget`), from the same factors as :func:`sensitivities`."""
-    check_estimator(estimator)
-    var = _measurand_variances(setup, estimator, truth, sources)
-    return {m.name: math.sqrt(sum(v[m.name] for v in var.values())) for m in measurands(setup)}
 
 
 def _travel(geo: Geometry, axis: int) -> tuple[float, float]:

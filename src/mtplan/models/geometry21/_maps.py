@@ -85,7 +85,7 @@ def mapped_source_response(setup: Setup, truth, names, left: np.ndarray) -> np.n
 
 def source_readings_map(setup: Setup, truth, names) -> np.ndarray:
     """(2M, K): the readings' first-order response to one standard deviation of each element
-    of the named sources (in the order of :func:`mtplan.fitting.linear.source_response`),
+    of the named sources (in the order of :func:`mtplan.fitting.effects.source_response`),
     about the sources' means, in closed form: the grid's field, the plates' offsets and the
     extra heads' settings add; the drift, reversal and servo features move the head by
     their patterns (the servo's square by twice the mean following time); a plate's tilt

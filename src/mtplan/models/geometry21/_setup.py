@@ -124,18 +124,19 @@ class Setup(SetupBase):
     yz_plane_x_mm: float = param(120.0, doc="X of the YZ plate set-up (the patent: 120 mm)",
                                  low=-1000, high=1000)
     encoder_noise_um: float = param(0.05, doc="Reading noise of the 2D encoder (std, each "
-                                    "component)", low=0, high=100)
+                                    "component)", low=0, high=100, owner="instrument")
     grid_error_um: float = param(1.0, doc="Grid plate's own error (std of its smooth field)",
-                                 low=0, high=100)
+                                 low=0, high=100, owner="instrument")
     plate_offset_mm: float = param(0.05, doc="Plate mounting offset in its plane (std)",
-                                   low=0, high=10)
+                                   low=0, high=10, owner="method")
     plate_tilt_urad: float = param(100.0, doc="Plate mounting rotation and tilts (std)",
-                                   low=0, high=20000)
+                                   low=0, high=20000, owner="method")
     head_setting_um: float = param(10.0, doc="In-plane position error of an extra head after "
                                    "the change (std, each component; estimated as a nuisance)",
-                                   low=0, high=1000)
+                                   low=0, high=1000, owner="method")
     repeatability_um: float = param(0.3, doc="Machine repeatability at each reading point (std, "
-                                    "each in-plane component; ISO 230-2 R = 4 s)", low=0, high=100)
+                                    "each in-plane component; ISO 230-2 R = 4 s)", low=0, high=100,
+                                    owner="machine")
     repeatability_correlation_mm: float = param(
         50.0, doc="Correlation length of the repeatability along the path of each pass [mm]: "
         "AR(1) in the path length, readings s mm apart correlate by exp(-s / length), however "
@@ -144,17 +145,19 @@ class Setup(SetupBase):
         0.3, doc="RMS of the machine's repeatable short-wave path deviation beyond the "
         "polynomials, each axis and direction (harmonics of 10-40 mm wavelength of the "
         "axis's position: ball-screw pitch, guideway waviness); the same in every pass",
-        low=0, high=100)
+        low=0, high=100, owner="machine")
     reversal_um: float = param(2.0, doc="Reversal value of each axis (mean; drawn uniform on "
-                               "[0, 2x]; ISO 230-2 B, 1-3 um with linear scales)", low=0, high=100)
+                               "[0, 2x]; ISO 230-2 B, 1-3 um with linear scales)", low=0, high=100,
+                               owner="machine")
     servo_lag_ms: float = param(2.0, doc="Following time 1/Kv of each axis's position loop "
                                 "(mean; 10 % spread per axis for the gain mismatch)", low=0,
-                                high=200)
+                                high=200, owner="machine")
     thermal_growth_ppm_per_h: float = param(2.0, doc="Growth of each axis's scale during the test "
-                                            "(std of the rate; ISO 230-3 drift)", low=0, high=100)
+                                            "(std of the rate; ISO 230-3 drift)", low=0, high=100,
+                                            owner="machine")
     thermal_drift_um_per_h: float = param(2.0, doc="Drift of the head relative to the plate "
                                           "during the test (std of the rate, each component)",
-                                          low=0, high=1000)
+                                          low=0, high=1000, owner="machine")
     feed_mm_min: float = param(500.0, doc="Feed of the test moves (the patent: 500 mm/min)",
                                low=0, high=100000, low_open=True)
     setup_change_s: float = param(1200.0, doc="Time to mount and align the plate in one plane",

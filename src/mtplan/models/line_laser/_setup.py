@@ -39,18 +39,20 @@ class Setup(SetupBase):
     range_mm: float = param(
         8.0, doc="Measuring range of the sensor in height (e.g. +-4 mm)", low=0, low_open=True)
     sensor_noise_um: float = param(
-        1.0, doc="Standard deviation of one height reading (single profile, matte metal)", low=0)
+        1.0, doc="Standard deviation of one height reading (single profile, matte metal)", low=0,
+        owner="instrument")
     linearity_um: float = param(
         1.0, doc="RMS along the laser line of the sensor's height error after its best straight "
                  "line is removed (calibration linearity): a smooth curve, Legendre degrees 2-4 "
                  "with random amplitudes per test, the same in all three scans. Default 1 um: "
                  "Keyence LJ-X8000 heads quote a Z linearity of +-0.03 % of F.S. (+-2.4 um over "
-                 "this 8 mm range), Micro-Epsilon scanCONTROL 30xx about +-0.1 % of FSO", low=0)
+                 "this 8 mm range), Micro-Epsilon scanCONTROL 30xx about +-0.1 % of FSO", low=0,
+                 owner="instrument")
     z_scale_ppm: float = param(
         100.0, doc="Standard deviation of the scale (gain) error of the sensor's height reading. "
                    "Default 100 ppm: the Z gain as calibrated by the maker; Keyence LJ-X8000 "
                    "heads quote a temperature characteristic of 0.01 % of F.S. per K, so 1 K "
-                   "from the calibration temperature gives this much", low=0)
+                   "from the calibration temperature gives this much", low=0, owner="instrument")
     # scans
     step_mm: float = param(
         0.05, doc="Scan step dy between profiles (encoder-pulse trigger interval)",
@@ -87,29 +89,31 @@ class Setup(SetupBase):
                  "of a few um; the drawing tolerance, tens of um, bounds it but is not its "
                  "size); a CMM calibration of every facet gives about 1 um. Only the "
                  "'pattern' estimator (and the posterior) use the pattern; the registration "
-                 "compares the scans and does not see it", low=0)
+                 "compares the scans and does not see it", low=0, owner="artefact")
     # machine errors
     shift_error_um: float = param(
-        1.0, doc="Standard deviation of the machine's positioning of the X shift w", low=0)
+        1.0, doc="Standard deviation of the machine's positioning of the X shift w", low=0,
+        owner="machine")
     raise_error_um: float = param(
-        1.0, doc="Standard deviation of the machine's positioning of the raise h", low=0)
+        1.0, doc="Standard deviation of the machine's positioning of the raise h", low=0,
+        owner="machine")
     trigger_y_um: float = param(
-        0.3, doc="Standard deviation of each scan's Y trigger position", low=0)
+        0.3, doc="Standard deviation of each scan's Y trigger position", low=0, owner="instrument")
     squareness_xy_urad: float = param(
         20.0, doc="Half-width (rectangular) of the squareness error of the X motion to the Y "
                   "(scan) motion, positive toward +Y. ISO 230-1 defines it; acceptance "
                   "tolerances of machining centres (ISO 10791-2) are about 0.02 mm over 500 mm "
-                  "(40 urad), a machine in order measures well inside that", low=0)
+                  "(40 urad), a machine in order measures well inside that", low=0, owner="machine")
     squareness_zy_urad: float = param(
         20.0, doc="Half-width (rectangular) of the squareness error of the Z motion to the Y "
                   "(scan) motion, positive toward +Y (ISO 230-1; default as squareness_xy_urad)",
-        low=0)
+        low=0, owner="machine")
     drift_um_per_s: float = param(
         0.003, doc="Standard deviation, per axis, of the thermal drift rate of the sensor "
                    "relative to the artifact, constant during the test; the scans' start times "
                    "follow the duration model. Default 0.003 um/s (about 10 um/h): ISO 230-3 "
                    "thermal tests of machining centres show drifts of 5-30 um per hour while "
-                   "warming up, and profile sensors need a 20 min run-in", low=0)
+                   "warming up, and profile sensors need a 20 min run-in", low=0, owner="machine")
     # time
     scan_feed_mm_min: float = param(600.0, doc="Scanning feed along Y", low=0, low_open=True)
     frame_rate_per_s: float = param(1000.0, doc="Largest profile rate of the sensor",

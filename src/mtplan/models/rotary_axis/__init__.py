@@ -103,10 +103,14 @@ test's time line from :func:`schedule`), ``radial_motion``, ``axial_motion`` and
 axis, ISO 230-2's systematic positioning error) with ``angular_repeatability`` (its random
 part, per position), ``angle_influence_halfwidth`` (the sensor's angle influence as a
 function of the surface's local tilt in the sensor's frame: a height offset per position,
-``range B(tau) (c0 + c1 cos phi + c2 cos 2 phi)``, B the data sheet's bound at the tilt's
-magnitude tau, phi its direction from the triangulation plane; the even part c0 grows
-with the tilt, the odd part c1 moves a C axis sideways by about ``e / tan(incline)``
-along the triangulation plane, the anisotropy c2; a set-up tilting the surface beyond
+an unknown function within the data sheet's bound ``range B(tau)`` at the tilt's
+magnitude tau, phi its direction from the triangulation plane: hats on tilt knots times
+the four corner shapes ``(1 +- cos phi)(1 +- cos 2 phi) / 4``, each element arcsine
+within the bound, so that every draw stays within it and the even part, the odd part
+(which moves a C axis sideways by about ``e / tan(incline)`` along the triangulation
+plane) and the anisotropy each reach the whole bound; the weights and the budget take
+only the covariance of these draws (module ``_layout``, ``influence_basis``); a set-up
+tilting the surface beyond
 ``sensor_max_tilt_deg`` is refused; with ``sensor_characteristic``, a calibrated
 characteristic from a tilt table, it is that characteristic instead, which every estimator
 removes at each reading's nominal tilt in the sensor's frame (bilinear between the

@@ -18,6 +18,8 @@ from mtplan.models.rotary_axis._setup import (
     incline_normal,
     lattice,
     nominal_rotations,
+    TILT_TABLE,
+    TILT_TABLE_DEG,
     sensor_tilts,
     serpentine,
     tilts,
@@ -61,6 +63,8 @@ class Plan(NamedTuple):
     tilt_bound: np.ndarray  # range x the angle influence's bound at each position's tilt
     # relative to its bound at 30 deg (P,) [mm]
     tilt_direction: np.ndarray  # the tilt's direction from the triangulation plane (P,) [rad]
+    influence: np.ndarray  # each reading's height per unit angle-influence element: the
+    # tilt knots' hats x the four corner shapes x tilt_bound (K, 4, P, R) [mm]
     times: np.ndarray  # time of each reading from the start (P, R) [s]
     total_time: float  # [s]
     down: np.ndarray  # 1 where a position is approached against the first move, else 0 (P,)
@@ -108,12 +112,7 @@ def _harmonics(angle: np.ndarray) -> np.ndarray:
     return np.stack([np.cos(angle), np.sin(angle), np.cos(2 * angle), np.sin(2 * angle)])
 
 
-#: the angle influence's bound [fraction of the range] against the surface's tilt [deg]:
-#: laser triangulation on diffuse surfaces (Micro-Epsilon optoNCDT 1700/2300 operating
-#: instructions: typ. 0.12-0.2 % at 5-15 deg, 0.5 % at 15-30 deg); beyond the last row the
-#: bound runs on along its slope (an extrapolation, stated in the field's doc)
-_TILT_TABLE_DEG = np.array([0.0, 5.0, 15.0, 30.0])
-_TILT_TABLE = np.array([0.0, 0.0012, 0.002, 0.005])
+_TILT_TABLE_DEG, _TILT_TABLE = np.array(TILT_TABLE_DEG), np.array(TILT_TABLE)
 
 
 def _calibration(setup: Setup):
@@ -142,6 +141,51 @@ def _tilt_bound(tau: np.ndarray) -> np.ndarray:
     beyond = _TILT_TABLE[-1] + slope * (tau - _TILT_TABLE_DEG[-1])
     bound = np.where(tau > _TILT_TABLE_DEG[-1], beyond, inside)
     return bound / _TILT_TABLE[-1]
+
+
+#: the angle influence's shapes in tilt are hats on knots spread evenly over the test's
+#: tilts, about this far apart (the data sheet's own rows lie 5-15 deg apart): one knot
+#: (a shape in tilt of B's own) where the tilts span less than half of it
+INFLUENCE_KNOT_DEG = 15.0
+
+
+def influence_knots(tau: np.ndarray) -> np.ndarray:
+    """The tilt knots [deg] of the angle influence's shapes for a test whose surface tilts
+    are `tau` (P,) [deg]: from the smallest to the largest, about
+    :data:`INFLUENCE_KNOT_DEG` apart."""
+    lo, hi = float(np.min(tau)), float(np.max(tau))
+    return np.linspace(lo, hi, 1 + int(round((hi - lo) / INFLUENCE_KNOT_DEG)))
+
+
+def influence_basis(setup: Setup) -> np.ndarray:
+    """Each reading's height error per unit element of the angle influence (K, 4, P, R) [mm].
+
+    The influence is ``range B(tau) s(tau, phi)`` with ``|s| <= 1`` wherever the data sheet
+    bounds it, ``s = sum_k hat_k(tau) sum_i a_ki q_i(phi)``: hats on the tilt knots
+    (:func:`influence_knots`; they are >= 0 and sum to 1) times the four corner shapes
+    ``q = (1 + e cos phi)(1 + d cos 2 phi) / 4``, e, d = +-1 (>= 0, summing to 1), so any
+    elements within +-1 keep the error within the bound at every tilt and direction, and
+    the even part (all a alike), the odd part (a = +-1 by e) and the anisotropy (by d)
+    each reach the whole bound. The sensor turned by 180 deg sees phi + pi: e changes sign.
+    """
+    tau, azimuth = tilts(setup)
+    phi = azimuth - math.radians(setup.sensor_azimuth_deg)
+    knots = influence_knots(tau)
+    if knots.size == 1:
+        hats = np.ones((1, tau.size))
+    else:
+        hats = np.clip(1.0 - np.abs(tau - knots[:, None]) / (knots[1] - knots[0]), 0.0, None)
+    sign = np.array([1.0, -1.0][:setup.n_passes])
+    c, v = np.cos(phi)[:, None] * sign, np.cos(2 * phi)[:, None]  # (P, passes), (P, 1)
+    corners = np.stack([(1 + e * c) * (1 + d * v) / 4 for e in (1, -1) for d in (1, -1)])
+    bound = setup.sensor_range_mm * _tilt_bound(tau)
+    basis = hats[:, None, :, None] * corners[None] * bound[:, None]  # (K, 4, P, passes)
+    return np.repeat(basis, setup.n_points, axis=-1)
+
+
+#: the angle influence's elements (K, 4) for the three parts (0 even, 1 odd, 2 anisotropic)
+#: of the bound, ``s = c0 + c1 cos phi + c2 cos 2 phi`` at every tilt knot
+INFLUENCE_PARTS = np.array([[1.0, 1.0, 1.0, 1.0], [1.0, 1.0, -1.0, -1.0], [1.0, -1.0, 1.0, -1.0]])
 
 
 #: the length over which the X and Y motion's bow is stated (+-50 mm about the table centre)
@@ -214,6 +258,7 @@ def plan(setup: Setup) -> Plan:
         harmonics=_harmonics(np.deg2rad(setup.angles())),
         tilt_bound=setup.sensor_range_mm * _tilt_bound(tilts(setup)[0]),
         tilt_direction=tilts(setup)[1] - math.radians(setup.sensor_azimuth_deg),
+        influence=np.ascontiguousarray(influence_basis(setup)),
         times=times,
         total_time=total,
         down=np.concatenate([_approached_down(setup.axis_angles(a)) for a in setup.axes]),

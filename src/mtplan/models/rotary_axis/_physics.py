@@ -12,11 +12,13 @@ from mtplan.models.protocol import Measurand, Readings, Source
 from mtplan.models.rotary_axis._axes import AXIS_ROWS, POSITION_AXIS, axis_parts, combined
 from mtplan.models.rotary_axis._layout import (
     FRAMES,
+    influence_knots,
     NAMES,
     Plan,
     plan,
     rotate_about,
     rotate_by_vector,
+    tilts,
 )
 from mtplan.models.rotary_axis._setup import ARCSEC, UM, URAD, Setup, Truth
 from mtplan.models.protocol import file_content
@@ -231,30 +233,44 @@ def _sensor_and_setup_sources(setup: Setup) -> dict[str, Source]:
             "optoNCDT 1750). The gain is sensor_scale. With z_follows_surface the sensor "
             "works about mid-range and this acts on tens of micrometres only."),
         "angle_influence_halfwidth": Source(
-            rect(0.0 if setup.sensor_characteristic is not None
-                 else setup.angle_influence_halfwidth_ppm * 1e-6 / 3), (3,),
+            _swing(0.0 if setup.sensor_characteristic is not None
+                   else setup.angle_influence_halfwidth_ppm * 1e-6),
+            (influence_knots(tilts(setup)[0]).size, 4),
             "The sensor's angle influence: a height error of every reading of a position that "
             "depends on the local tilt of the surface in the sensor's frame, magnitude tau "
-            "and direction phi (the fall line's azimuth from the triangulation plane), "
-            "range * B(tau) * (c0 + c1 cos phi + c2 cos 2 phi): an even part c0 that grows "
-            "with the tilt's magnitude, an odd part c1 along the triangulation plane (it "
-            "changes sign when the sensor turns by 180 deg) and the anisotropy across it c2 "
-            "(a sensor is symmetric about its triangulation plane: no sin phi terms). Each "
-            "coefficient uniform within +-1/3 of the bound at 30 deg (the field), one set per "
-            "test (one sensor), B(tau) the table relative to 30 deg, so the error stays "
-            "within the data sheet's bound at the actual tilt. B: the angle "
-            "influence tables of laser triangulation sensors on diffuse surfaces (Micro-"
-            "Epsilon's operating instructions for optoNCDT 1700 and 2300: typ. 0.12-0.2 % "
-            "of the range at 5-15 deg, 0.5 % at 15-30 deg), taken as 0.12 % at 5 deg, 0.2 % "
-            "at 15, 0.5 % at 30 (linear between, through 0 at 0 deg; beyond 30 deg along "
-            "the last row's slope, an extrapolation), scaled so that B(30 deg) = "
-            "angle_influence_halfwidth_ppm. Default 5000 ppm (0.5 %). On a C axis the tilt "
-            "is the incline at every position and the odd part moves the axis sideways by "
-            "about e / tan(incline); on an A axis the tilt grows with |A| and the even part "
-            "moves EZ0A. Off (0) when sensor_characteristic gives a calibrated "
-            "characteristic: its u is angle_calibration_u."),
+            "and direction phi (the fall line's azimuth from the triangulation plane). The "
+            "data sheet bounds it at each tilt, |e| <= range * B(tau), and states no shape "
+            "and no split, so it is an unknown function within that bound, one per test (one "
+            "sensor): e = range * B(tau) * sum_k hat_k(tau) sum_i a_ki q_i(phi), with hats "
+            "on tilt knots spread over the test's tilts about 15 deg apart (smooth shapes in "
+            "tilt, B's own among them but not assumed) and the four corner shapes q = (1 +- "
+            "cos phi)(1 +- cos 2 phi) / 4; the hats and the q are >= 0 and each sum to 1, so "
+            "every element within +-1 (of the bound at 30 deg, the field) keeps the error "
+            "within the bound at every tilt and direction, and the even part, the odd part "
+            "along the triangulation plane (it changes sign when the sensor turns by 180 "
+            "deg) and the anisotropy across it each reach the whole bound. Each element is "
+            "arcsine (JCGM 101 6.4.6: a characteristic that swings between its bounds), not "
+            "uniform: the split being unknown, each part's variance must cover a sensor "
+            "that puts most of the bound into that part (uniform elements give each part "
+            "0.32 of the bound as standard deviation, a mostly-odd sensor 0.38; arcsine "
+            "0.40). Estimators and the first-order budget take only the covariance of "
+            "these draws. B: the "
+            "angle influence tables of laser triangulation sensors on diffuse surfaces "
+            "(Micro-Epsilon's operating instructions for optoNCDT 1700 and 2300: typ. "
+            "0.12-0.2 % of the range at 5-15 deg, 0.5 % at 15-30 deg), taken as 0.12 % at 5 "
+            "deg, 0.2 % at 15, 0.5 % at 30 (linear between, through 0 at 0 deg; beyond 30 "
+            "deg along the last row's slope, an extrapolation), scaled so that B(30 deg) = "
+            "angle_influence_halfwidth_ppm. Default 5000 ppm (0.5 %). On a C axis the odd "
+            "part moves the axis sideways by about e / tan(incline); on an A axis the even "
+            "part and the anisotropy move EZ0A. Off (0) when sensor_characteristic gives a "
+            "calibrated characteristic: its u is angle_calibration_u."),
         "angle_calibration_u": _calibration_source(setup),
     }
+
+
+def _swing(half: float) -> Arcsine:
+    """Arcsine within +-half: an element of the angle influence (see its description)."""
+    return Arcsine(-half, half)
 
 
 def _calibration_source(setup: Setup) -> Source:
@@ -355,6 +371,10 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> Readings:
                     else v[:, i] if k in AXIS_ROWS else v) for k, v in errors.items()}
         z.append(_forward_axis(part, truth, errs, g.times[sl]))
     z = z[0] if len(z) == 1 else np.concatenate(z, axis=1)
+    influence = errors["angle_influence_halfwidth"]  # (n, K, 4): one function of the tilt
+    if np.any(influence):  # over the whole test (one sensor), at each reading's tilt
+        z = z + np.tensordot(influence.reshape(len(influence), -1),
+                             g.influence.reshape(-1, *z.shape[1:]), axes=1)
     if g.characteristic is not None:  # the sensor's calibrated characteristic, its error
         z = z + g.characteristic
         cal = errors["angle_calibration_u"]  # (n, K) at the calibrated points
@@ -454,12 +474,6 @@ def _forward_axis(setup: Setup, truth: Truth, errors: dict, times: np.ndarray) -
     form = errors["flatness"]  # (n, K)
     if np.any(form):
         z += np.matmul(form, g.form).reshape(n, P, M)
-    influence = errors["angle_influence_halfwidth"]  # (n, 3): a height error per position
-    if np.any(influence):  # even, odd (its sign turns with the sensor), anisotropic
-        phi = g.tilt_direction
-        even = influence[:, ::2] @ (np.stack([np.ones_like(phi), np.cos(2 * phi)]) * g.tilt_bound)
-        odd = influence[:, 1:2] * (np.cos(phi) * g.tilt_bound)
-        z += even[..., None] + odd[..., None] * g.sensor_sign
     ez = errors["z_positioning"]  # gap = surface - actual Z position
     if np.any(ez):
         z -= ez if ez.ndim == 3 else ez[..., None]

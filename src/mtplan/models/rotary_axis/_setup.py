@@ -25,6 +25,13 @@ _DEFAULT_RANGE = {"C": 360.0, "A": 90.0}
 _MAX_SLOPE_DEG = 70.0
 #: smallest |X component| of the incline's normal for the A axis (below: X unobservable)
 _MIN_NORMAL_X = 0.01
+#: the angle influence's bound [fraction of the range] against the surface's tilt [deg]:
+#: laser triangulation on diffuse surfaces (Micro-Epsilon optoNCDT 1700/2300 operating
+#: instructions: typ. 0.12-0.2 % at 5-15 deg, 0.5 % at 15-30 deg); beyond the last row the
+#: bound runs on along its slope (an extrapolation, stated in the field's doc and in the
+#: set-up's notes)
+TILT_TABLE_DEG = (0.0, 5.0, 15.0, 30.0)
+TILT_TABLE = (0.0, 0.0012, 0.002, 0.005)
 
 
 # --------------------------------------------------------------------------- set-up
@@ -95,69 +102,72 @@ class Setup(SetupBase):
     sensor_range_mm: float = param(10.0, doc="Measuring range of the distance sensor [mm]",
                                    low=0, high=1000, low_open=True)
     probe_noise_um: float = param(1.0, doc="Standard deviation of one sensor reading [um]",
-                                  low=0, high=1000)
+                                  low=0, high=1000, owner="instrument")
     sensor_scale_ppm: float = param(500.0, doc="Half-width of the sensor's scale error "
-                                    "(rectangular) [ppm]", low=0, high=1e5)
+                                    "(rectangular) [ppm]", low=0, high=1e5, owner="instrument")
     xy_positioning_um: float = param(1.0, doc="Standard deviation of the X and Y slides' "
-                                     "positioning at each lattice point [um]", low=0, high=1000)
+                                     "positioning at each lattice point [um]", low=0, high=1000,
+                                     owner="machine")
     z_positioning_um: float = param(1.0, doc="Standard deviation of the Z slide's positioning "
-                                    "at each reading [um]", low=0, high=1000)
+                                    "at each reading [um]", low=0, high=1000, owner="machine")
     flatness_um: float = param(2.0, doc="Flatness of the incline over the lattice, peak to "
-                               "valley [um]", low=0, high=1000)
+                               "valley [um]", low=0, high=1000, owner="artefact")
     artifact_tilt_urad: float = param(5000.0, doc="Standard deviation (normal, no hard "
                                       "bound) of each of the two tilts of the artifact's real "
                                       "plane from its nominal incline and azimuth [urad]: the "
                                       "plane is clamped by eye, not calibrated; the patent's "
-                                      "method does not need it", low=0, high=1e5)
+                                      "method does not need it", low=0, high=1e5, owner="artefact")
     artifact_height_error_um: float = param(100.0, doc="Half-width (rectangular) of the "
                                             "artifact's real height from the nominal "
                                             "artifact_height_mm [um] (fixture drawing and "
-                                            "clamping)", low=0, high=1e5)
+                                            "clamping)", low=0, high=1e5, owner="artefact")
     thermal_drift_um_per_s: float = param(0.001, doc="Standard deviation of each component "
                                           "(X, Y, Z) of the sensor-to-table drift rate "
-                                          "[um/s]", low=0, high=10)
+                                          "[um/s]", low=0, high=10, owner="machine")
     radial_motion_um: float = param(3.0, doc="Radial error motion of the rotary axis, peak to "
-                                    "valley per direction [um]", low=0, high=1000)
+                                    "valley per direction [um]", low=0, high=1000, owner="machine")
     axial_motion_um: float = param(2.0, doc="Axial error motion of the rotary axis, peak to "
-                                   "valley [um]", low=0, high=1000)
+                                   "valley [um]", low=0, high=1000, owner="machine")
     tilt_motion_urad: float = param(10.0, doc="Tilt error motion of the rotary axis, peak to "
-                                    "valley per direction [urad]", low=0, high=1e4)
+                                    "valley per direction [urad]", low=0, high=1e4, owner="machine")
     angular_positioning_arcsec: float = param(5.0, doc="Bound of the rotary axis's "
                                               "systematic angular positioning error, a smooth "
                                               "and repeatable function of the commanded angle "
                                               "(first and second harmonics, each of amplitude "
                                               "up to half the bound) [arcsec]", low=0,
-                                              high=3600)
+                                              high=3600, owner="machine")
     angular_repeatability_arcsec: float = param(1.0, doc="Standard deviation of the rotary "
                                                 "axis's random positioning error at each "
                                                 "position (ISO 230-2 repeatability R = 4 s) "
-                                                "[arcsec]", low=0, high=3600)
+                                                "[arcsec]", low=0, high=3600, owner="machine")
     spot_offset_u_um: float = param(5.0, doc="Standard uncertainty of each component (X, "
                                     "Y) of the laser spot's lateral offset from the point the "
                                     "slides command, as located by scanning a sphere or an edge "
                                     "[um] (a 10 mm triangulation sensor's spot is 50-100 um "
                                     "across on its data sheet; located to about a tenth)",
-                                    low=0, high=1000)
+                                    low=0, high=1000, owner="instrument")
     sensor_zero_u_um: float = param(2.0, doc="Standard uncertainty of the sensor's zero (the "
                                     "reading at the commanded Z on the nominal surface), as set "
                                     "on a gauge block by the Z slide [um] (ISO 230-2 "
-                                    "repeatability of Z)", low=0, high=1000)
+                                    "repeatability of Z)", low=0, high=1000, owner="instrument")
     xy_slope_halfwidth_urad: float = param(20.0, doc="Half-width (rectangular) of each "
                                            "component of the slope of the X and Y motion "
                                            "against Z over the lattice, the same at every "
                                            "position [urad] (half the ISO 10791-2 squareness "
-                                           "tolerance of 0.020 mm/500 mm)", low=0, high=1e4)
+                                           "tolerance of 0.020 mm/500 mm)", low=0, high=1e4,
+                                           owner="machine")
     xy_straightness_halfwidth_um: float = param(1.0, doc="Half-width (rectangular) of the bow "
                                                 "of the X and of the Y motion in Z over +-50 "
                                                 "mm about the table centre, the same at every "
                                                 "position [um] (ISO 10791-2 straightness "
                                                 "0.010 mm/500 mm, proportional to 100 mm)",
-                                                low=0, high=1000)
+                                                low=0, high=1000, owner="machine")
     reversal_halfwidth_arcsec: float = param(5.0, doc="Half-width (rectangular, sign unknown) "
                                              "of the rotary axis's reversal value B (ISO 230-2) "
                                              "[arcsec]: a position approached in the other "
                                              "direction than the first is off by B (worm-driven "
-                                             "tables: 2-10 arcsec)", low=0, high=3600)
+                                             "tables: 2-10 arcsec)", low=0, high=3600,
+                                             owner="machine")
     angular_short_period_halfwidth_arcsec: float = param(1.0, doc="Amplitude (arcsine: a "
                                                          "sinusoid of unknown phase) of the "
                                                          "rotary axis's short-period "
@@ -167,20 +177,20 @@ class Setup(SetupBase):
                                                          "[arcsec] (angle encoders' error "
                                                          "within one signal period, about "
                                                          "+-1 % of a 30-80 arcsec period)",
-                                                         low=0, high=3600)
+                                                         low=0, high=3600, owner="machine")
     sensor_linearity_halfwidth_ppm: float = param(800.0, doc="Half-width of the sensor's "
                                                   "linearity deviation over its range, in ppm "
                                                   "of sensor_range_mm [ppm] (a curve about the "
                                                   "best straight line, zero at mid-range; "
                                                   "triangulation data sheets: +-0.08 % of the "
-                                                  "range)", low=0, high=1e5)
+                                                  "range)", low=0, high=1e5, owner="instrument")
     angle_influence_halfwidth_ppm: float = param(5000.0, doc="Bound of the sensor's angle "
                                                  "influence at a 30 deg tilt of the surface, "
                                                  "in ppm of sensor_range_mm; at other tilts "
                                                  "the bound follows the data sheet's table "
                                                  "(0.12 % at 5 deg, 0.2 % at 15, 0.5 % at "
                                                  "30 deg for diffuse surfaces) scaled to it "
-                                                 "[ppm]", low=0, high=1e5)
+                                                 "[ppm]", low=0, high=1e5, owner="instrument")
     sensor_max_tilt_deg: float = param(50.0, doc="Largest tilt of the surface under the "
                                        "sensor the set-up may have [deg]; larger tilts are "
                                        "refused. Data sheets state the angle influence to 30 "
@@ -204,7 +214,8 @@ class Setup(SetupBase):
                                                  "calibrated characteristic at each of its "
                                                  "points [um] (empty: each point's u_um from "
                                                  "the file; 0: taken as exact); used only with "
-                                                 "sensor_characteristic", low=0, high=1000)
+                                                 "sensor_characteristic", low=0, high=1000,
+                                                 owner="instrument")
     sensor_azimuth_deg: float = param(0.0, doc="Azimuth from +X of the sensor's triangulation "
                                       "plane (its laser and receiver) at spindle orientation 0 "
                                       "[deg]", low=-360, high=360)
@@ -273,12 +284,29 @@ class Setup(SetupBase):
         return np.concatenate([self.axis_angles(a) for a in self.axes])
 
     def notes(self) -> list[str]:
-        """That the sensor's angle influence is a calibrated characteristic, when it is."""
+        """That the sensor's angle influence is a calibrated characteristic, when it is; or
+        that the set-up tilts the surface beyond the data sheet's last row, where its bound
+        is extrapolated."""
         if self.sensor_characteristic is None:
-            return []
+            return self._extrapolation_note()
         return [f"sensor: the angle influence is the calibrated characteristic "
                 f"{self.sensor_characteristic!r} (its u in the budget as angle_calibration_u); "
                 "the data sheet's bound angle_influence_halfwidth_ppm is not used"]
+
+    def _extrapolation_note(self) -> list[str]:
+        """The steepest tilt beyond the data sheet's table, and the rule that bounds it."""
+        tau = tilts(self)[0]
+        i = int(np.argmax(tau))
+        if tau[i] <= TILT_TABLE_DEG[-1] or self.angle_influence_halfwidth_ppm == 0:
+            return []
+        slope = (TILT_TABLE[-1] - TILT_TABLE[-2]) / (TILT_TABLE_DEG[-1] - TILT_TABLE_DEG[-2])
+        bound = (TILT_TABLE[-1] + slope * (tau[i] - TILT_TABLE_DEG[-1])) / TILT_TABLE[-1]
+        ppm = self.angle_influence_halfwidth_ppm
+        return [f"sensor: the surface tilts to {tau[i]:.1f} deg under the sensor at "
+                f"{self.position_axis(i)} = {self.angles()[i]:g} deg, beyond the data sheet's "
+                f"last row ({TILT_TABLE_DEG[-1]:g} deg): the angle influence's bound there is "
+                f"extrapolated along the last row's slope, {ppm * bound:.0f} ppm of the range "
+                f"against {ppm:g} ppm at {TILT_TABLE_DEG[-1]:g} deg"]
 
     def _check(self, p: Problems) -> None:
         if self.angles_deg is not None and self.positions is not None \

@@ -61,53 +61,56 @@ class Setup(SetupBase):
     bed_width_mm: float = param(4000.0, doc="Distance of the bed's corner marks along Y",
                                 low=0, low_open=True, high=100000)
     distance_fixed_um: float = param(
-        10.0, doc="Tracker distance (ADM) MPE, constant part a", low=0, high=10000)
+        10.0, doc="Tracker distance (ADM) MPE, constant part a", low=0, high=10000,
+        owner="instrument")
     distance_per_length_um_per_m: float = param(
-        0.3, doc="Tracker distance (ADM) MPE, length-proportional part b", low=0, high=1000)
+        0.3, doc="Tracker distance (ADM) MPE, length-proportional part b", low=0, high=1000,
+        owner="instrument")
     transverse_fixed_um: float = param(
-        15.0, doc="Tracker transverse MPE, constant part c", low=0, high=10000)
+        15.0, doc="Tracker transverse MPE, constant part c", low=0, high=10000, owner="instrument")
     transverse_per_length_um_per_m: float = param(
         3.0, doc="Tracker transverse MPE, length-proportional part d: its per-point (random) "
-        "share, the angular repeatability (see angular_systematic_um_per_m)", low=0, high=1000)
+        "share, the angular repeatability (see angular_systematic_um_per_m)", low=0, high=1000,
+        owner="instrument")
     angular_systematic_um_per_m: float = param(
         5.0, doc="Tracker transverse MPE, length-proportional part d: its per-test systematic "
         "share (angle encoders' harmonics, collimation, trunnion tilt, vertical index: "
         "constant over the test). With the per-point 3 um/m it makes 5.8 um/m in "
-        "quadrature, the Leica AT960's d = 6 um/m", low=0, high=1000)
+        "quadrature, the Leica AT960's d = 6 um/m", low=0, high=1000, owner="instrument")
     smr_centring_um: float = param(
         2.5, doc="Centring tolerance of the SMR (optical centre to sphere centre), as an MPE "
         "per direction: +-2.5 um for a precision-grade 1.5 in SMR (standard grades +-12.7 "
-        "um); beyond the MPE's own reflector", low=0, high=1000)
+        "um); beyond the MPE's own reflector", low=0, high=1000, owner="instrument")
     air_refraction_ppm: float = param(
         1.0, doc="Standard deviation of the distance scale error from the air's refractive "
         "index over the beam, one per test: weather station +-0.3 K and +-1 hPa (0.3 ppm "
         "each) and about 1 K between the station and the beam path in a hall (0.9 ppm)",
-        low=0, high=1000)
+        low=0, high=1000, owner="environment")
     thermal_drift_um_per_s: float = param(
         0.003, doc="Standard deviation of each component (X, Y, Z) of the drift rate of the "
         "tracker against the machine over the test (tripod, floor, bed): 0.003 um/s = 11 "
-        "um/h; a 1.5 m steel tripod grows 17 um per K", low=0, high=100)
+        "um/h; a 1.5 m steel tripod grows 17 um per K", low=0, high=100, owner="machine")
     straightness_um: float = param(
         10.0, doc="Straightness tolerance of each linear travel measured, each direction "
         "across it (ISO 230-1, deviation from the least-squares reference line): 10 um, "
         "the order of the acceptance tolerances of large machining centres over 1 m",
-        low=0, high=10000)
+        low=0, high=10000, owner="machine")
     mpe_model: str = param(
         "normal_k2", doc="How an MPE becomes a distribution: normal with std MPE/2 (k = 2) "
         "or rectangular with half-width MPE", choices=("normal_k2", "rectangular"))
     machine_repeatability_um: float = param(
         2.0, doc="Standard deviation of the machine's positioning at each point (each axis)",
-        low=0, high=10000)
+        low=0, high=10000, owner="machine")
     reflector_fixture_um: float = param(
         50.0, doc="Half-width (rectangular) of the reflector's position on its fixture about "
         "the stated one (reflector_offset_mm from C at the tool tip), each direction: across "
         "C away from it, along C, and round it; one per mounting. Default 50 um for an "
         "uncalibrated fixture: the arm machined to +-50 um over 150 mm, the nest's height "
         "against the tool tip to +-50 um, the spindle's orientation stop (+-0.02 deg, 52 um "
-        "at 150 mm). 0 takes the fixture as calibrated", low=0, high=10000)
+        "at 150 mm). 0 takes the fixture as calibrated", low=0, high=10000, owner="method")
     rotary_positioning_arcsec: float = param(
         5.0, doc="Standard deviation of the A and C axes' angular positioning at each arc "
-        "point (actual minus commanded angle)", low=0, high=36000)
+        "point (actual minus commanded angle)", low=0, high=36000, owner="machine")
     structure_temperature_c: float | None = param(
         None, doc="Measured temperature of the bed and gantry [degC] (the mean of sensors on "
         "the structure): the frames are corrected to 20 degC, the marks' reference "
@@ -118,16 +121,17 @@ class Setup(SetupBase):
         0.3, doc="Standard uncertainty of the measured structure temperature as the mean "
         "temperature of the bed and gantry [K] (calibrated contact sensors 0.1 K; a weldment "
         "several metres long is not isothermal); used when structure_temperature_c is given",
-        low=0, high=10)
+        low=0, high=10, owner="instrument")
     structure_temperature_halfwidth_k: float = param(
         2.0, doc="Half-width (rectangular) of the structure's temperature minus 20 degC when "
-        "it is not measured [K]: a machine hall held at 20 +- 2 degC", low=0, high=50)
+        "it is not measured [K]: a machine hall held at 20 +- 2 degC", low=0, high=50,
+        owner="environment")
     structure_expansion_ppm_per_k: float = param(
         11.5, doc="Linear thermal expansion coefficient of the bed and gantry [1e-6/K] (steel "
         "weldments 11.5; cast iron 10-11)", low=0, high=100)
     structure_expansion_u_ppm_per_k: float = param(
         1.0, doc="Standard uncertainty of the structure's expansion coefficient [1e-6/K] "
-        "(steels and cast irons span 10-12.5e-6/K; ISO/TR 16015)", low=0, high=100)
+        "(steels and cast irons span 10-12.5e-6/K; ISO/TR 16015)", low=0, high=100, owner="machine")
     air_gradient_k_per_m: float | None = param(
         None, doc="Measured vertical gradient of the air's temperature along the beams [K/m], "
         "positive with warm air above (two thermometers at different heights): every "
@@ -137,12 +141,13 @@ class Setup(SetupBase):
     air_gradient_u_k_per_m: float = param(
         0.2, doc="Standard uncertainty of the measured gradient as the mean along the beams "
         "[K/m] (two thermometers of 0.1 K a metre apart, 0.14 K/m, and the gradient's "
-        "change along the hall); used when air_gradient_k_per_m is given", low=0, high=20)
+        "change along the hall); used when air_gradient_k_per_m is given", low=0, high=20,
+        owner="instrument")
     air_gradient_range_k_per_m: float = param(
         1.0, doc="Upper end of the vertical gradient of the air's temperature when it is not "
         "measured [K/m]: uniform between 0 and it, warm air above (halls without displacement "
         "ventilation stratify by 0.5-1 K/m, Estler et al., CIRP Annals 51/2, 2002)", low=0,
-        high=20)
+        high=20, owner="environment")
     dwell_s: float = param(3.0, doc="Settling and tracker averaging per point", low=0)
     linear_feed_mm_min: float = param(3000.0, doc="Feed of the linear moves", low=0, low_open=True)
     rotary_move_s: float = param(3.0, doc="Time to index a rotary axis to the next arc point",

@@ -11,12 +11,17 @@ document a customer receives. Four modules do its four jobs:
   into a :class:`StudyResult` that the reports render without computing anything;
 - :mod:`~mtplan.plans.study.cache`: :func:`run_study_cached` keeps results under
   :func:`study_cache_key`, the hash of everything they depend on;
-- :mod:`~mtplan.plans.study.provenance`: what a result's numbers came from.
+- :mod:`~mtplan.plans.study.provenance`: what a result's numbers came from;
+
+and :mod:`~mtplan.plans.study.temperature_log` reads a log of the ambient temperature that
+``[conditions]`` names.
 """
 
 from mtplan.plans.study.cache import CACHE_KEEP, run_study_cached, study_cache_key
 from mtplan.plans.study.runner import ProcedureOutcome, StudyResult, run_study
 from mtplan.plans.study.schema import (
+    CONDITION_CHECKS,
+    CONDITION_EFFECTS,
     CONDITION_KEYS,
     HEADER_KEYS,
     INSTRUMENT_KINDS,
@@ -26,6 +31,7 @@ from mtplan.plans.study.schema import (
     ProcedureStudy,
     Study,
     load_study,
+    machine_serials,
 )
 
 __all__ = ["Study", "ProcedureStudy", "StudyResult", "HEADER_KEYS", "load_study", "run_study",

@@ -413,15 +413,10 @@ def _mc_budget(proc, ps, study, n_jobs, estimator):
     time shows each one's own effect. ``share`` is its variance over the sum of the
     single-source variances (interactions, if any, are left out).
     """
-    import pandas as pd
-
     from mtplan.evaluation.simulation import source_budget
 
-    df = source_budget(proc, ps.setup, ps.truth, estimator=estimator,
-                       trials=ps.budget_trials, rng=study.seed, n_jobs=n_jobs)
-    return pd.DataFrame({"output": df["measurand"], "input": df["source"], "u_input": math.nan,
-                         "sensitivity": math.nan, "contribution": df["std"],
-                         "share": df["share"]})
+    return source_budget(proc, ps.setup, ps.truth, estimator=estimator,
+                         trials=ps.budget_trials, rng=study.seed, n_jobs=n_jobs)
 
 
 def _count_steps(study, points):

@@ -60,7 +60,8 @@ from mtplan._validate import InvalidInput
 from mtplan.models.protocol import with_conditions
 
 __all__ = ["Study", "ProcedureStudy", "HEADER_KEYS", "CONDITION_KEYS", "REQUIREMENT_KEYS",
-           "LARGER_U", "INSTRUMENT_KINDS", "UNHONOURED_STANDARDS", "load_study"]
+           "CONDITION_CHECKS", "CONDITION_EFFECTS", "LARGER_U", "INSTRUMENT_KINDS",
+           "UNHONOURED_STANDARDS", "load_study", "machine_serials"]
 
 #: the document header's keys, in the order the cover shows them
 HEADER_KEYS = ("document", "revision", "plan_document", "plan_date", "customer",
@@ -73,6 +74,59 @@ _TOP_KEYS = {"title", "subtitle", "customer", "machine", "author", "header", "se
              "trials", "max_trials", "coverage", "procedure", "simulated", "laboratory",
              "conditions", "instrument", "requirements"}
 _LAB_KEYS = {"name", "address", "accreditation"}
+
+
+# --- what an accredited certificate states (ISO/IEC 17025 7.2.2, 7.8.2.1; ILAC-P8) --------
+#: [laboratory] keys: whether the report is issued under an accreditation (``accredited``,
+#: true or false; ``accreditation`` then names the body and number), who signs it and in
+#: which function, and per procedure of the study (all are non-standard methods, ISO/IEC
+#: 17025 7.2.2) the laboratory's procedure identifier and its validation reference
+#: (``[laboratory.procedures] NAME = { id = "...", validation = "..." }``)
+ACCREDITATION_KEYS = {"accredited", "signatory", "signatory_function", "procedures"}
+_LAB_PROCEDURE_KEYS = {"id", "validation"}
+
+
+def _accreditation(lab: dict, problems) -> dict:
+    """The [laboratory] table with its accreditation keys checked: ``accredited`` a bool,
+    ``signatory`` and ``signatory_function`` text, ``procedures`` a table of
+    ``{id, validation}`` tables; every other key kept as text."""
+    out = {k: str(v) for k, v in lab.items() if k not in ACCREDITATION_KEYS}
+    accredited = lab.get("accredited")
+    if accredited is not None and not isinstance(accredited, bool):
+        problems.append("The study's laboratory 'accredited' must be true or false (the report "
+                        f"issued under an accreditation or not). Got {accredited!r} instead.")
+    elif accredited is not None:
+        out["accredited"] = accredited
+        if accredited and not str(lab.get("accreditation", "")).strip():
+            problems.append("The study's laboratory 'accredited' is true: 'accreditation' must "
+                            "name the accreditation body and number (ILAC-P8).")
+    for key in ("signatory", "signatory_function"):
+        if key in lab and not (isinstance(lab[key], str) and lab[key].strip()):
+            problems.append(f"The study's laboratory {key!r} must be text. Got {lab[key]!r} "
+                            "instead.")
+        elif key in lab:
+            out[key] = lab[key].strip()
+    procedures = lab.get("procedures", {})
+    if not isinstance(procedures, dict):
+        problems.append("The study's laboratory 'procedures' must be a table of {id, "
+                        f"validation}} tables per procedure. Got {procedures!r} instead.")
+        procedures = {}
+    out["procedures"] = {}
+    for name, entry in procedures.items():
+        where = f"The study's laboratory procedures {name!r}"
+        if not isinstance(entry, dict):
+            problems.append(f"{where} must be a table {{ id = \"...\", validation = \"...\" }}. "
+                            f"Got {entry!r} instead.")
+            continue
+        _unknown(problems, where, entry, _LAB_PROCEDURE_KEYS)
+        bad = [k for k in _LAB_PROCEDURE_KEYS if k in entry
+               and not (isinstance(entry[k], str) and entry[k].strip())]
+        for k in bad:
+            problems.append(f"{where} {k!r} must be text. Got {entry[k]!r} instead.")
+        out["procedures"][str(name)] = {k: entry[k].strip() for k in _LAB_PROCEDURE_KEYS
+                                        if k in entry and k not in bad}
+    return out
+# --- end of the accreditation keys --------------------------------------------------------
 #: the clause for an achieved U more than 10 % above the agreed one: the guard band widened
 #: in proportion (w times U achieved / U agreed), or no decision on that measurand
 LARGER_U = ("widen", "no decision")
@@ -82,8 +136,12 @@ REQUIREMENT_KEYS = {
     "temperature_c": ("ambient temperature during the test [°C]", "band"),
     "gradient_c_per_h": ("largest temperature change [°C/h]", "number"),
     "warm_up": ("warm-up before the test", "text"),
-    "compensation": ("machine's error compensation", "bool"),
+    "warm_up_min": ("shortest warm-up [min]", "minutes"),
+    "compensation": ("machine's error compensation", "per_machine_bool"),
+    "controller": ("controller and its compensation tables' version", "per_machine_text"),
     "outside": ("outside a required condition", "text"),
+    "outside_effect": ("effect of a condition outside the agreement, or not recorded, on "
+                       "the statements of conformity", "effect"),
     "adjustment": ("on a fail or a conditional result: adjustment", "text"),
     "retests": ("re-tests allowed after an adjustment", "int"),
     "as_left": ("results after an adjustment", "text"),
@@ -98,9 +156,28 @@ CONDITION_KEYS = {"ambient_temperature_c": ("ambient temperature", "temperature"
                   "part_temperature_c": ("part (artefact) temperature", "temperature"),
                   "air_gradient_k_per_m": ("vertical gradient of the air's temperature "
                                            "(K/m, warm air above positive)", "gradient"),
+                  "temperature_min_c": ("lowest ambient temperature during the test",
+                                        "temperature"),
+                  "temperature_max_c": ("highest ambient temperature during the test",
+                                        "temperature"),
+                  "temperature_change_c_per_h": ("largest ambient temperature change [°C/h]",
+                                                 "rate"),
+                  "temperature_log": ("log of the ambient temperature", "text"),
                   "warm_up": ("warm-up before the test", "text"),
-                  "compensation": ("machine's error compensation", "bool"),
+                  "warm_up_min": ("warm-up [min]", "minutes"),
+                  "compensation": ("machine's error compensation", "per_machine_bool"),
+                  "controller": ("controller and its compensation tables' version",
+                                 "per_machine_text"),
+                  "how": ("how each condition was measured", "how"),
                   "notes": ("other conditions", "text")}
+#: the recorded conditions compared with the plan's (mtplan.plans.conditions), each named in
+#: [conditions] how = {...} with how it was measured, and in [requirements] outside_effect
+CONDITION_CHECKS = ("temperature", "temperature_change", "warm_up", "compensation",
+                    "controller")
+#: what a condition outside the agreement, or not recorded, does to the statements of
+#: conformity of the tests run under it ([requirements] outside_effect): none is made (the
+#: default), or the verdicts stand
+CONDITION_EFFECTS = ("no statement", "verdicts stand")
 #: standards a study may not cite because no procedure computes what they require
 #: ("honoured or not cited"): standard -> what it requires
 UNHONOURED_STANDARDS = {
@@ -117,7 +194,7 @@ _INSTRUMENT_KEYS = {"name", "serial", "certificate", "calibration_due", "traceab
 INSTRUMENT_KINDS = ("calibration", "verification")
 _PROC_KEYS = {"name", "label", "setup", "truth", "estimators", "sweep", "plan", "acceptance",
               "readings", "as_left", "trials", "digits", "max_trials", "budget", "budget_trials",
-              "notes", "standards", "machine"}
+              "notes", "standards", "machine", "time"}
 _SWEEP_KEYS = {"vary", "trials", "estimators"}
 _PLAN_KEYS = {"targets", "vary", "k", "estimator", "trials"}
 _ACCEPT_KEYS = {"measurand", "lower", "upper", "prior", "rule", "measured", "tolerance_source",
@@ -183,6 +260,7 @@ class ProcedureStudy:
     notes: str = ""
     standards: list = field(default_factory=list)     # standards the test follows
     machine: str = ""                  # serial of the machine the test is run on ("": the one)
+    time: str = ""                     # time of the test on the test date ("08:30-09:40")
 
     @property
     def procedure(self):
@@ -205,7 +283,7 @@ class Study:
     procedures: list
     max_trials: int = 200_000
     header: dict = field(default_factory=dict)        # HEADER_KEYS -> value (those given)
-    laboratory: dict = field(default_factory=dict)    # name, address, accreditation
+    laboratory: dict = field(default_factory=dict)    # name, address, ACCREDITATION_KEYS
     conditions: dict = field(default_factory=dict)    # CONDITION_KEYS -> value (those given)
     instruments: list = field(default_factory=list)   # dicts: _INSTRUMENT_KEYS
     simulated: bool = False                           # readings simulated, not measured
@@ -242,6 +320,11 @@ def load_study(source) -> Study:
             if used not in names:
                 problems.append(f"instrument #{j + 1} 'used_in' names {used!r}, which is no "
                                 f"procedure of the study ({', '.join(sorted(names))}).")
+    problems += [f"The study's laboratory procedures names {name!r}, which is no procedure of "
+                 f"the study ({', '.join(sorted(names))})."
+                 for name in certificate["laboratory"]["procedures"] if name not in names]
+    _temperature_log(certificate["conditions"], path, problems)
+    problems += _machine_problems(header, certificate, out)
     for i, ps in enumerate(out):  # the readings are evaluated at the recorded conditions
         if ps is not None and ps.setup is not None and ps.readings is not None:
             try:
@@ -255,6 +338,87 @@ def load_study(source) -> Study:
     return Study(title=str(data.get("title", "mtplan study")), path=path,
                  digest=hashlib.sha256(raw).hexdigest(), meta=meta, procedures=out,
                  header=header, **certificate, **top)
+
+
+def machine_serials(header, procedures) -> list[str]:
+    """The serial numbers of the machines a study tests: the header's ``machine_serial``
+    (several separated by commas or semicolons) and each test's ``machine``, in order."""
+    import re
+
+    out = [s.strip() for s in re.split(r"[,;]", header.get("machine_serial", "")) if s.strip()]
+    out += [ps.machine for ps in procedures if ps is not None and ps.machine]
+    return list(dict.fromkeys(out))
+
+
+def _machine_problems(header, certificate, procedures) -> list[str]:
+    """A test's machine that the cover does not name, conditions or requirements stated per
+    machine for a serial no test is run on, and a lowest temperature above the highest."""
+    problems = []
+    named = machine_serials(header, [])
+    for i, ps in enumerate(procedures):
+        if ps is not None and named and ps.machine and ps.machine not in named:
+            problems.append(f"procedure #{i + 1} ({ps.name}) 'machine' {ps.machine!r} is not "
+                            f"among the header's 'machine_serial' ({', '.join(named)}): the "
+                            "cover names the items tested.")
+        elif ps is not None and len(named) > 1 and not ps.machine:
+            problems.append(f"procedure #{i + 1} ({ps.name}) needs 'machine': the header names "
+                            f"several machines ({', '.join(named)}).")
+    serials = machine_serials(header, procedures)
+    for table in ("conditions", "requirements"):
+        for key in ("compensation", "controller"):
+            value = certificate[table].get(key)
+            if isinstance(value, dict):
+                for serial in sorted(set(value) - set(serials)):
+                    problems.append(f"The study's {table} {key!r} names machine {serial!r}, "
+                                    f"which no test is run on ({', '.join(serials) or 'none'}).")
+    low = certificate["conditions"].get("temperature_min_c")
+    high = certificate["conditions"].get("temperature_max_c")
+    if low is not None and high is not None and low > high:
+        problems.append(f"The study's conditions 'temperature_min_c' ({low:g}) must not exceed "
+                        f"'temperature_max_c' ({high:g}).")
+    return problems
+
+
+def _temperature_log(conditions, path, problems) -> None:
+    """``[conditions] temperature_log``: a CSV log of the ambient temperature (relative to
+    the study file) read into the lowest and highest temperature and the largest change
+    per hour (:func:`~mtplan.plans.study.temperature_log.read_temperature_log`), which the
+    study then may not state as well."""
+    from mtplan.plans.study.temperature_log import read_temperature_log
+
+    name = conditions.get("temperature_log")
+    if name is None:
+        return
+    stated = [k for k in ("temperature_min_c", "temperature_max_c",
+                          "temperature_change_c_per_h") if k in conditions]
+    if stated:
+        problems.append(f"The study's conditions state {', '.join(stated)} and a "
+                        "'temperature_log': give one or the other.")
+        return
+    log = Path(name)
+    if not log.is_absolute() and path is not None:
+        log = path.parent / log
+    try:
+        conditions.update(read_temperature_log(log))
+    except InvalidInput as exc:
+        problems += exc.problems
+
+
+def _time(problems, where, value) -> str:
+    """A test's time on the test date: a TOML time (08:30:00) or text "08:30" or
+    "08:30-09:40"; "" when not given."""
+    import re
+
+    if value is None:
+        return ""
+    if isinstance(value, datetime.time):
+        return value.strftime("%H:%M")
+    clock = r"([01]\d|2[0-3]):[0-5]\d"
+    if isinstance(value, str) and re.fullmatch(rf"{clock}(-{clock})?", value.strip()):
+        return value.strip()
+    problems.append(f"{where} 'time' must be the time of the test on the test date, "
+                    f"\"08:30\" or \"08:30-09:40\" (24 h). Got {value!r} instead.")
+    return ""
 
 
 def _read(source):
@@ -332,7 +496,7 @@ def _certificate(data, header, problems) -> dict:
     if not isinstance(lab, dict):
         problems.append("The study's 'laboratory' must be a table.")
         lab = {}
-    _unknown(problems, "The study's laboratory", lab, _LAB_KEYS)
+    _unknown(problems, "The study's laboratory", lab, _LAB_KEYS | ACCREDITATION_KEYS)
     conditions = {}
     if "ambient_temperature_c" in header:
         conditions["ambient_temperature_c"] = header["ambient_temperature_c"]
@@ -379,7 +543,7 @@ def _certificate(data, header, problems) -> dict:
         problems.append(f"The study's 'simulated' must be true or false. Got {simulated!r} "
                         "instead.")
         simulated = False
-    return {"laboratory": {k: str(v) for k, v in lab.items()}, "conditions": conditions,
+    return {"laboratory": _accreditation(lab, problems), "conditions": conditions,
             "instruments": shown, "simulated": simulated, "requirements": requirements}
 
 
@@ -403,7 +567,36 @@ _KINDS = {
     "bool": (lambda v: isinstance(v, bool), "true or false", bool),
     "text": (lambda v: isinstance(v, str), "text", str),
     "choice": (lambda v: v in LARGER_U, f"one of {', '.join(map(repr, LARGER_U))}", str),
+    "rate": (lambda v: _is_number(v) and 0 <= v <= 100, "a number from 0 to 100 [°C/h]",
+             float),
+    "minutes": (lambda v: _is_number(v) and 0 <= v <= 10_000, "a number of minutes from 0 "
+                "to 10000", float),
+    "per_machine_bool": (lambda v: isinstance(v, bool) or _per_machine(v, bool),
+                         "true or false, or a table of them by machine serial number",
+                         lambda v: v if isinstance(v, bool) else dict(v)),
+    "per_machine_text": (lambda v: _text(v) or _per_machine(v, str),
+                         "text, or a table of texts by machine serial number",
+                         lambda v: v.strip() if isinstance(v, str) else
+                         {k: x.strip() for k, x in v.items()}),
+    "how": (lambda v: isinstance(v, dict) and set(v) <= set(CONDITION_CHECKS)
+            and all(map(_text, v.values())),
+            f"a table of texts naming some of {', '.join(CONDITION_CHECKS)}", dict),
+    "effect": (lambda v: isinstance(v, dict) and set(v) <= set(CONDITION_CHECKS)
+               and all(x in CONDITION_EFFECTS for x in v.values()),
+               f"a table naming some of {', '.join(CONDITION_CHECKS)}, each one of "
+               f"{', '.join(map(repr, CONDITION_EFFECTS))}", dict),
 }
+
+
+def _text(value) -> bool:
+    return isinstance(value, str) and bool(value.strip())
+
+
+def _per_machine(value, kind) -> bool:
+    """A table of values of ``kind`` by machine serial number."""
+    return (isinstance(value, dict) and bool(value)
+            and all(isinstance(x, kind) and (kind is not str or x.strip())
+                    for x in value.values()))
 
 
 def _typed_table(data, name: str, keys: dict, problems) -> dict:
@@ -505,7 +698,8 @@ def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
                           max_trials=entry.get("max_trials"), budget=entry.get("budget", "gum"),
                           budget_trials=entry.get("budget_trials", 2000),
                           notes=str(entry.get("notes", "")), standards=list(standards),
-                          machine=machine.strip())
+                          machine=machine.strip(),
+                          time=_time(problems, where, entry.get("time")))
 
 
 def _estimators(proc, estimators, where, problems) -> list:

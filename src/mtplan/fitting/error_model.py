@@ -1,4 +1,4 @@
-"""The readings' error budget in a posterior's likelihood: every active error source.
+"""The error model of a posterior's likelihood: how it holds every active error source.
 
 For every element of every active error source the forward model is evaluated at
 the least-squares estimate with that element at its mean plus and minus one standard
@@ -43,7 +43,7 @@ import numpy as np
 from mtplan._validate import InvalidInput
 from mtplan.fitting.effects import Effect, effect
 
-__all__ = ["Budget", "Gaussian", "error_budget", "DENSE_MAX", "NONLINEAR", "MAX_NUISANCE"]
+__all__ = ["ErrorModel", "Gaussian", "error_model", "DENSE_MAX", "NONLINEAR", "MAX_NUISANCE"]
 
 _LOG_2PI = math.log(2 * math.pi)
 DENSE_MAX = 2000  # readings: dense covariance up to this count
@@ -311,9 +311,9 @@ class Gaussian:
         return float(2.0 * np.sum(frac**2) + 2.0 * self.n_perp)
 
 
-# --------------------------------------------------------------------------- the budget
+# --------------------------------------------------------------------------- the error model
 @dataclass
-class Budget:
+class ErrorModel:
     """What became of every error source, and the covariance parts of the linear ones.
 
     Attributes
@@ -384,7 +384,7 @@ def _absorbed(eff: Effect, tangent: Effect | None, ref, J, nuisance_params, name
     return None
 
 
-def error_budget(fwd, truth, noise: str, sigma, J, G, names) -> Budget:
+def error_model(fwd, truth, noise: str, sigma, J, G, names) -> ErrorModel:
     """Classify the active sources and build the readings' covariance at `truth`.
 
     Parameters
@@ -422,7 +422,7 @@ def error_budget(fwd, truth, noise: str, sigma, J, G, names) -> Budget:
                             "active error source of the set-up, so the likelihood cannot weigh "
                             "them; switch on their noise source."])
     nuis_params = [j for j in range(J.shape[1]) if not np.any(np.abs(G[:, j]) > 0)]
-    budget = Budget(how, np.zeros(n), np.zeros((n, 0)), None, None, np.zeros(n), [], {})
+    model = ErrorModel(how, np.zeros(n), np.zeros((n, 0)), None, None, np.zeros(n), [], {})
     n_nuis = 0
     for name, eff in effects.items():
         if not eff.any or _negligible(eff, ref, n):
@@ -433,9 +433,9 @@ def error_budget(fwd, truth, noise: str, sigma, J, G, names) -> Budget:
             wide = effect(fwd, truth, name, 2.0 * eff.std, f0).dense(n) / 2.0
             odd = np.sqrt(np.sum(((wide - eff.dense(n)) / ref[:, None]) ** 2, axis=0))
             nl = max(nl, float(odd.max(initial=0.0)))
-        budget.nonlinearity[name] = nl
+        model.nonlinearity[name] = nl
         if name == ns and noise in ("known", "free"):
-            _add_noise(budget, name, eff, noise, sigma, n)
+            _add_noise(model, name, eff, noise, sigma, n)
             continue
         tangent = effect(fwd, truth, name, eff.std * 1e-4, f0) if nl > NONLINEAR else None
         if tangent is not None:
@@ -447,31 +447,31 @@ def error_budget(fwd, truth, noise: str, sigma, J, G, names) -> Budget:
         if nl > NONLINEAR and n_nuis + eff.std.size <= MAX_NUISANCE:
             how[name] = "nuisance"
             n_nuis += eff.std.size
-            budget.nuisance.append((name, fwd.sources[name]))
+            model.nuisance.append((name, fwd.sources[name]))
             continue
         if nl > NONLINEAR:
-            budget.notes.append(
+            model.notes.append(
                 f"the error source {name} is non-linear (second-order effect {nl:.2g} times the "
                 f"readings' scatter at one standard deviation) but has {eff.std.size} elements, "
                 "too many to sample: linearised")
         how[name] = "covariance"
-        budget.D0 = budget.D0 + eff.diag(n)
-        budget.U0 = np.hstack([budget.U0, eff.S])
-        budget.correction = budget.correction + eff.curvature(n)
+        model.D0 = model.D0 + eff.diag(n)
+        model.U0 = np.hstack([model.U0, eff.S])
+        model.correction = model.correction + eff.curvature(n)
     fwd.slots = [(name, np.arange(int(np.prod((*s.shape, *s.distribution.event_shape),
                                                 dtype=np.int64))))
-                 for name, s in budget.nuisance]
-    return budget
+                 for name, s in model.nuisance]
+    return model
 
 
-def _add_noise(budget: Budget, name: str, eff: Effect, noise: str, sigma, n: int) -> None:
+def _add_noise(model: ErrorModel, name: str, eff: Effect, noise: str, sigma, n: int) -> None:
     """The noise source, per unit of its standard deviation: free, or at the given `sigma`."""
     ref = float(np.max(eff.std))
     d, u = eff.diag(n) / ref**2, eff.S / ref
     if noise == "free":
-        budget.Dn, budget.Un = d, u
-        budget.how[name] = "free noise (Jeffreys prior)"
+        model.Dn, model.Un = d, u
+        model.how[name] = "free noise (Jeffreys prior)"
         return
-    budget.how[name] = f"covariance, standard deviation given: {sigma:.4g}"
-    budget.D0 = budget.D0 + sigma**2 * d
-    budget.U0 = np.hstack([budget.U0, sigma * u])
+    model.how[name] = f"covariance, standard deviation given: {sigma:.4g}"
+    model.D0 = model.D0 + sigma**2 * d
+    model.U0 = np.hstack([model.U0, sigma * u])
