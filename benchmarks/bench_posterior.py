@@ -55,7 +55,7 @@ def _compare(proc, setup, readings, post):
 def main(argv=None):
     from mtplan.evaluation.posterior import NotConvergedError, sample_posterior
     from mtplan.models import registry
-    from tests.models import toy_line
+    from mtplan.testing import template as toy_line
 
     ap = argparse.ArgumentParser()
     ap.add_argument("procedures", nargs="*",

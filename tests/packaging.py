@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.metadata
 import importlib.util
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -36,3 +37,19 @@ def pip_install(site: Path, *packages: Path, setuptools: tuple[int, int] = (68, 
            "--no-deps", *offline, "--target", str(site), *map(str, packages)]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
+
+
+#: the checkout whose mtplan is under test
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def install_mtplan(site: Path, work: Path) -> None:
+    """Build mtplan from this checkout's sources as a source distribution holds them (the
+    package, its metadata and the docs it ships), and install it into `site`, in `work`."""
+    tree = work / "mtplan-src"
+    (tree / "docs").mkdir(parents=True)
+    for name in ("pyproject.toml", "README.md", "docs/glossary.md"):
+        shutil.copy2(ROOT / name, tree / name)
+    shutil.copytree(ROOT / "src", tree / "src", symlinks=True,
+                    ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
+    pip_install(site, tree, setuptools=(77, 0))  # pyproject.toml's build requirement

@@ -2,11 +2,13 @@
 
     python docs/explore/screenshots_state.py   # docs/explore/{login,scenarios}[_390].png,
                                                # docs/explore/positions_<procedure>.png,
+                                               # docs/explore/specific[_390].png,
                                                # docs/explore/{rotary_axis,tracker_frame}_print.png
 
 - the login page a saved design link meets after a restart of the server (1440 and 390 px);
 - named scenarios side by side (the page's scenarios section, 1440 and 390 px);
 - the measuring positions of each procedure (1440 px; rotary_axis at 390 px too);
+- the specific risk of a measured value under the tolerance table (1440 and 390 px);
 - the print: the page printed to PDF by Chromium, as the browser's Print does, one A4 page
   rendered by poppler's ``pdftoppm``.
 
@@ -127,6 +129,29 @@ def main() -> int:
                 out = HERE / f"positions_{name}{'_390' if width < 800 else ''}.png"
                 page.screenshot(path=str(out), full_page=True, clip={
                     "x": box["x"], "y": y - 30, "width": box["width"], "height": box["height"] + 60})
+                _small(out)
+                ctx.close()
+            # the specific risk of a measured value, under the tolerance table
+            for suffix, width in (("", 1440), ("_390", 390)):
+                ctx = browser.new_context(viewport={"width": width, "height": 900})
+                page = ctx.new_page()
+                page.set_default_timeout(300_000)
+                design = {"procedure": "rotary_axis", **DESIGNS["rotary_axis"]}
+                design["tolerances"] = {k: {**v, "measured": "95"}
+                                        for k, v in design["tolerances"].items()}
+                page.goto(_link(link, design))
+                _settled(page)
+                page.wait_for_function("/outside its tolerance/.test(document."
+                                       "getElementById('specific-out').textContent)")
+                time.sleep(0.5)
+                top = page.locator("#acceptance").bounding_box()
+                low = page.locator("#specific").bounding_box()
+                scroll = page.evaluate("window.scrollY")
+                out = HERE / f"specific{suffix}.png"
+                page.screenshot(path=str(out), full_page=True, clip={
+                    "x": low["x"], "y": top["y"] + scroll - 30,
+                    "width": min(width - low["x"], max(top["width"], low["width"])),
+                    "height": low["y"] + low["height"] - top["y"] + 40})
                 _small(out)
                 ctx.close()
             # the print: one A4 page, as Chromium prints it

@@ -101,8 +101,8 @@ def test_derivative_hook_is_used_and_std_and_budget_follow_from_it():
     def doubled(*args, **kw):
         return 2.0 * proc.capabilities.first_order_sensitivities(*args, **kw)
 
-    twice = fo.first_order(dataclasses.replace(proc, capabilities=dataclasses.replace(
-        proc.capabilities, first_order_sensitivities=doubled)), setup)
+    twice = fo.first_order(dataclasses.replace(proc, capabilities=proc.capabilities.overriding(
+        first_order_sensitivities=doubled)), setup)
     np.testing.assert_allclose(twice.std, 2.0 * plain.std, rtol=1e-12)
     np.testing.assert_allclose(twice.group_variance()[1], 4.0 * plain.group_variance()[1],
                                rtol=1e-12)
@@ -116,8 +116,8 @@ def test_a_hook_of_the_wrong_shape_is_refused_naming_it():
     from mtplan._validate import InvalidInput
 
     proc = registry()["geometry21"]
-    bad = dataclasses.replace(proc, capabilities=dataclasses.replace(
-        proc.capabilities, first_order_sensitivities=lambda *a, **k: np.zeros((1, 1))))
+    bad = dataclasses.replace(proc, capabilities=proc.capabilities.overriding(
+        first_order_sensitivities=lambda *a, **k: np.zeros((1, 1))))
     with pytest.raises(InvalidInput, match="first_order_sensitivities hook of geometry21"):
         fo.first_order(bad, proc.Setup())
 

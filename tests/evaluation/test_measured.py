@@ -15,7 +15,7 @@ from mtplan import cli
 from mtplan._validate import InvalidInput
 from mtplan.evaluation.measured import estimate_measured, read_readings
 from mtplan.models import registry
-from tests.models import toy_line
+from mtplan.testing import template as toy_line
 
 PROC = toy_line.PROCEDURE
 SETUP = PROC.Setup()

@@ -19,7 +19,7 @@ from mtplan.evaluation.posterior import (
     UnconvergedWarning,
     sample_posterior,
 )
-from tests.models import toy_line
+from mtplan.testing import template as toy_line
 
 PROC = toy_line.PROCEDURE
 SETUP = PROC.Setup()

@@ -16,8 +16,8 @@ def assert_chain_rule_is_the_linearisation(proc, setup, estimator):
     variance to about 1e-7 of the product of its effects on the readings and the
     estimator's map (more than its own size for a source the estimator cancels); 1e-5 of
     u and of u^2 are the bounds held."""
-    generic = dataclasses.replace(proc, capabilities=dataclasses.replace(
-        proc.capabilities, first_order_sensitivities=None))
+    generic = dataclasses.replace(proc, capabilities=proc.capabilities.generic(
+        "first_order_sensitivities"))
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(fo, "WHOLE_MAX", 10**9)
         whole = fo.first_order(generic, setup, estimator=estimator)

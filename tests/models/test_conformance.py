@@ -13,7 +13,7 @@ import pytest
 from mtplan.models import broken, registry
 from mtplan.models.protocol import Procedure
 from mtplan.testing import CHECKS, ProcedureCheckError, check_procedure
-from tests.models import toy_line
+from mtplan.testing import template as toy_line
 
 PROCEDURES = {"toy_line": toy_line.PROCEDURE, **registry()}
 

@@ -17,8 +17,8 @@ from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertain
 
 P = g21.PROCEDURE
 #: the procedure without its closed-form sensitivities: the generic GUM linearisation
-GENERIC = dataclasses.replace(P, capabilities=dataclasses.replace(
-    P.capabilities, first_order_sensitivities=None))
+GENERIC = dataclasses.replace(P, capabilities=P.capabilities.generic(
+    "first_order_sensitivities"))
 SMALL = dict(poly_order=2, line_points=5, line_repeats=1, circle_points=12)
 
 

@@ -25,8 +25,8 @@ from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertain
 PROC = ll.PROCEDURE
 SETUP = ll.Setup()
 #: the procedure without its closed-form sensitivities: the generic linearisation
-GENERIC = dataclasses.replace(PROC, capabilities=dataclasses.replace(
-    PROC.capabilities, first_order_sensitivities=None))
+GENERIC = dataclasses.replace(PROC, capabilities=PROC.capabilities.generic(
+    "first_order_sensitivities"))
 
 
 def _noise_free(setup, truth, n=1):
@@ -663,8 +663,8 @@ def test_linearize_uses_the_closed_form_with_the_generic_numbers(estimator, setu
     def off(*args, **kw):
         return ll.sensitivities(*args, **kw) * 1.001
 
-    bad = dataclasses.replace(PROC, capabilities=dataclasses.replace(
-        PROC.capabilities, first_order_sensitivities=off))
+    bad = dataclasses.replace(PROC, capabilities=PROC.capabilities.overriding(
+        first_order_sensitivities=off))
     with pytest.raises(AssertionError):
         _same_linearisation(linearize_procedure(bad, setup, estimator=estimator,
                                                 sources=only), gum)

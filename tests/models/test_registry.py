@@ -19,7 +19,7 @@ import mtplan.models as models
 from mtplan import cli
 from mtplan._validate import InvalidInput
 from mtplan.models import ENTRY_POINT_GROUP, Procedure, broken, get, registry
-from tests.models import toy_line
+from mtplan.testing import template as toy_line
 
 PYPROJECT = Path(__file__).resolve().parents[2] / "pyproject.toml"
 
@@ -85,13 +85,13 @@ def test_without_mtplans_entry_points_the_built_in_modules_are_found(site):
 BAD = {
     "no_import": ("mtplan_no_such_module:PROCEDURE", "ModuleNotFoundError"),
     "not_one": ("math:pi", "names a float, not an mtplan.models.Procedure"),
-    "other_name": ("tests.models.toy_line:PROCEDURE", "names the procedure 'toy_line'"),
-    "rotary_axis": ("tests.models.toy_line:PROCEDURE", "'rotary_axis' is already registered"),
+    "other_name": ("mtplan.testing.template:PROCEDURE", "names the procedure 'toy_line'"),
+    "rotary_axis": ("mtplan.testing.template:PROCEDURE", "'rotary_axis' is already registered"),
 }
 
 
 def test_a_broken_plugin_is_named_and_the_others_work(site, capsys):
-    _installed(site, "mtplan-plugins", {"toy_line": "tests.models.toy_line:PROCEDURE",
+    _installed(site, "mtplan-plugins", {"toy_line": "mtplan.testing.template:PROCEDURE",
                                         **{k: v for k, (v, _) in BAD.items()}})
     procs = registry()
     assert procs["toy_line"] is toy_line.PROCEDURE

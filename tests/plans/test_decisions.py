@@ -109,7 +109,7 @@ def test_u_targets_and_dominant_sources():
     assert d.u_targets({"targets": {"a": 2.0}, "k": 2}, [v]) == {"a": (1.0, "plan target")}
     budget = pd.DataFrame({"output": ["a", "a", "b"], "input": ["noise", "dwell", "noise"],
                            "share": [0.7, 0.3, 0.4]})
-    (top,) = d.dominant_sources(budget, ("dwell_s",), ["noise_um", "dwell_s"])
+    (top,) = d.dominant_sources(budget, ("dwell_s",), {"noise": "noise_um", "dwell": "dwell_s"})
     assert top["source"] == "noise" and top["field"] == "noise_um" and not top["lever"]
     assert top["measurands"] == [("a", 0.7)]
     assert math.isclose(d.K, 2.0)

@@ -7,7 +7,7 @@ import pytest
 
 from mtplan._validate import InvalidInput
 from mtplan.plans.planner import optimize_design, parse_target, pareto_front, plan, readings_jacobian
-from tests.models import toy_line
+from mtplan.testing import template as toy_line
 
 P = toy_line.PROCEDURE
 GRID = {"n_points": [3, 5, 9, 17, 33], "probe_noise_um": [0.5, 1.0, 2.0]}

@@ -16,7 +16,7 @@ import pytest
 
 from mtplan._validate import InvalidInput
 from mtplan.plans.sweep import RESULT_COLUMNS, sweep
-from tests.models import toy_line
+from mtplan.testing import template as toy_line
 
 P = toy_line.PROCEDURE
 VARY = {"n_points": [3, 5, 9], "probe_noise_um": [0.5, 2.0]}
@@ -133,7 +133,7 @@ SCRIPT = textwrap.dedent(
     """
     import sys
     sys.path.insert(0, {root!r})
-    from tests.models import toy_line
+    from mtplan.testing import template as toy_line
     from mtplan.plans.sweep import sweep
     sweep(toy_line.PROCEDURE, vary={vary!r}, trials={trials}, rng=9, out=sys.argv[1])
     """

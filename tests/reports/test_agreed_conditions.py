@@ -258,8 +258,9 @@ def test_a_test_on_a_machine_the_cover_does_not_name_is_refused(small_study_file
 
 def test_a_temperature_log_gives_the_band_and_the_change_per_hour(small_study_file, tmp_path):
     """A log instead of the lowest and highest: its extremes, and the largest change within
-    any hour (here 0.8 °C between 09:20 and 10:10, although the log drifts back)."""
-    from mtplan.plans.conditions import OUTSIDE, WITHIN, check_conditions
+    any hour (here 0.8 °C between 09:20 and 10:10, although the log drifts back); a test
+    whose time the log does not span has no recorded temperature."""
+    from mtplan.plans.conditions import NOT_RECORDED, OUTSIDE, WITHIN, check_conditions
     from mtplan.plans.study import load_study
 
     (tmp_path / "log.csv").write_text(
@@ -277,6 +278,16 @@ def test_a_temperature_log_gives_the_band_and_the_change_per_hour(small_study_fi
     assert [f.state for f in findings] == [WITHIN, OUTSIDE]
     assert findings[0].recorded == ("20.3 to 21.1 °C (log log.csv, 5 readings from 08:00 to "
                                     "11:30)")
+    # a log that starts after the test did: the test's temperature is not recorded
+    (tmp_path / "log.csv").write_text("time,temperature_c\n09:30,20.4\n11:30,20.5\n",
+                                      encoding="utf-8")
+    findings, deviations, blocked = check_conditions(load_study(path),
+                                                     {"temperature_c": [19.5, 21.5]})
+    assert [(f.state, f.tests) for f in findings] == [(WITHIN, ()), (NOT_RECORDED, (1,))]
+    assert deviations[0].startswith(
+        "Test condition ambient temperature (lowest to highest): required 19.5 to 21.5 °C; "
+        "not recorded during test 1: the log spans 09:30 to 11:30. Clause applied:")
+    assert len(blocked) == 1
     bad = _altered(small_study_file, tmp_path, ("temperature_min_c = 20.2",
                                                 'temperature_log = "log.csv"'))
     (tmp_path / "log.csv").write_text("time,temperature_c\n08:00,20.4\n07:00,hot\n",

@@ -191,3 +191,17 @@ def test_p_values_and_field_names_in_plain_words(demo_report):
         assert raw not in report and raw not in plan, raw
     measured = pd.read_csv(folder / "results" / "measured.csv")
     assert "fit_p_text" in measured and "1" not in set(measured["fit_p_text"].astype(str))
+
+
+def test_every_error_source_names_its_owner():
+    """The actions phrase each source by its owner: every source of every built-in
+    procedure's default set-up declares one on the set-up field that sizes it."""
+    from mtplan.models import get
+    from mtplan.models.fields import OWNERS
+    from mtplan.plans.actions import owner_of, source_owners
+
+    for name in ("rotary_axis", "geometry21", "circle_centre", "line_laser", "tracker_frame"):
+        proc = get(name)
+        owners = source_owners(proc)
+        found = {s: owner_of(owners, s) for s in proc.sources(proc.Setup())}
+        assert all(o in OWNERS for o in found.values()), (name, found)

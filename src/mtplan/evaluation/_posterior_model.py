@@ -304,8 +304,7 @@ class Forward:
     def structure(self, truth, name: str):
         """The procedure's colouring of source `name` at `truth`
         (``Capabilities.source_structure``), on the used readings; None without one."""
-        hook = getattr(self.proc, "source_structure", None)
-        plan = None if hook is None else hook(self.setup, truth, name)
+        plan = self.proc.capabilities.source_structure(self.setup, truth, name)
         if plan is None:
             return None
         colours, owners = plan

@@ -12,7 +12,7 @@ they give the same numbers.
 The sensitivities come from one of two places:
 
 - the procedure's derivative hook, ``Capabilities.first_order_sensitivities`` (as
-  astropy.modeling's ``fit_deriv``), where it declares one and it answers for the
+  astropy.modeling's ``fit_deriv``), where the procedure overrides it and it answers for the
   estimator: a closed form through the estimator's linear map (geometry21, line_laser);
 - otherwise the chain rule, forward model then estimator, by finite differences. With up
   to :data:`WHOLE_MAX` source elements the whole chain is differentiated at once
@@ -123,8 +123,8 @@ def first_order(proc, setup, truth=None, *, estimator: str | None = None, source
     start = time.perf_counter(), time.thread_time()
     # small products: a team of BLAS threads costs more than it gains, most on a busy machine
     with one_blas_thread():
-        hook = proc.capabilities.first_order_sensitivities
-        jac = None if hook is None else hook(setup, truth, estimator=est_name, sources=sources)
+        jac = proc.capabilities.first_order_sensitivities(setup, truth, estimator=est_name,
+                                                           sources=sources)
         if jac is not None:
             jac = np.asarray(jac, dtype=float)
             if jac.shape != (len(measurands), u.size):

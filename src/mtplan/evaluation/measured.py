@@ -29,6 +29,7 @@ from mtplan.evaluation.simulation import (
     measurand_rows,
     undetermined_measurands,
 )
+from mtplan.models.protocol import Procedure
 
 __all__ = ["read_readings", "read_measurement", "Measurement", "estimate_measured",
            "best_estimator", "MeasuredResult", "UNCERTAINTY_METHODS", "SOURCE_KINDS",
@@ -152,7 +153,8 @@ class MeasuredResult(ResultDocument):
         stated uncertainty is not valid for these readings.
     """
 
-    procedure: str
+    #: the procedure itself (its ``name`` is what the JSON and the documents print)
+    procedure: Procedure
     estimator: str
     uncertainty: str
     setup: object
@@ -212,7 +214,7 @@ class MeasuredResult(ResultDocument):
         return source_kinds(self.details.budget) if self.uncertainty == "posterior" else {}
 
     def _head(self) -> dict:
-        doc = {"procedure": self.procedure, "estimator": self.estimator,
+        doc = {"procedure": self.procedure.name, "estimator": self.estimator,
                "uncertainty": self.uncertainty, "setup": self.setup.as_dict(),
                "seed": self.seed,
                "setup_from_file": {k: list(v) if isinstance(v, tuple) else v
@@ -340,7 +342,7 @@ def _observes(proc, setup, est_name, est_internal, step):
     moves alone (derived from the others, as rotary_axis's ac_offset from the two axis
     lines) gets slope 1 and is listed in the second return value: it follows the estimate
     as the measurands it derives from do."""
-    if proc.capabilities.truth_from_estimate is None:
+    if not proc.capabilities.builds_truths:
         return None, []
     measurands = proc.measurands(setup)
     slopes = np.full(len(measurands), np.nan)
@@ -639,14 +641,14 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
 
     measurands = tuple(proc.measurands(setup))
     finite = np.isfinite(estimate)
-    if proc.capabilities.truth_from_estimate is not None and finite.all():
+    if proc.capabilities.builds_truths and finite.all():
         truth = proc.capabilities.truth_from_estimate(setup, est_internal)
     else:
         truth = proc.Truth()
         notes.append(f"the Monte Carlo ran at the default truth of the procedure ({proc.title}), "
                      "not at the "
-                     "estimate" + ("" if proc.capabilities.truth_from_estimate is None else
-                                   " (the estimate is not finite)"))
+                     "estimate" + (" (the estimate is not finite)"
+                                   if proc.capabilities.builds_truths else ""))
     truth, sources, why = condition_on_readings(proc, setup, readings, truth)
     notes += [why] if why else []
     first_order = None
@@ -706,7 +708,7 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
                    cov=None if first_order is None else first_order.cov, n_jobs=n_jobs)
     notes += c["notes"]
     return MeasuredResult(
-        procedure=proc.name, estimator=est_name, uncertainty="mc", setup=setup,
+        procedure=proc, estimator=est_name, uncertainty="mc", setup=setup,
         measurands=measurands, estimate=estimate, value=value, std=c["u"], low=c["low"],
         high=c["high"], coverage=float(coverage), seed=seed, details=r,
         bias_correction=correction, bias_correction_u=c["u_correction"],
@@ -749,8 +751,8 @@ def estimate_measured(
         measurand; the patent's estimator stays available by its name.
     uncertainty : {"mc", "posterior"}
         ``"mc"``: Monte Carlo of the set-up's error sources around the estimate (at
-        ``procedure.capabilities.truth_from_estimate(setup, estimate)`` when the procedure has that
-        hook, else its default truth, noted); the value is the estimate corrected for
+        ``procedure.capabilities.truth_from_estimate(setup, estimate)`` when the procedure builds
+        truths, else its default truth, noted); the value is the estimate corrected for
         the estimator's bias there, with the interval around it. A measurand the
         estimator cannot give (no Monte Carlo spread, or a noise-free estimate that
         does not follow the measurand) is "not determinable", with the reason.
@@ -863,7 +865,7 @@ def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage
     from mtplan.evaluation.covariance import posterior_covariance
 
     return _with_fit(MeasuredResult(
-        procedure=proc.name, estimator=est_name, uncertainty="posterior", setup=setup,
+        procedure=proc, estimator=est_name, uncertainty="posterior", setup=setup,
         measurands=measurands, estimate=estimate,
         value=np.array([post.mean[n] for n in names]),
         std=np.array([post.std[n] for n in names]),

@@ -53,7 +53,7 @@ import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
 from mtplan.fitting import ErrorModel, error_model
-from mtplan.models.protocol import shown_with_unit
+from mtplan.models.protocol import Procedure, shown_with_unit
 from mtplan.evaluation._posterior_model import DOMAIN_ERRORS, Forward, TruthBuilder, \
     truth_parameters
 from mtplan.uncertainty.streams import as_seed_sequence
@@ -93,7 +93,7 @@ class PosteriorResult:
 
     Attributes
     ----------
-    procedure : str
+    procedure : Procedure
     setup : the procedure's Setup
     measurands : tuple of Measurand
     parameters : tuple of str
@@ -137,7 +137,7 @@ class PosteriorResult:
     notes : list of str
     """
 
-    procedure: str
+    procedure: Procedure
     setup: object
     measurands: tuple
     parameters: tuple
@@ -271,16 +271,15 @@ def initial_theta(proc, setup, readings, builder, start, estimator, notes) -> np
                                 f"free parameters are {builder.names}."])
         return np.array([float(start.get(p.name, v)) for p, v in
                          zip(builder.params, builder.values, strict=True)])
-    if proc.capabilities.truth_from_estimate is None:
+    if not proc.capabilities.builds_truths:
         return builder.values.copy()
     if estimator is None and proc.exact_names:  # one that sees every measurand
         estimator = proc.exact_names[0]
     try:
         est = proc.estimate(setup, readings, estimator)
         est = {k: float(np.asarray(v).reshape(-1)[0]) for k, v in est.items()}
-        t0 = proc.capabilities.truth_from_estimate(setup, est)
-        if proc.capabilities.start_from_readings is not None:
-            t0 = proc.capabilities.start_from_readings(setup, readings, t0)
+        t0 = proc.capabilities.start_from_readings(
+            setup, readings, proc.capabilities.truth_from_estimate(setup, est))
         return np.array([builder.value_of(t0, p) for p in builder.params])
     except DOMAIN_ERRORS as exc:
         notes.append(f"start: the estimator failed ({exc}); started from the default truth")
@@ -790,7 +789,7 @@ def _result(fwd, fit: _Fit, space: _Space, logpost, run, diag, *, mode, root, n_
         float(np.max(np.asarray(fwd.sources[ns].distribution.std))) if ns else None)
     seed = root.entropy if isinstance(root.entropy, int) else list(root.entropy)
     return PosteriorResult(
-        procedure=proc.name, setup=fwd.setup, measurands=fwd.measurands,
+        procedure=proc, setup=fwd.setup, measurands=fwd.measurands,
         parameters=tuple(space.names), samples=diag["samples"], mean=diag["mean"],
         std=diag["std"], low=diag["low"], high=diag["high"], coverage=float(coverage),
         tau=diag["tau"], rhat=diag["rhat"], ess=diag["ess"], acceptance=run.acceptance,
@@ -808,7 +807,7 @@ def _check_converged(result: PosteriorResult, run, opts: dict, allow: bool) -> N
         return
     why = (f"its time budget of {opts['max_seconds']:g} s" if run.stopped == "max_seconds"
            else f"{run.steps} steps per ensemble")
-    msg = (f"The posterior of {result.procedure} did not converge in {why} (needs > "
+    msg = (f"The posterior of {result.procedure.name} did not converge in {why} (needs > "
            f"{opts['n_tau']:g} tau with tau settled and R-hat < {opts['rhat_max']:g}; tau max "
            f"{float(np.max(run.tau.max(axis=0))):.1f} steps, R-hat max "
            f"{float(np.max(run.rhat)):.4f}); raise max_steps (--max-steps) or the time budget, "

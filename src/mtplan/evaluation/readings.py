@@ -272,8 +272,6 @@ def _match_design(proc, path, df, frames, reduced):
 # --------------------------------------------------------------------------- 6. the range
 def _check_limits(proc, setup, path, df) -> None:
     """Readings outside the instrument's range (``procedure.readings.limits``) are refused."""
-    if proc.readings.limits is None:
-        return
     lines = df.attrs.get("lines", list(range(2, len(df) + 2)))
     for c, (lo, hi, what) in proc.readings.limits(setup).items():
         v = df[c].to_numpy(dtype=float)
@@ -577,12 +575,10 @@ def read_measurement(procedure, path, values=None) -> Measurement:
     given = parse_fields(proc.Setup, values, owner=proc.name)  # each value alone, first
     nominal = proc.Setup()
     df, cols = _table(proc, nominal, path)
-    implied = {}
-    if proc.readings.setup_from_frame is not None:
-        try:
-            implied = proc.readings.setup_from_frame(df)
-        except InvalidInput as exc:
-            _fail(path, " ".join(exc.problems))
+    try:
+        implied = proc.readings.setup_from_frame(df)
+    except InvalidInput as exc:
+        _fail(path, " ".join(exc.problems))
     setup, from_file, kept, notes = _complete_setup(proc, given, implied, path)
     origin = {}
     readings = _finish(proc, setup, path, df, cols, origin)

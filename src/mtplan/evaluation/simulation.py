@@ -201,13 +201,12 @@ class ResultDocument:
 
 def undetermined_measurands(proc, setup) -> dict:
     """{name: (unit, reason)}: the measurands `proc` can report that `setup` does not
-    determine at all, from the procedure's ``identifiability`` hook ({} without one).
+    determine at all, from the procedure's ``identifiability`` table ({} from the generic
+    default's empty table).
 
     What the readings determine does not depend on the estimator, so the hook is asked
     for its first exact estimator's table (the cheapest: the data's own view). The unit
     is the suffix of the measurand's Truth field (``EAX_urad``)."""
-    if proc.capabilities.identifiability is None:
-        return {}
     estimator = proc.exact_names[0] if proc.exact_names else proc.default_estimator
     table = proc.capabilities.identifiability(setup, estimator)
     listed = {m.name for m in proc.measurands(setup)}
@@ -260,7 +259,8 @@ class ProcedureResult(ResultDocument):
     ``determinable``, ``reason``, ``true`` and ``bias``.
     """
 
-    procedure: str
+    #: the procedure itself (its ``name`` is what the JSON and the documents print)
+    procedure: Procedure
     estimator: str
     setup: object
     truth: object
@@ -318,7 +318,7 @@ class ProcedureResult(ResultDocument):
 
     def _head(self) -> dict:
         seed = self.mc.seed
-        return {"procedure": self.procedure, "estimator": self.estimator,
+        return {"procedure": self.procedure.name, "estimator": self.estimator,
                 "setup": self.setup.as_dict(),
                 "seed": int(seed) if isinstance(seed, int | np.integer) else list(seed),
                 "trials": int(self.mc.trials), "sources": list(self.sources),
@@ -484,7 +484,7 @@ def simulate_uncertainty(
     quantised = _quantised(proc, setup, est_name, measurands, mc)
     tv = proc.display_truth(setup, truth)
     return ProcedureResult(
-        procedure=proc.name,
+        procedure=proc,
         estimator=est_name,
         setup=setup,
         truth=truth,
@@ -564,7 +564,8 @@ class LinearizedResult(ResultDocument):
     budget (:meth:`GUMResult.budget`).
     """
 
-    procedure: str
+    #: the procedure itself (its ``name`` is what the JSON and the documents print)
+    procedure: Procedure
     estimator: str
     setup: object
     measurands: tuple
@@ -578,7 +579,7 @@ class LinearizedResult(ResultDocument):
         return self.gum.std
 
     def _head(self) -> dict:
-        return {"procedure": self.procedure, "estimator": self.estimator,
+        return {"procedure": self.procedure.name, "estimator": self.estimator,
                 "setup": self.setup.as_dict(), "k": float(self.gum.k[0])
                 if len(self.gum.k) else None}
 
@@ -606,7 +607,7 @@ def linearize_result(procedure, setup=None, truth=None, *, estimator: str | None
               f"at first order (it is quantised or blind to {m.name}, or no source moves it), "
               "so the law of propagation cannot give its uncertainty"
               for m, u in zip(measurands, g.std, strict=True) if not u > 0]
-    return LinearizedResult(procedure=proc.name, estimator=est_name, setup=setup,
+    return LinearizedResult(procedure=proc, estimator=est_name, setup=setup,
                             measurands=measurands, gum=g, notes=notes,
                             undetermined=undetermined_measurands(proc, setup))
 

@@ -261,17 +261,15 @@ def identify(proc, setup) -> dict:
     from mtplan.plans.identifiability import identifiability
     from mtplan.plans.planner import readings_jacobian
 
-    own = proc.capabilities.identifiability_report
     names = [m.name for m in proc.measurands(setup)]
-    if own is not None:
-        rep = own(setup)
-        if "jacobian" in rep:
-            r = identifiability(rep["jacobian"], scale=rep["scale"], names=rep["names"],
-                                tol=rep["rank_tol"], n_poses=int(rep["readings"]),
-                                functions=rep["functions"])
-            undetermined = [k for k, v in r.determined.items() if not v]
-            return _ident_dict(r, float(rep["condition_number"]), undetermined,
-                               "the model's error coefficients")
+    rep = proc.capabilities.identifiability_report(setup)  # {}: no analysis of its own
+    if "jacobian" in rep:
+        r = identifiability(rep["jacobian"], scale=rep["scale"], names=rep["names"],
+                            tol=rep["rank_tol"], n_poses=int(rep["readings"]),
+                            functions=rep["functions"])
+        undetermined = [k for k, v in r.determined.items() if not v]
+        return _ident_dict(r, float(rep["condition_number"]), undetermined,
+                           "the model's error coefficients")
     J, cols = readings_jacobian(proc, setup)
     r = identifiability(J, names=cols)
     undetermined = []

@@ -28,7 +28,7 @@ import math
 
 from mtplan._validate import InvalidInput
 from mtplan.models import get
-from mtplan.models.protocol import UNIT_SUFFIXES, fields_info, file_fields, make, parse_fields
+from mtplan.models.protocol import fields_info, file_fields, make, parse_fields
 
 __all__ = ["K", "source_fields", "json_value", "setup_key", "json_setup", "whole", "normalise",
            "refuse_files", "field_problems", "setup_of"]
@@ -40,21 +40,14 @@ K = 2.0
 
 def source_fields(proc) -> dict:
     """Error source name -> the set-up field that sizes it (``probe_noise`` ->
-    ``probe_noise_um``): the field is the source's name followed by a unit suffix."""
+    ``probe_noise_um``), as each source declares it (``Source(field=...)``)."""
     return dict(_source_fields(proc.name))
 
 
 @functools.lru_cache(maxsize=64)
 def _source_fields(name: str) -> tuple:  # asked several times a change: once per procedure
     proc = get(name)
-    names = list(proc.sources(proc.Setup()))
-    out = {}
-    for f in fields_info(proc.Setup):
-        for s in names:
-            rest = f.name[len(s) + 1:]
-            if f.name.startswith(s + "_") and rest in UNIT_SUFFIXES:
-                out[s] = f.name
-    return tuple(out.items())
+    return tuple((s, src.field) for s, src in proc.sources(proc.Setup()).items())
 
 
 def json_value(v):

@@ -41,8 +41,9 @@ def temperature_sources(setup, name: str, *, measured: str, assumed: str) -> dic
     is_measured = getattr(setup, f"{name}_c") is not None
     u = getattr(setup, f"{name}_u_k") if is_measured else 0.0
     hw = 0.0 if is_measured else getattr(setup, f"{name}_halfwidth_k")
-    return {f"{name}_u": Source(Normal(0.0, u), (), measured),
-            f"{name}_halfwidth": Source(Rectangular(-hw, hw), (), assumed)}
+    return {f"{name}_u": Source(Normal(0.0, u), (), measured, field=f"{name}_u_k"),
+            f"{name}_halfwidth": Source(Rectangular(-hw, hw), (), assumed,
+                                        field=f"{name}_halfwidth_k")}
 
 
 def assumed_note(setup, name: str, what: str, about: str = "20 degC") -> list[str]:
@@ -66,8 +67,9 @@ def gradient_sources(setup, name: str, *, measured: str, assumed: str) -> dict:
     is_measured = getattr(setup, f"{name}_k_per_m") is not None
     u = getattr(setup, f"{name}_u_k_per_m") if is_measured else 0.0
     top = 0.0 if is_measured else getattr(setup, f"{name}_range_k_per_m")
-    return {f"{name}_u": Source(Normal(0.0, u), (), measured),
-            f"{name}_range": Source(Rectangular(0.0, top), (), assumed)}
+    return {f"{name}_u": Source(Normal(0.0, u), (), measured, field=f"{name}_u_k_per_m"),
+            f"{name}_range": Source(Rectangular(0.0, top), (), assumed,
+                                    field=f"{name}_range_k_per_m")}
 
 
 def bending(grad, horiz):

@@ -9,18 +9,18 @@ A procedure module (``mtplan/models/<name>.py``) defines a module-level
   and lists every problem at once; cross-field rules go in ``_check``.
 - ``Truth``: the true measurands and nuisance geometry, same mechanism.
 - ``measurands(setup) -> tuple[Measurand, ...]``: names (ISO 230), display units.
-- ``sources(setup) -> dict[str, Source]``: the error sources. A source named
-  ``probe_noise`` is sized by the set-up field ``probe_noise_um``; a size of 0
-  switches it off (its distribution's std is 0). Each source is drawn per trial
-  into ``(trials, *shape)`` in internal units (mm, rad).
+- ``sources(setup) -> dict[str, Source]``: the error sources. Each declares the set-up
+  field that sizes it (``Source(field="probe_noise_um")`` for ``probe_noise``); a size of 0
+  switches it off (its distribution's std is 0). Each source is drawn per trial into
+  ``(trials, *shape)`` in internal units (mm, rad); :func:`active_sources` and
+  :func:`zero_errors` are functions of the sources.
 - ``forward(setup, truth, errors) -> readings``: the deterministic forward model;
   ``errors`` maps every source name to an array of shape ``(n, *source.shape)``;
   ``readings`` is a :class:`Readings` of batch-first arrays (leading axis = trials).
 - ``estimators``: name -> :class:`Estimator`, a record of the function
   ``estimate(setup, readings) -> dict[measurand, (n,) array]`` in internal units (mm, rad),
   its plain ``description`` (the reports quote it), whether it is ``exact`` without noise
-  and, for a quantised estimator, its ``resolution``. The patent's method is named
-  ``patent`` (or the patent's own name) and is always present; the first is the default.
+  and, for a quantised estimator, its ``resolution``; the first is the default.
 - ``true_values(setup, truth) -> dict[measurand, float]`` in internal units.
 - ``duration(setup) -> float``: machine time of the test [s].
 - ``readings``: a :class:`ReadingsFormat`, ``frame(setup, readings) -> DataFrame`` and
@@ -28,16 +28,18 @@ A procedure module (``mtplan/models/<name>.py``) defines a module-level
   and back), and optionally ``setup_from_frame(df) -> dict[field, Implied]`` (the set-up
   fields a measured table determines, each with the tolerance within which a value the
   user states agrees with the file, :class:`Implied`), ``optional_columns``, ``limits``
-  and ``noise_source``.
+  and ``noise_source``; a callable left out is a function that answers {}.
 - ``description`` and ``levers`` (the set-up fields an engineer chooses).
-- ``capabilities``: a :class:`Capabilities` record, what the procedure offers beyond its
-  model as data with generic defaults (as scikit-learn's estimator tags): the Monte Carlo
-  ``block_size``, ``truth_from_estimate`` and its batched form, ``start_from_readings``,
-  ``source_structure``, the
-  analysis hooks ``identifiability_report``, ``report_extras``, ``identifiability`` and
-  ``observability``, and one derivative hook, ``first_order_sensitivities`` (the closed
-  form of the first-order sensitivities, from which the first-order service derives u and
-  the budget for every caller). Each default (None) selects the generic analysis.
+- ``capabilities``: a :class:`Capabilities` (:mod:`mtplan.models.capabilities`), what the
+  procedure offers beyond its model, after scikit-learn's base classes and tags: data as
+  tags (the Monte Carlo ``block_size``) and every optional behaviour as a method whose body
+  is the generic one (truths from estimates, the start of a least squares, a source's
+  structure, the derivative hook ``first_order_sensitivities``, the identifiability
+  report and tables, observability, report extras); a procedure subclasses it and
+  overrides only what it needs. No field is a hook that may be None.
+- ``source_method``: a :class:`SourceMethod`, the estimator that is the published source
+  method (``patent`` unless named otherwise; always present) and its citation, which the
+  certificate prints.
 
 The field machinery (:func:`param`, :class:`SetupBase`, :func:`make`, :func:`fields_info`,
 :class:`Implied`, ...) lives in :mod:`mtplan.models.fields`; its names are re-exported here,
@@ -77,6 +79,7 @@ from mtplan.models.fields import (
     split_unit,
     with_conditions,
 )
+from mtplan.models.capabilities import Capabilities, SourceMethod
 from mtplan.uncertainty.distributions import Constant, Distribution
 from mtplan.uncertainty.streams import as_seed_sequence, block_sequence, named_generator
 
@@ -101,8 +104,11 @@ __all__ = [
     "Estimator",
     "ReadingsFormat",
     "Capabilities",
+    "SourceMethod",
     "Procedure",
     "Readings",
+    "active_sources",
+    "zero_errors",
 ]
 
 
@@ -150,11 +156,16 @@ class Source:
         one scale error per test).
     description : str
         What the source is, and where its default size comes from.
+    field : str
+        The set-up field that sizes the source (``probe_noise_um`` for ``probe_noise``): 0
+        there switches the source off. The designer offers it as the source's control, and
+        the conformance checks switch the source off through it.
     """
 
     distribution: Distribution
     shape: tuple = ()
     description: str = ""
+    field: str = ""
 
     @property
     def active(self) -> bool:
@@ -210,6 +221,43 @@ class Readings(dict):
         return f"Readings({dict.__repr__(self)})"
 
 
+def active_sources(sources: Mapping[str, Source], only=None, *, owner: str = "procedure"
+                   ) -> dict:
+    """The sources of `sources` that will be drawn: the active ones, restricted to those named
+    by `only` (a name or names) when given.
+
+    Raises
+    ------
+    InvalidInput
+        When `only` is empty or names no source of `sources` (`owner`: the procedure's name
+        in the message).
+    """
+    if only is not None:
+        only = [only] if isinstance(only, str) else list(only)
+        if not only:
+            raise InvalidInput(
+                [f"The 'sources' parameter of {owner} must name at least one of its "
+                 f"error sources ({', '.join(sources)}), or be None for all of them. "
+                 "Got an empty list instead."]
+            )
+        unknown = [s for s in only if s not in sources]
+        if unknown:
+            raise InvalidInput(
+                [f"The 'sources' parameter of {owner} must name its error sources "
+                 f"({', '.join(sources)}). Got {', '.join(map(repr, unknown))} instead."]
+            )
+        return {k: v for k, v in sources.items() if k in only and v.active}
+    return {k: v for k, v in sources.items() if v.active}
+
+
+def zero_errors(sources: Mapping[str, Source], n: int) -> dict:
+    """Errors of every source of `sources` set to zero, shape (n, *shape) each."""
+    return {
+        name: np.zeros((n, *src.shape, *src.distribution.event_shape))
+        for name, src in sources.items()
+    }
+
+
 def _plain_summary(function) -> str:
     """The first paragraph of `function`'s docstring as plain prose: one line, without reST
     markup and without the return value's units and shape ("" without a docstring)."""
@@ -219,6 +267,21 @@ def _plain_summary(function) -> str:
     doc = re.sub(r":\w+:`~?([^`]+)`", r"\1", doc).replace("``", "")
     doc = re.sub(r";?\s*(measurands\s*)?\[mm, rad\],?\s*\(n,\)\.?", ".", doc)
     return doc.rstrip(" .;") + "."
+
+
+def continuous(setup) -> dict:
+    """The resolution of an estimator whose values are continuous: no steps."""
+    return {}
+
+
+def implies_nothing(df) -> dict:
+    """The set-up fields a readings table determines where it determines none."""
+    return {}
+
+
+def no_limits(setup) -> dict:
+    """The instrument's range per readings column where none is stated."""
+    return {}
 
 
 @dataclass(frozen=True)
@@ -238,16 +301,17 @@ class Estimator:
     exact : bool
         Recovers the truth exactly from noise-free readings at the default set-up (checked
         by :func:`mtplan.testing.check_procedure`).
-    resolution : callable or None
+    resolution : callable
         ``resolution(setup) -> {measurand: step}``: the steps [internal unit] in which the
         estimator's values come (a quantised estimator): where its Monte Carlo interval has
-        zero width, ``simulate`` states u = step / sqrt(12). None: continuous values.
+        zero width, ``simulate`` states u = step / sqrt(12). Default: {} for every set-up,
+        continuous values.
     """
 
     function: Callable
     description: str = ""
     exact: bool = False
-    resolution: Callable | None = None
+    resolution: Callable = continuous
 
     def __post_init__(self):
         if not callable(self.function):
@@ -262,8 +326,8 @@ class Estimator:
         return self.function(setup, readings)
 
     def steps(self, setup) -> dict:
-        """``resolution(setup)``, or {} for an estimator whose values are continuous."""
-        return {} if self.resolution is None else dict(self.resolution(setup))
+        """``resolution(setup)``: {} for an estimator whose values are continuous."""
+        return dict(self.resolution(setup))
 
 
 @dataclass(frozen=True)
@@ -277,16 +341,17 @@ class ReadingsFormat:
     from_frame : callable
         ``from_frame(setup, df) -> readings``: the table back to readings (batch of one),
         in any row order; refuses a bad table with :class:`InvalidInput`.
-    setup_from_frame : callable or None
+    setup_from_frame : callable
         ``setup_from_frame(df) -> {field: Implied}``: the set-up fields a measured table
         determines (``df`` as read from the file: numeric columns as floats, rows in the
-        file's order, optional columns possibly absent). None: the table implies nothing.
+        file's order, optional columns possibly absent). Default: {}, the table implies
+        nothing.
     optional_columns : tuple of str
         Columns a measured file may leave out (``from_frame`` copes without them).
-    limits : callable or None
+    limits : callable
         ``limits(setup) -> {column: (low, high, what)}``: the instrument's range per row of
         the table (arrays or scalars); measured values outside are refused, naming the row,
-        the value and ``what`` range it left. None: no range.
+        the value and ``what`` range it left. Default: {}, no range.
     noise_source : str or None
         The error source whose spread is the readings' noise in the likelihood (posterior,
         fit checks). None: the procedure has no single noise source.
@@ -294,90 +359,10 @@ class ReadingsFormat:
 
     frame: Callable
     from_frame: Callable
-    setup_from_frame: Callable | None = None
+    setup_from_frame: Callable = implies_nothing
     optional_columns: tuple = ()
-    limits: Callable | None = None
+    limits: Callable = no_limits
     noise_source: str | None = None
-
-
-@dataclass(frozen=True)
-class Capabilities:
-    """What a procedure offers beyond its model, as data with generic defaults (as
-    scikit-learn's estimator tags). Every field is optional; its default selects the
-    generic analysis named with it.
-
-    Parameters
-    ----------
-    block_size : int
-        Monte Carlo block size (trials); smaller for procedures with many readings.
-    truth_from_estimate : callable or None
-        ``truth_from_estimate(setup, estimate) -> Truth``: the Truth whose measurands equal
-        an estimate (internal units; nuisance fields at their defaults), for Monte Carlo
-        around a measured result and as a posterior start. None: the study runs at the
-        stated truth and the posterior is not available.
-    truths_from_estimates : callable or None
-        ``truths_from_estimates(setup, estimates) -> Truth``: ``truth_from_estimate`` for many
-        estimates at once, `estimates` mapping each measurand to an array (m,); the Truth's
-        float fields are arrays (m,), which ``forward`` takes as one truth per batch row. The
-        readings' sensitivities to the measurands are then one forward run
-        (``plans.planner.readings_jacobian``). None: one run per step of each measurand.
-    start_from_readings : callable or None
-        ``start_from_readings(setup, readings, truth) -> Truth``: `truth` (of
-        ``truth_from_estimate``) with the fields that no measurand depends on but that the
-        readings give directly (circle_centre's start point, whose x is that of the readings
-        p1 and p2) put where the readings put them: the start of the posterior's and the fit
-        check's least squares, which a forward model with branches (a path planned from
-        earlier readings) needs on the readings' branch. None: `truth` as it is.
-    source_structure : callable or None
-        ``source_structure(setup, truth, name) -> (colours, owners)`` or None: for a source
-        of many elements that each move a few readings (an artifact's facets), a colouring of
-        its elements: those of one colour never move a common reading, and ``owners``
-        (colours, readings) names the element of each colour each reading of ``forward``
-        (flattened) depends on, -1 for none. The source's effects then take two forward rows
-        per colour instead of two per element (``fitting.source_effects``). None: NaN
-        probes, then element by element.
-    identifiability_report : callable or None
-        ``identifiability_report(setup) -> dict``: the procedure's own rank analysis of its
-        full model, with ``rank``, ``parameters``, ``readings``, ``condition_number``,
-        ``singular_values`` and ``null_space`` (a list of dicts parameter -> weight), and
-        optionally ``jacobian``, ``scale``, ``names``, ``rank_tol`` and ``functions`` (the
-        measurands as functions of its parameters, by name). None: the sensitivities of the
-        readings to the measurands (or truth fields) are analysed (``plans.identifiability``).
-    report_extras : callable or None
-        ``report_extras(setup, truth) -> dict``: procedure-specific data for the report (a
-        figure's path, uncertainty bands); plain data, the reports draw it. None: no extras.
-    identifiability : callable or None
-        ``identifiability(setup, estimator) -> DataFrame`` indexed by every measurand the
-        procedure can report, with ``listed`` (a measurand at this set-up), ``status``
-        ('identified', 'unidentifiable', 'no effect', ...) and ``confounded_with``. None:
-        every measurand is listed at every set-up.
-    observability : callable or None
-        ``observability(setup) -> {estimator: {measurand: ...}}``: which measurands each
-        estimator can observe at the set-up, with their limits; shown in the report (unless
-        ``report_extras`` already gives ``observability``). None: not shown.
-    first_order_sensitivities : callable or None
-        ``first_order_sensitivities(setup, truth, *, estimator, sources) -> jacobian``: the
-        derivative hook (as astropy.modeling's ``fit_deriv``), the closed form of the
-        measurands' sensitivity [display unit per internal unit] to every element of every
-        active source (columns: the active sources in order, each one's elements flattened)
-        at the sources' means. The first-order service (``mtplan.evaluation.first_order``)
-        takes it for the planner, the designer and ``mtplan linearize`` alike. None (or the
-        hook returning None for an estimator it does not map): the chain rule through the
-        forward model and the estimator. It takes the estimator's name rather than living on
-        each :class:`Estimator` because the closed forms share one model linearisation
-        between a procedure's estimators.
-    """
-
-    block_size: int = 10_000
-    truth_from_estimate: Callable | None = None
-    truths_from_estimates: Callable | None = None
-    start_from_readings: Callable | None = None
-    source_structure: Callable | None = None
-    identifiability_report: Callable | None = None
-    report_extras: Callable | None = None
-    identifiability: Callable | None = None
-    observability: Callable | None = None
-    first_order_sensitivities: Callable | None = None
 
 
 @dataclass(frozen=True)
@@ -385,7 +370,8 @@ class Procedure:
     """A registered measurement procedure: forward model, estimators and metadata.
 
     See the module docstring for the meaning of each field; :class:`Estimator`,
-    :class:`ReadingsFormat` and :class:`Capabilities` hold the rest of the contract.
+    :class:`ReadingsFormat`, :class:`Capabilities` and :class:`SourceMethod` hold the rest
+    of the contract.
     """
 
     name: str
@@ -406,13 +392,18 @@ class Procedure:
     #: order of the test, dwell, feed): the levers advice may name; every other field is
     #: a property of the machine, the workpiece or the instrument, named as what dominates
     levers: tuple = ()
-    #: what the procedure offers beyond its model; the defaults select the generic analyses
+    #: what the procedure offers beyond its model; the defaults are the generic analyses
     capabilities: Capabilities = Capabilities()
+    #: the published method the procedure implements: its estimator and its citation
+    source_method: SourceMethod = SourceMethod()
     #: how a measured result becomes the correction a controller takes (``mtplan
     #: compensate``); the default states none
     correction: CorrectionModel = NO_CORRECTION
 
     def __post_init__(self):
+        if not self.estimators:  # a record is whole when made: no estimators to add later
+            raise ValueError(f"The 'estimators' parameter of Procedure {self.name!r} must name "
+                             f"at least one estimator. Got {dict(self.estimators)!r} instead.")
         object.__setattr__(self, "estimators", {
             k: v if isinstance(v, Estimator) else Estimator(v)
             for k, v in self.estimators.items()})
@@ -455,30 +446,11 @@ class Procedure:
 
     def active_sources(self, setup, only=None) -> dict:
         """The sources that will be drawn: active ones, restricted to `only` when given."""
-        all_sources = self.sources(setup)
-        if only is not None:
-            only = [only] if isinstance(only, str) else list(only)
-            if not only:
-                raise InvalidInput(
-                    [f"The 'sources' parameter of {self.name} must name at least one of its "
-                     f"error sources ({', '.join(all_sources)}), or be None for all of them. "
-                     "Got an empty list instead."]
-                )
-            unknown = [s for s in only if s not in all_sources]
-            if unknown:
-                raise InvalidInput(
-                    [f"The 'sources' parameter of {self.name} must name its error sources "
-                     f"({', '.join(all_sources)}). Got {', '.join(map(repr, unknown))} instead."]
-                )
-            return {k: v for k, v in all_sources.items() if k in only and v.active}
-        return {k: v for k, v in all_sources.items() if v.active}
+        return active_sources(self.sources(setup), only, owner=self.name)
 
     def zero_errors(self, setup, n: int) -> dict:
         """Errors of every source set to zero, shape (n, *shape) each."""
-        return {
-            name: np.zeros((n, *src.shape, *src.distribution.event_shape))
-            for name, src in self.sources(setup).items()
-        }
+        return zero_errors(self.sources(setup), n)
 
     def draw_errors(self, setup, n: int, seq: np.random.SeedSequence, only=None) -> dict:
         """Draw the active sources (each from its own named stream of `seq`)."""

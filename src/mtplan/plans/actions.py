@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 
 from mtplan.plans.decisions import random_share, repeated_U, repeats_needed
 
-__all__ = ["ACTIONABLE", "SourceEffect", "BudgetAction", "source_owners", "source_effects",
-           "budget_action", "after"]
+__all__ = ["ACTIONABLE", "SourceEffect", "BudgetAction", "source_owners", "owner_of",
+           "source_effects", "budget_action", "after"]
 
 #: the owners whose share of u² the laboratory can reduce, and how
 ACTIONABLE = {"instrument": "calibration", "artefact": "calibration", "method": "set-up",
@@ -82,7 +82,8 @@ def source_owners(procedure) -> dict:
     return out
 
 
-def _owner(owners: dict, source: str) -> str:
+def owner_of(owners: dict, source: str) -> str:
+    """The owner of the source named ``source`` ("not declared" where its field names none)."""
     name = next((f for f in owners if f.startswith(f"{source}_")), None)
     return owners[name] if name else "not declared"
 
@@ -105,7 +106,7 @@ def source_effects(budget, measurand: str, U: float, owners: dict) -> list:  # n
     out = []
     for r in rows.sort_values("share", ascending=False).itertuples():
         s = float(r.share) / total
-        out.append(SourceEffect(str(r.input), _owner(owners, str(r.input)), s, after(U, s),
+        out.append(SourceEffect(str(r.input), owner_of(owners, str(r.input)), s, after(U, s),
                                 after(U, 0.75 * s)))
     return out
 

@@ -22,6 +22,7 @@ clause that applied.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 __all__ = ["ConditionFinding", "check_conditions", "NO_CONDITION", "WITHIN", "OUTSIDE",
@@ -48,7 +49,9 @@ class ConditionFinding:
     documents print them; ``how``: how it was measured, as the study records it ("" where
     it does not); ``state``: :data:`WITHIN`, :data:`OUTSIDE` or :data:`NOT_RECORDED`;
     ``blocks``: whether it removes the statements of conformity of its tests; ``clause``:
-    the plan's clause that applied, in words ("" when within)."""
+    the plan's clause that applied, in words ("" when within); ``tests``: the numbers of the
+    tests it applies to where it is not every test (of its machine): a test whose time the
+    temperature log does not span."""
 
     check: str
     label: str
@@ -59,6 +62,7 @@ class ConditionFinding:
     state: str
     blocks: bool
     clause: str
+    tests: tuple = ()  # the test numbers it applies to, where not every test's (or machine's)
 
 
 def _band(req, rec) -> tuple[str, str]:
@@ -169,12 +173,23 @@ def check_conditions(study, required: dict) -> tuple[list, list[str], dict]:
                 check=check, label=label, machine=serial, required=text, recorded=recorded,
                 how=how.get(check, ""), state=state, blocks=state != WITHIN and not stands,
                 clause="" if state == WITHIN else _clause(required, check, stands)))
+            unlogged = _unlogged(study, rec) if check in ("temperature",
+                                                          "temperature_change") else []
+            if unlogged and state == WITHIN:  # the log is silent on some tests' times
+                findings.append(dataclasses.replace(
+                    findings[-1], state=NOT_RECORDED, blocks=not stands,
+                    clause=_clause(required, check, stands), tests=tuple(unlogged),
+                    recorded=f"not recorded during test{'s' if len(unlogged) > 1 else ''} "
+                             f"{', '.join(map(str, unlogged))}: the log spans "
+                             f"{_clock(rec['temperature_log_span'][0])} to "
+                             f"{_clock(rec['temperature_log_span'][1])}"))
     deviations, blocked = [], {}
     for f in findings:
         if f.state == WITHIN:
             continue
         tests = [(k, ps) for k, ps in enumerate(study.procedures, start=1)
-                 if not f.machine or (ps.machine or default) == f.machine]
+                 if (not f.machine or (ps.machine or default) == f.machine)
+                 and (not f.tests or k in f.tests)]
         where = f" on machine {f.machine}" if f.machine else ""
         numbers = ", ".join(str(k) for k, _ in tests)
         numbers = ("test " if len(tests) == 1 else "tests ") + numbers
@@ -190,6 +205,30 @@ def check_conditions(study, required: dict) -> tuple[list, list[str], dict]:
                                    f"{f.label}{where} {f.state}: required {f.required}; "
                                    f"{found}")
     return findings, deviations, blocked
+
+
+def _minutes(clock: str) -> float:
+    hours, minutes = clock.split(":")[:2]
+    return 60 * int(hours) + int(minutes)
+
+
+def _clock(minutes: float) -> str:
+    return f"{int(minutes) // 60:02d}:{int(minutes) % 60:02d}"
+
+
+def _unlogged(study, rec) -> list[int]:
+    """The numbers of the tests whose time (``[[procedure]] time``) the temperature log
+    does not span (none without a log or a test's time)."""
+    span = rec.get("temperature_log_span")
+    if not span:
+        return []
+    out = []
+    for k, ps in enumerate(study.procedures, start=1):
+        if ps.time:
+            start, _, end = ps.time.partition("-")
+            if _minutes(start) < span[0] or _minutes(end or start) > span[1]:
+                out.append(k)
+    return out
 
 
 def _clause(required, check, stands) -> str:

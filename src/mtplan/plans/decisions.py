@@ -571,6 +571,8 @@ def lever_effects(levers, setup, sweeps, names, estimator) -> list:
 def dominant_sources(budget, levers, fields, *, share: float = 0.5) -> list:
     """Error sources that carry at least ``share`` of some measurand's variance.
 
+    `fields` maps each error source to the set-up field that sizes it (``Source.field``).
+
     Returns a list of dicts: ``source``, ``field`` (the set-up field that sizes it),
     ``lever`` (whether that field is one of the set-up's levers) and ``measurands``
     (list of (name, share)), largest share first.
@@ -581,7 +583,7 @@ def dominant_sources(budget, levers, fields, *, share: float = 0.5) -> list:
     top = top[top["share"] >= share]
     out = []
     for source, group in top.groupby("input", sort=False):
-        f = next((x for x in fields if x.startswith(f"{source}_")), None)
+        f = fields.get(source)
         out.append({"source": source, "field": f, "lever": f in levers,
                     "measurands": [(r.output, float(r.share)) for r in group.itertuples()]})
     return sorted(out, key=lambda d: -max(s for _, s in d["measurands"]))

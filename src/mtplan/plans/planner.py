@@ -247,10 +247,8 @@ def _possible_measurands(proc, setups) -> tuple[dict, list]:
     and, where the procedure's identifiability report names them (geometry21: the 21 error
     functions), those the procedure could report at some set-up; in the procedure's order.
     Also each candidate's own list."""
-    names = {}
-    if proc.capabilities.identifiability_report is not None:
-        own = proc.capabilities.identifiability_report(setups[0])
-        names.update(dict.fromkeys(own.get("functions", {}), ""))
+    names = dict.fromkeys(proc.capabilities.identifiability_report(setups[0]).get(
+        "functions", {}), "")
     listed = []
     for s in setups:
         ms = proc.measurands(s)
@@ -590,7 +588,8 @@ def readings_jacobian(procedure, setup=None, truth=None, *, wrt: str | None = No
     Parameters
     ----------
     wrt : {"measurands", "truth"}, optional
-        ``"measurands"`` (the default when the procedure has ``truth_from_estimate``):
+        ``"measurands"`` (the default when the procedure builds a truth from an estimate,
+        ``Capabilities.builds_truths``):
         columns are the measurands [reading unit per mm or rad]. ``"truth"``: every
         float Truth field that moves the readings at all (fields without effect, such
         as the other axis's errors, are left out).
@@ -599,21 +598,21 @@ def readings_jacobian(procedure, setup=None, truth=None, *, wrt: str | None = No
     -------
     (J, names): J of shape (n_readings, n_params), central differences with steps of
     1e-6 of each value's magnitude (at least 1e-9); every step of every measurand in one
-    forward run where the procedure declares ``truths_from_estimates``.
+    forward run where the procedure batches truths (``Capabilities.batches_truths``).
     """
     proc = get(procedure)
     setup = proc.Setup() if setup is None else setup
     truth = proc.Truth() if truth is None else truth
     zero = proc.zero_errors(setup, 1)
     if wrt is None:
-        wrt = "measurands" if proc.capabilities.truth_from_estimate is not None else "truth"
+        wrt = "measurands" if proc.capabilities.builds_truths else "truth"
 
     def flat(t):
         r = proc.forward(setup, t, zero)
         return np.concatenate([np.asarray(v, dtype=float).ravel() for v in r.values()])
 
     cols, names = [], []
-    if wrt == "measurands" and proc.capabilities.truths_from_estimates is not None:
+    if wrt == "measurands" and proc.capabilities.batches_truths:
         # every step of every measurand as one batch row: one truth per row, one forward run
         base = proc.true_values(setup, truth)
         names = list(base)
@@ -665,8 +664,8 @@ def design_identifiability(procedure, setup=None, truth=None) -> dict:
     """
     proc = get(procedure)
     setup = proc.Setup() if setup is None else setup
-    if proc.capabilities.identifiability_report is not None:
-        rep = proc.capabilities.identifiability_report(setup)
+    rep = proc.capabilities.identifiability_report(setup)
+    if rep:
         if "jacobian" in rep:  # the model's own Jacobian: the generic analysis, with the
             # measurands as functions of its parameters (geometry21's 21 error functions)
             gen = identifiability(rep["jacobian"], scale=rep["scale"], names=rep["names"],

@@ -86,7 +86,7 @@ def _methods(result, estimators: bool = True) -> list:
         how = (f"; evaluated with the {agreed_estimator(o)} estimator: "
                f"{_estimator_words(o).rstrip('.')}" if estimators else "")
         how += "; " + lab_procedure_text(result.study.laboratory, o.spec.name)
-        rows.append([o.spec.label, method_citation(o.spec.name) + how,
+        rows.append([o.spec.label, method_citation(o.spec.procedure) + how,
                      ", ".join(a.replace(" ", "\u00a0") for a in applied)])
     return rows
 
@@ -756,7 +756,7 @@ def _plan_test(k, o, plan, study) -> Section:
     from mtplan.reports.document import setup_sentence
 
     blocks = [f"Set-up: {setup_sentence(o)}. Estimator: {agreed_estimator(o)}. Duration (machine "
-              f"time): {duration_text(o.duration_s)}. Method: {method_citation(o.spec.name)}; "
+              f"time): {duration_text(o.duration_s)}. Method: {method_citation(o.spec.procedure)}; "
               f"standards: {', '.join(o.spec.standards) or 'none named'}."]
     blocks += _set_up_choices(o)
     inst = _instruments(study, o.spec.name)

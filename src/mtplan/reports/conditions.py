@@ -38,7 +38,9 @@ def condition_blocks(study, required: dict) -> list:
     from mtplan.plans.study import CONDITION_KEYS
 
     findings = check_conditions(study, required)[0]
-    rows = [[f.label + (f" (machine {f.machine})" if f.machine else ""), f.required,
+    rows = [[f.label + (f" (machine {f.machine})" if f.machine else "")
+             + (f" (test{'s' if len(f.tests) > 1 else ''} {', '.join(map(str, f.tests))})"
+                if f.tests else ""), f.required,
              f.recorded, f.how or "not stated", _FINDING[f.state]] for f in findings]
     shown = {key for f in findings for key in _READS[f.check]}
     how = study.conditions.get("how", {})

@@ -81,10 +81,11 @@ DEFAULT_TRUTH_NOTE = ("‡: U achieved from a Monte Carlo at the procedure's def
 
 def at_default_truth(o) -> bool:
     """Whether a test's U achieved came from a Monte Carlo at the procedure's default truth
-    (a Monte Carlo evaluation of a procedure without ``truth_from_estimate``)."""
+    (a Monte Carlo evaluation of a procedure that builds no truth from an estimate,
+    ``Capabilities.builds_truths``)."""
     m = o.measured
     return (m is not None and getattr(m, "uncertainty", "") == "mc"
-            and o.spec.procedure.capabilities.truth_from_estimate is None)
+            and not o.spec.procedure.capabilities.builds_truths)
 
 
 def verdict_rows(k, o) -> list:

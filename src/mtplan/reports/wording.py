@@ -5,41 +5,25 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["METHOD_SOURCES", "method_citation", "customer_words", "measurand_name",
+__all__ = ["method_citation", "customer_words", "measurand_name",
            "probability_text", "p_text", "rule_wording", "rules_text", "population_text",
            "value_warnings", "VERDICT_SHORT", "verdict_short", "BURDEN_OF_PROOF",
            "OVERALL_RULE", "GLOSSARY"]
 
-#: the source method of each procedure: (patent number or "" where the copies the procedure
-#: was built from state none, title in English, who and when)
-METHOD_SOURCES = {
-    "rotary_axis": ("", "Method for measuring direction and spatial position of rotation "
-                        "center of rotating shaft", "Chinese patent application, Yang Xiaojun "
-                                                    "et al., filed 2020-06-12"),
-    "geometry21": ("CN101982726", "Detection method for geometric motion errors of three-axis "
-                                  "numerical control equipment",
-                   "Shanghai Jiao Tong University, filed 2010-09-27"),
-    "tracker_frame": ("CN106078359A", "Zero point definition and calibration method for a "
-                                      "gantry-type multi-spindle drilling combined machine "
-                                      "tool", ""),
-    "circle_centre": ("", "Circle centre measuring and calculating method and device for "
-                          "high-precision circular fitting", "Chinese patent"),
-    "line_laser": ("", "Line laser mounting error angle determination method",
-                   "Chinese patent application, Dong Zhigang, Kang Renke et al., filed "
-                   "2019-09-03"),
-}
 
-
-def method_citation(procedure: str) -> str:
-    """The source method of a procedure, cited once: its patent number and title, or, where
-    the copies it was built from state no number, by title, applicant and date (the test
-    itself is identified by mtplan procedure and version, :func:`method_id`)."""
-    number, title, who = METHOD_SOURCES.get(procedure, ("", "", ""))
-    if not title:
+def method_citation(procedure) -> str:
+    """The source method of a procedure, cited once from its record
+    (``Procedure.source_method``): the document that publishes it (a patent number, a
+    standard) and its title, or, where the copies it was built from state no number, by
+    title, applicant and date (the test itself is identified by mtplan procedure and version,
+    :func:`method_id`)."""
+    source = procedure.source_method
+    if not source.title:
         return "no published source method"
-    if number:
-        return f"patent {number}, \u201c{title}\u201d" + (f" ({who})" if who else "")
-    return f"\u201c{title}\u201d ({who}; cited by title)"
+    if source.document:
+        return (f"{source.document}, \u201c{source.title}\u201d"
+                + (f" ({source.who})" if source.who else ""))
+    return f"\u201c{source.title}\u201d ({source.who}; cited by title)"
 
 
 def customer_words(text: str) -> str:

@@ -18,22 +18,37 @@ parametrise over :data:`CHECKS` to see each check as a test of its own::
         check(PROCEDURE)
 
 The checks (each a function of the Procedure, raising AssertionError): the default set-up
-and truth build; measurands have distinct names, known units and finite true values; every
-error source is sized by a set-up field that switches it off; the levers are set-up fields
+and truth build; measurands have distinct names, known units and finite true values; the
+source method is cited and is one of the estimators, by the name the procedure gives it
+(``patent`` unless it names its own); every error source declares the set-up field that sizes
+it (``Source(field=...)``) and that field at 0 switches it off; the levers are set-up fields
 that size no source; simulated readings are batch-first and every estimator gives a finite
 value per trial and measurand; the exact estimators recover the truth from noise-free
 readings; one seed gives one result whatever ``n_jobs``; readings survive the round trip
 through their CSV table; the duration is positive; unknown fields, estimators and sources
 and bad set-up values are refused, naming the field. They use no test framework: mtplan
 does not need pytest to run them.
+
+The template procedure that docs/adding_a_procedure.md starts from ships here too
+(:mod:`mtplan.testing.template`); :func:`template_source` gives its text renamed, to be
+written to a module of one's own::
+
+    python -c "from mtplan.testing import template_source; print(template_source('edge_line'), end='')" > mtplan_edge_line.py
 """
 
 from __future__ import annotations
 
+import keyword
+from pathlib import Path
+
+from mtplan._validate import InvalidInput
 from mtplan.models import Procedure, get
 from mtplan.testing.checks import CHECKS
 
-__all__ = ["CHECKS", "ProcedureCheckError", "check_procedure"]
+__all__ = ["CHECKS", "ProcedureCheckError", "check_procedure", "template_source"]
+
+#: the template's file, shipped with mtplan
+TEMPLATE = Path(__file__).with_name("template.py")
 
 
 class ProcedureCheckError(AssertionError):
@@ -80,3 +95,20 @@ def check_procedure(procedure, *, checks=CHECKS) -> None:
             first = first or exc
     if failures:
         raise ProcedureCheckError(proc.name, failures) from first
+
+
+def template_source(name: str = "toy_line") -> str:
+    """The text of the template procedure (:mod:`mtplan.testing.template`) with its name
+    ``toy_line`` replaced by `name`: the start of a procedure's own module (its
+    ``Procedure(name=...)`` and the names in its error messages).
+
+    Raises
+    ------
+    InvalidInput
+        When `name` is not a lower-case Python name.
+    """
+    if not (isinstance(name, str) and name.isidentifier() and name == name.lower()
+            and not keyword.iskeyword(name)):
+        raise InvalidInput([f"The 'name' parameter of template_source must be a lower-case "
+                            f"Python name (edge_line). Got {name!r} instead."])
+    return TEMPLATE.read_text(encoding="utf-8").replace("toy_line", name)

@@ -15,7 +15,7 @@ import numpy as np
 
 from mtplan._validate import InvalidInput
 from mtplan.evaluation.simulation import simulate_uncertainty
-from mtplan.models.protocol import UNIT_SUFFIXES, UNITS, Procedure, fields_info, make
+from mtplan.models.protocol import UNITS, Procedure, fields_info, make
 
 __all__ = ["CHECKS", "NOISE_FREE_ATOL", "bad_values", "numeric_fields"]
 
@@ -74,28 +74,49 @@ def check_measurands(proc: Procedure) -> None:
     _expect(not bad, f"true values that are not finite: {bad}")
 
 
-def _source_fields(name: str, fields) -> list[str]:
-    return [f for f in fields if f.startswith(name + "_") and f[len(name) + 1:] in UNIT_SUFFIXES]
+def check_source_method(proc: Procedure) -> None:
+    """The source method is cited (``source_method.title``) and is one of the estimators, by
+    the name ``source_method.estimator`` gives (``patent`` unless the procedure names its
+    own)."""
+    method = proc.source_method
+    _expect(method.estimator in proc.estimators,
+            f"the source method is the estimator {method.estimator!r} "
+            f"(Procedure(source_method=SourceMethod(estimator=...))), but the estimators are "
+            f"{', '.join(map(repr, proc.estimators))}: name the source method's estimator "
+            f"'patent', or name it in SourceMethod(estimator=...)")
+    _expect(method.title, "the source method is not cited: give its title (and its document, "
+                          "e.g. 'patent CN101982726', or who published it and when) in "
+                          "Procedure(source_method=SourceMethod(...))")
 
 
-def check_sources_are_named_after_setup_fields(proc: Procedure) -> None:
-    """Every error source ``s`` is sized by a set-up field ``s_<unit>`` and described."""
-    fields = {f.name for f in fields_info(proc.Setup)}
+def _sizing_fields(proc: Procedure, sources) -> dict:
+    """Source name -> the set-up field it declares (``Source(field=...)``), for the sources
+    whose field is a numeric set-up field; the others are refused, naming each."""
+    numeric = {f.name for f in numeric_fields(proc)}
+    bad = {name: src.field for name, src in sources.items() if src.field not in numeric}
+    _expect(not bad, "sources whose Source(field=...) names no numeric set-up field: "
+            + ", ".join(f"{name} (field {field!r})" for name, field in bad.items()))
+    return {name: src.field for name, src in sources.items()}
+
+
+def check_sources_declare_their_fields(proc: Procedure) -> None:
+    """Every error source declares the numeric set-up field that sizes it
+    (``Source(field=...)``) and is described."""
     sources = proc.sources(proc.Setup())
     _expect(sources, "a procedure without error sources has nothing to simulate")
-    for name, src in sources.items():
-        _expect(_source_fields(name, fields), f"source {name!r} has no set-up field {name}_<unit>")
-        _expect(src.description, f"source {name!r} has no description")
+    _sizing_fields(proc, sources)
+    undescribed = [name for name, src in sources.items() if not src.description]
+    _expect(not undescribed, f"sources without a description: {undescribed}")
 
 
 def check_switching_a_source_off_through_its_field(proc: Procedure) -> None:
     """Setting a source's field to 0 switches that source off."""
     setup = proc.Setup()
-    fields = {f.name for f in fields_info(proc.Setup)}
+    fields = _sizing_fields(proc, proc.sources(setup))
     for name in proc.active_sources(setup):
-        field = _source_fields(name, fields)[0]
-        off = make(proc.Setup, {field: 0}, base=setup, owner=proc.name)
-        _expect(name not in proc.active_sources(off), f"{field}=0 does not switch {name} off")
+        off = make(proc.Setup, {fields[name]: 0}, base=setup, owner=proc.name)
+        _expect(name not in proc.active_sources(off),
+                f"{fields[name]}=0 does not switch {name} off")
 
 
 def check_levers(proc: Procedure) -> None:
@@ -105,7 +126,7 @@ def check_levers(proc: Procedure) -> None:
     _expect(proc.levers, "the procedure names no levers (the set-up fields a planner may vary)")
     unknown = set(proc.levers) - fields
     _expect(not unknown, f"levers that are no set-up field: {sorted(unknown)}")
-    sized = {f for s in proc.sources(proc.Setup()) for f in _source_fields(s, fields)}
+    sized = {src.field for src in proc.sources(proc.Setup()).values()}
     _expect(not sized & set(proc.levers),
             f"levers that size an error source: {sorted(sized & set(proc.levers))}")
 
@@ -236,7 +257,8 @@ def check_bad_setup_values_name_the_field(proc: Procedure) -> None:
 CHECKS: tuple[Callable[[Procedure], None], ...] = (
     check_defaults_construct,
     check_measurands,
-    check_sources_are_named_after_setup_fields,
+    check_source_method,
+    check_sources_declare_their_fields,
     check_switching_a_source_off_through_its_field,
     check_levers,
     check_simulate_shapes_and_all_estimators,

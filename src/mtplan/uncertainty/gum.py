@@ -119,6 +119,15 @@ class GUMResult:
             self._value = np.asarray(self.value_of(), dtype=float)
         return self._value
 
+    def __getstate__(self) -> dict:
+        """The state to pickle (a worker's result sent back, a study's cache): the value
+        taken, never the closure that would compute it (a local function, not picklable)."""
+        state = self.__dict__.copy()
+        if state.get("_value") is None and state.get("value_of") is not None:
+            state["_value"] = np.asarray(self.value_of(), dtype=float)
+        state["value_of"] = None
+        return state
+
     @property
     def mean(self) -> np.ndarray:
         """The estimate y = f(x) (alias of ``value``, to match :class:`MCResult`)."""

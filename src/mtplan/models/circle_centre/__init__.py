@@ -152,7 +152,13 @@ from mtplan.models.circle_centre._physics import (
 )
 from mtplan.models.circle_centre._readings import from_frame, readings_frame, setup_from_frame
 from mtplan.models.circle_centre._setup import Setup, Truth
-from mtplan.models.protocol import Capabilities, Estimator, Procedure, ReadingsFormat
+from mtplan.models.protocol import (
+    Capabilities,
+    Estimator,
+    Procedure,
+    ReadingsFormat,
+    SourceMethod,
+)
 
 from mtplan.models.circle_centre._correction import CORRECTION
 
@@ -172,6 +178,15 @@ __all__ = [
     "estimate_gls",
     "PROCEDURE",
 ]
+
+
+class _Capabilities(Capabilities):
+    """circle_centre beyond its model: the truth of an estimate, the least squares' start on
+    the readings' branch of the planned path, and the planned path for the report."""
+
+    truth_from_estimate = staticmethod(truth_from_estimate)
+    start_from_readings = staticmethod(start_from_readings)
+    report_extras = staticmethod(report_extras)
 
 
 PROCEDURE = Procedure(
@@ -196,8 +211,9 @@ PROCEDURE = Procedure(
                  "probe_feed_mm_min clearance_mm dwell_s".split()),
     readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
                             optional_columns=("point",), noise_source="probe_noise"),
-    capabilities=Capabilities(block_size=2000, truth_from_estimate=truth_from_estimate,
-                              start_from_readings=start_from_readings,
-                              report_extras=report_extras),
+    capabilities=_Capabilities(block_size=2000),
+    source_method=SourceMethod(
+        "three_point", "Circle centre measuring and calculating method and device for "
+        "high-precision circular fitting", who="Chinese patent"),
     correction=CORRECTION,
 )

@@ -49,41 +49,48 @@ def sources(setup: Setup) -> dict[str, Source]:
             Normal(0.0, setup.probe_noise_um * 1e-3), (k,),
             "Trigger noise of the touch probe along the approach, per contact; 0.5 um std is "
             "typical of a kinematic probe on a CNC skip input (makers quote 0.35-1 um 2 sigma "
-            "unidirectional repeatability)."),
+            "unidirectional repeatability).", field="probe_noise_um"),
         "pretravel_variation": Source(
             Normal(0.0, setup.pretravel_variation_um * 1e-3 / math.sqrt(2)), (2,),
             "Coefficients (cos 3b, sin 3b) of the three-lobed pre-travel variation with the "
             "approach direction b, constant during the test (RMS amplitude 1 um: makers quote "
-            "+-0.8 to +-2 um XY pre-travel variation for kinematic probes after calibration)."),
+            "+-0.8 to +-2 um XY pre-travel variation for kinematic probes after calibration).",
+            field="pretravel_variation_um"),
         "tangential_slip": Source(
             Rectangular(0.0, 2 * slip), (),
             "Slip of the stylus along the wall per radian of obliqueness of the approach, "
             "uniform between 0 and twice the set mean, constant during the test (assumed "
-            "0.2 um/deg: no maker's figure; measure it for the probe in use)."),
+            "0.2 um/deg: no maker's figure; measure it for the probe in use).",
+            field="tangential_slip_um_per_deg"),
         "roundness": Source(
             Normal(0.0, setup.roundness_um * 1e-3 / 2 / math.sqrt(2)), (2,),
             "Coefficients (cos k phi, sin k phi) of the bore's lobed form error, k = lobes; "
-            "random orientation, RMS peak-to-valley = roundness_um (5 um: a large turned ring)."),
+            "random orientation, RMS peak-to-valley = roundness_um (5 um: a large turned ring).",
+            field="roundness_um"),
         "scale_error": Source(
             Rectangular(-scale, scale), (2,),
             "Residual scale (linear positioning) error of the stage's X and Y axes after "
-            "compensation; +-5 um/m is typical of ISO 230-2 results of a large stage."),
+            "compensation; +-5 um/m is typical of ISO 230-2 results of a large stage.",
+            field="scale_error_ppm"),
         "squareness": Source(
             Rectangular(-sq, sq), (),
-            "X-Y squareness error of the stage (ISO 230-1; +-10 urad typical)."),
+            "X-Y squareness error of the stage (ISO 230-1; +-10 urad typical).",
+            field="squareness_urad"),
         "stage_repeatability": Source(
             Normal(0.0, setup.stage_repeatability_um * 1e-3), (k, 2),
             "Positioning repeatability of the stage, per reading and axis (ISO 230-2 "
-            "unidirectional repeatability of about 1 um = 2 sigma)."),
+            "unidirectional repeatability of about 1 um = 2 sigma).",
+            field="stage_repeatability_um"),
         "start_scatter": Source(
             Rectangular(-s, s), (2,),
             "Where the operator lowers the probe: uniform within +-25 mm per axis of the "
-            "truth's start point (by eye, near the nominal centre)."),
+            "truth's start point (by eye, near the nominal centre).", field="start_scatter_mm"),
         "tip_radius": Source(
             Normal(0.0, setup.tip_radius_um * 1e-3), (),
             "Error of the calibrated effective tip radius, one per test: every recorded point "
             "lies that far beyond the wall along its approach. 0.5 um std: the radius is "
-            "calibrated on a setting ring (ISO 1938-1) known to about 1 um in diameter."),
+            "calibrated on a setting ring (ISO 1938-1) known to about 1 um in diameter.",
+            field="tip_radius_um"),
         **_thermal_sources(setup),
     }
 
@@ -128,12 +135,14 @@ def _thermal_sources(setup: Setup) -> dict[str, Source]:
             Normal(0.0, setup.expansion_u_ppm_per_k * 1e-6), (),
             "Error of the workpiece's expansion coefficient [1/K]: it moves the corrected "
             "result by u(alpha) x (T_part - 20 degC) x the length from the clamping point. "
-            "Default 1e-6/K: steels span 10.5-12.5e-6/K (ISO/TR 16015)."),
+            "Default 1e-6/K: steels span 10.5-12.5e-6/K (ISO/TR 16015).",
+            field="expansion_u_ppm_per_k"),
         "scale_expansion_u": Source(
             Normal(0.0, setup.scale_expansion_u_ppm_per_k * 1e-6), (),
             "Error of the scales' effective expansion coefficient [1/K]: u(alpha) x "
             "(T_scale - 20 degC) x the length from the datum. Default 0.5e-6/K: a scale "
-            "mounted on steel follows its mounting (10-11.5e-6/K)."),
+            "mounted on steel follows its mounting (10-11.5e-6/K).",
+            field="scale_expansion_u_ppm_per_k"),
     }
 
 

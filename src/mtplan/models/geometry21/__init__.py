@@ -136,9 +136,9 @@ line travel, u = +``line_length_mm``/2.
 
 from __future__ import annotations
 
-import dataclasses
-
 from mtplan.models.geometry21._estimators import (
+    DESCRIPTIONS,
+    ESTIMATORS,
     SHARED_SPREAD,
     SHARED_TOL,
     coefficients,
@@ -166,9 +166,15 @@ from mtplan.models.geometry21._model import (
 )
 from mtplan.models.geometry21._patent import patent_design, theta_patent
 from mtplan.models.geometry21._path import repeatability_filter, residual_basis
-from mtplan.models.geometry21._physics import sources
 from mtplan.models.geometry21._correction import CORRECTION
-from mtplan.models.geometry21._record import MODEL
+from mtplan.models.geometry21._physics import (
+    duration,
+    forward,
+    measurands,
+    sources,
+    true_values,
+)
+from mtplan.models.geometry21._frames import from_frame, readings_frame, setup_from_frame
 from mtplan.models.geometry21._setup import (
     AXIS,
     HIDDEN_ANGULAR,
@@ -180,7 +186,13 @@ from mtplan.models.geometry21._setup import (
     Truth,
     sizeless,
 )
-from mtplan.models.protocol import Capabilities
+from mtplan.models.protocol import (
+    Capabilities,
+    Estimator,
+    Procedure,
+    ReadingsFormat,
+    SourceMethod,
+)
 
 __all__ = [
     "Setup",
@@ -197,11 +209,42 @@ __all__ = [
     "noise_free_table",
 ]
 
-PROCEDURE = dataclasses.replace(
-    MODEL,
+
+
+class _Capabilities(Capabilities):
+    """geometry21 beyond its model: the joint model's own rank analysis, which error functions
+    each estimator determines, the error functions' bands for the report, and the
+    closed-form sensitivities."""
+
+    identifiability_report = staticmethod(identifiability_report)
+    report_extras = staticmethod(report_extras)
+    identifiability = staticmethod(identifiability)
+    first_order_sensitivities = staticmethod(sensitivities)
+
+
+PROCEDURE = Procedure(
+    name="geometry21",
+    title="21 geometric errors of a three-axis machine from a 2D grid encoder",
+    Setup=Setup,
+    Truth=Truth,
+    measurands=measurands,
+    sources=sources,
+    forward=forward,
+    estimators={name: Estimator(fn, description=DESCRIPTIONS[name], exact=name == "joint")
+                for name, fn in ESTIMATORS.items()},
+    true_values=true_values,
+    duration=duration,
+    readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
+                            optional_columns=("head",)),
     description=__doc__.split("\n\n")[0] if __doc__ else "",
-    capabilities=Capabilities(block_size=128, identifiability_report=identifiability_report,
-                              report_extras=report_extras, identifiability=identifiability,
-                              first_order_sensitivities=sensitivities),
+    levers=tuple("poly_order line_length_mm line_repeats line_points circle_radius_mm "
+                 "circle_points circle_arc_deg head_offset_mm head_lateral_mm "
+                 "xy_plane_z_mm xz_plane_y_mm yz_plane_x_mm feed_mm_min xy_extra_heads_mm "
+                 "xz_extra_heads_mm yz_extra_heads_mm extra_head_tests".split()),
+    capabilities=_Capabilities(block_size=128),
+    source_method=SourceMethod(
+        "patent", "Detection method for geometric motion errors of three-axis numerical "
+        "control equipment", "patent CN101982726",
+        "Shanghai Jiao Tong University, filed 2010-09-27"),
     correction=CORRECTION,
 )

@@ -18,13 +18,14 @@ from mtplan._parallel import one_blas_thread
 from mtplan._validate import Problems
 from mtplan.fitting.effects import source_response
 from mtplan.fitting.linear import function_status, null_space_table
-from mtplan.models.geometry21._estimators import check_estimator, estimate_theta
+from mtplan.models.geometry21._estimators import ESTIMATORS, check_estimator, estimate_theta
 from mtplan.models.geometry21._layout import Geometry, geometry
 from mtplan.models.geometry21._maps import mapped_source_response, patent_map
 from mtplan.models.geometry21._model import RANK_TOL, joint_ident, param_names
 from mtplan.models.geometry21._path import repeatability_filter
-from mtplan.models.geometry21._physics import forward, measurand_map, measurands, sources
-from mtplan.models.geometry21._record import MODEL
+from mtplan.models.geometry21._physics import forward, measurand_map, measurands, sources, true_values
+from mtplan.models.geometry21._physics import sources as _sources  # a parameter's name below
+from mtplan.models.protocol import active_sources, zero_errors
 from mtplan.models.geometry21._setup import (
     AXIS,
     KIND,
@@ -36,6 +37,9 @@ from mtplan.models.geometry21._setup import (
     truth_coefficients,
     truth_rows,
 )
+
+#: the procedure's name in messages
+_OWNER = "geometry21"
 
 if TYPE_CHECKING:  # pandas only where a table is made: not in a Monte Carlo's workers
     import pandas as pd
@@ -161,7 +165,7 @@ def _source_factors(setup: Setup, estimator: str, truth: Truth | None, only) -> 
     the estimator: the joint fits' whole, the patent's derivative at the readings of the
     sources' means."""
     truth = Truth() if truth is None else truth
-    active = MODEL.active_sources(setup, only)
+    active = active_sources(sources(setup), only, owner=_OWNER)
     srcs = sources(setup)
     resp = _source_response(setup, truth, estimator,
                             tuple(n for n in active if n not in WHITE))
@@ -190,13 +194,13 @@ def _linear_map(setup: Setup, estimator: str, truth: Truth) -> np.ndarray:
 
 @functools.lru_cache(maxsize=8)
 def _patent_linear_map(key: Setup, truth: Truth) -> np.ndarray:
-    return patent_map(key, forward(key, truth, MODEL.zero_errors(key, 1))["plate_mm"])
+    return patent_map(key, forward(key, truth, zero_errors(sources(key), 1))["plate_mm"])
 
 
 @functools.lru_cache(maxsize=8)
 def _source_response(setup: Setup, truth: Truth, estimator: str, names: tuple) -> np.ndarray:
     def zero(m):
-        return MODEL.zero_errors(setup, m)
+        return zero_errors(sources(setup), m)
 
     if estimator != "patent":
         return source_response(
@@ -260,7 +264,7 @@ def sensitivities(setup: Setup, truth: Truth | None = None, *, estimator: str = 
     """
     truth = Truth() if truth is None else truth
     check_estimator(estimator)
-    active = MODEL.active_sources(setup, sources)
+    active = active_sources(_sources(setup), sources, owner=_OWNER)
     factors = _source_factors(setup, estimator, truth, sources)
     ms, g = measurand_map(setup)
     g = g * np.array([m.scale for m in ms])[:, None]
@@ -395,16 +399,17 @@ def noise_free_table(setup: Setup | None = None, *, scales=(1.0, 10.0, 100.0),
 
     setup = Setup() if setup is None else setup
     base = Truth() if truth is None else truth
-    proc = MODEL
     rows = []
     for sc in scales:
         tr = base.replace(angular_scale=float(sc) * base.angular_scale)
-        readings = forward(setup, tr, proc.zero_errors(setup, 1))
-        tv = proc.display_truth(setup, tr)
+        readings = forward(setup, tr, zero_errors(sources(setup), 1))
+        true = true_values(setup, tr)
+        tv = {m.name: float(true[m.name]) * m.scale for m in measurands(setup)}
         for est in estimators:
-            out = proc.display_estimate(setup, readings, est)
-            for m in proc.measurands(setup):
-                err = float(out[m.name][0] - tv[m.name])
+            check_estimator(est)
+            out = ESTIMATORS[est](setup, readings)
+            for m in measurands(setup):
+                err = float(np.asarray(out[m.name], dtype=float)[0] * m.scale - tv[m.name])
                 rows.append((m.name, m.unit, est, float(sc), tv[m.name], err,
                              err / tv[m.name] if tv[m.name] else math.inf))
     return pd.DataFrame(rows, columns=["measurand", "unit", "estimator", "angular_scale", "true",

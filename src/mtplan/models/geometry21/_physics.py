@@ -100,30 +100,32 @@ def sources(setup: Setup) -> dict:
             Normal(0.0, setup.encoder_noise_um * 1e-3), (m, 2),
             "Reading noise of the 2D grid encoder, each component of each reading. Default "
             "0.05 um: assumed for a KGM 182 read on the fly at 500 mm/min (signal period "
-            "4 um, interpolated to nm resolution; the maker states no dynamic noise)."),
+            "4 um, interpolated to nm resolution; the maker states no dynamic noise).",
+            field="encoder_noise_um"),
         "grid_error": Source(
             Normal(0.0, setup.grid_error_um * 1e-3 / math.sqrt(k)), (3, 2, k),
             "The grid plate's own error: per set-up, a smooth field cubic in the plate "
             "coordinates (u/70 mm, v/70 mm), each component with random coefficients whose "
             "root-sum-square is grid_error_um (1 um: the KGM 182 accuracy grade is +-2 um, "
             "read as a bound). Its linear part (scale, shear) biases positioning and "
-            "squareness as a real plate's does."),
+            "squareness as a real plate's does.", field="grid_error_um"),
         "plate_offset": Source(
             Normal(0.0, setup.plate_offset_mm), (3, 2),
             "Plate mounting: in-plane offset of the plate centre from the test centre in "
             "each of the three set-ups (0.05 mm: centring by dial indicator, assumed). A "
-            "nuisance the estimators remove."),
+            "nuisance the estimators remove.", field="plate_offset_mm"),
         "plate_tilt": Source(
             Normal(0.0, setup.plate_tilt_urad * 1e-6), (3, 3),
             "Plate mounting: tilt about the plate's two axes and rotation about its normal "
             "in each set-up (100 urad = 0.1 mm/m alignment, assumed). The rotation is a "
-            "nuisance the estimators remove; the tilts act at second order (cosine error)."),
+            "nuisance the estimators remove; the tilts act at second order (cosine error).",
+            field="plate_tilt_urad"),
         "head_setting": Source(
             Normal(0.0, setup.head_setting_um * 1e-3 if geo.n_extra else 0.0), (geo.n_extra, 2),
             "In-plane position of each extra head position after the change (tool length "
             "from a presetter, lateral offset of the bracket): 10 um each component, assumed "
             "(presetters read tool length to 2-5 um; a bracket's offset is known to ~10 um). "
-            "A nuisance the estimators remove; off without extra heads."),
+            "A nuisance the estimators remove; off without extra heads.", field="head_setting_um"),
         "repeatability": Source(
             Normal(0.0, setup.repeatability_um * 1e-3), (m, 2),
             "The machine's non-repeatable path deviation at each reading point, each "
@@ -137,7 +139,7 @@ def sources(setup: Setup) -> dict:
             "length 50 mm: the path deviations of a contouring machine are low-frequency "
             "(ISO 230-4: the servo's and the guideways' deviations span tens of millimetres, "
             "several ball-screw pitches of 10-20 mm), not white from one reading to the next; "
-            "0 gives independent readings."),
+            "0 gives independent readings.", field="repeatability_um"),
         "path_residual": Source(
             Normal(0.0, setup.path_residual_um * 1e-3), (3, 3, residual_knots(geo)[1]),
             "The machine's repeatable path deviation beyond the fitted polynomials: for each "
@@ -150,14 +152,15 @@ def sources(setup: Setup) -> dict:
             "of each error function. Default 0.3 um: the short-wave part of ISO 230-1 "
             "straightness and ISO 230-2 positioning records of a machining centre with linear "
             "scales (periodic deviations of ball-screw drives and guideway waviness of "
-            "0.2-1 um over 5-20 mm), assumed."),
+            "0.2-1 um over 5-20 mm), assumed.", field="path_residual_um"),
         "reversal": Source(
             Rectangular(0.0, 2e-3 * setup.reversal_um), (3,),
             "Reversal value (lost motion) B of each axis, drawn uniform on [0, 2 reversal_um] "
             "(mean reversal_um, never negative): moving in +U the axis lags by B/2, moving in "
             "-U it leads by B/2, so the back-and-forth lines and the quadrants of the "
             "circles see it. Default 2 um: ISO 230-2 reversal value of a machining centre "
-            "with linear scales (data sheets 1-3 um; with rotary encoders 3-10 um)."),
+            "with linear scales (data sheets 1-3 um; with rotary encoders 3-10 um).",
+            field="reversal_um"),
         "servo_lag": Source(
             Normal(lag, SERVO_MISMATCH * lag), (3,),
             "Following time T = 1/Kv of each axis's position loop, drawn with 10 % spread "
@@ -166,20 +169,20 @@ def sources(setup: Setup) -> dict:
             "v (T_b - T_a) / 2 that changes sign with the direction (ISO 230-4 Annex). "
             "Default 2 ms: the effective following time with velocity feed-forward, assumed "
             "(without it Kv = 1-3 (m/min)/mm, T = 20-60 ms); at 500 mm/min the ellipse is "
-            "about 1 um."),
+            "about 1 um.", field="servo_lag_ms"),
         "thermal_growth": Source(
             Normal(0.0, setup.thermal_growth_ppm_per_h * 1e-6), (3,),
             "Rate of change of each axis's scale during the test (thermal expansion of the "
             "scale or ball screw), linear in the test's time: the positioning error grows "
             "by g t u. Default 2 ppm/h: a workshop's temperature change of ~0.2 K/h on "
             "steel/cast iron (11.5 ppm/K), the order of ISO 230-3 environmental drift "
-            "tests of machining centres."),
+            "tests of machining centres.", field="thermal_growth_ppm_per_h"),
         "thermal_drift": Source(
             Normal(0.0, setup.thermal_drift_um_per_h * 1e-3), (3,),
             "Rate of the head's drift relative to the plate during the test (spindle and "
             "column growth), each component, linear in the test's time. Default 2 um/h: the "
             "order of ISO 230-3 drift of a warmed-up machining centre at rest (2-10 um over "
-            "several hours, most in Z)."),
+            "several hours, most in Z).", field="thermal_drift_um_per_h"),
     }
 
 

@@ -187,7 +187,6 @@ beta = 0.625 makes w = 10 mm a whole number of spacings, and the error is below
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 
 from mtplan.models.line_laser._artifact import (
@@ -211,21 +210,37 @@ from mtplan.models.line_laser._first_order import sensitivities
 from mtplan.models.line_laser._observability import Observability, observability, resolution
 from mtplan.models.line_laser._physics import (
     FACET_OF,
+    NOISE_SOURCE,
     NOMINAL,
     displacements,
+    duration,
     forward,
     frames,
+    measurands,
     newton,
     nominal_trace,
     origins,
     scan_times,
     source_structure,
+    sources,
     trace,
+    true_values,
     truth_from_estimate,
 )
-from mtplan.models.line_laser._record import MODEL
-from mtplan.models.line_laser._setup import Setup, Truth
-from mtplan.models.protocol import Capabilities, Estimator
+from mtplan.models.line_laser._readings import (
+    from_frame,
+    reading_limits,
+    readings_frame,
+    setup_from_frame,
+)
+from mtplan.models.line_laser._setup import NAME, Setup, Truth
+from mtplan.models.protocol import (
+    Capabilities,
+    Estimator,
+    Procedure,
+    ReadingsFormat,
+    SourceMethod,
+)
 
 from mtplan.models.line_laser._correction import CORRECTION
 
@@ -243,8 +258,31 @@ __all__ = [
     "PROCEDURE",
 ]
 
-PROCEDURE = dataclasses.replace(
-    MODEL,
+
+
+class _Capabilities(Capabilities):
+    """line_laser beyond its model: the truth of an estimate, what each estimator can observe,
+    the closed-form sensitivities and the facets' colouring (each facet moves a few
+    readings)."""
+
+    truth_from_estimate = staticmethod(truth_from_estimate)
+    observability = staticmethod(observability)
+    first_order_sensitivities = staticmethod(sensitivities)
+    source_structure = staticmethod(source_structure)
+
+
+PROCEDURE = Procedure(
+    name=NAME,
+    title="Mounting error angles of a line-laser profile sensor",
+    Setup=Setup,
+    Truth=Truth,
+    measurands=measurands,
+    sources=sources,
+    forward=forward,
+    true_values=true_values,
+    duration=duration,
+    readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
+                            limits=reading_limits, noise_source=NOISE_SOURCE),
     correction=CORRECTION,
     estimators={"patent": Estimator(
                     estimate_patent, description="The source method: whole-row shifts between "
@@ -267,8 +305,8 @@ PROCEDURE = dataclasses.replace(
     ),
     levers=tuple("points_per_line step_mm lines shift_fraction raise_mm max_shift_rows "
                  "scan_feed_mm_min rapid_mm_min settle_s".split()),
-    capabilities=Capabilities(block_size=128, truth_from_estimate=truth_from_estimate,
-                              observability=observability,
-                              first_order_sensitivities=sensitivities,
-                              source_structure=source_structure),
+    capabilities=_Capabilities(block_size=128),
+    source_method=SourceMethod(
+        "patent", "Line laser mounting error angle determination method",
+        who="Chinese patent application, Dong Zhigang, Kang Renke et al., filed 2019-09-03"),
 )

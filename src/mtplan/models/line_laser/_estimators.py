@@ -21,15 +21,15 @@ from mtplan.models.line_laser._artifact import (
     pitch as _pitch,
     x_shift as _shift,
 )
-from mtplan.models.line_laser._physics import forward, source_structure, sources, true_values
-from mtplan.models.line_laser._setup import SQ3 as _SQ3, TOL_FLOOR as _TOL_FLOOR, Truth
-
-
-def _procedure():
-    """line_laser's Procedure record (defined after this module is imported)."""
-    from mtplan.models.line_laser._record import MODEL as PROCEDURE
-
-    return PROCEDURE
+from mtplan.models.line_laser._physics import (
+    NOISE_SOURCE,
+    forward,
+    source_structure,
+    sources,
+    true_values,
+)
+from mtplan.models.line_laser._setup import NAME, SQ3 as _SQ3, TOL_FLOOR as _TOL_FLOOR, Truth
+from mtplan.models.protocol import zero_errors
 
 
 # --------------------------------------------------------------------------- patent
@@ -416,7 +416,7 @@ def registration_check(setup) -> tuple[bool, str]:
             f"use more points per line, a finer step or shallower facets")
     truth = Truth()
     try:
-        z = forward(setup, truth, _procedure().zero_errors(setup, 1))["z_mm"]
+        z = forward(setup, truth, zero_errors(sources(setup), 1))["z_mm"]
     except InvalidInput as exc:
         return False, f"the default truth cannot be scanned at this set-up ({exc})"
     est = _registration_core(setup, z)
@@ -463,7 +463,7 @@ def _truth_rows(theta: np.ndarray) -> Truth:
 def predict_profiles(setup, theta: np.ndarray) -> np.ndarray:
     """Error-free readings (n, 3 * lines * points) [mm] for parameter rows (n, 8)."""
     n = theta.shape[0]
-    z = forward(setup, _truth_rows(theta), _procedure().zero_errors(setup, n))["z_mm"]
+    z = forward(setup, _truth_rows(theta), zero_errors(sources(setup), n))["z_mm"]
     return np.asarray(z).reshape(n, -1)
 
 
@@ -485,7 +485,7 @@ def pattern_gain(setup, ref: tuple) -> np.ndarray:
     jac = central_jacobian(lambda rows: predict_profiles(setup, rows), theta, FIT_STEPS,
                            low=low, high=high)
     others = [k for k, src in sources(setup).items()
-              if k != _procedure().readings.noise_source and src.active]
+              if k != NOISE_SOURCE and src.active]
     fine = tuple(k for k in others if k not in _COARSE_SOURCES)
     coarse = tuple(k for k in others if k in _COARSE_SOURCES)
     D, U = _source_effects(setup, ref, fine)
@@ -532,10 +532,10 @@ def _source_effects(setup, ref: tuple, names: tuple) -> tuple[np.ndarray, np.nda
     parameters ``ref`` (8,)."""
     theta = np.asarray(ref, dtype=float)[None, :]
     model = SourceModel(
-        _procedure().name, sources(setup),
+        NAME, sources(setup),
         lambda errors: forward(setup, _truth_rows(np.repeat(
             theta, next(iter(errors.values())).shape[0], axis=0)), errors)["z_mm"],
-        lambda m: _procedure().zero_errors(setup, m),
+        lambda m: zero_errors(sources(setup), m),
         lambda name: source_structure(setup, _truth_rows(theta), name))
     return source_effects(model, list(names))
 

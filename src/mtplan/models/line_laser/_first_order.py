@@ -54,12 +54,15 @@ from mtplan.models.line_laser._estimators import (
 from mtplan.models.line_laser._physics import (
     FACET_OF as _FACET_OF,
     frames as _frames,
+    forward,
     linearity_basis as _linearity_basis,
     measurands,
     nominal_trace as _nominal,
     scan_times as _scan_times,
+    sources as _sources,
 )
-from mtplan.models.line_laser._setup import Truth
+from mtplan.models.line_laser._setup import NAME, Truth
+from mtplan.models.protocol import active_sources, zero_errors
 
 #: estimators whose linear map is written out here (the registration's is not)
 MAPPED = ("patent", "pattern")
@@ -182,14 +185,11 @@ def sensitivities(setup, truth=None, *, estimator: str = "patent", sources=None)
     estimator whose map is not written out (``registration``) or a source whose effect
     does not have one column per element: then the generic chain rule.
     """
-    from mtplan.models.line_laser._physics import forward
-    from mtplan.models.line_laser._record import MODEL as PROCEDURE
-
     truth = Truth() if truth is None else truth
     if estimator not in MAPPED:
         return None
     if estimator == "patent":
-        z = forward(setup, truth, PROCEDURE.zero_errors(setup, 1))["z_mm"][0]
+        z = forward(setup, truth, zero_errors(_sources(setup), 1))["z_mm"][0]
         lmap = _patent_map(setup, z)
     else:
         _check_pattern(setup)
@@ -198,7 +198,7 @@ def sensitivities(setup, truth=None, *, estimator: str = "patent", sources=None)
     lmap = lmap * np.array([m.scale for m in ms])[:, None]
     effects = _effects(setup, truth)
     cols = []
-    for name, src in PROCEDURE.active_sources(setup, sources).items():
+    for name, src in active_sources(_sources(setup), sources, owner=NAME).items():
         shape = (*src.shape, *src.distribution.event_shape)
         size = int(np.prod(shape, dtype=np.int64))
         eff = effects[name]

@@ -37,6 +37,10 @@ def measurands(setup) -> tuple:
     )
 
 
+#: the error source whose spread is the readings' noise (posterior, fit checks, weighting)
+NOISE_SOURCE = "sensor_noise"
+
+
 def sources(setup) -> dict:
     """Every error source (inactive ones with zero spread)."""
     shape = (3, setup.lines, setup.points_per_line)
@@ -45,19 +49,20 @@ def sources(setup) -> dict:
             Normal(0.0, setup.sensor_noise_um * 1e-3), shape,
             "Noise of each height reading; default 1 um: single-profile point noise of a "
             "15-25 mm class laser profiler on matte metal (makers quote 0.2-0.5 um "
-            "repeatability for averaged profiles)."),
+            "repeatability for averaged profiles).", field="sensor_noise_um"),
         "shift_error": Source(
             Normal(0.0, setup.shift_error_um * 1e-3), (),
             "Machine's positioning error of the X shift w (shared by scans 2 and 3); default "
-            "1 um: ISO 230-2 short-travel repeatability of a machining-centre axis."),
+            "1 um: ISO 230-2 short-travel repeatability of a machining-centre axis.",
+            field="shift_error_um"),
         "raise_error": Source(
             Normal(0.0, setup.raise_error_um * 1e-3), (),
             "Machine's positioning error of the raise h of scan 3; default 1 um: ISO 230-2 "
-            "short-travel repeatability of a Z axis."),
+            "short-travel repeatability of a Z axis.", field="raise_error_um"),
         "trigger_y": Source(
             Normal(0.0, setup.trigger_y_um * 1e-3), (3,),
             "Y position of each scan's trigger train; default 0.3 um: interpolation error "
-            "of the linear scale plus trigger latency at the scanning feed."),
+            "of the linear scale plus trigger latency at the scanning feed.", field="trigger_y_um"),
         "linearity": Source(
             Normal(0.0, setup.linearity_um * 1e-3 / math.sqrt(LIN_DEGREES.size)),
             (LIN_DEGREES.size,),
@@ -66,31 +71,34 @@ def sources(setup) -> dict:
             "per test, equal shares, so the expected RMS along the line is linearity_um; "
             "degrees 0 and 1 (offset, tilt) are part of the sensor's data frame, not errors. "
             "Default 1 um: Keyence LJ-X8000 +-0.03 % of F.S., Micro-Epsilon scanCONTROL "
-            "about +-0.1 % of FSO."),
+            "about +-0.1 % of FSO.", field="linearity_um"),
         "z_scale": Source(
             Normal(0.0, setup.z_scale_ppm * 1e-6), (),
             "Scale (gain) error of the height reading about the middle of the range, one per "
-            "test; default 100 ppm (Keyence LJ-X8000: 0.01 % of F.S. per K)."),
+            "test; default 100 ppm (Keyence LJ-X8000: 0.01 % of F.S. per K).", field="z_scale_ppm"),
         "squareness_xy": Source(
             Rectangular(-setup.squareness_xy_urad * 1e-6, setup.squareness_xy_urad * 1e-6), (),
             "Squareness of the X motion (the shift w) to the Y scan motion, toward +Y; "
-            "rectangular +-20 urad (ISO 230-1; ISO 10791-2 tolerances are 0.02 mm/500 mm)."),
+            "rectangular +-20 urad (ISO 230-1; ISO 10791-2 tolerances are 0.02 mm/500 mm).",
+            field="squareness_xy_urad"),
         "squareness_zy": Source(
             Rectangular(-setup.squareness_zy_urad * 1e-6, setup.squareness_zy_urad * 1e-6), (),
             "Squareness of the Z motion (the raise h) to the Y scan motion, toward +Y; "
-            "rectangular +-20 urad (ISO 230-1)."),
+            "rectangular +-20 urad (ISO 230-1).", field="squareness_zy_urad"),
         "facet_position": Source(
             Normal(0.0, setup.facet_position_um * 1e-3), (facet_count(setup),),
             "Position error of each facet of the artifact's pockets, along its in-plane "
             "normal (outward positive), independent from facet to facet; the errors repeat "
             "with a period wider than the scanned window (:func:`facet_layout`). Default "
             "2 um: an uncalibrated pocket milled on a machining centre (ISO 230-2 "
-            "positioning, contouring and tool deflection of a few micrometres)."),
+            "positioning, contouring and tool deflection of a few micrometres).",
+            field="facet_position_um"),
         "drift": Source(
             Normal(0.0, setup.drift_um_per_s * 1e-3), (3,),
             "Thermal drift velocity (X, Y, Z) of the sensor relative to the artifact, one per "
             "test; scan k is displaced by it times its start time after scan 1. Default "
-            "0.003 um/s, about 10 um/h (ISO 230-3 warm-up drifts of 5-30 um/h)."),
+            "0.003 um/s, about 10 um/h (ISO 230-3 warm-up drifts of 5-30 um/h).",
+            field="drift_um_per_s"),
     }
 
 

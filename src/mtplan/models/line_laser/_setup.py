@@ -12,7 +12,8 @@ import numpy as np
 from mtplan._validate import Problems
 from mtplan.models.protocol import SetupBase, param
 
-
+#: the procedure's name
+NAME = "line_laser"
 #: largest mounting angle the procedure is meant for [rad] (Truth limit, range margin)
 ALPHA_MAX = 10e-3
 #: largest tilt of the artifact on the table [rad] (Truth limit, range margin)

@@ -255,7 +255,13 @@ from mtplan.models.rotary_axis._readings import (
     setup_from_frame,
 )
 from mtplan.models.rotary_axis._setup import NAME, Setup, Truth
-from mtplan.models.protocol import Capabilities, Estimator, Procedure, ReadingsFormat
+from mtplan.models.protocol import (
+    Capabilities,
+    Estimator,
+    Procedure,
+    ReadingsFormat,
+    SourceMethod,
+)
 
 from mtplan.models.rotary_axis._correction import CORRECTION
 
@@ -277,6 +283,12 @@ __all__ = [
     "from_frame",
     "PROCEDURE",
 ]
+
+class _Capabilities(Capabilities):
+    """rotary_axis beyond its model: the truth of an estimate (the axis lines' errors)."""
+
+    truth_from_estimate = staticmethod(truth_from_estimate)
+
 
 PROCEDURE = Procedure(
     name=NAME,
@@ -303,6 +315,10 @@ PROCEDURE = Procedure(
                  "dwell_s feed_mm_min".split()),
     readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
                             limits=reading_limits, noise_source="probe_noise"),
-    capabilities=Capabilities(block_size=2000, truth_from_estimate=truth_from_estimate),
+    capabilities=_Capabilities(block_size=2000),
+    source_method=SourceMethod(
+        "patent", "Method for measuring direction and spatial position of rotation center of "
+        "rotating shaft", who="Chinese patent application, Yang Xiaojun et al., filed "
+        "2020-06-12"),
     correction=CORRECTION,
 )

@@ -86,31 +86,32 @@ def _machine_sources(setup: Setup) -> dict[str, Source]:
             Normal(0.0, setup.probe_noise_um * um), (P, M),
             "Noise of one reading of the point laser sensor (standard deviation). Default 1 um: "
             "the repeatability of industrial laser triangulation sensors of 10-25 mm range on a "
-            "ground metal surface (makers quote 0.5-2 um)."),
+            "ground metal surface (makers quote 0.5-2 um).", field="probe_noise_um"),
         "sensor_scale": Source(
             rect(setup.sensor_scale_ppm * 1e-6), (),
             "Scale (gain) error of the sensor, one per test, rectangular: its reading from "
             "mid-range is s (1 + kappa). Default +-500 ppm: the gain's share of a triangulation "
             "sensor's calibration (makers' certificates: +-0.03-0.1 % of the range); the "
             "curvature is sensor_linearity_halfwidth. With z_follows_surface it acts on the "
-            "sensor's small residual only."),
+            "sensor's small residual only.", field="sensor_scale_ppm"),
         "xy_positioning": Source(
             Normal(0.0, setup.xy_positioning_um * um), (2, P, M),
             "X and Y positioning error of the slides at each lattice point (standard deviation; "
             "element [0] X, [1] Y). Default 1 um: ISO 230-2 unidirectional repeatability "
             "R = 4 s of about 4 um on a precision machining centre. A lateral error d changes "
-            "the height by d tan(slope)."),
+            "the height by d tan(slope).", field="xy_positioning_um"),
         "z_positioning": Source(
             Normal(0.0, setup.z_positioning_um * um), (P, M) if setup.z_follows_surface else (P,),
             "Z positioning error (standard deviation): enters the reading in full, since "
             "reading = Z position + sensor value; per reading when Z follows the surface, per "
-            "lattice otherwise. Default 1 um, as for X and Y (ISO 230-2 repeatability)."),
+            "lattice otherwise. Default 1 um, as for X and Y (ISO 230-2 repeatability).",
+            field="z_positioning_um"),
         "flatness": Source(
             rect(setup.flatness_um * um / 4), (5,),
             "Form error of the incline, one per test: bowl, saddle, twist and two cubic waves "
             "over the lattice, coefficients uniform in +-flatness/4, so the form's peak to "
             "valley is about flatness_um. Default 2 um: DIN 876 grade 00 / ISO 8512 for a "
-            "lapped face of 100-150 mm (2 (1 + L/1000) um)."),
+            "lapped face of 100-150 mm (2 (1 + L/1000) um).", field="flatness_um"),
         "artifact_tilt": Source(
             Normal(0.0, setup.artifact_tilt_urad * 1e-6), (2,),
             "Tilts of the artifact's real plane from the nominal one, one pair per test: [0] "
@@ -119,32 +120,36 @@ def _machine_sources(setup: Setup) -> dict[str, Source]:
             "on the table by eye is easily 5-20 mrad off. No hard bound: the readings "
             "determine the real plane, so a bounded prior would pull the axis when the plane "
             "lies beyond it. Every estimator fits each lattice's plane and never uses the "
-            "nominal incline; a posterior must not take it as exact."),
+            "nominal incline; a posterior must not take it as exact.", field="artifact_tilt_urad"),
         "artifact_height_error": Source(
             rect(setup.artifact_height_error_um * um), (),
             "Real height of the incline's reference point above its nominal, one per test. "
-            "Default +-100 um: the fixture's drawing tolerance and its clamping."),
+            "Default +-100 um: the fixture's drawing tolerance and its clamping.",
+            field="artifact_height_error_um"),
         "thermal_drift": Source(
             Normal(0.0, setup.thermal_drift_um_per_s * um), (3,),
             "Drift rate (X, Y, Z) of the sensor against the table during the test, one per "
             "test (standard deviation per component), applied over the time line of the test. "
             "Default 0.001 um/s (3.6 um/h): ISO 230-3 environmental drift of a machining "
-            "centre in a workshop without temperature control of the machine."),
+            "centre in a workshop without temperature control of the machine.",
+            field="thermal_drift_um_per_s"),
         "radial_motion": Source(
             rect(setup.radial_motion_um * um / 2), (P, 2),
             "Radial error motion of the rotary axis at each position, two directions "
             "perpendicular to the axis, uniform within +-half the value. Default 3 um: ISO "
-            "230-7 radial error motion of direct-drive rotary tables (makers quote 2-5 um)."),
+            "230-7 radial error motion of direct-drive rotary tables (makers quote 2-5 um).",
+            field="radial_motion_um"),
         "axial_motion": Source(
             rect(setup.axial_motion_um * um / 2), (P,),
             "Axial error motion at each position, uniform within +-half the value. Default 2 "
-            "um: ISO 230-7 axial error motion of direct-drive rotary tables (1-3 um)."),
+            "um: ISO 230-7 axial error motion of direct-drive rotary tables (1-3 um).",
+            field="axial_motion_um"),
         "tilt_motion": Source(
             rect(setup.tilt_motion_urad * URAD / 2), (P, 2),
             "Tilt error motion at each position about the two directions perpendicular to the "
             "axis (about the axis point at the reference height), uniform within +-half the "
             "value. Default 10 urad (2 arcsec): wobble specifications of precision rotary "
-            "tables (1-5 arcsec)."),
+            "tables (1-5 arcsec).", field="tilt_motion_urad"),
         "angular_positioning": Source(
             rect(setup.angular_positioning_arcsec * ARCSEC / (2 * math.sqrt(2))),
             (len(setup.axes), 4),
@@ -156,12 +161,14 @@ def _machine_sources(setup: Setup) -> dict[str, Source]:
             "rotary axes dominated by such low orders (eccentricity of the encoder: the first "
             "harmonic; its ellipticity: the second). Default 5 arcsec: the positioning "
             "accuracy of rotary tables with direct angle encoders (trunnion A axes are often "
-            "10-30 arcsec: state yours). patent, joint and gls do not use the angles."),
+            "10-30 arcsec: state yours). patent, joint and gls do not use the angles.",
+            field="angular_positioning_arcsec"),
         "angular_repeatability": Source(
             Normal(0.0, setup.angular_repeatability_arcsec * ARCSEC), (P,),
             "Random part of the angular positioning error at each position (standard "
             "deviation). Default 1 arcsec: ISO 230-2 unidirectional repeatability R = 4 s of "
-            "about 2-4 arcsec of rotary tables with direct angle encoders."),
+            "about 2-4 arcsec of rotary tables with direct angle encoders.",
+            field="angular_repeatability_arcsec"),
     }
 
 
@@ -182,13 +189,14 @@ def _sensor_and_setup_sources(setup: Setup) -> dict[str, Source]:
             "d away, so every plane, and with it the axis, moves by -d in X and Y, one to one. "
             "Normal, default 5 um per component: the spot (50-100 um across on a 10 mm "
             "triangulation sensor's data sheet) located on the machine by scanning a sphere or "
-            "an edge, to about a tenth of its diameter."),
+            "an edge, to about a tenth of its diameter.", field="spot_offset_u_um"),
         "sensor_zero_u": Source(
             Normal(0.0, setup.sensor_zero_u_um * um), (),
             "Zero of the sensor (its reading at the commanded Z on the nominal surface), one "
             "per test: every reading is off by it, so the planes move along Z: one to one into "
             "the A axis's EZ0A, nothing on C. Normal, default 2 um: set on a gauge block by "
-            "the Z slide, whose ISO 230-2 repeatability is a few micrometres."),
+            "the Z slide, whose ISO 230-2 repeatability is a few micrometres.",
+            field="sensor_zero_u_um"),
         "xy_slope_halfwidth": Source(
             rect(setup.xy_slope_halfwidth_urad * URAD), (2,),
             "Slope in Z of the X [0] and Y [1] motion over the lattice (the squareness of X "
@@ -196,12 +204,13 @@ def _sensor_and_setup_sources(setup: Setup) -> dict[str, Source]:
             "off by it, so the normals and with them the axis's direction tilt (EA0C, EB0C; "
             "EB0A, EC0A). Rectangular, default +-20 urad: half of ISO 10791-2's squareness "
             "tolerance of 0.020 mm/500 mm (40 urad), for a machine measured and compensated "
-            "to within half of it."),
+            "to within half of it.", field="xy_slope_halfwidth_urad"),
         "xy_straightness_halfwidth": Source(
             rect(setup.xy_straightness_halfwidth_um * um), (2,),
             "Bow in Z of the X [0] and Y [1] motion, b (x / 50 mm)^2 and b (y / 50 mm)^2 "
             "about the table centre, machine-fixed. Rectangular, default +-1 um: ISO 10791-2's "
-            "straightness tolerance 0.010 mm/500 mm, taken proportionally to 100 mm."),
+            "straightness tolerance 0.010 mm/500 mm, taken proportionally to 100 mm.",
+            field="xy_straightness_halfwidth_um"),
         "reversal_halfwidth": Source(
             rect(setup.reversal_halfwidth_arcsec * ARCSEC), (len(setup.axes),),
             "Reversal value B (ISO 230-2) of each rotary axis tested, sign unknown: a position "
@@ -211,7 +220,7 @@ def _sensor_and_setup_sources(setup: Setup) -> dict[str, Source]:
             "position is approached one way and B is a common zero it absorbs; in the "
             "patent's A order (up, then down) it moves EB0A. Rectangular, default +-5 arcsec: "
             "ISO 230-2 reversal values of worm-driven rotary tables, 2-10 arcsec in makers' "
-            "acceptance reports."),
+            "acceptance reports.", field="reversal_halfwidth_arcsec"),
         "angular_short_period_halfwidth": Source(
             Arcsine(-setup.angular_short_period_halfwidth_arcsec * ARCSEC,
                     setup.angular_short_period_halfwidth_arcsec * ARCSEC), (P,),
@@ -221,7 +230,8 @@ def _sensor_and_setup_sources(setup: Setup) -> dict[str, Source]:
             "than the positions' spacing, so unrelated from one position to the next. "
             "Arcsine (a sinusoid of unknown phase), default amplitude 1 arcsec: angle "
             "encoders' position error within one signal period, about +-1 % of a 30-80 "
-            "arcsec signal period (makers' catalogues). Only the angles estimator uses it."),
+            "arcsec signal period (makers' catalogues). Only the angles estimator uses it.",
+            field="angular_short_period_halfwidth_arcsec"),
         "sensor_linearity_halfwidth": Source(
             rect(0.4 * setup.sensor_linearity_halfwidth_ppm * 1e-6), (2,),
             "The sensor's linearity deviation over its range, one curve per test: with x = 2 "
@@ -231,7 +241,8 @@ def _sensor_and_setup_sources(setup: Setup) -> dict[str, Source]:
             "uniform within +-0.4 bound, so the curve stays within +-bound. Default 800 ppm: "
             "+-0.08 % of the range, triangulation sensors' data sheets (e.g. Micro-Epsilon "
             "optoNCDT 1750). The gain is sensor_scale. With z_follows_surface the sensor "
-            "works about mid-range and this acts on tens of micrometres only."),
+            "works about mid-range and this acts on tens of micrometres only.",
+            field="sensor_linearity_halfwidth_ppm"),
         "angle_influence_halfwidth": Source(
             _swing(0.0 if setup.sensor_characteristic is not None
                    else setup.angle_influence_halfwidth_ppm * 1e-6),
@@ -263,7 +274,8 @@ def _sensor_and_setup_sources(setup: Setup) -> dict[str, Source]:
             "angle_influence_halfwidth_ppm. Default 5000 ppm (0.5 %). On a C axis the odd "
             "part moves the axis sideways by about e / tan(incline); on an A axis the even "
             "part and the anisotropy move EZ0A. Off (0) when sensor_characteristic gives a "
-            "calibrated characteristic: its u is angle_calibration_u."),
+            "calibrated characteristic: its u is angle_calibration_u.",
+            field="angle_influence_halfwidth_ppm"),
         "angle_calibration_u": _calibration_source(setup),
     }
 
@@ -290,12 +302,13 @@ def _calibration_source(setup: Setup) -> Source:
     g = plan(setup)
     points = g.calibration_index
     if points.size == 0:
-        return Source(Normal(0.0, 0.0), (1,), text)
+        return Source(Normal(0.0, 0.0), (1,), text, field="angle_calibration_u_um")
     if setup.angle_calibration_u_um is not None:
         u = np.full(points.size, setup.angle_calibration_u_um * UM)
     else:
         u = file_content(setup, "sensor_characteristic").u.ravel()[points]
-    return Source(MultivariateNormal(np.zeros(points.size), np.diag(u * u)), (), text)
+    return Source(MultivariateNormal(np.zeros(points.size), np.diag(u * u)), (), text,
+                  field="angle_calibration_u_um")
 
 
 def true_line(setup: Setup, truth: Truth) -> tuple[np.ndarray, np.ndarray]:

@@ -136,7 +136,13 @@ always returns, with an uncertainty that grows as the arc shrinks.
 
 from __future__ import annotations
 
-from mtplan.models.protocol import Capabilities, Estimator, Procedure, ReadingsFormat
+from mtplan.models.protocol import (
+    Capabilities,
+    Estimator,
+    Procedure,
+    ReadingsFormat,
+    SourceMethod,
+)
 from mtplan.models.tracker_frame._estimators import (
     estimate_angles,
     estimate_gls,
@@ -197,6 +203,14 @@ __all__ = [
 ]
 
 
+class _Capabilities(Capabilities):
+    """tracker_frame beyond its model: the truth of an estimate, and of many estimates as one
+    batch (the designer's sensitivities in one forward run)."""
+
+    truth_from_estimate = staticmethod(truth_from_estimate)
+    truths_from_estimates = staticmethod(truths_from_estimates)
+
+
 PROCEDURE = Procedure(
     name=NAME,
     title="Zero point and frames of gantry sub-machines by laser tracker",
@@ -219,7 +233,9 @@ PROCEDURE = Procedure(
                  "points_per_axis c_arc_deg a_arc_deg points_per_arc tracker_distance_mm "
                  "tracker_height_mm dwell_s linear_feed_mm_min".split()),
     readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame),
-    capabilities=Capabilities(block_size=4000, truth_from_estimate=truth_from_estimate,
-                              truths_from_estimates=truths_from_estimates),
+    capabilities=_Capabilities(block_size=4000),
+    source_method=SourceMethod(
+        "patent", "Zero point definition and calibration method for a gantry-type "
+        "multi-spindle drilling combined machine tool", "patent CN106078359A"),
     correction=CORRECTION,
 )

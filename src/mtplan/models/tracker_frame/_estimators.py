@@ -39,9 +39,9 @@ from mtplan.models.tracker_frame._physics import (
     sources,
     true_values,
     truth_from_estimate,
-    zero_errors,
 )
 from mtplan.models.tracker_frame._setup import AXES, NAME, PARALLEL_SIN, Setup, Truth
+from mtplan.models.protocol import zero_errors
 
 
 def _cartesian(readings: dict) -> np.ndarray:
@@ -266,7 +266,7 @@ def _gls_vector(readings: dict) -> np.ndarray:
 
 def _gls_predict(setup: Setup, base: Truth, theta: np.ndarray) -> np.ndarray:
     """Error-free readings (m, 3 points) for parameter rows ``theta`` (m, p)."""
-    errors = zero_errors(setup, theta.shape[0])
+    errors = zero_errors(sources(setup), theta.shape[0])
     return _gls_vector(forward(setup, _gls_truth(setup, base, theta), errors))
 
 
@@ -296,7 +296,7 @@ def _gls_gain(setup: Setup, base: Truth, ref: tuple) -> np.ndarray:
         NAME, sources(setup),
         lambda errors: _gls_vector(forward(setup, _gls_truth(setup, base, np.repeat(
             theta, next(iter(errors.values())).shape[0], axis=0)), errors)),
-        lambda m: zero_errors(setup, m))
+        lambda m: zero_errors(sources(setup), m))
     # a floor far below any source's effect (1 nm, 0.1 nrad), so that readings no source
     # moves (or a set-up without sources) keep a weight and C stays regular
     floor = np.repeat([1e-6, 1e-10, 1e-10], _n_points(setup))

@@ -246,22 +246,23 @@ def sources(setup: Setup) -> dict[str, Source]:
     return {
         "distance_fixed": Source(
             _mpe(setup, setup.distance_fixed_um * 1e-3), (n,),
-            "Tracker distance error, constant part a of the MPE a + b L, per point [mm]. " + spec),
+            "Tracker distance error, constant part a of the MPE a + b L, per point [mm]. " + spec,
+            field="distance_fixed_um"),
         "distance_per_length": Source(
             _mpe(setup, setup.distance_per_length_um_per_m * 1e-6), (n,),
             "Tracker distance error, part b of the MPE proportional to the distance, per point "
-            "[mm/mm]. " + spec),
+            "[mm/mm]. " + spec, field="distance_per_length_um_per_m"),
         "transverse_fixed": Source(
             _mpe(setup, setup.transverse_fixed_um * 1e-3), (n, 2),
             "Tracker error across the beam (horizontal, vertical), constant part c of the MPE "
-            "c + d L, per point [mm]. " + spec),
+            "c + d L, per point [mm]. " + spec, field="transverse_fixed_um"),
         "transverse_per_length": Source(
             _mpe(setup, setup.transverse_per_length_um_per_m * 1e-6), (n, 2),
             "Tracker error across the beam proportional to the distance (an angle error), "
             "its per-point share (angular repeatability: pointing, encoder interpolation, "
             "air turbulence), independent from point to point [rad]. Default 3 um/m, with "
             "angular_systematic's 5 um/m the AT960's d = 6 um/m in quadrature; "
-            "converted by mpe_model."),
+            "converted by mpe_model.", field="transverse_per_length_um_per_m"),
         "angular_systematic": Source(
             _mpe(setup, setup.angular_systematic_um_per_m * 1e-6), (len(_SYSTEMATIC_WEIGHTS),),
             "Tracker angle error constant over the test (ASME B89.4.19 / ISO 10360-10 "
@@ -272,25 +273,27 @@ def sources(setup: Setup) -> dict[str, Source]:
             "deviation in each direction across the beam (at level sight). A constant "
             "azimuth offset is left out: the registration on the marks absorbs it. Nearby "
             "points (a short arc) are displaced together. Default 5 um/m of the AT960's "
-            "d = 6 um/m; converted by mpe_model."),
+            "d = 6 um/m; converted by mpe_model.", field="angular_systematic_um_per_m"),
         "smr_centring": Source(
             _mpe(setup, setup.smr_centring_um * 1e-3), (n, 3),
             "Offset of the SMR's optical centre from its sphere's centre, along the beam and "
             "across it (horizontal, vertical), per point [mm]: the SMR is turned in its nest "
             "toward the tracker at each point (and reseated on every mark), so its centring "
             "error shows in a new direction each time. Default +-2.5 um, a precision-grade "
-            "1.5 in SMR; converted by mpe_model."),
+            "1.5 in SMR; converted by mpe_model.", field="smr_centring_um"),
         "air_refraction": Source(
             Normal(0.0, setup.air_refraction_ppm * 1e-6), (),
             "Scale error of every distance from the air's refractive index, one per test "
             "[1]: -0.93 ppm/K, +0.27 ppm/hPa (Edlen); default 1 ppm from the weather "
-            "station's +-0.3 K, +-1 hPa and about 1 K between the station and the beam path."),
+            "station's +-0.3 K, +-1 hPa and about 1 K between the station and the beam path.",
+            field="air_refraction_ppm"),
         "thermal_drift": Source(
             Normal(0.0, setup.thermal_drift_um_per_s * 1e-3), (3,),
             "Drift rate (global X, Y, Z) of the tracker against the machine during the test, "
             "one per test [mm/s]: every point moves by rate x its time from the start "
             "(_times: marks first, then each sub-machine). Default 0.003 um/s (11 um/h): a "
-            "1.5 m steel tripod grows 17 um per K, a hall changes 0.5-1 K/h."),
+            "1.5 m steel tripod grows 17 um per K, a hall changes 0.5-1 K/h.",
+            field="thermal_drift_um_per_s"),
         "straightness": Source(
             Rectangular(-setup.straightness_um * 1e-3 / 4, setup.straightness_um * 1e-3 / 4),
             (setup.n_submachines, 3, 2, 3),
@@ -300,12 +303,12 @@ def sources(setup: Setup) -> dict[str, Source]:
             "reference straight line, whose direction is the measurand), each uniform in "
             "+-straightness/4, so the deviation stays within about the tolerance. Only the "
             "sampling of the travel at points_per_axis points lets it tilt the fitted line "
-            "(P3 at the ends). Default 10 um."),
+            "(P3 at the ends). Default 10 um.", field="straightness_um"),
         "machine_repeatability": Source(
             Normal(0.0, setup.machine_repeatability_um * 1e-3), (m, 3),
             "Scatter of the machine's positioning at each measured point, each global axis "
             "[mm]. Default 2 um: an ISO 230-2 unidirectional repeatability of about 8 um "
-            "(4 s) for large gantry axes."),
+            "(4 s) for large gantry axes.", field="machine_repeatability_um"),
         "reflector_fixture": Source(
             Rectangular(-setup.reflector_fixture_um * 1e-3, setup.reflector_fixture_um * 1e-3),
             (setup.n_submachines, 3),
@@ -316,7 +319,8 @@ def sources(setup: Setup) -> dict[str, Source]:
             "a model that took the offset as exact would know the radii of the C and A "
             "circles and so where their axes lie across a short arc. Default +-50 um "
             "(rectangular) for an uncalibrated fixture: arm machined to +-50 um, the nest's "
-            "height to +-50 um, the spindle's orientation stop +-0.02 deg at 150 mm."),
+            "height to +-50 um, the spindle's orientation stop +-0.02 deg at 150 mm.",
+            field="reflector_fixture_um"),
         **_thermal_sources(setup),
         "rotary_positioning": Source(
             Normal(0.0, setup.rotary_positioning_arcsec * math.pi / 648000), (q,),
@@ -324,14 +328,9 @@ def sources(setup: Setup) -> dict[str, Source]:
             "commanded angle), independent from point to point [rad]: the reflector stands "
             "at the actual angle, the readings report the commanded one. Default 5 arcsec "
             "(standard deviation): an ISO 230-2 bidirectional positioning accuracy of about "
-            "20 arcsec (+-2 s) for the rotary axes of the swivel heads of such gantries."),
+            "20 arcsec (+-2 s) for the rotary axes of the swivel heads of such gantries.",
+            field="rotary_positioning_arcsec"),
     }
-
-
-def zero_errors(setup: Setup, m: int) -> dict[str, np.ndarray]:
-    """Every source's errors at zero for `m` trials, (m, *shape, *event_shape) each."""
-    return {k: np.zeros((m, *v.shape, *v.distribution.event_shape))
-            for k, v in sources(setup).items()}
 
 
 def _thermal_sources(setup: Setup) -> dict[str, Source]:
@@ -355,7 +354,8 @@ def _thermal_sources(setup: Setup) -> dict[str, Source]:
             Normal(0.0, setup.structure_expansion_u_ppm_per_k * 1e-6), (),
             "Error of the structure's expansion coefficient [1/K]: it acts times the "
             "measured T - 20 degC, by the distance from the marks' centroid. Default 1e-6/K: "
-            "steels and cast irons span 10-12.5e-6/K (ISO/TR 16015)."),
+            "steels and cast irons span 10-12.5e-6/K (ISO/TR 16015).",
+            field="structure_expansion_u_ppm_per_k"),
         **temperature.gradient_sources(
             setup, "air_gradient",
             measured="Error of the measured vertical gradient of the air's temperature as its "

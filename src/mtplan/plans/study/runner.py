@@ -386,7 +386,6 @@ def _sweep_result(sw, grid, i, points, done):
 
 def _advise(outcome, proc, k) -> None:
     """The summary rows, the levers ranked, the dominant sources and the targets."""
-    from mtplan.models.protocol import fields_info
     from mtplan.plans import decisions
 
     ps = outcome.spec
@@ -400,7 +399,8 @@ def _advise(outcome, proc, k) -> None:
     outcome.levers = decisions.lever_effects(proc.levers, ps.setup, outcome.sweeps, outcome.key,
                                              outcome.recommended)
     outcome.dominant = decisions.dominant_sources(
-        outcome.budget, proc.levers, [f.name for f in fields_info(proc.Setup)])
+        outcome.budget, proc.levers,
+        {name: src.field for name, src in proc.sources(ps.setup).items()})
     outcome.comparison = decisions.estimator_comparison(outcome.results)
     outcome.targets = decisions.u_targets(ps.plan, outcome.verdicts)
 
@@ -508,8 +508,8 @@ def _identifiability(proc, ps):
     from mtplan.plans.identifiability import identifiability, observability_indices
     from mtplan.plans.planner import readings_jacobian
 
-    if proc.capabilities.identifiability_report is not None:
-        rep = proc.capabilities.identifiability_report(ps.setup)
+    rep = proc.capabilities.identifiability_report(ps.setup)
+    if rep:
         sv = np.asarray(rep["singular_values"], dtype=float)
         nulls = [" ".join(f"{w:+.2f} {k}" for k, w in list(d.items())[:6])
                  + (" ..." if len(d) > 6 else "") for d in rep["null_space"]]
@@ -526,13 +526,17 @@ def _identifiability(proc, ps):
 def _extras(proc, ps):
     """Procedure-specific material for the report: the procedure's ``report_extras(setup,
     truth) -> dict`` (data only; the reports draw it), with its per-estimator
-    ``identifiability`` and its ``observability`` where it declares them."""
-    hook = proc.capabilities.report_extras
-    extras = dict(hook(ps.setup, ps.truth)) if hook else {}
+    ``identifiability`` and its ``observability`` where they say anything (the generic
+    defaults are empty)."""
+    caps = proc.capabilities
+    extras = dict(caps.report_extras(ps.setup, ps.truth))
     # what the patent's method cannot see: per-estimator identifiability or observability
-    if proc.capabilities.identifiability is not None and "identifiability" not in extras:
-        extras["identifiability"] = {est: proc.capabilities.identifiability(ps.setup, est)
-                                     for est in ps.estimators}
-    if proc.capabilities.observability is not None and "observability" not in extras:
-        extras["observability"] = proc.capabilities.observability(ps.setup)
+    if "identifiability" not in extras:
+        tables = {est: caps.identifiability(ps.setup, est) for est in ps.estimators}
+        if any(len(table) for table in tables.values()):
+            extras["identifiability"] = tables
+    if "observability" not in extras:
+        observability = caps.observability(ps.setup)
+        if observability:
+            extras["observability"] = observability
     return extras

@@ -12,7 +12,9 @@ def read_temperature_log(path) -> dict:
     """The ambient temperatures a log records, as ``[conditions]`` states them: the lowest
     (``temperature_min_c``), the highest (``temperature_max_c``), the largest change within
     any hour (``temperature_change_c_per_h``: the highest minus the lowest reading of any
-    60 min window) and what the log is (``temperature_log``: its name, count and span).
+    60 min window) and what the log is (``temperature_log``: its name, count and span;
+    ``temperature_log_span``: its first and last time [min after midnight], which each
+    test's time is held to).
 
     The log is a CSV file with a header row and the columns ``time`` (the time of day on the
     test date, "08:30" or "08:30:15", in order) and ``temperature_c`` [°C].
@@ -63,4 +65,5 @@ def read_temperature_log(path) -> dict:
     return {"temperature_min_c": float(x.min()), "temperature_max_c": float(x.max()),
             "temperature_change_c_per_h": float(change.max()),
             "temperature_log": f"log {Path(path).name}, {len(x)} readings from {span[0]} to "
-                               f"{span[1]}"}
+                               f"{span[1]}",
+            "temperature_log_span": [float(t[0]), float(t[-1])]}

@@ -1,8 +1,13 @@
-"""A small test-only procedure: straight-line fit of a probed edge.
+"""The template procedure to copy (docs/adding_a_procedure.md): a straight edge probed at
+`n_points` heights, ``z = offset + slope x + noise``, with a scale error of the probe, and one
+least-squares estimator.
 
-It exists to exercise the procedure protocol and engine independently of the real
-procedures (it is not registered). Readings: heights z_i = a + b x_i + noise at
-`n_points` x positions over `length_mm`, with a scale error of the probe.
+:func:`mtplan.testing.template_source` gives this module's text with ``toy_line`` renamed,
+ready to become a procedure's own module. mtplan's tests also run the engine on it,
+independently of the real procedures. It is not registered: it becomes a procedure where an
+entry point of the group ``mtplan.procedures`` names its copy.
+
+Readings: heights z_i = a + b x_i + noise at `n_points` x positions over `length_mm`.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ from mtplan.models import (
     ReadingsFormat,
     SetupBase,
     Source,
+    SourceMethod,
     param,
 )
 from mtplan.uncertainty import Normal, Rectangular
@@ -52,9 +58,11 @@ def measurands(setup):
 
 def sources(setup):
     return {
-        "probe_noise": Source(Normal(0.0, setup.probe_noise_um * 1e-3), (setup.n_points,), "noise"),
-        "scale_error": Source(Rectangular(-setup.scale_error_ppm * 1e-6, setup.scale_error_ppm * 1e-6),
-                              (), "scale"),
+        "probe_noise": Source(Normal(0.0, setup.probe_noise_um * 1e-3), (setup.n_points,),
+                              "noise", field="probe_noise_um"),
+        "scale_error": Source(Rectangular(-setup.scale_error_ppm * 1e-6,
+                                          setup.scale_error_ppm * 1e-6),
+                              (), "scale", field="scale_error_ppm"),
     }
 
 
@@ -109,4 +117,8 @@ PROCEDURE = Procedure(
     readings=ReadingsFormat(readings_frame, from_frame, noise_source="probe_noise"),
     levers=("n_points", "length_mm"),
     capabilities=Capabilities(block_size=2000),
+    # the least-squares reference straight line of ISO 230-1
+    source_method=SourceMethod(
+        "least_squares", "Test code for machine tools - Part 1: Geometric accuracy of "
+        "machines operating under no-load or quasi-static conditions", "ISO 230-1:2012"),
 )
