@@ -26,7 +26,7 @@ from mtplan.models import registry
 from mtplan.models.protocol import fields_info  # noqa: E402
 
 PROCS = sorted(registry())
-FIELDS = sorted({i["name"] for p in registry().values() for i in fields_info(p.Setup)})
+FIELDS = sorted({i.name for p in registry().values() for i in fields_info(p.Setup)})
 FAST_PROC = "circle_centre"  # the one whose successful runs take milliseconds
 #: examples per command (derandomized by tests/conftest.py's profile); for a deeper hunt:
 #: MTPLAN_FUZZ_EXAMPLES=300 HYPOTHESIS_PROFILE=explore
@@ -42,7 +42,7 @@ number = st.one_of(st.integers(-10**13, 10**13).map(str),
 value = st.one_of(number, text, st.lists(number, max_size=4).map(",".join))
 field = st.one_of(st.sampled_from(FIELDS), text)
 #: values a user would plausibly give the fast procedure's fields (most runs then go deep)
-CIRCLE_FIELDS = [i["name"] for i in fields_info(registry()[FAST_PROC].Setup)]
+CIRCLE_FIELDS = [i.name for i in fields_info(registry()[FAST_PROC].Setup)]
 plausible = st.one_of(st.integers(0, 12).map(str), st.floats(0, 400).map(lambda v: f"{v:.3g}"))
 pair = st.one_of(st.tuples(st.sampled_from(CIRCLE_FIELDS), plausible),
                  st.tuples(st.sampled_from(CIRCLE_FIELDS), plausible),

@@ -363,7 +363,7 @@ def test_every_code_on_the_page_has_help_in_the_glossarys_or_the_procedures_word
         assert title.removesuffix(f". {descriptions[code]}") in words, (code, title)
         assert href and pg.locator(href).count() == 1, code
     # every lever: its field's own documentation
-    docs = {f["name"]: f["doc"] for f in fields_info(proc.Setup)}
+    docs = {f.name: f.doc for f in fields_info(proc.Setup)}
     for name in proc.levers:
         assert pg.locator(f"#row-{name}").get_attribute("title").startswith(docs[name]), name
         assert pg.locator(f"#help-f-{name} + dd").text_content() == docs[name]

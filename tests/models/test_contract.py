@@ -165,7 +165,7 @@ def test_geometry21_errors_are_no_float_truth_fields():
     model's parameters."""
     proc = registry()["geometry21"]
     setup = proc.Setup()
-    floats = [f["name"] for f in fields_info(proc.Truth) if f["kind"] is float]
+    floats = [f.name for f in fields_info(proc.Truth) if f.kind is float]
     rep = proc.capabilities.identifiability_report(setup)
     assert rep["parameters"] > 10 * len(floats)
 

@@ -22,18 +22,18 @@ def _case(proc) -> tuple[str, str]:
     setup = proc.Setup()
     steps = proc.estimators[proc.default_estimator].steps(setup)
     measurand = next(m.name for m in proc.measurands(setup) if m.name not in steps)
-    fields = {info["name"]: info for info in fields_info(proc.Setup)}
+    fields = {info.name: info for info in fields_info(proc.Setup)}
     for info in (fields[lever] for lever in proc.levers):
-        default = getattr(setup, info["name"])
-        if info["kind"] not in (int, float) or default is None:
+        default = getattr(setup, info.name)
+        if info.kind not in (int, float) or default is None:
             continue
-        step = 1 if info["kind"] is int else abs(default) / 4 or 1.0
+        step = 1 if info.kind is int else abs(default) / 4 or 1.0
         for other in (default + step, default - step):
             try:
-                proc.setup(**{info["name"]: other})
+                proc.setup(**{info.name: other})
             except InvalidInput:
                 continue
-            return f"{info['name']}={default},{other}", measurand
+            return f"{info.name}={default},{other}", measurand
     raise AssertionError(f"{proc.name} has no numeric lever a plan could vary")
 
 

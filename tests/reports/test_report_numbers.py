@@ -69,9 +69,9 @@ def _labels(procedure) -> dict:
     proc = get(procedure)
     out = {}
     for name in proc.sources(proc.Setup()):
-        f = next((f for f in fields_info(proc.Setup) if f["name"].startswith(f"{name}_")), None)
+        f = next((f for f in fields_info(proc.Setup) if f.name.startswith(f"{name}_")), None)
         if f is not None:
-            out[field_label(f["name"], f["doc"] or "").split(" [")[0]] = name
+            out[field_label(f.name, f.doc or "").split(" [")[0]] = name
     return out
 
 

@@ -120,7 +120,7 @@ def test_every_lever_is_a_setup_field_and_no_error_source():
     from mtplan.models.protocol import fields_info
 
     for name, proc in registry().items():
-        fields = {f["name"] for f in fields_info(proc.Setup)}
+        fields = {f.name for f in fields_info(proc.Setup)}
         assert proc.levers, name
         assert set(proc.levers) <= fields, (name, set(proc.levers) - fields)
         sources = proc.sources(proc.Setup())

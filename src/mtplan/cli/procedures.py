@@ -35,9 +35,9 @@ def cmd_procedures(args):
             "measurands": [{"name": m.name, "unit": m.unit, "description": m.description}
                            for m in proc.measurands(setup)],
             "sources": {k: s.description for k, s in proc.sources(setup).items()},
-            "setup": [{k: (list(v) if isinstance(v, tuple) else v) for k, v in f.items()
-                       if k in ("name", "default", "unit", "doc", "low", "high", "choices",
-                                "condition")}
+            "setup": [{k: (list(v) if isinstance(v, tuple) else v)
+                       for k in ("name", "default", "unit", "doc", "low", "high", "choices",
+                                 "condition") for v in (getattr(f, k),)}
                       for f in fields_info(proc.Setup)],
         })
     if args.json:

@@ -13,7 +13,6 @@ row by row.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 from dataclasses import dataclass
 
@@ -57,14 +56,14 @@ def truth_parameters(proc, truth, fields=None) -> list[Param]:
 
     every = []
     for info in fields_info(type(truth)):
-        lo = -np.inf if info["low"] is None else float(info["low"])
-        hi = np.inf if info["high"] is None else float(info["high"])
-        args = (info["unit"], lo, hi, bool(info["low_open"]), bool(info["high_open"]))
-        value = getattr(truth, info["name"])
-        if info["kind"] is float and not info["optional"]:
-            every.append(Param(info["name"], info["name"], None, *args))
-        elif info["kind"] == "tuple" and info["element"] is float and value is not None:
-            every += [Param(f"{info['name']}[{i}]", info["name"], i, *args)
+        lo = -np.inf if info.low is None else float(info.low)
+        hi = np.inf if info.high is None else float(info.high)
+        args = (info.unit, lo, hi, bool(info.low_open), bool(info.high_open))
+        value = getattr(truth, info.name)
+        if info.kind is float and not info.optional:
+            every.append(Param(info.name, info.name, None, *args))
+        elif info.kind == "tuple" and info.element is float and value is not None:
+            every += [Param(f"{info.name}[{i}]", info.name, i, *args)
                       for i in range(len(value))]
     if fields is None:
         return every
@@ -84,8 +83,8 @@ class _Reader:
     """Stands in for a Truth and records which attributes its ``_check`` reads."""
 
     def __init__(self, base):
-        object.__setattr__(self, "_base", base)
-        object.__setattr__(self, "read", set())
+        self._base = base
+        self.read = set()
 
     def __getattr__(self, name):
         self.read.add(name)
@@ -149,22 +148,27 @@ class TruthBuilder:
         ok &= np.all(np.where(self.high_open, theta < self.high, theta <= self.high), axis=1)
         return ok
 
-    def _assign(self, values) -> object:
-        """A copy of the base with `values` (one per parameter: floats or arrays) set."""
-        t = copy.copy(self.base)
-        tuples = {}
+    def _changes(self, values) -> dict:
+        """The fields of the base that `values` (one per parameter: floats or arrays (m,))
+        change: field -> value (a tuple field whole, its other elements as in the base)."""
+        changes, tuples = {}, {}
         for p, v in zip(self.params, values, strict=True):
             if p.index is None:
-                object.__setattr__(t, p.field, v)
+                changes[p.field] = v
             else:
                 tuples.setdefault(p.field, {})[p.index] = v
         for name, items in tuples.items():
             old = getattr(self.base, name)
             shape = np.shape(next(iter(items.values())))
-            new = [items.get(i, np.full(shape, float(x)) if shape else float(x))
-                   for i, x in enumerate(old)]
-            object.__setattr__(t, name, tuple(new))
-        return t
+            changes[name] = tuple(items.get(i, np.full(shape, float(x)) if shape else float(x))
+                                  for i, x in enumerate(old))
+        return changes
+
+    def _assign(self, values) -> object:
+        """The base with `values` set, as a batch of truths (``Truth.batch``; of one where
+        the values are floats): checked by :meth:`valid` and :meth:`cross_valid` rather
+        than field by field (the Truth's own rules run on it as they would on a Truth)."""
+        return type(self.base).batch(self.base, **self._changes(values))
 
     def cross_valid(self, theta: np.ndarray) -> np.ndarray:
         """Mask of rows that pass the Truth's cross-field rules (all True without rules)."""
@@ -193,7 +197,10 @@ class TruthBuilder:
         row = np.asarray(row, dtype=float)
         if not (self.valid(row[None])[0] and self.cross_valid(row[None])[0]):
             return None
-        return self._assign([float(v) for v in row])
+        try:
+            return self.checked_replace(row)
+        except InvalidInput:
+            return None
 
     def batch(self, theta: np.ndarray):
         """One Truth for all rows of `theta` (m, n_params): fields as arrays (m,)."""
@@ -202,8 +209,7 @@ class TruthBuilder:
 
     def checked_replace(self, row):
         """The Truth of one row through ``dataclasses.replace`` (full validation)."""
-        t = self._assign([float(v) for v in row])
-        return dataclasses.replace(t)
+        return dataclasses.replace(self.base, **self._changes([float(v) for v in row]))
 
 
 class Forward:

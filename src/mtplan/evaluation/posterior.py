@@ -472,7 +472,7 @@ def _internal_unit(setup, source: str) -> str:
     """Internal unit of a source's elements, from its set-up field's unit suffix."""
     from mtplan.models.protocol import fields_info
 
-    unit = next((i["unit"] for i in fields_info(type(setup)) if i["name"].startswith(source + "_")),
+    unit = next((i.unit for i in fields_info(type(setup)) if i.name.startswith(source + "_")),
                 "")
     return {"um": "mm", "nm": "mm", "mm": "mm", "urad": "rad", "mrad": "rad", "arcsec": "rad",
             "deg": "rad", "ppm": "1"}.get(unit.split("_")[0], "")
@@ -622,7 +622,7 @@ def _check_noise_dof(fwd, fit: _Fit, n_sampled: int) -> None:
     from mtplan.models.protocol import fields_info
 
     ns = proc.readings.noise_source
-    fld = next((i["name"] for i in fields_info(type(fwd.setup)) if i["name"].startswith(ns + "_")),
+    fld = next((i.name for i in fields_info(type(fwd.setup)) if i.name.startswith(ns + "_")),
                ns)
     raise InvalidInput([
         f"The noise of {proc.name} cannot be left free: {rank} reading(s) with noise and "

@@ -498,7 +498,7 @@ def _complete_setup(proc, given, implied, path):
     """
     from mtplan.models.protocol import fields_info, make
 
-    defaults = {i["name"]: i["default"] for i in fields_info(proc.Setup)}
+    defaults = {i.name: i.default for i in fields_info(proc.Setup)}
     chosen, taken, confirmed, conflicts, notes = {}, [], [], [], []
     for name, imp in implied.items():
         if any(g in given for g in imp.unless_given if g != name):

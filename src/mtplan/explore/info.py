@@ -24,20 +24,20 @@ def procedure_info(name: str) -> dict:
     sources = proc.sources(setup)
     fields = []
     for f in fields_info(proc.Setup):
-        if f["file"]:  # a path on this machine: never a browser's (refuse_files)
+        if f.file:  # a path on this machine: never a browser's (refuse_files)
             continue
-        kind = f["kind"]
+        kind = f.kind
         kind = {float: "float", int: "int", bool: "bool", str: "str"}.get(kind, "tuple")
         fields.append({
-            "name": f["name"], "kind": kind, "unit": f["unit"], "doc": f["doc"] or "",
-            "default": json_value(f["default"]), "low": f["low"], "high": f["high"],
-            "low_open": f["low_open"], "high_open": f["high_open"],
-            "choices": list(f["choices"]) if f["choices"] else None,
-            "optional": f["optional"], "min_len": f["min_len"],
-            "source": by_field.get(f["name"]),
-            "source_doc": sources[by_field[f["name"]]].description if f["name"] in by_field
+            "name": f.name, "kind": kind, "unit": f.unit, "doc": f.doc or "",
+            "default": json_value(f.default), "low": f.low, "high": f.high,
+            "low_open": f.low_open, "high_open": f.high_open,
+            "choices": list(f.choices) if f.choices else None,
+            "optional": f.optional, "min_len": f.min_len,
+            "source": by_field.get(f.name),
+            "source_doc": sources[by_field[f.name]].description if f.name in by_field
             else "",
-            "lever": f["name"] in proc.levers,
+            "lever": f.name in proc.levers,
         })
         fields[-1]["slider"] = _slider(fields[-1])
     return {

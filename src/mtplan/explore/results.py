@@ -40,7 +40,7 @@ def evaluate(design: dict) -> dict:
         proc, setup = setup_of(design)
     except InvalidInput as exc:
         out["problems"] = list(exc.problems)
-        infos = [f["name"] for f in fields_info(proc.Setup)]
+        infos = [f.name for f in fields_info(proc.Setup)]
         for msg in exc.problems:  # a rule between fields: beside each field it names
             for f in infos:
                 if f"'{f}'" in msg or f" {f} " in f" {msg} ":
@@ -119,7 +119,7 @@ def source_inputs(proc, setup) -> dict:
     """Source -> (its size, the unit of the field that states it): the input u of the
     budget table (a source of many elements has this u for each)."""
     out = {}
-    units = {f["name"]: f["unit"] for f in fields_info(proc.Setup)}
+    units = {f.name: f.unit for f in fields_info(proc.Setup)}
     for source, field in source_fields(proc).items():
         v = getattr(setup, field, None)
         if isinstance(v, int | float) and not isinstance(v, bool):

@@ -15,22 +15,22 @@ __all__ = ["lever_values", "sensitivity"]
 
 def lever_values(proc, setup, field: str, n: int = 9) -> list:
     """Values of a numeric field over its range around the current value (n at most)."""
-    info = next(f for f in fields_info(proc.Setup) if f["name"] == field)
+    info = next(f for f in fields_info(proc.Setup) if f.name == field)
     v = getattr(setup, field)
-    kind = info["kind"]
+    kind = info.kind
     if kind not in (int, float) or v is None:
         raise InvalidInput([f"The lever {field!r} of {proc.name} is not a number; a "
                             "sensitivity needs a numeric field."])
-    lo, hi = info["low"], info["high"]
+    lo, hi = info.low, info.high
     v = float(v)
     a = lo if lo is not None else (0.0 if v >= 0 else 4 * v)
     b = hi if hi is not None else max(4 * abs(v), 1.0)
     # keep the plot around the current value: at most x0.25 .. x4 on ratio-scale fields
     if lo is not None and lo >= 0 and v > 0:
         a, b = max(a, v / 4), min(b, v * 4)
-    if info["low_open"] and a == lo:
+    if info.low_open and a == lo:
         a = a + (b - a) / (4 * n)
-    if info["high_open"] and b == hi:
+    if info.high_open and b == hi:
         b = b - (b - a) / (4 * n)
     if kind is int:
         vals = sorted(set(int(round(x)) for x in np.linspace(a, b, n)) | {int(v)})
@@ -85,8 +85,8 @@ def sensitivity(design: dict, field: str | None = None, n: int = 9, *, stop=None
     for x in xs:
         for name, u in points[x].items():
             curves.setdefault(name, []).append(K * u)
-    info = next(f for f in fields_info(proc.Setup) if f["name"] == field)
-    return {"field": field, "unit": info["unit"], "x": xs, "U": curves, "untrusted": untrusted,
+    info = next(f for f in fields_info(proc.Setup) if f.name == field)
+    return {"field": field, "unit": info.unit, "x": xs, "U": curves, "untrusted": untrusted,
             "current": json_value(getattr(setup, field)),
             "units": {m.name: m.unit for m in proc.measurands(setup)},
             "targets": {k: v for k, v in design["targets"].items()}}

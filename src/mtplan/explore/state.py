@@ -197,7 +197,7 @@ def _values(proc, design) -> dict:
 
 def field_problems(proc, design) -> dict:
     """Field name -> the procedure's own message for each value it refuses alone."""
-    infos = {f["name"] for f in fields_info(proc.Setup)}
+    infos = {f.name for f in fields_info(proc.Setup)}
     try:
         values = _values(proc, design)
     except InvalidInput as exc:  # a file field: named beside itself

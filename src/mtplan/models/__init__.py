@@ -33,6 +33,7 @@ from mtplan.models.protocol import (
     Estimator,
     Measurand,
     Procedure,
+    Readings,
     ReadingsFormat,
     SetupBase,
     Source,
@@ -40,8 +41,8 @@ from mtplan.models.protocol import (
     param,
 )
 
-__all__ = ["Capabilities", "Estimator", "Measurand", "Procedure", "ReadingsFormat", "SetupBase",
-           "Source", "SourceMethod", "param", "registry", "get", "broken",
+__all__ = ["Capabilities", "Estimator", "Measurand", "Procedure", "Readings", "ReadingsFormat",
+           "SetupBase", "Source", "SourceMethod", "param", "registry", "get", "broken",
            "ENTRY_POINT_GROUP"]
 
 #: the entry-point group through which installed packages register procedures

@@ -48,6 +48,8 @@ __all__ = [
     "file_content",
     "resolve_file_fields",
     "SetupBase",
+    "TruthBatch",
+    "FieldInfo",
     "parse_fields",
     "make",
     "Implied",
@@ -180,43 +182,93 @@ def _base_type(tp):
     return (tp, None), optional
 
 
-def fields_info(cls) -> list[dict]:
-    """Field name, kind, default, unit, doc and range of a Setup or Truth class."""
-    return [dict(info) for info in _fields_info(cls)]
+@dataclass(frozen=True)
+class FieldInfo:
+    """What a Setup or Truth field declares (:func:`param`), read once per class.
+
+    Attributes
+    ----------
+    name : str
+        The field's name; its unit is the name's suffix.
+    kind : type or str
+        ``float``, ``int``, ``bool``, ``str`` or ``"tuple"`` (a list of numbers).
+    element : type or None
+        The kind of a tuple field's elements (``float``); None for other fields.
+    optional : bool
+        The field may be None (empty).
+    default : object
+        The field's default value.
+    unit : str
+        The unit suffix of the name (:func:`split_unit`; "" for none).
+    doc : str
+        What the field is, in plain words.
+    low, high : float or None
+        The allowed range (None: unbounded), each end open where `low_open` / `high_open`.
+    low_open, high_open : bool
+    choices : tuple or None
+        The allowed values of a field that takes one of a few.
+    min_len : int or None
+        The fewest elements of a tuple field.
+    file : bool
+        A file field (``param(reader=...)``): a path whose file the set-up reads.
+    condition : str or None
+        The key of the test condition a study records for this field
+        (:func:`with_conditions`).
+    owner : str or None
+        Who carries the error source the field sizes (one of :data:`OWNERS`), None for a
+        field that sizes none.
+    """
+
+    name: str
+    kind: object
+    element: object
+    optional: bool
+    default: object
+    unit: str
+    doc: str | None = None
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    choices: tuple | None = None
+    min_len: int | None = None
+    file: bool = False
+    condition: str | None = None
+    owner: str | None = None
+
+
+def fields_info(cls) -> tuple[FieldInfo, ...]:
+    """What each field of a Setup or Truth class declares (name, kind, default, unit, doc,
+    range), in the order of the class: one :class:`FieldInfo` per field."""
+    return _fields_info(cls)
 
 
 @functools.lru_cache(maxsize=None)
-def _fields_info(cls) -> tuple:
+def _fields_info(cls) -> tuple[FieldInfo, ...]:
     """:func:`fields_info`, once per class (``typing.get_type_hints`` is slow, and every
     set-up built validates through it)."""
+    if issubclass(cls, TruthBatch):
+        return _fields_info(cls.truth_class)
     hints = typing.get_type_hints(cls)
     out = []
     for f in dataclasses.fields(cls):
         if f.name.startswith("_"):
             continue
         (kind, elem), optional = _base_type(hints[f.name])
-        unit = split_unit(f.name)[1]
-        out.append(
-            {
-                "name": f.name,
-                "kind": kind,
-                "element": elem,
-                "optional": optional,
-                "default": f.default,
-                "unit": unit,
-                **{k: f.metadata.get(k) for k in ("doc", "low", "high", "low_open", "high_open",
-                                                 "choices", "min_len")},
-                "file": f.metadata.get("reader") is not None,
-                "condition": f.metadata.get("condition"),
-                "owner": f.metadata.get("owner"),
-            }
-        )
+        out.append(FieldInfo(
+            name=f.name, kind=kind, element=elem, optional=optional, default=f.default,
+            unit=split_unit(f.name)[1],
+            **{k: f.metadata.get(k) for k in ("doc", "low", "high", "choices", "min_len")},
+            low_open=bool(f.metadata.get("low_open")),
+            high_open=bool(f.metadata.get("high_open")),
+            file=f.metadata.get("reader") is not None,
+            condition=f.metadata.get("condition"), owner=f.metadata.get("owner")))
     return tuple(out)
 
 
 def file_fields(cls) -> tuple[str, ...]:
     """The names of the file fields of a Setup class (declared with ``param(reader=...)``)."""
-    return tuple(info["name"] for info in _fields_info(cls) if info["file"])
+    return tuple(info.name for info in _fields_info(cls) if info.file)
 
 
 def resolve_file_fields(cls, values: Mapping, base) -> dict:
@@ -255,78 +307,78 @@ def file_content(setup, name: str):
 
 def _check_file(p: "Problems", setup, info) -> None:
     """Read a file field's file, recording why it cannot be read or what its reader refuses."""
-    path = getattr(setup, info["name"])
+    path = getattr(setup, info.name)
     if path is None or not isinstance(path, str):
         return
     try:
-        file_content(setup, info["name"])
+        file_content(setup, info.name)
     except InvalidInput as exc:
         p.items.extend(exc.problems)
     except OSError as exc:
-        p.add(info["name"], path, f"a readable file ({exc.strerror or exc})")
+        p.add(info.name, path, f"a readable file ({exc.strerror or exc})")
 
 
 def _describe(info) -> str:
-    kind = info["kind"]
+    kind = info.kind
     name = {float: "a finite number", int: "an int", bool: "true or false", str: "a string"}.get(
         kind, "a comma-separated list of numbers" if kind == "tuple" else str(kind)
     )
-    if info["choices"]:
-        return "one of " + ", ".join(repr(c) for c in info["choices"])
-    if info.get("file"):
-        return "the path of a file" + (" (or empty for none)" if info["optional"] else "")
+    if info.choices:
+        return "one of " + ", ".join(repr(c) for c in info.choices)
+    if info.file:
+        return "the path of a file" + (" (or empty for none)" if info.optional else "")
     bounds = []
-    if info["low"] is not None:
-        bounds.append(f"{'>' if info['low_open'] else '>='} {info['low']:g}")
-    if info["high"] is not None:
-        bounds.append(f"{'<' if info['high_open'] else '<='} {info['high']:g}")
+    if info.low is not None:
+        bounds.append(f"{'>' if info.low_open else '>='} {info.low:g}")
+    if info.high is not None:
+        bounds.append(f"{'<' if info.high_open else '<='} {info.high:g}")
     text = name + (" " + " and ".join(bounds) if bounds else "")
-    if info["optional"]:
+    if info.optional:
         text += " (or empty for the default)"
     return text
 
 
 def _check_value(p: Problems, info, value) -> None:
     if value is None:
-        if not info["optional"]:
-            p.add(info["name"], value, _describe(info))
+        if not info.optional:
+            p.add(info.name, value, _describe(info))
         return
-    kind = info["kind"]
-    if info["choices"]:
-        p.choice(info["name"], value, info["choices"])
+    kind = info.kind
+    if info.choices:
+        p.choice(info.name, value, info.choices)
         return
-    rng = dict(low=info["low"], high=info["high"], low_open=info["low_open"],
-               high_open=info["high_open"])
+    rng = dict(low=info.low, high=info.high, low_open=info.low_open,
+               high_open=info.high_open)
     if kind is bool:
-        p.require(isinstance(value, bool | np.bool_), info["name"], value, "true or false")
+        p.require(isinstance(value, bool | np.bool_), info.name, value, "true or false")
     elif kind is str:
-        p.require(isinstance(value, str), info["name"], value, "a string")
+        p.require(isinstance(value, str), info.name, value, "a string")
     elif kind is int:
-        if not p.number(info["name"], value, integer=True, **rng):
+        if not p.number(info.name, value, integer=True, **rng):
             return
     elif kind is float:
-        p.number(info["name"], value, **rng)
+        p.number(info.name, value, **rng)
     elif kind == "tuple":
         if not isinstance(value, tuple) or not all(is_real(v) for v in value):
-            p.add(info["name"], value, "a list of numbers")
+            p.add(info.name, value, "a list of numbers")
             return
         arr = np.asarray(value, dtype=float)
-        lo, hi = info["low"], info["high"]
+        lo, hi = info.low, info.high
         ok = np.all(np.isfinite(arr))
         if lo is not None:
-            ok &= np.all(arr > lo) if info["low_open"] else np.all(arr >= lo)
+            ok &= np.all(arr > lo) if info.low_open else np.all(arr >= lo)
         if hi is not None:
-            ok &= np.all(arr < hi) if info["high_open"] else np.all(arr <= hi)
-        if info["min_len"] is not None:
-            ok &= len(value) >= info["min_len"]
+            ok &= np.all(arr < hi) if info.high_open else np.all(arr <= hi)
+        if info.min_len is not None:
+            ok &= len(value) >= info.min_len
         if not ok:
             allowed = "a list of finite numbers"
-            b = _describe({**info, "kind": float, "optional": False}).replace("a finite number", "")
+            b = _describe(dataclasses.replace(info, kind=float, optional=False)).replace("a finite number", "")
             if b.strip():
                 allowed += ", each" + b
-            if info["min_len"]:
-                allowed += f", at least {info['min_len']} of them"
-            p.add(info["name"], value, allowed)
+            if info.min_len:
+                allowed += f", at least {info.min_len} of them"
+            p.add(info.name, value, allowed)
 
 
 class SetupBase:
@@ -342,17 +394,17 @@ class SetupBase:
         p = Problems(self._owner)
         infos = fields_info(type(self))
         for info in infos:
-            value = getattr(self, info["name"])
+            value = getattr(self, info.name)
             if isinstance(value, list):
                 value = tuple(value)
-                object.__setattr__(self, info["name"], value)
-            if info["kind"] is float and is_real(value) and not isinstance(value, float):
-                object.__setattr__(self, info["name"], float(value))
-            if info["kind"] is int and is_real(value) and float(value).is_integer():
-                object.__setattr__(self, info["name"], int(value))
-            _check_value(p, info, getattr(self, info["name"]))
+                object.__setattr__(self, info.name, value)
+            if info.kind is float and is_real(value) and not isinstance(value, float):
+                object.__setattr__(self, info.name, float(value))
+            if info.kind is int and is_real(value) and float(value).is_integer():
+                object.__setattr__(self, info.name, int(value))
+            _check_value(p, info, getattr(self, info.name))
         for info in infos:
-            if info["file"] and not p:
+            if info.file and not p:
                 _check_file(p, self, info)
         if not p:
             self._check(p)
@@ -371,6 +423,23 @@ class SetupBase:
         """A copy with `changes` applied (validated)."""
         return dataclasses.replace(self, **changes)
 
+    @classmethod
+    def batch(cls, base=None, /, **values):
+        """A batch of truths of this class (as astropy's model sets): `base` (default: the
+        class's defaults) with `values` set, each float field a number or an array (m,) and
+        each tuple field a tuple of such, one truth per batch row of ``forward``.
+
+        The values are not checked against the fields' ranges (they are a fit's iterates,
+        a Jacobian's steps or estimates, checked where they are made); only that the
+        arrays agree in length. Returns an instance of :class:`TruthBatch` (a subclass of
+        this class, so ``forward`` reads it as it reads one truth).
+        """
+        one = cls.truth_class if issubclass(cls, TruthBatch) else cls
+        kw = {} if base is None else {f.name: getattr(base, f.name)
+                                      for f in dataclasses.fields(base) if f.init}
+        kw.update(values)
+        return _batch_class(one)(**kw)
+
     def as_dict(self) -> dict:
         """Field values as plain Python (tuples as lists), for JSON and tables."""
         out = {}
@@ -382,12 +451,65 @@ class SetupBase:
         return out
 
 
+class TruthBatch:
+    """A batch of truths: the base of ``Truth.batch``'s types (:meth:`SetupBase.batch`).
+
+    Each procedure's Truth class has one batch type, a subclass of it (so the forward
+    model, ``dataclasses.fields`` and ``dataclasses.replace`` treat a batch as a truth)
+    whose fields hold numbers or arrays (m,), one truth per batch row. It is frozen like
+    the Truth and is made only by ``Truth.batch``, never by changing a truth. Its
+    construction checks the arrays' lengths, not the fields' ranges.
+    """
+
+    #: the Truth class whose batches this type holds
+    truth_class: type = None
+
+    def __post_init__(self):
+        lengths = set()
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            for v in (value if isinstance(value, tuple) else (value,)):
+                ndim = np.ndim(v)
+                if ndim > 1:
+                    raise ValueError(
+                        f"The field {f.name!r} of a {self.truth_class.__name__} batch must "
+                        f"hold numbers or arrays (m,). Got an array of shape {np.shape(v)} "
+                        "instead.")
+                if ndim == 1:
+                    lengths.add(len(v))
+        if len(lengths) > 1:
+            raise ValueError(f"The fields of a {self.truth_class.__name__} batch must hold "
+                             f"arrays of one length. Got lengths {sorted(lengths)} instead.")
+        object.__setattr__(self, "_rows", lengths.pop() if lengths else None)
+
+    @property
+    def rows(self) -> int | None:
+        """The number of truths m (None: every field is one number, one truth)."""
+        return self._rows
+
+    def __reduce__(self):
+        return (_batch_of, (self.truth_class, {f.name: getattr(self, f.name)
+                                               for f in dataclasses.fields(self) if f.init}))
+
+
+@functools.lru_cache(maxsize=None)
+def _batch_class(cls) -> type:
+    """The batch type of the Truth class `cls` (one per class)."""
+    return type(f"{cls.__name__}Batch", (TruthBatch, cls),
+                {"truth_class": cls, "__doc__": f"A batch of {cls.__qualname__} (m truths)."})
+
+
+def _batch_of(cls, values: dict):
+    """``cls.batch(**values)`` (how a pickled batch is made again)."""
+    return cls.batch(**values)
+
+
 def _coerce(info, value):
     """Parse a command-line string (or TOML value) into the field's kind."""
-    kind = info["kind"]
+    kind = info.kind
     if isinstance(value, str):
         text = value.strip()
-        if info["optional"] and text.lower() in ("", "none", "default"):
+        if info.optional and text.lower() in ("", "none", "default"):
             return None
         if kind is bool:
             low = text.lower()
@@ -429,7 +551,7 @@ def parse_fields(cls, values: Mapping | None, *, owner: str | None = None) -> di
     """
     owner = owner or getattr(cls, "_owner", cls.__name__)
     p = Problems(owner)
-    infos = {i["name"]: i for i in fields_info(cls)}
+    infos = {i.name: i for i in fields_info(cls)}
     given = {}
     for key, value in (values or {}).items():
         if key not in infos:

@@ -16,7 +16,7 @@ A procedure module (``mtplan/models/<name>.py``) defines a module-level
   :func:`zero_errors` are functions of the sources.
 - ``forward(setup, truth, errors) -> readings``: the deterministic forward model;
   ``errors`` maps every source name to an array of shape ``(n, *source.shape)``;
-  ``readings`` is a dict of batch-first arrays (leading axis = trials).
+  ``readings`` is a :class:`Readings` of batch-first arrays (leading axis = trials).
 - ``estimators``: name -> :class:`Estimator`, a record of the function
   ``estimate(setup, readings) -> dict[measurand, (n,) array]`` in internal units (mm, rad),
   its plain ``description`` (the reports quote it), whether it is ``exact`` without noise
@@ -106,6 +106,7 @@ __all__ = [
     "Capabilities",
     "SourceMethod",
     "Procedure",
+    "Readings",
     "active_sources",
     "zero_errors",
 ]
@@ -179,7 +180,45 @@ class Source:
 
 
 # --------------------------------------------------------------------------- procedure
-Readings = dict
+class Readings(dict):
+    """A procedure's readings: reading name -> array, batch-first (leading axis: the trials,
+    one row per simulated or measured test).
+
+    What ``forward`` and ``ReadingsFormat.from_frame`` return (a measured table is a batch
+    of one). It reads as the dict it is (``readings["z_mm"]``, ``.items()``, ``{**readings}``)
+    at a dict's speed, knows its :attr:`rows` and the :attr:`units` its names carry
+    (``"distance_mm"`` is in mm), and is not changed in place: :meth:`replace` gives a copy
+    with some arrays changed.
+    """
+
+    __slots__ = ()
+
+    @property
+    def rows(self) -> int:
+        """The number of rows (trials) of the batch: the leading axis of its arrays."""
+        return int(np.shape(next(iter(self.values())))[0]) if self else 0
+
+    @property
+    def units(self) -> dict[str, str]:
+        """reading name -> its unit, the suffix of the name (:func:`split_unit`)."""
+        return {name: split_unit(name)[1] for name in self}
+
+    def replace(self, **changes) -> Readings:
+        """A copy with the arrays `changes` (name -> array) put in."""
+        return Readings({**self, **changes})
+
+    def _frozen(self, *args, **kwargs):
+        raise TypeError("Readings are not changed in place; use readings.replace(name=array) "
+                        "for a copy with an array changed")
+
+    __setitem__ = __delitem__ = update = pop = popitem = setdefault = clear = _frozen
+    __ior__ = _frozen
+
+    def __reduce__(self):
+        return (Readings, (dict(self),))
+
+    def __repr__(self) -> str:
+        return f"Readings({dict.__repr__(self)})"
 
 
 def active_sources(sources: Mapping[str, Source], only=None, *, owner: str = "procedure"

@@ -77,8 +77,8 @@ def source_owners(procedure) -> dict:
     info = fields_info(procedure.Setup)
     out = {}
     for f in info:
-        if f.get("owner"):
-            out[f["name"]] = f["owner"]
+        if f.owner:
+            out[f.name] = f.owner
     return out
 
 

@@ -527,20 +527,20 @@ def optimize_design(
 
     proc = get(procedure)
     base_setup = proc.Setup() if base_setup is None else base_setup
-    infos = {i["name"]: i for i in fields_info(proc.Setup)}
+    infos = {i.name: i for i in fields_info(proc.Setup)}
     p = Problems(f"optimize_design {proc.name}")
     if not free:
         p.add_text("optimize_design needs at least one free field")
     layout, x0, bounds = [], [], []
     for name, lim in (free or {}).items():
-        if name not in infos or infos[name]["kind"] not in (float, "tuple"):
+        if name not in infos or infos[name].kind not in (float, "tuple"):
             p.add("free", name, "float or list-of-number set-up fields")
             continue
         if not (isinstance(lim, Sequence) and len(lim) == 2 and lim[0] < lim[1]):
             p.add(f"free[{name!r}]", lim, "a pair (low, high) with low < high")
             continue
         value = getattr(base_setup, name)
-        if infos[name]["kind"] == "tuple":
+        if infos[name].kind == "tuple":
             if value is None:
                 p.add(f"free[{name!r}]", value, "a list field that is set in the base set-up")
                 continue
@@ -636,15 +636,15 @@ def readings_jacobian(procedure, setup=None, truth=None, *, wrt: str | None = No
             names.append(name)
     else:
         for f in fields_info(proc.Truth):
-            if f["kind"] is not float:
+            if f.kind is not float:
                 continue
-            v = getattr(truth, f["name"])
+            v = getattr(truth, f.name)
             h = max(abs(v) * 1e-6, 1e-9)
-            col = (flat(dataclasses.replace(truth, **{f["name"]: v + h}))
-                   - flat(dataclasses.replace(truth, **{f["name"]: v - h}))) / (2 * h)
+            col = (flat(dataclasses.replace(truth, **{f.name: v + h}))
+                   - flat(dataclasses.replace(truth, **{f.name: v - h}))) / (2 * h)
             if np.any(col):
                 cols.append(col)
-                names.append(f["name"])
+                names.append(f.name)
     return np.column_stack(cols), names
 
 

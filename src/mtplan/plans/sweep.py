@@ -132,7 +132,7 @@ def sweep_table(frames) -> "pd.DataFrame":
 
 def setup_grid(proc, base, vary):
     p = Problems(f"sweep {proc.name}")
-    infos = {i["name"]: i for i in fields_info(proc.Setup)}
+    infos = {i.name: i for i in fields_info(proc.Setup)}
     for key, values in vary.items():
         if key not in infos:
             p.add_text(f"{proc.name} has no set-up field {key!r} to vary; its fields are: "

@@ -119,8 +119,8 @@ def _source_words(o, name: str) -> str:
     from mtplan.models.protocol import fields_info
 
     for f in fields_info(o.spec.procedure.Setup):
-        if f["name"].startswith(f"{name}_"):
-            return field_label(f["name"], f["doc"] or "").split(" [")[0]
+        if f.name.startswith(f"{name}_"):
+            return field_label(f.name, f.doc or "").split(" [")[0]
     return name.replace("_", " ")
 
 

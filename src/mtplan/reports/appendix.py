@@ -101,7 +101,7 @@ def _setup_table(ps) -> Table:
     from mtplan.models.protocol import fields_info
 
     proc = ps.procedure
-    docs = {f["name"]: f["doc"] for f in fields_info(proc.Setup)}
+    docs = {f.name: f.doc for f in fields_info(proc.Setup)}
     defaults = proc.Setup().as_dict()
     rows = []
     for k, v in ps.setup.as_dict().items():
@@ -205,7 +205,7 @@ def _sweep_blocks(k, outcome, csv) -> list:
     from mtplan.models.protocol import fields_info
 
     ps = outcome.spec
-    docs = {f["name"]: f["doc"] for f in fields_info(ps.procedure.Setup)}
+    docs = {f.name: f.doc for f in fields_info(ps.procedure.Setup)}
     units = {m.name: m.unit for m in outcome.results[outcome.recommended].measurands}
     base = ps.setup.as_dict()
     blocks = []

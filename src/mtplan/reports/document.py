@@ -132,7 +132,7 @@ def setup_sentence(o) -> str:
     from mtplan.models.protocol import fields_info
 
     proc = o.spec.procedure
-    docs = {f["name"]: f["doc"] for f in fields_info(proc.Setup)}
+    docs = {f.name: f.doc for f in fields_info(proc.Setup)}
     shown = ", ".join(f"{field_label(f, docs.get(f, '')).split(' [')[0]} {_value(v)}"
                       f"{' ' + unit(_suffix(f)) if _suffix(f) else ''}"
                       for f, v in o.setup_shown.items())
@@ -144,7 +144,7 @@ def setting_text(o, field: str, value) -> str:
     points 90 deg"."""
     from mtplan.models.protocol import fields_info
 
-    docs = {f["name"]: f["doc"] for f in fields_info(o.spec.procedure.Setup)}
+    docs = {f.name: f.doc for f in fields_info(o.spec.procedure.Setup)}
     label = field_label(field, docs.get(field, "")).split(" [")[0]
     return f"{label} {_value(value)}" + (f" {unit(_suffix(field))}" if _suffix(field) else "")
 
@@ -190,7 +190,7 @@ def _test_figure(o) -> Figure | None:
         return Figure("Measured values against their tolerances (see 'Conformity decisions').",
                       figs.acceptance_figure(o.verdicts))
     spec, table = o.sweeps[effect.sweep]
-    docs = {f["name"]: f["doc"] for f in fields_info(o.spec.procedure.Setup)}
+    docs = {f.name: f.doc for f in fields_info(o.spec.procedure.Setup)}
     ok = table[table["error"].astype(str) == ""] if "error" in table else table
     first = o.results[o.recommended]
     units = {m.name: m.unit for m in first.measurands}
@@ -249,7 +249,7 @@ def _findings(o) -> list[str]:
     """What the simulation shows, in sentences an engineer can act on."""
     from mtplan.models.protocol import fields_info
 
-    docs = {f["name"]: f["doc"] for f in fields_info(o.spec.procedure.Setup)}
+    docs = {f.name: f.doc for f in fields_info(o.spec.procedure.Setup)}
     notes = []
     significant = [e for e in o.levers if e.significant and e.gain > 1.05]
     for e in significant[:2]:

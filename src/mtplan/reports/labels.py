@@ -39,9 +39,9 @@ def plain_fields(text: str, setup_cls) -> str:
 
     names = {}
     for f in fields_info(setup_cls):
-        label = field_label(f["name"], f.get("doc") or "").split(" [")[0]
-        names[f["name"]] = label
-        names.setdefault(split_field(f["name"])[0], label)
+        label = field_label(f.name, f.doc or "").split(" [")[0]
+        names[f.name] = label
+        names.setdefault(split_field(f.name)[0], label)
     for name in sorted(names, key=len, reverse=True):
         if "_" in name:
             text = re.sub(rf"(?<![A-Za-z0-9_]){re.escape(name)}(?![A-Za-z0-9_])",

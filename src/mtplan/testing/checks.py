@@ -92,7 +92,7 @@ def check_source_method(proc: Procedure) -> None:
 def _sizing_fields(proc: Procedure, sources) -> dict:
     """Source name -> the set-up field it declares (``Source(field=...)``), for the sources
     whose field is a numeric set-up field; the others are refused, naming each."""
-    numeric = {f["name"] for f in numeric_fields(proc)}
+    numeric = {f.name for f in numeric_fields(proc)}
     bad = {name: src.field for name, src in sources.items() if src.field not in numeric}
     _expect(not bad, "sources whose Source(field=...) names no numeric set-up field: "
             + ", ".join(f"{name} (field {field!r})" for name, field in bad.items()))
@@ -122,7 +122,7 @@ def check_switching_a_source_off_through_its_field(proc: Procedure) -> None:
 def check_levers(proc: Procedure) -> None:
     """The levers (the fields an engineer chooses) are set-up fields, and none sizes an error
     source (that is a property of the machine, the workpiece or the instrument)."""
-    fields = {f["name"] for f in fields_info(proc.Setup)}
+    fields = {f.name for f in fields_info(proc.Setup)}
     _expect(proc.levers, "the procedure names no levers (the set-up fields a planner may vary)")
     unknown = set(proc.levers) - fields
     _expect(not unknown, f"levers that are no set-up field: {sorted(unknown)}")
@@ -219,24 +219,24 @@ def check_unknown_field_and_estimator_are_refused(proc: Procedure) -> None:
 
 def numeric_fields(proc: Procedure) -> list[dict]:
     """The set-up fields (``fields_info`` records) that hold a number."""
-    return [f for f in fields_info(proc.Setup) if f["kind"] in (int, float)]
+    return [f for f in fields_info(proc.Setup) if f.kind in (int, float)]
 
 
 def bad_values(info) -> list:
     """Values the set-up field described by `info` (from ``fields_info``) must refuse."""
-    bad = [math.nan, "abc"] if info["optional"] else [math.nan, math.inf, -math.inf, "abc", None]
-    if info["low"] is not None:
-        bad.append(info["low"] - (1 if info["kind"] is int else 1e-3 * max(abs(info["low"]), 1)))
-    if info["high"] is not None:
-        bad.append(info["high"] + (1 if info["kind"] is int else 1e-3 * max(abs(info["high"]), 1)))
-    if info["kind"] is int:
+    bad = [math.nan, "abc"] if info.optional else [math.nan, math.inf, -math.inf, "abc", None]
+    if info.low is not None:
+        bad.append(info.low - (1 if info.kind is int else 1e-3 * max(abs(info.low), 1)))
+    if info.high is not None:
+        bad.append(info.high + (1 if info.kind is int else 1e-3 * max(abs(info.high), 1)))
+    if info.kind is int:
         bad.append(2.5)
     return bad
 
 
 def check_all_problems_reported_at_once(proc: Procedure) -> None:
     """Several bad fields are refused together, each named."""
-    fields = [f["name"] for f in numeric_fields(proc)[:3]]
+    fields = [f.name for f in numeric_fields(proc)[:3]]
     with _refused("fields that are no number", *fields) as caught:
         make(proc.Setup, {f: "not-a-number" for f in fields}, owner=proc.name)
     problems = caught[0].problems
@@ -249,8 +249,8 @@ def check_bad_setup_values_name_the_field(proc: Procedure) -> None:
     past a bound, a fraction for a count) is refused, naming the field."""
     for info in numeric_fields(proc):
         for value in bad_values(info):
-            with _refused(f"{info['name']}={value!r}", info["name"]):
-                proc.Setup(**{info["name"]: value})
+            with _refused(f"{info.name}={value!r}", info.name):
+                proc.Setup(**{info.name: value})
 
 
 #: every check, in the order they are worth reading; each takes the Procedure

@@ -22,6 +22,7 @@ from mtplan.models import (
     Estimator,
     Measurand,
     Procedure,
+    Readings,
     ReadingsFormat,
     SetupBase,
     Source,
@@ -75,7 +76,7 @@ def forward(setup, truth, errors):
     offset, slope = (np.reshape(v, (-1, 1)) for v in (truth.offset_mm, truth.slope_rad))
     z = offset + slope * x
     z = z * (1 + errors["scale_error"][:, None]) + errors["probe_noise"]
-    return {"z_mm": z}
+    return Readings({"z_mm": z})
 
 
 def estimate_ls(setup, readings):
@@ -99,7 +100,7 @@ def readings_frame(setup, readings):
 
 
 def from_frame(setup, df):
-    return {"z_mm": df["z_mm"].to_numpy(dtype=float)[None, :]}
+    return Readings({"z_mm": df["z_mm"].to_numpy(dtype=float)[None, :]})
 
 
 PROCEDURE = Procedure(

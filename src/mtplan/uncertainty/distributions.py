@@ -310,7 +310,8 @@ class MultivariateNormal(Distribution):
     cov: tuple
     _root: np.ndarray = field(init=False, repr=False, compare=False)
 
-    def __init__(self, mean, cov):
+    def __post_init__(self):
+        mean, cov = self.mu, self.cov  # as given: ``MultivariateNormal(mean, cov)``
         p = Problems("MultivariateNormal")
         m = np.asarray(mean, dtype=float) if _is_numeric(mean) else None
         c = np.asarray(cov, dtype=float) if _is_numeric(cov) else None

@@ -20,7 +20,7 @@ from mtplan.models.circle_centre._setup import (
     Truth,
     reference_deviations as _reference_deviations,
 )
-from mtplan.models.protocol import Measurand, Source
+from mtplan.models.protocol import Measurand, Readings, Source
 from mtplan.uncertainty import Normal, Rectangular
 
 
@@ -327,7 +327,7 @@ def _check_start(setup: Setup, truth: Truth) -> None:
         p.raise_if_any()
 
 
-def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
+def forward(setup: Setup, truth: Truth, errors: dict) -> Readings:
     """Simulated readings, batch-first (see the module docstring).
 
     Returns
@@ -376,8 +376,8 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     cd, nrm = _contact(origin, dirs, centre, radius, form, lobes)
     stylus = _probe(setup, errors, cd, nrm, dirs, slice(2, None))
     d_read = to_read(stylus) + rep[:, 2:]
-    return {"x_mm": d_read[..., 0], "y_mm": d_read[..., 1],
-            "p_x_mm": p_read[..., 0], "p_y_mm": p_read[..., 1]}
+    return Readings({"x_mm": d_read[..., 0], "y_mm": d_read[..., 1],
+                     "p_x_mm": p_read[..., 0], "p_y_mm": p_read[..., 1]})
 
 
 def truth_from_estimate(setup: Setup, estimate: dict) -> Truth:

@@ -13,6 +13,7 @@ import numpy as np
 from mtplan._validate import InvalidInput, Problems
 from mtplan.fitting.circle import geometric_fit
 from mtplan.models.circle_centre._setup import Setup
+from mtplan.models.protocol import Readings
 
 if TYPE_CHECKING:  # pandas only where a table is made or read: not in a Monte Carlo's workers
     import pandas as pd
@@ -34,7 +35,7 @@ def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
                          "y_mm": np.concatenate([py, y])})
 
 
-def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
+def from_frame(setup: Setup, df: pd.DataFrame) -> Readings:
     """Readings (batch of one) from a frame with columns ``point``, ``x_mm``, ``y_mm``.
 
     ``point`` names p1, p2 and d1..dn (n = ``n_points``) in any order. Without a
@@ -77,8 +78,8 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
         p.raise_if_any()
         px = py = np.full(2, np.nan)
         x, y = xs, ys
-    return {"x_mm": x[None, :], "y_mm": y[None, :], "p_x_mm": px[None, :],
-            "p_y_mm": py[None, :]}
+    return Readings({"x_mm": x[None, :], "y_mm": y[None, :], "p_x_mm": px[None, :],
+                     "p_y_mm": py[None, :]})
 
 
 # --------------------------------------------------------------------------- set-up from a file

@@ -10,6 +10,7 @@ import numpy as np
 from mtplan._validate import InvalidInput
 from mtplan.models.geometry21._layout import geometry
 from mtplan.models.geometry21._setup import PLANES, TEST_NAMES, Setup
+from mtplan.models.protocol import Readings
 
 if TYPE_CHECKING:  # pandas only where a table is made or read: not in a Monte Carlo's workers
     import pandas as pd
@@ -42,7 +43,7 @@ def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
     })
 
 
-def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
+def from_frame(setup: Setup, df: pd.DataFrame) -> Readings:
     """Readings (a batch of one) from a table in the format of :func:`readings_frame`."""
     import pandas as pd
 
@@ -87,7 +88,7 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
                             f"the set-up; row {int(bad[0])} has {cmd[bad[0]].tolist()}, "
                             f"expected {geo.cmd[bad[0]].tolist()}."])
     r = df[["u_mm", "v_mm"]].to_numpy(dtype=float)
-    return {"plate_mm": r[None, :, :]}
+    return Readings({"plate_mm": r[None, :, :]})
 
 def setup_from_frame(df: pd.DataFrame) -> dict:
     """The set-up fields a measured plate table determines (see ``Implied``).

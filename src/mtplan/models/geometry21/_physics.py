@@ -32,7 +32,7 @@ from mtplan.models.geometry21._setup import (
     truth_coefficients,
     truth_rows,
 )
-from mtplan.models.protocol import Measurand, Source
+from mtplan.models.protocol import Measurand, Readings, Source
 from mtplan.uncertainty.distributions import Normal, Rectangular
 
 
@@ -194,7 +194,7 @@ def _features(errors: dict) -> np.ndarray | None:
     return f if np.any(f) else None
 
 
-def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
+def forward(setup: Setup, truth: Truth, errors: dict) -> Readings:
     """Readings of the plates in the three set-ups, exact rigid-body model.
 
     Returns
@@ -234,7 +234,7 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
         else:  # the AR(1) process along each pass: one sparse product for the batch
             n_, m_, _ = e.shape
             r += (f @ np.moveaxis(e, 1, 0).reshape(m_, -1)).reshape(m_, n_, 2).swapaxes(0, 1)
-    return {"plate_mm": r}
+    return Readings({"plate_mm": r})
 
 
 @functools.lru_cache(maxsize=8)

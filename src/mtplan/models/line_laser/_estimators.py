@@ -448,20 +448,16 @@ def fit_limits() -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper limits (8,) of the fitted Truth fields (a step stops there)."""
     from mtplan.models.protocol import fields_info
 
-    info = {i["name"]: i for i in fields_info(Truth)}
-    return (np.array([info[f]["low"] for f in FIT_FIELDS], dtype=float),
-            np.array([info[f]["high"] for f in FIT_FIELDS], dtype=float))
+    info = {i.name: i for i in fields_info(Truth)}
+    return (np.array([info[f].low for f in FIT_FIELDS], dtype=float),
+            np.array([info[f].high for f in FIT_FIELDS], dtype=float))
 
 
 def _truth_rows(theta: np.ndarray) -> Truth:
-    """A Truth whose fitted fields are arrays (n,) from ``theta`` (n, 8) (no validation:
-    the forward model refuses what it cannot trace)."""
-    import copy
-
-    t = copy.copy(Truth())
-    for k, name in enumerate(FIT_FIELDS):
-        object.__setattr__(t, name, np.ascontiguousarray(theta[:, k]))
-    return t
+    """A batch of truths whose fitted fields are arrays (n,) from ``theta`` (n, 8) (no
+    validation: the forward model refuses what it cannot trace)."""
+    return Truth.batch(**{name: np.ascontiguousarray(theta[:, k])
+                          for k, name in enumerate(FIT_FIELDS)})
 
 
 def predict_profiles(setup, theta: np.ndarray) -> np.ndarray:

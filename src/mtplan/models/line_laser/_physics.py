@@ -24,7 +24,7 @@ from mtplan.models.line_laser._artifact import (
     x_shift,
 )
 from mtplan.models.line_laser._setup import LIN_DEGREES, Truth
-from mtplan.models.protocol import Measurand, Source
+from mtplan.models.protocol import Measurand, Readings, Source
 from mtplan.uncertainty.distributions import Normal, Rectangular
 
 
@@ -292,7 +292,7 @@ def _row(truth, i: int, *, own: bool = False):
         values[f.name] = float(f"{round(float(np.ravel(getattr(truth, f.name))[i]) / g) * g:.10g}")
     if not _batched(truth) and all(values[k] == getattr(truth, k) for k in values):
         return truth
-    return dataclasses.replace(truth, **values)
+    return Truth(**values)
 
 
 def nominal_trace(setup, truth):
@@ -470,7 +470,7 @@ def _move_bound(setup, key, base, exr, dr, den, top, extra):
     return d_o[:, 0] + d_o[:, 1] + top * (d_d[:, 0] + d_d[:, 1]) + d_t * dxy0
 
 
-def forward(setup, truth, errors) -> dict:
+def forward(setup, truth, errors) -> Readings:
     """Simulated profiles: ``{"z_mm": array (n, 3, lines, points_per_line)}``.
 
     The reported height is ``(1 + z_scale) t + e(x_l) + noise``: ``t`` the exact ray
@@ -507,7 +507,7 @@ def forward(setup, truth, errors) -> dict:
         z += (coef @ linearity_basis(setup))[:, None, None, :]
     if not _all_zero(noise):
         z += noise
-    return {"z_mm": z}
+    return Readings({"z_mm": z})
 
 
 def _all_zero(a: np.ndarray) -> bool:

@@ -11,7 +11,7 @@ import numpy as np
 from mtplan._validate import Problems
 from mtplan.models.line_laser._artifact import grid_u, grid_y
 from mtplan.models.line_laser._setup import Setup
-from mtplan.models.protocol import frame_columns
+from mtplan.models.protocol import Readings, frame_columns
 
 if TYPE_CHECKING:  # pandas only where a table is made or read: not in a Monte Carlo's workers
     import pandas as pd
@@ -42,7 +42,7 @@ def readings_frame(setup, readings) -> pd.DataFrame:
     })
 
 
-def from_frame(setup, df) -> dict:
+def from_frame(setup, df) -> Readings:
     """Readings (a batch of one) from a table in the format of :func:`readings_frame`.
 
     Raises
@@ -88,7 +88,7 @@ def from_frame(setup, df) -> dict:
     p.raise_if_any()
     z = np.empty(expected)
     z[flat] = vals["z_mm"]
-    return {"z_mm": z.reshape(1, 3, setup.lines, setup.points_per_line)}
+    return Readings({"z_mm": z.reshape(1, 3, setup.lines, setup.points_per_line)})
 
 
 def reading_limits(setup: Setup) -> dict:

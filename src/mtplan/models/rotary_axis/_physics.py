@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from mtplan.models.protocol import Measurand, Source
+from mtplan.models.protocol import Measurand, Readings, Source
 from mtplan.models.rotary_axis._axes import AXIS_ROWS, POSITION_AXIS, axis_parts, combined
 from mtplan.models.rotary_axis._layout import (
     FRAMES,
@@ -359,7 +359,7 @@ def truth_from_estimate(setup: Setup, estimate: dict) -> Truth:
 
 
 
-def forward(setup: Setup, truth: Truth, errors: dict) -> dict[str, np.ndarray]:
+def forward(setup: Setup, truth: Truth, errors: dict) -> Readings:
     """Simulated readings of the lattices: ``{"z_mm": array (n, positions, points)}``.
 
     Parameters
@@ -393,7 +393,7 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict[str, np.ndarray]:
         cal = errors["angle_calibration_u"]  # (n, K) at the calibrated points
         if np.any(cal):
             z = z + np.tensordot(cal, g.calibration, axes=1)
-    return {"z_mm": z}
+    return Readings({"z_mm": z})
 
 
 def _artifact_pose(g: Plan, tilt, height) -> tuple[np.ndarray, np.ndarray]:

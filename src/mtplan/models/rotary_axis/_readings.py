@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
-from mtplan.models.protocol import frame_columns
+from mtplan.models.protocol import Readings, frame_columns
 from mtplan.models.rotary_axis._estimators import check_readings
 from mtplan.models.rotary_axis._layout import plan, position_axes
 from mtplan.models.rotary_axis._physics import forward, zero_errors
@@ -42,7 +42,7 @@ def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
     })
 
 
-def from_frame(setup: Setup, df: pd.DataFrame) -> dict[str, np.ndarray]:
+def from_frame(setup: Setup, df: pd.DataFrame) -> Readings:
     """Readings (a batch of one) from a table in the format of :func:`readings_frame`.
 
     Rows may come in any order. The positions, angles and lattice points must be the
@@ -99,7 +99,7 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict[str, np.ndarray]:
                        f"(axis={setup.axis!r}); row {row} holds {got[bad[0]]!r} where the "
                        f"set-up turns {expected[bad[0]]!r}")
     p.raise_if_any()
-    return {"z_mm": data["z_mm"][order].reshape(1, P, M)}
+    return Readings({"z_mm": data["z_mm"][order].reshape(1, P, M)})
 
 
 def reading_limits(setup: Setup) -> dict:

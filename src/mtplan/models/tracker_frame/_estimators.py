@@ -245,19 +245,17 @@ def _gls_names(setup: Setup) -> list[tuple[str, int | None]]:
 
 
 def _gls_truth(setup: Setup, base: Truth, theta: np.ndarray) -> Truth:
-    """``base`` with the fitted fields set from parameter rows ``theta`` (m, p) (arrays (m,),
-    one truth per row; no validation)."""
-    t = dataclasses.replace(base)
+    """``base`` with the fitted fields set from parameter rows ``theta`` (m, p): a batch of
+    truths (``Truth.batch``, arrays (m,), one truth per row; no validation)."""
     n = setup.n_submachines
+    changes: dict = {}
     heads: dict[str, list] = {f: [None] * n for f in _GLS_HEAD}
     for j, (f, k) in enumerate(_gls_names(setup)):
         if k is None:
-            object.__setattr__(t, f, np.ascontiguousarray(theta[:, j]))
+            changes[f] = np.ascontiguousarray(theta[:, j])
         else:
             heads[f][k] = np.ascontiguousarray(theta[:, j])
-    for f, v in heads.items():
-        object.__setattr__(t, f, tuple(v))
-    return t
+    return Truth.batch(base, **changes, **{f: tuple(v) for f, v in heads.items()})
 
 
 def _gls_vector(readings: dict) -> np.ndarray:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mtplan.models import _temperature as temperature
-from mtplan.models.protocol import Measurand, Source
+from mtplan.models.protocol import Measurand, Readings, Source
 from mtplan.models.tracker_frame._geometry import (
     angles as _angles,
     cross as _cross,
@@ -396,7 +396,7 @@ def _systematic_angles(coef: np.ndarray, az: np.ndarray, el: np.ndarray):
     return daz, d_el
 
 
-def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
+def forward(setup: Setup, truth: Truth, errors: dict) -> Readings:
     """Tracker readings (distance [mm], azimuth [rad], elevation [rad]), shape (n, points)."""
     marks = _marks(setup)
     rep = np.asarray(errors["machine_repeatability"])
@@ -439,7 +439,7 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> dict:
     if np.any(sys):
         s_az, s_el = _systematic_angles(sys, az, el)
         daz, d_el = daz + s_az, d_el + s_el
-    return {"distance_mm": dist, "azimuth_rad": az + daz, "elevation_rad": el + d_el}
+    return Readings({"distance_mm": dist, "azimuth_rad": az + daz, "elevation_rad": el + d_el})
 
 
 def true_values(setup: Setup, truth: Truth) -> dict[str, float]:
@@ -481,14 +481,12 @@ def truth_from_estimate(setup: Setup, estimate: dict) -> Truth:
 
 def truths_from_estimates(setup: Setup, estimates: dict) -> Truth:
     """:func:`truth_from_estimate` of every row of `estimates` (measurand -> array (m,)):
-    a Truth whose head fields are tuples of arrays (m,), one truth per batch row of
-    :func:`forward` (not validated: the values are those of valid estimates)."""
+    a batch of truths (``Truth.batch``) whose head fields are tuples of arrays (m,), one
+    truth per batch row of :func:`forward` (not validated: the values are those of valid
+    estimates)."""
     fields = _head_rows(setup, {k: np.asarray(v, dtype=float).ravel()
                                 for k, v in estimates.items()})
-    t = Truth(**_ZERO_HEAD)
-    for k, v in fields.items():
-        object.__setattr__(t, k, tuple(v))
-    return t
+    return Truth.batch(Truth(**_ZERO_HEAD), **{k: tuple(v) for k, v in fields.items()})
 
 
 #: the head fields :func:`truth_from_estimate` holds at zero (tilts, pivot-length error)

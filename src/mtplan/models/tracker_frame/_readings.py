@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 
 from mtplan._validate import InvalidInput, Problems
-from mtplan.models.protocol import frame_columns
+from mtplan.models.protocol import Readings, frame_columns
 from mtplan.models.tracker_frame._layout import arc_angles as _arc_angles, layout as _layout
 from mtplan.models.tracker_frame._setup import AXES, NAME, Setup
 
@@ -35,7 +35,7 @@ def readings_frame(setup: Setup, readings: dict) -> pd.DataFrame:
     return df
 
 
-def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
+def from_frame(setup: Setup, df: pd.DataFrame) -> Readings:
     """Readings (batch of one) from a table in the format of :func:`readings_frame`.
 
     Rows are matched to the set-up's layout by (group, submachine, index); their
@@ -92,7 +92,7 @@ def from_frame(setup: Setup, df: pd.DataFrame) -> dict:
                 f"from the set-up's commanded angles ({rows}"
                 f"{' ...' if off.size > 3 else ''}); arcs are centred on home with "
                 "c_arc_deg / a_arc_deg and points_per_arc: set these to match the data."])
-    return {col: values[col][order][None, :] for col in READING_COLUMNS}
+    return Readings({col: values[col][order][None, :] for col in READING_COLUMNS})
 
 
 def setup_from_frame(df: pd.DataFrame) -> dict:

@@ -656,7 +656,7 @@ def _procedure(i, entry, procs, path, problems) -> ProcedureStudy | None:
         problems += exc.problems
     estimators = _estimators(proc, entry.get("estimators", [proc.default_estimator]), where,
                              problems)
-    fields = {f["name"] for f in fields_info(proc.Setup)}
+    fields = {f.name for f in fields_info(proc.Setup)}
     measurands = {m.name for m in proc.measurands(setup)} if setup is not None else set()
     sweeps = _sweeps(proc, entry.get("sweep", []), fields, where, problems)
     plan = _plan(entry.get("plan"), fields, measurands, where, problems)
