@@ -14,7 +14,7 @@ from mtplan.models import registry
 from mtplan.models.protocol import fields_info
 from tests.explore.test_explore_browser import server  # noqa: F401 (mtplan explore)
 
-COUNTS = {name: [f for f in fields_info(p.Setup) if f["kind"] is int]
+COUNTS = {name: [f for f in fields_info(p.Setup) if f.kind is int]
           for name, p in registry().items()}
 
 
@@ -47,7 +47,7 @@ def _answer(server, design) -> str:
 
 
 def test_every_count_has_a_largest_allowed_value():
-    unbounded = [f"{n}.{f['name']}" for n, fs in COUNTS.items() for f in fs if f["high"] is None]
+    unbounded = [f"{n}.{f.name}" for n, fs in COUNTS.items() for f in fs if f.high is None]
     assert unbounded == []
 
 
@@ -56,10 +56,10 @@ def test_each_count_at_its_largest_and_beyond_alone_and_together(server, name):
     _answer(server, {"procedure": name})  # warm: the procedure's one-off costs are not timed
     before = _proc(server.proc.pid)[0]
     for f in COUNTS[name]:
-        high = int(f["high"])
-        _answer(server, {"procedure": name, "setup": {f["name"]: str(high)}})
-        beyond = _answer(server, {"procedure": name, "setup": {f["name"]: str(high + 1)}})
-        assert f["name"] in beyond and str(high) in beyond, beyond  # names the largest
-    _answer(server, {"procedure": name, "setup": {f["name"]: str(int(f["high"]))
+        high = int(f.high)
+        _answer(server, {"procedure": name, "setup": {f.name: str(high)}})
+        beyond = _answer(server, {"procedure": name, "setup": {f.name: str(high + 1)}})
+        assert f.name in beyond and str(high) in beyond, beyond  # names the largest
+    _answer(server, {"procedure": name, "setup": {f.name: str(int(f.high))
                                                  for f in COUNTS[name]}})
     assert _proc(server.proc.pid)[0] < before + 200

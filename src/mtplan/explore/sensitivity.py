@@ -56,7 +56,7 @@ def sensitivity(design: dict, field: str | None = None, n: int = 9, *, stop=None
                             f"Got {str(field)[:40]!r} instead."])
     proc, setup = setup_of(design)
     field = field or design["lever"]
-    if field not in {f["name"] for f in fields_info(proc.Setup)}:
+    if field not in {f.name for f in fields_info(proc.Setup)}:
         raise InvalidInput([f"The lever {str(field)[:40]!r} is no set-up field of {proc.name}."])
     est, _ = proc.estimator(design["estimator"])
     guard_cost(proc, setup, est)

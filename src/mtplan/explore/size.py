@@ -45,7 +45,7 @@ def _count(proc, setup) -> tuple:
 
 
 def _count_fields(proc) -> list:
-    return [f["name"] for f in fields_info(proc.Setup) if f["kind"] is int]
+    return [f.name for f in fields_info(proc.Setup) if f.kind is int]
 
 
 @functools.lru_cache(maxsize=64)
