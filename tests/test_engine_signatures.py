@@ -3,7 +3,11 @@
 Every public function of the engine's modules (the uncertainty engine, a procedure's
 evaluation, the fitting machinery, sweeps and the planner) takes at most
 :data:`MOST_PARAMETERS` parameters, ``*args`` and ``**kwargs`` counted as one each: the
-Monte Carlo's options travel as :class:`mtplan.uncertainty.options.RunOptions`.
+Monte Carlo's options travel as :class:`mtplan.uncertainty.options.RunOptions`, the
+posterior's as :class:`mtplan.evaluation.posterior.PosteriorOptions`, a measured
+evaluation's as :class:`mtplan.evaluation.measured.MeasuredOptions` and the fit check's as
+:class:`mtplan.evaluation.fitcheck.FitCheckOptions`, each also given field by field as
+keywords.
 """
 
 import importlib
@@ -17,16 +21,6 @@ import mtplan.fitting
 import mtplan.uncertainty
 
 MOST_PARAMETERS = 8
-
-#: functions not yet given their records, with their parameter count today: a count may
-#: only fall, and a function leaves this table when it reaches MOST_PARAMETERS
-NOT_YET = {
-    "mtplan.evaluation.correction.correction_spread": 11,
-    "mtplan.evaluation.correction.correct_mc": 17,
-    "mtplan.evaluation.fitcheck.fit_check": 9,
-    "mtplan.evaluation.measured.estimate_measured": 17,
-    "mtplan.evaluation.posterior.sample_posterior": 24,
-}
 
 
 def _modules():
@@ -50,11 +44,8 @@ def _public_functions():
 
 def test_no_engine_function_takes_more_than_eight_parameters():
     counts = {name: len(inspect.signature(f).parameters) for name, f in _public_functions()}
-    long = {name: n for name, n in counts.items()
-            if n > MOST_PARAMETERS and n > NOT_YET.get(name, MOST_PARAMETERS)}
+    long = {name: n for name, n in counts.items() if n > MOST_PARAMETERS}
     assert not long, long
-    done = {name for name, n in NOT_YET.items() if counts.get(name, 0) <= MOST_PARAMETERS}
-    assert not done, f"{sorted(done)} now take at most {MOST_PARAMETERS}: remove from NOT_YET"
 
 
 def test_run_options_are_one_record_from_the_engine_to_the_sweep():
@@ -79,3 +70,31 @@ def test_run_options_are_one_record_from_the_engine_to_the_sweep():
         simulate_uncertainty("circle_centre", trails=10)
     with pytest.raises(TypeError, match="RunOptions"):
         propagate(lambda x: x, {"x": Normal(0, 1)}, options={"trials": 10})
+
+
+def test_the_evaluations_options_are_records_and_keywords_alike():
+    """A keyword names a field of the function's record (or, for a measured evaluation, of
+    the posterior's record within it); an unknown one is refused naming the fields."""
+    from mtplan.evaluation.fitcheck import FitCheckOptions, fit_check
+    from mtplan.evaluation.measured import MeasuredOptions
+    from mtplan.evaluation.posterior import PosteriorOptions, sample_posterior
+    from mtplan.models import get
+
+    o = MeasuredOptions.of(None, trials=300, noise="free", max_steps=50)
+    assert (o.trials, o.posterior.noise, o.posterior.max_steps) == (300, "free", 50)
+    assert MeasuredOptions.of(o, rng=2).posterior == o.posterior
+    sampler = PosteriorOptions(n_walkers=8, burn_tau=2.0).sampler("circle_centre")
+    assert (sampler.n_walkers, sampler.burn_tau, sampler.label) == (8, 2.0, "circle_centre")
+    proc = get("circle_centre")
+    setup = proc.Setup()
+    readings = proc.simulate(setup, proc.Truth(), 1, rng=4)
+    by_record = fit_check(proc, setup, readings, options=FitCheckOptions(alpha=0.01, n_worst=2))
+    by_keyword = fit_check(proc, setup, readings, alpha=0.01, n_worst=2)
+    assert (by_record.alpha, by_record.chi2, by_record.worst) == \
+        (by_keyword.alpha, by_keyword.chi2, by_keyword.worst)
+    with pytest.raises(TypeError, match="'n_wrost'"):
+        fit_check(proc, setup, readings, n_wrost=2)
+    with pytest.raises(TypeError, match="'walkers'.*n_walkers"):
+        sample_posterior(proc, setup, readings, walkers=8)
+    with pytest.raises(TypeError, match="'trails'"):
+        MeasuredOptions.of(None, trails=10)

@@ -181,11 +181,14 @@ def test_the_correction_spread_does_not_depend_on_the_workers():
     """The truths' Monte Carlos of the bias correction spread over the workers give what
     they give in one process, bit for bit."""
     from mtplan.evaluation.correction import correction_spread
+    from mtplan.evaluation.simulation import simulate_uncertainty
 
     proc, m = _measurement("circle_centre")
+    at = simulate_uncertainty(proc, m.setup, proc.Truth(), estimator="gls", trials=40, rng=0,
+                              progress=False)
     kw = dict(heavy=np.zeros(3, dtype=bool), rng=np.random.SeedSequence(0), draws=3,
               trials=40)
-    one, why = correction_spread(proc, m.setup, m.readings, "gls", proc.Truth(), n_jobs=1, **kw)
-    two, _ = correction_spread(proc, m.setup, m.readings, "gls", proc.Truth(), n_jobs=2, **kw)
+    one, why = correction_spread(at, m.readings, n_jobs=1, **kw)
+    two, _ = correction_spread(at, m.readings, n_jobs=2, **kw)
     assert why is None and one.shape == (3, 3)
     np.testing.assert_array_equal(one, two)

@@ -267,8 +267,7 @@ def test_posterior_evaluation_carries_the_fit_and_a_free_noise_takes_one_dof():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = estimate_measured(proc, setup, readings, uncertainty="posterior", rng=0,
-                                allow_unconverged=True,
-                                posterior_options={"max_steps": 100, "progress": False})
+                                allow_unconverged=True, max_steps=100, progress=False)
     # the same start as the evaluation's (its estimator's estimate): the budget is
     # linearised there when the least squares moves less than a standard error from it
     fixed = fit_check(proc, setup, readings, estimator=res.estimator)

@@ -74,8 +74,10 @@ def register(sub) -> None:
 def cmd_estimate(args) -> int:
     """Read the readings, estimate, print; exit status 2 with one line on bad input."""
     from mtplan.evaluation.fitcheck import FIT_ALPHA
-    from mtplan.evaluation.measured import FULL_TRIALS, estimate_measured, read_measurement
-    from mtplan.evaluation.posterior import NotConvergedError, UnconvergedWarning
+    from mtplan.evaluation.measured import FULL_TRIALS, MeasuredOptions, estimate_measured, \
+        read_measurement
+    from mtplan.evaluation.posterior import NotConvergedError, PosteriorOptions, \
+        UnconvergedWarning
 
     check_outputs(out=args.out)
     noise = _noise(args.noise)
@@ -102,14 +104,15 @@ def cmd_estimate(args) -> int:
         with warnings.catch_warnings():
             # --allow-unconverged: the result says NOT CONVERGED itself, no Python warning
             warnings.simplefilter("ignore", UnconvergedWarning)
+            sampling = PosteriorOptions(noise=noise, max_seconds=args.max_seconds,
+                                        allow_unconverged=args.allow_unconverged,
+                                        max_steps=args.max_steps)
+            options = MeasuredOptions(trials=trials, coverage=args.coverage, rng=seed,
+                                      progress=None, n_jobs=args.jobs, fit_alpha=fit_alpha,
+                                      origin=measurement.origin, posterior=sampling)
             result = estimate_measured(
                 proc, None, measurement, estimator=args.estimator or config.get("estimator"),
-                uncertainty=method, trials=trials, coverage=args.coverage, rng=seed,
-                noise=noise, max_seconds=args.max_seconds,
-                allow_unconverged=args.allow_unconverged,
-                posterior_options={"max_steps": args.max_steps, "progress": None}
-                if method == "posterior" else None, progress=None, fit_alpha=fit_alpha,
-                origin=measurement.origin, n_jobs=args.jobs)
+                uncertainty=method, options=options)
     except NotConvergedError as exc:
         print(f"mtplan: error: {exc}", file=sys.stderr)
         return 1

@@ -32,6 +32,7 @@ import numpy as np
 from mtplan._validate import InvalidInput
 from mtplan.models.protocol import shown_with_unit
 from mtplan.evaluation.covariance import correction_u, mc_covariance
+from mtplan.evaluation.simulation import Reported
 
 __all__ = ["NUISANCE_DRAWS", "DRAW_TRIALS", "draw_trials", "condition_on_readings",
            "laplace_truths", "correction_spread", "correct_mc"]
@@ -168,23 +169,22 @@ def laplace_truths(proc, setup, readings, n: int, rng) -> tuple[list, str | None
     return truths, None if truths else "no draw of the readings' least squares was a valid truth"
 
 
-def correction_spread(proc, setup, readings, estimator, truth0, *, heavy, rng, sources=None,
-                      draws: int = NUISANCE_DRAWS, trials: int = DRAW_TRIALS, n_jobs: int = 1):
-    """Bias at truths the readings allow minus the bias at `truth0` [display units].
+def correction_spread(r, readings, *, heavy, rng, draws: int = NUISANCE_DRAWS,
+                      trials: int = DRAW_TRIALS, n_jobs: int = 1):
+    """Bias at truths the readings allow minus the bias at the truth of the Monte Carlo `r`
+    [display units].
 
     Parameters
     ----------
-    proc : Procedure
-    setup, readings, estimator
-        The measurement and the estimator that gave the estimate.
-    truth0 : Truth
-        The truth the Monte Carlo of the correction ran at.
+    r : ProcedureResult
+        The Monte Carlo of the correction: its procedure, set-up, estimator (the one that
+        gave the estimate), truth and error sources are those of every run here.
+    readings : dict of str to array
+        The measurement's readings.
     heavy : array of bool (n_measurands,)
         Measurands whose errors are heavy-tailed: the bias there is the middle of the
         coverage interval, not the mean.
     rng : seed of the estimate; every run here uses the same error draws.
-    sources : list of str, optional
-        The error sources of the Monte Carlo (default: all active ones).
     draws, trials : int
         Truths drawn (:func:`laplace_truths`) and Monte Carlo trials at each.
     n_jobs : int
@@ -194,12 +194,13 @@ def correction_spread(proc, setup, readings, estimator, truth0, *, heavy, rng, s
     Returns
     -------
     d : array (n_drawn, n_measurands)
-        ``b(T_k) - b(truth0)`` per drawn truth; (0, n) when none could be drawn.
+        ``b(T_k) - b(r.truth)`` per drawn truth; (0, n) when none could be drawn.
     reason : str or None
         Why none was drawn.
     """
     from mtplan._parallel import effective_jobs, ordered_map
 
+    proc, setup, estimator, sources = r.procedure, r.setup, r.estimator, r.sources
     n = len(proc.measurands(setup))
     if draws < 1:
         return np.zeros((0, n)), "no truths were drawn (draws = 0)"
@@ -210,7 +211,7 @@ def correction_spread(proc, setup, readings, estimator, truth0, *, heavy, rng, s
     # one Monte Carlo per truth, each in one process, the truths spread over the workers
     # (a Monte Carlo of a few dozen trials is one block: within it there is nothing to share)
     tasks = ((proc, setup, t, estimator, sources, trials, rng, heavy, k > 0)
-             for k, t in enumerate([truth0, *truths]))
+             for k, t in enumerate([r.truth, *truths]))
     b0, *rest = ordered_map(_bias, tasks, n_jobs=min(effective_jobs(n_jobs), len(truths) + 1))
     d = [b - b0 for b in rest if b is not None]
     if not d:
@@ -236,14 +237,14 @@ def _bias(proc, setup, truth, estimator, sources, trials, rng, heavy, tolerant):
     return np.where(heavy, middle, r.mc.mean) - r.true
 
 
-def correct_mc(proc, setup, readings, estimator, truth0, r, *, value, u, low, high, heavy,
-               coverage, rng, sources=None, draws: int = NUISANCE_DRAWS, cov=None,
-               n_jobs: int = 1) -> dict:
+def correct_mc(r, readings, reported: Reported, *, heavy, rng, cov=None,
+               draws: int = NUISANCE_DRAWS, n_jobs: int = 1) -> dict:
     """The correction's uncertainty put into an `mc` result: u, interval and covariance.
 
-    `value`, `u`, `low`, `high` are the corrected values and the Monte Carlo's own u and
-    interval (NaN where a measurand is not determinable); `r` the Monte Carlo at `truth0`;
-    `cov` the covariance that stands for the Monte Carlo's (the validated first order's).
+    `r` is the Monte Carlo of the correction (:func:`correction_spread`); `reported` the
+    corrected values and the Monte Carlo's own u and interval (NaN where a measurand is not
+    determinable) at its coverage; `cov` the covariance that stands for the Monte Carlo's
+    (the validated first order's).
     The correction's u is ``u_c = sqrt(u_se^2 + u_truth^2)`` (:func:`correction_u`), the
     result's ``sqrt(u^2 + u_c^2)``, each side of the interval ``sqrt(side^2 + (k u_c)^2)``
     (k the normal coverage factor) and the covariance :func:`mc_covariance`.
@@ -256,11 +257,11 @@ def correct_mc(proc, setup, readings, estimator, truth0, r, *, value, u, low, hi
     """
     from scipy import special
 
-    value, u = np.asarray(value, dtype=float), np.asarray(u, dtype=float)
+    value, u = np.asarray(reported.value, dtype=float), np.asarray(reported.u, dtype=float)
+    low, high, coverage = reported.low, reported.high, reported.coverage
     trials = int(r.mc.trials)
-    d, why = correction_spread(proc, setup, readings, estimator, truth0, heavy=heavy, rng=rng,
-                               sources=sources, draws=draws, trials=draw_trials(trials),
-                               n_jobs=n_jobs)
+    d, why = correction_spread(r, readings, heavy=heavy, rng=rng, draws=draws,
+                               trials=draw_trials(trials), n_jobs=n_jobs)
     se, nuis = correction_u(np.where(heavy, u, r.mc.std), trials, d)
     bad = ~np.isfinite(u)
     # a heavy-tailed measurand is not corrected (its interval is the result): no correction,

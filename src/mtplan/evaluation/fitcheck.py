@@ -47,9 +47,10 @@ from mtplan._validate import InvalidInput, Problems
 
 # the readings' covariance under the error model: the one place it is imported from
 from mtplan.fitting import Gaussian
+from mtplan.uncertainty.options import Options
 
-__all__ = ["FitCheck", "fit_check", "FIT_ALPHA", "N_WORST", "W_SHARE", "MDB_POWER",
-           "w_limit", "reading_vector", "with_reading_vector"]
+__all__ = ["FitCheck", "FitCheckOptions", "fit_check", "FIT_ALPHA", "N_WORST", "W_SHARE",
+           "MDB_POWER", "w_limit", "reading_vector", "with_reading_vector"]
 
 #: default significance level of the whole check (both tests together): the 5 % of a
 #: metrologist's consistency checks (docs/fit_check.md, "Why alpha 0.05, split 0.04 / 0.01")
@@ -335,9 +336,33 @@ def _noise_mode(noise):
     return "known", float(noise)
 
 
-def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="setup",
-              estimator: str | None = None, origin=None, n_worst: int = N_WORST,
-              w_share: float = W_SHARE) -> FitCheck:
+@dataclass(frozen=True)
+class FitCheckOptions(Options):
+    """How strict the fit check is and how much it lists (frozen: change one with
+    :meth:`replace`).
+
+    Attributes
+    ----------
+    alpha : float
+        Significance level of the whole check: ``ok`` is False when the chi-square's
+        ``p_value < (1 - w_share) alpha`` or the largest ``|w|`` exceeds its Bonferroni
+        limit at ``w_share alpha``.
+    w_share : float
+        Share of `alpha` given to the w-test, in [0, 1] (0: the chi-square alone).
+    n_worst : int
+        Readings listed in ``worst``.
+    """
+
+    alpha: float = FIT_ALPHA
+    w_share: float = W_SHARE
+    n_worst: int = N_WORST
+
+    WHAT = "fit check option"
+
+
+def fit_check(procedure, setup, readings, *, noise="setup", estimator: str | None = None,
+              origin=None, options: FitCheckOptions | None = None,
+              **option_overrides) -> FitCheck:
     """Test the readings against the procedure's model and error budget.
 
     Parameters
@@ -347,10 +372,6 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
         The set-up the readings were taken with; its error sources are the budget.
     readings : dict of str to array
         A batch of one (:func:`mtplan.evaluation.readings.read_readings`).
-    alpha : float
-        Significance level of the whole check: ``ok`` is False when the chi-square's
-        ``p_value < (1 - w_share) alpha`` or the largest ``|w|`` exceeds its Bonferroni
-        limit at ``w_share alpha``.
     noise : "setup", "free" or float
         The noise source's standard deviation, as :func:`sample_posterior` takes it
         ("free": fitted, one more degree of freedom used).
@@ -359,10 +380,10 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
     origin : dict, optional
         Row and column of every reading in the file (``Measurement.origin``); default:
         those of the table ``procedure.readings.frame`` writes.
-    n_worst : int
-        Readings listed in ``worst``.
-    w_share : float
-        Share of `alpha` given to the w-test, in [0, 1] (0: the chi-square alone).
+    options : FitCheckOptions, optional
+        The significance level, its share for the w-test, the readings listed
+        (:class:`FitCheckOptions`); any of its fields may be given as a keyword instead
+        (``alpha=0.01``).
 
     Returns
     -------
@@ -376,6 +397,8 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
     from mtplan._parallel import one_blas_thread
     from mtplan.models import get
 
+    o = FitCheckOptions.of(options, **option_overrides)
+    alpha, n_worst, w_share = o.alpha, o.n_worst, o.w_share
     proc = get(procedure)
     p_ = Problems(f"fit check {proc.name}")
     p_.number("alpha", alpha, low=0, high=1, low_open=True, high_open=True)

@@ -15,6 +15,7 @@ interval of zero width.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -22,6 +23,7 @@ import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
 from mtplan.evaluation.fitcheck import FIT_ALPHA
+from mtplan.evaluation.posterior import PosteriorOptions, sample_posterior
 from mtplan.evaluation.readings import Measurement, read_measurement, read_readings
 from mtplan.evaluation.simulation import (
     Reported,
@@ -30,9 +32,10 @@ from mtplan.evaluation.simulation import (
     undetermined_measurands,
 )
 from mtplan.models.protocol import Procedure
+from mtplan.uncertainty.options import Options
 
 __all__ = ["read_readings", "read_measurement", "Measurement", "estimate_measured",
-           "best_estimator", "MeasuredResult", "UNCERTAINTY_METHODS", "SOURCE_KINDS",
+           "MeasuredOptions", "best_estimator", "MeasuredResult", "UNCERTAINTY_METHODS", "SOURCE_KINDS",
            "source_kinds"]
 
 UNCERTAINTY_METHODS = ("mc", "posterior")
@@ -702,9 +705,9 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
     bad = np.array([m.name in reasons for m in measurands])
     for arr in (value, std, low, high, correction):
         arr[bad] = np.nan
-    c = correct_mc(proc, setup, readings, est_name, truth, r, value=value, u=std, low=low,
-                   high=high, heavy=_tails(r, coverage)[0], coverage=coverage, rng=root,
-                   sources=sources, draws=NUISANCE_DRAWS if draws is None else draws,
+    c = correct_mc(r, readings, Reported(value, std, low, high, coverage),
+                   heavy=_tails(r, coverage)[0], rng=root,
+                   draws=NUISANCE_DRAWS if draws is None else draws,
                    cov=None if first_order is None else first_order.cov, n_jobs=n_jobs)
     notes += c["notes"]
     return MeasuredResult(
@@ -715,6 +718,69 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
         covariance=c["covariance"], determinable=~bad, reasons=reasons, notes=notes)
 
 
+@dataclass(frozen=True)
+class MeasuredOptions(Options):
+    """How :func:`estimate_measured` evaluates a measurement (frozen: change one with
+    :meth:`replace`).
+
+    Attributes
+    ----------
+    trials : int or None
+        Monte Carlo trials (``"mc"``). None: the first-order (GUM) u and interval at the
+        estimate where a Monte Carlo of 256 to 2048 trials (:data:`VALIDATION_TRIALS`, each
+        extending the last), with the first-order model as its control variate, validates
+        them (JCGM 101 8.2, :func:`_validated_first_order`; that Monte Carlo gives the bias
+        correction), else a Monte Carlo of :data:`FULL_TRIALS` trials; a note says which.
+    coverage : float
+    rng : None, int, SeedSequence or Generator
+    progress : bool or None
+        A progress bar of the ``"mc"`` Monte Carlo on stderr (None: when stderr is a
+        terminal).
+    n_jobs : int
+        ``"mc"``: workers of the Monte Carlo runs (the numbers do not depend on it).
+    nuisance_draws : int, optional
+        ``"mc"``: truths drawn from the readings' least squares at which the bias is
+        evaluated again, for the correction's uncertainty (default
+        :data:`mtplan.evaluation.correction.NUISANCE_DRAWS`; 0: none, said in a note).
+    fit_alpha : float or None
+        Significance level of the fit check (:attr:`MeasuredResult.fit`,
+        :func:`mtplan.evaluation.fitcheck.fit_check`; default ``FIT_ALPHA``, 0.05); None:
+        no fit check.
+    origin : dict, optional
+        Row and column of every reading in its file (``Measurement.origin``), to name
+        the worst readings of the fit check.
+    posterior : PosteriorOptions
+        ``"posterior"``: how :func:`sample_posterior` samples (its noise, also that of the
+        fit check, its step and time budgets, ...); the estimator, coverage and seed are
+        this evaluation's. Its fields may be given to :meth:`of` as keywords too
+        (``noise="free", max_seconds=60``).
+    """
+
+    trials: int | None = None
+    coverage: float = 0.95
+    rng: object = None
+    progress: object = False
+    n_jobs: int = 1
+    nuisance_draws: int | None = None
+    fit_alpha: float | None = FIT_ALPHA
+    origin: dict | None = None
+    posterior: PosteriorOptions = field(default_factory=PosteriorOptions)
+
+    WHAT = "estimate option"
+
+    @classmethod
+    def of(cls, options=None, /, **overrides):
+        """As :meth:`Options.of`; a field of :class:`PosteriorOptions` that is none of these
+        options' own changes :attr:`posterior`."""
+        own = {f.name for f in dataclasses.fields(cls)}
+        sampled = {f.name for f in dataclasses.fields(PosteriorOptions)} - own
+        moved = {k: overrides.pop(k) for k in list(overrides) if k in sampled}
+        options = super().of(options, **overrides)
+        if moved:
+            options = dataclasses.replace(options, posterior=options.posterior.replace(**moved))
+        return options
+
+
 def estimate_measured(
     procedure,
     setup,
@@ -722,18 +788,8 @@ def estimate_measured(
     *,
     estimator: str | None = None,
     uncertainty: str = "mc",
-    trials: int | None = None,
-    coverage: float = 0.95,
-    rng=None,
-    noise="setup",
-    max_seconds: float | None = None,
-    allow_unconverged: bool = False,
-    posterior_options: dict | None = None,
-    progress: bool | None = False,
-    fit_alpha: float | None = FIT_ALPHA,
-    origin: dict | None = None,
-    nuisance_draws: int | None = None,
-    n_jobs: int = 1,
+    options: MeasuredOptions | None = None,
+    **option_overrides,
 ) -> MeasuredResult:
     """The measurands of one measurement, with their uncertainty: the values GUM would report.
 
@@ -758,32 +814,10 @@ def estimate_measured(
         does not follow the measurand) is "not determinable", with the reason.
         ``"posterior"``: emcee posterior of the forward model over the whole error
         budget (:func:`mtplan.evaluation.posterior.sample_posterior`).
-    trials : int or None
-        Monte Carlo trials (``"mc"``). None: the first-order (GUM) u and interval at the
-        estimate where a Monte Carlo of 256 to 2048 trials (:data:`VALIDATION_TRIALS`, each
-        extending the last), with the first-order model as its control variate, validates
-        them (JCGM 101 8.2, :func:`_validated_first_order`; that Monte Carlo gives the bias
-        correction), else a Monte Carlo of :data:`FULL_TRIALS` trials; a note says which.
-    coverage : float
-    rng : None, int, SeedSequence or Generator
-    noise, max_seconds, allow_unconverged, posterior_options
-        Passed to :func:`sample_posterior` (``"posterior"``).
-    progress : bool or None
-        A progress bar of the ``"mc"`` Monte Carlo on stderr (None: when stderr is a
-        terminal).
-    fit_alpha : float or None
-        Significance level of the fit check (:attr:`MeasuredResult.fit`,
-        :func:`mtplan.evaluation.fitcheck.fit_check`; default ``FIT_ALPHA``, 0.05); None:
-        no fit check.
-    origin : dict, optional
-        Row and column of every reading in its file (``Measurement.origin``), to name
-        the worst readings of the fit check.
-    nuisance_draws : int, optional
-        ``"mc"``: truths drawn from the readings' least squares at which the bias is
-        evaluated again, for the correction's uncertainty (default
-        :data:`mtplan.evaluation.correction.NUISANCE_DRAWS`; 0: none, said in a note).
-    n_jobs : int
-        ``"mc"``: workers of the Monte Carlo runs (the numbers do not depend on it).
+    options : MeasuredOptions, optional
+        Trials, coverage, seed, workers, the fit check's level, the posterior's options
+        (:class:`MeasuredOptions`); any of its fields, or of the posterior's, may be given
+        as a keyword instead (``trials=2000, rng=0, noise="free"``).
 
     Returns
     -------
@@ -791,6 +825,7 @@ def estimate_measured(
     """
     from mtplan.models import get
 
+    o = MeasuredOptions.of(options, **option_overrides)
     proc = get(procedure)
     measurement = readings if isinstance(readings, Measurement) else Measurement(setup, readings)
     setup = measurement.setup if setup is None else setup
@@ -798,24 +833,20 @@ def estimate_measured(
     proc.check_setup(setup)
     p = Problems(f"estimate {proc.name}")
     p.choice("uncertainty", uncertainty, UNCERTAINTY_METHODS)
-    if trials is not None:
-        p.number("trials", trials, integer=True, low=2)
-    p.number("coverage", coverage, low=0, high=1, low_open=True, high_open=True)
-    if fit_alpha is not None:
-        p.number("fit_alpha", fit_alpha, low=0, high=1, low_open=True, high_open=True)
+    if o.trials is not None:
+        p.number("trials", o.trials, integer=True, low=2)
+    p.number("coverage", o.coverage, low=0, high=1, low_open=True, high_open=True)
+    if o.fit_alpha is not None:
+        p.number("fit_alpha", o.fit_alpha, low=0, high=1, low_open=True, high_open=True)
     p.raise_if_any()
     from mtplan._parallel import one_blas_thread
 
+    if o.origin is None:
+        o = o.replace(origin=measurement.origin)
     # one BLAS thread throughout: the products are many and small (an estimator's gain of
     # 15 600 readings took 0.33 s of CPU on one thread and up to 3 s on two spinning ones)
     with one_blas_thread():
-        result = _estimate(proc, setup, readings, estimator=estimator, uncertainty=uncertainty,
-                           trials=trials, coverage=coverage, rng=rng, noise=noise,
-                           max_seconds=max_seconds, allow_unconverged=allow_unconverged,
-                           posterior_options=posterior_options, progress=progress,
-                           fit_alpha=fit_alpha, nuisance_draws=nuisance_draws,
-                           origin=measurement.origin if origin is None else origin,
-                           n_jobs=n_jobs)
+        result = _estimate(proc, setup, readings, estimator, uncertainty, o)
     result.notes[:0] = measurement.notes
     result.setup_from_file = dict(measurement.from_file)
     result.setup_defaults = tuple(measurement.defaults)
@@ -823,9 +854,8 @@ def estimate_measured(
     return result
 
 
-def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage, rng, noise,
-              max_seconds, allow_unconverged, posterior_options, progress, fit_alpha,
-              nuisance_draws, origin, n_jobs) -> MeasuredResult:
+def _estimate(proc, setup, readings, estimator, uncertainty, o: MeasuredOptions
+              ) -> MeasuredResult:
     """:func:`estimate_measured` on checked arguments: the estimate and its uncertainty."""
     from mtplan.uncertainty.streams import as_seed_sequence
 
@@ -839,24 +869,22 @@ def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage
     est_internal = {m.name: float(np.asarray(est_internal[m.name]).reshape(-1)[0])
                     for m in measurands}
     estimate = np.array([est_internal[m.name] * m.scale for m in measurands])
-    root = as_seed_sequence(rng)
+    root = as_seed_sequence(o.rng)
     seed = root.entropy if isinstance(root.entropy, int) else list(root.entropy)
+    coverage = o.coverage
     if uncertainty == "mc":
         result = _mc_result(proc, setup, readings, est_name, est_internal, estimate,
-                            trials=trials, coverage=coverage, root=root, seed=seed,
-                            notes=notes, progress=progress, draws=nuisance_draws,
-                            n_jobs=n_jobs)
+                            trials=o.trials, coverage=coverage, root=root, seed=seed,
+                            notes=notes, progress=o.progress, draws=o.nuisance_draws,
+                            n_jobs=o.n_jobs)
         # the fit check starts where the readings' least squares that conditioned the Monte
         # Carlo started (correction's, from the first exact estimator's estimate): the same
         # generalised least squares, computed once (posterior.start_fit remembers it)
-        return _with_fit(result, proc, readings, fit_alpha, noise="setup", origin=origin,
+        return _with_fit(result, proc, readings, o.fit_alpha, noise="setup", origin=o.origin,
                          start=None)
-    from mtplan.evaluation.posterior import sample_posterior
-
     start_ok = np.all(np.isfinite(estimate))
-    post = sample_posterior(proc, setup, readings, noise=noise, estimator=est_name,
-                            coverage=coverage, rng=root, allow_unconverged=allow_unconverged,
-                            max_seconds=max_seconds, **(posterior_options or {}))
+    post = sample_posterior(proc, setup, readings, options=o.posterior.replace(
+        estimator=est_name, coverage=coverage, rng=root))
     if not start_ok:
         notes.append(f"the {est_name} estimate is not finite; the posterior started from the "
                      "default truth")
@@ -873,7 +901,7 @@ def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage
         high=np.array([post.high[n] for n in names]),
         coverage=float(coverage), seed=seed, details=post,
         covariance=posterior_covariance(post, names), notes=notes), proc, readings,
-        fit_alpha, noise=noise, origin=origin, start=est_name)
+        o.fit_alpha, noise=o.posterior.noise, origin=o.origin, start=est_name)
 
 
 def _with_fit(result: MeasuredResult, proc, readings, alpha, *, noise, origin,

@@ -59,6 +59,7 @@ from mtplan.evaluation._posterior_model import DOMAIN_ERRORS, Forward, TruthBuil
 from mtplan.uncertainty.streams import as_seed_sequence
 from mtplan.uncertainty.sampler import (
     NotConvergedError,
+    SamplerOptions,
     UnconvergedWarning,
     integrated_time,
     mixed_moves,
@@ -69,6 +70,7 @@ from mtplan.uncertainty.sampler import (
 
 __all__ = [
     "PosteriorResult",
+    "PosteriorOptions",
     "NotConvergedError",
     "UnconvergedWarning",
     "sample_posterior",
@@ -84,6 +86,68 @@ RANK_TOL = 1e-4  # a parameter whose whitened column lies this close to the othe
 # finite differences of an exact model are good to about 1e-6) is held: the readings determine
 # it only together with others; a held direction that moves a measurand refuses that measurand,
 # so holding never understates u. Weakly but truly determined parameters stay sampled.
+
+
+# --------------------------------------------------------------------------- options
+@dataclass(frozen=True)
+class PosteriorOptions(SamplerOptions):
+    """What :func:`sample_posterior` samples and how (frozen: change one with :meth:`replace`).
+
+    The sampler's walkers and stopping rules are those of
+    :class:`~mtplan.uncertainty.sampler.SamplerOptions` (``n_walkers``: even, default 16; with
+    your own `moves`, >= 2 x ndim; ``label``: default the procedure's name); beside them:
+
+    Attributes
+    ----------
+    fields : iterable of str, optional
+        Free Truth fields or tuple elements (``"wrist_dx_um[1]"``); default all of them.
+    noise : "setup", "free" or float
+        The noise source's standard deviation: the set-up's (default; None means the
+        same), free (log-uniform prior; refused with fewer than 3 residual degrees of
+        freedom), or this number [the source's unit, mm or rad].
+    priors : mapping of str to object with ``logpdf``, optional
+        Replaces the default prior of the named sampled parameters, e.g.
+        ``{"offset_mm": scipy.stats.norm(0, 0.1)}``; a ``sigma_<source>`` prior is on sigma.
+    start : mapping of str to float, optional
+        Start of the least squares (default: ``truth_from_estimate`` of the estimate
+        when the procedure has that hook, else `truth`).
+    truth : Truth, optional
+        Values of the fields that are not free (default: the Truth's defaults).
+    estimator : str, optional
+        Estimator used for the start (default: the procedure's first exact estimator).
+    coverage : float
+        Probability of the equal-tailed credible intervals.
+    allow_unconverged : bool
+        Warn (:class:`UnconvergedWarning`) instead of raising :class:`NotConvergedError`.
+    moves : emcee move(s), optional
+        Default: the independence move from the Laplace approximation (80 %) mixed with a
+        random-walk Metropolis move scaled by it
+        (:func:`mtplan.uncertainty.sampler.mixed_moves`).
+    batch : bool
+        Evaluate all walkers with one forward call (array-valued truth fields) when the
+        model takes them (verified against the per-walker loop); False: loop.
+    rng : None, int, SeedSequence or Generator
+    """
+
+    label: str | None = None
+    fields: object = None
+    noise: object = "setup"
+    priors: Mapping | None = None
+    start: Mapping | None = None
+    truth: object = None
+    estimator: str | None = None
+    coverage: float = 0.95
+    allow_unconverged: bool = False
+    moves: object = None
+    batch: bool = True
+    rng: object = None
+
+    WHAT = "posterior option"
+
+    def sampler(self, label: str) -> SamplerOptions:
+        """The sampler's share of these options (`label` where none is given)."""
+        shared = {f.name: getattr(self, f.name) for f in dataclasses.fields(SamplerOptions)}
+        return SamplerOptions(**(shared | {"label": self.label or label}))
 
 
 # --------------------------------------------------------------------------- result
@@ -225,22 +289,23 @@ class PosteriorResult:
 
 
 # --------------------------------------------------------------------------- set-up and checks
-def _check_arguments(proc, setup, readings, noise, opts: dict):
+def _check_arguments(proc, setup, readings, o: PosteriorOptions):
     """Validate every argument at once; return the noise mode ("setup", "known", "free")
     and the given noise [its unit] or None."""
     proc.check_setup(setup)
+    noise = o.noise
     p = Problems(f"sample_posterior {proc.name}")
-    p.number("n_ensembles", opts["n_ensembles"], integer=True, low=2)
-    p.number("max_steps", opts["max_steps"], integer=True, low=2)
-    if opts["check_every"] is not None:
-        p.number("check_every", opts["check_every"], integer=True, low=2)
-    p.number("n_tau", opts["n_tau"], low=1)
-    p.number("tau_rtol", opts["tau_rtol"], low=0, low_open=True)
-    p.number("rhat_max", opts["rhat_max"], low=1, low_open=True)
-    p.number("burn_tau", opts["burn_tau"], low=0)
-    p.number("coverage", opts["coverage"], low=0, high=1, low_open=True, high_open=True)
-    if opts["max_seconds"] is not None:
-        p.number("max_seconds", opts["max_seconds"], low=0, low_open=True)
+    p.number("n_ensembles", o.n_ensembles, integer=True, low=2)
+    p.number("max_steps", o.max_steps, integer=True, low=2)
+    if o.check_every is not None:
+        p.number("check_every", o.check_every, integer=True, low=2)
+    p.number("n_tau", o.n_tau, low=1)
+    p.number("tau_rtol", o.tau_rtol, low=0, low_open=True)
+    p.number("rhat_max", o.rhat_max, low=1, low_open=True)
+    p.number("burn_tau", o.burn_tau, low=0)
+    p.number("coverage", o.coverage, low=0, high=1, low_open=True, high_open=True)
+    if o.max_seconds is not None:
+        p.number("max_seconds", o.max_seconds, low=0, low_open=True)
     if not isinstance(readings, Mapping) or not readings:
         p.add("readings", readings, "a dict of reading arrays (procedure.readings.from_frame)")
     allowed = ("None, 'setup' (every source at the set-up's size), 'free' (the noise source's "
@@ -716,24 +781,22 @@ class _LogPosterior:
 
 
 # --------------------------------------------------------------------------- the run
-def _run(logpost: _LogPosterior, space: _Space, root, opts: dict, label: str):
+def _run(logpost: _LogPosterior, space: _Space, root, o: PosteriorOptions, label: str):
     """Walkers from the Laplace approximation; independence + stretch moves; run_ensembles."""
     ndim = len(space.names)
-    n_walkers = 16 if opts["n_walkers"] is None else opts["n_walkers"]
-    least = 2 * ndim if opts["moves"] is not None else 4  # the stretch move needs 2 ndim
+    n_walkers = 16 if o.n_walkers is None else o.n_walkers
+    least = 2 * ndim if o.moves is not None else 4  # the stretch move needs 2 ndim
     p = Problems("sample_posterior")
     if p.number("n_walkers", n_walkers, integer=True, low=least) and int(n_walkers) % 2:
         p.add("n_walkers", n_walkers, f"an even int >= {least}")
     p.raise_if_any()
     factor = psd_factor(space.cov)  # positive definite by construction
     cov = factor @ factor.T
-    moves = opts["moves"] if opts["moves"] is not None else mixed_moves(space.center, cov)
-    run = run_ensembles(logpost, space.center, factor, root=root, n_walkers=int(n_walkers),
-                        n_ensembles=int(opts["n_ensembles"]), max_steps=int(opts["max_steps"]),
-                        check_every=opts["check_every"], n_tau=opts["n_tau"],
-                        tau_rtol=opts["tau_rtol"], rhat_max=opts["rhat_max"],
-                        burn_tau=opts["burn_tau"], max_seconds=opts["max_seconds"], moves=moves,
-                        progress=opts["progress"], label=label)
+    moves = o.moves if o.moves is not None else mixed_moves(space.center, cov)
+    sampler = o.sampler(label).replace(n_walkers=int(n_walkers),
+                                       n_ensembles=int(o.n_ensembles),
+                                       max_steps=int(o.max_steps))
+    run = run_ensembles(logpost, space.center, factor, root=root, moves=moves, options=sampler)
     return run, int(n_walkers)
 
 
@@ -801,19 +864,19 @@ def _result(fwd, fit: _Fit, space: _Space, logpost, run, diag, *, mode, root, n_
         notes=notes)
 
 
-def _check_converged(result: PosteriorResult, run, opts: dict, allow: bool) -> None:
+def _check_converged(result: PosteriorResult, run, o: PosteriorOptions) -> None:
     """Raise NotConvergedError carrying the result (or warn, when allowed) if not converged."""
     if run.converged:
         return
-    why = (f"its time budget of {opts['max_seconds']:g} s" if run.stopped == "max_seconds"
+    why = (f"its time budget of {o.max_seconds:g} s" if run.stopped == "max_seconds"
            else f"{run.steps} steps per ensemble")
     msg = (f"The posterior of {result.procedure.name} did not converge in {why} (needs > "
-           f"{opts['n_tau']:g} tau with tau settled and R-hat < {opts['rhat_max']:g}; tau max "
+           f"{o.n_tau:g} tau with tau settled and R-hat < {o.rhat_max:g}; tau max "
            f"{float(np.max(run.tau.max(axis=0))):.1f} steps, R-hat max "
            f"{float(np.max(run.rhat)):.4f}); raise max_steps (--max-steps) or the time budget, "
            "or pass allow_unconverged=True for the flagged partial result.")
     result.notes.append("NOT CONVERGED: " + msg)
-    if not allow:
+    if not o.allow_unconverged:
         raise NotConvergedError(msg, result)
     warnings.warn(msg, UnconvergedWarning, stacklevel=3)
 
@@ -839,27 +902,8 @@ def sample_posterior(
     setup,
     readings,
     *,
-    fields=None,
-    noise="setup",
-    priors: Mapping | None = None,
-    start=None,
-    truth=None,
-    estimator: str | None = None,
-    n_walkers: int | None = None,
-    n_ensembles: int = 4,
-    max_steps: int = 20_000,
-    check_every: int | None = None,
-    n_tau: float = 50.0,
-    tau_rtol: float = 0.05,
-    rhat_max: float = 1.01,
-    burn_tau: float = 3.0,
-    coverage: float = 0.95,
-    max_seconds: float | None = None,
-    allow_unconverged: bool = False,
-    moves=None,
-    batch: bool = True,
-    rng=None,
-    progress: bool | None = None,
+    options: PosteriorOptions | None = None,
+    **option_overrides,
 ) -> PosteriorResult:
     """Sample the posterior of a procedure's measurands given one set of readings.
 
@@ -871,47 +915,10 @@ def sample_posterior(
         distributions) are the likelihood's error budget.
     readings : dict of str to array
         A batch of one (leading axis 1), as ``procedure.readings.from_frame`` returns.
-    fields : iterable of str, optional
-        Free Truth fields or tuple elements (``"wrist_dx_um[1]"``); default all of them.
-    noise : "setup", "free" or float
-        The noise source's standard deviation: the set-up's (default; None means the
-        same), free (log-uniform prior; refused with fewer than 3 residual degrees of
-        freedom), or this number [the source's unit, mm or rad].
-    priors : mapping of str to object with ``logpdf``, optional
-        Replaces the default prior of the named sampled parameters, e.g.
-        ``{"offset_mm": scipy.stats.norm(0, 0.1)}``; a ``sigma_<source>`` prior is on sigma.
-    start : mapping of str to float, optional
-        Start of the least squares (default: ``truth_from_estimate`` of the estimate
-        when the procedure has that hook, else `truth`).
-    truth : Truth, optional
-        Values of the fields that are not free (default: the Truth's defaults).
-    estimator : str, optional
-        Estimator used for the start (default: the procedure's first exact estimator).
-    n_walkers : int, optional
-        Walkers per ensemble, even (default 16; with your own `moves`, >= 2 x ndim).
-    n_ensembles, max_steps : int
-        Independent ensembles (>= 2 for R-hat), step budget per ensemble.
-    check_every : int, optional
-        Steps between convergence checks (default: 25, then a tenth of the chain).
-    n_tau, tau_rtol, rhat_max, burn_tau : float
-        Convergence: chain longer than `n_tau` tau, tau's relative change between
-        checks below `tau_rtol`, split R-hat below `rhat_max`; `burn_tau` tau discarded.
-    coverage : float
-        Probability of the equal-tailed credible intervals.
-    max_seconds : float, optional
-        Wall-clock budget of the sampling; stops unconverged when it runs out.
-    allow_unconverged : bool
-        Warn (:class:`UnconvergedWarning`) instead of raising :class:`NotConvergedError`.
-    moves : emcee move(s), optional
-        Default: the independence move from the Laplace approximation (80 %) mixed with a
-        random-walk Metropolis move scaled by it
-        (:func:`mtplan.uncertainty.sampler.mixed_moves`).
-    batch : bool
-        Evaluate all walkers with one forward call (array-valued truth fields) when the
-        model takes them (verified against the per-walker loop); False: loop.
-    rng : None, int, SeedSequence or Generator
-    progress : bool, optional
-        A progress bar on stderr (default: when stderr is a terminal).
+    options : PosteriorOptions, optional
+        What is sampled (free fields, noise, priors, start, truth), the sampler's walkers
+        and stopping rules, the coverage, the seed (:class:`PosteriorOptions`); any of its
+        fields may be given as a keyword instead (``noise="free", rng=0, max_steps=2000``).
 
     Returns
     -------
@@ -923,32 +930,30 @@ def sample_posterior(
     from mtplan.models import get
 
     t_start = time.perf_counter()
+    o = PosteriorOptions.of(options, **option_overrides)
     proc = get(procedure)
-    opts = dict(n_walkers=n_walkers, n_ensembles=n_ensembles, max_steps=max_steps,
-                check_every=check_every, n_tau=n_tau, tau_rtol=tau_rtol, rhat_max=rhat_max,
-                burn_tau=burn_tau, coverage=coverage, max_seconds=max_seconds, moves=moves,
-                progress=sys.stderr.isatty() if progress is None else bool(progress))
-    mode, sigma = _check_arguments(proc, setup, readings, noise, opts)
-    base = proc.Truth() if truth is None else truth
+    o = o.replace(progress=sys.stderr.isatty() if o.progress is None else bool(o.progress))
+    mode, sigma = _check_arguments(proc, setup, readings, o)
+    base = proc.Truth() if o.truth is None else o.truth
     if not isinstance(base, proc.Truth):
         raise InvalidInput([f"The 'truth' parameter of sample_posterior must be a {proc.name} "
                             f"Truth. Got {type(base).__name__} instead."])
-    root = as_seed_sequence(rng)
+    root = as_seed_sequence(o.rng)
     notes: list[str] = []
-    builder = TruthBuilder(base, truth_parameters(proc, base, fields))
-    fwd = Forward(proc, setup, readings, builder, batch=batch)
+    builder = TruthBuilder(base, truth_parameters(proc, base, o.fields))
+    fwd = Forward(proc, setup, readings, builder, batch=o.batch)
     if not fwd.mask.all():
         notes.append(f"{int((~fwd.mask).sum())} reading(s) missing from the file (NaN) are left "
                      "out of the likelihood")
     # one BLAS thread: the matrices are small and many, and threads only wait for each other
     with one_blas_thread():
-        theta0 = initial_theta(proc, setup, readings, builder, start, estimator, notes)
+        theta0 = initial_theta(proc, setup, readings, builder, o.start, o.estimator, notes)
         fit = start_fit(fwd, theta0, mode, sigma, notes)
         space = identify(fwd, fit, notes)
-        logpost = _LogPosterior(fwd, fit, space, _check_priors(priors, space.names))
-        run, n_walkers = _run(logpost, space, root, opts, proc.name)
-        diag = _diagnostics(fwd, logpost, space, run, burn_tau, coverage)
+        logpost = _LogPosterior(fwd, fit, space, _check_priors(o.priors, space.names))
+        run, n_walkers = _run(logpost, space, root, o, proc.name)
+        diag = _diagnostics(fwd, logpost, space, run, o.burn_tau, o.coverage)
     result = _result(fwd, fit, space, logpost, run, diag, mode=mode, root=root,
-                     n_walkers=n_walkers, coverage=coverage, t_start=t_start, notes=notes)
-    _check_converged(result, run, opts, allow_unconverged)
+                     n_walkers=n_walkers, coverage=o.coverage, t_start=t_start, notes=notes)
+    _check_converged(result, run, o)
     return result

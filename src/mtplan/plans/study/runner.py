@@ -483,17 +483,19 @@ def _run_measured(proc, ps, study, recommended, file=None):
     """The readings (or those of ``file``, taken after an adjustment) evaluated, by default
     with the estimator the study recommends."""
     from mtplan.evaluation import measured
+    from mtplan.evaluation.posterior import PosteriorOptions
 
     spec = ps.readings
     setup = with_conditions(ps.setup, study.conditions)
     readings = measured.read_readings(proc, setup, file or spec["file"])
+    sampling = PosteriorOptions.of(None, **(spec.get("options") or {})).replace(
+        allow_unconverged=bool(spec.get("allow_unconverged", False)))
+    options = measured.MeasuredOptions(trials=spec.get("trials", 10_000),
+                                       coverage=study.coverage, rng=study.seed,
+                                       posterior=sampling)
     return measured.estimate_measured(proc, setup, readings,
                                       estimator=spec.get("estimator") or recommended,
-                                      uncertainty=spec.get("uncertainty", "mc"),
-                                      trials=spec.get("trials", 10_000), coverage=study.coverage,
-                                      rng=study.seed,
-                                      allow_unconverged=bool(spec.get("allow_unconverged", False)),
-                                      posterior_options=spec.get("options"))
+                                      uncertainty=spec.get("uncertainty", "mc"), options=options)
 
 
 def _identifiability(proc, ps):
