@@ -187,3 +187,33 @@ def test_a_setup_an_estimator_cannot_evaluate_is_recorded_not_fatal(tmp_path):
     assert bad["error"].str.contains("non-finite").all()
     good = df[~((df.estimator == "fragile") & (df.n_points == 3))]
     assert good["u"].notna().all() and good["error"].isna().all()
+
+
+
+def test_a_field_that_only_chooses_what_is_reported_leaves_the_seed_as_it_was():
+    """A `reports_only` set-up field (geometry21's positions along the travel, which add
+    measurands from the same fit) at its default is no part of the set-up's identity: the
+    set-up keeps the id and the sweep seed it had before the field existed, so the demo's
+    geometry21 sweeps draw what they drew; set, it makes another set-up."""
+    import dataclasses
+    import json
+    import zlib
+
+    from mtplan.models import get, registry
+    from mtplan.models.fields import identity
+    from mtplan.plans.sweep import setup_id, setup_seed
+
+    proc = get("geometry21")
+    setup = proc.Setup(circle_radius_mm=30.0)
+    assert setup_id(setup) == "d2a6c345eb5f"  # the demo's first sweep point, before the field
+    before = {k: v for k, v in setup.as_dict().items() if not k.startswith("along_")}
+    assert setup_seed(2024, setup).spawn_key == (
+        zlib.crc32(json.dumps(before, sort_keys=True, default=str).encode()),)
+    assert setup_id(dataclasses.replace(setup, along_x_mm=(0.0,))) != setup_id(setup)
+    declared = set()
+    for name, p in registry().items():  # every procedure's, at its default: left out
+        s = p.Setup()
+        out = {f.name for f in dataclasses.fields(s) if f.metadata.get("reports_only")}
+        assert not out & set(identity(s)), name
+        declared |= out
+    assert {"along_x_mm", "along_y_mm", "along_z_mm"} <= declared

@@ -43,6 +43,7 @@ __all__ = [
     "param",
     "OWNERS",
     "with_conditions",
+    "identity",
     "fields_info",
     "file_fields",
     "file_content",
@@ -111,6 +112,7 @@ def param(
     reader: Callable | None = None,
     condition: str | None = None,
     owner: str | None = None,
+    reports_only: bool = False,
 ):
     """Declare a set-up (or truth) field with its documentation and allowed range.
 
@@ -136,6 +138,12 @@ def param(
     or its calibration's, the artefact's, the workpiece's, the method's set-up, the
     environment's). Advice phrases an action by it: a calibration for an instrument, never
     a set-up.
+
+    A field that is `reports_only` chooses only what is reported (more measurands from the
+    same readings and estimates), not the readings, the estimates or the error sources: at
+    its default it is left out of the set-up's identity (:func:`identity`), so that adding
+    such a field to a procedure leaves every set-up that does not use it, its identifier
+    and its seed in a sweep as they were.
     """
     if owner is not None and owner not in OWNERS:
         raise ValueError(f"The 'owner' parameter of param must be one of {', '.join(OWNERS)}. "
@@ -151,10 +159,21 @@ def param(
         "reader": reader,
         "condition": condition,
         "owner": owner,
+        "reports_only": reports_only,
     }
     if isinstance(default, list):
         default = tuple(default)
     return dataclasses.field(default=default, metadata=meta)
+
+
+def identity(setup) -> dict:
+    """A set-up's field values as plain Python (:meth:`SetupBase.as_dict`) less the
+    `reports_only` fields at their default: what makes two set-ups the same set-up."""
+    values = setup.as_dict()
+    for f in dataclasses.fields(setup):
+        if f.metadata.get("reports_only") and getattr(setup, f.name) == f.default:
+            del values[f.name]
+    return values
 
 
 def with_conditions(setup, conditions: dict):

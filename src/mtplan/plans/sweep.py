@@ -5,9 +5,10 @@ duration and the uncertainty columns. Set-ups run in parallel through joblib
 (``backend="dask"`` runs on a Dask cluster through joblib's dask backend).
 
 Every set-up draws from a seed derived from the sweep seed and a hash of the
-set-up's own field values, so a row does not depend on the grid it sits in, on
-``n_jobs`` or on the backend, and all estimators of one set-up share their random
-numbers (a paired comparison).
+set-up's own field values (less a field that only chooses what is reported, at its
+default: :func:`mtplan.models.fields.identity`), so a row does not depend on the grid it
+sits in, on ``n_jobs`` or on the backend, and all estimators of one set-up share their
+random numbers (a paired comparison).
 
 Given an output file, the sweep appends each finished set-up in one write and
 flush, beside a small ``<out>.sweep.json`` that records what the sweep is. Started
@@ -41,6 +42,7 @@ from mtplan._parallel import effective_jobs, ordered_map, parallel_session
 from mtplan._validate import InvalidInput, Problems
 from mtplan.evaluation.simulation import check_memory, simulate_uncertainty
 from mtplan.models import get
+from mtplan.models.fields import identity
 from mtplan.models.protocol import fields_info, make
 from mtplan.uncertainty.montecarlo import ModelError
 from mtplan.uncertainty.options import RunOptions
@@ -52,8 +54,10 @@ RESULT_COLUMNS = ["estimator", "measurand", "unit", "true", "value", "bias", "u"
 
 
 def canonical(setup) -> str:
-    """A set-up's field values as text (sorted JSON): the same text, the same set-up."""
-    return json.dumps(setup.as_dict(), sort_keys=True, default=str)
+    """A set-up's identity (:func:`mtplan.models.fields.identity`: its field values, less
+    those that only choose what is reported, at their default) as text (sorted JSON): the
+    same text, the same set-up."""
+    return json.dumps(identity(setup), sort_keys=True, default=str)
 
 
 def setup_id(setup) -> str:

@@ -77,7 +77,8 @@ def _along_field(axis: str):
                  "also stated, each a measurand of its own (EXX@-50 is EXX at x = -50 mm): the "
                  "errors along the travel, with their uncertainty and covariance, for a "
                  "compensation table; outside the measured travel (+-line_length_mm / 2) "
-                 "they are extrapolated, and marked so", low=-5000, high=5000)
+                 "they are extrapolated, and marked so", low=-5000, high=5000,
+                 reports_only=True)
 
 
 #: the set-up fields that state the functions at more positions (:func:`along_positions`)
