@@ -24,19 +24,12 @@ import argparse
 import base64
 import json
 import os
-import shutil
-import socket
-import subprocess
 import sys
 import time
-import urllib.request
 
 import numpy as np
-from playwright.sync_api import sync_playwright
 
-#: Debian's Chromium, as the user has it (else the one on the PATH)
-CHROMIUM = ("/usr/bin/chromium" if os.path.exists("/usr/bin/chromium")
-            else shutil.which("chromium"))
+from mtplan.testing.browser import chromium, served_designer
 
 #: procedure -> (lever, first value, step, starting set-up)
 LEVERS = {
@@ -48,25 +41,6 @@ LEVERS = {
     # budget hook's, not a linearisation over every reading
     "line_laser": ("raise_mm", 1.0, 0.1, {}),
 }
-
-
-def _start(port):
-    """``mtplan explore`` on `port`: (process, the link it printed with its token)."""
-    proc = subprocess.Popen([sys.executable, "-m", "mtplan.cli", "explore", "--no-browser",
-                             "--port", str(port)], stdout=subprocess.PIPE,
-                            stderr=subprocess.DEVNULL, text=True)
-    link = proc.stdout.readline().split("serving on ", 1)[1].split()[0]
-    token = link.split("token=", 1)[1]
-    for _ in range(200):
-        try:
-            urllib.request.urlopen(urllib.request.Request(
-                f"http://127.0.0.1:{port}/api/procedures",
-                headers={"X-Mtplan-Token": token}), timeout=5)
-            return proc, link
-        except OSError:
-            time.sleep(0.3)
-    proc.kill()
-    raise RuntimeError("the server did not start")
 
 
 def _cpu_s(pid: int) -> float:
@@ -122,52 +96,37 @@ def main(argv=None) -> int:
     if args.end_stops:
         end_stops(args.only)
         return 0
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    server, link = _start(port)
-    try:
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM,
-                                        args=["--no-sandbox"])
-            print(f"load average before: {os.getloadavg()}, cores: {os.cpu_count()}")
-            for name, (field, start, step, setup) in LEVERS.items():
-                if args.only and name not in args.only:
-                    continue
-                page = browser.new_page()
-                page.set_default_timeout(300_000)
-                design = base64.urlsafe_b64encode(json.dumps(
-                    {"procedure": name, "setup": setup}).encode()).decode().rstrip("=")
-                page.goto(f"{link}&d={design}")
-                page.wait_for_function("window.mtplan && window.mtplan.rendered > 0")
-                cpu = _cpu_s(server.pid)
-                for i in range(args.changes):
-                    page.evaluate(f"""() => {{ const b = document.getElementById('f-{field}');
-                        b.value = '{start + i * step:.6g}';
-                        b.dispatchEvent(new Event('change')); }}""")
-                    page.wait_for_function("window.mtplan.rendered === window.mtplan.changes "
-                                           "&& !window.mtplan.inflight")
-                cpu = (_cpu_s(server.pid) - cpu) / args.changes
-                page.wait_for_function("window.mtplan.drawn === window.mtplan.rendered")
-                lat = np.array(page.evaluate("window.mtplan.latencies"))[1:]  # the change ones
-                fig = np.array(page.evaluate("window.mtplan.figureLatencies"))[1:]
-                print(f"{name:14s} {field:18s} n={lat.size:3d}  p50 {np.percentile(lat, 50):5.0f} ms"
-                      f"  p95 {np.percentile(lat, 95):5.0f} ms  max {lat.max():5.0f} ms"
-                      f"  server CPU {1000 * cpu:4.0f} ms/change"
-                      f"  load {os.getloadavg()[0]:.1f}")
-                if fig.size:  # the changes whose plot was drawn before the next change
-                    print(f"{'':14s} {'with the figures':18s} n={fig.size:3d}  p50 "
-                          f"{np.percentile(fig, 50):5.0f} ms  p95 {np.percentile(fig, 95):5.0f} ms")
-                page.close()
-            print(f"load average after: {os.getloadavg()}")
-            browser.close()
-    finally:
-        server.terminate()
-        try:
-            server.wait(timeout=10)
-        except subprocess.TimeoutExpired:  # busy computing: stop it
-            server.kill()
-            server.wait()
+    with served_designer(quiet=True, tries=200) as (server, link), chromium() as browser:
+        print(f"load average before: {os.getloadavg()}, cores: {os.cpu_count()}")
+        for name, (field, start, step, setup) in LEVERS.items():
+            if args.only and name not in args.only:
+                continue
+            page = browser.new_page()
+            page.set_default_timeout(300_000)
+            design = base64.urlsafe_b64encode(json.dumps(
+                {"procedure": name, "setup": setup}).encode()).decode().rstrip("=")
+            page.goto(f"{link}&d={design}")
+            page.wait_for_function("window.mtplan && window.mtplan.rendered > 0")
+            cpu = _cpu_s(server.pid)
+            for i in range(args.changes):
+                page.evaluate(f"""() => {{ const b = document.getElementById('f-{field}');
+                    b.value = '{start + i * step:.6g}';
+                    b.dispatchEvent(new Event('change')); }}""")
+                page.wait_for_function("window.mtplan.rendered === window.mtplan.changes "
+                                       "&& !window.mtplan.inflight")
+            cpu = (_cpu_s(server.pid) - cpu) / args.changes
+            page.wait_for_function("window.mtplan.drawn === window.mtplan.rendered")
+            lat = np.array(page.evaluate("window.mtplan.latencies"))[1:]  # the change ones
+            fig = np.array(page.evaluate("window.mtplan.figureLatencies"))[1:]
+            print(f"{name:14s} {field:18s} n={lat.size:3d}  p50 {np.percentile(lat, 50):5.0f} ms"
+                  f"  p95 {np.percentile(lat, 95):5.0f} ms  max {lat.max():5.0f} ms"
+                  f"  server CPU {1000 * cpu:4.0f} ms/change"
+                  f"  load {os.getloadavg()[0]:.1f}")
+            if fig.size:  # the changes whose plot was drawn before the next change
+                print(f"{'':14s} {'with the figures':18s} n={fig.size:3d}  p50 "
+                      f"{np.percentile(fig, 50):5.0f} ms  p95 {np.percentile(fig, 95):5.0f} ms")
+            page.close()
+        print(f"load average after: {os.getloadavg()}")
     return 0
 
 

@@ -11,20 +11,11 @@ from __future__ import annotations
 
 import base64
 import json
-import os
-import shutil
-import socket
-import subprocess
 import sys
 import time
-import urllib.request
 from pathlib import Path
 
-from playwright.sync_api import sync_playwright
-
-#: Debian's Chromium, as the user has it (else the one on the PATH)
-CHROMIUM = ("/usr/bin/chromium" if os.path.exists("/usr/bin/chromium")
-            else shutil.which("chromium"))
+from mtplan.testing.browser import chromium, served_designer
 
 HERE = Path(__file__).resolve().parent
 DESIGNS = {
@@ -67,27 +58,6 @@ DESIGNS = {
 }
 
 
-def _start():
-    """``mtplan explore`` on a free port: (process, the link it printed with its token)."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    server = subprocess.Popen([sys.executable, "-m", "mtplan.cli", "explore", "--no-browser",
-                               "--port", str(port)], stdout=subprocess.PIPE, text=True)
-    line = server.stdout.readline()  # "mtplan explore: serving on http://...?token=..."
-    link = line.split("serving on ", 1)[1].split()[0]
-    token = link.split("token=", 1)[1]
-    for _ in range(400):
-        try:
-            urllib.request.urlopen(urllib.request.Request(
-                f"http://127.0.0.1:{port}/api/procedures",
-                headers={"X-Mtplan-Token": token}), timeout=5)
-            break
-        except OSError:
-            time.sleep(0.3)
-    return server, link
-
-
 #: (file suffix, viewport width, media): the wide screen, the phone (the print, a PDF of
 #: one A4 page: screenshots_state.py)
 VIEWS = [("", 1440, "screen"), ("_390", 390, "screen")]
@@ -95,41 +65,29 @@ VIEWS = [("", 1440, "screen"), ("_390", 390, "screen")]
 
 def main(argv=None) -> int:
     only = (argv if argv is not None else sys.argv[1:]) or list(DESIGNS)
-    server, link = _start()
-    try:
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM,
-                                        args=["--no-sandbox"])
-            for name in only:
-                design = DESIGNS[name]
-                for suffix, width, media in VIEWS:
-                    page = browser.new_page(viewport={"width": width, "height": 1000})
-                    page.set_default_timeout(300_000)
-                    d = base64.urlsafe_b64encode(json.dumps(
-                        {"procedure": name, **design}).encode()).decode().rstrip("=")
-                    page.goto(f"{link}&d={d}")
-                    page.wait_for_function("window.mtplan && window.mtplan.rendered > 0 && "
-                                           "!window.mtplan.inflight")
-                    page.wait_for_function("document.querySelector('#sens-plot').dataset.field"
-                                           " || /^no sensitivity/.test(document."
-                                           "querySelector('#sens-msg').textContent)")
-                    page.wait_for_function("!window.mtplan.lastResult.ok || !window.mtplan"
-                                           ".lastResult.measurands.some((m) => m.pending)")
-                    time.sleep(1.0)
-                    page.emulate_media(media=media)
-                    time.sleep(0.5)
-                    out = HERE / f"{name}{suffix}.png"
-                    page.screenshot(path=str(out), full_page=True)
-                    page.close()
-                    print("wrote", out)
-            browser.close()
-    finally:
-        server.terminate()
-        try:
-            server.wait(timeout=10)
-        except subprocess.TimeoutExpired:  # busy computing: stop it
-            server.kill()
-            server.wait()
+    with served_designer() as (_, link), chromium() as browser:
+        for name in only:
+            design = DESIGNS[name]
+            for suffix, width, media in VIEWS:
+                page = browser.new_page(viewport={"width": width, "height": 1000})
+                page.set_default_timeout(300_000)
+                d = base64.urlsafe_b64encode(json.dumps(
+                    {"procedure": name, **design}).encode()).decode().rstrip("=")
+                page.goto(f"{link}&d={d}")
+                page.wait_for_function("window.mtplan && window.mtplan.rendered > 0 && "
+                                       "!window.mtplan.inflight")
+                page.wait_for_function("document.querySelector('#sens-plot').dataset.field"
+                                       " || /^no sensitivity/.test(document."
+                                       "querySelector('#sens-msg').textContent)")
+                page.wait_for_function("!window.mtplan.lastResult.ok || !window.mtplan"
+                                       ".lastResult.measurands.some((m) => m.pending)")
+                time.sleep(1.0)
+                page.emulate_media(media=media)
+                time.sleep(0.5)
+                out = HERE / f"{name}{suffix}.png"
+                page.screenshot(path=str(out), full_page=True)
+                page.close()
+                print("wrote", out)
     return 0
 
 

@@ -27,11 +27,12 @@ import time
 from pathlib import Path
 
 from PIL import Image
-from playwright.sync_api import sync_playwright
+
+from mtplan.testing.browser import chromium, served_designer
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from screenshots import CHROMIUM, DESIGNS, _start  # noqa: E402
+from screenshots import DESIGNS  # noqa: E402
 
 PRINTED = {
     "rotary_axis": {"procedure": "rotary_axis", **DESIGNS["rotary_axis"],
@@ -65,119 +66,108 @@ def _settled(page) -> None:
 
 
 def main() -> int:
-    server, link = _start()
-    base = link.split("?", 1)[0]
-    try:
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
-            for suffix, width in (("", 1440), ("_390", 390)):
-                # the login page, as a saved link meets it (a browser without the cookie)
-                ctx = browser.new_context(viewport={"width": width, "height": 560})
-                page = ctx.new_page()
-                page.goto(f"{base}?d={_d({'procedure': 'rotary_axis'})}")
-                page.wait_for_selector("body[data-ready='1']")
-                page.fill("#token", "not-the-token")
-                page.click("#login")
-                page.wait_for_function("document.getElementById('login-error').textContent")
-                out = HERE / f"login{suffix}.png"
-                page.screenshot(path=str(out))
-                _small(out)
-                ctx.close()
-                # two named scenarios side by side
-                ctx = browser.new_context(viewport={"width": width, "height": 900})
-                page = ctx.new_page()
-                page.set_default_timeout(300_000)
-                page.goto(_link(link, {"procedure": "rotary_axis", **DESIGNS["rotary_axis"]}))
-                _settled(page)
-                for name, positions in (("eight positions", "8"), ("twelve positions", "12")):
-                    if positions != "8":
-                        page.fill("#f-positions", positions)
-                        page.dispatch_event("#f-positions", "change")
-                        _settled(page)
-                    page.click("#keep")
-                    box = page.locator("#scenarios .scenario-name").last
-                    box.fill(name)
-                    box.dispatch_event("change")
-                # naming the last one scrolled its table sideways: show it from its start
-                page.evaluate("document.querySelectorAll('#scenarios, #scenarios ~ *, "
-                              ".table-wrap').forEach((e) => { e.scrollLeft = 0; })")
-                time.sleep(0.5)
-                out = HERE / f"scenarios{suffix}.png"
-                head = page.locator("h2", has_text="Scenarios side by side")
-                head.scroll_into_view_if_needed()
-                top = head.bounding_box()["y"] + page.evaluate("window.scrollY")
-                bottom = page.locator("#scenarios").bounding_box()["y"] + page.evaluate(
-                    "window.scrollY") + page.locator("#scenarios").bounding_box()["height"]
-                left = 0 if width < 800 else page.locator("#results").bounding_box()["x"]
-                page.screenshot(path=str(out), full_page=True, clip={
-                    "x": left, "y": top - 8, "width": width - left, "height": bottom - top + 16})
-                _small(out)
-                ctx.close()
-            # the measuring positions of each procedure (and one at a phone's width)
-            for name, width in [(n, 1440) for n in DESIGNS] + [("rotary_axis", 390)]:
-                ctx = browser.new_context(viewport={"width": width, "height": 900})
-                page = ctx.new_page()
-                page.set_default_timeout(300_000)
-                page.goto(_link(link, {"procedure": name, **DESIGNS[name]}))
-                _settled(page)
-                page.wait_for_function("document.getElementById('positions-plot').dataset.points")
-                time.sleep(0.5)
-                section = page.locator("#positions-plot")
-                section.scroll_into_view_if_needed()
-                box = section.bounding_box()
-                y = box["y"] + page.evaluate("window.scrollY")
-                out = HERE / f"positions_{name}{'_390' if width < 800 else ''}.png"
-                page.screenshot(path=str(out), full_page=True, clip={
-                    "x": box["x"], "y": y - 30, "width": box["width"], "height": box["height"] + 60})
-                _small(out)
-                ctx.close()
-            # the specific risk of a measured value, under the tolerance table
-            for suffix, width in (("", 1440), ("_390", 390)):
-                ctx = browser.new_context(viewport={"width": width, "height": 900})
-                page = ctx.new_page()
-                page.set_default_timeout(300_000)
-                design = {"procedure": "rotary_axis", **DESIGNS["rotary_axis"]}
-                design["tolerances"] = {k: {**v, "measured": "95"}
-                                        for k, v in design["tolerances"].items()}
-                page.goto(_link(link, design))
-                _settled(page)
-                page.wait_for_function("/outside its tolerance/.test(document."
-                                       "getElementById('specific-out').textContent)")
-                time.sleep(0.5)
-                top = page.locator("#acceptance").bounding_box()
-                low = page.locator("#specific").bounding_box()
-                scroll = page.evaluate("window.scrollY")
-                out = HERE / f"specific{suffix}.png"
-                page.screenshot(path=str(out), full_page=True, clip={
-                    "x": low["x"], "y": top["y"] + scroll - 30,
-                    "width": min(width - low["x"], max(top["width"], low["width"])),
-                    "height": low["y"] + low["height"] - top["y"] + 40})
-                _small(out)
-                ctx.close()
-            # the print: one A4 page, as Chromium prints it
-            for name, design in PRINTED.items():
-                ctx = browser.new_context(viewport={"width": 1440, "height": 1000})
-                page = ctx.new_page()
-                page.set_default_timeout(300_000)
-                page.goto(_link(link, design))
-                _settled(page)
-                with tempfile.TemporaryDirectory() as tmp:
-                    pdf = Path(tmp) / "report.pdf"
-                    page.pdf(path=str(pdf), format="A4")
-                    subprocess.run(["pdftoppm", "-r", "80", "-png", "-singlefile", str(pdf),
-                                    str(Path(tmp) / "page")], check=True)
-                    out = HERE / f"{name}_print.png"
-                    out.write_bytes((Path(tmp) / "page.png").read_bytes())
-                _small(out)
-                ctx.close()
-            browser.close()
-    finally:
-        server.terminate()
-        try:
-            server.wait(timeout=10)
-        except subprocess.TimeoutExpired:  # busy computing: stop it
-            server.kill()
-            server.wait()
+    with served_designer() as (_, link), chromium() as browser:
+        base = link.split("?", 1)[0]
+        for suffix, width in (("", 1440), ("_390", 390)):
+            # the login page, as a saved link meets it (a browser without the cookie)
+            ctx = browser.new_context(viewport={"width": width, "height": 560})
+            page = ctx.new_page()
+            page.goto(f"{base}?d={_d({'procedure': 'rotary_axis'})}")
+            page.wait_for_selector("body[data-ready='1']")
+            page.fill("#token", "not-the-token")
+            page.click("#login")
+            page.wait_for_function("document.getElementById('login-error').textContent")
+            out = HERE / f"login{suffix}.png"
+            page.screenshot(path=str(out))
+            _small(out)
+            ctx.close()
+            # two named scenarios side by side
+            ctx = browser.new_context(viewport={"width": width, "height": 900})
+            page = ctx.new_page()
+            page.set_default_timeout(300_000)
+            page.goto(_link(link, {"procedure": "rotary_axis", **DESIGNS["rotary_axis"]}))
+            _settled(page)
+            for name, positions in (("eight positions", "8"), ("twelve positions", "12")):
+                if positions != "8":
+                    page.fill("#f-positions", positions)
+                    page.dispatch_event("#f-positions", "change")
+                    _settled(page)
+                page.click("#keep")
+                box = page.locator("#scenarios .scenario-name").last
+                box.fill(name)
+                box.dispatch_event("change")
+            # naming the last one scrolled its table sideways: show it from its start
+            page.evaluate("document.querySelectorAll('#scenarios, #scenarios ~ *, "
+                          ".table-wrap').forEach((e) => { e.scrollLeft = 0; })")
+            time.sleep(0.5)
+            out = HERE / f"scenarios{suffix}.png"
+            head = page.locator("h2", has_text="Scenarios side by side")
+            head.scroll_into_view_if_needed()
+            top = head.bounding_box()["y"] + page.evaluate("window.scrollY")
+            bottom = page.locator("#scenarios").bounding_box()["y"] + page.evaluate(
+                "window.scrollY") + page.locator("#scenarios").bounding_box()["height"]
+            left = 0 if width < 800 else page.locator("#results").bounding_box()["x"]
+            page.screenshot(path=str(out), full_page=True, clip={
+                "x": left, "y": top - 8, "width": width - left, "height": bottom - top + 16})
+            _small(out)
+            ctx.close()
+        # the measuring positions of each procedure (and one at a phone's width)
+        for name, width in [(n, 1440) for n in DESIGNS] + [("rotary_axis", 390)]:
+            ctx = browser.new_context(viewport={"width": width, "height": 900})
+            page = ctx.new_page()
+            page.set_default_timeout(300_000)
+            page.goto(_link(link, {"procedure": name, **DESIGNS[name]}))
+            _settled(page)
+            page.wait_for_function("document.getElementById('positions-plot').dataset.points")
+            time.sleep(0.5)
+            section = page.locator("#positions-plot")
+            section.scroll_into_view_if_needed()
+            box = section.bounding_box()
+            y = box["y"] + page.evaluate("window.scrollY")
+            out = HERE / f"positions_{name}{'_390' if width < 800 else ''}.png"
+            page.screenshot(path=str(out), full_page=True, clip={
+                "x": box["x"], "y": y - 30, "width": box["width"], "height": box["height"] + 60})
+            _small(out)
+            ctx.close()
+        # the specific risk of a measured value, under the tolerance table
+        for suffix, width in (("", 1440), ("_390", 390)):
+            ctx = browser.new_context(viewport={"width": width, "height": 900})
+            page = ctx.new_page()
+            page.set_default_timeout(300_000)
+            design = {"procedure": "rotary_axis", **DESIGNS["rotary_axis"]}
+            design["tolerances"] = {k: {**v, "measured": "95"}
+                                    for k, v in design["tolerances"].items()}
+            page.goto(_link(link, design))
+            _settled(page)
+            page.wait_for_function("/outside its tolerance/.test(document."
+                                   "getElementById('specific-out').textContent)")
+            time.sleep(0.5)
+            top = page.locator("#acceptance").bounding_box()
+            low = page.locator("#specific").bounding_box()
+            scroll = page.evaluate("window.scrollY")
+            out = HERE / f"specific{suffix}.png"
+            page.screenshot(path=str(out), full_page=True, clip={
+                "x": low["x"], "y": top["y"] + scroll - 30,
+                "width": min(width - low["x"], max(top["width"], low["width"])),
+                "height": low["y"] + low["height"] - top["y"] + 40})
+            _small(out)
+            ctx.close()
+        # the print: one A4 page, as Chromium prints it
+        for name, design in PRINTED.items():
+            ctx = browser.new_context(viewport={"width": 1440, "height": 1000})
+            page = ctx.new_page()
+            page.set_default_timeout(300_000)
+            page.goto(_link(link, design))
+            _settled(page)
+            with tempfile.TemporaryDirectory() as tmp:
+                pdf = Path(tmp) / "report.pdf"
+                page.pdf(path=str(pdf), format="A4")
+                subprocess.run(["pdftoppm", "-r", "80", "-png", "-singlefile", str(pdf),
+                                str(Path(tmp) / "page")], check=True)
+                out = HERE / f"{name}_print.png"
+                out.write_bytes((Path(tmp) / "page.png").read_bytes())
+            _small(out)
+            ctx.close()
     return 0
 
 
