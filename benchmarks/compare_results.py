@@ -43,10 +43,11 @@ def compare(new: Path, old: Path) -> tuple[str, float | None]:
                 worst = float(rel[row])
                 where = f" (column {col!r}, row {row}: {b[row]:.10g} -> {a[row]:.10g})"
         else:
-            moved = x[col].astype(str) != y[col].astype(str)
+            a, b = (c.astype(object).where(c.notna(), "").astype(str) for c in (x[col], y[col]))
+            moved = a != b  # two empty cells are the same text
             if moved.any() and not text:
                 row = int(np.flatnonzero(moved)[0])
-                where += f"; text first in {col!r}, row {row}: {y[col][row]!r} -> {x[col][row]!r}"
+                where += f"; text first in {col!r}, row {row}: {b[row]!r} -> {a[row]!r}"
             text += int(moved.sum())
     line = f"max relative difference {worst:.3g}{where}, text cells differing {text}"
     if extra:  # the shared columns compared; a column in one only is a difference
