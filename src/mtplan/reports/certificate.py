@@ -1024,21 +1024,22 @@ def _agreement_section(result, plan) -> Section:
         limits.append([r["measurand"], u, tolerance_text(r["lower"], r["upper"]), acc,
                        "-" if r.get("guard_band") is None else fmt(r["guard_band"], step),
                        "-" if r.get("u_planned") is None else fmt(2 * r["u_planned"], step),
-                       _agreed_coverage(by_label.get(r["test"]), r),
-                       _mc_errors(se, r), r.get("tolerance_source") or "not stated"])
+                       _mc_errors(se, r), _agreed_coverage(by_label.get(r["test"]), r),
+                       r.get("tolerance_source") or "not stated"])
     # one tolerance source for every measurand is stated once, under the table
     sources = {row[-1] for row in limits}
     header = ["measurand", "unit", "tolerance", "acceptance limits", "w", "U predicted",
-              "±U covers", "MC error", "tolerance source"]
+              "MC error", "±U covers", "tolerance source"]
     if len(sources) == 1:
         limits, header = [row[:-1] for row in limits], header[:-1]
     blocks.append(Table("Acceptance limits per measurand: a pass needs the measured value "
                         "within them (the tolerance reduced by the guard band w). U predicted "
-                        f"at k = {K:g}, with the fraction of the set-up's Monte Carlo values "
-                        "within ± U beside it; MC error: the Monte Carlo tolerance of U and of w, the "
+                        f"at k = {K:g}; MC error: the Monte Carlo tolerance of U and of w, the "
                         "standard error of the simulation (JCGM 101 7.9; one value where "
                         "w = U). U, w and the limits are printed to two significant digits of "
-                        "U, or fewer where the Monte Carlo does not support them (GUM 7.2.6).",
+                        "U, or fewer where the Monte Carlo does not support them (GUM 7.2.6). "
+                        "±U covers: the fraction of the set-up's Monte Carlo values within "
+                        "± U predicted.",
                         header, limits, grow=len(header) - 1 if len(sources) > 1 else 0,
                         size=7.0))
     if len(sources) == 1:
