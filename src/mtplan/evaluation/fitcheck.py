@@ -156,6 +156,9 @@ class FitCheck:
         of that reading alone that the w-test flags with probability ``MDB_POWER``
         (0.8), ``(w_critical + Phi^-1(0.8)) / sqrt(P_ii)`` (NaN where it has no w). An
         error smaller than this is likely to pass unseen.
+    labels : list of tuple
+        ``(row, column, reading)`` of every used reading, in the order of :attr:`z` (as
+        :attr:`worst` names them).
     """
 
     chi2: float | None
@@ -181,6 +184,7 @@ class FitCheck:
     p_overall: float | None = None
     mdb: np.ndarray | None = field(default=None, repr=False)
     w_at: str | None = None
+    labels: list = field(default_factory=list, repr=False)
 
     def to_dict(self) -> dict:
         """The ``fit`` object of ``mtplan estimate --json``."""
@@ -435,7 +439,8 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
     return FitCheck(chi2=chi2, dof=int(dof), p_value=pval, alpha=alpha,
                     worst=worst[:n_worst], n_readings=fwd.n, n_parameters=rank,
                     nuisance=nuisance, z=z, scatter=np.sqrt(np.where(own > 0, own, every)),
-                    mdb=mdb, w_at=FitCheck._where(worst[0]) if worst else None, **snoop)
+                    mdb=mdb, w_at=FitCheck._where(worst[0]) if worst else None,
+                    labels=labels, **snoop)
 
 
 def _snooping(z: np.ndarray, order: list, pval: float, alpha: float, w_share: float) -> dict:

@@ -1,0 +1,122 @@
+"""What one bad reading can do unseen (mtplan.evaluation.reliability): the minimal
+detectable bias against a Monte Carlo of the fit check's detection rate, and the external
+reliability against the estimator run again with the bias added."""
+
+import numpy as np
+import pytest
+from scipy import special
+
+from mtplan.evaluation import posterior as post
+from mtplan.evaluation._posterior_model import Forward, TruthBuilder, truth_parameters
+from mtplan.evaluation.fitcheck import (FIT_ALPHA, MDB_POWER, W_SHARE, reading_vector,
+                                        w_limit, with_reading_vector)
+from mtplan.evaluation.reliability import design_readings, reliability
+from mtplan.models import get
+
+N_MC = 20_000
+
+
+def _dense_design(proc, setup, readings):
+    """The fit check's whitened design rebuilt densely: the whitening W of the readings'
+    covariance, the residual projector R of the whitened observations (readings and the
+    nuisance priors' pseudo-readings) and the residual degrees of freedom."""
+    base = proc.Truth()
+    builder = TruthBuilder(base, truth_parameters(proc, base))
+    fwd = Forward(proc, setup, readings, builder)
+    theta0 = post.initial_theta(proc, setup, readings, builder, None, None, [])
+    fit = post.start_fit(fwd, theta0, "setup", None, [])
+    g = fit.error_model.gaussian(fit.sigma)
+    pri = post.nuisance_priors(fit.error_model)
+    n, p, q = fwd.n, fit.theta.size, pri.shape[0]
+    J = fwd.jacobian(fit.theta, fit.nuis if q else None,
+                     np.concatenate([builder.steps(fit.theta), 1e-3 * pri[:, 1]]))
+    W = g.whiten(np.eye(n)).T  # W x = whiten(x): W^T W = C^-1
+    A = W @ J
+    if q:
+        A = np.vstack([A, np.hstack([np.zeros((q, p)), np.diag(1.0 / pri[:, 1])])])
+    U, s, _ = np.linalg.svd(A, full_matrices=False)
+    U = U[:, s > 1e-4 * s[0]]
+    R = np.eye(n + q) - U @ U.T
+    Wt = np.vstack([W, np.zeros((q, n))])
+    return Wt, R, n + q - U.shape[1]
+
+
+def test_mdb_is_detected_with_its_power_in_a_monte_carlo():
+    """circle_centre: an error of the worst reading's MDB, drawn over the whitened linear
+    design with Gaussian noise, is flagged by that reading's w-test in 0.80 of the draws and
+    by the whole check (any w beyond the limit, or the chi-square) in 0.80-0.85; clean
+    readings in at most alpha. Tolerance: 4 binomial standard errors of N_MC draws."""
+    proc = get("circle_centre")
+    setup, truth = proc.Setup(), proc.Truth()
+    readings = design_readings(proc, setup, truth)
+    rel = reliability(proc, setup, truth, readings=readings)
+    Wt, R, dof = _dense_design(proc, setup, readings)
+    P = Wt.T @ R @ Wt
+    sd = np.sqrt(np.diag(P))
+    crit = w_limit(W_SHARE * FIT_ALPHA, P.shape[0])
+    # the MDB from the dense design, independent of the check's sparse algebra
+    np.testing.assert_allclose(rel.mdb_values, (crit + special.ndtri(MDB_POWER)) / sd,
+                               rtol=1e-6)
+    i = int(np.nanargmax(rel.mdb_values))
+    u = np.random.default_rng(20261207).standard_normal((N_MC, Wt.shape[0]))
+
+    def flagged(bias):
+        rho = (u + bias * Wt[:, i]) @ R
+        w = (rho @ Wt) / sd
+        worst = np.max(np.abs(w), axis=1) > crit
+        chi2 = special.chdtrc(dof, np.sum(rho**2, axis=1)) < (1 - W_SHARE) * FIT_ALPHA
+        return np.abs(w[:, i]) > crit, worst | chi2
+
+    se = 4 * np.sqrt(MDB_POWER * (1 - MDB_POWER) / N_MC)
+    alone, whole = flagged(rel.mdb_values[i])
+    assert abs(alone.mean() - MDB_POWER) < se
+    assert MDB_POWER - se < whole.mean() < 0.85
+    _, clean = flagged(0.0)
+    assert clean.mean() < FIT_ALPHA + 4 * np.sqrt(FIT_ALPHA * (1 - FIT_ALPHA) / N_MC)
+
+
+@pytest.mark.parametrize("name", ["rotary_axis", "circle_centre"])
+def test_external_reliability_is_the_estimators_response(name):
+    """The largest undetected shift of each measurand is what the estimator, run again with
+    the MDB added to (and taken from) the worst reading, gives: the central difference to
+    1e-6 (the estimator's linear response), either sign alone to its second-order term."""
+    proc = get(name)
+    setup, truth = proc.Setup(), proc.Truth()
+    readings = design_readings(proc, setup, truth)
+    rel = reliability(proc, setup, truth, readings=readings)
+    keys, vec = reading_vector(readings)
+    est = proc.estimators[proc.default_estimator]
+    names = [m.name for m in proc.measurands(setup)]
+    scale = {m.name: m.scale for m in proc.measurands(setup)}
+
+    def estimate(v, m):
+        out = est(setup, with_reading_vector(readings, keys, v))
+        return float(np.asarray(out[m]).reshape(-1)[0]) * scale[m]
+
+    for k, m in enumerate(names):
+        row = rel.measurands[m]
+        i = int(np.nanargmax(np.abs(rel.response[k]) * rel.mdb_values))
+        up, down = vec.copy(), vec.copy()
+        up[i] += rel.mdb_values[i]
+        down[i] -= rel.mdb_values[i]
+        plus, minus, zero = estimate(up, m), estimate(down, m), estimate(vec, m)
+        assert abs((plus - minus) / 2) == pytest.approx(row["shift"], rel=1e-6)
+        assert abs(plus - zero) == pytest.approx(row["shift"], rel=1e-3)
+        assert row["mdb"] == pytest.approx(rel.mdb_values[i] * 1e3, rel=1e-12)
+        assert row["in_u"] is None and row["u"] is None  # no u given
+
+
+def test_json_names_every_measurand_and_reading_array():
+    """The linearize document's section: an MDB per reading array in its display unit,
+    each measurand's shift in its own unit and in units of its u."""
+    from mtplan.evaluation.simulation import linearize_result
+
+    res = linearize_result("tracker_frame")
+    doc = res.to_dict()["reliability"]
+    assert {m["readings"]: m["unit"] for m in doc["mdb"]} == {
+        "distance_mm": "um", "azimuth_rad": "urad", "elevation_rad": "urad"}
+    assert set(doc["measurands"]) == {m.name for m in res.measurands}
+    for name, row in doc["measurands"].items():
+        u = float(res.u[[m.name for m in res.measurands].index(name)])
+        assert row["in_u"] == pytest.approx(row["shift"] / u, rel=1e-12)
+    assert doc["n_tested"] == doc["n_readings"] == 294 and not doc["unchecked"]
