@@ -30,8 +30,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mtplan._parallel import one_blas_thread
-from mtplan.evaluation.fitcheck import FIT_ALPHA, MDB_POWER, FitCheck, fit_check, reading_vector
+from mtplan.evaluation.fitcheck import (
+    FIT_ALPHA,
+    MDB_POWER,
+    FitCheck,
+    chi2_noncentrality,
+    fit_check,
+    reading_vector,
+)
 from mtplan.fitting.effects import REL_STEP, estimator_map
+from mtplan.models import get
 from mtplan.models.protocol import UNITS, Readings, split_unit
 
 __all__ = ["Reliability", "reliability", "design_readings", "RESPONSE_TOL"]
@@ -104,6 +112,8 @@ class Reliability:
     reason: str | None = None
     mdb_values: np.ndarray | None = field(default=None, repr=False)
     response: np.ndarray | None = field(default=None, repr=False)
+    effects: np.ndarray | None = field(default=None, repr=False)
+    sizes: np.ndarray | None = field(default=None, repr=False)
 
     def shift(self, name: str) -> float:
         """The largest undetected shift of measurand `name` [display unit] (NaN: none)."""
@@ -116,7 +126,8 @@ class Reliability:
             return None if x is None or not np.isfinite(x) else float(x)
 
         return {"alpha": float(self.alpha), "power": float(self.power),
-                "test": "w-test (data snooping) at its Bonferroni limit",
+                "test": "the w-test (at its Bonferroni limit) of the reading the error moves "
+                        "most, or the chi-square, whichever flags a smaller error",
                 "w_critical": num(self.w_critical), "n_readings": int(self.n_readings),
                 "n_tested": int(self.n_tested), "mdb": [dict(m) for m in self.mdb],
                 "unchecked": list(self.unchecked),
@@ -179,57 +190,83 @@ def reliability(procedure, setup, truth=None, *, estimator: str | None = None,
     u : dict, optional
         Standard uncertainty per measurand [display unit], for ``in_u``.
     """
-    from mtplan.models import get
-
     proc = get(procedure)
     truth = proc.Truth() if truth is None else truth
     est_name, _ = proc.estimator(estimator)
     if readings is None:
         readings = design_readings(proc, setup, truth)
-    if check is None:
-        check = fit_check(proc, setup, readings, alpha=alpha, estimator=est_name)
+    keys, full = reading_vector(readings)
+    used = np.isfinite(full)
+    declared = proc.capabilities.gross_errors(setup, readings)
+    if check is None or (declared is not None and check.mdb_directions is None):
+        check = fit_check(proc, setup, readings, alpha=check.alpha if check else alpha,
+                          estimator=est_name,
+                          directions=None if declared is None else declared[2])
     if check.mdb is None:
         return Reliability(alpha=check.alpha, reason=check.reason or "the fit check makes no "
                            "w-test", n_readings=check.n_readings)
-    keys, full = reading_vector(readings)
-    used = np.isfinite(full)
-    unit_of = np.concatenate([np.full(np.asarray(readings[k])[0].size, k, dtype=object)
-                              for k in keys])[used]
+    key_of = np.concatenate([np.full(np.asarray(readings[k])[0].size, k, dtype=object)
+                             for k in keys])[used]
     measurands = tuple(proc.measurands(setup))
     G = _response(proc, setup, readings, keys, full, used, est_name, measurands,
                   check.scatter)
     mdb = np.asarray(check.mdb, dtype=float)
+    # every gross error: each reading alone, then those the procedure declares
+    effects = np.eye(mdb.size)
+    sizes = np.where(np.isfinite(mdb), mdb, np.inf)
+    if check.alpha_chi2:  # the chi-square's MDB where it is the smaller (few readings)
+        from scipy import special
+
+        lam = chi2_noncentrality(check.dof, check.alpha_chi2)
+        with np.errstate(invalid="ignore"):
+            sizes = np.minimum(sizes, mdb * np.sqrt(lam) / (check.w_critical
+                                                            + special.ndtri(MDB_POWER)))
     labels = [_where(lab) for lab in check.labels]
-    per_array = []
-    for key in keys:
-        on = np.flatnonzero((unit_of == key) & np.isfinite(mdb))
-        if not on.size:
-            continue
-        unit, scale = _unit_of(key)
-        j = on[np.argmax(mdb[on])]
-        per_array.append({"readings": key, "unit": unit, "largest": float(mdb[j] * scale),
-                          "at": labels[j], "smallest": float(np.min(mdb[on]) * scale),
-                          "median": float(np.median(mdb[on]) * scale)})
-    unchecked = np.flatnonzero(~np.isfinite(mdb))
+    groups = list(key_of)
+    unit_key = dict(zip(keys, keys))
+    if declared is not None:
+        kind, names, D = declared
+        D = np.asarray(D, dtype=float)[used]
+        effects = np.hstack([effects, D])
+        sizes = np.concatenate([sizes, np.asarray(check.mdb_directions, dtype=float)])
+        labels += list(names)
+        groups += [kind] * D.shape[1]
+        unit_key[kind] = key_of[int(np.argmax(np.abs(D).sum(axis=1)))]
+    groups = np.array(groups, dtype=object)
+    per_group = []
+    for group in dict.fromkeys(groups):
+        on = np.flatnonzero(groups == group)
+        unit, scale = _unit_of(unit_key[group])
+        j = on[np.argmax(sizes[on])]
+        seen = on[np.isfinite(sizes[on])]
+        per_group.append({"readings": group, "unit": unit,
+                          "largest": float(sizes[j] * scale), "at": labels[j],
+                          "smallest": float(np.min(sizes[seen]) * scale) if seen.size
+                          else np.inf,
+                          "median": float(np.median(sizes[seen]) * scale) if seen.size
+                          else np.inf, "undetectable": int(on.size - seen.size)})
+    response = G @ effects  # (measurands, errors): per unit of each error
     rows = {}
-    with np.errstate(invalid="ignore"):
-        shifts = np.abs(G) * np.where(np.isfinite(mdb), mdb, 0.0)[None, :]
     for k, m in enumerate(measurands):
-        size = np.max(np.abs(G[k])) if G.shape[1] else 0.0
-        blind = [i for i in unchecked if abs(G[k, i]) > RESPONSE_TOL * size]
-        i = blind[0] if blind else int(np.argmax(shifts[k])) if G.shape[1] else None
-        if i is None:
+        if not response.shape[1]:
             continue
-        shift = np.inf if blind else float(shifts[k, i])
+        moved = np.abs(response[k])
+        blind = np.flatnonzero(~np.isfinite(sizes) & (moved > RESPONSE_TOL * np.max(
+            np.abs(G[k]) if G.shape[1] else 0.0)))
+        with np.errstate(invalid="ignore"):
+            shifts = np.where(np.isfinite(sizes), moved * sizes, 0.0)
+        i = int(blind[0]) if blind.size else int(np.argmax(shifts))
+        shift = np.inf if blind.size else float(shifts[i])
         uk = None if u is None or m.name not in u else float(u[m.name])
-        unit, scale = _unit_of(unit_of[i])
+        unit, scale = _unit_of(unit_key[groups[i]])
         rows[m.name] = {"shift": shift, "unit": m.unit, "u": uk,
                         "in_u": shift / uk if uk and uk > 0 else None, "at": labels[i],
-                        "mdb": None if blind else float(mdb[i] * scale), "mdb_unit": unit}
+                        "mdb": float(sizes[i] * scale), "mdb_unit": unit}
     return Reliability(alpha=check.alpha, w_critical=check.w_critical,
-                       n_readings=check.n_readings, n_tested=check.n_tested, mdb=per_array,
-                       unchecked=[labels[i] for i in unchecked], measurands=rows,
-                       mdb_values=mdb, response=G)
+                       n_readings=check.n_readings, n_tested=check.n_tested, mdb=per_group,
+                       unchecked=[labels[i] for i in np.flatnonzero(~np.isfinite(sizes))],
+                       measurands=rows, mdb_values=mdb, response=G, effects=effects,
+                       sizes=sizes)
 
 
 def _response(proc, setup, readings, keys, full, used, est_name, measurands, scatter):

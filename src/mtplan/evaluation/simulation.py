@@ -20,6 +20,7 @@ from mtplan._parallel import effective_jobs
 from mtplan._validate import InvalidInput, Problems
 from mtplan.evaluation.covariance import covariance_doc
 from mtplan.evaluation.first_order import first_order
+from mtplan.evaluation.reliability import reliability as one_bad_reading
 from mtplan.fitting.effects import element_moments
 from mtplan.models import get
 from mtplan.models.protocol import Procedure
@@ -617,8 +618,6 @@ def linearize_result(procedure, setup=None, truth=None, *, estimator: str | None
                               measurands=measurands, gum=g, notes=notes,
                               undetermined=undetermined_measurands(proc, setup))
     if reliability:
-        from mtplan.evaluation.reliability import reliability as one_bad_reading
-
         result.sections["reliability"] = one_bad_reading(
             proc, setup, truth, estimator=est_name,
             u={m.name: float(u) for m, u in zip(measurands, g.std, strict=True)})
