@@ -25,6 +25,7 @@ moved without limit (``shift`` infinite, ``unchecked`` names the reading).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -114,6 +115,17 @@ class Reliability:
     response: np.ndarray | None = field(default=None, repr=False)
     effects: np.ndarray | None = field(default=None, repr=False)
     sizes: np.ndarray | None = field(default=None, repr=False)
+
+    def with_u(self, u: dict) -> Reliability:
+        """A copy whose ``u`` and ``in_u`` are against `u` (measurand -> standard
+        uncertainty [display unit]): the Monte Carlo's, say, rather than the GUM's."""
+        rows = {}
+        for name, row in self.measurands.items():
+            uk = u.get(name)
+            uk = None if uk is None else float(uk)
+            rows[name] = {**row, "u": uk,
+                          "in_u": row["shift"] / uk if uk and uk > 0 else None}
+        return dataclasses.replace(self, measurands=rows)
 
     def shift(self, name: str) -> float:
         """The largest undetected shift of measurand `name` [display unit] (NaN: none)."""
