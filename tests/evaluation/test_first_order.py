@@ -48,7 +48,7 @@ def test_planner_designer_linearize_and_estimate_give_the_same_first_order_numbe
 
     proc = registry()[name]
     setup = setup_of(proc, estimator)
-    planner, _ = _assess(proc, setup, None, estimator, None, True, False)
+    planner, *_ = _assess(proc, setup, None, estimator, None, True, False)
     designer = compute_prediction(proc, setup, estimator)
     lin_u, lin_budget = _linearize_numbers(proc, setup, estimator)
     estimate = _first_order(proc, setup, proc.Truth(), estimator, None)
