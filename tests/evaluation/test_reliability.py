@@ -131,3 +131,25 @@ def test_json_names_every_measurand_and_reading_array():
         u = float(res.u[[m.name for m in res.measurands].index(name)])
         assert row["in_u"] == pytest.approx(row["shift"] / u, rel=1e-12)
     assert doc["n_tested"] == doc["n_readings"] == 294 and not doc["unchecked"]
+
+
+def test_an_error_no_test_sees_is_null_in_the_json_and_without_limit_in_words():
+    """An error the fit absorbs whole has no MDB (inf) and moves a measurand without limit:
+    the JSON writes null, never Infinity, and the text says so."""
+    import json
+
+    from mtplan.evaluation.reliability import Reliability
+
+    inf = float("inf")
+    rel = Reliability(alpha=0.05, w_critical=2.9, n_readings=4, n_tested=3,
+                      mdb=[{"readings": "x_mm", "unit": "um", "largest": inf, "at": "row 3 x_mm",
+                            "smallest": 1.5, "median": 2.0, "undetectable": 1}],
+                      unchecked=["row 3 x_mm"],
+                      measurands={"centre_x": {"shift": inf, "unit": "um", "u": 2.0,
+                                               "in_u": inf, "at": "row 3 x_mm", "mdb": inf,
+                                               "mdb_unit": "um"}})
+    doc = json.loads(json.dumps(rel.to_dict(), allow_nan=False))
+    assert doc["mdb"][0]["largest"] is None and doc["mdb"][0]["smallest"] == 1.5
+    assert doc["measurands"]["centre_x"]["shift"] is None
+    assert doc["measurands"]["centre_x"]["mdb"] is None
+    assert "centre_x without limit (row 3 x_mm has no test)" in " ".join(rel.lines())

@@ -133,7 +133,8 @@ class Reliability:
         return float("nan") if m is None else float(m["shift"])
 
     def to_dict(self) -> dict:
-        """The ``reliability`` object of ``mtplan linearize --json`` (inf as null)."""
+        """The ``reliability`` object of ``mtplan linearize --json`` (inf, an error the
+        check cannot see, as null)."""
         def num(x):
             return None if x is None or not np.isfinite(x) else float(x)
 
@@ -141,10 +142,13 @@ class Reliability:
                 "test": "the w-test (at its Bonferroni limit) of the reading the error moves "
                         "most, or the chi-square, whichever flags a smaller error",
                 "w_critical": num(self.w_critical), "n_readings": int(self.n_readings),
-                "n_tested": int(self.n_tested), "mdb": [dict(m) for m in self.mdb],
+                "n_tested": int(self.n_tested),
+                "mdb": [{k: num(v) if k in ("largest", "smallest", "median") else v
+                         for k, v in m.items()} for m in self.mdb],
                 "unchecked": list(self.unchecked),
                 "measurands": {k: {**v, "shift": num(v["shift"]), "in_u": num(v["in_u"]),
-                                   "u": num(v["u"])} for k, v in self.measurands.items()},
+                                   "u": num(v["u"]), "mdb": num(v["mdb"])}
+                               for k, v in self.measurands.items()},
                 "reason": self.reason}
 
     def lines(self, top: int = 3) -> list[str]:
