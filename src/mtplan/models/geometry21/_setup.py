@@ -59,11 +59,19 @@ def function_powers(name: str, order: int) -> tuple[int, ...]:
 
 
 # --------------------------------------------------------------------------- set-up
+#: the most extra head positions of one plate's tests (each repeats them all)
+MAX_EXTRA_HEADS = 10
+#: the most positions along one axis (:data:`ALONG`): 1 mm steps over 2 m
+MAX_ALONG = 2001
+#: the most coefficients of a true error function
+MAX_TRUE_COEFFICIENTS = 20
+
+
 def _heads_field(plane: str, doc_extra: str):
     return param((), doc=f"Extra head positions of the {plane} plate's tests: triples of tool "
                  "length, lateral X and lateral Y offset from the spindle axis [mm] (e.g. "
                  f"200,0,0,100,60,0); each repeats the plane's tests there. {doc_extra}",
-                 low=-1000, high=1000)
+                 low=-1000, high=1000, max_len=3 * MAX_EXTRA_HEADS)
 
 
 def describe(name: str) -> str:
@@ -78,7 +86,7 @@ def _along_field(axis: str):
                  "errors along the travel, with their uncertainty and covariance, for a "
                  "compensation table; outside the measured travel (+-line_length_mm / 2) "
                  "they are extrapolated, and marked so", low=-5000, high=5000,
-                 reports_only=True)
+                 max_len=MAX_ALONG, reports_only=True)
 
 
 #: the set-up fields that state the functions at more positions (:func:`along_positions`)
@@ -147,6 +155,12 @@ class Setup(SetupBase):
         "polynomials, each axis and direction (harmonics of 10-40 mm wavelength of the "
         "axis's position: ball-screw pitch, guideway waviness); the same in every pass",
         low=0, high=100, owner="machine")
+    medium_wave_um: float = param(
+        0.3, doc="RMS of the machine's repeatable medium-wave path deviation, each axis and "
+        "direction: waves of about 40 mm of the axis's position (guideway waviness, the "
+        "accumulated pitch error of a ball screw), longer than the short-wave residual and "
+        "shorter than what the polynomials follow; the same in every pass",
+        low=0, high=100, owner="machine")
     reversal_um: float = param(2.0, doc="Reversal value of each axis (mean; drawn uniform on "
                                "[0, 2x]; ISO 230-2 B, 1-3 um with linear scales)", low=0, high=100,
                                owner="machine")
@@ -177,8 +191,8 @@ class Setup(SetupBase):
                   "least-squares fit needs more readings than unknowns)")
         for name in ALONG:
             v = getattr(self, name)
-            if len(set(v)) != len(v) or len(v) > 2001:
-                p.add(name, v, "distinct positions, at most 2001")
+            if len(set(v)) != len(v):
+                p.add(name, v, "distinct positions")
         for pl in ("xy", "xz", "yz"):
             name = f"{pl}_extra_heads_mm"
             v = np.asarray(getattr(self, name), dtype=float)
@@ -195,7 +209,8 @@ class Setup(SetupBase):
 #: the fields that size an error source: the geometry, the Jacobian and the patent's
 #: design do not depend on them and are computed once for every size (:func:`sizeless`)
 _SIZES = ("encoder_noise_um", "grid_error_um", "plate_offset_mm", "plate_tilt_urad",
-          "head_setting_um", "repeatability_um", "path_residual_um", "reversal_um",
+          "head_setting_um", "repeatability_um", "path_residual_um", "medium_wave_um",
+          "reversal_um",
           "servo_lag_ms",
           "thermal_growth_ppm_per_h", "thermal_drift_um_per_h")
 
@@ -245,7 +260,8 @@ def _tfield(name):
     unit = "urad" if KIND[name] == "ang" else "um"
     first = 2 if KIND[name] == "str" else 1
     return param(_DEFAULT_TRUTH[name],
-                 doc=f"{name}: coefficients of (u/100 mm)^n, n = {first}, {first + 1}, ... [{unit}]")
+                 doc=f"{name}: coefficients of (u/100 mm)^n, n = {first}, {first + 1}, ... "
+                 f"[{unit}]", max_len=MAX_TRUE_COEFFICIENTS)
 
 
 @dataclass(frozen=True)
