@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mtplan.uncertainty.coverage import K, normal_coverage
 from mtplan._validate import Problems
 from mtplan.uncertainty.coverage import K, normal_coverage
 from mtplan.uncertainty.distributions import Distribution, MultivariateNormal, StudentT

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mtplan.uncertainty.coverage import K
 from mtplan._parallel import effective_jobs, one_blas_thread, ordered_map, parallel_session
 from mtplan._validate import InvalidInput, Problems
 from mtplan.uncertainty.coverage import K
