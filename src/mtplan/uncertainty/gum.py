@@ -28,6 +28,7 @@ import numpy as np
 
 from mtplan.uncertainty.coverage import K, normal_coverage
 from mtplan._validate import Problems
+from mtplan.uncertainty.coverage import K, normal_coverage
 from mtplan.uncertainty.distributions import Distribution, MultivariateNormal, StudentT
 from mtplan.uncertainty.montecarlo import (
     INTERVALS,

@@ -35,6 +35,7 @@ import numpy as np
 from mtplan.uncertainty.coverage import K
 from mtplan._parallel import effective_jobs, one_blas_thread, ordered_map, parallel_session
 from mtplan._validate import InvalidInput, Problems
+from mtplan.uncertainty.coverage import K
 from mtplan.uncertainty.distributions import Distribution
 from mtplan.uncertainty.options import INTERVALS, MAX_TRIALS, RunOptions, check_run_options
 from mtplan.uncertainty.streams import as_seed_sequence, block_sequence, named_generator
