@@ -69,23 +69,19 @@ class BudgetAction:
 
 
 def source_owners(procedure) -> dict:
-    """{source name: owner} of a procedure: each source's owner is the one its sizing
-    set-up field declares (the field named ``<source>_<unit>``, as
-    :func:`~mtplan.plans.decisions.dominant_sources` finds it)."""
+    """{source name: owner} of a procedure: each source's owner is the one that the set-up
+    field sizing it (its ``Source.field``) declares."""
     from mtplan.models.protocol import fields_info
 
-    info = fields_info(procedure.Setup)
-    out = {}
-    for f in info:
-        if f.owner:
-            out[f.name] = f.owner
-    return out
+    by_field = {f.name: f.owner for f in fields_info(procedure.Setup) if f.owner}
+    return {name: by_field[src.field]
+            for name, src in procedure.sources(procedure.Setup()).items()
+            if src.field in by_field}
 
 
 def owner_of(owners: dict, source: str) -> str:
     """The owner of the source named ``source`` ("not declared" where its field names none)."""
-    name = next((f for f in owners if f.startswith(f"{source}_")), None)
-    return owners[name] if name else "not declared"
+    return owners.get(source, "not declared")
 
 
 def after(U: float, removed_share: float) -> float:  # noqa: N803
