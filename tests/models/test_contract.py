@@ -52,7 +52,29 @@ WHY_NOT_GENERIC = {
     "capabilities.identifiability": "test_geometry21_names_the_errors_a_setup_leaves_out",
     "capabilities.observability": "test_line_laser_patent_cannot_see_what_the_readings_show",
     "estimator.resolution": "test_line_laser_patent_values_come_in_steps",
+    "capabilities.gross_errors": "test_circle_centre_a_bad_contact_moves_both_its_coordinates",
 }
+
+
+def test_circle_centre_a_bad_contact_moves_both_its_coordinates():
+    """Only circle_centre reads one contact as two readings (x and y of the probed point),
+    so only it has a gross error that moves several readings at once: each contact's
+    direction is a unit vector along the bore's radius there, over its own x and y alone."""
+    import numpy as np
+
+    from mtplan.models import get
+
+    proc = get("circle_centre")
+    setup = proc.Setup()
+    readings = proc.forward(setup, proc.Truth(), proc.zero_errors(setup, 1))
+    kind, labels, D = proc.capabilities.gross_errors(setup, readings)
+    assert kind == "a contact along its probing direction"
+    assert len(labels) == D.shape[1] == np.asarray(readings["x_mm"]).shape[-1]
+    np.testing.assert_allclose(np.linalg.norm(D, axis=0), 1.0, rtol=1e-12)
+    assert np.all(np.count_nonzero(D, axis=0) <= 2)
+    for name in ("rotary_axis", "geometry21", "line_laser", "tracker_frame"):
+        other = get(name)
+        assert other.capabilities.gross_errors(other.Setup(), None) is None, name
 
 
 def test_every_capability_one_procedure_sets_is_explained():
