@@ -123,7 +123,7 @@ def test_every_action_is_recomputed_from_the_budget_csv(demo_report):
     # EC0Y: the path residual is the machine's own; no instrument removes it
     ec0y = re.search(r"\(EC0Y\): conditional pass(.*?)(?= • |Contents)", text)[1]
     assert "path residual (machine" in ec0y and "No set-up or calibration can decide it" in ec0y
-    assert "grid plate's own error (instrument, 31 %" in ec0y
+    assert re.search(r"grid plate's own error \(instrument, \d+ %", ec0y)  # share: above
 
 
 def test_an_instrument_out_of_calibration_gets_a_calibration_not_a_set_up(
