@@ -33,6 +33,7 @@ def procedure_info(name: str) -> dict:
             "default": json_value(f.default), "low": f.low, "high": f.high,
             "low_open": f.low_open, "high_open": f.high_open,
             "choices": list(f.choices) if f.choices else None,
+            "pairs": list(f.pairs) if f.pairs else None,
             "optional": f.optional, "min_len": f.min_len, "max_len": f.max_len,
             "source": by_field.get(f.name),
             "source_doc": sources[by_field[f.name]].description if f.name in by_field

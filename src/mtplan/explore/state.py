@@ -218,4 +218,6 @@ def field_problems(proc, design) -> dict:
 def setup_of(design):
     """(procedure, Setup) of a design; InvalidInput with the procedure's messages."""
     proc = get(design["procedure"])
-    return proc, make(proc.Setup, _values(proc, design), owner=proc.name)
+    setup = make(proc.Setup, _values(proc, design), owner=proc.name)
+    proc.check_setup(setup)  # what the procedure checks of a set-up beyond its fields
+    return proc, setup

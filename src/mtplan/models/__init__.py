@@ -38,12 +38,13 @@ from mtplan.models.protocol import (
     SetupBase,
     Source,
     SourceMethod,
+    distributions_field,
     param,
 )
 
 __all__ = ["Capabilities", "Estimator", "Measurand", "Procedure", "Readings", "ReadingsFormat",
-           "SetupBase", "Source", "SourceMethod", "param", "registry", "get", "broken",
-           "ENTRY_POINT_GROUP"]
+           "SetupBase", "Source", "SourceMethod", "param", "distributions_field", "registry",
+           "get", "broken", "ENTRY_POINT_GROUP"]
 
 #: the entry-point group through which installed packages register procedures
 ENTRY_POINT_GROUP = "mtplan.procedures"

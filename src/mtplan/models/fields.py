@@ -53,6 +53,7 @@ __all__ = [
     "FieldInfo",
     "parse_fields",
     "make",
+    "parse_pairs",
     "Implied",
     "frame_columns",
 ]
@@ -108,6 +109,7 @@ def param(
     low_open: bool = False,
     high_open: bool = False,
     choices: tuple | None = None,
+    pairs: tuple | None = None,
     min_len: int | None = None,
     max_len: int | None = None,
     reader: Callable | None = None,
@@ -122,6 +124,9 @@ def param(
     `min_len` and `max_len` to its length: every list field states its `max_len`, as every
     count states its `high`, so that no value given sizes the work beyond what was
     declared (a longer list is refused before its elements are read).
+
+    A text field with `pairs` holds comma-separated ``name=value`` pairs, each value one of
+    `pairs` (:func:`parse_pairs`; the names are the procedure's to check).
 
     A field with a `reader` is a *file field* (a ``str | None`` path, None: no file): the
     set-up reads the file on construction with ``reader(path) -> content``, which refuses a
@@ -158,6 +163,7 @@ def param(
         "low_open": low_open,
         "high_open": high_open,
         "choices": choices,
+        "pairs": pairs,
         "min_len": min_len,
         "max_len": max_len,
         "reader": reader,
@@ -230,6 +236,8 @@ class FieldInfo:
     low_open, high_open : bool
     choices : tuple or None
         The allowed values of a field that takes one of a few.
+    pairs : tuple or None
+        The allowed values of a text field of ``name=value`` pairs (:func:`parse_pairs`).
     min_len, max_len : int or None
         The fewest and the most elements of a tuple field.
     file : bool
@@ -254,6 +262,7 @@ class FieldInfo:
     low_open: bool = False
     high_open: bool = False
     choices: tuple | None = None
+    pairs: tuple | None = None
     min_len: int | None = None
     max_len: int | None = None
     file: bool = False
@@ -306,8 +315,8 @@ def _fields_info(cls) -> tuple[FieldInfo, ...]:
         out.append(FieldInfo(
             name=f.name, kind=kind, element=elem, optional=optional, default=f.default,
             unit=split_unit(f.name)[1],
-            **{k: f.metadata.get(k) for k in ("doc", "low", "high", "choices", "min_len",
-                                                 "max_len")},
+            **{k: f.metadata.get(k) for k in ("doc", "low", "high", "choices", "pairs",
+                                                 "min_len", "max_len")},
             low_open=bool(f.metadata.get("low_open")),
             high_open=bool(f.metadata.get("high_open")),
             file=f.metadata.get("reader") is not None,
@@ -374,6 +383,9 @@ def _describe(info) -> str:
     )
     if info.choices:
         return "one of " + ", ".join(repr(c) for c in info.choices)
+    if info.pairs:
+        return ("comma-separated name=value pairs, each value one of "
+                + ", ".join(info.pairs) + " (or empty for none)")
     if info.file:
         return "the path of a file" + (" (or empty for none)" if info.optional else "")
     bounds = []
@@ -401,7 +413,13 @@ def _check_value(p: Problems, info, value) -> None:
     if kind is bool:
         p.require(isinstance(value, bool | np.bool_), info.name, value, "true or false")
     elif kind is str:
-        p.require(isinstance(value, str), info.name, value, "a string")
+        if p.require(isinstance(value, str), info.name, value, "a string") and info.pairs:
+            try:
+                bad = [v for v in parse_pairs(value).values() if v not in info.pairs]
+            except ValueError:
+                bad = [value]
+            if bad:
+                p.add(info.name, value, _describe(info))
     elif kind is int:
         if not p.number(info.name, value, integer=True, **rng):
             return
@@ -426,6 +444,21 @@ def _check_value(p: Problems, info, value) -> None:
             ok &= len(value) >= info.min_len
         if not ok:
             p.add(info.name, value, _describe_list(info))
+
+
+def parse_pairs(text: str) -> dict:
+    """``"probe_noise=rectangular, flatness=arcsine"`` -> ``{"probe_noise": "rectangular",
+    "flatness": "arcsine"}`` (spaces around the names and values dropped; "" -> {}).
+    ValueError for a part without one ``=``, an empty name or a name given twice."""
+    out = {}
+    for part in (x.strip() for x in text.replace(";", ",").split(",")):
+        if not part:
+            continue
+        name, sep, value = (x.strip() for x in part.partition("="))
+        if not sep or not name or "=" in value or name in out:
+            raise ValueError(f"not a name=value pair: {part!r}")
+        out[name] = value
+    return out
 
 
 def _describe_list(info) -> str:

@@ -74,13 +74,14 @@ from mtplan.models.fields import (
     make,
     param,
     parse_fields,
+    parse_pairs,
     resolve_file_fields,
     shown_with_unit,
     split_unit,
     with_conditions,
 )
 from mtplan.models.capabilities import Capabilities, SourceMethod
-from mtplan.uncertainty.distributions import Constant, Distribution
+from mtplan.uncertainty.distributions import SHAPES, Constant, Distribution, with_shape
 from mtplan.uncertainty.streams import as_seed_sequence, block_sequence, named_generator
 
 __all__ = [
@@ -109,7 +110,22 @@ __all__ = [
     "Readings",
     "active_sources",
     "zero_errors",
+    "distributions_field",
 ]
+
+
+def distributions_field():
+    """The set-up field ``distributions`` every procedure declares, last: the error sources
+    the Monte Carlo draws from another distribution of the same standard uncertainty
+    (:data:`~mtplan.uncertainty.distributions.SHAPES`), as ``source=shape`` pairs. The GUM's
+    first order uses only the standard uncertainty and so does not change; the Monte Carlo
+    does where the measurands' distribution or a nonlinear estimator shows the shape.
+    :meth:`Procedure.draw_errors` applies it, :meth:`Procedure.source_shapes` checks it."""
+    return param("", doc="Error sources the Monte Carlo draws from another distribution of "
+                 "the same standard uncertainty, as source=shape pairs (e.g. "
+                 "'probe_noise=rectangular'); shapes: " + ", ".join(SHAPES) + " (the GUM "
+                 "uses only the standard uncertainty; empty: each source's own)",
+                 pairs=SHAPES)
 
 
 @dataclass(frozen=True)
@@ -432,6 +448,29 @@ class Procedure:
                 [f"The 'setup' parameter of {self.name} must be a {self.name}.Setup. "
                  f"Got {type(setup).__name__} instead."]
             )
+        self.source_shapes(setup)
+
+    def source_shapes(self, setup) -> dict:
+        """Source -> the distribution shape the set-up's ``distributions`` field draws it
+        from (:func:`distributions_field`); InvalidInput naming the field for a name that
+        is not one of the procedure's sources or a source drawn as a vector (its elements
+        correlated), which keeps its own."""
+        shapes = parse_pairs(getattr(setup, "distributions", "") or "")
+        if not shapes:
+            return {}
+        sources = self.sources(setup)
+        p = Problems(self.name)
+        for name in shapes:
+            if name not in sources:
+                p.add("distributions", setup.distributions,
+                      f"pairs naming its error sources ({', '.join(sources)}); "
+                      f"{name!r} is none of them")
+            elif sources[name].distribution.event_shape:
+                p.add("distributions", setup.distributions,
+                      f"pairs naming sources drawn element by element; {name!r} is drawn "
+                      "with its elements correlated and keeps its own distribution")
+        p.raise_if_any()
+        return shapes
 
     def estimator(self, name: str | None) -> tuple[str, Estimator]:
         """(name, record) of an estimator, the default one when `name` is None; the record
@@ -453,10 +492,14 @@ class Procedure:
         return zero_errors(self.sources(setup), n)
 
     def draw_errors(self, setup, n: int, seq: np.random.SeedSequence, only=None) -> dict:
-        """Draw the active sources (each from its own named stream of `seq`)."""
+        """Draw the active sources, each from its own named stream of `seq` and in the shape
+        the set-up's ``distributions`` gives it (:meth:`source_shapes`)."""
         errors = self.zero_errors(setup, n)
+        shapes = self.source_shapes(setup)
         for name, src in self.active_sources(setup, only).items():
-            errors[name] = src.distribution.draw(named_generator(seq, name), (n, *src.shape))
+            dist = with_shape(src.distribution, shapes[name]) if name in shapes \
+                else src.distribution
+            errors[name] = dist.draw(named_generator(seq, name), (n, *src.shape))
         return errors
 
     def simulate(self, setup, truth=None, draws: int = 1, rng=None, *, sources=None) -> Readings:

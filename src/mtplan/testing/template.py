@@ -27,6 +27,7 @@ from mtplan.models import (
     SetupBase,
     Source,
     SourceMethod,
+    distributions_field,
     param,
 )
 from mtplan.uncertainty import Normal, Rectangular
@@ -35,10 +36,11 @@ from mtplan.uncertainty import Normal, Rectangular
 @dataclass(frozen=True)
 class Setup(SetupBase):
     _owner = "toy_line"
-    n_points: int = param(11, doc="Points along the edge", low=2)
+    n_points: int = param(11, doc="Points along the edge", low=2, high=1000)
     length_mm: float = param(100.0, doc="Length probed", low=0, low_open=True)
     probe_noise_um: float = param(1.0, doc="Probe noise (std)", low=0)
     scale_error_ppm: float = param(0.0, doc="Probe scale error (rectangular half-width)", low=0)
+    distributions: str = distributions_field()
 
     def _check(self, p):
         if self.n_points < 2:

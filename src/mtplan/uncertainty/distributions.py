@@ -31,6 +31,8 @@ __all__ = [
     "StudentT",
     "MultivariateNormal",
     "Constant",
+    "SHAPES",
+    "with_shape",
 ]
 
 
@@ -369,3 +371,30 @@ def _is_numeric(x) -> bool:
     except Exception:  # noqa: BLE001 - anything that is not array-like
         return False
     return a.dtype.kind in "biuf" and a.dtype.kind != "b" or (a.dtype == object and all(map(is_real, a.ravel())))
+
+
+#: the shapes an input's distribution may be given in place of its own, with the same mean
+#: and standard uncertainty (JCGM 101 6.4: normal 6.4.7, rectangular 6.4.2, symmetric
+#: triangular 6.4.5, arcsine 6.4.6)
+SHAPES = ("normal", "rectangular", "triangular", "arcsine")
+
+
+def with_shape(dist: Distribution, shape: str) -> Distribution:
+    """`dist`'s mean and standard uncertainty with the distribution `shape` (one of
+    :data:`SHAPES`): what the GUM, which uses only the two, cannot tell apart and the Monte
+    Carlo draws differently (a rectangular of half-width sqrt(3) u, a symmetric triangular
+    of sqrt(6) u, an arcsine of sqrt(2) u). A vector input (correlated elements) keeps its
+    own."""
+    if shape not in SHAPES:
+        raise ValueError(f"The 'shape' parameter of with_shape must be one of "
+                         f"{', '.join(SHAPES)}. Got {shape!r} instead.")
+    if dist.event_shape:
+        raise ValueError(f"with_shape takes a scalar input's distribution. Got a "
+                         f"{type(dist).__name__} of event shape {dist.event_shape} instead.")
+    mean, u = float(dist.mean), float(dist.std)
+    half = {"rectangular": math.sqrt(3), "triangular": math.sqrt(6), "arcsine": math.sqrt(2)}
+    if shape == "normal":
+        return Normal(mean, u)
+    low, high = mean - half[shape] * u, mean + half[shape] * u
+    return {"rectangular": Rectangular, "triangular": Triangular,
+            "arcsine": Arcsine}[shape](low, high)

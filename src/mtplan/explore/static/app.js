@@ -83,6 +83,7 @@ function fieldValue(f) {
 }
 function rangeText(f) {
   if (f.choices) return "one of " + f.choices.join(", ");
+  if (f.pairs) return "name=value pairs, each value one of " + f.pairs.join(", ") + "; empty: none";
   const parts = [];
   if (f.low !== null) parts.push((f.low_open ? "> " : "\u2265 ") + f.low);
   if (f.high !== null) parts.push((f.high_open ? "< " : "\u2264 ") + f.high);

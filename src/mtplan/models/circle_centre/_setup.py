@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 from mtplan._validate import Problems
 from mtplan.models import _temperature as temperature
-from mtplan.models.protocol import SetupBase, param
+from mtplan.models.protocol import SetupBase, distributions_field, param
 
 
 DEG = math.pi / 180.0
@@ -119,6 +119,8 @@ class Setup(SetupBase):
                                 "contact", low=0, high=1000)
     dwell_s: float = param(0.5, doc="Dwell per contact (settling, skip signal, retract)", low=0,
                            high=3600)
+
+    distributions: str = distributions_field()
 
     def _check(self, p: Problems) -> None:
         if self.start_scatter_mm * math.sqrt(2) > 0.5 * self.bore_radius_mm:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mtplan._validate import Problems
-from mtplan.models.protocol import SetupBase, param
+from mtplan.models.protocol import SetupBase, distributions_field, param
 
 
 #: (name, kind, axis index, component index) of the 21 error functions, ISO 230-1 names.
@@ -179,6 +179,8 @@ class Setup(SetupBase):
                                   low=0, high=36000)
     head_change_s: float = param(300.0, doc="Time to change the reading head (tool length or "
                                  "bracket) and set it, per extra head position", low=0, high=36000)
+
+    distributions: str = distributions_field()
 
     def _check(self, p: Problems) -> None:
         if self.line_points < self.poly_order + 2:

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mtplan._validate import Problems
-from mtplan.models.protocol import SetupBase, param
+from mtplan.models.protocol import SetupBase, distributions_field, param
 
 #: the procedure's name
 NAME = "line_laser"
@@ -123,6 +123,8 @@ class Setup(SetupBase):
     rapid_mm_min: float = param(10000.0, doc="Feed of the moves between scans",
                                 low=0, low_open=True)
     settle_s: float = param(1.0, doc="Dwell before each scan", low=0)
+
+    distributions: str = distributions_field()
 
     def _check(self, p: Problems) -> None:
         w = self.shift_fraction * self.line_width_mm

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mtplan._validate import Problems
-from mtplan.models.protocol import SetupBase, file_content, param
+from mtplan.models.protocol import SetupBase, distributions_field, file_content, param
 from mtplan.models.rotary_axis._characteristic import outside, read_characteristic
 
 
@@ -236,6 +236,8 @@ class Setup(SetupBase):
                                low=0, high=1e5, low_open=True)
     index_time_s: float = param(5.0, doc="Time to turn, clamp and settle the rotary axis at "
                                 "each position [s]", low=0, high=3600)
+
+    distributions: str = distributions_field()
 
     # ----------------------------------------------------------------- derived
     @property

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 from mtplan._validate import Problems
 from mtplan.models import _temperature as temperature
-from mtplan.models.protocol import SetupBase, param
+from mtplan.models.protocol import SetupBase, distributions_field, param
 
 
 NAME = "tracker_frame"
@@ -181,6 +181,8 @@ class Setup(SetupBase):
                                 low=0)
     mark_s: float = param(60.0, doc="Measuring one bed mark (placing the reflector, reading)",
                           low=0)
+
+    distributions: str = distributions_field()
 
     def _check(self, p: Problems) -> None:
         for ax in "xyz":
