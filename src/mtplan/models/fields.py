@@ -44,6 +44,7 @@ __all__ = [
     "OWNERS",
     "with_conditions",
     "fields_info",
+    "lever_options",
     "file_fields",
     "file_content",
     "resolve_file_fields",
@@ -107,6 +108,7 @@ def param(
     low_open: bool = False,
     high_open: bool = False,
     choices: tuple | None = None,
+    levels: tuple | None = None,
     min_len: int | None = None,
     reader: Callable | None = None,
     condition: str | None = None,
@@ -136,7 +138,21 @@ def param(
     or its calibration's, the artefact's, the workpiece's, the method's set-up, the
     environment's). Advice phrases an action by it: a calibration for an instrument, never
     a set-up.
+
+    A lever (``Procedure.levers``) may declare its `levels`: the values the planner tries by
+    default (``mtplan plan`` without ``--vary``), each within the field's range. Without
+    them a bool lever's options are false and true, a lever with `choices` takes each
+    choice, and any other lever (a continuous quantity such as a feed or an incline) is
+    held at its set-up's value: ``--vary`` names values to try, ``--optimize`` a range
+    (:func:`lever_options`).
     """
+    for level in levels or ():
+        numeric = isinstance(level, int | float) and not isinstance(level, bool)
+        if (choices and level not in choices) or numeric and (
+                (low is not None and (level < low or low_open and level == low))
+                or (high is not None and (level > high or high_open and level == high))):
+            raise ValueError(f"The 'levels' parameter of param must lie within the field's "
+                             f"range or choices. Got {level!r} instead.")
     if owner is not None and owner not in OWNERS:
         raise ValueError(f"The 'owner' parameter of param must be one of {', '.join(OWNERS)}. "
                          f"Got {owner!r} instead.")
@@ -147,6 +163,7 @@ def param(
         "low_open": low_open,
         "high_open": high_open,
         "choices": choices,
+        "levels": None if levels is None else tuple(levels),
         "min_len": min_len,
         "reader": reader,
         "condition": condition,
@@ -207,6 +224,8 @@ class FieldInfo:
     low_open, high_open : bool
     choices : tuple or None
         The allowed values of a field that takes one of a few.
+    levels : tuple or None
+        The values the planner tries by default for a lever (:func:`lever_options`).
     min_len : int or None
         The fewest elements of a tuple field.
     file : bool
@@ -233,6 +252,7 @@ class FieldInfo:
     choices: tuple | None = None
     min_len: int | None = None
     file: bool = False
+    levels: tuple | None = None
     condition: str | None = None
     owner: str | None = None
 
@@ -262,8 +282,25 @@ def _fields_info(cls) -> tuple[FieldInfo, ...]:
             low_open=bool(f.metadata.get("low_open")),
             high_open=bool(f.metadata.get("high_open")),
             file=f.metadata.get("reader") is not None,
-            condition=f.metadata.get("condition"), owner=f.metadata.get("owner")))
+            condition=f.metadata.get("condition"), owner=f.metadata.get("owner"),
+            levels=f.metadata.get("levels")))
     return tuple(out)
+
+
+def lever_options(info: FieldInfo, value) -> tuple:
+    """The values the planner tries by default for the lever `info` at its set-up value
+    `value`: `value` first, then its declared ``levels``; without levels a bool's two
+    values, a choice field's choices, else `value` alone (a continuous quantity, or a list
+    such as a set of angles, is held where the set-up puts it)."""
+    if info.levels is not None:
+        others = info.levels
+    elif info.kind is bool:
+        others = (False, True)
+    elif info.choices:
+        others = info.choices
+    else:
+        others = ()
+    return (value, *(v for v in others if v != value))
 
 
 def file_fields(cls) -> tuple[str, ...]:
