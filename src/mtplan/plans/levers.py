@@ -10,7 +10,8 @@ cost adds to the test's duration. The search is bounded, not the whole product:
    one at a time, by the first-order prediction (the caller's ``evaluate``).
 2. *Prune*: a lever (or calibration) none of whose options moves a screened quantity (a
    target's predicted u over its bound) or the cost by more than :data:`RTOL` is held at
-   the base.
+   the base; an option that is, alone, no cheaper than the base and better on no screened
+   quantity (dominated) is not searched further.
 3. *Combine*: the Cartesian product of the kept ones, those with the largest effect on the
    targets first (then on the cost), as many whole levers as keep it within
    ``max_candidates`` (default :data:`MAX_CANDIDATES`).
@@ -42,7 +43,7 @@ __all__ = ["RTOL", "MAX_CANDIDATES", "PASSES", "Score", "Search", "search", "cal
 #: relative change of a screened quantity below which a lever is taken to have no effect
 RTOL = 0.01
 #: the most candidates of the product of the kept levers
-MAX_CANDIDATES = 64
+MAX_CANDIDATES = 32
 #: the most coordinate passes of the refinement
 PASSES = 3
 
@@ -157,17 +158,25 @@ def _dims(proc, base) -> list:
     return dims
 
 
-def _setup(proc, base, choice: dict):
-    """The set-up of a choice (dim name -> option): the levers' values and the fields of
-    each calibration taken."""
+def _setup(proc, base, choice: dict, dims: dict):
+    """The set-up of a choice (dim name -> option; `dims`: name -> _Dim, whose first option
+    is the base's): the levers' values and the fields of each calibration taken."""
     values = {}
-    for dim, value in choice.items():
+    for name, value in choice.items():
+        dim = dims[name]
         if dim.calibration is None:
             if value != dim.options[0]:
-                values[dim.name] = value
+                values[name] = value
         elif value:
             values.update(dim.calibration.values)
     return make(proc.Setup, values, base=base, owner=proc.name) if values else base
+
+
+def _dominated(base: Score, cost0: float, other: Score, cost: float) -> bool:
+    """An option no cheaper than the base and better on no screened quantity."""
+    a, b = np.asarray(base.values, float), np.asarray(other.values, float)
+    a, b = np.where(np.isnan(a), np.inf, a), np.where(np.isnan(b), np.inf, b)
+    return bool(cost >= cost0 and np.all(b >= a))
 
 
 def _effect(base: Score, other: Score) -> float:
@@ -197,12 +206,18 @@ def search(proc, base, evaluate: Callable, *, max_candidates: int = MAX_CANDIDAT
     """
     found = Search()
     memo: dict = {}
-    dims = _dims(proc, base)
+    costs: dict = {}
+    dims = {d.name: d for d in _dims(proc, base)}
+
+    def setup_of(choice):
+        try:
+            return _setup(proc, base, choice, dims)
+        except InvalidInput:
+            return None
 
     def score(choice):
-        try:
-            setup = _setup(proc, base, choice)
-        except InvalidInput:
+        setup = setup_of(choice)
+        if setup is None:
             found.refused += 1
             return None, math.nan
         key = canonical(setup)
@@ -218,65 +233,59 @@ def search(proc, base, evaluate: Callable, *, max_candidates: int = MAX_CANDIDAT
                 found.scores.append(s)
         return memo[key], costs[key]
 
-    costs: dict = {}
-    start = {d: d.options[0] for d in dims}
+    def best_of(choices):
+        """The choice that meets the targets at least cost, else the nearest to them."""
+        ranked = []
+        for c in choices:
+            setup = setup_of(c)
+            s = memo.get(canonical(setup)) if setup is not None else None
+            if s is not None:
+                ranked.append(((not s.feasible, costs[canonical(setup)] if s.feasible
+                                else s.worst), c))
+        return min(ranked, key=lambda r: r[0])[1]
+
+    start = {n: d.options[0] for n, d in dims.items()}
     first, cost0 = score(start)
     if first is None:
         raise InvalidInput([f"The base set-up of {proc.name} cannot be evaluated"])
-    effect, saving = {}, {}
-    for d in dims:  # 1. screen, one at a time
-        found.searched[d.name] = d.options
-        moved = []
+    effect, saving, useful = {}, {}, {}
+    for n, d in dims.items():  # 1. screen, one at a time
+        found.searched[n] = d.options
+        moved, useful[n] = [], [d.options[0]]
         for v in d.options[1:]:
-            s, c = score({**start, d: v})
+            s, c = score({**start, n: v})
             if s is not None:
                 moved.append((_effect(first, s), abs(math.log(max(c, 1e-9) / max(cost0, 1e-9)))))
-        effect[d] = max((m[0] for m in moved), default=0.0)
-        saving[d] = max((m[1] for m in moved), default=0.0)
+                if not _dominated(first, cost0, s, c):
+                    useful[n].append(v)
+        effect[n] = max((m[0] for m in moved), default=0.0)
+        saving[n] = max((m[1] for m in moved), default=0.0)
     tol = math.log1p(RTOL)
-    kept = sorted((d for d in dims if effect[d] > tol or saving[d] > tol),
-                  key=lambda d: (-min(effect[d], 1e300), -saving[d]))
-    found.pruned = [d.name for d in dims if d not in kept]  # 2. prune
+    kept = sorted((n for n in dims if (effect[n] > tol or saving[n] > tol)
+                   and len(useful[n]) > 1), key=lambda n: (-min(effect[n], 1e300), -saving[n]))
+    found.pruned = [n for n in dims if n not in kept]  # 2. prune
     product, size = [], 1
-    for d in kept:  # 3. combine, largest effect first
-        if size * len(d.options) > max_candidates:
+    for n in kept:  # 3. combine, largest effect first
+        if size * len(useful[n]) > max_candidates:
             break
-        product.append(d)
-        size *= len(d.options)
-    for combo in itertools.product(*(d.options for d in product)):
-        score({**start, **dict(zip(product, combo, strict=True))})
-    found.product = [d.name for d in product]
-    rest = [d for d in kept if d not in product]
-    found.refined = [d.name for d in rest]
-    best = _best(start, product, memo, proc, base)
-    for _ in range(PASSES if rest else 0):  # 4. refine about the best, coordinate-wise
-        for d in rest:
-            for v in d.options:
-                score({**best, d: v})
-        tried = [{**best, d: v} for d in rest for v in d.options]
-        better = _best(best, [], memo, proc, base, extra=tried)
+        product.append(n)
+        size *= len(useful[n])
+    combos = [{**start, **dict(zip(product, combo, strict=True))}
+              for combo in itertools.product(*(useful[n] for n in product))]
+    for c in combos:
+        score(c)
+    found.product = list(product)
+    found.refined = [n for n in kept if n not in product]
+    best = best_of(combos)
+    for _ in range(PASSES if found.refined else 0):  # 4. refine about the best, coordinate-wise
+        tried = [{**best, n: v} for n in found.refined for v in useful[n]]
+        for c in tried:
+            score(c)
+        better = best_of([best, *tried])
         if better == best:
             break
         best = better
     return found
-
-
-def _best(start, product, memo, proc, base, extra=()) -> dict:
-    """The choice, among `start` varied over `product` and `extra`, that meets the targets
-    at least cost (else has the smallest worst ratio)."""
-    choices = [{**start, **dict(zip(product, combo, strict=True))}
-               for combo in itertools.product(*(d.options for d in product))] + list(extra)
-    ranked = []
-    for c in choices:
-        try:
-            setup = _setup(proc, base, c)
-        except InvalidInput:
-            continue
-        s = memo.get(canonical(setup))
-        if s is not None:
-            ranked.append(((not s.feasible, cost_of(proc, base, setup) if s.feasible
-                            else s.worst), c))
-    return min(ranked, key=lambda r: r[0])[1] if ranked else start
 
 
 def nearest(proc, setup, evaluate: Callable, fields=()) -> tuple | None:
@@ -284,12 +293,13 @@ def nearest(proc, setup, evaluate: Callable, fields=()) -> tuple | None:
     user narrowed the search to), that meets the targets at least cost, else that comes
     nearest: (set-up, score), or None where no other option is evaluated."""
     tried = []
-    for d in _dims(proc, setup):
-        if d.name in fields:
+    dims = {d.name: d for d in _dims(proc, setup)}
+    for name, d in dims.items():
+        if name in fields:
             continue
         for v in d.options[1:]:
             try:
-                other = _setup(proc, setup, {d: v})
+                other = _setup(proc, setup, {name: v}, dims)
                 s = evaluate(other)
             except (InvalidInput, ModelError, np.linalg.LinAlgError):
                 continue

@@ -170,7 +170,9 @@ class PlanOptions(Options):
         uncertainties (used by the acceptance-driven plan).
     identify : bool
         Add the identifiability columns (``rank``, ``n_params``, ``condition``,
-        ``O1`` ... ``O5``, see :func:`design_identifiability`) to the table.
+        ``O1`` ... ``O5``, see :func:`design_identifiability`) to the table: for every
+        candidate of a grid, for the recommended one of the search over the levers (NaN
+        in the other rows).
     determine : "all" or iterable of str, optional
         Measurands the set-up must determine at all (procedures whose measurands depend
         on the set-up, such as geometry21's error functions): a candidate is feasible
@@ -260,7 +262,7 @@ def plan(
     if not vary and o.levers:
         found = _levers.search(proc, base_setup, judge.score, max_candidates=o.max_candidates)
         setups = found.setups
-        units, listed = _possible_measurands(proc, setups)
+        units, listed = _possible_measurands(proc, setups, judge.measurands)
         names = list(units)
         done = [(judge.u(s), {}) for s in setups]
     table = _screen(proc, setups, truth, estimator, sources, targets, k, criterion,
@@ -268,14 +270,17 @@ def plan(
                     done=done, base=base_setup)
     front = pareto_front(table["cost_s"].to_numpy(), table["worst"].to_numpy())
     feasible = table[table["feasible"]].sort_values(["cost_s", "worst"], kind="stable")
-    if identify and found is not None:  # the search's rows: only those shown
-        _identify_rows(proc, setups, truth, table, [*front, *feasible.index[:confirm + 3]])
     pareto = [_candidate(table.iloc[i], setups[i], names, targets) for i in front]
     if feasible.empty:
         raise InvalidInput(_unreachable(units, table, targets, vary, criterion, required,
                                         _Where(proc, base_setup, setups, vary, judge)))
     best, confirmation = _confirm(proc, setups, table, feasible.index[:confirm], truth,
                                   estimator, sources, targets, k, criterion, trials, seed)
+    if identify and found is not None:  # of the search's candidates, the recommended one's
+        j = best["candidate"]
+        _identify_rows(proc, setups, truth, table, [j])
+        best["identifiability"] = _candidate(table.loc[j], setups[j], names,
+                                             targets)["identifiability"]
     runners = [_candidate(table.loc[j], setups[j], names, targets)
                for j in feasible.index if j != best["candidate"]][:3]
     for c in [best, *runners, *pareto]:  # what each changes from the base set-up
@@ -293,7 +298,7 @@ class _Judge:
     def __init__(self, proc, truth, estimator, sources, targets, k, criterion, required):
         self.proc, self.truth, self.estimator, self.sources = proc, truth, estimator, sources
         self.targets, self.k, self.criterion, self.required = targets, k, criterion, required
-        self.memo = {}
+        self.memo, self.listed = {}, {}
 
     def u(self, setup) -> dict:
         from mtplan.plans.sweep import canonical
@@ -304,11 +309,21 @@ class _Judge:
                                          sources=self.sources).u()
         return self.memo[key]
 
+    def measurands(self, setup) -> tuple:
+        """The procedure's measurands at `setup`, once per set-up (geometry21's take a
+        rank analysis)."""
+        from mtplan.plans.sweep import canonical
+
+        key = canonical(setup)
+        if key not in self.listed:
+            self.listed[key] = self.proc.measurands(setup)
+        return self.listed[key]
+
     def score(self, setup) -> _levers.Score:
         u = self.u(setup)
         ratios = [self.k * target_u(self.proc, setup, n, u) / v for n, v in self.targets.items()]
         ratios = [r if math.isfinite(r) else math.inf for r in ratios]
-        listed = {m.name for m in self.proc.measurands(setup)}
+        listed = {m.name for m in self.measurands(setup)}
         missing = [n for n in self.required if n not in listed]
         values = list(ratios)
         if missing or self.required:
@@ -361,16 +376,16 @@ class _Where:
         return f"; outside the grid, {change} {what} at a cost of {cost:.0f} s"
 
 
-def _possible_measurands(proc, setups) -> tuple[dict, list]:
+def _possible_measurands(proc, setups, measurands=None) -> tuple[dict, list]:
     """Every measurand a candidate may report, name -> unit: those listed at any candidate
     and, where the procedure's identifiability report names them (geometry21: the 21 error
     functions), those the procedure could report at some set-up; in the procedure's order.
-    Also each candidate's own list."""
+    Also each candidate's own list. `measurands`: the procedure's, or a memo of it."""
     names = dict.fromkeys(proc.capabilities.identifiability_report(setups[0]).get(
         "functions", {}), "")
     listed = []
     for s in setups:
-        ms = proc.measurands(s)
+        ms = (measurands or proc.measurands)(s)
         names.update({m.name: m.unit for m in ms})
         listed.append([m.name for m in ms])
     return names, listed
@@ -609,8 +624,8 @@ def _candidate(row, setup, names, targets) -> dict:
 
 
 def _identify_rows(proc, setups, truth, table, rows) -> None:
-    """The identifiability columns of the rows `rows` of `table` (the others NaN): what the
-    lever search shows, without the analysis of every set-up it screened."""
+    """The identifiability columns of the rows `rows` of `table` (the others NaN): the
+    recommended set-up of the search, without the analysis of every set-up it screened."""
     for j in dict.fromkeys(int(r) for r in rows):
         for key, value in design_identifiability(proc, setups[j], truth).items():
             if key not in table.columns:
