@@ -155,9 +155,13 @@ def along_values(items, proc) -> dict:
         except ValueError:
             start = stop = step = math.nan
         n = (stop - start) / step + 1 if step > 0 and stop >= start else math.nan
-        if not (math.isfinite(n) and n <= 2001):
+        from mtplan.models.protocol import fields_info
+
+        most = next(f.max_len for f in fields_info(proc.Setup) if f.name == field)
+        if not (math.isfinite(n) and (most is None or n <= most)):
             raise UsageError(f"--along {axis}={text}: expected START:STOP:STEP [mm] with STEP "
-                             "> 0, STOP >= START and at most 2001 positions")
+                             "> 0, STOP >= START" + (f" and at most {most} positions"
+                                                     if most is not None else ""))
         out[field] = ",".join(f"{round(start + i * step, 9):g}"
                               for i in range(int(math.floor(n + 1e-9))))
     return out
