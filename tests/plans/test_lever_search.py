@@ -53,7 +53,7 @@ def test_an_unreachable_target_names_the_best_levers_and_calibration_with_the_co
     # the value named is the smallest of the search, which takes the calibration
     proc = get("rotary_axis")
     best = proc.setup(sensor_reversal=True, positions=12,
-                      **proc.calibrations[0].values)
+                      **proc.capabilities.calibrations[0].values)
     u = first_order(proc, best).u()["EX0C"]
     assert f"the best reachable value is {u:.3g} um" in err
     assert "'sensor angle characteristic'" in err
@@ -78,7 +78,7 @@ def test_a_calibration_is_an_option_at_its_cost():
     the candidate's cost is the test's duration plus the calibration's."""
     proc = get("rotary_axis")
     base = proc.setup(axis="A")
-    cal = proc.calibrations[0]
+    cal = proc.capabilities.calibrations[0]
     u_cal = first_order(proc, proc.setup(axis="A", **cal.values)).u()["EZ0A"]
     u_rev = first_order(proc, proc.setup(axis="A", sensor_reversal=True)).u()["EZ0A"]
     target = 1.5 * u_cal

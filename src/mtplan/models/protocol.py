@@ -31,9 +31,7 @@ A procedure module (``mtplan/models/<name>.py``) defines a module-level
   and ``noise_source``; a callable left out is a function that answers {}.
 - ``description`` and ``levers`` (the set-up fields an engineer chooses; each one's
   options for the planner's default search come from its declaration, ``param(levels=...)``,
-  :func:`~mtplan.models.fields.lever_options`), and ``calibrations``: each a
-  :class:`Calibration`, an option that removes an error source at a cost, which the planner
-  weighs beside the levers.
+  :func:`~mtplan.models.fields.lever_options`).
 - ``capabilities``: a :class:`Capabilities` (:mod:`mtplan.models.capabilities`), what the
   procedure offers beyond its model, after scikit-learn's base classes and tags: data as
   tags (the Monte Carlo ``block_size``) and every optional behaviour as a method whose body
@@ -84,7 +82,7 @@ from mtplan.models.fields import (
     split_unit,
     with_conditions,
 )
-from mtplan.models.capabilities import Capabilities, SourceMethod
+from mtplan.models.capabilities import Calibration, Capabilities, SourceMethod
 from mtplan.uncertainty.distributions import Constant, Distribution
 from mtplan.uncertainty.streams import as_seed_sequence, block_sequence, named_generator
 
@@ -372,41 +370,6 @@ class ReadingsFormat:
 
 
 @dataclass(frozen=True)
-class Calibration:
-    """A calibration a procedure offers: set-up values that replace an error source's bound
-    by a calibrated characteristic (and its smaller calibration error), at a cost. The
-    planner weighs it beside the levers, as one more option of the search.
-
-    Parameters
-    ----------
-    name : str
-        What it is called in the planner's answers ("sensor angle characteristic").
-    values : mapping of set-up field to value
-        The fields it sets; a file field names a representative calibration (a packaged
-        example): only the calibration's own error enters the budget, so its values do not
-        change u.
-    cost_s : float
-        What it costs, in the planner's unit of cost: seconds, as a set-up's duration.
-    removes : tuple of str
-        The error sources it takes out of the budget (replaced by the calibration's error).
-    description : str
-        How the cost and the representative calibration were chosen.
-    """
-
-    name: str
-    values: Mapping
-    cost_s: float
-    removes: tuple = ()
-    description: str = ""
-
-    def __post_init__(self):
-        if not (np.isfinite(self.cost_s) and self.cost_s >= 0):
-            raise ValueError(f"The 'cost_s' parameter of Calibration {self.name!r} must be a "
-                             f"finite number >= 0. Got {self.cost_s!r} instead.")
-        object.__setattr__(self, "values", dict(self.values))
-
-
-@dataclass(frozen=True)
 class Procedure:
     """A registered measurement procedure: forward model, estimators and metadata.
 
@@ -433,9 +396,6 @@ class Procedure:
     #: order of the test, dwell, feed): the levers advice may name; every other field is
     #: a property of the machine, the workpiece or the instrument, named as what dominates
     levers: tuple = ()
-    #: the calibrations (:class:`Calibration`) that remove an error source at a cost: options
-    #: the planner searches beside the levers
-    calibrations: tuple = ()
     #: what the procedure offers beyond its model; the defaults are the generic analyses
     capabilities: Capabilities = Capabilities()
     #: the published method the procedure implements: its estimator and its citation

@@ -3,7 +3,7 @@ and every calibration it offers, at its cost.
 
 A lever's options come from its declaration (``Procedure.lever_options``: its ``levels``,
 a bool's two values, a choice field's choices; a continuous lever is held at the set-up's
-value). A calibration (``Procedure.calibrations``) is one more option, taken or not, whose
+value). A calibration (``Capabilities.calibrations``) is one more option, taken or not, whose
 cost adds to the test's duration. The search is bounded, not the whole product:
 
 1. *Screen*: the base set-up, then each other option of each lever and each calibration,
@@ -122,7 +122,7 @@ class Search:
 def calibration_of(proc, base, setup):
     """The calibration of `proc` that `setup` takes and `base` does not (its fields set to
     the calibration's values), or None."""
-    for cal in proc.calibrations:
+    for cal in proc.capabilities.calibrations:
         if all(getattr(setup, f) == v for f, v in cal.values.items()) and not all(
                 getattr(base, f) == v for f, v in cal.values.items()):
             return cal
@@ -153,7 +153,7 @@ def changes(proc, base, setup, fields=None) -> dict:
 def _dims(proc, base) -> list:
     """The levers with more than one option and the calibrations `base` does not take."""
     dims = [_Dim(n, v) for n, v in proc.lever_options(base).items() if len(v) > 1]
-    dims += [_Dim(c.name, (False, True), c) for c in proc.calibrations
+    dims += [_Dim(c.name, (False, True), c) for c in proc.capabilities.calibrations
              if not all(getattr(base, f) == v for f, v in c.values.items())]
     return dims
 

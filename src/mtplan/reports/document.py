@@ -312,7 +312,7 @@ def plan_fields(o) -> list:
     if vary or o.plan is None or isinstance(o.plan, str):
         return list(vary)
     best = o.plan.best
-    cal = [c for c in o.spec.procedure.calibrations if c.name == best.get("calibration")]
+    cal = [c for c in o.spec.procedure.capabilities.calibrations if c.name == best.get("calibration")]
     return [f for f in best.get("changes", {}) if f != "calibration"] + [
         f for c in cal for f in c.values]
 

@@ -147,7 +147,7 @@ def check_lever_options_and_calibrations(proc: Procedure) -> None:
     setup = proc.Setup()
     stray = [f.name for f in fields_info(proc.Setup) if f.levels and f.name not in proc.levers]
     _expect(not stray, f"fields that declare levels but are no lever: {stray}")
-    for cal in proc.calibrations:
+    for cal in proc.capabilities.calibrations:
         _expect(cal.values, f"the calibration {cal.name!r} sets no set-up field")
         with _accepted(f"the calibration {cal.name!r}"):
             make(proc.Setup, dict(cal.values), base=setup, owner=proc.name)

@@ -334,10 +334,9 @@ PROCEDURE = Procedure(
                  "c_angles_deg lattice_nx lattice_ny lattice_size_mm lattice_offset_x_mm "
                  "lattice_offset_y_mm artifact_height_mm z_follows_surface sensor_reversal "
                  "dwell_s feed_mm_min".split()),
-    calibrations=(CHARACTERISTIC,),
     readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
                             limits=reading_limits, noise_source="probe_noise"),
-    capabilities=_Capabilities(block_size=2000),
+    capabilities=_Capabilities(block_size=2000, calibrations=(CHARACTERISTIC,)),
     source_method=SourceMethod(
         "patent", "Method for measuring direction and spatial position of rotation center of "
         "rotating shaft", who="Chinese patent application, Yang Xiaojun et al., filed "
