@@ -81,6 +81,8 @@ def cmd_plan(args):
     if args.json:
         print(json.dumps(result.to_dict(), indent=1, default=float))
         return 0
+    from mtplan.uncertainty.coverage import coverage_text
+
     best = result.best
     goals = [f"{n} <= {v:g}" for n, v in targets.items()]
     if criterion is not None:
@@ -104,8 +106,11 @@ def cmd_plan(args):
         print(f"  false accept at the confirmed uncertainty: {criterion.pfa(best['confirmed']):.4g}")
     for n in targets:
         c = result.confirmation[-1]
+        covers = c.get("monte_carlo_coverage", {}).get(n)
+        covers = (f", ±{args.k:g}u covers {coverage_text(covers)} of its values"
+                  if covers is not None and args.k != 1 else "")
         print(f"  {n}: predicted {best['predicted'][n]:.3g}, Monte Carlo {best['confirmed'][n]:.3g} "
-              f"(ratio {c['ratio'][n]:.3f}, {c['trials']} trials)")
+              f"(ratio {c['ratio'][n]:.3f}, {c['trials']} trials{covers})")
     print(f"Pareto front (cost against the worst target ratio): {len(result.pareto)} set-ups")
     for c in result.pareto:
         shown = ", ".join(f"{f}={v}" for f, v in c["changes"].items())

@@ -549,6 +549,10 @@ def _confirm(proc, setups, table, candidates, truth, estimator, sources, targets
             "duration_s": float(table.loc[j, "duration_s"]),
             "predicted": {n: float(table.loc[j, f"u_{n}"]) for n in names},
             "monte_carlo": mc_u,
+            # the fraction of the Monte Carlo values within +- k u: the coverage each
+            # confirmed value really has (mtplan.uncertainty.coverage)
+            "monte_carlo_coverage": dict(zip([m.name for m in r.measurands],
+                                             map(float, r.mc.U_coverage(k)), strict=True)),
             "ratio": {n: float(mc_u[n] / table.loc[j, f"u_{n}"]) if table.loc[j, f"u_{n}"] > 0
                       else math.nan for n in names},
             "trials": int(r.mc.trials),

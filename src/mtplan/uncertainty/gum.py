@@ -165,6 +165,15 @@ class GUMResult:
         return self._k
 
     @property
+    def U_coverage(self) -> np.ndarray:  # noqa: N802 - U of the GUM
+        """The coverage of ``value ± U``, U = 2u (:mod:`mtplan.uncertainty.coverage`), that
+        a first-order result can give: a normal distribution's (Student's t at ``dof``),
+        assumed, not shown."""
+        from mtplan.uncertainty.coverage import K, normal_coverage
+
+        return np.broadcast_to(normal_coverage(K, self.dof), (len(self.names),))
+
+    @property
     def low(self) -> np.ndarray:
         return self.value - self.k * self.std
 
