@@ -20,6 +20,7 @@ from mtplan._parallel import effective_jobs
 from mtplan._validate import InvalidInput, Problems
 from mtplan.evaluation.covariance import covariance_doc
 from mtplan.evaluation.first_order import first_order
+from mtplan.evaluation.reliability import reliability as one_bad_reading
 from mtplan.fitting.effects import element_moments
 from mtplan.models import get
 from mtplan.models.protocol import Procedure
@@ -619,8 +620,14 @@ class LinearizedResult(ResultDocument):
 
 
 def linearize_result(procedure, setup=None, truth=None, *, estimator: str | None = None,
-                     sources=None, coverage: float = 0.95) -> LinearizedResult:
-    """:func:`linearize_procedure` as a complete result: the ``mtplan linearize`` document."""
+                     sources=None, coverage: float = 0.95,
+                     reliability: bool = True) -> LinearizedResult:
+    """:func:`linearize_procedure` as a complete result: the ``mtplan linearize`` document.
+
+    With `reliability` (default), its ``reliability`` section: what one bad reading can do
+    unseen by the fit check, the minimal detectable bias of the readings and the largest
+    shift of each measurand it causes (:func:`mtplan.evaluation.reliability.reliability`,
+    at the design readings; the ratio to u against the u of this result)."""
     proc, setup, truth = _resolve(procedure, setup, truth)
     g = linearize_procedure(proc, setup, truth, estimator=estimator, sources=sources,
                             coverage=coverage)
@@ -631,9 +638,14 @@ def linearize_result(procedure, setup=None, truth=None, *, estimator: str | None
               f"at first order (it is quantised or blind to {m.name}, or no source moves it), "
               "so the law of propagation cannot give its uncertainty"
               for m, u in zip(measurands, g.std, strict=True) if not u > 0]
-    return LinearizedResult(procedure=proc, estimator=est_name, setup=setup,
-                            measurands=measurands, gum=g, notes=notes,
-                            undetermined=undetermined_measurands(proc, setup))
+    result = LinearizedResult(procedure=proc, estimator=est_name, setup=setup,
+                              measurands=measurands, gum=g, notes=notes,
+                              undetermined=undetermined_measurands(proc, setup))
+    if reliability:
+        result.sections["reliability"] = one_bad_reading(
+            proc, setup, truth, estimator=est_name,
+            u={m.name: float(u) for m, u in zip(measurands, g.std, strict=True)})
+    return result
 
 
 def source_budget(procedure, setup=None, truth=None, *, estimator=None, options=None,

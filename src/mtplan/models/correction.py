@@ -55,6 +55,10 @@ def _nothing_unseen(setup: Mapping) -> dict:
     return {}
 
 
+def _nothing_realised(setup, errors: Mapping) -> dict:
+    return {}
+
+
 @dataclass(frozen=True)
 class CorrectionModel:
     """How a procedure's result becomes a correction a controller takes.
@@ -86,6 +90,13 @@ class CorrectionModel:
         between a table's points), and what it is in words; a function's name (``EXX``)
         stands for all its measurands (``EXX``, ``EXX@-50``, ...). Part of the residual
         predicted after compensation, and of a plan's residual target.
+    realised : callable
+        ``realised(setup, errors) -> {measurand: value}``: the value [display unit] that
+        what ``unseen`` names takes on a simulated machine, for the source errors
+        (``Procedure.draw_errors``) its test was simulated with, at the procedure's
+        ``Setup``; with the measurand's true value, the error the machine really has
+        there (what a closed loop of the compensation compares the written value with).
+        Measurands it leaves out have nothing unseen.
     """
 
     kind: str = ""
@@ -94,6 +105,7 @@ class CorrectionModel:
     terms: Callable[[Mapping, tuple], tuple] = _no_terms
     nominal: Callable[[Mapping], dict] = _no_nominal
     unseen: Callable[[Mapping], dict] = _nothing_unseen
+    realised: Callable[[object, Mapping], dict] = _nothing_realised
 
     def unseen_of(self, setup: Mapping, measurand: str) -> tuple[float, str]:
         """(u, what) that stays unseen after correcting `measurand` ((0, "") for none)."""

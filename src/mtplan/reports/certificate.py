@@ -27,6 +27,7 @@ from mtplan.reports.labels import (
     tolerance_text,
     unit,
 )
+from mtplan.reports import reliability
 from mtplan.reports.model import Document, Figure, Section, Table
 from mtplan.reports.results import ASYMMETRIC_NOTE
 from mtplan.reports.results import asymmetric_mark as _asymmetric_mark
@@ -414,6 +415,9 @@ def _results_section(result) -> Section:
                                 "residual.",
                                 ["test", "chi-square", "dof", "p", "worst readings",
                                  "outcome"], fits, grow=4, size=7.0, whole=(3,)))
+    unseen = reliability.report_section(result)
+    if unseen is not None:
+        sec.blocks.append(unseen)
     untoleranced = sum(len(o.measured.measurands) for o in result.outcomes
                        if o.measured is not None) - sum(
         len(o.verdicts) for o in result.outcomes if o.measured is not None)
@@ -794,6 +798,7 @@ def _plan_test(k, o, plan, study) -> Section:
                         ["measurand", "unit", "tolerance", "U predicted", "±U covers", "TUR",
                          "guard band w", "PFA", "PFR"], _plan_rows(o, plan), grow=0))
     blocks += rules_text(o.verdicts)
+    blocks += reliability.plan_blocks(k, o)
     populations = [f"{v.measurand} "
                    f"{population_text(prior_text(v.prior, v.unit), v.population_source)}"
                    for v in o.verdicts if v.prior is not None]

@@ -229,4 +229,7 @@ GLOSSARY = [
                   "the artefact's known pattern)"],
     ["as found / as left", "results before / after any adjustment made during the visit"],
     ["lever", "a set-up choice of the test engineer (counts, geometry, order, dwell)"],
+    ["MDB", "minimal detectable bias: the smallest gross error of one reading (or one "
+            "contact) that the fit check detects with 80 % probability; a smaller one passes "
+            "more often than not"],
 ]

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mtplan.uncertainty.coverage import K, normal_coverage
 from mtplan._validate import Problems
 from mtplan.uncertainty.distributions import Distribution, MultivariateNormal, StudentT
 from mtplan.uncertainty.montecarlo import (
@@ -169,8 +170,6 @@ class GUMResult:
         """The coverage of ``value ± U``, U = 2u (:mod:`mtplan.uncertainty.coverage`), that
         a first-order result can give: a normal distribution's (Student's t at ``dof``),
         assumed, not shown."""
-        from mtplan.uncertainty.coverage import K, normal_coverage
-
         return np.broadcast_to(normal_coverage(K, self.dof), (len(self.names),))
 
     @property

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mtplan.uncertainty.coverage import K
 from mtplan._parallel import effective_jobs, one_blas_thread, ordered_map, parallel_session
 from mtplan._validate import InvalidInput, Problems
 from mtplan.uncertainty.distributions import Distribution
@@ -276,8 +277,6 @@ class MCResult:
     def U_coverage(self, k: float | None = None) -> np.ndarray:  # noqa: N802 - U of the GUM
         """(n_outputs,): the fraction of each output's values within ``mean ± k std``: the
         coverage that U = k u really has (k default: :data:`mtplan.uncertainty.coverage.K`)."""
-        from mtplan.uncertainty.coverage import K
-
         k = K if k is None else k
         return np.array([float(self.fraction_within(n, m - k * s, m + k * s))
                          for n, m, s in zip(self.names, self.mean, self.std, strict=True)])
