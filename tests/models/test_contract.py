@@ -53,6 +53,7 @@ WHY_NOT_GENERIC = {
     "capabilities.observability": "test_line_laser_patent_cannot_see_what_the_readings_show",
     "estimator.resolution": "test_line_laser_patent_values_come_in_steps",
     "capabilities.gross_errors": "test_circle_centre_a_bad_contact_moves_both_its_coordinates",
+    "capabilities.calibrations": "test_rotary_axis_calibration_meets_what_no_lever_does",
 }
 
 
@@ -239,3 +240,26 @@ def test_line_laser_patent_values_come_in_steps():
     np.testing.assert_allclose(values / step, np.round(values / step), rtol=0, atol=1e-9)
     assert np.ptp(values) == 0 and step > 0
     assert proc.estimators["registration"].steps(setup) == {}
+
+
+def test_rotary_axis_calibration_meets_what_no_lever_does():
+    """rotary_axis: with the generic default (no calibration) the planner's search over every
+    lever cannot bring the A axis's EZ0A to 1.5 times its calibrated u (the angle influence's
+    even part, which the reversal does not cancel); with the sensor's calibrated angle
+    characteristic it can."""
+    from mtplan.evaluation.first_order import first_order
+    from mtplan.plans import levers
+
+    proc = registry()["rotary_axis"]
+    base = proc.setup(axis="A")
+    cal = proc.capabilities.calibrations[0]
+    target = 1.5 * first_order(proc, proc.setup(axis="A", **cal.values)).u()["EZ0A"]
+
+    def evaluate(setup):
+        u = first_order(proc, setup).u()["EZ0A"]
+        return levers.Score(values=[u / target], worst=u / target, feasible=u <= target)
+
+    generic = dataclasses.replace(proc, capabilities=dataclasses.replace(
+        proc.capabilities, calibrations=()))
+    assert not any(s.feasible for s in levers.search(generic, base, evaluate).scores)
+    assert any(s.feasible for s in levers.search(proc, base, evaluate).scores)

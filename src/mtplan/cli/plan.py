@@ -94,9 +94,14 @@ def cmd_plan(args):
                      else f"{', '.join(determine)} determined")
     print(f"{proc.name}: cheapest set-up meeting " + ", ".join(goals)
           + (f" (k = {args.k:g})" if args.k != 1 else ""))
-    for f in vary:
-        print(f"  {f} = {best['setup'][f]}")
-    print(f"  duration {best['duration_s']:.0f} s")
+    if result.search:
+        print(f"  searched: {result.search}")
+    for f, v in best["changes"].items():
+        print(f"  {f} = {v}")
+    if not vary and not best["changes"]:
+        print("  the set-up as given")
+    print(f"  duration {best['duration_s']:.0f} s" + (
+        f", cost {best['cost_s']:.0f} s with the calibration" if best["calibration"] else ""))
     if determine:
         print(f"  determines {len(best['predicted'])} measurands: {', '.join(best['predicted'])}")
     if criterion is not None:
@@ -112,10 +117,10 @@ def cmd_plan(args):
                   if covers is not None and args.k != 1 else "")
         print(f"  {n}: predicted {best['predicted'][n]:.3g}, Monte Carlo {best['confirmed'][n]:.3g} "
               f"(ratio {c['ratio'][n]:.3f}, {c['trials']} trials{covers})")
-    print(f"Pareto front (duration against the worst target ratio): {len(result.pareto)} set-ups")
+    print(f"Pareto front (cost against the worst target ratio): {len(result.pareto)} set-ups")
     for c in result.pareto:
-        shown = ", ".join(f"{f}={c['setup'][f]}" for f in vary)
-        print(f"  {c['duration_s']:8.0f} s  {c['worst']:.3f}  {shown}")
+        shown = ", ".join(f"{f}={v}" for f, v in c["changes"].items())
+        print(f"  {c['cost_s']:8.0f} s  {c['worst']:.3f}  {shown}")
     return 0
 
 

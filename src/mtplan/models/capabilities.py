@@ -26,9 +26,11 @@ package cites its own source.
 from __future__ import annotations
 
 import dataclasses
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
-__all__ = ["Capabilities", "SourceMethod", "METHODS"]
+__all__ = ["Capabilities", "Calibration", "SourceMethod", "METHODS"]
 
 
 @dataclass(frozen=True)
@@ -61,6 +63,41 @@ class SourceMethod:
 
 
 @dataclass(frozen=True)
+class Calibration:
+    """A calibration a procedure offers: set-up values that replace an error source's bound
+    by a calibrated characteristic (and its smaller calibration error), at a cost. The
+    planner weighs it beside the levers, as one more option of the search.
+
+    Parameters
+    ----------
+    name : str
+        What it is called in the planner's answers ("sensor angle characteristic").
+    values : mapping of set-up field to value
+        The fields it sets; a file field names a representative calibration (a packaged
+        example): only the calibration's own error enters the budget, so its values do not
+        change u.
+    cost_s : float
+        What it costs, in the planner's unit of cost: seconds, as a set-up's duration.
+    removes : tuple of str
+        The error sources it takes out of the budget (replaced by the calibration's error).
+    description : str
+        How the cost and the representative calibration were chosen.
+    """
+
+    name: str
+    values: Mapping
+    cost_s: float
+    removes: tuple = ()
+    description: str = ""
+
+    def __post_init__(self):
+        if not (math.isfinite(self.cost_s) and self.cost_s >= 0):
+            raise ValueError(f"The 'cost_s' parameter of Calibration {self.name!r} must be a "
+                             f"finite number >= 0. Got {self.cost_s!r} instead.")
+        object.__setattr__(self, "values", dict(self.values))
+
+
+@dataclass(frozen=True)
 class Capabilities:
     """What a procedure offers beyond its model: tags (data) and methods whose defaults are
     the generic behaviour (see the module docstring for how a procedure overrides one).
@@ -69,9 +106,14 @@ class Capabilities:
     ----------
     block_size : int
         Monte Carlo block size (trials); smaller for procedures with many readings.
+    calibrations : tuple of Calibration
+        The calibrations that replace an error source's bound by a calibrated
+        characteristic at a cost: options the planner searches beside the levers. Generic:
+        none.
     """
 
     block_size: int = 10_000
+    calibrations: tuple = ()
 
     # ------------------------------------------------------------------ derived tags
     @property

@@ -45,6 +45,7 @@ __all__ = [
     "with_conditions",
     "identity",
     "fields_info",
+    "lever_options",
     "file_fields",
     "file_content",
     "resolve_file_fields",
@@ -110,6 +111,7 @@ def param(
     high_open: bool = False,
     choices: tuple | None = None,
     pairs: tuple | None = None,
+    levels: tuple | None = None,
     min_len: int | None = None,
     max_len: int | None = None,
     reader: Callable | None = None,
@@ -152,7 +154,21 @@ def param(
     its default it is left out of the set-up's identity (:func:`identity`), so that adding
     such a field to a procedure leaves every set-up that does not use it, its identifier
     and its seed in a sweep as they were.
+
+    A lever (``Procedure.levers``) may declare its `levels`: the values the planner tries by
+    default (``mtplan plan`` without ``--vary``), each within the field's range. Without
+    them a bool lever's options are false and true, a lever with `choices` takes each
+    choice, and any other lever (a continuous quantity such as a feed or an incline) is
+    held at its set-up's value: ``--vary`` names values to try, ``--optimize`` a range
+    (:func:`lever_options`).
     """
+    for level in levels or ():
+        numeric = isinstance(level, int | float) and not isinstance(level, bool)
+        if (choices and level not in choices) or numeric and (
+                (low is not None and (level < low or low_open and level == low))
+                or (high is not None and (level > high or high_open and level == high))):
+            raise ValueError(f"The 'levels' parameter of param must lie within the field's "
+                             f"range or choices. Got {level!r} instead.")
     if owner is not None and owner not in OWNERS:
         raise ValueError(f"The 'owner' parameter of param must be one of {', '.join(OWNERS)}. "
                          f"Got {owner!r} instead.")
@@ -164,6 +180,7 @@ def param(
         "high_open": high_open,
         "choices": choices,
         "pairs": pairs,
+        "levels": None if levels is None else tuple(levels),
         "min_len": min_len,
         "max_len": max_len,
         "reader": reader,
@@ -238,6 +255,8 @@ class FieldInfo:
         The allowed values of a field that takes one of a few.
     pairs : tuple or None
         The allowed values of a text field of ``name=value`` pairs (:func:`parse_pairs`).
+    levels : tuple or None
+        The values the planner tries by default for a lever (:func:`lever_options`).
     min_len, max_len : int or None
         The fewest and the most elements of a tuple field.
     file : bool
@@ -266,6 +285,7 @@ class FieldInfo:
     min_len: int | None = None
     max_len: int | None = None
     file: bool = False
+    levels: tuple | None = None
     condition: str | None = None
     owner: str | None = None
 
@@ -320,8 +340,25 @@ def _fields_info(cls) -> tuple[FieldInfo, ...]:
             low_open=bool(f.metadata.get("low_open")),
             high_open=bool(f.metadata.get("high_open")),
             file=f.metadata.get("reader") is not None,
-            condition=f.metadata.get("condition"), owner=f.metadata.get("owner")))
+            condition=f.metadata.get("condition"), owner=f.metadata.get("owner"),
+            levels=f.metadata.get("levels")))
     return tuple(out)
+
+
+def lever_options(info: FieldInfo, value) -> tuple:
+    """The values the planner tries by default for the lever `info` at its set-up value
+    `value`: `value` first, then its declared ``levels``; without levels a bool's two
+    values, a choice field's choices, else `value` alone (a continuous quantity, or a list
+    such as a set of angles, is held where the set-up puts it)."""
+    if info.levels is not None:
+        others = info.levels
+    elif info.kind is bool:
+        others = (False, True)
+    elif info.choices:
+        others = info.choices
+    else:
+        others = ()
+    return (value, *(v for v in others if v != value))
 
 
 def file_fields(cls) -> tuple[str, ...]:

@@ -29,7 +29,9 @@ A procedure module (``mtplan/models/<name>.py``) defines a module-level
   fields a measured table determines, each with the tolerance within which a value the
   user states agrees with the file, :class:`Implied`), ``optional_columns``, ``limits``
   and ``noise_source``; a callable left out is a function that answers {}.
-- ``description`` and ``levers`` (the set-up fields an engineer chooses).
+- ``description`` and ``levers`` (the set-up fields an engineer chooses; each one's
+  options for the planner's default search come from its declaration, ``param(levels=...)``,
+  :func:`~mtplan.models.fields.lever_options`).
 - ``capabilities``: a :class:`Capabilities` (:mod:`mtplan.models.capabilities`), what the
   procedure offers beyond its model, after scikit-learn's base classes and tags: data as
   tags (the Monte Carlo ``block_size``) and every optional behaviour as a method whose body
@@ -68,6 +70,7 @@ from mtplan.models.fields import (
     Implied,
     SetupBase,
     fields_info,
+    lever_options,
     file_content,
     file_fields,
     frame_columns,
@@ -80,7 +83,7 @@ from mtplan.models.fields import (
     split_unit,
     with_conditions,
 )
-from mtplan.models.capabilities import Capabilities, SourceMethod
+from mtplan.models.capabilities import Calibration, Capabilities, SourceMethod
 from mtplan.uncertainty.distributions import SHAPES, Constant, Distribution, with_shape
 from mtplan.uncertainty.streams import as_seed_sequence, block_sequence, named_generator
 
@@ -104,6 +107,7 @@ __all__ = [
     "Implied",
     "Estimator",
     "ReadingsFormat",
+    "Calibration",
     "Capabilities",
     "SourceMethod",
     "Procedure",
@@ -437,6 +441,12 @@ class Procedure:
     def setup(self, values: Mapping | None = None, **kw):
         """Build this procedure's Setup from defaults and overrides (strings allowed)."""
         return make(self.Setup, {**(values or {}), **kw}, owner=self.name)
+
+    def lever_options(self, setup) -> dict:
+        """lever -> the values the planner tries by default, the set-up's own first
+        (:func:`~mtplan.models.fields.lever_options`)."""
+        infos = {i.name: i for i in fields_info(self.Setup)}
+        return {n: lever_options(infos[n], getattr(setup, n)) for n in self.levers}
 
     def truth(self, values: Mapping | None = None, **kw):
         """Build this procedure's Truth from defaults and overrides."""

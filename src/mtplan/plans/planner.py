@@ -10,6 +10,11 @@ Two speeds, as a metrologist would work:
    the two. A candidate is recommended only once its Monte Carlo uncertainty meets
    every target: never an unconfirmed winner.
 
+The candidates are the user's grid (``vary``) where one is given; without one, every lever
+the procedure declares at its declared options and every calibration it offers
+(:mod:`mtplan.plans.levers`: a bounded search by the same linearised prediction). A
+candidate's cost is the test's duration plus the cost of a calibration it takes.
+
 Targets bound the standard uncertainty (``k=1``) or the expanded uncertainty
 ``k u`` of named measurands, in their display units (um, urad).
 """
@@ -30,6 +35,7 @@ from mtplan.evaluation.reliability import reliability
 from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 from mtplan.models import get
 from mtplan.models.protocol import fields_info, make
+from mtplan.plans import levers as _levers
 from mtplan.plans.identifiability import identifiability, observability_indices
 from mtplan.plans.sweep import setup_grid
 from mtplan.uncertainty.montecarlo import ModelError
@@ -124,19 +130,24 @@ class PlanResult:
     Attributes
     ----------
     table : pandas.DataFrame
-        One row per candidate: set-up fields, ``duration_s``, predicted ``u_<name>``
+        One row per candidate: set-up fields, ``duration_s``, ``cost_s`` (the duration plus
+        the cost of the ``calibration`` it takes, named there), predicted ``u_<name>``
         (k times the linearised standard uncertainty) per target, ``worst`` (largest
         ratio of prediction to target) and ``feasible``.
     best : dict or None
         The recommended set-up: ``setup`` (fields), ``duration_s``, ``predicted`` and
         ``confirmed`` uncertainties per target measurand.
     pareto : list of dict
-        Non-dominated candidates (duration against ``worst``), cheapest first.
+        Non-dominated candidates (cost against ``worst``), cheapest first.
     confirmation : list of dict
         The Monte Carlo checks made, in order: set-up, predicted and Monte Carlo
         uncertainty per target, their ratio, and whether the targets were met.
     targets : dict
     k : float
+    runners_up : list of dict
+    search : str
+        Without a grid, what the default search over the levers tried (one line;
+        :meth:`mtplan.plans.levers.Search.summary`); "" for a grid.
     """
 
     table: object
@@ -146,11 +157,13 @@ class PlanResult:
     targets: dict
     k: float
     runners_up: list = field(default_factory=list)
+    search: str = ""
 
     def to_dict(self) -> dict:
         return {
             "targets": self.targets,
             "k": self.k,
+            "search": self.search,
             "best": self.best,
             "runners_up": self.runners_up,
             "pareto": self.pareto,
@@ -184,13 +197,21 @@ class PlanOptions(Options):
         uncertainties (used by the acceptance-driven plan).
     identify : bool
         Add the identifiability columns (``rank``, ``n_params``, ``condition``,
-        ``O1`` ... ``O5``, see :func:`design_identifiability`) to the table.
+        ``O1`` ... ``O5``, see :func:`design_identifiability`) to the table: for every
+        candidate of a grid, for the recommended one of the search over the levers (NaN
+        in the other rows).
     determine : "all" or iterable of str, optional
         Measurands the set-up must determine at all (procedures whose measurands depend
         on the set-up, such as geometry21's error functions): a candidate is feasible
         only if it lists every one; ``"all"`` means every measurand the procedure can
         report (geometry21: the 21 errors). Targets may name measurands that only some
         candidates determine.
+    levers : bool
+        Without a grid (``vary``), search every declared lever at its options and every
+        calibration the procedure offers (:mod:`mtplan.plans.levers`); False: the base
+        set-up alone.
+    max_candidates : int
+        The most candidates of the search's product of levers.
     """
 
     k: float = 1.0
@@ -202,6 +223,8 @@ class PlanOptions(Options):
     criterion: object = None
     identify: bool = True
     determine: object = None
+    levers: bool = True
+    max_candidates: int = _levers.MAX_CANDIDATES
 
     WHAT = "plan option"
 
@@ -224,7 +247,9 @@ def plan(
     procedure : str or Procedure
     base_setup : Setup, optional
     vary : mapping of field to values
-        Candidate grid (the Cartesian product); empty means the base set-up alone.
+        Candidate grid (the Cartesian product), which narrows the search to it; empty means
+        every declared lever and calibration (:mod:`mtplan.plans.levers`; the option
+        ``levers=False``: the base set-up alone).
     targets : mapping of measurand name to value
         Upper bounds for ``k u`` [display unit of each measurand].
     truth, estimator, sources
@@ -232,13 +257,16 @@ def plan(
     **options
         ``options=`` a :class:`PlanOptions` (the coverage factor ``k``, ``confirm``,
         ``trials``, ``seed``, ``n_jobs``, ``backend``, ``criterion``, ``identify``,
-        ``determine``), and any of its fields as keywords, which replace the record's.
+        ``determine``, ``levers``, ``max_candidates``), and any of its fields as keywords,
+        which replace the record's.
 
     Raises
     ------
     InvalidInput
         For targets naming unknown measurands, and when no candidate can meet a
-        target (the message gives the best reachable value of each).
+        target (the message gives the best reachable value of each, where it is reached and
+        at what cost, and the lever or calibration outside a grid that would meet it or
+        comes nearest).
     """
     o = PlanOptions.of(options.pop("options", None), **options)
     k, confirm, trials, seed, criterion = o.k, o.confirm, o.trials, o.seed, o.criterion
@@ -248,37 +276,149 @@ def plan(
     proc.check_setup(base_setup)
     truth = proc.Truth() if truth is None else truth
     targets = dict(targets or {})
-    setups = setup_grid(proc, base_setup, dict(vary or {})) if vary else [base_setup]
+    vary = dict(vary or {})
+    setups = setup_grid(proc, base_setup, vary) if vary else [base_setup]
     units, listed = _possible_measurands(proc, setups)
     names = list(units)
     required = _required(proc, names, determine)
-    _check_plan(proc, names, targets, criterion, k, confirm, trials, n_jobs, backend, required)
+    _check_plan(proc, names, targets, criterion, k, confirm, trials, n_jobs, backend, required,
+                o.max_candidates)
     proc.estimator(estimator)
-    table = _screen(proc, setups, truth, estimator, sources, targets, k, criterion, identify,
-                    n_jobs, backend, names, required, listed)
-    front = pareto_front(table["duration_s"].to_numpy(), table["worst"].to_numpy())
+    judge = _Judge(proc, truth, estimator, sources, targets, k, criterion, required)
+    done = found = None
+    if not vary and o.levers:
+        found = _levers.search(proc, base_setup, judge.score, max_candidates=o.max_candidates)
+        setups = found.setups
+        units, listed = _possible_measurands(proc, setups, judge.measurands)
+        names = list(units)
+        done = [judge.assess(s) for s in setups]
+    table = _screen(proc, setups, truth, estimator, sources, targets, k, criterion,
+                    identify and found is None, n_jobs, backend, names, required, listed,
+                    done=done, base=base_setup)
+    front = pareto_front(table["cost_s"].to_numpy(), table["worst"].to_numpy())
+    feasible = table[table["feasible"]].sort_values(["cost_s", "worst"], kind="stable")
     pareto = [_candidate(table.iloc[i], setups[i], names, targets) for i in front]
-    feasible = table[table["feasible"]].sort_values(["duration_s", "worst"], kind="stable")
     if feasible.empty:
-        raise InvalidInput(_unreachable(units, table, targets, vary, criterion, required))
+        raise InvalidInput(_unreachable(units, table, targets, vary, criterion, required,
+                                        _Where(proc, base_setup, setups, vary, judge)))
     best, confirmation = _confirm(proc, setups, table, feasible.index[:confirm], truth,
                                   estimator, sources, targets, k, criterion, trials, seed)
+    if identify and found is not None:  # of the search's candidates, the recommended one's
+        j = best["candidate"]
+        _identify_rows(proc, setups, truth, table, [j])
+        best["identifiability"] = _candidate(table.loc[j], setups[j], names,
+                                             targets)["identifiability"]
     runners = [_candidate(table.loc[j], setups[j], names, targets)
                for j in feasible.index if j != best["candidate"]][:3]
+    for c in [best, *runners, *pareto]:  # what each changes from the base set-up
+        c["changes"] = _levers.changes(proc, base_setup, setups[c["candidate"]],
+                                       tuple(vary) if vary else None)
     return PlanResult(table=table, best=best, pareto=pareto, confirmation=confirmation,
-                      targets=targets, k=k, runners_up=runners)
+                      targets=targets, k=k, runners_up=runners,
+                      search=found.summary() if found is not None else "")
 
 
-def _possible_measurands(proc, setups) -> tuple[dict, list]:
+class _Judge:
+    """The linearised u of a candidate (once per set-up) and its score for the lever
+    search: each target's k u over its bound, the measurands left undetermined."""
+
+    def __init__(self, proc, truth, estimator, sources, targets, k, criterion, required):
+        self.proc, self.truth, self.estimator, self.sources = proc, truth, estimator, sources
+        self.targets, self.k, self.criterion, self.required = targets, k, criterion, required
+        self.memo, self.listed = {}, {}
+
+    def assess(self, setup) -> tuple:
+        """(u, {}, shifts) of :func:`_assess`, once per set-up."""
+        from mtplan.plans.sweep import canonical
+
+        key = canonical(setup)
+        if key not in self.memo:
+            reliable = any(n.startswith(RELIABILITY) for n in self.targets)
+            self.memo[key] = _assess(self.proc, setup, self.truth, self.estimator,
+                                     self.sources, True, False, reliable)
+        return self.memo[key]
+
+    def u(self, setup) -> dict:
+        return self.assess(setup)[0]
+
+    def measurands(self, setup) -> tuple:
+        """The procedure's measurands at `setup`, once per set-up (geometry21's take a
+        rank analysis)."""
+        from mtplan.plans.sweep import canonical
+
+        key = canonical(setup)
+        if key not in self.listed:
+            self.listed[key] = self.proc.measurands(setup)
+        return self.listed[key]
+
+    def score(self, setup) -> _levers.Score:
+        u, _, shifts = self.assess(setup)
+        ratios = [target_value(self.proc, setup, n, u, self.k, shifts) / v
+                  for n, v in self.targets.items()]
+        ratios = [r if math.isfinite(r) else math.inf for r in ratios]
+        listed = {m.name for m in self.measurands(setup)}
+        missing = [n for n in self.required if n not in listed]
+        values = list(ratios)
+        if missing or self.required:
+            values.append(1.0 + len(missing))
+        if self.criterion is not None:  # the criterion's measurand, else every measurand
+            values += [self.k * u[n] for n in ([self.criterion.name]
+                       if getattr(self.criterion, "name", None) in u else u)]
+        worst = max(ratios + ([math.inf] if missing else []), default=0.0)
+        feasible = worst <= 1 and (self.criterion is None or bool(
+            self.criterion({n: self.k * x for n, x in u.items()})))
+        return _levers.Score(np.array(values, dtype=float), worst, feasible)
+
+
+class _Where:
+    """How a message names a candidate: what it changes from the base set-up (the grid's
+    fields, or the levers and the calibration searched) and its cost; and, for a grid, the
+    lever or calibration outside it that would meet the targets or comes nearest."""
+
+    def __init__(self, proc, base, setups, vary, judge):
+        self.proc, self.base, self.setups, self.vary, self.judge = proc, base, setups, vary, judge
+
+    def __call__(self, j) -> str:
+        s = self.setups[j]
+        if self.vary:
+            shown = {f: getattr(s, f) for f in self.vary}
+        else:
+            shown = _levers.changes(self.proc, self.base, s)
+        text = ", ".join(f"{f}={v}" if f != "calibration" else f"with the calibration {v!r}"
+                         for f, v in shown.items())
+        if not self.vary:
+            text = (text or "the base set-up") + \
+                f"; cost {_levers.cost_of(self.proc, self.base, s):.0f} s"
+        return text
+
+    def outside(self, j) -> str:
+        """For a grid: the one lever option or calibration about candidate `j` that meets
+        the targets, or comes nearest, with its cost; "" without a grid."""
+        if not self.vary:
+            return ""
+        s = self.setups[j]
+        near = _levers.nearest(self.proc, s, self.judge.score, fields=tuple(self.vary))
+        if near is None:
+            return ""
+        other, score = near
+        change = ", ".join(f"{f}={v}" if f != "calibration" else f"the calibration {v!r}"
+                           for f, v in _levers.changes(self.proc, s, other).items())
+        cost = _levers.cost_of(self.proc, self.base, other)
+        what = "would meet the targets" if score.feasible else \
+            f"comes nearest (worst ratio {score.worst:.3g})"
+        return f"; outside the grid, {change} {what} at a cost of {cost:.0f} s"
+
+
+def _possible_measurands(proc, setups, measurands=None) -> tuple[dict, list]:
     """Every measurand a candidate may report, name -> unit: those listed at any candidate
     and, where the procedure's identifiability report names them (geometry21: the 21 error
     functions), those the procedure could report at some set-up; in the procedure's order.
-    Also each candidate's own list."""
+    Also each candidate's own list. `measurands`: the procedure's, or a memo of it."""
     names = dict.fromkeys(proc.capabilities.identifiability_report(setups[0]).get(
         "functions", {}), "")
     listed = []
     for s in setups:
-        ms = proc.measurands(s)
+        ms = (measurands or proc.measurands)(s)
         names.update({m.name: m.unit for m in ms})
         listed.append([m.name for m in ms])
     return names, listed
@@ -300,7 +440,7 @@ def _required(proc, names, determine) -> tuple:
 
 
 def _check_plan(proc, names, targets, criterion, k, confirm, trials, n_jobs, backend,
-                required=()):
+                required=(), max_candidates=1):
     """Every problem of the plan's arguments at once."""
     p = Problems(f"plan {proc.name}")
     if not targets and criterion is None and not required:
@@ -317,30 +457,38 @@ def _check_plan(proc, names, targets, criterion, k, confirm, trials, n_jobs, bac
     p.number("k", k, low=0, low_open=True)
     p.number("confirm", confirm, integer=True, low=1)
     p.number("trials", trials, integer=True, low=100)
+    p.number("max_candidates", max_candidates, integer=True, low=1)
     check_parallel(p, n_jobs, backend)
     p.raise_if_any()
 
 
 def _screen(proc, setups, truth, estimator, sources, targets, k, criterion, identify, n_jobs,
-            backend, names=None, required=(), listed=None):
+            backend, names=None, required=(), listed=None, done=None, base=None):
     """The candidates' table: linearised (k-scaled) uncertainties (NaN for measurands a
     candidate does not determine), worst target ratio, identifiability and feasibility,
-    one row per set-up. A candidate that misses a required measurand is not linearised."""
+    one row per set-up. A candidate that misses a required measurand is not linearised.
+    `done`: each set-up's (u, identifiability) where already known; `base`: the set-up whose
+    calibrations a candidate's cost leaves out (default: the first)."""
     import pandas as pd
 
     names = [m.name for m in proc.measurands(setups[0])] if names is None else names
     if listed is None:
         listed = [[m.name for m in proc.measurands(s)] for s in setups]
     missing = [[n for n in required if n not in ls] for ls in listed]
-    with parallel_session(n_jobs, backend) as session:  # one task per candidate, so that a
-        # procedure's per-set-up precomputation serves both
-        reliable = [target_measurand(n) for n in targets if n.startswith(RELIABILITY)]
-        tasks = ((proc, s, truth, estimator, sources, not miss, identify,
-                  bool(reliable) and not miss) for s, miss in zip(setups, missing))
-        done = list(ordered_map(_assess, tasks, n_jobs=session["n_jobs"], backend=backend))
+    base = setups[0] if base is None else base
+    if done is None:
+        with parallel_session(n_jobs, backend) as session:  # one task per candidate, so that
+            # a procedure's per-set-up precomputation serves both
+            reliable = [target_measurand(n) for n in targets if n.startswith(RELIABILITY)]
+            tasks = ((proc, s, truth, estimator, sources, not miss, identify,
+                      bool(reliable) and not miss) for s, miss in zip(setups, missing))
+            done = list(ordered_map(_assess, tasks, n_jobs=session["n_jobs"], backend=backend))
     rows = []
     for i, (s, (u, ident, shifts)) in enumerate(zip(setups, done, strict=True)):
-        row = {"candidate": i, **_flat(_setup_fields(s)), "duration_s": float(proc.duration(s))}
+        cal = _levers.calibration_of(proc, base, s)
+        row = {"candidate": i, **_flat(_setup_fields(s)), "duration_s": float(proc.duration(s)),
+               "cost_s": _levers.cost_of(proc, base, s),
+               "calibration": cal.name if cal is not None else ""}
         for name in names:
             row[f"u_{name}"] = k * u[name] if name in u else math.nan
         for name in targets:
@@ -360,20 +508,25 @@ def _screen(proc, setups, truth, estimator, sources, targets, k, criterion, iden
     return pd.DataFrame(rows)
 
 
-def _unreachable(units, table, targets, vary, criterion, required=()) -> list[str]:
+def _unreachable(units, table, targets, vary, criterion, required=(), where=None) -> list[str]:
     """Why no candidate is feasible: the measurands no candidate determines, the best
-    reachable value of each target missed."""
+    reachable value of each target missed (`where(j)`: how candidate j is named, and
+    ``where.outside(j)`` the lever beyond a grid that would meet the targets)."""
     names = list(units)
     msgs = []
+    if where is None:
+        def where(j):
+            return ", ".join(f"{f}={table.loc[j, f]}" for f in (vary or {}))
+        where.outside = lambda j: ""
     if required:
         full = table[table["undetermined"] == ""]
         if full.empty:
             j = int(table["determined"].idxmax())
-            where = ", ".join(f"{f}={table.loc[j, f]}" for f in (vary or {}))
+            at = where(j)
             msgs.append(f"No candidate determines every measurand asked for: the best "
                         f"determines {table.loc[j, 'determined']} and leaves "
                         f"{table.loc[j, 'undetermined']} undetermined"
-                        + (f" (at {where})" if where else ""))
+                        + (f" (at {at})" if at else "") + where.outside(j))
             return msgs
         table = full
     for n, v in targets.items():
@@ -383,10 +536,11 @@ def _unreachable(units, table, targets, vary, criterion, required=()) -> list[st
         j = int(table[f"u_{n}"].idxmin())
         reach = table.loc[j, f"u_{n}"]
         if reach > v:
-            where = ", ".join(f"{f}={table.loc[j, f]}" for f in (vary or {}))
+            at = where(j)
             unit = units[target_measurand(n)]
             msgs.append(f"The target {n}<={v:g} {unit} cannot be met: the best reachable "
-                        f"value is {reach:.3g} {unit}" + (f" (at {where})" if where else ""))
+                        f"value is {reach:.3g} {unit}" + (f" (at {at})" if at else "")
+                        + where.outside(j))
     if not msgs and criterion is not None and hasattr(criterion, "explain"):
         us = [{n: float(table.loc[j, f"u_{n}"]) for n in names
                if math.isfinite(table.loc[j, f"u_{n}"])} for j in table.index]
@@ -394,8 +548,10 @@ def _unreachable(units, table, targets, vary, criterion, required=()) -> list[st
                                                                  (vary or {})), strict=True))
                                            for j in table.index]))
     if not msgs:
-        msgs.append("No candidate meets every target at once (each can be met alone)"
-                    if targets else "No candidate meets the acceptance criterion")
+        j = int(table["worst"].idxmin())
+        msgs.append(("No candidate meets every target at once (each can be met alone)"
+                     if targets else "No candidate meets the acceptance criterion")
+                    + where.outside(j))
     return msgs
 
 
@@ -497,13 +653,25 @@ def _candidate(row, setup, names, targets) -> dict:
         "candidate": int(row["candidate"]),
         "setup": setup.as_dict(),
         "duration_s": float(row["duration_s"]),
+        "cost_s": float(row["cost_s"]),
+        "calibration": str(row["calibration"]),
         "predicted": {n: float(row[f"u_{n}"]) for n in names if math.isfinite(row[f"u_{n}"])},
         "worst": float(row["worst"]),
     }
-    if "rank" in row:
+    if "rank" in row and not math.isnan(row["rank"]):
         out["identifiability"] = {k: (int(row[k]) if k in ("rank", "n_params") else float(row[k]))
                                   for k in _IDENT}
     return out
+
+
+def _identify_rows(proc, setups, truth, table, rows) -> None:
+    """The identifiability columns of the rows `rows` of `table` (the others NaN): the
+    recommended set-up of the search, without the analysis of every set-up it screened."""
+    for j in dict.fromkeys(int(r) for r in rows):
+        for key, value in design_identifiability(proc, setups[j], truth).items():
+            if key not in table.columns:
+                table[key] = math.nan
+            table.loc[j, key] = value
 
 
 def _assess(proc, setup, truth, estimator, sources, predict, identify,

@@ -97,11 +97,15 @@ def lever_for(o, v, needed) -> str:
         t = plan.table
         ok = t[(2 * t[column] / plan.k <= needed) & (t[column] > 0)]
         if len(ok):
-            r = ok.loc[ok["duration_s"].idxmin()]
-            fields = [f for f in o.spec.plan.get("vary", {}) if f in t.columns]
-            cand = (float(r["duration_s"]), None,
-                    ", ".join(setting_text(o, f, r[f]) for f in fields),
-                    2 * r[column] / plan.k)
+            r = ok.loc[ok["cost_s"].idxmin()]
+            vary = o.spec.plan.get("vary", {})  # else the levers the search changed
+            base = o.spec.setup.as_dict()
+            fields = [f for f in (vary or o.spec.procedure.levers) if f in t.columns
+                      and (vary or str(r[f]) != str(base.get(f)))]
+            shown = [setting_text(o, f, r[f]) for f in fields]
+            if r.get("calibration"):
+                shown.append(f"with the calibration {r['calibration']}")
+            cand = (float(r["cost_s"]), None, ", ".join(shown), 2 * r[column] / plan.k)
             if best is None or cand[0] < best[0]:
                 best = cand
     if best is None:

@@ -42,7 +42,9 @@ def procedure_section(k, outcome, measured: bool = True) -> tuple[Section, dict]
            f"{ps.name}_{k}_budget": outcome.budget}
     sec.blocks += _sweep_blocks(k, outcome, csv)
     if outcome.plan is not None:
-        sec.blocks += _plan_blocks(outcome.plan, ps.plan.get("vary", {}))
+        from mtplan.reports.document import plan_fields
+
+        sec.blocks += _plan_blocks(outcome.plan, plan_fields(outcome))
         if not isinstance(outcome.plan, str):
             csv[f"{ps.name}_{k}_plan"] = outcome.plan.table
     if outcome.measured is not None and measured:

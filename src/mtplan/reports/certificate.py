@@ -709,14 +709,14 @@ def _set_up_choices(o) -> list:
     why not, from the same numbers: the planner's cheapest set-up meeting the targets, and
     each swept change that lowers U beyond the Monte Carlo error at no extra machine time
     (not adopted where it raises the U of another measurand of the test)."""
-    from mtplan.reports.document import (lever_U, plan_adopted, plan_targets, setting_text,
-                                         target_text)
+    from mtplan.reports.document import (lever_U, plan_adopted, plan_fields, plan_targets,
+                                         setting_text, target_text)
 
     out = []
     plan = o.plan
     if plan is not None and not isinstance(plan, str):
         best = plan.best
-        changed = ", ".join(field_value(f, best["setup"][f]) for f in o.spec.plan.get("vary", {})
+        changed = ", ".join(field_value(f, best["setup"][f]) for f in plan_fields(o)
                             if f in best["setup"]) or "the base set-up"
         if plan_adopted(o):
             out.append(f"Set-up from the planner: {changed}, the cheapest set-up of its grid "

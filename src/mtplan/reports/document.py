@@ -301,12 +301,24 @@ def _plan_finding(o) -> list[str]:
     if isinstance(plan, str):
         return [f"No set-up of the plan's grid meets the targets: {plan}"]
     best = plan.best
-    changed = ", ".join(field_value(f, best["setup"][f]) for f in o.spec.plan.get("vary", {})
+    changed = ", ".join(field_value(f, best["setup"][f]) for f in plan_fields(o)
                         if f in best["setup"])
     adopted = " (the agreed set-up)" if plan_adopted(o) else ""
     return [f"Plan: {changed}{adopted} meets the targets ({target_text(o)}) in "
             f"{duration_text(best['duration_s'])} of machine time (confirmed by Monte "
             "Carlo; appendix)."]
+
+
+def plan_fields(o) -> list:
+    """The set-up fields the plan chose: those of its grid (``vary``), else those its
+    search over the levers changed, a calibration's own fields included."""
+    vary = o.spec.plan.get("vary", {})
+    if vary or o.plan is None or isinstance(o.plan, str):
+        return list(vary)
+    best = o.plan.best
+    cal = [c for c in o.spec.procedure.capabilities.calibrations if c.name == best.get("calibration")]
+    return [f for f in best.get("changes", {}) if f != "calibration"] + [
+        f for c in cal for f in c.values]
 
 
 def plan_targets(plan) -> dict:
@@ -331,8 +343,8 @@ def plan_adopted(o) -> bool:
     if plan is None or isinstance(plan, str):
         return False
     agreed = o.spec.setup.as_dict()
-    return all(best == agreed.get(f) for f, best in plan.best["setup"].items()
-               if f in o.spec.plan.get("vary", {}))
+    fields = plan_fields(o)
+    return all(best == agreed.get(f) for f, best in plan.best["setup"].items() if f in fields)
 
 
 def _estimator_findings(o) -> list[str]:

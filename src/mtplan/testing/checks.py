@@ -35,6 +35,15 @@ def _expect(condition, message: str) -> None:
 
 
 @contextmanager
+def _accepted(what: str):
+    """The block must not raise InvalidInput: `what` is a set-up the procedure accepts."""
+    try:
+        yield
+    except InvalidInput as exc:
+        raise AssertionError(f"{what} is refused: {exc}") from None
+
+
+@contextmanager
 def _refused(what: str, *needles: str):
     """The block must raise InvalidInput whose message holds every one of `needles`; the
     list it yields then holds that error."""
@@ -129,6 +138,21 @@ def check_levers(proc: Procedure) -> None:
     sized = {src.field for src in proc.sources(proc.Setup()).values()}
     _expect(not sized & set(proc.levers),
             f"levers that size an error source: {sorted(sized & set(proc.levers))}")
+
+
+def check_lever_options_and_calibrations(proc: Procedure) -> None:
+    """Only levers declare ``levels`` (the planner's options; ``param`` checks each against
+    the field's range), and each calibration sets set-up fields to values the procedure
+    accepts at its defaults and removes sources it has."""
+    setup = proc.Setup()
+    stray = [f.name for f in fields_info(proc.Setup) if f.levels and f.name not in proc.levers]
+    _expect(not stray, f"fields that declare levels but are no lever: {stray}")
+    for cal in proc.capabilities.calibrations:
+        _expect(cal.values, f"the calibration {cal.name!r} sets no set-up field")
+        with _accepted(f"the calibration {cal.name!r}"):
+            make(proc.Setup, dict(cal.values), base=setup, owner=proc.name)
+        unknown = sorted(set(cal.removes) - set(proc.sources(setup)))
+        _expect(not unknown, f"the calibration {cal.name!r} removes no source {unknown}")
 
 
 def check_simulate_shapes_and_all_estimators(proc: Procedure) -> None:
@@ -261,6 +285,7 @@ CHECKS: tuple[Callable[[Procedure], None], ...] = (
     check_sources_declare_their_fields,
     check_switching_a_source_off_through_its_field,
     check_levers,
+    check_lever_options_and_calibrations,
     check_simulate_shapes_and_all_estimators,
     check_noise_free_recovery,
     check_seed_and_n_jobs_invariance,

@@ -23,7 +23,8 @@ class Setup(SetupBase):
     _owner = "circle_centre"
     bore_radius_mm: float = param(250.0, doc="Nominal radius of the bore", low=0, high=10_000,
                                   low_open=True)
-    n_points: int = param(3, doc="Measuring points d1..dn (3: the patent's rule)", low=3, high=360)
+    n_points: int = param(3, doc="Measuring points d1..dn (3: the patent's rule)", low=3, high=360,
+                          levels=(3, 4, 6, 8, 12))
     spread_deg: float = param(360.0, doc="Arc the points cover; 360 = full circle, equally "
                               "spaced; less: end points included", low=1, high=360)
     probe_noise_um: float = param(0.5, doc="Probe trigger noise along the approach (std)", low=0,

@@ -102,12 +102,13 @@ class Setup(SetupBase):
     line_length_mm: float = param(100.0, doc="Length of each line test (the patent: 100 mm)",
                                   low=0, high=2 * PLATE_RADIUS_MM, low_open=True)
     line_repeats: int = param(5, doc="Back-and-forth repeats of each line (the patent: 5)",
-                              low=1, high=100)
-    line_points: int = param(21, doc="Readings per line pass", low=3, high=2001)
+                              low=1, high=100, levels=(1, 2, 5, 10))
+    line_points: int = param(21, doc="Readings per line pass", low=3, high=2001,
+                            levels=(11, 21, 41))
     circle_radius_mm: float = param(50.0, doc="Radius of the circle tests (the patent: 30-70 mm)",
                                     low=0, high=PLATE_RADIUS_MM, low_open=True)
     circle_points: int = param(72, doc="Readings per circle pass (two passes: CCW, CW)",
-                               low=8, high=20001)
+                               low=8, high=20001, levels=(36, 72, 144))
     circle_arc_deg: float = param(360.0, doc="Arc of each circle pass (the patent's program: 45)",
                                   low=0, high=360, low_open=True)
     head_offset_mm: float = param(100.0, doc="Reading head below the spindle reference point "

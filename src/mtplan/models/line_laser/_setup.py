@@ -37,7 +37,7 @@ class Setup(SetupBase):
         low=0, low_open=True)
     points_per_line: int = param(
         65, doc="Points reported along the line (decimated from the sensor's 800-3200)", low=5,
-        high=3200)
+        high=3200, levels=(33, 65, 129))
     range_mm: float = param(
         8.0, doc="Measuring range of the sensor in height (e.g. +-4 mm)", low=0, low_open=True)
     sensor_noise_um: float = param(

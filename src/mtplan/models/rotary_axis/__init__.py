@@ -231,6 +231,8 @@ time (19 000 trials/s on the default C set-up, gls 25 000).
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from mtplan.models.rotary_axis._axes import AXIS_ROWS, POSITION_AXIS, axis_part
 from mtplan.models.rotary_axis._axis_line import DESCRIPTIONS, ESTIMATORS, axis_line
 from mtplan.models.rotary_axis._estimators import (
@@ -256,6 +258,7 @@ from mtplan.models.rotary_axis._readings import (
 )
 from mtplan.models.rotary_axis._setup import NAME, Setup, Truth
 from mtplan.models.protocol import (
+    Calibration,
     Capabilities,
     Estimator,
     Procedure,
@@ -283,6 +286,24 @@ __all__ = [
     "from_frame",
     "PROCEDURE",
 ]
+
+#: the sensor's angle characteristic calibrated on a tilt table, as the packaged example
+#: (a 5 deg grid of tilts from -50 to 50 deg, u = 0.5 um per point)
+_EXAMPLE_CHARACTERISTIC = Path(__file__).resolve().parent.parent.parent / "examples" / \
+    "angle_characteristic.csv"
+_CALIBRATED_POINT_S = 10.0  # a tilt table's move, settling and reading per calibrated point
+
+CHARACTERISTIC = Calibration(
+    "sensor angle characteristic",
+    {"sensor_characteristic": str(_EXAMPLE_CHARACTERISTIC)},
+    cost_s=441 * _CALIBRATED_POINT_S,
+    removes=("angle_influence_halfwidth",),
+    description="the sensor calibrated on a tilt table as the packaged example "
+                "angle_characteristic.csv: 21 x 21 tilts (a 5 deg grid from -50 to 50 deg), "
+                "u = 0.5 um per point; its cost is the table's time, 10 s a point (move, "
+                "settle, read): 4410 s",
+)
+
 
 class _Capabilities(Capabilities):
     """rotary_axis beyond its model: the truth of an estimate (the axis lines' errors)."""
@@ -315,7 +336,7 @@ PROCEDURE = Procedure(
                  "dwell_s feed_mm_min".split()),
     readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
                             limits=reading_limits, noise_source="probe_noise"),
-    capabilities=_Capabilities(block_size=2000),
+    capabilities=_Capabilities(block_size=2000, calibrations=(CHARACTERISTIC,)),
     source_method=SourceMethod(
         "patent", "Method for measuring direction and spatial position of rotation center of "
         "rotating shaft", who="Chinese patent application, Yang Xiaojun et al., filed "

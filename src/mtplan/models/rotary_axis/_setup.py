@@ -54,7 +54,7 @@ class Setup(SetupBase):
                                        "at the zero position [deg]", low=-360, high=360)
     positions: int | None = param(None, doc="Number of axis positions, >= 3 (empty: 6 for C, "
                                   "7 for A); for CA, of the A part", low=3,
-                                  high=MAX_POSITIONS)
+                                  high=MAX_POSITIONS, levels=(3, 4, 6, 8, 12))
     range_deg: float | None = param(None, doc="Angular range [deg]: C positions equally spaced "
                                     "over it starting at 0 (360: the full turn), A positions "
                                     "spaced over -range/2..range/2 inclusive in a_order (empty: "
@@ -84,9 +84,10 @@ class Setup(SetupBase):
                                              "position error at the pose is reported [mm]",
                                              low=-5000, high=5000, min_len=3, max_len=3)
     lattice_nx: int = param(5, doc="Lattice points along X, >= 2 (one column is a line: the "
-                            "plane's tilt across it is undetermined)", low=2, high=101)
+                            "plane's tilt across it is undetermined)", low=2, high=101,
+                            levels=(3, 5, 7))
     lattice_ny: int = param(5, doc="Lattice points along Y, >= 2 (one row is a line)",
-                            low=2, high=101)
+                            low=2, high=101, levels=(3, 5, 7))
     lattice_size_mm: float = param(40.0, doc="Side of the square lattice [mm]", low=0,
                                    high=1000, low_open=True)
     lattice_offset_x_mm: float = param(0.0, doc="Lattice centre at the zero position, X from "

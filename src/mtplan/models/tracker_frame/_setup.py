@@ -50,11 +50,13 @@ class Setup(SetupBase):
     travel_x_mm: float = param(1000.0, doc="Travel of X used for the line", low=0, high=20000)
     travel_y_mm: float = param(600.0, doc="Travel of Y used for the line", low=0, high=20000)
     travel_z_mm: float = param(400.0, doc="Travel of Z used for the line", low=0, high=20000)
-    points_per_axis: int = param(11, doc="Points along each linear travel", low=2, high=1000)
+    points_per_axis: int = param(11, doc="Points along each linear travel", low=2, high=1000,
+                                 levels=(6, 11, 21))
     c_arc_deg: float = param(180.0, doc="Arc of C covered by the points", low=0, high=360)
     a_arc_deg: float = param(60.0, doc="Arc of A covered by the points (often short)",
                              low=0, high=360)
-    points_per_arc: int = param(7, doc="Points on each of the A and C arcs", low=3, high=1000)
+    points_per_arc: int = param(7, doc="Points on each of the A and C arcs", low=3, high=1000,
+                                levels=(4, 7, 13))
     tracker_distance_mm: float = param(
         4000.0, doc="Horizontal distance from the tracker to the gantry (along X)",
         low=0, low_open=True, high=60000)
