@@ -303,14 +303,7 @@ class Setup(SetupBase):
             return np.asarray(self.angles_deg, dtype=float)
         n = self.positions if self.positions is not None else _DEFAULT_POSITIONS[axis]
         span = self.range_deg if self.range_deg is not None else _DEFAULT_RANGE[axis]
-        if axis == "A":
-            grid = np.linspace(-span / 2, span / 2, n)
-            if self.a_order == "patent":
-                grid = np.concatenate([grid[grid >= 0], grid[grid < 0][::-1]])
-            return grid
-        if span >= 360.0:
-            return span * np.arange(n) / n
-        return np.linspace(0.0, span, n)
+        return axis_grid(axis, n, span, self.a_order)
 
     def angles(self) -> np.ndarray:
         """Commanded angles of every position in measuring order (C, then A for CA) [deg]."""
@@ -478,6 +471,19 @@ class Truth(SetupBase):
 
 
 # --------------------------------------------------------------------------- nominal geometry
+def axis_grid(axis: str, n: int, span: float, a_order: str = "ascending") -> np.ndarray:
+    """The commanded angles [deg] of `n` positions over `span` of `axis` in measuring order
+    (:meth:`Setup.axis_angles` from positions, range_deg and a_order)."""
+    if axis == "A":
+        grid = np.linspace(-span / 2, span / 2, n)
+        if a_order == "patent":
+            grid = np.concatenate([grid[grid >= 0], grid[grid < 0][::-1]])
+        return grid
+    if span >= 360.0:
+        return span * np.arange(n) / n
+    return np.linspace(0.0, span, n)
+
+
 def incline_normal(setup: Setup) -> np.ndarray:
     i, az = math.radians(setup.incline), math.radians(setup.incline_azimuth_deg)
     return np.array([math.sin(i) * math.cos(az), math.sin(i) * math.sin(az), math.cos(i)])
