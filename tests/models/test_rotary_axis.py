@@ -185,6 +185,14 @@ def test_monte_carlo_agrees_with_linearisation(axis, estimator):
     names = [m.name for m in PROC.measurands(setup)]
     if "ac_offset" in names:
         rtol[names.index("ac_offset")] = 0.20
+    # EY0A: the artifact's clamping tilt (normal, 10 mrad: a clamping by eye) couples into
+    # it at second order, which the linearisation at the tilt's mean cannot see: the Monte
+    # Carlo's u is 9 % above the GUM's (5.62 against 5.16 um, A, patent); held to 12 %
+    # CA: EY0C likewise (5.94 against 5.51 um), and ac_offset, about their difference, 45 %
+    # (3.67 against 2.52 um): the GUM of ac_offset understates what a real clamping does
+    for name, held in (("EY0A", 0.12), ("EY0C", 0.12), ("ac_offset", 0.5)):
+        if name in names and axis != "C":
+            rtol[names.index(name)] = held
     assert np.all(np.abs(mc.mc.std - gum.std) <= rtol * np.abs(gum.std)), (mc.mc.std, gum.std)
     # unbiased to first order: the mean is within 4 sigma/sqrt(n) of the truth
     assert np.all(np.abs(mc.bias) < 4 * mc.mc.std / math.sqrt(n))
@@ -258,9 +266,12 @@ def test_angles_gains_on_the_direction_from_the_encoder(kw):
     # a 1 deg encoder ties the azimuths loosely: within 1 % of gls (0.2-0.45 % seen with
     # the angle influence and the smooth positioning error on, which the per-position
     # weights of both fits leave out)
+    # (with the fall line at 60 deg the artifact's 10 mrad clamping tilt, in both weights,
+    # leaves angles up to 5.5 % below gls on EY0A: held to 6 %)
     blind = setup.replace(angular_positioning_arcsec=0.0, angular_repeatability_arcsec=3600.0)
     u = {e: _first_order(blind, e) for e in ("gls", "angles")}
-    np.testing.assert_allclose(u["angles"], u["gls"], rtol=1e-2)
+    np.testing.assert_allclose(u["angles"], u["gls"], rtol=6e-2 if "incline_azimuth_deg" in kw
+                               else 1e-2)
 
 
 # --------------------------------------------------------------------------- claims

@@ -125,7 +125,7 @@ class Setup(SetupBase):
                                     "at each reading [um]", low=0, high=1000, owner="machine")
     flatness_um: float = param(2.0, doc="Flatness of the incline over the lattice, peak to "
                                "valley [um]", low=0, high=1000, owner="artefact")
-    artifact_tilt_urad: float = param(5000.0, doc="Standard deviation (normal, no hard "
+    artifact_tilt_urad: float = param(10000.0, doc="Standard deviation (normal, no hard "
                                       "bound) of each of the two tilts of the artifact's real "
                                       "plane from its nominal incline and azimuth [urad]: the "
                                       "plane is clamped by eye, not calibrated; the patent's "
