@@ -36,6 +36,11 @@ def _first_order(setup, estimator):
 #: a sensor stated to 65 deg of tilt, for the set-ups whose fall line at 60 or 150 deg to X
 #: tilts the surface to 57-63 deg at A = +-45 (the geometry's tests, not the sensor's)
 STEEP = 65.0
+#: the A test of the patent's example, +-45 deg at a 20 deg incline: beyond the sensor's
+#: 30 deg table (48.4 deg at A = +-45), accepted with its extrapolated bound; the tests of
+#: the geometry and of the estimators below were derived on it
+A45 = dict(axis="A", incline_deg=20.0, range_deg=90.0, sensor_max_tilt_deg=50.0,
+           sensor_extrapolate_table=True)
 CASES = {
     "C default": {},
     "C offset lattice, 3x4, ref 100": dict(lattice_offset_x_mm=35.0, lattice_offset_y_mm=-20.0,
@@ -45,8 +50,8 @@ CASES = {
     "C Z fixed per lattice": dict(z_follows_surface=False, sensor_range_mm=25.0),
     "A default": dict(axis="A"),
     "A azimuth 150, ref -80": dict(axis="A", incline_azimuth_deg=150.0, reference_height_mm=-80.0,
-                                   sensor_max_tilt_deg=STEEP),
-    "A seed order, h 0": dict(axis="A", angles_deg=(0, 15, 30, 45, -15, -30, -45),
+                                   sensor_max_tilt_deg=STEEP, sensor_extrapolate_table=True),
+    "A seed order, h 0": dict(A45, angles_deg=(0, 15, 30, 45, -15, -30, -45),
                               artifact_height_mm=0.0),
     "CA default": dict(axis="CA"),
     "CA 4 C angles, 5 A ascending, ref 30": dict(axis="CA", c_angles_deg=(0, 90, 180, 270),
@@ -124,7 +129,7 @@ def test_sensor_sees_only_the_residual_when_z_follows():
         if follow:
             assert diff < limit
         else:
-            span = np.ptp(ra.plan(setup).xy[0, :, 0]) * math.tan(math.radians(setup.incline_deg))
+            span = np.ptp(ra.plan(setup).xy[0, :, 0]) * math.tan(math.radians(setup.incline))
             assert diff > 0.1 * span / 2 * 0.9
 
 
@@ -172,14 +177,22 @@ def test_monte_carlo_agrees_with_linearisation(axis, estimator):
     gum = linearize_procedure(PROC, setup, estimator=estimator)
     tol = 4 / math.sqrt(2 * (n - 1))
     rtol = np.full(len(gum.std), tol)
-    # CA's ac_offset: the Monte Carlo's u is 11-13 % above the GUM's since the sensor's
-    # angle influence spans every shape within its bound (1.66 against 1.49 um, patent):
+    # CA's ac_offset: the Monte Carlo's u is 11-18 % above the GUM's since the sensor's
+    # angle influence spans every shape within its bound (2.01 against 1.71 um, patent):
     # about the same extra variance (0.6 um^2) shows in EY0A, where it is 1 % of u^2, so
     # a second-order coupling of the influence's large effect on the A part into EY0A, seen
-    # in ac_offset where the spot's offset cancels; held to 15 % so that a larger gap shows
+    # in ac_offset where the spot's offset cancels; held to 20 % so that a larger gap shows
     names = [m.name for m in PROC.measurands(setup)]
     if "ac_offset" in names:
-        rtol[names.index("ac_offset")] = 0.15
+        rtol[names.index("ac_offset")] = 0.20
+    # EY0A: the artifact's clamping tilt (normal, 10 mrad: a clamping by eye) couples into
+    # it at second order, which the linearisation at the tilt's mean cannot see: the Monte
+    # Carlo's u is 9 % above the GUM's (5.62 against 5.16 um, A, patent); held to 12 %
+    # CA: EY0C likewise (5.94 against 5.51 um), and ac_offset, about their difference, 45 %
+    # (3.67 against 2.52 um): the GUM of ac_offset understates what a real clamping does
+    for name, held in (("EY0A", 0.12), ("EY0C", 0.12), ("ac_offset", 0.5)):
+        if name in names and axis != "C":
+            rtol[names.index(name)] = held
     assert np.all(np.abs(mc.mc.std - gum.std) <= rtol * np.abs(gum.std)), (mc.mc.std, gum.std)
     # unbiased to first order: the mean is within 4 sigma/sqrt(n) of the truth
     assert np.all(np.abs(mc.bias) < 4 * mc.mc.std / math.sqrt(n))
@@ -195,7 +208,7 @@ def test_probe_noise_alone_scales_linearly():
 def test_joint_is_never_worse_than_patent_for_reading_noise():
     # the joint fit is the maximum-likelihood estimate for independent reading errors,
     # so its linearised uncertainty is at most the patent's (equal within 1e-3 for C)
-    for kw in ({}, dict(axis="A"), dict(axis="A", incline_azimuth_deg=60.0, sensor_max_tilt_deg=STEEP)):
+    for kw in ({}, dict(axis="A"), dict(A45, incline_azimuth_deg=60.0, sensor_max_tilt_deg=STEEP)):
         setup = PROC.setup(**kw)
         pat = linearize_procedure(PROC, setup, estimator="patent", sources=["probe_noise"]).std
         joint = linearize_procedure(PROC, setup, estimator="joint", sources=["probe_noise"]).std
@@ -209,7 +222,7 @@ def test_gls_recovers_what_the_joint_fit_loses_to_per_position_errors():
     # (the errors shared by every position, the sensor's orientation, zero, spot offset and
     # linearity, the slides' slope and bow and the smooth angular positioning, are off: a
     # block-diagonal weight does not hold them)
-    setup = PROC.setup(axis="A", incline_azimuth_deg=60.0, angle_influence_halfwidth_ppm=0.0,
+    setup = PROC.setup(A45, incline_azimuth_deg=60.0, angle_influence_halfwidth_ppm=0.0,
                        sensor_max_tilt_deg=STEEP,
                        angular_positioning_arcsec=0.0, **SHARED_OFF)
     u = {e: _first_order(setup, e) for e in ("patent", "joint", "gls")}
@@ -226,7 +239,7 @@ def test_lateral_position_worsens_with_a_small_incline():
 
 
 @pytest.mark.parametrize("kw", [{}, dict(axis="A"), dict(axis="CA"), dict(positions=3),
-                                dict(axis="A", incline_azimuth_deg=60.0, sensor_max_tilt_deg=STEEP)])
+                                dict(A45, incline_azimuth_deg=60.0, sensor_max_tilt_deg=STEEP)])
 def test_angles_gains_on_the_direction_from_the_encoder(kw):
     # the azimuths tied to the commanded angles: the direction is better determined
     # (C: EA0C, EB0C by 24 %; A: EB0A by 38 %), no measurand is worse than gls beyond
@@ -253,9 +266,12 @@ def test_angles_gains_on_the_direction_from_the_encoder(kw):
     # a 1 deg encoder ties the azimuths loosely: within 1 % of gls (0.2-0.45 % seen with
     # the angle influence and the smooth positioning error on, which the per-position
     # weights of both fits leave out)
+    # (with the fall line at 60 deg the artifact's 10 mrad clamping tilt, in both weights,
+    # leaves angles up to 5.5 % below gls on EY0A: held to 6 %)
     blind = setup.replace(angular_positioning_arcsec=0.0, angular_repeatability_arcsec=3600.0)
     u = {e: _first_order(blind, e) for e in ("gls", "angles")}
-    np.testing.assert_allclose(u["angles"], u["gls"], rtol=1e-2)
+    np.testing.assert_allclose(u["angles"], u["gls"], rtol=6e-2 if "incline_azimuth_deg" in kw
+                               else 1e-2)
 
 
 # --------------------------------------------------------------------------- claims
@@ -264,7 +280,9 @@ ANGLE_FREE = ("patent", "joint", "gls")  # the estimators that do not use the an
 
 @pytest.mark.parametrize("axis", ["C", "A"])
 def test_angular_positioning_error_does_not_change_the_result(axis):
-    setup = PROC.setup(axis=axis)
+    # (A: the patent's +-45 deg, where `angles` still converges with 1 deg errors; at the
+    # default +-27 deg its fit gives no value (NaN) with them)
+    setup = PROC.setup(A45 if axis == "A" else dict(axis=axis))
     truth = PROC.truth(**BIG_TRUTH)
     P = setup.n_positions
     big = np.deg2rad(np.linspace(-1.0, 1.0, P))  # up to 1 deg, far beyond any real axis
@@ -294,12 +312,13 @@ def test_axial_motion_appears_as_lateral_error_through_the_incline():
 
 # --------------------------------------------------------------------------- A order, CA
 @pytest.mark.parametrize("values, angles", [
-    (dict(axis="A"), [-45, -30, -15, 0, 15, 30, 45]),  # one direction: B cannot bias
-    (dict(axis="A", a_order="patent"), [0, 15, 30, 45, -15, -30, -45]),  # the patent (S203)
-    (dict(axis="A", a_order="ascending"), [-45, -30, -15, 0, 15, 30, 45]),
-    (dict(axis="A", positions=4, range_deg=60.0), [-30, -10, 10, 30]),
-    (dict(axis="A", positions=4, range_deg=60.0, a_order="patent"), [10, 30, -10, -30]),
-    (dict(axis="CA"), [0, 60, 120, 180, 240, 300, -45, -30, -15, 0, 15, 30, 45]),
+    (dict(axis="A"), [-27, -18, -9, 0, 9, 18, 27]),  # one direction: B cannot bias
+    (dict(axis="A", a_order="patent"), [0, 9, 18, 27, -9, -18, -27]),  # the patent (S203)
+    (dict(A45, a_order="patent"), [0, 15, 30, 45, -15, -30, -45]),  # the patent's example
+    (dict(axis="A", a_order="ascending"), [-27, -18, -9, 0, 9, 18, 27]),
+    (dict(axis="A", positions=4, range_deg=54.0), [-27, -9, 9, 27]),
+    (dict(axis="A", positions=4, range_deg=54.0, a_order="patent"), [9, 27, -9, -27]),
+    (dict(axis="CA"), [0, 60, 120, 180, 240, 300, -27, -18, -9, 0, 9, 18, 27]),
     (dict(axis="CA", c_angles_deg=(0, 120, 240), angles_deg=(5, -5, 25)), [0, 120, 240, 5, -5, 25]),
 ])
 def test_measuring_order(values, angles):
@@ -333,7 +352,7 @@ def test_combined_test_is_the_c_test_then_the_a_test():
     errors = PROC.draw_errors(setup, n, np.random.SeedSequence(8))
     z = PROC.forward(setup, PROC.Truth(), errors)["z_mm"]
     for axis, sl in (("C", slice(0, nc)), ("A", slice(nc, None))):
-        single = PROC.setup(axis=axis, thermal_drift_um_per_s=0.0)
+        single = PROC.setup(axis=axis, incline_deg=setup.incline, thermal_drift_um_per_s=0.0)
         row = 0 if axis == "C" else 1  # the per-axis errors: the C row, then the A row
         part = {k: (v[(slice(None),) * ra.POSITION_AXIS[k] + (sl,)]
                     if k in ra.POSITION_AXIS else v[:, row:row + 1] if k in ra.AXIS_ROWS
@@ -355,7 +374,7 @@ def test_combined_test_is_the_c_test_then_the_a_test():
 
 def test_angles_fits_both_axes_of_ca_at_once():
     # the shared errors inform both parts: the CA fit's u of the A axis's position is below
-    # the A test's alone (GUM: EZ0A 104 against 111 um), and with only per-position
+    # the A test's alone (GUM: EZ0A below 0.95 times the A test's), and with only per-position
     # errors (no shared ones) the CA fit is the two single-axis fits
     from mtplan.evaluation.simulation import linearize_result
 
@@ -374,7 +393,8 @@ def test_angles_fits_both_axes_of_ca_at_once():
     z = PROC.simulate(setup, PROC.Truth(), 20, rng=8)["z_mm"]
     both = PROC.estimate(setup, {"z_mm": z}, "angles")
     for axis, sl in (("C", slice(0, nc)), ("A", slice(nc, None))):
-        alone = PROC.estimate(PROC.setup(axis=axis, **shared), {"z_mm": z[:, sl]}, "angles")
+        alone = PROC.estimate(PROC.setup(axis=axis, incline_deg=setup.incline, **shared),
+                              {"z_mm": z[:, sl]}, "angles")
         for name in alone:
             np.testing.assert_allclose(both[name], alone[name], rtol=0, atol=1e-9)
 
@@ -534,6 +554,6 @@ def test_posterior_finds_an_artifact_tilted_three_times_the_old_bound():
 
 @pytest.mark.parametrize("estimator,changes", [("patent", {}), ("joint", {"axis": "A"}),
                                                ("angles", {"axis": "CA"}),
-                                               ("gls", {"incline_deg": 35.0})])
+                                               ("gls", {"incline_deg": 30.0})])
 def test_chain_rule_in_two_parts_is_the_whole_chain(estimator, changes):
     _assert_chain_rule_is_the_linearisation(PROC, PROC.setup(changes), estimator)

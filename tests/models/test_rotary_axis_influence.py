@@ -81,16 +81,21 @@ def test_the_weight_is_the_covariance_of_the_draws():
 
 
 def test_a_tilt_beyond_the_data_sheet_is_noted_in_every_output():
-    # the data sheet's table ends at 30 deg; the default A test tilts the surface to 48.4
-    # deg, where the bound is the last row's slope run on: the set-up says so, and the
+    # the data sheet's table ends at 30 deg; the patent's A test (+-45 deg at a 20 deg
+    # incline) tilts the surface to 48.4 deg, where the bound is the last segment's slope
+    # run on, accepted with sensor_extrapolate_table: the set-up says so, and the
     # linearisation's notes carry it (simulate's findings and estimate's notes start from
-    # the set-up's notes)
+    # the set-up's notes; tests/test_datasheet.py checks every output)
     from mtplan.evaluation.simulation import linearize_result
+    from mtplan.models.protocol import DATASHEET_NOTE
 
-    note = PROC.setup(axis="A").notes()
-    assert len(note) == 1 and "48.4 deg" in note[0] and "A = -45 deg" in note[0]
-    assert "extrapolated" in note[0] and "8672 ppm" in note[0]
-    assert note[0] in linearize_result(PROC, PROC.setup(axis="A"), estimator="patent").notes
-    assert PROC.setup(axis="C").notes() == []
-    assert PROC.setup(axis="A", range_deg=30.0).notes() == []  # 25.6 deg: inside the table
-    assert PROC.setup(axis="A", angle_influence_halfwidth_ppm=0.0).notes() == []
+    wide = dict(axis="A", incline_deg=20.0, range_deg=90.0, sensor_max_tilt_deg=50.0,
+                sensor_extrapolate_table=True)
+    note = PROC.setup(wide).notes()
+    assert len(note) == 1 and note[0].startswith(DATASHEET_NOTE)
+    assert "48.4 deg" in note[0] and "A = -45 deg" in note[0] and "4 of 7 positions" in note[0]
+    assert "extrapolated" in note[0] and "8672 ppm" in note[0] and "200 ppm" in note[0]
+    assert note[0] in linearize_result(PROC, PROC.setup(wide), estimator="patent").notes
+    for axis in ("C", "A", "CA"):
+        assert PROC.setup(axis=axis).notes() == []  # the defaults stay within the table
+    assert PROC.setup(wide, angle_influence_halfwidth_ppm=0.0).notes() == []

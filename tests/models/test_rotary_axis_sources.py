@@ -24,27 +24,32 @@ PROC = get("rotary_axis")
 ARCSEC = math.pi / 648000
 STILL = 0.01  # um, urad: second-order couplings (the spot along the A axis: 3e-4)
 TOL = 0.05  # um, urad: on the expected change
+#: the A test of the patent's example, +-45 deg at a 20 deg incline: beyond the sensor's
+#: 30 deg table (48.4 deg at A = +-45), accepted with its extrapolated bound; the figures
+#: below (and docs/rotary_axis.md's) were derived on it
+A45 = dict(axis="A", incline_deg=20.0, range_deg=90.0, sensor_max_tilt_deg=50.0,
+           sensor_extrapolate_table=True)
 
 CASES = [
     # (set-up, estimator, source, value [mm, rad, 1], expected changes [um, urad])
     (dict(axis="C"), "patent", "spot_offset_u", (0.010, 0.0), {"EX0C": -10.0}),
     (dict(axis="C"), "angles", "spot_offset_u", (0.0, 0.010), {"EY0C": -10.0}),
-    (dict(axis="A"), "angles", "spot_offset_u", (0.0, 0.010), {"EY0A": -10.0}),
-    (dict(axis="A"), "angles", "spot_offset_u", (0.010, 0.0), {}),
+    (dict(A45), "angles", "spot_offset_u", (0.0, 0.010), {"EY0A": -10.0}),
+    (dict(A45), "angles", "spot_offset_u", (0.010, 0.0), {}),
     (dict(axis="C"), "angles", "sensor_zero_u", 0.005, {}),
-    (dict(axis="A"), "angles", "sensor_zero_u", 0.005, {"EZ0A": 5.0}),
+    (dict(A45), "angles", "sensor_zero_u", 0.005, {"EZ0A": 5.0}),
     (dict(axis="C"), "patent", "xy_slope_halfwidth", (25e-6, 0.0), {"EB0C": 22.08, "EX0C": -1.10}),
     (dict(axis="C"), "angles", "xy_slope_halfwidth", (25e-6, 0.0), {"EB0C": 23.18, "EX0C": -1.16}),
     (dict(axis="C"), "angles", "xy_slope_halfwidth", (0.0, 25e-6), {"EA0C": -23.18, "EY0C": -1.16}),
-    (dict(axis="A"), "angles", "xy_slope_halfwidth", (0.0, 25e-6), {"EC0A": 6.10, "EY0A": -0.79}),
-    (dict(axis="A"), "angles", "xy_straightness_halfwidth", (0.001, 0.0), {"EZ0A": -0.08}),
+    (dict(A45), "angles", "xy_slope_halfwidth", (0.0, 25e-6), {"EC0A": 6.10, "EY0A": -0.79}),
+    (dict(A45), "angles", "xy_straightness_halfwidth", (0.001, 0.0), {"EZ0A": -0.08}),
     (dict(axis="C"), "angles", "xy_straightness_halfwidth", (0.001, 0.001), {}),
-    (dict(axis="A"), "angles", "reversal_halfwidth", (5 * ARCSEC,), {}),
-    (dict(axis="A", a_order="patent"), "patent", "reversal_halfwidth", (5 * ARCSEC,), {}),
-    (dict(axis="A", a_order="patent"), "angles", "reversal_halfwidth", (5 * ARCSEC,),
+    (dict(A45), "angles", "reversal_halfwidth", (5 * ARCSEC,), {}),
+    (dict(A45, a_order="patent"), "patent", "reversal_halfwidth", (5 * ARCSEC,), {}),
+    (dict(A45, a_order="patent"), "angles", "reversal_halfwidth", (5 * ARCSEC,),
      {"EB0A": -21.96, "EZ0A": 0.55, "EC0A": 0.06, "EY0A": 0.02}),
     (dict(axis="C"), "angles", "reversal_halfwidth", (5 * ARCSEC,), {}),
-    (dict(axis="A"), "patent", "angular_short_period_halfwidth", 5 * ARCSEC, {}),
+    (dict(A45), "patent", "angular_short_period_halfwidth", 5 * ARCSEC, {}),
     (dict(axis="C", z_follows_surface=False, sensor_range_mm=25.0), "angles",
      "sensor_linearity_halfwidth", (3.2e-4, 3.2e-4), {"EA0C": 0.11, "EB0C": 0.14}),
 ]
@@ -120,7 +125,7 @@ def test_angle_influence_bound_follows_the_data_sheet_at_the_actual_tilt():
     # on the A axis the plane's slope is 48.4, 35.5, 24.8, 20 deg at |A| = 45, 30, 15, 0
     from mtplan.models import rotary_axis as ra
 
-    setup = PROC.setup(axis="A")
+    setup = PROC.setup(A45)
     tau, _ = ra.tilts(setup)
     np.testing.assert_allclose(tau, [48.4, 35.5, 24.8, 20.0, 24.8, 35.5, 48.4], atol=0.05)
     bound = ra.plan(setup).tilt_bound  # [mm] for the default 10 mm range
@@ -162,8 +167,8 @@ def _noise_free_z(setup, **errors):
     # the sensor's zero; the bow moves it by -32 um); the anisotropy, cos 2 phi of the fall
     # line's azimuth (-70 ... 70 deg over the arc), by 68 um (the values this model gives,
     # kept so that a change shows)
-    (dict(axis="A"), "patent", 0, {"EZ0A": -32.38}),
-    (dict(axis="A"), "patent", 2, {"EZ0A": 67.76}),
+    (dict(A45), "patent", 0, {"EZ0A": -32.38}),
+    (dict(A45), "patent", 2, {"EZ0A": 67.76}),
 ])
 def test_angle_influence_moves_what_the_geometry_says(values, estimator, part, expected):
     setup = PROC.setup(**values)
@@ -190,7 +195,7 @@ def test_the_whole_budget_weight_does_not_assume_the_data_sheets_shape(estimator
     from mtplan.models.rotary_axis._layout import INFLUENCE_PARTS, _tilt_bound, influence_knots
     from mtplan.models.rotary_axis import tilts
 
-    setup = PROC.setup(axis="A")
+    setup = PROC.setup(A45)
     base = _estimate(setup, estimator)["EZ0A"][0]
     moved = [_estimate(setup, estimator,
                        angle_influence_halfwidth=_parts(setup, *np.eye(3)[k] * THIRD))["EZ0A"][0]
@@ -206,11 +211,24 @@ def test_the_whole_budget_weight_does_not_assume_the_data_sheets_shape(estimator
 def test_a_tilt_beyond_the_sensor_range_is_refused_naming_the_field():
     from mtplan._validate import InvalidInput
 
+    # beyond the data sheet's 30 deg: refused, naming the tilt, the position and the way
+    # to accept the extrapolation
+    with pytest.raises(InvalidInput, match="sensor_max_tilt_deg.*48.4 deg at A = -45.*"
+                       "sensor_extrapolate_table = true and sensor_max_tilt_deg >= 48.4"):
+        PROC.setup(axis="A", incline_deg=20.0, range_deg=90.0)
+    # the range above the table only with the extrapolation accepted
+    with pytest.raises(InvalidInput, match="sensor_max_tilt_deg.*<= 30 deg.*"
+                       "sensor_extrapolate_table"):
+        PROC.setup(axis="A", sensor_max_tilt_deg=50.0)
+    # accepted, still refused beyond the range stated
     with pytest.raises(InvalidInput, match="sensor_max_tilt_deg.*52.2 deg at A = -45"):
-        PROC.setup(axis="A", incline_deg=30.0)
-    with pytest.raises(InvalidInput, match="sensor_max_tilt_deg"):
-        PROC.setup(axis="A", sensor_max_tilt_deg=30.0)
-    PROC.setup(axis="A", range_deg=30.0, sensor_max_tilt_deg=30.0)  # 25.6 deg: inside
+        PROC.setup(A45, incline_deg=30.0)
+    PROC.setup(axis="A", range_deg=30.0)  # 16.2 deg: inside
+    assert PROC.setup(A45).datasheet_notes()
+    # a specular face: the data sheet states nothing, a calibrated characteristic is needed
+    with pytest.raises(InvalidInput, match="artifact_surface.*'diffuse', or a "
+                       "sensor_characteristic"):
+        PROC.setup(artifact_surface="specular")
 
 
 # --------------------------------------------------------------------------- the reversal

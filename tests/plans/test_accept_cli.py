@@ -73,16 +73,17 @@ def test_plan_keeps_false_accept_under_the_limit(capsys):
 
 
 def test_plan_optimize_searches_the_a_axis_angles(capsys):
-    """Continuous design search: the A-axis angles within +-45 deg for u(EB0A), against a grid."""
+    """Continuous design search: the A-axis angles within +-27 deg (the sensor's table at
+    the 10 deg incline) for u(EB0A), against a grid."""
     code, out, err = run(capsys, "plan", "rotary_axis", "--set", "axis=A", "--set",
-                         "angles_deg=-45,-30,-15,0,15,30,45", "--optimize", "angles_deg=-45:45",
+                         "angles_deg=-27,-18,-9,0,9,18,27", "--optimize", "angles_deg=-27:27",
                          "--criterion", "u:EB0A", "--vary",
-                         "angles_deg=-45,-30,-15,0,15,30,45|-45,-40,-35,0,35,40,45", "--json")
+                         "angles_deg=-27,-18,-9,0,9,18,27|-27,-24,-21,0,21,24,27", "--json")
     assert code == 0, err
     doc = json.loads(out)["design_search"]
     assert doc["value"] <= doc["grid_best"]["value"] * (1 + 1e-9)
     assert doc["value"] < 0.9 * doc["start_value"]  # ends-and-middle beats equal spacing
     angles = sorted(doc["setup"]["angles_deg"])
-    assert angles[0] == pytest.approx(-45, abs=0.5) and angles[-1] == pytest.approx(45, abs=0.5)
+    assert angles[0] == pytest.approx(-27, abs=0.5) and angles[-1] == pytest.approx(27, abs=0.5)
     code, _, err = run(capsys, "plan", "rotary_axis", "--optimize", "incline_deg=10")
     assert code == 2 and "LO:HI" in err

@@ -168,10 +168,20 @@ def normalise(design: dict | None) -> dict:
         "targets": {str(k): v for k, v in (d.get("targets") or {}).items()
                     if v not in (None, "")},
         "vary": {str(k): str(v) for k, v in (d.get("vary") or {}).items() if str(v).strip()},
-        "lever": d.get("lever") or (proc.levers[0] if proc.levers else None),
+        "lever": d.get("lever") or default_lever(proc),
         "seed": seed,
         "trials": trials,
     }
+
+
+def default_lever(proc) -> str | None:
+    """The lever the page draws first: the first of the procedure's levers whose default is
+    a number (an empty default, resolved by the set-up, has no range to draw a curve over
+    until the user gives it a value); None where none is."""
+    numeric = {f.name for f in fields_info(proc.Setup)
+               if f.kind in (int, float) and isinstance(f.default, int | float)
+               and not isinstance(f.default, bool)}
+    return next((f for f in proc.levers if f in numeric), None)
 
 
 def refuse_files(proc, setup: dict) -> None:

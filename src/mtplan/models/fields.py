@@ -42,6 +42,7 @@ __all__ = [
     "shown_with_unit",
     "param",
     "OWNERS",
+    "DATASHEET_NOTE",
     "with_conditions",
     "identity",
     "fields_info",
@@ -99,6 +100,9 @@ def shown_with_unit(name: str, value) -> str:
 
 #: who carries an error source (:func:`param`'s ``owner``)
 OWNERS = ("machine", "instrument", "artefact", "workpiece", "method", "environment")
+
+#: how every note of :meth:`SetupBase.datasheet_notes` starts
+DATASHEET_NOTE = "outside the data sheet: "
 
 
 def param(
@@ -550,9 +554,25 @@ class SetupBase:
         """Cross-field rules; record problems with ``problems.add`` / ``add_text``."""
 
     def notes(self) -> list[str]:
-        """What a reader of any result of this set-up must know about it (a temperature
-        assumed, not measured); a procedure's Setup adds its own. Results print them
-        first among their notes."""
+        """What a reader of any result of this set-up must know about it: its conditions
+        outside its instruments' data sheets (:meth:`datasheet_notes`) first, then the rest
+        (:meth:`condition_notes`). ``simulate``, ``linearize`` and ``estimate`` print them
+        first among their notes; a procedure overrides the two parts, never this."""
+        return self.datasheet_notes() + self.condition_notes()
+
+    def datasheet_notes(self) -> list[str]:
+        """Where this set-up is outside its instruments' data sheets: one note per
+        condition, naming it (a tilt beyond the last row of the data sheet's table) and
+        the rule the budget applies there (the bound extrapolated along the last row's
+        slope), each starting with :data:`DATASHEET_NOTE`. A set-up outside a data sheet
+        is refused unless a field of it accepts the rule explicitly; the test plan and the
+        report print these notes with the set-up. Generic: none (a procedure whose
+        instruments state a range overrides it)."""
+        return []
+
+    def condition_notes(self) -> list[str]:
+        """The set-up's other notes: a temperature assumed rather than measured, a
+        calibrated characteristic used in place of a data sheet's bound. Generic: none."""
         return []
 
     def replace(self, **changes):

@@ -65,6 +65,7 @@ import numpy as np
 from mtplan._validate import InvalidInput, Problems
 from mtplan.models.correction import NO_CORRECTION, CorrectionModel
 from mtplan.models.fields import (
+    DATASHEET_NOTE,
     UNIT_SUFFIXES,
     UNITS,
     Implied,
@@ -88,6 +89,7 @@ from mtplan.uncertainty.distributions import SHAPES, Constant, Distribution, wit
 from mtplan.uncertainty.streams import as_seed_sequence, block_sequence, named_generator
 
 __all__ = [
+    "DATASHEET_NOTE",
     "UNITS",
     "UNIT_SUFFIXES",
     "Measurand",

@@ -418,6 +418,10 @@ def _results_section(result) -> Section:
     unseen = reliability.report_section(result)
     if unseen is not None:
         sec.blocks.append(unseen)
+    from mtplan.reports.document import datasheet_text
+
+    sec.blocks += [f"Test {k} ({o.spec.label}): {datasheet_text(o)}"
+                   for k, o in enumerate(result.outcomes, start=1) if datasheet_text(o)]
     untoleranced = sum(len(o.measured.measurands) for o in result.outcomes
                        if o.measured is not None) - sum(
         len(o.verdicts) for o in result.outcomes if o.measured is not None)
@@ -775,11 +779,12 @@ def _raised(o, e):
 
 
 def _plan_test(k, o, plan, study) -> Section:
-    from mtplan.reports.document import setup_sentence
+    from mtplan.reports.document import datasheet_text, setup_sentence
 
     blocks = [f"Set-up: {setup_sentence(o)}. Estimator: {agreed_estimator(o)}. Duration (machine "
               f"time): {duration_text(o.duration_s)}. Method: {method_citation(o.spec.procedure)}; "
               f"standards: {', '.join(o.spec.standards) or 'none named'}."]
+    blocks += [t for t in (datasheet_text(o),) if t]
     blocks += _set_up_choices(o)
     inst = _instruments(study, o.spec.name)
     blocks.append("Instruments: " + ("; ".join(f"{r[0]} (serial {r[1]}, certificate {r[2]})"

@@ -143,6 +143,24 @@ def setup_sentence(o) -> str:
     return shown or "the default set-up"
 
 
+def datasheet_text(o) -> str:
+    """The test's conditions outside its instruments' data sheets, in plain words, as one
+    paragraph ("" where the set-up is within them): :meth:`~mtplan.models.protocol.
+    SetupBase.datasheet_notes` of the set-up its results come from (the readings' where the
+    test has them), each naming the condition and the rule the budget applies there. The
+    plan, the plan's annex and the report print it with the test's set-up."""
+    from mtplan.models.protocol import DATASHEET_NOTE
+    from mtplan.reports.labels import plain_fields
+    from mtplan.reports.wording import customer_words
+
+    setup = getattr(o.measured, "setup", None) or o.spec.setup
+    notes = [n.removeprefix(DATASHEET_NOTE) for n in setup.datasheet_notes()]
+    if not notes:
+        return ""
+    return ("Outside the instruments' data sheets: "
+            + "; ".join(customer_words(plain_fields(n, type(setup))) for n in notes) + ".")
+
+
 def setting_text(o, field: str, value) -> str:
     """A set-up field at a value as the set-up sentence words it: "arc of A covered by the
     points 90 deg"."""
@@ -174,6 +192,8 @@ def test_section(k, o) -> Section:
                       f"{o.recommended} (recommended among {', '.join(ps.estimators)}).")
     if ps.notes:
         sec.blocks.append(ps.notes)
+    if datasheet_text(o):
+        sec.blocks.append(datasheet_text(o))
     sec.blocks.append(_results_table(o))
     figure = _test_figure(o)
     if figure is not None:

@@ -141,7 +141,7 @@ class Setup(SetupBase):
                   f"< 5 % of the bore radius ({50 * self.bore_radius_mm:g} um)")
 
 
-    def notes(self) -> list[str]:
+    def condition_notes(self) -> list[str]:
         """Which temperatures were assumed rather than measured, and what was corrected."""
         out = (temperature.assumed_note(self, "part_temperature", "the part's temperature")
                + temperature.assumed_note(self, "scale_temperature", "the scales' temperature",

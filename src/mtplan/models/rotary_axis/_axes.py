@@ -25,8 +25,9 @@ AXIS_ROWS = ("angular_positioning", "reversal_halfwidth")
 
 @functools.lru_cache(maxsize=64)
 def axis_part(setup: Setup, axis: str) -> Setup:
-    """The single-axis set-up of one part of a CA test (its angles, everything else shared)."""
-    return Setup(**{**setup.as_dict(), "axis": axis,
+    """The single-axis set-up of one part of a CA test (its angles and its incline,
+    everything else shared)."""
+    return Setup(**{**setup.as_dict(), "axis": axis, "incline_deg": setup.incline,
                     "angles_deg": tuple(setup.axis_angles(axis).tolist()),
                     "positions": None, "range_deg": None, "c_angles_deg": None})
 

@@ -111,13 +111,16 @@ def _machine_sources(setup: Setup) -> dict[str, Source]:
             "Form error of the incline, one per test: bowl, saddle, twist and two cubic waves "
             "over the lattice, coefficients uniform in +-flatness/4, so the form's peak to "
             "valley is about flatness_um. Default 2 um: DIN 876 grade 00 / ISO 8512 for a "
-            "lapped face of 100-150 mm (2 (1 + L/1000) um).", field="flatness_um"),
+            "face of 100-150 mm (2 (1 + L/1000) um); the diffuse face the sensor's table "
+            "needs (artifact_surface) must be finished to it.", field="flatness_um"),
         "artifact_tilt": Source(
             Normal(0.0, setup.artifact_tilt_urad * 1e-6), (2,),
             "Tilts of the artifact's real plane from the nominal one, one pair per test: [0] "
             "about the line across the fall line (the incline angle), [1] about the fall line. "
-            "Normal, standard deviation 5 mrad (0.3 deg) by default: an inclined plane clamped "
-            "on the table by eye is easily 5-20 mrad off. No hard bound: the readings "
+            "Normal, standard deviation 10 mrad (0.6 deg) by default: an inclined plane "
+            "clamped on the table by eye is easily 5-20 mrad off, so 20 mrad is twice the "
+            "standard deviation (so that the fit check's prior term does not flag such a "
+            "clamping). No hard bound: the readings "
             "determine the real plane, so a bounded prior would pull the axis when the plane "
             "lies beyond it. Every estimator fits each lattice's plane and never uses the "
             "nominal incline; a posterior must not take it as exact.", field="artifact_tilt_urad"),

@@ -13,7 +13,7 @@ from mtplan.models.protocol import Readings, frame_columns
 from mtplan.models.rotary_axis._estimators import check_readings
 from mtplan.models.rotary_axis._layout import plan, position_axes
 from mtplan.models.rotary_axis._physics import forward, zero_errors
-from mtplan.models.rotary_axis._setup import NAME, Setup, Truth
+from mtplan.models.rotary_axis._setup import NAME, Setup, Truth, axis_grid
 
 _COLUMNS = ("position", "angle_deg", "point", "x_mm", "y_mm", "z_mm")
 
@@ -126,10 +126,9 @@ def _angle_fields(axis: str, angles: np.ndarray) -> dict:
     else:
         candidates = [(float(angles.max() - angles.min()), o) for o in ("patent", "ascending")]
     for span, order in candidates:
-        try:
-            grid = Setup(axis=axis, positions=n, range_deg=span, a_order=order).axis_angles(axis)
-        except (InvalidInput, ValueError):
+        if not 0 < span <= 360 or n < 3:
             continue
+        grid = axis_grid(axis, n, span, order)
         if grid.shape == angles.shape and np.allclose(grid, angles, rtol=0, atol=_ANGLE_TOL_DEG):
             out = {"range_deg": Implied(span, _ANGLE_TOL_DEG, why=f"the file's {n} {axis} angles")}
             if axis == "A":

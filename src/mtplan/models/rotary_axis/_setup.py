@@ -11,7 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from mtplan._validate import Problems
-from mtplan.models.protocol import SetupBase, distributions_field, file_content, param
+from mtplan.models.protocol import (DATASHEET_NOTE, SetupBase, distributions_field,
+                                    file_content, param)
 from mtplan.models.rotary_axis._characteristic import outside, read_characteristic
 
 
@@ -20,7 +21,14 @@ UM = 1e-3  # mm per um
 URAD = 1e-6  # rad per urad
 ARCSEC = math.pi / 648000  # rad per arcsec
 _DEFAULT_POSITIONS = {"C": 6, "A": 7}
-_DEFAULT_RANGE = {"C": 360.0, "A": 90.0}
+#: the A axis's default range keeps the surface within the data sheet's table (<= 30 deg
+#: tilt) at its default incline, with 1.3 deg to spare for the artifact's clamping (20 mrad
+#: is 1.15 deg): 28.7 deg at A = +-27 deg with the 10 deg incline
+_DEFAULT_RANGE = {"C": 360.0, "A": 54.0}
+#: the incline by the axis tested: 20 deg for C (its odd angle influence moves the axis
+#: by e / tan(incline)); 10 deg for A and CA, where the A range that stays within the
+#: data sheet's 30 deg is widest for a small incline
+_DEFAULT_INCLINE = {"C": 20.0, "A": 10.0, "CA": 10.0}
 #: a point laser reading along -Z loses the spot on surfaces steeper than this
 _MAX_SLOPE_DEG = 70.0
 #: smallest |X component| of the incline's normal for the A axis (below: X unobservable)
@@ -28,8 +36,8 @@ _MIN_NORMAL_X = 0.01
 #: the angle influence's bound [fraction of the range] against the surface's tilt [deg]:
 #: laser triangulation on diffuse surfaces (Micro-Epsilon optoNCDT 1700/2300 operating
 #: instructions: typ. 0.12-0.2 % at 5-15 deg, 0.5 % at 15-30 deg); beyond the last row the
-#: bound runs on along its slope (an extrapolation, stated in the field's doc and in the
-#: set-up's notes)
+#: bound runs on along its slope (an extrapolation: refused unless the set-up accepts it,
+#: sensor_extrapolate_table, and then stated in every output, Setup.datasheet_notes)
 TILT_TABLE_DEG = (0.0, 5.0, 15.0, 30.0)
 TILT_TABLE = (0.0, 0.0012, 0.002, 0.005)
 #: the most axis positions of one axis (positions, angles_deg, c_angles_deg)
@@ -47,9 +55,12 @@ class Setup(SetupBase):
                       "both, C first at A = 0, then A with C at 0 (the patent's S102, S103), "
                       "with the location of C against A and the machining-pose error",
                       choices=("C", "A", "CA"))
-    incline_deg: float = param(20.0, doc="Incline of the artifact plane [deg]; > 0, since a "
-                               "level plane's normals all lie along the axis and locate nothing "
-                               "(the patent uses 10-30)", low=0, high=60, low_open=True)
+    incline_deg: float | None = param(None, doc="Incline of the artifact plane [deg]; > 0, "
+                                      "since a level plane's normals all lie along the axis "
+                                      "and locate nothing (the patent uses 10-30; empty: 20 "
+                                      "for C, 10 for A and CA, whose default range then keeps "
+                                      "the surface within the sensor's 30 deg table)", low=0,
+                                      high=60, low_open=True)
     incline_azimuth_deg: float = param(0.0, doc="Direction of the incline's fall line from +X "
                                        "at the zero position [deg]", low=-360, high=360)
     positions: int | None = param(None, doc="Number of axis positions, >= 3 (empty: 6 for C, "
@@ -58,7 +69,10 @@ class Setup(SetupBase):
     range_deg: float | None = param(None, doc="Angular range [deg]: C positions equally spaced "
                                     "over it starting at 0 (360: the full turn), A positions "
                                     "spaced over -range/2..range/2 inclusive in a_order (empty: "
-                                    "360 for C, 90 for A); for CA, of the A part", low=0,
+                                    "360 for C, 54 for A: +-27 deg, the widest range whose "
+                                    "tilts at the default incline stay within the sensor's "
+                                    "30 deg table with a 20 mrad clamping to spare); for CA, "
+                                    "of the A part", low=0,
                                     high=360, low_open=True)
     angles_deg: tuple[float, ...] | None = param(None, doc="Explicit axis angles in measuring "
                                                  "order [deg]; overrides positions and "
@@ -116,7 +130,7 @@ class Setup(SetupBase):
                                     "at each reading [um]", low=0, high=1000, owner="machine")
     flatness_um: float = param(2.0, doc="Flatness of the incline over the lattice, peak to "
                                "valley [um]", low=0, high=1000, owner="artefact")
-    artifact_tilt_urad: float = param(5000.0, doc="Standard deviation (normal, no hard "
+    artifact_tilt_urad: float = param(10000.0, doc="Standard deviation (normal, no hard "
                                       "bound) of each of the two tilts of the artifact's real "
                                       "plane from its nominal incline and azimuth [urad]: the "
                                       "plane is clamped by eye, not calibrated; the patent's "
@@ -195,13 +209,28 @@ class Setup(SetupBase):
                                                  "(0.12 % at 5 deg, 0.2 % at 15, 0.5 % at "
                                                  "30 deg for diffuse surfaces) scaled to it "
                                                  "[ppm]", low=0, high=1e5, owner="instrument")
-    sensor_max_tilt_deg: float = param(50.0, doc="Largest tilt of the surface under the "
-                                       "sensor the set-up may have [deg]; larger tilts are "
-                                       "refused. Data sheets state the angle influence to 30 "
-                                       "deg; beyond, the bound is extrapolated along the "
-                                       "table's last row (the A axis's default +-45 deg tilts "
-                                       "the 20 deg incline to 48.4 deg)", low=0, high=70,
+    sensor_max_tilt_deg: float = param(TILT_TABLE_DEG[-1], doc="Largest tilt of the surface "
+                                       "under the sensor the set-up may have [deg]; larger "
+                                       "tilts are refused. Default: the last row of the data "
+                                       "sheet's angle table (30 deg); above it only with "
+                                       "sensor_extrapolate_table (or a sensor_characteristic "
+                                       "calibrated that far)", low=0, high=_MAX_SLOPE_DEG,
                                        low_open=True)
+    sensor_extrapolate_table: bool = param(False, doc="Accept tilts beyond the data sheet's "
+                                           "angle table (30 deg, up to sensor_max_tilt_deg): "
+                                           "the bound there is extrapolated along the table's "
+                                           "last segment (15-30 deg), 0.02 % of the range per "
+                                           "deg at the default bound, which is this model's "
+                                           "rule, not a maker's figure; every output then "
+                                           "names the tilt and the rule")
+    artifact_surface: str = param("diffuse", doc="Finish of the incline's face under the "
+                                  "laser: 'diffuse' (matte: ground and blasted, or a diffusely "
+                                  "scattering ceramic), the surfaces the data sheet's angle "
+                                  "table is stated for, or 'specular' (lapped or polished "
+                                  "metal), for which the data sheet states no angle influence: "
+                                  "refused unless sensor_characteristic gives a "
+                                  "characteristic calibrated on that face",
+                                  choices=("diffuse", "specular"))
     sensor_characteristic: str | None = param(None, doc="A calibrated angle characteristic "
                                               "of the sensor (CSV: tilt_x_deg, tilt_y_deg, "
                                               "error_um, u_um on a full grid of tilts in the "
@@ -247,6 +276,11 @@ class Setup(SetupBase):
         return len(self.angles())
 
     @property
+    def incline(self) -> float:
+        """The incline of the artifact plane [deg]: incline_deg, or the axis's default."""
+        return self.incline_deg if self.incline_deg is not None else _DEFAULT_INCLINE[self.axis]
+
+    @property
     def n_points(self) -> int:
         """Lattice points per position."""
         return self.lattice_nx * self.lattice_ny
@@ -276,43 +310,42 @@ class Setup(SetupBase):
             return np.asarray(self.angles_deg, dtype=float)
         n = self.positions if self.positions is not None else _DEFAULT_POSITIONS[axis]
         span = self.range_deg if self.range_deg is not None else _DEFAULT_RANGE[axis]
-        if axis == "A":
-            grid = np.linspace(-span / 2, span / 2, n)
-            if self.a_order == "patent":
-                grid = np.concatenate([grid[grid >= 0], grid[grid < 0][::-1]])
-            return grid
-        if span >= 360.0:
-            return span * np.arange(n) / n
-        return np.linspace(0.0, span, n)
+        return axis_grid(axis, n, span, self.a_order)
 
     def angles(self) -> np.ndarray:
         """Commanded angles of every position in measuring order (C, then A for CA) [deg]."""
         return np.concatenate([self.axis_angles(a) for a in self.axes])
 
-    def notes(self) -> list[str]:
-        """That the sensor's angle influence is a calibrated characteristic, when it is; or
-        that the set-up tilts the surface beyond the data sheet's last row, where its bound
-        is extrapolated."""
+    def condition_notes(self) -> list[str]:
+        """That the sensor's angle influence is a calibrated characteristic, when it is."""
         if self.sensor_characteristic is None:
-            return self._extrapolation_note()
+            return []
         return [f"sensor: the angle influence is the calibrated characteristic "
                 f"{self.sensor_characteristic!r} (its u in the budget as angle_calibration_u); "
                 "the data sheet's bound angle_influence_halfwidth_ppm is not used"]
 
-    def _extrapolation_note(self) -> list[str]:
-        """The steepest tilt beyond the data sheet's table, and the rule that bounds it."""
+    def datasheet_notes(self) -> list[str]:
+        """The steepest tilt beyond the data sheet's angle table, and the rule that bounds
+        it there (a set-up gets there only with sensor_extrapolate_table)."""
+        if self.sensor_characteristic is not None or self.angle_influence_halfwidth_ppm == 0:
+            return []
         tau = tilts(self)[0]
         i = int(np.argmax(tau))
-        if tau[i] <= TILT_TABLE_DEG[-1] or self.angle_influence_halfwidth_ppm == 0:
+        if tau[i] <= TILT_TABLE_DEG[-1]:
             return []
-        slope = (TILT_TABLE[-1] - TILT_TABLE[-2]) / (TILT_TABLE_DEG[-1] - TILT_TABLE_DEG[-2])
-        bound = (TILT_TABLE[-1] + slope * (tau[i] - TILT_TABLE_DEG[-1])) / TILT_TABLE[-1]
+        last = TILT_TABLE_DEG[-1]
         ppm = self.angle_influence_halfwidth_ppm
-        return [f"sensor: the surface tilts to {tau[i]:.1f} deg under the sensor at "
-                f"{self.position_axis(i)} = {self.angles()[i]:g} deg, beyond the data sheet's "
-                f"last row ({TILT_TABLE_DEG[-1]:g} deg): the angle influence's bound there is "
-                f"extrapolated along the last row's slope, {ppm * bound:.0f} ppm of the range "
-                f"against {ppm:g} ppm at {TILT_TABLE_DEG[-1]:g} deg"]
+        per_deg = ppm * (TILT_TABLE[-1] - TILT_TABLE[-2]) / (last - TILT_TABLE_DEG[-2]) \
+            / TILT_TABLE[-1]
+        n = int(np.sum(tau > last))
+        return [f"{DATASHEET_NOTE}the surface tilts to {tau[i]:.1f} deg under the sensor at "
+                f"{self.position_axis(i)} = {self.angles()[i]:g} deg ({n} of {tau.size} "
+                f"positions beyond the last row of the sensor's angle table, {last:g} deg; "
+                "sensor_extrapolate_table): the angle influence's bound there is extrapolated "
+                f"along the table's last segment ({TILT_TABLE_DEG[-2]:g}-{last:g} deg), "
+                f"{per_deg:.0f} ppm of the range per deg beyond {last:g} deg: "
+                f"{ppm + per_deg * (tau[i] - last):.0f} ppm at {tau[i]:.1f} deg against "
+                f"{ppm:g} ppm at {last:g} deg (this model's rule, not the maker's)"]
 
     def _check(self, p: Problems) -> None:
         if self.angles_deg is not None and self.positions is not None \
@@ -329,13 +362,29 @@ class Setup(SetupBase):
                 f"an X component of at least {_MIN_NORMAL_X} in magnitude for the A axis, or the "
                 "axis direction along X is unobservable (all normals make the same angle with "
                 f"any direction in the Y-Z plane). sin(incline_deg) * cos(incline_azimuth_deg) "
-                f"= {n0[0]:.3g} with incline_deg={self.incline_deg!r}, "
+                f"= {n0[0]:.3g} with incline_deg={self.incline:g}, "
                 f"incline_azimuth_deg={self.incline_azimuth_deg!r}"
             )
         for axis in self.axes:
             self._check_axis(p, axis, n0)
-        if self.sensor_characteristic is not None and not p:
+        if self.sensor_characteristic is None:
+            self._check_datasheet(p)
+        elif not p:
             self._check_characteristic(p)
+
+    def _check_datasheet(self, p: Problems) -> None:
+        """Without a calibrated characteristic, the set-up stays within the data sheet's
+        angle table: a diffuse face, and tilts above its last row only when accepted."""
+        last = TILT_TABLE_DEG[-1]
+        if self.artifact_surface != "diffuse":
+            p.add("artifact_surface", self.artifact_surface,
+                  "'diffuse', or a sensor_characteristic calibrated on this face: the data "
+                  "sheet's angle table holds for diffuse surfaces and states no angle "
+                  "influence for a specular (lapped, polished) one")
+        if self.sensor_max_tilt_deg > last and not self.sensor_extrapolate_table:
+            p.add("sensor_max_tilt_deg", self.sensor_max_tilt_deg,
+                  f"<= {last:g} deg, the last row of the data sheet's angle table, unless "
+                  "sensor_extrapolate_table = true accepts the bound extrapolated beyond it")
 
     def _check_characteristic(self, p: Problems) -> None:
         """Every reading's nominal tilt lies inside the calibrated grid."""
@@ -389,11 +438,15 @@ class Setup(SetupBase):
         elif np.any((tilt := np.degrees(np.arccos(np.clip(nz, -1, 1))))
                     > self.sensor_max_tilt_deg):
             worst = int(np.argmax(tilt))
+            beyond = (self.sensor_characteristic is None and not self.sensor_extrapolate_table
+                      and tilt[worst] > TILT_TABLE_DEG[-1])
             p.add("sensor_max_tilt_deg", self.sensor_max_tilt_deg,
                   f">= the largest tilt of the surface under the sensor, {tilt[worst]:.1f} deg "
-                  f"at {axis} = {angles[worst]:g} deg (the sensor's angle influence is not "
-                  f"stated beyond its range: state a sensor whose data sheet covers the tilt, "
-                  f"or reduce incline_deg or the angles ({field}))")
+                  f"at {axis} = {angles[worst]:g} deg; reduce incline_deg or the angles "
+                  f"({field})" + (f", or accept the sensor's angle table ({TILT_TABLE_DEG[-1]:g} "
+                                  "deg) extrapolated beyond its last row with "
+                                  "sensor_extrapolate_table = true and sensor_max_tilt_deg "
+                                  f">= {math.ceil(tilt[worst] * 10) / 10:g}" if beyond else ""))
         if not np.any(steep) and not self.z_follows_surface:
             _, _, z_cmd = lattice(self, axis, angles)
             span = float(np.max(np.ptp(z_cmd, axis=1)))
@@ -423,8 +476,21 @@ class Truth(SetupBase):
 
 
 # --------------------------------------------------------------------------- nominal geometry
+def axis_grid(axis: str, n: int, span: float, a_order: str = "ascending") -> np.ndarray:
+    """The commanded angles [deg] of `n` positions over `span` of `axis` in measuring order
+    (:meth:`Setup.axis_angles` from positions, range_deg and a_order)."""
+    if axis == "A":
+        grid = np.linspace(-span / 2, span / 2, n)
+        if a_order == "patent":
+            grid = np.concatenate([grid[grid >= 0], grid[grid < 0][::-1]])
+        return grid
+    if span >= 360.0:
+        return span * np.arange(n) / n
+    return np.linspace(0.0, span, n)
+
+
 def incline_normal(setup: Setup) -> np.ndarray:
-    i, az = math.radians(setup.incline_deg), math.radians(setup.incline_azimuth_deg)
+    i, az = math.radians(setup.incline), math.radians(setup.incline_azimuth_deg)
     return np.array([math.sin(i) * math.cos(az), math.sin(i) * math.sin(az), math.cos(i)])
 
 

@@ -205,7 +205,7 @@ class Setup(SetupBase):
                       "angle, so no circle and no axis line can be fitted")
 
 
-    def notes(self) -> list[str]:
+    def condition_notes(self) -> list[str]:
         """Which temperatures were assumed rather than measured."""
         out = temperature.assumed_note(self, "structure_temperature",
                                        "the structure's temperature")
