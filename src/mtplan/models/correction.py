@@ -55,6 +55,10 @@ def _nothing_unseen(setup: Mapping) -> dict:
     return {}
 
 
+def _restates_none(setup: Mapping) -> dict:
+    return {}
+
+
 @dataclass(frozen=True)
 class CorrectionModel:
     """How a procedure's result becomes a correction a controller takes.
@@ -86,6 +90,11 @@ class CorrectionModel:
         between a table's points), and what it is in words; a function's name (``EXX``)
         stands for all its measurands (``EXX``, ``EXX@-50``, ...). Part of the residual
         predicted after compensation, and of a plan's residual target.
+    restates : callable
+        ``restates(setup) -> {measurand: measurand}``: a measurand that is the same quantity
+        as another one a term corrects (geometry21's EXX, the function at the travel's end,
+        is ``EXX@50`` of the table), so that the documents give its residual after
+        compensation; {} where none is.
     """
 
     kind: str = ""
@@ -94,6 +103,7 @@ class CorrectionModel:
     terms: Callable[[Mapping, tuple], tuple] = _no_terms
     nominal: Callable[[Mapping], dict] = _no_nominal
     unseen: Callable[[Mapping], dict] = _nothing_unseen
+    restates: Callable[[Mapping], dict] = _restates_none
 
     def unseen_of(self, setup: Mapping, measurand: str) -> tuple[float, str]:
         """(u, what) that stays unseen after correcting `measurand` ((0, "") for none)."""

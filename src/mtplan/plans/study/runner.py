@@ -58,6 +58,9 @@ class ProcedureOutcome:
     budget_estimator: str = ""
     as_left: object | None = None      # readings after adjustment, evaluated
     as_left_verdicts: list = field(default_factory=list)
+    #: the readings' correction and the residual predicted after it
+    #: (:class:`~mtplan.compensation.predicted.Predicted`), or why there is none
+    compensation: object | None = None
 
 
 @dataclass
@@ -183,6 +186,11 @@ def _outcome(i, ps, partial, grids, points, done) -> ProcedureOutcome:
     outcome.verdicts = decisions.conformity(ps.name, ps.label, ps.acceptance, decider,
                                             outcome.measured)
     outcome.as_left = done.get(("as_left", i, recommended))  # after an adjustment
+    if outcome.measured is not None:
+        from mtplan.compensation.predicted import predicted
+
+        outcome.compensation = predicted(ps.procedure, outcome.measured.to_dict(),
+                                         coverage=outcome.measured.coverage)
     if outcome.as_left is not None:
         outcome.as_left_verdicts = decisions.conformity(ps.name, ps.label, ps.acceptance,
                                                         decider, outcome.as_left)
@@ -485,7 +493,7 @@ def _run_measured(proc, ps, study, recommended, file=None):
     from mtplan.evaluation import measured
 
     spec = ps.readings
-    setup = with_conditions(ps.setup, study.conditions)
+    setup = with_conditions(_along_setup(proc, ps.setup, spec), study.conditions)
     readings = measured.read_readings(proc, setup, file or spec["file"])
     return measured.estimate_measured(proc, setup, readings,
                                       estimator=spec.get("estimator") or recommended,
@@ -494,6 +502,17 @@ def _run_measured(proc, ps, study, recommended, file=None):
                                       rng=study.seed,
                                       allow_unconverged=bool(spec.get("allow_unconverged", False)),
                                       posterior_options=spec.get("options"))
+
+
+def _along_setup(proc, setup, spec):
+    """`setup` with the positions at which the readings' evaluation states the errors
+    along the travel: ``[procedure.readings] along``, else the procedure's default
+    (``Capabilities.along_default``: none where the set-up states its own)."""
+    import dataclasses
+
+    grid = spec.get("along")
+    grid = proc.capabilities.along_default(setup) if grid is None else grid
+    return dataclasses.replace(setup, **grid) if grid else setup
 
 
 def _identifiability(proc, ps):
