@@ -108,14 +108,24 @@ def verdict_rows(k, o) -> list:
 
 
 def verdict_table(result, tests: list) -> Table:
-    """The verdicts of every test, each redone from its own row (:data:`ZONES`)."""
-    rows = [row for k, o in enumerate(result.outcomes, start=1) if o.verdicts
-            for row in verdict_rows(k, o)]
+    """The verdicts of every test, each redone from its own row (:data:`ZONES`); where a
+    test states a correction of a measurand, a last column with the residual predicted
+    after compensation (:func:`~mtplan.reports.along.residual_text`)."""
+    from mtplan.reports.along import residual_text
+
+    rows = [row[:7] + [residual_text(o, v)] + row[7:]
+            for k, o in enumerate(result.outcomes, start=1)
+            if o.verdicts for row, v in zip(verdict_rows(k, o), o.verdicts, strict=True)]
+    header = ["test", "measurand", "tolerance", "acceptance limits", "w", "measured",
+              "U achieved (predicted)", "after compensation (predicted)", "verdict"]
+    if all(row[7] == "-" for row in rows):  # no test states a correction
+        rows, header = [row[:7] + row[8:] for row in rows], header[:7] + header[8:]
     return Table("Results as found. Tests: " + "; ".join(tests) + ". Acceptance limits and "
                  "w as the plan agreed them; measured value and U achieved (k = 2, coverage "
-                 "about 95 %), U predicted in parentheses.",
-                 ["test", "measurand", "tolerance", "acceptance limits", "w", "measured",
-                  "U achieved (predicted)", "verdict"], rows, grow=1, size=7.0, whole=(7,))
+                 "about 95 %), U predicted in parentheses"
+                 + ("; after compensation: the residual's 95 % interval (below)."
+                    if len(header) > 8 else "."),
+                 header, rows, grow=1, size=7.0, whole=(len(header) - 1,))
 
 
 def rounding_sentence(result) -> str:
