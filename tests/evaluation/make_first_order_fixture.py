@@ -5,9 +5,9 @@ set-up, for every estimator (u per measurand and the budget by source, display u
 to 1e-9 relative. When a procedure's physics changes (a new error source, another
 default), regenerate them and review the diff:
 
-    PYTHONPATH=src python tests/evaluation/make_first_order_fixture.py
+    PYTHONPATH=src python tests/evaluation/make_first_order_fixture.py [PROCEDURE ...]
 
-(a few minutes). The numbers are those of :func:`mtplan.evaluation.first_order.first_order`,
+(a few minutes; name the procedures whose physics changed to redo only theirs). The numbers are those of :func:`mtplan.evaluation.first_order.first_order`,
 which the planner, the set-up designer and ``mtplan linearize`` all call, each with the
 relative tolerance (``rtol``, ``linearize_rtol``: 1e-9) to which the service must give
 them again.
@@ -50,16 +50,19 @@ def _service(proc, setup, estimator) -> dict:
             "linearize_rtol": 1e-9}
 
 
-def numbers() -> dict:
+def numbers(only=()) -> dict:
+    """Every procedure's numbers; with `only`, those procedures' anew and the others' kept."""
     from mtplan.models import registry
 
-    out = {}
+    out = json.loads(OUT.read_text()) if only else {}
     for name, proc in sorted(registry().items()):
+        if only and name not in only:
+            continue
         out[name] = {est: _service(proc, setup_of(proc, est), est) for est in proc.estimators}
         print(name, "done", file=sys.stderr, flush=True)
     return out
 
 
 if __name__ == "__main__":
-    OUT.write_text(json.dumps(numbers(), indent=1, sort_keys=True) + "\n")
+    OUT.write_text(json.dumps(numbers(sys.argv[1:]), indent=1, sort_keys=True) + "\n")
     print(f"wrote {OUT}", file=sys.stderr)

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import mtplan
+from mtplan._validate import InvalidInput
 from mtplan import cli
 from mtplan.models import tracker_frame as tf
 from mtplan.models.tracker_frame import _layout as tf_layout
@@ -23,6 +24,8 @@ from mtplan.models.tracker_frame import _layout as tf_layout
 P = tf.PROCEDURE
 EXAMPLES = Path(mtplan.__file__).parent / "examples"
 WARM = dict(structure_temperature_c=25.0, air_gradient_k_per_m=0.8)
+#: with a measured horizontal gradient too (warm towards +x and -y)
+WARM_ACROSS = dict(WARM, air_gradient_x_k_per_m=0.3, air_gradient_y_k_per_m=-0.2)
 
 
 def _cli_json(capsys, *argv):
@@ -32,9 +35,11 @@ def _cli_json(capsys, *argv):
     return json.loads(out)
 
 
+@pytest.mark.parametrize("conditions", [WARM, WARM_ACROSS], ids=["vertical", "horizontal"])
 @pytest.mark.parametrize("estimator", list(P.estimators))
-def test_measured_temperature_and_gradient_are_corrected_exactly_without_errors(estimator):
-    setup = P.setup(WARM)
+def test_measured_temperature_and_gradient_are_corrected_exactly_without_errors(estimator,
+                                                                                conditions):
+    setup = P.setup(conditions)
     truth = P.Truth()
     est = P.display_estimate(setup, P.forward(setup, truth, P.zero_errors(setup, 1)), estimator)
     for name, value in P.display_truth(setup, truth).items():
@@ -85,6 +90,44 @@ def test_a_gradients_error_moves_the_frames_as_the_gradient_itself_does():
     assert max(abs(v) for v in got.values()) > 0.5
 
 
+def test_a_horizontal_gradient_swerves_each_beam_towards_the_warm_side():
+    """A horizontal gradient G across a beam moves the target seen sideways by
+    0.93e-6 G D^2 / 2 towards the warm side, as the vertical one raises it: warm towards
+    +y, a beam along +x (azimuth 0) is seen turned towards +y (a larger azimuth) and a beam
+    along -x towards +y too (a smaller azimuth, its left being -y); the elevations and
+    distances stay."""
+    setup = P.Setup()
+    errors = P.zero_errors(setup, 1)
+    base = P.forward(setup, P.Truth(), errors)
+    errors["air_gradient_y_range"] = np.full_like(errors["air_gradient_y_range"], 0.1)
+    moved = P.forward(setup, P.Truth(), errors)
+    az, d, el = (np.asarray(base[k])[0] for k in ("azimuth_rad", "distance_mm",
+                                                   "elevation_rad"))
+    across = 0.1 * np.cos(az)  # the component of (0, 0.1) K/m to the left of the beam
+    lateral_mm = 0.93e-6 * 1e-3 / 2 * across * d**2
+    want = lateral_mm / (d * np.cos(el))
+    np.testing.assert_allclose(np.asarray(moved["azimuth_rad"])[0] - az, want, rtol=1e-6,
+                               atol=1e-15)
+    assert np.ptp(np.sign(want)) == 2  # beams on both sides of the warm direction
+    np.testing.assert_array_equal(moved["elevation_rad"], base["elevation_rad"])
+    np.testing.assert_array_equal(moved["distance_mm"], base["distance_mm"])
+
+
+def test_a_horizontal_gradients_error_acts_as_an_assumed_gradient_of_that_size():
+    for ax in "xy":
+        got = _moved(P.setup(WARM_ACROSS), f"air_gradient_{ax}_u", 0.1)
+        same = _moved(P.Setup(), f"air_gradient_{ax}_range", 0.1)
+        for k, v in same.items():
+            assert got[k] == pytest.approx(v, rel=1e-3, abs=1e-6), (ax, k)
+        assert max(abs(v) for v in got.values()) > 0.05, ax
+
+
+def test_a_horizontal_gradient_is_measured_as_two_components():
+    with pytest.raises(InvalidInput, match="air_gradient_y_k_per_m.*only "
+                       "air_gradient_x_k_per_m was given"):
+        P.setup(dict(air_gradient_x_k_per_m=0.2))
+
+
 def test_a_measurement_switches_the_assumed_sources_off():
     src = P.sources(P.setup(WARM))
     assert src["structure_temperature_u"].active and src["air_gradient_u"].active
@@ -93,6 +136,12 @@ def test_a_measurement_switches_the_assumed_sources_off():
     src = P.sources(P.Setup())
     assert src["air_gradient_range"].distribution.mean == pytest.approx(0.5)  # warm air above
     assert not src["structure_temperature_u"].active
+    for ax in "xy":  # the horizontal gradient: either side may be warm
+        assert src[f"air_gradient_{ax}_range"].distribution.mean == 0.0
+        assert src[f"air_gradient_{ax}_range"].active and not src[f"air_gradient_{ax}_u"].active
+    src = P.sources(P.setup(WARM_ACROSS))
+    for ax in "xy":
+        assert src[f"air_gradient_{ax}_u"].active and not src[f"air_gradient_{ax}_range"].active
 
 
 def test_the_warm_example_covers_the_truth_only_when_corrected(capsys):

@@ -34,7 +34,8 @@ def test_the_set_ups_own_measurement_wins_and_others_are_untouched():
     assert with_conditions(rotary, CONDITIONS) is rotary
     declared = {f.metadata.get("condition") for name in ("circle_centre", "tracker_frame")
                 for f in dataclasses.fields(get(name).Setup)} - {None}
-    assert declared == {"part_temperature_c", "machine_temperature_c", "air_gradient_k_per_m"}
+    assert declared == {"part_temperature_c", "machine_temperature_c", "air_gradient_k_per_m",
+                        "air_gradient_x_k_per_m", "air_gradient_y_k_per_m"}
 
 
 def _study(conditions: str) -> dict:

@@ -13,6 +13,13 @@ A vertical gradient of the air's temperature ``NAME_k_per_m`` (None: not measure
 optical beams; measured, its error ``NAME_u`` (``NAME_u_k_per_m``) is normal; assumed, it is
 uniform between 0 and ``NAME_range_k_per_m`` (``NAME_range``): warm air lies above, so its
 mean is signed, a bias of the uncorrected estimates.
+
+A horizontal gradient ``NAME_x_k_per_m``, ``NAME_y_k_per_m`` (its components along the
+instrument's x and y axes; None: not measured) swerves the beams sideways by the same law;
+measured, each component's error is normal (``NAME_x_u``, ``NAME_y_u`` from
+``NAME_horizontal_u_k_per_m``); assumed, each component is uniform within
++-``NAME_horizontal_range_k_per_m`` (``NAME_x_range``, ``NAME_y_range``): nothing says on which
+side the warm air lies, so its mean is zero.
 """
 
 from __future__ import annotations
@@ -23,7 +30,8 @@ from mtplan.models.protocol import Source
 from mtplan.uncertainty import Normal, Rectangular
 
 __all__ = ["DN_DT", "deviation", "temperature_sources", "assumed_note", "gradient",
-           "gradient_sources", "bending", "unbend"]
+           "gradient_sources", "bending", "unbend",
+           "horizontal_gradient", "horizontal_gradient_sources", "swerve", "unswerve"]
 
 #: change of the air's refractive index per kelvin (Edlen) [1/K]
 DN_DT = 0.93e-6
@@ -86,3 +94,45 @@ def unbend(elevation, distance, grad):
     for _ in range(2):
         el = read - bending(grad, distance * np.cos(el))
     return el
+
+
+def horizontal_gradient(setup, name: str) -> tuple[float, float]:
+    """The measured horizontal gradient ``(NAME_x_k_per_m, NAME_y_k_per_m)`` [K/m] along the
+    instrument's x and y axes, (0, 0) where it was not measured."""
+    gx, gy = (getattr(setup, f"{name}_{ax}_k_per_m") for ax in "xy")
+    return (0.0, 0.0) if gx is None else (float(gx), float(gy))
+
+
+def horizontal_gradient_sources(setup, name: str, *, measured: str, assumed: str) -> dict:
+    """The sources ``NAME_x_u``, ``NAME_y_u`` (normal, where measured) and ``NAME_x_range``,
+    ``NAME_y_range`` (uniform within +-the range, where not), in K/m."""
+    is_measured = getattr(setup, f"{name}_x_k_per_m") is not None
+    u = getattr(setup, f"{name}_horizontal_u_k_per_m") if is_measured else 0.0
+    top = 0.0 if is_measured else getattr(setup, f"{name}_horizontal_range_k_per_m")
+    out = {}
+    for ax in "xy":
+        out[f"{name}_{ax}_u"] = Source(Normal(0.0, u), (), measured.replace("{axis}", ax),
+                                       field=f"{name}_horizontal_u_k_per_m")
+        out[f"{name}_{ax}_range"] = Source(Rectangular(-top, top), (),
+                                           assumed.replace("{axis}", ax),
+                                           field=f"{name}_horizontal_range_k_per_m")
+    return out
+
+
+def swerve(gx, gy, azimuth, distance, horiz):
+    """Azimuth error [rad] of a beam of length `distance` [mm] at `azimuth` [rad] (horizontal
+    length `horiz` [mm]) swerved by the horizontal gradient (`gx`, `gy`) [K/m]: the target is
+    seen moved towards the warm side by 0.93e-6 G D^2 / 2, G the gradient's component across
+    the beam, as :func:`bending` raises it for a vertical gradient."""
+    across = -np.asarray(gx) * np.sin(azimuth) + np.asarray(gy) * np.cos(azimuth)
+    return (DN_DT * 1e-3 / 2) * across * distance**2 / horiz
+
+
+def unswerve(azimuth, distance, horiz, gx, gy):
+    """The azimuth [rad] a beam swerved by (`gx`, `gy`) [K/m] would have without swerving: the
+    fixed point of ``read = az + swerve(gx, gy, az, distance, horiz)`` (two steps)."""
+    read = np.asarray(azimuth, dtype=float)
+    az = read
+    for _ in range(3):
+        az = read - swerve(gx, gy, az, distance, horiz)
+    return az

@@ -53,13 +53,19 @@ def _cartesian(readings: dict) -> np.ndarray:
 
 
 def _corrected_readings(setup: Setup, readings: dict) -> dict:
-    """The readings with the elevations corrected for the measured air gradient (unchanged
-    where it was not measured)."""
+    """The readings with the elevations and azimuths corrected for the measured air
+    gradients, vertical and horizontal (unchanged where they were not measured)."""
     g = temperature.gradient(setup, "air_gradient")
-    if not g:
+    gx, gy = temperature.horizontal_gradient(setup, "air_gradient")
+    if not (g or gx or gy):
         return readings
-    return {**readings, "elevation_rad": temperature.unbend(
-        readings["elevation_rad"], np.asarray(readings["distance_mm"], dtype=float), g)}
+    d = np.asarray(readings["distance_mm"], dtype=float)
+    el = temperature.unbend(readings["elevation_rad"], d, g) if g else readings["elevation_rad"]
+    out = {**readings, "elevation_rad": el}
+    if gx or gy:
+        out["azimuth_rad"] = temperature.unswerve(readings["azimuth_rad"], d,
+                                                  d * np.cos(np.asarray(el)), gx, gy)
+    return out
 
 
 def _register(setup: Setup, tracker_marks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

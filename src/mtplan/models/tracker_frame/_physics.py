@@ -371,6 +371,19 @@ def _thermal_sources(setup: Setup) -> dict[str, Source]:
             "2 (7.4 um at 4 m for 1 K/m). Default 1 K/m: halls without displacement "
             "ventilation stratify by 0.5-1 K/m (Estler et al., Large-scale metrology - an "
             "update, CIRP Annals 51/2, 2002)."),
+        **temperature.horizontal_gradient_sources(
+            setup, "air_gradient",
+            measured="Error of the measured horizontal gradient of the air's temperature "
+            "along the tracker's {axis} axis, as its mean along the beams [K/m]; the azimuths "
+            "are corrected with air_gradient_x_k_per_m and air_gradient_y_k_per_m. Default "
+            "0.1 K/m.",
+            assumed="Horizontal gradient of the air's temperature along the tracker's {axis} "
+            "axis when it is not measured, one per test [K/m], uniform within "
+            "+-air_gradient_horizontal_range_k_per_m: nothing says which side is warm. The "
+            "component G across a beam swerves it sideways as the vertical gradient bends it: "
+            "the target at distance D is seen moved towards the warm side by 0.93e-6 G D^2 / 2 "
+            "(0.74 um at 4 m for 0.1 K/m). Default 0.1 K/m: a hall without heaters, open doors "
+            "or sun on one side."),
     }
 
 
@@ -435,6 +448,11 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> Readings:
             + e("air_gradient_range")).reshape(-1, 1)
     if np.any(grad):  # beam bending: the target seen raised by 0.93e-6 G D^2 / 2
         d_el = d_el + temperature.bending(grad, horiz)
+    gx0, gy0 = temperature.horizontal_gradient(setup, "air_gradient")
+    gx = (gx0 + e("air_gradient_x_u") + e("air_gradient_x_range")).reshape(-1, 1)
+    gy = (gy0 + e("air_gradient_y_u") + e("air_gradient_y_range")).reshape(-1, 1)
+    if np.any(gx) or np.any(gy):  # sideways: towards the warm side, by the same law
+        daz = daz + temperature.swerve(gx, gy, az, d, horiz)
     sys = np.asarray(errors["angular_systematic"])
     if np.any(sys):
         s_az, s_el = _systematic_angles(sys, az, el)

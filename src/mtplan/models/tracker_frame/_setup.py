@@ -148,6 +148,27 @@ class Setup(SetupBase):
         "measured [K/m]: uniform between 0 and it, warm air above (halls without displacement "
         "ventilation stratify by 0.5-1 K/m, Estler et al., CIRP Annals 51/2, 2002)", low=0,
         high=20, owner="environment")
+    air_gradient_x_k_per_m: float | None = param(
+        None, doc="Measured horizontal gradient of the air's temperature along the tracker's "
+        "x axis (azimuth 0) [K/m], positive towards warm air (thermometers a metre apart "
+        "across the hall); with air_gradient_y_k_per_m every estimator corrects the azimuths "
+        "for the beams' swerve; empty: not measured, each component is taken uniform within "
+        "+-air_gradient_horizontal_range_k_per_m", low=-10, high=10,
+        condition="air_gradient_x_k_per_m")
+    air_gradient_y_k_per_m: float | None = param(
+        None, doc="Measured horizontal gradient of the air's temperature along the tracker's "
+        "y axis (azimuth 90 deg) [K/m], positive towards warm air; given with "
+        "air_gradient_x_k_per_m", low=-10, high=10, condition="air_gradient_y_k_per_m")
+    air_gradient_horizontal_u_k_per_m: float = param(
+        0.1, doc="Standard uncertainty of each measured horizontal gradient component as the "
+        "mean along the beams [K/m] (0.1 K thermometers a metre apart give 0.14 K/m for one "
+        "pair; averaged over the hall, 0.1); used when the horizontal gradient is given",
+        low=0, high=20, owner="instrument")
+    air_gradient_horizontal_range_k_per_m: float = param(
+        0.1, doc="Half-width of each horizontal component of the air's temperature gradient "
+        "when it is not measured [K/m]: uniform within +-it, either side warm (a hall without "
+        "heaters, doors or sun on one side; near them 0.3 or more)", low=0, high=20,
+        owner="environment")
     dwell_s: float = param(3.0, doc="Settling and tracker averaging per point", low=0)
     linear_feed_mm_min: float = param(3000.0, doc="Feed of the linear moves", low=0, low_open=True)
     rotary_move_s: float = param(3.0, doc="Time to index a rotary axis to the next arc point",
@@ -163,6 +184,11 @@ class Setup(SetupBase):
             if getattr(self, field) <= 0:
                 p.add(field, getattr(self, field),
                       f"> 0: a zero travel gives no direction of motion for the {ax.upper()} axis")
+        if (self.air_gradient_x_k_per_m is None) != (self.air_gradient_y_k_per_m is None):
+            given = "x" if self.air_gradient_y_k_per_m is None else "y"
+            p.add(f"air_gradient_{'y' if given == 'x' else 'x'}_k_per_m", None,
+                  f"a number [K/m]: the horizontal gradient is measured as two components, "
+                  f"and only air_gradient_{given}_k_per_m was given")
         for ax in "ca":
             field = f"{ax}_arc_deg"
             if getattr(self, field) <= 0:
@@ -180,6 +206,10 @@ class Setup(SetupBase):
                        f"{self.air_gradient_range_k_per_m:g} K/m, warm air above), not measured: "
                        "its mean biases the simulated estimates; estimate's bias correction "
                        "removes it (state air_gradient_k_per_m)")
+        if self.air_gradient_x_k_per_m is None:
+            out.append(f"temperature: the air's horizontal gradient was assumed (each "
+                       f"component within +-{self.air_gradient_horizontal_range_k_per_m:g} K/m), "
+                       "not measured (state air_gradient_x_k_per_m and air_gradient_y_k_per_m)")
         return out
 
 

@@ -156,6 +156,12 @@ CONDITION_KEYS = {"ambient_temperature_c": ("ambient temperature", "temperature"
                   "part_temperature_c": ("part (artefact) temperature", "temperature"),
                   "air_gradient_k_per_m": ("vertical gradient of the air's temperature "
                                            "(K/m, warm air above positive)", "gradient"),
+                  "air_gradient_x_k_per_m": ("horizontal gradient of the air's temperature "
+                                             "along the tracker's x axis (K/m, towards warm "
+                                             "air positive)", "gradient"),
+                  "air_gradient_y_k_per_m": ("horizontal gradient of the air's temperature "
+                                             "along the tracker's y axis (K/m, towards warm "
+                                             "air positive)", "gradient"),
                   "temperature_min_c": ("lowest ambient temperature during the test",
                                         "temperature"),
                   "temperature_max_c": ("highest ambient temperature during the test",
