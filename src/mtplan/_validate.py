@@ -37,6 +37,8 @@ def _show(value) -> str:
         return repr(float(value))
     if isinstance(value, np.ndarray):
         return np.array2string(value, threshold=6)
+    if isinstance(value, tuple | list) and len(value) > 6:  # never the repr of a long list
+        return f"({', '.join(_show(v) for v in value[:3])}, ... {len(value)} elements)"
     text = repr(value)
     return text if len(text) <= 80 else text[:77] + "..."
 

@@ -157,3 +157,21 @@ def test_bad_arguments():
         validate(mc, g, digits=0)
     with pytest.raises(InvalidInput, match="'coverage'"):
         validate(mc, linearize(f, inputs, coverage=0.99))
+
+
+def test_the_variance_without_the_covariance_is_its_diagonal():
+    rng = np.random.default_rng(7)
+    c, u = rng.normal(size=(40, 25)), rng.uniform(0.1, 2.0, 25)
+    v = rng.normal(size=(25, 25))
+    for cov in (None, v @ v.T):
+        from mtplan.uncertainty.gum import GUMResult
+
+        g = GUMResult(names=tuple(f"y{i}" for i in range(40)), inputs=tuple("x" * 25),
+                      groups=tuple("ab"[j % 2] for j in range(25)), sensitivity=c,
+                      input_std=u if cov is None else np.sqrt(np.diag(cov)),
+                      dof=np.full(40, np.inf), input_cov=cov)
+        variance = g.variance  # first: without the covariance formed (independent inputs)
+        np.testing.assert_allclose(variance, np.diag(g.cov), rtol=1e-12)
+        shares = {y: sum(p["share"] for p in parts.values()) for y, parts in g.by_source().items()}
+        if cov is None:
+            assert shares == pytest.approx({y: 1.0 for y in shares}, rel=1e-12)

@@ -144,6 +144,7 @@ def along_values(items, proc) -> dict:
     [mm] at which a procedure whose set-up has that field states its errors along AXIS
     (START to STOP inclusive, every STEP)."""
     from mtplan.evaluation.along import parse_grid
+    from mtplan.models.protocol import fields_info
 
     out = {}
     for axis, text in parse_pairs(items, "--along").items():
@@ -151,11 +152,13 @@ def along_values(items, proc) -> dict:
         if field not in getattr(proc.Setup, "__dataclass_fields__", {}):
             raise UsageError(f"--along {axis}: {proc.name} states no errors along {axis!r} "
                              f"(its set-up has no field {field})")
+        most = next(f.max_len for f in fields_info(proc.Setup) if f.name == field)
         try:
-            positions = parse_grid(text)
+            positions = parse_grid(text, most)
         except ValueError:
             raise UsageError(f"--along {axis}={text}: expected START:STOP:STEP [mm] with STEP "
-                             "> 0, STOP >= START and at most 2001 positions") from None
+                             "> 0, STOP >= START" + (f" and at most {most} positions"
+                                                     if most is not None else "")) from None
         out[field] = ",".join(f"{p:g}" for p in positions)
     return out
 

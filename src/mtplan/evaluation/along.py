@@ -48,22 +48,24 @@ def curves(names) -> dict:
                 np.array([p for p, _ in sorted(pts)], dtype=float)) for f, pts in out.items()}
 
 
-def parse_grid(text: str) -> tuple:
+def parse_grid(text: str, most: int | None = None) -> tuple:
     """``"START:STOP:STEP"`` [mm] -> the positions START to STOP inclusive, every STEP.
 
     Raises
     ------
     ValueError
-        Not three numbers, STEP <= 0, STOP < START, or more than 2001 positions.
+        Not three numbers, STEP <= 0, STOP < START, or more than `most` positions (None:
+        no limit).
     """
     try:
         start, stop, step = (float(v) for v in str(text).split(":"))
     except ValueError:
         start = stop = step = math.nan
     n = (stop - start) / step + 1 if step > 0 and stop >= start else math.nan
-    if not (math.isfinite(n) and n <= 2001):
+    if not (math.isfinite(n) and (most is None or n <= most)):
         raise ValueError(f"{text!r}: expected START:STOP:STEP [mm] with STEP > 0, STOP >= "
-                         "START and at most 2001 positions")
+                         "START" + (f" and at most {most} positions" if most is not None
+                                    else ""))
     return tuple(round(start + i * step, 9) for i in range(int(math.floor(n + 1e-9))))
 
 

@@ -55,7 +55,7 @@ def serve(initial: dict | None = None, *, port: int = 8050, open_browser: bool =
     # for the server's life (the jobs' processes start afresh)
     blas = one_blas_thread()
     token = secrets.token_urlsafe(24)
-    app = create_app(initial, token=token)
+    app = create_app(initial, token=token, learn=True)
     config = uvicorn.Config(app, host=HOST, port=port, log_level=log_level, lifespan="on",
                             timeout_graceful_shutdown=2, limit_concurrency=64,
                             server_header=False)

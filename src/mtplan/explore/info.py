@@ -33,7 +33,7 @@ def procedure_info(name: str) -> dict:
             "default": json_value(f.default), "low": f.low, "high": f.high,
             "low_open": f.low_open, "high_open": f.high_open,
             "choices": list(f.choices) if f.choices else None,
-            "optional": f.optional, "min_len": f.min_len,
+            "optional": f.optional, "min_len": f.min_len, "max_len": f.max_len,
             "source": by_field.get(f.name),
             "source_doc": sources[by_field[f.name]].description if f.name in by_field
             else "",
@@ -100,14 +100,25 @@ def explain(code: str) -> dict | None:
     is ``origin_x_2``), and ``:R`` or ``:P`` after a colon any value (``guard:R`` is
     ``guard:1``).
     """
+    rows, pattern = _patterns()
+    found = pattern.fullmatch(code)
+    return rows[found.lastindex - 1] if found else None
+
+
+@functools.lru_cache(maxsize=1)
+def _patterns() -> tuple:
+    """(rows, one pattern): every glossary name's pattern as a group of one alternation,
+    in the glossary's order, and the row of each group; compiled once (a page of thousands
+    of measurands asks for each one's row)."""
+    rows, parts = [], []
     for row in glossary():
         for name in row["names"]:
             pattern = re.escape(name)
             pattern = re.sub(r"_k$", r"_\\d+", pattern)
             pattern = re.sub(r":[A-Z]$", r":.+", pattern)
-            if re.fullmatch(pattern, code):
-                return row
-    return None
+            rows.append(row)
+            parts.append(f"({pattern})")
+    return rows, re.compile("|".join(parts))
 
 
 def help_text(code: str, description: str = "") -> str:

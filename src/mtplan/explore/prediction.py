@@ -12,14 +12,14 @@ import numpy as np
 
 from mtplan._parallel import one_blas_thread
 from mtplan._validate import InvalidInput
-from mtplan.explore.size import size_problem
+from mtplan.explore.size import size_model, size_problem
 from mtplan.explore.state import setup_key, source_fields
-from mtplan.models import get
+from mtplan.models import get, registry
 from mtplan.models.protocol import make
 
 __all__ = ["predict", "compute_prediction", "LIVE_MEMORY", "LIVE_SECONDS", "CURVE_SECONDS",
            "TooCostly", "CLOSED_FORM_POWER", "CHAIN_PROBE_SECONDS", "prediction_cost",
-           "guard_cost", "trial_seconds", "identify", "identify_cached"]
+           "guard_cost", "trial_seconds", "identify", "identify_cached", "learn_costs"]
 
 
 @functools.lru_cache(maxsize=512)
@@ -115,12 +115,19 @@ def _closed_form(name: str, estimator: str) -> tuple:
 CLOSED_FORM_POWER = 1.2
 
 
+#: CPU seconds per element of a prediction's m x n sensitivities (measurands times error
+#: inputs): forming them, their variances and the budget by source. geometry21 with 400 to
+#: 3200 measurands along Y (7488 inputs): 3.8e-8 to 6.2e-8 s on one thread of the 2-core
+#: test machine; an element costs the same whatever the set-up, so it is not learnt
+SENSITIVITY_SECONDS = 6e-8
+
+
 #: the chain rule is timed at a procedure's default set-up when its estimate from single
 #: runs is at most this [s]
 CHAIN_PROBE_SECONDS = 60.0
 
 
-def _chain_estimate(proc, setup, estimator: str) -> dict:
+def _chain_estimate(proc, setup, estimator: str, m: int | None = None) -> dict:
     """Memory [bytes] and time [s] of the chain rule from the set-up's size and the time of
     single runs: up to ``WHOLE_MAX`` elements the whole chain, 4 n + 1 runs of forward model
     and estimator; above, the readings' effect of every element (8 r n bytes, twice in
@@ -128,7 +135,7 @@ def _chain_estimate(proc, setup, estimator: str) -> dict:
     from mtplan.evaluation.first_order import WHOLE_MAX
 
     n = int(sum(src.size for src in proc.active_sources(setup).values()))
-    m = len(proc.measurands(setup))
+    m = len(proc.measurands(setup)) if m is None else m
     r = _readings(proc.name, setup_key(setup))
     runs = 4 * n + 1 if n <= WHOLE_MAX else 2 * r + 1
     memory = 8.0 * runs * (r + m) if n <= WHOLE_MAX else 16.0 * r * n
@@ -136,7 +143,7 @@ def _chain_estimate(proc, setup, estimator: str) -> dict:
     return {"bytes": memory, "seconds": seconds}
 
 
-def prediction_cost(proc, setup, estimator: str) -> dict:
+def prediction_cost(proc, setup, estimator: str, *, measurands: int | None = None) -> dict:
     """Estimated memory [bytes] and time [s] of the live first-order prediction, from the
     set-up alone (its sources' elements n, readings r, measurands m, one timed block of
     trials), along the first-order service's paths:
@@ -146,20 +153,28 @@ def prediction_cost(proc, setup, estimator: str) -> dict:
       power :data:`CLOSED_FORM_POWER`;
     - 'chain': :func:`_chain_estimate`'s memory and time, the time scaled by what the
       chain rule took at the default set-up over that estimate there, where it was timed
-      (never below 1/20 of the estimate).
+      (never below 1/20 of the estimate);
+
+    and on either path :data:`SENSITIVITY_SECONDS` for each element of the m x n
+    sensitivities (their variances and the budget by source: thousands of measurands, a
+    set-up's errors at every position along the travel, take seconds at a few readings).
+
+    `measurands`: m as stated (0 gives a lower bound of the cost before the measurands are
+    counted: their list may need an analysis of the set-up, geometry21's identifiability).
     """
     n = int(sum(src.size for src in proc.active_sources(setup).values()))
-    m = len(proc.measurands(setup))
+    m = len(proc.measurands(setup)) if measurands is None else measurands
     r = _readings(proc.name, setup_key(setup))
     path, per_reading = _closed_form(proc.name, estimator)
+    budget = SENSITIVITY_SECONDS * m * n
     if path == "sensitivities":
-        return {"path": path, "inputs": n, "readings": r,
-                "seconds": per_reading * max(r, 1) ** CLOSED_FORM_POWER,
+        return {"path": path, "inputs": n, "readings": r, "measurands": m,
+                "seconds": per_reading * max(r, 1) ** CLOSED_FORM_POWER + budget,
                 "bytes": 8.0 * (m + r) * m + 8.0 * m * n}
-    chain = _chain_estimate(proc, setup, estimator)  # its growth with n and r, not linear
+    chain = _chain_estimate(proc, setup, estimator, m)  # its growth with n and r, not linear
     seconds = chain["seconds"] * (1.0 if per_reading is None else max(per_reading, 0.05))
-    return {"path": path, "inputs": n, "readings": r, "bytes": chain["bytes"],
-            "seconds": seconds}
+    return {"path": path, "inputs": n, "readings": r, "measurands": m,
+            "bytes": chain["bytes"], "seconds": seconds + budget}
 
 
 @functools.lru_cache(maxsize=256)
@@ -174,14 +189,18 @@ def _readings(name: str, key: str) -> int:
 def guard_cost(proc, setup, estimator: str) -> dict:
     """The cost of a live prediction, or TooCostly with a plain message: first from the
     set-up's size estimated from its count fields alone (:mod:`mtplan.explore.size`, no
-    model run), then from the prediction's own estimate."""
+    model run), then from the prediction's own estimate: without the measurands (a lower
+    bound, from the set-up's sources and one noise-free run), then with them counted."""
     size, problem = size_problem(proc, setup.as_dict())
     if problem:
         raise TooCostly(f"{problem} Make the set-up smaller, or confirm it by Monte Carlo.",
                         {"bytes": None, "seconds": None, **size})
-    cost = prediction_cost(proc, setup, estimator)
+    cost = prediction_cost(proc, setup, estimator, measurands=0)
+    if cost["bytes"] <= LIVE_MEMORY and cost["seconds"] <= LIVE_SECONDS:
+        cost = prediction_cost(proc, setup, estimator)
+    counted = f", {cost['measurands']} measurands" if cost["measurands"] else ""
     what = (f"The first-order prediction of this {proc.name} set-up ({estimator} estimator, "
-            f"{cost['readings']} readings, {cost['inputs']} error inputs)")
+            f"{cost['readings']} readings, {cost['inputs']} error inputs{counted})")
     if cost["bytes"] > LIVE_MEMORY:
         raise TooCostly(f"{what} would need about {cost['bytes'] / 2**30:.3g} GiB of memory, "
                         f"more than the {LIVE_MEMORY / 2**30:.3g} GiB a live answer may use: "
@@ -190,9 +209,27 @@ def guard_cost(proc, setup, estimator: str) -> dict:
         minutes = cost["seconds"] / 60
         took = f"{minutes:.0f} min" if minutes >= 1.5 else f"{cost['seconds']:.0f} s"
         raise TooCostly(f"{what} would take about {took} here, more than a live answer may: "
-                        "make the set-up smaller (fewer readings), or confirm it by Monte "
-                        "Carlo.", cost)
+                        "make the set-up smaller (fewer readings or measurands), or confirm it "
+                        "by Monte Carlo.", cost)
     return cost
+
+
+def learn_costs(names=None) -> float:
+    """Learn, ahead of the first request, what the cost guard asks of each procedure named
+    (default: every one registered): its size model (:func:`mtplan.explore.size.size_model`,
+    every model first: they are what refuses a set-up too large to build) and its default
+    estimator's path and time (:func:`_closed_form`, 0.4-1.2 s a procedure). The seconds it
+    took. The server runs it at start, in the background, so that the guard's first answer
+    for a procedure takes milliseconds, not the seconds of learning."""
+    import time
+
+    t = time.perf_counter()
+    names = list(names or registry())
+    for name in names:
+        size_model(name)
+    for name in names:
+        _closed_form(name, get(name).estimator(None)[0])
+    return time.perf_counter() - t
 
 
 def trial_seconds(proc, setup, estimator: str) -> float:

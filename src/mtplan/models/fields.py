@@ -108,6 +108,7 @@ def param(
     high_open: bool = False,
     choices: tuple | None = None,
     min_len: int | None = None,
+    max_len: int | None = None,
     reader: Callable | None = None,
     condition: str | None = None,
     owner: str | None = None,
@@ -116,7 +117,9 @@ def param(
 
     The unit is the field name's suffix (``_mm``, ``_um``, ``_deg``, ...). For a
     tuple field (``tuple[float, ...]``) the range applies to every element and
-    `min_len` to its length.
+    `min_len` and `max_len` to its length: every list field states its `max_len`, as every
+    count states its `high`, so that no value given sizes the work beyond what was
+    declared (a longer list is refused before its elements are read).
 
     A field with a `reader` is a *file field* (a ``str | None`` path, None: no file): the
     set-up reads the file on construction with ``reader(path) -> content``, which refuses a
@@ -148,6 +151,7 @@ def param(
         "high_open": high_open,
         "choices": choices,
         "min_len": min_len,
+        "max_len": max_len,
         "reader": reader,
         "condition": condition,
         "owner": owner,
@@ -207,8 +211,8 @@ class FieldInfo:
     low_open, high_open : bool
     choices : tuple or None
         The allowed values of a field that takes one of a few.
-    min_len : int or None
-        The fewest elements of a tuple field.
+    min_len, max_len : int or None
+        The fewest and the most elements of a tuple field.
     file : bool
         A file field (``param(reader=...)``): a path whose file the set-up reads.
     condition : str or None
@@ -232,9 +236,34 @@ class FieldInfo:
     high_open: bool = False
     choices: tuple | None = None
     min_len: int | None = None
+    max_len: int | None = None
     file: bool = False
     condition: str | None = None
     owner: str | None = None
+
+    @property
+    def count(self) -> bool:
+        """An int field or a list field: its value, or its length, may size the work (a
+        count of points, repeats or positions; a list of positions). Each declares the
+        largest it may be (:attr:`largest`)."""
+        return self.kind is int or self.kind == "tuple"
+
+    @property
+    def largest(self) -> int | None:
+        """The largest size a count field allows: `high` for an int, `max_len` for a list
+        (None: unbounded, or not a count)."""
+        if self.kind is int:
+            return None if self.high is None else int(self.high)
+        return self.max_len if self.kind == "tuple" else None
+
+    def size(self, value) -> int | None:
+        """The size a value of this count field states: the int itself, or the list's
+        length; None for an empty (default) value or a value of another kind."""
+        if isinstance(value, tuple | list) and self.kind == "tuple":
+            return len(value)
+        if self.kind is int and is_real(value) and float(value).is_integer():
+            return int(value)
+        return None
 
 
 def fields_info(cls) -> tuple[FieldInfo, ...]:
@@ -258,7 +287,8 @@ def _fields_info(cls) -> tuple[FieldInfo, ...]:
         out.append(FieldInfo(
             name=f.name, kind=kind, element=elem, optional=optional, default=f.default,
             unit=split_unit(f.name)[1],
-            **{k: f.metadata.get(k) for k in ("doc", "low", "high", "choices", "min_len")},
+            **{k: f.metadata.get(k) for k in ("doc", "low", "high", "choices", "min_len",
+                                                 "max_len")},
             low_open=bool(f.metadata.get("low_open")),
             high_open=bool(f.metadata.get("high_open")),
             file=f.metadata.get("reader") is not None,
@@ -359,6 +389,10 @@ def _check_value(p: Problems, info, value) -> None:
     elif kind is float:
         p.number(info.name, value, **rng)
     elif kind == "tuple":
+        if isinstance(value, tuple) and info.max_len is not None and len(value) > info.max_len:
+            # before its elements are read: a list's length sizes the work
+            p.add(info.name, value, _describe_list(info))
+            return
         if not isinstance(value, tuple) or not all(is_real(v) for v in value):
             p.add(info.name, value, "a list of numbers")
             return
@@ -372,13 +406,26 @@ def _check_value(p: Problems, info, value) -> None:
         if info.min_len is not None:
             ok &= len(value) >= info.min_len
         if not ok:
-            allowed = "a list of finite numbers"
-            b = _describe(dataclasses.replace(info, kind=float, optional=False)).replace("a finite number", "")
-            if b.strip():
-                allowed += ", each" + b
-            if info.min_len:
-                allowed += f", at least {info.min_len} of them"
-            p.add(info.name, value, allowed)
+            p.add(info.name, value, _describe_list(info))
+
+
+def _describe_list(info) -> str:
+    """What a tuple field allows: finite numbers, each in its range, and how many."""
+    allowed = "a list of finite numbers"
+    b = _describe(dataclasses.replace(info, kind=float, optional=False)).replace(
+        "a finite number", "")
+    if b.strip():
+        allowed += ", each" + b
+    lo, hi = info.min_len, info.max_len
+    if lo and hi is not None:
+        allowed += (f", exactly {lo} of them" if lo == hi
+                    else f", {lo} to {hi} of them")
+    elif lo:
+        allowed += f", at least {lo} of them"
+    elif hi is not None:
+        allowed += f", at most {hi} of them"
+    return allowed
+
 
 
 class SetupBase:

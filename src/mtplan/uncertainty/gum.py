@@ -143,9 +143,19 @@ class GUMResult:
         return self._cov
 
     @property
+    def variance(self) -> np.ndarray:
+        """u(y)^2 per output: the covariance's diagonal, without forming the covariance
+        (m x n work, not m^2 x n: thousands of outputs, a set-up's errors at every position
+        along the travel) unless it is formed already or the inputs are correlated."""
+        if self._cov is None and self.input_cov is None:
+            c = self.sensitivity
+            return ((c * self.input_std**2) * c).sum(axis=1)
+        return np.diag(self.cov)
+
+    @property
     def std(self) -> np.ndarray:
         """Combined standard uncertainty u(y) per output."""
-        return np.sqrt(np.diag(self.cov))
+        return np.sqrt(self.variance)
 
     @property
     def k(self) -> np.ndarray:
@@ -210,7 +220,7 @@ class GUMResult:
         """{output: {source: {"u": its part of u, "share": its share of u^2}}}: the
         budget (:meth:`budget`) as plain numbers, keyed by output and source."""
         groups, var = self.group_variance()
-        total = np.diag(self.cov)
+        total = self.variance
         return {out: {src: {"u": float(np.sqrt(max(var[i, j], 0.0))),
                             "share": float(var[i, j] / total[i]) if total[i] > 0 else 0.0}
                       for j, src in enumerate(groups)} for i, out in enumerate(self.names)}
@@ -228,7 +238,7 @@ class GUMResult:
         groups, var = self.group_variance()
         gidx = np.array([groups.index(g) for g in self.groups])
         rows = []
-        total = np.diag(self.cov)
+        total = self.variance
         for i, out in enumerate(self.names):
             for g, name in enumerate(groups):
                 sel = np.flatnonzero(gidx == g)

@@ -87,7 +87,12 @@ function rangeText(f) {
   if (f.low !== null) parts.push((f.low_open ? "> " : "\u2265 ") + f.low);
   if (f.high !== null) parts.push((f.high_open ? "< " : "\u2264 ") + f.high);
   let t = parts.join(" and ");
-  if (f.kind === "tuple") t = "list" + (f.min_len ? ` of \u2265 ${f.min_len}` : "") + (t ? ", each " + t : "");
+  if (f.kind === "tuple") {
+    const lo = f.min_len, hi = f.max_len;
+    const n = lo && hi ? (lo === hi ? ` of ${lo}` : ` of ${lo} to ${hi}`)
+      : lo ? ` of \u2265 ${lo}` : hi ? ` of \u2264 ${hi}` : "";
+    t = "list" + n + (t ? ", each " + t : "");
+  }
   if (f.kind === "int") t = "integer " + t;
   if (f.optional) t += (t ? "; " : "") + "empty: default";
   return t;

@@ -4,12 +4,12 @@ circle passes, their timing) and how a head position maps to a plate's reading.
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from mtplan._cache import array_cache
 from mtplan.models.geometry21._setup import (
     AXIS,
     GRID_POWERS,
@@ -91,7 +91,7 @@ def _passes(setup):
     return out
 
 
-@functools.lru_cache(maxsize=16)
+@array_cache(maxsize=16)
 def geometry(setup: Setup) -> Geometry:
     if (key := sizeless(setup)) != setup:  # one geometry for every size of the sources
         return geometry(key)

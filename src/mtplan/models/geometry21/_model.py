@@ -9,6 +9,7 @@ import functools
 
 import numpy as np
 
+from mtplan._cache import array_cache
 from mtplan._validate import InvalidInput
 from mtplan.fitting import central_jacobian
 from mtplan.fitting.linear import gls_pinv, truncated_pinv
@@ -99,7 +100,7 @@ def model_jacobian(geo: Geometry, theta0: np.ndarray, s: np.ndarray):
     return predict(theta0[None, :])[0], central_jacobian(predict, theta0, 0.1 * s)
 
 
-@functools.lru_cache(maxsize=16)
+@array_cache(maxsize=16)
 def joint_ident(setup: Setup) -> dict:
     """Jacobian of the readings at zero error, its SVD, pseudo-inverse and estimability:
     the geometry's (:func:`_joint_geometry`) with the fit's weights (``pinv``)."""
@@ -128,7 +129,7 @@ class _Ident(dict):
         return self[key]
 
 
-@functools.lru_cache(maxsize=8)
+@array_cache(maxsize=8)
 def _joint_geometry(key: Setup) -> dict:
     """What does not depend on the sources' sizes: the Jacobian (closed form,
     :func:`._jacobian.zero_jacobian`), its SVD, null space and the measurands' estimability."""

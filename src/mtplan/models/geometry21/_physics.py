@@ -4,11 +4,11 @@ from the machine's errors to the plates' readings), true values and duration.
 
 from __future__ import annotations
 
-import functools
 import math
 
 import numpy as np
 
+from mtplan._cache import array_cache
 from mtplan.models.geometry21._layout import (
     geometry,
     grid_basis,
@@ -237,7 +237,7 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> Readings:
     return Readings({"plate_mm": r})
 
 
-@functools.lru_cache(maxsize=8)
+@array_cache(maxsize=8)
 def forward_matrix(setup: Setup, truth: Truth) -> np.ndarray:
     """The truth's head positions in the plates' frames and the 15 feature patterns of
     :func:`._layout._feature_patterns`, stacked (16, 3M): ``[1, features] @ it`` is every reading's

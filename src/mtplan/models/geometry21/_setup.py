@@ -59,11 +59,19 @@ def function_powers(name: str, order: int) -> tuple[int, ...]:
 
 
 # --------------------------------------------------------------------------- set-up
+#: the most extra head positions of one plate's tests (each repeats them all)
+MAX_EXTRA_HEADS = 10
+#: the most positions along one axis (:data:`ALONG`): 1 mm steps over 2 m
+MAX_ALONG = 2001
+#: the most coefficients of a true error function
+MAX_TRUE_COEFFICIENTS = 20
+
+
 def _heads_field(plane: str, doc_extra: str):
     return param((), doc=f"Extra head positions of the {plane} plate's tests: triples of tool "
                  "length, lateral X and lateral Y offset from the spindle axis [mm] (e.g. "
                  f"200,0,0,100,60,0); each repeats the plane's tests there. {doc_extra}",
-                 low=-1000, high=1000)
+                 low=-1000, high=1000, max_len=3 * MAX_EXTRA_HEADS)
 
 
 def describe(name: str) -> str:
@@ -77,7 +85,8 @@ def _along_field(axis: str):
                  "also stated, each a measurand of its own (EXX@-50 is EXX at x = -50 mm): the "
                  "errors along the travel, with their uncertainty and covariance, for a "
                  "compensation table; outside the measured travel (+-line_length_mm / 2) "
-                 "they are extrapolated, and marked so", low=-5000, high=5000)
+                 "they are extrapolated, and marked so", low=-5000, high=5000,
+                 max_len=MAX_ALONG)
 
 
 #: the set-up fields that state the functions at more positions (:func:`along_positions`)
@@ -176,8 +185,8 @@ class Setup(SetupBase):
                   "least-squares fit needs more readings than unknowns)")
         for name in ALONG:
             v = getattr(self, name)
-            if len(set(v)) != len(v) or len(v) > 2001:
-                p.add(name, v, "distinct positions, at most 2001")
+            if len(set(v)) != len(v):
+                p.add(name, v, "distinct positions")
         for pl in ("xy", "xz", "yz"):
             name = f"{pl}_extra_heads_mm"
             v = np.asarray(getattr(self, name), dtype=float)
@@ -244,7 +253,8 @@ def _tfield(name):
     unit = "urad" if KIND[name] == "ang" else "um"
     first = 2 if KIND[name] == "str" else 1
     return param(_DEFAULT_TRUTH[name],
-                 doc=f"{name}: coefficients of (u/100 mm)^n, n = {first}, {first + 1}, ... [{unit}]")
+                 doc=f"{name}: coefficients of (u/100 mm)^n, n = {first}, {first + 1}, ... "
+                 f"[{unit}]", max_len=MAX_TRUE_COEFFICIENTS)
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,8 @@ _MIN_NORMAL_X = 0.01
 #: set-up's notes)
 TILT_TABLE_DEG = (0.0, 5.0, 15.0, 30.0)
 TILT_TABLE = (0.0, 0.0012, 0.002, 0.005)
+#: the most axis positions of one axis (positions, angles_deg, c_angles_deg)
+MAX_POSITIONS = 360
 
 
 # --------------------------------------------------------------------------- set-up
@@ -51,7 +53,8 @@ class Setup(SetupBase):
     incline_azimuth_deg: float = param(0.0, doc="Direction of the incline's fall line from +X "
                                        "at the zero position [deg]", low=-360, high=360)
     positions: int | None = param(None, doc="Number of axis positions, >= 3 (empty: 6 for C, "
-                                  "7 for A); for CA, of the A part", low=3, high=360)
+                                  "7 for A); for CA, of the A part", low=3,
+                                  high=MAX_POSITIONS)
     range_deg: float | None = param(None, doc="Angular range [deg]: C positions equally spaced "
                                     "over it starting at 0 (360: the full turn), A positions "
                                     "spaced over -range/2..range/2 inclusive in a_order (empty: "
@@ -60,7 +63,7 @@ class Setup(SetupBase):
     angles_deg: tuple[float, ...] | None = param(None, doc="Explicit axis angles in measuring "
                                                  "order [deg]; overrides positions and "
                                                  "range_deg; for CA, of the A part", low=-720,
-                                                 high=720, min_len=3)
+                                                 high=720, min_len=3, max_len=MAX_POSITIONS)
     a_order: str = param("ascending", doc="Measuring order of the A positions from positions "
                          "and range_deg: 'ascending' (-range/2 up to +range/2, every position "
                          "approached in one direction, so the reversal value B cannot bias the "
@@ -72,14 +75,14 @@ class Setup(SetupBase):
                                                    "(axis CA) in measuring order [deg] "
                                                    "(empty: 6 over the full turn, as the "
                                                    "patent's example)", low=-720, high=720,
-                                                   min_len=3)
+                                                   min_len=3, max_len=MAX_POSITIONS)
     pose_a_deg: float = param(45.0, doc="CA: A angle of the machining pose whose error is "
                               "reported (pose_dx, pose_dy, pose_dz) [deg]", low=-360, high=360)
     pose_c_deg: float = param(90.0, doc="CA: C angle of that pose [deg]", low=-360, high=360)
     pose_point_mm: tuple[float, ...] = param((100.0, 50.0, 100.0), doc="CA: the workpiece "
                                              "point (X, Y, Z on the table at A = C = 0) whose "
                                              "position error at the pose is reported [mm]",
-                                             low=-5000, high=5000, min_len=3)
+                                             low=-5000, high=5000, min_len=3, max_len=3)
     lattice_nx: int = param(5, doc="Lattice points along X, >= 2 (one column is a line: the "
                             "plane's tilt across it is undetermined)", low=2, high=101)
     lattice_ny: int = param(5, doc="Lattice points along Y, >= 2 (one row is a line)",
@@ -316,8 +319,6 @@ class Setup(SetupBase):
         if self.c_angles_deg is not None and self.axis != "CA":
             p.add("c_angles_deg", self.c_angles_deg,
                   "empty unless axis is 'CA' (it sets the C part of the combined test)")
-        if len(self.pose_point_mm) != 3:
-            p.add("pose_point_mm", self.pose_point_mm, "three numbers: X, Y, Z")
         n0 = incline_normal(self)
         if "A" in self.axes and abs(n0[0]) < _MIN_NORMAL_X:
             p.add_text(

@@ -23,6 +23,9 @@ AXES = ("X", "Y", "Z")
 MIN_AC_ANGLE_DEG = 5.0
 
 
+#: the most sub-machines on a gantry (the truth's lists hold one value each, at most)
+MAX_SUBMACHINES = 32
+
 #: sine of the angle below which fitted A and C lines are called parallel
 PARALLEL_SIN = 1e-6
 
@@ -33,7 +36,8 @@ class Setup(SetupBase):
     """Set-up of the tracker measurement of the sub-machine frames (mm, deg, s)."""
 
     _owner = NAME
-    n_submachines: int = param(2, doc="Sub-machines on the gantry", low=1, high=32)
+    n_submachines: int = param(2, doc="Sub-machines on the gantry", low=1,
+                               high=MAX_SUBMACHINES)
     submachine_spacing_mm: float = param(
         2000.0, doc="Distance between neighbouring sub-machines along Y", low=0, low_open=True)
     origin_height_mm: float = param(
@@ -213,35 +217,35 @@ class Setup(SetupBase):
         return out
 
 
+def _each(default: tuple, *, doc: str):
+    """A truth field with one value per sub-machine (cycled when shorter than the count)."""
+    return param(default, doc=doc, min_len=1, max_len=MAX_SUBMACHINES)
+
+
 @dataclass(frozen=True)
 class Truth(SetupBase):
     """True geometry. Tuples are per sub-machine, cycled when shorter than the count."""
 
     _owner = f"{NAME} truth"
-    wrist_dx_um: tuple[float, ...] = param((40.0, -25.0), doc="Wrist centre T off nominal, X",
-                                           min_len=1)
-    wrist_dy_um: tuple[float, ...] = param((-30.0, 20.0), doc="Wrist centre T off nominal, Y",
-                                           min_len=1)
-    wrist_dz_um: tuple[float, ...] = param((15.0, -10.0), doc="Wrist centre T off nominal, Z",
-                                           min_len=1)
-    frame_rx_urad: tuple[float, ...] = param((20.0, -15.0), doc="Rotation of the sub-machine "
-                                             "(axes and head) about X", min_len=1)
-    frame_ry_urad: tuple[float, ...] = param((-12.0, 25.0), doc="... about Y", min_len=1)
-    frame_rz_urad: tuple[float, ...] = param((35.0, -20.0), doc="... about Z", min_len=1)
-    sq_xy_urad: tuple[float, ...] = param((10.0, -8.0), doc="Squareness X-Y (90 deg minus "
-                                          "the angle between X and Y)", min_len=1)
-    sq_yz_urad: tuple[float, ...] = param((-6.0, 12.0), doc="Squareness Y-Z", min_len=1)
-    sq_zx_urad: tuple[float, ...] = param((8.0, 5.0), doc="Squareness Z-X", min_len=1)
-    c_tilt_x_urad: tuple[float, ...] = param((15.0, -10.0), doc="Tilt of C against Z about X",
-                                             min_len=1)
-    c_tilt_y_urad: tuple[float, ...] = param((-20.0, 12.0), doc="Tilt of C against Z about Y",
-                                             min_len=1)
-    a_tilt_y_urad: tuple[float, ...] = param((25.0, -18.0), doc="Tilt of A about Y", min_len=1)
-    a_tilt_z_urad: tuple[float, ...] = param((-14.0, 30.0), doc="Tilt of A about Z", min_len=1)
-    ac_offset_um: tuple[float, ...] = param((30.0, -45.0), doc="Signed A-C offset (length of "
-                                            "the common perpendicular)", min_len=1)
-    pivot_length_error_um: tuple[float, ...] = param(
-        (0.0,), doc="True pivot length minus the stated one", min_len=1)
+    wrist_dx_um: tuple[float, ...] = _each((40.0, -25.0), doc="Wrist centre T off nominal, X")
+    wrist_dy_um: tuple[float, ...] = _each((-30.0, 20.0), doc="Wrist centre T off nominal, Y")
+    wrist_dz_um: tuple[float, ...] = _each((15.0, -10.0), doc="Wrist centre T off nominal, Z")
+    frame_rx_urad: tuple[float, ...] = _each((20.0, -15.0), doc="Rotation of the sub-machine "
+                                             "(axes and head) about X")
+    frame_ry_urad: tuple[float, ...] = _each((-12.0, 25.0), doc="... about Y")
+    frame_rz_urad: tuple[float, ...] = _each((35.0, -20.0), doc="... about Z")
+    sq_xy_urad: tuple[float, ...] = _each((10.0, -8.0), doc="Squareness X-Y (90 deg minus "
+                                          "the angle between X and Y)")
+    sq_yz_urad: tuple[float, ...] = _each((-6.0, 12.0), doc="Squareness Y-Z")
+    sq_zx_urad: tuple[float, ...] = _each((8.0, 5.0), doc="Squareness Z-X")
+    c_tilt_x_urad: tuple[float, ...] = _each((15.0, -10.0), doc="Tilt of C against Z about X")
+    c_tilt_y_urad: tuple[float, ...] = _each((-20.0, 12.0), doc="Tilt of C against Z about Y")
+    a_tilt_y_urad: tuple[float, ...] = _each((25.0, -18.0), doc="Tilt of A about Y")
+    a_tilt_z_urad: tuple[float, ...] = _each((-14.0, 30.0), doc="Tilt of A about Z")
+    ac_offset_um: tuple[float, ...] = _each((30.0, -45.0), doc="Signed A-C offset (length of "
+                                            "the common perpendicular)")
+    pivot_length_error_um: tuple[float, ...] = _each(
+        (0.0,), doc="True pivot length minus the stated one")
     ac_angle_deg: float = param(90.0, doc="Angle between the A and C axes", low=0, high=180)
     tracker_yaw_deg: float = param(30.0, doc="Yaw of the tracker's frame", low=-360, high=360)
     tracker_tilt_x_urad: float = param(50.0, doc="Tracker out of level about X")

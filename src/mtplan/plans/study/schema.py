@@ -898,7 +898,7 @@ def _along(proc, table, where, problems) -> dict:
     from mtplan.evaluation.along import parse_grid
     from mtplan.models.protocol import fields_info
 
-    fields = {f.name for f in fields_info(proc.Setup)}
+    fields = {f.name: f for f in fields_info(proc.Setup)}
     if not isinstance(table, dict):
         problems.append(f"{where} readings 'along' must be a table of AXIS = "
                         f"\"START:STOP:STEP\" [mm]. Got {table!r} instead.")
@@ -911,7 +911,7 @@ def _along(proc, table, where, problems) -> dict:
                             f"along {axis!r} (its set-up has no field {field}).")
             continue
         try:
-            out[field] = parse_grid(text)
+            out[field] = parse_grid(text, fields[field].max_len)
         except ValueError as exc:
             problems.append(f"{where} readings along {axis!r}: {exc}.")
     return out
