@@ -14,8 +14,10 @@ from mtplan.plans.planner import plan, target_u
 
 def test_the_residual_adds_what_the_test_cannot_see():
     proc = models.get("geometry21")
-    setup = proc.setup(path_residual_um=0.4)
+    setup = proc.setup(path_residual_um=0.4, medium_wave_um=0.0)
     assert target_u(proc, setup, "residual:EXX", {"EXX": 0.3}) == pytest.approx(0.5)
+    medium = proc.setup(path_residual_um=0.0, medium_wave_um=0.4)  # the medium wave too
+    assert target_u(proc, medium, "residual:EYX", {"EYX": 0.3}) == pytest.approx(0.5)
     assert target_u(proc, setup, "residual:EXX@-20", {"EXX@-20": 0.3}) == pytest.approx(0.5)
     assert target_u(proc, setup, "residual:EBX", {"EBX": 3.0}) == 3.0  # angles: none stated
     assert target_u(proc, setup, "EXX", {"EXX": 0.3}) == 0.3
@@ -25,11 +27,13 @@ def test_the_residual_adds_what_the_test_cannot_see():
 def test_geometry21_needs_more_repeats_for_the_same_target_on_the_residual():
     """EXX's u falls from 0.60 to 0.58 um from one to two line repeats; with the path
     residual's 0.3 um that the test cannot see, the residual after compensation meets
-    0.66 um only with two (sqrt(0.66^2 - 0.3^2) = 0.588 um)."""
+    0.66 um only with two (sqrt(0.66^2 - 0.3^2) = 0.588 um). Without the medium wave, whose
+    0.3 um more would leave the two set-ups 0.005 um apart around the target."""
     proc = models.get("geometry21")
+    base = proc.setup(medium_wave_um=0.0)
     kwargs = dict(vary={"line_repeats": [1, 2]}, trials=100, confirm=2)
-    on_value = plan(proc, None, targets={"EXX": 0.66}, **kwargs)
-    on_residual = plan(proc, None, targets={"residual:EXX": 0.66}, **kwargs)
+    on_value = plan(proc, base, targets={"EXX": 0.66}, **kwargs)
+    on_residual = plan(proc, base, targets={"residual:EXX": 0.66}, **kwargs)
     assert on_value.best["setup"]["line_repeats"] == 1
     assert on_residual.best["setup"]["line_repeats"] == 2
     best = on_residual.best

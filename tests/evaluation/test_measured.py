@@ -158,8 +158,11 @@ def test_cli_estimate_json(tmp_path, capsys, toy_cli, method):
     assert doc["procedure"] == "toy_line" and doc["uncertainty"] == method and doc["seed"] == 5
     assert [m["name"] for m in doc["measurands"]] == ["offset", "slope"]
     for m in doc["measurands"]:
-        assert set(m) == {"name", "unit", "value", "u", "interval", "coverage", "estimate",
-                          "bias_correction", "bias_correction_u", "determinable", "reason"}
+        assert set(m) == {"name", "unit", "value", "u", "interval", "coverage", "U",
+                          "U_coverage", "U_coverage_from", "estimate", "bias_correction",
+                          "bias_correction_u", "determinable", "reason"}
+        assert m["U"] == 2 * m["u"]
+        assert m["U_coverage_from"] == ("monte carlo" if method == "mc" else "posterior samples")
     if method == "posterior":
         assert doc["posterior"]["converged"]
         assert all(m["bias_correction"] == m["bias_correction_u"] == 0 for m in doc["measurands"])
@@ -175,6 +178,10 @@ def test_cli_estimate_json(tmp_path, capsys, toy_cli, method):
     # posterior's effective sample size), 4 of them allowed
     n = 2000 if method == "mc" else min(p["ess"] for p in doc["posterior"]["parameters"])
     assert abs(c[0, 1] / np.sqrt(c[0, 0] * c[1, 1])) < 4 / np.sqrt(n)
+    # normal errors: +-2u covers a normal distribution's 95.45 %, within 4 binomial standard
+    # errors of n values (the Monte Carlo's u of the correction widens U a little, not more)
+    for m in doc["measurands"]:
+        assert abs(m["U_coverage"] - 0.9545) < 4 * np.sqrt(0.9545 * 0.0455 / n) + 0.005, m
 
 
 def test_cli_estimate_table_and_out(tmp_path, capsys, toy_cli):

@@ -85,3 +85,43 @@ def test_the_path_residual_enters_u_as_stated():
     assert min(u.values()) > 0.2
     off = P.setup(path_residual_um=0.0)
     assert "path_residual" not in P.active_sources(off)
+
+
+@pytest.mark.parametrize("field", ["path_residual", "medium_wave"])
+def test_a_field_at_a_position_is_what_the_readings_see(field):
+    """``residual_at`` (a simulated machine's unseen error at a table point, the truth of a
+    closed loop of the compensation) is the field the readings carry: on the XY plate's x
+    line X's deviation along x is the reading's u, at each reading's x; and the correction
+    model's ``realised`` gives it per measurand, in um."""
+    setup = P.setup(along_x_mm=(-25.0, 40.0))
+    geo = g21.geometry(setup)
+    errors = P.draw_errors(setup, 3, np.random.SeedSequence(7), only=[field])
+    inn = errors[field]
+    basis = g21.residual_basis(g21.sizeless(setup), field).reshape(geo.plane.size, 2, 3, 3, -1)
+    line = np.flatnonzero((geo.plane == 0) & (geo.test == 0))
+    seen = inn[:, 0, 0] @ basis[line, 0, 0, 0].T  # (trials, readings)
+    at = g21.residual_at(setup, inn, 0, geo.cmd[line, 0], field)[:, :, 0]
+    np.testing.assert_allclose(at, seen, rtol=0, atol=1e-12 * np.abs(seen).max())
+    realised = P.correction.realised(setup, errors)
+    x = g21.residual_at(setup, inn, 0, [-25.0, 40.0], field) * 1e3
+    np.testing.assert_allclose(realised["EYX@40"], x[:, 1, 1], rtol=1e-12)
+    assert "EXX@-25" in realised and "EAY@40" not in realised  # translations only
+    with pytest.raises(ValueError, match="outside"):
+        g21.residual_at(setup, inn, 0, [1e3], field)
+
+
+def test_the_path_residual_is_the_error_function_s_own_direction():
+    """X's field along x set equal to x on every knot moves the readings exactly as EXX's
+    linear coefficient does (the sign and direction of the field's deviation are those of
+    the error function it adds to)."""
+    from mtplan.models.geometry21._jacobian import zero_jacobian
+    from mtplan.models.geometry21._path import RESIDUAL_KNOT_MM, field_filter, residual_knots
+
+    key = g21.sizeless(P.Setup())
+    geo = g21.geometry(key)
+    first, k = residual_knots(geo)
+    inn = np.zeros((3, 3, k))
+    inn[0, 0] = np.linalg.solve(field_filter(k), first + RESIDUAL_KNOT_MM * np.arange(k))
+    moved = g21.residual_basis(key) @ inn.ravel()
+    column = zero_jacobian(geo)[:, geo.layout["EXX"][1].start]
+    np.testing.assert_allclose(moved, column, rtol=0, atol=1e-9 * np.abs(column).max())

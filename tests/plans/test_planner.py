@@ -69,3 +69,27 @@ def test_design_search_beats_the_grid_on_a_continuous_field():
 def test_readings_jacobian_rank():
     J, names = readings_jacobian(P)
     assert J.shape == (P.Setup().n_points, 2) and np.linalg.matrix_rank(J) == 2
+
+
+def test_a_reliability_target_tells_circle_centre_how_many_points_it_needs():
+    """``reliability:centre_x<=4``: a bad contact the fit check misses must not move
+    centre_x by more than 4 um. The default three points cannot hold it (one contact's
+    radial error is checked only by the two start points, 15 um of centre_x unseen), six
+    neither; eight can. Each candidate's figure is that of the reliability service."""
+    from mtplan.evaluation.reliability import reliability
+    from mtplan.models import get
+
+    proc = get("circle_centre")
+    default = proc.Setup().n_points
+    res = plan(proc, vary={"n_points": [3, 6, 8]}, targets={"reliability:centre_x": 4.0},
+               trials=100, confirm=1)
+    assert res.best["setup"]["n_points"] == 8 > default
+    shifts = res.table.set_index("n_points")["u_reliability:centre_x"]
+    for n in (3, 6, 8):
+        assert shifts[n] == pytest.approx(
+            reliability(proc, proc.Setup(n_points=n)).shift("centre_x"), rel=1e-9)
+    assert shifts[default] > 4.0
+    with pytest.raises(InvalidInput, match="reliability:radius<=1 um cannot be met"):
+        plan(proc, targets={"reliability:radius": 1.0}, trials=100)
+    with pytest.raises(InvalidInput, match="names no measurand"):
+        plan(proc, targets={"reliability:nothing": 1.0}, trials=100)

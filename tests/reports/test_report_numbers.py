@@ -46,7 +46,8 @@ def test_every_verdict_is_redone_from_the_printed_row(demo_report):
     text = _text(folder / "report.pdf", layout=True)
     row = re.compile(rf"^\s*\d\s.*?±(?P<t>{_NUM})(?:\s*µ(?:m|rad))?\s+\[(?P<lo>{_NUM}), "
                      rf"(?P<hi>{_NUM})\]\s+(?P<w>{_NUM})\s+(?P<y>{_NUM})(?: †)?\s+"
-                     rf"(?P<U>{_NUM})(?: ‡)? \((?P<Up>{_NUM})\)\s+(?P<v>conditional pass|conditional "
+                     rf"(?P<U>{_NUM})(?: ‡)? \((?P<Up>{_NUM})\)\s+(?P<c>{_NUM}) %\s+"
+                     r"(?P<v>conditional pass|conditional "
                      r"fail|pass|fail)\s*$", re.M)
     rows = list(row.finditer(text))
     verdicts = pd.read_csv(folder / "results" / "verdicts.csv")

@@ -35,12 +35,14 @@ def cmd_linearize(args):
     if args.json:
         print(json.dumps(doc, indent=1))
         return 0
-    _print_result(doc)
+    _print_result(doc, result.sections.get("reliability"))
     return 0
 
 
-def _print_result(doc) -> None:
-    """The table of :meth:`LinearizedResult.to_dict`, its largest sources and notes."""
+def _print_result(doc, rel=None) -> None:
+    """The table of :meth:`LinearizedResult.to_dict`, its largest sources, what one bad
+    reading can do unseen (`rel`, a :class:`~mtplan.evaluation.reliability.Reliability`)
+    and the notes."""
     from mtplan.reports.labels import fmt
 
     k = f", k = {doc['k']:.3f}" if doc["k"] is not None else ""
@@ -59,5 +61,8 @@ def _print_result(doc) -> None:
     for m in doc["measurands"]:
         if m["reason"]:
             print(f"{m['name']}: {m['reason']}")
+    if rel is not None:
+        for line in rel.lines():
+            print(line)
     for note in doc["notes"]:
         print(f"note: {note}", file=sys.stderr)

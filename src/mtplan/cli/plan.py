@@ -21,7 +21,9 @@ def register(sub) -> None:
     p = sub.add_parser("plan", help="cheapest set-up meeting targets, Pareto front")
     add_common(p)
     p.add_argument("--target", action="append", metavar="NAME<=VALUE",
-                   help="bound on a measurand's uncertainty in its unit (repeatable)")
+                   help="bound on a measurand's uncertainty in its unit (repeatable); "
+                        "reliability:NAME<=VALUE bounds the largest shift of NAME one bad "
+                        "reading the fit check misses can cause")
     p.add_argument("--determine", metavar="all|NAME,...",
                    help="measurands the set-up must determine at all (all: every one the "
                         "procedure can report, e.g. geometry21's 21 errors)")
@@ -48,7 +50,7 @@ def register(sub) -> None:
 
 
 def cmd_plan(args):
-    from mtplan.plans.planner import parse_target, plan
+    from mtplan.plans.planner import RELIABILITY, parse_target, plan
 
     check_outputs(out=args.out)
     proc, setup, truth, config = procedure_and_setup(args)
@@ -81,6 +83,8 @@ def cmd_plan(args):
     if args.json:
         print(json.dumps(result.to_dict(), indent=1, default=float))
         return 0
+    from mtplan.uncertainty.coverage import coverage_text
+
     best = result.best
     goals = [f"{n} <= {v:g}" for n, v in targets.items()]
     if criterion is not None:
@@ -99,8 +103,15 @@ def cmd_plan(args):
         print(f"  false accept at the confirmed uncertainty: {criterion.pfa(best['confirmed']):.4g}")
     for n in targets:
         c = result.confirmation[-1]
+        if n.startswith(RELIABILITY):  # the design's own figure: no Monte Carlo of it
+            print(f"  {n}: largest shift one undetected bad reading causes "
+                  f"{best['predicted'][n]:.3g} (the fit check's MDB through the estimator)")
+            continue
+        covers = c.get("monte_carlo_coverage", {}).get(n)
+        covers = (f", ±{args.k:g}u covers {coverage_text(covers)} of its values"
+                  if covers is not None and args.k != 1 else "")
         print(f"  {n}: predicted {best['predicted'][n]:.3g}, Monte Carlo {best['confirmed'][n]:.3g} "
-              f"(ratio {c['ratio'][n]:.3f}, {c['trials']} trials)")
+              f"(ratio {c['ratio'][n]:.3f}, {c['trials']} trials{covers})")
     print(f"Pareto front (duration against the worst target ratio): {len(result.pareto)} set-ups")
     for c in result.pareto:
         shown = ", ".join(f"{f}={c['setup'][f]}" for f in vary)

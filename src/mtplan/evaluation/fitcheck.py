@@ -49,7 +49,7 @@ from mtplan._validate import InvalidInput, Problems
 from mtplan.fitting import Gaussian
 
 __all__ = ["FitCheck", "fit_check", "FIT_ALPHA", "N_WORST", "W_SHARE", "MDB_POWER",
-           "w_limit", "reading_vector", "with_reading_vector"]
+           "w_limit", "chi2_noncentrality", "reading_vector", "with_reading_vector"]
 
 #: default significance level of the whole check (both tests together): the 5 % of a
 #: metrologist's consistency checks (docs/fit_check.md, "Why alpha 0.05, split 0.04 / 0.01")
@@ -84,6 +84,16 @@ def with_reading_vector(readings: dict, keys: list, values: np.ndarray) -> dict:
         out[k] = np.asarray(values[at:at + a.size], dtype=float).reshape(a.shape)
         at += a.size
     return out
+
+
+def chi2_noncentrality(dof: int, alpha: float, power: float = MDB_POWER) -> float:
+    """The non-centrality ``lambda0`` at which the chi-square test of `dof` degrees of
+    freedom at level `alpha` rejects with probability `power`: an error ``b d`` of the
+    readings whose ``b^2 d^T P d`` reaches it is flagged by the chi-square alone that
+    often (the noncentral chi-square's inverse in its non-centrality)."""
+    from scipy import special
+
+    return float(special.chndtrinc(special.chdtri(dof, alpha), dof, 1.0 - power))
 
 
 def w_limit(alpha_w: float, n: int) -> float:
@@ -156,6 +166,18 @@ class FitCheck:
         of that reading alone that the w-test flags with probability ``MDB_POWER``
         (0.8), ``(w_critical + Phi^-1(0.8)) / sqrt(P_ii)`` (NaN where it has no w). An
         error smaller than this is likely to pass unseen.
+    labels : list of tuple
+        ``(row, column, reading)`` of every used reading, in the order of :attr:`z` (as
+        :attr:`worst` names them).
+    mdb_directions : array (m,) or None
+        With ``fit_check(..., directions=D)``: the minimal detectable bias of an error
+        ``b D[:, j]`` that moves several readings at once (one bad contact along its
+        probing direction) [the size of b]: the smaller of the w-test's,
+        ``(w_critical + Phi^-1(0.8)) / max_i |(P D_j)_i| / sqrt(P_ii)`` (the w of the
+        reading it moves most; ``sqrt(P_ii)`` per unit error for ``D_j`` a single reading,
+        :attr:`mdb`), and the chi-square's, ``sqrt(lambda0 / D_j^T P D_j)``
+        (:func:`chi2_noncentrality`); either test alone flags it with probability 0.8, so
+        the check with at least that. inf where the fit absorbs that error whole.
     """
 
     chi2: float | None
@@ -181,6 +203,8 @@ class FitCheck:
     p_overall: float | None = None
     mdb: np.ndarray | None = field(default=None, repr=False)
     w_at: str | None = None
+    labels: list = field(default_factory=list, repr=False)
+    mdb_directions: np.ndarray | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict:
         """The ``fit`` object of ``mtplan estimate --json``."""
@@ -325,6 +349,22 @@ def _statistics(fwd, fit, g: Gaussian, Q: np.ndarray, prior_res: np.ndarray) -> 
     return chi2, z, np.where(has, den, np.nan)
 
 
+def _gains(g: Gaussian, Qn: np.ndarray, D: np.ndarray, pii: np.ndarray) -> tuple:
+    """Per column of D (used readings, m), per unit of the error ``b D_j``: the largest
+    move of any reading's w, ``max_i |(P D_j)_i| / sqrt(P_ii)``, and the chi-square's
+    non-centrality ``D_j^T P D_j`` (0 both where the fit absorbs it: below the leverage
+    tolerance of its whitened size)."""
+    WD = g.whiten(D.T).T
+    PD = _wt(g, WD - Qn @ (Qn.T @ WD))  # P D: W^T of the whitened residual
+    with np.errstate(invalid="ignore", divide="ignore"):
+        gain = np.nanmax(np.where(np.isfinite(pii)[:, None],
+                                  np.abs(PD) / np.sqrt(pii)[:, None], -np.inf), axis=0)
+    size = np.sum(WD**2, axis=0)
+    lam = size - np.sum((Qn.T @ WD) ** 2, axis=0)
+    seen = lam > _LEVERAGE * size
+    return (np.where(seen & (gain > 0), gain, 0.0), np.where(seen, lam, 0.0))
+
+
 def _noise_mode(noise):
     """("setup" | "free" | "known", sigma) from the `noise` argument."""
     if noise is None or (isinstance(noise, str) and noise in ("setup", "free")):
@@ -337,7 +377,7 @@ def _noise_mode(noise):
 
 def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="setup",
               estimator: str | None = None, origin=None, n_worst: int = N_WORST,
-              w_share: float = W_SHARE) -> FitCheck:
+              w_share: float = W_SHARE, directions=None) -> FitCheck:
     """Test the readings against the procedure's model and error budget.
 
     Parameters
@@ -363,6 +403,10 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
         Readings listed in ``worst``.
     w_share : float
         Share of `alpha` given to the w-test, in [0, 1] (0: the chi-square alone).
+    directions : array (readings, m), optional
+        Errors that move several readings together, one per column over the readings'
+        numeric arrays flattened (:func:`reading_vector`'s order, missing ones included):
+        their minimal detectable bias, :attr:`FitCheck.mdb_directions`.
 
     Returns
     -------
@@ -410,6 +454,8 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
                                 n_readings=fwd.n, n_parameters=rank, nuisance=nuisance)
             prior_res = (fit.nuis - pri[:, 0]) / pri[:, 1] if q else np.zeros(0)
             chi2, z, pii = _statistics(fwd, fit, g, Q, prior_res)
+            gains = None if directions is None else _gains(
+                g, Q[:fwd.n], np.asarray(directions, dtype=float)[fwd.mask], pii)
     except InvalidInput as exc:
         return _not_made("the model cannot be fitted to the readings: "
                          + " ".join(exc.problems), alpha, fwd.n)
@@ -428,6 +474,12 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
     snoop = _snooping(z, order, pval, alpha, w_share)
     with np.errstate(invalid="ignore", divide="ignore"):
         mdb = (snoop["w_critical"] + _Z_POWER) / np.sqrt(pii) if snoop["w_critical"] else None
+        mdb_dir = None
+        if snoop["w_critical"] and gains is not None:
+            by_w = (snoop["w_critical"] + _Z_POWER) / gains[0]
+            by_chi2 = np.sqrt(chi2_noncentrality(dof, snoop["alpha_chi2"]) / gains[1]) \
+                if w_share < 1 else np.inf
+            mdb_dir = np.minimum(by_w, by_chi2)
     b = fit.error_model
     own = b.D0 if b.Dn is None else b.D0 + fit.sigma**2 * b.Dn
     every = own + np.sum(b.U0**2, axis=1) + (0 if b.Dn is None else fit.sigma**2 * np.sum(
@@ -435,7 +487,8 @@ def fit_check(procedure, setup, readings, *, alpha: float = FIT_ALPHA, noise="se
     return FitCheck(chi2=chi2, dof=int(dof), p_value=pval, alpha=alpha,
                     worst=worst[:n_worst], n_readings=fwd.n, n_parameters=rank,
                     nuisance=nuisance, z=z, scatter=np.sqrt(np.where(own > 0, own, every)),
-                    mdb=mdb, w_at=FitCheck._where(worst[0]) if worst else None, **snoop)
+                    mdb=mdb, w_at=FitCheck._where(worst[0]) if worst else None,
+                    labels=labels, mdb_directions=mdb_dir, **snoop)
 
 
 def _snooping(z: np.ndarray, order: list, pval: float, alpha: float, w_share: float) -> dict:

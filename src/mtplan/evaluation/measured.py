@@ -30,6 +30,7 @@ from mtplan.evaluation.simulation import (
     undetermined_measurands,
 )
 from mtplan.models.protocol import Procedure
+from mtplan.uncertainty.coverage import MONTE_CARLO, POSTERIOR, K
 
 __all__ = ["read_readings", "read_measurement", "Measurement", "estimate_measured",
            "best_estimator", "MeasuredResult", "UNCERTAINTY_METHODS", "SOURCE_KINDS",
@@ -125,6 +126,12 @@ class MeasuredResult(ResultDocument):
     covariance : array (n_measurands, n_measurands)
         Covariance of the values [display units]; its diagonal is ``std**2`` (NaN rows and
         columns for a measurand that is not determinable).
+    U_coverage : array (n_measurands,)
+        The fraction of the value's distribution within ``value ± U``, U = 2u
+        (:mod:`mtplan.uncertainty.coverage`): ``mc``, of the Monte Carlo's values around
+        the estimate; ``posterior``, of the posterior's samples.
+    U_from : str
+        Where ``U_coverage`` comes from (``U_coverage_from`` in the JSON and CSV).
     determinable : array of bool (n_measurands,)
         False where this estimator cannot give the measurand (its value, u and
         interval are NaN and :attr:`reasons` says why).
@@ -176,6 +183,8 @@ class MeasuredResult(ResultDocument):
     bias_correction: np.ndarray = None
     bias_correction_u: np.ndarray = None
     covariance: np.ndarray = None
+    U_coverage: np.ndarray = None
+    U_from: str = MONTE_CARLO
     determinable: np.ndarray = None
     reasons: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
@@ -196,6 +205,8 @@ class MeasuredResult(ResultDocument):
             self.covariance = np.diag(np.asarray(self.std, dtype=float) ** 2)
         if self.determinable is None:
             self.determinable = np.ones(n, dtype=bool)
+        if self.U_coverage is None:
+            self.U_coverage = np.full(n, np.nan)
 
     @property
     def u(self) -> np.ndarray:
@@ -242,7 +253,8 @@ class MeasuredResult(ResultDocument):
             extra["simultaneous_low"] = np.array([b[0] for b in band], dtype=float)
             extra["simultaneous_high"] = np.array([b[1] for b in band], dtype=float)
         return measurand_rows(self.measurands, Reported(self.value, self.std, self.low,
-                                                        self.high, self.coverage),
+                                                        self.high, self.coverage,
+                                                        self.U_coverage, self.U_from),
                               determinable=self.determinable, reasons=self.reasons,
                               undetermined=self.undetermined, extra=extra)
 
@@ -721,8 +733,18 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
         procedure=proc, estimator=est_name, uncertainty="mc", setup=setup,
         measurands=measurands, estimate=estimate, value=value, std=c["u"], low=c["low"],
         high=c["high"], coverage=float(coverage), seed=seed, details=r,
+        U_coverage=_mc_U_coverage(r, estimate, value, K * np.asarray(c["u"], dtype=float)),
         bias_correction=correction, bias_correction_u=c["u_correction"],
         covariance=c["covariance"], determinable=~bad, reasons=reasons, notes=notes)
+
+
+def _mc_U_coverage(r, estimate, value, big_u) -> np.ndarray:
+    """The coverage of ``value ± U`` from the Monte Carlo `r` around the estimate: its
+    trial t gives the value ``estimate - (y_t - true)``, so the fraction of its estimates
+    ``y_t`` within ``true + estimate - value ± U``."""
+    centre = np.asarray(r.true, dtype=float) + estimate - value
+    return np.array([float(r.mc.fraction_within(m.name, c - h, c + h))
+                     for m, c, h in zip(r.measurands, centre, big_u, strict=True)])
 
 
 def estimate_measured(
@@ -897,6 +919,7 @@ def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage
     names = [m.name for m in measurands]
     notes.extend(post.notes)
     from mtplan.evaluation.covariance import posterior_covariance
+    from mtplan.uncertainty.coverage import fraction_within
 
     return _with_fit(MeasuredResult(
         procedure=proc, estimator=est_name, uncertainty="posterior", setup=setup,
@@ -906,6 +929,8 @@ def _estimate(proc, setup, readings, *, estimator, uncertainty, trials, coverage
         low=np.array([post.low[n] for n in names]),
         high=np.array([post.high[n] for n in names]),
         coverage=float(coverage), seed=seed, details=post,
+        U_coverage=np.array([fraction_within(post.samples[n], post.mean[n], K * post.std[n])
+                             for n in names]), U_from=POSTERIOR,
         covariance=posterior_covariance(post, names), notes=notes), proc, readings,
         fit_alpha, noise=noise, origin=origin, start=est_name)
 

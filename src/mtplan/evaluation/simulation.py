@@ -20,9 +20,11 @@ from mtplan._parallel import effective_jobs
 from mtplan._validate import InvalidInput, Problems
 from mtplan.evaluation.covariance import covariance_doc
 from mtplan.evaluation.first_order import first_order
+from mtplan.evaluation.reliability import reliability as one_bad_reading
 from mtplan.fitting.effects import element_moments
 from mtplan.models import get
 from mtplan.models.protocol import Procedure
+from mtplan.uncertainty.coverage import ASSUMED, MONTE_CARLO, K
 from mtplan.uncertainty.gum import GUMResult
 from mtplan.uncertainty.montecarlo import MCResult, run_blocks
 from mtplan.uncertainty.options import RunOptions
@@ -98,7 +100,12 @@ def linear_trials(proc, setup, fo, *, sources=None, rng=None, trials: int,
 # --------------------------------------------------------------------------- one schema
 #: The keys of one measurand in every result's JSON (and, with ``interval`` split into
 #: ``low`` and ``high``, every result's CSV): what each command prints, whatever computed it.
-MEASURAND_KEYS = ("name", "unit", "value", "u", "interval", "coverage", "determinable", "reason")
+#: ``U`` is the expanded uncertainty that decides (k u, k = 2,
+#: :mod:`mtplan.uncertainty.coverage`), ``U_coverage`` the fraction of the distribution
+#: within ``value ± U`` and ``U_coverage_from`` where that comes from (the Monte Carlo, or
+#: a normal distribution assumed by a first-order result).
+MEASURAND_KEYS = ("name", "unit", "value", "u", "interval", "coverage", "U", "U_coverage",
+                  "U_coverage_from", "determinable", "reason")
 
 
 def _num(x):
@@ -112,14 +119,18 @@ def _num(x):
 
 class Reported(NamedTuple):
     """What a result reports of its measurands: arrays over them of the ``value``, ``u`` and
-    the interval's ``low`` and ``high`` ends [display unit], and the interval's ``coverage``
-    probability."""
+    the interval's ``low`` and ``high`` ends [display unit], the interval's ``coverage``
+    probability, the coverage of ``value ± U`` (``U_coverage``, an array over the
+    measurands) and where that comes from (``U_from``: :data:`~mtplan.uncertainty.
+    coverage.MONTE_CARLO` or :data:`~mtplan.uncertainty.coverage.ASSUMED`)."""
 
     value: np.ndarray
     u: np.ndarray
     low: np.ndarray
     high: np.ndarray
     coverage: float
+    U_coverage: np.ndarray
+    U_from: str = MONTE_CARLO
 
 
 def measurand_rows(measurands, reported: Reported, *, determinable=None, reasons=None,
@@ -131,7 +142,7 @@ def measurand_rows(measurands, reported: Reported, *, determinable=None, reasons
     and its reason; ``undetermined`` ({name: (unit, reason)}) lists the measurands the
     procedure can report that this set-up does not determine at all, after the others.
     """
-    value, u, low, high, coverage = reported
+    value, u, low, high, coverage, within, within_from = reported
     reasons = reasons or {}
     rows = []
     for i, m in enumerate(measurands):
@@ -139,13 +150,16 @@ def measurand_rows(measurands, reported: Reported, *, determinable=None, reasons
         row = {"name": m.name, "unit": m.unit,
                "value": _num(value[i]) if ok else None, "u": _num(u[i]) if ok else None,
                "interval": [_num(low[i]), _num(high[i])] if ok else [None, None],
-               "coverage": float(coverage), "determinable": ok,
+               "coverage": float(coverage), "U": _num(K * u[i]) if ok else None,
+               "U_coverage": _num(within[i]) if ok else None,
+               "U_coverage_from": within_from if ok else None, "determinable": ok,
                "reason": reasons.get(m.name)}
         row.update({k: _num(v[i]) for k, v in (extra or {}).items()})
         rows.append(row)
     for name, (unit, why) in (undetermined or {}).items():
         row = {"name": name, "unit": unit, "value": None, "u": None, "interval": [None, None],
-               "coverage": float(coverage), "determinable": False, "reason": why}
+               "coverage": float(coverage), "U": None, "U_coverage": None,
+               "U_coverage_from": None, "determinable": False, "reason": why}
         row.update({k: None for k in (extra or {})})
         rows.append(row)
     return rows
@@ -163,7 +177,8 @@ def rows_frame(rows):
         flat.append(r)
     df = pd.DataFrame(flat).set_index("name")
     df.index.name = "measurand"
-    first = ["unit", "value", "u", "low", "high", "coverage", "determinable", "reason"]
+    first = ["unit", "value", "u", "low", "high", "coverage", "U", "U_coverage",
+             "U_coverage_from", "determinable", "reason"]
     return df[first + [c for c in df.columns if c not in first]]
 
 
@@ -255,7 +270,8 @@ class ProcedureResult(ResultDocument):
         :class:`ResultDocument`).
 
     The JSON and CSV give per measurand ``value`` (the mean of the Monte Carlo
-    estimates), ``u`` (their standard deviation), ``interval``, ``coverage``,
+    estimates), ``u`` (their standard deviation), ``interval``, ``coverage``, ``U`` with
+    ``U_coverage`` (the fraction of the estimates within ``value ± U``),
     ``determinable``, ``reason``, ``true`` and ``bias``.
     """
 
@@ -288,6 +304,13 @@ class ProcedureResult(ResultDocument):
     def u(self) -> np.ndarray:
         """Standard uncertainty of each measurand (the Monte Carlo standard deviation)."""
         return self.mc.std
+
+    @property
+    def U_coverage(self) -> np.ndarray:  # noqa: N802 - U of the GUM
+        """The fraction of each measurand's Monte Carlo values within ``value ± U``, U = k u
+        (:mod:`mtplan.uncertainty.coverage`): the coverage U really has; 1 for a quantised
+        estimator whose values never left their step."""
+        return self.mc.U_coverage(K)
 
     def findings(self) -> list[str]:
         """What a reader of the table must not miss: an interval of zero width (the estimator
@@ -327,7 +350,8 @@ class ProcedureResult(ResultDocument):
     def _rows(self) -> list[dict]:
         mc = self.mc
         return measurand_rows(self.measurands,
-                              Reported(mc.mean, mc.std, mc.low, mc.high, mc.coverage),
+                              Reported(mc.mean, mc.std, mc.low, mc.high, mc.coverage,
+                                       self.U_coverage),
                               undetermined=self.undetermined,
                               extra={"true": self.true, "bias": self.bias})
 
@@ -559,7 +583,8 @@ class LinearizedResult(ResultDocument):
     notes : list of str
         Measurands whose u is 0 (no source moves the estimate at first order).
 
-    The JSON gives per measurand ``value``, ``u``, ``interval``, ``coverage``,
+    The JSON gives per measurand ``value``, ``u``, ``interval``, ``coverage``, ``U`` with
+    ``U_coverage`` (a normal distribution's, assumed: there is no Monte Carlo),
     ``determinable``, ``reason`` and ``budget`` ({source: {"u", "share"}}); the CSV is the
     budget (:meth:`GUMResult.budget`).
     """
@@ -586,7 +611,7 @@ class LinearizedResult(ResultDocument):
     def _rows(self) -> list[dict]:
         g = self.gum
         rows = measurand_rows(self.measurands, Reported(g.value, g.std, g.low, g.high,
-                                                        g.coverage),
+                                                        g.coverage, g.U_coverage, ASSUMED),
                               undetermined=self.undetermined)
         by_source = g.by_source()
         for row in rows:
@@ -595,8 +620,14 @@ class LinearizedResult(ResultDocument):
 
 
 def linearize_result(procedure, setup=None, truth=None, *, estimator: str | None = None,
-                     sources=None, coverage: float = 0.95) -> LinearizedResult:
-    """:func:`linearize_procedure` as a complete result: the ``mtplan linearize`` document."""
+                     sources=None, coverage: float = 0.95,
+                     reliability: bool = True) -> LinearizedResult:
+    """:func:`linearize_procedure` as a complete result: the ``mtplan linearize`` document.
+
+    With `reliability` (default), its ``reliability`` section: what one bad reading can do
+    unseen by the fit check, the minimal detectable bias of the readings and the largest
+    shift of each measurand it causes (:func:`mtplan.evaluation.reliability.reliability`,
+    at the design readings; the ratio to u against the u of this result)."""
     proc, setup, truth = _resolve(procedure, setup, truth)
     g = linearize_procedure(proc, setup, truth, estimator=estimator, sources=sources,
                             coverage=coverage)
@@ -607,9 +638,14 @@ def linearize_result(procedure, setup=None, truth=None, *, estimator: str | None
               f"at first order (it is quantised or blind to {m.name}, or no source moves it), "
               "so the law of propagation cannot give its uncertainty"
               for m, u in zip(measurands, g.std, strict=True) if not u > 0]
-    return LinearizedResult(procedure=proc, estimator=est_name, setup=setup,
-                            measurands=measurands, gum=g, notes=notes,
-                            undetermined=undetermined_measurands(proc, setup))
+    result = LinearizedResult(procedure=proc, estimator=est_name, setup=setup,
+                              measurands=measurands, gum=g, notes=notes,
+                              undetermined=undetermined_measurands(proc, setup))
+    if reliability:
+        result.sections["reliability"] = one_bad_reading(
+            proc, setup, truth, estimator=est_name,
+            u={m.name: float(u) for m, u in zip(measurands, g.std, strict=True)})
+    return result
 
 
 def source_budget(procedure, setup=None, truth=None, *, estimator=None, options=None,

@@ -167,6 +167,19 @@ class Capabilities:
         estimator (so is None for an estimator an override does not map)."""
         return None
 
+    def gross_errors(self, setup, readings):
+        """The gross errors of the test that move several readings together (one bad
+        contact of a probe moves both coordinates it reads along its probing direction):
+        ``(kind, labels, directions)``, what they are ("a contact along its probing
+        direction"), a name per error ("contact d2") and an array (readings, errors) of
+        each one's effect per unit [the readings' internal unit] over the numeric reading
+        arrays of `readings` (a batch of one) flattened in order. The fit check's reliability
+        (:mod:`mtplan.evaluation.reliability`) states their minimal detectable bias and
+        what they move unseen beside those of each reading alone.
+
+        Generic: None (every gross error is one reading's)."""
+        return None
+
     # ------------------------------------------------------------------ analyses
     def identifiability_report(self, setup) -> dict:
         """The procedure's own rank analysis of its full model: ``rank``, ``parameters``,
@@ -217,7 +230,8 @@ class Capabilities:
 
 #: the methods of :class:`Capabilities` a procedure may override
 METHODS = ("truth_from_estimate", "truths_from_estimates", "start_from_readings",
-           "source_structure", "first_order_sensitivities", "identifiability_report",
+           "source_structure", "first_order_sensitivities", "gross_errors",
+           "identifiability_report",
            "identifiability", "observability", "along_default", "report_extras")
 
 

@@ -59,6 +59,10 @@ def _restates_none(setup: Mapping) -> dict:
     return {}
 
 
+def _nothing_realised(setup, errors: Mapping) -> dict:
+    return {}
+
+
 @dataclass(frozen=True)
 class CorrectionModel:
     """How a procedure's result becomes a correction a controller takes.
@@ -95,6 +99,13 @@ class CorrectionModel:
         as another one a term corrects (geometry21's EXX, the function at the travel's end,
         is ``EXX@50`` of the table), so that the documents give its residual after
         compensation; {} where none is.
+    realised : callable
+        ``realised(setup, errors) -> {measurand: value}``: the value [display unit] that
+        what ``unseen`` names takes on a simulated machine, for the source errors
+        (``Procedure.draw_errors``) its test was simulated with, at the procedure's
+        ``Setup``; with the measurand's true value, the error the machine really has
+        there (what a closed loop of the compensation compares the written value with).
+        Measurands it leaves out have nothing unseen.
     """
 
     kind: str = ""
@@ -104,6 +115,7 @@ class CorrectionModel:
     nominal: Callable[[Mapping], dict] = _no_nominal
     unseen: Callable[[Mapping], dict] = _nothing_unseen
     restates: Callable[[Mapping], dict] = _restates_none
+    realised: Callable[[object, Mapping], dict] = _nothing_realised
 
     def unseen_of(self, setup: Mapping, measurand: str) -> tuple[float, str]:
         """(u, what) that stays unseen after correcting `measurand` ((0, "") for none)."""

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mtplan._validate import InvalidInput
+from mtplan.uncertainty.coverage import K as COVERAGE_K
 
 __all__ = ["K", "VERDICTS", "PASS", "CONDITIONAL_PASS", "CONDITIONAL_FAIL", "FAIL", "Verdict",
            "LeverEffect", "SummaryRow", "recommend_estimator", "key_measurands", "conformity",
@@ -39,8 +40,9 @@ __all__ = ["K", "VERDICTS", "PASS", "CONDITIONAL_PASS", "CONDITIONAL_FAIL", "FAI
            "estimator_comparison", "u_targets", "shown_setup", "summary_rows",
            "RANDOM_ON_REPEAT", "random_share", "repeats_needed", "repeated_U"]
 
-#: coverage factor of the expanded uncertainty U = k u (ISO 14253-1, JCGM 106)
-K = 2.0
+#: coverage factor of the expanded uncertainty U = k u that decides (ISO 14253-1, JCGM 106;
+#: the coverage each U really has is printed beside it, :mod:`mtplan.uncertainty.coverage`)
+K = COVERAGE_K
 #: the four outcomes of ILAC-G8:09/2019 4.2.3 with a guard band (pass and fail alone
 #: with simple acceptance)
 PASS = "pass"
@@ -100,6 +102,13 @@ class Verdict:
         For a position tolerance as a diameter zone (ISO 1101): ``position`` (the two
         coordinate measurands), ``nominal`` and ``diameter``; the measurand is then the
         position deviation ``2 sqrt(dx^2 + dy^2)`` with the tolerance 0 to ``diameter``.
+    U_coverage, measured_U_coverage : float or None
+        The coverage of ``± U`` (the fraction of the distribution within it,
+        :mod:`mtplan.uncertainty.coverage`) of U predicted (the planned set-up's Monte
+        Carlo) and of U achieved (the measured value's distribution); None where there is
+        none.
+    measured_U_from : str
+        Where ``measured_U_coverage`` comes from (``U_coverage_from`` of the result).
     """
 
     procedure: str
@@ -133,6 +142,9 @@ class Verdict:
     reason: str = ""
     p_conform_samples: float | None = None
     zone: dict | None = None
+    U_coverage: float | None = None
+    measured_U_coverage: float | None = None
+    measured_U_from: str = ""
 
     @property
     def U(self) -> float:  # noqa: N802 - the symbol of ISO 14253-1
@@ -144,11 +156,15 @@ class Verdict:
         a_lo, a_hi = self.acceptance_limits
         return {"procedure": self.procedure, "test": self.label, "measurand": self.measurand,
                 "unit": self.unit, "estimator": self.estimator, "lower": self.lower,
-                "upper": self.upper, "u": self.u, "k": self.k, "U": self.U, "rule": self.rule,
+                "upper": self.upper, "u": self.u, "k": self.k, "U": self.U,
+                "U_coverage": self.U_coverage, "rule": self.rule,
                 "guard_band": self.guard_band, "acceptance_lower": a_lo,
                 "acceptance_upper": a_hi, "tur": self.tur, "pfa": self.pfa, "pfr": self.pfr,
                 "measured": self.measured, "measured_u": self.measured_u,
                 "measured_low": self.measured_low, "measured_high": self.measured_high,
+                "measured_U": None if self.measured_u is None else self.k * self.measured_u,
+                "measured_U_coverage": self.measured_U_coverage,
+                "measured_U_coverage_from": self.measured_U_from,
                 "measured_source": self.measured_source, "p_conform": self.p_conform,
                 "p_conform_population": self.p_conform_population,
                 "population_source": self.population_source,
@@ -205,6 +221,9 @@ class SummaryRow:
     measured_high: float | None = None
     verdict: str = ""
     reason: str = ""
+    #: the coverage of ± U and of ± U achieved (:class:`Verdict`)
+    U_coverage: float | None = None  # noqa: N815
+    measured_U_coverage: float | None = None  # noqa: N815
 
 
 # ----------------------------------------------------------------------- estimators
@@ -309,6 +328,29 @@ def fit_verdict(fit) -> tuple[str, str] | None:
     return NO_FIT, why
 
 
+def _predicted_coverage(result, i) -> float | None:
+    """The coverage of ± U predicted of measurand `i` (the set-up's Monte Carlo, its
+    ``U_coverage``); None for a result that gives none."""
+    within = getattr(result, "U_coverage", None)
+    return None if within is None else float(within[i])
+
+
+def _measured_coverage(spec, name, measured, predicted) -> tuple[float | None, str]:
+    """(coverage of ± U achieved, where it comes from) of one measurand: the measured
+    result's (``U_coverage``), the prediction's for a value stated in the study (its u is
+    the predicted one)."""
+    from mtplan.uncertainty.coverage import MONTE_CARLO
+
+    if spec.get("measured") is not None:
+        return predicted, MONTE_CARLO
+    within = getattr(measured, "U_coverage", None)
+    if within is None:
+        return None, ""
+    j = [m.name for m in measured.measurands].index(name)
+    p = float(within[j])
+    return (p if math.isfinite(p) else None), getattr(measured, "U_from", "")
+
+
 def _measured_value(spec, name, measured, u):
     """(value, u, low, high, source, verdict-or-None, reason) of one measurand."""
     if spec.get("measured") is not None:
@@ -366,6 +408,9 @@ def conformity(procedure: str, label: str, specs: list, result, measured=None) -
         prior = acc.parse_prior(spec["prior"]) if spec.get("prior") else None
         rule = spec.get("rule", "simple")
         y, uy, low, high, source, verdict, reason = _measured_value(spec, name, measured, u)
+        predicted = _predicted_coverage(result, i)
+        achieved, achieved_from = (_measured_coverage(spec, name, measured, predicted)
+                                   if y is not None else (None, ""))
         v = Verdict(procedure=procedure, label=label, measurand=name, unit=m.unit,
                     description=m.description, estimator=result.estimator,
                     lower=spec.get("lower"), upper=spec.get("upper"), u=u, rule=str(rule),
@@ -373,7 +418,8 @@ def conformity(procedure: str, label: str, specs: list, result, measured=None) -
                     population_source=str(spec.get("population_source", "")),
                     measured=y, measured_u=uy,
                     measured_low=low, measured_high=high, measured_source=source,
-                    reason=reason)
+                    reason=reason, U_coverage=predicted, measured_U_coverage=achieved,
+                    measured_U_from=achieved_from)
         if not (u > 0 and math.isfinite(u)):
             v.verdict = NOT_DETERMINABLE
             v.reason = (f"the {result.estimator} estimator gives the same value in every "
@@ -676,18 +722,23 @@ def summary_rows(section, procedure, label, result, names, verdicts, measured, s
         row = SummaryRow(section=section, procedure=procedure, label=label, measurand=name,
                          unit=m.unit, description=m.description, estimator=result.estimator,
                          setup=setup, u=u if u > 0 else math.nan, k=K,
-                         U=K * u if u > 0 else math.nan, duration_s=float(duration_s))
+                         U=K * u if u > 0 else math.nan, duration_s=float(duration_s),
+                         U_coverage=_predicted_coverage(result, i) if u > 0 else None)
         v = by_name.get(name)
         if v is not None:
             row.lower, row.upper, row.tur = v.lower, v.upper, v.tur
             row.measured, row.measured_u = v.measured, v.measured_u
+            row.measured_U_coverage = v.measured_U_coverage
             row.measured_low, row.measured_high = v.measured_low, v.measured_high
             row.verdict, row.reason = v.verdict, v.reason
             if v.estimator != result.estimator:  # the readings' estimator decides
                 row.estimator, row.u, row.U = v.estimator, v.u, v.U
+                row.U_coverage = v.U_coverage
         elif measured is not None:
             y, uy, low, high, _, verdict, reason = _measured_value({}, name, measured, u)
             row.measured, row.measured_u, row.measured_low, row.measured_high = y, uy, low, high
+            if y is not None:
+                row.measured_U_coverage = _measured_coverage({}, name, measured, None)[0]
             row.verdict = verdict or ""
             row.reason = reason
         if not u > 0 and not row.reason:

@@ -26,6 +26,7 @@ import numpy as np
 from mtplan._parallel import check_parallel, ordered_map, parallel_session
 from mtplan._validate import InvalidInput, Problems
 from mtplan.evaluation.first_order import first_order
+from mtplan.evaluation.reliability import reliability
 from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
 from mtplan.models import get
 from mtplan.models.protocol import fields_info, make
@@ -36,11 +37,23 @@ from mtplan.uncertainty.options import Options
 
 __all__ = ["PlanResult", "PlanOptions", "plan", "pareto_front", "optimize_design",
            "readings_jacobian", "design_identifiability", "parse_target", "PfaCriterion",
-           "RESIDUAL", "target_u"]
+           "RESIDUAL", "RELIABILITY", "target_u", "target_value", "target_measurand"]
 
 
 #: a target on the residual after compensation: ``residual:EXX<=2``
 RESIDUAL = "residual:"
+#: a target on what one bad reading can do unseen: ``reliability:centre_x<=4`` bounds the
+#: largest shift of centre_x that an error of one reading the fit check misses (its
+#: minimal detectable bias, :mod:`mtplan.evaluation.reliability`) can cause
+RELIABILITY = "reliability:"
+
+
+def target_measurand(name: str) -> str:
+    """The measurand a target names: ``residual:EX0C`` and ``reliability:EX0C`` name EX0C."""
+    for prefix in (RESIDUAL, RELIABILITY):
+        if name.startswith(prefix):
+            return name[len(prefix):]
+    return name
 
 
 def target_u(proc, setup, name: str, u: Mapping[str, float]) -> float:
@@ -58,9 +71,22 @@ def target_u(proc, setup, name: str, u: Mapping[str, float]) -> float:
     return math.hypot(float(u[measurand]), unseen)
 
 
+def target_value(proc, setup, name: str, u: Mapping[str, float], k: float,
+                 shifts: Mapping[str, float] | None = None) -> float:
+    """What a target bounds, in the measurand's display unit: ``k`` times :func:`target_u`,
+    or for ``reliability:M`` the largest shift of M that one reading's error the fit check
+    misses can cause (`shifts`, :meth:`Reliability.shift`; not scaled by ``k``: it is a
+    shift, not an uncertainty). NaN where the set-up does not determine M."""
+    if name.startswith(RELIABILITY):
+        return float((shifts or {}).get(target_measurand(name), math.nan))
+    return k * target_u(proc, setup, name, u)
+
+
 def parse_target(text: str) -> tuple[str, float]:
     """Parse ``NAME<=VALUE`` (or ``NAME=VALUE``) into (name, value); NAME may be
-    ``residual:M`` (the error left after compensating M, :func:`target_u`)."""
+    ``residual:M`` (the error left after compensating M, :func:`target_u`) or
+    ``reliability:M`` (the largest shift of M one undetected bad reading can cause,
+    :func:`target_value`)."""
     for sep in ("<=", "="):
         name, found, value = text.partition(sep)
         if found:
@@ -72,8 +98,9 @@ def parse_target(text: str) -> tuple[str, float]:
                 return name.strip(), v
             break
     raise InvalidInput([f"A target must read NAME<=VALUE with a value > 0 in the measurand's "
-                        f"unit (e.g. EX0C<=2, or residual:EX0C<=2 for the error left after "
-                        f"compensation). Got {text!r} instead."])
+                        f"unit (e.g. EX0C<=2, residual:EX0C<=2 for the error left after "
+                        f"compensation, or reliability:EX0C<=2 for the largest shift one "
+                        f"undetected bad reading can cause). Got {text!r} instead."])
 
 
 def pareto_front(cost: np.ndarray, value: np.ndarray) -> np.ndarray:
@@ -279,11 +306,11 @@ def _check_plan(proc, names, targets, criterion, k, confirm, trials, n_jobs, bac
     if not targets and criterion is None and not required:
         p.add_text("plan needs at least one target NAME<=VALUE")
     for name, value in targets.items():
-        measurand = name.removeprefix(RESIDUAL)
+        measurand = target_measurand(name)
         if measurand not in names:
             p.add_text(f"The target {name!r} names no measurand of {proc.name}; its measurands "
                        f"are: {', '.join(names)}")
-        elif name != measurand and not proc.correction.kind:
+        elif name.startswith(RESIDUAL) and not proc.correction.kind:
             p.add_text(f"The target {name!r} bounds a residual after compensation, but "
                        f"{proc.name} states no correction a controller takes")
         p.number(f"targets[{name!r}]", value, low=0, low_open=True)
@@ -307,16 +334,17 @@ def _screen(proc, setups, truth, estimator, sources, targets, k, criterion, iden
     missing = [[n for n in required if n not in ls] for ls in listed]
     with parallel_session(n_jobs, backend) as session:  # one task per candidate, so that a
         # procedure's per-set-up precomputation serves both
-        tasks = ((proc, s, truth, estimator, sources, not miss, identify)
-                 for s, miss in zip(setups, missing))
+        reliable = [target_measurand(n) for n in targets if n.startswith(RELIABILITY)]
+        tasks = ((proc, s, truth, estimator, sources, not miss, identify,
+                  bool(reliable) and not miss) for s, miss in zip(setups, missing))
         done = list(ordered_map(_assess, tasks, n_jobs=session["n_jobs"], backend=backend))
     rows = []
-    for i, (s, (u, ident)) in enumerate(zip(setups, done, strict=True)):
+    for i, (s, (u, ident, shifts)) in enumerate(zip(setups, done, strict=True)):
         row = {"candidate": i, **_flat(_setup_fields(s)), "duration_s": float(proc.duration(s))}
         for name in names:
             row[f"u_{name}"] = k * u[name] if name in u else math.nan
         for name in targets:
-            row[f"u_{name}"] = k * target_u(proc, s, name, u)
+            row[f"u_{name}"] = target_value(proc, s, name, u, k, shifts)
         ratios = [row[f"u_{n}"] / v if math.isfinite(row[f"u_{n}"]) else math.inf
                   for n, v in targets.items()]
         if missing[i]:
@@ -356,7 +384,7 @@ def _unreachable(units, table, targets, vary, criterion, required=()) -> list[st
         reach = table.loc[j, f"u_{n}"]
         if reach > v:
             where = ", ".join(f"{f}={table.loc[j, f]}" for f in (vary or {}))
-            unit = units[n.removeprefix(RESIDUAL)]
+            unit = units[target_measurand(n)]
             msgs.append(f"The target {n}<={v:g} {unit} cannot be met: the best reachable "
                         f"value is {reach:.3g} {unit}" + (f" (at {where})" if where else ""))
     if not msgs and criterion is not None and hasattr(criterion, "explain"):
@@ -390,7 +418,10 @@ def _confirm(proc, setups, table, candidates, truth, estimator, sources, targets
             continue
         mc_std = {m.name: float(r.mc.std[i]) for i, m in enumerate(r.measurands)}
         mc_u = {m: k * v for m, v in mc_std.items()}
-        mc_u.update({n: k * target_u(proc, s, n, mc_std) for n in targets if n not in mc_u})
+        # a reliability target is the design's own (the estimator's response to one
+        # reading, the fit check's MDB): the Monte Carlo has nothing to add to it
+        mc_u.update({n: float(table.loc[j, f"u_{n}"]) if n.startswith(RELIABILITY)
+                     else k * target_u(proc, s, n, mc_std) for n in targets if n not in mc_u})
         met = all(mc_u[n] <= v for n, v in targets.items()) and (
             criterion is None or bool(criterion(mc_u)))
         confirmation.append({
@@ -399,6 +430,10 @@ def _confirm(proc, setups, table, candidates, truth, estimator, sources, targets
             "duration_s": float(table.loc[j, "duration_s"]),
             "predicted": {n: float(table.loc[j, f"u_{n}"]) for n in names},
             "monte_carlo": mc_u,
+            # the fraction of the Monte Carlo values within +- k u: the coverage each
+            # confirmed value really has (mtplan.uncertainty.coverage)
+            "monte_carlo_coverage": dict(zip([m.name for m in r.measurands],
+                                             map(float, r.mc.U_coverage(k)), strict=True)),
             "ratio": {n: float(mc_u[n] / table.loc[j, f"u_{n}"]) if table.loc[j, f"u_{n}"] > 0
                       else math.nan for n in names},
             "trials": int(r.mc.trials),
@@ -471,12 +506,17 @@ def _candidate(row, setup, names, targets) -> dict:
     return out
 
 
-def _assess(proc, setup, truth, estimator, sources, predict, identify) -> tuple[dict, dict]:
-    """One candidate's linearised uncertainties (when `predict`) and identifiability
-    (when `identify`)."""
+def _assess(proc, setup, truth, estimator, sources, predict, identify,
+            reliable=False) -> tuple[dict, dict, dict]:
+    """One candidate's linearised uncertainties (when `predict`), identifiability (when
+    `identify`) and the largest undetected shift of each measurand (when `reliable`)."""
     u = first_order(proc, setup, truth, estimator=estimator, sources=sources).u() if predict \
         else {}
-    return u, design_identifiability(proc, setup, truth) if identify else {}
+    shifts = {}
+    if reliable:
+        rel = reliability(proc, setup, truth, estimator=estimator)
+        shifts = {m: rel.shift(m) for m in rel.measurands}
+    return u, design_identifiability(proc, setup, truth) if identify else {}, shifts
 
 
 # --------------------------------------------------------------------------- design search

@@ -53,12 +53,17 @@ def ilac_p8_text(lab: dict) -> str:
 
 
 def uncertainty_statement(coverage: float = 0.95) -> str:
-    """The uncertainty statement in the words of EA-4/02 M:2022 (its section 5)."""
-    return (f"The reported expanded uncertainty of measurement U is stated as the standard "
-            f"uncertainty of measurement multiplied by the coverage factor k = 2, which for a "
-            f"normal distribution corresponds to a coverage probability of approximately "
-            f"{100 * coverage:.0f} %. The standard uncertainty of measurement has been "
-            "determined in accordance with EA-4/02 M:2022, here by the Monte Carlo method of "
-            "JCGM 101:2008 (or, where stated, from the Bayesian posterior of the readings); "
-            "where the distribution is not normal the 95 % interval printed is that of the "
-            "values' own distribution.")
+    """The uncertainty statement of EA-4/02 M:2022 (its section 5), with the coverage that
+    each U really has in place of the normal distribution's "approximately 95 %"
+    (:mod:`mtplan.uncertainty.coverage`)."""
+    return ("The reported expanded uncertainty of measurement U is stated as the standard "
+            "uncertainty of measurement multiplied by the coverage factor k = 2, the U that "
+            "the decision rules use (ISO 14253-1). The coverage probability that U has is not "
+            "assumed: beside each U is the fraction of the value's own distribution (Monte "
+            "Carlo or posterior) within ± U, which is about 95 % only for a near-normal one "
+            "(more for an output dominated by rectangular inputs, less for a heavy-tailed "
+            "one). The standard uncertainty of measurement has been determined in accordance "
+            "with EA-4/02 M:2022, here by the Monte Carlo method of JCGM 101:2008 (or, where "
+            "stated, from the Bayesian posterior of the readings); the "
+            f"{100 * coverage:.0f} % interval printed is that of the values' own "
+            "distribution.")

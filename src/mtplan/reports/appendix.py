@@ -186,6 +186,7 @@ def _summary_frame(outcome):
     for est, r in outcome.results.items():
         df = r.summary().reset_index()
         df.insert(0, "estimator", est)
+        df["trials"] = int(r.mc.trials)  # what the Monte Carlo columns (U_coverage) rest on
         frames.append(df)
     return pd.concat(frames, ignore_index=True)
 

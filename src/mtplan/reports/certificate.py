@@ -17,6 +17,7 @@ import datetime
 import math
 
 from mtplan.plans.decisions import K
+from mtplan.uncertainty.coverage import ASSUMED, coverage_text
 from mtplan.reports.labels import (
     duration_text,
     field_value,
@@ -26,6 +27,7 @@ from mtplan.reports.labels import (
     tolerance_text,
     unit,
 )
+from mtplan.reports import reliability
 from mtplan.reports.model import Document, Figure, Section, Table
 from mtplan.reports.results import ASYMMETRIC_NOTE
 from mtplan.reports.results import asymmetric_mark as _asymmetric_mark
@@ -272,7 +274,9 @@ def _value_text(v) -> str:
         return "-"
     if v.measured_u is None:
         return fmt(v.measured)
-    return f"{fmt(v.measured, _U(v))} ± {fmt_u(_U(v))}"
+    from mtplan.reports.results import covers_text
+
+    return f"{fmt(v.measured, _U(v))} ± {fmt_u(_U(v))} ({covers_text(v)})"
 
 
 def _as_left_rows(k, o) -> list:
@@ -352,7 +356,9 @@ def _results_section(result) -> Section:
     sec.blocks.append("Each toleranced measurand as found (before any adjustment), decided "
                       "with the rule and the guard band of the test plan. U achieved: the "
                       "measurement's own expanded uncertainty (k = 2); in parentheses the U "
-                      "the plan predicted. "
+                      "the plan predicted. ±U covers: the fraction of each value's "
+                      "distribution (Monte Carlo or posterior) within ± U, achieved and "
+                      "(predicted). "
                       + ("As left: no adjustment was made during this test; the results as "
                          "found are the results as left." if not adjusted else
                          "As left: test " + ", ".join(map(str, adjusted)) + " was measured "
@@ -373,7 +379,7 @@ def _results_section(result) -> Section:
             sec.blocks.append(ASYMMETRIC_NOTE)
         if any("‡" in row[6] for row in table.rows):
             sec.blocks.append(DEFAULT_TRUTH_NOTE)
-        if len(table.header) > 8:  # the residual after compensation
+        if "after compensation (predicted)" in table.header:
             from mtplan.reports.along import RESIDUAL_NOTE
 
             sec.blocks.append(RESIDUAL_NOTE)
@@ -390,7 +396,7 @@ def _results_section(result) -> Section:
                 for row in _as_left_rows(k, o)]
         sec.blocks.append(Table("Results as found and as left (after the adjustment), each "
                                 "decided by the rules of the test plan; value ± U achieved "
-                                "(k = 2).", ["test", "measurand", "tolerance", "as found",
+                                "(k = 2) with the fraction of its distribution within ± U.", ["test", "measurand", "tolerance", "as found",
                                              "verdict as found", "as left",
                                              "95 % interval as left",
                                              "verdict as left"], left, grow=1, size=7.0))
@@ -413,6 +419,9 @@ def _results_section(result) -> Section:
                                 "residual.",
                                 ["test", "chi-square", "dof", "p", "worst readings",
                                  "outcome"], fits, grow=4, size=7.0, whole=(3,)))
+    unseen = reliability.report_section(result)
+    if unseen is not None:
+        sec.blocks.append(unseen)
     from mtplan.reports.along import along_names
 
     untoleranced = sum(len(o.measured.measurands) - len(along_names(o.measured))
@@ -514,8 +523,10 @@ def measured_frame(result):
             rows.append({"procedure": o.spec.name, "test": o.spec.label, "state": state,
                          "measurand": q.name,
                          "description": q.description, "unit": q.unit,
-                         "value": float(m.value[j]) if ok else math.nan, "u": u, "k": 2.0,
-                         "U": 2 * u, "low": float(m.low[j]) if ok else math.nan,
+                         "value": float(m.value[j]) if ok else math.nan, "u": u, "k": K,
+                         "U": K * u, "U_coverage": float(m.U_coverage[j]) if ok else math.nan,
+                         "U_coverage_from": m.U_from if ok else "",
+                         "low": float(m.low[j]) if ok else math.nan,
                          "high": float(m.high[j]) if ok else math.nan,
                          "estimator": m.estimator, "uncertainty": m.uncertainty,
                          "determinable": ok, "fit_chi2": fit["chi2"], "fit_dof": fit["dof"],
@@ -527,7 +538,8 @@ def measured_frame(result):
                              "after_compensation_low": (after or nan2)[0],
                              "after_compensation_high": (after or nan2)[1]})
     return pd.DataFrame(rows, columns=["procedure", "test", "state", "measurand", "description",
-                                       "unit", "value", "u", "k", "U", "low", "high",
+                                       "unit", "value", "u", "k", "U", "U_coverage",
+                                       "U_coverage_from", "low", "high",
                                        "estimator", "uncertainty", "determinable", "fit_chi2",
                                        "fit_dof", "fit_p", "fit_p_text", "fit_ok",
                                        "fit_worst", "simultaneous_low", "simultaneous_high",
@@ -554,6 +566,8 @@ def _measured_appendix(k, o) -> Section:
                      (fmt(m.value[j], 2 * u) + _asymmetric_mark(m.value[j], 2 * u, m.low[j],
                                                                 m.high[j])) if ok else "n/d",
                      fmt_u(2 * u) if ok else "n/d",
+                     coverage_text(float(m.U_coverage[j]), assumed=m.U_from == ASSUMED)
+                     if ok else "-",
                      f"[{fmt(m.low[j], 2 * u)}, {fmt(m.high[j], 2 * u)}]" if ok else "-"])
     sec = Section(f"A{k}. {o.spec.label}: every measured quantity", anchor=f"m{k}",
                   appendix=True)
@@ -562,8 +576,8 @@ def _measured_appendix(k, o) -> Section:
         row[0] += " *" if q.name in flagged else ""
     sec.blocks.append(Table(f"Every measured quantity of test {k} ({m.estimator} estimator)"
                             + ("; *: read with care (below)." if warnings else "."),
-                            ["measurand", "unit", "measured", "U (k = 2)", "95 % interval"],
-                            rows, grow=0))
+                            ["measurand", "unit", "measured", "U (k = 2)", "±U covers",
+                             "95 % interval"], rows, grow=0))
     if any("†" in row[2] for row in rows):
         sec.blocks.append(ASYMMETRIC_NOTE)
     if along:
@@ -683,6 +697,12 @@ def build_report(result, plan, deviations=()) -> Document:
 
 
 # ----------------------------------------------------------------------- the plan
+def _agreed_coverage(o, rule) -> str:
+    """The coverage of ± U predicted of an agreed rule's measurand (its verdict's)."""
+    v = next((v for v in getattr(o, "verdicts", []) if v.measurand == rule["measurand"]), None)
+    return "-" if v is None or rule.get("u_planned") is None else coverage_text(v.U_coverage)
+
+
 def _plan_rows(o, plan) -> list:
     rules = {(r["procedure"], r["test"], r["measurand"]): r for r in plan["rules"]}
     index = {m.name: i for i, m in enumerate(o.results[o.recommended].measurands)}
@@ -695,15 +715,17 @@ def _plan_rows(o, plan) -> list:
         rows.append([measurand_name(v.description, v.measurand), u,
                      tolerance_text(v.lower, v.upper, zone=v.zone),
                      "-" if r["u_planned"] is None else fmt(2 * r["u_planned"], step),
+                     coverage_text(v.U_coverage),
                      "-" if r["tur"] is None else f"{r['tur']:.1f}", w,
                      _pct(r["pfa"]), _pct(r["pfr"])])
     for name in o.key:
         if name in {v.measurand for v in o.verdicts} or name not in index:
             continue
-        m = o.results[o.recommended].measurands[index[name]]
-        u2 = 2 * float(o.results[o.recommended].mc.std[index[name]])
-        rows.append([measurand_name(m.description, name), unit(m.unit), "-", fmt_u(u2), "-",
-                     "-", "-", "-"])
+        r = o.results[o.recommended]
+        m = r.measurands[index[name]]
+        u2 = 2 * float(r.mc.std[index[name]])
+        rows.append([measurand_name(m.description, name), unit(m.unit), "-", fmt_u(u2),
+                     coverage_text(float(r.U_coverage[index[name]])), "-", "-", "-", "-"])
     return rows
 
 
@@ -801,10 +823,13 @@ def _plan_test(k, o, plan, study) -> Section:
                       f"{ident.n_params} parameters"
                       + (" (full rank)" if full else ": some combinations cannot be "
                          "separated") + f"; condition number {ident.condition_number:.3g}.")
-    blocks.append(Table(f"Test {k}: predicted U (k = 2) and the agreed decision rules.",
-                        ["measurand", "unit", "tolerance", "U predicted", "TUR",
+    blocks.append(Table(f"Test {k}: predicted U (k = 2) and the agreed decision rules. ±U "
+                        "covers: the fraction of the set-up's Monte Carlo values within ± U "
+                        "predicted.",
+                        ["measurand", "unit", "tolerance", "U predicted", "±U covers", "TUR",
                          "guard band w", "PFA", "PFR"], _plan_rows(o, plan), grow=0))
     blocks += rules_text(o.verdicts)
+    blocks += reliability.plan_blocks(k, o)
     populations = [f"{v.measurand} "
                    f"{population_text(prior_text(v.prior, v.unit), v.population_source)}"
                    for v in o.verdicts if v.prior is not None]
@@ -1035,11 +1060,12 @@ def _agreement_section(result, plan) -> Section:
         limits.append([r["measurand"], u, tolerance_text(r["lower"], r["upper"]), acc,
                        "-" if r.get("guard_band") is None else fmt(r["guard_band"], step),
                        "-" if r.get("u_planned") is None else fmt(2 * r["u_planned"], step),
-                       _mc_errors(se, r), r.get("tolerance_source") or "not stated"])
+                       _mc_errors(se, r), _agreed_coverage(by_label.get(r["test"]), r),
+                       r.get("tolerance_source") or "not stated"])
     # one tolerance source for every measurand is stated once, under the table
     sources = {row[-1] for row in limits}
     header = ["measurand", "unit", "tolerance", "acceptance limits", "w", "U predicted",
-              "MC error", "tolerance source"]
+              "MC error", "±U covers", "tolerance source"]
     if len(sources) == 1:
         limits, header = [row[:-1] for row in limits], header[:-1]
     blocks.append(Table("Acceptance limits per measurand: a pass needs the measured value "
@@ -1047,7 +1073,9 @@ def _agreement_section(result, plan) -> Section:
                         f"at k = {K:g}; MC error: the Monte Carlo tolerance of U and of w, the "
                         "standard error of the simulation (JCGM 101 7.9; one value where "
                         "w = U). U, w and the limits are printed to two significant digits of "
-                        "U, or fewer where the Monte Carlo does not support them (GUM 7.2.6).",
+                        "U, or fewer where the Monte Carlo does not support them (GUM 7.2.6). "
+                        "±U covers: the fraction of the set-up's Monte Carlo values within "
+                        "± U predicted.",
                         header, limits, grow=len(header) - 1 if len(sources) > 1 else 0,
                         size=7.0))
     if len(sources) == 1:
@@ -1094,7 +1122,8 @@ def build_plan(result, plan, parts=None) -> Document:
                     blocks=[
         "What each test measures, how, with which instruments and how long, the uncertainty "
         "it is predicted to reach and the decision rule both parties agree before measuring "
-        f"(coverage {study.coverage:.0%}, k = 2)."])
+        f"(U at k = {K:g}, with the fraction of the Monte Carlo values within ± U beside it; "
+        f"intervals at {study.coverage:.0%})."])
     rules.blocks += [_plan_test(k, o, plan, study)
                      for k, o in enumerate(result.outcomes, start=1)]
     sections = [_agreement_section(result, plan), rules, methods_section(result)]

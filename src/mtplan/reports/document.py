@@ -25,6 +25,7 @@ from mtplan.reports.labels import (
 )
 from mtplan.reports.model import Document, Figure, Section, Table
 from mtplan.reports.wording import probability_text
+from mtplan.uncertainty.coverage import coverage_text
 
 __all__ = ["Document", "Section", "Table", "Figure", "methods_section", "test_section",
            "setup_sentence", "verdict_frames", "covariance_frames", "fmt", "fmt_u"]
@@ -39,9 +40,10 @@ def verdict_frames(result) -> dict:
     for r in rows:
         r["setup"] = "; ".join(f"{k}={v}" for k, v in r["setup"].items())
     columns = ["procedure", "test", "measurand", "unit", "estimator", "lower", "upper", "u",
-               "k", "U", "rule", "guard_band", "acceptance_lower", "acceptance_upper", "tur",
-               "pfa", "pfr", "measured", "measured_u", "measured_low", "measured_high",
-               "measured_source", "p_conform", "p_conform_population", "population_source",
+               "k", "U", "U_coverage", "rule", "guard_band", "acceptance_lower",
+               "acceptance_upper", "tur", "pfa", "pfr", "measured", "measured_u",
+               "measured_low", "measured_high", "measured_U", "measured_U_coverage",
+               "measured_U_coverage_from", "measured_source", "p_conform", "p_conform_population", "population_source",
                "verdict", "reason"]
     verdicts = pd.DataFrame([v.row() for v in result.verdicts], columns=columns)
     # the probabilities as the PDF states them: never certain ("> 99.9 %" is 0.999 here,
@@ -96,7 +98,7 @@ def _results_table(o) -> Table:
     r = o.results[o.recommended]
     verdicts = {v.measurand: v for v in o.verdicts}
     m_res = o.measured
-    header = ["measurand", "meaning", "U (k = 2)"]
+    header = ["measurand", "meaning", "U (k = 2)", "±U covers"]
     if m_res is not None:
         header += ["measured", "95 % interval"]
     if verdicts:
@@ -106,9 +108,10 @@ def _results_table(o) -> Table:
                       if m_res is not None else {})
     determinable = getattr(m_res, "determinable", None)
     for i, m in enumerate(r.measurands):
-        big_u = 2 * float(r.mc.std[i])
+        big_u = K * float(r.mc.std[i])
         row = [f"{m.name} [{unit(m.unit)}]", m.description,
-               fmt_u(big_u) if big_u > 0 else "n/d"]
+               fmt_u(big_u) if big_u > 0 else "n/d",
+               coverage_text(float(r.U_coverage[i])) if big_u > 0 else "-"]
         if m_res is not None:
             j = measured_index[m.name]
             ok = determinable is None or bool(determinable[j])
@@ -123,7 +126,8 @@ def _results_table(o) -> Table:
     how = (f"{r.mc.trials} Monte Carlo trials" if not r.mc.digits else
            f"adaptive Monte Carlo, {r.mc.trials} trials")
     return Table(f"Results with the {o.recommended} estimator: U of the study's set-up "
-                 f"({how}, every error source)"
+                 f"({how}, every error source) with the fraction of its Monte Carlo values "
+                 "within ± U"
                  + ("; measured: from the readings" if m_res is not None else "") + ".",
                  header, rows)
 

@@ -1,7 +1,8 @@
 """The results table of a test report, printed so that a reader can redo every verdict.
 
 Per toleranced measurand: the tolerance, the acceptance limits and the guard band w the
-plan agreed, the measured value, U achieved with its coverage (and U predicted), and the
+plan agreed, the measured value, U achieved (and U predicted) with the coverage each has
+(the fraction of its distribution within ± U, :mod:`mtplan.uncertainty.coverage`), and the
 verdict, which is the ISO 14253-1 zone the value lies in. w is printed to the step the
 plan rounded it to (:func:`~mtplan.plans.acceptance.agreed_resolution`), so the printed
 limits are exactly the ones decided with; :func:`rounding_sentence` says how. Formatting
@@ -11,6 +12,7 @@ only.
 from __future__ import annotations
 
 from mtplan.reports.labels import fmt, fmt_u, tolerance_text
+from mtplan.uncertainty.coverage import ASSUMED, common_text, coverage_text
 from mtplan.reports.model import Table
 from mtplan.reports.wording import measurand_name, verdict_short
 
@@ -103,28 +105,42 @@ def verdict_rows(k, o) -> list:
         rows.append([str(k), measurand_name(v.description, v.measurand),
                      tolerance_text(v.lower, v.upper, v.unit, v.zone), limit_text(v, step), w,
                      measured, f"{achieved}{mark} ({fmt_u(2 * v.u)})",
+                     f"{covers_text(v)} ({coverage_text(v.U_coverage)})",
                      verdict_short(v.verdict)])
     return rows
 
 
+def covers_text(v) -> str:
+    """The coverage of ± U achieved of a verdict, as its table prints it."""
+    if v.measured_u is None:
+        return "-"
+    return coverage_text(v.measured_U_coverage, assumed=v.measured_U_from == ASSUMED)
+
+
 def verdict_table(result, tests: list) -> Table:
     """The verdicts of every test, each redone from its own row (:data:`ZONES`); where a
-    test states a correction of a measurand, a last column with the residual predicted
-    after compensation (:func:`~mtplan.reports.along.residual_text`)."""
+    test states a correction of a measurand, a column before the verdict with the residual
+    predicted after compensation (:func:`~mtplan.reports.along.residual_text`)."""
     from mtplan.reports.along import residual_text
 
-    rows = [row[:7] + [residual_text(o, v)] + row[7:]
+    rows = [row[:-1] + [residual_text(o, v)] + row[-1:]
             for k, o in enumerate(result.outcomes, start=1)
             if o.verdicts for row, v in zip(verdict_rows(k, o), o.verdicts, strict=True)]
     header = ["test", "measurand", "tolerance", "acceptance limits", "w", "measured",
-              "U achieved (predicted)", "after compensation (predicted)", "verdict"]
-    if all(row[7] == "-" for row in rows):  # no test states a correction
-        rows, header = [row[:7] + row[8:] for row in rows], header[:7] + header[8:]
+              "U achieved (predicted)", "±U covers", "after compensation (predicted)",
+              "verdict"]
+    corrected = any(row[-2] != "-" for row in rows)
+    if not corrected:  # no test states a correction
+        rows, header = [row[:-2] + row[-1:] for row in rows], header[:-2] + header[-1:]
+    about = common_text([p for o in result.outcomes for v in o.verdicts
+                         for p in (v.measured_U_coverage, v.U_coverage)])
     return Table("Results as found. Tests: " + "; ".join(tests) + ". Acceptance limits and "
-                 "w as the plan agreed them; measured value and U achieved (k = 2, coverage "
-                 "about 95 %), U predicted in parentheses"
+                 "w as the plan agreed them; measured value and U achieved (k = 2), U "
+                 "predicted in parentheses; ±U covers: the fraction of each value's "
+                 "distribution within ± U" + (f" ({about} for every U)" if about else "")
+                 + ", achieved (predicted)"
                  + ("; after compensation: the residual's 95 % interval (below)."
-                    if len(header) > 8 else "."),
+                    if corrected else "."),
                  header, rows, grow=1, size=7.0, whole=(len(header) - 1,))
 
 

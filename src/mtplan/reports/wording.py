@@ -183,7 +183,11 @@ def value_warnings(items, *, bound: bool = True, resolution: bool = True) -> tup
 
 
 GLOSSARY = [
-    ["U, k", "expanded uncertainty U = k u with coverage factor k = 2 (about 95 % coverage)"],
+    ["U, k", "expanded uncertainty U = k u with coverage factor k = 2, the U the decision "
+             "rules use; the coverage it has is printed beside it"],
+    ["±U covers", "the fraction of a value's distribution (Monte Carlo or posterior) within "
+                  "± U: the coverage probability U really has (95.4 % for a normal "
+                  "distribution, more or less for others)"],
     ["U predicted", "U of the planned set-up from a Monte Carlo simulation of every error "
                     "source (JCGM 101), fixed in the test plan"],
     ["U achieved", "U of the measurement's own evaluation of its readings"],
@@ -225,4 +229,7 @@ GLOSSARY = [
                   "the artefact's known pattern)"],
     ["as found / as left", "results before / after any adjustment made during the visit"],
     ["lever", "a set-up choice of the test engineer (counts, geometry, order, dwell)"],
+    ["MDB", "minimal detectable bias: the smallest gross error of one reading (or one "
+            "contact) that the fit check detects with 80 % probability; a smaller one passes "
+            "more often than not"],
 ]

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mtplan.uncertainty.coverage import K, normal_coverage
 from mtplan._validate import Problems
 from mtplan.uncertainty.distributions import Distribution, MultivariateNormal, StudentT
 from mtplan.uncertainty.montecarlo import (
@@ -163,6 +164,13 @@ class GUMResult:
         if self._k is None:
             self._k = coverage_factor(self.dof, self.coverage)
         return self._k
+
+    @property
+    def U_coverage(self) -> np.ndarray:  # noqa: N802 - U of the GUM
+        """The coverage of ``value ± U``, U = 2u (:mod:`mtplan.uncertainty.coverage`), that
+        a first-order result can give: a normal distribution's (Student's t at ``dof``),
+        assumed, not shown."""
+        return np.broadcast_to(normal_coverage(K, self.dof), (len(self.names),))
 
     @property
     def low(self) -> np.ndarray:

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mtplan.uncertainty.coverage import K
 from mtplan._parallel import effective_jobs, one_blas_thread, ordered_map, parallel_session
 from mtplan._validate import InvalidInput, Problems
 from mtplan.uncertainty.distributions import Distribution
@@ -146,8 +147,9 @@ class _Store:
             return coverage_interval(self.values(), p, kind)
         return self._hist_interval(p, kind)
 
-    def _hist_interval(self, p, kind):
-        # cumulative distribution on a grid: exact tails, histogram bins in between
+    def cdf(self) -> tuple[np.ndarray, np.ndarray]:
+        """(xs, F): the cumulative distribution of a histogram store on its grid (exact
+        tails, the bins' edges in between)."""
         under = np.sort(np.concatenate(self.under)) if self.under else np.empty(0)
         over = np.sort(np.concatenate(self.over)) if self.over else np.empty(0)
         a, b = self.edges
@@ -157,7 +159,11 @@ class _Store:
         cdf = np.concatenate(
             [np.arange(1, under.size + 1), cum_bins, cum_bins[-1] + np.arange(1, over.size + 1)]
         ).astype(float)
-        cdf /= self.n
+        return xs, cdf / self.n
+
+    def _hist_interval(self, p, kind):
+        # cumulative distribution on a grid: exact tails, histogram bins in between
+        xs, cdf = self.cdf()
         # make xs strictly usable for interpolation of the inverse CDF
         def inv(prob):
             return np.interp(prob, cdf, xs)
@@ -201,6 +207,11 @@ class MCResult:
     block_stats : dict or None
         For the adaptive procedure, arrays of shape (blocks, n_outputs) of the block
         values of ``mean``, ``std``, ``low`` and ``high``.
+
+    :meth:`fraction_within` gives the fraction of an output's values in any interval, and
+    :meth:`U_coverage` that of ``mean ± k std`` (the coverage of U = k u,
+    :mod:`mtplan.uncertainty.coverage`), from the kept values or, beyond ``keep``, from the
+    histogram's cumulative distribution.
     """
 
     names: tuple
@@ -219,6 +230,8 @@ class MCResult:
     converged: bool = True
     block_stats: dict | None = None
     _samples: dict = field(default_factory=dict, repr=False)
+    #: {name: (xs, F)}: the cumulative distribution of an output kept as a histogram
+    _cdfs: dict = field(default_factory=dict, repr=False)
 
     def summary(self):
         """A pandas DataFrame indexed by output name: mean, std, low, high, trials."""
@@ -245,6 +258,28 @@ class MCResult:
     def samples(self, name: str) -> np.ndarray | None:
         """The kept model values of output `name` (None when only a histogram was kept)."""
         return self._samples.get(name)
+
+    def fraction_within(self, name: str, low, high) -> np.ndarray:
+        """The fraction of output `name`'s values within ``[low, high]`` (arrays broadcast:
+        several intervals at once); NaN where an end is not finite."""
+        low, high = np.broadcast_arrays(np.asarray(low, dtype=float),
+                                        np.asarray(high, dtype=float))
+        x = self.samples(name)
+        if x is not None:
+            inside = (x[:, None] >= low.ravel()) & (x[:, None] <= high.ravel())
+            out = inside.mean(axis=0).reshape(low.shape) if x.size else np.full(low.shape,
+                                                                                   np.nan)
+        else:
+            xs, cdf = self._cdfs[name]
+            out = np.interp(high, xs, cdf) - np.interp(low, xs, cdf, left=0.0)
+        return np.where(np.isfinite(low) & np.isfinite(high), out, np.nan)[()]
+
+    def U_coverage(self, k: float | None = None) -> np.ndarray:  # noqa: N802 - U of the GUM
+        """(n_outputs,): the fraction of each output's values within ``mean ± k std``: the
+        coverage that U = k u really has (k default: :data:`mtplan.uncertainty.coverage.K`)."""
+        k = K if k is None else k
+        return np.array([float(self.fraction_within(n, m - k * s, m + k * s))
+                         for n, m, s in zip(self.names, self.mean, self.std, strict=True)])
 
     @property
     def correlation(self) -> np.ndarray:
@@ -425,6 +460,7 @@ def run_blocks(
     cov = acc.cov()
     lows, highs = zip(*(s.interval(p, interval) for s in acc.stores), strict=True)
     samples = {n: s.values() for n, s in zip(names, acc.stores, strict=True) if s.exact}
+    cdfs = {n: s.cdf() for n, s in zip(names, acc.stores, strict=True) if not s.exact}
     arr = np.stack(stats) if stats else None
     return MCResult(
         names=names,
@@ -445,6 +481,7 @@ def run_blocks(
         if arr is None
         else {k: arr[:, j] for j, k in enumerate(("mean", "std", "low", "high"))},
         _samples=samples,
+        _cdfs=cdfs,
     )
 
 

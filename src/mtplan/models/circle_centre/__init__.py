@@ -124,6 +124,7 @@ through n >= 4 equally spaced points do not alias an oval (docs/circle_centre.md
 from __future__ import annotations
 
 from mtplan.models.circle_centre._estimators import (
+    gross_errors,
     DESCRIPTIONS,
     ESTIMATORS,
     estimate_geometric,
@@ -182,11 +183,13 @@ __all__ = [
 
 class _Capabilities(Capabilities):
     """circle_centre beyond its model: the truth of an estimate, the least squares' start on
-    the readings' branch of the planned path, and the planned path for the report."""
+    the readings' branch of the planned path, the planned path for the report, and a bad
+    contact as the gross error the fit check must see."""
 
     truth_from_estimate = staticmethod(truth_from_estimate)
     start_from_readings = staticmethod(start_from_readings)
     report_extras = staticmethod(report_extras)
+    gross_errors = staticmethod(gross_errors)
 
 
 PROCEDURE = Procedure(

@@ -180,6 +180,29 @@ def estimate_gls(setup: Setup, readings: dict, iterations: int = 4) -> dict:
     return {"centre_x": cx, "centre_y": cy, "radius": r - setup.bore_radius_mm}
 
 
+def gross_errors(setup, readings):
+    """One bad contact of d1..dn (a chip, swarf, a late trigger) moves the point the probe
+    reads along its probing direction, the bore's radius there: both of its read
+    coordinates at once, in proportion. Of three points such an error is absorbed whole
+    by the circle; a single coordinate's error is not, so each reading alone understates
+    what a bad contact does unseen. The radius' direction is taken from the algebraic
+    circle through the read points (a gross error of micrometres turns it by
+    micro-radians)."""
+    keys = [k for k, v in readings.items() if np.asarray(v).dtype.kind in "fiu"]
+    sizes = {k: np.asarray(readings[k])[0].size for k in keys}
+    start = dict(zip(keys, np.cumsum([0] + [sizes[k] for k in keys])[:-1], strict=True))
+    x = np.asarray(readings["x_mm"], dtype=float)[0]
+    y = np.asarray(readings["y_mm"], dtype=float)[0]
+    circle = kasa_fit(x[None], y[None])
+    ux, uy = x - float(circle.xc[0]), y - float(circle.yc[0])
+    norm = np.hypot(ux, uy)
+    D = np.zeros((sum(sizes.values()), x.size))
+    on = np.arange(x.size)
+    D[start["x_mm"] + on, on] = ux / norm
+    D[start["y_mm"] + on, on] = uy / norm
+    return "a contact along its probing direction", [f"contact d{i + 1}" for i in on], D
+
+
 ESTIMATORS = {"three_point": estimate_three_point, "kasa": estimate_kasa,
               "geometric": estimate_geometric, "gls": estimate_gls}
 

@@ -165,7 +165,7 @@ from mtplan.models.geometry21._model import (
     parameter_scales,
 )
 from mtplan.models.geometry21._patent import patent_design, theta_patent
-from mtplan.models.geometry21._path import repeatability_filter, residual_basis
+from mtplan.models.geometry21._path import repeatability_filter, residual_at, residual_basis
 from mtplan.models.geometry21._correction import CORRECTION, along_default
 from mtplan.models.geometry21._physics import (
     duration,

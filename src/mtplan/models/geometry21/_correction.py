@@ -3,8 +3,13 @@ tables, the squareness errors as the linear axes' location errors."""
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
+
 from mtplan._validate import InvalidInput
 from mtplan.models.correction import CorrectionModel, CorrectionTerm
+from mtplan.models.geometry21._path import FIELDS, residual_at
 from mtplan.models.geometry21._setup import FUNCTIONS, describe
 
 _ALONG = ("along_x_mm", "along_y_mm", "along_z_mm")
@@ -55,10 +60,14 @@ def along_default(setup) -> dict:
 
 
 def _unseen(setup) -> dict:
-    """The path residual stays after any table of the translations' errors."""
-    u = float(setup.get("path_residual_um", 0.0))
-    what = ("the machine's repeatable short-wave path deviation beyond the error "
-            "polynomials (path_residual_um, RMS): no table through these points removes it")
+    """The path residual and the medium-wave deviation stay after any table of the
+    translations' errors (their RMS in quadrature)."""
+    short = float(setup.get("path_residual_um", 0.0))
+    medium = float(setup.get("medium_wave_um", 0.0))
+    u = math.hypot(short, medium)
+    what = ("the machine's repeatable path deviation beyond the error polynomials, short-wave "
+            "(path_residual_um, RMS) and medium-wave (medium_wave_um): no table through "
+            "these points removes it")
     return {name: (u, what) for name, kind, *_ in FUNCTIONS if kind in ("pos", "str") and u}
 
 
@@ -67,6 +76,24 @@ def _restates(setup) -> dict:
     there."""
     half = float(setup.get("line_length_mm", 100.0)) / 2
     return {name: f"{name}@{half:g}" for name, kind, *_ in FUNCTIONS if kind != "sq"}
+def _realised(setup, errors) -> dict:
+    """The path residual and the medium-wave deviation of `errors` at each translation's
+    table point [um, batch rows]: the same fields the readings saw
+    (:func:`._path.residual_at`)."""
+    out = {}
+    fields = [f for f in FIELDS if np.any(errors.get(f, 0.0))]
+    if not fields:
+        return out
+    half = setup.line_length_mm / 2  # where the plain measurand (EXX) states its function
+    for axis, along in enumerate(_ALONG):
+        at = [half] + [float(u) for u in getattr(setup, along) if u != 0]
+        values = sum(residual_at(setup, errors[f], axis, at, f) for f in fields) * 1e3
+        for name, kind, ax, comp in FUNCTIONS:
+            if ax == axis and kind in ("pos", "str"):
+                out[name] = values[:, 0, comp]
+                out.update({f"{name}@{u:g}": values[:, j, comp]
+                            for j, u in enumerate(at) if j})
+    return out
 
 
 CORRECTION = CorrectionModel(
@@ -79,4 +106,5 @@ CORRECTION = CorrectionModel(
     terms=_terms,
     unseen=_unseen,
     restates=_restates,
+    realised=_realised,
 )

@@ -14,7 +14,7 @@ import numpy as np
 from mtplan.models.geometry21._layout import geometry, grid_basis, plane_slices
 from mtplan.models.geometry21._model import readings_matrix
 from mtplan.models.geometry21._patent import patent_design
-from mtplan.models.geometry21._path import residual_basis, residual_response
+from mtplan.models.geometry21._path import FIELDS, residual_basis, residual_response
 from mtplan.models.geometry21._physics import forward_matrix, sources
 from mtplan.models.geometry21._setup import Setup, sizeless
 
@@ -74,12 +74,12 @@ def mapped_source_response(setup: Setup, truth, names, left: np.ndarray) -> np.n
     readings: the path residual's columns from its basis's factors
     (:func:`._path.residual_response`), the other sources' through their readings map."""
     srcs = sources(setup)
-    dense = tuple(name for name in names if name != "path_residual")
+    dense = tuple(name for name in names if name not in FIELDS)
     parts = iter(np.split(left @ source_readings_map(setup, truth, dense), np.cumsum(
         [int(np.prod(srcs[name].shape, dtype=np.int64)) for name in dense])[:-1], axis=1)
         if dense else ())
-    cols = [float(srcs[name].distribution.std) * residual_response(sizeless(setup), left)
-            if name == "path_residual" else next(parts) for name in names]
+    cols = [float(srcs[name].distribution.std) * residual_response(sizeless(setup), left, name)
+            if name in FIELDS else next(parts) for name in names]
     return np.concatenate(cols, axis=1) if cols else np.zeros((left.shape[0], 0))
 
 
@@ -117,8 +117,8 @@ def source_readings_map(setup: Setup, truth, names) -> np.ndarray:
         elif name == "head_setting":
             for j, (e, c) in enumerate(np.ndindex(*shape)):
                 block[geo.xslices[e][1], c, j] = 1.0
-        elif name == "path_residual":
-            block[...] = residual_basis(sizeless(setup)).reshape(m, 2, -1)
+        elif name in FIELDS:
+            block[...] = residual_basis(sizeless(setup), name).reshape(m, 2, -1)
         elif name == "plate_tilt":
             for k, sl in enumerate(planes):
                 lu, lv, ln = loc[sl].T

@@ -82,6 +82,15 @@ RESIDUAL_KNOT_MM = 2.5
 RESIDUAL_CORRELATION_MM = 5.0
 
 
+#: wavelength and coherence length of the machine's repeatable medium-wave deviation (source
+#: ``medium_wave``) [mm]: guideway waviness and the accumulated pitch errors of a ball screw,
+#: between the short-wave residual's few millimetres and the reach of the polynomials
+MEDIUM_WAVELENGTH_MM = 40.0
+MEDIUM_COHERENCE_MM = 40.0
+#: the fields beyond the polynomials: source name -> how each is drawn on the knots
+FIELDS = ("path_residual", "medium_wave")
+
+
 def residual_knots(geo: Geometry) -> tuple[float, int]:
     """(first knot [mm], number of knots) of the residual's grid: every axis's commanded
     positions lie between the second and the last but one."""
@@ -90,15 +99,46 @@ def residual_knots(geo: Geometry) -> tuple[float, int]:
     return first, int(math.ceil((hi - first) / RESIDUAL_KNOT_MM)) + 2
 
 
-def _residual_factors(key: Setup) -> tuple:
-    """The path residual's readings map in factors: (plate-frame rows (M, plate component,
+def field_filter(k: int, field: str = "path_residual") -> np.ndarray:
+    """(K, elements): the knots' values per unit element of a field beyond the polynomials,
+    unit variance at every knot. ``path_residual``: the AR(1) filter of its innovations
+    (correlation exp(-d / RESIDUAL_CORRELATION_MM), K elements). ``medium_wave``: a
+    stationary field of covariance cos(2 pi d / MEDIUM_WAVELENGTH_MM)
+    exp(-d^2 / (2 MEDIUM_COHERENCE_MM^2)) (waves of about that length, coherent over a few),
+    its elements the eigen-modes of the knots' covariance that carry it (those above 1e-9 of
+    the largest)."""
+    if field == "path_residual":
+        return _ar1_filter(((k, RESIDUAL_KNOT_MM),), RESIDUAL_CORRELATION_MM).toarray()
+    if field == "medium_wave":
+        return _medium_filter(k)
+    raise ValueError(f"no field {field!r} (known: {', '.join(FIELDS)})")
+
+
+@functools.lru_cache(maxsize=8)
+def _medium_filter(k: int) -> np.ndarray:
+    d = RESIDUAL_KNOT_MM * np.subtract.outer(np.arange(k), np.arange(k))
+    c = np.cos(2 * math.pi * d / MEDIUM_WAVELENGTH_MM) * np.exp(
+        -0.5 * (d / MEDIUM_COHERENCE_MM) ** 2)
+    lam, vec = np.linalg.eigh(c)
+    keep = lam > 1e-9 * lam[-1]
+    return vec[:, keep][:, ::-1] * np.sqrt(lam[keep][::-1])
+
+
+def field_elements(geo: Geometry, field: str = "path_residual") -> int:
+    """Elements per axis and direction of a field beyond the polynomials (its source's last
+    dimension)."""
+    return field_filter(residual_knots(geo)[1], field).shape[1]
+
+
+def _residual_factors(key: Setup, field: str = "path_residual") -> tuple:
+    """A field's readings map in factors: (plate-frame rows (M, plate component,
     direction), the linear interpolation from the knots per axis (3 sparse (M, K), two
-    knots a reading), the knots' AR(1) filter (K, K))."""
+    knots a reading), the knots' values per element (K, elements), :func:`field_filter`)."""
     import scipy.sparse as sp
 
     geo = geometry(key)
     first, k = residual_knots(geo)
-    f = _ar1_filter(((k, RESIDUAL_KNOT_MM),), RESIDUAL_CORRELATION_MM).toarray()
+    f = field_filter(k, field)
     t = (geo.cmd - first) / RESIDUAL_KNOT_MM  # (M, axis) in knots
     i = np.floor(t).astype(int)
     frac = t - i
@@ -111,15 +151,16 @@ def _residual_factors(key: Setup) -> tuple:
 
 
 @functools.lru_cache(maxsize=8)
-def residual_basis(key: Setup) -> np.ndarray:
+def residual_basis(key: Setup, field: str = "path_residual") -> np.ndarray:
     """(2M, 3 x 3 x K): each reading's plate-frame (u, v) per unit innovation of the path
     residual (axis, direction of the deviation, knot), in the source's order.
 
     Per axis and direction the residual is a stationary AR(1) field over knots
     ``RESIDUAL_KNOT_MM`` apart (correlation exp(-d / RESIDUAL_CORRELATION_MM), unit variance,
     :func:`_ar1_filter` of the innovations), linearly interpolated at the axis's commanded
-    position; the deviation's direction is taken into the plate's frame."""
-    rows, hats, f = _residual_factors(key)
+    position; the deviation's direction is taken into the plate's frame. `field`
+    ``medium_wave``: the same for that source (:func:`field_filter`)."""
+    rows, hats, f = _residual_factors(key, field)
     # (M, axis, K): the field per innovation (the interpolation as a dense product)
     field = np.stack([hat.toarray() @ f for hat in hats], axis=1)
     # (M, plate component, axis, direction, knot): one product of broadcast factors, laid
@@ -128,19 +169,45 @@ def residual_basis(key: Setup) -> np.ndarray:
     return out.reshape(2 * rows.shape[0], -1)
 
 
-def residual_response(key: Setup, left: np.ndarray) -> np.ndarray:
+def residual_at(setup: Setup, innovations: np.ndarray, axis: int,
+                positions, field: str = "path_residual") -> np.ndarray:
+    """The path residual's value [mm] (n, positions, direction x, y, z) along `axis` (0, 1,
+    2 for X, Y, Z) at `positions` [mm], for the source's draws `innovations` (n, 3, 3, K):
+    the same field the readings see (:func:`residual_basis`), so a simulated machine's true
+    error at a position is its polynomial plus this (the function ``E<direction><axis>``,
+    e.g. X's deviation along y adds to EYX). Positions must lie on the field's knot grid's
+    span (every commanded position of the test and a knot beyond). `field` ``medium_wave``:
+    that source's field (:func:`field_filter`)."""
+    geo = geometry(sizeless(setup))
+    first, k = residual_knots(geo)
+    u = np.asarray(positions, dtype=float).ravel()
+    t = (u - first) / RESIDUAL_KNOT_MM
+    outside = (t < 0) | (t > k - 1)
+    if np.any(outside):
+        raise ValueError(f"positions {u[outside].tolist()} along {'XYZ'[axis]} lie outside the "
+                         f"path residual's field [{first:g}, "
+                         f"{first + (k - 1) * RESIDUAL_KNOT_MM:g}] mm")
+    f = field_filter(k, field)
+    knots = np.asarray(innovations, dtype=float)[:, axis] @ f.T  # (n, direction, K)
+    i = np.minimum(np.floor(t).astype(int), k - 2)
+    frac = t - i
+    out = knots[:, :, i] * (1.0 - frac) + knots[:, :, i + 1] * frac  # (n, direction, P)
+    return np.swapaxes(out, 1, 2)
+
+
+def residual_response(key: Setup, left: np.ndarray, field: str = "path_residual") -> np.ndarray:
     """``left @ residual_basis(key)`` for a map `left` (n, 2M) of the readings, from the
     basis's factors, never forming it (2M x 9K, 17 MB at the defaults): the map is taken
     into each reading's deviation directions, gathered onto the knots by the interpolation
     (its transpose), then through the knots' filter. Equal to the product to rounding
-    (tested)."""
-    rows, hats, f = _residual_factors(key)
+    (tested). `field` ``medium_wave``: that source's (:func:`field_filter`)."""
+    rows, hats, f = _residual_factors(key, field)
     n, m, k = left.shape[0], rows.shape[0], f.shape[0]
     u, v = left[:, 0::2], left[:, 1::2]  # (n, M) each: the map of each plate component
     q = np.stack([u * rows[:, 0, d] + v * rows[:, 1, d] for d in range(3)], axis=1)
     q = q.reshape(n * 3, m)  # (n x direction, M): the map along each deviation direction
     knots = np.stack([(q @ hat).reshape(n, 3, k) for hat in hats], axis=1)
-    return (knots @ f).reshape(n, -1)  # (n, axis x direction x knot)
+    return (knots @ f).reshape(n, -1)  # (n, axis x direction x element)
 
 
 def reading_whitener(setup: Setup):

@@ -17,7 +17,15 @@ from mtplan.models.geometry21._layout import (
     truth_positions,
 )
 from mtplan.models.geometry21._model import joint_ident
-from mtplan.models.geometry21._path import repeatability_filter, residual_basis, residual_knots
+from mtplan.models.geometry21._path import (
+    FIELDS,
+    MEDIUM_COHERENCE_MM,
+    MEDIUM_WAVELENGTH_MM,
+    field_elements,
+    repeatability_filter,
+    residual_basis,
+    residual_knots,
+)
 from mtplan.models.geometry21._setup import (
     ALONG,
     AXIS,
@@ -153,6 +161,24 @@ def sources(setup: Setup) -> dict:
             "straightness and ISO 230-2 positioning records of a machining centre with linear "
             "scales (periodic deviations of ball-screw drives and guideway waviness of "
             "0.2-1 um over 5-20 mm), assumed.", field="path_residual_um"),
+        "medium_wave": Source(
+            Normal(0.0, setup.medium_wave_um * 1e-3),
+            (3, 3, field_elements(geo, "medium_wave")),
+            "The machine's repeatable medium-wave path deviation: for each axis and direction "
+            "of the tool's deviation, a stationary random function of the axis's commanded "
+            f"position made of waves of about {MEDIUM_WAVELENGTH_MM:g} mm (covariance "
+            f"cos(2 pi d / {MEDIUM_WAVELENGTH_MM:g} mm) "
+            f"exp(-d^2 / (2 ({MEDIUM_COHERENCE_MM:g} mm)^2)); the elements are the modes of "
+            "that covariance on the path residual's knots), RMS "
+            "medium_wave_um: the errors between the short-wave residual (5 mm) and the "
+            "polynomials' reach (a cubic over 100 mm follows waves of 200 mm and more), "
+            "which truncating the model at poly_order leaves. The same in every pass; the "
+            "joint fit does not weigh it (an unknown function, its shape not stated), the "
+            "budget takes its covariance. Default 0.3 um: guideway waviness and the "
+            "accumulated pitch error of a ball screw over 20-100 mm, a fraction of the "
+            "2-4 um per 100-300 mm straightness and positioning deviations that ISO 230-1 "
+            "and ISO 230-2 records of a machining centre show beyond their smooth trend, "
+            "assumed.", field="medium_wave_um"),
         "reversal": Source(
             Rectangular(0.0, 2e-3 * setup.reversal_um), (3,),
             "Reversal value (lost motion) B of each axis, drawn uniform on [0, 2 reversal_um] "
@@ -222,9 +248,11 @@ def forward(setup: Setup, truth: Truth, errors: dict) -> Readings:
         basis = grid_basis(geo)
         for k, sl in enumerate(plane_slices(geo)):
             r[:, sl, :] += np.swapaxes(g[:, k] @ basis[sl].T, 1, 2)
-    res = errors["path_residual"]
-    if np.any(res):  # the same function of position in every pass: one product
-        r += (res.reshape(n, -1) @ residual_basis(sizeless(setup)).T).reshape(n, -1, 2)
+    for field in FIELDS:
+        res = errors[field]
+        if np.any(res):  # the same function of position in every pass: one product
+            r += (res.reshape(n, -1) @ residual_basis(sizeless(setup), field).T).reshape(
+                n, -1, 2)
     r += errors["encoder_noise"]
     e = errors["repeatability"]
     if np.any(e):

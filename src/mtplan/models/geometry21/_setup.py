@@ -155,6 +155,12 @@ class Setup(SetupBase):
         "polynomials, each axis and direction (harmonics of 10-40 mm wavelength of the "
         "axis's position: ball-screw pitch, guideway waviness); the same in every pass",
         low=0, high=100, owner="machine")
+    medium_wave_um: float = param(
+        0.3, doc="RMS of the machine's repeatable medium-wave path deviation, each axis and "
+        "direction: waves of about 40 mm of the axis's position (guideway waviness, the "
+        "accumulated pitch error of a ball screw), longer than the short-wave residual and "
+        "shorter than what the polynomials follow; the same in every pass",
+        low=0, high=100, owner="machine")
     reversal_um: float = param(2.0, doc="Reversal value of each axis (mean; drawn uniform on "
                                "[0, 2x]; ISO 230-2 B, 1-3 um with linear scales)", low=0, high=100,
                                owner="machine")
@@ -203,7 +209,8 @@ class Setup(SetupBase):
 #: the fields that size an error source: the geometry, the Jacobian and the patent's
 #: design do not depend on them and are computed once for every size (:func:`sizeless`)
 _SIZES = ("encoder_noise_um", "grid_error_um", "plate_offset_mm", "plate_tilt_urad",
-          "head_setting_um", "repeatability_um", "path_residual_um", "reversal_um",
+          "head_setting_um", "repeatability_um", "path_residual_um", "medium_wave_um",
+          "reversal_um",
           "servo_lag_ms",
           "thermal_growth_ppm_per_h", "thermal_drift_um_per_h")
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mtplan._validate import InvalidInput
+from mtplan.evaluation.reliability import reliability
 from mtplan.models.protocol import with_conditions
 from mtplan.plans.study.provenance import provenance
 from mtplan.plans.study.schema import ProcedureStudy, Study
@@ -61,6 +62,10 @@ class ProcedureOutcome:
     #: the readings' correction and the residual predicted after it
     #: (:class:`~mtplan.compensation.predicted.Predicted`), or why there is none
     compensation: object | None = None
+    #: what one bad reading can do unseen at the agreed set-up, before the test
+    #: (:class:`~mtplan.evaluation.reliability.Reliability`; after it: the readings
+    #: evaluation's ``sections["reliability"]``)
+    reliability: object | None = None
 
 
 @dataclass
@@ -174,14 +179,17 @@ def _outcome(i, ps, partial, grids, points, done) -> ProcedureOutcome:
     from mtplan.plans import decisions
 
     results, key, recommended, _ = partial
-    budget, gum, budget_estimator = done[("budget", i, recommended)]
+    budget, gum, budget_estimator, reliability = done[("budget", i, recommended)]
     plan, identifiability, extras = done[("misc", i, None)]
     outcome = ProcedureOutcome(
         spec=ps, title=ps.procedure.title, results=results, gum=gum, budget=budget,
         sweeps=[_sweep_result(ps.sweeps[j], grids[(i, j)], i, points, done)
                 for j in range(len(ps.sweeps))], plan=plan,
         measured=done.get(("readings", i, recommended)), identifiability=identifiability,
-        extras=extras, recommended=recommended, key=key, budget_estimator=budget_estimator)
+        extras=extras, recommended=recommended, key=key, budget_estimator=budget_estimator,
+        reliability=None if reliability is None else reliability.with_u(
+            {m.name: float(u) for m, u in zip(results[recommended].measurands,
+                                               results[recommended].mc.std, strict=True)}))
     decider = results.get(getattr(outcome.measured, "estimator", None), results[recommended])
     outcome.verdicts = decisions.conformity(ps.name, ps.label, ps.acceptance, decider,
                                             outcome.measured)
@@ -296,8 +304,9 @@ def _stage_work(kind, ps, study, arg):
     if kind == "misc":
         plan = _run_plan(proc, ps, study) if ps.plan is not None else None
         return plan, _identifiability(proc, ps), _extras(proc, ps)
-    if kind == "budget":
-        return _run_budget(proc, ps, study, arg)
+    if kind == "budget":  # with what one bad reading can do unseen, before the test
+        return (*_run_budget(proc, ps, study, arg),
+                reliability(proc, ps.setup, ps.truth, estimator=arg))
     if kind == "as_left":
         return _run_measured(proc, ps, study, arg, ps.as_left["file"])
     return _run_measured(proc, ps, study, arg)
@@ -495,13 +504,18 @@ def _run_measured(proc, ps, study, recommended, file=None):
     spec = ps.readings
     setup = with_conditions(_along_setup(proc, ps.setup, spec), study.conditions)
     readings = measured.read_readings(proc, setup, file or spec["file"])
-    return measured.estimate_measured(proc, setup, readings,
+    result = measured.estimate_measured(proc, setup, readings,
                                       estimator=spec.get("estimator") or recommended,
                                       uncertainty=spec.get("uncertainty", "mc"),
                                       trials=spec.get("trials", 10_000), coverage=study.coverage,
                                       rng=study.seed,
                                       allow_unconverged=bool(spec.get("allow_unconverged", False)),
                                       posterior_options=spec.get("options"))
+    # what one bad reading could have done unseen, at these readings, after the test
+    result.sections["reliability"] = reliability(
+        proc, setup, readings=readings, estimator=result.estimator, check=result.fit,
+        u={m.name: float(u) for m, u in zip(result.measurands, result.std, strict=True)})
+    return result
 
 
 def _along_setup(proc, setup, spec):

@@ -750,15 +750,18 @@ def _sweeps(proc, sweeps, fields, where, problems) -> list:
 
 
 def _plan(plan, fields, measurands, where, problems) -> dict | None:
+    from mtplan.plans.planner import target_measurand
+
     if _subtable(problems, where, "plan", plan, _PLAN_KEYS) is None:
         return None
     for f in plan.get("vary", {}):
         if f not in fields:
             problems.append(f"{where} plan varies {f!r}, which is no set-up field.")
     for m in plan.get("targets", {}):
-        if m.removeprefix("residual:") not in measurands:  # residual: after compensation
+        if target_measurand(m) not in measurands:  # residual:, reliability: of one
             problems.append(f"{where} plan targets {m!r}, which is no measurand "
-                            f"({', '.join(sorted(measurands))}), nor residual: one.")
+                            f"({', '.join(sorted(measurands))}), nor a residual: or "
+                            "reliability: one.")
     if not plan.get("targets"):
         problems.append(f"{where} plan needs a 'targets' table.")
     return plan
