@@ -247,3 +247,34 @@ def test_position_zone_is_validated_and_held_to_the_plan(tmp_path, bore):
     moved = _bore(tmp_path, nominal="[0.0, 10.0]")
     with pytest.raises(InvalidInput, match=r"bore_position nominal: plan .* says \[0.0, 0.0\]"):
         agreement.check_study(moved, plan)
+
+
+def test_as_left_is_compared_with_the_residual_predicted_after_compensation(adjusted):
+    """The corrected EX0C as left against the residual predicted from the readings as
+    found (the compensation package's, printed as it computes it), with E_n."""
+    from mtplan.compensation.predicted import Predicted
+    from mtplan.reports.certificate import build_report
+    from mtplan.reports.labels import fmt
+    from mtplan.reports.model import Table
+
+    result, plan = adjusted
+    (o,) = result.outcomes
+    assert isinstance(o.compensation, Predicted)
+    lo, hi, _ = o.compensation.of("EX0C")
+    doc = build_report(result, plan)
+    section = next(s for s in doc.sections if s.anchor == "along")
+    (table,) = [b for b in section.blocks if isinstance(b, Table)]
+    (row,) = table.rows
+    cells = dict(zip(table.header, row, strict=True))
+    (left,) = o.as_left_verdicts
+    U = 2 * left.measured_u
+    assert cells["predicted after compensation"] == f"[{fmt(lo, U)}, {fmt(hi, U)}]"
+    en = (left.measured - (lo + hi) / 2) / np.hypot((hi - lo) / 2, U)
+    assert cells["E_n"] == f"{en:.2f}"
+    assert cells["agreement"] == ("consistent" if abs(en) <= 1 else "NOT consistent")
+    results = next(s for s in doc.sections if s.anchor == "results")
+    verdicts = next(b for b in results.blocks if isinstance(b, Table)
+                    and "after compensation (predicted)" in b.header)
+    cells = dict(zip(verdicts.header, verdicts.rows[0], strict=True))
+    assert cells["after compensation (predicted)"] == \
+        f"[{fmt(lo, 2 * o.verdicts[0].measured_u)}, {fmt(hi, 2 * o.verdicts[0].measured_u)}]"

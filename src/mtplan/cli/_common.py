@@ -8,7 +8,6 @@ starts fast.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 import tomllib
@@ -144,26 +143,23 @@ def along_values(items, proc) -> dict:
     """``--along AXIS=START:STOP:STEP`` -> {``along_<axis>_mm``: "p1,p2,..."}: the positions
     [mm] at which a procedure whose set-up has that field states its errors along AXIS
     (START to STOP inclusive, every STEP)."""
+    from mtplan.evaluation.along import parse_grid
+    from mtplan.models.protocol import fields_info
+
     out = {}
     for axis, text in parse_pairs(items, "--along").items():
         field = f"along_{axis.lower()}_mm"
         if field not in getattr(proc.Setup, "__dataclass_fields__", {}):
             raise UsageError(f"--along {axis}: {proc.name} states no errors along {axis!r} "
                              f"(its set-up has no field {field})")
-        try:
-            start, stop, step = (float(v) for v in text.split(":"))
-        except ValueError:
-            start = stop = step = math.nan
-        n = (stop - start) / step + 1 if step > 0 and stop >= start else math.nan
-        from mtplan.models.protocol import fields_info
-
         most = next(f.max_len for f in fields_info(proc.Setup) if f.name == field)
-        if not (math.isfinite(n) and (most is None or n <= most)):
+        try:
+            positions = parse_grid(text, most)
+        except ValueError:
             raise UsageError(f"--along {axis}={text}: expected START:STOP:STEP [mm] with STEP "
                              "> 0, STOP >= START" + (f" and at most {most} positions"
-                                                     if most is not None else ""))
-        out[field] = ",".join(f"{round(start + i * step, 9):g}"
-                              for i in range(int(math.floor(n + 1e-9))))
+                                                     if most is not None else "")) from None
+        out[field] = ",".join(f"{p:g}" for p in positions)
     return out
 
 

@@ -153,7 +153,13 @@ class MeasuredResult(ResultDocument):
     undetermined : dict of str to (unit, reason)
         The measurands the procedure can report that this set-up does not determine.
     sections : dict
-        Further parts of the result (see :class:`ResultDocument`).
+        Further parts of the result (see :class:`ResultDocument`); ``simultaneous`` where
+        the result holds errors along the travel: the sup-t factor of each curve.
+    simultaneous : dict of str to (float, float)
+        The simultaneous band (``coverage`` for the whole curve) of each measurand that is a
+        point of an error along the travel (``EXX@-50``,
+        :mod:`mtplan.evaluation.along`); the JSON and CSV give it as
+        ``simultaneous_low`` and ``simultaneous_high`` (null off the curves).
 
     The JSON and CSV (:meth:`to_dict`, :meth:`summary`) are exactly what ``mtplan
     estimate`` prints and writes.
@@ -190,6 +196,7 @@ class MeasuredResult(ResultDocument):
     setup_defaults: tuple = ()
     undetermined: dict = field(default_factory=dict)
     sections: dict = field(default_factory=dict)
+    simultaneous: dict = field(default_factory=dict)
 
     def __post_init__(self):
         n = len(self.measurands)
@@ -242,14 +249,17 @@ class MeasuredResult(ResultDocument):
         return doc
 
     def _rows(self) -> list[dict]:
+        extra = {"estimate": self.estimate, "bias_correction": self.bias_correction,
+                 "bias_correction_u": self.bias_correction_u}
+        if self.simultaneous:  # errors along the travel: their simultaneous band
+            band = [self.simultaneous.get(m.name, (np.nan, np.nan)) for m in self.measurands]
+            extra["simultaneous_low"] = np.array([b[0] for b in band], dtype=float)
+            extra["simultaneous_high"] = np.array([b[1] for b in band], dtype=float)
         return measurand_rows(self.measurands, Reported(self.value, self.std, self.low,
                                                         self.high, self.coverage,
                                                         self.U_coverage, self.U_from),
                               determinable=self.determinable, reasons=self.reasons,
-                              undetermined=self.undetermined,
-                              extra={"estimate": self.estimate,
-                                     "bias_correction": self.bias_correction,
-                                     "bias_correction_u": self.bias_correction_u})
+                              undetermined=self.undetermined, extra=extra)
 
 
 _BEST: dict = {}
@@ -874,7 +884,31 @@ def estimate_measured(
     result.setup_from_file = dict(measurement.from_file)
     result.setup_defaults = tuple(measurement.defaults)
     result.undetermined = undetermined_measurands(proc, setup)
+    _with_simultaneous(result)
     return result
+
+
+def _with_simultaneous(result: MeasuredResult) -> None:
+    """The simultaneous band of the result's errors along the travel, if it holds any
+    (:func:`mtplan.evaluation.along.simultaneous_bands`, from the result's covariance and
+    seed), and each curve's factor in ``sections["simultaneous"]``."""
+    from mtplan.evaluation.along import DRAWS, simultaneous_bands
+
+    names = [m.name for m in result.measurands]
+    ok = np.asarray(result.determinable, dtype=bool)
+    value = np.where(ok, result.value, np.nan)
+    bands, factors = simultaneous_bands(names, value, result.low, result.high,
+                                        result.covariance, result.coverage, seed=result.seed)
+    if not bands:
+        return
+    result.simultaneous = bands
+    result.sections["simultaneous"] = {
+        "coverage": float(result.coverage),
+        "method": "sup-t: each point's interval widened about its value by c / z, c the "
+                  f"{result.coverage:g} quantile of max |z_i| over the curve's positions, z "
+                  "normal with the result's correlation of those points "
+                  f"({DRAWS} seeded draws), z the pointwise normal factor",
+        "factor": {f: round(c, 4) for f, c in factors.items()}}
 
 
 def _estimate(proc, setup, readings, estimator, uncertainty, o: MeasuredOptions

@@ -95,9 +95,12 @@ def job_cost(kind: str, design: dict, *, budget_s: float = JOB_BUDGET_S) -> dict
 
 def planner_inputs(proc, design: dict) -> tuple:
     """(ranges, targets) of the planner's search, or InvalidInput naming each target that
-    is not a positive number or names no measurand, and the ranges' problems."""
+    is not a positive number or names no measurand, and the ranges' problems. A target
+    ``residual:M`` bounds the error left after compensating M (the planner's
+    ``residual:`` targets, as in a study's plan)."""
     from mtplan.explore.state import setup_of
     from mtplan.explore.studies import plan_vary
+    from mtplan.plans.planner import RESIDUAL
 
     _, setup = setup_of(design)
     names = [m.name for m in proc.measurands(setup)]
@@ -107,7 +110,7 @@ def planner_inputs(proc, design: dict) -> tuple:
             x = float(v)
         except (TypeError, ValueError):
             x = math.nan
-        if name not in names:
+        if name.removeprefix(RESIDUAL) not in names:
             problems.append(f"The target {name!r} names no measurand of this set-up "
                             f"({', '.join(names[:8])}{', ...' if len(names) > 8 else ''}).")
         elif not (math.isfinite(x) and x > 0):

@@ -55,6 +55,10 @@ def _nothing_unseen(setup: Mapping) -> dict:
     return {}
 
 
+def _restates_none(setup: Mapping) -> dict:
+    return {}
+
+
 def _nothing_realised(setup, errors: Mapping) -> dict:
     return {}
 
@@ -90,6 +94,11 @@ class CorrectionModel:
         between a table's points), and what it is in words; a function's name (``EXX``)
         stands for all its measurands (``EXX``, ``EXX@-50``, ...). Part of the residual
         predicted after compensation, and of a plan's residual target.
+    restates : callable
+        ``restates(setup) -> {measurand: measurand}``: a measurand that is the same quantity
+        as another one a term corrects (geometry21's EXX, the function at the travel's end,
+        is ``EXX@50`` of the table), so that the documents give its residual after
+        compensation; {} where none is.
     realised : callable
         ``realised(setup, errors) -> {measurand: value}``: the value [display unit] that
         what ``unseen`` names takes on a simulated machine, for the source errors
@@ -105,6 +114,7 @@ class CorrectionModel:
     terms: Callable[[Mapping, tuple], tuple] = _no_terms
     nominal: Callable[[Mapping], dict] = _no_nominal
     unseen: Callable[[Mapping], dict] = _nothing_unseen
+    restates: Callable[[Mapping], dict] = _restates_none
     realised: Callable[[object, Mapping], dict] = _nothing_realised
 
     def unseen_of(self, setup: Mapping, measurand: str) -> tuple[float, str]:

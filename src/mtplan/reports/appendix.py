@@ -332,8 +332,13 @@ def measured_blocks(measured, warn: bool = True) -> list:
     correction = getattr(measured, "bias_correction", None)
     correction = np.zeros(n) if correction is None else np.asarray(correction, dtype=float)
     reasons = getattr(measured, "reasons", None) or {}
+    from mtplan.reports.along import along_names
+
+    along = along_names(measured)  # drawn in their own figure
     rows, items = [], []
     for i, m in enumerate(measured.measurands):
+        if m.name in along:
+            continue
         u = float(measured.std[i])
         if not determinable[i]:
             rows.append([m.name, unit(m.unit), fmt(measured.estimate[i]), "-", "n/d", "n/d",
@@ -371,8 +376,12 @@ def measured_blocks(measured, warn: bool = True) -> list:
 
 
 def _posterior_blocks(post) -> list:
-    names = [m.name for m in post.measurands]
-    samples = {f"{m.name} [{unit(m.unit)}]": post.samples[m.name] for m in post.measurands}
+    from mtplan.reports.along import along_names
+
+    along = along_names(post)  # the errors along the travel: in their own figure
+    names = [m.name for m in post.measurands if m.name not in along]
+    samples = {f"{m.name} [{unit(m.unit)}]": post.samples[m.name] for m in post.measurands
+               if m.name not in along}
     state = "converged" if post.converged else "NOT CONVERGED: read with care"
     # a free parameter that is a measurand in its field's units (EX0C_um) is listed once
     others = [p for p in post.parameters if p.rsplit("_", 1)[0] not in names]

@@ -379,6 +379,10 @@ def _results_section(result) -> Section:
             sec.blocks.append(ASYMMETRIC_NOTE)
         if any("‡" in row[6] for row in table.rows):
             sec.blocks.append(DEFAULT_TRUTH_NOTE)
+        if "after compensation (predicted)" in table.header:
+            from mtplan.reports.along import RESIDUAL_NOTE
+
+            sec.blocks.append(RESIDUAL_NOTE)
         from mtplan.reports.accreditation import uncertainty_statement
 
         sec.blocks += [ZONES, rounding_sentence(result),
@@ -419,11 +423,12 @@ def _results_section(result) -> Section:
     if unseen is not None:
         sec.blocks.append(unseen)
     from mtplan.reports.document import datasheet_text
+    from mtplan.reports.along import along_names
 
     sec.blocks += [f"Test {k} ({o.spec.label}): {datasheet_text(o)}"
                    for k, o in enumerate(result.outcomes, start=1) if datasheet_text(o)]
-    untoleranced = sum(len(o.measured.measurands) for o in result.outcomes
-                       if o.measured is not None) - sum(
+    untoleranced = sum(len(o.measured.measurands) - len(along_names(o.measured))
+                       for o in result.outcomes if o.measured is not None) - sum(
         len(o.verdicts) for o in result.outcomes if o.measured is not None)
     if untoleranced > 0:
         what = "quantity" if untoleranced == 1 else f"{untoleranced} quantities"
@@ -500,9 +505,14 @@ def _glossary_section(sections=None) -> Section:
 
 def measured_frame(result):
     """Every measured measurand of every test with its U, as found and (where a test was
-    measured again after an adjustment) as left: ``results/measured.csv``."""
+    measured again after an adjustment) as left: ``results/measured.csv``; a point of an
+    error along the travel also with its simultaneous band, a corrected measurand as found
+    with the 95 % interval of its residual predicted after compensation."""
     import pandas as pd
 
+    from mtplan.reports.along import residual_interval
+
+    nan2 = (math.nan, math.nan)
     rows = []
     for o, m, state in [(o, m, state) for o in result.outcomes
                         for m, state in ((o.measured, "as found"), (o.as_left, "as left"))]:
@@ -525,21 +535,31 @@ def measured_frame(result):
                          "determinable": ok, "fit_chi2": fit["chi2"], "fit_dof": fit["dof"],
                          "fit_p": fit["p"], "fit_p_text": p_text(fit["p"]),
                          "fit_ok": fit["ok"], "fit_worst": fit["worst"]})
+            band = (getattr(m, "simultaneous", None) or {}).get(q.name, nan2)
+            after = residual_interval(o, q.name) if state == "as found" else None
+            rows[-1].update({"simultaneous_low": band[0], "simultaneous_high": band[1],
+                             "after_compensation_low": (after or nan2)[0],
+                             "after_compensation_high": (after or nan2)[1]})
     return pd.DataFrame(rows, columns=["procedure", "test", "state", "measurand", "description",
                                        "unit", "value", "u", "k", "U", "U_coverage",
                                        "U_coverage_from", "low", "high",
                                        "estimator", "uncertainty", "determinable", "fit_chi2",
                                        "fit_dof", "fit_p", "fit_p_text", "fit_ok",
-                                       "fit_worst"])
+                                       "fit_worst", "simultaneous_low", "simultaneous_high",
+                                       "after_compensation_low", "after_compensation_high"])
 
 
 def _measured_appendix(k, o) -> Section:
     from mtplan.reports.appendix import measured_blocks
 
+    from mtplan.reports.along import along_names
+
     m = o.measured
     det = getattr(m, "determinable", None)
     rows, items = [], []
-    for j, q in enumerate(m.measurands):
+    along = along_names(m)  # drawn in their own figure, and in results/measured.csv
+    shown = [(j, q) for j, q in enumerate(m.measurands) if q.name not in along]
+    for j, q in shown:
         ok = det is None or bool(det[j])
         u = float(m.std[j]) if ok else None
         if ok:
@@ -555,7 +575,7 @@ def _measured_appendix(k, o) -> Section:
     sec = Section(f"A{k}. {o.spec.label}: every measured quantity", anchor=f"m{k}",
                   appendix=True)
     warnings, flagged = value_warnings(items)
-    for row, q in zip(rows, m.measurands, strict=True):
+    for row, (_, q) in zip(rows, shown, strict=True):
         row[0] += " *" if q.name in flagged else ""
     sec.blocks.append(Table(f"Every measured quantity of test {k} ({m.estimator} estimator)"
                             + ("; *: read with care (below)." if warnings else "."),
@@ -563,6 +583,10 @@ def _measured_appendix(k, o) -> Section:
                              "95 % interval"], rows, grow=0))
     if any("†" in row[2] for row in rows):
         sec.blocks.append(ASYMMETRIC_NOTE)
+    if along:
+        sec.blocks.append(f"The {len(along)} values of the errors along the travel: drawn "
+                          "in the section 'Errors along the travel and after compensation "
+                          "(predicted)', each with its U in results/measured.csv.")
     if warnings:
         sec.blocks += ["* Read these values with care:", warnings]
     sec.blocks += measured_blocks(m, warn=False)
@@ -655,13 +679,19 @@ def build_report(result, plan, deviations=()) -> Document:
     from mtplan.reports.appendix import provenance_section
     from mtplan.reports.document import covariance_frames, verdict_frames
 
+    from mtplan.reports.along import along_section
+
     sections = [_overall_section(result), _results_section(result),
                 _conditions_section(result, plan),
                 _deviations_section(list(deviations) + exclusions(result))]
+    along = along_section(result)
+    if along is not None:
+        sections.insert(2, along)
     for k, o in enumerate(result.outcomes, start=1):
         if o.measured is not None:
             sections.append(_measured_appendix(k, o))
-    sections.insert(4, _glossary_section(sections))  # the terms the whole report uses
+    # the terms the whole report uses, after the deviations
+    sections.insert(5 if along is not None else 4, _glossary_section(sections))
     sections.append(provenance_section(result.provenance))
     csv = verdict_frames(result)
     csv["measured"] = measured_frame(result)

@@ -16,7 +16,7 @@ from mtplan.reports.wording import verdict_short
 
 __all__ = ["bands_figure", "sweep_figure", "lever_figure", "acceptance_figure", "pareto_figure",
            "budget_figure", "histogram_figure", "estimator_figure", "corner_figure",
-           "trace_figure", "path_figure"]
+           "trace_figure", "path_figure", "along_figure"]
 
 _COLORS = ["#1f5fa8", "#d9622b", "#3a923a", "#b0306d", "#7a5cc2", "#8c6d31", "#2a9fa8"]
 
@@ -563,4 +563,76 @@ def bands_figure(tables: dict) -> bytes:
             ax.grid(alpha=0.3)
             if r == 0:
                 ax.legend(fontsize=6, ncol=3)
+    return _png(fig)
+
+
+def along_figure(panels: list, cols: int = 5) -> bytes:
+    """Errors along the travel, as ISO 230-1 draws them: one small panel per error
+    function (a row per axis), its measured values against position (line; hollow markers
+    outside the measured travel: extrapolated) with the pointwise 95 % band (dark) and the
+    simultaneous one (light), the tolerance (black dashed) where one is given, and the
+    residual predicted after compensation about zero (orange lines: its pointwise band;
+    dotted: its simultaneous band).
+
+    ``panels``: one dict per function with ``function``, ``unit``, ``row`` (the axis's
+    row), ``position``, ``value``, ``low``, ``high``, ``sim_low``, ``sim_high``,
+    ``extrapolated`` (arrays over the positions), ``tolerance`` ((lower, upper) or None)
+    and, where there is a correction, ``res_low``, ``res_high``, ``res_sim_low``,
+    ``res_sim_high``."""
+    rows = max(p["row"] for p in panels) + 1
+    fig = _figure(7.2, 1.3 * rows + 0.45)
+    axes = fig.subplots(rows, cols, squeeze=False)
+    used = set()
+    blue, orange = _COLORS[0], _COLORS[1]
+    for p in panels:
+        col = sum(1 for q in panels[:panels.index(p)] if q["row"] == p["row"])
+        ax = axes[p["row"]][col]
+        used.add((p["row"], col))
+        x = np.asarray(p["position"], dtype=float)
+        ax.fill_between(x, p["sim_low"], p["sim_high"], color=blue, alpha=0.13, lw=0)
+        ax.fill_between(x, p["low"], p["high"], color=blue, alpha=0.32, lw=0)
+        if "res_low" in p:
+            for y in (p["res_low"], p["res_high"]):
+                ax.plot(x, y, color=orange, lw=0.9)
+            for y in (p["res_sim_low"], p["res_sim_high"]):
+                ax.plot(x, y, color=orange, lw=0.9, ls=":")
+        ax.plot(x, p["value"], color=blue, lw=1.1)
+        ex = np.asarray(p["extrapolated"], dtype=bool)
+        v = np.asarray(p["value"], dtype=float)
+        ax.plot(x[~ex], v[~ex], "o", ms=1.8, color=blue)
+        if ex.any():
+            ax.plot(x[ex], v[ex], "o", ms=3, mfc="white", color=blue)
+        for t in p.get("tolerance") or ():
+            if t is not None:
+                ax.axhline(t, color="k", lw=0.9, ls="--")
+        ax.axhline(0.0, color="#999999", lw=0.5)
+        ax.set_title(f"{p['function']} [{unit(p['unit'])}]", fontsize=7.5, loc="left", pad=2)
+        ax.tick_params(labelsize=6, length=2, pad=1)
+        ax.xaxis.set_major_locator(_max_n(4))
+        ax.yaxis.set_major_locator(_max_n(4))
+        ax.grid(alpha=0.25, lw=0.4)
+        ax.set_xlabel(f"{'xyz'[p['row']]} [mm]", fontsize=6.5, labelpad=1)
+    for r in range(rows):
+        for c in range(cols):
+            if (r, c) not in used:
+                axes[r][c].set_visible(False)
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    legend = [(Line2D([], [], color=blue, lw=1.1, marker="o", ms=2), "measured"),
+              (Patch(color=blue, alpha=0.45), "95 % band, pointwise"),
+              (Patch(color=blue, alpha=0.15), "95 % band, simultaneous")]
+    if any(p.get("tolerance") for p in panels):
+        legend.append((Line2D([], [], color="k", lw=0.9, ls="--"), "tolerance"))
+    if any("res_low" in p for p in panels):
+        legend += [(Line2D([], [], color=orange, lw=0.9),
+                    "after compensation (predicted), pointwise"),
+                   (Line2D([], [], color=orange, lw=0.9, ls=":"),
+                    "after compensation, simultaneous")]
+    if any(np.any(p["extrapolated"]) for p in panels):
+        legend.append((Line2D([], [], color=blue, marker="o", ms=3, mfc="white", lw=0),
+                       "extrapolated"))
+    handles, labels = zip(*legend)
+    fig.legend(handles, labels, fontsize=6.5, loc="outside lower center", ncol=4,
+               frameon=False)
     return _png(fig)

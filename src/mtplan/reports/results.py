@@ -118,19 +118,30 @@ def covers_text(v) -> str:
 
 
 def verdict_table(result, tests: list) -> Table:
-    """The verdicts of every test, each redone from its own row (:data:`ZONES`)."""
-    rows = [row for k, o in enumerate(result.outcomes, start=1) if o.verdicts
-            for row in verdict_rows(k, o)]
+    """The verdicts of every test, each redone from its own row (:data:`ZONES`); where a
+    test states a correction of a measurand, a column before the verdict with the residual
+    predicted after compensation (:func:`~mtplan.reports.along.residual_text`)."""
+    from mtplan.reports.along import residual_text
+
+    rows = [row[:-1] + [residual_text(o, v)] + row[-1:]
+            for k, o in enumerate(result.outcomes, start=1)
+            if o.verdicts for row, v in zip(verdict_rows(k, o), o.verdicts, strict=True)]
+    header = ["test", "measurand", "tolerance", "acceptance limits", "w", "measured",
+              "U achieved (predicted)", "±U covers", "after compensation (predicted)",
+              "verdict"]
+    corrected = any(row[-2] != "-" for row in rows)
+    if not corrected:  # no test states a correction
+        rows, header = [row[:-2] + row[-1:] for row in rows], header[:-2] + header[-1:]
     about = common_text([p for o in result.outcomes for v in o.verdicts
                          for p in (v.measured_U_coverage, v.U_coverage)])
     return Table("Results as found. Tests: " + "; ".join(tests) + ". Acceptance limits and "
                  "w as the plan agreed them; measured value and U achieved (k = 2), U "
                  "predicted in parentheses; ±U covers: the fraction of each value's "
                  "distribution within ± U" + (f" ({about} for every U)" if about else "")
-                 + ", achieved (predicted).",
-                 ["test", "measurand", "tolerance", "acceptance limits", "w", "measured",
-                  "U achieved (predicted)", "±U covers", "verdict"], rows, grow=1, size=7.0,
-                 whole=(8,))
+                 + ", achieved (predicted)"
+                 + ("; after compensation: the residual's 95 % interval (below)."
+                    if corrected else "."),
+                 header, rows, grow=1, size=7.0, whole=(len(header) - 1,))
 
 
 def rounding_sentence(result) -> str:

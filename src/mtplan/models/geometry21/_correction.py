@@ -45,6 +45,20 @@ def _terms(setup, names) -> tuple:
     return tuple(out)
 
 
+#: the default grid's step, as a fraction of the measured travel (100 mm: every 5 mm)
+ALONG_STEPS = 20
+
+
+def along_default(setup) -> dict:
+    """The errors along each axis's measured travel (``+-line_length_mm / 2``) every
+    ``line_length_mm / 20``, where the set-up states no positions of its own (then {})."""
+    if any(getattr(setup, field) for field in _ALONG):
+        return {}
+    half = setup.line_length_mm / 2
+    grid = tuple(round(-half + 2 * half * i / ALONG_STEPS, 9) for i in range(ALONG_STEPS + 1))
+    return dict.fromkeys(_ALONG, grid)
+
+
 def _unseen(setup) -> dict:
     """The path residual and the medium-wave deviation stay after any table of the
     translations' errors (their RMS in quadrature)."""
@@ -57,6 +71,11 @@ def _unseen(setup) -> dict:
     return {name: (u, what) for name, kind, *_ in FUNCTIONS if kind in ("pos", "str") and u}
 
 
+def _restates(setup) -> dict:
+    """Each function as a measurand (its value at +line_length_mm / 2) is its table's point
+    there."""
+    half = float(setup.get("line_length_mm", 100.0)) / 2
+    return {name: f"{name}@{half:g}" for name, kind, *_ in FUNCTIONS if kind != "sq"}
 def _realised(setup, errors) -> dict:
     """The path residual and the medium-wave deviation of `errors` at each translation's
     table point [um, batch rows]: the same fields the readings saw
@@ -86,5 +105,6 @@ CORRECTION = CorrectionModel(
          "compensation takes them as errors and removes them",
     terms=_terms,
     unseen=_unseen,
+    restates=_restates,
     realised=_realised,
 )

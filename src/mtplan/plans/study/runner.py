@@ -59,6 +59,9 @@ class ProcedureOutcome:
     budget_estimator: str = ""
     as_left: object | None = None      # readings after adjustment, evaluated
     as_left_verdicts: list = field(default_factory=list)
+    #: the readings' correction and the residual predicted after it
+    #: (:class:`~mtplan.compensation.predicted.Predicted`), or why there is none
+    compensation: object | None = None
     #: what one bad reading can do unseen at the agreed set-up, before the test
     #: (:class:`~mtplan.evaluation.reliability.Reliability`; after it: the readings
     #: evaluation's ``sections["reliability"]``)
@@ -191,6 +194,11 @@ def _outcome(i, ps, partial, grids, points, done) -> ProcedureOutcome:
     outcome.verdicts = decisions.conformity(ps.name, ps.label, ps.acceptance, decider,
                                             outcome.measured)
     outcome.as_left = done.get(("as_left", i, recommended))  # after an adjustment
+    if outcome.measured is not None:
+        from mtplan.compensation.predicted import predicted
+
+        outcome.compensation = predicted(ps.procedure, outcome.measured.to_dict(),
+                                         coverage=outcome.measured.coverage)
     if outcome.as_left is not None:
         outcome.as_left_verdicts = decisions.conformity(ps.name, ps.label, ps.acceptance,
                                                         decider, outcome.as_left)
@@ -495,7 +503,7 @@ def _run_measured(proc, ps, study, recommended, file=None):
     from mtplan.evaluation.posterior import PosteriorOptions
 
     spec = ps.readings
-    setup = with_conditions(ps.setup, study.conditions)
+    setup = with_conditions(_along_setup(proc, ps.setup, spec), study.conditions)
     readings = measured.read_readings(proc, setup, file or spec["file"])
     sampling = PosteriorOptions.of(None, **(spec.get("options") or {})).replace(
         allow_unconverged=bool(spec.get("allow_unconverged", False)))
@@ -511,6 +519,17 @@ def _run_measured(proc, ps, study, recommended, file=None):
         proc, setup, readings=readings, estimator=result.estimator, check=result.fit,
         u={m.name: float(u) for m, u in zip(result.measurands, result.std, strict=True)})
     return result
+
+
+def _along_setup(proc, setup, spec):
+    """`setup` with the positions at which the readings' evaluation states the errors
+    along the travel: ``[procedure.readings] along``, else the procedure's default
+    (``Capabilities.along_default``: none where the set-up states its own)."""
+    import dataclasses
+
+    grid = spec.get("along")
+    grid = proc.capabilities.along_default(setup) if grid is None else grid
+    return dataclasses.replace(setup, **grid) if grid else setup
 
 
 def _identifiability(proc, ps):

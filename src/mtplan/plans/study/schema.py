@@ -211,7 +211,8 @@ _ACCEPT_KEYS = {"measurand", "lower", "upper", "prior", "rule", "measured", "tol
 _POSITION_KEYS = {"measurand", "position", "nominal", "diameter", "prior", "rule",
                   "tolerance_source", "frame",
                   "population_source"}
-_READ_KEYS = {"file", "uncertainty", "estimator", "trials", "options", "allow_unconverged"}
+_READ_KEYS = {"file", "uncertainty", "estimator", "trials", "options", "allow_unconverged",
+              "along"}
 #: readings taken again after an adjustment, evaluated as the readings are
 _AS_LEFT_KEYS = {"file", "adjustment"}
 
@@ -888,7 +889,35 @@ def _readings(proc, readings, path, where, problems) -> dict | None:
         readings = {**readings, "file": rp}
     if readings.get("uncertainty", "mc") not in ("mc", "posterior"):
         problems.append(f"{where} readings 'uncertainty' must be 'mc' or 'posterior'.")
+    if "along" in readings:
+        readings = {**readings, "along": _along(proc, readings["along"], where, problems)}
     return readings
+
+
+def _along(proc, table, where, problems) -> dict:
+    """``along = { X = "-50:50:5" }``: the positions at which the readings' evaluation states
+    the errors along each axis's travel (``{}``: none; left out: the procedure's default,
+    ``Capabilities.along_default``), as {set-up field: positions}."""
+    from mtplan.evaluation.along import parse_grid
+    from mtplan.models.protocol import fields_info
+
+    fields = {f.name: f for f in fields_info(proc.Setup)}
+    if not isinstance(table, dict):
+        problems.append(f"{where} readings 'along' must be a table of AXIS = "
+                        f"\"START:STOP:STEP\" [mm]. Got {table!r} instead.")
+        return {}
+    out = {}
+    for axis, text in table.items():
+        field = f"along_{str(axis).lower()}_mm"
+        if field not in fields:
+            problems.append(f"{where} readings along {axis!r}: {proc.name} states no errors "
+                            f"along {axis!r} (its set-up has no field {field}).")
+            continue
+        try:
+            out[field] = parse_grid(text, fields[field].max_len)
+        except ValueError as exc:
+            problems.append(f"{where} readings along {axis!r}: {exc}.")
+    return out
 
 
 def _grid_problems(proc, base, vary, fields, where) -> list[str]:
