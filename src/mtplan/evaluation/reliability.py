@@ -13,7 +13,8 @@ Baarda's reliability of a test, from the same whitened design the fit check uses
   and still pass more often than not (one time in five): ``max_i |G_ki| mdb_i``, with ``G``
   the estimator's own first-order response to the readings, ``d estimate / d reading``
   (central differences, as the first-order service takes it,
-  :func:`mtplan.fitting.effects.estimator_map`), not the least squares' map: the
+  :func:`mtplan.fitting.effects.estimator_map`, or the procedure's derivative hook where
+  it maps the estimator, :func:`_mapped_response`), not the least squares' map: the
   evaluation's estimator is what the bad reading moves.
 
 Before the test (``mtplan linearize``, the plan) both are taken at the readings the
@@ -227,8 +228,10 @@ def reliability(procedure, setup, truth=None, *, estimator: str | None = None,
     key_of = np.concatenate([np.full(np.asarray(readings[k])[0].size, k, dtype=object)
                              for k in keys])[used]
     measurands = tuple(proc.measurands(setup))
-    G = _response(proc, setup, readings, keys, full, used, est_name, measurands,
-                  check.scatter)
+    G = _mapped_response(proc, setup, truth, est_name, measurands, used)
+    if G is None:
+        G = _response(proc, setup, readings, keys, full, used, est_name, measurands,
+                      check.scatter)
     mdb = np.asarray(check.mdb, dtype=float)
     # every gross error: each reading alone, then those the procedure declares
     effects = np.eye(mdb.size)
@@ -282,6 +285,33 @@ def reliability(procedure, setup, truth=None, *, estimator: str | None = None,
                        unchecked=[labels[i] for i in np.flatnonzero(~np.isfinite(sizes))],
                        measurands=rows, mdb_values=mdb, response=G, effects=effects,
                        sizes=sizes)
+
+
+def _mapped_response(proc, setup, truth, est_name, measurands, used):
+    """``G`` from the procedure's derivative hook, where it gives one: the measurands'
+    sensitivity to the readings' own noise source (``ReadingsFormat.noise_source``, which
+    adds itself to each reading, one element per reading in the order of
+    :func:`~mtplan.evaluation.fitcheck.reading_vector`) is ``d estimate / d reading`` at
+    the design (`truth`'s error-free readings). None where the procedure names no noise
+    source, its hook does not map the estimator, or the noise's elements are not the
+    readings one for one: then :func:`_response` differentiates the estimator itself.
+
+    After the test the map is the design's, not the measured readings' own: Baarda's
+    reliability is a first-order statement, and the two differ by the second order of the
+    readings' departure from the design (line_laser: its estimators' maps at the truth,
+    exact in closed form, instead of 31 200 runs of the estimator)."""
+    name = proc.readings.noise_source
+    if name is None or name not in proc.active_sources(setup):
+        return None
+    with one_blas_thread():
+        jac = proc.capabilities.first_order_sensitivities(setup, truth, estimator=est_name,
+                                                           sources=(name,))
+    if jac is None:
+        return None
+    jac = np.asarray(jac, dtype=float)
+    if jac.shape != (len(measurands), used.size) or not np.all(np.isfinite(jac)):
+        return None
+    return jac[:, used]
 
 
 def _response(proc, setup, readings, keys, full, used, est_name, measurands, scatter):
