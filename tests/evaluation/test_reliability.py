@@ -73,7 +73,7 @@ def test_mdb_is_detected_with_its_power_in_a_monte_carlo():
 
     assert np.all(np.isfinite(rel.sizes))
     for j in range(rel.sizes.size):
-        rate = flagged(rel.sizes[j] * rel.effects[:, j]).mean()
+        rate = flagged(rel.sizes[j] * rel.effect(j)).mean()
         assert abs(rate - MDB_POWER) < tol, (j, rate)
     n = rel.mdb_values.size
     clean = flagged(np.zeros(n))
@@ -116,8 +116,8 @@ def test_external_reliability_is_the_estimators_response(name):
 
     for k, m in enumerate(names):
         row = rel.measurands[m]
-        j = int(np.argmax(np.abs(rel.response[k] @ rel.effects) * rel.sizes))
-        error = rel.sizes[j] * rel.effects[:, j]
+        j = int(np.argmax(np.abs(rel.moved()[k]) * rel.sizes))
+        error = rel.sizes[j] * rel.effect(j)
         plus, minus, zero = estimate(vec + error, m), estimate(vec - error, m), estimate(vec, m)
         assert abs((plus - minus) / 2) == pytest.approx(row["shift"], rel=1e-6)
         assert abs(plus - zero) == pytest.approx(row["shift"], rel=1e-3)

@@ -117,8 +117,24 @@ class Reliability:
     reason: str | None = None
     mdb_values: np.ndarray | None = field(default=None, repr=False)
     response: np.ndarray | None = field(default=None, repr=False)
-    effects: np.ndarray | None = field(default=None, repr=False)
+    directions: np.ndarray | None = field(default=None, repr=False)
     sizes: np.ndarray | None = field(default=None, repr=False)
+
+    def effect(self, j: int) -> np.ndarray:
+        """The readings' change per unit of gross error `j` (used readings): error `j`
+        of :attr:`sizes`, a reading alone for the first ``n_readings``, then the
+        procedure's declared errors (:attr:`directions`)."""
+        n = self.response.shape[1]
+        if j < n:
+            out = np.zeros(n)
+            out[j] = 1.0
+            return out
+        return self.directions[:, j - n]
+
+    def moved(self) -> np.ndarray:
+        """(measurands, errors): each measurand's shift per unit of each gross error, in
+        the order of :attr:`sizes`."""
+        return np.hstack([self.response, self.response @ self.directions])
 
     def with_u(self, u: dict) -> Reliability:
         """A copy whose ``u`` and ``in_u`` are against `u` (measurand -> standard
@@ -233,8 +249,9 @@ def reliability(procedure, setup, truth=None, *, estimator: str | None = None,
         G = _response(proc, setup, readings, keys, full, used, est_name, measurands,
                       check.scatter)
     mdb = np.asarray(check.mdb, dtype=float)
-    # every gross error: each reading alone, then those the procedure declares
-    effects = np.eye(mdb.size)
+    # every gross error: each reading alone, then those the procedure declares (the
+    # readings' own as the identity, never built: 15 600 readings would be 2 GB)
+    directions = np.zeros((mdb.size, 0))
     sizes = np.where(np.isfinite(mdb), mdb, np.inf)
     labels = [_where(lab) for lab in check.labels]
     groups = list(key_of)
@@ -242,7 +259,7 @@ def reliability(procedure, setup, truth=None, *, estimator: str | None = None,
     if declared is not None:
         kind, names, D = declared
         D = np.asarray(D, dtype=float)[used]
-        effects = np.hstack([effects, D])
+        directions = D
         sizes = np.concatenate([sizes, np.asarray(check.mdb_directions, dtype=float)])
         labels += list(names)
         groups += [kind] * D.shape[1]
@@ -260,7 +277,7 @@ def reliability(procedure, setup, truth=None, *, estimator: str | None = None,
                           else np.inf,
                           "median": float(np.median(sizes[seen]) * scale) if seen.size
                           else np.inf, "undetectable": int(on.size - seen.size)})
-    response = G @ effects  # (measurands, errors): per unit of each error
+    response = np.hstack([G, G @ directions])  # (measurands, errors): per unit of each
     rows = {}
     for k, m in enumerate(measurands):
         if not response.shape[1]:
@@ -283,8 +300,8 @@ def reliability(procedure, setup, truth=None, *, estimator: str | None = None,
     return Reliability(alpha=check.alpha, w_critical=check.w_critical,
                        n_readings=check.n_readings, n_tested=check.n_tested, mdb=per_group,
                        unchecked=[labels[i] for i in np.flatnonzero(~np.isfinite(sizes))],
-                       measurands=rows, mdb_values=mdb, response=G, effects=effects,
-                       sizes=sizes)
+                       measurands=rows, mdb_values=mdb, response=G,
+                       directions=directions, sizes=sizes)
 
 
 def _mapped_response(proc, setup, truth, est_name, measurands, used):
