@@ -633,6 +633,6 @@ def along_figure(panels: list, cols: int = 5) -> bytes:
         legend.append((Line2D([], [], color=blue, marker="o", ms=3, mfc="white", lw=0),
                        "extrapolated"))
     handles, labels = zip(*legend)
-    fig.legend(handles, labels, fontsize=6.5, loc="outside lower center", ncol=4,
+    fig.legend(handles, labels, fontsize=6.5, loc="outside lower center", ncol=3,
                frameon=False)
     return _png(fig)
