@@ -141,7 +141,10 @@ def verdict_table(result, tests: list) -> Table:
                  + ", achieved (predicted)"
                  + ("; after compensation: the residual's 95 % interval (below)."
                     if corrected else "."),
-                 header, rows, grow=1, size=7.0, whole=(len(header) - 1,))
+                 # ten columns: a point smaller, so that a measurand's name still wraps at
+                 # most twice
+                 header, rows, grow=1, size=6.5 if corrected else 7.0,
+                 whole=(len(header) - 1,))
 
 
 def rounding_sentence(result) -> str:
