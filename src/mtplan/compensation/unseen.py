@@ -31,13 +31,16 @@ from mtplan.fitting.effects import element_moments
 __all__ = ["unseen_covariance"]
 
 
-def _rows(procedure, setup, active: dict, n: int) -> dict:
-    """`n` error rows with every active source at its mean (the others zero)."""
-    errors = procedure.zero_errors(setup, n)
+def _rows(procedure, setup, active: dict, n: int, writable: tuple) -> dict:
+    """`n` error rows with every active source at its mean (the others zero): the sources
+    `writable` as arrays, the rest as read-only views of one row (no copies of the
+    readings-sized sources)."""
+    errors = procedure.zero_errors(setup, 1)
     for name, src in active.items():
         mean, _std, shape = element_moments(src)
-        errors[name] = np.repeat(mean.reshape((1, *shape)), n, axis=0)
-    return errors
+        errors[name] = mean.reshape((1, *shape))
+    return {name: np.repeat(row, n, axis=0) if name in writable
+            else np.broadcast_to(row, (n, *row.shape[1:])) for name, row in errors.items()}
 
 
 def _realised(procedure, setup, errors: dict, names: tuple) -> np.ndarray:
@@ -52,7 +55,7 @@ def _read_sources(procedure, setup, active: dict, names: tuple) -> tuple:
     """The active sources ``realised`` reads: each one drawn alone (one row each, a fixed
     seed: the detection does not depend on the draw) moves it off its value at the means."""
     order = tuple(active)
-    errors = _rows(procedure, setup, active, 1 + len(order))
+    errors = _rows(procedure, setup, active, 1 + len(order), order)
     draw = procedure.draw_errors(setup, 1, np.random.SeedSequence(0))
     for i, name in enumerate(order, start=1):
         errors[name][i] = draw[name][0]
@@ -84,7 +87,7 @@ def unseen_covariance(procedure, doc: dict) -> tuple[tuple, np.ndarray] | None:
     moments = {name: element_moments(active[name]) for name in read}
     sizes = [mean.size for mean, _, _ in moments.values()]
     k = sum(sizes)
-    errors = _rows(procedure, setup, active, 2 * k)
+    errors = _rows(procedure, setup, active, 2 * k, read)
     col = 0
     for name, (mean, std, shape) in moments.items():
         flat = errors[name].reshape(2 * k, -1)
