@@ -157,7 +157,7 @@ def test_a_stated_noise_below_the_scatter_is_kept_with_a_note(tmp_path):
 
 
 _NON_DEFAULT = [
-    ("rotary_axis", {"axis": "A", "positions": 5, "range_deg": 60, "a_order": "ascending",
+    ("rotary_axis", {"axis": "A", "positions": 5, "range_deg": 50, "a_order": "ascending",
                      "lattice_nx": 3, "lattice_offset_y_mm": 4}),
     ("rotary_axis", {"axis": "CA", "lattice_ny": 4, "lattice_size_mm": 30,
                      "lattice_offset_x_mm": 7, "lattice_offset_y_mm": -3}),

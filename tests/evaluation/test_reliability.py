@@ -4,7 +4,7 @@ reliability against the estimator run again with the bias added."""
 
 import numpy as np
 import pytest
-from scipy import optimize, special, stats
+from scipy import stats
 
 from mtplan.evaluation import posterior as post
 from mtplan.evaluation._posterior_model import Forward, TruthBuilder, truth_parameters
@@ -41,13 +41,19 @@ def _dense_design(proc, setup, readings):
     return Wt, R, n + q - U.shape[1]
 
 
+#: bound of the stated MDB's own Monte Carlo error in its flag probability (the
+#: detectability module's draws; about 0.0013-0.0022 on circle_centre)
+SE_STATED = 0.003
+
+
 def test_mdb_is_detected_with_its_power_in_a_monte_carlo():
-    """circle_centre: an error of its MDB, on the worst single reading or as the worst bad
+    """circle_centre: an error of its stated MDB, on every single reading and as every bad
     contact (along its probing direction), drawn over the whitened linear design with
-    Gaussian noise, is flagged by the test it is stated for (the w of the reading it moves
-    most, or the chi-square, whichever flags the smaller error) in 0.80 of the draws and by
-    the whole check (any w beyond the limit, or the chi-square) in 0.80-0.90; clean
-    readings in at most alpha. Tolerance: 4 binomial standard errors of N_MC draws."""
+    Gaussian noise, is flagged by the whole check (any w beyond its Bonferroni limit, or
+    the chi-square beyond its own) in 0.80 of the draws; clean readings in at most alpha.
+    The design is rebuilt densely and the check applied draw by draw, independently of the
+    detectability module's algebra. Tolerance: 4 standard errors of the N_MC draws and of
+    the stated MDB's own Monte Carlo."""
     proc = get("circle_centre")
     setup, truth = proc.Setup(), proc.Truth()
     readings = design_readings(proc, setup, truth)
@@ -56,33 +62,37 @@ def test_mdb_is_detected_with_its_power_in_a_monte_carlo():
     P = Wt.T @ R @ Wt
     sd = np.sqrt(np.diag(P))
     crit = w_limit(W_SHARE * FIT_ALPHA, P.shape[0])
-    # the MDBs from the dense design, independent of the check's sparse algebra: of each
-    # reading and of each error the procedure declares, by the w it moves most or by the
-    # chi-square (its non-centrality from scipy.stats' noncentral chi-square)
-    lam0 = optimize.brentq(lambda lam: stats.ncx2.sf(stats.chi2.isf(
-        (1 - W_SHARE) * FIT_ALPHA, dof), dof, lam) - MDB_POWER, 1e-3, 1e3)
-    PE = P @ rel.effects
-    by_w = (crit + stats.norm.ppf(MDB_POWER)) / np.max(np.abs(PE) / sd[:, None], axis=0)
-    by_chi2 = np.sqrt(lam0 / np.sum(rel.effects * PE, axis=0))
-    np.testing.assert_allclose(rel.sizes, np.minimum(by_w, by_chi2), rtol=1e-6)
+    limit = stats.chi2.isf((1 - W_SHARE) * FIT_ALPHA, dof)
     u = np.random.default_rng(20261207).standard_normal((N_MC, Wt.shape[0]))
-    se = 4 * np.sqrt(MDB_POWER * (1 - MDB_POWER) / N_MC)
+    tol = 4 * np.sqrt(MDB_POWER * (1 - MDB_POWER) / N_MC + SE_STATED**2)
 
     def flagged(error):
         rho = (u + Wt @ error) @ R
         w = (rho @ Wt) / sd
-        chi2 = special.chdtrc(dof, np.sum(rho**2, axis=1)) < (1 - W_SHARE) * FIT_ALPHA
-        return np.abs(w) > crit, chi2, chi2 | np.any(np.abs(w) > crit, axis=1)
+        return (np.sum(rho**2, axis=1) > limit) | np.any(np.abs(w) > crit, axis=1)
 
+    assert np.all(np.isfinite(rel.sizes))
+    for j in range(rel.sizes.size):
+        rate = flagged(rel.sizes[j] * rel.effects[:, j]).mean()
+        assert abs(rate - MDB_POWER) < tol, (j, rate)
     n = rel.mdb_values.size
-    for j in (int(np.argmax(rel.sizes[:n])), n + int(np.argmax(rel.sizes[n:]))):
-        error = rel.sizes[j] * rel.effects[:, j]
-        each, chi2, whole = flagged(error)
-        stated = chi2 if by_chi2[j] < by_w[j] else each[:, np.argmax(np.abs(P @ error) / sd)]
-        assert abs(stated.mean() - MDB_POWER) < se, j
-        assert MDB_POWER - se < whole.mean() < 0.9, (j, whole.mean())
-    _, _, clean = flagged(np.zeros(n))
+    clean = flagged(np.zeros(n))
     assert clean.mean() < FIT_ALPHA + 4 * np.sqrt(FIT_ALPHA * (1 - FIT_ALPHA) / N_MC)
+
+
+def test_large_designs_approximation_is_within_a_percent_of_the_joint_law(monkeypatch):
+    """rotary_axis (150 readings): the large designs' MDB (every other reading's w clean and
+    independent) against the check's whole joint law (taken with fewer draws here): within
+    1 % (they differ by about 0.3 %)."""
+    from mtplan.evaluation import detectability
+
+    proc = get("rotary_axis")
+    setup = proc.Setup()
+    large = reliability(proc, setup).sizes
+    monkeypatch.setattr(detectability, "EXACT_READINGS", 10_000)
+    monkeypatch.setattr(detectability, "N_DRAWS", 1024)
+    whole = reliability(proc, setup).sizes
+    np.testing.assert_allclose(large, whole, rtol=0.01)
 
 
 @pytest.mark.parametrize("name", ["rotary_axis", "circle_centre"])

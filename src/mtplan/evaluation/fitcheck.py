@@ -50,7 +50,7 @@ from mtplan.fitting import Gaussian
 from mtplan.uncertainty.options import Options
 
 __all__ = ["FitCheck", "FitCheckOptions", "fit_check", "FIT_ALPHA", "N_WORST", "W_SHARE",
-           "MDB_POWER", "w_limit", "chi2_noncentrality", "reading_vector",
+           "MDB_POWER", "w_limit", "reading_vector",
            "with_reading_vector"]
 
 #: default significance level of the whole check (both tests together): the 5 % of a
@@ -63,7 +63,6 @@ W_SHARE = 0.8
 N_WORST = 5
 #: power at which :attr:`FitCheck.mdb` is stated
 MDB_POWER = 0.8
-_Z_POWER = 0.8416212335729143  # Phi^-1(MDB_POWER)
 _LEVERAGE = 1e-9  # a reading whose residual variance P_ii is below this of (C^-1)_ii has none
 
 
@@ -86,16 +85,6 @@ def with_reading_vector(readings: dict, keys: list, values: np.ndarray) -> dict:
         out[k] = np.asarray(values[at:at + a.size], dtype=float).reshape(a.shape)
         at += a.size
     return out
-
-
-def chi2_noncentrality(dof: int, alpha: float, power: float = MDB_POWER) -> float:
-    """The non-centrality ``lambda0`` at which the chi-square test of `dof` degrees of
-    freedom at level `alpha` rejects with probability `power`: an error ``b d`` of the
-    readings whose ``b^2 d^T P d`` reaches it is flagged by the chi-square alone that
-    often (the noncentral chi-square's inverse in its non-centrality)."""
-    from scipy import special
-
-    return float(special.chndtrinc(special.chdtri(dof, alpha), dof, 1.0 - power))
 
 
 def w_limit(alpha_w: float, n: int) -> float:
@@ -164,22 +153,20 @@ class FitCheck:
         The smallest ``alpha`` at which the check would flag these readings:
         ``min(1, p_value / (1 - W_SHARE), p_w / W_SHARE)``; ``ok`` is ``p_overall >= alpha``.
     mdb : array (n_readings,) or None
-        Baarda's minimal detectable bias of every reading [its internal unit]: the error
-        of that reading alone that the w-test flags with probability ``MDB_POWER``
-        (0.8), ``(w_critical + Phi^-1(0.8)) / sqrt(P_ii)`` (NaN where it has no w). An
-        error smaller than this is likely to pass unseen.
+        The minimal detectable bias of every reading [its internal unit]: the error of
+        that reading alone that the whole check (the chi-square or any reading's w-test)
+        flags with probability ``MDB_POWER`` (0.8) in the linear Gaussian design
+        (:mod:`mtplan.evaluation.detectability`); NaN where it has no w. Below Baarda's
+        ``(w_critical + Phi^-1(0.8)) / sqrt(P_ii)``, the one w-test's, by up to a few per
+        cent. An error smaller than this is likely to pass unseen.
     labels : list of tuple
         ``(row, column, reading)`` of every used reading, in the order of :attr:`z` (as
         :attr:`worst` names them).
     mdb_directions : array (m,) or None
         With ``fit_check(..., directions=D)``: the minimal detectable bias of an error
         ``b D[:, j]`` that moves several readings at once (one bad contact along its
-        probing direction) [the size of b]: the smaller of the w-test's,
-        ``(w_critical + Phi^-1(0.8)) / max_i |(P D_j)_i| / sqrt(P_ii)`` (the w of the
-        reading it moves most; ``sqrt(P_ii)`` per unit error for ``D_j`` a single reading,
-        :attr:`mdb`), and the chi-square's, ``sqrt(lambda0 / D_j^T P D_j)``
-        (:func:`chi2_noncentrality`); either test alone flags it with probability 0.8, so
-        the check with at least that. inf where the fit absorbs that error whole.
+        probing direction) [the size of b], by the whole check as :attr:`mdb`; inf where
+        the fit absorbs that error whole.
     """
 
     chi2: float | None
@@ -351,22 +338,6 @@ def _statistics(fwd, fit, g: Gaussian, Q: np.ndarray, prior_res: np.ndarray) -> 
     return chi2, z, np.where(has, den, np.nan)
 
 
-def _gains(g: Gaussian, Qn: np.ndarray, D: np.ndarray, pii: np.ndarray) -> tuple:
-    """Per column of D (used readings, m), per unit of the error ``b D_j``: the largest
-    move of any reading's w, ``max_i |(P D_j)_i| / sqrt(P_ii)``, and the chi-square's
-    non-centrality ``D_j^T P D_j`` (0 both where the fit absorbs it: below the leverage
-    tolerance of its whitened size)."""
-    WD = g.whiten(D.T).T
-    PD = _wt(g, WD - Qn @ (Qn.T @ WD))  # P D: W^T of the whitened residual
-    with np.errstate(invalid="ignore", divide="ignore"):
-        gain = np.nanmax(np.where(np.isfinite(pii)[:, None],
-                                  np.abs(PD) / np.sqrt(pii)[:, None], -np.inf), axis=0)
-    size = np.sum(WD**2, axis=0)
-    lam = size - np.sum((Qn.T @ WD) ** 2, axis=0)
-    seen = lam > _LEVERAGE * size
-    return (np.where(seen & (gain > 0), gain, 0.0), np.where(seen, lam, 0.0))
-
-
 def _noise_mode(noise):
     """("setup" | "free" | "known", sigma) from the `noise` argument."""
     if noise is None or (isinstance(noise, str) and noise in ("setup", "free")):
@@ -438,6 +409,7 @@ def fit_check(procedure, setup, readings, *, noise="setup", estimator: str | Non
         freedom or the model cannot be fitted to them.
     """
     from mtplan.evaluation import posterior as post
+    from mtplan.evaluation.detectability import detectable_bias
     from mtplan.evaluation._posterior_model import Forward, TruthBuilder, truth_parameters
     from mtplan.evaluation.readings import reading_origin
     from mtplan._parallel import one_blas_thread
@@ -479,8 +451,9 @@ def fit_check(procedure, setup, readings, *, noise="setup", estimator: str | Non
                                 n_readings=fwd.n, n_parameters=rank, nuisance=nuisance)
             prior_res = (fit.nuis - pri[:, 0]) / pri[:, 1] if q else np.zeros(0)
             chi2, z, pii = _statistics(fwd, fit, g, Q, prior_res)
-            gains = None if directions is None else _gains(
-                g, Q[:fwd.n], np.asarray(directions, dtype=float)[fwd.mask], pii)
+            WD = None if directions is None else np.vstack([
+                g.whiten(np.asarray(directions, dtype=float)[fwd.mask].T).T,
+                np.zeros((q, np.shape(directions)[1]))])
     except InvalidInput as exc:
         return _not_made("the model cannot be fitted to the readings: "
                          + " ".join(exc.problems), alpha, fwd.n)
@@ -497,14 +470,14 @@ def fit_check(procedure, setup, readings, *, noise="setup", estimator: str | Non
     worst = [{"row": labels[i][0], "column": labels[i][1], "reading": labels[i][2],
               "z": float(z[i])} for i in order[:max(n_worst, 1)]]
     snoop = _snooping(z, order, pval, alpha, w_share)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mdb = (snoop["w_critical"] + _Z_POWER) / np.sqrt(pii) if snoop["w_critical"] else None
-        mdb_dir = None
-        if snoop["w_critical"] and gains is not None:
-            by_w = (snoop["w_critical"] + _Z_POWER) / gains[0]
-            by_chi2 = np.sqrt(chi2_noncentrality(dof, snoop["alpha_chi2"]) / gains[1]) \
-                if w_share < 1 else np.inf
-            mdb_dir = np.minimum(by_w, by_chi2)
+    mdb = mdb_dir = None
+    if snoop["w_critical"]:
+        c2 = special.chdtri(dof, snoop["alpha_chi2"]) if snoop["alpha_chi2"] > 0 else np.inf
+        with one_blas_thread():
+            mdb, mdb_dir = detectable_bias(g, Q, pii, WD, c=snoop["w_critical"], c2=c2,
+                                           dof=dof, alpha_w=snoop["alpha_w"],
+                                           power=MDB_POWER, wt=_wt)
+        mdb = np.where(np.isfinite(pii), mdb, np.nan)
     b = fit.error_model
     own = b.D0 if b.Dn is None else b.D0 + fit.sigma**2 * b.Dn
     every = own + np.sum(b.U0**2, axis=1) + (0 if b.Dn is None else fit.sigma**2 * np.sum(

@@ -4,11 +4,11 @@ Baarda's reliability of a test, from the same whitened design the fit check uses
 (:mod:`mtplan.evaluation.fitcheck`):
 
 - **internal**: the minimal detectable bias (MDB) of every reading, the error of that
-  reading alone that the check's one-reading test (the w-test at its Bonferroni limit)
-  flags with probability ``MDB_POWER`` (0.8): ``mdb_i = (w_critical + Phi^-1(0.8)) /
-  sqrt(P_ii)``, ``P_ii`` the reading's redundancy in the metric of the readings'
-  covariance (:attr:`FitCheck.mdb`). An error of that size moves the reading's ``w`` by
-  ``mdb_i sqrt(P_ii)`` on average;
+  reading alone that the whole check (the chi-square OR any reading's w-test at its
+  Bonferroni limit) flags with probability ``MDB_POWER`` (0.8) (:attr:`FitCheck.mdb`,
+  :mod:`mtplan.evaluation.detectability`: the check's exact law given the error, its
+  orthogonal part by a fixed-seed Monte Carlo), and of every error the procedure declares
+  that moves several readings (a bad contact along its probing direction);
 - **external**: the largest shift of each measurand that an error of that size can cause
   and still pass more often than not (one time in five): ``max_i |G_ki| mdb_i``, with ``G``
   the estimator's own first-order response to the readings, ``d estimate / d reading``
@@ -35,7 +35,6 @@ from mtplan.evaluation.fitcheck import (
     FIT_ALPHA,
     MDB_POWER,
     FitCheck,
-    chi2_noncentrality,
     fit_check,
     reading_vector,
 )
@@ -48,6 +47,10 @@ __all__ = ["Reliability", "reliability", "design_readings", "RESPONSE_TOL"]
 #: a measurand whose response to an unchecked reading is below this share of its largest
 #: response to any reading is not moved by it (round-off of the differences)
 RESPONSE_TOL = 1e-6
+
+#: shifts within this share of the largest are ties, won by the first error (one reading's
+#: before a declared one): round-off must not choose among them
+TIE_TOL = 1e-9
 
 #: display unit of a reading in an internal unit
 _SHOWN = {"mm": "um", "rad": "urad"}
@@ -139,8 +142,8 @@ class Reliability:
             return None if x is None or not np.isfinite(x) else float(x)
 
         return {"alpha": float(self.alpha), "power": float(self.power),
-                "test": "the w-test (at its Bonferroni limit) of the reading the error moves "
-                        "most, or the chi-square, whichever flags a smaller error",
+                "test": "the whole fit check: the chi-square or any reading's w-test (at its "
+                        "Bonferroni limit)",
                 "w_critical": num(self.w_critical), "n_readings": int(self.n_readings),
                 "n_tested": int(self.n_tested),
                 "mdb": [{k: num(v) if k in ("largest", "smallest", "median") else v
@@ -230,13 +233,6 @@ def reliability(procedure, setup, truth=None, *, estimator: str | None = None,
     # every gross error: each reading alone, then those the procedure declares
     effects = np.eye(mdb.size)
     sizes = np.where(np.isfinite(mdb), mdb, np.inf)
-    if check.alpha_chi2:  # the chi-square's MDB where it is the smaller (few readings)
-        from scipy import special
-
-        lam = chi2_noncentrality(check.dof, check.alpha_chi2)
-        with np.errstate(invalid="ignore"):
-            sizes = np.minimum(sizes, mdb * np.sqrt(lam) / (check.w_critical
-                                                            + special.ndtri(MDB_POWER)))
     labels = [_where(lab) for lab in check.labels]
     groups = list(key_of)
     unit_key = dict(zip(keys, keys))
@@ -271,7 +267,10 @@ def reliability(procedure, setup, truth=None, *, estimator: str | None = None,
             np.abs(G[k]) if G.shape[1] else 0.0)))
         with np.errstate(invalid="ignore"):
             shifts = np.where(np.isfinite(sizes), moved * sizes, 0.0)
-        i = int(blind[0]) if blind.size else int(np.argmax(shifts))
+        # the first of the errors within round-off of the largest shift (a declared error
+        # that moves one reading alone ties with that reading's own)
+        i = int(blind[0]) if blind.size else int(np.argmax(
+            shifts >= np.max(shifts) * (1.0 - TIE_TOL)))
         shift = np.inf if blind.size else float(shifts[i])
         uk = None if u is None or m.name not in u else float(u[m.name])
         unit, scale = _unit_of(unit_key[groups[i]])

@@ -253,15 +253,6 @@ class Capabilities:
         Generic: {} (not shown)."""
         return {}
 
-    def along_default(self, setup) -> dict:
-        """``{setup field: positions [mm]}``: the grid at which a study states the errors
-        that are functions of position along the travel (``EXX@-50``) when it names none
-        (``[procedure.readings] along``): the measured travel at a step, for a compensation
-        table and the report's figures of the errors along the travel.
-
-        Generic: {} (no errors along the travel)."""
-        return {}
-
     def report_extras(self, setup, truth) -> dict:
         """Procedure-specific data for the report (a figure's path, uncertainty bands);
         plain data, the reports draw it.
@@ -274,7 +265,7 @@ class Capabilities:
 METHODS = ("truth_from_estimate", "truths_from_estimates", "start_from_readings",
            "source_structure", "first_order_sensitivities", "gross_errors",
            "identifiability_report",
-           "identifiability", "observability", "along_default", "report_extras")
+           "identifiability", "observability", "report_extras")
 
 
 def _known(methods) -> tuple:

@@ -59,6 +59,10 @@ def _restates_none(setup: Mapping) -> dict:
     return {}
 
 
+def _no_grid(setup) -> dict:
+    return {}
+
+
 def _nothing_realised(setup, errors: Mapping) -> dict:
     return {}
 
@@ -106,6 +110,12 @@ class CorrectionModel:
         ``Setup``; with the measurand's true value, the error the machine really has
         there (what a closed loop of the compensation compares the written value with).
         Measurands it leaves out have nothing unseen.
+    grid : callable
+        ``grid(setup) -> {setup field: positions [mm]}``: where a table of this correction
+        is stated when the user names no positions (a study's ``[procedure.readings]
+        along``): the errors that are functions of position along the travel (``EXX@-50``)
+        at those positions, for the table and the report's figures along the travel; {}
+        where the correction holds no function of position, or the set-up states its own.
     """
 
     kind: str = ""
@@ -116,6 +126,7 @@ class CorrectionModel:
     unseen: Callable[[Mapping], dict] = _nothing_unseen
     restates: Callable[[Mapping], dict] = _restates_none
     realised: Callable[[object, Mapping], dict] = _nothing_realised
+    grid: Callable[[object], dict] = _no_grid
 
     def unseen_of(self, setup: Mapping, measurand: str) -> tuple[float, str]:
         """(u, what) that stays unseen after correcting `measurand` ((0, "") for none)."""

@@ -166,7 +166,7 @@ from mtplan.models.geometry21._model import (
 )
 from mtplan.models.geometry21._patent import patent_design, theta_patent
 from mtplan.models.geometry21._path import repeatability_filter, residual_at, residual_basis
-from mtplan.models.geometry21._correction import CORRECTION, along_default
+from mtplan.models.geometry21._correction import CORRECTION
 from mtplan.models.geometry21._physics import (
     duration,
     forward,
@@ -220,7 +220,6 @@ class _Capabilities(Capabilities):
     report_extras = staticmethod(report_extras)
     identifiability = staticmethod(identifiability)
     first_order_sensitivities = staticmethod(sensitivities)
-    along_default = staticmethod(along_default)
 
 
 PROCEDURE = Procedure(

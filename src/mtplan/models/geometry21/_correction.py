@@ -107,4 +107,5 @@ CORRECTION = CorrectionModel(
     unseen=_unseen,
     restates=_restates,
     realised=_realised,
+    grid=along_default,
 )

@@ -524,11 +524,11 @@ def _run_measured(proc, ps, study, recommended, file=None):
 def _along_setup(proc, setup, spec):
     """`setup` with the positions at which the readings' evaluation states the errors
     along the travel: ``[procedure.readings] along``, else the procedure's default
-    (``Capabilities.along_default``: none where the set-up states its own)."""
+    (the correction model's ``grid``: none where the set-up states its own)."""
     import dataclasses
 
     grid = spec.get("along")
-    grid = proc.capabilities.along_default(setup) if grid is None else grid
+    grid = proc.correction.grid(setup) if grid is None else grid
     return dataclasses.replace(setup, **grid) if grid else setup
 
 

@@ -897,7 +897,7 @@ def _readings(proc, readings, path, where, problems) -> dict | None:
 def _along(proc, table, where, problems) -> dict:
     """``along = { X = "-50:50:5" }``: the positions at which the readings' evaluation states
     the errors along each axis's travel (``{}``: none; left out: the procedure's default,
-    ``Capabilities.along_default``), as {set-up field: positions}."""
+    the correction model's ``grid``), as {set-up field: positions}."""
     from mtplan.evaluation.along import parse_grid
     from mtplan.models.protocol import fields_info
 
