@@ -13,7 +13,8 @@ with the procedure's controller format: its rounding is in the residual), and th
 residual ``true - written`` is compared with the predicted 95 % interval of every term.
 The truth is what the machine really has: the measurand's true value plus what the test
 cannot see of it as this simulated test drew it (the correction model's ``realised``:
-geometry21's short-wave path residual at each table point, the same field its readings saw).
+geometry21's short-wave path residual and medium wave at each table point, the same fields
+its readings saw).
 
 Coverage is reported per procedure, pooled over the terms with its binomial standard error,
 and for each scalar term and each table point over the machines (its lowest and highest).
