@@ -6,6 +6,7 @@ simultaneous band over a table holds its pointwise band."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 
 from mtplan import models
-from mtplan.compensation import correction, residual
+from mtplan.compensation import compensate
 from mtplan.compensation.predicted import Predicted, predicted
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples" / "compensation"
@@ -31,8 +32,7 @@ def test_printed_residual_is_the_compensation_packages():
     proc = models.get("geometry21")
     got = predicted(proc, doc)
     assert isinstance(got, Predicted)
-    corr = correction(proc.correction, doc, procedure="geometry21")
-    res = residual(corr)
+    _files, corr, res = compensate(doc)
     for measurand, term in (("EXX@-30", "EXX@-30"), ("EXX", "EXX@50"), ("EC0Y", "EC0Y")):
         i = corr.names.index(term)
         assert got.of(measurand) == (res.low[i], res.high[i], res.units[i])
@@ -41,11 +41,16 @@ def test_printed_residual_is_the_compensation_packages():
         U = 2 * m["u"]
         assert residual_text(SimpleNamespace(compensation=got), v) == \
             f"[{fmt(res.low[i], U)}, {fmt(res.high[i], U)}]"
-    # the translations' residual holds the path residual the test cannot see: wider than
-    # the measurement's own interval about the value
+    # the translations' residual holds what the test cannot see less what the estimate took
+    # up of it: at the travel's end narrower than the measurement's own interval (the
+    # polynomial follows the fields there), not the quadrature of the two
     m = next(m for m in doc["measurands"] if m["name"] == "EXX")
     lo, hi, _ = got.of("EXX")
-    assert hi - lo > m["interval"][1] - m["interval"][0]
+    i = corr.names.index("EXX@50")
+    assert hi - lo == pytest.approx(2 * 1.959963984540054 * math.sqrt(
+        corr.covariance[i, i] + corr.unseen_covariance[i, i]))
+    assert hi - lo < m["interval"][1] - m["interval"][0] < 2 * 1.96 * math.hypot(
+        m["u"], corr.unseen_u[i])
     assert got.of("EAX") is None  # not determined: not corrected, no residual
     assert residual_text(SimpleNamespace(compensation="no correction"),
                          SimpleNamespace(measurand="EXX", measured_u=0.4)) == "-"

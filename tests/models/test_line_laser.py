@@ -24,6 +24,10 @@ from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertain
 
 PROC = ll.PROCEDURE
 SETUP = ll.Setup()
+#: one cell pitch along Y as the default scan covers it (16 x 0.25 mm), a fifth of its readings:
+#: where a claim does not depend on the scan's size (the pattern fit costs seconds per trial
+#: at the default)
+PITCH_SCAN = ll.Setup(lines=16, step_mm=0.25)
 #: the procedure without its closed-form sensitivities: the generic linearisation
 GENERIC = dataclasses.replace(PROC, capabilities=PROC.capabilities.generic(
     "first_order_sensitivities"))
@@ -269,21 +273,23 @@ TRUTHS = [
 ]
 
 
-@pytest.mark.parametrize("estimator", ["registration", "pattern"])
-def test_exact_estimators_recover_all_angles_with_sign_each_trial_on_its_own(estimator):
+@pytest.mark.parametrize("estimator, setup", [("registration", SETUP), ("pattern", PITCH_SCAN)])
+def test_exact_estimators_recover_all_angles_with_sign_each_trial_on_its_own(estimator, setup):
     """Both exact estimators, any pose of the artifact (the pattern fit finds a pose far
     from the default truth's by its grid search of the lattice offset), each pose alone
     and the five as one batch: a trial's result does not depend on the trials beside it
     (the pattern fit once started every trial from the batch's first fit, and so missed
     the poses unlike the first). Batch and alone run the same iterations; they may differ
     by the floating-point order of the batch's products, bounded by the fit's stopping
-    rule (a step within 1e-9 mrad = 1e-6 urad): 2e-6 urad."""
+    rule (a step within 1e-9 mrad = 1e-6 urad): 2e-6 urad. The pattern fit on the scan of
+    one pitch (:data:`PITCH_SCAN`): its grid search and its per-trial starts are the same
+    code at any scan length, and at the default scan it costs half a minute here."""
     truths = [ll.Truth(**values) for values in TRUTHS]
-    readings = {"z_mm": np.concatenate([_noise_free(SETUP, t)["z_mm"] for t in truths])}
-    batch = PROC.display_estimate(SETUP, readings, estimator)
+    readings = {"z_mm": np.concatenate([_noise_free(setup, t)["z_mm"] for t in truths])}
+    batch = PROC.display_estimate(setup, readings, estimator)
     for k, truth in enumerate(truths):
-        alone = PROC.display_estimate(SETUP, {"z_mm": readings["z_mm"][k:k + 1]}, estimator)
-        for name, value in PROC.display_truth(SETUP, truth).items():
+        alone = PROC.display_estimate(setup, {"z_mm": readings["z_mm"][k:k + 1]}, estimator)
+        for name, value in PROC.display_truth(setup, truth).items():
             msg = f"pose {k}, {name}"
             np.testing.assert_allclose(alone[name][0], value, rtol=0, atol=1e-6, err_msg=msg)
             np.testing.assert_allclose(batch[name][k], alone[name][0], rtol=0, atol=2e-6,
@@ -293,11 +299,12 @@ def test_exact_estimators_recover_all_angles_with_sign_each_trial_on_its_own(est
 def test_pattern_fit_of_a_noisy_trial_does_not_depend_on_its_batch():
     """With every error source drawn, each trial's gains are its own (taken at its start
     and its fit, rounded): four trials as one batch, as two of two and one by one give the
-    same estimates, to the fit's stopping rule (2e-6 urad, as above)."""
-    readings = PROC.simulate(SETUP, draws=4, rng=11)
-    batch = PROC.display_estimate(SETUP, readings, "pattern")
+    same estimates, to the fit's stopping rule (2e-6 urad, as above). On the scan of one
+    pitch, as above."""
+    readings = PROC.simulate(PITCH_SCAN, draws=4, rng=11)
+    batch = PROC.display_estimate(PITCH_SCAN, readings, "pattern")
     for part in (slice(0, 2), slice(2, 4), slice(1, 2), slice(3, 4)):
-        some = PROC.display_estimate(SETUP, {"z_mm": readings["z_mm"][part]}, "pattern")
+        some = PROC.display_estimate(PITCH_SCAN, {"z_mm": readings["z_mm"][part]}, "pattern")
         for name, values in some.items():
             np.testing.assert_allclose(values, batch[name][part], rtol=0, atol=2e-6,
                                        err_msg=f"{part}, {name}")
@@ -570,7 +577,7 @@ def test_duration_grows_with_the_scan():
 
 # --------------------------------------------------------------------------- first-order budget
 #: 16 profiles 0.25 mm apart: 3 120 readings, where the patent's alpha_x is not clipped
-FIRST_ORDER_SETUP = ll.Setup(lines=16, step_mm=0.25)
+FIRST_ORDER_SETUP = PITCH_SCAN
 
 
 def test_first_order_budget_of_the_patent_is_the_gum_linearisation():
@@ -648,14 +655,17 @@ NOT_NOISE = [name for name in PROC.sources(SETUP) if name != "sensor_noise"]
 
 
 @pytest.mark.parametrize("estimator, setup, only", [
-    ("patent", SETUP, NOT_NOISE), ("pattern", SETUP, NOT_NOISE),
-    ("patent", FIRST_ORDER_SETUP, None), ("pattern", FIRST_ORDER_SETUP, NOT_NOISE)])
+    ("patent", SETUP, NOT_NOISE), ("patent", FIRST_ORDER_SETUP, None),
+    ("pattern", FIRST_ORDER_SETUP, NOT_NOISE)])
 def test_linearize_uses_the_closed_form_with_the_generic_numbers(estimator, setup, only):
     """``linearize`` through the sensitivities hook (each estimator's linear map times the
     sources' exact effects) gives the generic linearisation's numbers (central differences
     of the forward model and the estimator per element): the value to round-off, u and
     every source's part of it to 1e-5 of the measurand's u (they agree to 4e-7: the
-    generic one's finite-difference error); sensitivities perturbed by 0.1 % fail that."""
+    generic one's finite-difference error); sensitivities perturbed by 0.1 % fail that.
+    The pattern fit's at the scan of one pitch only: its map is the same code at any scan
+    length, and the generic linearisation of the fit at the default scan takes 4 E + 1 fits
+    of 15 600 readings (12 to 30 s here; the first-order fixture pins its numbers there)."""
     fast = linearize_procedure(PROC, setup, estimator=estimator, sources=only)
     gum = linearize_procedure(GENERIC, setup, estimator=estimator, sources=only)
     _same_linearisation(fast, gum)

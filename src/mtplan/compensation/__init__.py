@@ -16,6 +16,7 @@ from mtplan._validate import InvalidInput
 from mtplan.compensation.formats import CompensationFormat, FormatOption, Residual, residual
 from mtplan.compensation.model import Correction, correction, read_result
 from mtplan.compensation.registry import available_formats, get_format
+from mtplan.compensation.unseen import unseen_covariance
 
 __all__ = ["Correction", "correction", "read_result", "CompensationFormat", "FormatOption",
            "Residual", "available_formats", "get_format", "residual", "compensate"]
@@ -46,7 +47,8 @@ def compensate(result, format: str = "neutral", options=None):
     fmt = get_format(format)
     opts = fmt.parse_options(dict(options or {}))
     proc = models.get(doc["procedure"])
-    corr = correction(proc.correction, doc, procedure=proc.name)
+    corr = correction(proc.correction, doc, procedure=proc.name,
+                      unseen=unseen_covariance(proc, doc))
     files = get_format("neutral").write_files(corr, {})
     if not fmt.holds(corr):
         able = [f.name for f in available_formats().values() if f.holds(corr)]

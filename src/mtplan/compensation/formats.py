@@ -138,8 +138,11 @@ def residual(correction: Correction, step=None) -> Residual:
     the true error is ``true - w``. Where the result states the term's 95 % coverage
     interval (a term that scales one measurand: the Monte Carlo's own interval, whatever
     its shape), the residual's interval is that interval less ``w``; where a term combines
-    measurands, it is normal with the term's covariance, ``estimate - w +- 1.96 u``. It
-    does not include what the measurement cannot see (a repeatable error between the
+    measurands, it is normal with the term's covariance, ``estimate - w +- 1.96 u``. What the
+    test cannot see (the correction model's ``unseen``) widens it, normal, by its variance
+    less twice its covariance with the estimate's error where the model states its value
+    (``Correction.residual_covariance``: the same field moved the readings). It does not
+    include what the measurement cannot see (a repeatable error between the
     measured points, the temperature at which the machine is used): docs/compensation.md
     lists what each procedure's residual leaves out.
     """
@@ -148,7 +151,7 @@ def residual(correction: Correction, step=None) -> Residual:
     written = rounded(correction.value, step)
     shift = correction.value - written
     unseen = correction.unseen_u if correction.unseen_u.size else np.zeros(n)
-    total = np.sqrt(correction.u ** 2 + unseen ** 2)
+    total = np.sqrt(np.clip(np.diag(correction.residual_covariance), 0.0, None))
     normal = np.stack([shift - _Z95 * total, shift + _Z95 * total], axis=1)
     stated = (np.isfinite(correction.interval).all(axis=1) if correction.interval.size
               else np.zeros(n, bool)) & (unseen == 0)

@@ -63,6 +63,10 @@ class Correction:
     extrapolated: tuple = ()
     #: per term: the nominal value [mm, rad] it is the deviation from (0: none stated)
     nominal: np.ndarray = field(default_factory=lambda: np.empty(0))
+    #: (terms, terms): what the test cannot see adds to the residual's covariance, with its
+    #: covariance with the estimate's error (:mod:`mtplan.compensation.unseen`); empty:
+    #: ``unseen_u`` taken as independent of the estimate and from term to term
+    unseen_covariance: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
 
     @property
     def u(self) -> np.ndarray:
@@ -71,6 +75,18 @@ class Correction:
     @property
     def U(self) -> np.ndarray:
         return self.k * self.u
+
+    @property
+    def residual_covariance(self) -> np.ndarray:
+        """(terms, terms) [unit_i x unit_j]: the covariance of the residual ``true -
+        value`` after compensation: the estimate's, plus what the test cannot see
+        (``unseen_covariance``, or ``unseen_u`` in quadrature where the model realises
+        nothing)."""
+        if self.unseen_covariance.size:
+            return self.covariance + self.unseen_covariance
+        n = len(self.names)
+        unseen = self.unseen_u if self.unseen_u.size else np.zeros(n)
+        return self.covariance + np.diag(unseen ** 2)
 
     def internal(self, name: str) -> tuple[float, float]:
         """(value, U) of term `name` in internal units (mm, rad)."""
@@ -126,12 +142,16 @@ def read_result(path) -> dict:
     return doc
 
 
-def correction(model: CorrectionModel, doc: Mapping, *, procedure: str) -> Correction:
+def correction(model: CorrectionModel, doc: Mapping, *, procedure: str,
+               unseen: tuple | None = None) -> Correction:
     """The correction that `model` makes of a measured result `doc` (``estimate --json``).
 
     Values are the weighted sums of the measurands' values (bias-corrected, as the result
     states them); the covariance is ``A C A^T`` with ``A`` the weights and ``C`` the
-    result's covariance: exact, since every term is linear in the measurands.
+    result's covariance: exact, since every term is linear in the measurands. `unseen`,
+    ``(measurand names, D)`` (:func:`mtplan.compensation.unseen.unseen_covariance`): what the
+    test cannot see adds ``A D A^T`` to the residual's covariance (its share in the
+    estimate included); None: ``unseen_u`` in quadrature.
 
     Raises
     ------
@@ -187,6 +207,15 @@ def correction(model: CorrectionModel, doc: Mapping, *, procedure: str) -> Corre
             interval[i] = np.sort(row[cols[0]] * np.asarray(m["interval"], dtype=float))
     if not np.all(np.isfinite(value)) or not all(math.isfinite(v) for v in np.diag(cov)):
         raise InvalidInput(["the result's values or covariance are not finite"])
+    shared = np.empty((0, 0))
+    if unseen is not None:
+        d_names, d = unseen
+        at = [list(d_names).index(n) if n in d_names else -1 for n in names]
+        pick = np.array([max(i, 0) for i in at])
+        known = np.array([i >= 0 for i in at])
+        full = np.where(np.outer(known, known), np.asarray(d, float)[np.ix_(pick, pick)], 0.0)
+        shared = A @ full @ A.T
+        shared = 0.5 * (shared + shared.T)
     return Correction(
         procedure=procedure, kind=model.kind, frame=model.frame, sign=model.sign,
         names=tuple(t.name for t in terms), units=tuple(t.unit for t in terms),
@@ -195,6 +224,7 @@ def correction(model: CorrectionModel, doc: Mapping, *, procedure: str) -> Corre
         arguments=tuple(tuple(t.argument) for t in terms),
         unseen_u=np.array([math.sqrt(sum((w * model.unseen_of(setup, m)[0]) ** 2
                                           for m, w in t.weights.items())) for t in terms]),
+        unseen_covariance=shared,
         unseen=tuple("; ".join(sorted({model.unseen_of(setup, m)[1] for m in t.weights}
                                       - {""})) for t in terms),
         extrapolated=tuple(bool(t.extrapolated) for t in terms),

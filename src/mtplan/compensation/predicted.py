@@ -5,9 +5,11 @@
 (:func:`~mtplan.compensation.formats.residual`, written to full precision: the neutral
 table's values), then states which measurand each term corrects and, for the terms that are
 points of an error along the travel, the residual's simultaneous band over the whole
-curve (:mod:`mtplan.evaluation.along`): the result's covariance of the points plus what the
-test cannot see, taken as independent from point to point (by Slepian's inequality the
-larger band where the unseen part is in truth positively correlated).
+curve (:mod:`mtplan.evaluation.along`) from the residual's covariance of the points: the
+result's, plus what the test cannot see with its covariance with the estimate's error
+(:mod:`mtplan.compensation.unseen`; where the model states no value of it, independent from
+point to point, by Slepian's inequality the larger band where the unseen part is in truth
+positively correlated).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import numpy as np
 from mtplan._validate import InvalidInput
 from mtplan.compensation.formats import Residual, residual
 from mtplan.compensation.model import Correction, correction
+from mtplan.compensation.unseen import unseen_covariance
 from mtplan.evaluation.along import simultaneous_factor, widen
 
 __all__ = ["Predicted", "predicted"]
@@ -56,7 +59,8 @@ def predicted(procedure, doc: dict, *, coverage: float = 0.95) -> Predicted | st
     if not model.kind:
         return f"{procedure.name} states no correction a controller takes"
     try:
-        corr = correction(model, doc, procedure=procedure.name)
+        corr = correction(model, doc, procedure=procedure.name,
+                          unseen=unseen_covariance(procedure, doc))
     except InvalidInput as exc:
         return " ".join(exc.problems)
     res = residual(corr)
@@ -81,11 +85,11 @@ def _simultaneous(corr: Correction, res: Residual, coverage: float, seed) -> tup
     for i, (name, arg) in enumerate(zip(corr.names, corr.arguments)):
         if arg:
             groups.setdefault(name.split("@")[0], []).append(i)
-    unseen = corr.unseen_u if corr.unseen_u.size else np.zeros(len(corr.names))
+    total = corr.residual_covariance
     bands, factors = {}, {}
     for function, idx in groups.items():
         idx = np.array(idx)
-        cov = corr.covariance[np.ix_(idx, idx)] + np.diag(unseen[idx] ** 2)
+        cov = total[np.ix_(idx, idx)]
         c = simultaneous_factor(cov, coverage, seed=seed, name=f"residual {function}")
         lo, hi = widen(res.shift[idx], res.low[idx], res.high[idx], c, coverage)
         factors[function] = c
