@@ -41,7 +41,7 @@ def server():
 
 def _js(v) -> str:
     """A set-up value as the page writes it (JavaScript's String of a JSON value)."""
-    if v is None:
+    if v is None or v == "":  # an empty text field (distributions) is its default
         return "default"
     if isinstance(v, bool):
         return "yes" if v else "no"

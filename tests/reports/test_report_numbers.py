@@ -47,6 +47,7 @@ def test_every_verdict_is_redone_from_the_printed_row(demo_report):
     row = re.compile(rf"^\s*\d\s.*?±(?P<t>{_NUM})(?:\s*µ(?:m|rad))?\s+\[(?P<lo>{_NUM}), "
                      rf"(?P<hi>{_NUM})\]\s+(?P<w>{_NUM})\s+(?P<y>{_NUM})(?: †)?\s+"
                      rf"(?P<U>{_NUM})(?: ‡)? \((?P<Up>{_NUM})\)\s+(?P<c>{_NUM}) %\s+"
+                     rf"(?:\[(?P<rlo>{_NUM}), (?P<rhi>{_NUM})\]\s+|-\s+)?"
                      r"(?P<v>conditional pass|conditional "
                      r"fail|pass|fail)\s*$", re.M)
     rows = list(row.finditer(text))
@@ -58,6 +59,8 @@ def test_every_verdict_is_redone_from_the_printed_row(demo_report):
         assert math.isclose(lo, -t + w, abs_tol=step / 2) and math.isclose(hi, t - w,
                                                                             abs_tol=step / 2), m[0]
         assert _zone(y, -t, t, w) == m["v"], m[0]
+        if m["rlo"] is not None:  # the residual after compensation: an interval about 0
+            assert float(m["rlo"]) <= 0.0 <= float(m["rhi"]), m[0]
     assert "How w was rounded" in _flat(text)
 
 

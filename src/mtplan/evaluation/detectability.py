@@ -46,10 +46,12 @@ full form on rotary_axis (150 readings): within 1 % of the MDB.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy import special
 
-__all__ = ["detectable_bias", "flag_probability", "EXACT_READINGS", "N_DRAWS", "MDB_SEED"]
+__all__ = ["CheckLimits", "detectable_bias", "flag_probability", "EXACT_READINGS", "N_DRAWS", "MDB_SEED"]
 
 #: tested readings up to which the check's joint law is taken whole (module notes)
 EXACT_READINGS = 64
@@ -181,7 +183,20 @@ def _exact_probability(lo, hi):
     return prob, slope
 
 
-def detectable_bias(g, Q, pii, WD=None, *, c, c2, dof, alpha_w, power, wt):
+@dataclass(frozen=True)
+class CheckLimits:
+    """The fit check's decision: the w-test's Bonferroni limit `c`, the chi-square's limit
+    `c2` (inf: no chi-square) on `dof` degrees of freedom, the w-test's share of alpha
+    `alpha_w` (the large designs' clean readings) and the `power` an MDB is stated at."""
+
+    c: float
+    c2: float
+    dof: int
+    alpha_w: float
+    power: float
+
+
+def detectable_bias(g, Q, pii, WD=None, *, limits: CheckLimits, wt):
     """The MDB of every reading and of every error pattern of `WD` under the whole check
     (module notes), inf where the fit absorbs the error whole (no w, or nothing left).
 
@@ -195,12 +210,8 @@ def detectable_bias(g, Q, pii, WD=None, *, c, c2, dof, alpha_w, power, wt):
         Residual variance of every reading's w in the metric of C (NaN: no w).
     WD : array (n + q, m), optional
         Whitened error patterns (zero in the priors' rows).
-    c, c2 : float
-        The w-test's Bonferroni limit and the chi-square's limit (inf: no chi-square).
-    dof : int
-    alpha_w : float
-        The w-test's share of alpha (the large designs' clean readings).
-    power : float
+    limits : CheckLimits
+        The check's limits and the power.
     wt : callable
         ``wt(g, V)``: ``W^T V`` for V (n, m).
 
@@ -211,6 +222,8 @@ def detectable_bias(g, Q, pii, WD=None, *, c, c2, dof, alpha_w, power, wt):
     mdb_directions : array (m,) or None
         Per pattern [the size of its b].
     """
+    c, c2, dof, alpha_w, power = (limits.c, limits.c2, limits.dof, limits.alpha_w,
+                                  limits.power)
     n, rows = pii.size, Q.shape[0]
     tested = np.flatnonzero(np.isfinite(pii))
     mdb = np.full(n, np.inf)

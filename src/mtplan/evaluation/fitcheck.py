@@ -409,7 +409,7 @@ def fit_check(procedure, setup, readings, *, noise="setup", estimator: str | Non
         freedom or the model cannot be fitted to them.
     """
     from mtplan.evaluation import posterior as post
-    from mtplan.evaluation.detectability import detectable_bias
+    from mtplan.evaluation.detectability import CheckLimits, detectable_bias
     from mtplan.evaluation._posterior_model import Forward, TruthBuilder, truth_parameters
     from mtplan.evaluation.readings import reading_origin
     from mtplan._parallel import one_blas_thread
@@ -474,9 +474,9 @@ def fit_check(procedure, setup, readings, *, noise="setup", estimator: str | Non
     if snoop["w_critical"]:
         c2 = special.chdtri(dof, snoop["alpha_chi2"]) if snoop["alpha_chi2"] > 0 else np.inf
         with one_blas_thread():
-            mdb, mdb_dir = detectable_bias(g, Q, pii, WD, c=snoop["w_critical"], c2=c2,
-                                           dof=dof, alpha_w=snoop["alpha_w"],
-                                           power=MDB_POWER, wt=_wt)
+            limits = CheckLimits(c=snoop["w_critical"], c2=c2, dof=dof,
+                                 alpha_w=snoop["alpha_w"], power=MDB_POWER)
+            mdb, mdb_dir = detectable_bias(g, Q, pii, WD, limits=limits, wt=_wt)
         mdb = np.where(np.isfinite(pii), mdb, np.nan)
     b = fit.error_model
     own = b.D0 if b.Dn is None else b.D0 + fit.sigma**2 * b.Dn

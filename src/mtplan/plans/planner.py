@@ -37,7 +37,7 @@ from mtplan.models import get
 from mtplan.models.protocol import fields_info, make
 from mtplan.plans import levers as _levers
 from mtplan.plans.identifiability import identifiability, observability_indices
-from mtplan.plans.sweep import setup_grid
+from mtplan.plans.sweep import canonical, setup_grid
 from mtplan.uncertainty.montecarlo import ModelError
 from mtplan.uncertainty.options import Options
 
@@ -329,8 +329,6 @@ class _Judge:
 
     def assess(self, setup) -> tuple:
         """(u, {}, shifts) of :func:`_assess`, once per set-up."""
-        from mtplan.plans.sweep import canonical
-
         key = canonical(setup)
         if key not in self.memo:
             reliable = any(n.startswith(RELIABILITY) for n in self.targets)
@@ -344,8 +342,6 @@ class _Judge:
     def measurands(self, setup) -> tuple:
         """The procedure's measurands at `setup`, once per set-up (geometry21's take a
         rank analysis)."""
-        from mtplan.plans.sweep import canonical
-
         key = canonical(setup)
         if key not in self.listed:
             self.listed[key] = self.proc.measurands(setup)
