@@ -37,7 +37,7 @@ def array_bytes(value, depth: int = 3) -> int:
     return sum(array_bytes(v, depth - 1) for v in items)
 
 
-def array_cache(maxsize: int, max_bytes: int = 32 * 2**20):
+def array_cache(maxsize: int, max_bytes: int = 16 * 2**20):
     """Decorator: ``functools.lru_cache(maxsize)`` (hashable arguments, the least recently
     used result out first) that also evicts while the results hold more than `max_bytes`
     of arrays (:func:`array_bytes`, counted when each is computed). Has ``cache_clear``

@@ -1,7 +1,10 @@
 """The cost guard before any work: every field that sizes the work (the count fields of the
 field records: an int's value, a list's length) has a largest allowed value, and at it and
 beyond it, alone and with all the others at theirs, the server answers within 2 s with
-numbers or a plain refusal, its memory back within 200 MB of its level before."""
+numbers or a plain refusal, its memory back within 200 MB of its level after the
+procedure's first answer (at its defaults, cold: the code it imports and the caches it
+fills the first time are not what a large count costs; that first answer is held to the
+same 2 s)."""
 
 from __future__ import annotations
 
@@ -93,8 +96,11 @@ def _learnt(server) -> None:
 
 @pytest.mark.parametrize("name", sorted(COUNTS))
 def test_each_count_at_its_largest_and_beyond_alone_and_together(server, name):
-    _learnt(server)  # no warm-up request: the first answer for the procedure is timed
-    before, took = _proc(server.proc.pid)[0], {}
+    _learnt(server)
+    took = {}
+    # the procedure's first answer, cold, timed as every other one; memory from after it
+    assert _answer(server, {"procedure": name, "setup": {}}, took, "defaults") == "numbers"
+    before = _proc(server.proc.pid)[0]
     for f in COUNTS[name]:
         _answer(server, {"procedure": name, "setup": {f.name: _typed(f, f.largest)}}, took,
                 f"{f.name} {f.largest}")
