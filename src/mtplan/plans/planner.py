@@ -30,6 +30,7 @@ import numpy as np
 
 from mtplan._parallel import check_parallel, ordered_map, parallel_session
 from mtplan._validate import InvalidInput, Problems
+from mtplan.compensation.unseen import unseen_covariance
 from mtplan.evaluation.first_order import first_order
 from mtplan.evaluation.reliability import reliability
 from mtplan.evaluation.simulation import linearize_procedure, simulate_uncertainty
@@ -62,30 +63,58 @@ def target_measurand(name: str) -> str:
     return name
 
 
-def target_u(proc, setup, name: str, u: Mapping[str, float]) -> float:
+def target_u(proc, setup, name: str, u: Mapping[str, float], estimator: str | None = None
+             ) -> float:
     """The standard uncertainty a target bounds: the measurand's (`u`: its standard
-    uncertainty by name [display unit]), or for ``residual:M`` that of the error left after
-    the machine is compensated with M's estimate: M's u and what the test cannot see of it
-    (the procedure's correction model, ``unseen_of``) in quadrature. NaN where the set-up
-    does not determine the measurand."""
+    uncertainty by name [display unit], at `setup`), or for ``residual:M`` that of the error
+    left after the machine is compensated with M's estimate by `estimator`, as ``mtplan
+    compensate`` predicts it: M's u with what the test cannot see of it, less what that
+    unseen part moved in the estimate (``u^2 + D_MM``,
+    :func:`mtplan.compensation.unseen.unseen_covariance`); where the correction model
+    realises nothing, M's u and its ``unseen_of`` in quadrature. NaN where the set-up does
+    not determine the measurand."""
     measurand = name.removeprefix(RESIDUAL)
     if measurand not in u:
         return math.nan
     if name == measurand:
         return float(u[measurand])
+    joint = _unseen_part(proc, setup, estimator)
+    if joint is not None and measurand in joint[0]:
+        i = joint[0].index(measurand)
+        # u^2 + D >= 0 where u holds the unseen sources' own share, as the set-up's does
+        return math.sqrt(max(float(u[measurand]) ** 2 + float(joint[1][i, i]), 0.0))
     unseen = proc.correction.unseen_of(setup.as_dict(), measurand)[0]
     return math.hypot(float(u[measurand]), unseen)
 
 
+#: (procedure, set-up, estimator) -> its unseen covariance, the last 64 (a plan's search
+#: asks each candidate's residual several times)
+_UNSEEN: dict = {}
+
+
+def _unseen_part(proc, setup, estimator):
+    """:func:`~mtplan.compensation.unseen.unseen_covariance` at the set-up, once per
+    procedure, set-up and estimator."""
+    key = (proc.name, canonical(setup), estimator)
+    if key not in _UNSEEN:
+        if len(_UNSEEN) >= 64:
+            _UNSEEN.pop(next(iter(_UNSEEN)))
+        _UNSEEN[key] = unseen_covariance(proc, {"procedure": proc.name,
+                                                "setup": setup.as_dict(),
+                                                "estimator": estimator})
+    return _UNSEEN[key]
+
+
 def target_value(proc, setup, name: str, u: Mapping[str, float], k: float,
-                 shifts: Mapping[str, float] | None = None) -> float:
+                 shifts: Mapping[str, float] | None = None, estimator: str | None = None
+                 ) -> float:
     """What a target bounds, in the measurand's display unit: ``k`` times :func:`target_u`,
     or for ``reliability:M`` the largest shift of M that one reading's error the fit check
     misses can cause (`shifts`, :meth:`Reliability.shift`; not scaled by ``k``: it is a
     shift, not an uncertainty). NaN where the set-up does not determine M."""
     if name.startswith(RELIABILITY):
         return float((shifts or {}).get(target_measurand(name), math.nan))
-    return k * target_u(proc, setup, name, u)
+    return k * target_u(proc, setup, name, u, estimator)
 
 
 def parse_target(text: str) -> tuple[str, float]:
@@ -349,7 +378,7 @@ class _Judge:
 
     def score(self, setup) -> _levers.Score:
         u, _, shifts = self.assess(setup)
-        ratios = [target_value(self.proc, setup, n, u, self.k, shifts) / v
+        ratios = [target_value(self.proc, setup, n, u, self.k, shifts, self.estimator) / v
                   for n, v in self.targets.items()]
         ratios = [r if math.isfinite(r) else math.inf for r in ratios]
         listed = {m.name for m in self.measurands(setup)}
@@ -488,7 +517,7 @@ def _screen(proc, setups, truth, estimator, sources, targets, k, criterion, iden
         for name in names:
             row[f"u_{name}"] = k * u[name] if name in u else math.nan
         for name in targets:
-            row[f"u_{name}"] = target_value(proc, s, name, u, k, shifts)
+            row[f"u_{name}"] = target_value(proc, s, name, u, k, shifts, estimator)
         ratios = [row[f"u_{n}"] / v if math.isfinite(row[f"u_{n}"]) else math.inf
                   for n, v in targets.items()]
         if missing[i]:
@@ -573,7 +602,7 @@ def _confirm(proc, setups, table, candidates, truth, estimator, sources, targets
         # a reliability target is the design's own (the estimator's response to one
         # reading, the fit check's MDB): the Monte Carlo has nothing to add to it
         mc_u.update({n: float(table.loc[j, f"u_{n}"]) if n.startswith(RELIABILITY)
-                     else k * target_u(proc, s, n, mc_std) for n in targets if n not in mc_u})
+                     else k * target_u(proc, s, n, mc_std, estimator) for n in targets if n not in mc_u})
         met = all(mc_u[n] <= v for n, v in targets.items()) and (
             criterion is None or bool(criterion(mc_u)))
         confirmation.append({
