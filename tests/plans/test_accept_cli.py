@@ -87,3 +87,13 @@ def test_plan_optimize_searches_the_a_axis_angles(capsys):
     assert angles[0] == pytest.approx(-27, abs=0.5) and angles[-1] == pytest.approx(27, abs=0.5)
     code, _, err = run(capsys, "plan", "rotary_axis", "--optimize", "incline_deg=10")
     assert code == 2 and "LO:HI" in err
+
+
+def test_the_pareto_front_names_the_set_up_as_given(capsys):
+    """A candidate that changes nothing (circle_centre's default three points) is named on
+    the front, not printed as an empty line."""
+    code, out, err = run(capsys, "plan", "circle_centre", "--vary", "n_points=3,4",
+                         "--target", "centre_x<=5", "--trials", "100")
+    assert code == 0, err
+    front = out.split("Pareto front")[1].splitlines()[1:]
+    assert front[0].endswith("the set-up as given") and front[1].endswith("n_points=4")

@@ -119,7 +119,7 @@ def cmd_plan(args):
               f"(ratio {c['ratio'][n]:.3f}, {c['trials']} trials{covers})")
     print(f"Pareto front (cost against the worst target ratio): {len(result.pareto)} set-ups")
     for c in result.pareto:
-        shown = ", ".join(f"{f}={v}" for f, v in c["changes"].items())
+        shown = ", ".join(f"{f}={v}" for f, v in c["changes"].items()) or "the set-up as given"
         print(f"  {c['cost_s']:8.0f} s  {c['worst']:.3f}  {shown}")
     return 0
 
