@@ -71,7 +71,7 @@ def _surface_tilts(setup):
     commanded angle (Rodrigues' formula)."""
     import numpy as np
 
-    i, az = np.radians(setup.incline_deg), np.radians(setup.incline_azimuth_deg)
+    i, az = np.radians(setup.incline), np.radians(setup.incline_azimuth_deg)
     n = np.array([np.sin(i) * np.cos(az), np.sin(i) * np.sin(az), np.cos(i)])
     k = np.array([0.0, 0.0, 1.0]) if setup.axis == "C" else np.array([1.0, 0.0, 0.0])
     t = np.radians(np.asarray(setup.angles(), dtype=float))[:, None]
