@@ -38,7 +38,7 @@ from pathlib import Path
 
 from mtplan.plans.sweep import sweep
 
-VARY = {"incline_deg": [10, 15, 20, 25, 30, 35], "positions": [3, 6, 12]}
+VARY = {"incline_deg": [5, 10, 15, 20, 25, 30], "positions": [3, 6, 12]}
 
 
 def _free_port() -> int:
