@@ -201,3 +201,14 @@ def test_line_laser_response_is_its_estimators_closed_form_map(estimator):
         largest = np.max(np.abs(rel.response[k]))
         np.testing.assert_allclose(rel.response[k, cols], secant, rtol=0,
                                    atol=1e-4 * largest + 1e-12, err_msg=m.name)
+
+
+def test_a_quantised_measurand_is_not_said_to_move_by_zero():
+    """line_laser's patent alpha_z comes in steps (no first-order response to any reading):
+    the text says so, not 'moves alpha_z by up to 0 urad'."""
+    proc = get("line_laser")
+    setup = proc.setup({"lines": 16, "step_mm": 0.25})
+    rel = reliability(proc, setup, estimator="patent")
+    assert rel.measurands["alpha_z"]["shift"] == 0.0
+    text = " ".join(rel.lines())
+    assert "alpha_z not at first order" in text and "alpha_z by up to 0 " not in text

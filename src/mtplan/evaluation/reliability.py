@@ -201,6 +201,9 @@ def _range(m: dict) -> str:
 def _shift_text(v: dict) -> str:
     if not np.isfinite(v["shift"]):
         return f"without limit ({v['at']} has no test)"
+    if v["shift"] == 0:  # no first-order response to any one reading
+        return ("not at first order (its estimator does not respond to one reading: "
+                "quantised or blind; a gross error may still move it by a whole step)")
     ratio = f" = {v['in_u']:.2g} u" if v["in_u"] is not None and np.isfinite(v["in_u"]) else ""
     return f"by up to {v['shift']:.3g} {v['unit']}{ratio} ({v['at']})"
 

@@ -44,7 +44,10 @@ def shift_table(rel, caption: str) -> Table:
     rows = []
     for name, r in rel.measurands.items():
         rows.append([name, unit(r["unit"]), "-" if r["u"] is None else f"{r['u']:.3g}",
-                     _num(r["shift"]), "-" if r["in_u"] is None else f"{r['in_u']:.2g}",
+                     # no first-order response to any one reading (a quantised or
+                     # blind estimator): not "0", a gross error may still move it a step
+                     "not at first order" if r["shift"] == 0 else _num(r["shift"]),
+                     "-" if r["in_u"] is None else f"{r['in_u']:.2g}",
                      f"{r['at']} ({_num(r['mdb'])} {unit(r['mdb_unit'])})"])
     return Table(caption, ["measurand", "unit", "u", "largest shift unseen", "in u",
                            "caused by (its MDB)"], rows, grow=5, size=7.0)
