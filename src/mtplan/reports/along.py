@@ -163,7 +163,11 @@ def along_section(result) -> Section | None:
             "points as 'mtplan compensate' writes them); it includes what the test cannot "
             "see (" + (p.correction.unseen[0] if p.correction.unseen and
                        p.correction.unseen[0] else "none stated")
-            + "), taken as independent from point to point in its simultaneous band"
+            + ("), less the part of it that the estimate took up (the table removes that "
+               "part too: the residual's covariance with the estimate's error), with the "
+               "points' joint covariance in its simultaneous band"
+               if p.correction.unseen_covariance.size else
+               "), taken as independent from point to point in its simultaneous band")
             + (f" (c = {_factor_range(p.factor)})" if p.factor else "") + "."
             + (" Hollow markers: outside the measured travel (extrapolated)." if outside
                else ""))

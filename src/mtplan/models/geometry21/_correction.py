@@ -66,8 +66,8 @@ def _unseen(setup) -> dict:
     medium = float(setup.get("medium_wave_um", 0.0))
     u = math.hypot(short, medium)
     what = ("the machine's repeatable path deviation beyond the error polynomials, short-wave "
-            "(path_residual_um, RMS) and medium-wave (medium_wave_um): no table through "
-            "these points removes it")
+            "(path_residual_um, RMS) and medium-wave (medium_wave_um): a table through "
+            "these points removes only the part of it the estimate took up")
     return {name: (u, what) for name, kind, *_ in FUNCTIONS if kind in ("pos", "str") and u}
 
 
