@@ -27,7 +27,8 @@ RESIDUAL_NOTE = ("After compensation (predicted): the 95 % interval of the error
                  "remains once a compensation removes the measured value (the neutral table "
                  "of 'mtplan compensate', to full precision), from the measurement's "
                  "uncertainty and, where the procedure states one, what the test cannot see "
-                 "(a short-wave path deviation between a table's points); '-': the test "
+                 "(the machine's path deviation beyond the error polynomials), less the part "
+                 "of it the estimate took up, which the table removes too; '-': the test "
                  "states no correction of it.")
 
 
