@@ -59,12 +59,14 @@ def test_simulate_json_contract(capsys, proc):
     assert doc["procedure"] == proc and doc["seed"] == 3 and doc["trials"] == 200
     for m in doc["measurands"]:
         assert set(m) == {"name", "unit", "value", "u", "interval", "coverage", "U",
-                          "U_coverage", "U_coverage_from", "determinable", "reason", "true",
-                          "bias"}
+                          "U_coverage", "U_coverage_se", "U_coverage_from", "determinable",
+                          "reason", "true", "bias"}
         assert len(m["interval"]) == 2 and m["coverage"] == 0.95
-        if m["determinable"]:  # U = 2u with the fraction of the 200 trials within +-U
+        if m["determinable"]:  # U = 2u with the fraction of the values within +-U and its
+            # standard error, at most a plain count's of the 200 trials (coverage_within)
             assert m["U"] == 2 * m["u"] and m["U_coverage_from"] == "monte carlo"
-            assert abs(m["U_coverage"] * 200 - round(m["U_coverage"] * 200)) < 1e-9
+            assert 0 <= m["U_coverage"] <= 1
+            assert 0 < m["U_coverage_se"] <= 0.5 / 200**0.5
     cov = doc["covariance"]
     assert cov["names"] == [m["name"] for m in doc["measurands"] if m["determinable"]]
     assert cov["units"] == [m["unit"] for m in doc["measurands"] if m["determinable"]]

@@ -159,7 +159,8 @@ def test_cli_estimate_json(tmp_path, capsys, toy_cli, method):
     assert [m["name"] for m in doc["measurands"]] == ["offset", "slope"]
     for m in doc["measurands"]:
         assert set(m) == {"name", "unit", "value", "u", "interval", "coverage", "U",
-                          "U_coverage", "U_coverage_from", "estimate", "bias_correction",
+                          "U_coverage", "U_coverage_se", "U_coverage_from", "estimate",
+                          "bias_correction",
                           "bias_correction_u", "determinable", "reason"}
         assert m["U"] == 2 * m["u"]
         assert m["U_coverage_from"] == ("monte carlo" if method == "mc" else "posterior samples")

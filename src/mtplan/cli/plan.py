@@ -113,7 +113,8 @@ def cmd_plan(args):
                   f"{best['predicted'][n]:.3g} (the fit check's MDB through the estimator)")
             continue
         covers = c.get("monte_carlo_coverage", {}).get(n)
-        covers = (f", ±{args.k:g}u covers {coverage_text(covers)} of its values"
+        covers = (f", ±{args.k:g}u covers "
+                  f"{coverage_text(covers, se=c['monte_carlo_coverage_se'].get(n))} of its values"
                   if covers is not None and args.k != 1 else "")
         print(f"  {n}: predicted {best['predicted'][n]:.3g}, Monte Carlo {best['confirmed'][n]:.3g} "
               f"(ratio {c['ratio'][n]:.3f}, {c['trials']} trials{covers})")

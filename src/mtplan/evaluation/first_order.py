@@ -57,7 +57,8 @@ WHOLE_MAX = 256  # source elements up to which the whole chain is differentiated
 
 
 def first_order(proc, setup, truth=None, *, estimator: str | None = None, sources=None,
-                coverage: float = 0.95, chain: bool = True) -> GUMResult | None:
+                coverage: float = 0.95, chain: bool = True,
+                max_runs: int | None = None) -> GUMResult | None:
     """The first-order propagation of a set-up's active error sources (module notes).
 
     Parameters
@@ -74,6 +75,10 @@ def first_order(proc, setup, truth=None, *, estimator: str | None = None, source
     chain : bool
         False: only the procedure's closed form; None where it has none for the estimator
         (what it would take to ask, without running the chain rule).
+    max_runs : int, optional
+        The chain rule only where it runs the estimator at most this many times (the whole
+        chain ``4 E + 1``, the estimator's map two per reading); None where it would take
+        more (a caller for whom the sensitivities are worth no more than that).
 
     Returns
     -------
@@ -137,11 +142,22 @@ def first_order(proc, setup, truth=None, *, estimator: str | None = None, source
         if not chain:
             return None
         whole = u.size <= WHOLE_MAX
+        if max_runs is not None and _chain_runs(proc, setup, truth, base, whole, u.size) \
+                > max_runs:
+            return None
         value, jac = (_whole_chain if whole else _chain_rule)(proc, setup, truth, base, stats,
                                                               measure)
     return result(jac, "whole chain" if whole else "chain rule",
                   "GUM law of propagation (mtplan linearize), chain rule through the forward "
                   "model and the estimator", value)
+
+
+def _chain_runs(proc, setup, truth, base, whole: bool, elements: int) -> int:
+    """The estimator runs the chain rule takes: ``4 E + 1`` for the whole chain (Richardson
+    central differences), two per reading for the estimator's map."""
+    if whole:
+        return 4 * elements + 1
+    return 2 * sum(np.asarray(v).size for v in proc.forward(setup, truth, base).values())
 
 
 def _whole_chain(proc, setup, truth, base, stats, measure):

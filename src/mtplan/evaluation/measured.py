@@ -135,6 +135,11 @@ class MeasuredResult(ResultDocument):
         the estimate; ``posterior``, of the posterior's samples.
     U_from : str
         Where ``U_coverage`` comes from (``U_coverage_from`` in the JSON and CSV).
+    U_coverage_se : array (n_measurands,) or None
+        Its standard error: ``mc``, of the count with the first-order model as its control
+        variate where that resolves it better
+        (:meth:`~mtplan.evaluation.simulation.ProcedureResult.coverage_within`);
+        ``posterior``, binomial at the samples' effective size.
     determinable : array of bool (n_measurands,)
         False where this estimator cannot give the measurand (its value, u and
         interval are NaN and :attr:`reasons` says why).
@@ -188,6 +193,7 @@ class MeasuredResult(ResultDocument):
     covariance: np.ndarray = None
     U_coverage: np.ndarray = None
     U_from: str = MONTE_CARLO
+    U_coverage_se: np.ndarray = None
     determinable: np.ndarray = None
     reasons: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
@@ -257,7 +263,8 @@ class MeasuredResult(ResultDocument):
             extra["simultaneous_high"] = np.array([b[1] for b in band], dtype=float)
         return measurand_rows(self.measurands, Reported(self.value, self.std, self.low,
                                                         self.high, self.coverage,
-                                                        self.U_coverage, self.U_from),
+                                                        self.U_coverage, self.U_from,
+                                                        self.U_coverage_se),
                               determinable=self.determinable, reasons=self.reasons,
                               undetermined=self.undetermined, extra=extra)
 
@@ -733,22 +740,23 @@ def _mc_result(proc, setup, readings, est_name, est_internal, estimate, *, trial
                    draws=NUISANCE_DRAWS if draws is None else draws,
                    cov=None if first_order is None else first_order.cov, n_jobs=n_jobs)
     notes += c["notes"]
+    within, within_se = _mc_U_coverage(r, estimate, value, K * np.asarray(c["u"], dtype=float))
     return MeasuredResult(
         procedure=proc, estimator=est_name, uncertainty="mc", setup=setup,
         measurands=measurands, estimate=estimate, value=value, std=c["u"], low=c["low"],
         high=c["high"], coverage=float(coverage), seed=seed, details=r,
-        U_coverage=_mc_U_coverage(r, estimate, value, K * np.asarray(c["u"], dtype=float)),
+        U_coverage=within, U_coverage_se=within_se,
         bias_correction=correction, bias_correction_u=c["u_correction"],
         covariance=c["covariance"], determinable=~bad, reasons=reasons, notes=notes)
 
 
-def _mc_U_coverage(r, estimate, value, big_u) -> np.ndarray:
-    """The coverage of ``value ± U`` from the Monte Carlo `r` around the estimate: its
-    trial t gives the value ``estimate - (y_t - true)``, so the fraction of its estimates
-    ``y_t`` within ``true + estimate - value ± U``."""
+def _mc_U_coverage(r, estimate, value, big_u) -> tuple:
+    """(p, se): the coverage of ``value ± U`` from the Monte Carlo `r` around the estimate:
+    its trial t gives the value ``estimate - (y_t - true)``, so the fraction of its
+    estimates ``y_t`` within ``true + estimate - value ± U``
+    (:meth:`~mtplan.evaluation.simulation.ProcedureResult.coverage_within`)."""
     centre = np.asarray(r.true, dtype=float) + estimate - value
-    return np.array([float(r.mc.fraction_within(m.name, c - h, c + h))
-                     for m, c, h in zip(r.measurands, centre, big_u, strict=True)])
+    return r.coverage_within(centre, np.asarray(big_u, dtype=float))
 
 
 @dataclass(frozen=True)
@@ -948,8 +956,10 @@ def _estimate(proc, setup, readings, estimator, uncertainty, o: MeasuredOptions
     names = [m.name for m in measurands]
     notes.extend(post.notes)
     from mtplan.evaluation.covariance import posterior_covariance
-    from mtplan.uncertainty.coverage import fraction_within
+    from mtplan.uncertainty.coverage import coverage_se, fraction_within
 
+    within = np.array([fraction_within(post.samples[n], post.mean[n], K * post.std[n])
+                       for n in names])
     return _with_fit(MeasuredResult(
         procedure=proc, estimator=est_name, uncertainty="posterior", setup=setup,
         measurands=measurands, estimate=estimate,
@@ -958,8 +968,9 @@ def _estimate(proc, setup, readings, estimator, uncertainty, o: MeasuredOptions
         low=np.array([post.low[n] for n in names]),
         high=np.array([post.high[n] for n in names]),
         coverage=float(coverage), seed=seed, details=post,
-        U_coverage=np.array([fraction_within(post.samples[n], post.mean[n], K * post.std[n])
-                             for n in names]), U_from=POSTERIOR,
+        U_coverage=within, U_coverage_se=coverage_se(within, [post.ess.get(n, math.nan)
+                                                                for n in names]),
+        U_from=POSTERIOR,
         covariance=posterior_covariance(post, names), notes=notes), proc, readings,
         o.fit_alpha, noise=o.posterior.noise, origin=o.origin, start=est_name)
 

@@ -503,14 +503,20 @@ class Procedure:
         """Errors of every source set to zero, shape (n, *shape) each."""
         return zero_errors(self.sources(setup), n)
 
-    def draw_errors(self, setup, n: int, seq: np.random.SeedSequence, only=None) -> dict:
-        """Draw the active sources, each from its own named stream of `seq` and in the shape
-        the set-up's ``distributions`` gives it (:meth:`source_shapes`)."""
-        errors = self.zero_errors(setup, n)
+    def drawn_distributions(self, setup, only=None) -> dict:
+        """Active source -> (its :class:`Source`, the distribution the Monte Carlo draws its
+        elements from: its own, in the shape the set-up's ``distributions`` gives it,
+        :meth:`source_shapes`)."""
         shapes = self.source_shapes(setup)
-        for name, src in self.active_sources(setup, only).items():
-            dist = with_shape(src.distribution, shapes[name]) if name in shapes \
-                else src.distribution
+        return {name: (src, with_shape(src.distribution, shapes[name]) if name in shapes
+                       else src.distribution)
+                for name, src in self.active_sources(setup, only).items()}
+
+    def draw_errors(self, setup, n: int, seq: np.random.SeedSequence, only=None) -> dict:
+        """Draw the active sources, each from its own named stream of `seq`
+        (:meth:`drawn_distributions`)."""
+        errors = self.zero_errors(setup, n)
+        for name, (src, dist) in self.drawn_distributions(setup, only).items():
             errors[name] = dist.draw(named_generator(seq, name), (n, *src.shape))
         return errors
 

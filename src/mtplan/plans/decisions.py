@@ -107,6 +107,8 @@ class Verdict:
         :mod:`mtplan.uncertainty.coverage`) of U predicted (the planned set-up's Monte
         Carlo) and of U achieved (the measured value's distribution); None where there is
         none.
+    U_coverage_se, measured_U_coverage_se : float or None
+        Their standard errors (None where the coverage is assumed or there is none).
     measured_U_from : str
         Where ``measured_U_coverage`` comes from (``U_coverage_from`` of the result).
     """
@@ -145,6 +147,8 @@ class Verdict:
     U_coverage: float | None = None
     measured_U_coverage: float | None = None
     measured_U_from: str = ""
+    U_coverage_se: float | None = None
+    measured_U_coverage_se: float | None = None
 
     @property
     def U(self) -> float:  # noqa: N802 - the symbol of ISO 14253-1
@@ -157,13 +161,15 @@ class Verdict:
         return {"procedure": self.procedure, "test": self.label, "measurand": self.measurand,
                 "unit": self.unit, "estimator": self.estimator, "lower": self.lower,
                 "upper": self.upper, "u": self.u, "k": self.k, "U": self.U,
-                "U_coverage": self.U_coverage, "rule": self.rule,
+                "U_coverage": self.U_coverage, "U_coverage_se": self.U_coverage_se,
+                "rule": self.rule,
                 "guard_band": self.guard_band, "acceptance_lower": a_lo,
                 "acceptance_upper": a_hi, "tur": self.tur, "pfa": self.pfa, "pfr": self.pfr,
                 "measured": self.measured, "measured_u": self.measured_u,
                 "measured_low": self.measured_low, "measured_high": self.measured_high,
                 "measured_U": None if self.measured_u is None else self.k * self.measured_u,
                 "measured_U_coverage": self.measured_U_coverage,
+                "measured_U_coverage_se": self.measured_U_coverage_se,
                 "measured_U_coverage_from": self.measured_U_from,
                 "measured_source": self.measured_source, "p_conform": self.p_conform,
                 "p_conform_population": self.p_conform_population,
@@ -221,9 +227,11 @@ class SummaryRow:
     measured_high: float | None = None
     verdict: str = ""
     reason: str = ""
-    #: the coverage of ± U and of ± U achieved (:class:`Verdict`)
+    #: the coverage of ± U and of ± U achieved, and their standard errors (:class:`Verdict`)
     U_coverage: float | None = None  # noqa: N815
     measured_U_coverage: float | None = None  # noqa: N815
+    U_coverage_se: float | None = None  # noqa: N815
+    measured_U_coverage_se: float | None = None  # noqa: N815
 
 
 # ----------------------------------------------------------------------- estimators
@@ -328,27 +336,35 @@ def fit_verdict(fit) -> tuple[str, str] | None:
     return NO_FIT, why
 
 
-def _predicted_coverage(result, i) -> float | None:
-    """The coverage of ± U predicted of measurand `i` (the set-up's Monte Carlo, its
-    ``U_coverage``); None for a result that gives none."""
+def _coverage_at(result, j) -> tuple[float | None, float | None]:
+    """(coverage of ± U, its standard error) of measurand `j` of a result (its
+    ``U_coverage`` and ``U_coverage_se``); None for what it gives none of."""
     within = getattr(result, "U_coverage", None)
-    return None if within is None else float(within[i])
+    if within is None or not math.isfinite(float(within[j])):
+        return None, None
+    se = getattr(result, "U_coverage_se", None)
+    se = None if se is None or not math.isfinite(float(se[j])) else float(se[j])
+    return float(within[j]), se
 
 
-def _measured_coverage(spec, name, measured, predicted) -> tuple[float | None, str]:
-    """(coverage of ± U achieved, where it comes from) of one measurand: the measured
-    result's (``U_coverage``), the prediction's for a value stated in the study (its u is
-    the predicted one)."""
+def _predicted_coverage(result, i) -> tuple[float | None, float | None]:
+    """(coverage of ± U predicted of measurand `i`, its standard error): the set-up's
+    Monte Carlo's (:func:`_coverage_at`)."""
+    return _coverage_at(result, i)
+
+
+def _measured_coverage(spec, name, measured, predicted) -> tuple:
+    """(coverage of ± U achieved, its standard error, where it comes from) of one
+    measurand: the measured result's (``U_coverage``), the prediction's (p, se) for a
+    value stated in the study (its u is the predicted one)."""
     from mtplan.uncertainty.coverage import MONTE_CARLO
 
     if spec.get("measured") is not None:
-        return predicted, MONTE_CARLO
-    within = getattr(measured, "U_coverage", None)
-    if within is None:
-        return None, ""
+        return (*predicted, MONTE_CARLO)
+    if getattr(measured, "U_coverage", None) is None:
+        return None, None, ""
     j = [m.name for m in measured.measurands].index(name)
-    p = float(within[j])
-    return (p if math.isfinite(p) else None), getattr(measured, "U_from", "")
+    return (*_coverage_at(measured, j), getattr(measured, "U_from", ""))
 
 
 def _measured_value(spec, name, measured, u):
@@ -409,8 +425,9 @@ def conformity(procedure: str, label: str, specs: list, result, measured=None) -
         rule = spec.get("rule", "simple")
         y, uy, low, high, source, verdict, reason = _measured_value(spec, name, measured, u)
         predicted = _predicted_coverage(result, i)
-        achieved, achieved_from = (_measured_coverage(spec, name, measured, predicted)
-                                   if y is not None else (None, ""))
+        achieved, achieved_se, achieved_from = (
+            _measured_coverage(spec, name, measured, predicted) if y is not None
+            else (None, None, ""))
         v = Verdict(procedure=procedure, label=label, measurand=name, unit=m.unit,
                     description=m.description, estimator=result.estimator,
                     lower=spec.get("lower"), upper=spec.get("upper"), u=u, rule=str(rule),
@@ -418,7 +435,8 @@ def conformity(procedure: str, label: str, specs: list, result, measured=None) -
                     population_source=str(spec.get("population_source", "")),
                     measured=y, measured_u=uy,
                     measured_low=low, measured_high=high, measured_source=source,
-                    reason=reason, U_coverage=predicted, measured_U_coverage=achieved,
+                    reason=reason, U_coverage=predicted[0], U_coverage_se=predicted[1],
+                    measured_U_coverage=achieved, measured_U_coverage_se=achieved_se,
                     measured_U_from=achieved_from)
         if not (u > 0 and math.isfinite(u)):
             v.verdict = NOT_DETERMINABLE
@@ -723,22 +741,26 @@ def summary_rows(section, procedure, label, result, names, verdicts, measured, s
                          unit=m.unit, description=m.description, estimator=result.estimator,
                          setup=setup, u=u if u > 0 else math.nan, k=K,
                          U=K * u if u > 0 else math.nan, duration_s=float(duration_s),
-                         U_coverage=_predicted_coverage(result, i) if u > 0 else None)
+                         **dict(zip(("U_coverage", "U_coverage_se"),
+                                    _predicted_coverage(result, i) if u > 0 else (None, None),
+                                    strict=True)))
         v = by_name.get(name)
         if v is not None:
             row.lower, row.upper, row.tur = v.lower, v.upper, v.tur
             row.measured, row.measured_u = v.measured, v.measured_u
             row.measured_U_coverage = v.measured_U_coverage
+            row.measured_U_coverage_se = v.measured_U_coverage_se
             row.measured_low, row.measured_high = v.measured_low, v.measured_high
             row.verdict, row.reason = v.verdict, v.reason
             if v.estimator != result.estimator:  # the readings' estimator decides
                 row.estimator, row.u, row.U = v.estimator, v.u, v.U
-                row.U_coverage = v.U_coverage
+                row.U_coverage, row.U_coverage_se = v.U_coverage, v.U_coverage_se
         elif measured is not None:
             y, uy, low, high, _, verdict, reason = _measured_value({}, name, measured, u)
             row.measured, row.measured_u, row.measured_low, row.measured_high = y, uy, low, high
             if y is not None:
-                row.measured_U_coverage = _measured_coverage({}, name, measured, None)[0]
+                row.measured_U_coverage, row.measured_U_coverage_se = _measured_coverage(
+                    {}, name, measured, None)[:2]
             row.verdict = verdict or ""
             row.reason = reason
         if not u > 0 and not row.reason:

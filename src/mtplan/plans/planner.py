@@ -605,6 +605,7 @@ def _confirm(proc, setups, table, candidates, truth, estimator, sources, targets
                      else k * target_u(proc, s, n, mc_std, estimator) for n in targets if n not in mc_u})
         met = all(mc_u[n] <= v for n, v in targets.items()) and (
             criterion is None or bool(criterion(mc_u)))
+        within, within_se = r.coverage_within(r.mc.mean, k * r.mc.std)
         confirmation.append({
             "candidate": int(j),
             "setup": _setup_fields(s),
@@ -614,7 +615,9 @@ def _confirm(proc, setups, table, candidates, truth, estimator, sources, targets
             # the fraction of the Monte Carlo values within +- k u: the coverage each
             # confirmed value really has (mtplan.uncertainty.coverage)
             "monte_carlo_coverage": dict(zip([m.name for m in r.measurands],
-                                             map(float, r.mc.U_coverage(k)), strict=True)),
+                                             map(float, within), strict=True)),
+            "monte_carlo_coverage_se": dict(zip([m.name for m in r.measurands],
+                                                map(float, within_se), strict=True)),
             "ratio": {n: float(mc_u[n] / table.loc[j, f"u_{n}"]) if table.loc[j, f"u_{n}"] > 0
                       else math.nan for n in names},
             "trials": int(r.mc.trials),

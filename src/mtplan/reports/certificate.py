@@ -528,6 +528,7 @@ def measured_frame(result):
                          "description": q.description, "unit": q.unit,
                          "value": float(m.value[j]) if ok else math.nan, "u": u, "k": K,
                          "U": K * u, "U_coverage": float(m.U_coverage[j]) if ok else math.nan,
+                         "U_coverage_se": _se(m, j) if ok else math.nan,
                          "U_coverage_from": m.U_from if ok else "",
                          "low": float(m.low[j]) if ok else math.nan,
                          "high": float(m.high[j]) if ok else math.nan,
@@ -542,11 +543,18 @@ def measured_frame(result):
                              "after_compensation_high": (after or nan2)[1]})
     return pd.DataFrame(rows, columns=["procedure", "test", "state", "measurand", "description",
                                        "unit", "value", "u", "k", "U", "U_coverage",
-                                       "U_coverage_from", "low", "high",
+                                       "U_coverage_se", "U_coverage_from", "low", "high",
                                        "estimator", "uncertainty", "determinable", "fit_chi2",
                                        "fit_dof", "fit_p", "fit_p_text", "fit_ok",
                                        "fit_worst", "simultaneous_low", "simultaneous_high",
                                        "after_compensation_low", "after_compensation_high"])
+
+
+def _se(result, j) -> float:
+    """The standard error of a measured result's coverage of ± U of measurand `j` (NaN
+    where it has none: assumed)."""
+    se = getattr(result, "U_coverage_se", None)
+    return math.nan if se is None else float(se[j])
 
 
 def _measured_appendix(k, o) -> Section:
@@ -569,8 +577,8 @@ def _measured_appendix(k, o) -> Section:
                      (fmt(m.value[j], 2 * u) + _asymmetric_mark(m.value[j], 2 * u, m.low[j],
                                                                 m.high[j])) if ok else "n/d",
                      fmt_u(2 * u) if ok else "n/d",
-                     coverage_text(float(m.U_coverage[j]), assumed=m.U_from == ASSUMED)
-                     if ok else "-",
+                     coverage_text(float(m.U_coverage[j]), assumed=m.U_from == ASSUMED,
+                                   se=_se(m, j)) if ok else "-",
                      f"[{fmt(m.low[j], 2 * u)}, {fmt(m.high[j], 2 * u)}]" if ok else "-"])
     sec = Section(f"A{k}. {o.spec.label}: every measured quantity", anchor=f"m{k}",
                   appendix=True)
@@ -703,7 +711,8 @@ def build_report(result, plan, deviations=()) -> Document:
 def _agreed_coverage(o, rule) -> str:
     """The coverage of ± U predicted of an agreed rule's measurand (its verdict's)."""
     v = next((v for v in getattr(o, "verdicts", []) if v.measurand == rule["measurand"]), None)
-    return "-" if v is None or rule.get("u_planned") is None else coverage_text(v.U_coverage)
+    return "-" if v is None or rule.get("u_planned") is None else \
+        coverage_text(v.U_coverage, se=v.U_coverage_se)
 
 
 def _plan_rows(o, plan) -> list:
@@ -718,7 +727,7 @@ def _plan_rows(o, plan) -> list:
         rows.append([measurand_name(v.description, v.measurand), u,
                      tolerance_text(v.lower, v.upper, zone=v.zone),
                      "-" if r["u_planned"] is None else fmt(2 * r["u_planned"], step),
-                     coverage_text(v.U_coverage),
+                     coverage_text(v.U_coverage, se=v.U_coverage_se),
                      "-" if r["tur"] is None else f"{r['tur']:.1f}", w,
                      _pct(r["pfa"]), _pct(r["pfr"])])
     for name in o.key:
@@ -728,7 +737,9 @@ def _plan_rows(o, plan) -> list:
         m = r.measurands[index[name]]
         u2 = 2 * float(r.mc.std[index[name]])
         rows.append([measurand_name(m.description, name), unit(m.unit), "-", fmt_u(u2),
-                     coverage_text(float(r.U_coverage[index[name]])), "-", "-", "-", "-"])
+                     coverage_text(float(r.U_coverage[index[name]]),
+                                   se=float(r.U_coverage_se[index[name]])),
+                     "-", "-", "-", "-"])
     return rows
 
 

@@ -40,9 +40,11 @@ def verdict_frames(result) -> dict:
     for r in rows:
         r["setup"] = "; ".join(f"{k}={v}" for k, v in r["setup"].items())
     columns = ["procedure", "test", "measurand", "unit", "estimator", "lower", "upper", "u",
-               "k", "U", "U_coverage", "rule", "guard_band", "acceptance_lower",
+               "k", "U", "U_coverage", "U_coverage_se", "rule", "guard_band",
+               "acceptance_lower",
                "acceptance_upper", "tur", "pfa", "pfr", "measured", "measured_u",
                "measured_low", "measured_high", "measured_U", "measured_U_coverage",
+               "measured_U_coverage_se",
                "measured_U_coverage_from", "measured_source", "p_conform", "p_conform_population", "population_source",
                "verdict", "reason"]
     verdicts = pd.DataFrame([v.row() for v in result.verdicts], columns=columns)
@@ -111,7 +113,8 @@ def _results_table(o) -> Table:
         big_u = K * float(r.mc.std[i])
         row = [f"{m.name} [{unit(m.unit)}]", m.description,
                fmt_u(big_u) if big_u > 0 else "n/d",
-               coverage_text(float(r.U_coverage[i])) if big_u > 0 else "-"]
+               coverage_text(float(r.U_coverage[i]), se=float(r.U_coverage_se[i]))
+               if big_u > 0 else "-"]
         if m_res is not None:
             j = measured_index[m.name]
             ok = determinable is None or bool(determinable[j])

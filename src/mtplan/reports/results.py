@@ -105,7 +105,7 @@ def verdict_rows(k, o) -> list:
         rows.append([str(k), measurand_name(v.description, v.measurand),
                      tolerance_text(v.lower, v.upper, v.unit, v.zone), limit_text(v, step), w,
                      measured, f"{achieved}{mark} ({fmt_u(2 * v.u)})",
-                     f"{covers_text(v)} ({coverage_text(v.U_coverage)})",
+                     f"{covers_text(v)} ({coverage_text(v.U_coverage, se=v.U_coverage_se)})",
                      verdict_short(v.verdict)])
     return rows
 
@@ -114,7 +114,8 @@ def covers_text(v) -> str:
     """The coverage of ± U achieved of a verdict, as its table prints it."""
     if v.measured_u is None:
         return "-"
-    return coverage_text(v.measured_U_coverage, assumed=v.measured_U_from == ASSUMED)
+    return coverage_text(v.measured_U_coverage, assumed=v.measured_U_from == ASSUMED,
+                         se=v.measured_U_coverage_se)
 
 
 def verdict_table(result, tests: list) -> Table:
@@ -132,8 +133,10 @@ def verdict_table(result, tests: list) -> Table:
     corrected = any(row[-2] != "-" for row in rows)
     if not corrected:  # no test states a correction
         rows, header = [row[:-2] + row[-1:] for row in rows], header[:-2] + header[-1:]
-    about = common_text([p for o in result.outcomes for v in o.verdicts
-                         for p in (v.measured_U_coverage, v.U_coverage)])
+    pairs = [pair for o in result.outcomes for v in o.verdicts
+             for pair in ((v.measured_U_coverage, v.measured_U_coverage_se),
+                          (v.U_coverage, v.U_coverage_se))]
+    about = common_text([p for p, _ in pairs], [se for _, se in pairs])
     return Table("Results as found. Tests: " + "; ".join(tests) + ". Acceptance limits and "
                  "w as the plan agreed them; measured value and U achieved (k = 2), U "
                  "predicted in parentheses; ±U covers: the fraction of each value's "

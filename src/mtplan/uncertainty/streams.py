@@ -17,7 +17,8 @@ import numpy as np
 
 from mtplan._validate import InvalidInput
 
-__all__ = ["as_seed_sequence", "block_sequence", "named_generator", "block_generator"]
+__all__ = ["as_seed_sequence", "block_sequence", "named_sequence", "named_generator",
+           "block_generator"]
 
 
 def as_seed_sequence(rng=None) -> np.random.SeedSequence:
@@ -59,13 +60,17 @@ def block_sequence(root: np.random.SeedSequence, index: int) -> np.random.SeedSe
     )
 
 
-def named_generator(seq: np.random.SeedSequence, name: str) -> np.random.Generator:
-    """A generator for the input or source `name` inside the block stream `seq`."""
+def named_sequence(seq: np.random.SeedSequence, name: str) -> np.random.SeedSequence:
+    """The child of `seq` keyed by a stable hash of `name`."""
     key = zlib.crc32(name.encode("utf-8"))
-    child = np.random.SeedSequence(
+    return np.random.SeedSequence(
         entropy=seq.entropy, spawn_key=(*seq.spawn_key, key), pool_size=seq.pool_size
     )
-    return np.random.Generator(np.random.PCG64(child))
+
+
+def named_generator(seq: np.random.SeedSequence, name: str) -> np.random.Generator:
+    """A generator for the input or source `name` inside the block stream `seq`."""
+    return np.random.Generator(np.random.PCG64(named_sequence(seq, name)))
 
 
 def block_generator(root: np.random.SeedSequence, index: int) -> np.random.Generator:
