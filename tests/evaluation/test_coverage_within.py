@@ -36,8 +36,8 @@ def test_the_reference_draws_the_monte_carlos_distribution_of_the_first_order_mo
 
 @pytest.mark.parametrize("estimator", ["three_point", "gls"])
 def test_coverage_within_agrees_with_a_count_of_many_more_trials(estimator):
-    """400 trials of circle_centre (rectangular and normal sources, the three-point rule
-    far from first order, gls close to it): the coverage of their own value ± U agrees
+    """400 trials of circle_centre (rectangular and normal sources; the three-point rule
+    far from first order, gls nearer): the coverage of their own value ± U agrees
     with the plain count of 200 000 trials from another seed within four standard errors
     of the two, and is counted no coarser than the 400 trials' plain count."""
     from mtplan.uncertainty.coverage import coverage_se

@@ -187,7 +187,10 @@ GLOSSARY = [
              "rules use; the coverage it has is printed beside it"],
     ["±U covers", "the fraction of a value's distribution (Monte Carlo or posterior) within "
                   "± U: the coverage probability U really has (95.4 % for a normal "
-                  "distribution, more or less for others)"],
+                  "distribution, more or less for others), counted to a standard error of "
+                  "0.3 % or better (with the first-order model as the count's control "
+                  "variate where the trials alone do not), else printed with its standard "
+                  "error (95.0 % ± 1.1 %)"],
     ["U predicted", "U of the planned set-up from a Monte Carlo simulation of every error "
                     "source (JCGM 101), fixed in the test plan"],
     ["U achieved", "U of the measurement's own evaluation of its readings"],
