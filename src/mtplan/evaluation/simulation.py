@@ -31,6 +31,7 @@ from mtplan.uncertainty.options import RunOptions
 from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
 
 __all__ = ["ProcedureResult", "LinearizedResult", "simulate_uncertainty", "linear_trials",
+           "linear_reference", "reference_blocks",
            "linearize_procedure",
            "linearize_result", "source_budget", "check_memory", "MEASURAND_KEYS",
            "measurand_rows", "Reported", "undetermined_measurands", "ResultDocument",
@@ -100,24 +101,25 @@ def linear_trials(proc, setup, fo, *, sources=None, rng=None, trials: int,
 #: first-order outputs drawn apart for a coverage's control variate (their own count's
 #: standard error at 95 %: 0.07 %)
 REFERENCE_TRIALS = 100_000
-#: source elements drawn at once for them (a block of rows of at most this many)
-_REFERENCE_CELLS = 4_000_000
+#: values per block of them (rows times measurands, or times the elements drawn one by one)
+_REFERENCE_CELLS = 2_000_000
 
 
-def linear_reference(proc, setup, fo, *, sources=None, rng=None,
-                     trials: int = REFERENCE_TRIALS) -> np.ndarray:
+def reference_blocks(proc, setup, fo, *, sources=None, rng=None,
+                     trials: int = REFERENCE_TRIALS):
     """`trials` outputs of the first-order model ``J (e - E[e])`` drawn apart from any Monte
     Carlo of the seed `rng` (its own named stream), for :func:`~mtplan.uncertainty.
-    coverage.controlled_fraction`.
+    coverage.controlled_fraction`, in blocks of rows (so that a result of hundreds of
+    measurands never holds them all at once).
 
     Exact and cheap: the elements the Monte Carlo draws from a normal distribution, one by
     one, add up to a normal vector of covariance ``sum_e J_e J_eᵀ u_e²`` whatever their
     number, drawn as one; every other element is drawn from its own distribution
-    (:meth:`~mtplan.models.protocol.Procedure.drawn_distributions`) in blocks.
+    (:meth:`~mtplan.models.protocol.Procedure.drawn_distributions`).
 
-    Returns
-    -------
-    array (trials, n_measurands) [display units]
+    Yields
+    ------
+    arrays (rows, n_measurands) [display units], `trials` rows in all
     """
     from mtplan.uncertainty.distributions import Normal
     from mtplan.uncertainty.streams import block_sequence, named_generator, named_sequence
@@ -136,18 +138,25 @@ def linear_reference(proc, setup, fo, *, sources=None, rng=None,
         else:
             drawn.append((name, src, dist, mean, cols))
     w, v = np.linalg.eigh(cov)
-    out = named_generator(seq, "normal").standard_normal((trials, n)) @ \
-        (v * np.sqrt(np.clip(w, 0.0, None))).T
-    size = sum(d[3].size for d in drawn)
-    rows = max(1, _REFERENCE_CELLS // max(size, 1))
-    for i, start in enumerate(range(0, trials if drawn else 0, rows)):
+    root = (v * np.sqrt(np.clip(w, 0.0, None))).T
+    size = max(n, sum(d[3].size for d in drawn), 1)
+    rows = max(1, _REFERENCE_CELLS // size)
+    for i, start in enumerate(range(0, trials, rows)):
         k = min(rows, trials - start)
         block = block_sequence(seq, i)
+        out = named_generator(block, "normal").standard_normal((k, n)) @ root
         for name, src, dist, mean, cols in drawn:
             e = np.asarray(dist.draw(named_generator(block, name), (k, *src.shape)),
                            dtype=float).reshape(k, -1)
-            out[start:start + k] += (e - mean) @ cols.T
-    return out
+            out += (e - mean) @ cols.T
+        yield out
+
+
+def linear_reference(proc, setup, fo, *, sources=None, rng=None,
+                     trials: int = REFERENCE_TRIALS) -> np.ndarray:
+    """:func:`reference_blocks` as one array (trials, n_measurands) [display units]."""
+    return np.vstack(list(reference_blocks(proc, setup, fo, sources=sources, rng=rng,
+                                           trials=trials)))
 
 
 # --------------------------------------------------------------------------- one schema
@@ -417,7 +426,7 @@ class ProcedureResult(ResultDocument):
             return p, se
         linear = linear_trials(self.procedure, self.setup, fo, sources=list(self.sources),
                                rng=self.root, trials=m, block_size=self.mc.block_size)
-        reference = linear_reference(self.procedure, self.setup, fo,
+        reference = reference_blocks(self.procedure, self.setup, fo,
                                      sources=list(self.sources), rng=self.root)
         p_cv, se_cv = controlled_fraction(np.column_stack(values), linear, reference, centre,
                                           half)

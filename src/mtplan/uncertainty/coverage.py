@@ -124,7 +124,7 @@ def controlled_fraction(samples, linear, reference, centre, half_width):
     ----------
     samples, linear : array (M, n)
         The Monte Carlo's values and the paired first-order outputs.
-    reference : array (N, n)
+    reference : array (N, n), or an iterable of such arrays (blocks of rows)
         First-order outputs drawn independently of both (expectation 0, as ``linear``'s).
     centre, half_width : array (n,)
 
@@ -134,10 +134,9 @@ def controlled_fraction(samples, linear, reference, centre, half_width):
     """
     y = np.asarray(samples, dtype=float)
     lin = np.asarray(linear, dtype=float)
-    ref = np.asarray(reference, dtype=float)
     c = np.asarray(centre, dtype=float)
     h = np.asarray(half_width, dtype=float)
-    m, n_ref = y.shape[0], ref.shape[0]
+    m = y.shape[0]
     inside = np.abs(y - c) <= h
     plain = inside.mean(axis=0)
     dl = lin - lin.mean(axis=0)
@@ -147,7 +146,14 @@ def controlled_fraction(samples, linear, reference, centre, half_width):
                      0.0)
     start = y.mean(axis=0) - c
     paired = np.abs(start + slope * dl) <= h
-    p_ref = (np.abs(start + slope * (ref - lin.mean(axis=0))) <= h).mean(axis=0)
+    blocks = [reference] if isinstance(reference, np.ndarray) else reference
+    count, n_ref = np.zeros(y.shape[1:]), 0
+    for ref in blocks:
+        ref = np.asarray(ref, dtype=float)
+        count += np.count_nonzero(np.abs(start + slope * (ref - lin.mean(axis=0))) <= h,
+                                  axis=0)
+        n_ref += ref.shape[0]
+    p_ref = count / max(n_ref, 1)
     diff = inside.astype(float) - paired
     var_d = np.maximum(diff.var(axis=0, ddof=1) if m > 1 else 1.0, 1.0 / m)
     p = np.where(seen, np.clip(p_ref + diff.mean(axis=0), 0.0, 1.0), plain)
