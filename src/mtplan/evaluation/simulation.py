@@ -24,11 +24,24 @@ from mtplan.evaluation.reliability import reliability as one_bad_reading
 from mtplan.fitting.effects import element_moments
 from mtplan.models import get
 from mtplan.models.protocol import Procedure
-from mtplan.uncertainty.coverage import ASSUMED, MONTE_CARLO, K
+from mtplan.uncertainty.coverage import (
+    ASSUMED,
+    MONTE_CARLO,
+    RESOLUTION,
+    K,
+    controlled_fraction,
+    coverage_se,
+)
+from mtplan.uncertainty.distributions import Normal
 from mtplan.uncertainty.gum import GUMResult
 from mtplan.uncertainty.montecarlo import MCResult, run_blocks
 from mtplan.uncertainty.options import RunOptions
-from mtplan.uncertainty.streams import as_seed_sequence, block_sequence
+from mtplan.uncertainty.streams import (
+    as_seed_sequence,
+    block_sequence,
+    named_generator,
+    named_sequence,
+)
 
 __all__ = ["ProcedureResult", "LinearizedResult", "simulate_uncertainty", "linear_trials",
            "linear_reference", "reference_blocks",
@@ -121,9 +134,6 @@ def reference_blocks(proc, setup, fo, *, sources=None, rng=None,
     ------
     arrays (rows, n_measurands) [display units], `trials` rows in all
     """
-    from mtplan.uncertainty.distributions import Normal
-    from mtplan.uncertainty.streams import block_sequence, named_generator, named_sequence
-
     seq = named_sequence(as_seed_sequence(rng), "first-order reference")
     jac = np.asarray(fo.sensitivity, dtype=float)
     n = jac.shape[0]
@@ -358,14 +368,23 @@ class ProcedureResult(ResultDocument):
     undetermined: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
     sections: dict = field(default_factory=dict)
-    #: the root SeedSequence the Monte Carlo drew from (its trials' draws again, paired)
-    root: object = None
+    #: the root SeedSequence the Monte Carlo drew from, as (entropy, spawn key, pool size)
+    #: (:attr:`root`: its trials' draws again, paired)
+    stream: tuple | None = None
     #: (p, se) of U's coverage once counted (:meth:`coverage_of_U`)
     _covered: tuple | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self):
         if not self.notes:
             self.notes = self.findings()
+
+    @property
+    def root(self) -> np.random.SeedSequence | None:
+        """The root SeedSequence the Monte Carlo drew from (None where not known)."""
+        if self.stream is None:
+            return None
+        entropy, key, pool = self.stream
+        return np.random.SeedSequence(entropy, spawn_key=key, pool_size=pool)
 
     @property
     def bias(self) -> np.ndarray:
@@ -409,8 +428,6 @@ class ProcedureResult(ResultDocument):
         counts has the smaller standard error. Values kept only as a histogram (beyond
         the Monte Carlo's ``keep``) are counted plainly.
         """
-        from mtplan.uncertainty.coverage import RESOLUTION, controlled_fraction, coverage_se
-
         centre = np.broadcast_to(np.asarray(centre, dtype=float), self.mc.mean.shape)
         half = np.broadcast_to(np.asarray(half_width, dtype=float), self.mc.mean.shape)
         m = int(self.mc.trials)
@@ -640,7 +657,7 @@ def simulate_uncertainty(
         duration_s=float(proc.duration(setup)),
         undetermined=undetermined_measurands(proc, setup),
         quantised=quantised,
-        root=options.rng,
+        stream=(options.rng.entropy, tuple(options.rng.spawn_key), options.rng.pool_size),
     )
 
 
