@@ -12,7 +12,7 @@ measurand:
   is within 1 % of the Monte Carlo's coverage of that ± U with 99.9 % confidence: a plain
   count where the demo runs 10**4 trials or more, else with the first-order model as the
   count's control variate (geometry21's 400 trials: the estimators are linear to 1e-3 of u;
-  line_laser's pattern fit, 14 % of u off first order, from 3000 trials);
+  line_laser's pattern fit, 14 % of u off first order, from 2500 trials);
 - a Monte Carlo from another seed, its coverage of the printed value ± U counted the same
   way, agrees with it within four standard errors of the two and the printed rounding.
 
@@ -32,7 +32,7 @@ import pytest
 from tests.reports.conftest import need
 
 #: the independent Monte Carlo's trials, at most (seconds per procedure)
-MAX_TRIALS = 2_000
+MAX_TRIALS = 1_000
 _NUM = r"-?\d+(?:\.\d+)?"
 
 
