@@ -292,10 +292,12 @@ def _stage_work(kind, ps, study, arg):
             digits, trials = study.digits, study.trials
         if digits is None and trials is None:
             trials = 10_000
-        return simulate_uncertainty(
+        result = simulate_uncertainty(
             proc, ps.setup, ps.truth, estimator=arg, trials=None if digits else trials,
             digits=digits, coverage=study.coverage, rng=study.seed, n_jobs=1,
             progress=False, max_trials=ps.max_trials or study.max_trials)
+        result.coverage_of_U()  # counted here, on the stage's core, not later in the main one
+        return result
     if kind == "point":
         from mtplan.plans.sweep import point_rows
 
