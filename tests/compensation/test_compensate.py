@@ -166,8 +166,9 @@ def test_a_procedure_without_a_correction_model_is_refused():
 
     with pytest.raises(InvalidInput, match="states no correction"):
         correction(NO_CORRECTION, _doc("rotary_axis"), procedure="rotary_axis")
-    assert dataclasses.fields(models.get("rotary_axis"))  # the default is NO_CORRECTION:
-    assert [f.default for f in dataclasses.fields(type(models.get("rotary_axis")))
+    # the default is NO_CORRECTION, a tag of the capabilities
+    caps = type(models.get("rotary_axis").capabilities)
+    assert [f.default for f in dataclasses.fields(caps)
             if f.name == "correction"] == [NO_CORRECTION]
 
 

@@ -41,8 +41,9 @@ def test_check_procedure_names_every_failed_check():
     """A procedure that breaks two rules is told both, with what is wrong in each."""
     import dataclasses
 
-    bad = dataclasses.replace(toy_line.PROCEDURE, levers=("no_such_field",),
-                              duration=lambda setup: -1.0)
+    proc = toy_line.PROCEDURE
+    bad = dataclasses.replace(proc, capabilities=dataclasses.replace(
+        proc.capabilities, levers=("no_such_field",)), duration=lambda setup: -1.0)
     with pytest.raises(ProcedureCheckError) as exc:
         check_procedure(bad)
     assert set(exc.value.failures) == {"check_levers", "check_duration"}

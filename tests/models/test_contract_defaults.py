@@ -160,11 +160,15 @@ def test_the_source_method_is_checked_and_cited_by_the_procedure():
     estimator it lacks, or cites nothing, is told so."""
     for proc in registry().values():
         assert proc.source_method.estimator in proc.estimators and proc.source_method.title
-    lost = dataclasses.replace(toy_line.PROCEDURE, source_method=SourceMethod("patent", "A title"))
+    def citing(method):
+        proc = toy_line.PROCEDURE
+        return dataclasses.replace(proc, capabilities=dataclasses.replace(
+            proc.capabilities, source_method=method))
+
+    lost = citing(SourceMethod("patent", "A title"))
     with pytest.raises(AssertionError, match="'patent'.*'least_squares'"):
         checks.check_source_method(lost)
-    uncited = dataclasses.replace(toy_line.PROCEDURE,
-                                  source_method=SourceMethod("least_squares"))
+    uncited = citing(SourceMethod("least_squares"))
     with pytest.raises(AssertionError, match="not cited"):
         checks.check_source_method(uncited)
 

@@ -30,6 +30,8 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from mtplan.models.correction import NO_CORRECTION, CorrectionModel
+
 __all__ = ["Capabilities", "Calibration", "SourceMethod", "METHODS"]
 
 
@@ -110,10 +112,25 @@ class Capabilities:
         The calibrations that replace an error source's bound by a calibrated
         characteristic at a cost: options the planner searches beside the levers. Generic:
         none.
+    levers : tuple of str
+        The set-up fields an engineer chooses when planning the test (counts, geometry and
+        order of the test, dwell, feed): those the planner searches and advice may name;
+        every other field is a property of the machine, the workpiece or the instrument,
+        named as what dominates. Each one's options come from its declaration
+        (``param(levels=...)``, :func:`~mtplan.models.fields.lever_options`). Generic: none.
+    source_method : SourceMethod
+        The estimator that is the published source method and its citation, which the
+        certificate prints. Generic: ``patent``, uncited.
+    correction : CorrectionModel
+        How a measured result becomes the correction a controller takes (``mtplan
+        compensate``). Generic: none stated.
     """
 
     block_size: int = 10_000
     calibrations: tuple = ()
+    levers: tuple = ()
+    source_method: SourceMethod = SourceMethod()
+    correction: CorrectionModel = NO_CORRECTION
 
     # ------------------------------------------------------------------ derived tags
     @property

@@ -29,19 +29,20 @@ A procedure module (``mtplan/models/<name>.py``) defines a module-level
   fields a measured table determines, each with the tolerance within which a value the
   user states agrees with the file, :class:`Implied`), ``optional_columns``, ``limits``
   and ``noise_source``; a callable left out is a function that answers {}.
-- ``description`` and ``levers`` (the set-up fields an engineer chooses; each one's
-  options for the planner's default search come from its declaration, ``param(levels=...)``,
-  :func:`~mtplan.models.fields.lever_options`).
+- ``description``: the test in plain words.
 - ``capabilities``: a :class:`Capabilities` (:mod:`mtplan.models.capabilities`), what the
   procedure offers beyond its model, after scikit-learn's base classes and tags: data as
-  tags (the Monte Carlo ``block_size``) and every optional behaviour as a method whose body
-  is the generic one (truths from estimates, the start of a least squares, a source's
-  structure, the derivative hook ``first_order_sensitivities``, the identifiability
-  report and tables, observability, report extras); a procedure subclasses it and
-  overrides only what it needs. No field is a hook that may be None.
-- ``source_method``: a :class:`SourceMethod`, the estimator that is the published source
-  method (``patent`` unless named otherwise; always present) and its citation, which the
-  certificate prints.
+  tags (the Monte Carlo ``block_size``, the ``calibrations`` the planner may offer, the
+  ``levers``: the set-up fields an engineer chooses, each one's options for the planner's
+  default search from its declaration, ``param(levels=...)``; the ``source_method``: the
+  estimator that is the published source method, ``patent`` unless named otherwise, and its
+  citation, which the certificate prints; the ``correction`` a controller takes) and every
+  optional behaviour as a method whose body is the generic one (truths from estimates, the
+  start of a least squares, a source's structure, the one derivative hook
+  ``first_order_sensitivities``, the identifiability report and tables, observability,
+  report extras); a procedure subclasses it and overrides only what it needs. No field is
+  a hook that may be None. ``Procedure.levers``, ``.source_method`` and ``.correction`` read
+  them.
 
 The field machinery (:func:`param`, :class:`SetupBase`, :func:`make`, :func:`fields_info`,
 :class:`Implied`, ...) lives in :mod:`mtplan.models.fields`; its names are re-exported here,
@@ -63,7 +64,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mtplan._validate import InvalidInput, Problems
-from mtplan.models.correction import NO_CORRECTION, CorrectionModel
+from mtplan.models.correction import CorrectionModel
 from mtplan.models.fields import (
     DATASHEET_NOTE,
     UNIT_SUFFIXES,
@@ -410,17 +411,10 @@ class Procedure:
     duration: Callable
     readings: ReadingsFormat
     description: str = ""
-    #: the set-up fields an engineer chooses when planning the test (counts, geometry and
-    #: order of the test, dwell, feed): the levers advice may name; every other field is
-    #: a property of the machine, the workpiece or the instrument, named as what dominates
-    levers: tuple = ()
-    #: what the procedure offers beyond its model; the defaults are the generic analyses
+    #: what the procedure offers beyond its model, as data (block size, calibrations,
+    #: levers, source method, correction) and methods whose defaults are the generic
+    #: analyses (one derivative hook among them)
     capabilities: Capabilities = Capabilities()
-    #: the published method the procedure implements: its estimator and its citation
-    source_method: SourceMethod = SourceMethod()
-    #: how a measured result becomes the correction a controller takes (``mtplan
-    #: compensate``); the default states none
-    correction: CorrectionModel = NO_CORRECTION
 
     def __post_init__(self):
         if not self.estimators:  # a record is whole when made: no estimators to add later
@@ -429,6 +423,21 @@ class Procedure:
         object.__setattr__(self, "estimators", {
             k: v if isinstance(v, Estimator) else Estimator(v)
             for k, v in self.estimators.items()})
+
+    @property
+    def levers(self) -> tuple:
+        """The set-up fields an engineer chooses (:attr:`Capabilities.levers`)."""
+        return self.capabilities.levers
+
+    @property
+    def source_method(self) -> SourceMethod:
+        """The published method and its citation (:attr:`Capabilities.source_method`)."""
+        return self.capabilities.source_method
+
+    @property
+    def correction(self) -> CorrectionModel:
+        """How a result becomes a controller's correction (:attr:`Capabilities.correction`)."""
+        return self.capabilities.correction
 
     @property
     def exact_names(self) -> tuple:

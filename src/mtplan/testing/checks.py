@@ -90,12 +90,12 @@ def check_source_method(proc: Procedure) -> None:
     method = proc.source_method
     _expect(method.estimator in proc.estimators,
             f"the source method is the estimator {method.estimator!r} "
-            f"(Procedure(source_method=SourceMethod(estimator=...))), but the estimators are "
+            f"(Capabilities(source_method=SourceMethod(estimator=...))), but the estimators are "
             f"{', '.join(map(repr, proc.estimators))}: name the source method's estimator "
             f"'patent', or name it in SourceMethod(estimator=...)")
     _expect(method.title, "the source method is not cited: give its title (and its document, "
                           "e.g. 'patent CN101982726', or who published it and when) in "
-                          "Procedure(source_method=SourceMethod(...))")
+                          "Capabilities(source_method=SourceMethod(...))")
 
 
 def _sizing_fields(proc: Procedure, sources) -> dict:

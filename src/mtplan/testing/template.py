@@ -117,10 +117,11 @@ PROCEDURE = Procedure(
     true_values=true_values,
     duration=duration,
     readings=ReadingsFormat(readings_frame, from_frame, noise_source="probe_noise"),
-    levers=("n_points", "length_mm"),
-    capabilities=Capabilities(block_size=2000),
-    # the least-squares reference straight line of ISO 230-1
-    source_method=SourceMethod(
-        "least_squares", "Test code for machine tools - Part 1: Geometric accuracy of "
-        "machines operating under no-load or quasi-static conditions", "ISO 230-1:2012"),
+    capabilities=Capabilities(
+        block_size=2000,
+        levers=("n_points", "length_mm"),
+        # the least-squares reference straight line of ISO 230-1
+        source_method=SourceMethod(
+            "least_squares", "Test code for machine tools - Part 1: Geometric accuracy of "
+            "machines operating under no-load or quasi-static conditions", "ISO 230-1:2012")),
 )

@@ -210,13 +210,14 @@ PROCEDURE = Procedure(
         "and computes the centre from them (circle-centre patent). Compares the three-point formula with "
         "algebraic and geometric least-squares circles through n points over any spread."
     ),
-    levers=tuple("n_points spread_deg free_test_mm miss_tolerance_mm feed_mm_min "
-                 "probe_feed_mm_min clearance_mm dwell_s".split()),
     readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
                             optional_columns=("point",), noise_source="probe_noise"),
-    capabilities=_Capabilities(block_size=2000),
-    source_method=SourceMethod(
-        "three_point", "Circle centre measuring and calculating method and device for "
-        "high-precision circular fitting", who="Chinese patent"),
-    correction=CORRECTION,
+    capabilities=_Capabilities(
+        block_size=2000,
+        levers=tuple("n_points spread_deg free_test_mm miss_tolerance_mm feed_mm_min "
+                     "probe_feed_mm_min clearance_mm dwell_s".split()),
+        source_method=SourceMethod(
+            "three_point", "Circle centre measuring and calculating method and device for "
+            "high-precision circular fitting", who="Chinese patent"),
+        correction=CORRECTION),
 )

@@ -237,14 +237,15 @@ PROCEDURE = Procedure(
     readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
                             optional_columns=("head",)),
     description=__doc__.split("\n\n")[0] if __doc__ else "",
-    levers=tuple("poly_order line_length_mm line_repeats line_points circle_radius_mm "
-                 "circle_points circle_arc_deg head_offset_mm head_lateral_mm "
-                 "xy_plane_z_mm xz_plane_y_mm yz_plane_x_mm feed_mm_min xy_extra_heads_mm "
-                 "xz_extra_heads_mm yz_extra_heads_mm extra_head_tests".split()),
-    capabilities=_Capabilities(block_size=128),
-    source_method=SourceMethod(
-        "patent", "Detection method for geometric motion errors of three-axis numerical "
-        "control equipment", "patent CN101982726",
-        "Shanghai Jiao Tong University, filed 2010-09-27"),
-    correction=CORRECTION,
+    capabilities=_Capabilities(
+        block_size=128,
+        levers=tuple("poly_order line_length_mm line_repeats line_points circle_radius_mm "
+                     "circle_points circle_arc_deg head_offset_mm head_lateral_mm "
+                     "xy_plane_z_mm xz_plane_y_mm yz_plane_x_mm feed_mm_min xy_extra_heads_mm "
+                     "xz_extra_heads_mm yz_extra_heads_mm extra_head_tests".split()),
+        source_method=SourceMethod(
+            "patent", "Detection method for geometric motion errors of three-axis numerical "
+            "control equipment", "patent CN101982726",
+            "Shanghai Jiao Tong University, filed 2010-09-27"),
+        correction=CORRECTION),
 )

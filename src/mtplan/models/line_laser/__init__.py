@@ -283,7 +283,6 @@ PROCEDURE = Procedure(
     duration=duration,
     readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
                             limits=reading_limits, noise_source=NOISE_SOURCE),
-    correction=CORRECTION,
     estimators={"patent": Estimator(
                     estimate_patent, description="The source method: whole-row shifts between "
                     "the scans, mean height differences and arccos(h/h').",
@@ -303,10 +302,12 @@ PROCEDURE = Procedure(
         "of alpha_x; the registration estimator fits sub-step translations between the scans "
         "and the rotation exactly."
     ),
-    levers=tuple("points_per_line step_mm lines shift_fraction raise_mm max_shift_rows "
-                 "scan_feed_mm_min rapid_mm_min settle_s".split()),
-    capabilities=_Capabilities(block_size=128),
-    source_method=SourceMethod(
-        "patent", "Line laser mounting error angle determination method",
-        who="Chinese patent application, Dong Zhigang, Kang Renke et al., filed 2019-09-03"),
+    capabilities=_Capabilities(
+        block_size=128,
+        levers=tuple("points_per_line step_mm lines shift_fraction raise_mm max_shift_rows "
+                     "scan_feed_mm_min rapid_mm_min settle_s".split()),
+        source_method=SourceMethod(
+            "patent", "Line laser mounting error angle determination method",
+            who="Chinese patent application, Dong Zhigang, Kang Renke et al., filed 2019-09-03"),
+        correction=CORRECTION),
 )

@@ -330,16 +330,17 @@ PROCEDURE = Procedure(
         "C axis (EX0C, EY0C, EA0C, EB0C) or the A axis (EY0A, EZ0A, EB0A, EC0A); with axis "
         "CA both, the offset and squareness of C to A and the error of a machining pose."
     ),
-    levers=tuple("incline_deg incline_azimuth_deg positions range_deg angles_deg a_order "
-                 "c_angles_deg lattice_nx lattice_ny lattice_size_mm lattice_offset_x_mm "
-                 "lattice_offset_y_mm artifact_height_mm z_follows_surface sensor_reversal "
-                 "dwell_s feed_mm_min".split()),
     readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame,
                             limits=reading_limits, noise_source="probe_noise"),
-    capabilities=_Capabilities(block_size=2000, calibrations=(CHARACTERISTIC,)),
-    source_method=SourceMethod(
-        "patent", "Method for measuring direction and spatial position of rotation center of "
-        "rotating shaft", who="Chinese patent application, Yang Xiaojun et al., filed "
-        "2020-06-12"),
-    correction=CORRECTION,
+    capabilities=_Capabilities(
+        block_size=2000, calibrations=(CHARACTERISTIC,),
+        levers=tuple("incline_deg incline_azimuth_deg positions range_deg angles_deg a_order "
+                     "c_angles_deg lattice_nx lattice_ny lattice_size_mm lattice_offset_x_mm "
+                     "lattice_offset_y_mm artifact_height_mm z_follows_surface sensor_reversal "
+                     "dwell_s feed_mm_min".split()),
+        source_method=SourceMethod(
+            "patent", "Method for measuring direction and spatial position of rotation center of "
+            "rotating shaft", who="Chinese patent application, Yang Xiaojun et al., filed "
+            "2020-06-12"),
+        correction=CORRECTION),
 )

@@ -229,13 +229,14 @@ PROCEDURE = Procedure(
         "Laser-tracker calibration of the frames of the AC-head sub-machines of a gantry "
         "(CN106078359A): lines along the travels, 3D circles round A and C, the common "
         "perpendicular of A and C, origin at the pivot length along C, longest travel kept."),
-    levers=tuple("reflector_offset_mm travel_x_mm travel_y_mm travel_z_mm "
-                 "points_per_axis c_arc_deg a_arc_deg points_per_arc tracker_distance_mm "
-                 "tracker_height_mm dwell_s linear_feed_mm_min".split()),
     readings=ReadingsFormat(readings_frame, from_frame, setup_from_frame=setup_from_frame),
-    capabilities=_Capabilities(block_size=4000),
-    source_method=SourceMethod(
-        "patent", "Zero point definition and calibration method for a gantry-type "
-        "multi-spindle drilling combined machine tool", "patent CN106078359A"),
-    correction=CORRECTION,
+    capabilities=_Capabilities(
+        block_size=4000,
+        levers=tuple("reflector_offset_mm travel_x_mm travel_y_mm travel_z_mm "
+                     "points_per_axis c_arc_deg a_arc_deg points_per_arc tracker_distance_mm "
+                     "tracker_height_mm dwell_s linear_feed_mm_min".split()),
+        source_method=SourceMethod(
+            "patent", "Zero point definition and calibration method for a gantry-type "
+            "multi-spindle drilling combined machine tool", "patent CN106078359A"),
+        correction=CORRECTION),
 )
