@@ -423,7 +423,7 @@ class ProcedureResult(ResultDocument):
         set-up, truth, estimator and sources is the count's control variate
         (:func:`~mtplan.uncertainty.coverage.controlled_fraction`: the Monte Carlo's own
         draws through it, paired trial by trial, and :data:`REFERENCE_TRIALS` drawn apart,
-        :func:`linear_reference`), where its sensitivities come in closed form or cost no
+        :func:`reference_blocks`), where its sensitivities come in closed form or cost no
         more estimator runs than the Monte Carlo made; per measurand, whichever of the two
         counts has the smaller standard error. Values kept only as a histogram (beyond
         the Monte Carlo's ``keep``) are counted plainly.

@@ -347,12 +347,6 @@ def _coverage_at(result, j) -> tuple[float | None, float | None]:
     return float(within[j]), se
 
 
-def _predicted_coverage(result, i) -> tuple[float | None, float | None]:
-    """(coverage of ± U predicted of measurand `i`, its standard error): the set-up's
-    Monte Carlo's (:func:`_coverage_at`)."""
-    return _coverage_at(result, i)
-
-
 def _measured_coverage(spec, name, measured, predicted) -> tuple:
     """(coverage of ± U achieved, its standard error, where it comes from) of one
     measurand: the measured result's (``U_coverage``), the prediction's (p, se) for a
@@ -424,7 +418,7 @@ def conformity(procedure: str, label: str, specs: list, result, measured=None) -
         prior = acc.parse_prior(spec["prior"]) if spec.get("prior") else None
         rule = spec.get("rule", "simple")
         y, uy, low, high, source, verdict, reason = _measured_value(spec, name, measured, u)
-        predicted = _predicted_coverage(result, i)
+        predicted = _coverage_at(result, i)
         achieved, achieved_se, achieved_from = (
             _measured_coverage(spec, name, measured, predicted) if y is not None
             else (None, None, ""))
@@ -742,7 +736,7 @@ def summary_rows(section, procedure, label, result, names, verdicts, measured, s
                          setup=setup, u=u if u > 0 else math.nan, k=K,
                          U=K * u if u > 0 else math.nan, duration_s=float(duration_s),
                          **dict(zip(("U_coverage", "U_coverage_se"),
-                                    _predicted_coverage(result, i) if u > 0 else (None, None),
+                                    _coverage_at(result, i) if u > 0 else (None, None),
                                     strict=True)))
         v = by_name.get(name)
         if v is not None:
